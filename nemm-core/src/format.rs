@@ -1,0 +1,302 @@
+//! The weight format: one definition, used by the trainer's exporter and by the firmware.
+//!
+//! ```text
+//! +--------------------------- postcard Header ----------------------------+
+//! | magic "NEMM" (4 raw bytes) | version (varint u16) | kind (varint)      |
+//! | max_scaler_params (varint u32) | body_len (varint u32)                 |
+//! +-------------------------------------------------------------------------+
+//! | body: postcard-encoded [`Model`] (body_len bytes)                       |
+//! +-------------------------------------------------------------------------+
+//! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
+//! | 4 bytes little-endian                                                   |
+//! +-------------------------------------------------------------------------+
+//! ```
+//!
+//! The header repeats the model kind and the largest scaler size so that a decoder can refuse
+//! a model that does not fit its capacity with a precise error before touching the body; the
+//! decoder checks that both agree with the body.
+//!
+//! Decoding ([`decode`]) never allocates and never panics; checks run in this order and the
+//! first failure is returned: length, magic, version, header, length vs. `body_len`, CRC,
+//! capacity, body, header/body agreement, then [`Model::validate`] (finite values, shapes,
+//! bounds, stability of the configured step).
+
+use crate::model::{Model, ModelError, ModelKind};
+use core::fmt;
+use serde::{Deserialize, Serialize};
+
+/// Magic bytes at the start of every blob.
+pub const MAGIC: [u8; 4] = *b"NEMM";
+/// Format version this build reads and writes.
+pub const FORMAT_VERSION: u16 = 1;
+/// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
+pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+/// Upper bound of the encoded header length in bytes.
+pub const MAX_HEADER_LEN: usize = 4 + 3 + 5 + 5 + 5;
+/// Length of the CRC trailer in bytes.
+pub const CRC_LEN: usize = 4;
+
+/// The blob header (postcard-encoded).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Header {
+    /// [`MAGIC`].
+    pub magic: [u8; 4],
+    /// [`FORMAT_VERSION`].
+    pub version: u16,
+    /// Kind of the model in the body.
+    pub kind: ModelKind,
+    /// Parameter count of the largest scaler in the body (0 without scalers).
+    pub max_scaler_params: u32,
+    /// Length of the body in bytes.
+    pub body_len: u32,
+}
+
+/// Why a blob was refused. Every variant says what a firmware engineer can do about it in
+/// its [`Display`](fmt::Display) text.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DecodeError {
+    /// The blob ends before the header, body or CRC does.
+    Truncated {
+        /// Bytes needed (at least).
+        needed: usize,
+        /// Bytes present.
+        found: usize,
+    },
+    /// The first four bytes are not `NEMM`.
+    BadMagic {
+        /// The bytes found.
+        found: [u8; 4],
+    },
+    /// Written by a format version this build cannot read.
+    UnsupportedVersion {
+        /// Version in the blob.
+        found: u16,
+        /// Version this build reads.
+        supported: u16,
+    },
+    /// Bytes after the CRC.
+    TrailingBytes {
+        /// How many.
+        extra: usize,
+    },
+    /// The CRC does not match: the blob is corrupt.
+    CrcMismatch {
+        /// CRC stored in the blob.
+        stored: u32,
+        /// CRC computed over the blob.
+        computed: u32,
+    },
+    /// A scaler needs more parameters than this build can hold.
+    OverCapacity {
+        /// Parameters needed (largest scaler).
+        needed: usize,
+        /// Capacity `P` of this build.
+        capacity: usize,
+    },
+    /// The header or body does not parse although the CRC matched (encoder bug or a
+    /// different format under the same version).
+    Malformed {
+        /// Which part.
+        part: &'static str,
+    },
+    /// The decoded model is not acceptable.
+    Invalid(ModelError),
+}
+
+impl fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DecodeError::Truncated { needed, found } => write!(
+                f,
+                "weights blob is truncated: {found} bytes, needs {needed} (incomplete flash or copy?)"
+            ),
+            DecodeError::BadMagic { found } => write!(
+                f,
+                "not a NEMM weights blob: starts with {found:02x?}, expected \"NEMM\" (wrong file or flash address?)"
+            ),
+            DecodeError::UnsupportedVersion { found, supported } => write!(
+                f,
+                "weights format version {found} is not supported by this firmware (reads version {supported}); \
+                 re-export with a matching `nemm` or update the firmware"
+            ),
+            DecodeError::TrailingBytes { extra } => write!(
+                f,
+                "weights blob has {extra} unexpected bytes after its CRC (wrong length passed?)"
+            ),
+            DecodeError::CrcMismatch { stored, computed } => write!(
+                f,
+                "weights blob is corrupt: CRC-32 stored {stored:#010x}, computed {computed:#010x}"
+            ),
+            DecodeError::OverCapacity { needed, capacity } => write!(
+                f,
+                "model needs {needed} parameters per scaler but this build holds {capacity}; \
+                 raise the capacity `P` or export a smaller model"
+            ),
+            DecodeError::Malformed { part } => {
+                write!(f, "weights blob {part} does not parse although its CRC matches")
+            }
+            DecodeError::Invalid(e) => write!(f, "model rejected: {e}"),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for DecodeError {}
+#[cfg(feature = "std")]
+impl std::error::Error for ModelError {}
+
+/// Why a model could not be encoded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EncodeError {
+    /// The model fails [`Model::validate`]; nothing that would be refused is written.
+    Invalid(ModelError),
+    /// The output buffer is too small.
+    BufferTooSmall,
+}
+
+impl fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            EncodeError::Invalid(e) => write!(f, "refusing to export an invalid model: {e}"),
+            EncodeError::BufferTooSmall => {
+                write!(f, "output buffer too small for the weights blob")
+            }
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for EncodeError {}
+
+fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
+    Header {
+        magic: MAGIC,
+        version: FORMAT_VERSION,
+        kind: model.kind(),
+        max_scaler_params: u32::try_from(model.max_scaler_params()).unwrap_or(u32::MAX),
+        body_len: u32::try_from(body_len).unwrap_or(u32::MAX),
+    }
+}
+
+/// Encodes a validated model into `buf`; returns the blob (a prefix of `buf`).
+pub fn encode<'b, const P: usize>(
+    model: &Model<P>,
+    buf: &'b mut [u8],
+) -> Result<&'b [u8], EncodeError> {
+    model.validate().map_err(EncodeError::Invalid)?;
+    // Body first, at the largest possible header offset, then the header in front of it.
+    let body_area = buf
+        .get_mut(MAX_HEADER_LEN..)
+        .ok_or(EncodeError::BufferTooSmall)?;
+    let body_len = postcard::to_slice(model, body_area)
+        .map_err(|_| EncodeError::BufferTooSmall)?
+        .len();
+    let mut hbuf = [0u8; MAX_HEADER_LEN];
+    let header = postcard::to_slice(&header_for(model, body_len), &mut hbuf)
+        .map_err(|_| EncodeError::BufferTooSmall)?;
+    let hlen = header.len();
+    let end = hlen + body_len;
+    buf.copy_within(MAX_HEADER_LEN..MAX_HEADER_LEN + body_len, hlen);
+    buf.get_mut(..hlen)
+        .ok_or(EncodeError::BufferTooSmall)?
+        .copy_from_slice(header);
+    let crc = CRC.checksum(buf.get(..end).ok_or(EncodeError::BufferTooSmall)?);
+    buf.get_mut(end..end + CRC_LEN)
+        .ok_or(EncodeError::BufferTooSmall)?
+        .copy_from_slice(&crc.to_le_bytes());
+    buf.get(..end + CRC_LEN).ok_or(EncodeError::BufferTooSmall)
+}
+
+/// Encodes a validated model into a new vector.
+#[cfg(feature = "std")]
+pub fn encode_to_vec<const P: usize>(model: &Model<P>) -> Result<std::vec::Vec<u8>, EncodeError> {
+    model.validate().map_err(EncodeError::Invalid)?;
+    let body = postcard::to_stdvec(model).map_err(|_| EncodeError::BufferTooSmall)?;
+    let mut out = postcard::to_stdvec(&header_for(model, body.len()))
+        .map_err(|_| EncodeError::BufferTooSmall)?;
+    out.extend_from_slice(&body);
+    let crc = CRC.checksum(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    Ok(out)
+}
+
+/// Reads only the header (after checking magic and version), without the CRC or body.
+/// Useful to report what a blob holds before decoding it into a capacity.
+pub fn read_header(blob: &[u8]) -> Result<Header, DecodeError> {
+    let magic = blob.get(..4).ok_or(DecodeError::Truncated {
+        needed: 4,
+        found: blob.len(),
+    })?;
+    if magic != MAGIC {
+        let mut found = [0u8; 4];
+        found.copy_from_slice(magic);
+        return Err(DecodeError::BadMagic { found });
+    }
+    let ((_magic, version), _) = postcard::take_from_bytes::<([u8; 4], u16)>(blob)
+        .map_err(|e| parse_error(e, blob.len(), "header"))?;
+    if version != FORMAT_VERSION {
+        return Err(DecodeError::UnsupportedVersion {
+            found: version,
+            supported: FORMAT_VERSION,
+        });
+    }
+    let (header, _) = postcard::take_from_bytes::<Header>(blob)
+        .map_err(|e| parse_error(e, blob.len(), "header"))?;
+    Ok(header)
+}
+
+fn parse_error(e: postcard::Error, len: usize, part: &'static str) -> DecodeError {
+    match e {
+        postcard::Error::DeserializeUnexpectedEnd => DecodeError::Truncated {
+            needed: len.saturating_add(1),
+            found: len,
+        },
+        _ => DecodeError::Malformed { part },
+    }
+}
+
+/// Decodes and validates a blob into a model with scaler capacity `P`.
+pub fn decode<const P: usize>(blob: &[u8]) -> Result<Model<P>, DecodeError> {
+    let header = read_header(blob)?;
+    let (_, after_header) = postcard::take_from_bytes::<Header>(blob)
+        .map_err(|e| parse_error(e, blob.len(), "header"))?;
+    let header_len = blob.len() - after_header.len();
+    let body_len = header.body_len as usize;
+    let total = header_len.saturating_add(body_len).saturating_add(CRC_LEN);
+    if blob.len() < total {
+        return Err(DecodeError::Truncated {
+            needed: total,
+            found: blob.len(),
+        });
+    }
+    if blob.len() > total {
+        return Err(DecodeError::TrailingBytes {
+            extra: blob.len() - total,
+        });
+    }
+    let (covered, crc_bytes) = blob.split_at(total - CRC_LEN);
+    let mut stored = [0u8; CRC_LEN];
+    stored.copy_from_slice(crc_bytes);
+    let stored = u32::from_le_bytes(stored);
+    let computed = CRC.checksum(covered);
+    if stored != computed {
+        return Err(DecodeError::CrcMismatch { stored, computed });
+    }
+    let needed = header.max_scaler_params as usize;
+    if needed > P {
+        return Err(DecodeError::OverCapacity {
+            needed,
+            capacity: P,
+        });
+    }
+    let body = covered
+        .get(header_len..)
+        .ok_or(DecodeError::Malformed { part: "body" })?;
+    let (model, rest) = postcard::take_from_bytes::<Model<P>>(body)
+        .map_err(|_| DecodeError::Malformed { part: "body" })?;
+    if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {
+        return Err(DecodeError::Malformed { part: "body" });
+    }
+    model.validate().map_err(DecodeError::Invalid)?;
+    Ok(model)
+}

@@ -1,0 +1,605 @@
+//! Neural scalers (paper section 5.1, eq. 18-19; architecture of section 5.4).
+//!
+//! A scaler is an MLP with `L` hidden layers of width `H`, each
+//! `Linear -> LayerNorm -> LeakyReLU` (dropout is training-only and absent here), followed by
+//! a linear output neuron `z`. The scale factor is bounded and positive **by construction**:
+//!
+//! ```text
+//! s(z) = s_min + (s_max - s_min) * sigmoid(z),      0 < s_min < s(z) < s_max
+//! ```
+//!
+//! and the physical parameter is `p = p_ini * s(z)` (eq. 18), e.g.
+//! `b_fl(v_st, alpha) = b_fl,ini * s_fl(v_st / v_scale, alpha / alpha_scale)`. Because `s` can
+//! neither vanish nor explode, the EMM time constants stay inside bounds that the weight
+//! decoder checks against the integrator's stability limit (see [`crate::model`]).
+//!
+//! # Parameter layout (the weight format's `params` vector)
+//!
+//! With `d` inputs, `H` = `hidden`, `L` = `layers`, row-major matrices (`W[i][j]`, output `i`,
+//! input `j`):
+//!
+//! ```text
+//! layer 1:        W1 (H x d), b1 (H), gamma1 (H), beta1 (H)
+//! layer 2..=L:    Wl (H x H), bl (H), gammal (H), betal (H)
+//! output:         w_o (H), b_o (1)
+//! ```
+//!
+//! # Exact arithmetic of [`MlpParams::forward`] (the reference the trainer reproduces)
+//!
+//! ```text
+//! h_i   = fma-chain:  acc = b_i; for j in 0..in: acc = fma(W_ij, x_j, acc)
+//! mean  = (sum_i h_i, left to right) / H
+//! d_i   = h_i - mean
+//! var   = (fma-chain of d_i * d_i from 0) / H
+//! r     = rsqrt(var + LAYER_NORM_EPS)
+//! y_i   = fma(gamma_i, d_i * r, beta_i)
+//! a_i   = y_i if y_i >= 0 else LEAKY_RELU_SLOPE * y_i
+//! z     = fma-chain from b_o over w_o_i * a_i
+//! ```
+
+use crate::math;
+use serde::{Deserialize, Serialize};
+
+/// Negative-side slope of the LeakyReLU activation (PyTorch and burn default).
+pub const LEAKY_RELU_SLOPE: f32 = 0.01;
+/// LayerNorm epsilon added to the variance (PyTorch and burn default).
+pub const LAYER_NORM_EPS: f32 = 1e-5;
+/// Largest hidden width `H` (Table 3 search space).
+pub const MAX_HIDDEN: usize = 32;
+/// Largest number of hidden layers `L` (Table 3 search space).
+pub const MAX_LAYERS: usize = 9;
+/// Largest number of scaler inputs (state and `alpha`).
+pub const MAX_INPUTS: usize = 2;
+
+/// Number of parameters of an MLP with `inputs` inputs, width `hidden` and `layers` hidden
+/// layers, in the layout described in the module docs. Saturates instead of overflowing.
+pub const fn param_count(inputs: usize, hidden: usize, layers: usize) -> usize {
+    if layers == 0 {
+        return 0;
+    }
+    let first = inputs
+        .saturating_mul(hidden)
+        .saturating_add(hidden.saturating_mul(3));
+    let other = hidden
+        .saturating_mul(hidden)
+        .saturating_add(hidden.saturating_mul(3))
+        .saturating_mul(layers - 1);
+    first
+        .saturating_add(other)
+        .saturating_add(hidden)
+        .saturating_add(1)
+}
+
+/// Parameter capacity for the largest scaler of the Table 3 search space (`d = 2, H = 32,
+/// L = 9`): 9,153 `f32`, 36.6 KiB. Firmware for a smaller model picks a smaller capacity.
+pub const DEFAULT_PARAM_CAPACITY: usize = param_count(MAX_INPUTS, MAX_HIDDEN, MAX_LAYERS);
+
+/// Why an MLP's shape is not acceptable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShapeError {
+    /// `inputs`, `hidden` or `layers` is zero or above its maximum.
+    DimensionOutOfRange,
+    /// The parameter vector's length does not match the dimensions.
+    ParamCountMismatch {
+        /// Length the dimensions imply.
+        expected: usize,
+        /// Length found.
+        found: usize,
+    },
+    /// The dimensions need more parameters than the capacity `P` of this build.
+    OverCapacity {
+        /// Parameters needed.
+        needed: usize,
+        /// Capacity of this build.
+        capacity: usize,
+    },
+}
+
+/// Weights of one MLP, in the layout of the module docs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MlpParams<const P: usize> {
+    /// Number of inputs `d` (1 or 2).
+    pub inputs: u8,
+    /// Hidden width `H` (1..=32).
+    pub hidden: u8,
+    /// Number of hidden layers `L` (1..=9).
+    pub layers: u8,
+    /// All parameters, flat.
+    pub params: heapless::Vec<f32, P>,
+}
+
+/// One hidden layer's parameters, borrowed from the flat vector.
+#[derive(Debug, Clone, Copy)]
+pub struct LayerView<'a> {
+    /// Weight matrix, row-major `H x in`.
+    pub w: &'a [f32],
+    /// Bias, `H`.
+    pub b: &'a [f32],
+    /// LayerNorm gain, `H`.
+    pub gamma: &'a [f32],
+    /// LayerNorm offset, `H`.
+    pub beta: &'a [f32],
+}
+
+/// Splits `n` items off the front of `s`, or `None`.
+fn take<'a>(s: &mut &'a [f32], n: usize) -> Option<&'a [f32]> {
+    let (head, tail) = s.split_at_checked(n)?;
+    *s = tail;
+    Some(head)
+}
+
+impl<const P: usize> MlpParams<P> {
+    /// Builds from dimensions and a parameter slice, checking the shape.
+    pub fn new(inputs: u8, hidden: u8, layers: u8, params: &[f32]) -> Result<Self, ShapeError> {
+        let mut v = heapless::Vec::new();
+        let expected = param_count(inputs as usize, hidden as usize, layers as usize);
+        if expected > P {
+            return Err(ShapeError::OverCapacity {
+                needed: expected,
+                capacity: P,
+            });
+        }
+        v.extend_from_slice(params)
+            .map_err(|_| ShapeError::ParamCountMismatch {
+                expected,
+                found: params.len(),
+            })?;
+        let m = Self {
+            inputs,
+            hidden,
+            layers,
+            params: v,
+        };
+        m.check_shape()?;
+        Ok(m)
+    }
+
+    /// Checks dimensions against the limits, the capacity and the parameter count.
+    pub fn check_shape(&self) -> Result<(), ShapeError> {
+        let (d, h, l) = (
+            self.inputs as usize,
+            self.hidden as usize,
+            self.layers as usize,
+        );
+        if !(1..=MAX_INPUTS).contains(&d)
+            || !(1..=MAX_HIDDEN).contains(&h)
+            || !(1..=MAX_LAYERS).contains(&l)
+        {
+            return Err(ShapeError::DimensionOutOfRange);
+        }
+        let expected = param_count(d, h, l);
+        if expected > P {
+            return Err(ShapeError::OverCapacity {
+                needed: expected,
+                capacity: P,
+            });
+        }
+        if self.params.len() != expected {
+            return Err(ShapeError::ParamCountMismatch {
+                expected,
+                found: self.params.len(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Hidden layer `l` (0-based), or `None` if out of range or the shape is inconsistent.
+    pub fn layer(&self, l: usize) -> Option<LayerView<'_>> {
+        let (d, h) = (self.inputs as usize, self.hidden as usize);
+        if l >= self.layers as usize {
+            return None;
+        }
+        let mut rest: &[f32] = &self.params;
+        let first = d.checked_mul(h)?.checked_add(h.checked_mul(3)?)?;
+        let other = h.checked_mul(h)?.checked_add(h.checked_mul(3)?)?;
+        let skip = if l == 0 {
+            0
+        } else {
+            first.checked_add(other.checked_mul(l - 1)?)?
+        };
+        take(&mut rest, skip)?;
+        let fan_in = if l == 0 { d } else { h };
+        Some(LayerView {
+            w: take(&mut rest, fan_in.checked_mul(h)?)?,
+            b: take(&mut rest, h)?,
+            gamma: take(&mut rest, h)?,
+            beta: take(&mut rest, h)?,
+        })
+    }
+
+    /// Output weights `w_o` (`H`) and bias `b_o`.
+    pub fn output(&self) -> Option<(&[f32], f32)> {
+        let h = self.hidden as usize;
+        let n = self.params.len();
+        let w = self.params.get(n.checked_sub(h + 1)?..n - 1)?;
+        let b = *self.params.last()?;
+        Some((w, b))
+    }
+
+    /// Reference forward pass: raw output `z` for normalised inputs `x` (length `inputs`).
+    ///
+    /// Returns `None` only if the shape is inconsistent (never for a validated model).
+    pub fn forward(&self, x: &[f32]) -> Option<f32> {
+        let h = self.hidden as usize;
+        if x.len() != self.inputs as usize {
+            return None;
+        }
+        let mut a_in = [0.0f32; MAX_HIDDEN];
+        let mut a_out = [0.0f32; MAX_HIDDEN];
+        a_in.get_mut(..x.len())?.copy_from_slice(x);
+        let mut fan_in = x.len();
+        for l in 0..self.layers as usize {
+            let layer = self.layer(l)?;
+            let input = a_in.get(..fan_in)?;
+            let out = a_out.get_mut(..h)?;
+            for ((o, row), &b) in out
+                .iter_mut()
+                .zip(layer.w.chunks_exact(fan_in))
+                .zip(layer.b)
+            {
+                *o = dot_acc(row, input, b);
+            }
+            layer_norm_leaky(out, layer.gamma, layer.beta);
+            core::mem::swap(&mut a_in, &mut a_out);
+            fan_in = h;
+        }
+        let (w_o, b_o) = self.output()?;
+        Some(dot_acc(w_o, a_in.get(..h)?, b_o))
+    }
+}
+
+/// `acc = init; acc = fma(w_j, x_j, acc)` over `j`.
+#[inline(always)]
+pub fn dot_acc(w: &[f32], x: &[f32], init: f32) -> f32 {
+    w.iter()
+        .zip(x)
+        .fold(init, |acc, (&wj, &xj)| math::fma(wj, xj, acc))
+}
+
+/// LeakyReLU with [`LEAKY_RELU_SLOPE`].
+#[inline(always)]
+pub fn leaky_relu(y: f32) -> f32 {
+    if y >= 0.0 {
+        y
+    } else {
+        LEAKY_RELU_SLOPE * y
+    }
+}
+
+/// In place: LayerNorm over `h` (mean and biased variance), affine `gamma`, `beta`, then
+/// LeakyReLU, in the exact order of the module docs.
+pub fn layer_norm_leaky(h: &mut [f32], gamma: &[f32], beta: &[f32]) {
+    let n = h.len() as f32;
+    let mean = h.iter().fold(0.0f32, |s, &v| s + v) / n;
+    for v in h.iter_mut() {
+        *v -= mean;
+    }
+    let var = h.iter().fold(0.0f32, |s, &d| math::fma(d, d, s)) / n;
+    let r = math::rsqrt(var + LAYER_NORM_EPS);
+    for ((v, &g), &b) in h.iter_mut().zip(gamma).zip(beta) {
+        *v = leaky_relu(math::fma(g, *v * r, b));
+    }
+}
+
+/// A neural scaler: MLP plus the bounded positive output mapping of the module docs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Scaler<const P: usize> {
+    /// The MLP producing the raw output `z`.
+    pub mlp: MlpParams<P>,
+    /// Lower bound of the scale factor, `> 0` (dimensionless).
+    pub s_min: f32,
+    /// Upper bound of the scale factor, `> s_min` (dimensionless).
+    pub s_max: f32,
+}
+
+impl<const P: usize> Scaler<P> {
+    /// Scale factor `s(z) = s_min + (s_max - s_min) sigmoid(z)` for normalised inputs.
+    pub fn scale(&self, x: &[f32]) -> Option<f32> {
+        let z = self.mlp.forward(x)?;
+        Some(scale_from_raw(z, self.s_min, self.s_max))
+    }
+
+    /// Raw output `z` that makes `s(z) = 1`, i.e. reproduces the constant `p_ini`:
+    /// `logit((1 - s_min) / (s_max - s_min))`. The trainer initialises the output bias with it.
+    pub fn identity_logit(s_min: f32, s_max: f32) -> f32 {
+        let p = (1.0 - s_min) / (s_max - s_min);
+        libm::logf(p / (1.0 - p))
+    }
+}
+
+/// `s_min + (s_max - s_min) * sigmoid(z)`.
+#[inline(always)]
+pub fn scale_from_raw(z: f32, s_min: f32, s_max: f32) -> f32 {
+    math::fma(s_max - s_min, math::sigmoid(z), s_min)
+}
+
+/// A scaler specialised for a fixed `alpha` and one state input, with the constant
+/// `p_ini`, the input normalisation and the LayerNorm mean folded into the weights.
+///
+/// This is what runs every step. Relative to [`Scaler::scale`] it is the same function up to
+/// f32 rounding (the folds are exact in real arithmetic):
+///
+/// - first layer: `h_i = W_i0 (u / u_scale) + (W_i1 alpha_n + b_i)`: the alpha column and
+///   bias collapse into one bias, computed once per `alpha` ([`CompiledScaler::set_alpha`]);
+///   `1/u_scale` is folded into the weight column.
+/// - LayerNorm mean: `mean_i(W x + b) = (mean_i W_i) x + mean_i b`, so subtracting the row
+///   mean of every column of `W` and the mean of `b` gives a pre-activation with zero mean;
+///   the per-step mean and subtraction disappear.
+/// - output: `p = p_ini (s_min + (s_max - s_min) sigmoid(z))` becomes
+///   `fma(span, sigmoid(z), lo)` with `lo = p_ini s_min`, `span = p_ini (s_max - s_min)`.
+///
+/// Layout of `w`: layer 1 `w1c (H), b1c (H), gamma (H), beta (H)`; layers 2..=L `Wc (H x H),
+/// bc (H), gamma (H), beta (H)`; output `w_o (H), b_o`.
+#[derive(Debug, Clone)]
+pub struct CompiledScaler<const P: usize> {
+    hidden: usize,
+    layers: usize,
+    inv_h: f32,
+    w: heapless::Vec<f32, P>,
+    /// Raw alpha column of layer 1 (times `1/alpha_scale`), for [`Self::set_alpha`].
+    alpha_col: [f32; MAX_HIDDEN],
+    /// Raw layer-1 bias.
+    b1_raw: [f32; MAX_HIDDEN],
+    lo: f32,
+    span: f32,
+}
+
+impl<const P: usize> CompiledScaler<P> {
+    /// Compiles `scaler` for parameter constant `p_ini`, state scale `u_scale` (input 0) and
+    /// `alpha` normalised by `alpha_scale` (input 1, if the MLP has two inputs).
+    ///
+    /// Returns `None` if the scaler's shape is inconsistent (never for a validated model).
+    pub fn compile(
+        scaler: &Scaler<P>,
+        p_ini: f32,
+        u_scale: f32,
+        alpha: f32,
+        alpha_scale: f32,
+    ) -> Option<Self> {
+        let mlp = &scaler.mlp;
+        mlp.check_shape().ok()?;
+        let h = mlp.hidden as usize;
+        let d = mlp.inputs as usize;
+        let mut w = heapless::Vec::<f32, P>::new();
+        let mut alpha_col = [0.0f32; MAX_HIDDEN];
+        let mut b1_raw = [0.0f32; MAX_HIDDEN];
+        let hf = h as f32;
+        for l in 0..mlp.layers as usize {
+            let layer = mlp.layer(l)?;
+            if l == 0 {
+                // Weight column of the state input, scaled, then centred.
+                let mut col = [0.0f32; MAX_HIDDEN];
+                for ((c, row), (ac, br)) in col
+                    .iter_mut()
+                    .zip(layer.w.chunks_exact(d))
+                    .zip(alpha_col.iter_mut().zip(b1_raw.iter_mut()))
+                    .take(h)
+                {
+                    *c = *row.first()? / u_scale;
+                    *ac = if d > 1 {
+                        *row.get(1)? / alpha_scale
+                    } else {
+                        0.0
+                    };
+                    *br = 0.0;
+                }
+                for (br, &b) in b1_raw.iter_mut().zip(layer.b) {
+                    *br = b;
+                }
+                let col = col.get(..h)?;
+                let mean = col.iter().fold(0.0f32, |s, &v| s + v) / hf;
+                for &c in col {
+                    w.push(c - mean).ok()?;
+                }
+                // Placeholder bias; filled by set_alpha below.
+                for _ in 0..h {
+                    w.push(0.0).ok()?;
+                }
+            } else {
+                let mut mean_col = [0.0f32; MAX_HIDDEN];
+                for row in layer.w.chunks_exact(h) {
+                    for (m, &v) in mean_col.iter_mut().zip(row) {
+                        *m += v;
+                    }
+                }
+                for m in mean_col.iter_mut() {
+                    *m /= hf;
+                }
+                for row in layer.w.chunks_exact(h) {
+                    for (&v, &m) in row.iter().zip(&mean_col) {
+                        w.push(v - m).ok()?;
+                    }
+                }
+                let mean_b = layer.b.iter().fold(0.0f32, |s, &v| s + v) / hf;
+                for &b in layer.b {
+                    w.push(b - mean_b).ok()?;
+                }
+            }
+            w.extend_from_slice(layer.gamma).ok()?;
+            w.extend_from_slice(layer.beta).ok()?;
+        }
+        let (w_o, b_o) = mlp.output()?;
+        w.extend_from_slice(w_o).ok()?;
+        w.push(b_o).ok()?;
+        let mut c = Self {
+            hidden: h,
+            layers: mlp.layers as usize,
+            inv_h: 1.0 / hf,
+            w,
+            alpha_col,
+            b1_raw,
+            lo: p_ini * scaler.s_min,
+            span: p_ini * (scaler.s_max - scaler.s_min),
+        };
+        c.set_alpha(alpha);
+        Some(c)
+    }
+
+    /// Re-folds the alpha column into the first-layer bias (`alpha` in the same units as at
+    /// compile time, before normalisation). `H` fused multiply-adds; no per-step cost.
+    pub fn set_alpha(&mut self, alpha: f32) {
+        let h = self.hidden;
+        let mut b = [0.0f32; MAX_HIDDEN];
+        for ((bi, &br), &ac) in b.iter_mut().zip(&self.b1_raw).zip(&self.alpha_col).take(h) {
+            *bi = math::fma(ac, alpha, br);
+        }
+        let bh = b.get(..h).unwrap_or(&[]);
+        let mean = bh.iter().fold(0.0f32, |s, &v| s + v) * self.inv_h;
+        if let Some(dst) = self.w.get_mut(h..2 * h) {
+            for (d, &v) in dst.iter_mut().zip(bh) {
+                *d = v - mean;
+            }
+        }
+    }
+
+    /// Physical parameter value `p(u)` at state input `u` (SI units of the state).
+    #[inline]
+    pub fn eval(&self, u: f32) -> f32 {
+        let h = self.hidden;
+        let mut a = [0.0f32; MAX_HIDDEN];
+        let mut t = [0.0f32; MAX_HIDDEN];
+        let mut rest: &[f32] = &self.w;
+        // Layer 1: scalar input.
+        let (Some(w1), Some(b1)) = (take(&mut rest, h), take(&mut rest, h)) else {
+            return self.lo;
+        };
+        for ((ti, &wi), &bi) in t.iter_mut().zip(w1).zip(b1) {
+            *ti = math::fma(wi, u, bi);
+        }
+        if !self.norm_act(&mut rest, &mut t, &mut a) {
+            return self.lo;
+        }
+        for _ in 1..self.layers {
+            let (Some(wm), Some(b)) = (take(&mut rest, h * h), take(&mut rest, h)) else {
+                return self.lo;
+            };
+            let a_in = a.get(..h).unwrap_or(&[]);
+            for ((ti, row), &bi) in t.iter_mut().zip(wm.chunks_exact(h)).zip(b) {
+                *ti = dot_acc(row, a_in, bi);
+            }
+            if !self.norm_act(&mut rest, &mut t, &mut a) {
+                return self.lo;
+            }
+        }
+        let (Some(w_o), Some(b_o)) = (take(&mut rest, h), take(&mut rest, 1)) else {
+            return self.lo;
+        };
+        let z = dot_acc(
+            w_o,
+            a.get(..h).unwrap_or(&[]),
+            b_o.first().copied().unwrap_or(0.0),
+        );
+        math::fma(self.span, math::sigmoid(z), self.lo)
+    }
+
+    /// Centred LayerNorm + affine + LeakyReLU from `t` into `a`; consumes gamma and beta.
+    #[inline(always)]
+    fn norm_act(
+        &self,
+        rest: &mut &[f32],
+        t: &mut [f32; MAX_HIDDEN],
+        a: &mut [f32; MAX_HIDDEN],
+    ) -> bool {
+        let h = self.hidden;
+        let (Some(g), Some(be)) = (take(rest, h), take(rest, h)) else {
+            return false;
+        };
+        let th = t.get(..h).unwrap_or(&[]);
+        let var = th.iter().fold(0.0f32, |s, &d| math::fma(d, d, s)) * self.inv_h;
+        let r = math::rsqrt(var + LAYER_NORM_EPS);
+        for (((ai, &ti), &gi), &bi) in a.iter_mut().zip(th).zip(g).zip(be) {
+            *ai = leaky_relu(math::fma(gi, ti * r, bi));
+        }
+        true
+    }
+
+    /// Output bounds `(lo, hi)` of [`Self::eval`] in physical units.
+    pub fn bounds(&self) -> (f32, f32) {
+        (self.lo, self.lo + self.span)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mlp_1x2x1() -> MlpParams<64> {
+        // d = 1, H = 2, L = 1: W1 = [1, -1]^T, b1 = [0.5, 0], gamma = [2, 1], beta = [0, 1],
+        // w_o = [1, 2], b_o = 0.25
+        MlpParams::new(
+            1,
+            2,
+            1,
+            &[1.0, -1.0, 0.5, 0.0, 2.0, 1.0, 0.0, 1.0, 1.0, 2.0, 0.25],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn param_count_matches_layout() {
+        assert_eq!(param_count(1, 2, 1), 11);
+        assert_eq!(param_count(2, 16, 5), 2 * 16 + 48 + 4 * (256 + 48) + 17);
+        assert_eq!(DEFAULT_PARAM_CAPACITY, 9153);
+    }
+
+    #[test]
+    fn layer_norm_by_hand() {
+        // h = [1, 3]: mean 2, d = [-1, 1], var = 1, r = 1/sqrt(1 + 1e-5)
+        let mut h = [1.0f32, 3.0];
+        layer_norm_leaky(&mut h, &[1.0, 1.0], &[0.0, 0.0]);
+        let r = 1.0 / (1.0f64 + 1e-5).sqrt();
+        assert!((h[0] as f64 - (-0.01 * r)).abs() < 1e-7, "{h:?}");
+        assert!((h[1] as f64 - r).abs() < 1e-6, "{h:?}");
+    }
+
+    #[test]
+    fn mlp_by_hand() {
+        // x = 2: h = [2.5, -2]; mean 0.25; d = [2.25, -2.25]; var = 5.0625; r = 1/sqrt(var+eps)
+        // y = [2 * 2.25 r, -2.25 r + 1] = [~2.0, ~0.0]; leaky: y1 = 1 - 2.25r = 1 - 0.999999 > 0?
+        let m = mlp_1x2x1();
+        let var = 5.0625f64;
+        let r = 1.0 / (var + 1e-5).sqrt();
+        let y0 = 2.0 * 2.25 * r;
+        let y1 = -2.25 * r + 1.0;
+        let a1 = if y1 >= 0.0 { y1 } else { 0.01 * y1 };
+        let z = 0.25 + y0 + 2.0 * a1;
+        let got = m.forward(&[2.0]).unwrap() as f64;
+        assert!((got - z).abs() < 1e-6, "{got} vs {z}");
+    }
+
+    #[test]
+    fn scaler_is_bounded_and_identity_logit_gives_one() {
+        let z0 = Scaler::<64>::identity_logit(0.2, 5.0);
+        assert!((scale_from_raw(z0, 0.2, 5.0) - 1.0).abs() < 1e-6);
+        assert!(scale_from_raw(1e30, 0.2, 5.0) <= 5.0);
+        assert!(scale_from_raw(-1e30, 0.2, 5.0) >= 0.2);
+    }
+
+    #[test]
+    fn compiled_matches_reference() {
+        // d = 2, H = 3, L = 2 with arbitrary weights.
+        let n = param_count(2, 3, 2);
+        let params: heapless::Vec<f32, 64> = (0..n)
+            .map(|i| ((i as f32) * 0.7).sin() * 0.8 + 0.05)
+            .collect();
+        let mlp = MlpParams::<64>::new(2, 3, 2, &params).unwrap();
+        let sc = Scaler {
+            mlp,
+            s_min: 0.1,
+            s_max: 4.0,
+        };
+        let (p_ini, u_scale, alpha, a_scale) = (1500.0, 1.2, 0.15, 0.3);
+        let mut c = CompiledScaler::compile(&sc, p_ini, u_scale, alpha, a_scale).unwrap();
+        for &u in &[-1.3f32, -0.5, 0.0, 0.2, 1.1] {
+            let reference = p_ini * sc.scale(&[u / u_scale, alpha / a_scale]).unwrap();
+            let got = c.eval(u);
+            assert!(
+                (got - reference).abs() <= 2e-6 * reference,
+                "{u}: {got} vs {reference}"
+            );
+        }
+        c.set_alpha(0.3);
+        let reference = p_ini * sc.scale(&[0.4 / u_scale, 1.0]).unwrap();
+        assert!((c.eval(0.4) - reference).abs() <= 2e-6 * reference);
+    }
+}

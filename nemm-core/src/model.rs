@@ -1,0 +1,412 @@
+//! The model: the four variants of the paper, their normalisation and integration settings,
+//! and the checks that make a decoded model safe to run.
+//!
+//! | kind | `b_fl` | `b_pr` | `k_pr` | state |
+//! |------|--------|--------|--------|-------|
+//! | [`ModelKind::Sem`] | - | - | - | none: `F = map(u, alpha)` |
+//! | [`ModelKind::LinearEmm`] | `b_fl,ini` | `b_pr,ini` | `k_pr,ini` | `x_pr, v_st` |
+//! | [`ModelKind::NemmLight`] | `b_fl,ini s_fl(v_st, alpha)` | `b_pr,ini` | `k_pr,ini` | `x_pr, v_st` |
+//! | [`ModelKind::Nemm`] | `b_fl,ini s_fl(v_st, alpha)` | `b_pr,ini s_b(alpha)` | `k_pr,ini s_k(x_pr, alpha)` | `x_pr, v_st` |
+//!
+//! # Stability check (explicit Runge-Kutta)
+//!
+//! With frozen coefficients the EMM has the eigenvalues `-k_pr / (b_pr + b_fl)` and
+//! `-1 / T_pr`. Because every scale factor is bounded (`s_min < s < s_max`), the fastest time
+//! constant the model can ever reach is
+//!
+//! ```text
+//! tau_min = min( (b_pr,ini s_min,b + b_fl,ini s_min,fl) / (k_pr,ini s_max,k),  T_pr )
+//! ```
+//!
+//! and a model is accepted only if `dt <= STABILITY_MARGIN * limit * tau_min`, where `limit`
+//! is the real-axis stability limit of the integrator (2.785 for RK4, 2.512 for RK3). The
+//! margin covers the state-dependence of the learned coefficients, which the frozen-coefficient
+//! analysis does not see.
+
+use crate::emm::EmmConstants;
+use crate::integrator::Integrator;
+use crate::mlp::{Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
+use crate::sem::{SemError, SemMap};
+use core::fmt;
+use serde::{Deserialize, Serialize};
+
+/// Fraction of the integrator's real-axis stability limit a model may use (see module docs).
+pub const STABILITY_MARGIN: f32 = 0.8;
+
+/// Which of the paper's four model variants (section 6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ModelKind {
+    /// Static empirical model: force-velocity map per oil-loss level.
+    Sem,
+    /// EMM with constant `b_fl`, `b_pr`, `k_pr`, `T_pr`.
+    LinearEmm,
+    /// EMM with neural `b_fl(v_st, alpha)`.
+    NemmLight,
+    /// EMM with neural `b_fl(v_st, alpha)`, `b_pr(alpha)`, `k_pr(x_pr, alpha)`.
+    Nemm,
+}
+
+impl ModelKind {
+    /// The CLI / report name: `sem`, `linear-emm`, `nemm-light`, `nemm`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            ModelKind::Sem => "sem",
+            ModelKind::LinearEmm => "linear-emm",
+            ModelKind::NemmLight => "nemm-light",
+            ModelKind::Nemm => "nemm",
+        }
+    }
+}
+
+/// Abs-max normalisation scales of the scaler inputs, from the training set (section 5.3).
+/// They also bound the training domain of each input.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct InputScales {
+    /// Abs-max stroke velocity of the training set \[m/s\]; scale of `v_st`.
+    pub velocity_m_s: f32,
+    /// Abs-max deflection `x_pr` reached on the training set \[m\]; scale of `x_pr`.
+    pub x_pr_m: f32,
+    /// Abs-max oil-loss level of the training set \[-\]; scale of `alpha`.
+    pub alpha: f32,
+}
+
+/// Facts about the training data the model carries for reporting and range checks.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Meta {
+    /// Abs-max force of the training set \[N\] (normalised RMSE divides by it).
+    pub force_scale_n: f32,
+    /// Smallest oil-loss level in the training set.
+    pub alpha_min: f32,
+    /// Largest oil-loss level in the training set.
+    pub alpha_max: f32,
+}
+
+/// The variant-specific part.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Body<const P: usize> {
+    /// SEM map.
+    Sem(SemMap),
+    /// Linear EMM constants.
+    LinearEmm(EmmConstants),
+    /// NEMM-Light: constants plus the `b_fl` scaler (inputs `v_st`, `alpha`).
+    NemmLight {
+        /// `*_ini` constants and `T_pr`.
+        emm: EmmConstants,
+        /// Scaler of `b_fl`, inputs `[v_st / v_scale, alpha / alpha_scale]`.
+        b_fl: Scaler<P>,
+    },
+    /// NEMM: constants plus three scalers.
+    Nemm {
+        /// `*_ini` constants and `T_pr`.
+        emm: EmmConstants,
+        /// Scaler of `b_fl`, inputs `[v_st / v_scale, alpha / alpha_scale]`.
+        b_fl: Scaler<P>,
+        /// Scaler of `b_pr`, input `[alpha / alpha_scale]`.
+        b_pr: Scaler<P>,
+        /// Scaler of `k_pr`, inputs `[x_pr / x_scale, alpha / alpha_scale]`.
+        k_pr: Scaler<P>,
+    },
+}
+
+/// A complete model. `P` is the parameter capacity per scaler (see
+/// [`crate::mlp::param_count`]); the default holds every model of the Table 3 search space.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
+    /// Integration scheme.
+    pub integrator: Integrator,
+    /// Step \[s\] the model was trained at (the sample period; default `1e-4`, 10 kHz).
+    pub dt_s: f32,
+    /// Input normalisation scales.
+    pub scales: InputScales,
+    /// Training-data facts.
+    pub meta: Meta,
+    /// Variant-specific parameters.
+    pub body: Body<P>,
+}
+
+/// Why a model is not acceptable. Field names are those of the weight format.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ModelError {
+    /// A value that must be finite is NaN or infinite.
+    NonFinite {
+        /// Which field.
+        field: &'static str,
+    },
+    /// A value that must be positive is not.
+    NotPositive {
+        /// Which field.
+        field: &'static str,
+    },
+    /// A scaler's bounds are not `0 < s_min < s_max`.
+    BadScalerBounds {
+        /// Which scaler.
+        scaler: &'static str,
+    },
+    /// A scaler's MLP shape is invalid or over capacity.
+    Shape {
+        /// Which scaler.
+        scaler: &'static str,
+        /// What is wrong.
+        error: ShapeError,
+    },
+    /// A scaler has the wrong number of inputs for its role.
+    WrongInputCount {
+        /// Which scaler.
+        scaler: &'static str,
+        /// Inputs its role needs.
+        expected: u8,
+        /// Inputs found.
+        found: u8,
+    },
+    /// The SEM map is invalid.
+    Sem(SemError),
+    /// The training alpha range is not `0 <= alpha_min <= alpha_max <= 1`.
+    AlphaRange,
+    /// The step is too long for the fastest time constant the model can reach.
+    UnstableStep {
+        /// Integration step \[s\].
+        dt_s: f32,
+        /// Fastest reachable time constant \[s\].
+        tau_min_s: f32,
+        /// Longest acceptable step \[s\].
+        max_dt_s: f32,
+        /// Scheme.
+        integrator: Integrator,
+    },
+}
+
+impl fmt::Display for ModelError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ModelError::NonFinite { field } => write!(f, "`{field}` holds a NaN or infinite value"),
+            ModelError::NotPositive { field } => write!(f, "`{field}` must be positive"),
+            ModelError::BadScalerBounds { scaler } => {
+                write!(f, "scaler `{scaler}` needs bounds 0 < s_min < s_max")
+            }
+            ModelError::Shape { scaler, error } => match error {
+                ShapeError::DimensionOutOfRange => write!(
+                    f,
+                    "scaler `{scaler}`: inputs must be 1..=2, hidden width 1..=32, layers 1..=9"
+                ),
+                ShapeError::ParamCountMismatch { expected, found } => write!(
+                    f,
+                    "scaler `{scaler}`: its dimensions need {expected} parameters but it holds {found}"
+                ),
+                ShapeError::OverCapacity { needed, capacity } => write!(
+                    f,
+                    "scaler `{scaler}` needs {needed} parameters but this build holds at most {capacity} \
+                     (raise the capacity `P` of `Model<P>`/`Estimator<P>`)"
+                ),
+            },
+            ModelError::WrongInputCount {
+                scaler,
+                expected,
+                found,
+            } => write!(f, "scaler `{scaler}` must have {expected} input(s), has {found}"),
+            ModelError::Sem(e) => write!(f, "SEM map: {e:?}"),
+            ModelError::AlphaRange => {
+                write!(f, "training alpha range must satisfy 0 <= alpha_min <= alpha_max <= 1")
+            }
+            ModelError::UnstableStep {
+                dt_s,
+                tau_min_s,
+                max_dt_s,
+                integrator,
+            } => write!(
+                f,
+                "step {:.1} us is too long for {}: the model can reach a time constant of {:.2} us, \
+                 so the step must be at most {:.2} us (run faster, or retrain with tighter scaler bounds)",
+                dt_s * 1e6,
+                integrator.name(),
+                tau_min_s * 1e6,
+                max_dt_s * 1e6
+            ),
+        }
+    }
+}
+
+fn finite_positive(v: f32, field: &'static str) -> Result<(), ModelError> {
+    if !v.is_finite() {
+        Err(ModelError::NonFinite { field })
+    } else if v <= 0.0 {
+        Err(ModelError::NotPositive { field })
+    } else {
+        Ok(())
+    }
+}
+
+fn check_emm(e: &EmmConstants) -> Result<(), ModelError> {
+    finite_positive(e.b_fl_ns_per_m, "emm.b_fl_ns_per_m")?;
+    finite_positive(e.b_pr_ns_per_m, "emm.b_pr_ns_per_m")?;
+    finite_positive(e.k_pr_n_per_m, "emm.k_pr_n_per_m")?;
+    finite_positive(e.t_pr_s, "emm.t_pr_s")
+}
+
+fn check_scaler<const P: usize>(
+    s: &Scaler<P>,
+    name: &'static str,
+    inputs: u8,
+) -> Result<(), ModelError> {
+    s.mlp.check_shape().map_err(|error| ModelError::Shape {
+        scaler: name,
+        error,
+    })?;
+    if s.mlp.inputs != inputs {
+        return Err(ModelError::WrongInputCount {
+            scaler: name,
+            expected: inputs,
+            found: s.mlp.inputs,
+        });
+    }
+    if s.mlp.params.iter().any(|p| !p.is_finite()) {
+        return Err(ModelError::NonFinite { field: name });
+    }
+    if !(s.s_min.is_finite() && s.s_max.is_finite() && s.s_min > 0.0 && s.s_max > s.s_min) {
+        return Err(ModelError::BadScalerBounds { scaler: name });
+    }
+    Ok(())
+}
+
+impl<const P: usize> Model<P> {
+    /// The variant.
+    pub fn kind(&self) -> ModelKind {
+        match self.body {
+            Body::Sem(_) => ModelKind::Sem,
+            Body::LinearEmm(_) => ModelKind::LinearEmm,
+            Body::NemmLight { .. } => ModelKind::NemmLight,
+            Body::Nemm { .. } => ModelKind::Nemm,
+        }
+    }
+
+    /// EMM constants (`None` for the SEM).
+    pub fn emm(&self) -> Option<&EmmConstants> {
+        match &self.body {
+            Body::Sem(_) => None,
+            Body::LinearEmm(e) | Body::NemmLight { emm: e, .. } | Body::Nemm { emm: e, .. } => {
+                Some(e)
+            }
+        }
+    }
+
+    /// Largest parameter count of any scaler (0 without scalers).
+    pub fn max_scaler_params(&self) -> usize {
+        match &self.body {
+            Body::Sem(_) | Body::LinearEmm(_) => 0,
+            Body::NemmLight { b_fl, .. } => b_fl.mlp.params.len(),
+            Body::Nemm {
+                b_fl, b_pr, k_pr, ..
+            } => b_fl
+                .mlp
+                .params
+                .len()
+                .max(b_pr.mlp.params.len())
+                .max(k_pr.mlp.params.len()),
+        }
+    }
+
+    /// Fastest time constant \[s\] the model can reach over all scaler outputs (module docs);
+    /// `None` for the SEM, which has no dynamics.
+    pub fn fastest_time_constant_s(&self) -> Option<f32> {
+        let (e, fl, bp, k) = match &self.body {
+            Body::Sem(_) => return None,
+            Body::LinearEmm(e) => (e, 1.0, 1.0, 1.0),
+            Body::NemmLight { emm, b_fl } => (emm, b_fl.s_min, 1.0, 1.0),
+            Body::Nemm {
+                emm,
+                b_fl,
+                b_pr,
+                k_pr,
+            } => (emm, b_fl.s_min, b_pr.s_min, k_pr.s_max),
+        };
+        let tau_pr = (e.b_pr_ns_per_m * bp + e.b_fl_ns_per_m * fl) / (e.k_pr_n_per_m * k);
+        Some(tau_pr.min(e.t_pr_s))
+    }
+
+    /// Checks that the model is safe to run with `integrator` at step `dt_s`: every
+    /// [`ModelError`] case.
+    pub fn check_step(&self, integrator: Integrator, dt_s: f32) -> Result<(), ModelError> {
+        finite_positive(dt_s, "dt_s")?;
+        if let Some(tau_min_s) = self.fastest_time_constant_s() {
+            let max_dt_s = STABILITY_MARGIN * integrator.stability_limit() * tau_min_s;
+            if max_dt_s.is_nan() || dt_s > max_dt_s {
+                return Err(ModelError::UnstableStep {
+                    dt_s,
+                    tau_min_s,
+                    max_dt_s,
+                    integrator,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Full validation: finiteness, positivity, shapes, SEM grid, alpha range, stability.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        finite_positive(self.scales.velocity_m_s, "scales.velocity_m_s")?;
+        finite_positive(self.scales.x_pr_m, "scales.x_pr_m")?;
+        finite_positive(self.scales.alpha, "scales.alpha")?;
+        finite_positive(self.meta.force_scale_n, "meta.force_scale_n")?;
+        let (a0, a1) = (self.meta.alpha_min, self.meta.alpha_max);
+        if !(a0.is_finite() && a1.is_finite() && 0.0 <= a0 && a0 <= a1 && a1 <= 1.0) {
+            return Err(ModelError::AlphaRange);
+        }
+        match &self.body {
+            Body::Sem(m) => m.validate().map_err(ModelError::Sem)?,
+            Body::LinearEmm(e) => check_emm(e)?,
+            Body::NemmLight { emm, b_fl } => {
+                check_emm(emm)?;
+                check_scaler(b_fl, "b_fl", 2)?;
+            }
+            Body::Nemm {
+                emm,
+                b_fl,
+                b_pr,
+                k_pr,
+            } => {
+                check_emm(emm)?;
+                check_scaler(b_fl, "b_fl", 2)?;
+                check_scaler(b_pr, "b_pr", 1)?;
+                check_scaler(k_pr, "k_pr", 2)?;
+            }
+        }
+        self.check_step(self.integrator, self.dt_s)
+    }
+
+    /// `b_fl` \[N s/m\] at `v_st` \[m/s\] and `alpha` by the reference (unfolded) path.
+    pub fn b_fl(&self, v_st_m_s: f32, alpha: f32) -> Option<f32> {
+        match &self.body {
+            Body::Sem(_) => None,
+            Body::LinearEmm(e) => Some(e.b_fl_ns_per_m),
+            Body::NemmLight { emm, b_fl } | Body::Nemm { emm, b_fl, .. } => {
+                let x = [
+                    v_st_m_s / self.scales.velocity_m_s,
+                    alpha / self.scales.alpha,
+                ];
+                Some(emm.b_fl_ns_per_m * b_fl.scale(&x)?)
+            }
+        }
+    }
+
+    /// `b_pr` \[N s/m\] at `alpha` by the reference path.
+    pub fn b_pr(&self, alpha: f32) -> Option<f32> {
+        match &self.body {
+            Body::Sem(_) => None,
+            Body::LinearEmm(e) | Body::NemmLight { emm: e, .. } => Some(e.b_pr_ns_per_m),
+            Body::Nemm { emm, b_pr, .. } => {
+                Some(emm.b_pr_ns_per_m * b_pr.scale(&[alpha / self.scales.alpha])?)
+            }
+        }
+    }
+
+    /// `k_pr` \[N/m\] at `x_pr` \[m\] and `alpha` by the reference path.
+    pub fn k_pr(&self, x_pr_m: f32, alpha: f32) -> Option<f32> {
+        match &self.body {
+            Body::Sem(_) => None,
+            Body::LinearEmm(e) | Body::NemmLight { emm: e, .. } => Some(e.k_pr_n_per_m),
+            Body::Nemm { emm, k_pr, .. } => {
+                let x = [x_pr_m / self.scales.x_pr_m, alpha / self.scales.alpha];
+                Some(emm.k_pr_n_per_m * k_pr.scale(&x)?)
+            }
+        }
+    }
+}

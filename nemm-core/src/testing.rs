@@ -1,0 +1,140 @@
+//! Deterministic example models for tests, benchmarks, fuzz seeds and documentation.
+//!
+//! The weights are pseudo-random (a fixed hash of the parameter index), initialised like a
+//! freshly built scaler (output bias at the identity logit), on physically plausible
+//! passenger-car constants. They are not trained models.
+
+use crate::emm::EmmConstants;
+use crate::integrator::Integrator;
+use crate::mlp::{param_count, MlpParams, Scaler};
+use crate::model::{Body, InputScales, Meta, Model, ModelKind};
+use crate::sem::SemMap;
+
+/// Constants of the examples: `b_fl` 2500 N s/m, `b_pr` 1500 N s/m, `k_pr` 4e5 N/m,
+/// `T_pr` 2 ms.
+pub const EXAMPLE_EMM: EmmConstants = EmmConstants {
+    b_fl_ns_per_m: 2500.0,
+    b_pr_ns_per_m: 1500.0,
+    k_pr_n_per_m: 4.0e5,
+    t_pr_s: 0.002,
+};
+
+/// Uniform pseudo-random value in `[-1, 1)` from an index and a seed (SplitMix64 finaliser).
+pub fn hash_unit(i: u64, seed: u64) -> f32 {
+    let mut z = i
+        .wrapping_add(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+        .wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    ((z >> 40) as f32) / ((1u64 << 23) as f32) - 1.0
+}
+
+/// An example scaler with `inputs` inputs, width `hidden`, `layers` layers.
+pub fn example_scaler<const P: usize>(
+    inputs: u8,
+    hidden: u8,
+    layers: u8,
+    seed: u64,
+) -> Option<Scaler<P>> {
+    let (d, h, l) = (inputs as usize, hidden as usize, layers as usize);
+    let n = param_count(d, h, l);
+    let mut p = heapless::Vec::<f32, P>::new();
+    let (s_min, s_max) = (0.2f32, 3.0f32);
+    for layer in 0..l {
+        let fan_in = if layer == 0 { d } else { h };
+        let a = 1.0 / libm::sqrtf(fan_in as f32);
+        for j in 0..fan_in * h {
+            p.push(a * hash_unit((layer * 10_000 + j) as u64, seed))
+                .ok()?;
+        }
+        for j in 0..h {
+            p.push(0.1 * hash_unit((layer * 10_000 + 5000 + j) as u64, seed))
+                .ok()?;
+        }
+        for _ in 0..h {
+            p.push(1.0).ok()?;
+        }
+        for _ in 0..h {
+            p.push(0.0).ok()?;
+        }
+    }
+    for j in 0..h {
+        p.push(0.3 * hash_unit((900_000 + j) as u64, seed)).ok()?;
+    }
+    p.push(Scaler::<P>::identity_logit(s_min, s_max)).ok()?;
+    debug_assert_eq!(p.len(), n);
+    Some(Scaler {
+        mlp: MlpParams::new(inputs, hidden, layers, &p).ok()?,
+        s_min,
+        s_max,
+    })
+}
+
+/// An example SEM map: a digressive passenger-car characteristic (rebound stiffer than
+/// compression) whose force falls with oil loss.
+pub fn example_sem() -> SemMap {
+    let vs = [
+        -1.2f32, -0.6, -0.3, -0.1, -0.05, 0.0, 0.05, 0.1, 0.3, 0.6, 1.2,
+    ];
+    let alphas = [0.0f32, 0.3];
+    let mut forces = heapless::Vec::new();
+    for &a in &alphas {
+        for &v in &vs {
+            let c = if v >= 0.0 { 2.0 } else { 1.0 };
+            let f = c * 1200.0 * libm::tanhf(v / 0.12) + c * 800.0 * v;
+            let _ = forces.push(f * (1.0 - 0.8 * a));
+        }
+    }
+    SemMap {
+        velocities_m_s: heapless::Vec::from_slice(&vs).unwrap_or_default(),
+        alphas: heapless::Vec::from_slice(&alphas).unwrap_or_default(),
+        forces_n: forces,
+    }
+}
+
+/// An example model of the given kind, scalers of width `hidden` and depth `layers`.
+pub fn example_model<const P: usize>(kind: ModelKind, hidden: u8, layers: u8) -> Option<Model<P>> {
+    let body = match kind {
+        ModelKind::Sem => Body::Sem(example_sem()),
+        ModelKind::LinearEmm => Body::LinearEmm(EXAMPLE_EMM),
+        ModelKind::NemmLight => Body::NemmLight {
+            emm: EXAMPLE_EMM,
+            b_fl: example_scaler(2, hidden, layers, 1)?,
+        },
+        ModelKind::Nemm => Body::Nemm {
+            emm: EXAMPLE_EMM,
+            b_fl: example_scaler(2, hidden, layers, 1)?,
+            b_pr: example_scaler(1, hidden, layers, 2)?,
+            k_pr: example_scaler(2, hidden, layers, 3)?,
+        },
+    };
+    Some(Model {
+        integrator: Integrator::Rk4,
+        dt_s: 1e-4,
+        scales: InputScales {
+            velocity_m_s: 1.05,
+            x_pr_m: 0.01,
+            alpha: 0.3,
+        },
+        meta: Meta {
+            force_scale_n: 3000.0,
+            alpha_min: 0.0,
+            alpha_max: 0.3,
+        },
+        body,
+    })
+}
+
+/// Capacity of [`example_blob`].
+pub const EXAMPLE_BLOB_CAPACITY: usize = 40_000;
+
+/// The blob of the default-size (H = 16, L = 5) example NEMM.
+pub fn example_blob() -> heapless::Vec<u8, EXAMPLE_BLOB_CAPACITY> {
+    let mut buf = [0u8; EXAMPLE_BLOB_CAPACITY];
+    let model = example_model::<{ crate::DEFAULT_PARAM_CAPACITY }>(ModelKind::Nemm, 16, 5);
+    match model.map(|m| crate::format::encode(&m, &mut buf).map(heapless::Vec::from_slice)) {
+        Some(Ok(Ok(v))) => v,
+        _ => heapless::Vec::new(),
+    }
+}
