@@ -1,5 +1,38 @@
-//! `nemm`: the command-line interface of nemm-train.
-fn main() {
-    eprintln!("nemm: the trainer is not built yet; see README.md");
-    std::process::exit(2);
+//! `nemm`: the command-line interface of nemm-train. Run `nemm --help`.
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "nemm",
+    version,
+    about = "Neural Equivalent Mechanical Model of degrading dampers: bench data, training, export"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Print what is inside a weights blob (`.nemm`): kind, sizes, constants, checks.
+    Inspect {
+        /// The weights blob.
+        model: PathBuf,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.cmd {
+        Cmd::Inspect { model } => nemm_train::inspect::run(&model),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }

@@ -1,0 +1,92 @@
+//! `nemm inspect`: what is inside a weights blob.
+use anyhow::{Context, Result};
+use nemm_core::{decode, read_header, Body, Model, Scaler, DEFAULT_PARAM_CAPACITY};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// Describes a decoded model in a few lines (kind, integrator, constants, scalers, bounds).
+pub fn describe(model: &Model, blob_len: usize) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "kind:            {}", model.kind().name());
+    let _ = writeln!(s, "size:            {blob_len} bytes");
+    let _ = writeln!(
+        s,
+        "integrator:      {} at dt = {} s ({:.0} Hz)",
+        model.integrator.name(),
+        model.dt_s,
+        1.0 / model.dt_s
+    );
+    let _ = writeln!(
+        s,
+        "input scales:    |v| <= {} m/s, |x_pr| <= {} m, alpha <= {}",
+        model.scales.velocity_m_s, model.scales.x_pr_m, model.scales.alpha
+    );
+    let _ = writeln!(
+        s,
+        "training data:   force scale {} N, alpha in [{}, {}]",
+        model.meta.force_scale_n, model.meta.alpha_min, model.meta.alpha_max
+    );
+    if let Some(e) = model.emm() {
+        let _ = writeln!(
+            s,
+            "EMM constants:   b_fl,ini = {} N s/m, b_pr,ini = {} N s/m, k_pr,ini = {} N/m, T_pr = {} s",
+            e.b_fl_ns_per_m, e.b_pr_ns_per_m, e.k_pr_n_per_m, e.t_pr_s
+        );
+    }
+    let scaler = |s: &mut String, name: &str, sc: &Scaler<DEFAULT_PARAM_CAPACITY>| {
+        let _ = writeln!(
+            s,
+            "scaler {name:<6}  {} input(s), {} x {} hidden, {} parameters, scale in ({}, {})",
+            sc.mlp.inputs,
+            sc.mlp.layers,
+            sc.mlp.hidden,
+            sc.mlp.params.len(),
+            sc.s_min,
+            sc.s_max
+        );
+    };
+    match &model.body {
+        Body::Sem(m) => {
+            let _ = writeln!(
+                s,
+                "SEM map:         {} velocities in [{}, {}] m/s x {} oil-loss levels {:?}",
+                m.velocities_m_s.len(),
+                m.velocities_m_s.first().copied().unwrap_or(0.0),
+                m.velocities_m_s.last().copied().unwrap_or(0.0),
+                m.alphas.len(),
+                m.alphas.as_slice()
+            );
+        }
+        Body::LinearEmm(_) => {}
+        Body::NemmLight { b_fl, .. } => scaler(&mut s, "b_fl", b_fl),
+        Body::Nemm {
+            b_fl, b_pr, k_pr, ..
+        } => {
+            scaler(&mut s, "b_fl", b_fl);
+            scaler(&mut s, "b_pr", b_pr);
+            scaler(&mut s, "k_pr", k_pr);
+        }
+    }
+    if let Some(tau) = model.fastest_time_constant_s() {
+        let _ = writeln!(
+            s,
+            "stability:       fastest reachable time constant {:.1} us; dt / tau = {:.3} (limit {:.3})",
+            tau * 1e6,
+            model.dt_s / tau,
+            nemm_core::model::STABILITY_MARGIN * model.integrator.stability_limit()
+        );
+    }
+    s
+}
+
+/// Runs `nemm inspect FILE`.
+pub fn run(path: &Path) -> Result<()> {
+    let blob = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let header = read_header(&blob).with_context(|| format!("{}", path.display()))?;
+    println!("file:            {}", path.display());
+    println!("format version:  {}", header.version);
+    let model: Model = decode(&blob).with_context(|| format!("{}", path.display()))?;
+    print!("{}", describe(&model, blob.len()));
+    println!("CRC-32:          ok");
+    Ok(())
+}
