@@ -1,0 +1,525 @@
+//! The dataset interchange format: round trip and one test per refused input.
+use nemm_train::dataset::{self, Dataset, DatasetError, Run, RunEntry, MANIFEST_FILE};
+use std::path::{Path, PathBuf};
+
+fn entry(file: &str, oil_loss: f64) -> RunEntry {
+    RunEntry {
+        file: PathBuf::from(file),
+        oil_loss,
+        amplitude_m: Some(0.01),
+        target_velocity_m_s: Some(0.524),
+    }
+}
+
+/// A sinusoidal run with awkward floats (non-terminating binary fractions, tiny values).
+fn sine_run(file: &str, oil_loss: f64, n: usize, fs: f64, with_velocity: bool) -> Run {
+    let t0 = 12.345_678_9;
+    let time_s: Vec<f64> = (0..n).map(|i| t0 + i as f64 / fs).collect();
+    let w = 2.0 * std::f64::consts::PI * 8.3;
+    let displacement_m: Vec<f64> = time_s.iter().map(|t| 0.01 * (w * t).sin()).collect();
+    let force_n: Vec<f64> = time_s
+        .iter()
+        .map(|t| 1234.5678 * (w * t).cos() + 1e-9 * t)
+        .collect();
+    let velocity_m_s =
+        with_velocity.then(|| time_s.iter().map(|t| 0.01 * w * (w * t).cos()).collect());
+    Run {
+        entry: entry(file, oil_loss),
+        time_s,
+        displacement_m,
+        force_n,
+        velocity_m_s,
+    }
+}
+
+fn sample_dataset(fs: f64) -> Dataset {
+    Dataset {
+        name: "test damper \"A\"".into(),
+        sample_rate_hz: fs,
+        runs: vec![
+            sine_run("runs/oil00.csv", 0.0, 500, fs, false),
+            sine_run("runs/oil15.csv", 0.15, 300, fs, true),
+            sine_run("oil30.csv", 0.3, 200, fs, false),
+        ],
+    }
+}
+
+/// A dataset folder with `manifest` and the given `(file, content)` CSV files.
+fn folder(manifest: &str, files: &[(&str, &str)]) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join(MANIFEST_FILE), manifest).expect("write manifest");
+    for (name, content) in files {
+        let p = dir.path().join(name);
+        std::fs::create_dir_all(p.parent().expect("parent")).expect("mkdir");
+        std::fs::write(p, content).expect("write csv");
+    }
+    dir
+}
+
+const MANIFEST_ONE: &str =
+    "name = \"d\"\nsample_rate_hz = 10000.0\n[[runs]]\nfile = \"runs/x.csv\"\noil_loss = 0.15\n";
+
+/// Loads a one-run dataset whose CSV is `csv`.
+fn load_csv(csv: &str) -> Result<Dataset, DatasetError> {
+    let dir = folder(MANIFEST_ONE, &[("runs/x.csv", csv)]);
+    dataset::load(dir.path())
+}
+
+fn load_manifest(manifest: &str) -> Result<Dataset, DatasetError> {
+    let good = "time_s,displacement_m,force_n\n0,0,0\n0.0001,0,0\n";
+    let dir = folder(manifest, &[("runs/x.csv", good), ("runs/y.csv", good)]);
+    dataset::load(dir.path())
+}
+
+fn ends_with(p: &Path, tail: &str) -> bool {
+    p.ends_with(tail)
+}
+
+#[test]
+fn round_trip_is_exact() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = sample_dataset(10_000.0);
+    dataset::write(dir.path(), &d).expect("write");
+    let back = dataset::load(dir.path()).expect("load");
+    assert_eq!(back, d);
+    // Writing again over the existing files gives the same dataset and leaves no temp files.
+    dataset::write(dir.path(), &back).expect("rewrite");
+    assert_eq!(dataset::load(dir.path()).expect("reload"), d);
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path().join("runs"))
+        .expect("read dir")
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+}
+
+#[test]
+fn manifest_is_the_documented_toml() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    dataset::write(dir.path(), &sample_dataset(10_000.0)).expect("write");
+    let text = std::fs::read_to_string(dir.path().join(MANIFEST_FILE)).expect("manifest");
+    assert!(text.contains("sample_rate_hz = 10000.0"), "{text}");
+    assert!(text.contains("[[runs]]"), "{text}");
+    assert!(text.contains("file = \"runs/oil15.csv\""), "{text}");
+    assert!(text.contains("oil_loss = 0.15"), "{text}");
+    let csv = std::fs::read_to_string(dir.path().join("runs/oil15.csv")).expect("csv");
+    assert!(
+        csv.starts_with("time_s,displacement_m,force_n,velocity_m_s\n"),
+        "{csv}"
+    );
+}
+
+#[test]
+fn other_sample_rate_and_integer_rate_load() {
+    // 2 kHz, and the rate written as a TOML integer.
+    let csv = "time_s,displacement_m,force_n\n0,0,1\n0.0005,0.001,2\n0.001,0.002,3\n";
+    let manifest =
+        "name = \"d\"\nsample_rate_hz = 2000\n[[runs]]\nfile = \"x.csv\"\noil_loss = 0\n";
+    let dir = folder(manifest, &[("x.csv", csv)]);
+    let d = dataset::load(dir.path()).expect("2 kHz loads");
+    assert_eq!(d.sample_rate_hz, 2000.0);
+    assert_eq!(d.dt_s(), 0.0005);
+    assert_eq!(d.runs[0].force_n, vec![1.0, 2.0, 3.0]);
+}
+
+#[test]
+fn unknown_columns_are_ignored_and_order_is_free() {
+    let csv = "force_n, temperature_c ,time_s,displacement_m,velocity_m_s\n5,20,0,0.1,1\n6,21,0.0001,0.2,2\n";
+    let d = load_csv(csv).expect("loads");
+    let r = &d.runs[0];
+    assert_eq!(r.force_n, vec![5.0, 6.0]);
+    assert_eq!(r.displacement_m, vec![0.1, 0.2]);
+    assert_eq!(r.velocity_m_s, Some(vec![1.0, 2.0]));
+}
+
+#[test]
+fn byte_order_mark_is_accepted() {
+    let csv = "\u{feff}time_s,displacement_m,force_n\n0,0,0\n0.0001,0,0\n";
+    assert!(load_csv(csv).is_ok());
+}
+
+#[test]
+fn jitter_below_one_percent_is_accepted() {
+    // Steps of 0.0001 s +- 0.9 %.
+    let csv = "time_s,displacement_m,force_n\n0,0,0\n0.0001009,0,0\n0.0002,0,0\n0.0003009,0,0\n";
+    assert!(load_csv(csv).is_ok(), "{:?}", load_csv(csv).err());
+}
+
+#[test]
+fn jitter_above_one_percent_is_refused() {
+    // The step ending at line 4 is 0.000102 s (2 % off).
+    let csv = "time_s,displacement_m,force_n\n0,0,0\n0.0001,0,0\n0.000202,0,0\n";
+    match load_csv(csv) {
+        Err(e @ DatasetError::Jitter { .. }) => {
+            let DatasetError::Jitter {
+                ref path,
+                line,
+                deviation_percent,
+                ..
+            } = e
+            else {
+                unreachable!()
+            };
+            assert!(ends_with(path, "runs/x.csv"));
+            assert_eq!(line, 4);
+            assert!((deviation_percent - 2.0).abs() < 0.01);
+            assert!(
+                e.to_string()
+                    .contains("runs/x.csv:4: column \"time_s\": step"),
+                "{e}"
+            );
+        }
+        other => panic!("expected a jitter error, got {other:?}"),
+    }
+}
+
+#[test]
+fn non_numeric_cell_names_file_line_and_column() {
+    let csv = "time_s,displacement_m,force_n\n0,0,1\n0.0001,0,abc\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::NotANumber { line: 3, column, value, .. } if column == "force_n" && value == "abc"),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .ends_with("runs/x.csv:3: column \"force_n\": \"abc\" is not a number"),
+        "{e}"
+    );
+}
+
+#[test]
+fn empty_cell_is_not_a_number() {
+    let csv = "time_s,displacement_m,force_n\n0,,1\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::NotANumber { line: 2, column, .. } if column == "displacement_m"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn nan_is_refused() {
+    let csv = "time_s,displacement_m,force_n\n0,0,1\n0.0001,NaN,1\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::NonFinite { line: 3, column, value, .. } if column == "displacement_m" && value == "NaN"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn infinity_is_refused() {
+    let csv = "time_s,displacement_m,force_n,velocity_m_s\n0,0,1,inf\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::NonFinite { line: 2, column, .. } if column == "velocity_m_s"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn missing_required_column_is_refused() {
+    let csv = "time_s,displacement_m,force\n0,0,1\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::MissingColumn { column, .. } if column == "force_n"),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .contains("runs/x.csv:1: column \"force_n\" is missing"),
+        "{e}"
+    );
+}
+
+#[test]
+fn duplicate_column_is_refused() {
+    let csv = "time_s,displacement_m,force_n,force_n\n0,0,1,2\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::DuplicateColumn { column, .. } if column == "force_n"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn non_monotonic_time_is_refused() {
+    let csv = "time_s,displacement_m,force_n\n0,0,0\n0.0001,0,0\n0.0001,0,0\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(e, DatasetError::NonMonotonicTime { line: 4, .. }),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string().contains("runs/x.csv:4: column \"time_s\""),
+        "{e}"
+    );
+}
+
+#[test]
+fn empty_file_is_refused() {
+    let e = load_csv("").expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::EmptyFile { path } if ends_with(path, "runs/x.csv")),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn header_only_file_is_refused() {
+    let e = load_csv("time_s,displacement_m,force_n\n").expect_err("refused");
+    assert!(
+        matches!(e, DatasetError::NoSamples { line: 2, .. }),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn wrong_field_count_is_refused() {
+    let csv = "time_s,displacement_m,force_n\n0,0,0\n0.0001,0\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(
+            e,
+            DatasetError::FieldCount {
+                line: 3,
+                expected: 3,
+                found: 2,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn manifest_naming_a_missing_file_is_refused() {
+    let manifest = format!("{MANIFEST_ONE}[[runs]]\nfile = \"runs/nope.csv\"\noil_loss = 0.0\n");
+    let e = load_manifest(&manifest).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::MissingRunFile { line: 7, key, file, .. } if key == "runs[1].file" && ends_with(file, "runs/nope.csv")),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string().contains("manifest.toml:7: runs[1].file"),
+        "{e}"
+    );
+}
+
+#[test]
+fn oil_loss_out_of_range_is_refused() {
+    let manifest = MANIFEST_ONE.replace("oil_loss = 0.15", "oil_loss = 15");
+    let e = load_manifest(&manifest).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::ManifestValue { line: Some(5), key, .. } if key == "runs[0].oil_loss"),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .contains("manifest.toml:5: runs[0].oil_loss: 15 is outside [0, 1]"),
+        "{e}"
+    );
+}
+
+#[test]
+fn negative_oil_loss_is_refused() {
+    let manifest = MANIFEST_ONE.replace("oil_loss = 0.15", "oil_loss = -0.1");
+    let e = load_manifest(&manifest).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::ManifestValue { key, .. } if key == "runs[0].oil_loss"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn non_positive_sample_rate_is_refused() {
+    for rate in ["0.0", "-10000.0", "nan"] {
+        let manifest = MANIFEST_ONE.replace("10000.0", rate);
+        let e = load_manifest(&manifest).expect_err("refused");
+        assert!(
+            matches!(&e, DatasetError::ManifestValue { line: Some(2), key, .. } if key == "sample_rate_hz"),
+            "{rate}: {e:?}"
+        );
+    }
+}
+
+#[test]
+fn duplicate_files_are_refused() {
+    let manifest = format!("{MANIFEST_ONE}[[runs]]\nfile = \"./runs/x.csv\"\noil_loss = 0.3\n");
+    let e = load_manifest(&manifest).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::DuplicateRunFile { line: Some(7), key, first_key, .. } if key == "runs[1].file" && first_key == "runs[0].file"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn absolute_or_escaping_file_is_refused() {
+    for file in ["/tmp/x.csv", "../x.csv", ""] {
+        let manifest = MANIFEST_ONE.replace("runs/x.csv", file);
+        let e = load_manifest(&manifest).expect_err("refused");
+        assert!(
+            matches!(&e, DatasetError::ManifestValue { line: Some(4), key, .. } if key == "runs[0].file"),
+            "{file}: {e:?}"
+        );
+    }
+}
+
+#[test]
+fn non_positive_optional_metadata_is_refused() {
+    let manifest = format!("{MANIFEST_ONE}amplitude_m = -0.01\n");
+    let e = load_manifest(&manifest).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::ManifestValue { line: Some(6), key, .. } if key == "runs[0].amplitude_m"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn unknown_manifest_key_is_refused() {
+    let manifest = format!("{MANIFEST_ONE}oil_los = 0.1\n");
+    let e = load_manifest(&manifest).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::ManifestSyntax { line: 6, message, .. } if message.contains("oil_los")),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn missing_manifest_key_is_refused() {
+    let manifest = MANIFEST_ONE.replace("oil_loss = 0.15\n", "");
+    let e = load_manifest(&manifest).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::ManifestSyntax { message, .. } if message.contains("oil_loss")),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn toml_syntax_error_has_line_and_column() {
+    let manifest = "name = \"d\"\nsample_rate_hz = = 10\n";
+    let e = load_manifest(manifest).expect_err("refused");
+    assert!(
+        matches!(e, DatasetError::ManifestSyntax { line: 2, .. }),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn manifest_without_runs_is_refused() {
+    let e = load_manifest("name = \"d\"\nsample_rate_hz = 10000.0\n").expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::ManifestValue { key, .. } if key == "runs"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn missing_manifest_is_an_io_error() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let e = dataset::load(dir.path()).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::Io { path, .. } if ends_with(path, MANIFEST_FILE)),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn first_bad_file_in_manifest_order_is_reported() {
+    let bad = "time_s,displacement_m,force_n\n0,0,x\n";
+    let manifest = "name = \"d\"\nsample_rate_hz = 10000.0\n[[runs]]\nfile = \"a.csv\"\noil_loss = 0\n[[runs]]\nfile = \"b.csv\"\noil_loss = 0\n";
+    let dir = folder(manifest, &[("a.csv", bad), ("b.csv", "")]);
+    let e = dataset::load(dir.path()).expect_err("refused");
+    assert!(
+        matches!(&e, DatasetError::NotANumber { path, .. } if ends_with(path, "a.csv")),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn write_refuses_what_load_would_refuse() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut d = sample_dataset(10_000.0);
+    d.runs[1].force_n[7] = f64::NAN;
+    let e = dataset::write(dir.path(), &d).expect_err("NaN refused");
+    assert!(
+        matches!(&e, DatasetError::NonFinite { line: 9, column, .. } if column == "force_n"),
+        "{e:?}"
+    );
+    let mut d = sample_dataset(10_000.0);
+    d.runs[0].displacement_m.pop();
+    let e = dataset::write(dir.path(), &d).expect_err("length refused");
+    assert!(matches!(e, DatasetError::LengthMismatch { .. }), "{e:?}");
+    let mut d = sample_dataset(10_000.0);
+    d.runs[2].entry.oil_loss = 1.5;
+    assert!(dataset::write(dir.path(), &d).is_err());
+    let mut d = sample_dataset(10_000.0);
+    d.sample_rate_hz = 9000.0;
+    let e = dataset::write(dir.path(), &d).expect_err("wrong rate refused");
+    assert!(matches!(e, DatasetError::Jitter { line: 3, .. }), "{e:?}");
+    // Nothing was written by the refused calls.
+    assert!(!dir.path().join(MANIFEST_FILE).exists());
+}
+
+#[test]
+fn progress_reports_every_run() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = sample_dataset(10_000.0);
+    dataset::write(dir.path(), &d).expect("write");
+    let seen = std::sync::Mutex::new(Vec::new());
+    dataset::load_with_progress(dir.path(), |p| {
+        if let Ok(mut s) = seen.lock() {
+            s.push(p);
+        }
+    })
+    .expect("load");
+    let seen = seen.into_inner().expect("lock");
+    assert_eq!(seen.len(), 3);
+    let last = seen.iter().max_by_key(|p| p.runs_done).expect("some");
+    assert_eq!((last.runs_done, last.runs_total), (3, 3));
+    assert_eq!(
+        seen.iter().map(|p| p.samples_done).max(),
+        Some(d.total_samples())
+    );
+}
+
+/// Load speed on 5 million rows (50 runs x 100 000 rows with velocity). Ignored by default
+/// because writing the 250 MB of CSV takes a while: `cargo test --release -p nemm-train
+/// --test dataset -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn load_speed_five_million_rows() {
+    let fs = 10_000.0;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let runs = (0..50)
+        .map(|i| {
+            sine_run(
+                &format!("runs/r{i:02}.csv"),
+                0.3 * (i % 3) as f64 / 2.0,
+                100_000,
+                fs,
+                true,
+            )
+        })
+        .collect();
+    let d = Dataset {
+        name: "speed".into(),
+        sample_rate_hz: fs,
+        runs,
+    };
+    let t = std::time::Instant::now();
+    dataset::write(dir.path(), &d).expect("write");
+    let write_s = t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
+    let back = dataset::load(dir.path()).expect("load");
+    let load_s = t.elapsed().as_secs_f64();
+    eprintln!(
+        "5 000 000 rows: write {write_s:.2} s, load {load_s:.2} s ({:.1} M rows/s) on {} threads",
+        5.0 / load_s,
+        rayon::current_num_threads()
+    );
+    assert_eq!(back.total_samples(), 5_000_000);
+    assert!(back == d, "round trip");
+    assert!(load_s < 30.0, "load took {load_s:.1} s");
+}
