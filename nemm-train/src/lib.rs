@@ -7,3 +7,4 @@
 
 pub mod dataset;
 pub mod inspect;
+pub mod train;

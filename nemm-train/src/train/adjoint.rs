@@ -1,0 +1,1246 @@
+//! Rollout of the (N)EMM over measured windows and its exact discrete adjoint.
+//!
+//! burn's autodiff tape costs 7-80 ms per RK step of this model (quadratic backward in the
+//! number of recorded ops), so the 10 kHz rollout is differentiated here by hand: the forward
+//! sweep stores the state after every sample; the reverse sweep recomputes each step's RK
+//! stages from the stored state (with the MLP activations) and back-propagates through the
+//! output force, the RK stages, the right-hand side, the scalers, LayerNorm and LeakyReLU.
+//! The result is the exact gradient of the discrete loss (up to rounding), checked against
+//! central finite differences and burn's autodiff in the tests.
+//!
+//! # Semantics (identical to `nemm_core::Estimator`)
+//!
+//! - state at rest and previous input 0 before the first sample;
+//! - sample `n`: one RK step from `(s_{n-1}, u_{n-1})` to `(s_n, u_n)` with linear input
+//!   interpolation (`u_m = 0.5 (u_{n-1} + u_n)`), then `y_n = F(s_n, u_n)`;
+//! - the scalers, the bounded output mapping, the EMM right-hand side and force are those of
+//!   `nemm_core` (`mlp`, `emm`, `integrator` module docs), evaluated here in plain
+//!   (unfused) arithmetic; the parity test bounds the difference.
+//!
+//! # Batching
+//!
+//! Windows are processed in packs of [`LANES`] that advance in lock step, so every weight is
+//! loaded once per pack and the inner loops vectorise across the lanes; packs run in
+//! parallel (rayon). Lanes that pad the last pack have zero loss weight.
+//!
+//! # Loss
+//!
+//! `L = (1 / M) sum_{windows} sum_{n >= warmup} ((y_n - F_n) / F_scale)^2` with `M` the number
+//! of scored samples: the normalised MSE of eq. 23.
+
+use nemm_core::mlp::{LAYER_NORM_EPS, LEAKY_RELU_SLOPE};
+use nemm_core::Integrator;
+use num_traits::Float;
+use rayon::prelude::*;
+use std::fmt::Debug;
+use std::ops::AddAssign;
+
+/// Number of windows advanced in lock step.
+pub const LANES: usize = 8;
+
+/// Floating-point type of a rollout (`f32` for training, `f64` for gradient checks).
+pub trait Real: Float + AddAssign + Send + Sync + Debug + Default + 'static {
+    /// From `f64`.
+    fn c(v: f64) -> Self;
+}
+impl Real for f32 {
+    #[inline(always)]
+    fn c(v: f64) -> Self {
+        v as f32
+    }
+}
+impl Real for f64 {
+    #[inline(always)]
+    fn c(v: f64) -> Self {
+        v
+    }
+}
+
+type V<T> = [T; LANES];
+
+#[inline(always)]
+fn splat<T: Real>(v: T) -> V<T> {
+    [v; LANES]
+}
+
+#[inline(always)]
+fn sum<T: Real>(v: &V<T>) -> T {
+    v.iter().fold(T::zero(), |a, &b| a + b)
+}
+
+/// Weights of one scaler in nemm-core's flat layout (see `nemm_core::mlp`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScalerWeights<T> {
+    /// Inputs `d` (2: state and alpha; 1: alpha only).
+    pub inputs: usize,
+    /// Hidden width `H`.
+    pub hidden: usize,
+    /// Hidden layers `L`.
+    pub layers: usize,
+    /// Flat parameters.
+    pub w: Vec<T>,
+    /// Lower bound of the scale factor.
+    pub s_min: T,
+    /// Upper bound of the scale factor.
+    pub s_max: T,
+}
+
+/// Everything a rollout needs: constants, scalers, normalisation, integrator.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RolloutParams<T> {
+    /// Integration scheme.
+    pub integrator: Integrator,
+    /// Step \[s\].
+    pub dt: T,
+    /// `b_fl,ini` \[N s/m\].
+    pub b_fl0: T,
+    /// `b_pr,ini` \[N s/m\].
+    pub b_pr0: T,
+    /// `k_pr,ini` \[N/m\].
+    pub k0: T,
+    /// `T_pr` \[s\].
+    pub t_pr: T,
+    /// Velocity scale \[m/s\] (input normalisation of `b_fl`).
+    pub v_scale: T,
+    /// `x_pr` scale \[m\] (input normalisation of `k_pr`).
+    pub x_scale: T,
+    /// Alpha scale.
+    pub alpha_scale: T,
+    /// `b_fl(v_st, alpha)` scaler, if neural.
+    pub b_fl: Option<ScalerWeights<T>>,
+    /// `b_pr(alpha)` scaler, if neural.
+    pub b_pr: Option<ScalerWeights<T>>,
+    /// `k_pr(x_pr, alpha)` scaler, if neural.
+    pub k_pr: Option<ScalerWeights<T>>,
+}
+
+/// Gradient of the loss with respect to every trainable quantity of [`RolloutParams`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct RolloutGrads<T> {
+    /// dL / d b_fl,ini.
+    pub b_fl0: T,
+    /// dL / d b_pr,ini.
+    pub b_pr0: T,
+    /// dL / d k_pr,ini.
+    pub k0: T,
+    /// dL / d T_pr.
+    pub t_pr: T,
+    /// dL / d (b_fl scaler weights), empty without the scaler.
+    pub b_fl: Vec<T>,
+    /// dL / d (b_pr scaler weights).
+    pub b_pr: Vec<T>,
+    /// dL / d (k_pr scaler weights).
+    pub k_pr: Vec<T>,
+}
+
+impl<T: Real> RolloutGrads<T> {
+    fn zeros(p: &RolloutParams<T>) -> Self {
+        let z = |s: &Option<ScalerWeights<T>>| s.as_ref().map_or(Vec::new(), |s| vec![T::zero(); s.w.len()]);
+        Self {
+            b_fl0: T::zero(),
+            b_pr0: T::zero(),
+            k0: T::zero(),
+            t_pr: T::zero(),
+            b_fl: z(&p.b_fl),
+            b_pr: z(&p.b_pr),
+            k_pr: z(&p.k_pr),
+        }
+    }
+
+    fn add(&mut self, o: &Self) {
+        self.b_fl0 += o.b_fl0;
+        self.b_pr0 += o.b_pr0;
+        self.k0 += o.k0;
+        self.t_pr += o.t_pr;
+        for (a, b) in [
+            (&mut self.b_fl, &o.b_fl),
+            (&mut self.b_pr, &o.b_pr),
+            (&mut self.k_pr, &o.k_pr),
+        ] {
+            for (x, &y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+    }
+
+    /// Multiplies every component by `f`.
+    pub fn scale(&mut self, f: T) {
+        self.b_fl0 = self.b_fl0 * f;
+        self.b_pr0 = self.b_pr0 * f;
+        self.k0 = self.k0 * f;
+        self.t_pr = self.t_pr * f;
+        for v in [&mut self.b_fl, &mut self.b_pr, &mut self.k_pr] {
+            for x in v.iter_mut() {
+                *x = *x * f;
+            }
+        }
+    }
+}
+
+/// One measured window: stroke velocity and force at the model step, and its oil-loss level.
+#[derive(Debug, Clone, Copy)]
+pub struct Window<'a> {
+    /// Stroke velocity \[m/s\] per sample.
+    pub u: &'a [f32],
+    /// Measured force \[N\] per sample (ignored by [`simulate`]).
+    pub f: &'a [f32],
+    /// Oil-loss level.
+    pub alpha: f32,
+}
+
+// ---------------------------------------------------------------------------------------
+// MLP over lanes
+// ---------------------------------------------------------------------------------------
+
+/// Offsets of one layer in the flat layout.
+#[derive(Debug, Clone, Copy)]
+struct LayerOff {
+    w: usize,
+    b: usize,
+    g: usize,
+    be: usize,
+    fan_in: usize,
+}
+
+#[derive(Debug, Clone)]
+struct Mlp<'a, T> {
+    h: usize,
+    inputs: usize,
+    layers: Vec<LayerOff>,
+    out_w: usize,
+    out_b: usize,
+    w: &'a [T],
+}
+
+impl<'a, T: Real> Mlp<'a, T> {
+    fn new(s: &'a ScalerWeights<T>) -> Self {
+        let (h, d) = (s.hidden, s.inputs);
+        let mut off = 0;
+        let mut layers = Vec::with_capacity(s.layers);
+        for l in 0..s.layers {
+            let fan_in = if l == 0 { d } else { h };
+            let lo = LayerOff {
+                w: off,
+                b: off + fan_in * h,
+                g: off + fan_in * h + h,
+                be: off + fan_in * h + 2 * h,
+                fan_in,
+            };
+            off = lo.be + h;
+            layers.push(lo);
+        }
+        assert_eq!(off + h + 1, s.w.len(), "scaler weight count does not match its shape");
+        Self {
+            h,
+            inputs: d,
+            layers,
+            out_w: off,
+            out_b: off + h,
+            w: &s.w,
+        }
+    }
+
+    /// Layer-1 bias with the alpha column folded in, per lane.
+    fn bias1(&self, alpha_n: &V<T>) -> Vec<V<T>> {
+        let l0 = self.layers[0];
+        (0..self.h)
+            .map(|i| {
+                let b = self.w[l0.b + i];
+                if self.inputs == 2 {
+                    let wa = self.w[l0.w + i * 2 + 1];
+                    std::array::from_fn(|k| b + wa * alpha_n[k])
+                } else {
+                    splat(b)
+                }
+            })
+            .collect()
+    }
+}
+
+/// Activations of one MLP evaluation over the lanes (for the backward pass).
+#[derive(Debug, Clone)]
+struct Act<T> {
+    x0: V<T>,
+    /// Normalised pre-activations `n = (h - mean) r`, `layers * H`.
+    n: Vec<V<T>>,
+    /// `1 / sqrt(var + eps)`, per layer.
+    r: Vec<V<T>>,
+    /// Activations after LeakyReLU, `layers * H`.
+    a: Vec<V<T>>,
+    /// `sigmoid(z)`.
+    sig: V<T>,
+}
+
+impl<T: Real> Act<T> {
+    fn new(h: usize, layers: usize) -> Self {
+        Self {
+            x0: splat(T::zero()),
+            n: vec![splat(T::zero()); h * layers],
+            r: vec![splat(T::zero()); layers],
+            a: vec![splat(T::zero()); h * layers],
+            sig: splat(T::zero()),
+        }
+    }
+}
+
+/// Scratch for forward passes without a record.
+#[derive(Debug, Clone)]
+struct Scratch<T> {
+    t: Vec<V<T>>,
+    a: Vec<V<T>>,
+}
+
+impl<T: Real> Mlp<'_, T> {
+    /// Forward pass: returns `sigmoid(z)`; fills `rec` if given.
+    fn forward(
+        &self,
+        x0: &V<T>,
+        b1: &[V<T>],
+        scratch: &mut Scratch<T>,
+        mut rec: Option<&mut Act<T>>,
+    ) -> V<T> {
+        let h = self.h;
+        let hf = T::c(h as f64);
+        let eps = T::c(LAYER_NORM_EPS as f64);
+        let slope = T::c(LEAKY_RELU_SLOPE as f64);
+        let w = self.w;
+        if let Some(r) = rec.as_deref_mut() {
+            r.x0 = *x0;
+        }
+        for (l, lo) in self.layers.iter().enumerate() {
+            // Pre-activation h = W a + b.
+            let t = &mut scratch.t;
+            if l == 0 {
+                for i in 0..h {
+                    let wi = w[lo.w + i * lo.fan_in];
+                    let bi = &b1[i];
+                    t[i] = std::array::from_fn(|k| wi * x0[k] + bi[k]);
+                }
+            } else {
+                let a_in = &scratch.a;
+                for i in 0..h {
+                    let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
+                    let mut acc = splat(w[lo.b + i]);
+                    for (j, &wij) in row.iter().enumerate() {
+                        let aj = &a_in[j];
+                        for k in 0..LANES {
+                            acc[k] = acc[k] + wij * aj[k];
+                        }
+                    }
+                    t[i] = acc;
+                }
+            }
+            // LayerNorm + affine + LeakyReLU.
+            let mut mean = splat(T::zero());
+            for ti in t.iter().take(h) {
+                for k in 0..LANES {
+                    mean[k] += ti[k];
+                }
+            }
+            for m in mean.iter_mut() {
+                *m = *m / hf;
+            }
+            let mut var = splat(T::zero());
+            for ti in t.iter_mut().take(h) {
+                for k in 0..LANES {
+                    ti[k] = ti[k] - mean[k];
+                    var[k] += ti[k] * ti[k];
+                }
+            }
+            let r: V<T> = std::array::from_fn(|k| (var[k] / hf + eps).sqrt().recip());
+            let a = &mut scratch.a;
+            for i in 0..h {
+                let (g, be) = (w[lo.g + i], w[lo.be + i]);
+                let ti = &t[i];
+                let mut ai = splat(T::zero());
+                let mut ni = splat(T::zero());
+                for k in 0..LANES {
+                    ni[k] = ti[k] * r[k];
+                    let y = g * ni[k] + be;
+                    ai[k] = if y >= T::zero() { y } else { slope * y };
+                }
+                a[i] = ai;
+                if let Some(rec) = rec.as_deref_mut() {
+                    rec.n[l * h + i] = ni;
+                    rec.a[l * h + i] = ai;
+                }
+            }
+            if let Some(rec) = rec.as_deref_mut() {
+                rec.r[l] = r;
+            }
+        }
+        let mut z = splat(w[self.out_b]);
+        for i in 0..h {
+            let wo = w[self.out_w + i];
+            let ai = &scratch.a[i];
+            for k in 0..LANES {
+                z[k] = z[k] + wo * ai[k];
+            }
+        }
+        let sig: V<T> = std::array::from_fn(|k| T::one() / (T::one() + (-z[k]).exp()));
+        if let Some(rec) = rec {
+            rec.sig = sig;
+        }
+        sig
+    }
+
+    /// Backward pass from `dL/dz` per lane; accumulates weight gradients into `g` and
+    /// returns `dL/dx0` per lane. `alpha_n` is the second input (for its weight gradient).
+    fn backward(
+        &self,
+        rec: &Act<T>,
+        zbar: &V<T>,
+        alpha_n: &V<T>,
+        g: &mut [T],
+        scratch: &mut Scratch<T>,
+    ) -> V<T> {
+        let h = self.h;
+        let hf = T::c(h as f64);
+        let slope = T::c(LEAKY_RELU_SLOPE as f64);
+        let w = self.w;
+        // Output layer.
+        g[self.out_b] += sum(zbar);
+        let abar = &mut scratch.a;
+        let l_last = self.layers.len() - 1;
+        for i in 0..h {
+            let ai = &rec.a[l_last * h + i];
+            let mut s = T::zero();
+            for k in 0..LANES {
+                s += zbar[k] * ai[k];
+            }
+            g[self.out_w + i] += s;
+            let wo = w[self.out_w + i];
+            abar[i] = std::array::from_fn(|k| wo * zbar[k]);
+        }
+        let mut x0bar = splat(T::zero());
+        for l in (0..self.layers.len()).rev() {
+            let lo = self.layers[l];
+            // Through LeakyReLU and the affine: nbar = ybar * gamma.
+            let hbar = &mut scratch.t;
+            let mut mean_nbar = splat(T::zero());
+            let mut mean_nbar_n = splat(T::zero());
+            for i in 0..h {
+                let a = &rec.a[l * h + i];
+                let n = &rec.n[l * h + i];
+                let ab = &abar[i];
+                let gam = w[lo.g + i];
+                let mut sg = T::zero();
+                let mut sb = T::zero();
+                let mut nb = splat(T::zero());
+                for k in 0..LANES {
+                    let yb = if a[k] >= T::zero() { ab[k] } else { slope * ab[k] };
+                    sg += yb * n[k];
+                    sb += yb;
+                    nb[k] = yb * gam;
+                    mean_nbar[k] += nb[k];
+                    mean_nbar_n[k] += nb[k] * n[k];
+                }
+                g[lo.g + i] += sg;
+                g[lo.be + i] += sb;
+                hbar[i] = nb;
+            }
+            // LayerNorm backward: hbar = r (nbar - mean(nbar) - n mean(nbar n)).
+            let r = &rec.r[l];
+            for k in 0..LANES {
+                mean_nbar[k] = mean_nbar[k] / hf;
+                mean_nbar_n[k] = mean_nbar_n[k] / hf;
+            }
+            for i in 0..h {
+                let n = &rec.n[l * h + i];
+                let hb = &mut hbar[i];
+                for k in 0..LANES {
+                    hb[k] = r[k] * (hb[k] - mean_nbar[k] - n[k] * mean_nbar_n[k]);
+                }
+            }
+            // Linear backward.
+            if l == 0 {
+                for i in 0..h {
+                    let hb = &hbar[i];
+                    let sb = sum(hb);
+                    g[lo.b + i] += sb;
+                    let mut s0 = T::zero();
+                    let mut s1 = T::zero();
+                    for k in 0..LANES {
+                        s0 += hb[k] * rec.x0[k];
+                        s1 += hb[k] * alpha_n[k];
+                    }
+                    g[lo.w + i * lo.fan_in] += s0;
+                    if lo.fan_in == 2 {
+                        g[lo.w + i * 2 + 1] += s1;
+                    }
+                    let w0 = w[lo.w + i * lo.fan_in];
+                    for k in 0..LANES {
+                        x0bar[k] += w0 * hb[k];
+                    }
+                }
+            } else {
+                let prev = (l - 1) * h;
+                for i in 0..h {
+                    let hb = hbar[i];
+                    g[lo.b + i] += sum(&hb);
+                    let row = lo.w + i * h;
+                    for j in 0..h {
+                        let aj = &rec.a[prev + j];
+                        let mut s = T::zero();
+                        for k in 0..LANES {
+                            s += hb[k] * aj[k];
+                        }
+                        g[row + j] += s;
+                    }
+                }
+                // abar_{l-1}[j] = sum_i W[i][j] hbar[i]
+                for j in 0..h {
+                    abar[j] = splat(T::zero());
+                }
+                for i in 0..h {
+                    let hb = hbar[i];
+                    let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
+                    for (j, &wij) in row.iter().enumerate() {
+                        let ab = &mut abar[j];
+                        for k in 0..LANES {
+                            ab[k] += wij * hb[k];
+                        }
+                    }
+                }
+            }
+        }
+        x0bar
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Coefficients
+// ---------------------------------------------------------------------------------------
+
+/// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(MLP(state / scale,
+/// alpha_n)))`.
+struct Coef<'a, T> {
+    c0: T,
+    neural: Option<NeuralCoef<'a, T>>,
+}
+
+struct NeuralCoef<'a, T> {
+    mlp: Mlp<'a, T>,
+    s_min: T,
+    span: T,
+    inv_scale: T,
+    b1: Vec<V<T>>,
+}
+
+impl<'a, T: Real> Coef<'a, T> {
+    fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: &V<T>) -> Self {
+        Self {
+            c0,
+            neural: s.map(|s| {
+                let mlp = Mlp::new(s);
+                let b1 = mlp.bias1(alpha_n);
+                NeuralCoef {
+                    mlp,
+                    s_min: s.s_min,
+                    span: s.s_max - s.s_min,
+                    inv_scale: T::one() / scale,
+                    b1,
+                }
+            }),
+        }
+    }
+
+    fn act(&self) -> Option<Act<T>> {
+        self.neural
+            .as_ref()
+            .map(|n| Act::new(n.mlp.h, n.mlp.layers.len()))
+    }
+
+    #[inline]
+    fn eval(&self, x: &V<T>, scratch: &mut Scratch<T>, rec: Option<&mut Act<T>>) -> V<T> {
+        match &self.neural {
+            None => splat(self.c0),
+            Some(n) => {
+                let x0: V<T> = std::array::from_fn(|k| x[k] * n.inv_scale);
+                let sig = n.mlp.forward(&x0, &n.b1, scratch, rec);
+                std::array::from_fn(|k| self.c0 * (n.s_min + n.span * sig[k]))
+            }
+        }
+    }
+
+    /// Back-propagates `cbar = dL/d(coefficient)`; returns `dL/d(state component)`.
+    #[inline]
+    fn backward(
+        &self,
+        rec: Option<&Act<T>>,
+        cbar: &V<T>,
+        alpha_n: &V<T>,
+        c0bar: &mut T,
+        g: &mut [T],
+        scratch: &mut Scratch<T>,
+    ) -> V<T> {
+        match (&self.neural, rec) {
+            (Some(n), Some(rec)) => {
+                let mut zbar = splat(T::zero());
+                let mut s0 = T::zero();
+                for k in 0..LANES {
+                    let sig = rec.sig[k];
+                    s0 += cbar[k] * (n.s_min + n.span * sig);
+                    zbar[k] = cbar[k] * self.c0 * n.span * sig * (T::one() - sig);
+                }
+                *c0bar += s0;
+                let x0bar = n.mlp.backward(rec, &zbar, alpha_n, g, scratch);
+                std::array::from_fn(|k| x0bar[k] * n.inv_scale)
+            }
+            _ => {
+                *c0bar += sum(cbar);
+                splat(T::zero())
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Pack rollout
+// ---------------------------------------------------------------------------------------
+
+/// A state over the lanes.
+#[derive(Debug, Clone, Copy, Default)]
+struct St<T> {
+    x: V<T>,
+    v: V<T>,
+}
+
+/// Coefficient values at one state.
+#[derive(Debug, Clone, Copy)]
+struct Cv<T> {
+    bf: V<T>,
+    k: V<T>,
+}
+
+/// Everything fixed for one pack.
+struct Pack<'a, T> {
+    bf: Coef<'a, T>,
+    k: Coef<'a, T>,
+    bp: V<T>,
+    /// `b_pr` as a function of alpha: `(scaler mlp, b1, sig)` for its backward pass.
+    bp_rec: Option<(Mlp<'a, T>, Act<T>, T, T)>,
+    alpha_n: V<T>,
+    it: T,
+    integrator: Integrator,
+    dt: T,
+    h2: T,
+    h6: T,
+}
+
+struct Work<T> {
+    scratch: Scratch<T>,
+}
+
+impl<'a, T: Real> Pack<'a, T> {
+    fn new(p: &'a RolloutParams<T>, alphas: &V<T>) -> Self {
+        let alpha_n: V<T> = std::array::from_fn(|k| alphas[k] / p.alpha_scale);
+        let (bp, bp_rec) = match &p.b_pr {
+            None => (splat(p.b_pr0), None),
+            Some(s) => {
+                let mlp = Mlp::new(s);
+                let mut scratch = Scratch {
+                    t: vec![splat(T::zero()); s.hidden],
+                    a: vec![splat(T::zero()); s.hidden],
+                };
+                let b1 = mlp.bias1(&alpha_n);
+                let mut act = Act::new(s.hidden, s.layers);
+                let sig = mlp.forward(&alpha_n, &b1, &mut scratch, Some(&mut act));
+                let span = s.s_max - s.s_min;
+                let bp = std::array::from_fn(|k| p.b_pr0 * (s.s_min + span * sig[k]));
+                (bp, Some((mlp, act, s.s_min, span)))
+            }
+        };
+        Self {
+            bf: Coef::new(p.b_fl0, p.b_fl.as_ref(), p.v_scale, &alpha_n),
+            k: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, &alpha_n),
+            bp,
+            bp_rec,
+            alpha_n,
+            it: T::one() / p.t_pr,
+            integrator: p.integrator,
+            dt: p.dt,
+            h2: T::c(0.5) * p.dt,
+            h6: p.dt / T::c(6.0),
+        }
+    }
+
+    fn work(&self) -> Work<T> {
+        let h = [&self.bf, &self.k]
+            .iter()
+            .filter_map(|c| c.neural.as_ref().map(|n| n.mlp.h))
+            .max()
+            .unwrap_or(1);
+        Work {
+            scratch: Scratch {
+                t: vec![splat(T::zero()); h],
+                a: vec![splat(T::zero()); h],
+            },
+        }
+    }
+
+    #[inline]
+    fn coeffs(
+        &self,
+        s: &St<T>,
+        w: &mut Work<T>,
+        rec: Option<(&mut Option<Act<T>>, &mut Option<Act<T>>)>,
+    ) -> Cv<T> {
+        match rec {
+            None => Cv {
+                bf: self.bf.eval(&s.v, &mut w.scratch, None),
+                k: self.k.eval(&s.x, &mut w.scratch, None),
+            },
+            Some((rb, rk)) => Cv {
+                bf: self.bf.eval(&s.v, &mut w.scratch, rb.as_mut()),
+                k: self.k.eval(&s.x, &mut w.scratch, rk.as_mut()),
+            },
+        }
+    }
+
+    /// `q = (k x + bp u) / (bp + bf)`.
+    #[inline(always)]
+    fn q(&self, c: &Cv<T>, s: &St<T>, u: &V<T>) -> V<T> {
+        std::array::from_fn(|k| (c.k[k] * s.x[k] + self.bp[k] * u[k]) / (self.bp[k] + c.bf[k]))
+    }
+
+    #[inline(always)]
+    fn rhs(&self, c: &Cv<T>, s: &St<T>, u: &V<T>) -> St<T> {
+        let q = self.q(c, s, u);
+        St {
+            x: std::array::from_fn(|k| u[k] - q[k]),
+            v: std::array::from_fn(|k| (q[k] - s.v[k]) * self.it),
+        }
+    }
+
+    #[inline(always)]
+    fn axpy(a: T, k: &St<T>, s: &St<T>) -> St<T> {
+        St {
+            x: std::array::from_fn(|i| s.x[i] + a * k.x[i]),
+            v: std::array::from_fn(|i| s.v[i] + a * k.v[i]),
+        }
+    }
+
+    /// One RK step from `s` (coefficients `c1`) with inputs `u0` -> `u1`.
+    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: &V<T>, u1: &V<T>, w: &mut Work<T>) -> St<T> {
+        let um: V<T> = std::array::from_fn(|k| T::c(0.5) * (u0[k] + u1[k]));
+        let k1 = self.rhs(c1, s, u0);
+        let s2 = Self::axpy(self.h2, &k1, s);
+        let k2 = self.rhs(&self.coeffs(&s2, w, None), &s2, &um);
+        match self.integrator {
+            Integrator::Rk4 => {
+                let s3 = Self::axpy(self.h2, &k2, s);
+                let k3 = self.rhs(&self.coeffs(&s3, w, None), &s3, &um);
+                let s4 = Self::axpy(self.dt, &k3, s);
+                let k4 = self.rhs(&self.coeffs(&s4, w, None), &s4, u1);
+                let two = T::c(2.0);
+                let sum = St {
+                    x: std::array::from_fn(|i| (k1.x[i] + k4.x[i]) + two * (k2.x[i] + k3.x[i])),
+                    v: std::array::from_fn(|i| (k1.v[i] + k4.v[i]) + two * (k2.v[i] + k3.v[i])),
+                };
+                Self::axpy(self.h6, &sum, s)
+            }
+            Integrator::Rk3 => {
+                let two = T::c(2.0);
+                let d = St {
+                    x: std::array::from_fn(|i| two * k2.x[i] - k1.x[i]),
+                    v: std::array::from_fn(|i| two * k2.v[i] - k1.v[i]),
+                };
+                let s3 = Self::axpy(self.dt, &d, s);
+                let k3 = self.rhs(&self.coeffs(&s3, w, None), &s3, u1);
+                let four = T::c(4.0);
+                let sum = St {
+                    x: std::array::from_fn(|i| four * k2.x[i] + (k1.x[i] + k3.x[i])),
+                    v: std::array::from_fn(|i| four * k2.v[i] + (k1.v[i] + k3.v[i])),
+                };
+                Self::axpy(self.h6, &sum, s)
+            }
+        }
+    }
+}
+
+/// Adjoint accumulators of one pack.
+struct Bar<T> {
+    g: RolloutGrads<T>,
+    /// dL/d b_pr per lane (b_pr is constant over a window).
+    bp: V<T>,
+    /// dL/d (1/T_pr).
+    it: T,
+}
+
+/// Coefficient adjoints at one state.
+#[derive(Debug, Clone, Copy)]
+struct CvBar<T> {
+    bf: V<T>,
+    k: V<T>,
+}
+
+impl<T: Real> Pack<'_, T> {
+    /// Backward of `q` given `qbar`: adds to `sbar` (direct) and `cbar`, and `bar.bp`.
+    #[inline(always)]
+    fn q_backward(
+        &self,
+        c: &Cv<T>,
+        s: &St<T>,
+        u: &V<T>,
+        qbar: &V<T>,
+        sbar: &mut St<T>,
+        cbar: &mut CvBar<T>,
+        bar: &mut Bar<T>,
+    ) {
+        for k in 0..LANES {
+            let den = self.bp[k] + c.bf[k];
+            let q = (c.k[k] * s.x[k] + self.bp[k] * u[k]) / den;
+            let numbar = qbar[k] / den;
+            let denbar = -qbar[k] * q / den;
+            cbar.k[k] += numbar * s.x[k];
+            sbar.x[k] += numbar * c.k[k];
+            bar.bp[k] += numbar * u[k] + denbar;
+            cbar.bf[k] += denbar;
+        }
+    }
+
+    /// Backward of `rhs(c, s, u)` given `kbar`.
+    #[inline(always)]
+    fn rhs_backward(
+        &self,
+        c: &Cv<T>,
+        s: &St<T>,
+        u: &V<T>,
+        kbar: &St<T>,
+        sbar: &mut St<T>,
+        cbar: &mut CvBar<T>,
+        bar: &mut Bar<T>,
+    ) {
+        let q = self.q(c, s, u);
+        let mut qbar = splat(T::zero());
+        let mut itbar = T::zero();
+        for k in 0..LANES {
+            qbar[k] = -kbar.x[k] + self.it * kbar.v[k];
+            sbar.v[k] += -self.it * kbar.v[k];
+            itbar += (q[k] - s.v[k]) * kbar.v[k];
+        }
+        bar.it += itbar;
+        self.q_backward(c, s, u, &qbar, sbar, cbar, bar);
+    }
+
+    /// Back-propagates coefficient adjoints through the scalers at the recorded state.
+    #[inline]
+    fn coef_backward(
+        &self,
+        rb: &Option<Act<T>>,
+        rk: &Option<Act<T>>,
+        cbar: &CvBar<T>,
+        sbar: &mut St<T>,
+        bar: &mut Bar<T>,
+        w: &mut Work<T>,
+    ) {
+        let xv = self.bf.backward(
+            rb.as_ref(),
+            &cbar.bf,
+            &self.alpha_n,
+            &mut bar.g.b_fl0,
+            &mut bar.g.b_fl,
+            &mut w.scratch,
+        );
+        let xx = self.k.backward(
+            rk.as_ref(),
+            &cbar.k,
+            &self.alpha_n,
+            &mut bar.g.k0,
+            &mut bar.g.k_pr,
+            &mut w.scratch,
+        );
+        for k in 0..LANES {
+            sbar.v[k] += xv[k];
+            sbar.x[k] += xx[k];
+        }
+    }
+}
+
+fn zero_cbar<T: Real>() -> CvBar<T> {
+    CvBar {
+        bf: splat(T::zero()),
+        k: splat(T::zero()),
+    }
+}
+
+/// Inputs of one pack: per sample, the lanes' velocity and force; per lane the weight of its
+/// squared error (0 for padding).
+struct PackData<T> {
+    u: Vec<V<T>>,
+    f: Vec<V<T>>,
+    lane_w: V<T>,
+    alphas: V<T>,
+}
+
+fn pack_data<T: Real>(windows: &[&Window<'_>], n: usize) -> PackData<T> {
+    let mut u = vec![splat(T::zero()); n];
+    let mut f = vec![splat(T::zero()); n];
+    let mut lane_w = splat(T::zero());
+    let mut alphas = splat(T::zero());
+    for k in 0..LANES {
+        // Padding lanes repeat the first window with zero weight.
+        let (win, wgt) = match windows.get(k) {
+            Some(w) => (w, T::one()),
+            None => (&windows[0], T::zero()),
+        };
+        lane_w[k] = wgt;
+        alphas[k] = T::c(win.alpha as f64);
+        for i in 0..n {
+            u[i][k] = T::c(win.u[i] as f64);
+            f[i][k] = T::c(win.f[i] as f64);
+        }
+    }
+    PackData {
+        u,
+        f,
+        lane_w,
+        alphas,
+    }
+}
+
+/// Forward sweep: states after every sample (index 0 = rest, before sample 0) and forces.
+fn forward_sweep<T: Real>(pk: &Pack<'_, T>, d: &PackData<T>, w: &mut Work<T>) -> (Vec<St<T>>, Vec<V<T>>) {
+    let n = d.u.len();
+    let mut states = Vec::with_capacity(n + 1);
+    let mut ys = Vec::with_capacity(n);
+    let mut s = St::default();
+    let mut c = pk.coeffs(&s, w, None);
+    let mut u_prev = splat(T::zero());
+    states.push(s);
+    for u in &d.u {
+        s = pk.step(&s, &c, &u_prev, u, w);
+        c = pk.coeffs(&s, w, None);
+        let q = pk.q(&c, &s, u);
+        ys.push(std::array::from_fn(|k| c.bf[k] * q[k]));
+        states.push(s);
+        u_prev = *u;
+    }
+    (states, ys)
+}
+
+/// Loss sum (unnormalised) and gradient of one pack. `ybar_scale` is `2 / (F_s^2 M)`.
+fn pack_loss_grad<T: Real>(
+    p: &RolloutParams<T>,
+    d: &PackData<T>,
+    warmup: usize,
+    inv_fs: T,
+    ybar_scale: T,
+) -> (T, RolloutGrads<T>) {
+    let pk = Pack::new(p, &d.alphas);
+    let mut w = pk.work();
+    let (states, _) = forward_sweep(&pk, d, &mut w);
+    let n = d.u.len();
+    let mut loss = T::zero();
+    let mut bar = Bar {
+        g: RolloutGrads::zeros(p),
+        bp: splat(T::zero()),
+        it: T::zero(),
+    };
+    // Reverse sweep. `sbar` is dL/ds_n (direct paths so far); `cbar_next` the coefficient
+    // adjoint at s_n from stage 1 of step n+1; `rec_n` the activations at s_n.
+    let mut sbar = St::default();
+    let mut cbar_n = zero_cbar::<T>();
+    let (mut rb_n, mut rk_n) = (pk.bf.act(), pk.k.act());
+    let mut have_rec_n = false;
+    let (mut rb2, mut rk2) = (pk.bf.act(), pk.k.act());
+    let (mut rb3, mut rk3) = (pk.bf.act(), pk.k.act());
+    let (mut rb4, mut rk4) = (pk.bf.act(), pk.k.act());
+    let (mut rb1, mut rk1) = (pk.bf.act(), pk.k.act());
+    for i in (0..n).rev() {
+        let s_n = states[i + 1];
+        let s_p = states[i];
+        let u1 = d.u[i];
+        let u0 = if i == 0 { splat(T::zero()) } else { d.u[i - 1] };
+        // Coefficients at s_n with activations (carried from the previous iteration's stage 1).
+        let c_n = if have_rec_n {
+            // rb_n / rk_n already hold s_n's activations (stage 1 of step i+1).
+            pk.coeffs_from_rec(&rb_n, &rk_n, &s_n)
+        } else {
+            pk.coeffs(&s_n, &mut w, Some((&mut rb_n, &mut rk_n)))
+        };
+        // Output y_i = bf * q.
+        let q = pk.q(&c_n, &s_n, &u1);
+        let mut qbar = splat(T::zero());
+        if i >= warmup {
+            for k in 0..LANES {
+                let y = c_n.bf[k] * q[k];
+                let e = (y - d.f[i][k]) * inv_fs * d.lane_w[k];
+                loss += e * e;
+                let ybar = ybar_scale * (y - d.f[i][k]) * d.lane_w[k];
+                qbar[k] = ybar * c_n.bf[k];
+                cbar_n.bf[k] += ybar * q[k];
+            }
+            pk.q_backward(&c_n, &s_n, &u1, &qbar, &mut sbar, &mut cbar_n, &mut bar);
+        }
+        // Scalers at s_n: complete dL/ds_n.
+        pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
+        // Step i: s_p -> s_n. Recompute stages with activations.
+        let c1 = pk.coeffs(&s_p, &mut w, Some((&mut rb1, &mut rk1)));
+        let um: V<T> = std::array::from_fn(|k| T::c(0.5) * (u0[k] + u1[k]));
+        let k1 = pk.rhs(&c1, &s_p, &u0);
+        let s2 = Pack::<T>::axpy(pk.h2, &k1, &s_p);
+        let c2 = pk.coeffs(&s2, &mut w, Some((&mut rb2, &mut rk2)));
+        let mut sbar_p = sbar; // identity part of x_{n} = x_{n-1} + ...
+        let mut cbar1 = zero_cbar::<T>();
+        match pk.integrator {
+            Integrator::Rk4 => {
+                let k2 = pk.rhs(&c2, &s2, &um);
+                let s3 = Pack::<T>::axpy(pk.h2, &k2, &s_p);
+                let c3 = pk.coeffs(&s3, &mut w, Some((&mut rb3, &mut rk3)));
+                let k3 = pk.rhs(&c3, &s3, &um);
+                let s4 = Pack::<T>::axpy(pk.dt, &k3, &s_p);
+                let c4 = pk.coeffs(&s4, &mut w, Some((&mut rb4, &mut rk4)));
+                let a1 = pk.h6;
+                let a2 = T::c(2.0) * pk.h6;
+                let mut k1b = scale_st(a1, &sbar);
+                let mut k2b = scale_st(a2, &sbar);
+                let mut k3b = scale_st(a2, &sbar);
+                let k4b = scale_st(a1, &sbar);
+                // Stage 4.
+                let mut s4b = St::default();
+                let mut c4b = zero_cbar::<T>();
+                pk.rhs_backward(&c4, &s4, &u1, &k4b, &mut s4b, &mut c4b, &mut bar);
+                pk.coef_backward(&rb4, &rk4, &c4b, &mut s4b, &mut bar, &mut w);
+                add_st(&mut sbar_p, &s4b);
+                axpy_st(&mut k3b, pk.dt, &s4b);
+                // Stage 3.
+                let mut s3b = St::default();
+                let mut c3b = zero_cbar::<T>();
+                pk.rhs_backward(&c3, &s3, &um, &k3b, &mut s3b, &mut c3b, &mut bar);
+                pk.coef_backward(&rb3, &rk3, &c3b, &mut s3b, &mut bar, &mut w);
+                add_st(&mut sbar_p, &s3b);
+                axpy_st(&mut k2b, pk.h2, &s3b);
+                // Stage 2.
+                let mut s2b = St::default();
+                let mut c2b = zero_cbar::<T>();
+                pk.rhs_backward(&c2, &s2, &um, &k2b, &mut s2b, &mut c2b, &mut bar);
+                pk.coef_backward(&rb2, &rk2, &c2b, &mut s2b, &mut bar, &mut w);
+                add_st(&mut sbar_p, &s2b);
+                axpy_st(&mut k1b, pk.h2, &s2b);
+                // Stage 1 (coefficients at s_p: deferred).
+                pk.rhs_backward(&c1, &s_p, &u0, &k1b, &mut sbar_p, &mut cbar1, &mut bar);
+            }
+            Integrator::Rk3 => {
+                let k2 = pk.rhs(&c2, &s2, &um);
+                let two = T::c(2.0);
+                let dd = St {
+                    x: std::array::from_fn(|j| two * k2.x[j] - k1.x[j]),
+                    v: std::array::from_fn(|j| two * k2.v[j] - k1.v[j]),
+                };
+                let s3 = Pack::<T>::axpy(pk.dt, &dd, &s_p);
+                let c3 = pk.coeffs(&s3, &mut w, Some((&mut rb3, &mut rk3)));
+                let mut k1b = scale_st(pk.h6, &sbar);
+                let mut k2b = scale_st(T::c(4.0) * pk.h6, &sbar);
+                let k3b = scale_st(pk.h6, &sbar);
+                let mut s3b = St::default();
+                let mut c3b = zero_cbar::<T>();
+                pk.rhs_backward(&c3, &s3, &u1, &k3b, &mut s3b, &mut c3b, &mut bar);
+                pk.coef_backward(&rb3, &rk3, &c3b, &mut s3b, &mut bar, &mut w);
+                add_st(&mut sbar_p, &s3b);
+                axpy_st(&mut k2b, two * pk.dt, &s3b);
+                axpy_st(&mut k1b, -pk.dt, &s3b);
+                let mut s2b = St::default();
+                let mut c2b = zero_cbar::<T>();
+                pk.rhs_backward(&c2, &s2, &um, &k2b, &mut s2b, &mut c2b, &mut bar);
+                pk.coef_backward(&rb2, &rk2, &c2b, &mut s2b, &mut bar, &mut w);
+                add_st(&mut sbar_p, &s2b);
+                axpy_st(&mut k1b, pk.h2, &s2b);
+                pk.rhs_backward(&c1, &s_p, &u0, &k1b, &mut sbar_p, &mut cbar1, &mut bar);
+            }
+        }
+        // Move to s_p: its activations are rb1/rk1, its coefficient adjoint cbar1.
+        sbar = sbar_p;
+        cbar_n = cbar1;
+        std::mem::swap(&mut rb_n, &mut rb1);
+        std::mem::swap(&mut rk_n, &mut rk1);
+        have_rec_n = true;
+    }
+    // s_{-1} is the fixed rest state: its adjoint is dropped, but the coefficients there
+    // depend on the weights.
+    let mut sdummy = St::default();
+    pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar, &mut w);
+    // b_pr: constant over the window.
+    match &pk.bp_rec {
+        None => bar.g.b_pr0 += sum(&bar.bp),
+        Some((mlp, act, s_min, span)) => {
+            let mut zbar = splat(T::zero());
+            for k in 0..LANES {
+                let sig = act.sig[k];
+                bar.g.b_pr0 += bar.bp[k] * (*s_min + *span * sig);
+                zbar[k] = bar.bp[k] * p.b_pr0 * *span * sig * (T::one() - sig);
+            }
+            let mut scratch = Scratch {
+                t: vec![splat(T::zero()); mlp.h],
+                a: vec![splat(T::zero()); mlp.h],
+            };
+            let alpha_n = pk.alpha_n;
+            mlp.backward(act, &zbar, &alpha_n, &mut bar.g.b_pr, &mut scratch);
+        }
+    }
+    // T_pr from 1/T_pr.
+    bar.g.t_pr = -bar.it * pk.it * pk.it;
+    (loss, bar.g)
+}
+
+impl<T: Real> Pack<'_, T> {
+    /// Coefficient values from recorded activations (no recomputation).
+    fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>, _s: &St<T>) -> Cv<T> {
+        let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> V<T> {
+            match (&c.neural, r) {
+                (Some(n), Some(r)) => std::array::from_fn(|k| c.c0 * (n.s_min + n.span * r.sig[k])),
+                _ => splat(c.c0),
+            }
+        };
+        Cv {
+            bf: val(&self.bf, rb),
+            k: val(&self.k, rk),
+        }
+    }
+}
+
+#[inline(always)]
+fn scale_st<T: Real>(a: T, s: &St<T>) -> St<T> {
+    St {
+        x: std::array::from_fn(|k| a * s.x[k]),
+        v: std::array::from_fn(|k| a * s.v[k]),
+    }
+}
+
+#[inline(always)]
+fn add_st<T: Real>(a: &mut St<T>, b: &St<T>) {
+    for k in 0..LANES {
+        a.x[k] += b.x[k];
+        a.v[k] += b.v[k];
+    }
+}
+
+#[inline(always)]
+fn axpy_st<T: Real>(a: &mut St<T>, f: T, b: &St<T>) {
+    for k in 0..LANES {
+        a.x[k] += f * b.x[k];
+        a.v[k] += f * b.v[k];
+    }
+}
+
+/// Checks that all windows have the same length and returns it.
+fn common_len(windows: &[Window<'_>]) -> usize {
+    let n = windows.first().map_or(0, |w| w.u.len());
+    assert!(
+        windows.iter().all(|w| w.u.len() == n && w.f.len() == n),
+        "all windows of a batch must have the same length"
+    );
+    n
+}
+
+/// Normalised MSE loss (eq. 23) over `windows` (scored after `warmup` samples) and its exact
+/// gradient. Returns `(loss, gradient)`; packs of [`LANES`] windows run in parallel.
+pub fn loss_and_grad<T: Real>(
+    p: &RolloutParams<T>,
+    windows: &[Window<'_>],
+    warmup: usize,
+    force_scale: f64,
+) -> (f64, RolloutGrads<T>) {
+    let n = common_len(windows);
+    if n <= warmup || windows.is_empty() {
+        return (0.0, RolloutGrads::zeros(p));
+    }
+    let m = (windows.len() * (n - warmup)) as f64;
+    let inv_fs = T::c(1.0 / force_scale);
+    let ybar_scale = T::c(2.0 / (force_scale * force_scale * m));
+    let refs: Vec<&Window<'_>> = windows.iter().collect();
+    let results: Vec<(T, RolloutGrads<T>)> = refs
+        .par_chunks(LANES)
+        .map(|chunk| {
+            let d = pack_data::<T>(chunk, n);
+            pack_loss_grad(p, &d, warmup, inv_fs, ybar_scale)
+        })
+        .collect();
+    let mut g = RolloutGrads::zeros(p);
+    let mut loss = 0.0f64;
+    for (l, gi) in &results {
+        loss += l.to_f64().unwrap_or(f64::NAN);
+        g.add(gi);
+    }
+    (loss / m, g)
+}
+
+/// Simulated forces of every window (same semantics as the estimator), one vector per window.
+pub fn simulate<T: Real>(p: &RolloutParams<T>, windows: &[Window<'_>]) -> Vec<Vec<f64>> {
+    let refs: Vec<&Window<'_>> = windows.iter().collect();
+    let mut out: Vec<Vec<f64>> = Vec::with_capacity(windows.len());
+    let per_pack: Vec<Vec<Vec<f64>>> = refs
+        .par_chunks(LANES)
+        .map(|chunk| {
+            let n = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
+            // Pad shorter windows with zeros (their tail is discarded).
+            let mut d = PackData {
+                u: vec![splat(T::zero()); n],
+                f: vec![splat(T::zero()); n],
+                lane_w: splat(T::zero()),
+                alphas: splat(T::zero()),
+            };
+            for (k, w) in chunk.iter().enumerate() {
+                d.alphas[k] = T::c(w.alpha as f64);
+                for (i, &u) in w.u.iter().enumerate() {
+                    d.u[i][k] = T::c(u as f64);
+                }
+            }
+            let pk = Pack::new(p, &d.alphas);
+            let mut work = pk.work();
+            let (_, ys) = forward_sweep(&pk, &d, &mut work);
+            chunk
+                .iter()
+                .enumerate()
+                .map(|(k, w)| {
+                    ys.iter()
+                        .take(w.u.len())
+                        .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
+                        .collect()
+                })
+                .collect()
+        })
+        .collect();
+    for v in per_pack {
+        out.extend(v);
+    }
+    out
+}
+
+/// Simulated states `x_pr` of every window (for the `x_pr` normalisation scale).
+pub fn simulate_x_pr<T: Real>(p: &RolloutParams<T>, windows: &[Window<'_>]) -> Vec<Vec<f64>> {
+    let refs: Vec<&Window<'_>> = windows.iter().collect();
+    refs.par_chunks(LANES)
+        .flat_map_iter(|chunk| {
+            let n = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
+            let mut d = PackData {
+                u: vec![splat(T::zero()); n],
+                f: vec![splat(T::zero()); n],
+                lane_w: splat(T::zero()),
+                alphas: splat(T::zero()),
+            };
+            for (k, w) in chunk.iter().enumerate() {
+                d.alphas[k] = T::c(w.alpha as f64);
+                for (i, &u) in w.u.iter().enumerate() {
+                    d.u[i][k] = T::c(u as f64);
+                }
+            }
+            let pk = Pack::new(p, &d.alphas);
+            let mut work = pk.work();
+            let (states, _) = forward_sweep(&pk, &d, &mut work);
+            chunk
+                .iter()
+                .enumerate()
+                .map(|(k, w)| {
+                    states
+                        .iter()
+                        .skip(1)
+                        .take(w.u.len())
+                        .map(|s| s.x[k].to_f64().unwrap_or(f64::NAN))
+                        .collect::<Vec<f64>>()
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}

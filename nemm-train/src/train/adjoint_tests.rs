@@ -1,0 +1,188 @@
+//! Checks of the rollout against nemm-core and of the adjoint against finite differences.
+use super::adjoint::{loss_and_grad, simulate, RolloutGrads, RolloutParams, Window};
+use super::params::{convert, from_core};
+use nemm_core::testing::example_model;
+use nemm_core::{Estimator, EstimatorConfig, Integrator, Model, ModelKind};
+
+fn model(kind: ModelKind, h: u8, l: u8) -> Model {
+    example_model(kind, h, l).expect("example model")
+}
+
+/// A bench-like velocity signal: sum of two sinusoids.
+fn signal(n: usize, dt: f64, a: f64, f1: f64, phase: f64) -> Vec<f32> {
+    (0..n)
+        .map(|i| {
+            let t = i as f64 * dt;
+            (a * (2.0 * std::f64::consts::PI * f1 * t + phase).sin()
+                + 0.3 * a * (2.0 * std::f64::consts::PI * 3.7 * f1 * t).cos()) as f32
+        })
+        .collect()
+}
+
+#[test]
+fn rollout_matches_core_estimator() {
+    for kind in [ModelKind::LinearEmm, ModelKind::NemmLight, ModelKind::Nemm] {
+        for integ in [Integrator::Rk4, Integrator::Rk3] {
+            let mut m = model(kind, 16, 5);
+            m.integrator = integ;
+            let p: RolloutParams<f32> = from_core(&m).expect("emm model");
+            let n = 20_000;
+            let u = signal(n, 1e-4, 0.8, 8.3, 0.3);
+            let f = vec![0.0f32; n];
+            let ys = simulate(&p, &[Window { u: &u, f: &f, alpha: 0.15 }]);
+            let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("estimator");
+            let mut worst = 0.0f64;
+            for (i, &ui) in u.iter().enumerate() {
+                let e = est.step(ui);
+                worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
+            }
+            let rel = worst / m.meta.force_scale_n as f64;
+            assert!(rel < 1e-5, "{kind:?} {integ:?}: max |diff| = {worst} N ({rel:e} of force scale)");
+        }
+    }
+}
+
+/// All gradient components flattened, in a fixed order, with names.
+fn flat(g: &RolloutGrads<f64>) -> Vec<(String, f64)> {
+    let mut v = vec![
+        ("b_fl0".to_string(), g.b_fl0),
+        ("b_pr0".to_string(), g.b_pr0),
+        ("k0".to_string(), g.k0),
+        ("t_pr".to_string(), g.t_pr),
+    ];
+    for (name, w) in [("b_fl", &g.b_fl), ("b_pr", &g.b_pr), ("k_pr", &g.k_pr)] {
+        v.extend(w.iter().enumerate().map(|(i, &x)| (format!("{name}[{i}]"), x)));
+    }
+    v
+}
+
+/// Applies `f` to parameter number `idx` in the order of [`flat`].
+fn perturb(p: &RolloutParams<f64>, idx: usize, delta: f64) -> (RolloutParams<f64>, f64) {
+    let mut q = p.clone();
+    let h;
+    {
+        let consts = [&mut q.b_fl0, &mut q.b_pr0, &mut q.k0, &mut q.t_pr];
+        if idx < 4 {
+            h = delta * consts[idx].abs();
+            *consts[idx] += h;
+            return (q, h);
+        }
+    }
+    let mut i = idx - 4;
+    for s in [&mut q.b_fl, &mut q.b_pr, &mut q.k_pr].into_iter().flatten() {
+        if i < s.w.len() {
+            s.w[i] += delta;
+            break;
+        }
+        i -= s.w.len();
+    }
+    (q, delta)
+}
+
+fn windows_for_test(n: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>, Vec<f32>) {
+    // Ten windows (two packs, the second padded) with different inputs, targets and alphas.
+    let mut us = Vec::new();
+    let mut fs = Vec::new();
+    let mut alphas = Vec::new();
+    for w in 0..10 {
+        us.push(signal(n, 5e-4, 0.3 + 0.1 * w as f64, 20.0 + 3.0 * w as f64, 0.4 * w as f64));
+        fs.push(signal(n, 5e-4, 800.0, 11.0 + w as f64, 1.0));
+        alphas.push([0.0f32, 0.15, 0.3][w % 3]);
+    }
+    (us, fs, alphas)
+}
+
+fn check_fd(kind: ModelKind, integ: Integrator) {
+    let mut m = model(kind, 4, 2);
+    m.integrator = integ;
+    // A longer step (still stable) so that 60 steps move the states well away from rest.
+    m.dt_s = 5e-4;
+    let p: RolloutParams<f64> = from_core(&m).expect("emm model");
+    let n = 60;
+    let warmup = 7;
+    let (us, fs, alphas) = windows_for_test(n);
+    let wins: Vec<Window<'_>> = (0..us.len())
+        .map(|i| Window { u: &us[i], f: &fs[i], alpha: alphas[i] })
+        .collect();
+    let fs_scale = 1500.0;
+    let (_, g) = loss_and_grad(&p, &wins, warmup, fs_scale);
+    let g = flat(&g);
+    let gmax = g.iter().fold(0.0f64, |a, (_, x)| a.max(x.abs()));
+    let mut worst = 0.0f64;
+    for (idx, (name, gi)) in g.iter().enumerate() {
+        // Central differences. The step trades truncation error and LeakyReLU kinks (large h)
+        // against rounding noise of the loss (small h); 1e-6 keeps both below 1e-5 relative
+        // except for components near the floor.
+        let central = |d: f64| {
+            let (pp, h) = perturb(&p, idx, d);
+            let (pm, _) = perturb(&p, idx, -d);
+            let (lp, _) = loss_and_grad(&pp, &wins, warmup, fs_scale);
+            let (lm, _) = loss_and_grad(&pm, &wins, warmup, fs_scale);
+            (lp - lm) / (2.0 * h)
+        };
+        let fd = central(1e-6);
+        // Relative to the component, floored at 1e-6 of the largest component (absolute
+        // noise of the difference quotient).
+        let err = (gi - fd).abs() / fd.abs().max(1e-6 * gmax);
+        worst = worst.max(err);
+        assert!(err < 1e-4, "{kind:?} {integ:?} {name}: adjoint {gi:e}, finite difference {fd:e}");
+    }
+    eprintln!("{kind:?} {integ:?}: worst relative error vs central differences {worst:e}");
+}
+
+#[test]
+fn adjoint_matches_finite_differences_nemm_rk4() {
+    check_fd(ModelKind::Nemm, Integrator::Rk4);
+}
+
+#[test]
+fn adjoint_matches_finite_differences_nemm_rk3() {
+    check_fd(ModelKind::Nemm, Integrator::Rk3);
+}
+
+#[test]
+fn adjoint_matches_finite_differences_light_and_linear() {
+    check_fd(ModelKind::NemmLight, Integrator::Rk4);
+    check_fd(ModelKind::LinearEmm, Integrator::Rk4);
+}
+
+#[test]
+fn f32_adjoint_is_close_to_f64() {
+    let mut m = model(ModelKind::Nemm, 16, 5);
+    m.dt_s = 1e-4;
+    let p64: RolloutParams<f64> = from_core(&m).expect("emm model");
+    let p32: RolloutParams<f32> = convert(&p64);
+    let n = 2000;
+    let (us, fs, alphas) = windows_for_test(n);
+    let wins: Vec<Window<'_>> = (0..us.len())
+        .map(|i| Window { u: &us[i], f: &fs[i], alpha: alphas[i] })
+        .collect();
+    let (l64, g64) = loss_and_grad(&p64, &wins, 100, 1500.0);
+    let (l32, g32) = loss_and_grad(&p32, &wins, 100, 1500.0);
+    assert!((l64 - l32).abs() <= 1e-5 * l64, "loss {l64} vs {l32}");
+    let a = flat(&g64);
+    let b = flat(&convert_grads(&g32));
+    // Per group, relative to the group's largest component.
+    for group in ["b_fl0", "b_pr0", "k0", "t_pr", "b_fl[", "b_pr[", "k_pr["] {
+        let sel: Vec<_> = a.iter().zip(&b).filter(|((n, _), _)| n.starts_with(group)).collect();
+        let scale = sel.iter().fold(0.0f64, |m, ((_, x), _)| m.max(x.abs()));
+        let worst = sel
+            .iter()
+            .fold(0.0f64, |m, ((_, x), (_, y))| m.max((x - y).abs() / scale));
+        assert!(worst < 1e-3, "{group}: f32 relative error {worst:e}");
+        eprintln!("{group}: f32 vs f64 worst relative error {worst:e}");
+    }
+}
+
+fn convert_grads(g: &RolloutGrads<f32>) -> RolloutGrads<f64> {
+    let v = |x: &Vec<f32>| x.iter().map(|&y| y as f64).collect();
+    RolloutGrads {
+        b_fl0: g.b_fl0 as f64,
+        b_pr0: g.b_pr0 as f64,
+        k0: g.k0 as f64,
+        t_pr: g.t_pr as f64,
+        b_fl: v(&g.b_fl),
+        b_pr: v(&g.b_pr),
+        k_pr: v(&g.k_pr),
+    }
+}

@@ -1,0 +1,389 @@
+//! The trainable parameters as burn modules, and their exchange with the flat nemm-core
+//! layout used by the rollout adjoint.
+//!
+//! - [`ScalerNet`]: `L` blocks of `Linear -> LayerNorm -> LeakyReLU` and a `Linear` output:
+//!   the architecture of nemm-core's scalers. burn stores a `Linear` weight as `[in, out]`;
+//!   nemm-core as row-major `[out][in]`: conversions transpose.
+//! - [`EmmNet`]: the EMM constants as `ln(b_fl,ini), ln(b_pr,ini), ln(k_pr,ini), ln(T_pr)`
+//!   (trained in log space so that they stay positive) and the optional scalers.
+//!
+//! burn serves what it is good at: the parameters, Adam with gradient clipping, the L2 term,
+//! the quasi-static `b_fl` regression (eq. 41) and the physics-inconsistency losses on grids
+//! (eqs. 27-28, 34, 39-40), checkpoints. The rollout's gradient comes from
+//! [`super::adjoint`] and is added with [`EmmNet::add_rollout_grads`] before one optimizer
+//! step.
+
+use super::adjoint::{RolloutGrads, RolloutParams, ScalerWeights};
+use burn::module::{Module, Param};
+use burn::nn::{LayerNorm, LayerNormConfig, LeakyRelu, Linear};
+use burn::optim::GradientsParams;
+use burn::tensor::activation::sigmoid;
+use burn::tensor::{Device, Tensor, TensorData};
+use nemm_core::mlp::LEAKY_RELU_SLOPE;
+
+/// One hidden block.
+#[derive(Module, Debug)]
+pub struct Block {
+    /// Linear map, weight `[in, out]`.
+    pub linear: Linear,
+    /// LayerNorm (eps 1e-5, biased variance: as nemm-core).
+    pub norm: LayerNorm,
+    /// LeakyReLU (slope 0.01: as nemm-core).
+    pub act: LeakyRelu,
+}
+
+/// A neural scaler as a burn module.
+#[derive(Module, Debug)]
+pub struct ScalerNet {
+    /// Hidden blocks.
+    pub blocks: Vec<Block>,
+    /// Output neuron, weight `[H, 1]`.
+    pub out: Linear,
+}
+
+/// Shape and output bounds of a scaler (not trained).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScalerSpec {
+    /// Inputs (2: state and alpha; 1: alpha).
+    pub inputs: usize,
+    /// Hidden width.
+    pub hidden: usize,
+    /// Hidden layers.
+    pub layers: usize,
+    /// Lower bound of the scale factor.
+    pub s_min: f32,
+    /// Upper bound of the scale factor.
+    pub s_max: f32,
+}
+
+fn plain(device: &Device) -> Device {
+    // Gradients and flat copies live on the device without autodiff.
+    let _ = device;
+    Device::flex()
+}
+
+fn tensor1(v: &[f32], device: &Device) -> Tensor<1> {
+    Tensor::<1>::from_data(TensorData::new(v.to_vec(), [v.len()]), device)
+}
+
+/// `[out][in]` row-major to burn's `[in, out]`.
+fn weight_tensor(rows: &[f32], out: usize, inp: usize, device: &Device) -> Tensor<2> {
+    Tensor::<2>::from_data(TensorData::new(rows.to_vec(), [out, inp]), device).transpose()
+}
+
+fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap_or_default()
+}
+
+impl ScalerNet {
+    /// Builds from flat nemm-core weights.
+    pub fn from_flat(s: &ScalerWeights<f32>, device: &Device) -> Self {
+        let (h, d) = (s.hidden, s.inputs);
+        let mut off = 0;
+        let mut blocks = Vec::with_capacity(s.layers);
+        for l in 0..s.layers {
+            let fan_in = if l == 0 { d } else { h };
+            let w = &s.w[off..off + fan_in * h];
+            off += fan_in * h;
+            let b = &s.w[off..off + h];
+            off += h;
+            let g = &s.w[off..off + h];
+            off += h;
+            let be = &s.w[off..off + h];
+            off += h;
+            let mut norm: LayerNorm = LayerNormConfig::new(h).init(device);
+            norm.gamma = Param::from_tensor(tensor1(g, device));
+            norm.beta = Some(Param::from_tensor(tensor1(be, device)));
+            blocks.push(Block {
+                linear: Linear {
+                    weight: Param::from_tensor(weight_tensor(w, h, fan_in, device)),
+                    bias: Some(Param::from_tensor(tensor1(b, device))),
+                },
+                norm,
+                act: LeakyRelu {
+                    negative_slope: LEAKY_RELU_SLOPE as f64,
+                },
+            });
+        }
+        let wo = &s.w[off..off + h];
+        let bo = &s.w[off + h..off + h + 1];
+        Self {
+            blocks,
+            out: Linear {
+                weight: Param::from_tensor(weight_tensor(wo, 1, h, device)),
+                bias: Some(Param::from_tensor(tensor1(bo, device))),
+            },
+        }
+    }
+
+    /// Flat nemm-core weights.
+    pub fn to_flat(&self) -> Vec<f32> {
+        let mut v = Vec::new();
+        for b in &self.blocks {
+            v.extend(to_vec(b.linear.weight.val().transpose()));
+            if let Some(bias) = &b.linear.bias {
+                v.extend(to_vec(bias.val()));
+            }
+            v.extend(to_vec(b.norm.gamma.val()));
+            if let Some(beta) = &b.norm.beta {
+                v.extend(to_vec(beta.val()));
+            }
+        }
+        v.extend(to_vec(self.out.weight.val().transpose()));
+        if let Some(bias) = &self.out.bias {
+            v.extend(to_vec(bias.val()));
+        }
+        v
+    }
+
+    /// Raw output `z` for normalised inputs `[batch, inputs]`: `[batch, 1]`.
+    pub fn forward_raw(&self, x: Tensor<2>) -> Tensor<2> {
+        let mut h = x;
+        for b in &self.blocks {
+            h = b.act.forward(b.norm.forward(b.linear.forward(h)));
+        }
+        self.out.forward(h)
+    }
+
+    /// Scale factor `s_min + (s_max - s_min) sigmoid(z)`: `[batch, 1]`.
+    pub fn forward_scale(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
+        sigmoid(self.forward_raw(x))
+            .mul_scalar(spec.s_max - spec.s_min)
+            .add_scalar(spec.s_min)
+    }
+
+    /// Sum of squared weights of the linear maps (the L2 term's `||W||^2`; biases and
+    /// LayerNorm parameters are not regularised).
+    pub fn weight_sq_sum(&self) -> Tensor<1> {
+        let mut total = self.out.weight.val().powi_scalar(2).sum();
+        for b in &self.blocks {
+            total = total + b.linear.weight.val().powi_scalar(2).sum();
+        }
+        total
+    }
+
+    /// Adds a flat gradient (nemm-core layout) to the parameters' entries in `gp`.
+    pub fn add_flat_grads(&self, g: &[f32], gp: &mut GradientsParams, device: &Device) {
+        let dev = plain(device);
+        let h = self.out.weight.val().dims()[0];
+        let mut off = 0;
+        let add1 = |gp: &mut GradientsParams, p: &Param<Tensor<1>>, v: &[f32]| {
+            let t = tensor1(v, &dev);
+            let t = match gp.remove::<1>(p.id) {
+                Some(old) => old + t,
+                None => t,
+            };
+            gp.register(p.id, t);
+        };
+        let add2 = |gp: &mut GradientsParams, p: &Param<Tensor<2>>, v: &[f32], out: usize, inp: usize| {
+            let t = weight_tensor(v, out, inp, &dev);
+            let t = match gp.remove::<2>(p.id) {
+                Some(old) => old + t,
+                None => t,
+            };
+            gp.register(p.id, t);
+        };
+        for b in &self.blocks {
+            let fan_in = b.linear.weight.val().dims()[0];
+            add2(gp, &b.linear.weight, &g[off..off + fan_in * h], h, fan_in);
+            off += fan_in * h;
+            if let Some(bias) = &b.linear.bias {
+                add1(gp, bias, &g[off..off + h]);
+            }
+            off += h;
+            add1(gp, &b.norm.gamma, &g[off..off + h]);
+            off += h;
+            if let Some(beta) = &b.norm.beta {
+                add1(gp, beta, &g[off..off + h]);
+            }
+            off += h;
+        }
+        add2(gp, &self.out.weight, &g[off..off + h], 1, h);
+        if let Some(bias) = &self.out.bias {
+            add1(gp, bias, &g[off + h..off + h + 1]);
+        }
+    }
+}
+
+/// All trainable parameters of an EMM-family model.
+#[derive(Module, Debug)]
+pub struct EmmNet {
+    /// `[ln b_fl,ini, ln b_pr,ini, ln k_pr,ini, ln T_pr]` (SI units inside the log).
+    pub log_c: Param<Tensor<1>>,
+    /// `b_fl(v_st, alpha)` scaler.
+    pub b_fl: Option<ScalerNet>,
+    /// `b_pr(alpha)` scaler.
+    pub b_pr: Option<ScalerNet>,
+    /// `k_pr(x_pr, alpha)` scaler.
+    pub k_pr: Option<ScalerNet>,
+}
+
+/// What is fixed during training: integration, normalisation, scaler shapes and bounds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NetFrame {
+    /// Integrator.
+    pub integrator: nemm_core::Integrator,
+    /// Step \[s\].
+    pub dt: f32,
+    /// Velocity scale \[m/s\].
+    pub v_scale: f32,
+    /// `x_pr` scale \[m\].
+    pub x_scale: f32,
+    /// Alpha scale.
+    pub alpha_scale: f32,
+    /// `b_fl` scaler spec.
+    pub b_fl: Option<ScalerSpec>,
+    /// `b_pr` scaler spec.
+    pub b_pr: Option<ScalerSpec>,
+    /// `k_pr` scaler spec.
+    pub k_pr: Option<ScalerSpec>,
+}
+
+fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
+    s.as_ref().map(|s| ScalerSpec {
+        inputs: s.inputs,
+        hidden: s.hidden,
+        layers: s.layers,
+        s_min: s.s_min,
+        s_max: s.s_max,
+    })
+}
+
+impl EmmNet {
+    /// Builds the module and its frame from rollout parameters.
+    pub fn from_rollout(p: &RolloutParams<f32>, device: &Device) -> (Self, NetFrame) {
+        let c = [p.b_fl0, p.b_pr0, p.k0, p.t_pr].map(|v| v.ln());
+        let net = Self {
+            log_c: Param::from_tensor(tensor1(&c, device)),
+            b_fl: p.b_fl.as_ref().map(|s| ScalerNet::from_flat(s, device)),
+            b_pr: p.b_pr.as_ref().map(|s| ScalerNet::from_flat(s, device)),
+            k_pr: p.k_pr.as_ref().map(|s| ScalerNet::from_flat(s, device)),
+        };
+        let frame = NetFrame {
+            integrator: p.integrator,
+            dt: p.dt,
+            v_scale: p.v_scale,
+            x_scale: p.x_scale,
+            alpha_scale: p.alpha_scale,
+            b_fl: spec_of(&p.b_fl),
+            b_pr: spec_of(&p.b_pr),
+            k_pr: spec_of(&p.k_pr),
+        };
+        (net, frame)
+    }
+
+    /// The constants `[b_fl,ini, b_pr,ini, k_pr,ini, T_pr]` in SI units.
+    pub fn constants(&self) -> [f32; 4] {
+        let v = to_vec(self.log_c.val());
+        let g = |i: usize| v.get(i).copied().unwrap_or(f32::NAN).exp();
+        [g(0), g(1), g(2), g(3)]
+    }
+
+    /// Flat rollout parameters.
+    pub fn to_rollout(&self, f: &NetFrame) -> RolloutParams<f32> {
+        let [b_fl0, b_pr0, k0, t_pr] = self.constants();
+        let flat = |n: &Option<ScalerNet>, s: &Option<ScalerSpec>| match (n, s) {
+            (Some(n), Some(s)) => Some(ScalerWeights {
+                inputs: s.inputs,
+                hidden: s.hidden,
+                layers: s.layers,
+                w: n.to_flat(),
+                s_min: s.s_min,
+                s_max: s.s_max,
+            }),
+            _ => None,
+        };
+        RolloutParams {
+            integrator: f.integrator,
+            dt: f.dt,
+            b_fl0,
+            b_pr0,
+            k0,
+            t_pr,
+            v_scale: f.v_scale,
+            x_scale: f.x_scale,
+            alpha_scale: f.alpha_scale,
+            b_fl: flat(&self.b_fl, &f.b_fl),
+            b_pr: flat(&self.b_pr, &f.b_pr),
+            k_pr: flat(&self.k_pr, &f.k_pr),
+        }
+    }
+
+    /// Adds the rollout gradient (`dL/dc` for the constants, chain-ruled to `dL/d ln c = c
+    /// dL/dc`; flat scaler gradients) to `gp`. `train_constants` selects which constants
+    /// receive a gradient (`[b_fl, b_pr, k_pr, T_pr]`).
+    pub fn add_rollout_grads(
+        &self,
+        g: &RolloutGrads<f32>,
+        train_constants: [bool; 4],
+        gp: &mut GradientsParams,
+        device: &Device,
+    ) {
+        let dev = plain(device);
+        let c = self.constants();
+        let dc = [g.b_fl0, g.b_pr0, g.k0, g.t_pr];
+        let dlog: Vec<f32> = (0..4)
+            .map(|i| if train_constants[i] { c[i] * dc[i] } else { 0.0 })
+            .collect();
+        let t = tensor1(&dlog, &dev);
+        let t = match gp.remove::<1>(self.log_c.id) {
+            Some(old) => old + t,
+            None => t,
+        };
+        gp.register(self.log_c.id, t);
+        for (net, flat) in [(&self.b_fl, &g.b_fl), (&self.b_pr, &g.b_pr), (&self.k_pr, &g.k_pr)] {
+            if let Some(n) = net {
+                n.add_flat_grads(flat, gp, device);
+            }
+        }
+    }
+
+    /// Sum of squared weights over all scalers (the L2 term).
+    pub fn weight_sq_sum(&self, device: &Device) -> Tensor<1> {
+        let mut total = Tensor::<1>::zeros([1], device);
+        for n in [&self.b_fl, &self.b_pr, &self.k_pr].into_iter().flatten() {
+            total = total + n.weight_sq_sum();
+        }
+        total
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::params::from_core;
+    use nemm_core::testing::example_model;
+    use nemm_core::ModelKind;
+
+    #[test]
+    fn flat_round_trip_and_forward_match_core() {
+        let device = Device::flex();
+        let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
+        let p: RolloutParams<f32> = from_core(&m).expect("emm");
+        let (net, frame) = EmmNet::from_rollout(&p, &device);
+        let q = net.to_rollout(&frame);
+        assert_eq!(q.b_fl.as_ref().map(|s| &s.w), p.b_fl.as_ref().map(|s| &s.w));
+        assert_eq!(q.k_pr.as_ref().map(|s| &s.w), p.k_pr.as_ref().map(|s| &s.w));
+        assert!((q.k0 - p.k0).abs() <= 1e-6 * p.k0);
+        // burn's forward equals nemm-core's reference forward.
+        let spec = frame.b_fl.expect("spec");
+        let b = net.b_fl.as_ref().expect("b_fl");
+        let xs = [[0.3f32, 0.5], [-0.9, 0.0], [1.1, 1.0]];
+        let x = Tensor::<2>::from_data(
+            TensorData::new(xs.iter().flatten().copied().collect::<Vec<f32>>(), [3, 2]),
+            &device,
+        );
+        let s = to_vec(b.forward_scale(x, &spec));
+        let core = match &m.body {
+            nemm_core::Body::Nemm { b_fl, .. } => b_fl,
+            _ => unreachable!(),
+        };
+        for (i, x) in xs.iter().enumerate() {
+            let r = core.scale(x).expect("scale");
+            assert!((s[i] - r).abs() < 1e-5, "{} vs {}", s[i], r);
+        }
+    }
+}

@@ -1,0 +1,141 @@
+//! Conversions between the trainer's rollout parameters and `nemm-core`'s [`Model`]: the
+//! weight layout and the semantics are nemm-core's, so exporting is a copy, not a
+//! re-implementation.
+
+use super::adjoint::{Real, RolloutParams, ScalerWeights};
+use anyhow::{bail, Result};
+use nemm_core::emm::EmmConstants;
+use nemm_core::{Body, InputScales, Integrator, Meta, MlpParams, Model, Scaler, DEFAULT_PARAM_CAPACITY};
+
+fn scaler_from_core<T: Real>(s: &Scaler<DEFAULT_PARAM_CAPACITY>) -> ScalerWeights<T> {
+    ScalerWeights {
+        inputs: s.mlp.inputs as usize,
+        hidden: s.mlp.hidden as usize,
+        layers: s.mlp.layers as usize,
+        w: s.mlp.params.iter().map(|&v| T::c(v as f64)).collect(),
+        s_min: T::c(s.s_min as f64),
+        s_max: T::c(s.s_max as f64),
+    }
+}
+
+fn scaler_to_core<T: Real>(s: &ScalerWeights<T>) -> Result<Scaler<DEFAULT_PARAM_CAPACITY>> {
+    let w: Vec<f32> = s.w.iter().map(|v| v.to_f32().unwrap_or(f32::NAN)).collect();
+    let mlp = MlpParams::new(s.inputs as u8, s.hidden as u8, s.layers as u8, &w)
+        .map_err(|e| anyhow::anyhow!("scaler shape: {e:?}"))?;
+    Ok(Scaler {
+        mlp,
+        s_min: s.s_min.to_f32().unwrap_or(f32::NAN),
+        s_max: s.s_max.to_f32().unwrap_or(f32::NAN),
+    })
+}
+
+/// Rollout parameters of a core EMM-family model (`None` for the SEM).
+pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
+    let e = m.emm()?;
+    let c = |v: f32| T::c(v as f64);
+    let (b_fl, b_pr, k_pr) = match &m.body {
+        Body::Sem(_) => return None,
+        Body::LinearEmm(_) => (None, None, None),
+        Body::NemmLight { b_fl, .. } => (Some(scaler_from_core(b_fl)), None, None),
+        Body::Nemm {
+            b_fl, b_pr, k_pr, ..
+        } => (
+            Some(scaler_from_core(b_fl)),
+            Some(scaler_from_core(b_pr)),
+            Some(scaler_from_core(k_pr)),
+        ),
+    };
+    Some(RolloutParams {
+        integrator: m.integrator,
+        dt: c(m.dt_s),
+        b_fl0: c(e.b_fl_ns_per_m),
+        b_pr0: c(e.b_pr_ns_per_m),
+        k0: c(e.k_pr_n_per_m),
+        t_pr: c(e.t_pr_s),
+        v_scale: c(m.scales.velocity_m_s),
+        x_scale: c(m.scales.x_pr_m),
+        alpha_scale: c(m.scales.alpha),
+        b_fl,
+        b_pr,
+        k_pr,
+    })
+}
+
+/// The core model of rollout parameters, with training-data facts `meta`. The kind follows
+/// from which scalers are present (none: Linear EMM; `b_fl`: NEMM-Light; all: NEMM).
+pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
+    let f = |v: T| v.to_f32().unwrap_or(f32::NAN);
+    let emm = EmmConstants {
+        b_fl_ns_per_m: f(p.b_fl0),
+        b_pr_ns_per_m: f(p.b_pr0),
+        k_pr_n_per_m: f(p.k0),
+        t_pr_s: f(p.t_pr),
+    };
+    let body = match (&p.b_fl, &p.b_pr, &p.k_pr) {
+        (None, None, None) => Body::LinearEmm(emm),
+        (Some(b_fl), None, None) => Body::NemmLight {
+            emm,
+            b_fl: scaler_to_core(b_fl)?,
+        },
+        (Some(b_fl), Some(b_pr), Some(k_pr)) => Body::Nemm {
+            emm,
+            b_fl: scaler_to_core(b_fl)?,
+            b_pr: scaler_to_core(b_pr)?,
+            k_pr: scaler_to_core(k_pr)?,
+        },
+        _ => bail!("unsupported scaler combination (need none, b_fl, or all three)"),
+    };
+    let model = Model {
+        integrator: p.integrator,
+        dt_s: f(p.dt),
+        scales: InputScales {
+            velocity_m_s: f(p.v_scale),
+            x_pr_m: f(p.x_scale),
+            alpha: f(p.alpha_scale),
+        },
+        meta,
+        body,
+    };
+    model
+        .validate()
+        .map_err(|e| anyhow::anyhow!("the trained model is not valid: {e}"))?;
+    Ok(model)
+}
+
+/// Converts parameters between float types.
+pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
+    let c = |v: A| B::c(v.to_f64().unwrap_or(f64::NAN));
+    let s = |s: &Option<ScalerWeights<A>>| {
+        s.as_ref().map(|s| ScalerWeights {
+            inputs: s.inputs,
+            hidden: s.hidden,
+            layers: s.layers,
+            w: s.w.iter().map(|&v| c(v)).collect(),
+            s_min: c(s.s_min),
+            s_max: c(s.s_max),
+        })
+    };
+    RolloutParams {
+        integrator: p.integrator,
+        dt: c(p.dt),
+        b_fl0: c(p.b_fl0),
+        b_pr0: c(p.b_pr0),
+        k0: c(p.k0),
+        t_pr: c(p.t_pr),
+        v_scale: c(p.v_scale),
+        x_scale: c(p.x_scale),
+        alpha_scale: c(p.alpha_scale),
+        b_fl: s(&p.b_fl),
+        b_pr: s(&p.b_pr),
+        k_pr: s(&p.k_pr),
+    }
+}
+
+/// The integrator by CLI name.
+pub fn integrator_by_name(name: &str) -> Result<Integrator> {
+    match name {
+        "rk4" => Ok(Integrator::Rk4),
+        "rk3" => Ok(Integrator::Rk3),
+        other => bail!("unknown integrator `{other}` (expected rk4 or rk3)"),
+    }
+}
