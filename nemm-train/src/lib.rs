@@ -5,6 +5,8 @@
 //! variants (sections 5-6) and export to the `nemm-core` weight format.
 #![deny(missing_docs)]
 
+pub mod bench;
 pub mod dataset;
 pub mod inspect;
+pub mod plot;
 pub mod train;

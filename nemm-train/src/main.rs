@@ -21,12 +21,15 @@ enum Cmd {
         /// The weights blob.
         model: PathBuf,
     },
+    /// Virtual test bench: generate a synthetic dataset, plot loops of a dataset.
+    Bench(nemm_train::bench::cli::BenchArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
         Cmd::Inspect { model } => nemm_train::inspect::run(&model),
+        Cmd::Bench(args) => nemm_train::bench::cli::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

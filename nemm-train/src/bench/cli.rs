@@ -1,0 +1,114 @@
+//! `nemm bench ...`: generate a virtual-bench dataset, plot a dataset, print the default config.
+
+use super::config::{self, BenchConfig};
+use super::VirtualBench;
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `nemm bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub cmd: BenchCmd,
+}
+
+/// Subcommands of `nemm bench`.
+#[derive(Debug, Subcommand)]
+pub enum BenchCmd {
+    /// Simulate the test programme on the virtual damper and write a dataset folder.
+    Generate {
+        /// Output dataset folder (created; existing run files of the same names are replaced).
+        #[arg(long)]
+        out: PathBuf,
+        /// Bench configuration (TOML, every key; default: the built-in `bench.toml`).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Seed of the measurement noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Draw force-velocity loops (Fig. 4 style) and difference loops (Fig. 5 style) of a dataset.
+    Plot {
+        /// Dataset folder (with manifest.toml).
+        dir: PathBuf,
+        /// Output folder for the PNG files.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Print the built-in default configuration (a template for `--config`).
+    Config,
+}
+
+/// Runs a `nemm bench` subcommand.
+pub fn run(args: BenchArgs) -> Result<()> {
+    match args.cmd {
+        BenchCmd::Generate { out, config, seed } => {
+            let cfg = match &config {
+                Some(path) => config::load(path)?,
+                None => BenchConfig::default(),
+            };
+            generate(&cfg, seed, &out)
+        }
+        BenchCmd::Plot { dir, out } => {
+            let files = super::plots::plot_dataset(&dir, &out)?;
+            for f in files {
+                println!("wrote {}", f.display());
+            }
+            Ok(())
+        }
+        BenchCmd::Config => {
+            print!("{}", config::DEFAULT_TOML);
+            Ok(())
+        }
+    }
+}
+
+/// Generates the programme of `cfg` into `out`, printing progress on stderr.
+pub fn generate(cfg: &BenchConfig, seed: u64, out: &Path) -> Result<()> {
+    let bench = VirtualBench::new(cfg.clone());
+    let total = bench.runs().len();
+    let threads = rayon::current_num_threads();
+    eprintln!(
+        "virtual bench: {total} runs on {threads} threads, seed {seed} -> {}",
+        out.display()
+    );
+    let start = Instant::now();
+    let dataset = bench.generate(seed, |done, total| {
+        let mut err = std::io::stderr().lock();
+        let _ = write!(
+            err,
+            "\r  simulated {done:>3}/{total} runs, {:6.1} s",
+            start.elapsed().as_secs_f64()
+        );
+        let _ = err.flush();
+    });
+    eprintln!();
+    let simulated = start.elapsed().as_secs_f64();
+    crate::dataset::write(out, &dataset)
+        .with_context(|| format!("cannot write the dataset to {}", out.display()))?;
+    let bytes: u64 = dataset
+        .runs
+        .iter()
+        .filter_map(|r| std::fs::metadata(out.join(&r.entry.file)).ok())
+        .map(|m| m.len())
+        .sum();
+    let seconds: f64 = dataset
+        .runs
+        .iter()
+        .map(|r| r.len() as f64 / dataset.sample_rate_hz)
+        .sum();
+    eprintln!(
+        "wrote {} runs, {} samples ({:.1} s of data, {:.1} MB CSV) in {:.1} s (simulation {:.1} s)",
+        dataset.runs.len(),
+        dataset.total_samples(),
+        seconds,
+        bytes as f64 / 1e6,
+        start.elapsed().as_secs_f64(),
+        simulated
+    );
+    Ok(())
+}

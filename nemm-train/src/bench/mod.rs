@@ -1,0 +1,236 @@
+//! The virtual test bench: a first-principles hydraulic twin-tube damper with oil loss,
+//! driven through the sinusoidal programme of the paper (Table 1), measured with a noisy,
+//! quantising load cell and displacement transducer, written in the dataset interchange format.
+//!
+//! The model is deliberately richer than the EMM (section 4 of the paper): three chambers
+//! (rebound, compression, gas-charged reservoir), oil compressibility with entrained free gas
+//! (the effective bulk modulus falls at low pressure and with oil loss), cavitation with vapour
+//! cavities (lost motion), the piston valve of Appendix A (port restriction in series with a
+//! 1.75-power leak, a preloaded blow-off valve and a check valve), a base valve (preloaded
+//! compression valve, intake check valve, leak), first-order valve lags and seal friction.
+//! Equations, sources, units and the integrator's stability argument are in
+//! `docs/virtual-bench.md`.
+//!
+//! ```no_run
+//! use nemm_train::bench::{config::BenchConfig, VirtualBench};
+//! let bench = VirtualBench::new(BenchConfig::default());
+//! let dataset = bench.generate(42, |_done, _total| {});
+//! ```
+
+pub mod cli;
+pub mod config;
+mod hydraulics;
+pub mod plots;
+pub mod program;
+pub mod sensor;
+mod simulate;
+
+pub use simulate::{SolverStats, Trace};
+
+use crate::dataset::{Dataset, Run, RunEntry};
+use config::BenchConfig;
+use hydraulics::{Damper, Filling};
+use program::RunSpec;
+use rayon::prelude::*;
+use sensor::{Quantiser, SplitMix64};
+use simulate::{Foam, StepSettings};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// The virtual bench: a configured damper model plus the measurement programme.
+#[derive(Debug, Clone)]
+pub struct VirtualBench {
+    cfg: BenchConfig,
+    damper: Damper,
+}
+
+/// Pressures of the damper at rest for one oil-loss level.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RestState {
+    /// Absolute pressure in all chambers at rest, mid-stroke \[Pa\].
+    pub pressure_pa: f64,
+    /// Static rod force at rest (gas force; negative = pushes the rod out) \[N\].
+    pub static_force_n: f64,
+    /// Reservoir gas volume at rest \[m³\].
+    pub reservoir_gas_m3: f64,
+    /// Free gas in the compression chamber (normal volume) \[m³\].
+    pub compression_free_gas_m3: f64,
+}
+
+impl VirtualBench {
+    /// A bench for a validated configuration (see [`config::parse`]).
+    pub fn new(cfg: BenchConfig) -> Self {
+        let damper = Damper::new(&cfg);
+        VirtualBench { cfg, damper }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &BenchConfig {
+        &self.cfg
+    }
+
+    /// The runs of the configured programme.
+    pub fn runs(&self) -> Vec<RunSpec> {
+        program::grid(&self.cfg.program)
+    }
+
+    fn filling(&self, alpha: f64) -> Filling {
+        self.damper.filling(&self.cfg, alpha)
+    }
+
+    /// The damper at rest for oil loss `alpha`.
+    pub fn rest_state(&self, alpha: f64) -> RestState {
+        let f = self.filling(alpha);
+        RestState {
+            pressure_pa: f.p_rest,
+            static_force_n: self.damper.force(f.p_rest, f.p_rest, 0.0),
+            reservoir_gas_m3: f.v_gas_rest,
+            compression_free_gas_m3: f.gas_compression,
+        }
+    }
+
+    fn tare(&self, f: &Filling) -> f64 {
+        if self.cfg.sensors.tare_static_force {
+            self.damper.force(f.p_rest, f.p_rest, 0.0)
+        } else {
+            0.0
+        }
+    }
+
+    /// Noise-free simulation of one run with the configured internal step.
+    pub fn simulate(&self, spec: &RunSpec) -> Trace {
+        self.simulate_with_step(spec, self.cfg.solver.internal_step_s)
+    }
+
+    /// Noise-free simulation with internal step `h` \[s\] (rounded to divide the sample period).
+    pub fn simulate_with_step(&self, spec: &RunSpec, h: f64) -> Trace {
+        let rest = self.filling(spec.oil_loss);
+        let a = &self.cfg.aeration;
+        let foam = Foam {
+            c_bg: a.background_gas_per_oil,
+            c_intake: a.intake_gas_per_oil(spec.oil_loss),
+            tau: a.separation_time_s,
+        };
+        let (g_r, g_c) = foam.conditioned(&self.damper, spec.peak_velocity_m_s);
+        let f = self.damper.with_gas(&rest, g_r, g_c);
+        let settings = StepSettings {
+            h,
+            pressure_tolerance: self.cfg.solver.pressure_tolerance_pa,
+            max_iterations: self.cfg.solver.max_newton_iterations,
+        };
+        simulate::simulate(&simulate::Job {
+            damper: &self.damper,
+            filling: &f,
+            foam,
+            excitation: &spec.excitation(),
+            sample_rate_hz: self.cfg.program.sample_rate_hz,
+            samples: spec.samples,
+            settings,
+            tare: self.tare(&rest),
+        })
+    }
+
+    /// Quasi-static force \[N\] at constant velocity `v` \[m/s\] and mid-stroke: steady valve
+    /// lifts, all flow through the valves equal to the displaced volumes (piston `A_a v`, base
+    /// `-A_rod v`), cavitation where the compression chamber would fall below its limit.
+    pub fn quasi_static_force(&self, v: f64, alpha: f64) -> f64 {
+        let d = &self.damper;
+        let f = self.filling(alpha);
+        let rest = d.rest_lifts();
+        let h = 1e6; // h >> valve time constants: lifts at their static values
+        let dp_piston = invert_increasing(|dp| d.piston_flow(dp, &rest, h, 0.5).q, d.a_annulus * v);
+        let dp_base = invert_increasing(|dp| d.base_flow(dp, &rest, h).q, -d.a_rod * v);
+        let p_c = (f.p_rest + dp_base).max(d.fluid.p_cav);
+        let p_r = p_c + dp_piston;
+        d.force(p_r, p_c, d.friction(v, p_r)) - self.tare(&f)
+    }
+
+    /// One measured run: simulation plus the measurement chain, deterministic for `seed`.
+    pub fn measure(&self, spec: &RunSpec, seed: u64) -> Run {
+        let trace = self.simulate(spec);
+        self.apply_sensors(spec, &trace, seed)
+    }
+
+    fn apply_sensors(&self, spec: &RunSpec, tr: &Trace, seed: u64) -> Run {
+        let s = &self.cfg.sensors;
+        let mut rng = SplitMix64::new(sensor::run_seed(seed, &spec.file.to_string_lossy()));
+        let qf = Quantiser::new(s.force_resolution_n);
+        let qx = Quantiser::new(s.displacement_resolution_m);
+        let qt = Quantiser::new(1e-9);
+        let qv = Quantiser::new(1e-6);
+        let hum_phase = 2.0 * std::f64::consts::PI * rng.uniform();
+        let n = tr.time_s.len();
+        let mut time_s = Vec::with_capacity(n);
+        let mut displacement_m = Vec::with_capacity(n);
+        let mut force_n = Vec::with_capacity(n);
+        let mut velocity = Vec::with_capacity(if s.write_velocity { n } else { 0 });
+        for i in 0..n {
+            let t = tr.time_s[i];
+            time_s.push(qt.apply(t));
+            displacement_m
+                .push(qx.apply(tr.displacement_m[i] + s.displacement_noise_std_m * rng.normal()));
+            let hum = s.mains_hum_n
+                * (2.0 * std::f64::consts::PI * s.mains_frequency_hz * t + hum_phase).sin();
+            force_n.push(qf.apply(tr.force_n[i] + hum + s.force_noise_std_n * rng.normal()));
+            if s.write_velocity {
+                velocity
+                    .push(qv.apply(tr.velocity_m_s[i] + s.velocity_noise_std_m_s * rng.normal()));
+            }
+        }
+        Run {
+            entry: RunEntry {
+                file: spec.file.clone(),
+                oil_loss: spec.oil_loss,
+                amplitude_m: Some(spec.amplitude_m),
+                target_velocity_m_s: Some(spec.peak_velocity_m_s),
+            },
+            time_s,
+            displacement_m,
+            force_n,
+            velocity_m_s: s.write_velocity.then_some(velocity),
+        }
+    }
+
+    /// Generates the whole programme in parallel (rayon); `progress(done, total)` is called
+    /// after each finished run (from worker threads). Runs are in programme order.
+    pub fn generate(&self, seed: u64, progress: impl Fn(usize, usize) + Sync) -> Dataset {
+        let specs = self.runs();
+        let total = specs.len();
+        let done = AtomicUsize::new(0);
+        let runs: Vec<Run> = specs
+            .par_iter()
+            .map(|spec| {
+                let run = self.measure(spec, seed);
+                progress(done.fetch_add(1, Ordering::SeqCst) + 1, total);
+                run
+            })
+            .collect();
+        Dataset {
+            name: self.cfg.name.clone(),
+            sample_rate_hz: self.cfg.program.sample_rate_hz,
+            runs,
+        }
+    }
+}
+
+/// Solves `g(z) = target` for an increasing `g` by bracketing and bisection.
+fn invert_increasing(g: impl Fn(f64) -> f64, target: f64) -> f64 {
+    let (mut lo, mut hi) = (-1e5, 1e5);
+    while g(lo) > target && lo > -1e10 {
+        lo *= 4.0;
+    }
+    while g(hi) < target && hi < 1e10 {
+        hi *= 4.0;
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if g(mid) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo < 1e-6 {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
+}

@@ -1,0 +1,793 @@
+//! Small shared plotting layer on top of `plotters`: figures made of a grid of panels (line and
+//! loop charts, heat maps), colour palettes, and atomic PNG writing.
+//!
+//! Text is rendered with the pure-Rust `ab_glyph` rasteriser and the bundled DejaVu Sans
+//! (`nemm-train/assets/fonts/`, free licence in `LICENSE-DejaVu.txt`), so no system fonts or C
+//! libraries are needed.
+//!
+//! ```no_run
+//! use nemm_train::plot::{palette, Figure, LinePanel, Series};
+//! let series = Series::line("loss", vec![(0.0, 1.0), (1.0, 0.5), (2.0, 0.3)], palette::categorical(0));
+//! let panel = LinePanel::new("training", "epoch", "loss").with_series(series);
+//! Figure::new(1, 1).with_title("run 7").with_panel(panel).save_png("loss.png".as_ref())?;
+//! # Ok::<(), anyhow::Error>(())
+//! ```
+
+use anyhow::{anyhow, Context, Result};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+use std::path::Path;
+use std::sync::OnceLock;
+
+/// The bundled font (DejaVu Sans, Bitstream Vera / DejaVu licence).
+static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+const FAMILY: &str = "sans-serif";
+
+/// Registers the bundled font for all plotters text (idempotent).
+pub fn ensure_font() -> Result<()> {
+    static DONE: OnceLock<bool> = OnceLock::new();
+    let ok = *DONE.get_or_init(|| {
+        [
+            FontStyle::Normal,
+            FontStyle::Bold,
+            FontStyle::Italic,
+            FontStyle::Oblique,
+        ]
+        .into_iter()
+        .all(|style| plotters::style::register_font(FAMILY, style, FONT).is_ok())
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(anyhow!(
+            "the bundled font DejaVuSans.ttf could not be parsed"
+        ))
+    }
+}
+
+/// Colour palettes.
+pub mod palette {
+    use plotters::style::RGBColor;
+
+    /// Ten well-separated categorical colours (Tableau 10), cycling.
+    pub fn categorical(i: usize) -> RGBColor {
+        const C: [(u8, u8, u8); 10] = [
+            (31, 119, 180),
+            (255, 127, 14),
+            (44, 160, 44),
+            (214, 39, 40),
+            (148, 103, 189),
+            (140, 86, 75),
+            (227, 119, 194),
+            (127, 127, 127),
+            (188, 189, 34),
+            (23, 190, 207),
+        ];
+        let (r, g, b) = C[i % C.len()];
+        RGBColor(r, g, b)
+    }
+
+    fn interpolate(stops: &[(u8, u8, u8)], t: f64) -> RGBColor {
+        let t = if t.is_finite() {
+            t.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let x = t * (stops.len() - 1) as f64;
+        let i = (x.floor() as usize).min(stops.len() - 2);
+        let f = x - i as f64;
+        let mix = |a: u8, b: u8| (f64::from(a) + f * (f64::from(b) - f64::from(a))).round() as u8;
+        let (a, b) = (stops[i], stops[i + 1]);
+        RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+    }
+
+    /// Sequential colour map (viridis, 9 stops, linear in between) for `t` in \[0, 1\].
+    pub fn sequential(t: f64) -> RGBColor {
+        const V: [(u8, u8, u8); 9] = [
+            (68, 1, 84),
+            (71, 44, 122),
+            (59, 81, 139),
+            (44, 113, 142),
+            (33, 144, 141),
+            (39, 173, 129),
+            (92, 200, 99),
+            (170, 220, 50),
+            (253, 231, 37),
+        ];
+        interpolate(&V, t)
+    }
+
+    /// Diverging colour map (blue - white - red) for `t` in \[0, 1\], white at 0.5.
+    pub fn diverging(t: f64) -> RGBColor {
+        const D: [(u8, u8, u8); 5] = [
+            (33, 102, 172),
+            (146, 197, 222),
+            (247, 247, 247),
+            (244, 165, 130),
+            (178, 24, 43),
+        ];
+        interpolate(&D, t)
+    }
+
+    /// `n` colours spread over the sequential map (dark to bright, the last not too pale).
+    pub fn sequence(n: usize) -> Vec<RGBColor> {
+        (0..n)
+            .map(|i| {
+                sequential(if n > 1 {
+                    0.9 * i as f64 / (n - 1) as f64
+                } else {
+                    0.0
+                })
+            })
+            .collect()
+    }
+}
+
+/// How a series is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SeriesStyle {
+    /// Polyline through the points.
+    Line,
+    /// Polyline closed back to its first point (hysteresis loops).
+    Loop,
+    /// Dots.
+    Points,
+}
+
+/// One data series of a line panel.
+#[derive(Debug, Clone)]
+pub struct Series {
+    /// Legend label (no legend entry if `None`).
+    pub label: Option<String>,
+    /// Data points (x, y); non-finite points break the line.
+    pub points: Vec<(f64, f64)>,
+    /// Colour.
+    pub color: RGBColor,
+    /// Line width / dot radius in pixels.
+    pub width: u32,
+    /// Drawing style.
+    pub style: SeriesStyle,
+}
+
+impl Series {
+    /// A labelled polyline of width 2.
+    pub fn line(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+        Series {
+            label: Some(label.into()),
+            points,
+            color,
+            width: 2,
+            style: SeriesStyle::Line,
+        }
+    }
+
+    /// A labelled closed loop of width 2.
+    pub fn closed(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+        Series {
+            label: Some(label.into()),
+            points,
+            color,
+            width: 2,
+            style: SeriesStyle::Loop,
+        }
+    }
+
+    /// Labelled dots of radius 2.
+    pub fn dots(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+        Series {
+            label: Some(label.into()),
+            points,
+            color,
+            width: 2,
+            style: SeriesStyle::Points,
+        }
+    }
+}
+
+/// Where the legend goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LegendPosition {
+    /// No legend.
+    None,
+    /// Upper left corner.
+    UpperLeft,
+    /// Upper right corner.
+    UpperRight,
+    /// Lower left corner.
+    LowerLeft,
+    /// Lower right corner.
+    LowerRight,
+}
+
+/// A chart of line / loop / point series in Cartesian coordinates.
+#[derive(Debug, Clone)]
+pub struct LinePanel {
+    /// Panel caption.
+    pub title: String,
+    /// x-axis label.
+    pub x_label: String,
+    /// y-axis label.
+    pub y_label: String,
+    /// Series, drawn in order.
+    pub series: Vec<Series>,
+    /// x range (automatic with 3 % padding if `None`).
+    pub x_range: Option<(f64, f64)>,
+    /// y range (automatic with 5 % padding if `None`).
+    pub y_range: Option<(f64, f64)>,
+    /// Plot log10(y) with `10^k` tick labels (non-positive values are dropped).
+    pub log_y: bool,
+    /// Thin grey lines at these y values (e.g. 0).
+    pub reference_y: Vec<f64>,
+    /// Thin grey lines at these x values.
+    pub reference_x: Vec<f64>,
+    /// Legend placement.
+    pub legend: LegendPosition,
+}
+
+impl LinePanel {
+    /// An empty panel with a caption and axis labels.
+    pub fn new(
+        title: impl Into<String>,
+        x_label: impl Into<String>,
+        y_label: impl Into<String>,
+    ) -> Self {
+        LinePanel {
+            title: title.into(),
+            x_label: x_label.into(),
+            y_label: y_label.into(),
+            series: Vec::new(),
+            x_range: None,
+            y_range: None,
+            log_y: false,
+            reference_y: Vec::new(),
+            reference_x: Vec::new(),
+            legend: LegendPosition::UpperLeft,
+        }
+    }
+
+    /// Adds a series.
+    pub fn with_series(mut self, s: Series) -> Self {
+        self.series.push(s);
+        self
+    }
+
+    /// Fixes the x range.
+    pub fn with_x_range(mut self, lo: f64, hi: f64) -> Self {
+        self.x_range = Some((lo, hi));
+        self
+    }
+
+    /// Fixes the y range.
+    pub fn with_y_range(mut self, lo: f64, hi: f64) -> Self {
+        self.y_range = Some((lo, hi));
+        self
+    }
+
+    /// Sets the legend position.
+    pub fn with_legend(mut self, pos: LegendPosition) -> Self {
+        self.legend = pos;
+        self
+    }
+
+    /// Adds grey reference lines at x = 0 and y = 0.
+    pub fn with_zero_lines(mut self) -> Self {
+        self.reference_x.push(0.0);
+        self.reference_y.push(0.0);
+        self
+    }
+
+    fn transformed(&self, y: f64) -> Option<f64> {
+        if self.log_y {
+            (y > 0.0).then(|| y.log10())
+        } else {
+            Some(y)
+        }
+    }
+}
+
+/// A heat map of `z(x, y)` on a regular grid (e.g. a learned function over two inputs).
+#[derive(Debug, Clone)]
+pub struct HeatmapPanel {
+    /// Panel caption.
+    pub title: String,
+    /// x-axis label.
+    pub x_label: String,
+    /// y-axis label.
+    pub y_label: String,
+    /// Cell centres in x (increasing).
+    pub x: Vec<f64>,
+    /// Cell centres in y (increasing).
+    pub y: Vec<f64>,
+    /// Values `z[iy][ix]`.
+    pub z: Vec<Vec<f64>>,
+    /// Colour range (automatic min..max if `None`).
+    pub z_range: Option<(f64, f64)>,
+    /// Label of the colour bar.
+    pub z_label: String,
+    /// Use the diverging map (centred range) instead of the sequential one.
+    pub diverging: bool,
+    /// Cells drawn with a hatch colour (e.g. constraint violations), `mark[iy][ix]`.
+    pub mark: Option<Vec<Vec<bool>>>,
+}
+
+/// A panel of a figure.
+#[derive(Debug, Clone)]
+pub enum Panel {
+    /// Line / loop / point chart.
+    Lines(LinePanel),
+    /// Heat map with colour bar.
+    Heatmap(HeatmapPanel),
+}
+
+impl From<LinePanel> for Panel {
+    fn from(p: LinePanel) -> Self {
+        Panel::Lines(p)
+    }
+}
+
+impl From<HeatmapPanel> for Panel {
+    fn from(p: HeatmapPanel) -> Self {
+        Panel::Heatmap(p)
+    }
+}
+
+/// A figure: an optional title over a `rows x cols` grid of panels (row-major).
+#[derive(Debug, Clone)]
+pub struct Figure {
+    /// Figure title.
+    pub title: Option<String>,
+    /// Grid rows.
+    pub rows: usize,
+    /// Grid columns.
+    pub cols: usize,
+    /// Size of one panel in pixels.
+    pub panel_size: (u32, u32),
+    /// Panels, row-major; missing cells stay empty.
+    pub panels: Vec<Panel>,
+}
+
+impl Figure {
+    /// An empty `rows x cols` figure with 560 x 420 pixel panels.
+    pub fn new(rows: usize, cols: usize) -> Self {
+        Figure {
+            title: None,
+            rows: rows.max(1),
+            cols: cols.max(1),
+            panel_size: (560, 420),
+            panels: Vec::new(),
+        }
+    }
+
+    /// Sets the title.
+    pub fn with_title(mut self, t: impl Into<String>) -> Self {
+        self.title = Some(t.into());
+        self
+    }
+
+    /// Appends a panel.
+    pub fn with_panel(mut self, p: impl Into<Panel>) -> Self {
+        self.panels.push(p.into());
+        self
+    }
+
+    /// Sets the panel size in pixels.
+    pub fn with_panel_size(mut self, w: u32, h: u32) -> Self {
+        self.panel_size = (w, h);
+        self
+    }
+
+    /// Size of the whole image in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        let title_h = if self.title.is_some() { 40 } else { 0 };
+        (
+            self.panel_size.0 * self.cols as u32,
+            self.panel_size.1 * self.rows as u32 + title_h,
+        )
+    }
+
+    /// Renders into an RGB buffer of [`Figure::size`] (3 bytes per pixel).
+    pub fn render_rgb(&self) -> Result<Vec<u8>> {
+        ensure_font()?;
+        let (w, h) = self.size();
+        let mut buf = vec![255u8; (w * h * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            self.draw(&root)?;
+            root.present()
+                .map_err(|e| anyhow!("plot rendering failed: {e}"))?;
+        }
+        Ok(buf)
+    }
+
+    /// Writes the figure as PNG, atomically (temporary file in the same folder, then rename).
+    pub fn save_png(&self, path: &Path) -> Result<()> {
+        ensure_font()?;
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        // The encoder picks the format from the extension, so the temporary file ends in .png.
+        let tmp = dir.join(format!(".{name}.{}.tmp.png", std::process::id()));
+        let result = (|| {
+            let (w, h) = self.size();
+            let root = BitMapBackend::new(&tmp, (w, h)).into_drawing_area();
+            self.draw(&root)?;
+            root.present()
+                .map_err(|e| anyhow!("cannot write {}: {e}", tmp.display()))?;
+            std::fs::rename(&tmp, path)
+                .with_context(|| format!("cannot move {} to {}", tmp.display(), path.display()))
+        })();
+        if result.is_err() {
+            let _ = std::fs::remove_file(&tmp);
+        }
+        result
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot rendering failed: {e:?}");
+        root.fill(&WHITE).map_err(err)?;
+        let body = match &self.title {
+            Some(t) => {
+                let (top, rest) = root.split_vertically(40);
+                top.titled(t, (FAMILY, 24).into_font()).map_err(err)?;
+                rest
+            }
+            None => root.clone(),
+        };
+        let cells = body.split_evenly((self.rows, self.cols));
+        for (panel, area) in self.panels.iter().zip(cells.iter()) {
+            match panel {
+                Panel::Lines(p) => draw_lines(p, area)?,
+                Panel::Heatmap(p) => draw_heatmap(p, area)?,
+            }
+        }
+        Ok(())
+    }
+}
+
+fn padded(lo: f64, hi: f64, frac: f64) -> (f64, f64) {
+    if !(lo.is_finite() && hi.is_finite()) {
+        return (0.0, 1.0);
+    }
+    if hi - lo <= f64::EPSILON * (lo.abs() + hi.abs()).max(1e-300) {
+        let d = if lo == 0.0 { 1.0 } else { 0.1 * lo.abs() };
+        return (lo - d, hi + d);
+    }
+    let d = frac * (hi - lo);
+    (lo - d, hi + d)
+}
+
+fn data_bounds(it: impl Iterator<Item = f64>) -> (f64, f64) {
+    it.filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        })
+}
+
+fn draw_lines<DB: DrawingBackend>(p: &LinePanel, area: &DrawingArea<DB, Shift>) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot rendering failed: {e:?}");
+    let pts = |s: &Series| -> Vec<(f64, f64)> {
+        s.points
+            .iter()
+            .map(|&(x, y)| (x, p.transformed(y).unwrap_or(f64::NAN)))
+            .collect()
+    };
+    let all: Vec<Vec<(f64, f64)>> = p.series.iter().map(pts).collect();
+    let (x0, x1) = p.x_range.unwrap_or_else(|| {
+        let (a, b) = data_bounds(all.iter().flatten().map(|q| q.0));
+        padded(a, b, 0.03)
+    });
+    let (y0, y1) = match p.y_range {
+        Some((a, b)) => (p.transformed(a).unwrap_or(a), p.transformed(b).unwrap_or(b)),
+        None => {
+            let (a, b) = data_bounds(all.iter().flatten().map(|q| q.1));
+            padded(a, b, 0.05)
+        }
+    };
+    let mut chart = ChartBuilder::on(area)
+        .caption(&p.title, (FAMILY, 17).into_font())
+        .margin(8)
+        .x_label_area_size(38)
+        .y_label_area_size(58)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(err)?;
+    let log_y = p.log_y;
+    let y_fmt = move |v: &f64| {
+        if log_y {
+            format!("1e{v:.0}")
+        } else {
+            format_tick(*v)
+        }
+    };
+    let x_fmt = |v: &f64| format_tick(*v);
+    chart
+        .configure_mesh()
+        .x_desc(p.x_label.as_str())
+        .y_desc(p.y_label.as_str())
+        .x_label_formatter(&x_fmt)
+        .y_label_formatter(&y_fmt)
+        .label_style((FAMILY, 13).into_font())
+        .axis_desc_style((FAMILY, 14).into_font())
+        .light_line_style(RGBColor(235, 235, 235))
+        .bold_line_style(RGBColor(215, 215, 215))
+        .draw()
+        .map_err(err)?;
+    let grey = RGBColor(120, 120, 120);
+    for &y in &p.reference_y {
+        if let Some(y) = p.transformed(y) {
+            chart
+                .draw_series(LineSeries::new([(x0, y), (x1, y)], grey.stroke_width(1)))
+                .map_err(err)?;
+        }
+    }
+    for &x in &p.reference_x {
+        chart
+            .draw_series(LineSeries::new([(x, y0), (x, y1)], grey.stroke_width(1)))
+            .map_err(err)?;
+    }
+    let mut any_label = false;
+    for (s, pts) in p.series.iter().zip(all) {
+        let style = s.color.stroke_width(s.width);
+        let anno = match s.style {
+            SeriesStyle::Points => chart
+                .draw_series(
+                    pts.iter()
+                        .filter(|q| q.0.is_finite() && q.1.is_finite())
+                        .map(|&q| Circle::new(q, s.width, s.color.filled())),
+                )
+                .map_err(err)?,
+            SeriesStyle::Line | SeriesStyle::Loop => {
+                let mut segs: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+                for q in &pts {
+                    if q.0.is_finite() && q.1.is_finite() {
+                        if let Some(v) = segs.last_mut() {
+                            v.push(*q);
+                        }
+                    } else if segs.last().is_some_and(|v| !v.is_empty()) {
+                        segs.push(Vec::new());
+                    }
+                }
+                if s.style == SeriesStyle::Loop && segs.len() == 1 {
+                    if let Some(first) = segs[0].first().copied() {
+                        segs[0].push(first);
+                    }
+                }
+                let mut last = None;
+                for seg in segs.into_iter().filter(|v| !v.is_empty()) {
+                    last = Some(
+                        chart
+                            .draw_series(LineSeries::new(seg, style))
+                            .map_err(err)?,
+                    );
+                }
+                match last {
+                    Some(a) => a,
+                    None => continue,
+                }
+            }
+        };
+        if let Some(label) = &s.label {
+            any_label = true;
+            let c = s.color;
+            anno.label(label.as_str())
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], c.stroke_width(3)));
+        }
+    }
+    let pos = match p.legend {
+        LegendPosition::None => None,
+        LegendPosition::UpperLeft => Some(SeriesLabelPosition::UpperLeft),
+        LegendPosition::UpperRight => Some(SeriesLabelPosition::UpperRight),
+        LegendPosition::LowerLeft => Some(SeriesLabelPosition::LowerLeft),
+        LegendPosition::LowerRight => Some(SeriesLabelPosition::LowerRight),
+    };
+    if let (true, Some(pos)) = (any_label, pos) {
+        chart
+            .configure_series_labels()
+            .position(pos)
+            .background_style(WHITE.mix(0.85))
+            .border_style(RGBColor(190, 190, 190))
+            .label_font((FAMILY, 13).into_font())
+            .draw()
+            .map_err(err)?;
+    }
+    Ok(())
+}
+
+fn draw_heatmap<DB: DrawingBackend>(p: &HeatmapPanel, area: &DrawingArea<DB, Shift>) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot rendering failed: {e:?}");
+    let (nx, ny) = (p.x.len(), p.y.len());
+    if nx == 0 || ny == 0 || p.z.len() != ny || p.z.iter().any(|row| row.len() != nx) {
+        return Err(anyhow!(
+            "heat map '{}': z must be {ny} rows of {nx} values",
+            p.title
+        ));
+    }
+    let edges = |c: &[f64]| -> Vec<f64> {
+        if c.len() == 1 {
+            return vec![c[0] - 0.5, c[0] + 0.5];
+        }
+        let mut e = Vec::with_capacity(c.len() + 1);
+        e.push(c[0] - 0.5 * (c[1] - c[0]));
+        for w in c.windows(2) {
+            e.push(0.5 * (w[0] + w[1]));
+        }
+        e.push(c[c.len() - 1] + 0.5 * (c[c.len() - 1] - c[c.len() - 2]));
+        e
+    };
+    let (xe, ye) = (edges(&p.x), edges(&p.y));
+    let (mut z0, mut z1) = p
+        .z_range
+        .unwrap_or_else(|| data_bounds(p.z.iter().flatten().copied()));
+    if p.diverging && p.z_range.is_none() {
+        let m = z0.abs().max(z1.abs());
+        (z0, z1) = (-m, m);
+    }
+    if z1.partial_cmp(&z0) != Some(std::cmp::Ordering::Greater) {
+        (z0, z1) = padded(z0, z1, 0.0);
+    }
+    let (main, bar) = area.split_horizontally(area.dim_in_pixel().0.saturating_sub(90));
+    let mut chart = ChartBuilder::on(&main)
+        .caption(&p.title, (FAMILY, 17).into_font())
+        .margin(8)
+        .x_label_area_size(38)
+        .y_label_area_size(58)
+        .build_cartesian_2d(xe[0]..xe[nx], ye[0]..ye[ny])
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc(p.x_label.as_str())
+        .y_desc(p.y_label.as_str())
+        .x_label_formatter(&|v| format_tick(*v))
+        .y_label_formatter(&|v| format_tick(*v))
+        .label_style((FAMILY, 13).into_font())
+        .axis_desc_style((FAMILY, 14).into_font())
+        .draw()
+        .map_err(err)?;
+    let color = |z: f64| {
+        let t = (z - z0) / (z1 - z0);
+        if p.diverging {
+            palette::diverging(t)
+        } else {
+            palette::sequential(t)
+        }
+    };
+    chart
+        .draw_series(
+            (0..ny)
+                .flat_map(|iy| {
+                    let (xe, ye) = (&xe, &ye);
+                    (0..nx).map(move |ix| (ix, iy, xe, ye))
+                })
+                .map(|(ix, iy, xe, ye)| {
+                    let marked = p.mark.as_ref().is_some_and(|m| {
+                        m.get(iy).and_then(|r| r.get(ix)).copied().unwrap_or(false)
+                    });
+                    let c = if marked {
+                        RGBColor(255, 221, 0)
+                    } else {
+                        color(p.z[iy][ix])
+                    };
+                    Rectangle::new([(xe[ix], ye[iy]), (xe[ix + 1], ye[iy + 1])], c.filled())
+                }),
+        )
+        .map_err(err)?;
+    // Colour bar.
+    let mut cb = ChartBuilder::on(&bar)
+        .margin_top(34)
+        .margin_bottom(46)
+        .margin_right(8)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0.0..1.0, z0..z1)
+        .map_err(err)?;
+    cb.configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .y_desc(p.z_label.as_str())
+        .y_label_formatter(&|v| format_tick(*v))
+        .label_style((FAMILY, 12).into_font())
+        .axis_desc_style((FAMILY, 13).into_font())
+        .draw()
+        .map_err(err)?;
+    let steps = 64;
+    cb.draw_series((0..steps).map(|i| {
+        let a = z0 + (z1 - z0) * i as f64 / steps as f64;
+        let b = z0 + (z1 - z0) * (i + 1) as f64 / steps as f64;
+        Rectangle::new([(0.0, a), (1.0, b)], color(0.5 * (a + b)).filled())
+    }))
+    .map_err(err)?;
+    Ok(())
+}
+
+/// Compact tick label: up to 4 significant digits, no trailing zeros; |v| < 1e-12 (rounding
+/// residue of a tick at zero) prints as `0`.
+pub fn format_tick(v: f64) -> String {
+    if v.abs() < 1e-12 || !v.is_finite() {
+        return "0".into();
+    }
+    let a = v.abs();
+    if !(1e-3..1e5).contains(&a) {
+        return format!("{v:.1e}");
+    }
+    let decimals = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tick_labels_are_compact() {
+        assert_eq!(format_tick(0.5), "0.5");
+        assert_eq!(format_tick(-1200.0), "-1200");
+        assert_eq!(format_tick(0.0125), "0.0125");
+        assert_eq!(format_tick(2.0e-5), "2.0e-5");
+    }
+
+    #[test]
+    fn figure_renders_text_and_lines_and_writes_png_atomically() {
+        let pts: Vec<(f64, f64)> = (0..100)
+            .map(|i| {
+                let t = i as f64 * 0.0628;
+                (t.cos(), t.sin())
+            })
+            .collect();
+        let fig = Figure::new(1, 2)
+            .with_title("test")
+            .with_panel(
+                LinePanel::new("loop", "x", "y")
+                    .with_series(Series::closed("c", pts, palette::categorical(0)))
+                    .with_zero_lines(),
+            )
+            .with_panel(HeatmapPanel {
+                title: "map".into(),
+                x_label: "a".into(),
+                y_label: "b".into(),
+                x: vec![0.0, 1.0, 2.0],
+                y: vec![0.0, 1.0],
+                z: vec![vec![0.0, 1.0, 2.0], vec![3.0, 4.0, 5.0]],
+                z_range: None,
+                z_label: "z".into(),
+                diverging: false,
+                mark: None,
+            });
+        let rgb = fig.render_rgb().unwrap();
+        let (w, h) = fig.size();
+        assert_eq!(rgb.len(), (w * h * 3) as usize);
+        // Something other than white was drawn (text, axes, the loop in tab:blue).
+        assert!(rgb.chunks(3).any(|p| p == [31, 119, 180]));
+        let dir = std::env::temp_dir().join(format!("nemm-plot-test-{}", std::process::id()));
+        let path = dir.join("fig.png");
+        fig.save_png(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        let leftovers: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
+            .collect();
+        assert!(leftovers.is_empty());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

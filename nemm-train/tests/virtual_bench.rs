@@ -1,0 +1,415 @@
+//! Tests of the virtual test bench: physics (forces, monotonicity, dissipation, oil-loss
+//! effects), integrator stability, determinism of the generated files, config errors, plots.
+
+use nemm_train::bench::config::{self, BenchConfig};
+use nemm_train::bench::plots::{cycle_loop, CycleLoop};
+use nemm_train::bench::program::{run_spec, RunSpec};
+use nemm_train::bench::{Trace, VirtualBench};
+use nemm_train::dataset::{self, Run, RunEntry};
+use std::path::{Path, PathBuf};
+
+fn bench() -> VirtualBench {
+    VirtualBench::new(BenchConfig::default())
+}
+
+fn spec(b: &VirtualBench, alpha: f64, amp: f64, v: f64) -> RunSpec {
+    run_spec(&b.config().program, alpha, amp, v)
+}
+
+/// A noise-free trace as a run, reduced to its cycle-averaged loop.
+fn trace_loop(s: &RunSpec, tr: &Trace) -> CycleLoop {
+    let run = Run {
+        entry: RunEntry {
+            file: s.file.clone(),
+            oil_loss: s.oil_loss,
+            amplitude_m: Some(s.amplitude_m),
+            target_velocity_m_s: Some(s.peak_velocity_m_s),
+        },
+        time_s: tr.time_s.clone(),
+        displacement_m: tr.displacement_m.clone(),
+        force_n: tr.force_n.clone(),
+        velocity_m_s: None,
+    };
+    cycle_loop(&run).expect("loop of a simulated run")
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("nemm-vb-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn quasi_static_forces_are_monotone_and_passenger_car_sized() {
+    let b = bench();
+    for alpha in [0.0, 0.15, 0.30] {
+        let mut last = f64::NEG_INFINITY;
+        for i in -60..=60 {
+            let v = i as f64 * 0.02;
+            let f = b.quasi_static_force(v, alpha);
+            assert!(
+                f > last,
+                "alpha {alpha}: force not increasing at v = {v}: {f} <= {last}"
+            );
+            last = f;
+        }
+    }
+    let f = |v: f64| b.quasi_static_force(v, 0.0);
+    assert!(
+        (150.0..=600.0).contains(&f(0.1)),
+        "rebound at 0.1 m/s: {}",
+        f(0.1)
+    );
+    assert!(
+        (-400.0..=-60.0).contains(&f(-0.1)),
+        "compression at 0.1 m/s: {}",
+        f(-0.1)
+    );
+    assert!(
+        (1500.0..=3000.0).contains(&f(1.0)),
+        "rebound at 1 m/s: {}",
+        f(1.0)
+    );
+    assert!(
+        (-1600.0..=-500.0).contains(&f(-1.0)),
+        "compression at 1 m/s: {}",
+        f(-1.0)
+    );
+    for v in [0.1, 0.3, 0.5, 1.0] {
+        assert!(
+            f(v) > 1.3 * -f(-v),
+            "rebound must be stiffer than compression at {v} m/s"
+        );
+    }
+}
+
+#[test]
+fn oil_loss_never_raises_the_quasi_static_force_and_lowers_the_gas_charge() {
+    // Steady flow: the valve pressure drops do not depend on the oil volume; what oil loss
+    // changes is the gas pressure (larger gas volume, Boyle) and with it the pressure-loaded
+    // rod-seal friction. So the quasi-static force must not grow with oil loss.
+    let b = bench();
+    let mut last_p = f64::INFINITY;
+    let mut last_gas = f64::NEG_INFINITY;
+    for alpha in [0.0, 0.15, 0.30] {
+        let r = b.rest_state(alpha);
+        assert!(
+            r.pressure_pa < last_p && r.reservoir_gas_m3 > last_gas,
+            "alpha {alpha}: {r:?}"
+        );
+        (last_p, last_gas) = (r.pressure_pa, r.reservoir_gas_m3);
+    }
+    for v in [-1.0, -0.3, -0.05, 0.05, 0.3, 1.0] {
+        let f: Vec<f64> = [0.0, 0.15, 0.30]
+            .iter()
+            .map(|&a| b.quasi_static_force(v, a).abs())
+            .collect();
+        assert!(f[1] <= f[0] + 1e-9 && f[2] <= f[1] + 1e-9, "v {v}: {f:?}");
+    }
+}
+
+#[test]
+fn slow_run_follows_the_quasi_static_characteristic() {
+    let b = bench();
+    let s = spec(&b, 0.0, 0.01, 0.052);
+    let l = trace_loop(&s, &b.simulate(&s));
+    let (reb, comp) = l.quasi_static_n();
+    let (qr, qc) = (
+        b.quasi_static_force(0.052, 0.0),
+        b.quasi_static_force(-0.052, 0.0),
+    );
+    assert!(
+        (reb / qr - 1.0).abs() < 0.08,
+        "rebound {reb} vs quasi-static {qr}"
+    );
+    assert!(
+        (comp / qc - 1.0).abs() < 0.08,
+        "compression {comp} vs quasi-static {qc}"
+    );
+}
+
+#[test]
+fn energy_per_cycle_is_positive_and_oil_loss_shows_as_hysteresis() {
+    let b = bench();
+    let loops: Vec<CycleLoop> = [0.0, 0.15, 0.30]
+        .iter()
+        .map(|&a| {
+            let s = spec(&b, a, 0.01, 1.048);
+            trace_loop(&s, &b.simulate(&s))
+        })
+        .collect();
+    for l in &loops {
+        assert!(
+            l.dissipated_energy_j() > 10.0,
+            "alpha {}: {} J",
+            l.oil_loss,
+            l.dissipated_energy_j()
+        );
+    }
+    // Lost motion: the degraded damper dissipates less work per cycle, its loop in the
+    // force-velocity plane is wider.
+    let e: Vec<f64> = loops.iter().map(CycleLoop::dissipated_energy_j).collect();
+    let a: Vec<f64> = loops.iter().map(CycleLoop::hysteresis_area).collect();
+    assert!(e[0] > e[1] && e[1] > e[2], "energy {e:?}");
+    assert!(a[2] > 1.5 * a[0] && a[1] > a[0], "hysteresis area {a:?}");
+    // Asymmetry: early in the compression stroke (first 15 % of the half period after the
+    // upper reversal) the degraded damper pushes back much less.
+    let early_compression = |l: &CycleLoop| {
+        let n = l.force_n.len();
+        let (from, to) = (n / 4, n / 4 + (0.15 * n as f64 / 2.0) as usize);
+        l.force_n[from..to].iter().sum::<f64>() / (to - from) as f64
+    };
+    let (c0, c30) = (early_compression(&loops[0]), early_compression(&loops[2]));
+    assert!(
+        c0 < 0.0 && c30 > 0.6 * c0,
+        "early compression force: {c0} vs {c30}"
+    );
+    // Other runs dissipate, too (slow and large amplitude).
+    for (amp, v) in [(0.05, 0.131), (0.03, 0.524)] {
+        let s = spec(&b, 0.30, amp, v);
+        let l = trace_loop(&s, &b.simulate(&s));
+        assert!(
+            l.dissipated_energy_j() > 0.0,
+            "{:?}: {}",
+            s.file,
+            l.dissipated_energy_j()
+        );
+    }
+}
+
+#[test]
+fn oil_loss_opens_small_stroke_loops_more_than_large_stroke_loops() {
+    let b = bench();
+    let norm_area = |alpha: f64, amp: f64| {
+        let s = spec(&b, alpha, amp, 0.524);
+        let l = trace_loop(&s, &b.simulate(&s));
+        l.hysteresis_area()
+    };
+    let growth_small = norm_area(0.30, 0.01) - norm_area(0.0, 0.01);
+    let growth_large = norm_area(0.30, 0.05) - norm_area(0.0, 0.05);
+    assert!(
+        growth_small > 0.0 && growth_small > growth_large,
+        "{growth_small} vs {growth_large}"
+    );
+}
+
+#[test]
+fn halving_the_internal_step_changes_the_force_only_slightly() {
+    let b = bench();
+    for alpha in [0.0, 0.30] {
+        let s = spec(&b, alpha, 0.01, 1.048);
+        let coarse = b.simulate_with_step(&s, 1e-4); // one implicit step per sample
+        let default = b.simulate_with_step(&s, 2.5e-5);
+        let half = b.simulate_with_step(&s, 1.25e-5);
+        let fmax = default.force_n.iter().fold(0.0f64, |m, f| m.max(f.abs()));
+        let diff = |a: &Trace, b: &Trace| {
+            a.force_n
+                .iter()
+                .zip(&b.force_n)
+                .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+        };
+        let rms = |a: &Trace, b: &Trace| {
+            let s: f64 = a
+                .force_n
+                .iter()
+                .zip(&b.force_n)
+                .map(|(x, y)| (x - y).powi(2))
+                .sum();
+            (s / a.force_n.len() as f64).sqrt()
+        };
+        assert!(coarse.force_n.iter().all(|f| f.is_finite()));
+        assert!(
+            diff(&default, &half) < 0.02 * fmax,
+            "alpha {alpha}: max change {}",
+            diff(&default, &half)
+        );
+        assert!(
+            rms(&default, &half) < 0.004 * fmax,
+            "alpha {alpha}: rms change {}",
+            rms(&default, &half)
+        );
+        // First order: the error roughly halves with the step (coarse vs default is 4x).
+        assert!(
+            rms(&default, &half) < 0.6 * rms(&coarse, &default),
+            "no convergence"
+        );
+        assert_eq!(
+            default.stats.splits, 0,
+            "Newton needed step splitting: {:?}",
+            default.stats
+        );
+        assert!(
+            default.stats.newton_iterations < 4 * default.stats.steps,
+            "{:?}",
+            default.stats
+        );
+    }
+}
+
+fn tiny_config(seed_note: &str) -> BenchConfig {
+    let mut cfg = BenchConfig {
+        name: format!("tiny {seed_note}"),
+        ..Default::default()
+    };
+    cfg.program.oil_loss = vec![0.0, 0.30];
+    cfg.program.amplitudes_m = vec![0.01];
+    cfg.program.peak_velocities_m_s = vec![0.524];
+    cfg.program.min_steady_s = 0.5;
+    cfg
+}
+
+fn read_tree(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push((
+                    p.strip_prefix(dir).unwrap().display().to_string(),
+                    std::fs::read(&p).unwrap(),
+                ));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn generation_is_deterministic_per_seed_and_the_seed_changes_the_noise() {
+    let cfg = tiny_config("det");
+    let (a, b, c) = (temp_dir("seed-a"), temp_dir("seed-b"), temp_dir("seed-c"));
+    let bench = VirtualBench::new(cfg.clone());
+    dataset::write(&a, &bench.generate(5, |_, _| {})).unwrap();
+    dataset::write(&b, &VirtualBench::new(cfg.clone()).generate(5, |_, _| {})).unwrap();
+    dataset::write(&c, &bench.generate(6, |_, _| {})).unwrap();
+    let (ta, tb, tc) = (read_tree(&a), read_tree(&b), read_tree(&c));
+    assert_eq!(
+        ta.len(),
+        3,
+        "manifest + 2 runs: {:?}",
+        ta.iter().map(|t| &t.0).collect::<Vec<_>>()
+    );
+    assert!(ta == tb, "same seed must give identical bytes");
+    let runs_differ = ta
+        .iter()
+        .zip(&tc)
+        .filter(|(x, y)| x.0.ends_with(".csv") && x.1 != y.1)
+        .count();
+    assert_eq!(
+        runs_differ, 2,
+        "another seed must change the noise of every run"
+    );
+    // Same physics under the noise: the seeds differ by noise only.
+    let (da, dc) = (dataset::load(&a).unwrap(), dataset::load(&c).unwrap());
+    for (ra, rc) in da.runs.iter().zip(&dc.runs) {
+        let n = ra.force_n.len() as f64;
+        let rms = (ra
+            .force_n
+            .iter()
+            .zip(&rc.force_n)
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt();
+        let sigma = cfg.sensors.force_noise_std_n;
+        assert!(
+            rms > 0.5 * sigma && rms < 3.0 * sigma,
+            "{:?}: rms {rms}",
+            ra.entry.file
+        );
+        assert!(ra.velocity_m_s.is_none(), "no velocity column by default");
+    }
+    // The documented file layout.
+    assert_eq!(
+        da.runs[1].entry.file,
+        PathBuf::from("runs/oil30_a010_v0524.csv")
+    );
+    let head = String::from_utf8(
+        ta.iter()
+            .find(|t| t.0.ends_with("oil00_a010_v0524.csv"))
+            .unwrap()
+            .1[..60]
+            .to_vec(),
+    )
+    .unwrap();
+    assert!(
+        head.starts_with("time_s,displacement_m,force_n\n0,0,"),
+        "{head}"
+    );
+    for d in [a, b, c] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn velocity_column_is_a_config_option() {
+    let mut cfg = tiny_config("vel");
+    cfg.program.oil_loss = vec![0.15];
+    cfg.sensors.write_velocity = true;
+    let ds = VirtualBench::new(cfg).generate(1, |_, _| {});
+    let run = &ds.runs[0];
+    let v = run.velocity_m_s.as_ref().expect("velocity column");
+    let vmax = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    assert!((vmax / 0.524 - 1.0).abs() < 0.05, "{vmax}");
+}
+
+#[test]
+fn bad_config_files_name_the_file_and_key() {
+    let dir = temp_dir("cfg");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bench.toml");
+    let text =
+        config::DEFAULT_TOML.replace("charge_pressure_pa = 4.0e5", "charge_pressure_pa = -4.0e5");
+    std::fs::write(&path, text).unwrap();
+    let err = format!("{:#}", config::load(&path).unwrap_err());
+    assert!(err.contains("bench.toml:"), "{err}");
+    assert!(err.contains("gas.charge_pressure_pa"), "{err}");
+    let text = config::DEFAULT_TOML.replace("[sensors]", "[sensor]");
+    std::fs::write(&path, text).unwrap();
+    let err = format!("{:#}", config::load(&path).unwrap_err());
+    assert!(err.contains("sensor") && err.contains("line"), "{err}");
+    let err = format!("{:#}", config::load(&dir.join("missing.toml")).unwrap_err());
+    assert!(err.contains("missing.toml"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn plots_are_written_for_a_generated_dataset() {
+    let cfg = tiny_config("plot");
+    let (data, out) = (temp_dir("plot-data"), temp_dir("plot-out"));
+    dataset::write(&data, &VirtualBench::new(cfg).generate(3, |_, _| {})).unwrap();
+    let files = nemm_train::bench::plots::plot_dataset(&data, &out).unwrap();
+    let names: Vec<String> = files
+        .iter()
+        .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "force_velocity_loops.png",
+            "difference_loops.png",
+            "quasi_static.png"
+        ]
+    );
+    for f in &files {
+        let bytes = std::fs::read(f).unwrap();
+        assert!(
+            bytes.len() > 10_000 && &bytes[1..4] == b"PNG",
+            "{}",
+            f.display()
+        );
+    }
+    // Measured (noisy, quantised) runs give sensible loops.
+    for run in dataset::load(&data).unwrap().runs {
+        let l = cycle_loop(&run).unwrap();
+        assert!(l.dissipated_energy_j() > 0.0);
+        let vmax = l.velocity_m_s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!((vmax / 0.524 - 1.0).abs() < 0.05, "{vmax}");
+    }
+    let _ = std::fs::remove_dir_all(&data);
+    let _ = std::fs::remove_dir_all(&out);
+}
