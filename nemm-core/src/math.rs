@@ -6,16 +6,15 @@
 //! | [`rsqrt`] | `1 / sqrt(x)`, both correctly rounded            | `micromath` `invsqrt` (bit trick, ~5 %) |
 //! | [`fma`]   | fused multiply-add, correctly rounded (always)  | same                              |
 //!
-//! `sqrt` and `fma` are correctly rounded IEEE 754 operations on every target, so they give
-//! the same bits on the host and on the Cortex-M4F:
+//! `sqrt` and `fma` are correctly rounded IEEE 754 operations on every target (`libm::sqrtf`,
+//! `libm::fmaf`), so they give the same bits on the host and on the Cortex-M4F.
 //!
-//! - on ARM hard-float targets (`thumbv7em-none-eabihf`, FPv4-SP) they are the single
-//!   instructions `vsqrt.f32` and `vfma.f32`. `libm` 0.2 has no ARM path and compiles
-//!   `sqrtf` to a ~100-instruction integer routine and `fmaf` to a software emulation; and
-//!   stable Rust has no `no_std` intrinsic for either. This is the only `unsafe` in the
-//!   crate: two `asm!` statements, each a single pure FPU instruction without memory access.
-//! - elsewhere `libm::sqrtf` (SSE `sqrtss` on x86-64) and `libm::fmaf` (hardware FMA when
-//!   the CPU has it, detected at run time, otherwise an exact software routine).
+//! On `thumbv7em-none-eabihf` both are software routines: `libm` 0.2 has no ARM path, stable
+//! Rust has no `no_std` intrinsic for either, and `asm!` cannot name FPU registers there
+//! (Rust 1.95/1.96 refuse the `sreg` class without the `vfp2` target feature, which the
+//! single-precision FPv4-SP target does not have). An `asm!` version that moves the operands
+//! through core registers (`vmov`) compiled and was exact, but measured slower per step than
+//! `libm` in QEMU (see nemm-firmware's README), so it is not used.
 //!
 //! If both math features are enabled, `micromath` wins (Cargo features are additive).
 
@@ -67,65 +66,13 @@ pub fn sigmoid(z: f32) -> f32 {
 /// Correctly rounded square root.
 #[inline(always)]
 pub fn sqrt(x: f32) -> f32 {
-    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
-    {
-        arm::vsqrt(x)
-    }
-    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
-    {
-        libm::sqrtf(x)
-    }
+    libm::sqrtf(x)
 }
 
 /// Fused multiply-add `a * b + c` with a single rounding.
 #[inline(always)]
 pub fn fma(a: f32, b: f32, c: f32) -> f32 {
-    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
-    {
-        arm::vfma(a, b, c)
-    }
-    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
-    {
-        libm::fmaf(a, b, c)
-    }
-}
-
-#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
-#[allow(unsafe_code)]
-mod arm {
-    /// `vsqrt.f32`: IEEE 754 square root, 14 cycles on a Cortex-M4F.
-    #[inline(always)]
-    pub fn vsqrt(x: f32) -> f32 {
-        let r: f32;
-        // SAFETY: one FPU instruction on registers only: no memory, no stack, no flags
-        // other than the FPSCR cumulative exception bits.
-        unsafe {
-            core::arch::asm!(
-                "vsqrt.f32 {r}, {x}",
-                x = in(sreg) x,
-                r = lateout(sreg) r,
-                options(pure, nomem, nostack, preserves_flags),
-            );
-        }
-        r
-    }
-
-    /// `vfma.f32`: fused `a * b + c`, one rounding.
-    #[inline(always)]
-    pub fn vfma(a: f32, b: f32, c: f32) -> f32 {
-        let mut acc = c;
-        // SAFETY: as above, a single register-only FPU instruction.
-        unsafe {
-            core::arch::asm!(
-                "vfma.f32 {acc}, {a}, {b}",
-                acc = inout(sreg) acc,
-                a = in(sreg) a,
-                b = in(sreg) b,
-                options(pure, nomem, nostack, preserves_flags),
-            );
-        }
-        acc
-    }
+    libm::fmaf(a, b, c)
 }
 
 #[cfg(test)]

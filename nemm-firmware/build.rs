@@ -1,0 +1,203 @@
+//! Build-time inputs of the firmware, all written to `OUT_DIR`:
+//!
+//! - `memory.x` for cortex-m-rt's `link.x`.
+//! - `weights.slot`: the weights slot (`src/slot.rs`) holding the `.nemm` blob named by
+//!   `NEMM_WEIGHTS` (default `data/example-nemm.nemm`, the example NEMM of `nemm-core`,
+//!   H = 16, L = 5, pseudo-random weights; the trainer's `model.nemm` drops in here).
+//! - `trace.bin`: the bench trace the replay device serves (`src/trace.rs`): the run CSV
+//!   named by `NEMM_TRACE` (`time_s,displacement_m,force_n[,velocity_m_s]`, the project's
+//!   dataset format; oil loss from `NEMM_TRACE_OIL_LOSS`, default 0.15), or else a
+//!   deterministic synthetic run over the paper's Table 1 conditions.
+//!
+//! Relative paths are relative to this crate's directory.
+use std::env;
+use std::f64::consts::PI;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// Must equal `slot::CAPACITY` (the firmware's `include_bytes!` into a `[u8; CAPACITY]`
+/// refuses to compile otherwise).
+const SLOT_CAPACITY: usize = 64 * 1024;
+const SLOT_MAGIC: &[u8; 4] = b"NWSL";
+const TRACE_MAGIC: &[u8; 4] = b"NTRC";
+const SAMPLE_RATE_HZ: f64 = 10_000.0;
+const DEFAULT_OIL_LOSS: f32 = 0.15;
+
+fn main() {
+    let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets it"));
+    let out = PathBuf::from(env::var("OUT_DIR").expect("cargo sets it"));
+
+    fs::copy(manifest_dir.join("memory.x"), out.join("memory.x")).expect("copy memory.x");
+    println!("cargo:rustc-link-search={}", out.display());
+    println!("cargo:rerun-if-changed=memory.x");
+
+    let weights = input_path(&manifest_dir, "NEMM_WEIGHTS", "data/example-nemm.nemm");
+    let blob = fs::read(&weights)
+        .unwrap_or_else(|e| panic!("NEMM_WEIGHTS: cannot read {}: {e}", weights.display()));
+    fs::write(out.join("weights.slot"), slot(&blob, &weights)).expect("write weights.slot");
+
+    println!("cargo:rerun-if-env-changed=NEMM_TRACE");
+    println!("cargo:rerun-if-env-changed=NEMM_TRACE_OIL_LOSS");
+    let oil_loss: f32 = match env::var("NEMM_TRACE_OIL_LOSS") {
+        Ok(s) => s
+            .parse()
+            .ok()
+            .filter(|a| (0.0..=1.0).contains(a))
+            .unwrap_or_else(|| panic!("NEMM_TRACE_OIL_LOSS={s}: expected a number in [0, 1]")),
+        Err(_) => DEFAULT_OIL_LOSS,
+    };
+    let trace = match env::var_os("NEMM_TRACE") {
+        Some(p) => {
+            let p = manifest_dir.join(p);
+            println!("cargo:rerun-if-changed={}", p.display());
+            let text = fs::read_to_string(&p)
+                .unwrap_or_else(|e| panic!("NEMM_TRACE: cannot read {}: {e}", p.display()));
+            let (rate, samples) =
+                parse_run_csv(&text).unwrap_or_else(|e| panic!("NEMM_TRACE: {}: {e}", p.display()));
+            encode_trace(rate, oil_loss, &samples)
+        }
+        None => encode_trace(SAMPLE_RATE_HZ as f32, oil_loss, &synthetic_run()),
+    };
+    fs::write(out.join("trace.bin"), trace).expect("write trace.bin");
+}
+
+fn input_path(dir: &Path, var: &str, default: &str) -> PathBuf {
+    println!("cargo:rerun-if-env-changed={var}");
+    let p = dir.join(env::var_os(var).unwrap_or_else(|| default.into()));
+    println!("cargo:rerun-if-changed={}", p.display());
+    p
+}
+
+fn slot(blob: &[u8], path: &Path) -> Vec<u8> {
+    let room = SLOT_CAPACITY - 8;
+    if blob.len() > room {
+        panic!(
+            "NEMM_WEIGHTS: {} is {} bytes, the weights slot holds {room}; export a smaller model \
+             or raise slot::CAPACITY (and the WEIGHTS region in memory.x)",
+            path.display(),
+            blob.len()
+        );
+    }
+    let mut s = Vec::with_capacity(SLOT_CAPACITY);
+    s.extend_from_slice(SLOT_MAGIC);
+    s.extend_from_slice(&(blob.len() as u32).to_le_bytes());
+    s.extend_from_slice(blob);
+    s.resize(SLOT_CAPACITY, 0xFF); // erased flash
+    s
+}
+
+/// `(displacement_m, velocity_m_s)` per sample; velocity NaN if not recorded.
+type Sample = (f32, f32);
+
+fn encode_trace(rate_hz: f32, oil_loss: f32, samples: &[Sample]) -> Vec<u8> {
+    let mut b = Vec::with_capacity(20 + 8 * samples.len());
+    b.extend_from_slice(TRACE_MAGIC);
+    b.extend_from_slice(&1u16.to_le_bytes());
+    b.extend_from_slice(&0u16.to_le_bytes());
+    b.extend_from_slice(&rate_hz.to_le_bytes());
+    b.extend_from_slice(&oil_loss.to_le_bytes());
+    b.extend_from_slice(&(samples.len() as u32).to_le_bytes());
+    for (x, v) in samples {
+        b.extend_from_slice(&x.to_le_bytes());
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    b
+}
+
+/// A run CSV with a header naming `time_s` and `displacement_m` (and optionally
+/// `velocity_m_s`); returns the mean sample rate and the samples.
+fn parse_run_csv(text: &str) -> Result<(f32, Vec<Sample>), String> {
+    let mut lines = text.lines().enumerate();
+    let (_, header) = lines.next().ok_or("empty file")?;
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let col = |name: &str| cols.iter().position(|c| *c == name);
+    let t_col = col("time_s").ok_or("no `time_s` column")?;
+    let x_col = col("displacement_m").ok_or("no `displacement_m` column")?;
+    let v_col = col("velocity_m_s");
+    let (mut t0, mut t1, mut samples) = (None, 0.0f64, Vec::new());
+    for (i, line) in lines {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        let num = |c: usize| -> Result<f64, String> {
+            f.get(c)
+                .ok_or(format!("line {}: missing column {c}", i + 1))?
+                .parse::<f64>()
+                .map_err(|e| format!("line {}: {e}", i + 1))
+        };
+        let t = num(t_col)?;
+        t0.get_or_insert(t);
+        t1 = t;
+        let v = match v_col {
+            Some(c) => num(c)? as f32,
+            None => f32::NAN,
+        };
+        samples.push((num(x_col)? as f32, v));
+    }
+    let t0 = t0.ok_or("no samples")?;
+    if samples.len() < 2 || t1 <= t0 {
+        return Err("need at least two samples with increasing time".into());
+    }
+    let rate = (samples.len() - 1) as f64 / (t1 - t0);
+    Ok((rate as f32, samples))
+}
+
+/// SplitMix64 stream for the synthetic noise.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn uniform(&mut self) -> f64 {
+        ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    /// Standard normal (Box-Muller).
+    fn normal(&mut self) -> f64 {
+        let (u1, u2) = (self.uniform(), self.uniform());
+        (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+    }
+}
+
+/// Synthetic bench run: for each of the paper's Table 1 conditions (stroke amplitude 50 and
+/// 10 mm, target velocities 0.052 .. 1.048 m/s at the zero crossing) a 0.15 s sinusoidal
+/// stroke segment `x = A w(t) sin(v t / A)` that starts at the zero crossing, with a 20 ms
+/// raised-cosine fade in and out `w(t)` (so the stroke is continuous from segment to segment),
+/// plus 0.5 um RMS white displacement noise. The velocity channel is the exact derivative.
+fn synthetic_run() -> Vec<Sample> {
+    const AMPLITUDES_M: [f64; 2] = [0.05, 0.01];
+    const VELOCITIES_M_S: [f64; 6] = [0.052, 0.131, 0.262, 0.393, 0.524, 1.048];
+    const SEGMENT_S: f64 = 0.15;
+    const FADE_S: f64 = 0.02;
+    const NOISE_M: f64 = 0.5e-6;
+    let n_seg = (SEGMENT_S * SAMPLE_RATE_HZ) as usize;
+    let mut rng = Rng(0x4E45_4D4D);
+    let mut out = Vec::new();
+    for a in AMPLITUDES_M {
+        for v_peak in VELOCITIES_M_S {
+            let w = v_peak / a;
+            for n in 0..n_seg {
+                let t = n as f64 / SAMPLE_RATE_HZ;
+                // Window and its derivative.
+                let (win, dwin) = if t < FADE_S {
+                    let p = PI * t / FADE_S;
+                    (0.5 - 0.5 * p.cos(), 0.5 * PI / FADE_S * p.sin())
+                } else if t > SEGMENT_S - FADE_S {
+                    let p = PI * (SEGMENT_S - t) / FADE_S;
+                    (0.5 - 0.5 * p.cos(), -0.5 * PI / FADE_S * p.sin())
+                } else {
+                    (1.0, 0.0)
+                };
+                let x = a * win * (w * t).sin();
+                let v = a * dwin * (w * t).sin() + a * win * w * (w * t).cos();
+                out.push(((x + NOISE_M * rng.normal()) as f32, v as f32));
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,100 @@
+//! # nemm-firmware
+//!
+//! A 10 kHz NEMM damper-force estimator for a Cortex-M4F, in the form a firmware engineer
+//! copies onto an ECU or a bench controller. The application (`src/main.rs`, RTIC 2) reads the
+//! stroke sensor through [`sensor::StrokeSensor`] on an `embedded-hal` 1.0 `SpiDevice`, steps
+//! the [`nemm_core`] estimator and publishes the force every 100 us; logging runs at the
+//! lowest priority behind a lock-free queue.
+//!
+//! This library holds the portable parts (host-tested with
+//! `cargo test --lib --target x86_64-unknown-linux-gnu`) and, on the target, the board
+//! support of QEMU's `mps2-an386` ([`board`]).
+//!
+//! - [`sensor`]: ADC frame, calibration, differentiation filter, the driver.
+//! - [`replay`]: the replay `SpiDevice` serving a recorded trace, with fault injection.
+//! - [`trace`]: the trace format in flash.
+//! - [`slot`]: the weights slot in flash.
+//! - [`report`]: the output lines the host tests parse.
+#![cfg_attr(not(test), no_std)]
+#![deny(missing_docs)]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::indexing_slicing,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::unreachable,
+        clippy::todo
+    )
+)]
+
+pub mod replay;
+pub mod report;
+pub mod sensor;
+pub mod slot;
+pub mod trace;
+
+#[cfg(target_os = "none")]
+pub mod board;
+
+/// Parameter capacity `P` of `Model<P>` / `Estimator<P>` in this firmware: the paper's
+/// optimum scaler (`H = 16, L = 5`, section 5.4: 1,313 parameters), which also holds `H = 8`
+/// at any depth of the search space (Table 3) and `H = 32` up to `L = 2`.
+///
+/// RAM: the model and the estimator hold six vectors of `P` floats (31 KiB), and
+/// `nemm_core::decode` needs about 7.5 times the size of a `Model<P>` of stack while it
+/// deserialises (118 KiB here, measured by stack painting; serde builds the nested model by
+/// value and moves it up level by level). Both together must fit the 192 KiB of an STM32F4,
+/// which rules out `H = 16, L = 9` (`P` = 2,529: 226 KiB of decode stack).
+pub const PARAM_CAPACITY: usize = nemm_core::mlp::param_count(2, 16, 5);
+
+/// Sample (and estimator step) rate \[Hz\].
+pub const SAMPLE_RATE_HZ: u32 = 10_000;
+
+/// Full scale of the stroke channel: `±0.1 m` over the ADC's 24 bits (12 nm per LSB).
+pub const STROKE_FULL_SCALE_M: f32 = 0.1;
+
+/// Calibration of the stroke channel at [`SAMPLE_RATE_HZ`].
+pub fn stroke_calibration() -> sensor::Calibration {
+    sensor::Calibration::new(STROKE_FULL_SCALE_M, SAMPLE_RATE_HZ as f32)
+}
+
+/// A `static` that is filled once at run time and then lent out as `&'static mut T`: the
+/// storage for large objects (the model, the estimator) that must not live on the stack.
+/// It starts as zero bytes in `.bss` (an `Option<T>` would go to `.data` and cost its size
+/// twice: RAM and a flash image of `None`).
+pub struct StaticSlot<T> {
+    taken: core::sync::atomic::AtomicBool,
+    cell: core::cell::UnsafeCell<core::mem::MaybeUninit<T>>,
+}
+
+// SAFETY: the only access to `cell` is through `init`, which hands out the one `&mut` at most
+// once (guarded by the atomic swap), so sharing the slot between contexts is sound.
+unsafe impl<T: Send> Sync for StaticSlot<T> {}
+
+impl<T> StaticSlot<T> {
+    /// An empty slot.
+    pub const fn new() -> Self {
+        Self {
+            taken: core::sync::atomic::AtomicBool::new(false),
+            cell: core::cell::UnsafeCell::new(core::mem::MaybeUninit::uninit()),
+        }
+    }
+
+    /// Moves `value` into the slot and returns it; `None` if the slot was already filled.
+    pub fn init(&'static self, value: T) -> Option<&'static mut T> {
+        if self.taken.swap(true, core::sync::atomic::Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: the swap above succeeds once, so this is the only reference ever made.
+        let slot = unsafe { &mut *self.cell.get() };
+        Some(slot.write(value))
+    }
+}
+
+impl<T> Default for StaticSlot<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}

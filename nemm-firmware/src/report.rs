@@ -1,0 +1,328 @@
+//! The firmware's output: one ASCII line per event, `key=value` fields, parsed by the host
+//! tests (`tests/src/firmware.rs`). Formatting is hand-written (decimal and hex integers,
+//! `f32` as raw bits) so that no `core::fmt` machinery, and none of its panic paths, is
+//! linked.
+//!
+//! ```text
+//! boot firmware=nemm-firmware version=0.1.0 board=mps2-an386 capacity=2529
+//! weights ok kind=nemm bytes=15791 integrator=rk4 dt_ns=100000
+//! weights-error source=decode kind=crc-mismatch stored=0x1234abcd computed=0x89abcdef
+//! start period_ticks=2500 core_hz=25000000 samples=18000 alpha=0x3e19999a faults=0
+//! s <k> <velocity f32 bits> <force f32 bits> <estimator flags> <firmware flags> <ticks>
+//! summary steps=18000 sensor_errors=0 invalid_samples=0 priming=1 held=1 resets=0 overruns=0 dropped=0 max_step_ticks=412 stack_used=1864
+//! exit code=0
+//! ```
+//!
+//! In `s` lines `k` and `ticks` are decimal, the rest hex; `velocity` is the value handed to
+//! the estimator (NaN when the sensor path had none), `ticks` the SysTick ticks from the
+//! start of the period to the end of the step (0 for an overrun). The firmware flags are
+//! [`FW_SENSOR_ERROR`], [`FW_SAMPLE_INVALID`], [`FW_PRIMING`], [`FW_OVERRUN`],
+//! [`FW_LOG_GAP`].
+
+use nemm_core::{DecodeError, EstimatorError, ModelError};
+
+use crate::slot::SlotError;
+
+/// The SPI read failed or the ADC had no new conversion.
+pub const FW_SENSOR_ERROR: u8 = 1 << 0;
+/// The ADC flagged the conversion invalid, or the velocity was not finite.
+pub const FW_SAMPLE_INVALID: u8 = 1 << 1;
+/// The differentiator was re-priming after start-up or a fault.
+pub const FW_PRIMING: u8 = 1 << 2;
+/// This step ended after the next period had started.
+pub const FW_OVERRUN: u8 = 1 << 3;
+/// Log records before this one were dropped (the queue was full).
+pub const FW_LOG_GAP: u8 = 1 << 4;
+
+/// Exit code: the recording was replayed to its end.
+pub const EXIT_DONE: u32 = 0;
+/// Exit code: the weights were rejected, the estimator was not started.
+pub const EXIT_BAD_WEIGHTS: u32 = 2;
+/// Exit code: a hard fault (never expected).
+pub const EXIT_HARD_FAULT: u32 = 3;
+/// Exit code: a panic (never expected; the release build links no panic path).
+pub const EXIT_PANIC: u32 = 4;
+/// Exit code: bad command-line option or trace.
+pub const EXIT_USAGE: u32 = 5;
+
+/// Longest line.
+pub const LINE_CAPACITY: usize = 200;
+
+/// One output line under construction; silently truncates at [`LINE_CAPACITY`].
+#[derive(Debug, Default, Clone)]
+pub struct Line {
+    buf: heapless::Vec<u8, LINE_CAPACITY>,
+}
+
+impl Line {
+    /// An empty line.
+    pub const fn new() -> Self {
+        Self {
+            buf: heapless::Vec::new(),
+        }
+    }
+
+    /// Appends text.
+    pub fn str(&mut self, s: &str) -> &mut Self {
+        for &b in s.as_bytes() {
+            if self.buf.push(b).is_err() {
+                break;
+            }
+        }
+        self
+    }
+
+    /// Appends ` key=`.
+    pub fn key(&mut self, k: &str) -> &mut Self {
+        self.str(" ").str(k).str("=")
+    }
+
+    /// Appends a decimal number.
+    pub fn dec(&mut self, v: u32) -> &mut Self {
+        let mut digits = [0u8; 10];
+        let mut n = v;
+        let mut i = digits.len();
+        loop {
+            i -= 1;
+            if let Some(d) = digits.get_mut(i) {
+                *d = b'0' + (n % 10) as u8;
+            }
+            n /= 10;
+            if n == 0 || i == 0 {
+                break;
+            }
+        }
+        for &d in digits.get(i..).unwrap_or(&[]) {
+            let _ = self.buf.push(d);
+        }
+        self
+    }
+
+    /// Appends `0x` and eight hex digits.
+    pub fn hex(&mut self, v: u32) -> &mut Self {
+        self.str("0x").hex_bare(v, 8)
+    }
+
+    /// Appends `digits` hex digits without prefix.
+    pub fn hex_bare(&mut self, v: u32, digits: u32) -> &mut Self {
+        for i in (0..digits.min(8)).rev() {
+            let nib = ((v >> (4 * i)) & 0xF) as u8;
+            let _ = self.buf.push(if nib < 10 {
+                b'0' + nib
+            } else {
+                b'a' + nib - 10
+            });
+        }
+        self
+    }
+
+    /// Appends ` key=<decimal>`.
+    pub fn kv(&mut self, k: &str, v: u32) -> &mut Self {
+        self.key(k).dec(v)
+    }
+
+    /// Appends ` key=0x<hex>`.
+    pub fn kx(&mut self, k: &str, v: u32) -> &mut Self {
+        self.key(k).hex(v)
+    }
+
+    /// Appends ` key=text`.
+    pub fn ks(&mut self, k: &str, v: &str) -> &mut Self {
+        self.key(k).str(v)
+    }
+
+    /// The line with its newline.
+    pub fn finish(&mut self) -> &[u8] {
+        if self.buf.is_full() {
+            self.buf.pop();
+        }
+        let _ = self.buf.push(b'\n');
+        &self.buf
+    }
+
+    /// The bytes so far.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.buf
+    }
+}
+
+fn sat(v: usize) -> u32 {
+    u32::try_from(v).unwrap_or(u32::MAX)
+}
+
+/// Kebab-case name of a model error and its fields.
+pub fn model_error(line: &mut Line, e: &ModelError) {
+    match e {
+        ModelError::NonFinite { field } => line.ks("kind", "non-finite").ks("field", field),
+        ModelError::NotPositive { field } => line.ks("kind", "not-positive").ks("field", field),
+        ModelError::BadScalerBounds { scaler } => {
+            line.ks("kind", "bad-scaler-bounds").ks("scaler", scaler)
+        }
+        ModelError::Shape { scaler, .. } => line.ks("kind", "shape").ks("scaler", scaler),
+        ModelError::WrongInputCount {
+            scaler,
+            expected,
+            found,
+        } => line
+            .ks("kind", "wrong-input-count")
+            .ks("scaler", scaler)
+            .kv("expected", u32::from(*expected))
+            .kv("found", u32::from(*found)),
+        ModelError::Sem(_) => line.ks("kind", "sem-map"),
+        ModelError::AlphaRange => line.ks("kind", "alpha-range"),
+        ModelError::UnstableStep { .. } => line.ks("kind", "unstable-step"),
+    };
+}
+
+/// `weights-error source=slot ...`.
+pub fn slot_error(line: &mut Line, e: &SlotError) {
+    line.str("weights-error").ks("source", "slot");
+    match e {
+        SlotError::Empty => line.ks("kind", "empty"),
+        SlotError::BadMagic => line.ks("kind", "bad-magic"),
+        SlotError::TooLong { len, capacity } => line
+            .ks("kind", "too-long")
+            .kv("len", *len)
+            .kv("capacity", *capacity),
+    };
+}
+
+/// `weights-error source=decode ...`: the typed [`DecodeError`] with its fields.
+pub fn decode_error(line: &mut Line, e: &DecodeError) {
+    line.str("weights-error").ks("source", "decode");
+    match e {
+        DecodeError::Truncated { needed, found } => line
+            .ks("kind", "truncated")
+            .kv("needed", sat(*needed))
+            .kv("found", sat(*found)),
+        DecodeError::BadMagic { found } => line
+            .ks("kind", "bad-magic")
+            .kx("found", u32::from_be_bytes(*found)),
+        DecodeError::UnsupportedVersion { found, supported } => line
+            .ks("kind", "unsupported-version")
+            .kv("found", u32::from(*found))
+            .kv("supported", u32::from(*supported)),
+        DecodeError::TrailingBytes { extra } => {
+            line.ks("kind", "trailing-bytes").kv("extra", sat(*extra))
+        }
+        DecodeError::CrcMismatch { stored, computed } => line
+            .ks("kind", "crc-mismatch")
+            .kx("stored", *stored)
+            .kx("computed", *computed),
+        DecodeError::OverCapacity { needed, capacity } => line
+            .ks("kind", "over-capacity")
+            .kv("needed", sat(*needed))
+            .kv("capacity", sat(*capacity)),
+        DecodeError::Malformed { part } => line.ks("kind", "malformed").ks("part", part),
+        DecodeError::Invalid(m) => {
+            line.ks("kind", "invalid");
+            model_error(line, m);
+            line
+        }
+    };
+}
+
+/// `weights-error source=estimator ...`.
+pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
+    line.str("weights-error").ks("source", "estimator");
+    match e {
+        EstimatorError::AlphaOutOfRange => line.ks("kind", "alpha-out-of-range"),
+        EstimatorError::BadVelocityLimit => line.ks("kind", "bad-velocity-limit"),
+        EstimatorError::Model(m) => {
+            line.ks("kind", "model");
+            model_error(line, m);
+            line
+        }
+        EstimatorError::Compile => line.ks("kind", "compile"),
+    };
+}
+
+/// One step record.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepRecord {
+    /// Sample index since start.
+    pub k: u32,
+    /// Velocity handed to the estimator \[m/s\] (NaN when the sensor path had none).
+    pub velocity_m_s: f32,
+    /// Force estimate \[N\].
+    pub force_n: f32,
+    /// [`nemm_core::Flags`] bits of the step.
+    pub estimator_flags: u8,
+    /// `FW_*` bits.
+    pub firmware_flags: u8,
+    /// SysTick ticks from the period start to the end of the step (0 on overrun).
+    pub ticks: u16,
+}
+
+impl StepRecord {
+    /// Writes the `s` line.
+    pub fn write(&self, line: &mut Line) {
+        line.str("s ")
+            .dec(self.k)
+            .str(" ")
+            .hex_bare(self.velocity_m_s.to_bits(), 8)
+            .str(" ")
+            .hex_bare(self.force_n.to_bits(), 8)
+            .str(" ")
+            .hex_bare(u32::from(self.estimator_flags), 2)
+            .str(" ")
+            .hex_bare(u32::from(self.firmware_flags), 2)
+            .str(" ")
+            .dec(u32::from(self.ticks));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn formats_numbers_and_records() {
+        let mut l = Line::new();
+        l.str("x")
+            .kv("a", 0)
+            .kv("b", 4_294_967_295)
+            .kx("c", 0xdead_beef);
+        assert_eq!(l.finish(), b"x a=0 b=4294967295 c=0xdeadbeef\n");
+        let mut l = Line::new();
+        StepRecord {
+            k: 12,
+            velocity_m_s: 1.0,
+            force_n: -2.0,
+            estimator_flags: 0x05,
+            firmware_flags: FW_PRIMING,
+            ticks: 321,
+        }
+        .write(&mut l);
+        assert_eq!(l.as_bytes(), b"s 12 3f800000 c0000000 05 04 321");
+    }
+
+    #[test]
+    fn typed_errors_have_stable_names() {
+        let mut l = Line::new();
+        decode_error(
+            &mut l,
+            &DecodeError::UnsupportedVersion {
+                found: 2,
+                supported: 1,
+            },
+        );
+        assert_eq!(
+            l.as_bytes(),
+            b"weights-error source=decode kind=unsupported-version found=2 supported=1"
+        );
+        let mut l = Line::new();
+        slot_error(&mut l, &SlotError::Empty);
+        assert_eq!(l.as_bytes(), b"weights-error source=slot kind=empty");
+    }
+
+    #[test]
+    fn truncates_instead_of_overflowing() {
+        let mut l = Line::new();
+        for _ in 0..100 {
+            l.str("abc");
+        }
+        assert_eq!(l.finish().len(), LINE_CAPACITY);
+        assert_eq!(l.as_bytes().last(), Some(&b'\n'));
+    }
+}
