@@ -6,15 +6,17 @@
 //! | [`rsqrt`] | `1 / sqrt(x)`, both correctly rounded            | `micromath` `invsqrt` (bit trick, ~5 %) |
 //! | [`fma`]   | fused multiply-add, correctly rounded (always)  | same                              |
 //!
-//! `sqrt` and `fma` are correctly rounded IEEE 754 operations on every target (`libm::sqrtf`,
-//! `libm::fmaf`), so they give the same bits on the host and on the Cortex-M4F.
+//! `sqrt` and `fma` are correctly rounded IEEE 754 operations on every target, so they give
+//! the same bits on the host and on the Cortex-M4F:
 //!
-//! On `thumbv7em-none-eabihf` both are software routines: `libm` 0.2 has no ARM path, stable
-//! Rust has no `no_std` intrinsic for either, and `asm!` cannot name FPU registers there
-//! (Rust 1.95/1.96 refuse the `sreg` class without the `vfp2` target feature, which the
-//! single-precision FPv4-SP target does not have). An `asm!` version that moves the operands
-//! through core registers (`vmov`) compiled and was exact, but measured slower per step than
-//! `libm` in QEMU (see nemm-firmware's README), so it is not used.
+//! - on ARM hard-float targets (`thumbv7em-none-eabihf`, FPv4-SP) they are the instructions
+//!   `vsqrt.f32` and `vfma.f32` in `asm!` (see the `arm` module for why the operands travel
+//!   through core registers). `libm` 0.2 has no ARM path: it compiles `sqrtf` to a
+//!   ~100-instruction integer routine and `fmaf` to soft `f64` arithmetic (over a thousand
+//!   instructions per call in QEMU); stable Rust has no `no_std` intrinsic for either. This
+//!   is the only `unsafe` in the crate.
+//! - elsewhere `libm::sqrtf` (SSE `sqrtss` on x86-64) and `libm::fmaf` (hardware FMA when
+//!   the CPU has it, detected at run time, otherwise an exact software routine).
 //!
 //! If both math features are enabled, `micromath` wins (Cargo features are additive).
 
@@ -66,13 +68,91 @@ pub fn sigmoid(z: f32) -> f32 {
 /// Correctly rounded square root.
 #[inline(always)]
 pub fn sqrt(x: f32) -> f32 {
-    libm::sqrtf(x)
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        arm::vsqrt(x)
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::sqrtf(x)
+    }
 }
 
 /// Fused multiply-add `a * b + c` with a single rounding.
 #[inline(always)]
 pub fn fma(a: f32, b: f32, c: f32) -> f32 {
-    libm::fmaf(a, b, c)
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        arm::vfma(a, b, c)
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::fmaf(a, b, c)
+    }
+}
+
+#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+#[allow(unsafe_code)]
+mod arm {
+    //! `vsqrt.f32` and `vfma.f32` through `asm!`.
+    //!
+    //! Stable Rust (1.95/1.96) refuses the `sreg` register class on `thumbv7em-none-eabihf`
+    //! ("requires the `vfp2` target feature": the target only has `vfp4d16sp`, which Rust does
+    //! not map to `vfp2`), so the operands travel in core registers and each block moves them
+    //! into `s0..s2` itself, saving and restoring those registers around the instruction:
+    //! the compiler never sees an FPU register change. `vmov` between core and FPU registers
+    //! is one cycle each on a Cortex-M4F; the hardware instruction still beats the software
+    //! routines (`libm::sqrtf`: ~100 integer instructions; `libm::fmaf`: soft `f64`) by far.
+
+    /// `vsqrt.f32`: IEEE 754 square root, correctly rounded.
+    #[inline(always)]
+    pub fn vsqrt(x: f32) -> f32 {
+        let r: f32;
+        // SAFETY: FPU register `s0` is saved in a core register and restored; no memory, no
+        // stack, no flags other than the FPSCR cumulative exception bits.
+        unsafe {
+            core::arch::asm!(
+                "vmov {t}, s0",
+                "vmov s0, {x}",
+                "vsqrt.f32 s0, s0",
+                "vmov {r}, s0",
+                "vmov s0, {t}",
+                x = in(reg) x,
+                r = lateout(reg) r,
+                t = out(reg) _,
+                options(pure, nomem, nostack, preserves_flags),
+            );
+        }
+        r
+    }
+
+    /// `vfma.f32`: fused `a * b + c`, one rounding.
+    #[inline(always)]
+    pub fn vfma(a: f32, b: f32, c: f32) -> f32 {
+        let r: f32;
+        // SAFETY: as above; `s0..s2` are saved in core registers and restored.
+        unsafe {
+            core::arch::asm!(
+                "vmov {t0}, {t1}, s0, s1",
+                "vmov {t2}, s2",
+                "vmov s0, s1, {a}, {b}",
+                "vmov s2, {c}",
+                "vfma.f32 s2, s0, s1",
+                "vmov {r}, s2",
+                "vmov s0, s1, {t0}, {t1}",
+                "vmov s2, {t2}",
+                a = in(reg) a,
+                b = in(reg) b,
+                c = in(reg) c,
+                r = lateout(reg) r,
+                t0 = out(reg) _,
+                t1 = out(reg) _,
+                t2 = out(reg) _,
+                options(pure, nomem, nostack, preserves_flags),
+            );
+        }
+        r
+    }
 }
 
 #[cfg(test)]
