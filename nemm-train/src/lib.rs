@@ -6,7 +6,9 @@
 #![deny(missing_docs)]
 
 pub mod bench;
+pub mod data_cli;
 pub mod dataset;
 pub mod inspect;
 pub mod plot;
+pub mod preprocess;
 pub mod train;

@@ -21,6 +21,12 @@ enum Cmd {
         /// The weights blob.
         model: PathBuf,
     },
+    /// Bench datasets: validate (`check`) and preprocess (`prepare`, section 5.3).
+    Data {
+        /// What to do.
+        #[command(subcommand)]
+        cmd: nemm_train::data_cli::DataCmd,
+    },
     /// Virtual test bench: generate a synthetic dataset, plot loops of a dataset.
     Bench(nemm_train::bench::cli::BenchArgs),
 }
@@ -29,6 +35,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
         Cmd::Inspect { model } => nemm_train::inspect::run(&model),
+        Cmd::Data { cmd } => nemm_train::data_cli::run(cmd),
         Cmd::Bench(args) => nemm_train::bench::cli::run(args),
     };
     match result {
