@@ -42,6 +42,8 @@ pub const DEFAULT_QS_WINDOW: f64 = 0.05;
 pub const DEFAULT_TEST_ALPHAS: [f64; 1] = [0.15];
 /// Default fraction of each training run's sequences held out for validation.
 pub const DEFAULT_VALIDATION_FRACTION: f64 = 0.2;
+/// Displacement half-ranges below this \[m\] count as no stroke at all (a flat signal).
+pub const MIN_STROKE_M: f64 = 1e-9;
 /// Two oil-loss levels closer than this are the same level.
 pub const ALPHA_TOLERANCE: f64 = 1e-6;
 
@@ -60,6 +62,14 @@ pub enum PreprocessError {
     /// [`VelocitySource::Measured`] was asked for but the run has no `velocity_m_s` column.
     #[error("run {run} ({}): no velocity_m_s column, but the measured velocity was requested", file.display())]
     NoMeasuredVelocity {
+        /// Run index in the dataset.
+        run: usize,
+        /// The run's file (relative to the manifest).
+        file: PathBuf,
+    },
+    /// The columns of an in-memory run have different lengths (a loaded run never has).
+    #[error("run {run} ({}): columns of different lengths", file.display())]
+    ColumnLengths {
         /// Run index in the dataset.
         run: usize,
         /// The run's file (relative to the manifest).
@@ -207,7 +217,7 @@ pub fn lowpass_zero_phase(
     let bq = Biquad::butterworth_lowpass(sample_rate_hz, cutoff_hz);
     let pad = ((3.0 * sample_rate_hz / cutoff_hz).ceil() as usize).min(n - 1);
     // The odd part of a cubic fitted to the last `2 fs / fc` samples continues the signal.
-    let fit = ((sample_rate_hz / cutoff_hz).ceil() as usize).clamp(4, n);
+    let fit = ((sample_rate_hz / cutoff_hz).ceil() as usize).max(4).min(n);
     let start: Vec<(f64, f64)> = (0..fit).map(|i| (i as f64, x[i])).collect();
     let end: Vec<(f64, f64)> = (0..fit).map(|i| (-(i as f64), x[n - 1 - i])).collect();
     let (b0, d0) = cubic_odd_coefficients(&start);
@@ -306,6 +316,16 @@ pub fn process_run(
     sample_rate_hz: f64,
     cfg: &SignalConfig,
 ) -> Result<Signals, PreprocessError> {
+    let n = run.displacement_m.len();
+    if run.time_s.len() != n
+        || run.force_n.len() != n
+        || run.velocity_m_s.as_ref().is_some_and(|v| v.len() != n)
+    {
+        return Err(PreprocessError::ColumnLengths {
+            run: run_index,
+            file: run.entry.file.clone(),
+        });
+    }
     let dt = 1.0 / sample_rate_hz;
     let displacement_m = lowpass_zero_phase(&run.displacement_m, sample_rate_hz, cfg.cutoff_hz)?;
     let measured = match (cfg.velocity_source, &run.velocity_m_s) {
@@ -473,9 +493,17 @@ pub fn estimate_excitation(
         };
     }
     let offset_m = 0.5 * (lo + hi);
-    let half_range = 0.5 * (hi - lo);
+    // A stroke below 1 nm is rounding noise of a flat signal, not an excitation.
+    let half_range = match 0.5 * (hi - lo) {
+        r if r < MIN_STROKE_M => 0.0,
+        r => r,
+    };
     let y: Vec<f64> = displacement_m.iter().map(|x| x - offset_m).collect();
-    let crossings = zero_crossings(&y, 0.1 * half_range);
+    let crossings = if half_range > 0.0 {
+        zero_crossings(&y, 0.1 * half_range)
+    } else {
+        Vec::new()
+    };
 
     // Half-cycles between consecutive crossings: amplitude and turning point.
     let mut amplitudes = Vec::new();
@@ -859,7 +887,8 @@ pub struct Scales {
 }
 
 impl Scales {
-    /// Scales of a set of (training) sequences.
+    /// Scales of a set of (training) sequences (from their f32 values; [`prepare`] uses the
+    /// f64 signals, which agree to f32 rounding).
     pub fn from_sequences(train: &[Sequence]) -> Result<Scales, PreprocessError> {
         let absmax = |f: &dyn Fn(&Sequence) -> f64| train.iter().map(f).fold(0.0f64, f64::max);
         let velocity_m_s = absmax(&|s| {
@@ -873,6 +902,16 @@ impl Scales {
                 .fold(0.0f64, |m, v| m.max(f64::from(v.abs())))
         });
         let alpha = absmax(&|s| f64::from(s.alpha.abs()));
+        Scales::from_absmax(velocity_m_s, force_n, alpha)
+    }
+
+    /// Scales from the abs-max values of the training set (errors on zero velocity or force;
+    /// a zero alpha scale becomes 1).
+    pub fn from_absmax(
+        velocity_m_s: f64,
+        force_n: f64,
+        alpha: f64,
+    ) -> Result<Scales, PreprocessError> {
         if velocity_m_s <= 0.0 {
             return Err(PreprocessError::ZeroScale {
                 feature: "velocity",
@@ -1124,6 +1163,8 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         validation: Vec<Sequence>,
         test: Vec<Sequence>,
         qs: QuasiStaticSplit,
+        /// Abs-max of velocity, force and alpha over the training sequences, in f64.
+        train_absmax: [f64; 3],
     }
     let per_run: Vec<PerRun> = dataset
         .runs
@@ -1157,7 +1198,9 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                 validation: Vec::new(),
                 test: Vec::new(),
                 qs: QuasiStaticSplit::default(),
+                train_absmax: [0.0; 3],
             };
+            let absmax = |x: &[f64]| x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             match role {
                 RunRole::Unused => {}
                 RunRole::Test => {
@@ -1179,6 +1222,11 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                         if held.binary_search(&k).is_ok() {
                             out.validation.push(s);
                         } else {
+                            let range = s.start..s.start + warmup + scored;
+                            let m = &mut out.train_absmax;
+                            m[0] = m[0].max(absmax(&signals.velocity_m_s[range.clone()]));
+                            m[1] = m[1].max(absmax(&force[range]));
+                            m[2] = m[2].max(alpha.abs());
                             out.train.push(s);
                         }
                     }
@@ -1215,7 +1263,11 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         },
         runs: Vec::with_capacity(per_run.len()),
     };
+    let mut train_absmax = [0.0f64; 3];
     for r in per_run {
+        for (m, v) in train_absmax.iter_mut().zip(r.train_absmax) {
+            *m = m.max(v);
+        }
         prepared.train.extend(r.train);
         prepared.validation.extend(r.validation);
         prepared.test.extend(r.test);
@@ -1236,7 +1288,8 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
             warmup + scored
         )));
     }
-    prepared.scales = Scales::from_sequences(&prepared.train)?;
+    let [v, f, a] = train_absmax;
+    prepared.scales = Scales::from_absmax(v, f, a)?;
     Ok(prepared)
 }
 

@@ -638,9 +638,12 @@ fn scales_come_from_the_training_set_only() {
             .iter()
             .fold(0.0f64, |m, v| m.max(f64::from(v.abs())))
     };
-    assert_eq!(p.scales.force_n, absmax(&p.train, &fmax));
-    assert_eq!(p.scales.velocity_m_s, absmax(&p.train, &vmax));
-    assert!((p.scales.alpha - 0.3).abs() < 1e-6);
+    // The scales are the f64 abs-max of the training sequences (which hold f32 copies).
+    assert_eq!(p.scales.force_n as f32 as f64, absmax(&p.train, &fmax));
+    assert_eq!(p.scales.velocity_m_s as f32 as f64, absmax(&p.train, &vmax));
+    assert_eq!(p.scales.alpha, 0.3);
+    let from_f32 = preprocess::Scales::from_sequences(&p.train).expect("scales");
+    assert!((from_f32.force_n / p.scales.force_n - 1.0).abs() < 1e-6);
     assert!(absmax(&p.test, &fmax) > 5.0 * p.scales.force_n);
     // Normalised training data is within [-1, 1] and reaches 1.
     let norm: Vec<_> = p.train.iter().map(|s| p.scales.normalise(s)).collect();
@@ -754,4 +757,41 @@ fn cli_check_and_prepare() {
         stderr.contains("oil00_a010_v0262.csv:2: column \"force_n\": \"x\" is not a number"),
         "{stderr}"
     );
+}
+
+#[test]
+fn tiny_and_flat_runs_do_not_panic() {
+    let fs = 10_000.0;
+    for n in 1..12 {
+        let mut run = sine_run("x.csv", 0.0, 0.01, 5.0, 0.3, n, fs, None);
+        let (s, sig) = preprocess::summarize_run(&run, 0, fs, &SignalConfig::default())
+            .expect("summary of a short run");
+        assert_eq!(sig.velocity_m_s.len(), n);
+        assert_eq!(sig.acceleration_m_s2.len(), n);
+        assert!(sig.velocity_m_s.iter().all(|v| v.is_finite()), "n = {n}");
+        assert_eq!(s.excitation.frequency_hz, None);
+        // A flat run: no excitation, no quasi-static point.
+        run.displacement_m.iter_mut().for_each(|x| *x = 0.001);
+        let (s, sig) =
+            preprocess::summarize_run(&run, 0, fs, &SignalConfig::default()).expect("flat");
+        assert_eq!(s.excitation.amplitude_m, 0.0);
+        assert!(preprocess::quasi_static_points(0, &sig, &s.excitation, 0.0, 0.05).is_empty());
+    }
+    // Columns of different lengths (only possible in memory) are an error.
+    let mut run = sine_run("x.csv", 0.0, 0.01, 5.0, 0.3, 100, fs, None);
+    run.force_n.pop();
+    assert!(matches!(
+        preprocess::process_run(&run, 2, fs, &SignalConfig::default()),
+        Err(PreprocessError::ColumnLengths { run: 2, .. })
+    ));
+    // A dataset of short runs prepares to "no training data", not a panic.
+    let ds = Dataset {
+        name: "short".into(),
+        sample_rate_hz: fs,
+        runs: vec![sine_run("a.csv", 0.0, 0.01, 5.0, 0.0, 3, fs, None)],
+    };
+    assert!(matches!(
+        preprocess::prepare(&ds, &PrepareConfig::default()),
+        Err(PreprocessError::NoTrainingData(_))
+    ));
 }
