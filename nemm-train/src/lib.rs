@@ -8,7 +8,10 @@
 pub mod bench;
 pub mod data_cli;
 pub mod dataset;
+pub mod fsutil;
 pub mod inspect;
 pub mod plot;
 pub mod preprocess;
+pub mod report;
 pub mod train;
+pub mod train_cli;

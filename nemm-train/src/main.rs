@@ -29,6 +29,129 @@ enum Cmd {
     },
     /// Virtual test bench: generate a synthetic dataset, plot loops of a dataset.
     Bench(nemm_train::bench::cli::BenchArgs),
+    /// Train one variant and export it as a weights blob (written atomically).
+    Train {
+        /// Training options.
+        #[command(flatten)]
+        args: nemm_train::train_cli::TrainArgs,
+        /// Output weights blob.
+        #[arg(long, default_value = "model.nemm")]
+        out: PathBuf,
+        /// Variant: nemm, nemm-light, linear-emm or sem.
+        #[arg(long, default_value = "nemm")]
+        variant: String,
+        /// Checkpoint folder (one sub-folder per stage, written every epoch).
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Continue from the checkpoints in --checkpoint.
+        #[arg(long, requires = "checkpoint")]
+        resume: bool,
+        /// Also write report.json and table.md into this folder.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+    /// Export the best model of a checkpoint folder (`--checkpoint DIR/<variant>` of `nemm train`).
+    Export {
+        /// A variant's checkpoint folder, e.g. ckpt/nemm.
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Output weights blob.
+        #[arg(long, default_value = "model.nemm")]
+        out: PathBuf,
+    },
+    /// Train all four variants and write Table 4 (table4.md, report.json), models and figures.
+    Compare {
+        /// Training options.
+        #[command(flatten)]
+        args: nemm_train::train_cli::TrainArgs,
+        /// Report folder.
+        #[arg(long, default_value = "report")]
+        report: PathBuf,
+        /// Checkpoint folder.
+        #[arg(long)]
+        checkpoint: Option<PathBuf>,
+        /// Continue from the checkpoints in --checkpoint.
+        #[arg(long, requires = "checkpoint")]
+        resume: bool,
+    },
+    /// Hyperparameter / lambda_ph sweep (Tables 3 and 5): one `nemm train` process per
+    /// configuration (`--lambda-ph 0,0.005,0.015,0.025` by default), collected into table5.md
+    /// and sweep.json.
+    Sweep {
+        /// Training options (the base of every job).
+        #[command(flatten)]
+        args: nemm_train::train_cli::TrainArgs,
+        /// Grid: lambda (Table 5) or table3 (Table 3 search space x lambda list).
+        #[arg(long, value_enum, default_value_t = nemm_train::train_cli::SweepGrid::Lambda)]
+        grid: nemm_train::train_cli::SweepGrid,
+        /// Report folder (jobs in <report>/jobs/<id>/).
+        #[arg(long, default_value = "sweep")]
+        report: PathBuf,
+        /// Jobs run at the same time on this machine.
+        #[arg(long, default_value_t = 1)]
+        jobs: usize,
+        /// Only print one `nemm train` command line per job (for a cluster scheduler).
+        #[arg(long)]
+        list: bool,
+        /// Only collect finished jobs' reports into the table.
+        #[arg(long)]
+        collect: bool,
+    },
+    /// The main job: virtual bench (generated if absent), all four variants on a budget of a
+    /// few minutes, Table 4, figures, model.nemm, and the exported model run through nemm-core.
+    Demo {
+        /// Dataset folder (the default virtual bench is generated there if it is empty).
+        #[arg(long, default_value = "out/bench")]
+        data: PathBuf,
+        /// Results folder.
+        #[arg(long, default_value = "out/demo")]
+        out: PathBuf,
+        /// Maximum epochs of the neural stages.
+        #[arg(long, default_value_t = 12)]
+        epochs: usize,
+        /// Batches per epoch (random subset).
+        #[arg(long, default_value_t = 8)]
+        max_batches: usize,
+    },
+}
+
+/// The training flags of a sweep's base configuration, as `nemm train` arguments.
+fn sweep_base_args(a: &nemm_train::train_cli::TrainArgs) -> Vec<String> {
+    let mut v = vec![
+        "--data".to_string(),
+        a.data.display().to_string(),
+        "--test-alpha".into(),
+        a.test_alpha
+            .iter()
+            .map(|x| x.to_string())
+            .collect::<Vec<_>>()
+            .join(","),
+    ];
+    let pairs: [(&str, String); 13] = [
+        ("--seed", a.seed.to_string()),
+        ("--hidden", a.hidden.to_string()),
+        ("--layers", a.layers.to_string()),
+        ("--batch", a.batch.to_string()),
+        ("--lr", a.lr.to_string()),
+        ("--lambda-l2", a.lambda_l2.to_string()),
+        ("--integrator", a.integrator.clone()),
+        ("--epochs", a.epochs.to_string()),
+        ("--patience", a.patience.to_string()),
+        ("--linear-epochs", a.linear_epochs.to_string()),
+        ("--window-s", a.window_s.to_string()),
+        ("--warmup-s", a.warmup_s.to_string()),
+        (
+            "--max-batches",
+            a.max_batches.map_or(String::new(), |m| m.to_string()),
+        ),
+    ];
+    for (f, val) in pairs {
+        if !val.is_empty() {
+            v.push(f.to_string());
+            v.push(val);
+        }
+    }
+    v
 }
 
 fn main() -> ExitCode {
@@ -37,6 +160,60 @@ fn main() -> ExitCode {
         Cmd::Inspect { model } => nemm_train::inspect::run(&model),
         Cmd::Data { cmd } => nemm_train::data_cli::run(cmd),
         Cmd::Bench(args) => nemm_train::bench::cli::run(args),
+        Cmd::Train {
+            args,
+            out,
+            variant,
+            checkpoint,
+            resume,
+            report,
+        } => nemm_train::train::pipeline::Variant::parse(&variant).and_then(|v| {
+            nemm_train::train_cli::train(
+                &args,
+                v,
+                &out,
+                checkpoint.as_deref(),
+                resume,
+                report.as_deref(),
+            )
+        }),
+        Cmd::Export { checkpoint, out } => nemm_train::train_cli::export(&checkpoint, &out),
+        Cmd::Compare {
+            args,
+            report,
+            checkpoint,
+            resume,
+        } => nemm_train::train_cli::compare(&args, &report, checkpoint.as_deref(), resume)
+            .map(|_| ()),
+        Cmd::Sweep {
+            args,
+            grid,
+            report,
+            jobs,
+            list,
+            collect,
+        } => {
+            let base = sweep_base_args(&args);
+            let lambdas = args
+                .lambda_ph
+                .clone()
+                .unwrap_or_else(|| nemm_train::train_cli::TABLE5_LAMBDAS.to_vec());
+            nemm_train::train_cli::sweep(&base, grid, &lambdas, &report, jobs, list, collect)
+        }
+        Cmd::Demo {
+            data,
+            out,
+            epochs,
+            max_batches,
+        } => {
+            let args = nemm_train::train_cli::TrainArgs {
+                epochs,
+                max_batches: Some(max_batches),
+                linear_epochs: 6,
+                ..nemm_train::train_cli::TrainArgs::parse_defaults(data.clone())
+            };
+            nemm_train::train_cli::demo(&nemm_train::train_cli::DemoPaths { data, out }, &args)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

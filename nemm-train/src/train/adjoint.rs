@@ -28,18 +28,22 @@
 //! `L = (1 / M) sum_{windows} sum_{n >= warmup} ((y_n - F_n) / F_scale)^2` with `M` the number
 //! of scored samples: the normalised MSE of eq. 23.
 
+// The lane loops (`for k in 0..LANES`) index several lane arrays in lock step; written as
+// plain index loops they vectorise reliably, which iterator chains over 3-4 arrays do not.
+#![allow(clippy::needless_range_loop)]
+
 use nemm_core::mlp::{LAYER_NORM_EPS, LEAKY_RELU_SLOPE};
 use nemm_core::Integrator;
 use num_traits::Float;
 use rayon::prelude::*;
 use std::fmt::Debug;
-use std::ops::AddAssign;
+use std::ops::{AddAssign, DivAssign};
 
 /// Number of windows advanced in lock step.
 pub const LANES: usize = 8;
 
 /// Floating-point type of a rollout (`f32` for training, `f64` for gradient checks).
-pub trait Real: Float + AddAssign + Send + Sync + Debug + Default + 'static {
+pub trait Real: Float + AddAssign + DivAssign + Send + Sync + Debug + Default + 'static {
     /// From `f64`.
     fn c(v: f64) -> Self;
 }
@@ -69,7 +73,7 @@ fn sum<T: Real>(v: &V<T>) -> T {
 }
 
 /// Weights of one scaler in nemm-core's flat layout (see `nemm_core::mlp`).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ScalerWeights<T> {
     /// Inputs `d` (2: state and alpha; 1: alpha only).
     pub inputs: usize,
@@ -86,7 +90,7 @@ pub struct ScalerWeights<T> {
 }
 
 /// Everything a rollout needs: constants, scalers, normalisation, integrator.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RolloutParams<T> {
     /// Integration scheme.
     pub integrator: Integrator,
@@ -135,7 +139,10 @@ pub struct RolloutGrads<T> {
 
 impl<T: Real> RolloutGrads<T> {
     fn zeros(p: &RolloutParams<T>) -> Self {
-        let z = |s: &Option<ScalerWeights<T>>| s.as_ref().map_or(Vec::new(), |s| vec![T::zero(); s.w.len()]);
+        let z = |s: &Option<ScalerWeights<T>>| {
+            s.as_ref()
+                .map_or(Vec::new(), |s| vec![T::zero(); s.w.len()])
+        };
         Self {
             b_fl0: T::zero(),
             b_pr0: T::zero(),
@@ -229,7 +236,11 @@ impl<'a, T: Real> Mlp<'a, T> {
             off = lo.be + h;
             layers.push(lo);
         }
-        assert_eq!(off + h + 1, s.w.len(), "scaler weight count does not match its shape");
+        assert_eq!(
+            off + h + 1,
+            s.w.len(),
+            "scaler weight count does not match its shape"
+        );
         Self {
             h,
             inputs: d,
@@ -324,7 +335,7 @@ impl<T: Real> Mlp<'_, T> {
                     for (j, &wij) in row.iter().enumerate() {
                         let aj = &a_in[j];
                         for k in 0..LANES {
-                            acc[k] = acc[k] + wij * aj[k];
+                            acc[k] += wij * aj[k];
                         }
                     }
                     t[i] = acc;
@@ -338,7 +349,7 @@ impl<T: Real> Mlp<'_, T> {
                 }
             }
             for m in mean.iter_mut() {
-                *m = *m / hf;
+                *m /= hf;
             }
             let mut var = splat(T::zero());
             for ti in t.iter_mut().take(h) {
@@ -374,7 +385,7 @@ impl<T: Real> Mlp<'_, T> {
             let wo = w[self.out_w + i];
             let ai = &scratch.a[i];
             for k in 0..LANES {
-                z[k] = z[k] + wo * ai[k];
+                z[k] += wo * ai[k];
             }
         }
         let sig: V<T> = std::array::from_fn(|k| T::one() / (T::one() + (-z[k]).exp()));
@@ -428,7 +439,11 @@ impl<T: Real> Mlp<'_, T> {
                 let mut sb = T::zero();
                 let mut nb = splat(T::zero());
                 for k in 0..LANES {
-                    let yb = if a[k] >= T::zero() { ab[k] } else { slope * ab[k] };
+                    let yb = if a[k] >= T::zero() {
+                        ab[k]
+                    } else {
+                        slope * ab[k]
+                    };
                     sg += yb * n[k];
                     sb += yb;
                     nb[k] = yb * gam;
@@ -442,8 +457,8 @@ impl<T: Real> Mlp<'_, T> {
             // LayerNorm backward: hbar = r (nbar - mean(nbar) - n mean(nbar n)).
             let r = &rec.r[l];
             for k in 0..LANES {
-                mean_nbar[k] = mean_nbar[k] / hf;
-                mean_nbar_n[k] = mean_nbar_n[k] / hf;
+                mean_nbar[k] /= hf;
+                mean_nbar_n[k] /= hf;
             }
             for i in 0..h {
                 let n = &rec.n[l * h + i];
@@ -613,13 +628,24 @@ struct Cv<T> {
     k: V<T>,
 }
 
+/// Where to record the activations of the `b_fl` and `k_pr` evaluations.
+type ActPair<'r, T> = (&'r mut Option<Act<T>>, &'r mut Option<Act<T>>);
+
+/// The `b_pr(alpha)` scaler of a pack: its MLP, activations and output bounds.
+struct BprRecord<'a, T> {
+    mlp: Mlp<'a, T>,
+    act: Act<T>,
+    s_min: T,
+    span: T,
+}
+
 /// Everything fixed for one pack.
 struct Pack<'a, T> {
     bf: Coef<'a, T>,
     k: Coef<'a, T>,
     bp: V<T>,
-    /// `b_pr` as a function of alpha: `(scaler mlp, b1, sig)` for its backward pass.
-    bp_rec: Option<(Mlp<'a, T>, Act<T>, T, T)>,
+    /// The `b_pr(alpha)` scaler's evaluation, for its backward pass.
+    bp_rec: Option<BprRecord<'a, T>>,
     alpha_n: V<T>,
     it: T,
     integrator: Integrator,
@@ -648,7 +674,15 @@ impl<'a, T: Real> Pack<'a, T> {
                 let sig = mlp.forward(&alpha_n, &b1, &mut scratch, Some(&mut act));
                 let span = s.s_max - s.s_min;
                 let bp = std::array::from_fn(|k| p.b_pr0 * (s.s_min + span * sig[k]));
-                (bp, Some((mlp, act, s.s_min, span)))
+                (
+                    bp,
+                    Some(BprRecord {
+                        mlp,
+                        act,
+                        s_min: s.s_min,
+                        span,
+                    }),
+                )
             }
         };
         Self {
@@ -680,12 +714,7 @@ impl<'a, T: Real> Pack<'a, T> {
     }
 
     #[inline]
-    fn coeffs(
-        &self,
-        s: &St<T>,
-        w: &mut Work<T>,
-        rec: Option<(&mut Option<Act<T>>, &mut Option<Act<T>>)>,
-    ) -> Cv<T> {
+    fn coeffs(&self, s: &St<T>, w: &mut Work<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
         match rec {
             None => Cv {
                 bf: self.bf.eval(&s.v, &mut w.scratch, None),
@@ -778,6 +807,7 @@ struct CvBar<T> {
 impl<T: Real> Pack<'_, T> {
     /// Backward of `q` given `qbar`: adds to `sbar` (direct) and `cbar`, and `bar.bp`.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // inputs and the three adjoint accumulators
     fn q_backward(
         &self,
         c: &Cv<T>,
@@ -802,6 +832,7 @@ impl<T: Real> Pack<'_, T> {
 
     /// Backward of `rhs(c, s, u)` given `kbar`.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // inputs and the three adjoint accumulators
     fn rhs_backward(
         &self,
         c: &Cv<T>,
@@ -901,7 +932,11 @@ fn pack_data<T: Real>(windows: &[&Window<'_>], n: usize) -> PackData<T> {
 }
 
 /// Forward sweep: states after every sample (index 0 = rest, before sample 0) and forces.
-fn forward_sweep<T: Real>(pk: &Pack<'_, T>, d: &PackData<T>, w: &mut Work<T>) -> (Vec<St<T>>, Vec<V<T>>) {
+fn forward_sweep<T: Real>(
+    pk: &Pack<'_, T>,
+    d: &PackData<T>,
+    w: &mut Work<T>,
+) -> (Vec<St<T>>, Vec<V<T>>) {
     let n = d.u.len();
     let mut states = Vec::with_capacity(n + 1);
     let mut ys = Vec::with_capacity(n);
@@ -1064,7 +1099,12 @@ fn pack_loss_grad<T: Real>(
     // b_pr: constant over the window.
     match &pk.bp_rec {
         None => bar.g.b_pr0 += sum(&bar.bp),
-        Some((mlp, act, s_min, span)) => {
+        Some(BprRecord {
+            mlp,
+            act,
+            s_min,
+            span,
+        }) => {
             let mut zbar = splat(T::zero());
             for k in 0..LANES {
                 let sig = act.sig[k];

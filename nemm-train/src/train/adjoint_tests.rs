@@ -29,7 +29,14 @@ fn rollout_matches_core_estimator() {
             let n = 20_000;
             let u = signal(n, 1e-4, 0.8, 8.3, 0.3);
             let f = vec![0.0f32; n];
-            let ys = simulate(&p, &[Window { u: &u, f: &f, alpha: 0.15 }]);
+            let ys = simulate(
+                &p,
+                &[Window {
+                    u: &u,
+                    f: &f,
+                    alpha: 0.15,
+                }],
+            );
             let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("estimator");
             let mut worst = 0.0f64;
             for (i, &ui) in u.iter().enumerate() {
@@ -37,7 +44,10 @@ fn rollout_matches_core_estimator() {
                 worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
             }
             let rel = worst / m.meta.force_scale_n as f64;
-            assert!(rel < 1e-5, "{kind:?} {integ:?}: max |diff| = {worst} N ({rel:e} of force scale)");
+            assert!(
+                rel < 1e-5,
+                "{kind:?} {integ:?}: max |diff| = {worst} N ({rel:e} of force scale)"
+            );
         }
     }
 }
@@ -51,7 +61,11 @@ fn flat(g: &RolloutGrads<f64>) -> Vec<(String, f64)> {
         ("t_pr".to_string(), g.t_pr),
     ];
     for (name, w) in [("b_fl", &g.b_fl), ("b_pr", &g.b_pr), ("k_pr", &g.k_pr)] {
-        v.extend(w.iter().enumerate().map(|(i, &x)| (format!("{name}[{i}]"), x)));
+        v.extend(
+            w.iter()
+                .enumerate()
+                .map(|(i, &x)| (format!("{name}[{i}]"), x)),
+        );
     }
     v
 }
@@ -69,7 +83,10 @@ fn perturb(p: &RolloutParams<f64>, idx: usize, delta: f64) -> (RolloutParams<f64
         }
     }
     let mut i = idx - 4;
-    for s in [&mut q.b_fl, &mut q.b_pr, &mut q.k_pr].into_iter().flatten() {
+    for s in [&mut q.b_fl, &mut q.b_pr, &mut q.k_pr]
+        .into_iter()
+        .flatten()
+    {
         if i < s.w.len() {
             s.w[i] += delta;
             break;
@@ -85,7 +102,13 @@ fn windows_for_test(n: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>, Vec<f32>) {
     let mut fs = Vec::new();
     let mut alphas = Vec::new();
     for w in 0..10 {
-        us.push(signal(n, 5e-4, 0.3 + 0.1 * w as f64, 20.0 + 3.0 * w as f64, 0.4 * w as f64));
+        us.push(signal(
+            n,
+            5e-4,
+            0.3 + 0.1 * w as f64,
+            20.0 + 3.0 * w as f64,
+            0.4 * w as f64,
+        ));
         fs.push(signal(n, 5e-4, 800.0, 11.0 + w as f64, 1.0));
         alphas.push([0.0f32, 0.15, 0.3][w % 3]);
     }
@@ -102,7 +125,11 @@ fn check_fd(kind: ModelKind, integ: Integrator) {
     let warmup = 7;
     let (us, fs, alphas) = windows_for_test(n);
     let wins: Vec<Window<'_>> = (0..us.len())
-        .map(|i| Window { u: &us[i], f: &fs[i], alpha: alphas[i] })
+        .map(|i| Window {
+            u: &us[i],
+            f: &fs[i],
+            alpha: alphas[i],
+        })
         .collect();
     let fs_scale = 1500.0;
     let (_, g) = loss_and_grad(&p, &wins, warmup, fs_scale);
@@ -125,7 +152,10 @@ fn check_fd(kind: ModelKind, integ: Integrator) {
         // noise of the difference quotient).
         let err = (gi - fd).abs() / fd.abs().max(1e-6 * gmax);
         worst = worst.max(err);
-        assert!(err < 1e-4, "{kind:?} {integ:?} {name}: adjoint {gi:e}, finite difference {fd:e}");
+        assert!(
+            err < 1e-4,
+            "{kind:?} {integ:?} {name}: adjoint {gi:e}, finite difference {fd:e}"
+        );
     }
     eprintln!("{kind:?} {integ:?}: worst relative error vs central differences {worst:e}");
 }
@@ -155,7 +185,11 @@ fn f32_adjoint_is_close_to_f64() {
     let n = 2000;
     let (us, fs, alphas) = windows_for_test(n);
     let wins: Vec<Window<'_>> = (0..us.len())
-        .map(|i| Window { u: &us[i], f: &fs[i], alpha: alphas[i] })
+        .map(|i| Window {
+            u: &us[i],
+            f: &fs[i],
+            alpha: alphas[i],
+        })
         .collect();
     let (l64, g64) = loss_and_grad(&p64, &wins, 100, 1500.0);
     let (l32, g32) = loss_and_grad(&p32, &wins, 100, 1500.0);
@@ -164,7 +198,11 @@ fn f32_adjoint_is_close_to_f64() {
     let b = flat(&convert_grads(&g32));
     // Per group, relative to the group's largest component.
     for group in ["b_fl0", "b_pr0", "k0", "t_pr", "b_fl[", "b_pr[", "k_pr["] {
-        let sel: Vec<_> = a.iter().zip(&b).filter(|((n, _), _)| n.starts_with(group)).collect();
+        let sel: Vec<_> = a
+            .iter()
+            .zip(&b)
+            .filter(|((n, _), _)| n.starts_with(group))
+            .collect();
         let scale = sel.iter().fold(0.0f64, |m, ((_, x), _)| m.max(x.abs()));
         let worst = sel
             .iter()

@@ -1,8 +1,13 @@
-//! Training of the EMM-family variants (Linear EMM, NEMM-Light, NEMM): the rollout and its
-//! discrete adjoint, the conversion to and from nemm-core models.
+//! Training of the four variants (sections 5-6): the rollout and its discrete adjoint, the
+//! burn modules, the physics losses, the training loop, the two-step procedure, evaluation
+//! and the conversion to and from nemm-core models.
 pub mod adjoint;
+pub mod eval;
+pub mod fit;
 pub mod net;
 pub mod params;
+pub mod physics;
+pub mod pipeline;
 
 #[cfg(test)]
 mod adjoint_tests;

@@ -155,8 +155,8 @@ impl ScalerNet {
             .add_scalar(spec.s_min)
     }
 
-    /// Sum of squared weights of the linear maps (the L2 term's `||W||^2`; biases and
-    /// LayerNorm parameters are not regularised).
+    /// Sum of squared weights of the linear maps (`||W||^2`; biases and LayerNorm parameters
+    /// are not regularised).
     pub fn weight_sq_sum(&self) -> Tensor<1> {
         let mut total = self.out.weight.val().powi_scalar(2).sum();
         for b in &self.blocks {
@@ -178,14 +178,15 @@ impl ScalerNet {
             };
             gp.register(p.id, t);
         };
-        let add2 = |gp: &mut GradientsParams, p: &Param<Tensor<2>>, v: &[f32], out: usize, inp: usize| {
-            let t = weight_tensor(v, out, inp, &dev);
-            let t = match gp.remove::<2>(p.id) {
-                Some(old) => old + t,
-                None => t,
+        let add2 =
+            |gp: &mut GradientsParams, p: &Param<Tensor<2>>, v: &[f32], out: usize, inp: usize| {
+                let t = weight_tensor(v, out, inp, &dev);
+                let t = match gp.remove::<2>(p.id) {
+                    Some(old) => old + t,
+                    None => t,
+                };
+                gp.register(p.id, t);
             };
-            gp.register(p.id, t);
-        };
         for b in &self.blocks {
             let fan_in = b.linear.weight.val().dims()[0];
             add2(gp, &b.linear.weight, &g[off..off + fan_in * h], h, fan_in);
@@ -208,10 +209,17 @@ impl ScalerNet {
     }
 }
 
+/// The constants are stored as `ln(c) / LOG_CONSTANT_SCALE`: Adam moves every parameter by
+/// about the learning rate per step, so this makes the four constants move
+/// `LOG_CONSTANT_SCALE` times faster in log space (5 % per step at lr 5e-3) than the scaler
+/// weights, which need small steps, while the constants must be able to travel by factors.
+pub const LOG_CONSTANT_SCALE: f32 = 10.0;
+
 /// All trainable parameters of an EMM-family model.
 #[derive(Module, Debug)]
 pub struct EmmNet {
-    /// `[ln b_fl,ini, ln b_pr,ini, ln k_pr,ini, ln T_pr]` (SI units inside the log).
+    /// `[ln b_fl,ini, ln b_pr,ini, ln k_pr,ini, ln T_pr] / LOG_CONSTANT_SCALE` (SI units
+    /// inside the log).
     pub log_c: Param<Tensor<1>>,
     /// `b_fl(v_st, alpha)` scaler.
     pub b_fl: Option<ScalerNet>,
@@ -255,7 +263,7 @@ fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
 impl EmmNet {
     /// Builds the module and its frame from rollout parameters.
     pub fn from_rollout(p: &RolloutParams<f32>, device: &Device) -> (Self, NetFrame) {
-        let c = [p.b_fl0, p.b_pr0, p.k0, p.t_pr].map(|v| v.ln());
+        let c = [p.b_fl0, p.b_pr0, p.k0, p.t_pr].map(|v| v.ln() / LOG_CONSTANT_SCALE);
         let net = Self {
             log_c: Param::from_tensor(tensor1(&c, device)),
             b_fl: p.b_fl.as_ref().map(|s| ScalerNet::from_flat(s, device)),
@@ -278,7 +286,7 @@ impl EmmNet {
     /// The constants `[b_fl,ini, b_pr,ini, k_pr,ini, T_pr]` in SI units.
     pub fn constants(&self) -> [f32; 4] {
         let v = to_vec(self.log_c.val());
-        let g = |i: usize| v.get(i).copied().unwrap_or(f32::NAN).exp();
+        let g = |i: usize| (v.get(i).copied().unwrap_or(f32::NAN) * LOG_CONSTANT_SCALE).exp();
         [g(0), g(1), g(2), g(3)]
     }
 
@@ -312,8 +320,9 @@ impl EmmNet {
         }
     }
 
-    /// Adds the rollout gradient (`dL/dc` for the constants, chain-ruled to `dL/d ln c = c
-    /// dL/dc`; flat scaler gradients) to `gp`. `train_constants` selects which constants
+    /// Adds the rollout gradient (`dL/dc` for the constants, chain-ruled to the stored
+    /// `ln(c) / LOG_CONSTANT_SCALE`: `LOG_CONSTANT_SCALE c dL/dc`; flat scaler gradients) to
+    /// `gp`. `train_constants` selects which constants
     /// receive a gradient (`[b_fl, b_pr, k_pr, T_pr]`).
     pub fn add_rollout_grads(
         &self,
@@ -326,7 +335,13 @@ impl EmmNet {
         let c = self.constants();
         let dc = [g.b_fl0, g.b_pr0, g.k0, g.t_pr];
         let dlog: Vec<f32> = (0..4)
-            .map(|i| if train_constants[i] { c[i] * dc[i] } else { 0.0 })
+            .map(|i| {
+                if train_constants[i] {
+                    LOG_CONSTANT_SCALE * c[i] * dc[i]
+                } else {
+                    0.0
+                }
+            })
             .collect();
         let t = tensor1(&dlog, &dev);
         let t = match gp.remove::<1>(self.log_c.id) {
@@ -334,18 +349,26 @@ impl EmmNet {
             None => t,
         };
         gp.register(self.log_c.id, t);
-        for (net, flat) in [(&self.b_fl, &g.b_fl), (&self.b_pr, &g.b_pr), (&self.k_pr, &g.k_pr)] {
+        for (net, flat) in [
+            (&self.b_fl, &g.b_fl),
+            (&self.b_pr, &g.b_pr),
+            (&self.k_pr, &g.k_pr),
+        ] {
             if let Some(n) = net {
                 n.add_flat_grads(flat, gp, device);
             }
         }
     }
 
-    /// Sum of squared weights over all scalers (the L2 term).
-    pub fn weight_sq_sum(&self, device: &Device) -> Tensor<1> {
+    /// The regularisation term of eq. 24, `sum_i ||W_i||_2`: for every scaler the Euclidean
+    /// norm (not squared, as the paper writes it) of all its linear weights. Its gradient per
+    /// weight, `lambda w / ||W||`, stays small next to the data term, whereas a squared norm
+    /// with `lambda = 1e-3` would out-weigh a normalised MSE of ~1e-3 and shrink the scalers
+    /// to constants.
+    pub fn l2_norms(&self, device: &Device) -> Tensor<1> {
         let mut total = Tensor::<1>::zeros([1], device);
         for n in [&self.b_fl, &self.b_pr, &self.k_pr].into_iter().flatten() {
-            total = total + n.weight_sq_sum();
+            total = total + n.weight_sq_sum().add_scalar(1e-12).sqrt();
         }
         total
     }

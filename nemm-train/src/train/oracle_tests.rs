@@ -38,6 +38,7 @@ fn coef(
 }
 
 /// Loss of the rollout in burn ops (same semantics as the adjoint).
+#[allow(clippy::too_many_arguments)]
 fn burn_loss(
     net: &EmmNet,
     f: &NetFrame,
@@ -51,7 +52,12 @@ fn burn_loss(
     let b = us.len();
     let n = us[0].len();
     let logc = net.log_c.val();
-    let c = |i: usize| logc.clone().slice([i..i + 1]).exp();
+    let c = |i: usize| {
+        logc.clone()
+            .narrow(0, i, 1)
+            .mul_scalar(super::net::LOG_CONSTANT_SCALE)
+            .exp()
+    };
     let (b_fl0, b_pr0, k0, t_pr) = (c(0), c(1), c(2), c(3));
     let alpha_n = t1(alphas.iter().map(|a| a / f.alpha_scale).collect(), device);
     let bp = match (&net.b_pr, &f.b_pr) {
@@ -82,13 +88,22 @@ fn burn_loss(
         let u1 = t1(us.iter().map(|u| u[i]).collect(), device);
         let um = (u_prev.clone() + u1.clone()).mul_scalar(0.5);
         let (k1x, k1v) = rhs(&x, &v, &u_prev);
-        let (x2, v2) = (x.clone() + k1x.clone().mul_scalar(dt / 2.0), v.clone() + k1v.clone().mul_scalar(dt / 2.0));
+        let (x2, v2) = (
+            x.clone() + k1x.clone().mul_scalar(dt / 2.0),
+            v.clone() + k1v.clone().mul_scalar(dt / 2.0),
+        );
         let (k2x, k2v) = rhs(&x2, &v2, &um);
         let (nx, nv) = match f.integrator {
             Integrator::Rk4 => {
-                let (x3, v3) = (x.clone() + k2x.clone().mul_scalar(dt / 2.0), v.clone() + k2v.clone().mul_scalar(dt / 2.0));
+                let (x3, v3) = (
+                    x.clone() + k2x.clone().mul_scalar(dt / 2.0),
+                    v.clone() + k2v.clone().mul_scalar(dt / 2.0),
+                );
                 let (k3x, k3v) = rhs(&x3, &v3, &um);
-                let (x4, v4) = (x.clone() + k3x.clone().mul_scalar(dt), v.clone() + k3v.clone().mul_scalar(dt));
+                let (x4, v4) = (
+                    x.clone() + k3x.clone().mul_scalar(dt),
+                    v.clone() + k3v.clone().mul_scalar(dt),
+                );
                 let (k4x, k4v) = rhs(&x4, &v4, &u1);
                 (
                     x.clone() + (k1x + k4x + (k2x + k3x).mul_scalar(2.0)).mul_scalar(dt / 6.0),
@@ -111,7 +126,12 @@ fn burn_loss(
             let (bf, k) = coeffs(&x, &v);
             let y = bf.clone() * q(&bf, &k, &x, &u1);
             let fm = t1(fs.iter().map(|f| f[i]).collect(), device);
-            loss = loss + (y - fm).div_scalar(force_scale).powi_scalar(2).sum().reshape([1]);
+            loss = loss
+                + (y - fm)
+                    .div_scalar(force_scale)
+                    .powi_scalar(2)
+                    .sum()
+                    .reshape([1]);
         }
         u_prev = u1;
     }
@@ -122,13 +142,24 @@ fn burn_loss(
 fn flat_grads(net: &EmmNet, gp: &GradientsParams) -> RolloutGrads<f32> {
     let v1 = |p: &burn::module::Param<Tensor<1>>| {
         gp.get::<1>(p.id)
-            .map(|t| t.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default())
+            .map(|t| {
+                t.into_data()
+                    .convert::<f32>()
+                    .try_into_vec::<f32>()
+                    .unwrap_or_default()
+            })
             .unwrap_or_else(|| vec![0.0; p.val().dims()[0]])
     };
     let v2 = |p: &burn::module::Param<Tensor<2>>| {
         let [i, o] = p.val().dims();
         gp.get::<2>(p.id)
-            .map(|t| t.transpose().into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default())
+            .map(|t| {
+                t.transpose()
+                    .into_data()
+                    .convert::<f32>()
+                    .try_into_vec::<f32>()
+                    .unwrap_or_default()
+            })
             .unwrap_or_else(|| vec![0.0; i * o])
     };
     let scaler = |n: &Option<ScalerNet>| -> Vec<f32> {
@@ -146,11 +177,12 @@ fn flat_grads(net: &EmmNet, gp: &GradientsParams) -> RolloutGrads<f32> {
     };
     let dlog = v1(&net.log_c);
     let c = net.constants();
+    let k = super::net::LOG_CONSTANT_SCALE;
     RolloutGrads {
-        b_fl0: dlog[0] / c[0],
-        b_pr0: dlog[1] / c[1],
-        k0: dlog[2] / c[2],
-        t_pr: dlog[3] / c[3],
+        b_fl0: dlog[0] / (k * c[0]),
+        b_pr0: dlog[1] / (k * c[1]),
+        k0: dlog[2] / (k * c[2]),
+        t_pr: dlog[3] / (k * c[3]),
         b_fl: scaler(&net.b_fl),
         b_pr: scaler(&net.b_pr),
         k_pr: scaler(&net.k_pr),
@@ -168,19 +200,36 @@ fn check(kind: ModelKind, integ: Integrator) {
     let warmup = 5;
     let nw = 5;
     let us: Vec<Vec<f32>> = (0..nw)
-        .map(|w| (0..n).map(|i| 0.6 * ((i as f32) * 0.13 + w as f32).sin()).collect())
+        .map(|w| {
+            (0..n)
+                .map(|i| 0.6 * ((i as f32) * 0.13 + w as f32).sin())
+                .collect()
+        })
         .collect();
     let fs: Vec<Vec<f32>> = (0..nw)
-        .map(|w| (0..n).map(|i| 900.0 * ((i as f32) * 0.11 - w as f32).cos()).collect())
+        .map(|w| {
+            (0..n)
+                .map(|i| 900.0 * ((i as f32) * 0.11 - w as f32).cos())
+                .collect()
+        })
         .collect();
     let alphas: Vec<f32> = (0..nw).map(|w| [0.0, 0.3, 0.15][w % 3]).collect();
     let fscale = 1500.0;
     let loss = burn_loss(&net, &frame, &us, &fs, &alphas, warmup, fscale, &device);
-    let loss_burn = loss.clone().into_data().convert::<f32>().try_into_vec::<f32>().expect("loss")[0];
+    let loss_burn = loss
+        .clone()
+        .into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("loss")[0];
     let gp = GradientsParams::from_grads(loss.backward(), &net);
     let reference = flat_grads(&net, &gp);
     let wins: Vec<Window<'_>> = (0..nw)
-        .map(|i| Window { u: &us[i], f: &fs[i], alpha: alphas[i] })
+        .map(|i| Window {
+            u: &us[i],
+            f: &fs[i],
+            alpha: alphas[i],
+        })
         .collect();
     let (loss_adj, g) = loss_and_grad(&p, &wins, warmup, fscale as f64);
     assert!(
@@ -207,7 +256,10 @@ fn check(kind: ModelKind, integ: Integrator) {
             .zip(&r)
             .fold(0.0f32, |m, (x, y)| m.max((x - y).abs() / scale.max(1e-30)));
         eprintln!("{kind:?} {integ:?} {name}: max |adjoint - burn| / max|burn| = {worst:e}");
-        assert!(worst <= 1e-4, "{kind:?} {integ:?} {name}: relative error {worst:e}");
+        assert!(
+            worst <= 1e-4,
+            "{kind:?} {integ:?} {name}: relative error {worst:e}"
+        );
     }
 }
 

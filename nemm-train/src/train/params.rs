@@ -5,7 +5,9 @@
 use super::adjoint::{Real, RolloutParams, ScalerWeights};
 use anyhow::{bail, Result};
 use nemm_core::emm::EmmConstants;
-use nemm_core::{Body, InputScales, Integrator, Meta, MlpParams, Model, Scaler, DEFAULT_PARAM_CAPACITY};
+use nemm_core::{
+    Body, InputScales, Integrator, Meta, MlpParams, Model, Scaler, DEFAULT_PARAM_CAPACITY,
+};
 
 fn scaler_from_core<T: Real>(s: &Scaler<DEFAULT_PARAM_CAPACITY>) -> ScalerWeights<T> {
     ScalerWeights {

@@ -1,0 +1,300 @@
+//! Physics-inconsistency losses (paper section 5.2, eqs. 25-40) and the monotonicity audit.
+//!
+//! On a uniform grid of (normalised state) x (oil-loss level), the differences between
+//! consecutive grid values (eqs. 27-28) estimate the derivatives whose signs physics
+//! prescribes:
+//!
+//! | scaler | force-like function `f` | in the state (eqs. 30, 37) | in alpha (eqs. 31, 38) |
+//! |--------|-------------------------|------------------------------|------------------------|
+//! | `b_fl(v_st, alpha)` | `f = b_fl v_st` | `df/dv_st >= 0` | `d b_fl / d alpha <= 0` |
+//! | `k_pr(x_pr, alpha)` | `f = k_pr x_pr` | `df/dx_pr >= 0` | `d k_pr / d alpha <= 0` |
+//! | `b_pr(alpha)`       | `f = b_pr xdot_pr` | `df/dxdot = b_pr > 0` (by construction) | `d b_pr / d alpha <= 0` |
+//!
+//! The loss (eqs. 34, 39, 40) is the mean of `max(0, -df/dstate)^2 + max(0, ds/dalpha)^2`
+//! over the grid, in normalised units: the state is divided by its abs-max training scale and
+//! `f`, `s` are the dimensionless scale factors (`p / p_ini`), so `lambda_ph` has the same
+//! meaning for every scaler and dataset. Derivatives are difference quotients (the grid
+//! spacing divides the differences), so the loss does not depend on the grid resolution.
+//!
+//! The grid spans the state over `[-1.2, 1.2]` times its scale (the paper's Fig. 8 domain)
+//! and alpha over `[0, 1]`.
+
+use super::net::{EmmNet, NetFrame, ScalerNet, ScalerSpec};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor, TensorData};
+use nemm_core::Model;
+use serde::{Deserialize, Serialize};
+
+/// Grid of the training-time penalty.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PenaltyGrid {
+    /// Points along the normalised state in `[-state_extent, state_extent]`.
+    pub n_state: usize,
+    /// Points along alpha in `[0, 1]`.
+    pub n_alpha: usize,
+    /// Half-width of the normalised state range.
+    pub state_extent: f32,
+}
+
+impl Default for PenaltyGrid {
+    fn default() -> Self {
+        Self {
+            n_state: 49,
+            n_alpha: 11,
+            state_extent: 1.2,
+        }
+    }
+}
+
+fn linspace(a: f32, b: f32, n: usize) -> Vec<f32> {
+    (0..n)
+        .map(|i| a + (b - a) * i as f32 / (n.max(2) - 1) as f32)
+        .collect()
+}
+
+/// Penalty of a two-input scaler (`b_fl` or `k_pr`): state derivative of `s * state` and alpha
+/// derivative of `s`.
+fn penalty_2d(
+    net: &ScalerNet,
+    spec: &ScalerSpec,
+    alpha_scale: f32,
+    g: &PenaltyGrid,
+    device: &Device,
+) -> Tensor<1> {
+    let xs = linspace(-g.state_extent, g.state_extent, g.n_state);
+    let al = linspace(0.0, 1.0, g.n_alpha);
+    let mut pts = Vec::with_capacity(2 * xs.len() * al.len());
+    for &a in &al {
+        for &x in &xs {
+            pts.push(x);
+            pts.push(a / alpha_scale);
+        }
+    }
+    let (na, nx) = (al.len(), xs.len());
+    let input = Tensor::<2>::from_data(TensorData::new(pts, [na * nx, 2]), device);
+    let s = net.forward_scale(input, spec).reshape([na, nx]);
+    let xrow = Tensor::<2>::from_data(TensorData::new(xs.clone(), [1, nx]), device);
+    let f = s.clone() * xrow;
+    let dx = xs.get(1).copied().unwrap_or(1.0) - xs.first().copied().unwrap_or(0.0);
+    let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
+    let df = (f.clone().narrow(1, 1, nx - 1) - f.narrow(1, 0, nx - 1)).div_scalar(dx);
+    let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
+    relu(df.neg()).powi_scalar(2).mean() + relu(ds).powi_scalar(2).mean()
+}
+
+/// Penalty of the one-input `b_pr(alpha)` scaler.
+fn penalty_1d(
+    net: &ScalerNet,
+    spec: &ScalerSpec,
+    alpha_scale: f32,
+    g: &PenaltyGrid,
+    device: &Device,
+) -> Tensor<1> {
+    let al = linspace(0.0, 1.0, g.n_alpha.max(2));
+    let na = al.len();
+    let input = Tensor::<2>::from_data(
+        TensorData::new(
+            al.iter().map(|a| a / alpha_scale).collect::<Vec<f32>>(),
+            [na, 1],
+        ),
+        device,
+    );
+    let s = net.forward_scale(input, spec).reshape([na]);
+    let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
+    let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
+    relu(ds).powi_scalar(2).mean()
+}
+
+/// Sum of the physics-inconsistency losses of every scaler in `net` (a differentiable
+/// scalar, `[1]`).
+pub fn physics_loss(net: &EmmNet, f: &NetFrame, g: &PenaltyGrid, device: &Device) -> Tensor<1> {
+    let mut total = Tensor::<1>::zeros([1], device);
+    if let (Some(n), Some(s)) = (&net.b_fl, &f.b_fl) {
+        total = total + penalty_2d(n, s, f.alpha_scale, g, device);
+    }
+    if let (Some(n), Some(s)) = (&net.k_pr, &f.k_pr) {
+        total = total + penalty_2d(n, s, f.alpha_scale, g, device);
+    }
+    if let (Some(n), Some(s)) = (&net.b_pr, &f.b_pr) {
+        total = total + penalty_1d(n, s, f.alpha_scale, g, device);
+    }
+    total
+}
+
+/// Violations of one monotonicity condition on the audit grid.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ConditionAudit {
+    /// Grid intervals checked.
+    pub checked: usize,
+    /// Intervals that violate the condition.
+    pub violations: usize,
+    /// Largest violation: the wrong-signed derivative in normalised units (0 if none).
+    pub worst: f64,
+}
+
+/// Monotonicity audit of one scaler.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ScalerAudit {
+    /// Force-like function increasing in the state (eqs. 30 / 37); absent for `b_pr`.
+    pub state: Option<ConditionAudit>,
+    /// Coefficient non-increasing in alpha (eqs. 31 / 38).
+    pub alpha: ConditionAudit,
+}
+
+/// Monotonicity audit of a model (absent scalers are `None`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Audit {
+    /// `b_fl(v_st, alpha)`.
+    pub b_fl: Option<ScalerAudit>,
+    /// `b_pr(alpha)`.
+    pub b_pr: Option<ScalerAudit>,
+    /// `k_pr(x_pr, alpha)`.
+    pub k_pr: Option<ScalerAudit>,
+}
+
+impl Audit {
+    /// Total number of violations over all conditions.
+    pub fn total_violations(&self) -> usize {
+        [self.b_fl, self.b_pr, self.k_pr]
+            .iter()
+            .flatten()
+            .map(|s| s.alpha.violations + s.state.map_or(0, |c| c.violations))
+            .sum()
+    }
+}
+
+fn check(deriv: f64, bad_if_negative: bool, c: &mut ConditionAudit) {
+    c.checked += 1;
+    // Rounding of f32 evaluations gives differences of ~1e-7; below that nothing is decided.
+    let bad = if bad_if_negative { -deriv } else { deriv };
+    if bad > 1e-5 {
+        c.violations += 1;
+        c.worst = c.worst.max(bad);
+    }
+}
+
+/// Audits every learned scaler of `model` on a dense grid (`n_state x n_alpha`, state in
+/// `[-1.2, 1.2]` of its scale, alpha in `[0, 1]`), with nemm-core's reference evaluation.
+/// Constant coefficients are monotone trivially and are not audited (`None`).
+pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
+    let Some(e) = model.emm() else {
+        return Audit::default();
+    };
+    let xs = linspace(-1.2, 1.2, n_state);
+    let al = linspace(0.0, 1.0, n_alpha);
+    let dx = (xs[1] - xs[0]) as f64;
+    let da = (al[1] - al[0]) as f64;
+    let audit_2d = |eval: &dyn Fn(f32, f32) -> Option<f32>, scale: f32, p0: f32| {
+        let mut a = ScalerAudit {
+            state: Some(ConditionAudit::default()),
+            alpha: ConditionAudit::default(),
+        };
+        // s[ia][ix] in normalised units.
+        let s: Vec<Vec<f64>> = al
+            .iter()
+            .map(|&alpha| {
+                xs.iter()
+                    .map(|&x| eval(x * scale, alpha).map_or(f64::NAN, |p| (p / p0) as f64))
+                    .collect()
+            })
+            .collect();
+        for row in &s {
+            let f: Vec<f64> = row.iter().zip(&xs).map(|(&si, &x)| si * x as f64).collect();
+            for w in f.windows(2) {
+                if let Some(c) = a.state.as_mut() {
+                    check((w[1] - w[0]) / dx, true, c);
+                }
+            }
+        }
+        for rows in s.windows(2) {
+            for (&lo, &hi) in rows[0].iter().zip(&rows[1]) {
+                check((hi - lo) / da, false, &mut a.alpha);
+            }
+        }
+        a
+    };
+    let kind = model.kind();
+    let b_fl = matches!(
+        kind,
+        nemm_core::ModelKind::NemmLight | nemm_core::ModelKind::Nemm
+    )
+    .then(|| {
+        audit_2d(
+            &|v, a| model.b_fl(v, a),
+            model.scales.velocity_m_s,
+            e.b_fl_ns_per_m,
+        )
+    });
+    let k_pr = matches!(kind, nemm_core::ModelKind::Nemm).then(|| {
+        audit_2d(
+            &|x, a| model.k_pr(x, a),
+            model.scales.x_pr_m,
+            e.k_pr_n_per_m,
+        )
+    });
+    let b_pr = matches!(kind, nemm_core::ModelKind::Nemm).then(|| {
+        let mut c = ConditionAudit::default();
+        let s: Vec<f64> = al
+            .iter()
+            .map(|&a| {
+                model
+                    .b_pr(a)
+                    .map_or(f64::NAN, |p| (p / e.b_pr_ns_per_m) as f64)
+            })
+            .collect();
+        for w in s.windows(2) {
+            check((w[1] - w[0]) / da, false, &mut c);
+        }
+        ScalerAudit {
+            state: None,
+            alpha: c,
+        }
+    });
+    Audit { b_fl, b_pr, k_pr }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::adjoint::RolloutParams;
+    use crate::train::params::from_core;
+    use nemm_core::testing::example_model;
+    use nemm_core::ModelKind;
+
+    #[test]
+    fn penalty_is_zero_for_constant_scalers_and_positive_for_random_ones() {
+        let device = Device::flex().autodiff();
+        let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
+        let mut p: RolloutParams<f32> = from_core(&m).expect("emm");
+        let (net, frame) = EmmNet::from_rollout(&p, &device);
+        let random = physics_loss(&net, &frame, &PenaltyGrid::default(), &device)
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .unwrap_or_default()[0];
+        // Random weights violate monotonicity somewhere.
+        assert!(random > 0.0);
+        let a = audit(&m, 101, 21);
+        assert!(a.total_violations() > 0, "{a:?}");
+        // Output weights zero: every scaler is the constant 1, which is monotone.
+        for s in [&mut p.b_fl, &mut p.b_pr, &mut p.k_pr]
+            .into_iter()
+            .flatten()
+        {
+            let h = s.hidden;
+            let n = s.w.len();
+            for w in &mut s.w[n - h - 1..n - 1] {
+                *w = 0.0;
+            }
+        }
+        let (net, frame) = EmmNet::from_rollout(&p, &device);
+        let flat = physics_loss(&net, &frame, &PenaltyGrid::default(), &device)
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .unwrap_or_default()[0];
+        assert!(flat.abs() < 1e-12, "{flat}");
+        let model = crate::train::params::to_core(&p, m.meta).expect("valid");
+        assert_eq!(audit(&model, 101, 21).total_violations(), 0);
+    }
+}

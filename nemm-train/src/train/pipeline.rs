@@ -1,0 +1,666 @@
+//! The paper's training procedure for the four variants (sections 5-6).
+//!
+//! 1. **SEM**: the quasi-static points of the training set (section 5.3) become support
+//!    points per oil-loss level: points of one level whose velocities agree within 5 % are
+//!    averaged, the origin is added, and every level is resampled (piecewise linear) onto the
+//!    common velocity grid. nemm-core interpolates linearly in alpha between the levels.
+//! 2. **Linear EMM** (first step of the two-step procedure): constant `b_fl`, `b_pr`, `k_pr`,
+//!    `T_pr`, initialised from the quasi-static data (`b_fl,ini` the least-squares slope of
+//!    force over velocity, `b_pr,ini = b_fl,ini`, `k_pr,ini` such that the pressure branch's
+//!    corner frequency is 15 Hz, `T_pr` = 2 ms) and fitted by Adam on the rollout MSE.
+//! 3. **NEMM-Light**: the Linear EMM's constants; `b_fl(v_st, alpha)` first regressed on the
+//!    quasi-static points (eq. 41, burn only), then everything trained on the rollout (eq. 42).
+//! 4. **NEMM**: as NEMM-Light plus `b_pr(alpha)` and `k_pr(x_pr, alpha)`, initialised to
+//!    reproduce the constants (output bias at the identity logit, small output weights). The
+//!    `x_pr` input scale is the abs-max `x_pr` of the Linear EMM over the training windows.
+//!
+//! All variants share the split, the normalisation and the force scale.
+
+use super::adjoint::{simulate_x_pr, RolloutParams, ScalerWeights, Window};
+use super::fit::{fit, rmse, EpochStats, FitConfig, FitData, StopReason};
+use super::net::{EmmNet, NetFrame, ScalerNet, ScalerSpec};
+use super::params::to_core;
+use super::physics::{physics_loss, PenaltyGrid};
+use crate::preprocess::{Prepared, QuasiStaticPoint};
+use anyhow::{bail, Context, Result};
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::{Device, Tensor, TensorData};
+use nemm_core::mlp::param_count;
+use nemm_core::model::STABILITY_MARGIN;
+use nemm_core::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
+use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::time::Instant;
+
+/// The four variants of section 6.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
+pub enum Variant {
+    /// Static empirical model.
+    Sem,
+    /// Linear EMM.
+    LinearEmm,
+    /// NEMM-Light.
+    NemmLight,
+    /// NEMM.
+    Nemm,
+}
+
+impl Variant {
+    /// All four, in the order of Table 4.
+    pub const ALL: [Variant; 4] = [
+        Variant::Sem,
+        Variant::LinearEmm,
+        Variant::NemmLight,
+        Variant::Nemm,
+    ];
+
+    /// CLI name (`sem`, `linear-emm`, `nemm-light`, `nemm`).
+    pub fn name(self) -> &'static str {
+        self.kind().name()
+    }
+
+    /// Key in `report.json` (`sem`, `linear_emm`, `nemm_light`, `nemm`).
+    pub fn key(self) -> &'static str {
+        match self {
+            Variant::Sem => "sem",
+            Variant::LinearEmm => "linear_emm",
+            Variant::NemmLight => "nemm_light",
+            Variant::Nemm => "nemm",
+        }
+    }
+
+    /// Name in tables (`SEM`, `Linear EMM`, `NEMM-Light`, `NEMM`).
+    pub fn title(self) -> &'static str {
+        match self {
+            Variant::Sem => "SEM",
+            Variant::LinearEmm => "Linear EMM",
+            Variant::NemmLight => "NEMM-Light",
+            Variant::Nemm => "NEMM",
+        }
+    }
+
+    /// nemm-core kind.
+    pub fn kind(self) -> ModelKind {
+        match self {
+            Variant::Sem => ModelKind::Sem,
+            Variant::LinearEmm => ModelKind::LinearEmm,
+            Variant::NemmLight => ModelKind::NemmLight,
+            Variant::Nemm => ModelKind::Nemm,
+        }
+    }
+
+    /// Parses a CLI name.
+    pub fn parse(s: &str) -> Result<Self> {
+        Variant::ALL
+            .into_iter()
+            .find(|v| v.name() == s || v.key() == s)
+            .with_context(|| {
+                format!("unknown variant `{s}` (expected sem, linear-emm, nemm-light or nemm)")
+            })
+    }
+}
+
+/// Settings of the whole procedure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PipelineConfig {
+    /// Hidden width `H` of every scaler (paper: 16).
+    pub hidden: usize,
+    /// Hidden layers `L` (paper: 5).
+    pub layers: usize,
+    /// Integrator (paper: RK4; RK3 selectable).
+    pub integrator: Integrator,
+    /// Training settings of the neural stages (batch, lr, lambdas, epochs, ...).
+    pub fit: FitConfig,
+    /// Epochs of the Linear EMM stage.
+    pub linear_epochs: usize,
+    /// Adam learning rate of the Linear EMM stage (on `ln(c) / LOG_CONSTANT_SCALE`: 3e-3 moves
+    /// the constants by ~3 % per step).
+    pub linear_lr: f64,
+    /// Full-batch Adam steps of the quasi-static `b_fl` regression (eq. 41).
+    pub qs_steps: usize,
+    /// Bounds `(s_min, s_max)` of the `b_fl` scale factor.
+    pub b_fl_bounds: (f32, f32),
+    /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered if the
+    /// explicit-RK stability check needs it).
+    pub pr_bounds: (f32, f32),
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            hidden: 16,
+            layers: 5,
+            integrator: Integrator::Rk4,
+            fit: FitConfig::default(),
+            linear_epochs: 8,
+            linear_lr: 3e-3,
+            qs_steps: 600,
+            b_fl_bounds: (0.1, 10.0),
+            pr_bounds: (0.1, 5.0),
+        }
+    }
+}
+
+/// What `nemm export` needs to rebuild a model from a checkpoint folder: the initial
+/// parameters (shapes, bounds, scales; the weights are replaced by the checkpoint's) and the
+/// training-data facts.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SavedFrame {
+    /// Initial rollout parameters of the stage.
+    pub initial: RolloutParams<f32>,
+    /// Training-data facts.
+    pub meta: Meta,
+}
+
+fn save_frame(dir: Option<&Path>, p: &RolloutParams<f32>, meta: Meta) -> Result<()> {
+    if let Some(dir) = dir {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let text = serde_json::to_string_pretty(&SavedFrame {
+            initial: p.clone(),
+            meta,
+        })?;
+        crate::fsutil::write_atomic_bytes(&dir.join("frame.json"), text.as_bytes())
+            .with_context(|| format!("cannot write {}", dir.join("frame.json").display()))?;
+    }
+    Ok(())
+}
+
+/// One trained variant.
+#[derive(Debug, Clone)]
+pub struct TrainedVariant {
+    /// Which.
+    pub variant: Variant,
+    /// The exportable model.
+    pub model: Model,
+    /// Training history of its rollout stage (empty for the SEM).
+    pub history: Vec<EpochStats>,
+    /// Validation RMSE (normalised) of the kept model.
+    pub val_rmse: f64,
+    /// Why its training ended (`None` for the SEM).
+    pub stop: Option<StopReason>,
+    /// Training wall time \[s\] of this variant's own stages.
+    pub seconds: f64,
+}
+
+/// Training-data facts every model carries.
+pub fn meta_of(prepared: &Prepared) -> Meta {
+    let alphas = prepared.train.iter().map(|s| s.alpha);
+    let (lo, hi) = alphas.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), a| {
+        (lo.min(a), hi.max(a))
+    });
+    Meta {
+        force_scale_n: prepared.scales.force_n as f32,
+        alpha_min: if lo.is_finite() { lo } else { 0.0 },
+        alpha_max: if hi.is_finite() { hi } else { 0.0 },
+    }
+}
+
+fn splitmix(state: &mut u64) -> f32 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    ((z >> 40) as f32) / ((1u64 << 23) as f32) - 1.0
+}
+
+/// A freshly initialised scaler: uniform `+-1/sqrt(fan_in)` weights and biases (burn's and
+/// PyTorch's default), LayerNorm `gamma = 1`, `beta = 0`, small output weights and the output
+/// bias at the identity logit, so that the scale factor starts at ~1 (the constants).
+pub fn init_scaler(
+    inputs: usize,
+    hidden: usize,
+    layers: usize,
+    bounds: (f32, f32),
+    seed: u64,
+) -> ScalerWeights<f32> {
+    let mut st = seed.wrapping_mul(0xA24B_AED4_963E_E407) ^ 0x5851_F42D_4C95_7F2D;
+    let mut w = Vec::with_capacity(param_count(inputs, hidden, layers));
+    for l in 0..layers {
+        let fan_in = if l == 0 { inputs } else { hidden };
+        let k = 1.0 / (fan_in as f32).sqrt();
+        for _ in 0..fan_in * hidden + hidden {
+            w.push(k * splitmix(&mut st));
+        }
+        w.extend(std::iter::repeat_n(1.0, hidden));
+        w.extend(std::iter::repeat_n(0.0, hidden));
+    }
+    let k = 0.05 / (hidden as f32).sqrt();
+    for _ in 0..hidden {
+        w.push(k * splitmix(&mut st));
+    }
+    w.push(Scaler::<1>::identity_logit(bounds.0, bounds.1));
+    ScalerWeights {
+        inputs,
+        hidden,
+        layers,
+        w,
+        s_min: bounds.0,
+        s_max: bounds.1,
+    }
+}
+
+/// SEM map from quasi-static points (see the module docs).
+pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
+    if points.is_empty() {
+        bail!("no quasi-static points in the training set: cannot build the SEM");
+    }
+    let mut alphas: Vec<f64> = points.iter().map(|p| p.alpha).collect();
+    alphas.sort_by(f64::total_cmp);
+    alphas.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    if alphas.len() > MAX_SEM_ALPHAS {
+        bail!(
+            "{} oil-loss levels; the SEM holds at most {MAX_SEM_ALPHAS}",
+            alphas.len()
+        );
+    }
+    // Velocity clusters over all levels.
+    let mut vs: Vec<f64> = points.iter().map(|p| p.velocity_m_s).collect();
+    vs.sort_by(f64::total_cmp);
+    let mut knots: Vec<f64> = vec![0.0];
+    let mut cluster: Vec<f64> = Vec::new();
+    for v in vs {
+        if let Some(&last) = cluster.last() {
+            if (v - last).abs() > 0.05 * last.abs().max(v.abs()) || v.signum() != last.signum() {
+                knots.push(cluster.iter().sum::<f64>() / cluster.len() as f64);
+                cluster.clear();
+            }
+        }
+        cluster.push(v);
+    }
+    if !cluster.is_empty() {
+        knots.push(cluster.iter().sum::<f64>() / cluster.len() as f64);
+    }
+    knots.sort_by(f64::total_cmp);
+    knots.dedup_by(|a, b| (*a - *b).abs() < 1e-6);
+    if knots.len() > MAX_SEM_VELOCITIES {
+        bail!(
+            "{} velocity support points; the SEM holds at most {MAX_SEM_VELOCITIES}",
+            knots.len()
+        );
+    }
+    let mut forces = Vec::new();
+    for &a in &alphas {
+        // This level's points, averaged per knot (nearest knot), plus the origin.
+        let mut sum = vec![0.0f64; knots.len()];
+        let mut cnt = vec![0usize; knots.len()];
+        for p in points.iter().filter(|p| (p.alpha - a).abs() < 1e-9) {
+            let (i, _) = knots
+                .iter()
+                .enumerate()
+                .map(|(i, k)| (i, (k - p.velocity_m_s).abs()))
+                .min_by(|x, y| x.1.total_cmp(&y.1))
+                .unwrap_or((0, 0.0));
+            sum[i] += p.force_n;
+            cnt[i] += 1;
+        }
+        let own: Vec<(f64, f64)> = knots
+            .iter()
+            .enumerate()
+            .filter(|(i, k)| cnt[*i] > 0 || **k == 0.0)
+            .map(|(i, &k)| {
+                (
+                    k,
+                    if cnt[i] > 0 {
+                        sum[i] / cnt[i] as f64
+                    } else {
+                        0.0
+                    },
+                )
+            })
+            .collect();
+        for &k in &knots {
+            forces.push(interp(&own, k) as f32);
+        }
+    }
+    let map = SemMap {
+        velocities_m_s: knots.iter().map(|&v| v as f32).collect(),
+        alphas: alphas.iter().map(|&a| a as f32).collect(),
+        forces_n: forces.into_iter().collect(),
+    };
+    map.validate()
+        .map_err(|e| anyhow::anyhow!("SEM map from the quasi-static points is invalid: {e:?}"))?;
+    Ok(map)
+}
+
+/// Piecewise-linear interpolation through sorted points, linear extrapolation at the ends.
+fn interp(pts: &[(f64, f64)], x: f64) -> f64 {
+    match pts.len() {
+        0 => 0.0,
+        1 => pts[0].1,
+        n => {
+            let i = pts.partition_point(|p| p.0 <= x).clamp(1, n - 1);
+            let (x0, y0) = pts[i - 1];
+            let (x1, y1) = pts[i];
+            y0 + (y1 - y0) * (x - x0) / (x1 - x0)
+        }
+    }
+}
+
+/// Largest `s_max` of `k_pr` that passes nemm-core's stability check, capped at `cap`.
+fn stable_k_max(p: &RolloutParams<f32>, s_min_fl: f32, s_min_pr: f32, cap: f32) -> f32 {
+    let limit = STABILITY_MARGIN * p.integrator.stability_limit() * 0.95;
+    let den = p.b_pr0 * s_min_pr + p.b_fl0 * s_min_fl;
+    // dt <= limit * den / (k0 s)  =>  s <= limit den / (k0 dt)
+    (limit * den / (p.k0 * p.dt)).min(cap)
+}
+
+/// Regresses the `b_fl` scaler on quasi-static points (eq. 41): normalised MSE of
+/// `b_fl(v, alpha) v` against the quasi-static force, plus L2 and the physics penalty.
+fn qs_regression(
+    p: &RolloutParams<f32>,
+    scaler: ScalerWeights<f32>,
+    pts: &[QuasiStaticPoint],
+    force_scale: f64,
+    cfg: &PipelineConfig,
+    device: &Device,
+) -> Result<ScalerWeights<f32>> {
+    if pts.is_empty() {
+        return Ok(scaler);
+    }
+    let spec = ScalerSpec {
+        inputs: 2,
+        hidden: scaler.hidden,
+        layers: scaler.layers,
+        s_min: scaler.s_min,
+        s_max: scaler.s_max,
+    };
+    let mut net = EmmNet {
+        log_c: burn::module::Param::from_tensor(Tensor::<1>::from_data(
+            TensorData::new(
+                [p.b_fl0, p.b_pr0, p.k0, p.t_pr]
+                    .iter()
+                    .map(|c| c.ln() / super::net::LOG_CONSTANT_SCALE)
+                    .collect::<Vec<f32>>(),
+                [4],
+            ),
+            device,
+        )),
+        b_fl: Some(ScalerNet::from_flat(&scaler, device)),
+        b_pr: None,
+        k_pr: None,
+    };
+    let frame = NetFrame {
+        integrator: p.integrator,
+        dt: p.dt,
+        v_scale: p.v_scale,
+        x_scale: p.x_scale,
+        alpha_scale: p.alpha_scale,
+        b_fl: Some(spec),
+        b_pr: None,
+        k_pr: None,
+    };
+    let n = pts.len();
+    let x: Vec<f32> = pts
+        .iter()
+        .flat_map(|q| {
+            [
+                (q.velocity_m_s as f32) / p.v_scale,
+                (q.alpha as f32) / p.alpha_scale,
+            ]
+        })
+        .collect();
+    let v: Vec<f32> = pts.iter().map(|q| q.velocity_m_s as f32).collect();
+    let f: Vec<f32> = pts
+        .iter()
+        .map(|q| (q.force_n / force_scale) as f32)
+        .collect();
+    let x = Tensor::<2>::from_data(TensorData::new(x, [n, 2]), device);
+    let v = Tensor::<1>::from_data(TensorData::new(v, [n]), device);
+    let f = Tensor::<1>::from_data(TensorData::new(f, [n]), device);
+    let b0 = p.b_fl0 / force_scale as f32;
+    let mut optim = AdamConfig::new().init();
+    let grid = PenaltyGrid::default();
+    for step in 0..cfg.qs_steps {
+        let b = net.b_fl.as_ref().context("b_fl scaler")?;
+        let s = b.forward_scale(x.clone(), &spec).reshape([n]);
+        let pred = s * v.clone().mul_scalar(b0);
+        let mse = (pred - f.clone()).powi_scalar(2).mean();
+        let loss = mse
+            + physics_loss(&net, &frame, &grid, device).mul_scalar(cfg.fit.lambda_ph)
+            + net.l2_norms(device).mul_scalar(cfg.fit.lambda_l2);
+        let mut gp = GradientsParams::from_grads(loss.backward(), &net);
+        // The constants stay those of the Linear EMM in this step.
+        let _ = gp.remove::<1>(net.log_c.id);
+        let progress = step as f64 / cfg.qs_steps.max(1) as f64;
+        let lr = cfg.fit.lr * (0.1 + 0.9 * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos()));
+        net = optim.step(lr, net, gp);
+    }
+    net.to_rollout(&frame).b_fl.context("b_fl scaler")
+}
+
+fn windows_of(seqs: &[crate::preprocess::Sequence]) -> Vec<Window<'_>> {
+    seqs.iter()
+        .map(|s| Window {
+            u: &s.velocity_m_s,
+            f: &s.force_n,
+            alpha: s.alpha,
+        })
+        .collect()
+}
+
+/// Trains the requested variants. Checkpoints go to `checkpoint_root/<variant>/` when given.
+pub fn train_variants(
+    prepared: &Prepared,
+    variants: &[Variant],
+    cfg: &PipelineConfig,
+    checkpoint_root: Option<&Path>,
+    resume: bool,
+) -> Result<Vec<TrainedVariant>> {
+    let device = Device::flex().autodiff();
+    let meta = meta_of(prepared);
+    let force_scale = prepared.scales.force_n;
+    let data = FitData {
+        train: &prepared.train,
+        validation: &prepared.validation,
+        warmup: prepared.warmup_samples,
+        force_scale_n: force_scale,
+    };
+    let mut out = Vec::new();
+    let qs = &prepared.quasi_static.train;
+    if variants.contains(&Variant::Sem) {
+        let t = Instant::now();
+        let map = fit_sem(qs)?;
+        let model = Model {
+            integrator: cfg.integrator,
+            dt_s: prepared.dt_s as f32,
+            scales: InputScales {
+                velocity_m_s: prepared.scales.velocity_m_s as f32,
+                x_pr_m: 1.0,
+                alpha: prepared.scales.alpha as f32,
+            },
+            meta,
+            body: Body::Sem(map),
+        };
+        model
+            .validate()
+            .map_err(|e| anyhow::anyhow!("SEM model invalid: {e}"))?;
+        let val = super::eval::rmse_model(
+            &model,
+            &prepared.validation,
+            prepared.warmup_samples,
+            force_scale,
+        )?;
+        eprintln!(
+            "[sem] {} support velocities x {} oil-loss levels, validation RMSE {val:.4}",
+            match &model.body {
+                Body::Sem(m) => m.velocities_m_s.len(),
+                _ => 0,
+            },
+            match &model.body {
+                Body::Sem(m) => m.alphas.len(),
+                _ => 0,
+            }
+        );
+        out.push(TrainedVariant {
+            variant: Variant::Sem,
+            model,
+            history: Vec::new(),
+            val_rmse: val,
+            stop: None,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+    }
+    let emm_variants: Vec<Variant> = variants
+        .iter()
+        .copied()
+        .filter(|v| *v != Variant::Sem)
+        .collect();
+    if emm_variants.is_empty() {
+        return Ok(out);
+    }
+    // Step 1: Linear EMM (needed by every EMM-family variant).
+    let t_lin = Instant::now();
+    let (num, den) = qs.iter().fold((0.0f64, 0.0f64), |(n, d), p| {
+        (
+            n + p.force_n * p.velocity_m_s,
+            d + p.velocity_m_s * p.velocity_m_s,
+        )
+    });
+    let b_fl0 = if den > 0.0 && num > 0.0 {
+        (num / den) as f32
+    } else {
+        (force_scale / prepared.scales.velocity_m_s.max(1e-6)) as f32
+    };
+    let b_pr0 = b_fl0;
+    let k0 = (b_pr0 + b_fl0) * 2.0 * std::f32::consts::PI * 15.0;
+    let mut p0 = RolloutParams::<f32> {
+        integrator: cfg.integrator,
+        dt: prepared.dt_s as f32,
+        b_fl0,
+        b_pr0,
+        k0,
+        t_pr: 0.002,
+        v_scale: prepared.scales.velocity_m_s as f32,
+        x_scale: 1.0,
+        alpha_scale: prepared.scales.alpha as f32,
+        b_fl: None,
+        b_pr: None,
+        k_pr: None,
+    };
+    let lin_cfg = FitConfig {
+        label: "linear-emm".into(),
+        epochs: cfg.linear_epochs,
+        lr: cfg.linear_lr,
+        lambda_ph: 0.0,
+        ..cfg.fit.clone()
+    };
+    let (net, frame) = EmmNet::from_rollout(&p0, &device);
+    let lin_dir = checkpoint_root.map(|r| r.join("linear-emm"));
+    save_frame(lin_dir.as_deref(), &p0, meta)?;
+    let lin = fit(
+        net,
+        &frame,
+        data,
+        &lin_cfg,
+        lin_dir.as_deref(),
+        resume,
+        &device,
+    )?;
+    let lin_p = lin.best.to_rollout(&frame);
+    p0.b_fl0 = lin_p.b_fl0;
+    p0.b_pr0 = lin_p.b_pr0;
+    p0.k0 = lin_p.k0;
+    p0.t_pr = lin_p.t_pr;
+    // x_pr scale from the Linear EMM over the training windows.
+    let xs = simulate_x_pr(&lin_p, &windows_of(&prepared.train));
+    let x_scale = xs
+        .iter()
+        .flat_map(|w| w.iter().skip(prepared.warmup_samples))
+        .fold(0.0f64, |m, x| m.max(x.abs()));
+    p0.x_scale = if x_scale > 0.0 { x_scale as f32 } else { 1e-3 };
+    let lin_seconds = t_lin.elapsed().as_secs_f64();
+    if emm_variants.contains(&Variant::LinearEmm) {
+        let model = to_core(&lin_p_with_scale(&lin_p, p0.x_scale), meta)?;
+        out.push(TrainedVariant {
+            variant: Variant::LinearEmm,
+            model,
+            history: lin.history.clone(),
+            val_rmse: lin.best_val_rmse,
+            stop: Some(lin.stop),
+            seconds: lin_seconds,
+        });
+    }
+    let neural: Vec<Variant> = emm_variants
+        .iter()
+        .copied()
+        .filter(|v| matches!(v, Variant::NemmLight | Variant::Nemm))
+        .collect();
+    if neural.is_empty() {
+        return Ok(out);
+    }
+    // Step 2a: b_fl on the quasi-static points (eq. 41).
+    let t_qs = Instant::now();
+    let b_fl_init = init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed);
+    let b_fl = qs_regression(&p0, b_fl_init, qs, force_scale, cfg, &device)?;
+    let qs_seconds = t_qs.elapsed().as_secs_f64();
+    eprintln!(
+        "[nemm] quasi-static b_fl regression (eq. 41): {} points, {} steps, {:.1} s",
+        qs.len(),
+        cfg.qs_steps,
+        qs_seconds
+    );
+    for v in neural {
+        let t = Instant::now();
+        let mut p = p0.clone();
+        p.b_fl = Some(b_fl.clone());
+        if v == Variant::Nemm {
+            let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
+            if k_max < 1.5 {
+                bail!(
+                    "the fitted EMM is too stiff for dt = {} s: k_pr may only grow {k_max:.2}x before the explicit RK step \
+                     becomes unstable; use a shorter step (higher sample rate) or RK4",
+                    p.dt
+                );
+            }
+            p.b_pr = Some(init_scaler(
+                1,
+                cfg.hidden,
+                cfg.layers,
+                cfg.pr_bounds,
+                cfg.fit.seed + 1,
+            ));
+            p.k_pr = Some(init_scaler(
+                2,
+                cfg.hidden,
+                cfg.layers,
+                (cfg.pr_bounds.0, k_max),
+                cfg.fit.seed + 2,
+            ));
+        }
+        let fit_cfg = FitConfig {
+            label: v.name().into(),
+            ..cfg.fit.clone()
+        };
+        let (net, frame) = EmmNet::from_rollout(&p, &device);
+        let dir = checkpoint_root.map(|root| root.join(v.name()));
+        save_frame(dir.as_deref(), &p, meta)?;
+        let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
+        let model = to_core(&r.best.to_rollout(&frame), meta)?;
+        let val = rmse(
+            &r.best,
+            &frame,
+            &prepared.validation,
+            prepared.warmup_samples,
+            force_scale,
+        );
+        out.push(TrainedVariant {
+            variant: v,
+            model,
+            history: r.history,
+            val_rmse: val,
+            stop: Some(r.stop),
+            seconds: t.elapsed().as_secs_f64() + qs_seconds + lin_seconds,
+        });
+    }
+    out.sort_by_key(|t| t.variant);
+    Ok(out)
+}
+
+fn lin_p_with_scale(p: &RolloutParams<f32>, x_scale: f32) -> RolloutParams<f32> {
+    RolloutParams {
+        x_scale,
+        ..p.clone()
+    }
+}

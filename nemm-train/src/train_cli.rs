@@ -1,0 +1,736 @@
+//! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
+//! Table 4 / Table 5 reports from the command line.
+
+use crate::dataset;
+use crate::fsutil::write_atomic_bytes;
+use crate::inspect::describe;
+use crate::preprocess::{self, PrepareConfig, Prepared};
+use crate::report::{evaluate, table4_markdown, Report};
+use crate::train::fit::FitConfig;
+use crate::train::net::{EmmNet, NetFrame};
+use crate::train::params::{integrator_by_name, to_core};
+use crate::train::pipeline::{train_variants, PipelineConfig, TrainedVariant, Variant};
+use anyhow::{bail, Context, Result};
+use burn::module::Module;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Default physics-inconsistency weight (the best of the paper's Table 5).
+pub const DEFAULT_LAMBDA_PH: f64 = 5e-3;
+/// Default `nemm sweep` list of physics weights (Table 5).
+pub const TABLE5_LAMBDAS: [f64; 4] = [0.0, 0.005, 0.015, 0.025];
+
+/// Options shared by every training command.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TrainArgs {
+    /// Dataset folder (manifest.toml + CSV runs; see docs/data-format.md).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Oil-loss level(s) held out for testing (Table 2), comma-separated.
+    #[arg(long, default_value = "0.15", value_delimiter = ',')]
+    pub test_alpha: Vec<f64>,
+    /// Seed of the split, the initial weights and the data order.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Hidden width H of the scalers (Table 3: 8, 16, 32).
+    #[arg(long, default_value_t = 16)]
+    pub hidden: usize,
+    /// Hidden layers L of the scalers (Table 3: 3, 5, 7, 9).
+    #[arg(long, default_value_t = 5)]
+    pub layers: usize,
+    /// Windows per batch (Table 3: 4, 8, 16).
+    #[arg(long, default_value_t = 16)]
+    pub batch: usize,
+    /// Adam learning rate (Table 3: 5e-3, 1e-2, 1e-3).
+    #[arg(long, default_value_t = 5e-3)]
+    pub lr: f64,
+    /// Physics-inconsistency weight lambda_ph (Table 5; default 0.005, the paper's best).
+    /// `nemm sweep` takes a comma-separated list (default 0,0.005,0.015,0.025).
+    #[arg(long, value_delimiter = ',')]
+    pub lambda_ph: Option<Vec<f64>>,
+    /// L2 weight lambda on the scalers' linear weights.
+    #[arg(long, default_value_t = 1e-3)]
+    pub lambda_l2: f64,
+    /// Integrator: rk4 or rk3.
+    #[arg(long, default_value = "rk4")]
+    pub integrator: String,
+    /// Maximum epochs of the neural stages.
+    #[arg(long, default_value_t = 40)]
+    pub epochs: usize,
+    /// Early stopping: epochs without a better validation RMSE.
+    #[arg(long, default_value_t = 8)]
+    pub patience: usize,
+    /// Epochs of the Linear EMM stage.
+    #[arg(long, default_value_t = 8)]
+    pub linear_epochs: usize,
+    /// At most this many batches per epoch (random subset; for quick runs).
+    #[arg(long)]
+    pub max_batches: Option<usize>,
+    /// Train at most this many epochs per stage in this invocation, then stop with a
+    /// checkpoint (time-boxed sessions); continue with --resume.
+    #[arg(long)]
+    pub session_epochs: Option<usize>,
+    /// Scored length of a training window [s] (section 5.3: 0.5 s).
+    #[arg(long, default_value_t = preprocess::DEFAULT_SEQUENCE_S)]
+    pub window_s: f64,
+    /// Warm-up prefix of a window, simulated but not scored [s].
+    #[arg(long, default_value_t = preprocess::DEFAULT_WARMUP_S)]
+    pub warmup_s: f64,
+}
+
+impl TrainArgs {
+    /// The defaults of every option, for dataset `data`.
+    pub fn parse_defaults(data: PathBuf) -> Self {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Wrapper {
+            #[command(flatten)]
+            args: TrainArgs,
+        }
+        let mut w = Wrapper::parse_from(["nemm", "--data", "."]);
+        w.args.data = data;
+        w.args
+    }
+
+    /// Preprocessing configuration.
+    pub fn prepare_config(&self) -> PrepareConfig {
+        let mut c = PrepareConfig::default();
+        c.split.test_alphas = self.test_alpha.clone();
+        c.split.seed = self.seed;
+        c.sequences.length_s = self.window_s;
+        c.sequences.warmup_s = self.warmup_s;
+        c
+    }
+
+    /// Pipeline configuration.
+    pub fn pipeline_config(&self) -> Result<PipelineConfig> {
+        if self.batch == 0 || self.hidden == 0 || self.layers == 0 {
+            bail!("--batch, --hidden and --layers must be positive");
+        }
+        if self.hidden > nemm_core::mlp::MAX_HIDDEN || self.layers > nemm_core::mlp::MAX_LAYERS {
+            bail!(
+                "--hidden must be <= {} and --layers <= {} (the capacity of nemm-core)",
+                nemm_core::mlp::MAX_HIDDEN,
+                nemm_core::mlp::MAX_LAYERS
+            );
+        }
+        let lambda_ph = match self.lambda_ph.as_deref() {
+            None => DEFAULT_LAMBDA_PH,
+            Some([one]) => *one,
+            Some(list) => bail!(
+                "--lambda-ph takes one value here ({} given); `nemm sweep` trains one model per value",
+                list.len()
+            ),
+        };
+        if !(lambda_ph.is_finite() && lambda_ph >= 0.0) {
+            bail!("--lambda-ph must be a non-negative number");
+        }
+        Ok(PipelineConfig {
+            hidden: self.hidden,
+            layers: self.layers,
+            integrator: integrator_by_name(&self.integrator)?,
+            fit: FitConfig {
+                label: String::new(),
+                epochs: self.epochs,
+                batch: self.batch,
+                lr: self.lr,
+                lambda_l2: self.lambda_l2,
+                lambda_ph,
+                patience: self.patience,
+                max_batches_per_epoch: self.max_batches,
+                seed: self.seed,
+                session_epochs: self.session_epochs,
+                ..FitConfig::default()
+            },
+            linear_epochs: self.linear_epochs,
+            ..PipelineConfig::default()
+        })
+    }
+}
+
+/// Loads and prepares a dataset, printing a one-line summary.
+pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {
+    load_dataset_prepared(dir, cfg).map(|(_, p)| p)
+}
+
+/// Loads and prepares a dataset; returns both (figures need the whole runs).
+pub fn load_dataset_prepared(
+    dir: &Path,
+    cfg: &PrepareConfig,
+) -> Result<(dataset::Dataset, Prepared)> {
+    let t = Instant::now();
+    let ds = dataset::load(dir)
+        .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
+    let prepared = preprocess::prepare(&ds, cfg)?;
+    eprintln!(
+        "dataset {:?}: {} runs; {} train / {} validation / {} test windows of {} + {} warm-up samples; force scale {:.0} N ({:.1} s)",
+        ds.name,
+        ds.runs.len(),
+        prepared.train.len(),
+        prepared.validation.len(),
+        prepared.test.len(),
+        prepared.scored_samples,
+        prepared.warmup_samples,
+        prepared.scales.force_n,
+        t.elapsed().as_secs_f64()
+    );
+    if prepared.test.is_empty() {
+        eprintln!(
+            "warning: no test windows at oil loss {:?}; test RMSE will be NaN",
+            cfg.split.test_alphas
+        );
+    }
+    Ok((ds, prepared))
+}
+
+/// Encodes and writes a model blob atomically; returns its size.
+pub fn export_model(model: &nemm_core::Model, out: &Path) -> Result<usize> {
+    let blob = nemm_core::encode_to_vec(model).map_err(|e| anyhow::anyhow!("{e}"))?;
+    write_atomic_bytes(out, &blob).with_context(|| format!("cannot write {}", out.display()))?;
+    Ok(blob.len())
+}
+
+/// Writes `report.json` and `table4.md` into `dir`.
+pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    write_atomic_bytes(
+        &dir.join("report.json"),
+        serde_json::to_string_pretty(report)?.as_bytes(),
+    )?;
+    write_atomic_bytes(&dir.join(table_name), table4_markdown(report).as_bytes())?;
+    Ok(())
+}
+
+fn print_audit(t: &TrainedVariant, r: &Report) {
+    if let Some(v) = r.variants.get(t.variant.key()) {
+        if let Some(a) = &v.audit {
+            let mut parts = Vec::new();
+            for (name, s) in [("b_fl", a.b_fl), ("b_pr", a.b_pr), ("k_pr", a.k_pr)] {
+                if let Some(s) = s {
+                    let st = s.state.map_or(String::new(), |c| {
+                        format!(
+                            "state {}/{} (worst {:.2e}), ",
+                            c.violations, c.checked, c.worst
+                        )
+                    });
+                    parts.push(format!(
+                        "{name}: {st}alpha {}/{} (worst {:.2e})",
+                        s.alpha.violations, s.alpha.checked, s.alpha.worst
+                    ));
+                }
+            }
+            println!(
+                "monotonicity audit ({}): {}",
+                t.variant.name(),
+                parts.join("; ")
+            );
+        }
+    }
+}
+
+/// `nemm train`.
+pub fn train(
+    args: &TrainArgs,
+    variant: Variant,
+    out: &Path,
+    checkpoint: Option<&Path>,
+    resume: bool,
+    report_dir: Option<&Path>,
+) -> Result<()> {
+    let prepared = load_prepared(&args.data, &args.prepare_config())?;
+    let cfg = args.pipeline_config()?;
+    let t = Instant::now();
+    let trained = train_variants(&prepared, &[variant], &cfg, checkpoint, resume)?;
+    let tv = trained
+        .iter()
+        .find(|t| t.variant == variant)
+        .context("training produced no model")?;
+    let n = export_model(&tv.model, out)?;
+    let report = evaluate(std::slice::from_ref(tv), &prepared)?;
+    let vr = report.variants.get(variant.key()).context("report")?;
+    println!(
+        "wrote {} ({n} bytes) in {:.0} s",
+        out.display(),
+        t.elapsed().as_secs_f64()
+    );
+    print!("{}", describe(&tv.model, n));
+    println!(
+        "test RMSE at oil loss {:?}: {:.4} of the force scale ({:.1} N); validation {:.4}",
+        args.test_alpha, vr.rmse, vr.rmse_n, vr.val_rmse
+    );
+    print_audit(tv, &report);
+    if let Some(dir) = report_dir {
+        let mut report = report;
+        report.info.insert(
+            "command".into(),
+            std::env::args().collect::<Vec<_>>().join(" "),
+        );
+        write_report(dir, &report, "table.md")?;
+    }
+    Ok(())
+}
+
+/// `nemm export`: the best model of a checkpoint folder written by `nemm train --checkpoint`.
+pub fn export(checkpoint: &Path, out: &Path) -> Result<()> {
+    let frame_path = checkpoint.join("frame.json");
+    let text = std::fs::read_to_string(&frame_path).with_context(|| {
+        format!(
+            "cannot read {} (is {} a variant folder written by `nemm train --checkpoint`?)",
+            frame_path.display(),
+            checkpoint.display()
+        )
+    })?;
+    let saved: crate::train::pipeline::SavedFrame =
+        serde_json::from_str(&text).with_context(|| format!("corrupt {}", frame_path.display()))?;
+    let latest = std::fs::read_to_string(checkpoint.join("latest"))
+        .with_context(|| format!("no finished epoch in {}", checkpoint.display()))?;
+    let device = burn::tensor::Device::flex();
+    let (net, frame): (EmmNet, NetFrame) = EmmNet::from_rollout(&saved.initial, &device);
+    let net = net
+        .try_load_file(checkpoint.join(latest.trim()).join("best"))
+        .map_err(|e| anyhow::anyhow!("cannot load the best module: {e:?}"))?;
+    let model = to_core(&net.to_rollout(&frame), saved.meta)?;
+    let n = export_model(&model, out)?;
+    println!(
+        "wrote {} ({n} bytes) from {}",
+        out.display(),
+        checkpoint.join(latest.trim()).display()
+    );
+    print!("{}", describe(&model, n));
+    Ok(())
+}
+
+/// `nemm compare`: all four variants, Table 4.
+pub fn compare(
+    args: &TrainArgs,
+    report_dir: &Path,
+    checkpoint: Option<&Path>,
+    resume: bool,
+) -> Result<Report> {
+    let (_ds, prepared) = load_dataset_prepared(&args.data, &args.prepare_config())?;
+    let cfg = args.pipeline_config()?;
+    let t = Instant::now();
+    let trained = train_variants(&prepared, &Variant::ALL, &cfg, checkpoint, resume)?;
+    let mut report = evaluate(&trained, &prepared)?;
+    report.info.insert(
+        "command".into(),
+        std::env::args().collect::<Vec<_>>().join(" "),
+    );
+    report
+        .info
+        .insert("dataset".into(), args.data.display().to_string());
+    report.info.insert(
+        "total_seconds".into(),
+        format!("{:.1}", t.elapsed().as_secs_f64()),
+    );
+    std::fs::create_dir_all(report_dir)?;
+    for tv in &trained {
+        export_model(
+            &tv.model,
+            &report_dir.join(format!("{}.nemm", tv.variant.name())),
+        )?;
+    }
+    write_report(report_dir, &report, "table4.md")?;
+    println!("{}", table4_markdown(&report));
+    for tv in &trained {
+        print_audit(tv, &report);
+    }
+    println!("report, models and figures in {}", report_dir.display());
+    Ok(report)
+}
+
+/// A sweep grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SweepGrid {
+    /// Only the `--lambda-ph` list, other hyperparameters as given (Table 5).
+    Lambda,
+    /// The Table 3 search space (batch {4, 8, 16} x hidden {8, 16, 32} x layers {3, 5, 7, 9}
+    /// x lr {5e-3, 1e-2, 1e-3}: 108 jobs) times the `--lambda-ph` list.
+    Table3,
+}
+
+/// One sweep job: its id and the `nemm train` arguments that differ from the base.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepJob {
+    /// Folder name under `<report>/jobs/`.
+    pub id: String,
+    /// `(flag, value)` overrides.
+    pub overrides: Vec<(String, String)>,
+}
+
+/// The jobs of a sweep.
+pub fn sweep_jobs(grid: SweepGrid, lambdas: &[f64]) -> Vec<SweepJob> {
+    /// Batch, hidden width, layers, learning rate (`None`: the base configuration's).
+    type Combo = (Option<usize>, Option<usize>, Option<usize>, Option<f64>);
+    let mut jobs = Vec::new();
+    let combos: Vec<Combo> = match grid {
+        SweepGrid::Lambda => vec![(None, None, None, None)],
+        SweepGrid::Table3 => {
+            let mut v = Vec::new();
+            for b in [4, 8, 16] {
+                for h in [8, 16, 32] {
+                    for l in [3, 5, 7, 9] {
+                        for lr in [5e-3, 1e-2, 1e-3] {
+                            v.push((Some(b), Some(h), Some(l), Some(lr)));
+                        }
+                    }
+                }
+            }
+            v
+        }
+    };
+    for (b, h, l, lr) in combos {
+        for &lam in lambdas {
+            let mut id = String::new();
+            let mut o = Vec::new();
+            if let (Some(b), Some(h), Some(l), Some(lr)) = (b, h, l, lr) {
+                id.push_str(&format!("b{b}_h{h}_l{l}_lr{lr}_"));
+                o.push(("--batch".into(), b.to_string()));
+                o.push(("--hidden".into(), h.to_string()));
+                o.push(("--layers".into(), l.to_string()));
+                o.push(("--lr".into(), lr.to_string()));
+            }
+            id.push_str(&format!("lph{lam}"));
+            o.push(("--lambda-ph".into(), lam.to_string()));
+            jobs.push(SweepJob { id, overrides: o });
+        }
+    }
+    jobs
+}
+
+/// The `nemm train` command line of a sweep job (without the program name).
+pub fn job_args(base: &[String], job: &SweepJob, report: &Path) -> Vec<String> {
+    let dir = report.join("jobs").join(&job.id);
+    let mut a: Vec<String> = vec!["train".into()];
+    // Base arguments minus the ones the job overrides.
+    let overridden: Vec<&str> = job.overrides.iter().map(|(f, _)| f.as_str()).collect();
+    let mut i = 0;
+    while i < base.len() {
+        let flag = base[i].split('=').next().unwrap_or("");
+        if overridden.contains(&flag) {
+            i += if base[i].contains('=') { 1 } else { 2 };
+            continue;
+        }
+        a.push(base[i].clone());
+        i += 1;
+    }
+    for (f, v) in &job.overrides {
+        a.push(f.clone());
+        a.push(v.clone());
+    }
+    a.extend([
+        "--variant".into(),
+        "nemm".into(),
+        "--out".into(),
+        dir.join("model.nemm").display().to_string(),
+        "--report".into(),
+        dir.display().to_string(),
+    ]);
+    a
+}
+
+/// Reads every job's `report.json` under `<report>/jobs/` and writes `sweep.json` and
+/// `table5.md` (one row per job: hyperparameters, validation and test RMSE, violations).
+pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
+    use std::fmt::Write as _;
+    struct Row {
+        job: SweepJob,
+        val: f64,
+        test: f64,
+        test_n: f64,
+        violations: usize,
+        seconds: f64,
+    }
+    let mut rows: Vec<Row> = Vec::new();
+    for j in jobs {
+        let p = report.join("jobs").join(&j.id).join("report.json");
+        match std::fs::read_to_string(&p) {
+            Ok(t) => {
+                let r: Report =
+                    serde_json::from_str(&t).with_context(|| format!("corrupt {}", p.display()))?;
+                if let Some(v) = r.variants.get("nemm") {
+                    rows.push(Row {
+                        job: j.clone(),
+                        val: v.val_rmse,
+                        test: v.rmse,
+                        test_n: v.rmse_n,
+                        violations: v.violations,
+                        seconds: v.train_seconds,
+                    });
+                }
+            }
+            Err(_) => eprintln!(
+                "warning: job {} has no report ({}): not finished or failed",
+                j.id,
+                p.display()
+            ),
+        }
+    }
+    let base = rows
+        .iter()
+        .find(|r| {
+            r.job
+                .overrides
+                .iter()
+                .any(|(f, v)| f == "--lambda-ph" && v.parse::<f64>().ok() == Some(0.0))
+        })
+        .or(rows.first())
+        .map(|r| r.test);
+    let mut md = String::new();
+    let _ = writeln!(md, "| Job | lambda_ph | Validation RMSE | Test RMSE | Test RMSE [N] | Rel. test error (%) | Violations | Time |");
+    let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|---:|---:|");
+    for r in &rows {
+        let (j, val, test, test_n, viol, secs) =
+            (&r.job, r.val, r.test, r.test_n, r.violations, r.seconds);
+        let lam = j
+            .overrides
+            .iter()
+            .find(|(f, _)| f == "--lambda-ph")
+            .map_or("-", |(_, v)| v.as_str());
+        let rel = base.map_or("-".into(), |b| format!("{:.1}", 100.0 * test / b));
+        let _ = writeln!(
+            md,
+            "| {} | {lam} | {val:.4} | {test:.4} | {test_n:.1} | {rel} | {viol} | {secs:.0} s |",
+            j.id
+        );
+    }
+    if let Some(best) = rows.iter().min_by(|a, b| a.val.total_cmp(&b.val)) {
+        let _ = writeln!(
+            md,
+            "\nBest by validation RMSE: `{}` (test RMSE {:.4}).",
+            best.job.id, best.test
+        );
+    }
+    let json: Vec<serde_json::Value> = rows
+        .iter()
+        .map(|r| {
+            serde_json::json!({
+                "id": r.job.id,
+                "overrides": r.job.overrides.iter().map(|(f, v)| (f.trim_start_matches("--").to_string(), v.clone())).collect::<std::collections::BTreeMap<_, _>>(),
+                "val_rmse": r.val, "rmse": r.test, "rmse_n": r.test_n, "violations": r.violations, "train_seconds": r.seconds,
+            })
+        })
+        .collect();
+    write_atomic_bytes(
+        &report.join("sweep.json"),
+        serde_json::to_string_pretty(&json)?.as_bytes(),
+    )?;
+    write_atomic_bytes(&report.join("table5.md"), md.as_bytes())?;
+    Ok(md)
+}
+
+/// `nemm sweep`: every configuration is an independent `nemm train` process (a cluster
+/// scheduler can run the lines of `--list` instead); results are collected into one table.
+pub fn sweep(
+    base: &[String],
+    grid: SweepGrid,
+    lambdas: &[f64],
+    report: &Path,
+    jobs_parallel: usize,
+    list_only: bool,
+    collect_only: bool,
+) -> Result<()> {
+    let jobs = sweep_jobs(grid, lambdas);
+    let exe = std::env::current_exe().context("cannot find the nemm executable")?;
+    if list_only {
+        for j in &jobs {
+            let args = job_args(base, j, report);
+            println!("{} {}", exe.display(), args.join(" "));
+        }
+        return Ok(());
+    }
+    if !collect_only {
+        std::fs::create_dir_all(report.join("jobs"))?;
+        let t = Instant::now();
+        let mut pending: std::collections::VecDeque<&SweepJob> = jobs.iter().collect();
+        let mut running: Vec<(String, std::process::Child)> = Vec::new();
+        let mut failed = Vec::new();
+        let total = jobs.len();
+        let mut done = 0;
+        while !pending.is_empty() || !running.is_empty() {
+            while running.len() < jobs_parallel.max(1) {
+                let Some(j) = pending.pop_front() else { break };
+                let dir = report.join("jobs").join(&j.id);
+                std::fs::create_dir_all(&dir)?;
+                if dir.join("report.json").exists() {
+                    eprintln!("[sweep] {} already done, skipped", j.id);
+                    done += 1;
+                    continue;
+                }
+                let log = std::fs::File::create(dir.join("train.log"))?;
+                let child = std::process::Command::new(&exe)
+                    .args(job_args(base, j, report))
+                    .stdout(log.try_clone()?)
+                    .stderr(log)
+                    .spawn()
+                    .with_context(|| format!("cannot start job {}", j.id))?;
+                eprintln!(
+                    "[sweep] started {} ({} running, {} waiting)",
+                    j.id,
+                    running.len() + 1,
+                    pending.len()
+                );
+                running.push((j.id.clone(), child));
+            }
+            std::thread::sleep(std::time::Duration::from_millis(200));
+            let mut i = 0;
+            while i < running.len() {
+                if let Some(status) = running[i].1.try_wait()? {
+                    let (id, _) = running.remove(i);
+                    done += 1;
+                    let el = t.elapsed().as_secs_f64();
+                    if status.success() {
+                        eprintln!(
+                            "[sweep] {id} done ({done}/{total}, {:.0} s, ETA {:.0} s)",
+                            el,
+                            el / done as f64 * (total - done) as f64
+                        );
+                    } else {
+                        eprintln!(
+                            "[sweep] {id} FAILED ({status}); see {}",
+                            report.join("jobs").join(&id).join("train.log").display()
+                        );
+                        failed.push(id);
+                    }
+                } else {
+                    i += 1;
+                }
+            }
+        }
+        if !failed.is_empty() {
+            eprintln!(
+                "[sweep] {} job(s) failed: {}",
+                failed.len(),
+                failed.join(", ")
+            );
+        }
+    }
+    let md = collect_sweep(&jobs, report)?;
+    println!("{md}");
+    println!(
+        "sweep table in {} and {}",
+        report.join("table5.md").display(),
+        report.join("sweep.json").display()
+    );
+    Ok(())
+}
+
+/// Where a demo keeps its data and results.
+#[derive(Debug, Clone)]
+pub struct DemoPaths {
+    /// Dataset folder (generated if it has no manifest).
+    pub data: PathBuf,
+    /// Results folder.
+    pub out: PathBuf,
+}
+
+/// `nemm demo`: virtual bench (generated if absent), all four variants on a budget of a few
+/// minutes, Table 4, figures, `model.nemm`, and the exported NEMM run through nemm-core on a
+/// held-out run.
+pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
+    let t0 = Instant::now();
+    if !paths.data.join(dataset::MANIFEST_FILE).exists() {
+        eprintln!(
+            "no dataset in {}: generating the default virtual bench",
+            paths.data.display()
+        );
+        crate::bench::cli::generate(
+            &crate::bench::config::BenchConfig::default(),
+            1,
+            &paths.data,
+        )?;
+    }
+    let args = TrainArgs {
+        data: paths.data.clone(),
+        ..args.clone()
+    };
+    let report = compare(&args, &paths.out, None, false)?;
+    let nemm_blob = paths.out.join("nemm.nemm");
+    let model_path = paths.out.join("model.nemm");
+    std::fs::copy(&nemm_blob, &model_path).with_context(|| {
+        format!(
+            "cannot copy {} to {}",
+            nemm_blob.display(),
+            model_path.display()
+        )
+    })?;
+    // The exported blob through nemm-core on a held-out (test) run.
+    let (ds, prepared) = load_dataset_prepared(&args.data, &args.prepare_config())?;
+    let blob = std::fs::read(&model_path)?;
+    let model: nemm_core::Model = nemm_core::decode(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let test_runs: Vec<_> = prepared
+        .runs
+        .iter()
+        .filter(|r| r.role == preprocess::RunRole::Test)
+        .collect();
+    let run = test_runs
+        .iter()
+        .filter(|r| r.summary.excitation.amplitude_m < 0.02)
+        .max_by(|a, b| {
+            a.summary
+                .excitation
+                .frequency_hz
+                .unwrap_or(0.0)
+                .total_cmp(&b.summary.excitation.frequency_hz.unwrap_or(0.0))
+        })
+        .or(test_runs.first())
+        .context("no held-out test run")?;
+    let idx = run.summary.index;
+    let signals = preprocess::process_run(
+        &ds.runs[idx],
+        idx,
+        ds.sample_rate_hz,
+        &prepared.config.signal,
+    )?;
+    let u: Vec<f32> = signals.velocity_m_s.iter().map(|&v| v as f32).collect();
+    let alpha = ds.runs[idx].entry.oil_loss as f32;
+    let mut est = nemm_core::Estimator::new(&model, nemm_core::EstimatorConfig::new(alpha))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let t = Instant::now();
+    let forces: Vec<f32> = u.iter().map(|&v| est.step(v).force_n).collect();
+    let ns_per_step = t.elapsed().as_secs_f64() * 1e9 / u.len().max(1) as f64;
+    let fs = prepared.scales.force_n;
+    let skip = prepared.warmup_samples.min(forces.len());
+    let se: f64 = forces[skip..]
+        .iter()
+        .zip(&ds.runs[idx].force_n[skip..])
+        .map(|(&y, &m)| ((y as f64 - m) / fs).powi(2))
+        .sum();
+    let rmse = (se / (forces.len() - skip).max(1) as f64).sqrt();
+    let trainer = crate::train::eval::predict(&model, &[(&u, alpha)])?;
+    let parity = forces
+        .iter()
+        .zip(&trainer[0])
+        .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b).abs()))
+        / fs;
+    println!(
+        "held-out run {} (oil loss {alpha}, {:.0} mm, {:.1} Hz): nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
+         max |nemm-core - trainer| = {:.2e} of the force scale",
+        ds.runs[idx].entry.file.display(),
+        run.summary.excitation.amplitude_m * 1e3,
+        run.summary.excitation.frequency_hz.unwrap_or(f64::NAN),
+        rmse,
+        rmse * fs,
+        forces.len(),
+        ns_per_step,
+        parity
+    );
+    let nemm = report
+        .variants
+        .get("nemm")
+        .map(|v| v.rmse)
+        .unwrap_or(f64::NAN);
+    let sem = report
+        .variants
+        .get("sem")
+        .map(|v| v.rmse)
+        .unwrap_or(f64::NAN);
+    println!(
+        "demo done in {:.1} min: NEMM test RMSE {:.4} = {:.0} % of the SEM's; weights in {}",
+        t0.elapsed().as_secs_f64() / 60.0,
+        nemm,
+        100.0 * nemm / sem,
+        model_path.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,236 @@
+//! End-to-end checks of the training pipeline on data whose truth is known.
+use burn::tensor::Device;
+use nemm_core::emm::EmmConstants;
+use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
+use nemm_train::dataset::{Dataset, Run, RunEntry};
+use nemm_train::preprocess::{self, PrepareConfig, Sequence};
+use nemm_train::train::adjoint::RolloutParams;
+use nemm_train::train::fit::{fit, FitConfig, FitData};
+use nemm_train::train::net::EmmNet;
+use nemm_train::train::params::from_core;
+use nemm_train::train::pipeline::{init_scaler, train_variants, PipelineConfig, Variant};
+use std::path::PathBuf;
+
+const FS: f64 = 10_000.0;
+
+fn truth() -> Model {
+    Model {
+        integrator: Integrator::Rk4,
+        dt_s: 1e-4,
+        scales: InputScales {
+            velocity_m_s: 1.0,
+            x_pr_m: 0.01,
+            alpha: 0.3,
+        },
+        meta: Meta {
+            force_scale_n: 2000.0,
+            alpha_min: 0.0,
+            alpha_max: 0.3,
+        },
+        // Corner frequency k / (b_pr + b_fl) = 1.5e5 / 2500 = 60 1/s (9.5 Hz).
+        body: Body::LinearEmm(EmmConstants {
+            b_fl_ns_per_m: 1500.0,
+            b_pr_ns_per_m: 1000.0,
+            k_pr_n_per_m: 1.5e5,
+            t_pr_s: 0.002,
+        }),
+    }
+}
+
+/// Sinusoidal strokes through `model` at several frequencies and oil-loss levels, with the
+/// measured velocity column (so the preprocessing uses it as is).
+fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> Dataset {
+    let mut runs = Vec::new();
+    for &alpha in alphas {
+        for &f in freqs {
+            let amp = 0.4 / (2.0 * std::f64::consts::PI * f);
+            let n = (seconds * FS) as usize;
+            let w = 2.0 * std::f64::consts::PI * f;
+            let time_s: Vec<f64> = (0..n).map(|i| i as f64 / FS).collect();
+            let displacement_m: Vec<f64> = time_s.iter().map(|t| amp * (w * t).sin()).collect();
+            let velocity: Vec<f64> = time_s.iter().map(|t| amp * w * (w * t).cos()).collect();
+            let mut est =
+                Estimator::new(model, EstimatorConfig::new(alpha as f32)).expect("estimator");
+            let force_n: Vec<f64> = velocity
+                .iter()
+                .map(|&v| est.step(v as f32).force_n as f64)
+                .collect();
+            runs.push(Run {
+                entry: RunEntry {
+                    file: PathBuf::from(format!("runs/a{alpha}_f{f}.csv")),
+                    oil_loss: alpha,
+                    amplitude_m: Some(amp),
+                    target_velocity_m_s: Some(0.4),
+                },
+                time_s,
+                displacement_m,
+                force_n,
+                velocity_m_s: Some(velocity),
+            });
+        }
+    }
+    Dataset {
+        name: "synthetic linear EMM".into(),
+        sample_rate_hz: FS,
+        runs,
+    }
+}
+
+#[test]
+fn linear_emm_stage_recovers_known_constants() {
+    let truth = truth();
+    let ds = dataset_from(&truth, &[2.0, 6.0, 12.0, 25.0], &[0.0, 0.15, 0.3], 2.5);
+    let prepared = preprocess::prepare(&ds, &PrepareConfig::default()).expect("prepare");
+    let cfg = PipelineConfig {
+        linear_epochs: 40,
+        fit: FitConfig {
+            patience: 40,
+            ..FitConfig::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let trained =
+        train_variants(&prepared, &[Variant::LinearEmm], &cfg, None, false).expect("train");
+    let e = trained[0].model.emm().copied().expect("emm");
+    let t = truth.emm().copied().expect("emm");
+    let rel = |a: f32, b: f32| ((a - b) / b).abs();
+    eprintln!(
+        "recovered {e:?} (truth {t:?}), validation RMSE {}",
+        trained[0].val_rmse
+    );
+    assert!(rel(e.b_fl_ns_per_m, t.b_fl_ns_per_m) < 0.03, "b_fl {e:?}");
+    assert!(rel(e.b_pr_ns_per_m, t.b_pr_ns_per_m) < 0.10, "b_pr {e:?}");
+    assert!(rel(e.k_pr_n_per_m, t.k_pr_n_per_m) < 0.10, "k_pr {e:?}");
+    assert!(trained[0].val_rmse < 0.01);
+}
+
+fn small_windows() -> (Vec<Sequence>, Vec<Sequence>) {
+    let ds = dataset_from(&truth(), &[5.0, 15.0], &[0.0, 0.3], 1.2);
+    let mut cfg = PrepareConfig::default();
+    cfg.sequences.length_s = 0.1;
+    cfg.sequences.warmup_s = 0.02;
+    let p = preprocess::prepare(&ds, &cfg).expect("prepare");
+    (p.train, p.validation)
+}
+
+fn light_net(device: &Device) -> (EmmNet, nemm_train::train::net::NetFrame) {
+    let mut p: RolloutParams<f32> = from_core(&truth()).expect("emm");
+    p.b_fl = Some(init_scaler(2, 8, 2, (0.1, 10.0), 3));
+    EmmNet::from_rollout(&p, device)
+}
+
+fn flat(net: &EmmNet, frame: &nemm_train::train::net::NetFrame) -> Vec<f32> {
+    let p = net.to_rollout(frame);
+    let mut v = vec![p.b_fl0, p.b_pr0, p.k0, p.t_pr];
+    v.extend(p.b_fl.map(|s| s.w).unwrap_or_default());
+    v
+}
+
+#[test]
+fn resume_after_a_kill_continues_exactly() {
+    let device = Device::flex().autodiff();
+    let (train, val) = small_windows();
+    let data = FitData {
+        train: &train,
+        validation: &val,
+        warmup: 200,
+        force_scale_n: 2000.0,
+    };
+    let cfg = FitConfig {
+        label: "nemm-light".into(),
+        epochs: 3,
+        batch: 4,
+        patience: 10,
+        ..FitConfig::default()
+    };
+    // Straight three epochs.
+    let (net, frame) = light_net(&device);
+    let straight = fit(net, &frame, data, &cfg, None, false, &device).expect("fit");
+    // The same run stopped after two epochs (as if killed after the second checkpoint),
+    // then resumed.
+    let dir = std::env::temp_dir().join(format!("nemm-resume-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (net, frame) = light_net(&device);
+    let two = FitConfig {
+        session_epochs: Some(2),
+        ..cfg.clone()
+    };
+    let first = fit(net, &frame, data, &two, Some(&dir), false, &device).expect("fit 2");
+    assert_eq!(first.history.len(), 2);
+    assert_eq!(
+        std::fs::read_to_string(dir.join("latest"))
+            .expect("latest")
+            .trim(),
+        "epoch-0002"
+    );
+    let (net, frame) = light_net(&device);
+    let resumed = fit(net, &frame, data, &cfg, Some(&dir), true, &device).expect("resume");
+    let losses = |h: &[nemm_train::train::fit::EpochStats]| -> Vec<(f64, f64)> {
+        h.iter().map(|e| (e.train_mse, e.val_rmse)).collect()
+    };
+    assert_eq!(resumed.history.len(), 3);
+    assert_eq!(
+        losses(&resumed.history),
+        losses(&straight.history),
+        "same losses per epoch"
+    );
+    assert_eq!(
+        flat(&resumed.best, &frame),
+        flat(&straight.best, &frame),
+        "same parameters"
+    );
+    std::fs::remove_dir_all(&dir).expect("cleanup");
+}
+
+#[test]
+fn nan_loss_stops_with_a_clear_error_and_keeps_the_checkpoint() {
+    let device = Device::flex().autodiff();
+    let (train, val) = small_windows();
+    let dir = std::env::temp_dir().join(format!("nemm-nan-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let cfg = FitConfig {
+        label: "nemm-light".into(),
+        epochs: 1,
+        batch: 4,
+        ..FitConfig::default()
+    };
+    let data = FitData {
+        train: &train,
+        validation: &val,
+        warmup: 200,
+        force_scale_n: 2000.0,
+    };
+    let (net, frame) = light_net(&device);
+    fit(net, &frame, data, &cfg, Some(&dir), false, &device).expect("first epoch");
+    let mut bad = train.clone();
+    for s in &mut bad {
+        s.force_n[300] = f32::NAN;
+    }
+    let data_bad = FitData {
+        train: &bad,
+        ..data
+    };
+    let (net, frame) = light_net(&device);
+    let err = fit(
+        net,
+        &frame,
+        data_bad,
+        &FitConfig { epochs: 2, ..cfg },
+        Some(&dir),
+        true,
+        &device,
+    )
+    .expect_err("NaN must stop training");
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("NaN") && msg.contains("last good checkpoint"),
+        "{msg}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("latest"))
+            .expect("latest")
+            .trim(),
+        "epoch-0001"
+    );
+    std::fs::remove_dir_all(&dir).expect("cleanup");
+}
