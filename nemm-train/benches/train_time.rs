@@ -1,0 +1,52 @@
+//! Wall time of training the default NEMM on the default virtual bench, per epoch and in
+//! total (a benchmark that prints, not a timed test).
+//!
+//! ```text
+//! cargo bench -p nemm-train --bench train_time            # generates the bench data if needed
+//! NEMM_BENCH_DATA=DIR cargo bench -p nemm-train --bench train_time
+//! ```
+//!
+//! Default settings of `nemm train --variant nemm` (section 5.4: batch 16, H 16, L 5, lr 5e-3,
+//! RK4 at 10 kHz, lambda_ph 0.005), all epochs up to early stopping. Target: <= 10 minutes on
+//! 2 cores.
+use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant};
+use nemm_train::train_cli::TrainArgs;
+use std::path::PathBuf;
+use std::time::Instant;
+
+fn main() {
+    // `cargo bench` passes `--bench`; nothing else is accepted.
+    let data = std::env::var_os("NEMM_BENCH_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| std::env::temp_dir().join("nemm-train-time-bench"));
+    if !data.join("manifest.toml").exists() {
+        nemm_train::bench::cli::generate(
+            &nemm_train::bench::config::BenchConfig::default(),
+            1,
+            &data,
+        )
+        .expect("generate the default virtual bench");
+    }
+    let args = TrainArgs::parse_defaults(data.clone());
+    let prepared =
+        nemm_train::train_cli::load_prepared(&data, &args.prepare_config()).expect("dataset");
+    let cfg: PipelineConfig = args.pipeline_config().expect("config");
+    let t = Instant::now();
+    let trained = train_variants(&prepared, &[Variant::Nemm], &cfg, None, false).expect("train");
+    let total = t.elapsed().as_secs_f64();
+    let nemm = trained
+        .iter()
+        .find(|t| t.variant == Variant::Nemm)
+        .expect("nemm");
+    let epochs = nemm.history.len();
+    let epoch_s: f64 = nemm.history.iter().map(|e| e.seconds).sum::<f64>() / epochs.max(1) as f64;
+    println!(
+        "train-time variant=nemm threads={} windows={} epochs={} seconds_per_epoch={:.2} total_seconds={:.1} val_rmse={:.4}",
+        rayon::current_num_threads(),
+        prepared.train.len(),
+        epochs,
+        epoch_s,
+        total,
+        nemm.val_rmse
+    );
+}
