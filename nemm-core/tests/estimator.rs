@@ -394,6 +394,10 @@ fn stability_limits_are_the_schemes() {
 /// The example models run the whole Table 1 grid at alpha = 0.15 without any flag, reset or
 /// held sample, for both schemes (half a period per stroke from rest: the velocity sweeps its
 /// whole range, the stroke from one end to the other).
+#[cfg_attr(
+    debug_assertions,
+    ignore = "minutes in a debug build; runs with --release"
+)]
 #[test]
 fn example_models_run_table1_without_flags() {
     for kind in KINDS {
@@ -424,6 +428,10 @@ fn example_models_run_table1_without_flags() {
 /// over Table 1 strokes. Per evaluation the two differ by rounding, ~1e-6 relative
 /// (`tests/scaler.rs`); the EMM is contracting, so these differences do not accumulate:
 /// allow 1e-5 of the force scale (0.03 N of 3000 N).
+#[cfg_attr(
+    debug_assertions,
+    ignore = "minutes in a debug build; runs with --release"
+)]
 #[test]
 fn hot_path_matches_reference_model() {
     for kind in [ModelKind::LinearEmm, ModelKind::NemmLight, ModelKind::Nemm] {

@@ -340,27 +340,30 @@ proptest! {
     /// capacity and into exactly the capacity the header announces.
     #[test]
     fn round_trip(spec in common::arb_model(32, 9)) {
-        let m: Model<{ P }> = spec.build();
-        prop_assert_eq!(m.validate(), Ok(()));
-        let blob = blob_of(&m);
-        let h = read_header(&blob).unwrap();
-        prop_assert_eq!(h.kind, spec.kind);
-        prop_assert_eq!(h.max_scaler_params as usize, spec.max_params());
-        prop_assert_eq!(h.max_scaler_params as usize, m.max_scaler_params());
-        let back: Model<{ P }> = decode(&blob).unwrap();
-        prop_assert_eq!(&back, &m);
-        #[cfg(feature = "std")]
-        prop_assert_eq!(nemm_core::encode_to_vec(&m).unwrap(), blob.clone());
-        // Capacity: smaller than needed is refused, the announced size is enough.
-        if h.max_scaler_params > 0 {
-            let small = decode::<100>(&blob);
-            if h.max_scaler_params > 100 {
-                prop_assert_eq!(small, Err(DecodeError::OverCapacity {
-                    needed: h.max_scaler_params as usize, capacity: 100 }));
-            } else {
-                prop_assert!(small.is_ok());
+        common::with_big_stack(move || -> Result<(), TestCaseError> {
+            let m: Model<{ P }> = spec.build();
+            prop_assert_eq!(m.validate(), Ok(()));
+            let blob = blob_of(&m);
+            let h = read_header(&blob).unwrap();
+            prop_assert_eq!(h.kind, spec.kind);
+            prop_assert_eq!(h.max_scaler_params as usize, spec.max_params());
+            prop_assert_eq!(h.max_scaler_params as usize, m.max_scaler_params());
+            let back: Model<{ P }> = decode(&blob).unwrap();
+            prop_assert_eq!(&back, &m);
+            #[cfg(feature = "std")]
+            prop_assert_eq!(nemm_core::encode_to_vec(&m).unwrap(), blob.clone());
+            // Capacity: smaller than needed is refused, the announced size is enough.
+            if h.max_scaler_params > 0 {
+                let small = decode::<100>(&blob);
+                if h.max_scaler_params > 100 {
+                    prop_assert_eq!(small, Err(DecodeError::OverCapacity {
+                        needed: h.max_scaler_params as usize, capacity: 100 }));
+                } else {
+                    prop_assert!(small.is_ok());
+                }
             }
-        }
+            Ok(())
+        })?;
     }
 
     /// Sampled truncations and bit flips of large random models (up to 110 KB blobs).
@@ -370,19 +373,22 @@ proptest! {
         cuts in prop::collection::vec(any::<prop::sample::Index>(), 16),
         flips in prop::collection::vec(any::<prop::sample::Index>(), 16),
     ) {
-        let m: Model<{ P }> = spec.build();
-        let blob = blob_of(&m);
-        for cut in &cuts {
-            let n = cut.index(blob.len());
-            let r = decode::<{ P }>(&blob[..n]);
-            prop_assert!(matches!(r, Err(DecodeError::Truncated { .. })), "{} bytes: {:?}", n, r);
-        }
-        for flip in &flips {
-            let bit = flip.index(blob.len() * 8);
-            let mut b = blob.clone();
-            b[bit / 8] ^= 1 << (bit % 8);
-            prop_assert!(decode::<{ P }>(&b).is_err(), "bit {} accepted", bit);
-        }
+        common::with_big_stack(move || -> Result<(), TestCaseError> {
+            let m: Model<{ P }> = spec.build();
+            let blob = blob_of(&m);
+            for cut in &cuts {
+                let n = cut.index(blob.len());
+                let r = decode::<{ P }>(&blob[..n]);
+                prop_assert!(matches!(r, Err(DecodeError::Truncated { .. })), "{} bytes: {:?}", n, r);
+            }
+            for flip in &flips {
+                let bit = flip.index(blob.len() * 8);
+                let mut b = blob.clone();
+                b[bit / 8] ^= 1 << (bit % 8);
+                prop_assert!(decode::<{ P }>(&b).is_err(), "bit {} accepted", bit);
+            }
+            Ok(())
+        })?;
     }
 
     /// Random bytes never panic.

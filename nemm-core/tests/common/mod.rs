@@ -28,6 +28,18 @@ pub const INTEGRATORS: [Integrator; 2] = [Integrator::Rk4, Integrator::Rk3];
 /// Default capacity (holds every model of the Table 3 search space).
 pub const P: usize = nemm_core::DEFAULT_PARAM_CAPACITY;
 
+/// Runs `f` on a thread with a 64 MiB stack. `Model<P>` with the default capacity is 110 KB,
+/// and unoptimised builds keep several copies of it per frame in `decode`, which overflows the
+/// test harness's 2 MiB threads.
+pub fn with_big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+    std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(f)
+        .expect("spawn test thread")
+        .join()
+        .unwrap_or_else(|e| std::panic::resume_unwind(e))
+}
+
 /// Encodes a valid model into a fresh vector (the no_std `encode` with a large buffer).
 pub fn blob_of<const Q: usize>(m: &Model<Q>) -> Vec<u8> {
     let mut buf = vec![0u8; 4 * 3 * Q + 16 * 1024];
