@@ -6,8 +6,10 @@
 //!   H = 16, L = 5, pseudo-random weights; the trainer's `model.nemm` drops in here).
 //! - `trace.bin`: the bench trace the replay device serves (`src/trace.rs`): the run CSV
 //!   named by `NEMM_TRACE` (`time_s,displacement_m,force_n[,velocity_m_s]`, the project's
-//!   dataset format; oil loss from `NEMM_TRACE_OIL_LOSS`, default 0.15), or else a
-//!   deterministic synthetic run over the paper's Table 1 conditions.
+//!   dataset format; oil loss from `NEMM_TRACE_OIL_LOSS`, default 0.15), by default
+//!   `data/bench-oil15-a050-v1048.csv` (a virtual-bench run, see `data/README.md`);
+//!   `NEMM_TRACE=synthetic` selects a deterministic synthetic run over the paper's Table 1
+//!   conditions instead.
 //!
 //! Relative paths are relative to this crate's directory.
 use std::env;
@@ -22,6 +24,7 @@ const SLOT_MAGIC: &[u8; 4] = b"NWSL";
 const TRACE_MAGIC: &[u8; 4] = b"NTRC";
 const SAMPLE_RATE_HZ: f64 = 10_000.0;
 const DEFAULT_OIL_LOSS: f32 = 0.15;
+const DEFAULT_TRACE: &str = "data/bench-oil15-a050-v1048.csv";
 
 fn main() {
     let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets it"));
@@ -46,7 +49,8 @@ fn main() {
             .unwrap_or_else(|| panic!("NEMM_TRACE_OIL_LOSS={s}: expected a number in [0, 1]")),
         Err(_) => DEFAULT_OIL_LOSS,
     };
-    let trace = match env::var_os("NEMM_TRACE") {
+    let trace_var = env::var_os("NEMM_TRACE").unwrap_or_else(|| DEFAULT_TRACE.into());
+    let trace = match (trace_var != "synthetic").then_some(trace_var) {
         Some(p) => {
             let p = manifest_dir.join(p);
             println!("cargo:rerun-if-changed={}", p.display());

@@ -160,8 +160,10 @@ pub fn args(buf: &mut [u8; ARGS_CAPACITY]) -> Option<&str> {
         const SYS_GET_CMDLINE: usize = 0x15;
         let mut block = [buf.as_mut_ptr() as usize, buf.len()];
         // SAFETY: the block points at `buf` with its length; the host writes at most that many
-        // bytes and stores the length written in `block[1]`.
-        let r = unsafe { cortex_m_semihosting::syscall(SYS_GET_CMDLINE, &mut block) };
+        // bytes and stores the length written in `block[1]`. The block goes by address (an
+        // exposed pointer, the `asm!` may write through it), not as a shared reference.
+        let r =
+            unsafe { cortex_m_semihosting::syscall1(SYS_GET_CMDLINE, block.as_mut_ptr() as usize) };
         if r != 0 {
             return None;
         }

@@ -11,7 +11,10 @@
 //! support of QEMU's `mps2-an386` ([`board`]).
 //!
 //! - [`sensor`]: ADC frame, calibration, differentiation filter, the driver.
+//! - [`pipeline`]: one sample period (sensor, estimator, fault classification) and the
+//!   digests of the results; shared with the host tests' reference run.
 //! - [`replay`]: the replay `SpiDevice` serving a recorded trace, with fault injection.
+//! - [`options`]: the run options of the QEMU build (fault injection, sample clock).
 //! - [`trace`]: the trace format in flash.
 //! - [`slot`]: the weights slot in flash.
 //! - [`report`]: the output lines the host tests parse.
@@ -29,6 +32,8 @@
     )
 )]
 
+pub mod options;
+pub mod pipeline;
 pub mod replay;
 pub mod report;
 pub mod sensor;
@@ -83,6 +88,8 @@ impl<T> StaticSlot<T> {
     }
 
     /// Moves `value` into the slot and returns it; `None` if the slot was already filled.
+    // A `&mut` out of `&self` is what a once-cell is: the atomic swap makes it unique.
+    #[allow(clippy::mut_from_ref)]
     pub fn init(&'static self, value: T) -> Option<&'static mut T> {
         if self.taken.swap(true, core::sync::atomic::Ordering::AcqRel) {
             return None;

@@ -2,13 +2,15 @@
 //!
 //! | context | priority | job |
 //! |---------|----------|-----|
-//! | `init` | - | boot report, weights validation, estimator construction, SysTick at 10 kHz |
-//! | `sample` (SysTick) | 2 | read the stroke sensor, step the estimator, publish the force, queue a log record, detect overruns |
+//! | `init` | - | boot report, options, weights validation, estimator construction, SysTick at 10 kHz |
+//! | `sample` (SysTick) | 2 | read the stroke sensor, step the estimator, publish the force, digest the result, queue a log record, detect overruns |
 //! | `idle` | 0 | drain the log queue to the console; in QEMU, end the run after the recording |
 //!
 //! The only link between the two tasks is a lock-free single-producer single-consumer queue
 //! (`heapless::spsc`): the 10 kHz task never waits for the logger. A full queue drops the
-//! record and marks the next one ([`report::FW_LOG_GAP`]).
+//! record and marks the next one ([`report::FW_LOG_GAP`]). The per-chunk digests of the
+//! results do not go through the queue: the 10 kHz task stores them in a table the logger
+//! prints after the run, so they are complete whatever the logger managed to print.
 //!
 //! Faults never stop the loop: a failed or invalid sensor read is counted, flagged, and the
 //! estimator is fed NaN, on which it holds its last good input (and flags that too); a
@@ -30,19 +32,22 @@ use nemm_firmware as _;
 
 #[rtic::app(device = nemm_firmware::board::device, peripherals = false)]
 mod app {
+    use core::sync::atomic::{AtomicU32, Ordering};
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m::peripheral::SYST;
     use heapless::spsc::{Consumer, Producer, Queue};
-    use nemm_core::{decode, Estimator, EstimatorConfig, Model};
+    use nemm_core::{decode, DecodeError, Estimator, EstimatorConfig, Model};
     use nemm_firmware::board::{self, Console, Sensor, FORCE_OUTPUT, PERIOD_TICKS};
-    use nemm_firmware::replay::FaultWindow;
+    use nemm_firmware::options::Options;
+    use nemm_firmware::pipeline::{self, ChunkDigest, SensorCounters, DIGEST_CHUNK_STEPS};
     use nemm_firmware::report::{self, Line, StepRecord};
-    use nemm_firmware::sensor::SensorError;
     use nemm_firmware::trace::Trace;
     use nemm_firmware::{slot, StaticSlot, PARAM_CAPACITY, SAMPLE_RATE_HZ};
 
-    /// Log queue length (one slot stays free): 25.6 ms of records at 10 kHz.
-    const LOG_QUEUE: usize = 257;
+    /// Log queue length (one slot stays free): 25.5 ms of records at 10 kHz.
+    const LOG_QUEUE: usize = 256;
+    /// Digest chunks kept (128 x 1000 periods: longer than any trace that fits the flash).
+    const MAX_CHUNKS: usize = 128;
 
     /// What the 10 kHz task hands to the logger.
     pub enum LogItem {
@@ -56,14 +61,13 @@ mod app {
     #[derive(Clone, Copy, Default)]
     pub struct Summary {
         steps: u32,
-        sensor_errors: u32,
-        invalid_samples: u32,
-        priming: u32,
+        sensor: SensorCounters,
         held: u32,
         resets: u32,
         overruns: u32,
         dropped: u32,
         max_step_ticks: u32,
+        chunks: u32,
     }
 
     /// Everything the 10 kHz task owns.
@@ -73,6 +77,8 @@ mod app {
         log: Producer<'static, LogItem>,
         syst: SYST,
         period_ticks: u32,
+        options: Options,
+        digest: ChunkDigest,
         counters: Summary,
         log_gap: bool,
         done: bool,
@@ -100,6 +106,20 @@ mod app {
     static ESTIMATOR: StaticSlot<Estimator<PARAM_CAPACITY>> = StaticSlot::new();
     /// The log queue between the 10 kHz task and the logger.
     static LOG: StaticSlot<Queue<LogItem, LOG_QUEUE>> = StaticSlot::new();
+    /// CRC-32 of each chunk of [`DIGEST_CHUNK_STEPS`] periods, written by the 10 kHz task;
+    /// the logger reads them after it received [`LogItem::Done`] (the queue orders the two).
+    static CHUNK_DIGESTS: [AtomicU32; MAX_CHUNKS] = [const { AtomicU32::new(0) }; MAX_CHUNKS];
+
+    /// Decodes and validates the weights into the model's static storage: the one place the
+    /// blob is decoded. `decode` builds the model on the stack and moves it (the stack peak of
+    /// the boot); an in-place `nemm_core::decode_into(blob, &mut Model)` replaces this body.
+    fn load_model(blob: &[u8]) -> Result<&'static Model<PARAM_CAPACITY>, DecodeError> {
+        let model = decode(blob)?;
+        match MODEL.init(model) {
+            Some(m) => Ok(m),
+            None => board::exit(report::EXIT_USAGE), // init runs once
+        }
+    }
 
     #[init]
     fn init(_: init::Context) -> (Shared, Local) {
@@ -112,8 +132,23 @@ mod app {
             .kv("capacity", PARAM_CAPACITY as u32);
         console.write(line.finish());
 
+        // Options (QEMU command line, see `nemm_firmware::options`).
+        let mut args = [0u8; board::ARGS_CAPACITY];
+        let options = match Options::parse(board::args(&mut args).unwrap_or("")) {
+            Ok(o) => o,
+            Err(bad) => {
+                let mut l = Line::new();
+                l.str("error").ks("kind", "bad-option").ks("option", bad);
+                fail(&mut console, &mut l, report::EXIT_USAGE)
+            }
+        };
+        let period_ticks = options.period_ticks.unwrap_or(PERIOD_TICKS);
+
         let trace = match Trace::parse(board::trace_bytes()) {
-            Ok(t) if t.sample_rate_hz == SAMPLE_RATE_HZ as f32 => t,
+            Ok(t) if t.sample_rate_hz == SAMPLE_RATE_HZ as f32 => match options.samples {
+                Some(n) => t.prefix(n as usize),
+                None => t,
+            },
             _ => {
                 let mut l = Line::new();
                 l.str("error").ks("kind", "trace");
@@ -121,40 +156,9 @@ mod app {
             }
         };
         let mut sensor = board::sensor(trace);
-
-        // Options (QEMU command line): `fault=bus@START+LEN`, `fault=nan@START+LEN`,
-        // `period_ticks=N` (sample period in SysTick ticks, default 10 kHz).
-        let mut args = [0u8; board::ARGS_CAPACITY];
-        let mut n_faults = 0u32;
-        let mut period_ticks = PERIOD_TICKS;
-        for arg in board::args(&mut args)
-            .unwrap_or("")
-            .split_ascii_whitespace()
-        {
-            let ok = if let Some(w) = arg.strip_prefix("fault=") {
-                match FaultWindow::parse(w) {
-                    Some(w) if sensor.spi_mut().inject(w) => {
-                        n_faults += 1;
-                        true
-                    }
-                    _ => false,
-                }
-            } else if let Some(n) = arg.strip_prefix("period_ticks=") {
-                match n.parse::<u32>() {
-                    Ok(n) if (100..=0xFF_FFFF).contains(&n) => {
-                        period_ticks = n;
-                        true
-                    }
-                    _ => false,
-                }
-            } else {
-                !arg.contains('=') // the program name
-            };
-            if !ok {
-                let mut l = Line::new();
-                l.str("error").ks("kind", "bad-option").ks("option", arg);
-                fail(&mut console, &mut l, report::EXIT_USAGE)
-            }
+        for w in &options.faults {
+            // Both hold `MAX_FAULT_WINDOWS`.
+            let _ = sensor.spi_mut().inject(*w);
         }
 
         let no_estimator = |console: Console| Local {
@@ -171,11 +175,8 @@ mod app {
                 return (Shared {}, no_estimator(console));
             }
         };
-        let model: &'static Model<PARAM_CAPACITY> = match decode(blob) {
-            Ok(m) => match MODEL.init(m) {
-                Some(m) => m,
-                None => board::exit(report::EXIT_USAGE),
-            },
+        let model = match load_model(blob) {
+            Ok(m) => m,
             Err(e) => {
                 let mut l = Line::new();
                 report::decode_error(&mut l, &e);
@@ -223,7 +224,8 @@ mod app {
             .kv("core_hz", board::SYSTICK_HZ)
             .kv("samples", trace.len() as u32)
             .kx("alpha", trace.oil_loss.to_bits())
-            .kv("faults", n_faults);
+            .kv("faults", options.faults.len() as u32)
+            .kv("stalls", options.stalls.len() as u32);
         console.write(l.finish());
 
         // SAFETY: init runs once with interrupts disabled; the SysTick registers are owned by
@@ -244,6 +246,8 @@ mod app {
                     log,
                     syst,
                     period_ticks,
+                    options,
+                    digest: ChunkDigest::new(),
                     counters: Summary::default(),
                     log_gap: false,
                     done: false,
@@ -262,7 +266,46 @@ mod app {
         }
     }
 
+    /// Busy-waits until SysTick has counted more than one whole period (without touching
+    /// its COUNTFLAG, which the overrun detection reads): the `stall=` option.
+    fn stall_one_period(period_ticks: u32) {
+        let mut prev = SYST::get_current();
+        let mut elapsed = 0u32;
+        while elapsed <= period_ticks {
+            let now = SYST::get_current();
+            // Counting down from `period_ticks - 1`; a reload makes the value jump up.
+            elapsed += if now <= prev {
+                prev - now
+            } else {
+                prev + period_ticks - now
+            };
+            prev = now;
+        }
+    }
+
     impl SampleLoop {
+        /// Queues `item` for the logger; `false` if the queue is full.
+        #[inline(always)]
+        fn log(&mut self, item: LogItem) -> bool {
+            // heapless 0.9's queue halves compute their indices `% capacity` with the capacity
+            // read at run time, which links a division-by-zero panic into this task. The
+            // capacity is the constant `LOG_QUEUE - 1`; saying so lets the compiler fold the
+            // division and drop the panic branch (tests/tests/qemu_no_panic.rs checks).
+            self.log.capacity() == LOG_QUEUE - 1 && self.log.enqueue(item).is_ok()
+        }
+
+        /// Stores the CRC of the current digest chunk.
+        fn close_chunk(&mut self) {
+            let steps = self.digest.steps();
+            let crc = self.digest.finish();
+            if steps > 0 {
+                if let Some(slot) = CHUNK_DIGESTS.get(self.counters.chunks as usize) {
+                    slot.store(crc, Ordering::Relaxed);
+                }
+                self.counters.chunks += 1;
+            }
+        }
+
         #[inline(always)]
         fn period(&mut self) {
             // Reading the control register clears COUNTFLAG, set by the wrap that started
@@ -273,38 +316,32 @@ mod app {
             }
             if self.sensor.spi().finished() {
                 // End of the recording (replay only): hand the counters to the logger and stop.
+                self.close_chunk();
                 let d = self.estimator.diagnostics();
                 self.counters.held = d.held_samples;
                 self.counters.resets = d.resets;
-                if self.log.enqueue(LogItem::Done(self.counters)).is_ok() {
+                if self.log(LogItem::Done(self.counters)) {
                     self.done = true;
                     self.syst.disable_counter();
                 }
                 return;
             }
             let k = self.counters.steps;
-            let c = &mut self.counters;
-            let (velocity, mut fw) = match self.sensor.read_velocity() {
-                Ok(v) if v.is_finite() => (v, 0),
-                Ok(_) | Err(SensorError::Invalid) => {
-                    c.invalid_samples += 1;
-                    (f32::NAN, report::FW_SAMPLE_INVALID)
-                }
-                Err(SensorError::Priming) => {
-                    c.priming += 1;
-                    (f32::NAN, report::FW_PRIMING)
-                }
-                Err(SensorError::Bus(_) | SensorError::NotReady) => {
-                    c.sensor_errors += 1;
-                    (f32::NAN, report::FW_SENSOR_ERROR)
-                }
-            };
-            // NaN in: the estimator holds its last good input and flags the step.
-            let e = self.estimator.step(velocity);
-            FORCE_OUTPUT.publish(e.force_n);
-            c.steps += 1;
+            if self.options.stalls_at(k) {
+                stall_one_period(self.period_ticks);
+            }
+            let out =
+                pipeline::run_period(&mut self.sensor, self.estimator, &mut self.counters.sensor);
+            FORCE_OUTPUT.publish(out.estimate.force_n);
+            self.counters.steps += 1;
+            self.digest.push(&out);
+            if self.digest.steps() >= DIGEST_CHUNK_STEPS {
+                self.close_chunk();
+            }
 
             // Overrun: the counter wrapped (the next period started) during the step.
+            let c = &mut self.counters;
+            let mut fw = out.firmware_flags;
             let ticks = if self.syst.has_wrapped() {
                 c.overruns += 1;
                 fw |= report::FW_OVERRUN;
@@ -319,17 +356,57 @@ mod app {
             }
             let rec = StepRecord {
                 k,
-                velocity_m_s: velocity,
-                force_n: e.force_n,
-                estimator_flags: e.flags.0,
+                velocity_m_s: out.velocity_m_s,
+                force_n: out.estimate.force_n,
+                estimator_flags: out.estimate.flags.0,
                 firmware_flags: fw,
                 ticks: ticks.min(u32::from(u16::MAX)) as u16,
             };
-            self.log_gap = self.log.enqueue(LogItem::Step(rec)).is_err();
+            self.log_gap = !self.log(LogItem::Step(rec));
             if self.log_gap {
-                c.dropped += 1;
+                self.counters.dropped += 1;
             }
         }
+    }
+
+    /// The end of the run: digests, counters, exit.
+    fn report_run(console: &mut Console, s: &Summary) -> ! {
+        let kept = (s.chunks as usize).min(MAX_CHUNKS);
+        let crc = |c: usize| {
+            CHUNK_DIGESTS
+                .get(c)
+                .map_or(0, |d| d.load(Ordering::Relaxed))
+        };
+        for c in 0..kept {
+            let first = c as u32 * DIGEST_CHUNK_STEPS;
+            let steps = s.steps.saturating_sub(first).min(DIGEST_CHUNK_STEPS);
+            let mut l = Line::new();
+            report::digest(&mut l, c as u32, first, steps, crc(c));
+            console.write(l.finish());
+        }
+        let mut l = Line::new();
+        l.str("summary")
+            .kv("steps", s.steps)
+            .kv("sensor_errors", s.sensor.sensor_errors)
+            .kv("invalid_samples", s.sensor.invalid_samples)
+            .kv("priming", s.sensor.priming)
+            .kv("held", s.held)
+            .kv("resets", s.resets)
+            .kv("overruns", s.overruns)
+            .kv("dropped", s.dropped)
+            .kv("max_step_ticks", s.max_step_ticks)
+            .kv("chunks", s.chunks)
+            .kx("digest", pipeline::run_digest((0..kept).map(crc)))
+            .kv("stack_used", board::stack_used());
+        console.write(l.finish());
+        let (force, published) = FORCE_OUTPUT.latest();
+        let mut l = Line::new();
+        l.str("exit")
+            .kv("code", report::EXIT_DONE)
+            .kv("published", published)
+            .kx("last_force", force.to_bits());
+        console.write(l.finish());
+        board::exit(report::EXIT_DONE)
     }
 
     /// The logger: lowest priority, drains the queue in console-sized chunks.
@@ -343,7 +420,9 @@ mod app {
         let mut chunk = heapless::Vec::<u8, 2048>::new();
         loop {
             let mut done = None;
-            while let Some(item) = logger.dequeue() {
+            // See `SampleLoop::log` for the capacity check.
+            while logger.capacity() == LOG_QUEUE - 1 {
+                let Some(item) = logger.dequeue() else { break };
                 let mut line = Line::new();
                 match item {
                     LogItem::Step(r) => r.write(&mut line),
@@ -362,27 +441,7 @@ mod app {
             console.write(&chunk);
             chunk.clear();
             if let Some(s) = done {
-                let mut l = Line::new();
-                l.str("summary")
-                    .kv("steps", s.steps)
-                    .kv("sensor_errors", s.sensor_errors)
-                    .kv("invalid_samples", s.invalid_samples)
-                    .kv("priming", s.priming)
-                    .kv("held", s.held)
-                    .kv("resets", s.resets)
-                    .kv("overruns", s.overruns)
-                    .kv("dropped", s.dropped)
-                    .kv("max_step_ticks", s.max_step_ticks)
-                    .kv("stack_used", board::stack_used());
-                console.write(l.finish());
-                let (force, published) = FORCE_OUTPUT.latest();
-                let mut l = Line::new();
-                l.str("exit")
-                    .kv("code", report::EXIT_DONE)
-                    .kv("published", published)
-                    .kx("last_force", force.to_bits());
-                console.write(l.finish());
-                board::exit(report::EXIT_DONE)
+                report_run(console, &s)
             }
             cortex_m::asm::wfi();
         }

@@ -4,20 +4,30 @@
 //! linked.
 //!
 //! ```text
-//! boot firmware=nemm-firmware version=0.1.0 board=mps2-an386 capacity=2529
+//! boot firmware=nemm-firmware version=0.1.0 board=mps2-an386 capacity=1313
 //! weights ok kind=nemm bytes=15791 integrator=rk4 dt_ns=100000
 //! weights-error source=decode kind=crc-mismatch stored=0x1234abcd computed=0x89abcdef
-//! start period_ticks=2500 core_hz=25000000 samples=18000 alpha=0x3e19999a faults=0
+//! weights-error source=decode kind=invalid reason=non-finite field=b_fl.params
+//! start period_ticks=2500 core_hz=25000000 samples=10500 alpha=0x3e19999a faults=0 stalls=0
 //! s <k> <velocity f32 bits> <force f32 bits> <estimator flags> <firmware flags> <ticks>
-//! summary steps=18000 sensor_errors=0 invalid_samples=0 priming=1 held=1 resets=0 overruns=0 dropped=0 max_step_ticks=412 stack_used=1864
-//! exit code=0
+//! digest chunk=0 first=0 steps=1000 crc=0x1c2b3a49
+//! summary steps=10500 sensor_errors=0 invalid_samples=0 priming=1 held=1 resets=0 overruns=0 dropped=0 max_step_ticks=412 chunks=11 digest=0x0badf00d stack_used=1864
+//! exit code=0 published=10500 last_force=0xc3a1a970
 //! ```
 //!
 //! In `s` lines `k` and `ticks` are decimal, the rest hex; `velocity` is the value handed to
 //! the estimator (NaN when the sensor path had none), `ticks` the SysTick ticks from the
 //! start of the period to the end of the step (0 for an overrun). The firmware flags are
 //! [`FW_SENSOR_ERROR`], [`FW_SAMPLE_INVALID`], [`FW_PRIMING`], [`FW_OVERRUN`],
-//! [`FW_LOG_GAP`].
+//! [`FW_LOG_GAP`]. `s` lines can be dropped when the logger falls behind (the next record
+//! then carries [`FW_LOG_GAP`]); `digest` lines never are: the 10 kHz task computes one
+//! CRC-32 per chunk of periods ([`crate::pipeline::ChunkDigest`]) and the logger prints
+//! them after the run, and `summary`'s `digest` is the CRC over those
+//! ([`crate::pipeline::run_digest`]).
+//!
+//! A `weights-error` line names the layer that refused the weights (`source=slot`,
+//! `decode`, `firmware` or `estimator`) and the typed error as `kind=` plus its fields;
+//! a model rejected by its checks adds the [`ModelError`] as `reason=` plus its fields.
 
 use nemm_core::{DecodeError, EstimatorError, ModelError};
 
@@ -150,27 +160,27 @@ fn sat(v: usize) -> u32 {
     u32::try_from(v).unwrap_or(u32::MAX)
 }
 
-/// Kebab-case name of a model error and its fields.
+/// ` reason=<kebab-case name>` of a model error and its fields.
 pub fn model_error(line: &mut Line, e: &ModelError) {
     match e {
-        ModelError::NonFinite { field } => line.ks("kind", "non-finite").ks("field", field),
-        ModelError::NotPositive { field } => line.ks("kind", "not-positive").ks("field", field),
+        ModelError::NonFinite { field } => line.ks("reason", "non-finite").ks("field", field),
+        ModelError::NotPositive { field } => line.ks("reason", "not-positive").ks("field", field),
         ModelError::BadScalerBounds { scaler } => {
-            line.ks("kind", "bad-scaler-bounds").ks("scaler", scaler)
+            line.ks("reason", "bad-scaler-bounds").ks("scaler", scaler)
         }
-        ModelError::Shape { scaler, .. } => line.ks("kind", "shape").ks("scaler", scaler),
+        ModelError::Shape { scaler, .. } => line.ks("reason", "shape").ks("scaler", scaler),
         ModelError::WrongInputCount {
             scaler,
             expected,
             found,
         } => line
-            .ks("kind", "wrong-input-count")
+            .ks("reason", "wrong-input-count")
             .ks("scaler", scaler)
             .kv("expected", u32::from(*expected))
             .kv("found", u32::from(*found)),
-        ModelError::Sem(_) => line.ks("kind", "sem-map"),
-        ModelError::AlphaRange => line.ks("kind", "alpha-range"),
-        ModelError::UnstableStep { .. } => line.ks("kind", "unstable-step"),
+        ModelError::Sem(_) => line.ks("reason", "sem-map"),
+        ModelError::AlphaRange => line.ks("reason", "alpha-range"),
+        ModelError::UnstableStep { .. } => line.ks("reason", "unstable-step"),
     };
 }
 
@@ -235,6 +245,15 @@ pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
         }
         EstimatorError::Compile => line.ks("kind", "compile"),
     };
+}
+
+/// `digest chunk=<c> first=<k> steps=<n> crc=0x<crc>`.
+pub fn digest(line: &mut Line, chunk: u32, first: u32, steps: u32, crc: u32) {
+    line.str("digest")
+        .kv("chunk", chunk)
+        .kv("first", first)
+        .kv("steps", steps)
+        .kx("crc", crc);
 }
 
 /// One step record.
@@ -310,6 +329,21 @@ mod tests {
         assert_eq!(
             l.as_bytes(),
             b"weights-error source=decode kind=unsupported-version found=2 supported=1"
+        );
+        let mut l = Line::new();
+        decode_error(
+            &mut l,
+            &DecodeError::Invalid(ModelError::NonFinite { field: "dt_s" }),
+        );
+        assert_eq!(
+            l.as_bytes(),
+            b"weights-error source=decode kind=invalid reason=non-finite field=dt_s"
+        );
+        let mut l = Line::new();
+        digest(&mut l, 2, 2000, 1000, 0xc0ffee);
+        assert_eq!(
+            l.as_bytes(),
+            b"digest chunk=2 first=2000 steps=1000 crc=0x00c0ffee"
         );
         let mut l = Line::new();
         slot_error(&mut l, &SlotError::Empty);

@@ -87,6 +87,15 @@ impl<'a> Trace<'a> {
         })
     }
 
+    /// The first `n` samples (all of them if there are fewer).
+    pub fn prefix(self, n: usize) -> Self {
+        let len = n.saturating_mul(SAMPLE_LEN).min(self.samples.len());
+        Self {
+            samples: self.samples.get(..len).unwrap_or(self.samples),
+            ..self
+        }
+    }
+
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.samples.len() / SAMPLE_LEN
@@ -150,6 +159,9 @@ mod tests {
             Trace::parse(&bad).unwrap_err(),
             TraceError::UnsupportedVersion(9)
         );
+        assert_eq!(t.prefix(1).len(), 1);
+        assert_eq!(t.prefix(1).displacement_m(1), None);
+        assert_eq!(t.prefix(5).len(), 2);
         let mut bad = b;
         bad[12..16].copy_from_slice(&2.0f32.to_le_bytes());
         assert_eq!(Trace::parse(&bad).unwrap_err(), TraceError::BadHeader);

@@ -1,0 +1,192 @@
+//! One sample period of the estimator, board-independent: read the stroke sensor, step the
+//! estimator, classify what went wrong. The firmware's 10 kHz task calls [`run_period`]; the
+//! host tests call the same function over the same recording to get the reference the
+//! target's output must match bit for bit.
+//!
+//! Faults never stop the loop: a failed or invalid sensor read is counted and flagged, and the
+//! estimator is fed NaN, on which it holds its last good input (and flags that too).
+//!
+//! [`ChunkDigest`] condenses the periods' results into CRC-32s, one per
+//! [`DIGEST_CHUNK_STEPS`] periods. The 10 kHz task computes them as it goes, so the host
+//! can check every estimate even when the logger had to drop records (its queue full because
+//! the step left it no time).
+
+use crate::report::{FW_PRIMING, FW_SAMPLE_INVALID, FW_SENSOR_ERROR};
+use crate::sensor::{SensorError, StrokeSensor};
+use embedded_hal::spi::SpiDevice;
+use nemm_core::{Estimate, Estimator};
+
+/// Sensor-path fault counters.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SensorCounters {
+    /// Failed SPI transactions and "no new conversion" answers.
+    pub sensor_errors: u32,
+    /// Conversions the ADC flagged invalid, and non-finite velocities.
+    pub invalid_samples: u32,
+    /// Periods in which the differentiator was re-priming (start-up, after every fault).
+    pub priming: u32,
+}
+
+/// What one period produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PeriodOutput {
+    /// Velocity handed to the estimator \[m/s\]; NaN when the sensor path had none.
+    pub velocity_m_s: f32,
+    /// The estimator's output.
+    pub estimate: Estimate,
+    /// [`FW_SENSOR_ERROR`], [`FW_SAMPLE_INVALID`] or [`FW_PRIMING`] (at most one).
+    pub firmware_flags: u8,
+}
+
+/// Reads one sample and steps the estimator.
+#[inline(always)]
+pub fn run_period<SPI: SpiDevice, const P: usize>(
+    sensor: &mut StrokeSensor<SPI>,
+    estimator: &mut Estimator<P>,
+    counters: &mut SensorCounters,
+) -> PeriodOutput {
+    let (velocity_m_s, firmware_flags) = match sensor.read_velocity() {
+        Ok(v) if v.is_finite() => (v, 0),
+        Ok(_) | Err(SensorError::Invalid) => {
+            counters.invalid_samples = counters.invalid_samples.wrapping_add(1);
+            (f32::NAN, FW_SAMPLE_INVALID)
+        }
+        Err(SensorError::Priming) => {
+            counters.priming = counters.priming.wrapping_add(1);
+            (f32::NAN, FW_PRIMING)
+        }
+        Err(SensorError::Bus(_) | SensorError::NotReady) => {
+            counters.sensor_errors = counters.sensor_errors.wrapping_add(1);
+            (f32::NAN, FW_SENSOR_ERROR)
+        }
+    };
+    // NaN in: the estimator holds its last good input and flags the step.
+    let estimate = estimator.step(velocity_m_s);
+    PeriodOutput {
+        velocity_m_s,
+        estimate,
+        firmware_flags,
+    }
+}
+
+/// Periods per digest chunk.
+pub const DIGEST_CHUNK_STEPS: u32 = 1000;
+
+/// Firmware flags that depend only on the recording and the options (not on timing), the
+/// ones a digest covers.
+pub const DETERMINISTIC_FLAGS: u8 = FW_SENSOR_ERROR | FW_SAMPLE_INVALID | FW_PRIMING;
+
+/// CRC-32/ISO-HDLC (the zlib CRC-32, as the weight format's).
+static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Running CRC-32 over the periods of one chunk. Each period adds 10 bytes: the velocity's
+/// and the force's `f32` bits (little-endian), the estimator flags and the deterministic
+/// firmware flags ([`DETERMINISTIC_FLAGS`]).
+#[derive(Clone)]
+pub struct ChunkDigest {
+    digest: crc::Digest<'static, u32>,
+    steps: u32,
+}
+
+impl ChunkDigest {
+    /// An empty chunk.
+    pub fn new() -> Self {
+        Self {
+            digest: CRC32.digest(),
+            steps: 0,
+        }
+    }
+
+    /// Adds one period.
+    #[inline(always)]
+    pub fn push(&mut self, out: &PeriodOutput) {
+        let v = out.velocity_m_s.to_bits().to_le_bytes();
+        let f = out.estimate.force_n.to_bits().to_le_bytes();
+        let [v0, v1, v2, v3] = v;
+        let [f0, f1, f2, f3] = f;
+        self.digest.update(&[
+            v0,
+            v1,
+            v2,
+            v3,
+            f0,
+            f1,
+            f2,
+            f3,
+            out.estimate.flags.0,
+            out.firmware_flags & DETERMINISTIC_FLAGS,
+        ]);
+        self.steps += 1;
+    }
+
+    /// Periods added since the last [`ChunkDigest::finish`].
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+
+    /// The chunk's CRC; starts the next chunk.
+    pub fn finish(&mut self) -> u32 {
+        self.steps = 0;
+        core::mem::replace(&mut self.digest, CRC32.digest()).finalize()
+    }
+}
+
+impl Default for ChunkDigest {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl core::fmt::Debug for ChunkDigest {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ChunkDigest")
+            .field("steps", &self.steps)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The digest of a whole run: CRC-32 over the chunk CRCs (little-endian, in order).
+pub fn run_digest(chunks: impl IntoIterator<Item = u32>) -> u32 {
+    let mut d = CRC32.digest();
+    for c in chunks {
+        d.update(&c.to_le_bytes());
+    }
+    d.finalize()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nemm_core::Flags;
+
+    fn out(v: f32, f: f32, ef: u8, ff: u8) -> PeriodOutput {
+        PeriodOutput {
+            velocity_m_s: v,
+            estimate: Estimate {
+                force_n: f,
+                flags: Flags(ef),
+            },
+            firmware_flags: ff,
+        }
+    }
+
+    #[test]
+    fn digest_is_the_crc_of_the_records_and_ignores_timing_flags() {
+        let mut d = ChunkDigest::new();
+        d.push(&out(1.0, -2.0, 5, FW_PRIMING | crate::report::FW_OVERRUN));
+        assert_eq!(d.steps(), 1);
+        let mut bytes = std::vec::Vec::new();
+        bytes.extend_from_slice(&1.0f32.to_bits().to_le_bytes());
+        bytes.extend_from_slice(&(-2.0f32).to_bits().to_le_bytes());
+        bytes.extend_from_slice(&[5, FW_PRIMING]);
+        assert_eq!(d.finish(), nemm_core::format::CRC.checksum(&bytes));
+        assert_eq!(d.steps(), 0);
+        // A fresh chunk after finish.
+        let empty = ChunkDigest::new().finish();
+        assert_eq!(d.finish(), empty);
+        let mut all = std::vec::Vec::new();
+        all.extend_from_slice(&7u32.to_le_bytes());
+        all.extend_from_slice(&9u32.to_le_bytes());
+        assert_eq!(run_digest([7, 9]), nemm_core::format::CRC.checksum(&all));
+    }
+}
