@@ -1,0 +1,374 @@
+//! Running the firmware in QEMU (`qemu-system-arm -machine mps2-an386`) and parsing what it
+//! prints (the line format of `nemm_firmware::report`).
+//!
+//! The firmware images come from `cargo xtask test`, which builds each configuration once and
+//! passes the paths in the environment:
+//!
+//! | variable | image |
+//! |----------|-------|
+//! | `NEMM_FIRMWARE_ELF` | the application, release, `qemu` feature |
+//! | `NEMM_FIRMWARE_RELEASE_ELF` | the application as flashed to a board (release, no `qemu`) |
+//! | `NEMM_BENCH_ELF` | the step benchmark, release, `qemu` feature |
+//! | `NEMM_QEMU` | `qemu-system-arm` to use (default: from `PATH`) |
+//!
+//! Without them (plain `cargo test`) the QEMU tests say so and pass without running;
+//! `NEMM_REQUIRE_FIRMWARE=1` turns that into a failure.
+
+use crate::elf::Elf;
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The firmware images of one build.
+#[derive(Debug, Clone)]
+pub struct Images {
+    /// The application with the `qemu` feature.
+    pub app: PathBuf,
+    /// The application without it (what a board runs).
+    pub app_release: PathBuf,
+    /// The step benchmark.
+    pub bench: PathBuf,
+    /// The emulator.
+    pub qemu: PathBuf,
+}
+
+impl Images {
+    /// The images named in the environment; `None` (after saying why on stderr) if they are
+    /// not set, so the calling test can return early. Panics if `NEMM_REQUIRE_FIRMWARE` is
+    /// set and they are not.
+    pub fn from_env(test: &str) -> Option<Self> {
+        let var = |k: &str| std::env::var_os(k).map(PathBuf::from);
+        match (
+            var("NEMM_FIRMWARE_ELF"),
+            var("NEMM_FIRMWARE_RELEASE_ELF"),
+            var("NEMM_BENCH_ELF"),
+        ) {
+            (Some(app), Some(app_release), Some(bench)) => Some(Self {
+                app,
+                app_release,
+                bench,
+                qemu: var("NEMM_QEMU").unwrap_or_else(|| "qemu-system-arm".into()),
+            }),
+            _ => {
+                let msg = format!(
+                    "{test}: not run: NEMM_FIRMWARE_ELF, NEMM_FIRMWARE_RELEASE_ELF and \
+                     NEMM_BENCH_ELF are not set (`cargo xtask test` builds the firmware and \
+                     runs this test)"
+                );
+                if std::env::var_os("NEMM_REQUIRE_FIRMWARE").is_some() {
+                    panic!("{msg}");
+                }
+                eprintln!("{msg}");
+                None
+            }
+        }
+    }
+}
+
+/// What one QEMU run printed and how it ended.
+#[derive(Debug, Clone)]
+pub struct Run {
+    /// Exit status of QEMU (the firmware's semihosting exit code); `None` if killed.
+    pub code: Option<i32>,
+    /// Everything the firmware printed.
+    pub stdout: String,
+    /// QEMU's own messages.
+    pub stderr: String,
+    /// Wall-clock time of the run.
+    pub wall: Duration,
+}
+
+impl Run {
+    /// The parsed output.
+    pub fn output(&self) -> Output {
+        Output::parse(&self.stdout)
+    }
+
+    /// A summary for assertion messages: exit code, stderr and the output's last lines.
+    pub fn describe(&self) -> String {
+        let lines: Vec<&str> = self.stdout.lines().collect();
+        let tail = lines[lines.len().saturating_sub(8)..].join("\n");
+        format!(
+            "exit {:?} after {:.1} s\n--- stderr\n{}\n--- last lines of stdout\n{tail}",
+            self.code,
+            self.wall.as_secs_f64(),
+            self.stderr.trim_end()
+        )
+    }
+}
+
+/// Runs `elf` in QEMU with the instruction counter on (`-icount shift=0`: one instruction per
+/// emulated nanosecond, idle time skipped) and the firmware options `args`; kills it after
+/// `timeout`.
+pub fn run_qemu(qemu: &Path, elf: &Path, args: &[&str], timeout: Duration) -> Run {
+    let mut semihosting = String::from("enable=on,target=native,arg=nemm-firmware");
+    for a in args {
+        assert!(!a.contains(','), "option {a:?} contains a comma");
+        semihosting += &format!(",arg={a}");
+    }
+    let start = Instant::now();
+    let mut child = Command::new(qemu)
+        .args(["-cpu", "cortex-m4", "-machine", "mps2-an386", "-nographic"])
+        .args(["-monitor", "none", "-serial", "none"])
+        .args(["-icount", "shift=0,sleep=off"])
+        .args(["-semihosting-config", &semihosting])
+        .arg("-kernel")
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start {}: {e}", qemu.display()));
+    let reader = |mut r: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut b = Vec::new();
+            let _ = r.read_to_end(&mut b);
+            String::from_utf8_lossy(&b).into_owned()
+        })
+    };
+    let out = reader(Box::new(child.stdout.take().expect("piped")));
+    let err = reader(Box::new(child.stderr.take().expect("piped")));
+    let code = loop {
+        if let Some(status) = child.try_wait().expect("wait for qemu") {
+            break status.code();
+        }
+        if start.elapsed() > timeout {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    Run {
+        code,
+        stdout: out.join().unwrap_or_default(),
+        stderr: err.join().unwrap_or_default(),
+        wall: start.elapsed(),
+    }
+}
+
+/// `key=value` fields of one line.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Fields(pub BTreeMap<String, String>);
+
+impl Fields {
+    /// The raw value of `key`.
+    pub fn get(&self, key: &str) -> Option<&str> {
+        self.0.get(key).map(String::as_str)
+    }
+
+    /// A decimal or `0x` hex value; panics with the key if absent or malformed.
+    pub fn num(&self, key: &str) -> u32 {
+        let v = self
+            .get(key)
+            .unwrap_or_else(|| panic!("no field `{key}` in {:?}", self.0));
+        match v.strip_prefix("0x") {
+            Some(h) => u32::from_str_radix(h, 16),
+            None => v.parse(),
+        }
+        .unwrap_or_else(|e| panic!("field `{key}={v}`: {e}"))
+    }
+}
+
+/// One `s` line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StepLine {
+    /// Sample index.
+    pub k: u32,
+    /// Bits of the velocity handed to the estimator.
+    pub velocity_bits: u32,
+    /// Bits of the force estimate.
+    pub force_bits: u32,
+    /// Estimator flags.
+    pub estimator_flags: u8,
+    /// Firmware flags.
+    pub firmware_flags: u8,
+    /// SysTick ticks of the step (0 on overrun).
+    pub ticks: u32,
+}
+
+impl StepLine {
+    /// The force estimate.
+    pub fn force(&self) -> f32 {
+        f32::from_bits(self.force_bits)
+    }
+}
+
+/// One `digest` line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DigestLine {
+    /// Chunk index.
+    pub chunk: u32,
+    /// First sample of the chunk.
+    pub first: u32,
+    /// Periods in the chunk.
+    pub steps: u32,
+    /// CRC-32 of the chunk.
+    pub crc: u32,
+}
+
+/// The parsed output of one run.
+#[derive(Debug, Clone, Default)]
+pub struct Output {
+    /// Every line as printed.
+    pub lines: Vec<String>,
+    /// Lines other than `s` and `digest`, by tag (`boot`, `weights ok`, `weights-error`,
+    /// `start`, `summary`, `exit`, `error`, ...); a repeated tag keeps the last.
+    pub tagged: BTreeMap<String, Fields>,
+    /// The `s` lines.
+    pub steps: Vec<StepLine>,
+    /// The `digest` lines.
+    pub digests: Vec<DigestLine>,
+}
+
+impl Output {
+    /// Parses the firmware's stdout; malformed `s` or `digest` lines panic.
+    pub fn parse(text: &str) -> Self {
+        let mut o = Output::default();
+        for line in text.lines() {
+            o.lines.push(line.to_string());
+            if let Some(rest) = line.strip_prefix("s ") {
+                let f: Vec<&str> = rest.split_ascii_whitespace().collect();
+                let hex = |i: usize| {
+                    u32::from_str_radix(f.get(i).copied().unwrap_or(""), 16)
+                        .unwrap_or_else(|e| panic!("bad step line {line:?}: {e}"))
+                };
+                let dec = |i: usize| {
+                    f.get(i)
+                        .and_then(|v| v.parse::<u32>().ok())
+                        .unwrap_or_else(|| panic!("bad step line {line:?}"))
+                };
+                assert_eq!(f.len(), 6, "bad step line {line:?}");
+                o.steps.push(StepLine {
+                    k: dec(0),
+                    velocity_bits: hex(1),
+                    force_bits: hex(2),
+                    estimator_flags: hex(3) as u8,
+                    firmware_flags: hex(4) as u8,
+                    ticks: dec(5),
+                });
+                continue;
+            }
+            let mut tag = Vec::new();
+            let mut fields = Fields::default();
+            for w in line.split_ascii_whitespace() {
+                match w.split_once('=') {
+                    Some((k, v)) => {
+                        fields.0.insert(k.to_string(), v.to_string());
+                    }
+                    None if fields.0.is_empty() => tag.push(w),
+                    None => {}
+                }
+            }
+            let tag = tag.join(" ");
+            if tag == "digest" {
+                o.digests.push(DigestLine {
+                    chunk: fields.num("chunk"),
+                    first: fields.num("first"),
+                    steps: fields.num("steps"),
+                    crc: fields.num("crc"),
+                });
+            } else if !tag.is_empty() {
+                o.tagged.insert(tag, fields);
+            }
+        }
+        o
+    }
+
+    /// The fields of the line tagged `tag`.
+    pub fn get(&self, tag: &str) -> Option<&Fields> {
+        self.tagged.get(tag)
+    }
+
+    /// The fields of the line tagged `tag`; panics (showing the output) if absent.
+    pub fn expect(&self, tag: &str) -> &Fields {
+        self.get(tag).unwrap_or_else(|| {
+            panic!(
+                "no `{tag}` line in the firmware output:\n{}",
+                self.lines.join("\n")
+            )
+        })
+    }
+
+    /// The `weights-error` line as printed.
+    pub fn weights_error_line(&self) -> Option<&str> {
+        self.lines
+            .iter()
+            .map(String::as_str)
+            .find(|l| l.starts_with("weights-error"))
+    }
+}
+
+/// The firmware's weights slot (`.nemm_weights`) and recorded trace (`.nemm_trace`) as linked.
+#[derive(Debug, Clone)]
+pub struct Contents {
+    /// The whole weights slot.
+    pub slot: Vec<u8>,
+    /// The trace.
+    pub trace: Vec<u8>,
+}
+
+/// Section name of the weights slot.
+pub const WEIGHTS_SECTION: &str = ".nemm_weights";
+/// Section name of the recorded trace.
+pub const TRACE_SECTION: &str = ".nemm_trace";
+
+impl Contents {
+    /// Reads both from an image.
+    pub fn of(elf: &Elf) -> Self {
+        Self {
+            slot: elf
+                .section_data(WEIGHTS_SECTION)
+                .expect("weights slot")
+                .to_vec(),
+            trace: elf.section_data(TRACE_SECTION).expect("trace").to_vec(),
+        }
+    }
+
+    /// The blob in the slot.
+    pub fn blob(&self) -> &[u8] {
+        nemm_firmware::slot::blob(&self.slot).expect("the built-in slot holds a blob")
+    }
+}
+
+/// A weights slot holding `blob` (header, blob, erased flash up to `capacity`); the length
+/// field says `len` (normally `blob.len()`).
+pub fn slot_with_len(blob: &[u8], len: u32, capacity: usize) -> Vec<u8> {
+    let mut s = Vec::with_capacity(capacity);
+    s.extend_from_slice(&nemm_firmware::slot::MAGIC);
+    s.extend_from_slice(&len.to_le_bytes());
+    s.extend_from_slice(blob);
+    assert!(s.len() <= capacity, "blob does not fit the slot");
+    s.resize(capacity, 0xFF);
+    s
+}
+
+/// A weights slot holding `blob`.
+pub fn slot_with(blob: &[u8]) -> Vec<u8> {
+    slot_with_len(blob, blob.len() as u32, nemm_firmware::slot::CAPACITY)
+}
+
+/// Writes `elf` with its weights slot replaced by `slot` to a fresh file under the target
+/// directory and returns its path.
+pub fn image_with_slot(elf: &Elf, slot: &[u8], name: &str) -> PathBuf {
+    let bytes = elf
+        .patched(WEIGHTS_SECTION, slot)
+        .expect("patch the weights slot");
+    let dir = scratch_dir();
+    let path = dir.join(format!("{name}.elf"));
+    std::fs::write(&path, bytes).expect("write the patched image");
+    path
+}
+
+/// A directory for patched images: `$CARGO_TARGET_TMPDIR` (integration tests) or the system
+/// temporary directory, plus the process id.
+pub fn scratch_dir() -> PathBuf {
+    let base = option_env!("CARGO_TARGET_TMPDIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(std::env::temp_dir);
+    let dir = base.join(format!("nemm-qemu-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("create the scratch directory");
+    dir
+}
