@@ -14,13 +14,17 @@
 //! ```
 
 use anyhow::{anyhow, Context, Result};
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use plotters::style::FontStyle;
 use std::path::Path;
 use std::sync::OnceLock;
 
 /// The bundled font (DejaVu Sans, Bitstream Vera / DejaVu licence).
+/// Height of a footer line in pixels.
+const FOOTER_LINE: u32 = 21;
 static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
 const FAMILY: &str = "sans-serif";
 
@@ -110,6 +114,34 @@ pub mod palette {
         interpolate(&D, t)
     }
 
+    /// Sequential blue colour map (ColorBrewer YlGnBu without its yellow end: navy to light
+    /// teal) for `t` in \[0, 1\]. Contains no yellow, so yellow marks stand out on it.
+    pub fn ocean(t: f64) -> RGBColor {
+        const O: [(u8, u8, u8); 6] = [
+            (8, 29, 88),
+            (37, 52, 148),
+            (34, 94, 168),
+            (29, 145, 192),
+            (65, 182, 196),
+            (161, 218, 205),
+        ];
+        interpolate(&O, t)
+    }
+
+    /// `c` mixed with white: `f = 0` keeps it, `f = 1` is white.
+    pub fn lighten(c: RGBColor, f: f64) -> RGBColor {
+        let f = if f.is_finite() {
+            f.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let mix = |a: u8| (f64::from(a) + f * (255.0 - f64::from(a))).round() as u8;
+        RGBColor(mix(c.0), mix(c.1), mix(c.2))
+    }
+
+    /// Colour of constraint-violation marks (the paper's yellow).
+    pub const MARK: RGBColor = RGBColor(255, 221, 0);
+
     /// `n` colours spread over the sequential map (dark to bright, the last not too pale).
     pub fn sequence(n: usize) -> Vec<RGBColor> {
         (0..n)
@@ -133,6 +165,8 @@ pub enum SeriesStyle {
     Loop,
     /// Dots.
     Points,
+    /// Dashed polyline (references, model estimates over measurements).
+    Dashed,
 }
 
 /// One data series of a line panel.
@@ -182,6 +216,29 @@ impl Series {
             width: 2,
             style: SeriesStyle::Points,
         }
+    }
+
+    /// A labelled dashed polyline of width 2.
+    pub fn dashed(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+        Series {
+            label: Some(label.into()),
+            points,
+            color,
+            width: 2,
+            style: SeriesStyle::Dashed,
+        }
+    }
+
+    /// Sets the line width / dot radius in pixels.
+    pub fn with_width(mut self, width: u32) -> Self {
+        self.width = width;
+        self
+    }
+
+    /// Removes the legend entry.
+    pub fn unlabelled(mut self) -> Self {
+        self.label = None;
+        self
     }
 }
 
@@ -309,6 +366,131 @@ pub struct HeatmapPanel {
     pub diverging: bool,
     /// Cells drawn with a hatch colour (e.g. constraint violations), `mark[iy][ix]`.
     pub mark: Option<Vec<Vec<bool>>>,
+    /// Colour map; overrides [`HeatmapPanel::diverging`] when set.
+    pub colormap: Option<ColorMap>,
+    /// Colour of marked cells (default [`palette::MARK`], yellow).
+    pub mark_color: Option<RGBColor>,
+    /// Legend entry of the marked cells (none if `None`).
+    pub mark_label: Option<String>,
+    /// Iso-lines at these z values (thin dark lines, also ticked on the colour bar).
+    pub contours: Vec<f64>,
+    /// Series drawn over the map (e.g. the training range, data points); labelled ones go
+    /// into the legend.
+    pub overlay: Vec<Series>,
+    /// Legend placement (used when an overlay series or the marks have a label).
+    pub legend: LegendPosition,
+}
+
+/// Colour maps of a heat map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ColorMap {
+    /// [`palette::sequential`] (viridis; its bright end is yellow).
+    Viridis,
+    /// [`palette::diverging`] (blue - white - red).
+    Diverging,
+    /// [`palette::ocean`] (navy to light teal, no yellow: use with yellow marks).
+    Ocean,
+}
+
+impl ColorMap {
+    /// Colour at `t` in \[0, 1\].
+    pub fn color(self, t: f64) -> RGBColor {
+        match self {
+            ColorMap::Viridis => palette::sequential(t),
+            ColorMap::Diverging => palette::diverging(t),
+            ColorMap::Ocean => palette::ocean(t),
+        }
+    }
+}
+
+impl HeatmapPanel {
+    /// A heat map of `z[iy][ix]` over cell centres `x`, `y` with the sequential colour map,
+    /// automatic range, no marks, contours or overlays.
+    pub fn new(
+        title: impl Into<String>,
+        x_label: impl Into<String>,
+        y_label: impl Into<String>,
+        x: Vec<f64>,
+        y: Vec<f64>,
+        z: Vec<Vec<f64>>,
+    ) -> Self {
+        HeatmapPanel {
+            title: title.into(),
+            x_label: x_label.into(),
+            y_label: y_label.into(),
+            x,
+            y,
+            z,
+            z_range: None,
+            z_label: String::new(),
+            diverging: false,
+            mark: None,
+            colormap: None,
+            mark_color: None,
+            mark_label: None,
+            contours: Vec::new(),
+            overlay: Vec::new(),
+            legend: LegendPosition::UpperRight,
+        }
+    }
+
+    /// Sets the colour-bar label.
+    pub fn with_z_label(mut self, label: impl Into<String>) -> Self {
+        self.z_label = label.into();
+        self
+    }
+
+    /// Sets the colour map.
+    pub fn with_colormap(mut self, map: ColorMap) -> Self {
+        self.colormap = Some(map);
+        self
+    }
+
+    /// Marks cells (`mark[iy][ix]`), with an optional legend entry.
+    pub fn with_marks(mut self, mark: Vec<Vec<bool>>, label: Option<String>) -> Self {
+        self.mark = Some(mark);
+        self.mark_label = label;
+        self
+    }
+
+    /// Draws iso-lines at these levels.
+    pub fn with_contours(mut self, levels: Vec<f64>) -> Self {
+        self.contours = levels;
+        self
+    }
+
+    /// Adds a series over the map.
+    pub fn with_overlay(mut self, s: Series) -> Self {
+        self.overlay.push(s);
+        self
+    }
+
+    /// Sets the legend position.
+    pub fn with_legend(mut self, pos: LegendPosition) -> Self {
+        self.legend = pos;
+        self
+    }
+}
+
+/// About `n` "nice" levels (multiples of 1, 2 or 5 times a power of ten) inside `[lo, hi]`,
+/// e.g. for contour lines; empty for an empty or non-finite range.
+pub fn nice_levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
+    if !(lo.is_finite() && hi.is_finite()) || hi <= lo || n == 0 {
+        return Vec::new();
+    }
+    let raw = (hi - lo) / n as f64;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 2.5, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * mag);
+    let first = (lo / step).ceil() as i64;
+    let last = (hi / step).floor() as i64;
+    (first..=last)
+        .map(|k| k as f64 * step)
+        .filter(|v| *v > lo && *v < hi)
+        .collect()
 }
 
 /// A panel of a figure.
@@ -318,6 +500,8 @@ pub enum Panel {
     Lines(LinePanel),
     /// Heat map with colour bar.
     Heatmap(HeatmapPanel),
+    /// A message in place of a chart (e.g. why a panel has no data).
+    Note(String),
 }
 
 impl From<LinePanel> for Panel {
@@ -345,6 +529,9 @@ pub struct Figure {
     pub panel_size: (u32, u32),
     /// Panels, row-major; missing cells stay empty.
     pub panels: Vec<Panel>,
+    /// Caption under the panels (paragraphs separated by `\n`, wrapped to the figure width),
+    /// e.g. what the symbols mean.
+    pub footer: Option<String>,
 }
 
 impl Figure {
@@ -356,7 +543,46 @@ impl Figure {
             cols: cols.max(1),
             panel_size: (560, 420),
             panels: Vec::new(),
+            footer: None,
         }
+    }
+
+    /// Sets the caption under the panels (lines separated by `\n`).
+    pub fn with_footer(mut self, t: impl Into<String>) -> Self {
+        self.footer = Some(t.into());
+        self
+    }
+
+    fn footer_height(&self) -> u32 {
+        match self.footer_lines() {
+            lines if lines.is_empty() => 0,
+            lines => 14 + FOOTER_LINE * lines.len() as u32,
+        }
+    }
+
+    /// The footer wrapped at word boundaries to the figure width (a conservative estimate of
+    /// 8 px per character of the 15 px font).
+    fn footer_lines(&self) -> Vec<String> {
+        let Some(text) = &self.footer else {
+            return Vec::new();
+        };
+        let max_chars =
+            ((self.panel_size.0 * self.cols as u32).saturating_sub(32) / 8).max(20) as usize;
+        let mut out = Vec::new();
+        for para in text.lines() {
+            let mut line = String::new();
+            for word in para.split_whitespace() {
+                if !line.is_empty() && line.chars().count() + 1 + word.chars().count() > max_chars {
+                    out.push(std::mem::take(&mut line));
+                }
+                if !line.is_empty() {
+                    line.push(' ');
+                }
+                line.push_str(word);
+            }
+            out.push(line);
+        }
+        out
     }
 
     /// Sets the title.
@@ -382,7 +608,7 @@ impl Figure {
         let title_h = if self.title.is_some() { 40 } else { 0 };
         (
             self.panel_size.0 * self.cols as u32,
-            self.panel_size.1 * self.rows as u32 + title_h,
+            self.panel_size.1 * self.rows as u32 + title_h + self.footer_height(),
         )
     }
 
@@ -443,11 +669,30 @@ impl Figure {
             }
             None => root.clone(),
         };
+        let footer = self.footer_lines();
+        let body = if footer.is_empty() {
+            body
+        } else {
+            let h = body.dim_in_pixel().1;
+            let (rest, bottom) = body.split_vertically(h.saturating_sub(self.footer_height()));
+            let style = TextStyle::from((FAMILY, 15).into_font()).color(&RGBColor(60, 60, 60));
+            for (i, line) in footer.iter().enumerate() {
+                bottom
+                    .draw(&Text::new(
+                        line.to_string(),
+                        (16, 4 + FOOTER_LINE as i32 * i as i32),
+                        style.clone(),
+                    ))
+                    .map_err(err)?;
+            }
+            rest
+        };
         let cells = body.split_evenly((self.rows, self.cols));
         for (panel, area) in self.panels.iter().zip(cells.iter()) {
             match panel {
                 Panel::Lines(p) => draw_lines(p, area)?,
                 Panel::Heatmap(p) => draw_heatmap(p, area)?,
+                Panel::Note(text) => draw_note(text, area)?,
             }
         }
         Ok(())
@@ -506,7 +751,7 @@ where
     let log_y = p.log_y;
     let y_fmt = move |v: &f64| {
         if log_y {
-            format!("1e{v:.0}")
+            format_log_tick(*v)
         } else {
             format_tick(*v)
         }
@@ -539,67 +784,152 @@ where
     }
     let mut any_label = false;
     for (s, pts) in p.series.iter().zip(all) {
-        let style = s.color.stroke_width(s.width);
-        let anno = match s.style {
-            SeriesStyle::Points => chart
-                .draw_series(
-                    pts.iter()
-                        .filter(|q| q.0.is_finite() && q.1.is_finite())
-                        .map(|&q| Circle::new(q, s.width, s.color.filled())),
-                )
-                .map_err(err)?,
-            SeriesStyle::Line | SeriesStyle::Loop => {
-                let mut segs: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
-                for q in &pts {
-                    if q.0.is_finite() && q.1.is_finite() {
-                        if let Some(v) = segs.last_mut() {
-                            v.push(*q);
-                        }
-                    } else if segs.last().is_some_and(|v| !v.is_empty()) {
-                        segs.push(Vec::new());
+        any_label |= draw_series(&mut chart, s, pts)?;
+    }
+    if any_label {
+        draw_legend(&mut chart, p.legend)?;
+    }
+    Ok(())
+}
+
+type Chart2d<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+fn draw_legend<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart2d<'a, DB>,
+    legend: LegendPosition,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let pos = match legend {
+        LegendPosition::None => return Ok(()),
+        LegendPosition::UpperLeft => SeriesLabelPosition::UpperLeft,
+        LegendPosition::UpperRight => SeriesLabelPosition::UpperRight,
+        LegendPosition::LowerLeft => SeriesLabelPosition::LowerLeft,
+        LegendPosition::LowerRight => SeriesLabelPosition::LowerRight,
+    };
+    chart
+        .configure_series_labels()
+        .position(pos)
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(190, 190, 190))
+        .label_font((FAMILY, 13).into_font())
+        .draw()
+        .map_err(|e| anyhow!("plot rendering failed: {e:?}"))
+}
+
+/// Draws one series (points already transformed to chart coordinates); returns whether it
+/// added a legend entry.
+fn draw_series<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart2d<'a, DB>,
+    s: &Series,
+    pts: Vec<(f64, f64)>,
+) -> Result<bool>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot rendering failed: {e:?}");
+    let style = s.color.stroke_width(s.width);
+    let anno = match s.style {
+        SeriesStyle::Points => chart
+            .draw_series(
+                pts.iter()
+                    .filter(|q| q.0.is_finite() && q.1.is_finite())
+                    .map(|&q| Circle::new(q, s.width, s.color.filled())),
+            )
+            .map_err(err)?,
+        SeriesStyle::Line | SeriesStyle::Loop | SeriesStyle::Dashed => {
+            let mut segs: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+            for q in &pts {
+                if q.0.is_finite() && q.1.is_finite() {
+                    if let Some(v) = segs.last_mut() {
+                        v.push(*q);
                     }
-                }
-                if s.style == SeriesStyle::Loop && segs.len() == 1 {
-                    if let Some(first) = segs[0].first().copied() {
-                        segs[0].push(first);
-                    }
-                }
-                let mut last = None;
-                for seg in segs.into_iter().filter(|v| !v.is_empty()) {
-                    last = Some(
-                        chart
-                            .draw_series(LineSeries::new(seg, style))
-                            .map_err(err)?,
-                    );
-                }
-                match last {
-                    Some(a) => a,
-                    None => continue,
+                } else if segs.last().is_some_and(|v| !v.is_empty()) {
+                    segs.push(Vec::new());
                 }
             }
-        };
-        if let Some(label) = &s.label {
-            any_label = true;
-            let c = s.color;
-            anno.label(label.as_str())
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], c.stroke_width(3)));
+            if s.style == SeriesStyle::Loop && segs.len() == 1 {
+                if let Some(first) = segs[0].first().copied() {
+                    segs[0].push(first);
+                }
+            }
+            let mut last = None;
+            for seg in segs.into_iter().filter(|v| !v.is_empty()) {
+                last = Some(if s.style == SeriesStyle::Dashed {
+                    let dash = 4 * s.width.max(2) as i32;
+                    chart
+                        .draw_series(DashedLineSeries::new(seg, dash, dash * 2 / 3, style))
+                        .map_err(err)?
+                } else if s.width > 1 {
+                    // Thick polylines are polygonised as a whole by the backend, and a
+                    // self-overlapping one (a loop traced twice) renders hollow; separate
+                    // segments do not.
+                    chart
+                        .draw_series(
+                            seg.windows(2)
+                                .map(|w| PathElement::new(vec![w[0], w[1]], style)),
+                        )
+                        .map_err(err)?
+                } else {
+                    chart
+                        .draw_series(LineSeries::new(seg, style))
+                        .map_err(err)?
+                });
+            }
+            match last {
+                Some(a) => a,
+                None => return Ok(false),
+            }
         }
-    }
-    let pos = match p.legend {
-        LegendPosition::None => None,
-        LegendPosition::UpperLeft => Some(SeriesLabelPosition::UpperLeft),
-        LegendPosition::UpperRight => Some(SeriesLabelPosition::UpperRight),
-        LegendPosition::LowerLeft => Some(SeriesLabelPosition::LowerLeft),
-        LegendPosition::LowerRight => Some(SeriesLabelPosition::LowerRight),
     };
-    if let (true, Some(pos)) = (any_label, pos) {
-        chart
-            .configure_series_labels()
-            .position(pos)
-            .background_style(WHITE.mix(0.85))
-            .border_style(RGBColor(190, 190, 190))
-            .label_font((FAMILY, 13).into_font())
-            .draw()
+    let Some(label) = &s.label else {
+        return Ok(false);
+    };
+    let (c, w, st) = (s.color, s.width, s.style);
+    anno.label(label.as_str()).legend(move |(x, y)| {
+        let e = EmptyElement::at((x, y));
+        match st {
+            SeriesStyle::Points => {
+                e + Circle::new((9, 0), w.max(3), c.filled())
+                    + PathElement::new([(0, 0), (0, 0)], c.stroke_width(1))
+                    + PathElement::new([(0, 0), (0, 0)], c.stroke_width(1))
+            }
+            SeriesStyle::Dashed => {
+                e + Circle::new((0, 0), 0, c.filled())
+                    + PathElement::new([(0, 0), (7, 0)], c.stroke_width(3))
+                    + PathElement::new([(11, 0), (18, 0)], c.stroke_width(3))
+            }
+            _ => {
+                e + Circle::new((0, 0), 0, c.filled())
+                    + PathElement::new([(0, 0), (18, 0)], c.stroke_width(3))
+                    + PathElement::new([(0, 0), (0, 0)], c.stroke_width(1))
+            }
+        }
+    });
+    Ok(true)
+}
+
+fn draw_note<DB: DrawingBackend>(text: &str, area: &DrawingArea<DB, Shift>) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot rendering failed: {e:?}");
+    let (w, h) = area.dim_in_pixel();
+    let (w, h) = (w as i32, h as i32);
+    area.draw(&Rectangle::new(
+        [(12, 12), (w - 12, h - 12)],
+        RGBColor(200, 200, 200).stroke_width(1),
+    ))
+    .map_err(err)?;
+    let lines: Vec<&str> = text.lines().collect();
+    let style = TextStyle::from((FAMILY, 16).into_font())
+        .color(&RGBColor(90, 90, 90))
+        .pos(Pos::new(HPos::Center, VPos::Center));
+    let n = lines.len() as i32;
+    for (i, line) in lines.iter().enumerate() {
+        let y = h / 2 + (2 * i as i32 - (n - 1)) * 11;
+        area.draw(&Text::new(line.to_string(), (w / 2, y), style.clone()))
             .map_err(err)?;
     }
     Ok(())
@@ -659,14 +989,19 @@ where
         .axis_desc_style((FAMILY, 14).into_font())
         .draw()
         .map_err(err)?;
+    let map = p.colormap.unwrap_or(if p.diverging {
+        ColorMap::Diverging
+    } else {
+        ColorMap::Viridis
+    });
     let color = |z: f64| {
-        let t = (z - z0) / (z1 - z0);
-        if p.diverging {
-            palette::diverging(t)
+        if z.is_finite() {
+            map.color((z - z0) / (z1 - z0))
         } else {
-            palette::sequential(t)
+            RGBColor(190, 190, 190)
         }
     };
+    let mark_color = p.mark_color.unwrap_or(palette::MARK);
     chart
         .draw_series(
             (0..ny)
@@ -679,7 +1014,7 @@ where
                         m.get(iy).and_then(|r| r.get(ix)).copied().unwrap_or(false)
                     });
                     let c = if marked {
-                        RGBColor(255, 221, 0)
+                        mark_color
                     } else {
                         color(p.z[iy][ix])
                     };
@@ -687,6 +1022,34 @@ where
                 }),
         )
         .map_err(err)?;
+    // Iso-lines (marching squares between cell centres).
+    let iso = RGBColor(0, 0, 0).mix(0.55).stroke_width(1);
+    for &level in &p.contours {
+        let segs = contour_segments(&p.x, &p.y, &p.z, level);
+        chart
+            .draw_series(
+                segs.into_iter()
+                    .map(|(a, b)| PathElement::new(vec![a, b], iso)),
+            )
+            .map_err(err)?;
+    }
+    let mut any_label = false;
+    for s in &p.overlay {
+        any_label |= draw_series(&mut chart, s, s.points.clone())?;
+    }
+    if let (Some(label), true) = (&p.mark_label, p.mark.is_some()) {
+        any_label = true;
+        chart
+            .draw_series(std::iter::empty::<Circle<(f64, f64), u32>>())
+            .map_err(err)?
+            .label(label.as_str())
+            .legend(move |(x, y)| {
+                Rectangle::new([(x, y - 6), (x + 18, y + 6)], mark_color.filled())
+            });
+    }
+    if any_label {
+        draw_legend(&mut chart, p.legend)?;
+    }
     // Colour bar.
     let mut cb = ChartBuilder::on(&bar)
         .margin_top(34)
@@ -711,7 +1074,141 @@ where
         Rectangle::new([(0.0, a), (1.0, b)], color(0.5 * (a + b)).filled())
     }))
     .map_err(err)?;
+    cb.draw_series(
+        p.contours
+            .iter()
+            .filter(|l| **l > z0 && **l < z1)
+            .map(|&l| PathElement::new(vec![(0.0, l), (1.0, l)], iso)),
+    )
+    .map_err(err)?;
     Ok(())
+}
+
+/// Iso-line segments of `z[iy][ix]` (values at the points `(x[ix], y[iy])`) at `level`, by
+/// marching squares with linear interpolation along cell edges; saddles are resolved by the
+/// cell mean. Cells with a non-finite corner are skipped.
+pub fn contour_segments(
+    x: &[f64],
+    y: &[f64],
+    z: &[Vec<f64>],
+    level: f64,
+) -> Vec<((f64, f64), (f64, f64))> {
+    let mut out = Vec::new();
+    if x.len() < 2 || y.len() < 2 || z.len() != y.len() || z.iter().any(|r| r.len() != x.len()) {
+        return out;
+    }
+    let lerp = |p: (f64, f64, f64), q: (f64, f64, f64)| {
+        let t = if q.2 != p.2 {
+            ((level - p.2) / (q.2 - p.2)).clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
+        (p.0 + t * (q.0 - p.0), p.1 + t * (q.1 - p.1))
+    };
+    for iy in 0..y.len() - 1 {
+        for ix in 0..x.len() - 1 {
+            // Corners counter-clockwise from bottom left: a, b, c, d.
+            let a = (x[ix], y[iy], z[iy][ix]);
+            let b = (x[ix + 1], y[iy], z[iy][ix + 1]);
+            let c = (x[ix + 1], y[iy + 1], z[iy + 1][ix + 1]);
+            let d = (x[ix], y[iy + 1], z[iy + 1][ix]);
+            if ![a.2, b.2, c.2, d.2].iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            let case = usize::from(a.2 >= level)
+                | usize::from(b.2 >= level) << 1
+                | usize::from(c.2 >= level) << 2
+                | usize::from(d.2 >= level) << 3;
+            let (bottom, right, top, left) =
+                (|| lerp(a, b), || lerp(b, c), || lerp(d, c), || lerp(a, d));
+            let centre_high = (a.2 + b.2 + c.2 + d.2) / 4.0 >= level;
+            match case {
+                0 | 15 => {}
+                1 | 14 => out.push((left(), bottom())),
+                2 | 13 => out.push((bottom(), right())),
+                3 | 12 => out.push((left(), right())),
+                4 | 11 => out.push((right(), top())),
+                6 | 9 => out.push((bottom(), top())),
+                7 | 8 => out.push((left(), top())),
+                5 => {
+                    if centre_high {
+                        out.push((bottom(), right()));
+                        out.push((left(), top()));
+                    } else {
+                        out.push((left(), bottom()));
+                        out.push((right(), top()));
+                    }
+                }
+                _ => {
+                    // 10: b and d high.
+                    if centre_high {
+                        out.push((left(), bottom()));
+                        out.push((right(), top()));
+                    } else {
+                        out.push((bottom(), right()));
+                        out.push((left(), top()));
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Writes an RGB buffer (3 bytes per pixel, row-major, `size.0 x size.1`, as from
+/// [`Figure::render_rgb`]) as PNG, atomically (temporary file in the same folder, then
+/// rename). Every error is an I/O or encoding error.
+pub fn save_rgb_png(path: &Path, size: (u32, u32), rgb: &[u8]) -> Result<()> {
+    let (w, h) = size;
+    if rgb.len() != (w as usize) * (h as usize) * 3 {
+        return Err(anyhow!(
+            "RGB buffer of {} bytes does not match {w} x {h} pixels",
+            rgb.len()
+        ));
+    }
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.{}.tmp.png", std::process::id()));
+    let result = (|| {
+        {
+            let mut backend = BitMapBackend::new(&tmp, (w, h));
+            backend
+                .blit_bitmap((0, 0), (w, h), rgb)
+                .map_err(|e| anyhow!("cannot encode {}: {e:?}", tmp.display()))?;
+            backend
+                .present()
+                .map_err(|e| anyhow!("cannot write {}: {e}", tmp.display()))?;
+        }
+        std::fs::rename(&tmp, path)
+            .with_context(|| format!("cannot move {} to {}", tmp.display(), path.display()))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Label of a tick at `v = log10(y)` on a log axis: `y` to 2 significant digits, so that the
+/// fractional-decade ticks of a short range stay distinct (`0.025`, `0.04`, ...); powers of ten
+/// beyond 1e+-4 print as `1e-5`.
+pub fn format_log_tick(v: f64) -> String {
+    if !v.is_finite() {
+        return "0".into();
+    }
+    let y = 10f64.powf(v);
+    if (v - v.round()).abs() < 1e-9 && !(-4.0..=4.0).contains(&v.round()) {
+        return format!("1e{}", v.round() as i64);
+    }
+    let mag = y.log10().floor();
+    let q = 10f64.powf(mag - 1.0);
+    format_tick((y / q).round() * q)
 }
 
 /// Compact tick label: up to 4 significant digits, no trailing zeros; |v| < 1e-12 (rounding
@@ -760,18 +1257,17 @@ mod tests {
                     .with_series(Series::closed("c", pts, palette::categorical(0)))
                     .with_zero_lines(),
             )
-            .with_panel(HeatmapPanel {
-                title: "map".into(),
-                x_label: "a".into(),
-                y_label: "b".into(),
-                x: vec![0.0, 1.0, 2.0],
-                y: vec![0.0, 1.0],
-                z: vec![vec![0.0, 1.0, 2.0], vec![3.0, 4.0, 5.0]],
-                z_range: None,
-                z_label: "z".into(),
-                diverging: false,
-                mark: None,
-            });
+            .with_panel(
+                HeatmapPanel::new(
+                    "map",
+                    "a",
+                    "b",
+                    vec![0.0, 1.0, 2.0],
+                    vec![0.0, 1.0],
+                    vec![vec![0.0, 1.0, 2.0], vec![3.0, 4.0, 5.0]],
+                )
+                .with_z_label("z"),
+            );
         let rgb = fig.render_rgb().unwrap();
         let (w, h) = fig.size();
         assert_eq!(rgb.len(), (w * h * 3) as usize);
@@ -788,6 +1284,130 @@ mod tests {
             .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
             .collect();
         assert!(leftovers.is_empty());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn log_tick_labels_are_distinct_values() {
+        assert_eq!(format_log_tick(-2.0), "0.01");
+        assert_eq!(format_log_tick(0.0), "1");
+        assert_eq!(format_log_tick(-6.0), "1e-6");
+        assert_eq!(format_log_tick((0.025f64).log10()), "0.025");
+        let labels: Vec<String> = (0..10)
+            .map(|i| format_log_tick(-2.0 + 0.1 * f64::from(i)))
+            .collect();
+        let mut dedup = labels.clone();
+        dedup.dedup();
+        assert_eq!(labels, dedup);
+    }
+
+    #[test]
+    fn footers_wrap_to_the_figure_width() {
+        let long = "word ".repeat(200);
+        let fig = Figure::new(1, 1).with_panel_size(400, 300);
+        assert_eq!(fig.size(), (400, 300));
+        let one = fig.clone().with_footer("short");
+        assert_eq!(one.size(), (400, 300 + 14 + 21));
+        let wrapped = fig.clone().with_footer(format!("{long}\nsecond paragraph"));
+        let lines = wrapped.footer_lines();
+        assert!(
+            lines.len() > 3 && lines.iter().all(|l| l.len() <= 46),
+            "{lines:?}"
+        );
+        assert_eq!(lines.last().map(String::as_str), Some("second paragraph"));
+        assert_eq!(wrapped.size().1, 300 + 14 + 21 * lines.len() as u32);
+        assert_eq!(wrapped.render_rgb().unwrap().len(), {
+            let (w, h) = wrapped.size();
+            (w * h * 3) as usize
+        });
+    }
+
+    #[test]
+    fn nice_levels_are_round_and_inside() {
+        let l = nice_levels(0.0, 1.0, 5);
+        assert_eq!(l.len(), 4);
+        assert!(l
+            .iter()
+            .zip([0.2, 0.4, 0.6, 0.8])
+            .all(|(a, b)| (a - b).abs() < 1e-12));
+        let l = nice_levels(1234.0, 2871.0, 8);
+        assert!(l.len() >= 5 && l.len() <= 10, "{l:?}");
+        assert!(l
+            .iter()
+            .all(|v| *v > 1234.0 && *v < 2871.0 && (v / 250.0).fract() == 0.0));
+        assert!(nice_levels(1.0, 1.0, 5).is_empty());
+        assert!(nice_levels(f64::NAN, 1.0, 5).is_empty());
+    }
+
+    #[test]
+    fn contour_of_a_plane_is_a_straight_line() {
+        // z = x + y on [0, 4]^2: the level 4 is the anti-diagonal x + y = 4.
+        let g: Vec<f64> = (0..5).map(f64::from).collect();
+        let z: Vec<Vec<f64>> = g
+            .iter()
+            .map(|y| g.iter().map(|x| x + y).collect())
+            .collect();
+        let segs = contour_segments(&g, &g, &z, 3.5);
+        assert!(!segs.is_empty());
+        for (a, b) in &segs {
+            assert!((a.0 + a.1 - 3.5).abs() < 1e-12 && (b.0 + b.1 - 3.5).abs() < 1e-12);
+        }
+        // Total length of the iso-line x + y = 3.5 inside the square: 3.5 * sqrt(2).
+        let len: f64 = segs
+            .iter()
+            .map(|(a, b)| ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt())
+            .sum();
+        assert!((len - 3.5 * 2f64.sqrt()).abs() < 1e-9, "{len}");
+        assert!(contour_segments(&g, &g, &z, 100.0).is_empty());
+    }
+
+    #[test]
+    fn marks_overlays_dashes_and_notes_render_and_rgb_buffers_save() {
+        let g: Vec<f64> = (0..20).map(|i| f64::from(i) / 19.0).collect();
+        let z: Vec<Vec<f64>> = g
+            .iter()
+            .map(|y| g.iter().map(|x| x * y).collect())
+            .collect();
+        let mark: Vec<Vec<bool>> = g
+            .iter()
+            .map(|y| g.iter().map(|x| *x > 0.8 && *y > 0.8).collect())
+            .collect();
+        let fig = Figure::new(1, 3)
+            .with_panel(
+                HeatmapPanel::new("m", "x", "y", g.clone(), g.clone(), z)
+                    .with_colormap(ColorMap::Ocean)
+                    .with_contours(nice_levels(0.0, 1.0, 4))
+                    .with_marks(mark, Some("violation".into()))
+                    .with_overlay(Series::dashed(
+                        "box",
+                        vec![(0.1, 0.1), (0.5, 0.5)],
+                        palette::categorical(3),
+                    )),
+            )
+            .with_panel(
+                LinePanel::new("l", "x", "y")
+                    .with_series(
+                        Series::dashed("d", vec![(0.0, 0.0), (1.0, 1.0)], palette::categorical(1))
+                            .with_width(3),
+                    )
+                    .with_series(Series::dots("p", vec![(0.5, 0.2)], palette::categorical(2))),
+            )
+            .with_panel(Panel::Note("nothing\nto show".into()));
+        let rgb = fig.render_rgb().unwrap();
+        assert!(
+            rgb.chunks(3).any(|p| p == [255, 221, 0]),
+            "yellow marks drawn"
+        );
+        assert!(rgb.chunks(3).any(|p| p == [8, 29, 88]), "ocean map drawn");
+        let dir = std::env::temp_dir().join(format!("nemm-plot-rgb-{}", std::process::id()));
+        let path = dir.join("rgb.png");
+        save_rgb_png(&path, fig.size(), &rgb).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+        let w = u32::from_be_bytes([bytes[16], bytes[17], bytes[18], bytes[19]]);
+        let h = u32::from_be_bytes([bytes[20], bytes[21], bytes[22], bytes[23]]);
+        assert_eq!((w, h), fig.size());
+        assert!(save_rgb_png(&path, (3, 3), &rgb).is_err());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
