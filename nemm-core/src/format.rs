@@ -25,6 +25,9 @@ use crate::model::{Model, ModelError, ModelKind};
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
+// `Model::deserialize_in_place` comes from the derive with serde_derive's
+// `deserialize_in_place` feature.
+
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build reads and writes.
@@ -178,28 +181,35 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
     }
 }
 
-/// Encodes a validated model into `buf`; returns the blob (a prefix of `buf`).
+/// Length in bytes of the blob of `model` (header, body, CRC).
+pub fn encoded_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
+    let body_len = postcard::experimental::serialized_size(model)
+        .map_err(|_| EncodeError::BufferTooSmall)?;
+    let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
+        .map_err(|_| EncodeError::BufferTooSmall)?;
+    Ok(header_len + body_len + CRC_LEN)
+}
+
+/// Encodes a validated model into `buf` (at least [`encoded_len`] bytes); returns the blob
+/// (a prefix of `buf`).
 pub fn encode<'b, const P: usize>(
     model: &Model<P>,
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    // Body first, at the largest possible header offset, then the header in front of it.
-    let body_area = buf
-        .get_mut(MAX_HEADER_LEN..)
-        .ok_or(EncodeError::BufferTooSmall)?;
-    let body_len = postcard::to_slice(model, body_area)
+    let body_len = postcard::experimental::serialized_size(model)
+        .map_err(|_| EncodeError::BufferTooSmall)?;
+    let hlen = postcard::to_slice(&header_for(model, body_len), buf)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
-    let mut hbuf = [0u8; MAX_HEADER_LEN];
-    let header = postcard::to_slice(&header_for(model, body_len), &mut hbuf)
-        .map_err(|_| EncodeError::BufferTooSmall)?;
-    let hlen = header.len();
     let end = hlen + body_len;
-    buf.copy_within(MAX_HEADER_LEN..MAX_HEADER_LEN + body_len, hlen);
-    buf.get_mut(..hlen)
-        .ok_or(EncodeError::BufferTooSmall)?
-        .copy_from_slice(header);
+    let body_area = buf.get_mut(hlen..end).ok_or(EncodeError::BufferTooSmall)?;
+    let written = postcard::to_slice(model, body_area)
+        .map_err(|_| EncodeError::BufferTooSmall)?
+        .len();
+    if written != body_len {
+        return Err(EncodeError::BufferTooSmall);
+    }
     let crc = CRC.checksum(buf.get(..end).ok_or(EncodeError::BufferTooSmall)?);
     buf.get_mut(end..end + CRC_LEN)
         .ok_or(EncodeError::BufferTooSmall)?
@@ -255,8 +265,23 @@ fn parse_error(e: postcard::Error, len: usize, part: &'static str) -> DecodeErro
     }
 }
 
-/// Decodes and validates a blob into a model with scaler capacity `P`.
+/// Decodes and validates a blob into a model with scaler capacity `P`, returned by value.
+///
+/// Convenient on the host; on a microcontroller prefer [`decode_into`] with a `static`
+/// model, which does not build the model on the stack.
 pub fn decode<const P: usize>(blob: &[u8]) -> Result<Model<P>, DecodeError> {
+    let mut model = Model::empty();
+    decode_into(blob, &mut model)?;
+    Ok(model)
+}
+
+/// Decodes and validates a blob **in place** into `model` (e.g. a `static`): the large
+/// parameter vectors are written where they live, so the stack holds at most one scaler's
+/// parameter vector at a time instead of several copies of the whole model.
+///
+/// On error `model` holds unspecified, possibly partial contents: it must not be used (an
+/// [`crate::Estimator`] built from it would refuse it anyway, since it re-validates).
+pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<(), DecodeError> {
     let header = read_header(blob)?;
     let (_, after_header) = postcard::take_from_bytes::<Header>(blob)
         .map_err(|e| parse_error(e, blob.len(), "header"))?;
@@ -292,11 +317,15 @@ pub fn decode<const P: usize>(blob: &[u8]) -> Result<Model<P>, DecodeError> {
     let body = covered
         .get(header_len..)
         .ok_or(DecodeError::Malformed { part: "body" })?;
-    let (model, rest) = postcard::take_from_bytes::<Model<P>>(body)
+    let mut de = postcard::Deserializer::from_bytes(body);
+    Model::<P>::deserialize_in_place(&mut de, model)
+        .map_err(|_| DecodeError::Malformed { part: "body" })?;
+    let rest = de
+        .finalize()
         .map_err(|_| DecodeError::Malformed { part: "body" })?;
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {
         return Err(DecodeError::Malformed { part: "body" });
     }
     model.validate().map_err(DecodeError::Invalid)?;
-    Ok(model)
+    Ok(())
 }

@@ -293,6 +293,20 @@ pub struct Scaler<const P: usize> {
 }
 
 impl<const P: usize> Scaler<P> {
+    /// A scaler without parameters (not valid on its own; a place to decode into).
+    pub const fn empty() -> Self {
+        Self {
+            mlp: MlpParams {
+                inputs: 0,
+                hidden: 0,
+                layers: 0,
+                params: heapless::Vec::new(),
+            },
+            s_min: 0.0,
+            s_max: 0.0,
+        }
+    }
+
     /// Scale factor `s(z) = s_min + (s_max - s_min) sigmoid(z)` for normalised inputs.
     pub fn scale(&self, x: &[f32]) -> Option<f32> {
         let z = self.mlp.forward(x)?;

@@ -30,6 +30,9 @@ use crate::sem::{SemError, SemMap};
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
+/// Accepted range of the normalisation scales and the force scale (SI units).
+pub const SCALE_RANGE: (f32, f32) = (1e-9, 1e9);
+
 /// Fraction of the integrator's real-axis stability limit a model may use (see module docs).
 pub const STABILITY_MARGIN: f32 = 0.8;
 
@@ -82,7 +85,11 @@ pub struct Meta {
 }
 
 /// The variant-specific part.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+///
+/// `Deserialize` is written by hand (the wire format is exactly the derived one: variant index,
+/// then the fields in order) so that [`crate::format::decode_into`] can decode in place: a
+/// derived enum would be built by value on the stack, several copies of a `Scaler<P>` deep.
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub enum Body<const P: usize> {
     /// SEM map.
     Sem(SemMap),
@@ -137,6 +144,11 @@ pub enum ModelError {
         /// Which field.
         field: &'static str,
     },
+    /// A scale outside [`SCALE_RANGE`].
+    OutOfRange {
+        /// Which field.
+        field: &'static str,
+    },
     /// A scaler's bounds are not `0 < s_min < s_max`.
     BadScalerBounds {
         /// Which scaler.
@@ -180,6 +192,11 @@ impl fmt::Display for ModelError {
         match self {
             ModelError::NonFinite { field } => write!(f, "`{field}` holds a NaN or infinite value"),
             ModelError::NotPositive { field } => write!(f, "`{field}` must be positive"),
+            ModelError::OutOfRange { field } => write!(
+                f,
+                "`{field}` must lie in [{:e}, {:e}] (SI units)",
+                SCALE_RANGE.0, SCALE_RANGE.1
+            ),
             ModelError::BadScalerBounds { scaler } => {
                 write!(f, "scaler `{scaler}` needs bounds 0 < s_min < s_max")
             }
@@ -268,6 +285,31 @@ fn check_scaler<const P: usize>(
 }
 
 impl<const P: usize> Model<P> {
+    /// A placeholder model (an all-zero Linear EMM, not valid) to decode into with
+    /// [`crate::format::decode_into`]; `const`, so it can initialise a `static`.
+    pub const fn empty() -> Self {
+        Self {
+            integrator: Integrator::Rk4,
+            dt_s: 0.0,
+            scales: InputScales {
+                velocity_m_s: 0.0,
+                x_pr_m: 0.0,
+                alpha: 0.0,
+            },
+            meta: Meta {
+                force_scale_n: 0.0,
+                alpha_min: 0.0,
+                alpha_max: 0.0,
+            },
+            body: Body::LinearEmm(EmmConstants {
+                b_fl_ns_per_m: 0.0,
+                b_pr_ns_per_m: 0.0,
+                k_pr_n_per_m: 0.0,
+                t_pr_s: 0.0,
+            }),
+        }
+    }
+
     /// The variant.
     pub fn kind(&self) -> ModelKind {
         match self.body {
@@ -319,7 +361,16 @@ impl<const P: usize> Model<P> {
             } => (emm, b_fl.s_min, b_pr.s_min, k_pr.s_max),
         };
         let tau_pr = (e.b_pr_ns_per_m * bp + e.b_fl_ns_per_m * fl) / (e.k_pr_n_per_m * k);
-        Some(tau_pr.min(e.t_pr_s))
+        // Not `f32::min`, which would hide a NaN.
+        Some(if tau_pr.is_nan() || tau_pr > e.t_pr_s {
+            if tau_pr.is_nan() {
+                f32::NAN
+            } else {
+                e.t_pr_s
+            }
+        } else {
+            tau_pr
+        })
     }
 
     /// Checks that the model is safe to run with `integrator` at step `dt_s`: every
@@ -327,6 +378,8 @@ impl<const P: usize> Model<P> {
     pub fn check_step(&self, integrator: Integrator, dt_s: f32) -> Result<(), ModelError> {
         finite_positive(dt_s, "dt_s")?;
         if let Some(tau_min_s) = self.fastest_time_constant_s() {
+            // A NaN or infinite time constant (coefficients near f32::MAX) is not stable.
+            let tau_min_s = if tau_min_s.is_finite() { tau_min_s } else { 0.0 };
             let max_dt_s = STABILITY_MARGIN * integrator.stability_limit() * tau_min_s;
             if max_dt_s.is_nan() || dt_s > max_dt_s {
                 return Err(ModelError::UnstableStep {
@@ -342,10 +395,18 @@ impl<const P: usize> Model<P> {
 
     /// Full validation: finiteness, positivity, shapes, SEM grid, alpha range, stability.
     pub fn validate(&self) -> Result<(), ModelError> {
-        finite_positive(self.scales.velocity_m_s, "scales.velocity_m_s")?;
-        finite_positive(self.scales.x_pr_m, "scales.x_pr_m")?;
-        finite_positive(self.scales.alpha, "scales.alpha")?;
-        finite_positive(self.meta.force_scale_n, "meta.force_scale_n")?;
+        for (v, field) in [
+            (self.scales.velocity_m_s, "scales.velocity_m_s"),
+            (self.scales.x_pr_m, "scales.x_pr_m"),
+            (self.scales.alpha, "scales.alpha"),
+            (self.meta.force_scale_n, "meta.force_scale_n"),
+        ] {
+            finite_positive(v, field)?;
+            // Normalisation divides by the scales: keep them far from under- and overflow.
+            if !(SCALE_RANGE.0..=SCALE_RANGE.1).contains(&v) {
+                return Err(ModelError::OutOfRange { field });
+            }
+        }
         let (a0, a1) = (self.meta.alpha_min, self.meta.alpha_max);
         if !(a0.is_finite() && a1.is_finite() && 0.0 <= a0 && a0 <= a1 && a1 <= 1.0) {
             return Err(ModelError::AlphaRange);
@@ -407,6 +468,163 @@ impl<const P: usize> Model<P> {
                 let x = [x_pr_m / self.scales.x_pr_m, alpha / self.scales.alpha];
                 Some(emm.k_pr_n_per_m * k_pr.scale(&x)?)
             }
+        }
+    }
+}
+
+mod body_serde {
+    //! In-place deserialization of [`Body`] (see its docs).
+    use super::Body;
+    use crate::emm::EmmConstants;
+    use crate::mlp::Scaler;
+    use crate::sem::SemMap;
+    use core::fmt;
+    use serde::de::{self, DeserializeSeed, Deserializer, EnumAccess, SeqAccess, VariantAccess, Visitor};
+    use serde::Deserialize;
+
+    const VARIANTS: &[&str] = &["Sem", "LinearEmm", "NemmLight", "Nemm"];
+    const LIGHT_FIELDS: &[&str] = &["emm", "b_fl"];
+    const NEMM_FIELDS: &[&str] = &["emm", "b_fl", "b_pr", "k_pr"];
+    const ZERO: EmmConstants = EmmConstants {
+        b_fl_ns_per_m: 0.0,
+        b_pr_ns_per_m: 0.0,
+        k_pr_n_per_m: 0.0,
+        t_pr_s: 0.0,
+    };
+
+    /// Deserializes a value into an existing place.
+    struct InPlace<'a, T>(&'a mut T);
+
+    impl<'de, T: Deserialize<'de>> DeserializeSeed<'de> for InPlace<'_, T> {
+        type Value = ();
+        fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+            T::deserialize_in_place(d, self.0)
+        }
+    }
+
+    /// Fills the fields of a struct variant in order.
+    struct Fields<'a, const P: usize> {
+        emm: &'a mut EmmConstants,
+        scalers: [Option<&'a mut Scaler<P>>; 3],
+    }
+
+    impl<'de, const P: usize> Visitor<'de> for Fields<'_, P> {
+        type Value = ();
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("the fields of a NEMM body")
+        }
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+            let n = 1 + self.scalers.iter().filter(|s| s.is_some()).count();
+            if seq.next_element_seed(InPlace(self.emm))?.is_none() {
+                return Err(de::Error::invalid_length(0, &self));
+            }
+            let mut i = 1;
+            for s in self.scalers.into_iter().flatten() {
+                if seq.next_element_seed(InPlace(s))?.is_none() {
+                    return Err(de::Error::invalid_length(i, &"the fields of a NEMM body"));
+                }
+                i += 1;
+            }
+            debug_assert_eq!(i, n);
+            Ok(())
+        }
+    }
+
+    struct BodyVisitor<'a, const P: usize>(&'a mut Body<P>);
+
+    impl<'de, const P: usize> Visitor<'de> for BodyVisitor<'_, P> {
+        type Value = ();
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("a NEMM model body")
+        }
+        fn visit_enum<A: EnumAccess<'de>>(self, data: A) -> Result<(), A::Error> {
+            let (idx, variant) = data.variant::<u32>()?;
+            let place = self.0;
+            // Switch the place to the variant first (cheap: empty vectors), then fill its
+            // fields where they are.
+            match idx {
+                0 => {
+                    if !matches!(place, Body::Sem(_)) {
+                        *place = Body::Sem(SemMap {
+                            velocities_m_s: heapless::Vec::new(),
+                            alphas: heapless::Vec::new(),
+                            forces_n: heapless::Vec::new(),
+                        });
+                    }
+                    match place {
+                        Body::Sem(m) => variant.newtype_variant_seed(InPlace(m)),
+                        _ => Err(de::Error::custom("variant switch")),
+                    }
+                }
+                1 => {
+                    if !matches!(place, Body::LinearEmm(_)) {
+                        *place = Body::LinearEmm(ZERO);
+                    }
+                    match place {
+                        Body::LinearEmm(e) => variant.newtype_variant_seed(InPlace(e)),
+                        _ => Err(de::Error::custom("variant switch")),
+                    }
+                }
+                2 => {
+                    if !matches!(place, Body::NemmLight { .. }) {
+                        *place = Body::NemmLight {
+                            emm: ZERO,
+                            b_fl: Scaler::empty(),
+                        };
+                    }
+                    match place {
+                        Body::NemmLight { emm, b_fl } => variant.struct_variant(
+                            LIGHT_FIELDS,
+                            Fields {
+                                emm,
+                                scalers: [Some(b_fl), None, None],
+                            },
+                        ),
+                        _ => Err(de::Error::custom("variant switch")),
+                    }
+                }
+                3 => {
+                    if !matches!(place, Body::Nemm { .. }) {
+                        *place = Body::Nemm {
+                            emm: ZERO,
+                            b_fl: Scaler::empty(),
+                            b_pr: Scaler::empty(),
+                            k_pr: Scaler::empty(),
+                        };
+                    }
+                    match place {
+                        Body::Nemm {
+                            emm,
+                            b_fl,
+                            b_pr,
+                            k_pr,
+                        } => variant.struct_variant(
+                            NEMM_FIELDS,
+                            Fields {
+                                emm,
+                                scalers: [Some(b_fl), Some(b_pr), Some(k_pr)],
+                            },
+                        ),
+                        _ => Err(de::Error::custom("variant switch")),
+                    }
+                }
+                other => Err(de::Error::invalid_value(
+                    de::Unexpected::Unsigned(u64::from(other)),
+                    &"variant index 0 <= i < 4",
+                )),
+            }
+        }
+    }
+
+    impl<'de, const P: usize> Deserialize<'de> for Body<P> {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            let mut b = Body::LinearEmm(ZERO);
+            Self::deserialize_in_place(d, &mut b)?;
+            Ok(b)
+        }
+
+        fn deserialize_in_place<D: Deserializer<'de>>(d: D, place: &mut Self) -> Result<(), D::Error> {
+            d.deserialize_enum("Body", VARIANTS, BodyVisitor(place))
         }
     }
 }

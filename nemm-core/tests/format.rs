@@ -60,15 +60,14 @@ fn layout_is_header_body_crc() {
     }
 }
 
-/// `encode` into every buffer length: too short is `BufferTooSmall`, never a panic; long
-/// enough gives the same blob. The body is serialised at the largest header offset first, so
-/// the buffer must hold `MAX_HEADER_LEN + body_len` bytes, up to 14 more than the blob.
+/// `encode` into every buffer length: too short is `BufferTooSmall`, never a panic; a buffer
+/// of exactly `encoded_len` bytes (the blob's length) or longer gives the same blob.
 #[test]
 fn encode_into_every_buffer_length() {
     for m in small_models() {
         let blob = blob_of(&m);
-        let h = read_header(&blob).unwrap();
-        let need = (MAX_HEADER_LEN + h.body_len as usize).max(blob.len());
+        let need = nemm_core::format::encoded_len(&m).unwrap();
+        assert_eq!(need, blob.len());
         let mut buf = vec![0u8; need + 8];
         for n in 0..buf.len() {
             match encode(&m, &mut buf[..n]) {
@@ -83,6 +82,37 @@ fn encode_into_every_buffer_length() {
             }
         }
     }
+}
+
+/// `decode_into` decodes in place: a model of the largest capacity (three 36.6 KiB scalers)
+/// decodes on a thread whose whole stack is the size of one model (decode by value
+/// needs several copies), and
+/// re-decoding into a model of another kind switches the kind.
+#[test]
+fn decode_into_works_in_place_with_a_small_stack() {
+    // Boxed: the closure below captures them and must not put them on the small stack.
+    let big: Box<Model> =
+        Box::new(nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 32, 9).unwrap());
+    let blob = blob_of(&big);
+    let small: Box<Model> =
+        Box::new(nemm_core::testing::example_model(nemm_core::ModelKind::Sem, 16, 5).unwrap());
+    let sem_blob = blob_of(&small);
+    let model_bytes = std::mem::size_of::<Model>();
+    assert!(model_bytes > 100_000, "{model_bytes}");
+    let stack = model_bytes;
+    // The place is made here, on the big main-test stack, and only its box moves.
+    let mut place: Box<Model> = Box::new(Model::empty());
+    let handle = std::thread::Builder::new()
+        .stack_size(stack)
+        .spawn(move || {
+            let place = &mut *place;
+            nemm_core::decode_into(&blob, place).unwrap();
+            let same = *place == *big;
+            nemm_core::decode_into(&sem_blob, place).unwrap();
+            (same, *place == *small)
+        })
+        .unwrap();
+    assert_eq!(handle.join().unwrap(), (true, true));
 }
 
 #[test]
