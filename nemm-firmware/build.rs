@@ -1,6 +1,9 @@
 //! Build-time inputs of the firmware, all written to `OUT_DIR`:
 //!
-//! - `memory.x` for cortex-m-rt's `link.x`.
+//! - `memory.x` for cortex-m-rt's `link.x`: the layout named by `NEMM_MEMORY_X`, default
+//!   `boards/mps2-an386.x` (QEMU, with an STM32F4's budget; `boards/stm32f407.x` for an
+//!   STM32F405/407), and `nemm-sections.x`, which every layout includes. (There is no
+//!   `memory.x` in the crate directory: the linker would find it there first.)
 //! - `weights.slot`: the weights slot (`src/slot.rs`) holding the `.nemm` blob named by
 //!   `NEMM_WEIGHTS` (default `data/example-nemm.nemm`, the example NEMM of `nemm-core`,
 //!   H = 16, L = 5, pseudo-random weights; the trainer's `model.nemm` drops in here).
@@ -30,9 +33,16 @@ fn main() {
     let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets it"));
     let out = PathBuf::from(env::var("OUT_DIR").expect("cargo sets it"));
 
-    fs::copy(manifest_dir.join("memory.x"), out.join("memory.x")).expect("copy memory.x");
+    let memory = input_path(&manifest_dir, "NEMM_MEMORY_X", "boards/mps2-an386.x");
+    fs::copy(&memory, out.join("memory.x"))
+        .unwrap_or_else(|e| panic!("NEMM_MEMORY_X: cannot copy {}: {e}", memory.display()));
+    fs::copy(
+        manifest_dir.join("nemm-sections.x"),
+        out.join("nemm-sections.x"),
+    )
+    .expect("copy nemm-sections.x");
     println!("cargo:rustc-link-search={}", out.display());
-    println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=nemm-sections.x");
 
     let weights = input_path(&manifest_dir, "NEMM_WEIGHTS", "data/example-nemm.nemm");
     let blob = fs::read(&weights)
@@ -77,7 +87,7 @@ fn slot(blob: &[u8], path: &Path) -> Vec<u8> {
     if blob.len() > room {
         panic!(
             "NEMM_WEIGHTS: {} is {} bytes, the weights slot holds {room}; export a smaller model \
-             or raise slot::CAPACITY (and the WEIGHTS region in memory.x)",
+             or raise slot::CAPACITY (and the WEIGHTS region in boards/*.x)",
             path.display(),
             blob.len()
         );

@@ -1,5 +1,5 @@
 //! Board support: QEMU's `mps2-an386` (Cortex-M4 with FPU), linked with the memory budget of
-//! an STM32F407 (see `memory.x`). Porting to a real board replaces this module: the clock,
+//! an STM32F4 (see `boards/`). Porting to a real board replaces this module: the clock,
 //! the sensor's SPI device, where the force is published, and the console.
 //!
 //! Everything else in the firmware is board-independent.
@@ -44,7 +44,7 @@ static WEIGHTS_SLOT: [u8; crate::slot::CAPACITY] =
     *include_bytes!(concat!(env!("OUT_DIR"), "/weights.slot"));
 
 extern "C" {
-    /// Start of the weights region (`memory.x`).
+    /// Start of the weights region (`nemm-sections.x`).
     static __nemm_weights_start: u8;
     /// Lowest address of the stack (end of the statics), from cortex-m-rt's `link.x`.
     static _stack_end: u32;
@@ -64,7 +64,7 @@ pub fn weights_slot() -> &'static [u8] {
     // Keep the default contents in the image.
     let _ = core::hint::black_box(&WEIGHTS_SLOT);
     // SAFETY: `__nemm_weights_start` is the first byte of the `.nemm_weights` output section,
-    // which `memory.x` places at the start of the WEIGHTS region and which holds
+    // which `nemm-sections.x` places at the start of the WEIGHTS region and which holds
     // `WEIGHTS_SLOT` (`slot::CAPACITY` bytes of read-only flash); nothing writes it at run time.
     unsafe {
         core::slice::from_raw_parts(

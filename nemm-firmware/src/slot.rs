@@ -1,6 +1,6 @@
 //! The weights slot: a fixed flash region that holds one exported `.nemm` blob, so new
 //! weights can be flashed without rebuilding the firmware (on an STM32F407: the last 128 KiB
-//! sector at `0x080E0000`; see `memory.x`).
+//! sector at `0x080E0000`; see `boards/stm32f407.x`).
 //!
 //! ```text
 //! offset  field
