@@ -20,12 +20,13 @@
 //! `sqrt` and `fma` are correctly rounded IEEE 754 operations on every target, so they give
 //! the same bits on the host and on the Cortex-M4F:
 //!
-//! - on ARM hard-float targets (`thumbv7em-none-eabihf`, FPv4-SP) they are the instructions
-//!   `vsqrt.f32` and `vfma.f32` in `asm!` (see the `arm` module for why the operands travel
-//!   through core registers). `libm` 0.2 has no ARM path: it compiles `sqrtf` to a
-//!   ~100-instruction integer routine and `fmaf` to soft `f64` arithmetic (over a thousand
-//!   instructions per call in QEMU); stable Rust has no `no_std` intrinsic for either. This
-//!   is the only `unsafe` in the crate.
+//! - on bare-metal ARM hard-float targets (`thumbv7em-none-eabihf`, FPv4-SP) they are the
+//!   instructions `vsqrt.f32` and `vfma.f32` in `asm!` (see the `arm` module for why the
+//!   operands travel through core registers). `libm` 0.2 has no ARM path: it compiles
+//!   `sqrtf` to a ~100-instruction integer routine and `fmaf` to soft `f64` arithmetic (over
+//!   a thousand instructions per call in QEMU); stable Rust has no `no_std` intrinsic for
+//!   either. This module and the scalers' FPU kernels (`mlp::arm`) hold the only `unsafe`
+//!   in the crate.
 //! - elsewhere `libm::sqrtf` (SSE `sqrtss` on x86-64) and `libm::fmaf` (hardware FMA when
 //!   the CPU has it, detected at run time, otherwise an exact software routine).
 //!
@@ -79,11 +80,11 @@ pub fn sigmoid(z: f32) -> f32 {
 /// Correctly rounded square root.
 #[inline(always)]
 pub fn sqrt(x: f32) -> f32 {
-    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf", target_os = "none"))]
     {
         arm::vsqrt(x)
     }
-    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf", target_os = "none")))]
     {
         libm::sqrtf(x)
     }
@@ -92,17 +93,17 @@ pub fn sqrt(x: f32) -> f32 {
 /// Fused multiply-add `a * b + c` with a single rounding.
 #[inline(always)]
 pub fn fma(a: f32, b: f32, c: f32) -> f32 {
-    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf", target_os = "none"))]
     {
         arm::vfma(a, b, c)
     }
-    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf", target_os = "none")))]
     {
         libm::fmaf(a, b, c)
     }
 }
 
-#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+#[cfg(all(target_arch = "arm", target_abi = "eabihf", target_os = "none"))]
 #[allow(unsafe_code)]
 mod arm {
     //! `vsqrt.f32` and `vfma.f32` through `asm!`.
@@ -110,59 +111,60 @@ mod arm {
     //! Stable Rust (1.95/1.96) refuses the `sreg` register class on `thumbv7em-none-eabihf`
     //! ("requires the `vfp2` target feature": the target only has `vfp4d16sp`, which Rust does
     //! not map to `vfp2`), so the operands travel in core registers and each block moves them
-    //! into `s0..s2` itself, saving and restoring those registers around the instruction:
-    //! the compiler never sees an FPU register change. `vmov` between core and FPU registers
-    //! is one cycle each on a Cortex-M4F; the hardware instruction still beats the software
-    //! routines (`libm::sqrtf`: ~100 integer instructions; `libm::fmaf`: soft `f64`) by far.
+    //! into `s0..s2` itself. Those FPU registers are declared as clobbers (`out("s0") _`),
+    //! which rustc accepts without the feature check, so the compiler keeps none of its own
+    //! values there across the block. `vmov` between core and FPU registers is one cycle each
+    //! on a Cortex-M4F; the hardware instruction still beats the software routines
+    //! (`libm::sqrtf`: ~100 integer instructions; `libm::fmaf`: soft `f64`) by far.
+    //!
+    //! The per-step hot path (the scalers' networks) does not come through here: it runs as
+    //! whole-network FPU kernels (`mlp::arm`). These remain for the EMM right-hand side, the
+    //! integrator and the output mapping (a few dozen per step).
+    //!
+    //! Requires an FPU with fused multiply-add (VFPv4 or later: Cortex-M4F, M7, M33).
 
     /// `vsqrt.f32`: IEEE 754 square root, correctly rounded.
     #[inline(always)]
     pub fn vsqrt(x: f32) -> f32 {
-        let r: f32;
-        // SAFETY: FPU register `s0` is saved in a core register and restored; no memory, no
+        let r: u32;
+        // SAFETY: register-only; the FPU register used is declared clobbered; no memory, no
         // stack, no flags other than the FPSCR cumulative exception bits.
         unsafe {
             core::arch::asm!(
-                "vmov {t}, s0",
                 "vmov s0, {x}",
                 "vsqrt.f32 s0, s0",
                 "vmov {r}, s0",
-                "vmov s0, {t}",
-                x = in(reg) x,
+                x = in(reg) x.to_bits(),
                 r = lateout(reg) r,
-                t = out(reg) _,
+                out("s0") _,
                 options(pure, nomem, nostack, preserves_flags),
             );
         }
-        r
+        f32::from_bits(r)
     }
 
     /// `vfma.f32`: fused `a * b + c`, one rounding.
     #[inline(always)]
     pub fn vfma(a: f32, b: f32, c: f32) -> f32 {
-        let r: f32;
-        // SAFETY: as above; `s0..s2` are saved in core registers and restored.
+        let r: u32;
+        // SAFETY: as above; `s0..s2` are declared clobbered.
         unsafe {
             core::arch::asm!(
-                "vmov {t0}, {t1}, s0, s1",
-                "vmov {t2}, s2",
                 "vmov s0, s1, {a}, {b}",
                 "vmov s2, {c}",
                 "vfma.f32 s2, s0, s1",
                 "vmov {r}, s2",
-                "vmov s0, s1, {t0}, {t1}",
-                "vmov s2, {t2}",
-                a = in(reg) a,
-                b = in(reg) b,
-                c = in(reg) c,
+                a = in(reg) a.to_bits(),
+                b = in(reg) b.to_bits(),
+                c = in(reg) c.to_bits(),
                 r = lateout(reg) r,
-                t0 = out(reg) _,
-                t1 = out(reg) _,
-                t2 = out(reg) _,
+                out("s0") _,
+                out("s1") _,
+                out("s2") _,
                 options(pure, nomem, nostack, preserves_flags),
             );
         }
-        r
+        f32::from_bits(r)
     }
 }
 

@@ -40,6 +40,15 @@
 use crate::math;
 use serde::{Deserialize, Serialize};
 
+#[cfg(all(
+    target_arch = "arm",
+    target_abi = "eabihf",
+    target_os = "none",
+    not(feature = "micromath")
+))]
+#[allow(unsafe_code)]
+mod arm;
+
 /// Negative-side slope of the LeakyReLU activation (PyTorch and burn default).
 pub const LEAKY_RELU_SLOPE: f32 = 0.01;
 /// LayerNorm epsilon added to the variance (PyTorch and burn default).
@@ -343,12 +352,34 @@ pub fn scale_from_raw(z: f32, s_min: f32, s_max: f32) -> f32 {
 ///   `fma(span, sigmoid(z), lo)` with `lo = p_ini s_min`, `span = p_ini (s_max - s_min)`.
 ///
 /// Layout of `w`: layer 1 `w1c (H), b1c (H), gamma (H), beta (H)`; layers 2..=L `Wc (H x H),
-/// bc (H), gamma (H), beta (H)`; output `w_o (H), b_o`.
+/// bc (H), gamma (H), beta (H)`; output `w_o (H), b_o`. `Wc` is stored in column blocks of
+/// [`COLUMN_BLOCK`] inputs (block `c`: all `H` rows, columns `16c .. min(16c + 16, H)`,
+/// row-major), so for `H <= 16` it is plain row-major. The order of the arithmetic does not
+/// depend on the layout.
+///
+/// # Exact arithmetic of [`CompiledScaler::eval`] (identical on every target)
+///
+/// ```text
+/// layer 1:  t_i = fma(w1c_i, u, b1c_i)
+/// layer l:  t_i = fma-chain: acc = bc_i; for j in 0..H: acc = fma(Wc_ij, a_j, acc)
+/// each:     var = (fma-chain of t_i * t_i from 0, i ascending) * (1 / H)
+///           r   = 1 / sqrt(var + LAYER_NORM_EPS)
+///           a_i = leaky_relu(fma(gamma_i, t_i * r, beta_i))
+/// output:   z   = fma-chain from b_o over w_o_i * a_i;  p = fma(span, sigmoid(z), lo)
+/// ```
+///
+/// On bare-metal hard-float Arm (Cortex-M4F) and `H` = 8, 16 or 32 the part from `u` to `z`
+/// runs as a hand-scheduled FPU kernel (module `mlp::arm`) that performs exactly these
+/// operations in this order with the IEEE 754 instructions `vfma.f32`, `vmul.f32`,
+/// `vadd.f32`, `vsqrt.f32`, `vdiv.f32`, so it returns the same bits as this portable code on
+/// the host (where `fma` is `libm::fmaf` and `sqrt` is `libm::sqrtf`, both correctly
+/// rounded). Other widths use the portable code on every target.
 #[derive(Debug, Clone)]
 pub struct CompiledScaler<const P: usize> {
     hidden: usize,
     layers: usize,
-    inv_h: f32,
+    /// `[1 / H, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, 0.0]`, in this order for the Arm kernel.
+    consts: [f32; 4],
     w: heapless::Vec<f32, P>,
     /// Raw alpha column of layer 1 (times `1/alpha_scale`), for [`Self::set_alpha`].
     alpha_col: [f32; MAX_HIDDEN],
@@ -356,6 +387,30 @@ pub struct CompiledScaler<const P: usize> {
     b1_raw: [f32; MAX_HIDDEN],
     lo: f32,
     span: f32,
+}
+
+/// Inputs per column block of a compiled hidden-layer matrix (see [`CompiledScaler`]).
+pub const COLUMN_BLOCK: usize = 16;
+
+/// Length of a compiled scaler's weight vector for width `h` and `layers` hidden layers
+/// (`None` on overflow): `4H + (L - 1)(H^2 + 3H) + H + 1`.
+pub const fn compiled_len(h: usize, layers: usize) -> Option<usize> {
+    if layers == 0 {
+        return None;
+    }
+    let Some(hh) = h.checked_mul(h) else {
+        return None;
+    };
+    let Some(per) = hh.checked_add(3 * h) else {
+        return None;
+    };
+    let Some(hidden) = per.checked_mul(layers - 1) else {
+        return None;
+    };
+    let Some(n) = hidden.checked_add(5 * h) else {
+        return None;
+    };
+    n.checked_add(1)
 }
 
 impl<const P: usize> CompiledScaler<P> {
@@ -419,10 +474,17 @@ impl<const P: usize> CompiledScaler<P> {
                 for m in mean_col.iter_mut() {
                     *m /= hf;
                 }
-                for row in layer.w.chunks_exact(h) {
-                    for (&v, &m) in row.iter().zip(&mean_col) {
-                        w.push(v - m).ok()?;
+                // Centred columns, block by block of COLUMN_BLOCK inputs.
+                let mut c0 = 0;
+                while c0 < h {
+                    let c1 = (c0 + COLUMN_BLOCK).min(h);
+                    let means = mean_col.get(c0..c1)?;
+                    for row in layer.w.chunks_exact(h) {
+                        for (&v, &m) in row.get(c0..c1)?.iter().zip(means) {
+                            w.push(v - m).ok()?;
+                        }
                     }
+                    c0 = c1;
                 }
                 let mean_b = layer.b.iter().fold(0.0f32, |s, &v| s + v) / hf;
                 for &b in layer.b {
@@ -435,10 +497,13 @@ impl<const P: usize> CompiledScaler<P> {
         let (w_o, b_o) = mlp.output()?;
         w.extend_from_slice(w_o).ok()?;
         w.push(b_o).ok()?;
+        if Some(w.len()) != compiled_len(h, mlp.layers as usize) {
+            return None;
+        }
         let mut c = Self {
             hidden: h,
             layers: mlp.layers as usize,
-            inv_h: 1.0 / hf,
+            consts: [1.0 / hf, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, 0.0],
             w,
             alpha_col,
             b1_raw,
@@ -458,7 +523,8 @@ impl<const P: usize> CompiledScaler<P> {
             *bi = math::fma(ac, alpha, br);
         }
         let bh = b.get(..h).unwrap_or(&[]);
-        let mean = bh.iter().fold(0.0f32, |s, &v| s + v) * self.inv_h;
+        let [inv_h, ..] = self.consts;
+        let mean = bh.iter().fold(0.0f32, |s, &v| s + v) * inv_h;
         if let Some(dst) = self.w.get_mut(h..2 * h) {
             for (d, &v) in dst.iter_mut().zip(bh) {
                 *d = v - mean;
@@ -469,41 +535,75 @@ impl<const P: usize> CompiledScaler<P> {
     /// Physical parameter value `p(u)` at state input `u` (SI units of the state).
     #[inline]
     pub fn eval(&self, u: f32) -> f32 {
+        math::fma(self.span, math::sigmoid(self.raw(u)), self.lo)
+    }
+
+    /// Raw network output `z` at state input `u`: the Arm FPU kernel where there is one
+    /// for this width, the portable code otherwise (same bits; public for the on-target
+    /// comparison with [`Self::raw_portable`] in the firmware's bench).
+    #[doc(hidden)]
+    #[inline(always)]
+    pub fn raw(&self, u: f32) -> f32 {
+        #[cfg(all(
+            target_arch = "arm",
+            target_abi = "eabihf",
+            target_os = "none",
+            not(feature = "micromath")
+        ))]
+        if let Some(z) = arm::raw(self.hidden, self.layers, &self.w, &self.consts, u) {
+            return z;
+        }
+        self.raw_portable(u)
+    }
+
+    /// Portable evaluation of the raw output `z`: the reference of the Arm kernel.
+    #[doc(hidden)]
+    pub fn raw_portable(&self, u: f32) -> f32 {
         let h = self.hidden;
+        // For an inconsistent layout (which `compile` rules out): `z = -inf` makes `eval`
+        // return `lo`.
+        let fallback = f32::NEG_INFINITY;
         let mut a = [0.0f32; MAX_HIDDEN];
         let mut t = [0.0f32; MAX_HIDDEN];
         let mut rest: &[f32] = &self.w;
         // Layer 1: scalar input.
         let (Some(w1), Some(b1)) = (take(&mut rest, h), take(&mut rest, h)) else {
-            return self.lo;
+            return fallback;
         };
         for ((ti, &wi), &bi) in t.iter_mut().zip(w1).zip(b1) {
             *ti = math::fma(wi, u, bi);
         }
-        if !self.norm_act(&mut rest, &mut t, &mut a) {
-            return self.lo;
+        if !self.norm_act(&mut rest, &t, &mut a) {
+            return fallback;
         }
         for _ in 1..self.layers {
             let (Some(wm), Some(b)) = (take(&mut rest, h * h), take(&mut rest, h)) else {
-                return self.lo;
+                return fallback;
             };
-            let a_in = a.get(..h).unwrap_or(&[]);
-            for ((ti, row), &bi) in t.iter_mut().zip(wm.chunks_exact(h)).zip(b) {
-                *ti = dot_acc(row, a_in, bi);
+            for (ti, &bi) in t.iter_mut().zip(b) {
+                *ti = bi;
             }
-            if !self.norm_act(&mut rest, &mut t, &mut a) {
-                return self.lo;
+            let mut blocks = wm;
+            for xs in a.get(..h).unwrap_or(&[]).chunks(COLUMN_BLOCK) {
+                let Some(block) = take(&mut blocks, h * xs.len()) else {
+                    return fallback;
+                };
+                for (ti, row) in t.iter_mut().zip(block.chunks_exact(xs.len())) {
+                    *ti = dot_acc(row, xs, *ti);
+                }
+            }
+            if !self.norm_act(&mut rest, &t, &mut a) {
+                return fallback;
             }
         }
         let (Some(w_o), Some(b_o)) = (take(&mut rest, h), take(&mut rest, 1)) else {
-            return self.lo;
+            return fallback;
         };
-        let z = dot_acc(
+        dot_acc(
             w_o,
             a.get(..h).unwrap_or(&[]),
             b_o.first().copied().unwrap_or(0.0),
-        );
-        math::fma(self.span, math::sigmoid(z), self.lo)
+        )
     }
 
     /// Centred LayerNorm + affine + LeakyReLU from `t` into `a`; consumes gamma and beta.
@@ -511,7 +611,7 @@ impl<const P: usize> CompiledScaler<P> {
     fn norm_act(
         &self,
         rest: &mut &[f32],
-        t: &mut [f32; MAX_HIDDEN],
+        t: &[f32; MAX_HIDDEN],
         a: &mut [f32; MAX_HIDDEN],
     ) -> bool {
         let h = self.hidden;
@@ -519,7 +619,8 @@ impl<const P: usize> CompiledScaler<P> {
             return false;
         };
         let th = t.get(..h).unwrap_or(&[]);
-        let var = th.iter().fold(0.0f32, |s, &d| math::fma(d, d, s)) * self.inv_h;
+        let [inv_h, ..] = self.consts;
+        let var = th.iter().fold(0.0f32, |s, &d| math::fma(d, d, s)) * inv_h;
         let r = math::rsqrt(var + LAYER_NORM_EPS);
         for (((ai, &ti), &gi), &bi) in a.iter_mut().zip(th).zip(g).zip(be) {
             *ai = leaky_relu(math::fma(gi, ti * r, bi));

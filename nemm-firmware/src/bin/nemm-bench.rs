@@ -1,19 +1,44 @@
-//! Instructions per estimator step on the target (`cargo xtask bench-target`).
+//! Instructions per estimator step on the target (`cargo xtask bench-target`), the on-target
+//! check of the scalers' FPU kernels, and force bits for the host/target parity check.
 //!
-//! Loads the weights slot like the application, turns the first samples of the recorded trace
-//! into velocities through the real sensor path, then, for each integrator, times
-//! `Estimator::step` over them with SysTick (core clock, free running) and prints
+//! The model is the weights slot's (as in the application), or with `example=<kind>` the
+//! example model `nemm_core::testing::example_model(kind, hidden, layers)` built on the
+//! target (no rebuild per kind). The input is the first samples of the recorded trace turned
+//! into velocities through the real sensor path. For each integrator it times
+//! `Estimator::step` with SysTick (core clock, free running) and prints one line:
 //!
 //! ```text
-//! bench kind=nemm integrator=rk4 mode=exact steps=2000 ticks=812345 baseline_ticks=2001
+//! bench kind=nemm integrator=rk4 mode=exact hidden=16 layers=5 steps=2000 ticks=775432 baseline_ticks=250 instructions_per_step=15504 held=0 resets=0
 //! ```
 //!
 //! Every step is timed on its own (the 24-bit counter wraps after 2^24 ticks); `ticks` is the
-//! sum, `baseline_ticks` the same measurement around an empty body. Under `qemu-system-arm -icount shift=0`
-//! one instruction takes 1 ns and one SysTick tick 40 ns, so the host turns
-//! `(ticks - baseline_ticks) * 40 / steps` into instructions per step.
+//! sum, `baseline_ticks` the same measurement around an empty body. Under `qemu-system-arm
+//! -icount shift=0` one instruction takes 1 ns and one SysTick tick 40 ns (the `calibration`
+//! line checks it: 2 instructions per iteration of `int_loop`), and `instructions_per_step =
+//! round((ticks - baseline_ticks) * 2 * iterations / (int_loop_ticks * steps))`. On real
+//! hardware the same formula gives cycles per step times 2 / (cycles of one `subs; bne`
+//! iteration); read `ticks` there instead. `hidden`/`layers` are those of the neural scalers
+//! (`0` for the SEM and the linear EMM).
 //!
-//! Options (QEMU command line): `mode=exact` (the only mode so far), `steps=N` (1..=4000).
+//! Options (QEMU command line, `-semihosting-config ...,arg=nemm-bench,arg=steps=500`):
+//!
+//! - `mode=exact` (the only mode so far), `steps=N` (1..=4000, default 2000),
+//!   `warmup=N` (0..=200, default 200), `integrator=rk4|rk3|both` (default both).
+//! - `example=sem|linear-emm|nemm-light|nemm`, `hidden=H` (default 16), `layers=L`
+//!   (default 5): the example model instead of the weights slot (`H`, `L` must fit the
+//!   firmware's parameter capacity, e.g. `H = 8` up to `L = 9`, `H = 32` up to `L = 2`).
+//! - `check=N`: before the benchmark, compares for every neural scaler of the model the raw
+//!   output of the FPU kernel with the portable code at `N` inputs across `±1.5` training
+//!   scales plus special values, bit for bit:
+//!   `kernel-check scaler=b_fl hidden=16 layers=5 inputs=N mismatches=0`
+//!   (exit code 1 if any differ).
+//! - `parity=N`: instead of timing, runs `N` steps (1..=4000) per integrator from a fresh
+//!   estimator (no warm-up) and prints every step as
+//!   `p <k> <velocity bits> <force bits> <flags>` (hex, `f32::to_bits`),
+//!   framed by `parity kind=... integrator=... steps=N` and
+//!   `parity-end integrator=... steps=N fnv=<FNV-1a of the force bits>`: the host runs the
+//!   same velocities through `nemm-core` and compares the bits.
+//! - `calibrate=0` skips the calibration loops.
 #![no_std]
 #![no_main]
 #![deny(missing_docs)]
@@ -30,7 +55,8 @@ use core::hint::black_box;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::entry;
-use nemm_core::{decode, Estimator, EstimatorConfig, Integrator, Model};
+use nemm_core::mlp::{CompiledScaler, Scaler};
+use nemm_core::{decode, Body, Estimator, EstimatorConfig, Integrator, Model, ModelKind};
 use nemm_firmware::board::{self, Console};
 use nemm_firmware::report::{self, Line};
 use nemm_firmware::trace::Trace;
@@ -38,10 +64,12 @@ use nemm_firmware::{slot, StaticSlot, PARAM_CAPACITY};
 
 /// Most steps per measurement.
 const MAX_STEPS: usize = 4000;
-/// Steps run before measuring (state and caches settle into the trace's regime).
-const WARMUP_STEPS: usize = 200;
+/// Most steps run before measuring (state settles into the trace's regime).
+const MAX_WARMUP_STEPS: usize = 200;
 /// SysTick reload: the full 24-bit range.
 const SYST_RANGE: u32 = 1 << 24;
+/// Exit code of a kernel-check mismatch.
+const EXIT_CHECK_FAILED: u32 = 1;
 
 /// Evaluation modes of the scalers; only the exact one exists so far.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -63,6 +91,72 @@ impl Mode {
     }
 }
 
+fn parse_kind(s: &str) -> Option<ModelKind> {
+    [
+        ModelKind::Sem,
+        ModelKind::LinearEmm,
+        ModelKind::NemmLight,
+        ModelKind::Nemm,
+    ]
+    .into_iter()
+    .find(|k| k.name() == s)
+}
+
+/// Command-line options.
+struct Options {
+    mode: Mode,
+    steps: usize,
+    warmup: usize,
+    integrators: &'static [Integrator],
+    example: Option<ModelKind>,
+    hidden: u8,
+    layers: u8,
+    check: u32,
+    parity: usize,
+    calibrate: bool,
+}
+
+impl Options {
+    /// Applies one `key=value` argument; `false` if it is not a valid option.
+    fn apply(&mut self, arg: &str) -> bool {
+        let Some((k, v)) = arg.split_once('=') else {
+            return true; // the program name
+        };
+        let num = |lo: usize, hi: usize| v.parse::<usize>().ok().filter(|n| (lo..=hi).contains(n));
+        match k {
+            "mode" => Mode::parse(v).map(|m| self.mode = m).is_some(),
+            "steps" => num(1, MAX_STEPS).map(|n| self.steps = n).is_some(),
+            "warmup" => num(0, MAX_WARMUP_STEPS).map(|n| self.warmup = n).is_some(),
+            "integrator" => {
+                self.integrators = match v {
+                    "rk4" => &[Integrator::Rk4],
+                    "rk3" => &[Integrator::Rk3],
+                    "both" => &[Integrator::Rk4, Integrator::Rk3],
+                    _ => return false,
+                };
+                true
+            }
+            "example" => parse_kind(v).map(|kd| self.example = Some(kd)).is_some(),
+            "hidden" => num(1, 32).map(|n| self.hidden = n as u8).is_some(),
+            "layers" => num(1, 9).map(|n| self.layers = n as u8).is_some(),
+            "check" => num(0, 1_000_000).map(|n| self.check = n as u32).is_some(),
+            "parity" => num(1, MAX_STEPS).map(|n| self.parity = n).is_some(),
+            "calibrate" => match v {
+                "0" => {
+                    self.calibrate = false;
+                    true
+                }
+                "1" => {
+                    self.calibrate = true;
+                    true
+                }
+                _ => false,
+            },
+            _ => false,
+        }
+    }
+}
+
 fn fail(console: &mut Console, line: &mut Line, code: u32) -> ! {
     console.write(line.finish());
     board::exit(code)
@@ -74,15 +168,16 @@ fn ticks_since(start: u32) -> u32 {
 
 static MODEL: StaticSlot<Model<PARAM_CAPACITY>> = StaticSlot::new();
 static ESTIMATOR: StaticSlot<Option<Estimator<PARAM_CAPACITY>>> = StaticSlot::new();
-static VELOCITIES: StaticSlot<[f32; MAX_STEPS + WARMUP_STEPS]> = StaticSlot::new();
+static VELOCITIES: StaticSlot<[f32; MAX_STEPS + MAX_WARMUP_STEPS]> = StaticSlot::new();
+static COMPILED: StaticSlot<Option<CompiledScaler<PARAM_CAPACITY>>> = StaticSlot::new();
 
 /// Iterations of the calibration loops.
 const CALIBRATION_ITERATIONS: u32 = 1_000_000;
 
 /// Times loops of known instruction counts (integer: `subs; bne`, 2 per iteration; FPU:
-/// `vadd.f32; subs; bne`, 3 per iteration) and prints their ticks, so the host can check the
-/// instructions-per-tick factor it assumes.
-fn calibrate(console: &mut Console) {
+/// `vadd.f32; subs; bne`, 3 per iteration), prints their ticks, and returns the integer
+/// loop's ticks (the instructions-per-tick factor is `2 * iterations / ticks`).
+fn calibrate(console: &mut Console) -> u32 {
     let start = SYST::get_current();
     // SAFETY: a register-only countdown loop.
     unsafe {
@@ -96,18 +191,16 @@ fn calibrate(console: &mut Console) {
     }
     let int_ticks = ticks_since(start);
     let start = SYST::get_current();
-    // SAFETY: `s0`/`s1` are saved in core registers and restored; no memory access.
+    // SAFETY: register-only; `s0`/`s1` are declared clobbered; no memory access.
     unsafe {
         core::arch::asm!(
-            "vmov {t0}, {t1}, s0, s1",
             "2:",
             "vadd.f32 s0, s0, s1",
             "subs {n}, #1",
             "bne 2b",
-            "vmov s0, s1, {t0}, {t1}",
             n = inout(reg) CALIBRATION_ITERATIONS => _,
-            t0 = out(reg) _,
-            t1 = out(reg) _,
+            out("s0") _,
+            out("s1") _,
             options(nomem, nostack),
         );
     }
@@ -118,64 +211,190 @@ fn calibrate(console: &mut Console) {
         .kv("int_loop_ticks", int_ticks)
         .kv("fp_loop_ticks", fp_ticks);
     console.write(l.finish());
+    int_ticks
+}
+
+/// `round(ticks * 2 * iterations / (int_loop_ticks * steps))`.
+fn instructions_per_step(ticks: u32, int_loop_ticks: u32, steps: usize) -> u32 {
+    let num = u64::from(ticks) * 2 * u64::from(CALIBRATION_ITERATIONS);
+    let den = u64::from(int_loop_ticks) * steps as u64;
+    if den == 0 {
+        return 0;
+    }
+    u32::try_from((num + den / 2) / den).unwrap_or(u32::MAX)
+}
+
+/// Width and depth of the model's neural scalers (`(0, 0)` without any).
+fn scaler_shape(model: &Model<PARAM_CAPACITY>) -> (u32, u32) {
+    match &model.body {
+        Body::NemmLight { b_fl, .. } | Body::Nemm { b_fl, .. } => {
+            (u32::from(b_fl.mlp.hidden), u32::from(b_fl.mlp.layers))
+        }
+        Body::Sem(_) | Body::LinearEmm(_) => (0, 0),
+    }
+}
+
+/// Bit-for-bit comparison of the kernel and the portable code of one state scaler, compiled
+/// as the estimator compiles it. Returns the number of mismatching inputs.
+#[allow(clippy::too_many_arguments)] // the compile arguments of the estimator, plus output
+fn check_scaler(
+    console: &mut Console,
+    slot: &mut Option<CompiledScaler<PARAM_CAPACITY>>,
+    name: &str,
+    scaler: &Scaler<PARAM_CAPACITY>,
+    p_ini: f32,
+    u_scale: f32,
+    alpha: f32,
+    alpha_scale: f32,
+    inputs: u32,
+) -> u32 {
+    let Some(c) = CompiledScaler::compile(scaler, p_ini, u_scale, alpha, alpha_scale) else {
+        let mut l = Line::new();
+        l.str("error").ks("kind", "compile").ks("scaler", name);
+        fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
+    };
+    let c = slot.insert(c);
+    const SPECIAL: [f32; 8] = [0.0, -0.0, 1e-30, -1e-30, 1e-3, -1e-3, 1e3, -1e3];
+    let mut mismatches = 0u32;
+    let mut first: Option<f32> = None;
+    let n = inputs.max(1);
+    for k in 0..inputs + SPECIAL.len() as u32 {
+        let u = match SPECIAL.get(k as usize) {
+            Some(&s) => s * u_scale,
+            None => {
+                let i = k - SPECIAL.len() as u32;
+                u_scale * (3.0 * i as f32 / n as f32 - 1.5)
+            }
+        };
+        let (a, b) = (c.raw(black_box(u)), c.raw_portable(black_box(u)));
+        if a.to_bits() != b.to_bits() {
+            mismatches += 1;
+            first.get_or_insert(u);
+        }
+    }
+    let mut l = Line::new();
+    l.str("kernel-check")
+        .ks("scaler", name)
+        .kv("hidden", u32::from(scaler.mlp.hidden))
+        .kv("layers", u32::from(scaler.mlp.layers))
+        .kv("inputs", inputs + SPECIAL.len() as u32)
+        .kv("mismatches", mismatches);
+    if let Some(u) = first {
+        l.kx("first_u_bits", u.to_bits());
+    }
+    console.write(l.finish());
+    mismatches
 }
 
 #[entry]
 fn main() -> ! {
     let mut console = Console::open();
-    let mut mode = Mode::Exact;
-    let mut steps = 2000usize;
+    let mut opt = Options {
+        mode: Mode::Exact,
+        steps: 2000,
+        warmup: MAX_WARMUP_STEPS,
+        integrators: &[Integrator::Rk4, Integrator::Rk3],
+        example: None,
+        hidden: 16,
+        layers: 5,
+        check: 0,
+        parity: 0,
+        calibrate: true,
+    };
     let mut args = [0u8; board::ARGS_CAPACITY];
     for arg in board::args(&mut args)
         .unwrap_or("")
         .split_ascii_whitespace()
     {
-        let ok = if let Some(m) = arg.strip_prefix("mode=") {
-            Mode::parse(m).map(|m| mode = m).is_some()
-        } else if let Some(n) = arg.strip_prefix("steps=") {
-            match n.parse::<usize>() {
-                Ok(n) if (1..=MAX_STEPS).contains(&n) => {
-                    steps = n;
-                    true
-                }
-                _ => false,
-            }
-        } else {
-            !arg.contains('=') // the program name
-        };
-        if !ok {
+        if !opt.apply(arg) {
             let mut l = Line::new();
             l.str("error").ks("kind", "bad-option").ks("option", arg);
             fail(&mut console, &mut l, report::EXIT_USAGE)
         }
     }
 
-    let model = match slot::blob(board::weights_slot()) {
-        Err(e) => {
-            let mut l = Line::new();
-            report::slot_error(&mut l, &e);
-            fail(&mut console, &mut l, report::EXIT_BAD_WEIGHTS)
+    let loaded = match opt.example {
+        Some(kind) => {
+            match nemm_core::testing::example_model::<PARAM_CAPACITY>(kind, opt.hidden, opt.layers)
+            {
+                Some(m) => m,
+                None => {
+                    let mut l = Line::new();
+                    l.str("error")
+                        .ks("kind", "example-over-capacity")
+                        .kv("hidden", u32::from(opt.hidden))
+                        .kv("layers", u32::from(opt.layers))
+                        .kv("capacity", PARAM_CAPACITY as u32);
+                    fail(&mut console, &mut l, report::EXIT_USAGE)
+                }
+            }
         }
-        Ok(blob) => match decode(blob) {
-            Ok(m) => match MODEL.init(m) {
-                Some(m) => &*m,
-                None => board::exit(report::EXIT_USAGE),
-            },
+        None => match slot::blob(board::weights_slot()) {
             Err(e) => {
                 let mut l = Line::new();
-                report::decode_error(&mut l, &e);
+                report::slot_error(&mut l, &e);
                 fail(&mut console, &mut l, report::EXIT_BAD_WEIGHTS)
             }
+            Ok(blob) => match decode(blob) {
+                Ok(m) => m,
+                Err(e) => {
+                    let mut l = Line::new();
+                    report::decode_error(&mut l, &e);
+                    fail(&mut console, &mut l, report::EXIT_BAD_WEIGHTS)
+                }
+            },
         },
     };
+    let Some(model) = MODEL.init(loaded) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    let model = &*model;
     let Ok(trace) = Trace::parse(board::trace_bytes()) else {
         let mut l = Line::new();
         l.str("error").ks("kind", "trace");
         fail(&mut console, &mut l, report::EXIT_USAGE)
     };
+    let (hidden, layers) = scaler_shape(model);
+
+    if opt.check > 0 {
+        let Some(slot) = COMPILED.init(None) else {
+            board::exit(report::EXIT_USAGE)
+        };
+        let (sc, alpha) = (&model.scales, trace.oil_loss);
+        let mut bad = 0;
+        if let Body::NemmLight { emm, b_fl } | Body::Nemm { emm, b_fl, .. } = &model.body {
+            bad += check_scaler(
+                &mut console,
+                slot,
+                "b_fl",
+                b_fl,
+                emm.b_fl_ns_per_m,
+                sc.velocity_m_s,
+                alpha,
+                sc.alpha,
+                opt.check,
+            );
+        }
+        if let Body::Nemm { emm, k_pr, .. } = &model.body {
+            bad += check_scaler(
+                &mut console,
+                slot,
+                "k_pr",
+                k_pr,
+                emm.k_pr_n_per_m,
+                sc.x_pr_m,
+                alpha,
+                sc.alpha,
+                opt.check,
+            );
+        }
+        if bad > 0 {
+            board::exit(EXIT_CHECK_FAILED)
+        }
+    }
 
     // Velocities through the real sensor path (a sample without one holds the previous).
-    let Some(velocities) = VELOCITIES.init([0.0; MAX_STEPS + WARMUP_STEPS]) else {
+    let Some(velocities) = VELOCITIES.init([0.0; MAX_STEPS + MAX_WARMUP_STEPS]) else {
         board::exit(report::EXIT_USAGE)
     };
     let mut sensor = board::sensor(trace);
@@ -186,8 +405,16 @@ fn main() -> ! {
         }
         *v = last;
     }
-    let velocities = velocities.get(..steps + WARMUP_STEPS).unwrap_or(&[]);
-    let (warmup, measured) = velocities.split_at(WARMUP_STEPS.min(velocities.len()));
+    // Parity runs start from a fresh estimator, so that the host replays exactly the
+    // printed velocities.
+    let warmup_steps = if opt.parity > 0 { 0 } else { opt.warmup };
+    let (warmup, rest) = velocities.split_at(warmup_steps);
+    let n_measured = if opt.parity > 0 {
+        opt.parity
+    } else {
+        opt.steps
+    };
+    let measured = rest.get(..n_measured).unwrap_or(rest);
 
     // SAFETY: this program is the only user of SysTick.
     let mut syst = unsafe { cortex_m::Peripherals::steal() }.SYST;
@@ -196,12 +423,17 @@ fn main() -> ! {
     syst.clear_current();
     syst.enable_counter();
 
-    calibrate(&mut console);
+    let int_loop_ticks = if opt.calibrate && opt.parity == 0 {
+        calibrate(&mut console)
+    } else {
+        // The factor QEMU's `-icount shift=0` gives on mps2-an386 (25 MHz SysTick).
+        2 * CALIBRATION_ITERATIONS / 40
+    };
 
     let Some(est_slot) = ESTIMATOR.init(None) else {
         board::exit(report::EXIT_USAGE)
     };
-    for integrator in [Integrator::Rk4, Integrator::Rk3] {
+    for &integrator in opt.integrators {
         let cfg = EstimatorConfig {
             integrator: Some(integrator),
             ..EstimatorConfig::new(trace.oil_loss)
@@ -216,6 +448,44 @@ fn main() -> ! {
         };
         for &v in warmup {
             black_box(est.step(black_box(v)));
+        }
+
+        if opt.parity > 0 {
+            let mut l = Line::new();
+            l.str("parity")
+                .ks("kind", model.kind().name())
+                .ks("integrator", integrator.name())
+                .ks("mode", opt.mode.name())
+                .kv("hidden", hidden)
+                .kv("layers", layers)
+                .kv("warmup", warmup.len() as u32)
+                .kv("steps", measured.len() as u32);
+            console.write(l.finish());
+            let mut fnv = 0x811c_9dc5u32;
+            for (k, &v) in measured.iter().enumerate() {
+                let e = est.step(v);
+                let bits = e.force_n.to_bits();
+                for byte in bits.to_le_bytes() {
+                    fnv = (fnv ^ u32::from(byte)).wrapping_mul(0x0100_0193);
+                }
+                let mut l = Line::new();
+                l.str("p ")
+                    .dec(k as u32)
+                    .str(" ")
+                    .hex_bare(v.to_bits(), 8)
+                    .str(" ")
+                    .hex_bare(bits, 8)
+                    .str(" ")
+                    .hex_bare(u32::from(e.flags.0), 2);
+                console.write(l.finish());
+            }
+            let mut l = Line::new();
+            l.str("parity-end")
+                .ks("integrator", integrator.name())
+                .kv("steps", measured.len() as u32)
+                .kx("fnv", fnv);
+            console.write(l.finish());
+            continue;
         }
 
         // Each step is timed on its own: the 24-bit counter wraps after 16.7 M ticks
@@ -237,10 +507,20 @@ fn main() -> ! {
         l.str("bench")
             .ks("kind", model.kind().name())
             .ks("integrator", integrator.name())
-            .ks("mode", mode.name())
+            .ks("mode", opt.mode.name())
+            .kv("hidden", hidden)
+            .kv("layers", layers)
             .kv("steps", measured.len() as u32)
             .kv("ticks", ticks)
             .kv("baseline_ticks", baseline)
+            .kv(
+                "instructions_per_step",
+                instructions_per_step(
+                    ticks.saturating_sub(baseline),
+                    int_loop_ticks,
+                    measured.len(),
+                ),
+            )
             .kv("held", est.diagnostics().held_samples)
             .kv("resets", est.diagnostics().resets);
         console.write(l.finish());
