@@ -128,6 +128,22 @@ fn every_estimate_is_bit_identical_to_the_host() {
     assert_eq!(out.expect("weights ok").get("kind"), Some("nemm"));
     assert_eq!(out.expect("summary").num("overruns"), 0);
     assert_parity("nemm, slow clock", &out, &reference, true);
+    // The stack (deepest at boot, while `decode` builds the model) stayed inside the RAM the
+    // layout leaves it: painted from `_stack_end` (end of the statics) to `_stack_start`.
+    let symbol = |name: &str| {
+        elf.symbols
+            .iter()
+            .find(|s| s.name == name)
+            .unwrap_or_else(|| panic!("no symbol {name}"))
+            .value
+    };
+    let room = symbol("_stack_start") - symbol("_stack_end");
+    let used = out.expect("summary").num("stack_used");
+    assert!(
+        used < room,
+        "the stack peak reached the statics: {used} of {room} bytes"
+    );
+    eprintln!("qemu_parity: stack peak {used} B of the {room} B the memory layout leaves it");
     eprintln!(
         "qemu_parity: {} periods of the bench trace, every velocity, force and flag \
          bit-identical to the host (|F| up to {:.1} N, {} digest chunks); QEMU {:.1} s",
