@@ -183,8 +183,8 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
 
 /// Length in bytes of the blob of `model` (header, body, CRC).
 pub fn encoded_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    let body_len = postcard::experimental::serialized_size(model)
-        .map_err(|_| EncodeError::BufferTooSmall)?;
+    let body_len =
+        postcard::experimental::serialized_size(model).map_err(|_| EncodeError::BufferTooSmall)?;
     let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
         .map_err(|_| EncodeError::BufferTooSmall)?;
     Ok(header_len + body_len + CRC_LEN)
@@ -197,8 +197,8 @@ pub fn encode<'b, const P: usize>(
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let body_len = postcard::experimental::serialized_size(model)
-        .map_err(|_| EncodeError::BufferTooSmall)?;
+    let body_len =
+        postcard::experimental::serialized_size(model).map_err(|_| EncodeError::BufferTooSmall)?;
     let hlen = postcard::to_slice(&header_for(model, body_len), buf)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();

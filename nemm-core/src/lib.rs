@@ -64,7 +64,9 @@ pub mod testing;
 
 pub use emm::{Coefficients, EmmConstants, State};
 pub use estimator::{Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags};
-pub use format::{decode, decode_into, encode, read_header, DecodeError, EncodeError, Header, FORMAT_VERSION};
+pub use format::{
+    decode, decode_into, encode, read_header, DecodeError, EncodeError, Header, FORMAT_VERSION,
+};
 pub use integrator::Integrator;
 pub use mlp::{MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
 pub use model::{Body, InputScales, Meta, Model, ModelError, ModelKind};

@@ -379,7 +379,11 @@ impl<const P: usize> Model<P> {
         finite_positive(dt_s, "dt_s")?;
         if let Some(tau_min_s) = self.fastest_time_constant_s() {
             // A NaN or infinite time constant (coefficients near f32::MAX) is not stable.
-            let tau_min_s = if tau_min_s.is_finite() { tau_min_s } else { 0.0 };
+            let tau_min_s = if tau_min_s.is_finite() {
+                tau_min_s
+            } else {
+                0.0
+            };
             let max_dt_s = STABILITY_MARGIN * integrator.stability_limit() * tau_min_s;
             if max_dt_s.is_nan() || dt_s > max_dt_s {
                 return Err(ModelError::UnstableStep {
@@ -479,7 +483,9 @@ mod body_serde {
     use crate::mlp::Scaler;
     use crate::sem::SemMap;
     use core::fmt;
-    use serde::de::{self, DeserializeSeed, Deserializer, EnumAccess, SeqAccess, VariantAccess, Visitor};
+    use serde::de::{
+        self, DeserializeSeed, Deserializer, EnumAccess, SeqAccess, VariantAccess, Visitor,
+    };
     use serde::Deserialize;
 
     const VARIANTS: &[&str] = &["Sem", "LinearEmm", "NemmLight", "Nemm"];
@@ -623,7 +629,10 @@ mod body_serde {
             Ok(b)
         }
 
-        fn deserialize_in_place<D: Deserializer<'de>>(d: D, place: &mut Self) -> Result<(), D::Error> {
+        fn deserialize_in_place<D: Deserializer<'de>>(
+            d: D,
+            place: &mut Self,
+        ) -> Result<(), D::Error> {
             d.deserialize_enum("Body", VARIANTS, BodyVisitor(place))
         }
     }
