@@ -17,7 +17,7 @@ fn spec(b: &VirtualBench, alpha: f64, amp: f64, v: f64) -> RunSpec {
 }
 
 /// A noise-free trace as a run, reduced to its cycle-averaged loop.
-fn trace_loop(s: &RunSpec, tr: &Trace) -> CycleLoop {
+fn trace_loop(b: &VirtualBench, s: &RunSpec, tr: &Trace) -> CycleLoop {
     let run = Run {
         entry: RunEntry {
             file: s.file.clone(),
@@ -30,7 +30,7 @@ fn trace_loop(s: &RunSpec, tr: &Trace) -> CycleLoop {
         force_n: tr.force_n.clone(),
         velocity_m_s: None,
     };
-    cycle_loop(&run).expect("loop of a simulated run")
+    cycle_loop(&run, b.config().program.sample_rate_hz).expect("loop of a simulated run")
 }
 
 fn temp_dir(tag: &str) -> PathBuf {
@@ -84,6 +84,32 @@ fn quasi_static_forces_are_monotone_and_passenger_car_sized() {
 }
 
 #[test]
+fn chamber_fluid_has_a_realistic_effective_bulk_modulus() {
+    // Gas-free liquid column (oil in series with the pressure tube): about 1.1 GPa. With the
+    // undissolved air of a damper in service the effective modulus is a few hundred MPa at
+    // working pressures and much lower near the rest pressure.
+    let b = bench();
+    let c_bg = b.config().aeration.background_gas_per_oil;
+    let liquid = b.effective_bulk_modulus_pa(20e5, 0.0);
+    assert!((0.9e9..=1.4e9).contains(&liquid), "liquid column {liquid}");
+    let mut last = 0.0;
+    for p_bar in [3.0, 4.0, 10.0, 20.0, 30.0, 40.0] {
+        let k = b.effective_bulk_modulus_pa(p_bar * 1e5, c_bg);
+        assert!(k > last && k < liquid, "{p_bar} bar: {k}");
+        if (10.0..=30.0).contains(&p_bar) {
+            assert!((150e6..=800e6).contains(&k), "{p_bar} bar: {k}");
+        }
+        last = k;
+    }
+    assert!(b.effective_bulk_modulus_pa(4e5, c_bg) < 100e6);
+    // Oil loss brings foam: softer still.
+    let c_15 = b.config().aeration.intake_gas_per_oil(0.15);
+    assert!(
+        b.effective_bulk_modulus_pa(20e5, c_15) < 0.5 * b.effective_bulk_modulus_pa(20e5, c_bg)
+    );
+}
+
+#[test]
 fn oil_loss_never_raises_the_quasi_static_force_and_lowers_the_gas_charge() {
     // Steady flow: the valve pressure drops do not depend on the oil volume; what oil loss
     // changes is the gas pressure (larger gas volume, Boyle) and with it the pressure-loaded
@@ -110,9 +136,12 @@ fn oil_loss_never_raises_the_quasi_static_force_and_lowers_the_gas_charge() {
 
 #[test]
 fn slow_run_follows_the_quasi_static_characteristic() {
+    // A slow run with a long stroke: at 10 mm the compliance of the aerated oil costs a
+    // noticeable part of the stroke even at 0.8 Hz (lost motion is a displacement), at 50 mm
+    // it does not.
     let b = bench();
-    let s = spec(&b, 0.0, 0.01, 0.052);
-    let l = trace_loop(&s, &b.simulate(&s));
+    let s = spec(&b, 0.0, 0.05, 0.052);
+    let l = trace_loop(&b, &s, &b.simulate(&s));
     let (reb, comp) = l.quasi_static_n();
     let (qr, qc) = (
         b.quasi_static_force(0.052, 0.0),
@@ -135,7 +164,7 @@ fn energy_per_cycle_is_positive_and_oil_loss_shows_as_hysteresis() {
         .iter()
         .map(|&a| {
             let s = spec(&b, a, 0.01, 1.048);
-            trace_loop(&s, &b.simulate(&s))
+            trace_loop(&b, &s, &b.simulate(&s))
         })
         .collect();
     for l in &loops {
@@ -153,21 +182,23 @@ fn energy_per_cycle_is_positive_and_oil_loss_shows_as_hysteresis() {
     assert!(e[0] > e[1] && e[1] > e[2], "energy {e:?}");
     assert!(a[2] > 1.5 * a[0] && a[1] > a[0], "hysteresis area {a:?}");
     // Asymmetry: early in the compression stroke (first 15 % of the half period after the
-    // upper reversal) the degraded damper pushes back much less.
+    // upper reversal) the degraded damper pushes back much less: the foam in the compression
+    // chamber must be compressed first (lost motion), the force stays tensile for longer.
     let early_compression = |l: &CycleLoop| {
         let n = l.force_n.len();
         let (from, to) = (n / 4, n / 4 + (0.15 * n as f64 / 2.0) as usize);
         l.force_n[from..to].iter().sum::<f64>() / (to - from) as f64
     };
     let (c0, c30) = (early_compression(&loops[0]), early_compression(&loops[2]));
+    let f_peak = loops[0].peak_force_n();
     assert!(
-        c0 < 0.0 && c30 > 0.6 * c0,
-        "early compression force: {c0} vs {c30}"
+        c30 - c0 > 0.1 * f_peak,
+        "early compression force: {c0} vs {c30} (peak {f_peak})"
     );
     // Other runs dissipate, too (slow and large amplitude).
     for (amp, v) in [(0.05, 0.131), (0.03, 0.524)] {
         let s = spec(&b, 0.30, amp, v);
-        let l = trace_loop(&s, &b.simulate(&s));
+        let l = trace_loop(&b, &s, &b.simulate(&s));
         assert!(
             l.dissipated_energy_j() > 0.0,
             "{:?}: {}",
@@ -182,7 +213,7 @@ fn oil_loss_opens_small_stroke_loops_more_than_large_stroke_loops() {
     let b = bench();
     let norm_area = |alpha: f64, amp: f64| {
         let s = spec(&b, alpha, amp, 0.524);
-        let l = trace_loop(&s, &b.simulate(&s));
+        let l = trace_loop(&b, &s, &b.simulate(&s));
         l.hysteresis_area()
     };
     let growth_small = norm_area(0.30, 0.01) - norm_area(0.0, 0.01);
@@ -190,6 +221,82 @@ fn oil_loss_opens_small_stroke_loops_more_than_large_stroke_loops() {
     assert!(
         growth_small > 0.0 && growth_small > growth_large,
         "{growth_small} vs {growth_large}"
+    );
+}
+
+#[test]
+fn loops_at_10_mm_open_with_frequency_and_oil_loss() {
+    // Section 3.2: narrow loops at low frequency that open with frequency, more so with oil
+    // loss. Runs at 10 mm and 2.1, 4.2, 8.3, 16.7 Hz (0.131 ... 1.048 m/s).
+    let b = bench();
+    let velocities = [0.131, 0.262, 0.524, 1.048];
+    let loops: Vec<Vec<CycleLoop>> = [0.0, 0.15, 0.30]
+        .iter()
+        .map(|&a| {
+            velocities
+                .iter()
+                .map(|&v| {
+                    let s = spec(&b, a, 0.01, v);
+                    trace_loop(&b, &s, &b.simulate(&s))
+                })
+                .collect()
+        })
+        .collect();
+    for row in &loops {
+        let area: Vec<f64> = row.iter().map(CycleLoop::hysteresis_area).collect();
+        let open: Vec<f64> = row.iter().map(CycleLoop::reversal_opening_n).collect();
+        for k in 1..row.len() {
+            assert!(
+                area[k] > area[k - 1] && open[k] > open[k - 1],
+                "alpha {}: loop area {area:?} / opening at v = 0 {open:?} must grow with frequency",
+                row[0].oil_loss
+            );
+        }
+    }
+    // Without oil loss: narrow at 2.1 Hz, visibly open at 16.7 Hz (relative to the peak force
+    // of the 16.7 Hz run, i.e. as in the normalised figure).
+    let f_peak = loops[0][3].peak_force_n();
+    let (open_slow, open_fast) = (
+        loops[0][0].reversal_opening_n(),
+        loops[0][3].reversal_opening_n(),
+    );
+    assert!(
+        open_slow < 0.1 * f_peak && open_fast > 0.25 * f_peak,
+        "0 %: opening {open_slow} N at 2.1 Hz, {open_fast} N at 16.7 Hz (peak {f_peak} N)"
+    );
+    // Oil loss widens the loops from 4.2 Hz on, most at the highest frequency.
+    for k in 1..velocities.len() {
+        let area: Vec<f64> = loops.iter().map(|row| row[k].hysteresis_area()).collect();
+        assert!(
+            area[1] > area[0] && area[2] > area[1],
+            "{} m/s: loop area {area:?} must grow with oil loss",
+            velocities[k]
+        );
+    }
+    let growth = |k: usize| loops[2][k].hysteresis_area() / loops[0][k].hysteresis_area();
+    assert!(growth(3) > growth(1), "{} vs {}", growth(3), growth(1));
+}
+
+#[test]
+fn runs_start_with_settled_free_gas() {
+    // The free gas is conditioned before a run (a periodic state), so it hardly drifts while
+    // the run is recorded, even for the most foaming run.
+    let b = bench();
+    let s = spec(&b, 0.30, 0.01, 1.048);
+    let tr = b.simulate(&s);
+    let start = (s.ramp_s * b.config().program.sample_rate_hz) as usize;
+    let (g0, g1) = (
+        tr.gas_compression_m3[start],
+        *tr.gas_compression_m3.last().unwrap(),
+    );
+    assert!(
+        g0 > 0.0 && (g1 / g0 - 1.0).abs() < 0.15,
+        "free gas {g0} -> {g1}"
+    );
+    let (r0, r1) = (tr.gas_rebound_m3[start], *tr.gas_rebound_m3.last().unwrap());
+    assert!(
+        r0 > 0.0 && (r1 / r0 - 1.0).abs() < 0.15,
+        "free gas {r0} -> {r1}"
     );
 }
 
@@ -404,8 +511,9 @@ fn plots_are_written_for_a_generated_dataset() {
         );
     }
     // Measured (noisy, quantised) runs give sensible loops.
-    for run in dataset::load(&data).unwrap().runs {
-        let l = cycle_loop(&run).unwrap();
+    let loaded = dataset::load(&data).unwrap();
+    for run in &loaded.runs {
+        let l = cycle_loop(run, loaded.sample_rate_hz).unwrap();
         assert!(l.dissipated_energy_j() > 0.0);
         let vmax = l.velocity_m_s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         assert!((vmax / 0.524 - 1.0).abs() < 0.05, "{vmax}");

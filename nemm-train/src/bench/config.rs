@@ -54,13 +54,19 @@ pub struct Geometry {
     pub reservoir_volume_m3: f64,
     /// Oil volume in the reserve tube at rest, mid-stroke, without oil loss \[m³\].
     pub reservoir_oil_volume_m3: f64,
+    /// Wall thickness of the pressure tube \[m\] (its radial expansion is a compliance of the
+    /// working chambers, `D / (t E)` per Pa).
+    pub pressure_tube_wall_m: f64,
+    /// Young's modulus of the pressure tube \[Pa\].
+    pub tube_youngs_modulus_pa: f64,
 }
 
 /// Oil properties.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Oil {
-    /// Effective bulk modulus of the gas-free oil including tube compliance \[Pa\].
+    /// Bulk modulus of the gas-free oil at working temperature \[Pa\] (the pressure-tube
+    /// compliance is added from the geometry, free gas from the aeration).
     pub bulk_modulus_pa: f64,
     /// Density \[kg/m³\].
     pub density_kg_m3: f64,
@@ -361,6 +367,17 @@ impl BenchConfig {
                 "must be smaller than geometry.reservoir_volume_m3 (leave room for the gas)".into(),
             ));
         }
+        positive("geometry.pressure_tube_wall_m", g.pressure_tube_wall_m)?;
+        if g.pressure_tube_wall_m >= 0.5 * g.piston_diameter_m {
+            return Err(invalid(
+                "geometry.pressure_tube_wall_m",
+                format!(
+                    "must be a thin wall, below half of geometry.piston_diameter_m ({})",
+                    g.piston_diameter_m
+                ),
+            ));
+        }
+        positive("geometry.tube_youngs_modulus_pa", g.tube_youngs_modulus_pa)?;
         positive("oil.bulk_modulus_pa", self.oil.bulk_modulus_pa)?;
         positive("oil.density_kg_m3", self.oil.density_kg_m3)?;
         positive(

@@ -100,6 +100,7 @@ impl Disc {
 /// or equals the cavitation pressure when even there `f < v` (a vapour cavity fills the rest).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Fluid {
+    /// Bulk modulus of the gas-free liquid column (oil and pressure tube, [`liquid_bulk_modulus`]).
     pub(crate) k_oil: f64,
     pub(crate) p_ref: f64,
     pub(crate) p_cav: f64,
@@ -117,6 +118,15 @@ pub(crate) struct ChamberPressure {
 }
 
 impl Fluid {
+    /// Tangent bulk modulus `-V dp/dV` of a mixture of oil with `gas_per_oil` normal volumes of
+    /// free gas per volume of oil at pressure `p` (Wood: `1/K = (1-e)/K_l + e/(n p)` with the
+    /// in-situ gas fraction `e`).
+    pub(crate) fn tangent_modulus(&self, gas_per_oil: f64, p: f64) -> f64 {
+        let e = (-(p - self.p_ref) / self.k_oil).exp();
+        let (vg, dvg) = self.gas_volume(gas_per_oil, p);
+        (e + vg) / (e / self.k_oil - dvg)
+    }
+
     #[inline]
     fn gas_volume(&self, g: f64, p: f64) -> (f64, f64) {
         if g == 0.0 {
@@ -187,6 +197,16 @@ impl Fluid {
             vapour: 0.0,
         }
     }
+}
+
+/// Bulk modulus of the gas-free liquid column in the pressure tube: the oil in series with
+/// the radial expansion of the thin-walled tube, `1/K_l = 1/K_oil + D/(t E)` (closed-end axial
+/// strain neglected). Used in the exponential oil law, which is exact to first order in
+/// `(p - p_ref) D/(t E)` (< 1e-3 up to 80 bar).
+pub(crate) fn liquid_bulk_modulus(cfg: &BenchConfig) -> f64 {
+    let g = &cfg.geometry;
+    let tube = g.piston_diameter_m / (g.pressure_tube_wall_m * g.tube_youngs_modulus_pa);
+    1.0 / (1.0 / cfg.oil.bulk_modulus_pa + tube)
 }
 
 /// Damper constants derived from the configuration.
@@ -283,7 +303,7 @@ impl Damper {
             v_compression0: a_piston * g.compression_chamber_length_m,
             v_reservoir: g.reservoir_volume_m3,
             fluid: Fluid {
-                k_oil: cfg.oil.bulk_modulus_pa,
+                k_oil: liquid_bulk_modulus(cfg),
                 p_ref: cfg.gas.atmospheric_pressure_pa,
                 p_cav: cfg.oil.cavitation_pressure_pa,
                 inv_n_bubble: 1.0 / cfg.gas.bubble_polytropic_exponent,
@@ -561,6 +581,29 @@ mod tests {
         let c = fl.pressure(0.9 * v, 0.0, v, 1e5);
         assert_eq!(c.p, fl.p_cav);
         assert!(c.vapour > 0.09 * v && c.dp_dm == 0.0);
+    }
+
+    #[test]
+    fn tangent_modulus_matches_the_chamber_pressure_law() {
+        let (cfg, d) = damper();
+        let fl = d.fluid;
+        // Liquid column: oil in series with the tube, D / (t E) = 1.2e-10 / Pa.
+        let tube = cfg.geometry.piston_diameter_m
+            / (cfg.geometry.pressure_tube_wall_m * cfg.geometry.tube_youngs_modulus_pa);
+        assert!((1.0 / fl.k_oil - 1.0 / cfg.oil.bulk_modulus_pa - tube).abs() < 1e-15);
+        // -V dp/dV of a chamber holding unit oil and gas g, from the pressure solver.
+        for g in [0.0, 0.04, 0.2] {
+            for p in [3e5, 1e6, 4e6] {
+                let k = fl.tangent_modulus(g, p);
+                let (vg, _) = fl.gas_volume(g, p);
+                let v = (-(p - fl.p_ref) / fl.k_oil).exp() + vg;
+                let dv = 1e-7 * v;
+                let p1 = fl.pressure(1.0, g, v - dv, p).p;
+                let p0 = fl.pressure(1.0, g, v + dv, p).p;
+                let num = v * (p1 - p0) / (2.0 * dv);
+                assert!((k / num - 1.0).abs() < 1e-4, "g {g} p {p}: {k} vs {num}");
+            }
+        }
     }
 
     #[test]

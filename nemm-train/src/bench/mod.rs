@@ -36,6 +36,10 @@ use sensor::{Quantiser, SplitMix64};
 use simulate::{Foam, StepSettings};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+/// Conditioning periods simulated before each run to settle the free gas (see
+/// `simulate::condition`).
+const CONDITIONING_PASSES: u32 = 2;
+
 /// The virtual bench: a configured damper model plus the measurement programme.
 #[derive(Debug, Clone)]
 pub struct VirtualBench {
@@ -88,6 +92,15 @@ impl VirtualBench {
         }
     }
 
+    /// Tangent bulk modulus \[Pa\] of the working-chamber fluid at absolute pressure
+    /// `pressure_pa` with `gas_per_oil` normal volumes of free gas per volume of oil: the oil
+    /// and pressure-tube compliance in series with the isothermal/polytropic bubbles (Wood).
+    /// With `gas_per_oil = aeration.background_gas_per_oil` this is the damper without oil
+    /// loss; with 0 it is the liquid column alone.
+    pub fn effective_bulk_modulus_pa(&self, pressure_pa: f64, gas_per_oil: f64) -> f64 {
+        self.damper.fluid.tangent_modulus(gas_per_oil, pressure_pa)
+    }
+
     fn tare(&self, f: &Filling) -> f64 {
         if self.cfg.sensors.tare_static_force {
             self.damper.force(f.p_rest, f.p_rest, 0.0)
@@ -110,13 +123,24 @@ impl VirtualBench {
             c_intake: a.intake_gas_per_oil(spec.oil_loss),
             tau: a.separation_time_s,
         };
-        let (g_r, g_c) = foam.conditioned(&self.damper, spec.peak_velocity_m_s);
-        let f = self.damper.with_gas(&rest, g_r, g_c);
         let settings = StepSettings {
             h,
             pressure_tolerance: self.cfg.solver.pressure_tolerance_pa,
             max_iterations: self.cfg.solver.max_newton_iterations,
         };
+        // First guess from the mean flows, then two conditioning periods at the sample step.
+        let (g_r, g_c) = foam.conditioned(&self.damper, spec.peak_velocity_m_s);
+        let guess = self.damper.with_gas(&rest, g_r, g_c);
+        let h_condition = h.max(1.0 / self.cfg.program.sample_rate_hz);
+        let f = simulate::condition(
+            &self.damper,
+            &guess,
+            foam,
+            &spec.excitation(),
+            h_condition,
+            &settings,
+            CONDITIONING_PASSES,
+        );
         simulate::simulate(&simulate::Job {
             damper: &self.damper,
             filling: &f,

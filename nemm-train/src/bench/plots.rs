@@ -4,13 +4,15 @@
 //!
 //! Each run is reduced to one cycle-averaged loop: the last full periods (at least one, up to
 //! 60 % of the run) are folded onto the phase of the displacement (a least-squares sine fit at
-//! the excitation frequency), and velocity (central difference of the measured displacement)
-//! and force are averaged in 256 phase bins. Averaging over periods removes the sensor noise
-//! without the phase lag of a filter. Forces are normalised by the largest cycle-averaged
-//! |force| of the dataset, as in the paper's figures.
+//! the excitation frequency), and velocity and force are averaged in 256 phase bins. The
+//! velocity is the one the trainer sees ([`crate::preprocess::estimate_velocity`]: zero-phase
+//! low-pass of the displacement and central difference, or the measured column). Averaging
+//! over periods removes the sensor noise without the phase lag of a filter. Forces are
+//! normalised by the largest cycle-averaged |force| of the dataset, as in the paper's figures.
 
 use crate::dataset::{self, Dataset, Run};
 use crate::plot::{palette, Figure, LegendPosition, LinePanel, Series};
+use crate::preprocess::{estimate_velocity, SignalConfig};
 use anyhow::{bail, Context, Result};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -65,6 +67,38 @@ impl CycleLoop {
             .abs()
     }
 
+    /// Force \[N\] at a phase of the displacement `x = A sin(phase)` (linear interpolation
+    /// between the bin centres, periodic).
+    pub fn force_at_phase(&self, phase: f64) -> f64 {
+        let n = self.force_n.len();
+        let p = phase.rem_euclid(2.0 * PI) / (2.0 * PI) * n as f64 - 0.5;
+        let i = p.floor();
+        let s = p - i;
+        let i = (i as isize).rem_euclid(n as isize) as usize;
+        (1.0 - s) * self.force_n[i] + s * self.force_n[(i + 1) % n]
+    }
+
+    /// Opening of the loop at zero velocity \[N\]: the force at the upper stroke reversal
+    /// (`x = +A`, end of the rebound stroke) minus the force at the lower one (`x = -A`). Zero
+    /// for a memoryless damper; positive when the force lags the velocity (compliance), plus
+    /// the small gas-spring and friction share.
+    pub fn reversal_opening_n(&self) -> f64 {
+        self.force_at_phase(0.5 * PI) - self.force_at_phase(1.5 * PI)
+    }
+
+    /// Widths of the loop at half the peak velocity \[N\], `(rebound, compression)`: the force
+    /// while the speed falls minus the force while it rises, on each side (positive when
+    /// the force lags the velocity, negative when it leads, e.g. from a lagging valve).
+    pub fn half_velocity_widths_n(&self) -> (f64, f64) {
+        let f = |deg: f64| self.force_at_phase(deg.to_radians());
+        (f(60.0) - f(300.0), f(120.0) - f(240.0))
+    }
+
+    /// Largest cycle-averaged |force| \[N\].
+    pub fn peak_force_n(&self) -> f64 {
+        self.force_n.iter().fold(0.0f64, |m, f| m.max(f.abs()))
+    }
+
     /// Quasi-static forces as in section 5.3 of the paper: the force of largest magnitude
     /// while |x| < 5 % of the amplitude, in rebound (x rising) and compression (x falling).
     pub fn quasi_static_n(&self) -> (f64, f64) {
@@ -80,20 +114,6 @@ impl CycleLoop {
         }
         (reb, comp)
     }
-}
-
-fn central_difference(t: &[f64], x: &[f64]) -> Vec<f64> {
-    let n = x.len();
-    (0..n)
-        .map(|i| {
-            let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
-            if b > a {
-                (x[b] - x[a]) / (t[b] - t[a])
-            } else {
-                0.0
-            }
-        })
-        .collect()
 }
 
 /// Estimates the excitation frequency from the upward mean crossings of the displacement.
@@ -123,8 +143,8 @@ fn estimate_frequency(run: &Run) -> Option<f64> {
     Some(1.0 / periods[periods.len() / 2])
 }
 
-/// Reduces a run to its cycle-averaged loop.
-pub fn cycle_loop(run: &Run) -> Result<CycleLoop> {
+/// Reduces a run sampled at `sample_rate_hz` to its cycle-averaged loop.
+pub fn cycle_loop(run: &Run, sample_rate_hz: f64) -> Result<CycleLoop> {
     let name = run.entry.file.display();
     if run.len() < 16 {
         bail!("run {name}: too short for a loop ({} samples)", run.len());
@@ -144,7 +164,8 @@ pub fn cycle_loop(run: &Run) -> Result<CycleLoop> {
     let i0 = run.time_s.partition_point(|&t| t < t_start);
     let t = &run.time_s[i0..];
     let x = &run.displacement_m[i0..];
-    let v_all = central_difference(&run.time_s, &run.displacement_m);
+    let v_all = estimate_velocity(run, sample_rate_hz, &SignalConfig::default())
+        .with_context(|| format!("run {name}: cannot estimate the velocity"))?;
     let v = &v_all[i0..];
     let f = &run.force_n[i0..];
     // Least-squares fit x ~ a sin(wt) + b cos(wt) + c: phase reference.
@@ -250,7 +271,11 @@ pub fn plot_dataset(dir: &Path, out: &Path) -> Result<Vec<PathBuf>> {
 /// Draws the figures of a loaded dataset into `out`; returns the written files.
 pub fn plot_loaded(ds: &Dataset, out: &Path) -> Result<Vec<PathBuf>> {
     use rayon::prelude::*;
-    let loops: Vec<CycleLoop> = ds.runs.par_iter().map(cycle_loop).collect::<Result<_>>()?;
+    let loops: Vec<CycleLoop> = ds
+        .runs
+        .par_iter()
+        .map(|r| cycle_loop(r, ds.sample_rate_hz))
+        .collect::<Result<_>>()?;
     if loops.is_empty() {
         bail!("the dataset has no runs");
     }

@@ -153,7 +153,7 @@ mod tests {
         assert_eq!(slow.ramp_s, p.max_ramp_s); // capped
         assert_eq!(slow.steady_periods, 2);
         let fast = run_spec(&p, 0.0, 0.01, 1.048);
-        assert!((fast.ramp_s * fast.frequency_hz - 1.0).abs() < 1e-12);
+        assert!((fast.ramp_s * fast.frequency_hz - p.ramp_periods).abs() < 1e-12);
         assert!(f64::from(fast.steady_periods) / fast.frequency_hz >= p.min_steady_s);
         assert_eq!(grid(&p).len(), 54);
     }

@@ -43,6 +43,10 @@ pub struct Trace {
     pub vapour_compression_m3: Vec<f64>,
     /// Vapour volume in the rebound chamber \[m³\].
     pub vapour_rebound_m3: Vec<f64>,
+    /// Free gas in the compression chamber (normal volume) \[m³\].
+    pub gas_compression_m3: Vec<f64>,
+    /// Free gas in the rebound chamber (normal volume) \[m³\].
+    pub gas_rebound_m3: Vec<f64>,
     /// Work of the integrator.
     pub stats: SolverStats,
 }
@@ -69,14 +73,19 @@ pub(crate) struct Foam {
 
 impl Foam {
     /// Cycle-averaged equilibrium of the transport for a sine of peak velocity `v_pk`: the
-    /// state a conditioning run leaves (the starting point, so runs settle fast). Mean intake
-    /// flow `A_rod v_pk / pi`, mean check-valve flow `A_annulus v_pk / pi`.
+    /// state a conditioning run leaves (the starting point, so runs settle fast). Mean flows
+    /// per direction: intake = base outflow `r_c = A_rod v_pk / pi`, piston flow in either
+    /// direction `r_r = A_annulus v_pk / pi`. With the excess concentrations `C = c - c_bg`
+    /// and the separation rates `a = V_c / tau`, `b = V_r / tau` the balances
+    /// `C_in r_c + C_r r_r = C_c (r_c + r_r + a)` and `C_c r_r = C_r (r_r + b)` give
+    /// `C_c = C_in r_c / (r_c + a + r_r b / (r_r + b))`.
     pub(crate) fn conditioned(&self, d: &Damper, v_pk: f64) -> (f64, f64) {
         let r_c = d.a_rod * v_pk / std::f64::consts::PI;
         let r_r = d.a_annulus * v_pk / std::f64::consts::PI;
         let (v_c, v_r) = (d.v_compression0, d.v_rebound0);
-        let c_c = self.c_bg + (self.c_intake - self.c_bg) * r_c / (r_c + v_c / self.tau);
-        let c_r = self.c_bg + (c_c - self.c_bg) * r_r / (r_r + v_r / self.tau);
+        let (a, b) = (v_c / self.tau, v_r / self.tau);
+        let c_c = self.c_bg + (self.c_intake - self.c_bg) * r_c / (r_c + a + r_r * b / (r_r + b));
+        let c_r = self.c_bg + (c_c - self.c_bg) * r_r / (r_r + b);
         (c_r * v_r, c_c * v_c)
     }
 }
@@ -99,9 +108,52 @@ struct State<'a> {
     dm_r: f64,
     dm_c: f64,
     stats: SolverStats,
+    tally: FlowTally,
 }
 
-impl State<'_> {
+/// Oil volumes that passed each flow path and time integrals of the oil contents, summed over
+/// accepted steps (for the conditioning of the free gas, [`condition`]).
+#[derive(Debug, Clone, Copy, Default)]
+struct FlowTally {
+    time: f64,
+    /// Intake (reservoir -> compression chamber).
+    intake: f64,
+    /// Compression chamber -> reservoir.
+    base_out: f64,
+    /// Piston, rebound -> compression chamber.
+    piston_down: f64,
+    /// Piston, compression -> rebound chamber.
+    piston_up: f64,
+    /// `integral m_r dt`, `integral m_c dt`.
+    m_r_dt: f64,
+    m_c_dt: f64,
+}
+
+impl<'a> State<'a> {
+    /// The damper at rest in the state `f`.
+    fn new(d: &'a Damper, f: &'a Filling, foam: Foam) -> Self {
+        State {
+            d,
+            f,
+            foam,
+            g_r: f.gas_rebound,
+            g_c: f.gas_compression,
+            m_r: f.m_rebound0,
+            m_c: f.m_compression0,
+            lifts: d.rest_lifts(),
+            p_r: f.p_rest,
+            p_c: f.p_rest,
+            p_res: f.p_rest,
+            vap_r: 0.0,
+            vap_c: 0.0,
+            ratio: 0.5,
+            dm_r: 0.0,
+            dm_c: 0.0,
+            stats: SolverStats::default(),
+            tally: FlowTally::default(),
+        }
+    }
+
     /// One backward-Euler step of length `h` ending at displacement `x1`. Returns false when
     /// Newton did not converge (state untouched).
     fn try_step(&mut self, h: f64, x1: f64, s: &StepSettings) -> bool {
@@ -185,6 +237,14 @@ impl State<'_> {
     /// the gas changes slowly (rates <= |q| / m ~ 10 /s), so lagging it by one step is accurate.
     fn transport(&mut self, h: f64, q_p: f64, q_b: f64, m_r: f64, m_c: f64) {
         let fo = self.foam;
+        let t = &mut self.tally;
+        t.time += h;
+        t.intake += h * (-q_b).max(0.0);
+        t.base_out += h * q_b.max(0.0);
+        t.piston_down += h * q_p.max(0.0);
+        t.piston_up += h * (-q_p).max(0.0);
+        t.m_r_dt += h * m_r;
+        t.m_c_dt += h * m_c;
         let (c_r, c_c) = (self.g_r / self.m_r, self.g_c / self.m_c);
         let (mut in_r, mut out_r, mut in_c, mut out_c) = (0.0, 0.0, 0.0, 0.0);
         if q_p >= 0.0 {
@@ -265,25 +325,7 @@ pub(crate) fn simulate(job: &Job) -> Trace {
     let settings = &job.settings;
     let sub = ((1.0 / fs) / settings.h).round().max(1.0) as usize;
     let h = 1.0 / fs / sub as f64;
-    let mut st = State {
-        d,
-        f,
-        foam,
-        g_r: f.gas_rebound,
-        g_c: f.gas_compression,
-        m_r: f.m_rebound0,
-        m_c: f.m_compression0,
-        lifts: d.rest_lifts(),
-        p_r: f.p_rest,
-        p_c: f.p_rest,
-        p_res: f.p_rest,
-        vap_r: 0.0,
-        vap_c: 0.0,
-        ratio: 0.5,
-        dm_r: 0.0,
-        dm_c: 0.0,
-        stats: SolverStats::default(),
-    };
+    let mut st = State::new(d, f, foam);
     let mut tr = Trace::default();
     for v in [
         &mut tr.time_s,
@@ -295,6 +337,8 @@ pub(crate) fn simulate(job: &Job) -> Trace {
         &mut tr.p_reservoir_pa,
         &mut tr.vapour_compression_m3,
         &mut tr.vapour_rebound_m3,
+        &mut tr.gas_compression_m3,
+        &mut tr.gas_rebound_m3,
     ] {
         v.reserve(samples);
     }
@@ -324,7 +368,72 @@ pub(crate) fn simulate(job: &Job) -> Trace {
         tr.p_reservoir_pa.push(st.p_res);
         tr.vapour_compression_m3.push(st.vap_c);
         tr.vapour_rebound_m3.push(st.vap_r);
+        tr.gas_compression_m3.push(st.g_c);
+        tr.gas_rebound_m3.push(st.g_r);
     }
     tr.stats = st.stats;
     tr
+}
+
+/// Conditioning of the free gas: the concentrations a long run at the full amplitude of `exc`
+/// settles to, so that a recorded run starts in its periodic state (a real bench conditions the
+/// damper before it records). Each pass simulates the ramp-in and one full-amplitude period
+/// from rest with the current gas, tallies the oil that passed each path during that period
+/// and solves the period-averaged transport balances (the `dg/dt` equations of
+/// [`State::transport`] integrated over the period, with the concentrations `x = g_c/m_c`,
+/// `y = g_r/m_r` held constant):
+///
+/// ```text
+/// c_in Q + y P - x (P + Q) - (x - c_bg) A = 0,   A = integral m_c dt / tau
+/// x P - y P - (y - c_bg) B = 0,                  B = integral m_r dt / tau
+/// ```
+///
+/// with the periodic oil balances imposed (intake = base outflow = `Q`, piston flow down = up
+/// = `P`, each the mean of the two tallied directions), which is linear in `x`, `y`:
+/// `y = (x P + c_bg B) / (P + B)`, `x = (c_in Q + c_bg A + c_bg P B / (P + B)) /
+/// (Q + A + P B / (P + B))`. The flows depend only weakly on the gas, so two passes settle it
+/// to about a percent. `rest` is the damper at rest (its gas is the first guess); the result
+/// is the rest state with the conditioned gas.
+pub(crate) fn condition(
+    d: &Damper,
+    rest: &Filling,
+    foam: Foam,
+    exc: &Excitation,
+    h: f64,
+    settings: &StepSettings,
+    passes: u32,
+) -> Filling {
+    let period = 2.0 * std::f64::consts::PI / exc.omega;
+    let n_ramp = (exc.ramp_s / h).ceil() as usize;
+    let h_ramp = if n_ramp > 0 {
+        exc.ramp_s / n_ramp as f64
+    } else {
+        0.0
+    };
+    let n_period = (period / h).ceil().max(8.0) as usize;
+    let h_period = period / n_period as f64;
+    let mut f = *rest;
+    for _ in 0..passes {
+        let mut st = State::new(d, &f, foam);
+        for k in 0..n_ramp {
+            st.step(k as f64 * h_ramp, (k + 1) as f64 * h_ramp, exc, settings, 0);
+        }
+        st.tally = FlowTally::default();
+        for k in 0..n_period {
+            let t0 = exc.ramp_s + k as f64 * h_period;
+            st.step(t0, t0 + h_period, exc, settings, 0);
+        }
+        let t = st.tally;
+        let (a, b) = (t.m_c_dt / foam.tau, t.m_r_dt / foam.tau);
+        let q = 0.5 * (t.intake + t.base_out);
+        let p = 0.5 * (t.piston_down + t.piston_up);
+        let exchange = p * b / (p + b);
+        let x = (foam.c_intake * q + foam.c_bg * (a + exchange)) / (q + a + exchange);
+        let y = (x * p + foam.c_bg * b) / (p + b);
+        if !(x.is_finite() && y.is_finite() && x >= 0.0 && y >= 0.0) {
+            break; // keep the previous estimate (not reached for valid configurations)
+        }
+        f = d.with_gas(rest, y * f.m_rebound0, x * f.m_compression0);
+    }
+    f
 }
