@@ -8,6 +8,7 @@
 pub mod bench;
 pub mod data_cli;
 pub mod dataset;
+pub mod figures;
 pub mod fsutil;
 pub mod inspect;
 pub mod plot;

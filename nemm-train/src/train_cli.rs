@@ -307,7 +307,7 @@ pub fn compare(
     checkpoint: Option<&Path>,
     resume: bool,
 ) -> Result<Report> {
-    let (_ds, prepared) = load_dataset_prepared(&args.data, &args.prepare_config())?;
+    let (ds, prepared) = load_dataset_prepared(&args.data, &args.prepare_config())?;
     let cfg = args.pipeline_config()?;
     let t = Instant::now();
     let trained = train_variants(&prepared, &Variant::ALL, &cfg, checkpoint, resume)?;
@@ -335,6 +335,7 @@ pub fn compare(
     for tv in &trained {
         print_audit(tv, &report);
     }
+    crate::figures::write_all(&trained, &ds, &prepared, &report, report_dir)?;
     println!("report, models and figures in {}", report_dir.display());
     Ok(report)
 }

@@ -1,0 +1,278 @@
+//! Report figures (`nemm_train::figures`): every figure is written as a valid PNG of the
+//! expected size from example models and a small synthetic dataset; figures of variants that
+//! were not trained are left out; only I/O failures are errors.
+use nemm_core::testing::example_model;
+use nemm_core::ModelKind;
+use nemm_train::dataset::{Dataset, Run, RunEntry};
+use nemm_train::figures::write_all;
+use nemm_train::preprocess::{self, PrepareConfig, Prepared};
+use nemm_train::report::{evaluate, Report};
+use nemm_train::train::fit::EpochStats;
+use nemm_train::train::pipeline::{TrainedVariant, Variant};
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+
+const FS: f64 = 10_000.0;
+
+/// A damper-like run: `x = A w(t) sin(2 pi f t)` with a raised-cosine ramp-in over two
+/// periods, force `c(v, alpha) v + k x` (asymmetric damping, a spring term: a hysteresis loop
+/// in the force-velocity plane).
+fn run(alpha: f64, amplitude: f64, freq: f64, duration_s: f64) -> Run {
+    let n = (duration_s * FS) as usize;
+    let ramp = 2.0 / freq;
+    let (mut time_s, mut displacement_m, mut force_n) = (vec![], vec![], vec![]);
+    for i in 0..n {
+        let t = i as f64 / FS;
+        let (w, dw) = if t < ramp {
+            let a = PI * t / ramp;
+            (0.5 * (1.0 - a.cos()), 0.5 * PI / ramp * a.sin())
+        } else {
+            (1.0, 0.0)
+        };
+        let om = 2.0 * PI * freq;
+        let x = amplitude * w * (om * t).sin();
+        let v = amplitude * (dw * (om * t).sin() + w * om * (om * t).cos());
+        let c = if v > 0.0 { 2600.0 } else { 1500.0 } * (1.0 - 0.6 * alpha);
+        time_s.push(t);
+        displacement_m.push(x);
+        force_n.push(c * v + 40_000.0 * x);
+    }
+    Run {
+        entry: RunEntry {
+            file: PathBuf::from(format!("runs/oil{:02.0}_f{freq:.1}.csv", alpha * 100.0)),
+            oil_loss: alpha,
+            amplitude_m: Some(amplitude),
+            target_velocity_m_s: Some(2.0 * PI * freq * amplitude),
+        },
+        time_s,
+        displacement_m,
+        force_n,
+        velocity_m_s: None,
+    }
+}
+
+/// Runs at 0 %, 30 % (training) and 15 % (test) oil loss, 10 mm at 8.3 and 16.7 Hz, plus a
+/// slow 50 mm run per training level.
+fn dataset() -> Dataset {
+    let mut runs = Vec::new();
+    for alpha in [0.0, 0.3, 0.15] {
+        for f in [8.3, 16.7] {
+            runs.push(run(alpha, 0.010, f, 0.6));
+        }
+        if alpha != 0.15 {
+            runs.push(run(alpha, 0.050, 1.0, 1.0));
+        }
+    }
+    Dataset {
+        name: "figures test".into(),
+        sample_rate_hz: FS,
+        runs,
+    }
+}
+
+fn prepared(ds: &Dataset) -> Prepared {
+    let mut cfg = PrepareConfig::default();
+    cfg.sequences.length_s = 0.1;
+    cfg.sequences.warmup_s = 0.01;
+    preprocess::prepare(ds, &cfg).expect("prepare")
+}
+
+fn history(n: usize, start: f64) -> Vec<EpochStats> {
+    (1..=n)
+        .map(|e| EpochStats {
+            epoch: e,
+            train_mse: start / e as f64,
+            physics: 1e-4 / e as f64,
+            val_rmse: (start / e as f64).sqrt(),
+            seconds: 0.1,
+        })
+        .collect()
+}
+
+fn trained(kinds: &[(Variant, ModelKind)]) -> Vec<TrainedVariant> {
+    kinds
+        .iter()
+        .map(|&(variant, kind)| {
+            let model = example_model(kind, 8, 3).expect("example model");
+            let history = if variant == Variant::Sem {
+                vec![]
+            } else {
+                history(4, 0.01)
+            };
+            TrainedVariant {
+                variant,
+                model,
+                val_rmse: history.last().map_or(0.05, |h| h.val_rmse),
+                history,
+                stop: None,
+                seconds: 1.0,
+            }
+        })
+        .collect()
+}
+
+fn all_four() -> Vec<TrainedVariant> {
+    trained(&[
+        (Variant::Sem, ModelKind::Sem),
+        (Variant::LinearEmm, ModelKind::LinearEmm),
+        (Variant::NemmLight, ModelKind::NemmLight),
+        (Variant::Nemm, ModelKind::Nemm),
+    ])
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                0xEDB8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+/// Checks the PNG structure (signature, chunk lengths and CRCs, IHDR first, IDAT, IEND last)
+/// and returns `(width, height, bit depth, colour type)` from the IHDR.
+fn png_header(path: &Path) -> (u32, u32, u8, u8) {
+    let b = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert_eq!(
+        &b[..8],
+        b"\x89PNG\r\n\x1a\n",
+        "{}: signature",
+        path.display()
+    );
+    let mut at = 8;
+    let mut chunks = Vec::new();
+    while at + 12 <= b.len() {
+        let len = u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]) as usize;
+        let kind = &b[at + 4..at + 8];
+        let end = at + 8 + len;
+        assert!(end + 4 <= b.len(), "{}: truncated chunk", path.display());
+        let crc = u32::from_be_bytes([b[end], b[end + 1], b[end + 2], b[end + 3]]);
+        assert_eq!(crc, crc32(&b[at + 4..end]), "{}: CRC", path.display());
+        chunks.push((String::from_utf8_lossy(kind).to_string(), at + 8, len));
+        at = end + 4;
+    }
+    assert_eq!(at, b.len(), "{}: trailing bytes", path.display());
+    assert_eq!(chunks.first().map(|c| c.0.as_str()), Some("IHDR"));
+    assert_eq!(chunks.last().map(|c| c.0.as_str()), Some("IEND"));
+    assert!(chunks.iter().any(|c| c.0 == "IDAT"));
+    let (_, s, len) = chunks[0];
+    assert_eq!(len, 13);
+    let w = u32::from_be_bytes([b[s], b[s + 1], b[s + 2], b[s + 3]]);
+    let h = u32::from_be_bytes([b[s + 4], b[s + 5], b[s + 6], b[s + 7]]);
+    (w, h, b[s + 8], b[s + 9])
+}
+
+fn pngs_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .expect("read dir")
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".png"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn all_figures_are_written_as_pngs_of_the_expected_size() {
+    let ds = dataset();
+    let prep = prepared(&ds);
+    let tr = all_four();
+    let report: Report = evaluate(&tr, &prep).expect("report");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let t = std::time::Instant::now();
+    write_all(&tr, &ds, &prep, &report, dir.path()).expect("figures");
+    let secs = t.elapsed().as_secs_f64();
+    // (file, width, panel rows x panel height): + 40 px title + footer (14 + 21 px per
+    // line; the number of lines depends on the wrapping).
+    let expected = [
+        ("fig11_b_pr.png", 2 * 680, 480),
+        ("fig12_k_pr.png", 2 * 680, 2 * 480),
+        ("fig7_loops.png", 3 * 540, 3 * 410),
+        ("fig8_b_fl.png", 2 * 680, 2 * 480),
+        ("fig8_b_fl_nemm-light.png", 2 * 680, 2 * 480),
+        ("loops_all_variants.png", 2 * 600, 2 * 440),
+        ("training_curves.png", 3 * 620, 460),
+    ];
+    let mut names: Vec<String> = expected.iter().map(|e| e.0.to_string()).collect();
+    names.sort();
+    assert_eq!(
+        pngs_in(dir.path()),
+        names,
+        "no temporary files left, nothing missing"
+    );
+    for (name, w, panels_h) in expected {
+        let (pw, ph, depth, colour) = png_header(&dir.path().join(name));
+        assert_eq!(pw, w, "{name}: width");
+        let footer = ph.checked_sub(panels_h + 40 + 14).expect("footer");
+        assert!(
+            footer % 21 == 0 && (21..=6 * 21).contains(&footer),
+            "{name}: height {ph}"
+        );
+        assert_eq!((depth, colour), (8, 2), "{name}: 8-bit RGB");
+    }
+    // Generous bound (debug builds, loaded CI machines); release takes well under a second.
+    assert!(secs < 60.0, "figures took {secs:.1} s");
+}
+
+#[test]
+fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error() {
+    let ds = dataset();
+    let prep = prepared(&ds);
+    // Only the SEM: no EMM figures, no training curves (no history).
+    let sem = trained(&[(Variant::Sem, ModelKind::Sem)]);
+    let report = evaluate(&sem, &prep).expect("report");
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_all(&sem, &ds, &prep, &report, dir.path()).expect("figures");
+    assert_eq!(
+        pngs_in(dir.path()),
+        vec!["fig7_loops.png", "loops_all_variants.png"]
+    );
+    // NEMM-Light only, on a dataset without 10 mm runs and without a test level: the loop
+    // figures fall back to what exists, the b_fl figure is there, nothing fails.
+    let mut slow = dataset();
+    slow.runs.retain(|r| r.entry.amplitude_m == Some(0.050));
+    let prep = prepared(&slow);
+    let light = trained(&[(Variant::NemmLight, ModelKind::NemmLight)]);
+    let report = evaluate(&light, &prep).expect("report");
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_all(&light, &slow, &prep, &report, dir.path()).expect("figures");
+    let names = pngs_in(dir.path());
+    assert!(
+        names.contains(&"fig8_b_fl_nemm-light.png".to_string()),
+        "{names:?}"
+    );
+    assert!(
+        names.contains(&"training_curves.png".to_string()),
+        "{names:?}"
+    );
+    assert!(!names
+        .iter()
+        .any(|n| n.starts_with("fig11") || n.starts_with("fig12")));
+    for n in &names {
+        png_header(&dir.path().join(n));
+    }
+    // Nothing at all: no figures, no error.
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_all(&[], &slow, &prep, &report, dir.path()).expect("figures");
+    assert!(pngs_in(dir.path()).is_empty());
+}
+
+#[test]
+fn an_unwritable_report_folder_is_an_error() {
+    let ds = dataset();
+    let prep = prepared(&ds);
+    let tr = all_four();
+    let report = evaluate(&tr, &prep).expect("report");
+    let dir = tempfile::tempdir().expect("tempdir");
+    // A file where the folder should be.
+    let blocker = dir.path().join("figs");
+    std::fs::write(&blocker, b"not a folder").expect("write");
+    assert!(write_all(&tr, &ds, &prep, &report, &blocker).is_err());
+}
