@@ -7,7 +7,7 @@
 //! ```
 //!
 //! Default settings of `nemm train --variant nemm` (section 5.4: batch 16, H 16, L 5, lr 5e-3,
-//! RK4 at 10 kHz, lambda_ph 0.005), all epochs up to early stopping. Target: <= 10 minutes on
+//! RK4 at 10 kHz, lambda_ph 5), all epochs up to early stopping. Target: <= 10 minutes on
 //! 2 cores.
 use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant};
 use nemm_train::train_cli::TrainArgs;

@@ -17,7 +17,7 @@
 //!
 //! Violations are found exactly as [`crate::train::physics::audit`] finds them, on the same
 //! grid ([`AUDIT_GRID`]): a grid interval where `d(p x)/dx < 0` (eqs. 30, 37) or
-//! `dp/d alpha > 0` (eqs. 31, 38) in normalised units, beyond 1e-5. On the maps the cell at
+//! `dp/d alpha > 0` (eqs. 31, 38) beyond rounding ([`violation`]). On the maps the cell at
 //! the lower end of each violating interval is painted yellow.
 //!
 //! A figure that cannot be drawn (missing runs, rendering trouble) is skipped with a warning;
@@ -31,6 +31,7 @@ use crate::plot::{
 use crate::preprocess::{process_run, Prepared, RunRole};
 use crate::report::{Report, AUDIT_GRID};
 use crate::train::eval::predict;
+use crate::train::physics::violation;
 use crate::train::pipeline::{TrainedVariant, Variant};
 use anyhow::{bail, Context, Result};
 use nemm_core::Model;
@@ -50,8 +51,6 @@ pub const LOOP_PERIODS: usize = 2;
 pub const LOOP_TRAIN_ALPHAS: [f64; 2] = [0.0, 0.3];
 /// Velocity of the paper's Fig. 10 B cut \[m/s\].
 pub const CUT_VELOCITY_M_S: f64 = 0.5;
-/// Violations smaller than this (normalised derivative) are rounding, as in the audit.
-const VIOLATION_TOL: f64 = 1e-5;
 
 /// File name of the `b_fl` figure of a variant.
 pub fn b_fl_file(v: Variant) -> String {
@@ -752,7 +751,7 @@ fn grid_2d(eval: &dyn Fn(f32, f32) -> Option<f32>, scale: f32, p0: f32) -> Grid2
         for ix in 0..xs.len() - 1 {
             let f0 = row[ix] * f64::from(xs[ix]);
             let f1 = row[ix + 1] * f64::from(xs[ix + 1]);
-            if -(f1 - f0) / dx > VIOLATION_TOL {
+            if violation(f0, f1, dx, true).is_some() {
                 nv_state += 1;
                 mark[ia][ix] = true;
             }
@@ -760,7 +759,7 @@ fn grid_2d(eval: &dyn Fn(f32, f32) -> Option<f32>, scale: f32, p0: f32) -> Grid2
     }
     for ia in 0..al.len() - 1 {
         for ix in 0..xs.len() {
-            if (s[ia + 1][ix] - s[ia][ix]) / da > VIOLATION_TOL {
+            if violation(s[ia][ix], s[ia + 1][ix], da, false).is_some() {
                 nv_alpha += 1;
                 mark[ia][ix] = true;
             }
@@ -790,9 +789,8 @@ fn curve_violations(
 ) -> Vec<(f64, f64)> {
     pts.windows(2)
         .filter(|w| {
-            let d = (w[1].1 - w[0].1) / y_norm / ((w[1].0 - w[0].0) / x_norm);
-            let bad = if increasing { -d } else { d };
-            bad > VIOLATION_TOL
+            let step = (w[1].0 - w[0].0) / x_norm;
+            violation(w[0].1 / y_norm, w[1].1 / y_norm, step, increasing).is_some()
         })
         .map(|w| w[0])
         .collect()
@@ -1049,7 +1047,7 @@ fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         .with_footer(format!(
             "A: b_fl on the audit grid ({} x {}: v_st in ±1.2 v_scale, α in [0, 1]); thin black lines: iso-lines. \
              Yellow cells: monotonicity violations, eq. 30 (d(b_fl v)/dv < 0)\n\
-             or eq. 31 (db_fl/dα > 0), beyond 1e-5 in normalised units; white dots: quasi-static training points \
+             or eq. 31 (db_fl/dα > 0), beyond f32 rounding; white dots: quasi-static training points \
              (eq. 41); white dashes: training velocity range ±v_scale.\n\
              B-D: cuts through the map; yellow dots: violations along a cut; α above {} is extrapolation.",
             AUDIT_GRID.0,
@@ -1087,7 +1085,7 @@ fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         })
         .collect();
     let viol: Vec<(f64, f64)> = (0..al.len() - 1)
-        .filter(|&i| (s[i + 1] - s[i]) / da > VIOLATION_TOL)
+        .filter(|&i| violation(s[i], s[i + 1], da, false).is_some())
         .map(|i| (f64::from(al[i]), 100.0 * (s[i] * b0 / ref0 - 1.0)))
         .collect();
     let (_, yhi) = value_range(curve.iter().map(|p| p.1).chain([b0]));
@@ -1325,7 +1323,7 @@ fn fig12_k_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         .with_footer(format!(
             "A: k_pr on the audit grid ({} x {}: x_pr in ±1.2 x_scale, α in [0, 1]); thin black lines: iso-lines. \
              Yellow cells: monotonicity violations, eq. 37 (d(k_pr x_pr)/dx_pr < 0)\n\
-             or eq. 38 (dk_pr/dα > 0), beyond 1e-5 in normalised units; white dashes: the range of x_pr reached \
+             or eq. 38 (dk_pr/dα > 0), beyond f32 rounding; white dashes: the range of x_pr reached \
              on the training data (±x_scale).\n\
              B-D: cuts through the map (B and D zoomed: read the values); yellow dots: violations along a cut; \
              α above {} is extrapolation.",

@@ -75,7 +75,7 @@ enum Cmd {
         resume: bool,
     },
     /// Hyperparameter / lambda_ph sweep (Tables 3 and 5): one `nemm train` process per
-    /// configuration (`--lambda-ph 0,0.005,0.015,0.025` by default), collected into table5.md
+    /// configuration (`--lambda-ph 0,5,15,25` by default: Table 5's values x1000), collected into table5.md
     /// and sweep.json.
     Sweep {
         /// Training options (the base of every job).

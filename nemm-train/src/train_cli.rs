@@ -15,10 +15,12 @@ use burn::module::Module;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Default physics-inconsistency weight (the best of the paper's Table 5).
-pub const DEFAULT_LAMBDA_PH: f64 = 5e-3;
-/// Default `nemm sweep` list of physics weights (Table 5).
-pub const TABLE5_LAMBDAS: [f64; 4] = [0.0, 0.005, 0.015, 0.025];
+/// Default physics-inconsistency weight: the paper's best (Table 5: 0.005) in this crate's
+/// normalisation of the penalty, where it takes 1000 times the paper's number to act (see
+/// docs/training.md, "Loss").
+pub const DEFAULT_LAMBDA_PH: f64 = 5.0;
+/// Default `nemm sweep` list of physics weights: Table 5's 0, 0.005, 0.015, 0.025 times 1000.
+pub const TABLE5_LAMBDAS: [f64; 4] = [0.0, 5.0, 15.0, 25.0];
 
 /// Options shared by every training command.
 #[derive(Debug, Clone, clap::Args)]
@@ -44,8 +46,9 @@ pub struct TrainArgs {
     /// Adam learning rate (Table 3: 5e-3, 1e-2, 1e-3).
     #[arg(long, default_value_t = 5e-3)]
     pub lr: f64,
-    /// Physics-inconsistency weight lambda_ph (Table 5; default 0.005, the paper's best).
-    /// `nemm sweep` takes a comma-separated list (default 0,0.005,0.015,0.025).
+    /// Physics-inconsistency weight lambda_ph (default 5: the paper's best, 0.005, in this
+    /// crate's penalty normalisation, x1000). `nemm sweep` takes a comma-separated list
+    /// (default 0,5,15,25: Table 5's values x1000).
     #[arg(long, value_delimiter = ',')]
     pub lambda_ph: Option<Vec<f64>>,
     /// L2 weight lambda on the scalers' linear weights.

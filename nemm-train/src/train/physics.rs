@@ -163,11 +163,30 @@ impl Audit {
     }
 }
 
-fn check(deriv: f64, bad_if_negative: bool, c: &mut ConditionAudit) {
+/// Derivatives (normalised units) at or below this are not counted as violations.
+pub const MIN_VIOLATION: f64 = 1e-5;
+
+/// Rounding floor of the audit, in units in the last place (f32) of the larger of two grid
+/// values: the scalers are evaluated in f32, so two neighbouring values of a coefficient that
+/// is flat (a saturated sigmoid) differ by a few ulps in either direction, which decides
+/// nothing about its monotonicity. 16 ulps is a relative difference of 1.9e-6.
+pub const ROUNDING_ULPS: f64 = 16.0;
+
+/// The wrong-signed derivative `(hi - lo) / step` (normalised units) when going from grid value
+/// `lo` to its neighbour `hi`, one `step` further, breaks monotonicity (`must_increase`:
+/// `hi >= lo` is required, else `hi <= lo`) by more than the rounding floor
+/// ([`ROUNDING_ULPS`]) and [`MIN_VIOLATION`]; `None` otherwise. The one criterion of the
+/// audit, the report and the figures.
+pub fn violation(lo: f64, hi: f64, step: f64, must_increase: bool) -> Option<f64> {
+    let diff = if must_increase { lo - hi } else { hi - lo };
+    let floor = ROUNDING_ULPS * f64::from(f32::EPSILON) * lo.abs().max(hi.abs());
+    let deriv = diff / step;
+    (diff > floor && deriv > MIN_VIOLATION).then_some(deriv)
+}
+
+fn check(lo: f64, hi: f64, step: f64, must_increase: bool, c: &mut ConditionAudit) {
     c.checked += 1;
-    // Rounding of f32 evaluations gives differences of ~1e-7; below that nothing is decided.
-    let bad = if bad_if_negative { -deriv } else { deriv };
-    if bad > 1e-5 {
+    if let Some(bad) = violation(lo, hi, step, must_increase) {
         c.violations += 1;
         c.worst = c.worst.max(bad);
     }
@@ -202,13 +221,13 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
             let f: Vec<f64> = row.iter().zip(&xs).map(|(&si, &x)| si * x as f64).collect();
             for w in f.windows(2) {
                 if let Some(c) = a.state.as_mut() {
-                    check((w[1] - w[0]) / dx, true, c);
+                    check(w[0], w[1], dx, true, c);
                 }
             }
         }
         for rows in s.windows(2) {
             for (&lo, &hi) in rows[0].iter().zip(&rows[1]) {
-                check((hi - lo) / da, false, &mut a.alpha);
+                check(lo, hi, da, false, &mut a.alpha);
             }
         }
         a
@@ -243,7 +262,7 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
             })
             .collect();
         for w in s.windows(2) {
-            check((w[1] - w[0]) / da, false, &mut c);
+            check(w[0], w[1], da, false, &mut c);
         }
         ScalerAudit {
             state: None,
@@ -296,5 +315,25 @@ mod tests {
         assert!(flat.abs() < 1e-12, "{flat}");
         let model = crate::train::params::to_core(&p, m.meta).expect("valid");
         assert_eq!(audit(&model, 101, 21).total_violations(), 0);
+    }
+
+    #[test]
+    fn violations_are_decided_beyond_f32_rounding_only() {
+        let ulp = f64::from(f32::EPSILON);
+        // A flat coefficient: one ulp up over a grid step of 0.01 is rounding, not a violation
+        // (it used to count: 1.2e-5 > 1e-5).
+        assert_eq!(violation(1.0, 1.0 + ulp, 0.01, false), None);
+        assert_eq!(violation(1.0 + ulp, 1.0, 0.01, true), None);
+        // A real increase with alpha / decrease in the state is one, with its derivative.
+        let d = violation(1.0, 1.001, 0.01, false).unwrap();
+        assert!((d - 0.1).abs() < 1e-9);
+        assert!(violation(0.5, 0.4, 0.1, true).is_some());
+        // The right direction never is, however large.
+        assert_eq!(violation(1.0, 0.5, 0.01, false), None);
+        assert_eq!(violation(0.5, 1.0, 0.01, true), None);
+        // Tiny derivatives of large values: below the rounding floor.
+        assert_eq!(violation(1e3, 1e3 + 1e-4, 1.0, false), None);
+        // A failed evaluation (NaN) is not counted as a violation.
+        assert_eq!(violation(f64::NAN, 1.0, 0.01, false), None);
     }
 }
