@@ -657,14 +657,24 @@ mod tests {
         assert_eq!(DEFAULT_PARAM_CAPACITY, 9153);
     }
 
+    /// Tolerance of a by-hand check: `exact` with libm; with the `micromath` approximations
+    /// (1/sqrt within 3.4e-2, see the `math` module) only their accuracy can be asked for.
+    fn tol(exact: f64) -> f64 {
+        if cfg!(feature = "micromath") {
+            5e-2
+        } else {
+            exact
+        }
+    }
+
     #[test]
     fn layer_norm_by_hand() {
         // h = [1, 3]: mean 2, d = [-1, 1], var = 1, r = 1/sqrt(1 + 1e-5)
         let mut h = [1.0f32, 3.0];
         layer_norm_leaky(&mut h, &[1.0, 1.0], &[0.0, 0.0]);
         let r = 1.0 / (1.0f64 + 1e-5).sqrt();
-        assert!((h[0] as f64 - (-0.01 * r)).abs() < 1e-7, "{h:?}");
-        assert!((h[1] as f64 - r).abs() < 1e-6, "{h:?}");
+        assert!((h[0] as f64 - (-0.01 * r)).abs() < tol(1e-5) * 0.01, "{h:?}");
+        assert!((h[1] as f64 - r).abs() < tol(1e-6), "{h:?}");
     }
 
     #[test]
@@ -679,13 +689,13 @@ mod tests {
         let a1 = if y1 >= 0.0 { y1 } else { 0.01 * y1 };
         let z = 0.25 + y0 + 2.0 * a1;
         let got = m.forward(&[2.0]).unwrap() as f64;
-        assert!((got - z).abs() < 1e-6, "{got} vs {z}");
+        assert!((got - z).abs() < tol(1e-6) * z.abs().max(1.0), "{got} vs {z}");
     }
 
     #[test]
     fn scaler_is_bounded_and_identity_logit_gives_one() {
         let z0 = Scaler::<64>::identity_logit(0.2, 5.0);
-        assert!((scale_from_raw(z0, 0.2, 5.0) - 1.0).abs() < 1e-6);
+        assert!(f64::from((scale_from_raw(z0, 0.2, 5.0) - 1.0).abs()) < tol(1e-6));
         assert!(scale_from_raw(1e30, 0.2, 5.0) <= 5.0);
         assert!(scale_from_raw(-1e30, 0.2, 5.0) >= 0.2);
     }
