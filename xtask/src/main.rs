@@ -3,7 +3,8 @@
 //! - `cargo xtask test`: everything: the firmware for the target (found or installed
 //!   toolchain, see [`toolchain`]), its lint, then the host workspace tests (release) with the
 //!   QEMU tests (`tests/tests/qemu_*.rs`) pointed at the firmware images, the firmware
-//!   library's host unit tests, and a short `bench-target`.
+//!   library's host unit tests, nemm-core's unit tests with `micromath`, and a short
+//!   `bench-target`.
 //! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4,
 //!   per model kind and integrator.
 //!
@@ -198,6 +199,19 @@ fn test(args: &[String]) -> Result<(), String> {
     // The firmware library's own unit tests, on the host.
     run(cargo()
         .args(["test", "--release", "-p", "nemm-firmware", "--lib"])
+        .current_dir(&paths.root))?;
+    // nemm-core's unit tests with the fast math backend (the integration tests' tolerances
+    // are those of libm; the micromath error is measured by the math_backends example).
+    run(cargo()
+        .args([
+            "test",
+            "--release",
+            "-p",
+            "nemm-core",
+            "--features",
+            "micromath",
+            "--lib",
+        ])
         .current_dir(&paths.root))?;
     if let Some((tc, paths, images)) = firmware {
         let t = Instant::now();
