@@ -708,7 +708,7 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
         .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b).abs()))
         / fs;
     println!(
-        "held-out run {} (oil loss {alpha}, {:.0} mm, {:.1} Hz): nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
+        "most dynamic held-out run {} (oil loss {alpha}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
          max |nemm-core - trainer| = {:.2e} of the force scale",
         ds.runs[idx].entry.file.display(),
         run.summary.excitation.amplitude_m * 1e3,
