@@ -5,6 +5,9 @@
 //! cargo bench -p nemm-core --bench step --no-default-features --features micromath
 //! ```
 //!
+//! `step-table/*`: the same step in the tabulated mode (`EvalMode::Table`, 256 segments per
+//! table, bound 1e-4) for the neural kinds.
+//!
 //! Models: `nemm_core::testing::example_model(kind, 16, 5)` (the paper's best Table 3 size,
 //! H = 16, L = 5), alpha 0.15, default step 1e-4 s. Each iteration is one step on a
 //! precomputed 5 Hz sinusoidal velocity of 0.5 m/s (one period, 2000 samples, cycled), so the
@@ -18,8 +21,8 @@
 use criterion::measurement::Measurement;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use nemm_core::{
-    decode, encode, Estimator, EstimatorConfig, Integrator, Model, ModelKind,
-    DEFAULT_PARAM_CAPACITY,
+    decode, encode, Estimator, EstimatorConfig, EvalMode, Integrator, Model, ModelKind,
+    TableConfig, DEFAULT_PARAM_CAPACITY,
 };
 use std::hint::black_box;
 
@@ -52,6 +55,32 @@ fn step<M: Measurement>(c: &mut Criterion<M>) {
                 ..EstimatorConfig::new(0.15)
             };
             let mut est = Estimator::new(&m, cfg).expect("valid model");
+            let mut k = 0usize;
+            g.bench_function(BenchmarkId::new(kind.name(), integrator.name()), |b| {
+                b.iter(|| {
+                    k = if k + 1 == vs.len() { 0 } else { k + 1 };
+                    black_box(est.step(black_box(vs[k])))
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
+/// The tabulated fast path (`EvalMode::Table`, 256 segments, bound 1e-4) of the neural kinds.
+fn step_table<M: Measurement>(c: &mut Criterion<M>) {
+    let mut g = c.benchmark_group(format!("step-table/{}", nemm_core::math::BACKEND));
+    g.throughput(Throughput::Elements(1));
+    for kind in [ModelKind::NemmLight, ModelKind::Nemm] {
+        let m = model(kind);
+        let vs = velocities(m.dt_s);
+        for integrator in [Integrator::Rk4, Integrator::Rk3] {
+            let cfg = EstimatorConfig {
+                integrator: Some(integrator),
+                mode: EvalMode::Table(TableConfig::new(1e-4)),
+                ..EstimatorConfig::new(0.15)
+            };
+            let mut est: Estimator = Estimator::new(&m, cfg).expect("tables within the bound");
             let mut k = 0usize;
             g.bench_function(BenchmarkId::new(kind.name(), integrator.name()), |b| {
                 b.iter(|| {
@@ -147,8 +176,8 @@ mod cpu_time {
 criterion_group! {
     name = benches;
     config = Criterion::default().with_measurement(cpu_time::ThreadCpuTime);
-    targets = step, decode_blob
+    targets = step, step_table, decode_blob
 }
 #[cfg(not(target_os = "linux"))]
-criterion_group!(benches, step, decode_blob);
+criterion_group!(benches, step, step_table, decode_blob);
 criterion_main!(benches);

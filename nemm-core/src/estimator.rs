@@ -21,12 +21,42 @@
 //!
 //! Everything that depends on `alpha` only (the alpha column of each first layer, `b_pr`, the
 //! SEM curve) is computed in [`Estimator::new`] / [`Estimator::set_alpha`], never per step.
+//!
+//! # Exact or tabulated
+//!
+//! [`EstimatorConfig::mode`] selects how the neural coefficients `b_fl(v_st)` and
+//! `k_pr(x_pr)` are evaluated:
+//!
+//! - [`EvalMode::Exact`] (default): the compiled MLPs, the reference arithmetic.
+//! - [`EvalMode::Table`]: 1-D cubic tables of [`crate::table`] with `T` segments each
+//!   (`Estimator<P, T>`, default [`DEFAULT_TABLE_SEGMENTS`] = 256), built for the
+//!   configured `alpha` in [`Estimator::new`] and rebuilt by [`Estimator::set_alpha`]. Both
+//!   measure every table against the exact scaler on a grid 128x finer than the table and
+//!   refuse, with [`EstimatorError::Table`], a table whose relative error exceeds
+//!   [`TableConfig::max_rel_error`]. A state outside a table's domain is clamped and sets
+//!   [`Flags::OUT_OF_TABLE_DOMAIN`]. The SEM and the Linear EMM have nothing to tabulate and
+//!   run the same code in both modes.
+//!
+//! ```
+//! use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
+//! # let model: nemm_core::Model = nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 16, 5).unwrap();
+//! let cfg = EstimatorConfig {
+//!     mode: EvalMode::Table(TableConfig::new(1e-4)), // each coefficient within 1e-4 relative
+//!     ..EstimatorConfig::new(0.15)
+//! };
+//! let mut est: Estimator = Estimator::new(&model, cfg).expect("tables within the bound");
+//! let worst = est.table_accuracy().expect("tabulated").max_rel_error;
+//! assert!(worst <= 1e-4);
+//! let e = est.step(0.3);
+//! assert!(e.force_n.is_finite());
+//! ```
 
 use crate::emm::{self, Coefficients, State};
 use crate::integrator::{self, Integrator, StepSize};
 use crate::mlp::{CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
+use crate::table::{self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 use core::fmt;
 
 /// Default plausibility limit of the input, as a multiple of the training abs-max velocity.
@@ -82,6 +112,27 @@ pub struct Diagnostics {
     pub resets: u32,
 }
 
+/// How the neural coefficients are evaluated (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum EvalMode {
+    /// The compiled MLPs (reference arithmetic).
+    #[default]
+    Exact,
+    /// 1-D cubic tables for the fixed `alpha`, verified against the MLPs within the bound of
+    /// the [`TableConfig`].
+    Table(TableConfig),
+}
+
+impl EvalMode {
+    /// `"exact"` or `"table"`.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            EvalMode::Exact => "exact",
+            EvalMode::Table(_) => "table",
+        }
+    }
+}
+
 /// Settings of an estimator.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EstimatorConfig {
@@ -94,6 +145,8 @@ pub struct EstimatorConfig {
     pub integrator: Option<Integrator>,
     /// Step \[s\]; `None`: the model's. Checked against the model's stability bound.
     pub dt_s: Option<f32>,
+    /// Exact MLPs or verified tables (default exact).
+    pub mode: EvalMode,
 }
 
 impl EstimatorConfig {
@@ -104,6 +157,7 @@ impl EstimatorConfig {
             velocity_limit_m_s: None,
             integrator: None,
             dt_s: None,
+            mode: EvalMode::Exact,
         }
     }
 }
@@ -119,6 +173,8 @@ pub enum EstimatorError {
     Model(ModelError),
     /// A scaler could not be compiled (inconsistent shape; cannot happen for a decoded model).
     Compile,
+    /// Table mode: a table could not be built or misses the error bound.
+    Table(TableError),
 }
 
 impl fmt::Display for EstimatorError {
@@ -130,6 +186,7 @@ impl fmt::Display for EstimatorError {
             }
             EstimatorError::Model(e) => write!(f, "{e}"),
             EstimatorError::Compile => write!(f, "a scaler has an inconsistent shape"),
+            EstimatorError::Table(e) => write!(f, "{e}"),
         }
     }
 }
@@ -137,32 +194,55 @@ impl fmt::Display for EstimatorError {
 #[cfg(feature = "std")]
 impl std::error::Error for EstimatorError {}
 
-/// A coefficient that is either constant or a compiled neural scaler of one state input.
+/// A coefficient that is constant, a compiled neural scaler of one state input, or a table
+/// of that scaler (which is kept to rebuild the table on `set_alpha`).
 #[derive(Debug, Clone)]
-enum Coef<const P: usize> {
+enum Coef<const P: usize, const T: usize> {
     Const(f32),
     Neural(CompiledScaler<P>),
+    Table {
+        table: Table1D<T>,
+        exact: CompiledScaler<P>,
+        name: &'static str,
+    },
 }
 
-impl<const P: usize> Coef<P> {
+impl<const P: usize, const T: usize> Coef<P, T> {
+    /// The coefficient at state input `u`; a clamped table input sets `*out`.
     #[inline(always)]
-    fn eval(&self, u: f32) -> f32 {
+    fn eval(&self, u: f32, out: &mut bool) -> f32 {
         match self {
             Coef::Const(c) => *c,
             Coef::Neural(s) => s.eval(u),
-        }
-    }
-    fn set_alpha(&mut self, alpha: f32) {
-        if let Coef::Neural(s) = self {
-            s.set_alpha(alpha);
+            Coef::Table { table, .. } => table.eval(u, out),
         }
     }
 }
 
+/// Tabulates a compiled scaler over `[-m s, m s]` (`s` its input scale).
+fn build_table<const P: usize, const T: usize>(
+    exact: &CompiledScaler<P>,
+    lo: f32,
+    hi: f32,
+    cfg: &TableConfig,
+    name: &'static str,
+) -> Result<Table1D<T>, EstimatorError> {
+    Table1D::compile(
+        |u| exact.eval_with_pattern(u),
+        lo,
+        hi,
+        cfg.max_rel_error,
+        name,
+    )
+    .map_err(EstimatorError::Table)
+}
+
 #[derive(Debug, Clone)]
-struct EmmRuntime<const P: usize> {
-    b_fl: Coef<P>,
-    k_pr: Coef<P>,
+struct EmmRuntime<const P: usize, const T: usize> {
+    b_fl: Coef<P, T>,
+    k_pr: Coef<P, T>,
+    /// The table configuration in table mode.
+    table_cfg: Option<TableConfig>,
     b_pr: f32,
     /// The `b_pr(alpha)` scaler with `b_pr,ini` and the alpha scale, kept for `set_alpha`.
     b_pr_scaler: Option<(Scaler<P>, f32, f32)>,
@@ -173,31 +253,88 @@ struct EmmRuntime<const P: usize> {
     v_limit: f32,
 }
 
-impl<const P: usize> EmmRuntime<P> {
+impl<const P: usize, const T: usize> EmmRuntime<P, T> {
     #[inline(always)]
-    fn coeffs(&self, s: &State) -> Coefficients {
+    fn coeffs(&self, s: &State, out: &mut bool) -> Coefficients {
         Coefficients {
-            b_fl: self.b_fl.eval(s.v_st_m_s),
+            b_fl: self.b_fl.eval(s.v_st_m_s, out),
             b_pr: self.b_pr,
-            k_pr: self.k_pr.eval(s.x_pr_m),
+            k_pr: self.k_pr.eval(s.x_pr_m, out),
         }
+    }
+
+    /// Re-folds `alpha` into the neural coefficients; in table mode rebuilds and checks the
+    /// tables first and changes nothing if one misses the bound.
+    fn set_alpha(&mut self, alpha: f32, old_alpha: f32) -> Result<(), EstimatorError> {
+        let cfg = self.table_cfg;
+        let mut fresh: [Option<Table1D<T>>; 2] = [None, None];
+        let mut failure = None;
+        for (coef, slot) in [&mut self.b_fl, &mut self.k_pr].into_iter().zip(&mut fresh) {
+            match coef {
+                Coef::Const(_) => {}
+                Coef::Neural(s) => s.set_alpha(alpha),
+                Coef::Table { table, exact, name } => {
+                    let (lo, hi) = table.domain();
+                    exact.set_alpha(alpha);
+                    match cfg.map(|c| build_table(exact, lo, hi, &c, name)) {
+                        Some(Ok(t)) => *slot = Some(t),
+                        Some(Err(e)) => failure = Some(e),
+                        None => failure = Some(EstimatorError::Compile),
+                    }
+                }
+            }
+            if failure.is_some() {
+                break;
+            }
+        }
+        if let Some(e) = failure {
+            for coef in [&mut self.b_fl, &mut self.k_pr] {
+                if let Coef::Table { exact, .. } = coef {
+                    exact.set_alpha(old_alpha);
+                }
+            }
+            return Err(e);
+        }
+        for (coef, t) in [&mut self.b_fl, &mut self.k_pr].into_iter().zip(fresh) {
+            if let (Coef::Table { table, .. }, Some(t)) = (coef, t) {
+                *table = t;
+            }
+        }
+        Ok(())
+    }
+
+    fn tables(&self) -> impl Iterator<Item = &Table1D<T>> {
+        [&self.b_fl, &self.k_pr]
+            .into_iter()
+            .filter_map(|c| match c {
+                Coef::Table { table, .. } => Some(table),
+                _ => None,
+            })
     }
 }
 
 #[derive(Debug, Clone)]
-enum Runtime<const P: usize> {
+enum Runtime<const P: usize, const T: usize> {
     Sem {
         map: SemMap,
         curve: heapless::Vec<f32, MAX_SEM_VELOCITIES>,
     },
-    Emm(EmmRuntime<P>),
+    Emm(EmmRuntime<P, T>),
 }
 
 /// Online estimator for one damper at one oil-loss level. Owns everything it needs; the
 /// [`Model`] can be dropped after construction.
+///
+/// `P` is the parameter capacity per scaler (as for [`Model`]), `T` the number of segments
+/// of each table in [`EvalMode::Table`] (16 bytes each; unused in exact mode, but part of
+/// the size).
 #[derive(Debug, Clone)]
-pub struct Estimator<const P: usize = DEFAULT_PARAM_CAPACITY> {
-    rt: Runtime<P>,
+pub struct Estimator<
+    const P: usize = DEFAULT_PARAM_CAPACITY,
+    const T: usize = DEFAULT_TABLE_SEGMENTS,
+> {
+    rt: Runtime<P, T>,
+    mode: EvalMode,
     alpha: f32,
     alpha_range: (f32, f32),
     state: State,
@@ -210,8 +347,18 @@ pub struct Estimator<const P: usize = DEFAULT_PARAM_CAPACITY> {
 
 impl<const P: usize> Estimator<P> {
     /// Builds an estimator: validates the model with the configured step and integrator and
-    /// precomputes all alpha-only work.
+    /// precomputes all alpha-only work (in table mode: builds and checks the tables, with
+    /// [`DEFAULT_TABLE_SEGMENTS`] segments each; [`Estimator::with_segments`] picks another
+    /// number).
     pub fn new(model: &Model<P>, cfg: EstimatorConfig) -> Result<Self, EstimatorError> {
+        Self::with_segments(model, cfg)
+    }
+}
+
+impl<const P: usize, const T: usize> Estimator<P, T> {
+    /// [`Estimator::new`] with `T` segments per table in [`EvalMode::Table`]
+    /// (`Estimator::<P, T>::with_segments(&model, cfg)`).
+    pub fn with_segments(model: &Model<P>, cfg: EstimatorConfig) -> Result<Self, EstimatorError> {
         model.validate().map_err(EstimatorError::Model)?;
         let alpha = cfg.alpha;
         if !(alpha.is_finite() && (0.0..=1.0).contains(&alpha)) {
@@ -228,6 +375,9 @@ impl<const P: usize> Estimator<P> {
         model
             .check_step(integrator, dt)
             .map_err(EstimatorError::Model)?;
+        if let EvalMode::Table(tc) = &cfg.mode {
+            table::check_config(tc).map_err(EstimatorError::Table)?;
+        }
         let sc = &model.scales;
         let rt = match &model.body {
             Body::Sem(map) => Runtime::Sem {
@@ -246,11 +396,27 @@ impl<const P: usize> Estimator<P> {
                     } => (emm, Some(b_fl), Some(b_pr), Some(k_pr)),
                     Body::Sem(_) => return Err(EstimatorError::Compile),
                 };
-                let compile = |s: Option<&Scaler<P>>, p_ini: f32, u_scale: f32| match s {
-                    None => Ok(Coef::Const(p_ini)),
-                    Some(s) => CompiledScaler::compile(s, p_ini, u_scale, alpha, sc.alpha)
-                        .map(Coef::Neural)
-                        .ok_or(EstimatorError::Compile),
+                let compile = |s: Option<&Scaler<P>>,
+                               p_ini: f32,
+                               u_scale: f32,
+                               name: &'static str|
+                 -> Result<Coef<P, T>, EstimatorError> {
+                    let Some(s) = s else {
+                        return Ok(Coef::Const(p_ini));
+                    };
+                    let exact = CompiledScaler::compile(s, p_ini, u_scale, alpha, sc.alpha)
+                        .ok_or(EstimatorError::Compile)?;
+                    match &cfg.mode {
+                        EvalMode::Exact => Ok(Coef::Neural(exact)),
+                        EvalMode::Table(tc) => {
+                            let d = tc.domain_margin * u_scale;
+                            Ok(Coef::Table {
+                                table: build_table(&exact, -d, d, tc, name)?,
+                                exact,
+                                name,
+                            })
+                        }
+                    }
                 };
                 let b_pr_value = match b_pr {
                     None => emm.b_pr_ns_per_m,
@@ -261,8 +427,12 @@ impl<const P: usize> Estimator<P> {
                     }
                 };
                 Runtime::Emm(EmmRuntime {
-                    b_fl: compile(b_fl, emm.b_fl_ns_per_m, sc.velocity_m_s)?,
-                    k_pr: compile(k_pr, emm.k_pr_n_per_m, sc.x_pr_m)?,
+                    b_fl: compile(b_fl, emm.b_fl_ns_per_m, sc.velocity_m_s, "b_fl")?,
+                    k_pr: compile(k_pr, emm.k_pr_n_per_m, sc.x_pr_m, "k_pr")?,
+                    table_cfg: match cfg.mode {
+                        EvalMode::Exact => None,
+                        EvalMode::Table(tc) => Some(tc),
+                    },
                     b_pr: b_pr_value,
                     b_pr_scaler: b_pr.map(|s| (s.clone(), emm.b_pr_ns_per_m, sc.alpha)),
                     inv_t_pr: 1.0 / emm.t_pr_s,
@@ -275,6 +445,7 @@ impl<const P: usize> Estimator<P> {
         };
         let mut est = Self {
             rt,
+            mode: cfg.mode,
             alpha,
             alpha_range: (model.meta.alpha_min, model.meta.alpha_max),
             state: State::default(),
@@ -311,25 +482,24 @@ impl<const P: usize> Estimator<P> {
         self.state = State::default();
         self.last_u = 0.0;
         if let Runtime::Emm(rt) = &self.rt {
-            self.coeffs = rt.coeffs(&self.state);
+            self.coeffs = rt.coeffs(&self.state, &mut false);
         }
     }
 
     /// Changes the oil-loss level (bench controllers): re-folds the alpha-only work
-    /// (first-layer biases, `b_pr(alpha)`, the SEM curve). The state is kept. Refuses values
-    /// outside `[0, 1]`.
+    /// (first-layer biases, `b_pr(alpha)`, the SEM curve; in table mode it rebuilds and
+    /// re-checks the tables, which costs about `128 T` exact scaler evaluations per table).
+    /// The state is kept. Refuses values outside `[0, 1]`, and in table mode an `alpha` whose
+    /// tables miss the bound ([`EstimatorError::Table`]); after an error nothing changed.
     pub fn set_alpha(&mut self, alpha: f32) -> Result<(), EstimatorError> {
         if !(alpha.is_finite() && (0.0..=1.0).contains(&alpha)) {
             return Err(EstimatorError::AlphaOutOfRange);
         }
-        self.alpha = alpha;
         match &mut self.rt {
             Runtime::Sem { map, curve } => *curve = map.curve_at(alpha).0,
-            Runtime::Emm(rt) => {
-                rt.b_fl.set_alpha(alpha);
-                rt.k_pr.set_alpha(alpha);
-            }
+            Runtime::Emm(rt) => rt.set_alpha(alpha, self.alpha)?,
         }
+        self.alpha = alpha;
         self.update_alpha_flags();
         if let Runtime::Emm(rt) = &mut self.rt {
             if let Some((scaler, b_pr_ini, alpha_scale)) = &rt.b_pr_scaler {
@@ -338,7 +508,7 @@ impl<const P: usize> Estimator<P> {
                         .scale(&[alpha / *alpha_scale])
                         .ok_or(EstimatorError::Compile)?;
             }
-            self.coeffs = rt.coeffs(&self.state);
+            self.coeffs = rt.coeffs(&self.state, &mut false);
         }
         Ok(())
     }
@@ -363,9 +533,10 @@ impl<const P: usize> Estimator<P> {
         let force_n = match &self.rt {
             Runtime::Sem { map, curve } => map.force_on_curve(curve, u),
             Runtime::Emm(rt) => {
+                let mut out = false;
                 let x1 = integrator::step(
                     rt.integrator,
-                    |s| rt.coeffs(s),
+                    |s| rt.coeffs(s, &mut out),
                     &self.coeffs,
                     rt.inv_t_pr,
                     &self.state,
@@ -373,7 +544,10 @@ impl<const P: usize> Estimator<P> {
                     u,
                     &rt.h,
                 );
-                let c1 = rt.coeffs(&x1);
+                let c1 = rt.coeffs(&x1, &mut out);
+                if out {
+                    flags |= Flags::OUT_OF_TABLE_DOMAIN;
+                }
                 let f = emm::force(&c1, &x1, u);
                 if f.is_finite() && x1.x_pr_m.abs() <= rt.x_limit && x1.v_st_m_s.abs() <= rt.v_limit
                 {
@@ -384,7 +558,7 @@ impl<const P: usize> Estimator<P> {
                     flags |= Flags::STATE_RESET;
                     self.diag.resets = self.diag.resets.wrapping_add(1);
                     self.state = State::default();
-                    self.coeffs = rt.coeffs(&self.state);
+                    self.coeffs = rt.coeffs(&self.state, &mut false);
                     let f0 = emm::force(&self.coeffs, &self.state, u);
                     if f0.is_finite() {
                         f0
@@ -432,5 +606,34 @@ impl<const P: usize> Estimator<P> {
     /// The plausibility limit of the input \[m/s\].
     pub fn velocity_limit_m_s(&self) -> f32 {
         self.velocity_limit
+    }
+
+    /// The evaluation mode.
+    pub fn mode(&self) -> EvalMode {
+        self.mode
+    }
+
+    /// Table mode: the worst accuracy of the tables in use, measured when they were built
+    /// (`None` in exact mode and for kinds without neural coefficients).
+    pub fn table_accuracy(&self) -> Option<TableAccuracy> {
+        match &self.rt {
+            Runtime::Sem { .. } => None,
+            Runtime::Emm(rt) => rt
+                .tables()
+                .map(|t| t.accuracy())
+                .fold(None, |w, a| match w {
+                    Some(w) if w.max_rel_error >= a.max_rel_error => Some(w),
+                    _ => Some(a),
+                }),
+        }
+    }
+
+    /// Number of tables in use and their coefficient bytes (`16 T` each).
+    pub fn table_bytes(&self) -> (usize, usize) {
+        let n = match &self.rt {
+            Runtime::Sem { .. } => 0,
+            Runtime::Emm(rt) => rt.tables().count(),
+        };
+        (n, n * Table1D::<T>::table_bytes())
     }
 }

@@ -7,9 +7,11 @@
 //! - [`mlp`]: the neural scalers (section 5.4) and their bounded positive output mapping.
 //! - [`integrator`]: fixed-step RK4 / RK3 with linear interpolation of the input.
 //! - [`model`]: the four variants (SEM, Linear EMM, NEMM-Light, NEMM) and their validation.
-//! - [`format`]: the postcard weight blob with magic, version and CRC-32.
+//! - [`format`](mod@format): the postcard weight blob with magic, version and CRC-32.
 //! - [`estimator`]: the online estimator, one `step(velocity) -> force` per sample.
 //! - [`sem`]: the static force-velocity map.
+//! - [`table`]: the tabulated fixed-alpha fast path (1-D cubic tables with a verified error
+//!   bound).
 //! - [`math`]: `exp`, `sqrt` and `fma` backends (`libm` exact, `micromath` fast).
 //!
 //! Units are SI throughout: m, m/s, N, N s/m, N/m, s. `alpha` is the oil-loss fraction in
@@ -59,11 +61,14 @@ pub mod math;
 pub mod mlp;
 pub mod model;
 pub mod sem;
+pub mod table;
 #[doc(hidden)]
 pub mod testing;
 
 pub use emm::{Coefficients, EmmConstants, State};
-pub use estimator::{Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags};
+pub use estimator::{
+    Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags,
+};
 pub use format::{
     decode, decode_into, encode, read_header, DecodeError, EncodeError, Header, FORMAT_VERSION,
 };
@@ -71,6 +76,7 @@ pub use integrator::Integrator;
 pub use mlp::{MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
 pub use model::{Body, InputScales, Meta, Model, ModelError, ModelKind};
 pub use sem::SemMap;
+pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 
 #[cfg(feature = "std")]
 pub use format::encode_to_vec;

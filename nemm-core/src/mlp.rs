@@ -559,6 +559,23 @@ impl<const P: usize> CompiledScaler<P> {
     /// Portable evaluation of the raw output `z`: the reference of the Arm kernel.
     #[doc(hidden)]
     pub fn raw_portable(&self, u: f32) -> f32 {
+        self.raw_generic::<false>(u, &mut 0)
+    }
+
+    /// [`Self::eval`] and the activation pattern at `u`: a hash of the signs of every
+    /// LeakyReLU input. The function is smooth (analytic) wherever the pattern is constant;
+    /// where it changes, one LeakyReLU switches slope (a kink). Used by [`crate::table`] to
+    /// place table knots at the kinks. Portable arithmetic (the same bits as `eval`).
+    pub fn eval_with_pattern(&self, u: f32) -> (f32, u64) {
+        let mut pattern = 0xcbf2_9ce4_8422_2325u64;
+        let z = self.raw_generic::<true>(u, &mut pattern);
+        (math::fma(self.span, math::sigmoid(z), self.lo), pattern)
+    }
+
+    /// The portable network; with `TRACK` the signs of the LeakyReLU inputs are hashed into
+    /// `pattern` (FNV-1a over one byte per neuron).
+    #[inline(always)]
+    fn raw_generic<const TRACK: bool>(&self, u: f32, pattern: &mut u64) -> f32 {
         let h = self.hidden;
         // For an inconsistent layout (which `compile` rules out): `z = -inf` makes `eval`
         // return `lo`.
@@ -573,7 +590,7 @@ impl<const P: usize> CompiledScaler<P> {
         for ((ti, &wi), &bi) in t.iter_mut().zip(w1).zip(b1) {
             *ti = math::fma(wi, u, bi);
         }
-        if !self.norm_act(&mut rest, &t, &mut a) {
+        if !self.norm_act::<TRACK>(&mut rest, &t, &mut a, pattern) {
             return fallback;
         }
         for _ in 1..self.layers {
@@ -592,7 +609,7 @@ impl<const P: usize> CompiledScaler<P> {
                     *ti = dot_acc(row, xs, *ti);
                 }
             }
-            if !self.norm_act(&mut rest, &t, &mut a) {
+            if !self.norm_act::<TRACK>(&mut rest, &t, &mut a, pattern) {
                 return fallback;
             }
         }
@@ -608,11 +625,12 @@ impl<const P: usize> CompiledScaler<P> {
 
     /// Centred LayerNorm + affine + LeakyReLU from `t` into `a`; consumes gamma and beta.
     #[inline(always)]
-    fn norm_act(
+    fn norm_act<const TRACK: bool>(
         &self,
         rest: &mut &[f32],
         t: &[f32; MAX_HIDDEN],
         a: &mut [f32; MAX_HIDDEN],
+        pattern: &mut u64,
     ) -> bool {
         let h = self.hidden;
         let (Some(g), Some(be)) = (take(rest, h), take(rest, h)) else {
@@ -623,7 +641,11 @@ impl<const P: usize> CompiledScaler<P> {
         let var = th.iter().fold(0.0f32, |s, &d| math::fma(d, d, s)) * inv_h;
         let r = math::rsqrt(var + LAYER_NORM_EPS);
         for (((ai, &ti), &gi), &bi) in a.iter_mut().zip(th).zip(g).zip(be) {
-            *ai = leaky_relu(math::fma(gi, ti * r, bi));
+            let y = math::fma(gi, ti * r, bi);
+            if TRACK {
+                *pattern = (*pattern ^ u64::from(y >= 0.0)).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+            *ai = leaky_relu(y);
         }
         true
     }
@@ -673,7 +695,10 @@ mod tests {
         let mut h = [1.0f32, 3.0];
         layer_norm_leaky(&mut h, &[1.0, 1.0], &[0.0, 0.0]);
         let r = 1.0 / (1.0f64 + 1e-5).sqrt();
-        assert!((h[0] as f64 - (-0.01 * r)).abs() < tol(1e-5) * 0.01, "{h:?}");
+        assert!(
+            (h[0] as f64 - (-0.01 * r)).abs() < tol(1e-5) * 0.01,
+            "{h:?}"
+        );
         assert!((h[1] as f64 - r).abs() < tol(1e-6), "{h:?}");
     }
 
@@ -689,7 +714,10 @@ mod tests {
         let a1 = if y1 >= 0.0 { y1 } else { 0.01 * y1 };
         let z = 0.25 + y0 + 2.0 * a1;
         let got = m.forward(&[2.0]).unwrap() as f64;
-        assert!((got - z).abs() < tol(1e-6) * z.abs().max(1.0), "{got} vs {z}");
+        assert!(
+            (got - z).abs() < tol(1e-6) * z.abs().max(1.0),
+            "{got} vs {z}"
+        );
     }
 
     #[test]

@@ -29,7 +29,7 @@
 //! `decode`, `firmware` or `estimator`) and the typed error as `kind=` plus its fields;
 //! a model rejected by its checks adds the [`ModelError`] as `reason=` plus its fields.
 
-use nemm_core::{DecodeError, EstimatorError, ModelError};
+use nemm_core::{DecodeError, EstimatorError, ModelError, TableError};
 
 use crate::slot::SlotError;
 
@@ -245,6 +245,49 @@ pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
             line
         }
         EstimatorError::Compile => line.ks("kind", "compile"),
+        EstimatorError::Table(t) => {
+            line.ks("kind", "table");
+            table_error(line, t);
+            line
+        }
+    };
+}
+
+/// A relative error in parts per billion (saturating), for lines without floats.
+pub fn ppb(rel: f32) -> u32 {
+    let v = rel * 1e9;
+    if v >= 0.0 {
+        if v < u32::MAX as f32 {
+            v as u32
+        } else {
+            u32::MAX
+        }
+    } else {
+        0
+    }
+}
+
+/// The fields of a table error (`table=<reason> ...`; errors in parts per billion).
+pub fn table_error(line: &mut Line, e: &TableError) {
+    match e {
+        TableError::BadConfig => line.ks("table", "bad-config"),
+        TableError::NonFinite { scaler, .. } => line.ks("table", "non-finite").ks("scaler", scaler),
+        TableError::TooManyKinks { scaler, segments } => line
+            .ks("table", "too-many-kinks")
+            .ks("scaler", scaler)
+            .kv("segments", *segments as u32),
+        TableError::ExceedsBound {
+            scaler,
+            max_rel_error,
+            bound,
+            segments,
+            ..
+        } => line
+            .ks("table", "exceeds-bound")
+            .ks("scaler", scaler)
+            .kv("segments", *segments as u32)
+            .kv("max_rel_error_ppb", ppb(*max_rel_error))
+            .kv("bound_ppb", ppb(*bound)),
     };
 }
 
