@@ -38,7 +38,7 @@ impl From<VelocityArg> for VelocitySource {
 /// Signal options shared by both subcommands.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SignalArgs {
-    /// Cut-off of the zero-phase low-pass before differentiation [Hz].
+    /// Cut-off of the zero-phase low-pass before differentiation (Hz).
     #[arg(long, default_value_t = preprocess::DEFAULT_CUTOFF_HZ)]
     pub cutoff_hz: f64,
     /// Where the velocity comes from.
@@ -75,10 +75,10 @@ pub enum DataCmd {
         /// Also write a JSON summary (configuration, counts, scales, per-run facts).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Scored length of a sequence [s].
+        /// Scored length of a sequence (s).
         #[arg(long, default_value_t = preprocess::DEFAULT_SEQUENCE_S)]
         length_s: f64,
-        /// Warm-up prefix of a sequence, simulated but not scored [s].
+        /// Warm-up prefix of a sequence, simulated but not scored (s).
         #[arg(long, default_value_t = preprocess::DEFAULT_WARMUP_S)]
         warmup_s: f64,
         /// Oil-loss level(s) of the test set (repeat or comma-separate).

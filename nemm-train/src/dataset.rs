@@ -22,7 +22,7 @@
 //!
 //! [`load`] refuses every malformed input with a [`DatasetError`] that names the file, the
 //! line and (where there is one) the column or manifest key; nothing is silently dropped.
-//! [`write`] writes each file atomically (temporary file + rename, manifest last) with
+//! [`write()`] writes each file atomically (temporary file + rename, manifest last) with
 //! Rust's shortest round-trip float format, so `load(write(d)) == d` exactly.
 
 use serde::{Deserialize, Serialize};
@@ -178,7 +178,7 @@ pub enum DatasetError {
     ManifestValue {
         /// The manifest.
         path: PathBuf,
-        /// Line of the value (`None` when validating an in-memory manifest for [`write`]).
+        /// Line of the value (`None` when validating an in-memory manifest for [`write()`]).
         line: Option<usize>,
         /// The key, e.g. `runs[3].oil_loss` (runs counted from 0).
         key: String,
@@ -322,7 +322,7 @@ pub enum DatasetError {
         /// The reader's message.
         message: String,
     },
-    /// An in-memory run passed to [`write`] has columns of different lengths.
+    /// An in-memory run passed to [`write()`] has columns of different lengths.
     #[error("{}: column \"{column}\" has {found} values but \"time_s\" has {expected}", path.display())]
     LengthMismatch {
         /// The CSV file it was to be written to.

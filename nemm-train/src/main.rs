@@ -84,7 +84,7 @@ enum Cmd {
         /// Grid: lambda (Table 5) or table3 (Table 3 search space x lambda list).
         #[arg(long, value_enum, default_value_t = nemm_train::train_cli::SweepGrid::Lambda)]
         grid: nemm_train::train_cli::SweepGrid,
-        /// Report folder (jobs in <report>/jobs/<id>/).
+        /// Report folder (jobs in REPORT/jobs/ID/).
         #[arg(long, default_value = "sweep")]
         report: PathBuf,
         /// Jobs run at the same time on this machine.

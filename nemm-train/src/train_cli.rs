@@ -73,10 +73,10 @@ pub struct TrainArgs {
     /// checkpoint (time-boxed sessions); continue with --resume.
     #[arg(long)]
     pub session_epochs: Option<usize>,
-    /// Scored length of a training window [s] (section 5.3: 0.5 s).
+    /// Scored length of a training window (s; section 5.3: 0.5 s).
     #[arg(long, default_value_t = preprocess::DEFAULT_SEQUENCE_S)]
     pub window_s: f64,
-    /// Warm-up prefix of a window, simulated but not scored [s].
+    /// Warm-up prefix of a window, simulated but not scored (s).
     #[arg(long, default_value_t = preprocess::DEFAULT_WARMUP_S)]
     pub warmup_s: f64,
 }
