@@ -79,7 +79,8 @@ impl Flags {
     pub const STATE_RESET: u8 = 1 << 3;
     /// `alpha` lies outside the oil-loss range the model was trained on (extrapolation).
     pub const ALPHA_EXTRAPOLATED: u8 = 1 << 4;
-    /// A tabulated scaler's input left its table domain and was clamped.
+    /// Table mode: the new state lies outside a table's domain, so its coefficient was
+    /// clamped to the boundary value (RK stages outside are clamped too, unflagged).
     pub const OUT_OF_TABLE_DOMAIN: u8 = 1 << 5;
 
     /// True if every bit of `bits` is set.
@@ -195,8 +196,10 @@ impl fmt::Display for EstimatorError {
 impl std::error::Error for EstimatorError {}
 
 /// A coefficient that is constant, a compiled neural scaler of one state input, or a table
-/// of that scaler (which is kept to rebuild the table on `set_alpha`).
+/// of that scaler (which is kept to rebuild the table on `set_alpha`). `repr(C)`: the table
+/// (its scalars first) right after the tag, near the start of the runtime.
 #[derive(Debug, Clone)]
+#[repr(C)]
 enum Coef<const P: usize, const T: usize> {
     Const(f32),
     Neural(CompiledScaler<P>),
@@ -237,20 +240,23 @@ fn build_table<const P: usize, const T: usize>(
     .map_err(EstimatorError::Table)
 }
 
+/// `repr(C)`: the per-step scalars first, then `b_fl` (whose table then starts within a few
+/// dozen bytes), `k_pr`, and what only `set_alpha` reads.
 #[derive(Debug, Clone)]
+#[repr(C)]
 struct EmmRuntime<const P: usize, const T: usize> {
-    b_fl: Coef<P, T>,
-    k_pr: Coef<P, T>,
-    /// The table configuration in table mode.
-    table_cfg: Option<TableConfig>,
     b_pr: f32,
-    /// The `b_pr(alpha)` scaler with `b_pr,ini` and the alpha scale, kept for `set_alpha`.
-    b_pr_scaler: Option<(Scaler<P>, f32, f32)>,
     inv_t_pr: f32,
     integrator: Integrator,
     h: StepSize,
     x_limit: f32,
     v_limit: f32,
+    b_fl: Coef<P, T>,
+    k_pr: Coef<P, T>,
+    /// The table configuration in table mode.
+    table_cfg: Option<TableConfig>,
+    /// The `b_pr(alpha)` scaler with `b_pr,ini` and the alpha scale, kept for `set_alpha`.
+    b_pr_scaler: Option<(Scaler<P>, f32, f32)>,
 }
 
 impl<const P: usize, const T: usize> EmmRuntime<P, T> {
@@ -314,6 +320,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
 }
 
 #[derive(Debug, Clone)]
+#[repr(C)]
 enum Runtime<const P: usize, const T: usize> {
     Sem {
         map: SemMap,
@@ -326,23 +333,24 @@ enum Runtime<const P: usize, const T: usize> {
 /// [`Model`] can be dropped after construction.
 ///
 /// `P` is the parameter capacity per scaler (as for [`Model`]), `T` the number of segments
-/// of each table in [`EvalMode::Table`] (16 bytes each; unused in exact mode, but part of
+/// of each table in [`EvalMode::Table`] (26 bytes each; unused in exact mode, but part of
 /// the size).
 #[derive(Debug, Clone)]
+#[repr(C)] // the per-step scalars first, the large runtime last (short offsets on Arm)
 pub struct Estimator<
     const P: usize = DEFAULT_PARAM_CAPACITY,
     const T: usize = DEFAULT_TABLE_SEGMENTS,
 > {
-    rt: Runtime<P, T>,
-    mode: EvalMode,
-    alpha: f32,
-    alpha_range: (f32, f32),
     state: State,
     coeffs: Coefficients,
     last_u: f32,
     velocity_limit: f32,
     sticky: Flags,
     diag: Diagnostics,
+    alpha: f32,
+    alpha_range: (f32, f32),
+    mode: EvalMode,
+    rt: Runtime<P, T>,
 }
 
 impl<const P: usize> Estimator<P> {
@@ -533,10 +541,13 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         let force_n = match &self.rt {
             Runtime::Sem { map, curve } => map.force_on_curve(curve, u),
             Runtime::Emm(rt) => {
+                // The domain flag reports the new state (the output evaluation); the RK
+                // stages in between are clamped alike, unflagged (their states lie between
+                // the old and the new one up to the local error).
                 let mut out = false;
                 let x1 = integrator::step(
                     rt.integrator,
-                    |s| rt.coeffs(s, &mut out),
+                    |s| rt.coeffs(s, &mut false),
                     &self.coeffs,
                     rt.inv_t_pr,
                     &self.state,

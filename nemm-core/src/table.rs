@@ -190,8 +190,12 @@ pub struct TableAccuracy {
 /// floats from any check-grid interval).
 const BISECTION_STEPS: usize = 40;
 
-/// A function of one input as up to `N` cubic Hermite segments (module docs).
+/// A function of one input as `N` cubic Hermite segments (module docs).
+///
+/// `repr(C)` with the scalars the evaluation reads first: they stay within reach of one
+/// base register on the Cortex-M4F.
 #[derive(Debug, Clone, PartialEq)]
+#[repr(C)]
 pub struct Table1D<const N: usize> {
     lo: f32,
     hi: f32,
@@ -199,7 +203,7 @@ pub struct Table1D<const N: usize> {
     cell_scale: f32,
     /// `-lo N / (hi - lo)`.
     cell_offset: f32,
-    /// Segments in use (`1..=N`).
+    /// Segments in use (`N` after `compile`).
     used: usize,
     /// Per lookup cell: the segment holding the cell's left edge.
     first: [u16; N],
@@ -339,6 +343,28 @@ impl<const N: usize> Table1D<N> {
                 segments: N,
             });
         }
+        // Use all N segments (the evaluation then needs no count): the spare ones go, one at
+        // a time, to the piece with the widest segments.
+        let mut counts = [0usize; N];
+        for (k, c) in counts.iter_mut().enumerate().take(pieces) {
+            *c = count(h, k);
+        }
+        let mut total: usize = counts.iter().sum();
+        while total < N {
+            let mut widest = (0usize, 0.0f64);
+            for (k, &c) in counts.iter().enumerate().take(pieces) {
+                let (a, b) = piece(k);
+                let w = (b - a) / c.max(1) as f64;
+                if w > widest.1 {
+                    widest = (k, w);
+                }
+            }
+            match counts.get_mut(widest.0) {
+                Some(c) => *c += 1,
+                None => return Err(TableError::BadConfig),
+            }
+            total += 1;
+        }
         // 3. Hermite segments; slopes by central differences inside a piece, one-sided
         //    second-order differences at its ends (never across a kink).
         let mut t = Self {
@@ -358,7 +384,7 @@ impl<const N: usize> Table1D<N> {
         let mut used = 0usize;
         for k in 0..pieces {
             let (a, b) = piece(k);
-            let n = count(h, k);
+            let n = counts.get(k).copied().unwrap_or(1);
             let w = (b - a) / n as f64;
             let d = w / 8.0;
             let mut knot = |i: usize| -> Result<(f64, f64), TableError> {
@@ -455,7 +481,7 @@ impl<const N: usize> Table1D<N> {
         let cell = ((xc * self.cell_scale + self.cell_offset) as usize).min(N.saturating_sub(1));
         let mut i = self.first.get(cell).map_or(0, |&f| usize::from(f));
         // At most the knots inside one cell (a few, see `compile`).
-        while i + 1 < self.used {
+        while i + 1 < N {
             match self.seg.get(i + 1) {
                 Some(next) if xc >= next[0] => i += 1,
                 _ => break,
@@ -480,7 +506,7 @@ impl<const N: usize> Table1D<N> {
         self.accuracy
     }
 
-    /// Segments in use (at most `N`).
+    /// Segments in use (`N`).
     pub fn segments_used(&self) -> usize {
         self.used
     }
