@@ -54,6 +54,38 @@ pub mod board;
 /// which rules out `H = 16, L = 9` (`P` = 2,529: 226 KiB of decode stack).
 pub const PARAM_CAPACITY: usize = nemm_core::mlp::param_count(2, 16, 5);
 
+/// Bound of the tabulated fast path: each table's largest relative error against its exact
+/// scaler (measured at boot on a grid 128x finer than the table; a model whose tables miss it
+/// is refused with `weights-error source=estimator kind=table`). Over the bench programme it
+/// keeps the force within about 1e-5 of the force scale of the exact mode (docs/core.md).
+pub const TABLE_MAX_REL_ERROR: f32 = 1e-4;
+
+/// Segments per table: 128 (26 bytes of RAM each, 3.3 KiB per table). Half the host
+/// default: the estimator (model, compiled scalers and tables) is built on the stack before
+/// it moves into its static, and with 256 segments that peak no longer fits the 192 KiB
+/// next to the statics. The example models have 60-90 kinks per scaler, the demo's trained
+/// NEMM about 40, so 128 segments separate them (a model with more is refused at boot with
+/// `table=too-many-kinks`).
+pub const TABLE_SEGMENTS: usize = 128;
+
+/// The estimator type of this firmware.
+pub type FwEstimator = nemm_core::Estimator<PARAM_CAPACITY, TABLE_SEGMENTS>;
+
+/// Whether the application runs the tabulated fast path unless told otherwise: the `table`
+/// cargo feature (the one setting for a board build); QEMU runs override it with
+/// `mode=exact|table`.
+pub const TABLE_MODE_DEFAULT: bool = cfg!(feature = "table");
+
+/// The estimator's evaluation mode: the verified tables ([`TABLE_MAX_REL_ERROR`]) or the
+/// exact MLPs.
+pub fn eval_mode(table: bool) -> nemm_core::EvalMode {
+    if table {
+        nemm_core::EvalMode::Table(nemm_core::TableConfig::new(TABLE_MAX_REL_ERROR))
+    } else {
+        nemm_core::EvalMode::Exact
+    }
+}
+
 /// Sample (and estimator step) rate \[Hz\].
 pub const SAMPLE_RATE_HZ: u32 = 10_000;
 

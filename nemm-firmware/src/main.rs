@@ -36,7 +36,7 @@ mod app {
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m::peripheral::SYST;
     use heapless::spsc::{Consumer, Producer, Queue};
-    use nemm_core::{decode, DecodeError, Estimator, EstimatorConfig, Model};
+    use nemm_core::{decode, DecodeError, EstimatorConfig, Model};
     use nemm_firmware::board::{self, Console, Sensor, FORCE_OUTPUT, PERIOD_TICKS};
     use nemm_firmware::options::Options;
     use nemm_firmware::pipeline::{self, ChunkDigest, SensorCounters, DIGEST_CHUNK_STEPS};
@@ -73,7 +73,7 @@ mod app {
     /// Everything the 10 kHz task owns.
     pub struct SampleLoop {
         sensor: Sensor,
-        estimator: &'static mut Estimator<PARAM_CAPACITY>,
+        estimator: &'static mut nemm_firmware::FwEstimator,
         log: Producer<'static, LogItem>,
         syst: SYST,
         period_ticks: u32,
@@ -103,7 +103,7 @@ mod app {
     /// The decoded model (kept: the estimator is built from it).
     static MODEL: StaticSlot<Model<PARAM_CAPACITY>> = StaticSlot::new();
     /// The estimator, lent to the 10 kHz task.
-    static ESTIMATOR: StaticSlot<Estimator<PARAM_CAPACITY>> = StaticSlot::new();
+    static ESTIMATOR: StaticSlot<nemm_firmware::FwEstimator> = StaticSlot::new();
     /// The log queue between the 10 kHz task and the logger.
     static LOG: StaticSlot<Queue<LogItem, LOG_QUEUE>> = StaticSlot::new();
     /// CRC-32 of each chunk of [`DIGEST_CHUNK_STEPS`] periods, written by the 10 kHz task;
@@ -194,7 +194,12 @@ mod app {
             console.write(l.finish());
             return (Shared {}, no_estimator(console));
         }
-        let estimator = match Estimator::new(model, EstimatorConfig::new(trace.oil_loss)) {
+        let table = options.table.unwrap_or(nemm_firmware::TABLE_MODE_DEFAULT);
+        let cfg = EstimatorConfig {
+            mode: nemm_firmware::eval_mode(table),
+            ..EstimatorConfig::new(trace.oil_loss)
+        };
+        let estimator = match nemm_firmware::FwEstimator::with_segments(model, cfg) {
             Ok(e) => match ESTIMATOR.init(e) {
                 Some(e) => e,
                 None => board::exit(report::EXIT_USAGE),
@@ -211,7 +216,12 @@ mod app {
             .ks("kind", model.kind().name())
             .kv("bytes", blob.len() as u32)
             .ks("integrator", model.integrator.name())
-            .kv("dt_ns", (model.dt_s * 1e9 + 0.5) as u32);
+            .kv("dt_ns", (model.dt_s * 1e9 + 0.5) as u32)
+            .ks("mode", estimator.mode().name());
+        if let Some(acc) = estimator.table_accuracy() {
+            l.kv("table_bytes", estimator.table_bytes().1 as u32)
+                .kv("table_max_rel_error_ppb", report::ppb(acc.max_rel_error));
+        }
         console.write(l.finish());
 
         let Some(queue) = LOG.init(Queue::new()) else {

@@ -4,6 +4,7 @@
 //!
 //! | option | effect |
 //! |--------|--------|
+//! | `mode=exact\|table` | evaluation of the neural coefficients (default: exact, or table with the `table` feature; see [`crate::eval_mode`]) |
 //! | `fault=bus@START+LEN` | the SPI transaction of samples `START .. START+LEN` fails ([`crate::replay`]) |
 //! | `fault=nan@START+LEN` | the recorded displacement of those samples is NaN (an invalid conversion) |
 //! | `period_ticks=N` | sample period in SysTick ticks (default: 10 kHz); a slower sample clock for tests |
@@ -57,6 +58,9 @@ pub struct Options {
     pub samples: Option<u32>,
     /// Periods that overrun on purpose.
     pub stalls: heapless::Vec<Window, MAX_STALL_WINDOWS>,
+    /// `mode=table` (`Some(true)`) or `mode=exact` (`Some(false)`); `None`: the build's
+    /// default ([`crate::TABLE_MODE_DEFAULT`]).
+    pub table: Option<bool>,
 }
 
 impl Options {
@@ -76,6 +80,13 @@ impl Options {
                 }
             } else if let Some(n) = arg.strip_prefix("samples=") {
                 n.parse::<u32>().map(|n| o.samples = Some(n)).is_ok()
+            } else if let Some(m) = arg.strip_prefix("mode=") {
+                match m {
+                    "exact" => o.table = Some(false),
+                    "table" => o.table = Some(true),
+                    _ => return Err(arg),
+                }
+                true
             } else if let Some(w) = arg.strip_prefix("stall=") {
                 Window::parse(w).is_some_and(|w| o.stalls.push(w).is_ok())
             } else {
@@ -110,6 +121,9 @@ mod tests {
         assert_eq!(o.period_ticks, Some(5000));
         assert_eq!(o.samples, Some(300));
         assert!(o.stalls_at(7) && !o.stalls_at(8) && !o.stalls_at(6));
+        assert_eq!(o.table, None);
+        assert_eq!(Options::parse("fw mode=table").unwrap().table, Some(true));
+        assert_eq!(Options::parse("fw mode=exact").unwrap().table, Some(false));
         assert_eq!(Options::parse("").unwrap(), Options::default());
         for bad in [
             "period_ticks=99",
@@ -118,6 +132,7 @@ mod tests {
             "stall=3",
             "fault=dust@1+1",
             "verbose=1",
+            "mode=fast",
         ] {
             assert_eq!(Options::parse(&format!("fw {bad}")), Err(bad), "{bad}");
         }

@@ -40,9 +40,9 @@ pub struct PeriodOutput {
 
 /// Reads one sample and steps the estimator.
 #[inline(always)]
-pub fn run_period<SPI: SpiDevice, const P: usize>(
+pub fn run_period<SPI: SpiDevice, const P: usize, const T: usize>(
     sensor: &mut StrokeSensor<SPI>,
-    estimator: &mut Estimator<P>,
+    estimator: &mut Estimator<P, T>,
     counters: &mut SensorCounters,
 ) -> PeriodOutput {
     let (velocity_m_s, firmware_flags) = match sensor.read_velocity() {

@@ -22,7 +22,14 @@
 //!
 //! Options (QEMU command line, `-semihosting-config ...,arg=nemm-bench,arg=steps=500`):
 //!
-//! - `mode=exact` (the only mode so far), `steps=N` (1..=4000, default 2000),
+//! - `mode=exact|table` (default exact): the compiled MLPs, or the tabulated fast path
+//!   (`nemm_core::EvalMode::Table`, [`nemm_firmware::TABLE_SEGMENTS`] segments per table,
+//!   bound [`nemm_firmware::TABLE_MAX_REL_ERROR`]); each `bench` line is followed by
+//!   `table kind=.. integrator=.. segments=<T> tables=<n> table_bytes=<B>
+//!   max_rel_error_ppb=<e> kinks=<k> build_ticks=<t>` (the tables' bytes, the measured worst
+//!   relative error in parts per billion, the kinks made knots in the worst table, and the
+//!   SysTick ticks of building the estimator, tables and their check included; the count
+//!   wraps at 2^24), `steps=N` (1..=4000, default 2000),
 //!   `warmup=N` (0..=200, default 200), `integrator=rk4|rk3|both` (default both).
 //! - `example=sem|linear-emm|nemm-light|nemm`, `hidden=H` (default 16), `layers=L`
 //!   (default 5): the example model instead of the weights slot (`H`, `L` must fit the
@@ -56,7 +63,7 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::entry;
 use nemm_core::mlp::{CompiledScaler, Scaler};
-use nemm_core::{decode, Body, Estimator, EstimatorConfig, Integrator, Model, ModelKind};
+use nemm_core::{decode, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind};
 use nemm_firmware::board::{self, Console};
 use nemm_firmware::report::{self, Line};
 use nemm_firmware::trace::Trace;
@@ -71,23 +78,30 @@ const SYST_RANGE: u32 = 1 << 24;
 /// Exit code of a kernel-check mismatch.
 const EXIT_CHECK_FAILED: u32 = 1;
 
-/// Evaluation modes of the scalers; only the exact one exists so far.
+/// Evaluation modes of the scalers: the compiled MLPs, or the verified tables of
+/// `nemm_core::table` (256 segments, bound 1e-4 relative per coefficient).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Mode {
     Exact,
+    Table,
 }
 
 impl Mode {
     fn parse(s: &str) -> Option<Self> {
         match s {
             "exact" => Some(Mode::Exact),
+            "table" => Some(Mode::Table),
             _ => None,
         }
     }
     fn name(self) -> &'static str {
         match self {
             Mode::Exact => "exact",
+            Mode::Table => "table",
         }
+    }
+    fn eval_mode(self) -> EvalMode {
+        nemm_firmware::eval_mode(self == Mode::Table)
     }
 }
 
@@ -167,7 +181,7 @@ fn ticks_since(start: u32) -> u32 {
 }
 
 static MODEL: StaticSlot<Model<PARAM_CAPACITY>> = StaticSlot::new();
-static ESTIMATOR: StaticSlot<Option<Estimator<PARAM_CAPACITY>>> = StaticSlot::new();
+static ESTIMATOR: StaticSlot<Option<nemm_firmware::FwEstimator>> = StaticSlot::new();
 static VELOCITIES: StaticSlot<[f32; MAX_STEPS + MAX_WARMUP_STEPS]> = StaticSlot::new();
 static COMPILED: StaticSlot<Option<CompiledScaler<PARAM_CAPACITY>>> = StaticSlot::new();
 
@@ -286,6 +300,61 @@ fn check_scaler(
     mismatches
 }
 
+/// The model (example or weights slot) into its static, in a frame of its own (`decode`
+/// and the example builder take a large one; see [`build_estimator`]).
+#[inline(never)]
+fn load_model(console: &mut Console, opt: &Options) -> &'static Model<PARAM_CAPACITY> {
+    let loaded = match opt.example {
+        Some(kind) => {
+            match nemm_core::testing::example_model::<PARAM_CAPACITY>(kind, opt.hidden, opt.layers)
+            {
+                Some(m) => m,
+                None => {
+                    let mut l = Line::new();
+                    l.str("error")
+                        .ks("kind", "example-over-capacity")
+                        .kv("hidden", u32::from(opt.hidden))
+                        .kv("layers", u32::from(opt.layers))
+                        .kv("capacity", PARAM_CAPACITY as u32);
+                    fail(console, &mut l, report::EXIT_USAGE)
+                }
+            }
+        }
+        None => match slot::blob(board::weights_slot()) {
+            Err(e) => {
+                let mut l = Line::new();
+                report::slot_error(&mut l, &e);
+                fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
+            }
+            Ok(blob) => match decode(blob) {
+                Ok(m) => m,
+                Err(e) => {
+                    let mut l = Line::new();
+                    report::decode_error(&mut l, &e);
+                    fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
+                }
+            },
+        },
+    };
+    let Some(model) = MODEL.init(loaded) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    model
+}
+
+/// `Estimator::new` into `slot`, in a frame of its own: inlined into `main`, its temporaries
+/// (an estimator with two tables is ~30 KiB) would add to the frame that `decode` already
+/// makes large, and overflow the 192 KiB of RAM.
+#[inline(never)]
+fn build_estimator<'a>(
+    slot: &'a mut Option<nemm_firmware::FwEstimator>,
+    model: &Model<PARAM_CAPACITY>,
+    cfg: EstimatorConfig,
+) -> Result<&'a mut nemm_firmware::FwEstimator, nemm_core::EstimatorError> {
+    *slot = None;
+    Ok(slot.insert(nemm_firmware::FwEstimator::with_segments(model, cfg)?))
+}
+
 #[entry]
 fn main() -> ! {
     let mut console = Console::open();
@@ -313,42 +382,7 @@ fn main() -> ! {
         }
     }
 
-    let loaded = match opt.example {
-        Some(kind) => {
-            match nemm_core::testing::example_model::<PARAM_CAPACITY>(kind, opt.hidden, opt.layers)
-            {
-                Some(m) => m,
-                None => {
-                    let mut l = Line::new();
-                    l.str("error")
-                        .ks("kind", "example-over-capacity")
-                        .kv("hidden", u32::from(opt.hidden))
-                        .kv("layers", u32::from(opt.layers))
-                        .kv("capacity", PARAM_CAPACITY as u32);
-                    fail(&mut console, &mut l, report::EXIT_USAGE)
-                }
-            }
-        }
-        None => match slot::blob(board::weights_slot()) {
-            Err(e) => {
-                let mut l = Line::new();
-                report::slot_error(&mut l, &e);
-                fail(&mut console, &mut l, report::EXIT_BAD_WEIGHTS)
-            }
-            Ok(blob) => match decode(blob) {
-                Ok(m) => m,
-                Err(e) => {
-                    let mut l = Line::new();
-                    report::decode_error(&mut l, &e);
-                    fail(&mut console, &mut l, report::EXIT_BAD_WEIGHTS)
-                }
-            },
-        },
-    };
-    let Some(model) = MODEL.init(loaded) else {
-        board::exit(report::EXIT_USAGE)
-    };
-    let model = &*model;
+    let model = load_model(&mut console, &opt);
     let Ok(trace) = Trace::parse(board::trace_bytes()) else {
         let mut l = Line::new();
         l.str("error").ks("kind", "trace");
@@ -436,16 +470,21 @@ fn main() -> ! {
     for &integrator in opt.integrators {
         let cfg = EstimatorConfig {
             integrator: Some(integrator),
+            mode: opt.mode.eval_mode(),
             ..EstimatorConfig::new(trace.oil_loss)
         };
-        let est = match Estimator::new(model, cfg) {
-            Ok(e) => est_slot.insert(e),
+        let build_start = SYST::get_current();
+        let est = match build_estimator(est_slot, model, cfg) {
+            Ok(e) => e,
             Err(e) => {
                 let mut l = Line::new();
                 report::estimator_error(&mut l, &e);
                 fail(&mut console, &mut l, report::EXIT_BAD_WEIGHTS)
             }
         };
+        // Estimator construction (in table mode: building and checking the tables), in
+        // SysTick ticks; may wrap for very slow builds (2^24 ticks).
+        let build_ticks = ticks_since(build_start);
         for &v in warmup {
             black_box(est.step(black_box(v)));
         }
@@ -524,6 +563,24 @@ fn main() -> ! {
             .kv("held", est.diagnostics().held_samples)
             .kv("resets", est.diagnostics().resets);
         console.write(l.finish());
+        if opt.mode == Mode::Table {
+            let (tables, bytes) = est.table_bytes();
+            let acc = est.table_accuracy();
+            let mut l = Line::new();
+            l.str("table")
+                .ks("kind", model.kind().name())
+                .ks("integrator", integrator.name())
+                .kv("segments", nemm_firmware::TABLE_SEGMENTS as u32)
+                .kv("tables", tables as u32)
+                .kv("table_bytes", bytes as u32)
+                .kv(
+                    "max_rel_error_ppb",
+                    report::ppb(acc.map_or(0.0, |a| a.max_rel_error)),
+                )
+                .kv("kinks", acc.map_or(0, |a| a.kinks as u32))
+                .kv("build_ticks", build_ticks);
+            console.write(l.finish());
+        }
     }
     board::exit(report::EXIT_DONE)
 }
