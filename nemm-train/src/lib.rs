@@ -14,5 +14,6 @@ pub mod inspect;
 pub mod plot;
 pub mod preprocess;
 pub mod report;
+pub mod table_check;
 pub mod train;
 pub mod train_cli;

@@ -58,6 +58,10 @@ enum Cmd {
         /// Output weights blob.
         #[arg(long, default_value = "model.nemm")]
         out: PathBuf,
+        /// Bound of the tabulated fast path's relative coefficient error checked at export
+        /// (see docs/core.md, "Tabulated fast path").
+        #[arg(long, default_value_t = nemm_train::table_check::DEFAULT_TABLE_BOUND)]
+        table_bound: f32,
     },
     /// Train all four variants and write Table 4 (table4.md, report.json), models and figures.
     Compare {
@@ -177,7 +181,11 @@ fn main() -> ExitCode {
                 report.as_deref(),
             )
         }),
-        Cmd::Export { checkpoint, out } => nemm_train::train_cli::export(&checkpoint, &out),
+        Cmd::Export {
+            checkpoint,
+            out,
+            table_bound,
+        } => nemm_train::train_cli::export(&checkpoint, &out, table_bound),
         Cmd::Compare {
             args,
             report,

@@ -274,7 +274,9 @@ pub fn train(
 }
 
 /// `nemm export`: the best model of a checkpoint folder written by `nemm train --checkpoint`.
-pub fn export(checkpoint: &Path, out: &Path) -> Result<()> {
+/// Also reports whether the tabulated fast path meets `table_bound`
+/// ([`crate::table_check`]).
+pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
     let frame_path = checkpoint.join("frame.json");
     let text = std::fs::read_to_string(&frame_path).with_context(|| {
         format!(
@@ -300,6 +302,7 @@ pub fn export(checkpoint: &Path, out: &Path) -> Result<()> {
         checkpoint.join(latest.trim()).display()
     );
     print!("{}", describe(&model, n));
+    print!("{}", crate::table_check::report(&model, table_bound));
     Ok(())
 }
 

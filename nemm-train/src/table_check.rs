@@ -1,0 +1,160 @@
+//! Export-time check of the tabulated fast path (`nemm_core::table`): is the model safe to
+//! run in `EvalMode::Table`, and with which error?
+//!
+//! For each table size a firmware may use (256 segments, the `nemm-core` default, and 128,
+//! the example firmware's `TABLE_SEGMENTS`) and a grid of oil-loss levels over the model's
+//! training range (`meta.alpha_min ..= meta.alpha_max`, 7 levels), it builds the estimator in
+//! table mode exactly as a target does at boot, and records the largest relative coefficient
+//! error the table compile measured on its check grid (128 points per segment) and the kinks
+//! it made knots. The verdict compares the worst of them with the bound (`nemm export
+//! --table-bound`, default 1e-4): a relative error `e` of a coefficient changes the
+//! quasi-static force by at most `e |F| <= e` times the force scale (docs/core.md, "Tabulated
+//! fast path", which also has the measured force differences over whole bench programmes).
+
+use nemm_core::{Estimator, EstimatorConfig, EstimatorError, EvalMode, Model, TableConfig};
+
+/// Default bound of the relative coefficient error.
+pub const DEFAULT_TABLE_BOUND: f32 = nemm_core::table::DEFAULT_MAX_REL_ERROR;
+
+/// Oil-loss levels checked across the training range.
+pub const ALPHA_LEVELS: usize = 7;
+
+/// The result for one table size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SizeCheck {
+    /// Segments per table.
+    pub segments: usize,
+    /// Worst measured relative error over the levels (`None` if no table could be built).
+    pub worst: Option<f32>,
+    /// Oil-loss level of the worst error.
+    pub worst_alpha: f32,
+    /// Kinks in the worst table.
+    pub kinks: usize,
+    /// Why a table could not be built at some level (e.g. more kinks than segments).
+    pub failure: Option<String>,
+}
+
+impl SizeCheck {
+    /// True if every level built and the worst error is within `bound`.
+    pub fn passes(&self, bound: f32) -> bool {
+        self.failure.is_none() && self.worst.is_some_and(|w| w <= bound)
+    }
+}
+
+fn check_size<const T: usize>(model: &Model, alphas: &[f32]) -> SizeCheck {
+    let mut c = SizeCheck {
+        segments: T,
+        worst: None,
+        worst_alpha: 0.0,
+        kinks: 0,
+        failure: None,
+    };
+    for &alpha in alphas {
+        // Bound 1: measure whatever the error is; the verdict applies the caller's bound.
+        let cfg = EstimatorConfig {
+            mode: EvalMode::Table(TableConfig::new(1.0)),
+            ..EstimatorConfig::new(alpha)
+        };
+        match Estimator::<{ nemm_core::DEFAULT_PARAM_CAPACITY }, T>::with_segments(model, cfg) {
+            Ok(est) => {
+                if let Some(a) = est.table_accuracy() {
+                    if c.worst.is_none_or(|w| a.max_rel_error > w) {
+                        c.worst = Some(a.max_rel_error);
+                        c.worst_alpha = alpha;
+                        c.kinks = a.kinks;
+                    }
+                }
+            }
+            Err(EstimatorError::Table(e)) => {
+                c.failure = Some(format!("alpha {alpha:.3}: {e}"));
+                break;
+            }
+            Err(e) => {
+                c.failure = Some(format!("alpha {alpha:.3}: {e}"));
+                break;
+            }
+        }
+    }
+    c
+}
+
+/// Checks 256- and 128-segment tables at [`ALPHA_LEVELS`] levels over the training range.
+/// Empty for kinds without neural state coefficients (SEM, Linear EMM).
+pub fn check(model: &Model) -> Vec<SizeCheck> {
+    if !matches!(
+        model.kind(),
+        nemm_core::ModelKind::NemmLight | nemm_core::ModelKind::Nemm
+    ) {
+        return Vec::new();
+    }
+    let (a0, a1) = (model.meta.alpha_min, model.meta.alpha_max);
+    let alphas: Vec<f32> = (0..ALPHA_LEVELS)
+        .map(|i| a0 + (a1 - a0) * i as f32 / (ALPHA_LEVELS - 1) as f32)
+        .collect();
+    vec![
+        check_size::<256>(model, &alphas),
+        check_size::<128>(model, &alphas),
+    ]
+}
+
+/// The report lines of [`check`] against `bound`.
+pub fn report(model: &Model, bound: f32) -> String {
+    let checks = check(model);
+    if checks.is_empty() {
+        return format!(
+            "table check: {} has no neural state coefficients; exact and table mode are the same\n",
+            model.kind().name()
+        );
+    }
+    let mut s = format!(
+        "table check (fast path, bound {bound:.1e} relative per coefficient, {ALPHA_LEVELS} oil-loss levels in [{:.3}, {:.3}]):\n",
+        model.meta.alpha_min, model.meta.alpha_max
+    );
+    for c in &checks {
+        let verdict = if c.passes(bound) {
+            "meets the bound"
+        } else {
+            "MISSES the bound: use the exact mode or more segments"
+        };
+        match (&c.failure, c.worst) {
+            (Some(f), _) => s += &format!("  {} segments: {f}; {verdict}\n", c.segments),
+            (None, Some(w)) => {
+                s += &format!(
+                    "  {} segments ({} B per table): worst measured error {w:.2e} at alpha {:.3} ({} kinks made knots); {verdict}\n",
+                    c.segments,
+                    26 * c.segments,
+                    c.worst_alpha,
+                    c.kinks
+                )
+            }
+            (None, None) => s += &format!("  {} segments: no table built\n", c.segments),
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn verdict_is_the_measured_worst_against_the_bound() {
+        let m: Model = nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 16, 5)
+            .expect("example model");
+        let checks = check(&m);
+        assert_eq!(checks.len(), 2);
+        for c in &checks {
+            // The verdict is the measured worst against the bound (the pseudo-random example
+            // NEMM reaches 1.1e-4 at alpha 0.2 with 256 segments: close kink pairs).
+            let w = c.worst.expect("tables built");
+            assert!(c.failure.is_none() && c.kinks > 0, "{c:?}");
+            assert!(w > 0.0 && w < 1e-3, "{c:?}");
+            assert!(c.passes(w) && !c.passes(0.5 * w), "{c:?}");
+        }
+        let r = report(&m, 1e-9);
+        assert!(r.contains("MISSES"), "{r}");
+        let lin: Model = nemm_core::testing::example_model(nemm_core::ModelKind::LinearEmm, 16, 5)
+            .expect("example model");
+        assert!(check(&lin).is_empty());
+    }
+}
