@@ -4,36 +4,43 @@
 //! changes over months and is reconfigured on service), so for a fixed `alpha` every NEMM
 //! coefficient is a function of one state variable: `b_fl(v_st)`, `k_pr(x_pr)`, and `b_pr` a
 //! constant. [`Table1D`] replaces the 5-layer MLP behind such a function by a piecewise cubic
-//! on uniform knots; [`crate::Estimator`] uses it in [`crate::EvalMode::Table`].
+//! with knots at the MLP's kinks; [`crate::Estimator`] uses it in [`crate::EvalMode::Table`].
 //!
-//! # Interpolation: cubic Hermite on uniform knots
+//! # Interpolation: cubic Hermite, knots at the kinks, uniform lookup
 //!
-//! `N` segments of width `h = (hi - lo) / N` over the domain `[lo, hi]`. At the `N + 1` knots
-//! the table takes the exact scaler's value `p_k` and a slope `m_k` from a central difference
-//! of the exact scaler (step `h / 8`). Segment `i` holds the Hermite cubic through
-//! `(p_i, m_i)` and `(p_i+1, m_i+1)` in the local coordinate `s in [0, 1]`, already expanded
-//! to monomial coefficients (computed in `f64`), so an evaluation is
+//! The scalers are smooth (LayerNorm and sigmoid) except at the kinks of their LeakyReLUs,
+//! where the slope jumps. Between kinks cubic Hermite converges as `h^4`; across a kink every
+//! piecewise polynomial on fixed knots is only `O(h)` times the slope jump (measured on the
+//! example NEMM with 256 uniform segments: 5.3e-3 relative, halving per doubling of `N`). So
+//! [`Table1D::compile`]:
+//!
+//! 1. scans the activation pattern of the MLP (the signs of all LeakyReLU inputs,
+//!    [`crate::mlp::CompiledScaler::eval_with_pattern`]) on a grid of
+//!    [`SCAN_POINTS_PER_SEGMENT`] (128) points per segment and bisects every change to
+//!    adjacent floats: a kink, which becomes a knot (a coarser scan, 32 points, missed close
+//!    pairs of kinks: the example NEMM then measured 1.1e-4 instead of 1.8e-5);
+//! 2. spreads the `N` segments about uniformly over the smooth pieces between kinks (at least
+//!    one each; [`TableError::TooManyKinks`] if there are more than `N - 1` kinks);
+//! 3. per piece, takes the exact value at each knot and a slope by central differences (step
+//!    `w / 8`), at the piece's ends by one-sided second-order differences, so no slope is
+//!    taken across a kink; each segment stores its knot, `1 / width` and the Hermite cubic
+//!    as monomial coefficients in `s in [0, 1]` (computed in `f64`);
+//! 4. builds a uniform index of `N` cells over the domain: the segment holding each cell's
+//!    left edge.
+//!
+//! An evaluation is then
 //!
 //! ```text
-//! t = x * (1 / h) + (-lo / h)            one multiply-add
-//! t = clamp(t, 0, N)                     out of the domain: clamped and flagged
-//! i = min(floor(t), N - 1);  s = t - i
-//! p = ((c3 s + c2) s + c1) s + c0        Horner, three multiply-adds
+//! x = clamp(x, lo, hi)                   out of the domain (or NaN): clamped, flagged
+//! i = first[min(floor(x * N/(hi-lo) - lo N/(hi-lo)), N - 1)]
+//! while x >= knot[i + 1]: i += 1         only the knots inside one cell
+//! s = (x - knot[i]) / width[i]
+//! p = ((c3 s + c2) s + c1) s + c0        Horner
 //! ```
 //!
-//! about 20 Cortex-M4F instructions, against ~1,900 for the exact 16 x 5 scaler. Why this
-//! choice:
-//!
-//! - The scalers are smooth (LayerNorm and sigmoid) except at the kinks of the LeakyReLUs,
-//!   where the slope jumps. Between kinks cubic Hermite converges as `h^4` (linear
-//!   interpolation only as `h^2`), so the error is dominated by the few segments that
-//!   contain a kink, where every piecewise polynomial on fixed knots is `O(h)` times the
-//!   slope jump. At 256 segments the measured errors of the example and trained scalers are
-//!   10-100x below what linear interpolation with the same number of knots gives.
-//! - Uniform knots need no search: the segment index is one conversion. Non-uniform knots
-//!   would concentrate resolution at the kinks, at the cost of a search per evaluation.
-//! - The table is `C1` (values and slopes match at the knots), so the RK stages see a
-//!   continuous Jacobian, as with the MLP away from its kinks.
+//! about 60 Cortex-M4F instructions (nemm-firmware/README.md), against ~1,800 for the exact
+//! 16 x 5 scaler. The table is `C1` inside each smooth piece and continuous at the kinks,
+//! like the MLP.
 //!
 //! The Horner evaluation uses plain `f32` multiply and add (not the fused `fma` of the exact
 //! path): its rounding, ~1e-7 relative, is three orders below any useful bound, and on the
@@ -67,7 +74,7 @@ pub const DEFAULT_TABLE_SEGMENTS: usize = 256;
 /// table).
 pub const CHECK_POINTS_PER_SEGMENT: usize = 128;
 /// Points of the kink scan per table segment.
-pub const SCAN_POINTS_PER_SEGMENT: usize = 32;
+pub const SCAN_POINTS_PER_SEGMENT: usize = 128;
 /// Default table domain: the training abs-max scale of the input times this factor.
 pub const DEFAULT_DOMAIN_MARGIN: f32 = 1.1;
 /// Default bound of the relative coefficient error, `1e-4`.
@@ -227,7 +234,7 @@ impl<const N: usize> Table1D<N> {
     /// `exact(x)` returns the value and a pattern that identifies the smooth piece `x` lies
     /// in (for a scaler: [`crate::mlp::CompiledScaler::eval_with_pattern`]; for a smooth
     /// function: any constant). A change of the pattern between two points of the scan grid
-    /// (32 points per segment) is bisected to the adjacent floats and becomes a knot, so
+    /// ([`SCAN_POINTS_PER_SEGMENT`] points per segment) is bisected to the adjacent floats and becomes a knot, so
     /// that no segment straddles a kink.
     pub fn compile<F: FnMut(f32) -> (f32, u64)>(
         mut exact: F,
