@@ -33,6 +33,7 @@ commands:
                          the bench trace, default 4000, after 200 warm-up steps), one line
                          per model kind and integrator:
                          target-step model=<kind> integrator=<rk4|rk3> mode=<mode> instructions_per_step=<N>
+                         (mode=table adds segments=, table_bytes= (RAM), max_rel_error_ppb=, kinks=)
   build-target           build the firmware images and print their flash and RAM use
   run-target [OPTION]... run the firmware in QEMU with firmware options, e.g.
                          period_ticks=100000 fault=bus@3000+20 fault=nan@5000+40 samples=2000
@@ -380,11 +381,22 @@ fn bench(
             if &model != kind {
                 return Err(format!("benchmarked {model}, expected {kind}"));
             }
-            lines.push(format!(
-                "target-step model={model} integrator={} mode={} instructions_per_step={per_step}",
-                get(&f, "integrator")?,
+            let integrator = get(&f, "integrator")?;
+            let mut step_line = format!(
+                "target-step model={model} integrator={integrator} mode={} instructions_per_step={per_step}",
                 get(&f, "mode")?
-            ));
+            );
+            // Table mode: the `table` line of the same run (segments, RAM bytes of the
+            // tables, measured worst relative error in parts per billion).
+            if let Some(t) = out.lines().find(|l| {
+                l.starts_with("table ") && l.contains(&format!(" integrator={integrator} "))
+            }) {
+                let t = fields(t);
+                for k in ["segments", "table_bytes", "max_rel_error_ppb", "kinks"] {
+                    step_line += &format!(" {k}={}", get(&t, k)?);
+                }
+            }
+            lines.push(step_line);
             found += 1;
         }
         if found == 0 {
