@@ -269,6 +269,33 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         }
     }
 
+    /// One RK step from `x` (coefficients `c`) and the coefficients at the new state;
+    /// `coeffs(state, out)` evaluates them (`out` is set for a clamped table input of the
+    /// new state only).
+    #[inline(always)]
+    fn advance<F: Fn(&State, &mut bool) -> Coefficients>(
+        &self,
+        x: &State,
+        c: &Coefficients,
+        u0: f32,
+        u1: f32,
+        out: &mut bool,
+        coeffs: F,
+    ) -> (State, Coefficients) {
+        let x1 = integrator::step(
+            self.integrator,
+            |s| coeffs(s, &mut false),
+            c,
+            self.inv_t_pr,
+            x,
+            u0,
+            u1,
+            &self.h,
+        );
+        let c1 = coeffs(&x1, out);
+        (x1, c1)
+    }
+
     /// Re-folds `alpha` into the neural coefficients; in table mode rebuilds and checks the
     /// tables first and changes nothing if one misses the bound.
     fn set_alpha(&mut self, alpha: f32, old_alpha: f32) -> Result<(), EstimatorError> {
@@ -544,18 +571,42 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 // The domain flag reports the new state (the output evaluation); the RK
                 // stages in between are clamped alike, unflagged (their states lie between
                 // the old and the new one up to the local error).
+                // Table mode dispatches once per step, not per coefficient evaluation.
                 let mut out = false;
-                let x1 = integrator::step(
-                    rt.integrator,
-                    |s| rt.coeffs(s, &mut false),
-                    &self.coeffs,
-                    rt.inv_t_pr,
-                    &self.state,
-                    self.last_u,
-                    u,
-                    &rt.h,
-                );
-                let c1 = rt.coeffs(&x1, &mut out);
+                let (x1, c1) = match (&rt.b_fl, &rt.k_pr) {
+                    (Coef::Table { table: tb, .. }, Coef::Table { table: tk, .. }) => rt.advance(
+                        &self.state,
+                        &self.coeffs,
+                        self.last_u,
+                        u,
+                        &mut out,
+                        |s, o| Coefficients {
+                            b_fl: tb.eval(s.v_st_m_s, o),
+                            b_pr: rt.b_pr,
+                            k_pr: tk.eval(s.x_pr_m, o),
+                        },
+                    ),
+                    (Coef::Table { table: tb, .. }, Coef::Const(k)) => rt.advance(
+                        &self.state,
+                        &self.coeffs,
+                        self.last_u,
+                        u,
+                        &mut out,
+                        |s, o| Coefficients {
+                            b_fl: tb.eval(s.v_st_m_s, o),
+                            b_pr: rt.b_pr,
+                            k_pr: *k,
+                        },
+                    ),
+                    _ => rt.advance(
+                        &self.state,
+                        &self.coeffs,
+                        self.last_u,
+                        u,
+                        &mut out,
+                        |s, o| rt.coeffs(s, o),
+                    ),
+                };
                 if out {
                     flags |= Flags::OUT_OF_TABLE_DOMAIN;
                 }

@@ -38,7 +38,7 @@
 //! p = ((c3 s + c2) s + c1) s + c0        Horner
 //! ```
 //!
-//! about 60 Cortex-M4F instructions (nemm-firmware/README.md), against ~1,800 for the exact
+//! about 50 Cortex-M4F instructions (nemm-firmware/README.md), against ~1,800 for the exact
 //! 16 x 5 scaler. The table is `C1` inside each smooth piece and continuous at the kinks,
 //! like the MLP.
 //!
