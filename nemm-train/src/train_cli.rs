@@ -262,6 +262,11 @@ pub fn train(
         args.test_alpha, vr.rmse, vr.rmse_n, vr.val_rmse
     );
     print_audit(tv, &report);
+    // The fast path's verdict at export time, as `nemm export` prints it.
+    print!(
+        "{}",
+        crate::table_check::report(&tv.model, crate::table_check::DEFAULT_TABLE_BOUND)
+    );
     if let Some(dir) = report_dir {
         let mut report = report;
         report.info.insert(
@@ -665,6 +670,10 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
     let (ds, prepared) = load_dataset_prepared(&args.data, &args.prepare_config())?;
     let blob = std::fs::read(&model_path)?;
     let model: nemm_core::Model = nemm_core::decode(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
+    print!(
+        "{}",
+        crate::table_check::report(&model, crate::table_check::DEFAULT_TABLE_BOUND)
+    );
     let test_runs: Vec<_> = prepared
         .runs
         .iter()
