@@ -824,35 +824,14 @@ fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), Datas
     Ok(())
 }
 
-/// Writes `contents` to `path` atomically: a temporary file in the same folder, then rename.
+/// [`crate::fsutil::write_atomic`] with the dataset's error type (naming the file).
 fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
 ) -> Result<(), DatasetError> {
-    let parent = path.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(io_err(parent))?;
-    let file_name = path
-        .file_name()
-        .map_or_else(|| "file".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = parent.join(format!(".{file_name}.tmp{}", std::process::id()));
-    let result = (|| {
-        let file = std::fs::File::create(&tmp)?;
-        let mut w = std::io::BufWriter::with_capacity(1 << 16, file);
-        fill(&mut w)?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()
-    })();
-    if let Err(source) = result {
-        // Best effort: the temporary file is useless now.
-        let _ = std::fs::remove_file(&tmp);
-        return Err(DatasetError::Io { path: tmp, source });
-    }
-    std::fs::rename(&tmp, path).map_err(|source| {
-        let _ = std::fs::remove_file(&tmp);
-        DatasetError::Io {
-            path: path.to_path_buf(),
-            source,
-        }
+    crate::fsutil::write_atomic(path, fill).map_err(|source| DatasetError::Io {
+        path: path.to_path_buf(),
+        source,
     })
 }
 
