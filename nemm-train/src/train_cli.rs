@@ -278,6 +278,62 @@ pub fn train(
     Ok(())
 }
 
+/// The tabulated fast path against the exact estimator over every held-out (test) run, whole
+/// and from rest (issue 6 evidence): the largest force difference in units of the force scale,
+/// and the samples outside the table domain.
+fn table_vs_exact(
+    model: &nemm_core::Model,
+    ds: &dataset::Dataset,
+    prepared: &preprocess::Prepared,
+) -> Result<()> {
+    use nemm_core::{EstimatorConfig, EvalMode, Flags, TableConfig};
+    let t = Instant::now();
+    let bound = crate::table_check::DEFAULT_TABLE_BOUND;
+    let (mut worst, mut samples, mut outside, mut runs) = (0.0f64, 0usize, 0usize, 0usize);
+    for run in prepared
+        .runs
+        .iter()
+        .filter(|r| r.role == preprocess::RunRole::Test)
+    {
+        let idx = run.summary.index;
+        let signals = preprocess::process_run(
+            &ds.runs[idx],
+            idx,
+            ds.sample_rate_hz,
+            &prepared.config.signal,
+        )?;
+        let alpha = ds.runs[idx].entry.oil_loss as f32;
+        let exact_cfg = EstimatorConfig::new(alpha);
+        let table_cfg = EstimatorConfig {
+            mode: EvalMode::Table(TableConfig::new(bound)),
+            ..exact_cfg
+        };
+        let mut exact = nemm_core::Estimator::new(model, exact_cfg)
+            .map_err(|e| anyhow::anyhow!("exact estimator: {e}"))?;
+        let mut table = match nemm_core::Estimator::new(model, table_cfg) {
+            Ok(e) => e,
+            Err(e) => {
+                println!("fast path at oil loss {alpha}: refused ({e}); use the exact mode");
+                return Ok(());
+            }
+        };
+        for &v in &signals.velocity_m_s {
+            let (a, b) = (exact.step(v as f32), table.step(v as f32));
+            worst = worst.max(f64::from((a.force_n - b.force_n).abs()));
+            outside += usize::from(b.flags.contains(Flags::OUT_OF_TABLE_DOMAIN));
+        }
+        samples += signals.velocity_m_s.len();
+        runs += 1;
+    }
+    println!(
+        "fast path (tables, bound {bound:.0e}) vs exact over {runs} held-out runs ({samples} samples, whole runs from rest): \
+         max |table - exact| = {:.2e} of the force scale, {outside} samples outside the table domain ({:.1} s)",
+        worst / prepared.scales.force_n,
+        t.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
 /// `nemm export`: the best model of a checkpoint folder written by `nemm train --checkpoint`.
 /// Also reports whether the tabulated fast path meets `table_bound`
 /// ([`crate::table_check`]).
@@ -731,6 +787,7 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
         ns_per_step,
         parity
     );
+    table_vs_exact(&model, &ds, &prepared)?;
     let nemm = report
         .variants
         .get("nemm")
