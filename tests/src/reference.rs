@@ -1,15 +1,17 @@
 //! The host reference of a firmware run: the firmware's own sample path
 //! (`nemm_firmware::pipeline::run_period`: the `StrokeSensor` driver on the replay ADC, then
 //! `nemm_core::Estimator::step`) compiled for the host, over the recording and the weights
-//! taken from the firmware image, with the same options.
+//! taken from the firmware image, with the same options (the evaluation mode included).
 
-use nemm_core::{decode, Diagnostics, Estimator, EstimatorConfig, Model};
+use nemm_core::{decode, Diagnostics, EstimatorConfig, Model};
 use nemm_firmware::options::Options;
 use nemm_firmware::pipeline::{self, ChunkDigest, PeriodOutput, SensorCounters};
 use nemm_firmware::replay::ReplayAdc;
 use nemm_firmware::sensor::StrokeSensor;
 use nemm_firmware::trace::Trace;
-use nemm_firmware::{stroke_calibration, PARAM_CAPACITY};
+use nemm_firmware::{
+    eval_mode, stroke_calibration, FwEstimator, PARAM_CAPACITY, TABLE_MODE_DEFAULT,
+};
 
 /// What the host computed.
 #[derive(Debug, Clone)]
@@ -35,8 +37,14 @@ pub fn run(trace: &[u8], blob: &[u8], options: &Options) -> Reference {
         None => trace,
     };
     let model: Model<PARAM_CAPACITY> = decode(blob).expect("the weights decode on the host");
-    let mut estimator = Estimator::new(&model, EstimatorConfig::new(trace.oil_loss))
-        .expect("the estimator builds on the host");
+    // The firmware's estimator type and evaluation mode (`mode=`, else the build's default).
+    let config = EstimatorConfig {
+        mode: eval_mode(options.table.unwrap_or(TABLE_MODE_DEFAULT)),
+        ..EstimatorConfig::new(trace.oil_loss)
+    };
+    let mut estimator = Box::new(
+        FwEstimator::with_segments(&model, config).expect("the estimator builds on the host"),
+    );
     let cal = stroke_calibration();
     let mut adc = ReplayAdc::new(trace, cal);
     for w in &options.faults {

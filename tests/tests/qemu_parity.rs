@@ -203,3 +203,22 @@ fn the_other_model_kinds_are_bit_identical_too() {
         let _ = std::fs::remove_file(image);
     }
 }
+
+#[test]
+fn table_mode_is_bit_identical_to_the_host() {
+    // The tabulated fast path (`mode=table`): tables built and checked on the target at boot,
+    // then every period's estimate against the host building the same tables.
+    let Some(images) = Images::from_env("qemu_parity") else {
+        return;
+    };
+    let elf = Elf::read(&images.app).expect("firmware image");
+    let contents = Contents::of(&elf);
+    let args = [SLOW_CLOCK, "samples=3000", "mode=table"];
+    let options = Options::parse(&args.join(" ")).expect("options");
+    let (_, out) = run(&images, &images.app, &args);
+    let ok = out.expect("weights ok");
+    assert_eq!(ok.get("kind"), Some("nemm"));
+    assert_eq!(ok.get("mode"), Some("table"));
+    let reference = reference::run(&contents.trace, contents.blob(), &options);
+    assert_parity("nemm, table mode", &out, &reference, true);
+}
