@@ -278,6 +278,23 @@ pub fn train(
     Ok(())
 }
 
+/// The input of an estimator for run `idx`: the preprocessing's velocity (the trainer's
+/// input) in f32, and the run's oil-loss level.
+fn estimator_input(
+    ds: &dataset::Dataset,
+    prepared: &preprocess::Prepared,
+    idx: usize,
+) -> Result<(Vec<f32>, f32)> {
+    let signals = preprocess::process_run(
+        &ds.runs[idx],
+        idx,
+        ds.sample_rate_hz,
+        &prepared.config.signal,
+    )?;
+    let u = signals.velocity_m_s.iter().map(|&v| v as f32).collect();
+    Ok((u, ds.runs[idx].entry.oil_loss as f32))
+}
+
 /// The tabulated fast path against the exact estimator over every held-out (test) run, whole
 /// and from rest (issue 6 evidence): the largest force difference in units of the force scale,
 /// and the samples outside the table domain.
@@ -295,14 +312,7 @@ fn table_vs_exact(
         .iter()
         .filter(|r| r.role == preprocess::RunRole::Test)
     {
-        let idx = run.summary.index;
-        let signals = preprocess::process_run(
-            &ds.runs[idx],
-            idx,
-            ds.sample_rate_hz,
-            &prepared.config.signal,
-        )?;
-        let alpha = ds.runs[idx].entry.oil_loss as f32;
+        let (u, alpha) = estimator_input(ds, prepared, run.summary.index)?;
         let exact_cfg = EstimatorConfig::new(alpha);
         let table_cfg = EstimatorConfig {
             mode: EvalMode::Table(TableConfig::new(bound)),
@@ -317,12 +327,12 @@ fn table_vs_exact(
                 return Ok(());
             }
         };
-        for &v in &signals.velocity_m_s {
-            let (a, b) = (exact.step(v as f32), table.step(v as f32));
+        for &v in &u {
+            let (a, b) = (exact.step(v), table.step(v));
             worst = worst.max(f64::from((a.force_n - b.force_n).abs()));
             outside += usize::from(b.flags.contains(Flags::OUT_OF_TABLE_DOMAIN));
         }
-        samples += signals.velocity_m_s.len();
+        samples += u.len();
         runs += 1;
     }
     println!(
@@ -748,14 +758,7 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
         .or(test_runs.first())
         .context("no held-out test run")?;
     let idx = run.summary.index;
-    let signals = preprocess::process_run(
-        &ds.runs[idx],
-        idx,
-        ds.sample_rate_hz,
-        &prepared.config.signal,
-    )?;
-    let u: Vec<f32> = signals.velocity_m_s.iter().map(|&v| v as f32).collect();
-    let alpha = ds.runs[idx].entry.oil_loss as f32;
+    let (u, alpha) = estimator_input(&ds, &prepared, idx)?;
     let mut est = nemm_core::Estimator::new(&model, nemm_core::EstimatorConfig::new(alpha))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let t = Instant::now();
