@@ -56,7 +56,7 @@
 //! the fastest time constant is `min((b_pr + b_fl) / k_pr, T_pr)` (see
 //! [`crate::model::Model::fastest_time_constant_s`]).
 
-use crate::math;
+use crate::math::{Fused, MulAdd};
 use serde::{Deserialize, Serialize};
 
 /// Constant EMM parameters, the `*_ini` values of eq. 19 (or the whole model for the Linear
@@ -104,14 +104,26 @@ pub struct Coefficients {
 /// Velocity across the flow element, `q = (k_pr x_pr + b_pr u) / (b_pr + b_fl)` \[m/s\].
 #[inline(always)]
 pub fn flow_velocity(c: &Coefficients, x_pr: f32, u: f32) -> f32 {
-    math::fma(c.k_pr, x_pr, c.b_pr * u) / (c.b_pr + c.b_fl)
+    flow_velocity_with::<Fused>(c, x_pr, u)
+}
+
+/// [`flow_velocity`] with the multiply-add `M`.
+#[inline(always)]
+pub fn flow_velocity_with<M: MulAdd>(c: &Coefficients, x_pr: f32, u: f32) -> f32 {
+    M::mul_add(c.k_pr, x_pr, c.b_pr * u) / (c.b_pr + c.b_fl)
 }
 
 /// State derivative `[xdot_pr, vdot_st]` (eq. 16 with the parameters of `c`; `inv_t_pr` is
 /// `1 / T_pr` in 1/s).
 #[inline(always)]
 pub fn rhs(c: &Coefficients, inv_t_pr: f32, s: &State, u: f32) -> State {
-    let q = flow_velocity(c, s.x_pr_m, u);
+    rhs_with::<Fused>(c, inv_t_pr, s, u)
+}
+
+/// [`rhs`] with the multiply-add `M`.
+#[inline(always)]
+pub fn rhs_with<M: MulAdd>(c: &Coefficients, inv_t_pr: f32, s: &State, u: f32) -> State {
+    let q = flow_velocity_with::<M>(c, s.x_pr_m, u);
     State {
         x_pr_m: u - q,
         v_st_m_s: (q - s.v_st_m_s) * inv_t_pr,
@@ -121,7 +133,13 @@ pub fn rhs(c: &Coefficients, inv_t_pr: f32, s: &State, u: f32) -> State {
 /// Damper force `F = b_fl q` \[N\] (eq. 17/21), positive in tension (rebound).
 #[inline(always)]
 pub fn force(c: &Coefficients, s: &State, u: f32) -> f32 {
-    c.b_fl * flow_velocity(c, s.x_pr_m, u)
+    force_with::<Fused>(c, s, u)
+}
+
+/// [`force`] with the multiply-add `M`.
+#[inline(always)]
+pub fn force_with<M: MulAdd>(c: &Coefficients, s: &State, u: f32) -> f32 {
+    c.b_fl * flow_velocity_with::<M>(c, s.x_pr_m, u)
 }
 
 #[cfg(test)]

@@ -52,7 +52,8 @@
 //! ```
 
 use crate::emm::{self, Coefficients, State};
-use crate::integrator::{self, Integrator, StepSize};
+use crate::integrator::{self, Integrator, Stage, StepSize};
+use crate::math::Unfused;
 use crate::mlp::{CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
@@ -240,6 +241,39 @@ fn build_table<const P: usize, const T: usize>(
     .map_err(EstimatorError::Table)
 }
 
+/// Table-mode coefficients at an RK stage: `b_fl(v_st)` from its table, `k_pr` from its
+/// table (`K = &Table1D`) or constant (`K = f32`, NEMM-Light). Stage states are finite
+/// (the state is bounded by the divergence guard and the coefficients are finite), so the
+/// tables are read with [`Table1D::eval_finite`]; the domain flag is raised for the new
+/// state only, by the caller.
+struct TableStage<'a, const T: usize, K> {
+    b_fl: &'a Table1D<T>,
+    k_pr: K,
+    b_pr: f32,
+}
+
+impl<const T: usize> Stage for TableStage<'_, T, &Table1D<T>> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &State) -> Coefficients {
+        Coefficients {
+            b_fl: self.b_fl.eval_finite(s.v_st_m_s),
+            b_pr: self.b_pr,
+            k_pr: self.k_pr.eval_finite(s.x_pr_m),
+        }
+    }
+}
+
+impl<const T: usize> Stage for TableStage<'_, T, f32> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &State) -> Coefficients {
+        Coefficients {
+            b_fl: self.b_fl.eval_finite(s.v_st_m_s),
+            b_pr: self.b_pr,
+            k_pr: self.k_pr,
+        }
+    }
+}
+
 /// `repr(C)`: the per-step scalars first, then `b_fl` (whose table then starts within a few
 /// dozen bytes), `k_pr`, and what only `set_alpha` reads.
 #[derive(Debug, Clone)]
@@ -294,6 +328,29 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         );
         let c1 = coeffs(&x1, out);
         (x1, c1)
+    }
+
+    /// One RK step in table mode: unfused arithmetic ([`crate::math::Unfused`]) and the
+    /// tabulated coefficients of `stage`, inlined at every stage.
+    #[inline(always)]
+    fn advance_table<S: Stage>(
+        &self,
+        stage: &mut S,
+        x: &State,
+        c: &Coefficients,
+        u0: f32,
+        u1: f32,
+    ) -> State {
+        integrator::step_with::<Unfused, S>(
+            self.integrator,
+            stage,
+            c,
+            self.inv_t_pr,
+            x,
+            u0,
+            u1,
+            &self.h,
+        )
     }
 
     /// Re-folds `alpha` into the neural coefficients; in table mode rebuilds and checks the
@@ -360,7 +417,7 @@ enum Runtime<const P: usize, const T: usize> {
 /// [`Model`] can be dropped after construction.
 ///
 /// `P` is the parameter capacity per scaler (as for [`Model`]), `T` the number of segments
-/// of each table in [`EvalMode::Table`] (26 bytes each; unused in exact mode, but part of
+/// of each table in [`EvalMode::Table`] (28 bytes each; unused in exact mode, but part of
 /// the size).
 #[derive(Debug, Clone)]
 #[repr(C)] // the per-step scalars first, the large runtime last (short offsets on Arm)
@@ -573,44 +630,46 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 // the old and the new one up to the local error).
                 // Table mode dispatches once per step, not per coefficient evaluation.
                 let mut out = false;
-                let (x1, c1) = match (&rt.b_fl, &rt.k_pr) {
-                    (Coef::Table { table: tb, .. }, Coef::Table { table: tk, .. }) => rt.advance(
-                        &self.state,
-                        &self.coeffs,
-                        self.last_u,
-                        u,
-                        &mut out,
-                        |s, o| Coefficients {
-                            b_fl: tb.eval(s.v_st_m_s, o),
+                let (x1, c1, f) = match (&rt.b_fl, &rt.k_pr) {
+                    (Coef::Table { table: tb, .. }, Coef::Table { table: tk, .. }) => {
+                        let mut stage = TableStage {
+                            b_fl: tb,
+                            k_pr: tk,
                             b_pr: rt.b_pr,
-                            k_pr: tk.eval(s.x_pr_m, o),
-                        },
-                    ),
-                    (Coef::Table { table: tb, .. }, Coef::Const(k)) => rt.advance(
-                        &self.state,
-                        &self.coeffs,
-                        self.last_u,
-                        u,
-                        &mut out,
-                        |s, o| Coefficients {
-                            b_fl: tb.eval(s.v_st_m_s, o),
-                            b_pr: rt.b_pr,
+                        };
+                        let x1 =
+                            rt.advance_table(&mut stage, &self.state, &self.coeffs, self.last_u, u);
+                        out = !(tb.contains(x1.v_st_m_s) && tk.contains(x1.x_pr_m));
+                        let c1 = stage.coeffs(&x1);
+                        (x1, c1, emm::force_with::<Unfused>(&c1, &x1, u))
+                    }
+                    (Coef::Table { table: tb, .. }, Coef::Const(k)) => {
+                        let mut stage = TableStage {
+                            b_fl: tb,
                             k_pr: *k,
-                        },
-                    ),
-                    _ => rt.advance(
-                        &self.state,
-                        &self.coeffs,
-                        self.last_u,
-                        u,
-                        &mut out,
-                        |s, o| rt.coeffs(s, o),
-                    ),
+                            b_pr: rt.b_pr,
+                        };
+                        let x1 =
+                            rt.advance_table(&mut stage, &self.state, &self.coeffs, self.last_u, u);
+                        out = !tb.contains(x1.v_st_m_s);
+                        let c1 = stage.coeffs(&x1);
+                        (x1, c1, emm::force_with::<Unfused>(&c1, &x1, u))
+                    }
+                    _ => {
+                        let (x1, c1) = rt.advance(
+                            &self.state,
+                            &self.coeffs,
+                            self.last_u,
+                            u,
+                            &mut out,
+                            |s, o| rt.coeffs(s, o),
+                        );
+                        (x1, c1, emm::force(&c1, &x1, u))
+                    }
                 };
                 if out {
                     flags |= Flags::OUT_OF_TABLE_DOMAIN;
                 }
-                let f = emm::force(&c1, &x1, u);
                 if f.is_finite() && x1.x_pr_m.abs() <= rt.x_limit && x1.v_st_m_s.abs() <= rt.v_limit
                 {
                     self.state = x1;
@@ -690,7 +749,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         }
     }
 
-    /// Number of tables in use and their coefficient bytes (`16 T` each).
+    /// Number of tables in use and their bytes (`28 T` each, [`Table1D::table_bytes`]).
     pub fn table_bytes(&self) -> (usize, usize) {
         let n = match &self.rt {
             Runtime::Sem { .. } => 0,

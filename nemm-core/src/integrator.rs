@@ -27,7 +27,7 @@
 //! output evaluation at the same state, so they are passed in and never recomputed.
 
 use crate::emm::{self, Coefficients, State};
-use crate::math::fma;
+use crate::math::{Fused, MulAdd};
 use serde::{Deserialize, Serialize};
 
 /// Explicit Runge-Kutta scheme.
@@ -89,21 +89,58 @@ impl StepSize {
 }
 
 #[inline(always)]
-fn axpy(a: f32, k: &State, x: &State) -> State {
+fn axpy<M: MulAdd>(a: f32, k: &State, x: &State) -> State {
     State {
-        x_pr_m: fma(a, k.x_pr_m, x.x_pr_m),
-        v_st_m_s: fma(a, k.v_st_m_s, x.v_st_m_s),
+        x_pr_m: M::mul_add(a, k.x_pr_m, x.x_pr_m),
+        v_st_m_s: M::mul_add(a, k.v_st_m_s, x.v_st_m_s),
+    }
+}
+
+/// The coefficients at an RK stage's state (an intermediate state of a step).
+///
+/// Closures `FnMut(&State) -> Coefficients` are used through [`step`]; a type implementing
+/// this trait with an `#[inline(always)]` method (the estimator's tabulated coefficients) is
+/// inlined into [`step_with`] at every stage whatever its size.
+pub trait Stage {
+    /// Coefficients at `s`.
+    fn coeffs(&mut self, s: &State) -> Coefficients;
+}
+
+/// A closure as a [`Stage`].
+struct FromFn<C>(C);
+
+impl<C: FnMut(&State) -> Coefficients> Stage for FromFn<C> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &State) -> Coefficients {
+        (self.0)(s)
     }
 }
 
 /// One step from `x` (at which the coefficients are `c1`) with input `u0` at the start and
 /// `u1` at the end. `coeffs` evaluates the coefficients at an intermediate state;
-/// `inv_t_pr` is `1 / T_pr` \[1/s\].
+/// `inv_t_pr` is `1 / T_pr` \[1/s\]. Fused multiply-adds (the reference arithmetic).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // the step's inputs are all distinct; a struct would only rename them
 pub fn step<C: FnMut(&State) -> Coefficients>(
     scheme: Integrator,
-    mut coeffs: C,
+    coeffs: C,
+    c1: &Coefficients,
+    inv_t_pr: f32,
+    x: &State,
+    u0: f32,
+    u1: f32,
+    h: &StepSize,
+) -> State {
+    step_with::<Fused, _>(scheme, &mut FromFn(coeffs), c1, inv_t_pr, x, u0, u1, h)
+}
+
+/// [`step`] with the multiply-add `M` (the module's formulas with `fma` replaced by
+/// `M::mul_add`) and the stage coefficients of `stage`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // as `step`
+pub fn step_with<M: MulAdd, S: Stage>(
+    scheme: Integrator,
+    stage: &mut S,
     c1: &Coefficients,
     inv_t_pr: f32,
     x: &State,
@@ -112,33 +149,33 @@ pub fn step<C: FnMut(&State) -> Coefficients>(
     h: &StepSize,
 ) -> State {
     let um = 0.5 * (u0 + u1);
-    let k1 = emm::rhs(c1, inv_t_pr, x, u0);
-    let x2 = axpy(h.h2, &k1, x);
-    let k2 = emm::rhs(&coeffs(&x2), inv_t_pr, &x2, um);
+    let k1 = emm::rhs_with::<M>(c1, inv_t_pr, x, u0);
+    let x2 = axpy::<M>(h.h2, &k1, x);
+    let k2 = emm::rhs_with::<M>(&stage.coeffs(&x2), inv_t_pr, &x2, um);
     match scheme {
         Integrator::Rk4 => {
-            let x3 = axpy(h.h2, &k2, x);
-            let k3 = emm::rhs(&coeffs(&x3), inv_t_pr, &x3, um);
-            let x4 = axpy(h.dt, &k3, x);
-            let k4 = emm::rhs(&coeffs(&x4), inv_t_pr, &x4, u1);
+            let x3 = axpy::<M>(h.h2, &k2, x);
+            let k3 = emm::rhs_with::<M>(&stage.coeffs(&x3), inv_t_pr, &x3, um);
+            let x4 = axpy::<M>(h.dt, &k3, x);
+            let k4 = emm::rhs_with::<M>(&stage.coeffs(&x4), inv_t_pr, &x4, u1);
             let sum = State {
                 x_pr_m: (k1.x_pr_m + k4.x_pr_m) + 2.0 * (k2.x_pr_m + k3.x_pr_m),
                 v_st_m_s: (k1.v_st_m_s + k4.v_st_m_s) + 2.0 * (k2.v_st_m_s + k3.v_st_m_s),
             };
-            axpy(h.h6, &sum, x)
+            axpy::<M>(h.h6, &sum, x)
         }
         Integrator::Rk3 => {
             let d = State {
                 x_pr_m: 2.0 * k2.x_pr_m - k1.x_pr_m,
                 v_st_m_s: 2.0 * k2.v_st_m_s - k1.v_st_m_s,
             };
-            let x3 = axpy(h.dt, &d, x);
-            let k3 = emm::rhs(&coeffs(&x3), inv_t_pr, &x3, u1);
+            let x3 = axpy::<M>(h.dt, &d, x);
+            let k3 = emm::rhs_with::<M>(&stage.coeffs(&x3), inv_t_pr, &x3, u1);
             let sum = State {
-                x_pr_m: fma(4.0, k2.x_pr_m, k1.x_pr_m + k3.x_pr_m),
-                v_st_m_s: fma(4.0, k2.v_st_m_s, k1.v_st_m_s + k3.v_st_m_s),
+                x_pr_m: M::mul_add(4.0, k2.x_pr_m, k1.x_pr_m + k3.x_pr_m),
+                v_st_m_s: M::mul_add(4.0, k2.v_st_m_s, k1.v_st_m_s + k3.v_st_m_s),
             };
-            axpy(h.h6, &sum, x)
+            axpy::<M>(h.h6, &sum, x)
         }
     }
 }

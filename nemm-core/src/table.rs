@@ -19,32 +19,39 @@
 //!    [`SCAN_POINTS_PER_SEGMENT`] (128) points per segment and bisects every change to
 //!    adjacent floats: a kink, which becomes a knot (a coarser scan, 32 points, missed close
 //!    pairs of kinks: the example NEMM then measured 1.1e-4 instead of 1.8e-5);
-//! 2. spreads the `N` segments about uniformly over the smooth pieces between kinks (at least
-//!    one each; [`TableError::TooManyKinks`] if there are more than `N - 1` kinks);
+//! 2. spreads `N - 2` segments about uniformly over the smooth pieces between kinks (at
+//!    least one each; [`TableError::TooManyKinks`] if there are more than `N - 3` kinks);
+//!    the other two segments hold the constant boundary values (below `lo`, from `hi` on);
 //! 3. per piece, takes the exact value at each knot and a slope by central differences (step
 //!    `w / 8`), at the piece's ends by one-sided second-order differences, so no slope is
 //!    taken across a kink; each segment stores its knot, `1 / width` and the Hermite cubic
 //!    as monomial coefficients in `s in [0, 1]` (computed in `f64`);
-//! 4. builds a uniform index of `N` cells over the domain: the segment holding each cell's
-//!    left edge.
+//! 4. builds a uniform index of `2 N` cells of width `(hi - lo) / (2 N - 2)` over
+//!    `[lo - width, hi + width]`: the segment holding each cell's left edge. Segments are
+//!    about `(hi - lo) / N` wide, so a cell holds at most one further knot unless two kinks
+//!    lie closer than a cell ([`TableAccuracy::max_knots_per_cell`]).
 //!
-//! An evaluation is then
+//! An evaluation ([`Table1D::eval_finite`]) is then
 //!
 //! ```text
-//! x = clamp(x, lo, hi)                   out of the domain (or NaN): clamped, flagged
-//! i = first[min(floor(x * N/(hi-lo) - lo N/(hi-lo)), N - 1)]
-//! while x >= knot[i + 1]: i += 1         only the knots inside one cell
-//! s = (x - knot[i]) / width[i]
+//! c = min(x * scale + offset as unsigned (saturating), 2N - 1)    below lo: 0, above hi: 2N - 1
+//! i = first[c]
+//! while x >= knot[i + 1]: i += 1         the knots inside one cell: usually one comparison
+//! s = (x - knot[i]) * inv_width[i]       boundary segments: inv_width = 0, so s = 0
 //! p = ((c3 s + c2) s + c1) s + c0        Horner
 //! ```
 //!
-//! about 50 Cortex-M4F instructions (nemm-firmware/README.md), against ~1,800 for the exact
-//! 16 x 5 scaler. The table is `C1` inside each smooth piece and continuous at the kinks,
-//! like the MLP.
+//! with no clamping of its own: a finite input outside the domain lands on a boundary
+//! segment and gets the value at `lo` or `hi`. [`Table1D::eval`] adds the domain flag and
+//! maps non-finite inputs to the domain's ends. About 30 Cortex-M4F instructions per lookup
+//! (nemm-firmware/README.md), against ~1,800 for the exact 16 x 5 scaler. The table is `C1`
+//! inside each smooth piece and continuous at the kinks, like the MLP.
 //!
 //! The Horner evaluation uses plain `f32` multiply and add (not the fused `fma` of the exact
 //! path): its rounding, ~1e-7 relative, is three orders below any useful bound, and on the
-//! Cortex-M4F it saves the moves of the `asm!` fused multiply-add.
+//! Cortex-M4F it saves the moves of the `asm!` fused multiply-add. For the same reason the
+//! estimator's table mode runs the RK step and the EMM with unfused arithmetic
+//! ([`crate::math::Unfused`]).
 //!
 //! # Verified error bound
 //!
@@ -62,13 +69,13 @@
 //! The domain of each table is the training abs-max scale of its input times
 //! [`TableConfig::domain_margin`] (default [`DEFAULT_DOMAIN_MARGIN`] = 1.1, symmetric about
 //! 0): a run at the training extremes overshoots them slightly in `v_st` and `x_pr`, and the
-//! margin keeps such runs inside the table. Outside, the input is clamped to the domain (the
-//! coefficient stays at its boundary value, finite and inside the scaler's bounds) and the
-//! estimator sets [`crate::Flags::OUT_OF_TABLE_DOMAIN`].
+//! margin keeps such runs inside the table. Outside, the coefficient stays at its boundary
+//! value (finite and inside the scaler's bounds: the value at `lo` or `hi`, as if the input
+//! were clamped) and the estimator sets [`crate::Flags::OUT_OF_TABLE_DOMAIN`].
 
 use core::fmt;
 
-/// Default number of segments of a table: 256 (4 KiB per table, 16 bytes per segment).
+/// Default number of segments of a table: 256 (7 KiB per table, 28 bytes per segment).
 pub const DEFAULT_TABLE_SEGMENTS: usize = 256;
 /// Points of the error check per table segment (the check grid is this much finer than the
 /// table).
@@ -189,9 +196,15 @@ pub struct TableAccuracy {
     pub max_rel_error: f32,
     /// Input where it occurs.
     pub at: f32,
-    /// Kinks found (and made knots).
+    /// Kinks found inside the domain (each made a knot).
     pub kinks: usize,
+    /// Most knots inside one lookup cell (the evaluation steps over them one comparison
+    /// each; usually one).
+    pub max_knots_per_cell: usize,
 }
+
+/// Fewest segments of a table: two boundary segments and one inside.
+pub const MIN_SEGMENTS: usize = 3;
 
 /// Longest bisection of a kink (f32 has 24 bits of mantissa; 40 halvings reach adjacent
 /// floats from any check-grid interval).
@@ -206,16 +219,19 @@ const BISECTION_STEPS: usize = 40;
 pub struct Table1D<const N: usize> {
     lo: f32,
     hi: f32,
-    /// `N / (hi - lo)`: lookup cells per unit input.
+    /// Lookup cells per unit input: the `2 N` cells of width `(hi - lo) / (2 N - 2)` cover
+    /// `[lo - width, hi + width]`.
     cell_scale: f32,
-    /// `-lo N / (hi - lo)`.
+    /// Cell coordinate of `x = 0`.
     cell_offset: f32,
-    /// Segments in use (`N` after `compile`).
-    used: usize,
-    /// Per lookup cell: the segment holding the cell's left edge.
-    first: [u16; N],
+    /// Per lookup cell (`2 N`, in pairs): the segment holding the cell's left edge. Every
+    /// cell holds at most one further knot (checked by `compile`), so one comparison finds
+    /// the segment.
+    first: [[u16; 2]; N],
     /// Per segment `[x0, 1 / width, c0, c1, c2, c3]`: `p = c0 + c1 s + c2 s^2 + c3 s^3`,
-    /// `s = (x - x0) / width`.
+    /// `s = (x - x0) / width`. Segments `0` and `N - 1` are the constant boundary values
+    /// below `lo` and from `hi` on (`1 / width = 0`, so `s = 0`); `1 ..= N - 2` tabulate the
+    /// domain.
     seg: [[f32; 6]; N],
     accuracy: TableAccuracy,
 }
@@ -243,7 +259,7 @@ impl<const N: usize> Table1D<N> {
         max_rel_error: f32,
         scaler: &'static str,
     ) -> Result<Self, TableError> {
-        if N == 0
+        if N < MIN_SEGMENTS
             || N > usize::from(u16::MAX)
             || !(lo.is_finite() && hi.is_finite() && hi > lo)
             || !(max_rel_error.is_finite() && max_rel_error > 0.0)
@@ -252,7 +268,10 @@ impl<const N: usize> Table1D<N> {
         }
         let (lo64, hi64) = (f64::from(lo), f64::from(hi));
         let span = hi64 - lo64;
-        let cell_scale = (N as f64 / span) as f32;
+        // Segments inside the domain, and the lookup cells' width.
+        let real = N - 2;
+        let cell_w = span / (2 * N - 2) as f64;
+        let cell_scale = (1.0 / cell_w) as f32;
         if !(cell_scale.is_finite() && cell_scale > 0.0) {
             return Err(TableError::BadConfig);
         }
@@ -286,7 +305,7 @@ impl<const N: usize> Table1D<N> {
                     }
                     // A kink on the domain's ends needs no knot.
                     if b > lo && b < hi {
-                        // More than N - 1 kinks: N segments cannot separate them.
+                        // More kinks than segments cannot be separated.
                         let Some(slot) = breaks.get_mut(n_kinks) else {
                             return Err(TableError::TooManyKinks {
                                 scaler,
@@ -302,7 +321,7 @@ impl<const N: usize> Table1D<N> {
             }
         }
         let kinks = breaks.get(..n_kinks).unwrap_or(&[]);
-        if n_kinks + 1 > N {
+        if n_kinks + 1 > real {
             return Err(TableError::TooManyKinks {
                 scaler,
                 segments: N,
@@ -330,15 +349,15 @@ impl<const N: usize> Table1D<N> {
             (a, b)
         };
         let pieces = n_kinks + 1;
-        // 2. Segments per piece: about uniform width, at least one per piece, N in all.
+        // 2. Segments per piece: about uniform width, at least one per piece, N - 2 in all.
         let count = |h: f64, k: usize| -> usize {
             let (a, b) = piece(k);
             libm::ceil((b - a) / h - 1e-9).max(1.0) as usize
         };
-        let mut h = span / N as f64;
+        let mut h = span / real as f64;
         let mut fits = false;
         for _ in 0..4000 {
-            if (0..pieces).map(|k| count(h, k)).sum::<usize>() <= N {
+            if (0..pieces).map(|k| count(h, k)).sum::<usize>() <= real {
                 fits = true;
                 break;
             }
@@ -350,14 +369,14 @@ impl<const N: usize> Table1D<N> {
                 segments: N,
             });
         }
-        // Use all N segments (the evaluation then needs no count): the spare ones go, one at
-        // a time, to the piece with the widest segments.
+        // Use all N - 2 segments (the evaluation then needs no count): the spare ones go, one
+        // at a time, to the piece with the widest segments.
         let mut counts = [0usize; N];
         for (k, c) in counts.iter_mut().enumerate().take(pieces) {
             *c = count(h, k);
         }
         let mut total: usize = counts.iter().sum();
-        while total < N {
+        while total < real {
             let mut widest = (0usize, 0.0f64);
             for (k, &c) in counts.iter().enumerate().take(pieces) {
                 let (a, b) = piece(k);
@@ -378,17 +397,18 @@ impl<const N: usize> Table1D<N> {
             lo,
             hi,
             cell_scale,
-            cell_offset: (-lo64 * N as f64 / span) as f32,
-            used: 0,
-            first: [0; N],
+            cell_offset: (-(lo64 - cell_w) / cell_w) as f32,
+            first: [[0; 2]; N],
             seg: [[0.0; 6]; N],
             accuracy: TableAccuracy {
                 max_rel_error: 0.0,
                 at: lo,
                 kinks: n_kinks,
+                max_knots_per_cell: 0,
             },
         };
-        let mut used = 0usize;
+        // Segment 0 is the boundary value below `lo`; the domain's start at 1.
+        let mut used = 1usize;
         for k in 0..pieces {
             let (a, b) = piece(k);
             let n = counts.get(k).copied().unwrap_or(1);
@@ -426,14 +446,30 @@ impl<const N: usize> Table1D<N> {
                 (p0, m0) = (p1, m1);
             }
         }
-        t.used = used;
-        // 4. Lookup cells: the segment holding each cell's left edge.
+        if used != N - 1 {
+            return Err(TableError::BadConfig);
+        }
+        // 4. The boundary segments: constant, the value at `lo` (the first segment's `c0`)
+        //    and the table's own value at `hi`, so that clamping is continuous.
+        let first_c0 = t.seg.get(1).map_or(0.0, |s| s[2]);
+        let at_hi = t.segment_value(N - 2, hi);
+        if let Some(s) = t.seg.first_mut() {
+            *s = [lo, 0.0, first_c0, 0.0, 0.0, 0.0];
+        }
+        if let Some(s) = t.seg.last_mut() {
+            *s = [hi, 0.0, at_hi, 0.0, 0.0, 0.0];
+        }
+        // 5. Lookup cells: the segment holding each cell's left edge; each cell may hold one
+        //    further knot only (knots are at least a cell apart by construction; checked).
         let mut i = 0usize;
-        for (c, f) in t.first.iter_mut().enumerate() {
-            let edge = (lo64 + span * c as f64 / N as f64) as f32;
-            while i + 1 < used && t.seg.get(i + 1).is_some_and(|s| s[0] <= edge) {
+        let mut prev = 0usize;
+        for (c, f) in t.first.as_flattened_mut().iter_mut().enumerate() {
+            let edge = (lo64 - cell_w + cell_w * c as f64) as f32;
+            while t.seg.get(i + 1).is_some_and(|s| s[0] <= edge) {
                 i += 1;
             }
+            t.accuracy.max_knots_per_cell = t.accuracy.max_knots_per_cell.max(i - prev);
+            prev = i;
             *f = i as u16;
         }
         // 5. Error check on the grid CHECK_POINTS_PER_SEGMENT x finer, plus the upper end.
@@ -473,33 +509,53 @@ impl<const N: usize> Table1D<N> {
     /// `*out = true` (never cleared).
     #[inline(always)]
     pub fn eval(&self, x: f32, out: &mut bool) -> f32 {
-        // NaN fails both comparisons and lands on `lo`.
-        let xc = if x >= self.lo {
-            if x <= self.hi {
-                x
-            } else {
-                self.hi
-            }
+        *out |= !self.contains(x);
+        // Non-finite inputs to the domain's ends (NaN to `lo`); finite ones outside the
+        // domain land on the boundary segments.
+        let x = if x.is_finite() {
+            x
+        } else if x > 0.0 {
+            self.hi
         } else {
             self.lo
         };
-        *out |= !(xc == x);
-        // `as` saturates; the cell lies in [0, N - 1].
-        let cell = ((xc * self.cell_scale + self.cell_offset) as usize).min(N.saturating_sub(1));
-        let mut i = self.first.get(cell).map_or(0, |&f| usize::from(f));
-        // At most the knots inside one cell (a few, see `compile`).
-        while i + 1 < N {
-            match self.seg.get(i + 1) {
-                Some(next) if xc >= next[0] => i += 1,
-                _ => break,
-            }
+        self.eval_finite(x)
+    }
+
+    /// True if `x` lies in the domain `[lo, hi]` (false for NaN).
+    #[inline(always)]
+    pub fn contains(&self, x: f32) -> bool {
+        x >= self.lo && x <= self.hi
+    }
+
+    /// [`Table1D::eval`] for a finite `x`, without the flag: the same value, about 27
+    /// Cortex-M4F instructions. A non-finite `x` gives NaN or an unspecified finite value
+    /// (never a panic); the estimator's RK stages use it, whose states are finite.
+    #[inline(always)]
+    pub fn eval_finite(&self, x: f32) -> f32 {
+        // `as` saturates (and maps NaN to 0): below the domain cell 0, above it the last.
+        let cell = ((x * self.cell_scale + self.cell_offset) as usize).min(2 * N - 1);
+        let mut i = self
+            .first
+            .as_flattened()
+            .get(cell)
+            .map_or(0, |&f| usize::from(f));
+        // The knots inside the cell (usually none or one).
+        while self.seg.get(i + 1).is_some_and(|next| x >= next[0]) {
+            i += 1;
         }
+        self.segment_value(i, x)
+    }
+
+    /// Segment `i`'s cubic at `x`.
+    #[inline(always)]
+    fn segment_value(&self, i: usize, x: f32) -> f32 {
         match self.seg.get(i) {
             Some(&[x0, inv_w, c0, c1, c2, c3]) => {
-                let s = (xc - x0) * inv_w;
+                let s = (x - x0) * inv_w;
                 ((c3 * s + c2) * s + c1) * s + c0
             }
-            None => 0.0, // N == 0: `compile` refuses it
+            None => 0.0, // not reached: `i < N`
         }
     }
 
@@ -513,15 +569,15 @@ impl<const N: usize> Table1D<N> {
         self.accuracy
     }
 
-    /// Segments in use (`N`).
+    /// Cubic segments inside the domain (`N - 2`; the other two hold the boundary values).
     pub fn segments_used(&self) -> usize {
-        self.used
+        N - 2
     }
 
-    /// Bytes of a table with capacity `N`: 24 per segment (knot, inverse width, four
-    /// coefficients) and 2 per lookup cell, `26 N` (plus a few scalars).
+    /// Bytes of a table with `N` segments: 24 per segment (knot, inverse width, four
+    /// coefficients) and 4 for its two lookup cells, `28 N` (plus a few scalars).
     pub const fn table_bytes() -> usize {
-        N * 26
+        N * 28
     }
 }
 
@@ -545,7 +601,7 @@ mod tests {
     #[test]
     fn reproduces_a_cubic() {
         // Hermite interpolation is exact for cubics; only the knot slopes err: the central
-        // difference of a cubic is off by d^2 f'''(x) / 6 = (1/64)^2 * 0.75 / 6 ~ 3e-5.
+        // difference of a cubic is off by d^2 f'''(x) / 6 = (1/56)^2 * 0.75 / 6 ~ 4e-5.
         let f = |x: f32| 2.0 + 0.5 * x - 0.25 * x * x + 0.125 * x * x * x;
         let t = Table1D::<16>::compile(smooth(f), -1.0, 1.0, 1e-3, "cubic").unwrap();
         let mut out = false;
@@ -555,7 +611,8 @@ mod tests {
         }
         assert!(!out);
         assert!(t.accuracy().max_rel_error < 1e-5);
-        assert_eq!((t.segments_used(), t.accuracy().kinks), (16, 0));
+        // 16 segments: 14 inside the domain, two for the boundary values.
+        assert_eq!((t.segments_used(), t.accuracy().kinks), (14, 0));
     }
 
     #[test]
@@ -620,6 +677,39 @@ mod tests {
                 segments: 4
             })
         );
+    }
+
+    #[test]
+    fn boundary_segments_hold_the_values_at_the_ends() {
+        let f = |x: f32| 1.0 + x + 0.3 * x * x;
+        let t = Table1D::<32>::compile(smooth(f), -1.0, 2.0, 1e-3, "q").unwrap();
+        let (at_lo, at_hi) = (t.eval(-1.0, &mut false), t.eval(2.0, &mut false));
+        for x in [
+            -1.0000001,
+            -1.5,
+            -1e30,
+            f32::MIN,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ] {
+            assert_eq!(t.eval(x, &mut false).to_bits(), at_lo.to_bits(), "{x}");
+        }
+        for x in [2.0000002, 7.0, 1e30, f32::MAX, f32::INFINITY] {
+            assert_eq!(t.eval(x, &mut false).to_bits(), at_hi.to_bits(), "{x}");
+        }
+        // The fast evaluation is the same function for every finite input.
+        for k in -300..=600 {
+            let x = k as f32 / 100.0;
+            let mut out = false;
+            assert_eq!(
+                t.eval(x, &mut out).to_bits(),
+                t.eval_finite(x).to_bits(),
+                "{x}"
+            );
+            assert_eq!(out, !(-1.0..=2.0).contains(&x), "{x}");
+        }
+        assert!(t.accuracy().max_knots_per_cell <= 1);
+        assert_eq!(Table1D::<32>::table_bytes(), 32 * 28);
     }
 
     #[test]

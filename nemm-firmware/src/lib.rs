@@ -60,7 +60,7 @@ pub const PARAM_CAPACITY: usize = nemm_core::mlp::param_count(2, 16, 5);
 /// keeps the force within about 1e-5 of the force scale of the exact mode (docs/core.md).
 pub const TABLE_MAX_REL_ERROR: f32 = 1e-4;
 
-/// Segments per table: 128 (26 bytes of RAM each, 3.3 KiB per table). Half the host
+/// Segments per table: 128 (28 bytes of RAM each, 3.5 KiB per table). Half the host
 /// default: the estimator (model, compiled scalers and tables) is built on the stack before
 /// it moves into its static, and with 256 segments that peak no longer fits the 192 KiB
 /// next to the statics. The example models have 60-90 kinks per scaler, the demo's trained
