@@ -203,6 +203,10 @@ pub struct TableAccuracy {
     pub max_knots_per_cell: usize,
 }
 
+/// Bytes per table segment: 24 for the segment (knot, inverse width, four coefficients), 4
+/// for its two lookup cells.
+pub const TABLE_BYTES_PER_SEGMENT: usize = 28;
+
 /// Fewest segments of a table: two boundary segments and one inside.
 pub const MIN_SEGMENTS: usize = 3;
 
@@ -535,14 +539,20 @@ impl<const N: usize> Table1D<N> {
     pub fn eval_finite(&self, x: f32) -> f32 {
         // `as` saturates (and maps NaN to 0): below the domain cell 0, above it the last.
         let cell = ((x * self.cell_scale + self.cell_offset) as usize).min(2 * N - 1);
+        // `first` is at most `N - 1`; the `min` (which only changes the last cell's `N - 1`
+        // to `N - 2`, whose next knot is `hi`) keeps `i + 1` in bounds without a check.
         let mut i = self
             .first
             .as_flattened()
             .get(cell)
-            .map_or(0, |&f| usize::from(f));
-        // The knots inside the cell (usually none or one).
-        while self.seg.get(i + 1).is_some_and(|next| x >= next[0]) {
+            .map_or(0, |&f| usize::from(f))
+            .min(N.saturating_sub(2));
+        // The knots inside the cell: one comparison, a loop only past the first knot.
+        if self.seg.get(i + 1).is_some_and(|next| x >= next[0]) {
             i += 1;
+            while self.seg.get(i + 1).is_some_and(|next| x >= next[0]) {
+                i += 1;
+            }
         }
         self.segment_value(i, x)
     }
@@ -577,7 +587,7 @@ impl<const N: usize> Table1D<N> {
     /// Bytes of a table with `N` segments: 24 per segment (knot, inverse width, four
     /// coefficients) and 4 for its two lookup cells, `28 N` (plus a few scalars).
     pub const fn table_bytes() -> usize {
-        N * 28
+        N * TABLE_BYTES_PER_SEGMENT
     }
 }
 

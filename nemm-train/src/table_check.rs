@@ -122,7 +122,7 @@ pub fn report(model: &Model, bound: f32) -> String {
                 s += &format!(
                     "  {} segments ({} B per table): worst measured error {w:.2e} at alpha {:.3} ({} kinks made knots); {verdict}\n",
                     c.segments,
-                    26 * c.segments,
+                    nemm_core::table::TABLE_BYTES_PER_SEGMENT * c.segments,
                     c.worst_alpha,
                     c.kinks
                 )
