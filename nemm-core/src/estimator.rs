@@ -53,7 +53,7 @@
 
 use crate::emm::{self, Coefficients, State};
 use crate::integrator::{self, Integrator, Stage, StepSize};
-use crate::math::Unfused;
+use crate::math::{Fused, MulAdd, Unfused};
 use crate::mlp::{CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
@@ -274,6 +274,46 @@ impl<const T: usize> Stage for TableStage<'_, T, f32> {
     }
 }
 
+/// Exact-mode coefficients at an RK stage: `b_fl(v_st)` from its compiled scaler, `k_pr`
+/// from its scaler (`K = &CompiledScaler`, NEMM) or constant (`K = f32`, NEMM-Light).
+struct NeuralStage<'a, const P: usize, K> {
+    b_fl: &'a CompiledScaler<P>,
+    k_pr: K,
+    b_pr: f32,
+}
+
+impl<const P: usize> Stage for NeuralStage<'_, P, &CompiledScaler<P>> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &State) -> Coefficients {
+        Coefficients {
+            b_fl: self.b_fl.eval(s.v_st_m_s),
+            b_pr: self.b_pr,
+            k_pr: self.k_pr.eval(s.x_pr_m),
+        }
+    }
+}
+
+impl<const P: usize> Stage for NeuralStage<'_, P, f32> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &State) -> Coefficients {
+        Coefficients {
+            b_fl: self.b_fl.eval(s.v_st_m_s),
+            b_pr: self.b_pr,
+            k_pr: self.k_pr,
+        }
+    }
+}
+
+/// Constant coefficients at every stage (the Linear EMM).
+struct ConstStage(Coefficients);
+
+impl Stage for ConstStage {
+    #[inline(always)]
+    fn coeffs(&mut self, _: &State) -> Coefficients {
+        self.0
+    }
+}
+
 /// `repr(C)`: the per-step scalars first, then `b_fl` (whose table then starts within a few
 /// dozen bytes), `k_pr`, and what only `set_alpha` reads.
 #[derive(Debug, Clone)]
@@ -330,10 +370,11 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         (x1, c1)
     }
 
-    /// One RK step in table mode: unfused arithmetic ([`crate::math::Unfused`]) and the
-    /// tabulated coefficients of `stage`, inlined at every stage.
+    /// One RK step with the multiply-add `M` and the coefficients of `stage`, inlined at
+    /// every stage (table mode: [`Unfused`] and the tables; the Linear EMM: [`Fused`] and
+    /// its constants).
     #[inline(always)]
-    fn advance_table<S: Stage>(
+    fn advance_with<M: MulAdd, S: Stage>(
         &self,
         stage: &mut S,
         x: &State,
@@ -341,16 +382,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         u0: f32,
         u1: f32,
     ) -> State {
-        integrator::step_with::<Unfused, S>(
-            self.integrator,
-            stage,
-            c,
-            self.inv_t_pr,
-            x,
-            u0,
-            u1,
-            &self.h,
-        )
+        integrator::step_with::<M, S>(self.integrator, stage, c, self.inv_t_pr, x, u0, u1, &self.h)
     }
 
     /// Re-folds `alpha` into the neural coefficients; in table mode rebuilds and checks the
@@ -637,8 +669,13 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                             k_pr: tk,
                             b_pr: rt.b_pr,
                         };
-                        let x1 =
-                            rt.advance_table(&mut stage, &self.state, &self.coeffs, self.last_u, u);
+                        let x1 = rt.advance_with::<Unfused, _>(
+                            &mut stage,
+                            &self.state,
+                            &self.coeffs,
+                            self.last_u,
+                            u,
+                        );
                         out = !(tb.contains(x1.v_st_m_s) && tk.contains(x1.x_pr_m));
                         let c1 = stage.coeffs(&x1);
                         (x1, c1, emm::force_with::<Unfused>(&c1, &x1, u))
@@ -649,11 +686,66 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                             k_pr: *k,
                             b_pr: rt.b_pr,
                         };
-                        let x1 =
-                            rt.advance_table(&mut stage, &self.state, &self.coeffs, self.last_u, u);
+                        let x1 = rt.advance_with::<Unfused, _>(
+                            &mut stage,
+                            &self.state,
+                            &self.coeffs,
+                            self.last_u,
+                            u,
+                        );
                         out = !tb.contains(x1.v_st_m_s);
                         let c1 = stage.coeffs(&x1);
                         (x1, c1, emm::force_with::<Unfused>(&c1, &x1, u))
+                    }
+                    // Exact mode: the compiled scalers, the reference (fused) arithmetic.
+                    (Coef::Neural(b_fl), Coef::Neural(k_pr)) => {
+                        let mut stage = NeuralStage {
+                            b_fl,
+                            k_pr,
+                            b_pr: rt.b_pr,
+                        };
+                        let x1 = rt.advance_with::<Fused, _>(
+                            &mut stage,
+                            &self.state,
+                            &self.coeffs,
+                            self.last_u,
+                            u,
+                        );
+                        let c1 = stage.coeffs(&x1);
+                        (x1, c1, emm::force(&c1, &x1, u))
+                    }
+                    (Coef::Neural(b_fl), Coef::Const(k_pr)) => {
+                        let mut stage = NeuralStage {
+                            b_fl,
+                            k_pr: *k_pr,
+                            b_pr: rt.b_pr,
+                        };
+                        let x1 = rt.advance_with::<Fused, _>(
+                            &mut stage,
+                            &self.state,
+                            &self.coeffs,
+                            self.last_u,
+                            u,
+                        );
+                        let c1 = stage.coeffs(&x1);
+                        (x1, c1, emm::force(&c1, &x1, u))
+                    }
+                    // The Linear EMM: constants, the reference (fused) arithmetic.
+                    (Coef::Const(b_fl), Coef::Const(k_pr)) => {
+                        let mut stage = ConstStage(Coefficients {
+                            b_fl: *b_fl,
+                            b_pr: rt.b_pr,
+                            k_pr: *k_pr,
+                        });
+                        let x1 = rt.advance_with::<Fused, _>(
+                            &mut stage,
+                            &self.state,
+                            &self.coeffs,
+                            self.last_u,
+                            u,
+                        );
+                        let c1 = stage.coeffs(&x1);
+                        (x1, c1, emm::force(&c1, &x1, u))
                     }
                     _ => {
                         let (x1, c1) = rt.advance(
