@@ -304,6 +304,16 @@ impl<const P: usize> Stage for NeuralStage<'_, P, f32> {
     }
 }
 
+/// Any runtime's coefficients through [`EmmRuntime::coeffs`] (mixes no model kind builds).
+struct RuntimeStage<'a, const P: usize, const T: usize>(&'a EmmRuntime<P, T>);
+
+impl<const P: usize, const T: usize> Stage for RuntimeStage<'_, P, T> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &State) -> Coefficients {
+        self.0.coeffs(s, &mut false)
+    }
+}
+
 /// Constant coefficients at every stage (the Linear EMM).
 struct ConstStage(Coefficients);
 
@@ -343,22 +353,22 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         }
     }
 
-    /// One RK step from `x` (coefficients `c`) and the coefficients at the new state;
-    /// `coeffs(state, out)` evaluates them (`out` is set for a clamped table input of the
-    /// new state only).
+    /// One RK step from `x` (coefficients `c`) with the multiply-add `M` and the stage
+    /// coefficients of `stage` (inlined at every stage), then the coefficients at the new
+    /// state and the force there: table mode runs [`Unfused`] with the tables, exact mode
+    /// [`Fused`] (the reference arithmetic) with the compiled scalers or constants.
     #[inline(always)]
-    fn advance<F: Fn(&State, &mut bool) -> Coefficients>(
+    fn run<M: MulAdd, S: Stage>(
         &self,
+        stage: &mut S,
         x: &State,
         c: &Coefficients,
         u0: f32,
         u1: f32,
-        out: &mut bool,
-        coeffs: F,
-    ) -> (State, Coefficients) {
-        let x1 = integrator::step(
+    ) -> (State, Coefficients, f32) {
+        let x1 = integrator::step_with::<M, S>(
             self.integrator,
-            |s| coeffs(s, &mut false),
+            stage,
             c,
             self.inv_t_pr,
             x,
@@ -366,23 +376,8 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             u1,
             &self.h,
         );
-        let c1 = coeffs(&x1, out);
-        (x1, c1)
-    }
-
-    /// One RK step with the multiply-add `M` and the coefficients of `stage`, inlined at
-    /// every stage (table mode: [`Unfused`] and the tables; the Linear EMM: [`Fused`] and
-    /// its constants).
-    #[inline(always)]
-    fn advance_with<M: MulAdd, S: Stage>(
-        &self,
-        stage: &mut S,
-        x: &State,
-        c: &Coefficients,
-        u0: f32,
-        u1: f32,
-    ) -> State {
-        integrator::step_with::<M, S>(self.integrator, stage, c, self.inv_t_pr, x, u0, u1, &self.h)
+        let c1 = stage.coeffs(&x1);
+        (x1, c1, emm::force_with::<M>(&c1, &x1, u1))
     }
 
     /// Re-folds `alpha` into the neural coefficients; in table mode rebuilds and checks the
@@ -662,101 +657,53 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 // the old and the new one up to the local error).
                 // Table mode dispatches once per step, not per coefficient evaluation.
                 let mut out = false;
+                let (x0, c0, u0, b_pr) = (&self.state, &self.coeffs, self.last_u, rt.b_pr);
                 let (x1, c1, f) = match (&rt.b_fl, &rt.k_pr) {
                     (Coef::Table { table: tb, .. }, Coef::Table { table: tk, .. }) => {
                         let mut stage = TableStage {
                             b_fl: tb,
                             k_pr: tk,
-                            b_pr: rt.b_pr,
+                            b_pr,
                         };
-                        let x1 = rt.advance_with::<Unfused, _>(
-                            &mut stage,
-                            &self.state,
-                            &self.coeffs,
-                            self.last_u,
-                            u,
-                        );
-                        out = !(tb.contains(x1.v_st_m_s) && tk.contains(x1.x_pr_m));
-                        let c1 = stage.coeffs(&x1);
-                        (x1, c1, emm::force_with::<Unfused>(&c1, &x1, u))
+                        let r = rt.run::<Unfused, _>(&mut stage, x0, c0, u0, u);
+                        out = !(tb.contains(r.0.v_st_m_s) && tk.contains(r.0.x_pr_m));
+                        r
                     }
                     (Coef::Table { table: tb, .. }, Coef::Const(k)) => {
                         let mut stage = TableStage {
                             b_fl: tb,
                             k_pr: *k,
-                            b_pr: rt.b_pr,
+                            b_pr,
                         };
-                        let x1 = rt.advance_with::<Unfused, _>(
-                            &mut stage,
-                            &self.state,
-                            &self.coeffs,
-                            self.last_u,
-                            u,
-                        );
-                        out = !tb.contains(x1.v_st_m_s);
-                        let c1 = stage.coeffs(&x1);
-                        (x1, c1, emm::force_with::<Unfused>(&c1, &x1, u))
+                        let r = rt.run::<Unfused, _>(&mut stage, x0, c0, u0, u);
+                        out = !tb.contains(r.0.v_st_m_s);
+                        r
                     }
-                    // Exact mode: the compiled scalers, the reference (fused) arithmetic.
                     (Coef::Neural(b_fl), Coef::Neural(k_pr)) => {
-                        let mut stage = NeuralStage {
-                            b_fl,
-                            k_pr,
-                            b_pr: rt.b_pr,
-                        };
-                        let x1 = rt.advance_with::<Fused, _>(
-                            &mut stage,
-                            &self.state,
-                            &self.coeffs,
-                            self.last_u,
-                            u,
-                        );
-                        let c1 = stage.coeffs(&x1);
-                        (x1, c1, emm::force(&c1, &x1, u))
+                        let mut stage = NeuralStage { b_fl, k_pr, b_pr };
+                        rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
                     }
                     (Coef::Neural(b_fl), Coef::Const(k_pr)) => {
                         let mut stage = NeuralStage {
                             b_fl,
                             k_pr: *k_pr,
-                            b_pr: rt.b_pr,
+                            b_pr,
                         };
-                        let x1 = rt.advance_with::<Fused, _>(
-                            &mut stage,
-                            &self.state,
-                            &self.coeffs,
-                            self.last_u,
-                            u,
-                        );
-                        let c1 = stage.coeffs(&x1);
-                        (x1, c1, emm::force(&c1, &x1, u))
+                        rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
                     }
-                    // The Linear EMM: constants, the reference (fused) arithmetic.
                     (Coef::Const(b_fl), Coef::Const(k_pr)) => {
-                        let mut stage = ConstStage(Coefficients {
+                        let c = Coefficients {
                             b_fl: *b_fl,
-                            b_pr: rt.b_pr,
+                            b_pr,
                             k_pr: *k_pr,
-                        });
-                        let x1 = rt.advance_with::<Fused, _>(
-                            &mut stage,
-                            &self.state,
-                            &self.coeffs,
-                            self.last_u,
-                            u,
-                        );
-                        let c1 = stage.coeffs(&x1);
-                        (x1, c1, emm::force(&c1, &x1, u))
+                        };
+                        rt.run::<Fused, _>(&mut ConstStage(c), x0, c0, u0, u)
                     }
+                    // No model kind builds these mixes; any coefficient through `coeffs`.
                     _ => {
-                        let (x1, c1) = rt.advance(
-                            &self.state,
-                            &self.coeffs,
-                            self.last_u,
-                            u,
-                            &mut out,
-                            |s, o| rt.coeffs(s, o),
-                        );
-                        (x1, c1, emm::force(&c1, &x1, u))
+                        let r = rt.run::<Fused, _>(&mut RuntimeStage(rt), x0, c0, u0, u);
+                        rt.coeffs(&r.0, &mut out);
+                        r
                     }
                 };
                 if out {
