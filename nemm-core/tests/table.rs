@@ -113,7 +113,12 @@ proptest! {
         let mut exact = Estimator::<P>::new(&m, base).unwrap();
         let mut table = match Estimator::<P, 128>::with_segments(&m, cfg) {
             Ok(e) => e,
-            Err(EstimatorError::Table(TableError::TooManyKinks { .. })) => return Ok(()),
+            // A refused table is a typed error, not a failure: random scalers can have more
+            // kinks than segments, or (H = 2: LayerNorm of two values is close to a sign
+            // function) a near-jump no cubic can follow within the bound.
+            Err(EstimatorError::Table(
+                TableError::TooManyKinks { .. } | TableError::ExceedsBound { .. },
+            )) => return Ok(()),
             Err(e) => return Err(TestCaseError::fail(format!("{e}"))),
         };
         let margin = nemm_core::table::DEFAULT_DOMAIN_MARGIN;
