@@ -265,16 +265,8 @@ impl<const T: usize> StateCoef for &Table1D<T> {
 impl<const P: usize> StateCoef for &CompiledScaler<P> {
     #[inline(always)]
     fn at(&self, u: f32) -> f32 {
-        scaler_eval(self, u)
+        self.eval(u)
     }
-}
-
-/// A compiled scaler's evaluation (exact mode), out of line: inlined into each RK stage of
-/// every step variant it cost ~15 KiB of Cortex-M4F code for 0.2 % fewer instructions
-/// (~1,800 per evaluation).
-#[inline(never)]
-fn scaler_eval<const P: usize>(s: &CompiledScaler<P>, u: f32) -> f32 {
-    s.eval(u)
 }
 
 /// The coefficients at an RK stage from `b_fl(v_st)`, `k_pr(x_pr)` and the constant `b_pr`,
