@@ -85,6 +85,7 @@ fn history(n: usize, start: f64) -> Vec<EpochStats> {
             physics: 1e-4 / e as f64,
             val_rmse: (start / e as f64).sqrt(),
             seconds: 0.1,
+            violations: None,
         })
         .collect()
 }

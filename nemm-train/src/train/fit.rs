@@ -19,13 +19,16 @@
 
 use super::adjoint::{loss_and_grad, simulate, Window};
 use super::net::{EmmNet, NetFrame};
-use super::physics::{physics_loss, PenaltyGrid};
+use super::params::to_core;
+use super::physics::{audit, physics_loss, PenaltyGrid};
 use crate::preprocess::Sequence;
+use crate::report::AUDIT_GRID;
 use anyhow::{bail, Context, Result};
 use burn::grad_clipping::GradientClippingConfig;
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::Device;
+use nemm_core::Meta;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -107,6 +110,11 @@ pub struct EpochStats {
     pub val_rmse: f64,
     /// Wall time of the epoch \[s\].
     pub seconds: f64,
+    /// Monotonicity violations of the epoch's model on the audit grid (eqs. 30-31, 37-38),
+    /// when the stage selects physically consistent models (`lambda_ph > 0` and learned
+    /// scalers; see [`fit`]).
+    #[serde(default)]
+    pub violations: Option<usize>,
 }
 
 /// Why training ended.
@@ -143,6 +151,9 @@ struct CheckpointState {
     best_epoch: usize,
     best_val_rmse: f64,
     since_best: usize,
+    /// The kept model passed the monotonicity audit (absent in older checkpoints).
+    #[serde(default)]
+    best_consistent: bool,
 }
 
 /// SplitMix64, for a reproducible data order.
@@ -198,6 +209,36 @@ pub fn rmse(
         }
     }
     (se / n.max(1) as f64).sqrt()
+}
+
+/// Whether an epoch's model (validation RMSE `val`, audit `violations`; `None` when the
+/// stage does not audit) replaces the kept one (`best_val`, `best_consistent`).
+///
+/// Without an audit the best validation RMSE wins (plain early stopping). With one, a model
+/// that passes the audit always replaces one that does not, and among models that pass (or
+/// while none has) the lower validation RMSE wins: the kept model is the most accurate
+/// physically consistent one, with the most accurate model as the fallback.
+pub fn keeps(val: f64, violations: Option<usize>, best_val: f64, best_consistent: bool) -> bool {
+    match violations {
+        None => val < best_val,
+        Some(0) => !best_consistent || val < best_val,
+        Some(_) => !best_consistent && val < best_val,
+    }
+}
+
+/// The line that ends a stage: which model is kept. Epoch 0 is the model the stage started
+/// from (for the neural variants: the Linear EMM constants and the eq. 41 regression), kept
+/// when no epoch improved on its validation RMSE; the user is told so, because the stage then
+/// changed nothing.
+pub fn kept_model_summary(best_epoch: usize, best_val_rmse: f64) -> String {
+    if best_epoch == 0 {
+        format!(
+            "kept the starting model (validation RMSE {best_val_rmse:.4}): no epoch improved on it; \
+             train longer (--epochs, --patience) or with a smaller --lr"
+        )
+    } else {
+        format!("kept epoch {best_epoch} (validation RMSE {best_val_rmse:.4})")
+    }
 }
 
 /// Learning rate at `step` of `total`: a linear warm-up over the first 5 % of the steps (at
@@ -263,6 +304,25 @@ pub fn fit(
         data.warmup,
         data.force_scale_n,
     );
+    // Physically consistent model selection: with a physics penalty and learned scalers, an
+    // epoch's model may only replace a kept model that passed the audit if it passes too.
+    let audit_epochs = cfg.lambda_ph > 0.0 && net.b_fl.is_some();
+    let violations_of = |n: &EmmNet| -> Result<Option<usize>> {
+        if !audit_epochs {
+            return Ok(None);
+        }
+        let meta = Meta {
+            force_scale_n: data.force_scale_n as f32,
+            alpha_min: 0.0,
+            alpha_max: 1.0,
+        };
+        let model = to_core(&n.to_rollout(frame), meta)?;
+        Ok(Some(
+            audit(&model, AUDIT_GRID.0, AUDIT_GRID.1).total_violations(),
+        ))
+    };
+    let start_violations = violations_of(&net)?;
+    let mut best_consistent = start_violations == Some(0);
     let mut since_best = 0;
     let mut start_epoch = 1;
     if let (true, Some(dir)) = (resume, checkpoint_dir) {
@@ -296,6 +356,7 @@ pub fn fit(
                 best_epoch = st.best_epoch;
                 best_val = st.best_val_rmse;
                 since_best = st.since_best;
+                best_consistent = st.best_consistent;
                 start_epoch = st.epoch + 1;
                 eprintln!(
                     "[{}] resuming after epoch {} (best validation RMSE {:.4} at epoch {})",
@@ -311,10 +372,11 @@ pub fn fit(
     }
     if history.is_empty() {
         eprintln!(
-            "[{}] start: validation RMSE {:.4} ({:.1} N)",
+            "[{}] start: validation RMSE {:.4} ({:.1} N){}",
             cfg.label,
             best_val,
-            best_val * data.force_scale_n
+            best_val * data.force_scale_n,
+            start_violations.map_or(String::new(), |n| format!("  violations {n}"))
         );
     }
     let train_w = windows(data.train);
@@ -326,15 +388,18 @@ pub fn fit(
     let grid = PenaltyGrid::default();
     let t_start = Instant::now();
     let mut stop = StopReason::Epochs;
-    if start_epoch > cfg.epochs || since_best >= cfg.patience {
-        stop = if since_best >= cfg.patience {
+    let patience_used = |since_best: usize, best_consistent: bool| {
+        since_best >= cfg.patience && (best_consistent || !audit_epochs)
+    };
+    if start_epoch > cfg.epochs || patience_used(since_best, best_consistent) {
+        stop = if patience_used(since_best, best_consistent) {
             StopReason::EarlyStopping
         } else {
             StopReason::Epochs
         };
     }
     for epoch in start_epoch..=cfg.epochs {
-        if since_best >= cfg.patience {
+        if patience_used(since_best, best_consistent) {
             stop = StopReason::EarlyStopping;
             break;
         }
@@ -404,12 +469,14 @@ pub fn fit(
             physics: phys_sum / n_batches as f64,
             val_rmse: val,
             seconds: t_epoch.elapsed().as_secs_f64(),
+            violations: violations_of(&net)?,
         };
         history.push(stats);
-        if val < best_val {
+        if keeps(val, stats.violations, best_val, best_consistent) {
             best_val = val;
             best_epoch = epoch;
             best = net.clone();
+            best_consistent = stats.violations == Some(0);
             since_best = 0;
         } else {
             since_best += 1;
@@ -418,13 +485,16 @@ pub fn fit(
         let done = epoch + 1 - start_epoch;
         let eta = elapsed / done as f64 * (cfg.epochs - epoch) as f64;
         eprintln!(
-            "\r[{}] epoch {epoch:>3}/{} train MSE {:.3e}  physics {:.2e}  val RMSE {:.4} ({:.1} N){}  {:.1} s/epoch  ETA {}",
+            "\r[{}] epoch {epoch:>3}/{} train MSE {:.3e}  physics {:.2e}  val RMSE {:.4} ({:.1} N){}{}  {:.1} s/epoch  ETA {}",
             cfg.label,
             cfg.epochs,
             stats.train_mse,
             stats.physics,
             val,
             val * data.force_scale_n,
+            stats
+                .violations
+                .map_or(String::new(), |n| format!("  violations {n}")),
             if best_epoch == epoch { " *" } else { "  " },
             stats.seconds,
             fmt_duration(eta)
@@ -442,8 +512,23 @@ pub fn fit(
                     best_epoch,
                     best_val_rmse: best_val,
                     since_best,
+                    best_consistent,
                 },
             )?;
+        }
+    }
+    if stop != StopReason::Session {
+        eprintln!(
+            "[{}] {}",
+            cfg.label,
+            kept_model_summary(best_epoch, best_val)
+        );
+        if audit_epochs && !best_consistent {
+            eprintln!(
+                "[{}] warning: no epoch passed the monotonicity audit; the kept model violates \
+                 eqs. 30-31/37-38 (train longer or with a larger --lambda-ph)",
+                cfg.label
+            );
         }
     }
     Ok(FitResult {
@@ -495,6 +580,37 @@ fn save_checkpoint(
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn consistent_models_win_over_more_accurate_inconsistent_ones() {
+        // No audit: plain early stopping on the validation RMSE.
+        assert!(keeps(0.03, None, 0.04, false));
+        assert!(!keeps(0.05, None, 0.04, false));
+        // The first model that passes the audit replaces an inconsistent one, even if worse.
+        assert!(keeps(0.05, Some(0), 0.04, false));
+        // Once a consistent model is kept, an inconsistent one never replaces it ...
+        assert!(!keeps(0.01, Some(3), 0.04, true));
+        // ... and a consistent one only if it is more accurate.
+        assert!(keeps(0.03, Some(0), 0.04, true));
+        assert!(!keeps(0.05, Some(0), 0.04, true));
+        // While none is consistent, the most accurate model is the fallback.
+        assert!(keeps(0.03, Some(3), 0.04, false));
+        assert!(!keeps(0.05, Some(3), 0.04, false));
+    }
+
+    #[test]
+    fn kept_model_summary_names_the_epoch_and_the_starting_model() {
+        assert_eq!(
+            kept_model_summary(7, 0.04123),
+            "kept epoch 7 (validation RMSE 0.0412)"
+        );
+        let start = kept_model_summary(0, 0.043);
+        assert!(
+            start.starts_with("kept the starting model (validation RMSE 0.0430)"),
+            "{start}"
+        );
+        assert!(start.contains("--lr"), "{start}");
+    }
     use super::*;
 
     #[test]
