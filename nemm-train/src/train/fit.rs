@@ -154,6 +154,10 @@ struct CheckpointState {
     /// The kept model passed the monotonicity audit (absent in older checkpoints).
     #[serde(default)]
     best_consistent: bool,
+    /// Best validation RMSE of any epoch and epochs since it improved (early stopping's
+    /// progress measure; absent in older checkpoints, where they equal the kept model's).
+    #[serde(default)]
+    progress: Option<(f64, usize)>,
 }
 
 /// SplitMix64, for a reproducible data order.
@@ -224,6 +228,22 @@ pub fn keeps(val: f64, violations: Option<usize>, best_val: f64, best_consistent
         Some(0) => !best_consistent || val < best_val,
         Some(_) => !best_consistent && val < best_val,
     }
+}
+
+/// Early stopping: `patience` epochs without progress, where progress is a better kept model
+/// (`since_kept` epochs ago) or a better model of any kind (`since_any`), and only once the
+/// kept model is acceptable (`kept_acceptable`: it passed the audit, or nothing is audited).
+///
+/// Counting progress of any model keeps a run going while the penalty is still cleaning up
+/// the most accurate epochs; so this never stops earlier than plain early stopping on the
+/// validation RMSE, and without an audit (both counters equal) it is exactly that.
+pub fn patience_used(
+    patience: usize,
+    since_kept: usize,
+    since_any: usize,
+    kept_acceptable: bool,
+) -> bool {
+    since_kept.min(since_any) >= patience && kept_acceptable
 }
 
 /// The line that ends a stage: which model is kept. Epoch 0 is the model the stage started
@@ -324,6 +344,11 @@ pub fn fit(
     let start_violations = violations_of(&net)?;
     let mut best_consistent = start_violations == Some(0);
     let mut since_best = 0;
+    // Early stopping measures progress on either the kept (consistent) model or any model:
+    // while the penalty is still cleaning up, the most accurate epochs can be inconsistent
+    // ones, and stopping on the consistent ones alone would end a run that still improves.
+    let mut best_any_val = best_val;
+    let mut since_any = 0;
     let mut start_epoch = 1;
     if let (true, Some(dir)) = (resume, checkpoint_dir) {
         match std::fs::read_to_string(dir.join("latest")) {
@@ -357,6 +382,7 @@ pub fn fit(
                 best_val = st.best_val_rmse;
                 since_best = st.since_best;
                 best_consistent = st.best_consistent;
+                (best_any_val, since_any) = st.progress.unwrap_or((best_val, since_best));
                 start_epoch = st.epoch + 1;
                 eprintln!(
                     "[{}] resuming after epoch {} (best validation RMSE {:.4} at epoch {})",
@@ -388,18 +414,23 @@ pub fn fit(
     let grid = PenaltyGrid::default();
     let t_start = Instant::now();
     let mut stop = StopReason::Epochs;
-    let patience_used = |since_best: usize, best_consistent: bool| {
-        since_best >= cfg.patience && (best_consistent || !audit_epochs)
+    let patience_used = |since_best: usize, since_any: usize, best_consistent: bool| {
+        patience_used(
+            cfg.patience,
+            since_best,
+            since_any,
+            best_consistent || !audit_epochs,
+        )
     };
-    if start_epoch > cfg.epochs || patience_used(since_best, best_consistent) {
-        stop = if patience_used(since_best, best_consistent) {
+    if start_epoch > cfg.epochs || patience_used(since_best, since_any, best_consistent) {
+        stop = if patience_used(since_best, since_any, best_consistent) {
             StopReason::EarlyStopping
         } else {
             StopReason::Epochs
         };
     }
     for epoch in start_epoch..=cfg.epochs {
-        if patience_used(since_best, best_consistent) {
+        if patience_used(since_best, since_any, best_consistent) {
             stop = StopReason::EarlyStopping;
             break;
         }
@@ -481,6 +512,12 @@ pub fn fit(
         } else {
             since_best += 1;
         }
+        if val < best_any_val {
+            best_any_val = val;
+            since_any = 0;
+        } else {
+            since_any += 1;
+        }
         let elapsed = t_start.elapsed().as_secs_f64();
         let done = epoch + 1 - start_epoch;
         let eta = elapsed / done as f64 * (cfg.epochs - epoch) as f64;
@@ -513,6 +550,7 @@ pub fn fit(
                     best_val_rmse: best_val,
                     since_best,
                     best_consistent,
+                    progress: Some((best_any_val, since_any)),
                 },
             )?;
         }
@@ -580,6 +618,19 @@ fn save_checkpoint(
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn early_stopping_waits_for_a_consistent_model_and_for_all_progress_to_stop() {
+        // Plain early stopping (no audit: both counters are equal).
+        assert!(patience_used(8, 8, 8, true));
+        assert!(!patience_used(8, 7, 7, true));
+        // More accurate (inconsistent) epochs still count as progress ...
+        assert!(!patience_used(8, 8, 2, true));
+        // ... and so does a better consistent model while the most accurate one is older.
+        assert!(!patience_used(8, 2, 8, true));
+        // No stop while no acceptable model is kept.
+        assert!(!patience_used(8, 30, 30, false));
+    }
 
     #[test]
     fn consistent_models_win_over_more_accurate_inconsistent_ones() {
