@@ -414,7 +414,7 @@ pub fn fit(
     let grid = PenaltyGrid::default();
     let t_start = Instant::now();
     let mut stop = StopReason::Epochs;
-    let patience_used = |since_best: usize, since_any: usize, best_consistent: bool| {
+    let stop_early = |since_best: usize, since_any: usize, best_consistent: bool| {
         patience_used(
             cfg.patience,
             since_best,
@@ -422,15 +422,15 @@ pub fn fit(
             best_consistent || !audit_epochs,
         )
     };
-    if start_epoch > cfg.epochs || patience_used(since_best, since_any, best_consistent) {
-        stop = if patience_used(since_best, since_any, best_consistent) {
+    if start_epoch > cfg.epochs || stop_early(since_best, since_any, best_consistent) {
+        stop = if stop_early(since_best, since_any, best_consistent) {
             StopReason::EarlyStopping
         } else {
             StopReason::Epochs
         };
     }
     for epoch in start_epoch..=cfg.epochs {
-        if patience_used(since_best, since_any, best_consistent) {
+        if stop_early(since_best, since_any, best_consistent) {
             stop = StopReason::EarlyStopping;
             break;
         }
