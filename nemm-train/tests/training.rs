@@ -113,6 +113,16 @@ fn small_windows() -> (Vec<Sequence>, Vec<Sequence>) {
     (p.train, p.validation)
 }
 
+/// The fit inputs of [`small_windows`] (warm-up 200 samples, force scale of [`truth`]).
+fn small_fit_data<'a>(train: &'a [Sequence], val: &'a [Sequence]) -> FitData<'a> {
+    FitData {
+        train,
+        validation: val,
+        warmup: 200,
+        force_scale_n: 2000.0,
+    }
+}
+
 fn light_net(device: &Device) -> (EmmNet, nemm_train::train::net::NetFrame) {
     let mut p: RolloutParams<f32> = from_core(&truth()).expect("emm");
     p.b_fl = Some(init_scaler(2, 8, 2, (0.1, 10.0), 3));
@@ -130,12 +140,7 @@ fn flat(net: &EmmNet, frame: &nemm_train::train::net::NetFrame) -> Vec<f32> {
 fn resume_after_a_kill_continues_exactly() {
     let device = Device::flex().autodiff();
     let (train, val) = small_windows();
-    let data = FitData {
-        train: &train,
-        validation: &val,
-        warmup: 200,
-        force_scale_n: 2000.0,
-    };
+    let data = small_fit_data(&train, &val);
     let cfg = FitConfig {
         label: "nemm-light".into(),
         epochs: 3,
@@ -188,12 +193,7 @@ fn resume_after_a_kill_continues_exactly() {
 fn kept_model_is_the_most_accurate_epoch_that_passes_the_audit() {
     let device = Device::flex().autodiff();
     let (train, val) = small_windows();
-    let data = FitData {
-        train: &train,
-        validation: &val,
-        warmup: 200,
-        force_scale_n: 2000.0,
-    };
+    let data = small_fit_data(&train, &val);
     // With a physics weight every epoch is audited ...
     let cfg = FitConfig {
         label: "nemm-light".into(),
@@ -265,12 +265,7 @@ fn nan_loss_stops_with_a_clear_error_and_keeps_the_checkpoint() {
         batch: 4,
         ..FitConfig::default()
     };
-    let data = FitData {
-        train: &train,
-        validation: &val,
-        warmup: 200,
-        force_scale_n: 2000.0,
-    };
+    let data = small_fit_data(&train, &val);
     let (net, frame) = light_net(&device);
     fit(net, &frame, data, &cfg, Some(&dir), false, &device).expect("first epoch");
     let mut bad = train.clone();

@@ -331,6 +331,7 @@ pub fn fit(
         if !audit_epochs {
             return Ok(None);
         }
+        // The audit reads the scalers and input scales only; `meta` just completes the model.
         let meta = Meta {
             force_scale_n: data.force_scale_n as f32,
             alpha_min: 0.0,
@@ -618,6 +619,7 @@ fn save_checkpoint(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
 
     #[test]
     fn early_stopping_waits_for_a_consistent_model_and_for_all_progress_to_stop() {
@@ -662,7 +664,6 @@ mod tests {
         );
         assert!(start.contains("--lr"), "{start}");
     }
-    use super::*;
 
     #[test]
     fn epoch_order_is_a_permutation_and_reproducible() {
