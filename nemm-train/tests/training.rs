@@ -235,6 +235,37 @@ fn kept_model_is_the_most_accurate_epoch_that_passes_the_audit() {
         // The starting model kept: no clean epoch beat it.
         assert!(clean.iter().all(|e| e.val_rmse >= r.best_val_rmse));
     }
+    // What the selection gave up is reported: the most accurate audited model when it fails
+    // the audit and beats the kept one (here the kept epoch is the most accurate of all).
+    let most_accurate = r
+        .history
+        .iter()
+        .min_by(|a, b| a.val_rmse.total_cmp(&b.val_rmse))
+        .expect("epochs");
+    match r.passed_over {
+        Some(p) if p.epoch > 0 => {
+            assert_eq!(p.epoch, most_accurate.epoch);
+            assert_eq!(most_accurate.violations, Some(p.violations));
+            assert!(p.val_rmse < r.best_val_rmse && p.violations > 0);
+        }
+        Some(p) => assert!(p.val_rmse <= most_accurate.val_rmse && p.violations > 0),
+        None => assert!(
+            most_accurate.violations == Some(0) || most_accurate.val_rmse >= r.best_val_rmse
+        ),
+    }
+    // Stopped after epoch 3 (same schedule), the same run keeps clean epoch 3 over the more
+    // accurate epoch 2 (128 violations) and says so.
+    let short = FitConfig {
+        session_epochs: Some(3),
+        ..cfg.clone()
+    };
+    let (net, frame3) = light_net(&device);
+    let r3 = fit(net, &frame3, data, &short, None, false, &device).expect("fit");
+    assert_eq!(r3.best_epoch, 3, "{:?}", r3.history);
+    let p = r3.passed_over.expect("epoch 2 was passed over");
+    assert_eq!(p.epoch, 2);
+    assert_eq!(r3.history[1].violations, Some(p.violations));
+    assert!(p.val_rmse < r3.best_val_rmse);
     // The kept model's own audit agrees with the epoch line.
     let model = nemm_train::train::params::to_core(&r.best.to_rollout(&frame), truth().meta)
         .expect("model");
@@ -251,6 +282,7 @@ fn kept_model_is_the_most_accurate_epoch_that_passes_the_audit() {
     let (net, frame) = light_net(&device);
     let r0 = fit(net, &frame, data, &no_ph, None, false, &device).expect("fit");
     assert!(r0.history.iter().all(|e| e.violations.is_none()));
+    assert_eq!(r0.passed_over, None);
 }
 
 #[test]

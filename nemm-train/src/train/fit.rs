@@ -141,6 +141,11 @@ pub struct FitResult {
     pub best_val_rmse: f64,
     /// Why training ended.
     pub stop: StopReason,
+    /// The most accurate audited model, when it is more accurate than the kept one and
+    /// failed the monotonicity audit (the accuracy consistent selection gave up); `None` when
+    /// the kept model is the most accurate, or nothing is audited. The starting model is a
+    /// candidate only when this invocation evaluated it (not after `--resume`).
+    pub passed_over: Option<PassedOver>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -246,19 +251,69 @@ pub fn patience_used(
     since_kept.min(since_any) >= patience && kept_acceptable
 }
 
+/// A model that was more accurate than the kept one but failed the monotonicity audit: its
+/// epoch (0: the model the stage started from), validation RMSE and violation count.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PassedOver {
+    /// Epoch (0: the starting model).
+    pub epoch: usize,
+    /// Validation RMSE (normalised).
+    pub val_rmse: f64,
+    /// Violations found by the audit.
+    pub violations: usize,
+}
+
+/// The most accurate audited model of `candidates` (`(epoch, val_rmse, violations)`, the
+/// starting model as epoch 0 when known) if it is more accurate than the kept model
+/// (`kept_val`) and failed the audit: what consistent model selection gave up.
+pub fn passed_over(
+    candidates: impl IntoIterator<Item = (usize, f64, Option<usize>)>,
+    kept_val: f64,
+) -> Option<PassedOver> {
+    let (epoch, val_rmse, violations) = candidates
+        .into_iter()
+        .filter_map(|(e, v, n)| n.map(|n| (e, v, n)))
+        .filter(|(_, v, _)| v.is_finite())
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    (val_rmse < kept_val && violations > 0).then_some(PassedOver {
+        epoch,
+        val_rmse,
+        violations,
+    })
+}
+
 /// The line that ends a stage: which model is kept. Epoch 0 is the model the stage started
 /// from (for the neural variants: the Linear EMM constants and the eq. 41 regression), kept
 /// when no epoch improved on its validation RMSE; the user is told so, because the stage then
-/// changed nothing.
-pub fn kept_model_summary(best_epoch: usize, best_val_rmse: f64) -> String {
-    if best_epoch == 0 {
+/// changed nothing. With `passed_over`, the line also names the more accurate model that
+/// consistent selection passed over because it failed the monotonicity audit, so the
+/// accuracy given up for physical consistency is visible.
+pub fn kept_model_summary(
+    best_epoch: usize,
+    best_val_rmse: f64,
+    passed_over: Option<PassedOver>,
+) -> String {
+    let mut line = if best_epoch == 0 {
         format!(
             "kept the starting model (validation RMSE {best_val_rmse:.4}): no epoch improved on it; \
              train longer (--epochs, --patience) or with a smaller --lr"
         )
     } else {
         format!("kept epoch {best_epoch} (validation RMSE {best_val_rmse:.4})")
+    };
+    if let Some(p) = passed_over {
+        let which = if p.epoch == 0 {
+            "the starting model".to_string()
+        } else {
+            format!("epoch {}", p.epoch)
+        };
+        line.push_str(&format!(
+            ", the most accurate that passes the monotonicity audit; {which} was more accurate \
+             (validation RMSE {:.4}) but has {} violation(s)",
+            p.val_rmse, p.violations
+        ));
     }
+    line
 }
 
 /// Learning rate at `step` of `total`: a linear warm-up over the first 5 % of the steps (at
@@ -343,6 +398,7 @@ pub fn fit(
         ))
     };
     let start_violations = violations_of(&net)?;
+    let start_val = best_val;
     let mut best_consistent = start_violations == Some(0);
     let mut since_best = 0;
     // Early stopping measures progress on either the kept (consistent) model or any model:
@@ -397,6 +453,10 @@ pub fn fit(
             ),
         }
     }
+    // `(epoch 0, validation RMSE, violations)` of the starting model, when evaluated here.
+    let start_audit = history
+        .is_empty()
+        .then_some((0, start_val, start_violations));
     if history.is_empty() {
         eprintln!(
             "[{}] start: validation RMSE {:.4} ({:.1} N){}",
@@ -556,11 +616,18 @@ pub fn fit(
             )?;
         }
     }
+    // The starting model is a candidate only when this invocation evaluated it.
+    let gave_up = passed_over(
+        start_audit
+            .into_iter()
+            .chain(history.iter().map(|h| (h.epoch, h.val_rmse, h.violations))),
+        best_val,
+    );
     if stop != StopReason::Session {
         eprintln!(
             "[{}] {}",
             cfg.label,
-            kept_model_summary(best_epoch, best_val)
+            kept_model_summary(best_epoch, best_val, gave_up)
         );
         if audit_epochs && !best_consistent {
             eprintln!(
@@ -576,6 +643,7 @@ pub fn fit(
         best_epoch,
         best_val_rmse: best_val,
         stop,
+        passed_over: gave_up,
     })
 }
 
@@ -654,15 +722,54 @@ mod tests {
     #[test]
     fn kept_model_summary_names_the_epoch_and_the_starting_model() {
         assert_eq!(
-            kept_model_summary(7, 0.04123),
+            kept_model_summary(7, 0.04123, None),
             "kept epoch 7 (validation RMSE 0.0412)"
         );
-        let start = kept_model_summary(0, 0.043);
+        let start = kept_model_summary(0, 0.043, None);
         assert!(
             start.starts_with("kept the starting model (validation RMSE 0.0430)"),
             "{start}"
         );
         assert!(start.contains("--lr"), "{start}");
+    }
+
+    #[test]
+    fn the_summary_names_the_more_accurate_model_that_failed_the_audit() {
+        // Start 0.043 with 216 violations, epoch 5 clean at 0.056, epoch 6 at 0.041 with 37.
+        let cands = [
+            (0, 0.043, Some(216)),
+            (5, 0.056, Some(0)),
+            (6, 0.041, Some(37)),
+        ];
+        let p = passed_over(cands, 0.056).expect("epoch 6 was passed over");
+        assert_eq!((p.epoch, p.violations), (6, 37));
+        let line = kept_model_summary(5, 0.056, Some(p));
+        assert!(
+            line.starts_with(
+                "kept epoch 5 (validation RMSE 0.0560), the most accurate that passes"
+            ),
+            "{line}"
+        );
+        assert!(
+            line.contains(
+                "epoch 6 was more accurate (validation RMSE 0.0410) but has 37 violation(s)"
+            ),
+            "{line}"
+        );
+        // The starting model is named as such.
+        let p0 = passed_over([(0, 0.043, Some(216)), (5, 0.056, Some(0))], 0.056).unwrap();
+        assert!(
+            kept_model_summary(5, 0.056, Some(p0)).contains("the starting model was more accurate")
+        );
+        // Nothing is reported when the kept model is the most accurate, when the more accurate
+        // one is clean (not a selection by the audit), or without an audit.
+        assert_eq!(
+            passed_over([(5, 0.056, Some(0)), (6, 0.06, Some(3))], 0.056),
+            None
+        );
+        assert_eq!(passed_over([(3, 0.05, Some(0))], 0.056), None);
+        assert_eq!(passed_over([(3, 0.05, None)], 0.056), None);
+        assert_eq!(passed_over([(3, f64::NAN, Some(2))], 0.056), None);
     }
 
     #[test]
