@@ -3,7 +3,7 @@
 //! and Markdown.
 
 use crate::preprocess::Prepared;
-use crate::train::eval::rmse_model;
+use crate::train::eval::sse_per_sequence;
 use crate::train::fit::EpochStats;
 use crate::train::physics::{audit, Audit};
 use crate::train::pipeline::{TrainedVariant, Variant};
@@ -52,17 +52,58 @@ pub struct Report {
     pub variants: BTreeMap<String, VariantReport>,
     /// Test sequences and scored samples.
     pub test_sequences: usize,
+    /// The test error per held-out run, in the order of the dataset (where each model errs:
+    /// amplitude, frequency). Empty in reports written before it existed.
+    #[serde(default)]
+    pub test_runs: Vec<RunBreakdown>,
     /// Free-form facts about the run (configuration, dataset).
     #[serde(default)]
     pub info: BTreeMap<String, String>,
 }
 
-/// Evaluates trained variants on the prepared test set.
+/// The test error of every variant on one held-out run (its scored test sequences).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunBreakdown {
+    /// Run file, relative to the manifest.
+    pub file: String,
+    /// Oil-loss level.
+    pub alpha: f64,
+    /// Stroke amplitude \[m\] (estimated from the run).
+    pub amplitude_m: f64,
+    /// Excitation frequency \[Hz\] (estimated; absent without two zero crossings).
+    pub frequency_hz: Option<f64>,
+    /// Peak stroke velocity \[m/s\] (estimated).
+    pub peak_velocity_m_s: f64,
+    /// Scored samples.
+    pub samples: usize,
+    /// Normalised RMSE per variant (keys as in [`Report::variants`]).
+    pub rmse: BTreeMap<String, f64>,
+}
+
+/// Evaluates trained variants on the prepared test set: overall (Table 4) and per held-out
+/// run.
 pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Report> {
     let fs = prepared.scales.force_n;
     let mut variants = BTreeMap::new();
-    for t in trained {
-        let rmse = rmse_model(&t.model, &prepared.test, prepared.warmup_samples, fs)?;
+    // run index -> (scored samples, variant -> squared-error sum)
+    let mut by_run: BTreeMap<usize, (usize, BTreeMap<String, f64>)> = BTreeMap::new();
+    for (i, t) in trained.iter().enumerate() {
+        let per_seq = sse_per_sequence(&t.model, &prepared.test, prepared.warmup_samples, fs)?;
+        let (mut se, mut n) = (0.0f64, 0usize);
+        for (seq, &(s, k)) in prepared.test.iter().zip(&per_seq) {
+            se += s;
+            n += k;
+            let run = by_run.entry(seq.run).or_default();
+            *run.1.entry(t.variant.key().to_string()).or_default() += s;
+            if i == 0 {
+                run.0 += k;
+            }
+        }
+        let rmse = if n == 0 {
+            f64::NAN
+        } else {
+            (se / n as f64).sqrt()
+        };
         let audit = matches!(t.variant, Variant::NemmLight | Variant::Nemm)
             .then(|| audit(&t.model, AUDIT_GRID.0, AUDIT_GRID.1));
         let blob_bytes = nemm_core::encode_to_vec(&t.model)
@@ -94,8 +135,98 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
         force_scale_n: fs,
         variants,
         test_sequences: prepared.test.len(),
+        test_runs: by_run
+            .into_iter()
+            .filter_map(|(idx, (samples, se))| {
+                let sum = &prepared
+                    .runs
+                    .iter()
+                    .find(|r| r.summary.index == idx)?
+                    .summary;
+                Some(RunBreakdown {
+                    file: sum.file.display().to_string(),
+                    alpha: sum.alpha,
+                    amplitude_m: sum.excitation.amplitude_m,
+                    frequency_hz: sum.excitation.frequency_hz,
+                    peak_velocity_m_s: sum.excitation.peak_velocity_m_s,
+                    samples,
+                    rmse: se
+                        .into_iter()
+                        .map(|(k, e)| (k, (e / samples.max(1) as f64).sqrt()))
+                        .collect(),
+                })
+            })
+            .collect(),
         info: BTreeMap::new(),
     })
+}
+
+/// The per-run breakdown as Markdown: RMSE in newtons per variant, the NEMM relative to the
+/// SEM, and each run's share of the NEMM's squared error over the test set (which runs the
+/// headline number comes from). Empty when the report has no per-run data.
+pub fn test_runs_markdown(r: &Report) -> String {
+    let mut s = String::new();
+    if r.test_runs.is_empty() {
+        return s;
+    }
+    let keys: Vec<Variant> = Variant::ALL
+        .into_iter()
+        .filter(|v| r.test_runs.iter().any(|t| t.rmse.contains_key(v.key())))
+        .collect();
+    let total_sse = |key: &str| -> f64 {
+        r.test_runs
+            .iter()
+            .filter_map(|t| t.rmse.get(key).map(|e| e * e * t.samples as f64))
+            .sum()
+    };
+    let nemm_sse = total_sse(Variant::Nemm.key());
+    let _ = writeln!(s, "Test RMSE per held-out run [N]:\n");
+    let mut head =
+        "| run | oil loss | amplitude [mm] | frequency [Hz] | peak velocity [m/s] | samples |"
+            .to_string();
+    let mut rule = "|---|---:|---:|---:|---:|---:|".to_string();
+    for v in &keys {
+        head.push_str(&format!(" {} |", v.title()));
+        rule.push_str("---:|");
+    }
+    let has_pair = keys.contains(&Variant::Sem) && keys.contains(&Variant::Nemm);
+    if has_pair {
+        head.push_str(" NEMM / SEM | share of NEMM's squared error |");
+        rule.push_str("---:|---:|");
+    }
+    let _ = writeln!(s, "{head}\n{rule}");
+    for t in &r.test_runs {
+        let mut row = format!(
+            "| {} | {} | {:.0} | {} | {:.3} | {} |",
+            t.file,
+            t.alpha,
+            t.amplitude_m * 1e3,
+            t.frequency_hz.map_or("-".into(), |f| format!("{f:.1}")),
+            t.peak_velocity_m_s,
+            t.samples
+        );
+        for v in &keys {
+            row.push_str(&match t.rmse.get(v.key()) {
+                Some(e) => format!(" {:.1} |", e * r.force_scale_n),
+                None => " - |".into(),
+            });
+        }
+        if has_pair {
+            match (
+                t.rmse.get(Variant::Sem.key()),
+                t.rmse.get(Variant::Nemm.key()),
+            ) {
+                (Some(sem), Some(nemm)) => row.push_str(&format!(
+                    " {:.0} % | {:.1} % |",
+                    100.0 * nemm / sem,
+                    100.0 * nemm * nemm * t.samples as f64 / nemm_sse
+                )),
+                _ => row.push_str(" - | - |"),
+            }
+        }
+        let _ = writeln!(s, "{row}");
+    }
+    s
 }
 
 /// Table 4 as Markdown: RMSE (normalised and in N) and relative to the SEM.

@@ -5,7 +5,7 @@ use crate::dataset;
 use crate::fsutil::write_atomic_bytes;
 use crate::inspect::describe;
 use crate::preprocess::{self, PrepareConfig, Prepared};
-use crate::report::{evaluate, table4_markdown, Report};
+use crate::report::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::fit::FitConfig;
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::{integrator_by_name, to_core};
@@ -193,14 +193,21 @@ pub fn export_model(model: &nemm_core::Model, out: &Path) -> Result<usize> {
     Ok(blob.len())
 }
 
-/// Writes `report.json` and `table4.md` into `dir`.
+/// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run) into
+/// `dir`.
 pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     write_atomic_bytes(
         &dir.join("report.json"),
         serde_json::to_string_pretty(report)?.as_bytes(),
     )?;
-    write_atomic_bytes(&dir.join(table_name), table4_markdown(report).as_bytes())?;
+    let runs = test_runs_markdown(report);
+    let table = if runs.is_empty() {
+        table4_markdown(report)
+    } else {
+        format!("{}\n{runs}", table4_markdown(report))
+    };
+    write_atomic_bytes(&dir.join(table_name), table.as_bytes())?;
     Ok(())
 }
 

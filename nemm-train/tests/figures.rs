@@ -277,3 +277,72 @@ fn an_unwritable_report_folder_is_an_error() {
     std::fs::write(&blocker, b"not a folder").expect("write");
     assert!(write_all(&tr, &ds, &prep, &report, &blocker).is_err());
 }
+
+#[test]
+fn the_report_breaks_the_test_error_down_by_held_out_run() {
+    let ds = dataset();
+    let prep = prepared(&ds);
+    let report = evaluate(&all_four(), &prep).expect("report");
+    // One row per held-out run (the two 15 % runs), in dataset order, with the estimated
+    // excitation.
+    let files: Vec<&str> = report.test_runs.iter().map(|r| r.file.as_str()).collect();
+    assert_eq!(files, ["runs/oil15_f8.3.csv", "runs/oil15_f16.7.csv"]);
+    for (r, f) in report.test_runs.iter().zip([8.3, 16.7]) {
+        assert_eq!(r.alpha, 0.15);
+        assert!((r.amplitude_m - 0.010).abs() < 5e-4, "{}", r.amplitude_m);
+        assert!((r.frequency_hz.expect("frequency") - f).abs() < 0.2);
+        assert_eq!(r.rmse.len(), 4);
+    }
+    // The rows add up to the test set: every scored sample once, and each variant's overall
+    // RMSE is the sample-weighted mean square of its rows.
+    let scored: usize = report.test_runs.iter().map(|r| r.samples).sum();
+    assert_eq!(scored, prep.test.len() * prep.scored_samples);
+    for (key, v) in &report.variants {
+        let se: f64 = report
+            .test_runs
+            .iter()
+            .map(|r| r.rmse[key].powi(2) * r.samples as f64)
+            .sum();
+        let overall = (se / scored as f64).sqrt();
+        assert!(
+            (overall - v.rmse).abs() <= 1e-12 * v.rmse,
+            "{key}: {overall} vs {}",
+            v.rmse
+        );
+    }
+    // Markdown: a row per run in newtons, and the shares of the NEMM's squared error add up
+    // to 100 %.
+    let md = nemm_train::report::test_runs_markdown(&report);
+    let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| runs/")).collect();
+    assert_eq!(rows.len(), 2, "{md}");
+    let share: f64 = rows
+        .iter()
+        .map(|l| {
+            let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+            cells[cells.len() - 2]
+                .trim_end_matches(" %")
+                .parse::<f64>()
+                .expect("share")
+        })
+        .sum();
+    assert!((share - 100.0).abs() < 0.2, "{share}\n{md}");
+    let nemm_n = report.test_runs[0].rmse["nemm"] * report.force_scale_n;
+    assert!(rows[0].contains(&format!("{nemm_n:.1}")), "{}", rows[0]);
+    // report.json keeps it, and reports written before it existed still load.
+    let json = serde_json::to_string(&report).expect("json");
+    let back: Report = serde_json::from_str(&json).expect("parse");
+    // (serde_json may round the last bit of an f64)
+    assert_eq!(back.test_runs.len(), report.test_runs.len());
+    for (b, r) in back.test_runs.iter().zip(&report.test_runs) {
+        assert_eq!((&b.file, b.samples), (&r.file, r.samples));
+        assert!((b.amplitude_m - r.amplitude_m).abs() <= 1e-15);
+        for (key, e) in &r.rmse {
+            assert!((b.rmse[key] - e).abs() <= 1e-15 * e, "{key}");
+        }
+    }
+    let mut old: serde_json::Value = serde_json::from_str(&json).expect("value");
+    old.as_object_mut().expect("object").remove("test_runs");
+    let old: Report = serde_json::from_value(old).expect("old report");
+    assert!(old.test_runs.is_empty());
+    assert!(nemm_train::report::test_runs_markdown(&old).is_empty());
+}

@@ -33,6 +33,34 @@ pub fn predict(model: &Model, inputs: &[(&[f32], f32)]) -> Result<Vec<Vec<f64>>>
     }
 }
 
+/// Per sequence of `seqs`: the squared-error sum of `model` (normalised by `force_scale`) and
+/// the count of scored samples (after `warmup`).
+pub fn sse_per_sequence(
+    model: &Model,
+    seqs: &[Sequence],
+    warmup: usize,
+    force_scale: f64,
+) -> Result<Vec<(f64, usize)>> {
+    let inputs: Vec<(&[f32], f32)> = seqs
+        .iter()
+        .map(|s| (s.velocity_m_s.as_slice(), s.alpha))
+        .collect();
+    let ys = predict(model, &inputs)?;
+    Ok(seqs
+        .iter()
+        .zip(&ys)
+        .map(|(s, y)| {
+            y.iter()
+                .zip(&s.force_n)
+                .skip(warmup)
+                .fold((0.0f64, 0usize), |(se, n), (&yi, &fi)| {
+                    let e = (yi - fi as f64) / force_scale;
+                    (se + e * e, n + 1)
+                })
+        })
+        .collect())
+}
+
 /// Squared-error sum (normalised by `force_scale`) and count of `model` over `seqs`, scored
 /// after `warmup` samples.
 pub fn sse_model(
@@ -41,20 +69,9 @@ pub fn sse_model(
     warmup: usize,
     force_scale: f64,
 ) -> Result<(f64, usize)> {
-    let inputs: Vec<(&[f32], f32)> = seqs
-        .iter()
-        .map(|s| (s.velocity_m_s.as_slice(), s.alpha))
-        .collect();
-    let ys = predict(model, &inputs)?;
-    let (mut se, mut n) = (0.0f64, 0usize);
-    for (s, y) in seqs.iter().zip(&ys) {
-        for (&yi, &fi) in y.iter().zip(&s.force_n).skip(warmup) {
-            let e = (yi - fi as f64) / force_scale;
-            se += e * e;
-            n += 1;
-        }
-    }
-    Ok((se, n))
+    Ok(sse_per_sequence(model, seqs, warmup, force_scale)?
+        .into_iter()
+        .fold((0.0, 0), |(se, n), (s, k)| (se + s, n + k)))
 }
 
 /// Normalised RMSE of `model` over `seqs` (NaN without samples).
