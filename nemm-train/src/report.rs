@@ -173,13 +173,15 @@ pub fn test_runs_markdown(r: &Report) -> String {
         .into_iter()
         .filter(|v| r.test_runs.iter().any(|t| t.rmse.contains_key(v.key())))
         .collect();
-    let total_sse = |key: &str| -> f64 {
-        r.test_runs
-            .iter()
-            .filter_map(|t| t.rmse.get(key).map(|e| e * e * t.samples as f64))
-            .sum()
-    };
-    let nemm_sse = total_sse(Variant::Nemm.key());
+    let nemm_sse: f64 = r
+        .test_runs
+        .iter()
+        .filter_map(|t| {
+            t.rmse
+                .get(Variant::Nemm.key())
+                .map(|e| e * e * t.samples as f64)
+        })
+        .sum();
     let _ = writeln!(s, "Test RMSE per held-out run [N]:\n");
     let mut head =
         "| run | oil loss | amplitude [mm] | frequency [Hz] | peak velocity [m/s] | samples |"
