@@ -448,6 +448,17 @@ pub fn train_variants(
     checkpoint_root: Option<&Path>,
     resume: bool,
 ) -> Result<Vec<TrainedVariant>> {
+    if prepared.validation.is_empty() && variants.iter().any(|v| *v != Variant::Sem) {
+        bail!(
+            "no validation windows: the runs at the training oil-loss levels are too short for \
+             the {:.0} % validation split of their {:.2} s windows ({} training windows in all); \
+             early stopping and model selection need them. Use longer or more runs, or \
+             shorter windows (--window-s)",
+            100.0 * prepared.config.split.validation_fraction,
+            prepared.scored_samples as f64 * prepared.dt_s,
+            prepared.train.len()
+        );
+    }
     let device = Device::flex().autodiff();
     let meta = meta_of(prepared);
     let force_scale = prepared.scales.force_n;
