@@ -1,0 +1,332 @@
+//! The trainer end to end through the `nemm` binary, as a calibration engineer uses it: a
+//! small virtual bench (`bench config`, `bench generate`), `compare` (Table 4, `report.json`
+//! in the schema, one blob per variant, figures), `train` with checkpoints, `export`
+//! from the checkpoint, `inspect`, a `sweep` run as separate processes and collected, and the
+//! exported blob run through nemm-core's estimator against the trainer's own test RMSE.
+use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind};
+use nemm_train::dataset;
+use nemm_train::preprocess;
+use nemm_train::report::Report;
+use nemm_train::train_cli::TrainArgs;
+use std::ffi::OsStr;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A budget of seconds: short windows, two epochs of two batches, small scalers.
+const BUDGET: &[&str] = &[
+    "--window-s",
+    "0.1",
+    "--warmup-s",
+    "0.02",
+    "--epochs",
+    "2",
+    "--max-batches",
+    "2",
+    "--linear-epochs",
+    "1",
+    "--batch",
+    "4",
+    "--hidden",
+    "8",
+    "--layers",
+    "3",
+];
+
+/// A `nemm` command line.
+struct Nemm(Command);
+
+impl Nemm {
+    fn new(args: &[&str]) -> Self {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_nemm"));
+        c.args(args);
+        Nemm(c)
+    }
+
+    fn arg(mut self, a: impl AsRef<OsStr>) -> Self {
+        self.0.arg(a);
+        self
+    }
+
+    /// Adds the seconds-long training budget.
+    fn budget(mut self) -> Self {
+        self.0.args(BUDGET);
+        self
+    }
+
+    fn output(mut self) -> Output {
+        self.0.output().expect("run nemm")
+    }
+
+    /// Runs it and returns its standard output; fails the test with its error output.
+    fn ok(mut self) -> String {
+        let what = format!("{:?}", self.0);
+        let out = self.0.output().expect("run nemm");
+        assert!(
+            out.status.success(),
+            "{what} failed:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+}
+
+fn decode_file(path: &Path) -> Model {
+    let blob = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    nemm_core::decode(&blob).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn no_temp_files(dir: &Path) {
+    for e in std::fs::read_dir(dir).expect("read dir").flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        assert!(!name.ends_with(".tmp"), "temporary file left: {name}");
+    }
+}
+
+/// A virtual bench of 6 runs (10 mm at 0.262 and 1.048 m/s, three oil-loss levels) with
+/// short ramps and 2.6 s steady (five of the demo's 0.5 s windows, one of them for
+/// validation): generated from the default configuration with a smaller programme.
+fn small_bench(dir: &Path) -> PathBuf {
+    let config = Nemm::new(&["bench", "config"]).ok();
+    let mut small = String::new();
+    for line in config.lines() {
+        let key = line.split('=').next().unwrap_or("").trim();
+        small.push_str(match key {
+            "amplitudes_m" => "amplitudes_m = [0.01]",
+            "peak_velocities_m_s" => "peak_velocities_m_s = [0.262, 1.048]",
+            "max_ramp_s" => "max_ramp_s = 0.1",
+            "min_steady_s" => "min_steady_s = 2.6",
+            _ => line,
+        });
+        small.push('\n');
+    }
+    let toml = dir.join("small-bench.toml");
+    std::fs::write(&toml, small).expect("write config");
+    let data = dir.join("bench");
+    Nemm::new(&["bench", "generate", "--config"])
+        .arg(&toml)
+        .arg("--out")
+        .arg(&data)
+        .ok();
+    let ds = dataset::load(&data).expect("load the generated bench");
+    assert_eq!(ds.runs.len(), 6);
+    data
+}
+
+#[test]
+fn the_cli_trains_evaluates_exports_and_sweeps() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path();
+    let data = small_bench(dir);
+
+    // Windows so long that no run has one left for validation: refused up front, saying why.
+    let out = Nemm::new(&["compare", "--window-s", "1.0", "--data"])
+        .arg(&data)
+        .arg("--report")
+        .arg(dir.join("refused"))
+        .output();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("error: no validation windows") && stderr.contains("--window-s"),
+        "{stderr}"
+    );
+
+    // compare: Table 4, report.json in the schema, blobs and figures.
+    let report_dir = dir.join("report");
+    let stdout = Nemm::new(&["compare", "--data"])
+        .arg(&data)
+        .arg("--report")
+        .arg(&report_dir)
+        .budget()
+        .ok();
+    assert!(stdout.contains("| NEMM |"), "{stdout}");
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(report_dir.join("report.json")).expect("report.json"),
+    )
+    .expect("json");
+    assert_eq!(json["test_alpha"], 0.15);
+    let force_scale = json["force_scale_n"].as_f64().expect("force_scale_n");
+    assert!(force_scale > 100.0, "{force_scale}");
+    for key in ["sem", "linear_emm", "nemm_light", "nemm"] {
+        let v = &json["variants"][key];
+        let (rmse, rmse_n) = (
+            v["rmse"].as_f64().expect("rmse"),
+            v["rmse_n"].as_f64().expect("rmse_n"),
+        );
+        assert!(rmse.is_finite() && rmse > 0.0, "{key}: {rmse}");
+        assert!(
+            (rmse_n - rmse * force_scale).abs() <= 1e-9 * rmse_n,
+            "{key}"
+        );
+    }
+    let report: Report = serde_json::from_value(json).expect("Report");
+    assert_eq!(report.test_runs.len(), 2, "the two 15 % runs");
+    let table = std::fs::read_to_string(report_dir.join("table4.md")).expect("table4.md");
+    for row in ["| SEM |", "| Linear EMM |", "| NEMM-Light |", "| NEMM |"] {
+        assert!(table.contains(row), "{row} missing:\n{table}");
+    }
+    assert!(table.contains("Test RMSE per held-out run"), "{table}");
+    for (file, kind) in [
+        ("sem.nemm", ModelKind::Sem),
+        ("linear-emm.nemm", ModelKind::LinearEmm),
+        ("nemm-light.nemm", ModelKind::NemmLight),
+        ("nemm.nemm", ModelKind::Nemm),
+    ] {
+        assert_eq!(decode_file(&report_dir.join(file)).kind(), kind, "{file}");
+    }
+    for fig in ["fig7_loops.png", "fig8_b_fl.png", "training_curves.png"] {
+        assert!(report_dir.join(fig).is_file(), "{fig}");
+    }
+    no_temp_files(&report_dir);
+
+    // train with checkpoints, export the same model from the checkpoint, inspect it.
+    let model = dir.join("model.nemm");
+    let ckpt = dir.join("ckpt");
+    let train_report = dir.join("train-report");
+    Nemm::new(&["train", "--variant", "nemm", "--data"])
+        .arg(&data)
+        .arg("--out")
+        .arg(&model)
+        .arg("--checkpoint")
+        .arg(&ckpt)
+        .arg("--report")
+        .arg(&train_report)
+        .budget()
+        .ok();
+    assert_eq!(decode_file(&model).kind(), ModelKind::Nemm);
+    no_temp_files(dir);
+    let exported = dir.join("exported.nemm");
+    Nemm::new(&["export", "--checkpoint"])
+        .arg(ckpt.join("nemm"))
+        .arg("--out")
+        .arg(&exported)
+        .ok();
+    assert_eq!(
+        std::fs::read(&exported).expect("exported"),
+        std::fs::read(&model).expect("model"),
+        "export from the checkpoint writes the trained model"
+    );
+    let inspect = Nemm::new(&["inspect"]).arg(&exported).ok();
+    assert!(inspect.contains("kind:            nemm"), "{inspect}");
+    assert!(inspect.contains("CRC-32:          ok"), "{inspect}");
+
+    // The exported blob through nemm-core's estimator matches the trainer's rollout sample by
+    // sample (the 1e-5 of the force scale) and reproduces its reported test RMSE.
+    let trained: Report = serde_json::from_str(
+        &std::fs::read_to_string(train_report.join("report.json")).expect("report.json"),
+    )
+    .expect("train report");
+    // The preprocessing of `nemm train` with the budget's windows (the CLI's seed 1 picks the
+    // validation windows, and so the training set's force scale).
+    let args = TrainArgs {
+        window_s: 0.1,
+        warmup_s: 0.02,
+        ..TrainArgs::parse_defaults(data.clone())
+    };
+    let cfg = args.prepare_config();
+    let prepared = preprocess::prepare(&dataset::load(&data).expect("load"), &cfg).expect("prep");
+    let core_model = decode_file(&exported);
+    let inputs: Vec<(&[f32], f32)> = prepared
+        .test
+        .iter()
+        .map(|s| (s.velocity_m_s.as_slice(), s.alpha))
+        .collect();
+    let trainer = nemm_train::train::eval::predict(&core_model, &inputs).expect("trainer");
+    let fs = prepared.scales.force_n;
+    let (mut se, mut n, mut worst, mut flagged) = (0.0f64, 0usize, 0.0f64, 0u32);
+    for (seq, ys) in prepared.test.iter().zip(&trainer) {
+        let mut est =
+            Estimator::new(&core_model, EstimatorConfig::new(seq.alpha)).expect("estimator");
+        for (i, ((&v, &f), &yt)) in seq
+            .velocity_m_s
+            .iter()
+            .zip(&seq.force_n)
+            .zip(ys)
+            .enumerate()
+        {
+            let y = est.step(v).force_n as f64;
+            worst = worst.max((y - yt).abs() / fs);
+            if i >= prepared.warmup_samples {
+                se += ((y - f as f64) / fs).powi(2);
+                n += 1;
+            }
+        }
+        let d = est.diagnostics();
+        flagged += d.held_samples + d.resets;
+    }
+    assert_eq!(flagged, 0, "no input held, no divergence reset");
+    assert!(
+        worst <= 1e-5,
+        "max |nemm-core - trainer| = {worst:e} of the force scale"
+    );
+    let core_rmse = (se / n as f64).sqrt();
+    let trainer_rmse = trained.variants["nemm"].rmse;
+    assert!(
+        (core_rmse - trainer_rmse).abs() <= 1e-5 * trainer_rmse.max(1.0),
+        "nemm-core {core_rmse} against the trainer's {trainer_rmse}"
+    );
+
+    // A damaged blob is refused with a readable error naming the file.
+    let bytes = std::fs::read(&exported).expect("exported");
+    let truncated = dir.join("truncated.nemm");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).expect("write");
+    let out = Nemm::new(&["inspect"]).arg(&truncated).output();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.starts_with("error: ") && stderr.contains("truncated.nemm"),
+        "{stderr}"
+    );
+
+    // sweep: one `nemm train` process per lambda_ph, two at a time, collected into Table 5.
+    let sweep = dir.join("sweep");
+    let sweep_cmd = |extra: &[&str]| {
+        Nemm::new(&["sweep", "--lambda-ph", "0,5"])
+            .arg("--data")
+            .arg(&data)
+            .arg("--report")
+            .arg(&sweep)
+            .budget()
+            .0
+            .args(extra)
+            .output()
+            .expect("run nemm")
+    };
+    let list = sweep_cmd(&["--list"]);
+    assert!(list.status.success());
+    let list = String::from_utf8_lossy(&list.stdout).into_owned();
+    let commands: Vec<&str> = list.lines().filter(|l| l.contains(" train ")).collect();
+    assert_eq!(commands.len(), 2, "{list}");
+    let run = sweep_cmd(&["--jobs", "2"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let table5 = std::fs::read_to_string(sweep.join("table5.md")).expect("table5.md");
+    for job in ["| lph0 | 0 |", "| lph5 | 5 |"] {
+        assert!(table5.contains(job), "{job} missing:\n{table5}");
+    }
+    let sweep_json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(sweep.join("sweep.json")).expect("sweep.json"),
+    )
+    .expect("sweep.json");
+    assert!(sweep_json.to_string().contains("lph5"), "{sweep_json}");
+
+    // The main job on this bench (found, not generated), at one batch: Table 4, model.nemm,
+    // and the exported model run through nemm-core on a held-out run.
+    let demo = dir.join("demo");
+    let stdout = Nemm::new(&["demo", "--epochs", "1", "--max-batches", "1", "--data"])
+        .arg(&data)
+        .arg("--out")
+        .arg(&demo)
+        .ok();
+    assert!(stdout.contains("| NEMM |"), "{stdout}");
+    assert!(stdout.contains("nemm-core estimator RMSE"), "{stdout}");
+    assert!(stdout.contains("demo done in"), "{stdout}");
+    assert_eq!(
+        decode_file(&demo.join("model.nemm")).kind(),
+        ModelKind::Nemm
+    );
+    no_temp_files(&demo);
+}
