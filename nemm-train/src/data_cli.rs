@@ -90,8 +90,8 @@ pub enum DataCmd {
         /// Fraction of each training run's sequences held out for validation.
         #[arg(long, default_value_t = preprocess::DEFAULT_VALIDATION_FRACTION)]
         validation_fraction: f64,
-        /// Seed of the validation choice.
-        #[arg(long, default_value_t = 0)]
+        /// Seed of the validation choice (the trainer's default seed).
+        #[arg(long, default_value_t = preprocess::DEFAULT_SPLIT_SEED)]
         seed: u64,
         /// Quasi-static window half-width, as a fraction of the amplitude.
         #[arg(long, default_value_t = preprocess::DEFAULT_QS_WINDOW)]

@@ -42,6 +42,9 @@ pub const DEFAULT_QS_WINDOW: f64 = 0.05;
 pub const DEFAULT_TEST_ALPHAS: [f64; 1] = [0.15];
 /// Default fraction of each training run's sequences held out for validation.
 pub const DEFAULT_VALIDATION_FRACTION: f64 = 0.2;
+/// Default seed of the validation choice; the trainer's default `--seed` is the same, so
+/// `nemm data prepare` and `nemm train` describe the same split by default.
+pub const DEFAULT_SPLIT_SEED: u64 = 1;
 /// Displacement half-ranges below this \[m\] count as no stroke at all (a flat signal).
 pub const MIN_STROKE_M: f64 = 1e-9;
 /// Two oil-loss levels closer than this are the same level.
@@ -784,7 +787,7 @@ pub struct SplitConfig {
     /// Fraction of each training run's sequences held out for validation, in \[0, 1)
     /// (default [`DEFAULT_VALIDATION_FRACTION`]).
     pub validation_fraction: f64,
-    /// Seed of the validation choice.
+    /// Seed of the validation choice (default [`DEFAULT_SPLIT_SEED`]).
     pub seed: u64,
 }
 
@@ -794,7 +797,7 @@ impl Default for SplitConfig {
             test_alphas: DEFAULT_TEST_ALPHAS.to_vec(),
             train_alphas: None,
             validation_fraction: DEFAULT_VALIDATION_FRACTION,
-            seed: 0,
+            seed: DEFAULT_SPLIT_SEED,
         }
     }
 }

@@ -32,7 +32,7 @@ pub struct TrainArgs {
     #[arg(long, default_value = "0.15", value_delimiter = ',')]
     pub test_alpha: Vec<f64>,
     /// Seed of the split, the initial weights and the data order.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = preprocess::DEFAULT_SPLIT_SEED)]
     pub seed: u64,
     /// Hidden width H of the scalers (Table 3: 8, 16, 32).
     #[arg(long, default_value_t = 16)]

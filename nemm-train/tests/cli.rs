@@ -216,7 +216,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         &std::fs::read_to_string(train_report.join("report.json")).expect("report.json"),
     )
     .expect("train report");
-    // The preprocessing of `nemm train` with the budget's windows (the CLI's seed 1 picks the
+    // The preprocessing of `nemm train` with the budget's windows (its seed picks the
     // validation windows, and so the training set's force scale).
     let args = TrainArgs {
         window_s: 0.1,
@@ -224,6 +224,11 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         ..TrainArgs::parse_defaults(data.clone())
     };
     let cfg = args.prepare_config();
+    // By default the trainer preprocesses as the library (and `nemm data prepare`) does.
+    assert_eq!(
+        TrainArgs::parse_defaults(data.clone()).prepare_config(),
+        preprocess::PrepareConfig::default()
+    );
     let prepared = preprocess::prepare(&dataset::load(&data).expect("load"), &cfg).expect("prep");
     let core_model = decode_file(&exported);
     let inputs: Vec<(&[f32], f32)> = prepared

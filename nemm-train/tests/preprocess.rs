@@ -572,8 +572,8 @@ fn split_is_deterministic_and_respects_the_test_alpha() {
     }
     // Another seed holds out other sequences, with the same counts.
     let mut cfg2 = cfg.clone();
-    cfg2.split.seed = 1;
-    let c = preprocess::prepare(&ds, &cfg2).expect("prepare seed 1");
+    cfg2.split.seed = cfg.split.seed + 1;
+    let c = preprocess::prepare(&ds, &cfg2).expect("prepare another seed");
     assert_eq!(c.validation.len(), a.validation.len());
     assert_eq!(c.test, a.test);
     let key = |s: &preprocess::Sequence| (s.run, s.start);
