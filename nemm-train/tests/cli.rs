@@ -12,7 +12,7 @@ use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// A budget of seconds: short windows, two epochs of two batches, small scalers.
+/// A budget of seconds: short windows, two epochs of two batches per stage, small scalers.
 const BUDGET: &[&str] = &[
     "--window-s",
     "0.1",
@@ -23,7 +23,7 @@ const BUDGET: &[&str] = &[
     "--max-batches",
     "2",
     "--linear-epochs",
-    "1",
+    "2",
     "--batch",
     "4",
     "--hidden",
@@ -205,6 +205,55 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         std::fs::read(&exported).expect("exported"),
         std::fs::read(&model).expect("model"),
         "export from the checkpoint writes the trained model"
+    );
+    // Interrupted after one epoch per stage (`--session-epochs`, as a cluster job with a
+    // wall-time limit) and resumed from the checkpoints: the same model, byte for byte.
+    let ckpt2 = dir.join("ckpt2");
+    let resumed = dir.join("resumed.nemm");
+    let session = |extra: &[&str]| {
+        Nemm::new(&["train", "--variant", "nemm", "--data"])
+            .arg(&data)
+            .arg("--out")
+            .arg(&resumed)
+            .arg("--checkpoint")
+            .arg(&ckpt2)
+            .budget()
+            .0
+            .args(extra)
+            .output()
+            .expect("run nemm")
+    };
+    // Session 1 ends in the Linear EMM stage, session 2 finishes it and ends in the NEMM
+    // stage, session 3 finishes; nothing is exported before.
+    for (k, extra) in [
+        &["--session-epochs", "1"][..],
+        &["--resume", "--session-epochs", "1"],
+        &["--resume"],
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let out = session(extra);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "session {}: {stderr}", k + 1);
+        if k < 2 {
+            let stage = ["`linear-emm`", "`nemm`"][k];
+            assert!(
+                stderr.contains(&format!("session budget used in stage {stage}"))
+                    && stderr.contains("continue with --resume"),
+                "session {}: {stderr}",
+                k + 1
+            );
+            assert!(!resumed.exists(), "session {} exported a model", k + 1);
+        }
+        if k > 0 {
+            assert!(stderr.contains("resuming after epoch 1"), "{stderr}");
+        }
+    }
+    assert_eq!(
+        std::fs::read(&resumed).expect("resumed"),
+        std::fs::read(&model).expect("model"),
+        "an interrupted and resumed run gives the uninterrupted model"
     );
     let inspect = Nemm::new(&["inspect"]).arg(&exported).ok();
     assert!(inspect.contains("kind:            nemm"), "{inspect}");

@@ -33,6 +33,29 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
 
+/// A stage used up the session budget (`--session-epochs`): its checkpoint is written and
+/// the later stages did not run, since they start from this stage's result; nothing is
+/// exported. Returned as the error of [`train_variants`] so that no caller can mistake an
+/// unfinished run for a trained model; the CLI reports it and exits successfully.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SessionBudgetUsed {
+    /// The stage that stopped (`linear-emm`, `nemm-light`, `nemm`).
+    pub stage: String,
+}
+
+impl std::fmt::Display for SessionBudgetUsed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "session budget used in stage `{}`: its checkpoint is written, the later stages \
+             have not run and nothing is exported yet; continue with --resume",
+            self.stage
+        )
+    }
+}
+
+impl std::error::Error for SessionBudgetUsed {}
+
 /// The four variants of section 6.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
 pub enum Variant {
@@ -569,6 +592,12 @@ pub fn train_variants(
         resume,
         &device,
     )?;
+    if lin.stop == StopReason::Session {
+        return Err(SessionBudgetUsed {
+            stage: lin_cfg.label,
+        }
+        .into());
+    }
     let lin_p = lin.best.to_rollout(&frame);
     p0.b_fl0 = lin_p.b_fl0;
     p0.b_pr0 = lin_p.b_pr0;
@@ -648,6 +677,12 @@ pub fn train_variants(
         let dir = checkpoint_root.map(|root| root.join(v.name()));
         save_frame(dir.as_deref(), &p, meta)?;
         let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
+        if r.stop == StopReason::Session {
+            return Err(SessionBudgetUsed {
+                stage: fit_cfg.label,
+            }
+            .into());
+        }
         let model = to_core(&r.best.to_rollout(&frame), meta)?;
         let val = rmse(
             &r.best,
