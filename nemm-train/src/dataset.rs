@@ -151,13 +151,13 @@ pub struct LoadProgress {
 #[non_exhaustive]
 pub enum DatasetError {
     /// A file could not be read, created or renamed.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {error}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
-        /// The operating-system error.
-        #[source]
-        source: std::io::Error,
+        /// The operating-system error (in the message, so not also reported as the error's
+        /// source: error chains would print it twice).
+        error: std::io::Error,
     },
     /// `manifest.toml` is not valid TOML or does not have the manifest's shape (missing or
     /// unknown key, wrong type).
@@ -345,9 +345,9 @@ fn location(path: &Path, line: Option<usize>) -> String {
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
-    move |source| DatasetError::Io {
+    move |error| DatasetError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     }
 }
 
@@ -829,9 +829,9 @@ fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
 ) -> Result<(), DatasetError> {
-    crate::fsutil::write_atomic(path, fill).map_err(|source| DatasetError::Io {
+    crate::fsutil::write_atomic(path, fill).map_err(|error| DatasetError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     })
 }
 
