@@ -257,11 +257,8 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary]) -> String {
             ));
         }
     }
-    let mut levels: Vec<f64> = runs.iter().map(|r| r.alpha).collect();
-    levels.sort_by(f64::total_cmp);
-    levels.dedup_by(|a, b| (*a - *b).abs() <= preprocess::ALPHA_TOLERANCE);
     let _ = writeln!(s, "oil-loss levels:");
-    for a in levels {
+    for a in preprocess::distinct_levels(runs.iter().map(|r| r.alpha)) {
         let at: Vec<&RunSummary> = runs
             .iter()
             .filter(|r| (r.alpha - a).abs() <= preprocess::ALPHA_TOLERANCE)

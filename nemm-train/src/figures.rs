@@ -222,16 +222,13 @@ impl Ctx<'_> {
 
     /// Distinct oil-loss levels of runs with `role`, ascending.
     fn levels(&self, role: RunRole) -> Vec<f64> {
-        let mut v: Vec<f64> = self
-            .prepared
-            .runs
-            .iter()
-            .filter(|r| r.role == role)
-            .map(|r| r.summary.alpha)
-            .collect();
-        v.sort_by(f64::total_cmp);
-        v.dedup_by(|a, b| (*a - *b).abs() < 1e-6);
-        v
+        crate::preprocess::distinct_levels(
+            self.prepared
+                .runs
+                .iter()
+                .filter(|r| r.role == role)
+                .map(|r| r.summary.alpha),
+        )
     }
 
     /// The run at oil loss `alpha` with the amplitude nearest `amplitude_m` (within 25 % of

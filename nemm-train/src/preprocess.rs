@@ -838,6 +838,38 @@ impl SplitConfig {
         Ok(())
     }
 
+    /// Every requested level must match a run of `dataset`: a level that matches none (a typo
+    /// in `--test-alpha`, say) would silently leave the test set empty, or drop training data.
+    fn check_levels(&self, dataset: &Dataset) -> Result<(), PreprocessError> {
+        let present = |a: f64| {
+            dataset
+                .runs
+                .iter()
+                .any(|r| (r.entry.oil_loss - a).abs() <= ALPHA_TOLERANCE)
+        };
+        let sets = [
+            ("test_alphas", self.test_alphas.as_slice()),
+            ("train_alphas", self.train_alphas.as_deref().unwrap_or(&[])),
+        ];
+        for (key, set) in sets {
+            if let Some(&a) = set.iter().find(|&&a| !present(a)) {
+                let levels: Vec<String> =
+                    distinct_levels(dataset.runs.iter().map(|r| r.entry.oil_loss))
+                        .iter()
+                        .map(f64::to_string)
+                        .collect();
+                return Err(config_err(
+                    key,
+                    format!(
+                        "oil-loss level {a} matches no run; the dataset's levels are {}",
+                        levels.join(", ")
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// The role of a run with oil-loss level `alpha`.
     pub fn role(&self, alpha: f64) -> RunRole {
         let has = |set: &[f64]| set.iter().any(|&a| (a - alpha).abs() <= ALPHA_TOLERANCE);
@@ -849,6 +881,15 @@ impl SplitConfig {
             RunRole::Unused
         }
     }
+}
+
+/// The distinct oil-loss levels among `alphas`, ascending (levels closer than
+/// [`ALPHA_TOLERANCE`] are one).
+pub fn distinct_levels(alphas: impl IntoIterator<Item = f64>) -> Vec<f64> {
+    let mut v: Vec<f64> = alphas.into_iter().collect();
+    v.sort_by(f64::total_cmp);
+    v.dedup_by(|a, b| (*a - *b).abs() <= ALPHA_TOLERANCE);
+    v
 }
 
 /// SplitMix64 step (deterministic, independent of crate versions).
@@ -1151,6 +1192,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
     let fs = dataset.sample_rate_hz;
     check_cutoff(fs, config.signal.cutoff_hz)?;
     config.split.validate()?;
+    config.split.check_levels(dataset)?;
     let window = config.quasi_static_window.unwrap_or(DEFAULT_QS_WINDOW);
     if !(window.is_finite() && window > 0.0 && window < 1.0) {
         return Err(config_err(

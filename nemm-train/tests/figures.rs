@@ -71,9 +71,14 @@ fn dataset() -> Dataset {
 }
 
 fn prepared(ds: &Dataset) -> Prepared {
+    prepared_with_test(ds, &[0.15])
+}
+
+fn prepared_with_test(ds: &Dataset, test_alphas: &[f64]) -> Prepared {
     let mut cfg = PrepareConfig::default();
     cfg.sequences.length_s = 0.1;
     cfg.sequences.warmup_s = 0.01;
+    cfg.split.test_alphas = test_alphas.to_vec();
     preprocess::prepare(ds, &cfg).expect("prepare")
 }
 
@@ -239,7 +244,7 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
     // figures fall back to what exists, the b_fl figure is there, nothing fails.
     let mut slow = dataset();
     slow.runs.retain(|r| r.entry.amplitude_m == Some(0.050));
-    let prep = prepared(&slow);
+    let prep = prepared_with_test(&slow, &[]);
     let light = trained(&[(Variant::NemmLight, ModelKind::NemmLight)]);
     let report = evaluate(&light, &prep).expect("report");
     let dir = tempfile::tempdir().expect("tempdir");

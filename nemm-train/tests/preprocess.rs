@@ -685,6 +685,23 @@ fn invalid_configurations_are_refused() {
         }
     };
     assert_eq!(bad(&|c| c.signal.cutoff_hz = 1000.0), "cutoff_hz");
+    // A level that matches no run (a typo) would leave the test set empty or drop training
+    // data: refused, naming the levels there are.
+    assert_eq!(bad(&|c| c.split.test_alphas = vec![0.2]), "test_alphas");
+    assert_eq!(
+        bad(&|c| c.split.train_alphas = Some(vec![0.0, 0.5])),
+        "train_alphas"
+    );
+    let mut c = PrepareConfig::default();
+    c.split.test_alphas = vec![0.2];
+    let msg = preprocess::prepare(&ds, &c)
+        .map(|_| ())
+        .expect_err("no run at 0.2")
+        .to_string();
+    assert_eq!(
+        msg,
+        "test_alphas: oil-loss level 0.2 matches no run; the dataset's levels are 0, 0.15, 0.3"
+    );
     assert_eq!(
         bad(&|c| c.split.validation_fraction = 1.0),
         "validation_fraction"
@@ -790,8 +807,10 @@ fn tiny_and_flat_runs_do_not_panic() {
         sample_rate_hz: fs,
         runs: vec![sine_run("a.csv", 0.0, 0.01, 5.0, 0.0, 3, fs, None)],
     };
+    let mut no_test_level = PrepareConfig::default();
+    no_test_level.split.test_alphas.clear();
     assert!(matches!(
-        preprocess::prepare(&ds, &PrepareConfig::default()),
+        preprocess::prepare(&ds, &no_test_level),
         Err(PreprocessError::NoTrainingData(_))
     ));
 }
