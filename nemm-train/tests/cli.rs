@@ -57,6 +57,13 @@ impl Nemm {
         self.0.output().expect("run nemm")
     }
 
+    /// Runs it, expects it to fail, and returns its error output.
+    fn fails(self) -> String {
+        let out = self.output();
+        assert!(!out.status.success(), "expected a failure");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    }
+
     /// Runs it and returns its standard output; fails the test with its error output.
     fn ok(mut self) -> String {
         let what = format!("{:?}", self.0);
@@ -119,13 +126,11 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     let data = small_bench(dir);
 
     // Windows so long that no run has one left for validation: refused up front, saying why.
-    let out = Nemm::new(&["compare", "--window-s", "1.0", "--data"])
+    let stderr = Nemm::new(&["compare", "--window-s", "1.0", "--data"])
         .arg(&data)
         .arg("--report")
         .arg(dir.join("refused"))
-        .output();
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+        .fails();
     assert!(
         stderr.contains("error: no validation windows") && stderr.contains("--window-s"),
         "{stderr}"
@@ -324,9 +329,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     let bytes = std::fs::read(&exported).expect("exported");
     let truncated = dir.join("truncated.nemm");
     std::fs::write(&truncated, &bytes[..bytes.len() / 2]).expect("write");
-    let out = Nemm::new(&["inspect"]).arg(&truncated).output();
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = Nemm::new(&["inspect"]).arg(&truncated).fails();
     assert!(
         stderr.starts_with("error: ") && stderr.contains("truncated.nemm"),
         "{stderr}"
