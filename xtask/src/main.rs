@@ -33,7 +33,8 @@ commands:
                          the bench trace, default 4000, after 200 warm-up steps), one line
                          per model kind and integrator:
                          target-step model=<kind> integrator=<rk4|rk3> mode=<mode> instructions_per_step=<N>
-                         (mode=table adds segments=, table_bytes= (RAM), max_rel_error_ppb=, kinks=)
+                         (mode=table adds segments=, table_bytes= (RAM), max_rel_error_ppb=, kinks=,
+                          build_instructions=: building the tables at boot)
   build-target           build the firmware images and print their flash and RAM use
   run-target [OPTION]... run the firmware in QEMU with firmware options, e.g.
                          period_ticks=100000 fault=bus@3000+20 fault=nan@5000+40 samples=2000
@@ -395,6 +396,11 @@ fn bench(
                 for k in ["segments", "table_bytes", "max_rel_error_ppb", "kinks"] {
                     step_line += &format!(" {k}={}", get(&t, k)?);
                 }
+                // Building the estimator (the tables and their check) at boot.
+                step_line += &format!(
+                    " build_instructions={}",
+                    num(&t, "build_ticks")? * INSTRUCTIONS_PER_TICK
+                );
             }
             lines.push(step_line);
             found += 1;

@@ -28,8 +28,8 @@
 //!   `table kind=.. integrator=.. segments=<T> tables=<n> table_bytes=<B>
 //!   max_rel_error_ppb=<e> kinks=<k> build_ticks=<t>` (the tables' bytes, the measured worst
 //!   relative error in parts per billion, the kinks made knots in the worst table, and the
-//!   SysTick ticks of building the estimator, tables and their check included; the count
-//!   wraps at 2^24), `steps=N` (1..=4000, default 2000),
+//!   SysTick ticks of building the estimator, tables and their check included; wraps of
+//!   the 24-bit counter are counted by the SysTick exception), `steps=N` (1..=4000, default 2000),
 //!   `warmup=N` (0..=200, default 200), `integrator=rk4|rk3|both` (default both).
 //! - `example=sem|linear-emm|nemm-light|nemm`, `hidden=H` (default 16), `layers=L`
 //!   (default 5): the example model instead of the weights slot (`H`, `L` must fit the
@@ -59,9 +59,10 @@
 )]
 
 use core::hint::black_box;
+use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
-use cortex_m_rt::entry;
+use cortex_m_rt::{entry, exception};
 use nemm_core::mlp::{CompiledScaler, Scaler};
 use nemm_core::{decode, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind};
 use nemm_firmware::board::{self, Console};
@@ -178,6 +179,32 @@ fn fail(console: &mut Console, line: &mut Line, code: u32) -> ! {
 
 fn ticks_since(start: u32) -> u32 {
     start.wrapping_sub(SYST::get_current()) & (SYST_RANGE - 1)
+}
+
+/// SysTick wraps counted while [`long_ticks`] measures (the interrupt is enabled only there,
+/// so that the per-step measurements see no exception).
+static SYST_WRAPS: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    SYST_WRAPS.fetch_add(1, Ordering::Relaxed);
+}
+
+/// SysTick ticks of `f`, however long it takes (wraps of the 24-bit counter are counted by
+/// the SysTick exception; saturating at `u32::MAX`, 171 G instructions).
+fn long_ticks<R>(syst: &mut SYST, f: impl FnOnce() -> R) -> (R, u32) {
+    SYST_WRAPS.store(0, Ordering::Relaxed);
+    syst.clear_current();
+    let start = SYST::get_current();
+    syst.enable_interrupt();
+    let r = f();
+    syst.disable_interrupt();
+    let end = SYST::get_current();
+    let wraps = u64::from(SYST_WRAPS.load(Ordering::Relaxed));
+    // The counter counts down from `start`; each wrap adds the full range.
+    let ticks =
+        wraps * u64::from(SYST_RANGE) + u64::from(start.wrapping_sub(end) & (SYST_RANGE - 1));
+    (r, u32::try_from(ticks).unwrap_or(u32::MAX))
 }
 
 static MODEL: StaticSlot<Model<PARAM_CAPACITY>> = StaticSlot::new();
@@ -473,8 +500,8 @@ fn main() -> ! {
             mode: opt.mode.eval_mode(),
             ..EstimatorConfig::new(trace.oil_loss)
         };
-        let build_start = SYST::get_current();
-        let est = match build_estimator(est_slot, model, cfg) {
+        let (built, build_ticks) = long_ticks(&mut syst, || build_estimator(est_slot, model, cfg));
+        let est = match built {
             Ok(e) => e,
             Err(e) => {
                 let mut l = Line::new();
@@ -482,9 +509,8 @@ fn main() -> ! {
                 fail(&mut console, &mut l, report::EXIT_BAD_WEIGHTS)
             }
         };
-        // Estimator construction (in table mode: building and checking the tables), in
-        // SysTick ticks; may wrap for very slow builds (2^24 ticks).
-        let build_ticks = ticks_since(build_start);
+        // `build_ticks`: estimator construction (in table mode: building and checking the
+        // tables), in SysTick ticks.
         for &v in warmup {
             black_box(est.step(black_box(v)));
         }
