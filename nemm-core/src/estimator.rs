@@ -231,14 +231,7 @@ fn build_table<const P: usize, const T: usize>(
     cfg: &TableConfig,
     name: &'static str,
 ) -> Result<Table1D<T>, EstimatorError> {
-    Table1D::compile(
-        |u| exact.eval_with_pattern(u),
-        lo,
-        hi,
-        cfg.max_rel_error,
-        name,
-    )
-    .map_err(EstimatorError::Table)
+    Table1D::compile(exact, lo, hi, cfg.max_rel_error, name).map_err(EstimatorError::Table)
 }
 
 /// One coefficient at a stage as a function of its state input: a constant (`f32`), a

@@ -265,6 +265,17 @@ pub fn dot_acc(w: &[f32], x: &[f32], init: f32) -> f32 {
         .fold(init, |acc, (&wj, &xj)| math::fma(wj, xj, acc))
 }
 
+/// [`dot_acc`] with the multiply-add `M`.
+#[inline(always)]
+fn dot_acc_with<M: math::MulAdd>(w: &[f32], x: &[f32], init: f32) -> f32 {
+    w.iter()
+        .zip(x)
+        .fold(init, |acc, (&wj, &xj)| M::mul_add(wj, xj, acc))
+}
+
+/// Start of the activation-pattern hash (FNV-1a offset basis).
+const PATTERN_SEED: u64 = 0xcbf2_9ce4_8422_2325;
+
 /// LeakyReLU with [`LEAKY_RELU_SLOPE`].
 #[inline(always)]
 pub fn leaky_relu(y: f32) -> f32 {
@@ -559,23 +570,41 @@ impl<const P: usize> CompiledScaler<P> {
     /// Portable evaluation of the raw output `z`: the reference of the Arm kernel.
     #[doc(hidden)]
     pub fn raw_portable(&self, u: f32) -> f32 {
-        self.raw_generic::<false>(u, &mut 0)
+        self.raw_generic::<false, math::Fused>(u, &mut 0)
     }
 
     /// [`Self::eval`] and the activation pattern at `u`: a hash of the signs of every
     /// LeakyReLU input. The function is smooth (analytic) wherever the pattern is constant;
-    /// where it changes, one LeakyReLU switches slope (a kink). Used by [`crate::table`] to
-    /// place table knots at the kinks. Portable arithmetic (the same bits as `eval`).
+    /// where it changes, one LeakyReLU switches slope (a kink). Portable arithmetic (the
+    /// same bits as `eval`): the reference of [`Self::pattern`].
     pub fn eval_with_pattern(&self, u: f32) -> (f32, u64) {
-        let mut pattern = 0xcbf2_9ce4_8422_2325u64;
-        let z = self.raw_generic::<true>(u, &mut pattern);
+        let mut pattern = PATTERN_SEED;
+        let z = self.raw_generic::<true, math::Fused>(u, &mut pattern);
         (math::fma(self.span, math::sigmoid(z), self.lo), pattern)
+    }
+
+    /// The activation pattern at `u` alone, as [`Self::eval_with_pattern`] hashes it but
+    /// computed with unfused multiply-adds ([`math::Unfused`]), which [`crate::table`] uses
+    /// to place table knots at the kinks.
+    ///
+    /// Why unfused: on the Cortex-M4F the portable fused multiply-add moves its operands
+    /// through core registers (module docs of `mlp::arm`), and the kink scan evaluates the
+    /// pattern at 128 points per table segment: with `f32` multiply and add the scan of the
+    /// firmware's two 128-segment NEMM tables takes about a quarter of the instructions
+    /// (nemm-firmware/README.md). The signs differ from the fused network's only where a
+    /// LeakyReLU input is within rounding of zero, i.e. within a few ulps of a kink, which
+    /// moves a knot by as much: far below the table's checked error bound. Host and target
+    /// compute the same bits (IEEE `f32` operations in the same order).
+    pub fn pattern(&self, u: f32) -> u64 {
+        let mut pattern = PATTERN_SEED;
+        self.raw_generic::<true, math::Unfused>(u, &mut pattern);
+        pattern
     }
 
     /// The portable network; with `TRACK` the signs of the LeakyReLU inputs are hashed into
     /// `pattern` (FNV-1a over one byte per neuron).
     #[inline(always)]
-    fn raw_generic<const TRACK: bool>(&self, u: f32, pattern: &mut u64) -> f32 {
+    fn raw_generic<const TRACK: bool, M: math::MulAdd>(&self, u: f32, pattern: &mut u64) -> f32 {
         let h = self.hidden;
         // For an inconsistent layout (which `compile` rules out): `z = -inf` makes `eval`
         // return `lo`.
@@ -588,9 +617,9 @@ impl<const P: usize> CompiledScaler<P> {
             return fallback;
         };
         for ((ti, &wi), &bi) in t.iter_mut().zip(w1).zip(b1) {
-            *ti = math::fma(wi, u, bi);
+            *ti = M::mul_add(wi, u, bi);
         }
-        if !self.norm_act::<TRACK>(&mut rest, &t, &mut a, pattern) {
+        if !self.norm_act::<TRACK, M>(&mut rest, &t, &mut a, pattern) {
             return fallback;
         }
         for _ in 1..self.layers {
@@ -606,17 +635,17 @@ impl<const P: usize> CompiledScaler<P> {
                     return fallback;
                 };
                 for (ti, row) in t.iter_mut().zip(block.chunks_exact(xs.len())) {
-                    *ti = dot_acc(row, xs, *ti);
+                    *ti = dot_acc_with::<M>(row, xs, *ti);
                 }
             }
-            if !self.norm_act::<TRACK>(&mut rest, &t, &mut a, pattern) {
+            if !self.norm_act::<TRACK, M>(&mut rest, &t, &mut a, pattern) {
                 return fallback;
             }
         }
         let (Some(w_o), Some(b_o)) = (take(&mut rest, h), take(&mut rest, 1)) else {
             return fallback;
         };
-        dot_acc(
+        dot_acc_with::<M>(
             w_o,
             a.get(..h).unwrap_or(&[]),
             b_o.first().copied().unwrap_or(0.0),
@@ -625,7 +654,7 @@ impl<const P: usize> CompiledScaler<P> {
 
     /// Centred LayerNorm + affine + LeakyReLU from `t` into `a`; consumes gamma and beta.
     #[inline(always)]
-    fn norm_act<const TRACK: bool>(
+    fn norm_act<const TRACK: bool, M: math::MulAdd>(
         &self,
         rest: &mut &[f32],
         t: &[f32; MAX_HIDDEN],
@@ -638,10 +667,10 @@ impl<const P: usize> CompiledScaler<P> {
         };
         let th = t.get(..h).unwrap_or(&[]);
         let [inv_h, ..] = self.consts;
-        let var = th.iter().fold(0.0f32, |s, &d| math::fma(d, d, s)) * inv_h;
+        let var = th.iter().fold(0.0f32, |s, &d| M::mul_add(d, d, s)) * inv_h;
         let r = math::rsqrt(var + LAYER_NORM_EPS);
         for (((ai, &ti), &gi), &bi) in a.iter_mut().zip(th).zip(g).zip(be) {
-            let y = math::fma(gi, ti * r, bi);
+            let y = M::mul_add(gi, ti * r, bi);
             if TRACK {
                 *pattern = (*pattern ^ u64::from(y >= 0.0)).wrapping_mul(0x0000_0100_0000_01b3);
             }
@@ -653,6 +682,18 @@ impl<const P: usize> CompiledScaler<P> {
     /// Output bounds `(lo, hi)` of [`Self::eval`] in physical units.
     pub fn bounds(&self) -> (f32, f32) {
         (self.lo, self.lo + self.span)
+    }
+}
+
+/// Tables of a scaler ([`crate::table::Table1D::compile`]): the value through
+/// [`CompiledScaler::eval`] (the fast kernel where there is one), the pattern through
+/// [`CompiledScaler::pattern`] (portable, unfused).
+impl<const P: usize> crate::table::Tabulate for &CompiledScaler<P> {
+    fn value(&mut self, x: f32) -> f32 {
+        self.eval(x)
+    }
+    fn pattern(&mut self, x: f32) -> u64 {
+        CompiledScaler::pattern(self, x)
     }
 }
 

@@ -15,10 +15,14 @@
 //! [`Table1D::compile`]:
 //!
 //! 1. scans the activation pattern of the MLP (the signs of all LeakyReLU inputs,
-//!    [`crate::mlp::CompiledScaler::eval_with_pattern`]) on a grid of
-//!    [`SCAN_POINTS_PER_SEGMENT`] (128) points per segment and bisects every change to
-//!    adjacent floats: a kink, which becomes a knot (a coarser scan, 32 points, missed close
-//!    pairs of kinks: the example NEMM then measured 1.1e-4 instead of 1.8e-5);
+//!    [`crate::mlp::CompiledScaler::pattern`], through the [`Tabulate`] trait) on a grid of
+//!    [`SCAN_POINTS_PER_SEGMENT`] (16) points per segment and bisects every change to
+//!    adjacent floats: a kink, which becomes a knot. Where the pattern at the bisected kink
+//!    still differs from the grid point's, the bisection goes on from the kink, so that
+//!    kinks of different neurons closer than the grid are all found (without that, a scan
+//!    at 128 points per segment missed some: the example NEMM measured 1.8e-5 at 256
+//!    segments and 1.17e-4 at 128 instead of 6.5e-6 and 4.8e-5 now, over seven oil-loss
+//!    levels);
 //! 2. spreads `N - 2` segments about uniformly over the smooth pieces between kinks (at
 //!    least one each; [`TableError::TooManyKinks`] if there are more than `N - 3` kinks);
 //!    the other two segments hold the constant boundary values (below `lo`, from `hi` on);
@@ -58,7 +62,16 @@
 //! [`Table1D::compile`] evaluates the table and the exact function on a check grid of
 //! [`CHECK_POINTS_PER_SEGMENT`] (128) points per segment plus the upper end, i.e. 128 x the
 //! table's resolution, and returns the largest relative error `|table - exact| / |exact|`.
-//! If it exceeds the caller's bound the table is refused with [`TableError::ExceedsBound`].
+//! Where the error exceeds an eighth of the caller's bound (a kink the scan may have missed:
+//! one neuron crossing zero twice between two scan points), the neighbourhood (1.5 segments
+//! either side) is scanned again at [`REFINE_POINTS_PER_SEGMENT`] (128) points per segment,
+//! and if that finds kinks the table is built and checked again (at most 8 rounds). If the
+//! error still exceeds the bound the table is refused with [`TableError::ExceedsBound`].
+//! The values come from [`Tabulate::value`]: for a scaler its fast kernel (on the
+//! Cortex-M4F 1,800 instructions instead of about 10,000 for the portable network with the
+//! pattern); only the scan pays for the pattern. Building the two 128-segment tables of
+//! the example NEMM on the Cortex-M4F takes 156 M instructions (about 0.9 s at 168 MHz;
+//! 948 M before the coarser scan, the fast values and the unfused pattern).
 //! Because `F = b_fl q` and `q` depends on the coefficients through ratios, a relative error
 //! `e` of one coefficient changes the quasi-static force by at most `e |F|` (the logarithmic
 //! sensitivities of `F` to `b_fl` and `k_pr` lie in `[0, 1]`); the force error of a whole
@@ -80,8 +93,9 @@ pub const DEFAULT_TABLE_SEGMENTS: usize = 256;
 /// Points of the error check per table segment (the check grid is this much finer than the
 /// table).
 pub const CHECK_POINTS_PER_SEGMENT: usize = 128;
-/// Points of the kink scan per table segment.
-pub const SCAN_POINTS_PER_SEGMENT: usize = 128;
+/// Points of the kink scan per table segment (see [`Table1D::compile`] for the finer scan
+/// where the check finds an error over the bound).
+pub const SCAN_POINTS_PER_SEGMENT: usize = 16;
 /// Default table domain: the training abs-max scale of the input times this factor.
 pub const DEFAULT_DOMAIN_MARGIN: f32 = 1.1;
 /// Default bound of the relative coefficient error, `1e-4`.
@@ -247,17 +261,158 @@ fn hermite(p0: f64, m0: f64, p1: f64, m1: f64) -> [f64; 4] {
     [p0, m0, 3.0 * d - 2.0 * m0 - m1, -2.0 * d + m0 + m1]
 }
 
+/// A function [`Table1D::compile`] can tabulate: its value, and a pattern that identifies the
+/// smooth piece an input lies in.
+///
+/// A closure `FnMut(f32) -> (f32, u64)` returning both is one; a compiled scaler
+/// ([`crate::mlp::CompiledScaler`]) is another, which computes the value with its fast
+/// kernel and the pattern (the signs of its LeakyReLU inputs) with the portable network, so
+/// that only the kink scan pays for the pattern.
+pub trait Tabulate {
+    /// The function's value at `x`.
+    fn value(&mut self, x: f32) -> f32;
+    /// Identifies the smooth piece `x` lies in: equal patterns at two inputs mean no kink
+    /// between them is known (a smooth function returns a constant).
+    fn pattern(&mut self, x: f32) -> u64;
+}
+
+impl<F: FnMut(f32) -> (f32, u64)> Tabulate for F {
+    fn value(&mut self, x: f32) -> f32 {
+        self(x).0
+    }
+    fn pattern(&mut self, x: f32) -> u64 {
+        self(x).1
+    }
+}
+
+/// Points of the fine scan per table segment, around check points over the bound (see
+/// [`Table1D::compile`]).
+pub const REFINE_POINTS_PER_SEGMENT: usize = 128;
+/// Most ranges rescanned per refinement round.
+const REFINE_RANGES: usize = 8;
+/// A check point whose error exceeds the bound divided by this is rescanned for missed kinks.
+const REFINE_FRACTION: f32 = 8.0;
+/// Most kinks separated between two neighbouring scan points.
+const MAX_KINKS_PER_INTERVAL: usize = 8;
+/// Most refinement rounds.
+const REFINE_ROUNDS: usize = 8;
+
+/// The kinks found so far: sorted, at most `N`, none closer to another than a millionth of
+/// the domain (a kink found again from another scan interval is the same kink).
+struct Kinks<const N: usize> {
+    x: [f64; N],
+    n: usize,
+    tol: f64,
+}
+
+impl<const N: usize> Kinks<N> {
+    fn new(span: f64) -> Self {
+        Self {
+            x: [0.0; N],
+            n: 0,
+            tol: span * 1e-6,
+        }
+    }
+
+    fn as_slice(&self) -> &[f64] {
+        self.x.get(..self.n).unwrap_or(&[])
+    }
+
+    /// Adds `x` in order; `Ok(false)` if it is a kink already known.
+    fn insert(&mut self, x: f64, scaler: &'static str) -> Result<bool, TableError> {
+        let known = self.as_slice();
+        let at = known.partition_point(|&k| k < x);
+        let near = |i: Option<usize>| {
+            i.and_then(|i| known.get(i))
+                .is_some_and(|&k| (k - x).abs() <= self.tol)
+        };
+        if near(Some(at)) || near(at.checked_sub(1)) {
+            return Ok(false);
+        }
+        if self.n == N {
+            return Err(TableError::TooManyKinks {
+                scaler,
+                segments: N,
+            });
+        }
+        // Shift the tail up by one and insert.
+        let tail = self.x.get_mut(at..=self.n).ok_or(TableError::BadConfig)?;
+        tail.rotate_right(1);
+        if let Some(slot) = tail.first_mut() {
+            *slot = x;
+        }
+        self.n += 1;
+        Ok(true)
+    }
+}
+
+/// Scans `[a, b]` (`range`) at `n` intervals for changes of the pattern, bisects each to
+/// adjacent floats and adds the kinks strictly inside the domain `(lo, hi)` (`domain`) to
+/// `kinks`; returns how many were new.
+fn scan_kinks<const N: usize>(
+    exact: &mut impl Tabulate,
+    (a, b): (f32, f32),
+    n: usize,
+    (lo, hi): (f32, f32),
+    kinks: &mut Kinks<N>,
+    scaler: &'static str,
+) -> Result<usize, TableError> {
+    let (a64, span) = (f64::from(a), f64::from(b) - f64::from(a));
+    let mut new = 0usize;
+    let mut prev_x = a;
+    let mut prev_p = exact.pattern(a);
+    for j in 1..=n {
+        let x = if j == n {
+            b
+        } else {
+            (a64 + span * j as f64 / n as f64) as f32
+        };
+        let p = exact.pattern(x);
+        // Every change between the two points: bisect to the first, and again from there
+        // while the pattern still differs from `x`'s (kinks of different neurons closer
+        // than the grid; the same neuron's two crossings are found by the finer rescans).
+        let (mut from_x, mut from_p) = (prev_x, prev_p);
+        for _ in 0..MAX_KINKS_PER_INTERVAL {
+            if from_p == p {
+                break;
+            }
+            let (mut l, mut r) = (from_x, x);
+            let mut r_p = p;
+            for _ in 0..BISECTION_STEPS {
+                let mid = l + 0.5 * (r - l);
+                if mid <= l || mid >= r {
+                    break;
+                }
+                let mid_p = exact.pattern(mid);
+                if mid_p == from_p {
+                    l = mid;
+                } else {
+                    (r, r_p) = (mid, mid_p);
+                }
+            }
+            // A kink on the domain's ends needs no knot.
+            if r > lo && r < hi && kinks.insert(f64::from(r), scaler)? {
+                new += 1;
+            }
+            (from_x, from_p) = (r, r_p);
+        }
+        prev_x = x;
+        prev_p = p;
+    }
+    Ok(new)
+}
+
 impl<const N: usize> Table1D<N> {
     /// Tabulates `exact` over `[lo, hi]`, measures the error on the check grid and refuses
     /// the table if it exceeds `max_rel_error` (`scaler` names the coefficient in errors).
     ///
-    /// `exact(x)` returns the value and a pattern that identifies the smooth piece `x` lies
-    /// in (for a scaler: [`crate::mlp::CompiledScaler::eval_with_pattern`]; for a smooth
-    /// function: any constant). A change of the pattern between two points of the scan grid
-    /// ([`SCAN_POINTS_PER_SEGMENT`] points per segment) is bisected to the adjacent floats and becomes a knot, so
-    /// that no segment straddles a kink.
-    pub fn compile<F: FnMut(f32) -> (f32, u64)>(
-        mut exact: F,
+    /// `exact` gives the value and a pattern that identifies the smooth piece `x` lies in
+    /// ([`Tabulate`]; for a scaler: [`crate::mlp::CompiledScaler`]; for a smooth function: a
+    /// closure returning any constant pattern). A change of the pattern between two points
+    /// of the scan grid ([`SCAN_POINTS_PER_SEGMENT`] points per segment) is bisected to the
+    /// adjacent floats and becomes a knot, so that no segment straddles a kink.
+    pub fn compile(
+        mut exact: impl Tabulate,
         lo: f32,
         hi: f32,
         max_rel_error: f32,
@@ -272,6 +427,64 @@ impl<const N: usize> Table1D<N> {
         }
         let (lo64, hi64) = (f64::from(lo), f64::from(hi));
         let span = hi64 - lo64;
+        // 1. Kinks: pattern changes on the scan grid, bisected.
+        let mut kinks = Kinks::<N>::new(span);
+        scan_kinks(
+            &mut exact,
+            (lo, hi),
+            N * SCAN_POINTS_PER_SEGMENT,
+            (lo, hi),
+            &mut kinks,
+            scaler,
+        )?;
+        let seg_w = span / (N - 2) as f64;
+        // Where the error exceeds this fraction of the bound, a missed kink is suspected.
+        let suspect = max_rel_error / REFINE_FRACTION;
+        let mut round = 0usize;
+        loop {
+            let mut t = Self::build(&mut exact, lo, hi, kinks.as_slice(), scaler)?;
+            // 5. Error check on the grid CHECK_POINTS_PER_SEGMENT x finer, plus the upper
+            //    end; the neighbourhoods of suspect points are rescanned finely.
+            let mut ranges = [(0.0f32, 0.0f32); REFINE_RANGES];
+            let (n_ranges, worst) = t.check(&mut exact, suspect, seg_w, &mut ranges, scaler)?;
+            let mut found = 0usize;
+            if round < REFINE_ROUNDS {
+                for &(a, b) in ranges.get(..n_ranges).unwrap_or(&[]) {
+                    // The density per unit input of REFINE_POINTS_PER_SEGMENT per segment.
+                    let n = libm::ceil(f64::from(b - a) / seg_w * REFINE_POINTS_PER_SEGMENT as f64)
+                        .max(1.0) as usize;
+                    found += scan_kinks(&mut exact, (a, b), n, (lo, hi), &mut kinks, scaler)?;
+                }
+            }
+            round += 1;
+            // No further kink found (the error is the smooth pieces', or nothing is
+            // suspect): the verdict.
+            if found == 0 {
+                if worst > f64::from(max_rel_error) {
+                    return Err(TableError::ExceedsBound {
+                        scaler,
+                        max_rel_error: t.accuracy.max_rel_error,
+                        bound: max_rel_error,
+                        at: t.accuracy.at,
+                        segments: N,
+                    });
+                }
+                return Ok(t);
+            }
+        }
+    }
+
+    /// Steps 2-4 of [`Self::compile`]: the segments between the breakpoints `lo`, `kinks`
+    /// (sorted, inside the domain) and `hi`, and the lookup cells.
+    fn build(
+        exact: &mut impl Tabulate,
+        lo: f32,
+        hi: f32,
+        kinks: &[f64],
+        scaler: &'static str,
+    ) -> Result<Self, TableError> {
+        let (lo64, hi64) = (f64::from(lo), f64::from(hi));
+        let span = hi64 - lo64;
         // Segments inside the domain, and the lookup cells' width.
         let real = N - 2;
         let cell_w = span / (2 * N - 2) as f64;
@@ -279,52 +492,7 @@ impl<const N: usize> Table1D<N> {
         if !(cell_scale.is_finite() && cell_scale > 0.0) {
             return Err(TableError::BadConfig);
         }
-        // 1. Kinks: pattern changes on the scan grid, bisected. Breakpoints lo, kinks, hi.
-        let mut breaks = [0.0f64; N];
-        let mut n_kinks = 0usize;
-        {
-            let mut exact_p = |x: f32| exact(x).1;
-            let n_scan = N * SCAN_POINTS_PER_SEGMENT;
-            let mut prev_x = lo;
-            let mut prev_p = exact_p(lo);
-            for j in 1..=n_scan {
-                let x = if j == n_scan {
-                    hi
-                } else {
-                    (lo64 + span * j as f64 / n_scan as f64) as f32
-                };
-                let p = exact_p(x);
-                if p != prev_p {
-                    let (mut a, mut b) = (prev_x, x);
-                    for _ in 0..BISECTION_STEPS {
-                        let mid = a + 0.5 * (b - a);
-                        if mid <= a || mid >= b {
-                            break;
-                        }
-                        if exact_p(mid) == prev_p {
-                            a = mid;
-                        } else {
-                            b = mid;
-                        }
-                    }
-                    // A kink on the domain's ends needs no knot.
-                    if b > lo && b < hi {
-                        // More kinks than segments cannot be separated.
-                        let Some(slot) = breaks.get_mut(n_kinks) else {
-                            return Err(TableError::TooManyKinks {
-                                scaler,
-                                segments: N,
-                            });
-                        };
-                        *slot = f64::from(b);
-                        n_kinks += 1;
-                    }
-                }
-                prev_x = x;
-                prev_p = p;
-            }
-        }
-        let kinks = breaks.get(..n_kinks).unwrap_or(&[]);
+        let n_kinks = kinks.len();
         if n_kinks + 1 > real {
             return Err(TableError::TooManyKinks {
                 scaler,
@@ -332,7 +500,7 @@ impl<const N: usize> Table1D<N> {
             });
         }
         let mut value = |x: f64| -> Result<f64, TableError> {
-            let v = f64::from(exact(x as f32).0);
+            let v = f64::from(exact.value(x as f32));
             if v.is_finite() {
                 Ok(v)
             } else {
@@ -476,37 +644,61 @@ impl<const N: usize> Table1D<N> {
             prev = i;
             *f = i as u16;
         }
-        // 5. Error check on the grid CHECK_POINTS_PER_SEGMENT x finer, plus the upper end.
+        Ok(t)
+    }
+
+    /// Measures the table against `exact` on the check grid (sets the accuracy) and returns
+    /// how many ranges of `bad` it filled: the neighbourhoods (1.5 segment widths `seg_w`
+    /// either side, overlapping ones merged) of the check points whose error exceeds
+    /// `bound` (the suspect level), at most [`REFINE_RANGES`] of them; and the largest error.
+    fn check(
+        &mut self,
+        exact: &mut impl Tabulate,
+        bound: f32,
+        seg_w: f64,
+        bad: &mut [(f32, f32); REFINE_RANGES],
+        scaler: &'static str,
+    ) -> Result<(usize, f64), TableError> {
+        let (lo64, hi64) = (f64::from(self.lo), f64::from(self.hi));
+        let span = hi64 - lo64;
         let mut worst64 = 0.0f64;
+        let mut n_bad = 0usize;
         let n_check = N * CHECK_POINTS_PER_SEGMENT;
+        self.accuracy.max_rel_error = 0.0;
+        self.accuracy.at = self.lo;
         for j in 0..=n_check {
             let x = if j == n_check {
-                hi
+                self.hi
             } else {
                 (lo64 + span * j as f64 / n_check as f64) as f32
             };
-            let want = exact(x).0;
-            let got = t.eval(x, &mut false);
+            let want = exact.value(x);
+            let got = self.eval(x, &mut false);
             if !(want.is_finite() && got.is_finite() && want != 0.0) {
                 return Err(TableError::NonFinite { scaler, at: x });
             }
             let rel = (f64::from(got) - f64::from(want)).abs() / f64::from(want).abs();
             if rel > worst64 {
                 worst64 = rel;
-                t.accuracy.max_rel_error = rel as f32;
-                t.accuracy.at = x;
+                self.accuracy.max_rel_error = rel as f32;
+                self.accuracy.at = x;
+            }
+            if rel > f64::from(bound) {
+                let x64 = f64::from(x);
+                let a = (x64 - 1.5 * seg_w).max(lo64) as f32;
+                let b = (x64 + 1.5 * seg_w).min(hi64) as f32;
+                match n_bad.checked_sub(1).and_then(|k| bad.get_mut(k)) {
+                    Some(last) if a <= last.1 => last.1 = b,
+                    _ => {
+                        if let Some(slot) = bad.get_mut(n_bad) {
+                            *slot = (a, b);
+                            n_bad += 1;
+                        }
+                    }
+                }
             }
         }
-        if worst64 > f64::from(max_rel_error) {
-            return Err(TableError::ExceedsBound {
-                scaler,
-                max_rel_error: t.accuracy.max_rel_error,
-                bound: max_rel_error,
-                at: t.accuracy.at,
-                segments: N,
-            });
-        }
-        Ok(t)
+        Ok((n_bad, worst64))
     }
 
     /// The table at `x`; inputs outside the domain (and NaN) are clamped to it and set
