@@ -3,7 +3,7 @@
 //! and Markdown.
 
 use crate::preprocess::Prepared;
-use crate::train::eval::sse_per_sequence;
+use crate::train::eval::{rmse_of, sse_per_sequence};
 use crate::train::fit::EpochStats;
 use crate::train::physics::{audit, Audit};
 use crate::train::pipeline::{TrainedVariant, Variant};
@@ -99,11 +99,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
                 run.0 += k;
             }
         }
-        let rmse = if n == 0 {
-            f64::NAN
-        } else {
-            (se / n as f64).sqrt()
-        };
+        let rmse = rmse_of(se, n);
         let audit = matches!(t.variant, Variant::NemmLight | Variant::Nemm)
             .then(|| audit(&t.model, AUDIT_GRID.0, AUDIT_GRID.1));
         let blob_bytes = nemm_core::encode_to_vec(&t.model)

@@ -82,9 +82,14 @@ pub fn rmse_model(
     force_scale: f64,
 ) -> Result<f64> {
     let (se, n) = sse_model(model, seqs, warmup, force_scale)?;
-    Ok(if n == 0 {
+    Ok(rmse_of(se, n))
+}
+
+/// RMSE from a squared-error sum `se` over `n` samples (NaN without samples).
+pub fn rmse_of(se: f64, n: usize) -> f64 {
+    if n == 0 {
         f64::NAN
     } else {
         (se / n as f64).sqrt()
-    })
+    }
 }

@@ -483,12 +483,9 @@ pub fn fit(
             best_consistent || !audit_epochs,
         )
     };
-    if start_epoch > cfg.epochs || stop_early(since_best, since_any, best_consistent) {
-        stop = if stop_early(since_best, since_any, best_consistent) {
-            StopReason::EarlyStopping
-        } else {
-            StopReason::Epochs
-        };
+    // A resumed run may have used its patience already (then the loop does not run either).
+    if stop_early(since_best, since_any, best_consistent) {
+        stop = StopReason::EarlyStopping;
     }
     for epoch in start_epoch..=cfg.epochs {
         if stop_early(since_best, since_any, best_consistent) {

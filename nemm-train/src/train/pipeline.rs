@@ -56,6 +56,19 @@ impl std::fmt::Display for SessionBudgetUsed {
 
 impl std::error::Error for SessionBudgetUsed {}
 
+impl SessionBudgetUsed {
+    /// `Err` if the stage `label` ended with `stop` because the session budget was used.
+    fn check(stop: StopReason, label: &str) -> Result<()> {
+        if stop == StopReason::Session {
+            return Err(Self {
+                stage: label.to_string(),
+            }
+            .into());
+        }
+        Ok(())
+    }
+}
+
 /// The four variants of section 6.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
 pub enum Variant {
@@ -592,12 +605,7 @@ pub fn train_variants(
         resume,
         &device,
     )?;
-    if lin.stop == StopReason::Session {
-        return Err(SessionBudgetUsed {
-            stage: lin_cfg.label,
-        }
-        .into());
-    }
+    SessionBudgetUsed::check(lin.stop, &lin_cfg.label)?;
     let lin_p = lin.best.to_rollout(&frame);
     p0.b_fl0 = lin_p.b_fl0;
     p0.b_pr0 = lin_p.b_pr0;
@@ -677,12 +685,7 @@ pub fn train_variants(
         let dir = checkpoint_root.map(|root| root.join(v.name()));
         save_frame(dir.as_deref(), &p, meta)?;
         let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
-        if r.stop == StopReason::Session {
-            return Err(SessionBudgetUsed {
-                stage: fit_cfg.label,
-            }
-            .into());
-        }
+        SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
         let model = to_core(&r.best.to_rollout(&frame), meta)?;
         let val = rmse(
             &r.best,
