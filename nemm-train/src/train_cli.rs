@@ -358,7 +358,9 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
     let frame_path = checkpoint.join("frame.json");
     let text = std::fs::read_to_string(&frame_path).with_context(|| {
         format!(
-            "cannot read {} (is {} a variant folder written by `nemm train --checkpoint`?)",
+            "cannot read {} (is {} a variant folder written by `nemm train --checkpoint`? \
+             The SEM has no epochs and no checkpoint: `nemm train --variant sem --out FILE` \
+             fits and writes it directly)",
             frame_path.display(),
             checkpoint.display()
         )

@@ -211,6 +211,17 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         std::fs::read(&model).expect("model"),
         "export from the checkpoint writes the trained model"
     );
+    // A folder without a checkpoint (the SEM's, say) is refused with what to do instead.
+    let err = Nemm::new(&["export", "--checkpoint"])
+        .arg(ckpt.join("sem"))
+        .arg("--out")
+        .arg(dir.join("sem-export.nemm"))
+        .fails();
+    assert!(
+        err.contains("frame.json") && err.contains("nemm train --variant sem --out"),
+        "{err}"
+    );
+    assert!(!dir.join("sem-export.nemm").exists());
     // Interrupted after one epoch per stage (`--session-epochs`, as a cluster job with a
     // wall-time limit) and resumed from the checkpoints: the same model, byte for byte.
     let ckpt2 = dir.join("ckpt2");
