@@ -814,7 +814,7 @@ fn spread_text(values: &[Vec<f64>]) -> String {
             (l.min(v), h.max(v))
         });
     if lo > 0.0 && hi.is_finite() {
-        format!("varies by {:.1} %", 100.0 * (hi / lo - 1.0))
+        format!("varies by {} %", percent(100.0 * (hi / lo - 1.0)))
     } else {
         "not positive everywhere".into()
     }
@@ -855,9 +855,28 @@ fn alpha_color(i: usize) -> RGBColor {
 
 fn rel_change(a: f64, b: f64) -> String {
     if a.abs() > 0.0 && a.is_finite() && b.is_finite() {
-        format!("{:+.1} %", 100.0 * (b - a) / a)
+        let p = 100.0 * (b - a) / a;
+        let sign = if p > 0.0 {
+            "+"
+        } else if p < 0.0 {
+            "-"
+        } else {
+            ""
+        };
+        format!("{sign}{} %", percent(p.abs()))
     } else {
         "n/a".into()
+    }
+}
+
+/// A percentage `p >= 0` with one decimal, or two significant digits below 1 % (so that a
+/// change of 0.02 % does not read as 0.0 %).
+fn percent(p: f64) -> String {
+    if p == 0.0 || !p.is_finite() || p >= 0.95 {
+        format!("{p:.1}")
+    } else {
+        let decimals = (1 - p.log10().floor() as i32).clamp(1, 9) as usize;
+        format!("{p:.decimals$}")
     }
 }
 
@@ -1467,6 +1486,15 @@ fn training_curves(ctx: &Ctx<'_>) -> Result<Drawn> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn small_changes_keep_their_sign_and_size() {
+        assert_eq!(rel_change(398.9, 398.82), "-0.020 %");
+        assert_eq!(rel_change(100.0, 125.6), "+25.6 %");
+        assert_eq!(rel_change(100.0, 100.0), "0.0 %");
+        assert_eq!(rel_change(0.0, 1.0), "n/a");
+        assert_eq!(percent(0.07), "0.070");
+    }
 
     #[test]
     fn steady_window_skips_ramps_at_both_ends() {

@@ -753,10 +753,10 @@ where
         if log_y {
             format_log_tick(*v)
         } else {
-            format_tick(*v)
+            format_tick_on(*v, y1 - y0)
         }
     };
-    let x_fmt = |v: &f64| format_tick(*v);
+    let x_fmt = |v: &f64| format_tick_on(*v, x1 - x0);
     chart
         .configure_mesh()
         .x_desc(p.x_label.as_str())
@@ -983,8 +983,8 @@ where
         .disable_mesh()
         .x_desc(p.x_label.as_str())
         .y_desc(p.y_label.as_str())
-        .x_label_formatter(&|v| format_tick(*v))
-        .y_label_formatter(&|v| format_tick(*v))
+        .x_label_formatter(&|v| format_tick_on(*v, xe[nx] - xe[0]))
+        .y_label_formatter(&|v| format_tick_on(*v, ye[ny] - ye[0]))
         .label_style((FAMILY, 13).into_font())
         .axis_desc_style((FAMILY, 14).into_font())
         .draw()
@@ -1062,7 +1062,7 @@ where
         .disable_mesh()
         .disable_x_axis()
         .y_desc(p.z_label.as_str())
-        .y_label_formatter(&|v| format_tick(*v))
+        .y_label_formatter(&|v| format_tick_on(*v, z1 - z0))
         .label_style((FAMILY, 12).into_font())
         .axis_desc_style((FAMILY, 13).into_font())
         .draw()
@@ -1214,6 +1214,13 @@ pub fn format_log_tick(v: f64) -> String {
 /// Compact tick label: up to 4 significant digits, no trailing zeros; |v| < 1e-12 (rounding
 /// residue of a tick at zero) prints as `0`.
 pub fn format_tick(v: f64) -> String {
+    format_tick_on(v, f64::INFINITY)
+}
+
+/// [`format_tick`] for a tick on an axis spanning `span`: with as many more decimals as the
+/// axis needs to tell its ticks apart (a k_pr axis from 398.6 to 398.9 kN/m has ticks
+/// 0.025 apart, which four significant digits would print as 398.8, 398.8, ...).
+pub fn format_tick_on(v: f64, span: f64) -> String {
     if v.abs() < 1e-12 || !v.is_finite() {
         return "0".into();
     }
@@ -1221,7 +1228,16 @@ pub fn format_tick(v: f64) -> String {
     if !(1e-3..1e5).contains(&a) {
         return format!("{v:.1e}");
     }
-    let decimals = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
+    let significant = 3 - a.log10().floor() as i32;
+    // plotters puts at most 10 labels on an axis at steps of 1, 2 or 5 times a power of
+    // ten, so a step is at least span / 10 and one decimal below it tells steps of 2.5 apart
+    // too.
+    let by_span = if span.is_finite() && span > 0.0 {
+        1 - (span / 10.0).log10().floor() as i32
+    } else {
+        0
+    };
+    let decimals = significant.max(by_span).clamp(0, 9) as usize;
     let s = format!("{v:.decimals$}");
     if s.contains('.') {
         s.trim_end_matches('0').trim_end_matches('.').to_string()
@@ -1240,6 +1256,21 @@ mod tests {
         assert_eq!(format_tick(-1200.0), "-1200");
         assert_eq!(format_tick(0.0125), "0.0125");
         assert_eq!(format_tick(2.0e-5), "2.0e-5");
+    }
+
+    #[test]
+    fn ticks_of_a_narrow_axis_are_told_apart() {
+        // plotters' ticks on 398.6 ..= 398.9: 0.025 apart.
+        let labels: Vec<String> = (0..13)
+            .map(|i| format_tick_on(398.6 + 0.025 * f64::from(i), 0.3))
+            .collect();
+        for w in labels.windows(2) {
+            assert_ne!(w[0], w[1], "{labels:?}");
+        }
+        assert_eq!(format_tick_on(398.625, 0.3), "398.625");
+        // A wide axis keeps the compact labels.
+        assert_eq!(format_tick_on(0.5, 2.0), "0.5");
+        assert_eq!(format_tick_on(-1200.0, 5000.0), "-1200");
     }
 
     #[test]
