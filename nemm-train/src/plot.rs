@@ -1197,13 +1197,14 @@ pub fn save_rgb_png(path: &Path, size: (u32, u32), rgb: &[u8]) -> Result<()> {
 
 /// Label of a tick at `v = log10(y)` on a log axis: `y` to 2 significant digits, so that the
 /// fractional-decade ticks of a short range stay distinct (`0.025`, `0.04`, ...); powers of ten
-/// beyond 1e+-4 print as `1e-5`.
+/// that [`format_tick`] would write in scientific notation (below 1e-3, from 1e5 on) print as
+/// `1e-4`, like their neighbours `1e-5`.
 pub fn format_log_tick(v: f64) -> String {
     if !v.is_finite() {
         return "0".into();
     }
     let y = 10f64.powf(v);
-    if (v - v.round()).abs() < 1e-9 && !(-4.0..=4.0).contains(&v.round()) {
+    if (v - v.round()).abs() < 1e-9 && !(-3.0..=4.0).contains(&v.round()) {
         return format!("1e{}", v.round() as i64);
     }
     let mag = y.log10().floor();
@@ -1323,6 +1324,8 @@ mod tests {
         assert_eq!(format_log_tick(-2.0), "0.01");
         assert_eq!(format_log_tick(0.0), "1");
         assert_eq!(format_log_tick(-6.0), "1e-6");
+        assert_eq!(format_log_tick(-4.0), "1e-4");
+        assert_eq!(format_log_tick(-3.0), "0.001");
         assert_eq!(format_log_tick((0.025f64).log10()), "0.025");
         let labels: Vec<String> = (0..10)
             .map(|i| format_log_tick(-2.0 + 0.1 * f64::from(i)))
