@@ -230,7 +230,7 @@ impl<const P: usize> MlpParams<P> {
     /// Returns `None` only if the shape is inconsistent (never for a validated model).
     pub fn forward(&self, x: &[f32]) -> Option<f32> {
         let h = self.hidden as usize;
-        if x.len() != self.inputs as usize {
+        if x.len() != self.inputs as usize || x.is_empty() || h == 0 {
             return None;
         }
         let mut a_in = [0.0f32; MAX_HIDDEN];
@@ -243,7 +243,9 @@ impl<const P: usize> MlpParams<P> {
             let out = a_out.get_mut(..h)?;
             for ((o, row), &b) in out
                 .iter_mut()
-                .zip(layer.w.chunks_exact(fan_in))
+                // `max(1)`: `fan_in` is never 0 (checked above), but `chunks_exact` panics on
+                // 0 and the compiler cannot see that; with it no panic path is left.
+                .zip(layer.w.chunks_exact(fan_in.max(1)))
                 .zip(layer.b)
             {
                 *o = dot_acc(row, input, b);

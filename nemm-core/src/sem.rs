@@ -77,7 +77,15 @@ impl SemMap {
             _ => return (out, true),
         };
         let clamped = !(first..=last).contains(&alpha);
-        let a = alpha.clamp(first, last);
+        // Not `f32::clamp`: it panics on bounds out of order, which `validate` rules out but
+        // the compiler cannot see. A NaN `alpha` stays NaN, as with `clamp`.
+        let a = if alpha < first {
+            first
+        } else if alpha > last {
+            last
+        } else {
+            alpha
+        };
         let (i, t) = segment(&self.alphas, a);
         let row = |ia: usize| self.forces_n.get(ia * nv..(ia + 1) * nv).unwrap_or(&[]);
         let (r0, r1) = (row(i), row((i + 1).min(self.alphas.len() - 1)));

@@ -335,11 +335,13 @@ impl<const N: usize> Kinks<N> {
                 segments: N,
             });
         }
-        // Shift the tail up by one and insert.
+        // Shift the tail up by one and insert, by passing `x` along the slots (the last slot,
+        // index `n`, is unused). Not `rotate_right`: its length assertion is a panic path
+        // the compiler cannot remove.
         let tail = self.x.get_mut(at..=self.n).ok_or(TableError::BadConfig)?;
-        tail.rotate_right(1);
-        if let Some(slot) = tail.first_mut() {
-            *slot = x;
+        let mut carry = x;
+        for slot in tail {
+            core::mem::swap(slot, &mut carry);
         }
         self.n += 1;
         Ok(true)
@@ -795,6 +797,25 @@ pub(crate) fn check_config(cfg: &TableConfig) -> Result<(), TableError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn kinks_stay_sorted_without_near_duplicates_and_refuse_overflow() {
+        let mut k = Kinks::<4>::new(1.0);
+        for (x, new) in [(0.5, true), (0.1, true), (0.9, true), (0.5 + 1e-7, false)] {
+            assert_eq!(k.insert(x, "t"), Ok(new), "{x}");
+        }
+        assert_eq!(k.as_slice(), &[0.1, 0.5, 0.9]);
+        assert_eq!(k.insert(0.3, "t"), Ok(true));
+        assert_eq!(k.as_slice(), &[0.1, 0.3, 0.5, 0.9]);
+        assert_eq!(
+            k.insert(0.7, "t"),
+            Err(TableError::TooManyKinks {
+                scaler: "t",
+                segments: 4
+            })
+        );
+        assert_eq!(k.as_slice(), &[0.1, 0.3, 0.5, 0.9]);
+    }
 
     fn smooth(f: impl Fn(f32) -> f32) -> impl FnMut(f32) -> (f32, u64) {
         move |x| (f(x), 0)
