@@ -22,6 +22,29 @@ pub const DEFAULT_LAMBDA_PH: f64 = 5.0;
 /// Default `nemm sweep` list of physics weights: Table 5's 0, 0.005, 0.015, 0.025 times 1000.
 pub const TABLE5_LAMBDAS: [f64; 4] = [0.0, 5.0, 15.0, 25.0];
 
+/// Nonzero `lambda_ph` values below this are most likely the paper's numbers (Table 5: 0.005
+/// to 0.025) rather than this crate's.
+const PAPER_SCALE_LAMBDA_PH: f64 = 0.1;
+
+/// A note for `--lambda-ph` values that look like the paper's numbers: in this crate's
+/// normalisation they barely act (docs/training.md, "The scale of `lambda_ph`"). `None` when
+/// every value is 0 or at least [`PAPER_SCALE_LAMBDA_PH`].
+pub fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
+    let small: Vec<String> = values
+        .iter()
+        .filter(|&&l| l > 0.0 && l < PAPER_SCALE_LAMBDA_PH)
+        .map(|l| l.to_string())
+        .collect();
+    (!small.is_empty()).then(|| {
+        format!(
+            "note: --lambda-ph {} looks like the paper's scale; this crate's penalty takes 1000 \
+             times the paper's numbers (the paper's 0.005 is 5 here), and at this value the \
+             physics loss barely acts (docs/training.md, \"The scale of lambda_ph\")",
+            small.join(",")
+        )
+    })
+}
+
 /// Options shared by every training command.
 #[derive(Debug, Clone, clap::Args)]
 pub struct TrainArgs {
@@ -127,6 +150,9 @@ impl TrainArgs {
         };
         if !(lambda_ph.is_finite() && lambda_ph >= 0.0) {
             bail!("--lambda-ph must be a non-negative number");
+        }
+        if let Some(note) = lambda_ph_scale_note(&[lambda_ph]) {
+            eprintln!("{note}");
         }
         Ok(PipelineConfig {
             hidden: self.hidden,
@@ -618,6 +644,9 @@ pub fn sweep(
     collect_only: bool,
 ) -> Result<()> {
     let jobs = sweep_jobs(grid, lambdas);
+    if let Some(note) = lambda_ph_scale_note(lambdas) {
+        eprintln!("{note}");
+    }
     let exe = std::env::current_exe().context("cannot find the nemm executable")?;
     if list_only {
         for j in &jobs {
@@ -818,4 +847,19 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
         model_path.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_scale_lambda_ph_gets_a_note() {
+        let note = lambda_ph_scale_note(&[0.0, 0.005, 0.015, 0.025]).expect("a note");
+        assert!(note.contains("0.005,0.015,0.025"), "{note}");
+        assert!(note.contains("0.005 is 5 here"), "{note}");
+        assert_eq!(lambda_ph_scale_note(&TABLE5_LAMBDAS), None);
+        assert_eq!(lambda_ph_scale_note(&[DEFAULT_LAMBDA_PH]), None);
+        assert_eq!(lambda_ph_scale_note(&[0.0]), None);
+    }
 }
