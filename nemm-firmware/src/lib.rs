@@ -47,11 +47,11 @@ pub mod board;
 /// optimum scaler (`H = 16, L = 5`, section 5.4: 1,313 parameters), which also holds `H = 8`
 /// at any depth of the search space (Table 3) and `H = 32` up to `L = 2`.
 ///
-/// RAM: the model and the estimator hold six vectors of `P` floats (31 KiB), and
-/// `nemm_core::decode` needs about 7.5 times the size of a `Model<P>` of stack while it
-/// deserialises (118 KiB here, measured by stack painting; serde builds the nested model by
-/// value and moves it up level by level). Both together must fit the 192 KiB of an STM32F4,
-/// which rules out `H = 16, L = 9` (`P` = 2,529: 226 KiB of decode stack).
+/// RAM: the model and the estimator hold six vectors of `P` floats (31 KiB), and the boot
+/// needs about 105 KiB of stack here (measured by stack painting: `init`'s frame, in which
+/// the estimator is built by value, and `nemm_core::decode`, which builds the model by value;
+/// both grow with `P`). Statics and stack must fit the 192 KiB of an STM32F4, which rules
+/// out `H = 16, L = 9` (`P` = 2,529: 226 KiB of decode stack when it was measured).
 pub const PARAM_CAPACITY: usize = nemm_core::mlp::param_count(2, 16, 5);
 
 /// Bound of the tabulated fast path: each table's largest relative error against its exact
