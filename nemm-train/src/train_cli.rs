@@ -28,7 +28,7 @@ const PAPER_SCALE_LAMBDA_PH: f64 = 0.1;
 
 /// A note for `--lambda-ph` values that look like the paper's numbers: in this crate's
 /// normalisation they barely act (docs/training.md, "The scale of `lambda_ph`"). `None` when
-/// every value is 0 or at least [`PAPER_SCALE_LAMBDA_PH`].
+/// every value is 0 or at least 0.1.
 pub fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
     let small: Vec<String> = values
         .iter()
