@@ -9,8 +9,8 @@
 //! Default settings of `nemm train --variant nemm` (section 5.4: batch 16, H 16, L 5, lr 5e-3,
 //! RK4 at 10 kHz, lambda_ph 5), all epochs up to early stopping. Target: <= 10 minutes on
 //! 2 cores.
+use nemm_train::cli::train::TrainArgs;
 use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant};
-use nemm_train::train_cli::TrainArgs;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -20,7 +20,7 @@ fn main() {
         .map(PathBuf::from)
         .unwrap_or_else(|| std::env::temp_dir().join("nemm-train-time-bench"));
     if !data.join("manifest.toml").exists() {
-        nemm_train::bench::cli::generate(
+        nemm_train::cli::bench::generate(
             &nemm_train::bench::config::BenchConfig::default(),
             1,
             &data,
@@ -29,7 +29,7 @@ fn main() {
     }
     let args = TrainArgs::parse_defaults(data.clone());
     let prepared =
-        nemm_train::train_cli::load_prepared(&data, &args.prepare_config()).expect("dataset");
+        nemm_train::cli::train::load_prepared(&data, &args.prepare_config()).expect("dataset");
     let cfg: PipelineConfig = args.pipeline_config().expect("config");
     let t = Instant::now();
     let trained = train_variants(&prepared, &[Variant::Nemm], &cfg, None, false).expect("train");

@@ -3,17 +3,20 @@
 //! Host side of the NEMM project: test-bench data (interchange format and a first-principles
 //! virtual bench), the preprocessing of section 5.3, training and evaluation of the four model
 //! variants (sections 5-6) and export to the `nemm-core` weight format.
+//!
+//! The modules follow the data (see `ARCHITECTURE.md` at the repository root):
+//!
+//! - [`data`]: the dataset interchange format and the preprocessing of section 5.3;
+//! - [`bench`](mod@bench): the virtual test bench that synthesises a dataset;
+//! - [`train`]: the rollout and its adjoint, the physics losses, the training loop, the four
+//!   variants, evaluation and export checks;
+//! - [`report`]: Table 4 / 5, figures and plotting, blob descriptions;
+//! - [`cli`]: the `nemm` command line, a thin layer over the modules above.
 #![deny(missing_docs)]
 
 pub mod bench;
-pub mod data_cli;
-pub mod dataset;
-pub mod figures;
+pub mod cli;
+pub mod data;
 pub mod fsutil;
-pub mod inspect;
-pub mod plot;
-pub mod preprocess;
 pub mod report;
-pub mod table_check;
 pub mod train;
-pub mod train_cli;

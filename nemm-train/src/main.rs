@@ -25,15 +25,15 @@ enum Cmd {
     Data {
         /// What to do.
         #[command(subcommand)]
-        cmd: nemm_train::data_cli::DataCmd,
+        cmd: nemm_train::cli::data::DataCmd,
     },
     /// Virtual test bench: generate a synthetic dataset, plot loops of a dataset.
-    Bench(nemm_train::bench::cli::BenchArgs),
+    Bench(nemm_train::cli::bench::BenchArgs),
     /// Train one variant and export it as a weights blob (written atomically).
     Train {
         /// Training options.
         #[command(flatten)]
-        args: nemm_train::train_cli::TrainArgs,
+        args: nemm_train::cli::train::TrainArgs,
         /// Output weights blob.
         #[arg(long, default_value = "model.nemm")]
         out: PathBuf,
@@ -60,14 +60,14 @@ enum Cmd {
         out: PathBuf,
         /// Bound of the tabulated fast path's relative coefficient error checked at export
         /// (see docs/core.md, "Tabulated fast path").
-        #[arg(long, default_value_t = nemm_train::table_check::DEFAULT_TABLE_BOUND)]
+        #[arg(long, default_value_t = nemm_train::train::table_check::DEFAULT_TABLE_BOUND)]
         table_bound: f32,
     },
     /// Train all four variants and write Table 4 (table4.md, report.json), models and figures.
     Compare {
         /// Training options.
         #[command(flatten)]
-        args: nemm_train::train_cli::TrainArgs,
+        args: nemm_train::cli::train::TrainArgs,
         /// Report folder.
         #[arg(long, default_value = "report")]
         report: PathBuf,
@@ -84,10 +84,10 @@ enum Cmd {
     Sweep {
         /// Training options (the base of every job).
         #[command(flatten)]
-        args: nemm_train::train_cli::TrainArgs,
+        args: nemm_train::cli::train::TrainArgs,
         /// Grid: lambda (Table 5) or table3 (Table 3 search space x lambda list).
-        #[arg(long, value_enum, default_value_t = nemm_train::train_cli::SweepGrid::Lambda)]
-        grid: nemm_train::train_cli::SweepGrid,
+        #[arg(long, value_enum, default_value_t = nemm_train::cli::train::SweepGrid::Lambda)]
+        grid: nemm_train::cli::train::SweepGrid,
         /// Report folder (jobs in REPORT/jobs/ID/).
         #[arg(long, default_value = "sweep")]
         report: PathBuf,
@@ -120,7 +120,7 @@ enum Cmd {
 }
 
 /// The training flags of a sweep's base configuration, as `nemm train` arguments.
-fn sweep_base_args(a: &nemm_train::train_cli::TrainArgs) -> Vec<String> {
+fn sweep_base_args(a: &nemm_train::cli::train::TrainArgs) -> Vec<String> {
     let mut v = vec![
         "--data".to_string(),
         a.data.display().to_string(),
@@ -161,9 +161,9 @@ fn sweep_base_args(a: &nemm_train::train_cli::TrainArgs) -> Vec<String> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
-        Cmd::Inspect { model } => nemm_train::inspect::run(&model),
-        Cmd::Data { cmd } => nemm_train::data_cli::run(cmd),
-        Cmd::Bench(args) => nemm_train::bench::cli::run(args),
+        Cmd::Inspect { model } => nemm_train::report::inspect::run(&model),
+        Cmd::Data { cmd } => nemm_train::cli::data::run(cmd),
+        Cmd::Bench(args) => nemm_train::cli::bench::run(args),
         Cmd::Train {
             args,
             out,
@@ -172,7 +172,7 @@ fn main() -> ExitCode {
             resume,
             report,
         } => nemm_train::train::pipeline::Variant::parse(&variant).and_then(|v| {
-            nemm_train::train_cli::train(
+            nemm_train::cli::train::train(
                 &args,
                 v,
                 &out,
@@ -185,13 +185,13 @@ fn main() -> ExitCode {
             checkpoint,
             out,
             table_bound,
-        } => nemm_train::train_cli::export(&checkpoint, &out, table_bound),
+        } => nemm_train::cli::train::export(&checkpoint, &out, table_bound),
         Cmd::Compare {
             args,
             report,
             checkpoint,
             resume,
-        } => nemm_train::train_cli::compare(&args, &report, checkpoint.as_deref(), resume)
+        } => nemm_train::cli::train::compare(&args, &report, checkpoint.as_deref(), resume)
             .map(|_| ()),
         Cmd::Sweep {
             args,
@@ -205,8 +205,8 @@ fn main() -> ExitCode {
             let lambdas = args
                 .lambda_ph
                 .clone()
-                .unwrap_or_else(|| nemm_train::train_cli::TABLE5_LAMBDAS.to_vec());
-            nemm_train::train_cli::sweep(&base, grid, &lambdas, &report, jobs, list, collect)
+                .unwrap_or_else(|| nemm_train::cli::train::TABLE5_LAMBDAS.to_vec());
+            nemm_train::cli::train::sweep(&base, grid, &lambdas, &report, jobs, list, collect)
         }
         Cmd::Demo {
             data,
@@ -214,13 +214,13 @@ fn main() -> ExitCode {
             epochs,
             max_batches,
         } => {
-            let args = nemm_train::train_cli::TrainArgs {
+            let args = nemm_train::cli::train::TrainArgs {
                 epochs,
                 max_batches: Some(max_batches),
                 linear_epochs: 6,
-                ..nemm_train::train_cli::TrainArgs::parse_defaults(data.clone())
+                ..nemm_train::cli::train::TrainArgs::parse_defaults(data.clone())
             };
-            nemm_train::train_cli::demo(&nemm_train::train_cli::DemoPaths { data, out }, &args)
+            nemm_train::cli::train::demo(&nemm_train::cli::train::DemoPaths { data, out }, &args)
         }
     };
     match result {

@@ -4,10 +4,10 @@
 //! from the checkpoint, `inspect`, a `sweep` run as separate processes and collected, and the
 //! exported blob run through nemm-core's estimator against the trainer's own test RMSE.
 use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind};
-use nemm_train::dataset;
-use nemm_train::preprocess;
-use nemm_train::report::Report;
-use nemm_train::train_cli::TrainArgs;
+use nemm_train::cli::train::TrainArgs;
+use nemm_train::data::dataset;
+use nemm_train::data::preprocess;
+use nemm_train::report::tables::Report;
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -1,12 +1,12 @@
-//! Report figures (`nemm_train::figures`): every figure is written as a valid PNG of the
+//! Report figures (`nemm_train::report::figures`): every figure is written as a valid PNG of the
 //! expected size from example models and a small synthetic dataset; figures of variants that
 //! were not trained are left out; only I/O failures are errors.
 use nemm_core::testing::example_model;
 use nemm_core::ModelKind;
-use nemm_train::dataset::{Dataset, Run, RunEntry};
-use nemm_train::figures::write_all;
-use nemm_train::preprocess::{self, PrepareConfig, Prepared};
-use nemm_train::report::{evaluate, Report};
+use nemm_train::data::dataset::{Dataset, Run, RunEntry};
+use nemm_train::data::preprocess::{self, PrepareConfig, Prepared};
+use nemm_train::report::figures::write_all;
+use nemm_train::report::tables::{evaluate, Report};
 use nemm_train::train::fit::EpochStats;
 use nemm_train::train::pipeline::{TrainedVariant, Variant};
 use std::f64::consts::PI;
@@ -317,7 +317,7 @@ fn the_report_breaks_the_test_error_down_by_held_out_run() {
     }
     // Markdown: a row per run in newtons, and the shares of the NEMM's squared error add up
     // to 100 %.
-    let md = nemm_train::report::test_runs_markdown(&report);
+    let md = nemm_train::report::tables::test_runs_markdown(&report);
     let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| runs/")).collect();
     assert_eq!(rows.len(), 2, "{md}");
     let share: f64 = rows
@@ -349,5 +349,5 @@ fn the_report_breaks_the_test_error_down_by_held_out_run() {
     old.as_object_mut().expect("object").remove("test_runs");
     let old: Report = serde_json::from_value(old).expect("old report");
     assert!(old.test_runs.is_empty());
-    assert!(nemm_train::report::test_runs_markdown(&old).is_empty());
+    assert!(nemm_train::report::tables::test_runs_markdown(&old).is_empty());
 }

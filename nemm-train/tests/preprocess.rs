@@ -1,7 +1,7 @@
 //! Preprocessing (section 5.3): differentiation, excitation estimates, quasi-static points,
 //! sequences, split and scales, on synthetic signals with known answers.
-use nemm_train::dataset::{self, Dataset, Run, RunEntry};
-use nemm_train::preprocess::{
+use nemm_train::data::dataset::{self, Dataset, Run, RunEntry};
+use nemm_train::data::preprocess::{
     self, Direction, PrepareConfig, PreprocessError, QuasiStaticPoint, RunRole, SequenceConfig,
     SignalConfig, SplitConfig, VelocitySource,
 };

@@ -2,8 +2,8 @@
 use burn::tensor::Device;
 use nemm_core::emm::EmmConstants;
 use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
-use nemm_train::dataset::{Dataset, Run, RunEntry};
-use nemm_train::preprocess::{self, PrepareConfig, Sequence};
+use nemm_train::data::dataset::{Dataset, Run, RunEntry};
+use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
 use nemm_train::train::adjoint::RolloutParams;
 use nemm_train::train::fit::{fit, FitConfig, FitData};
 use nemm_train::train::net::EmmNet;

@@ -2,10 +2,10 @@
 //! effects), integrator stability, determinism of the generated files, config errors, plots.
 
 use nemm_train::bench::config::{self, BenchConfig};
-use nemm_train::bench::plots::{cycle_loop, CycleLoop};
 use nemm_train::bench::program::{run_spec, RunSpec};
 use nemm_train::bench::{Trace, VirtualBench};
-use nemm_train::dataset::{self, Run, RunEntry};
+use nemm_train::data::dataset::{self, Run, RunEntry};
+use nemm_train::report::bench_plots::{cycle_loop, CycleLoop};
 use std::path::{Path, PathBuf};
 
 fn bench() -> VirtualBench {
@@ -489,7 +489,7 @@ fn plots_are_written_for_a_generated_dataset() {
     let cfg = tiny_config("plot");
     let (data, out) = (temp_dir("plot-data"), temp_dir("plot-out"));
     dataset::write(&data, &VirtualBench::new(cfg).generate(3, |_, _| {})).unwrap();
-    let files = nemm_train::bench::plots::plot_dataset(&data, &out).unwrap();
+    let files = nemm_train::report::bench_plots::plot_dataset(&data, &out).unwrap();
     let names: Vec<String> = files
         .iter()
         .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())

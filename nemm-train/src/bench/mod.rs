@@ -17,17 +17,15 @@
 //! let dataset = bench.generate(42, |_done, _total| {});
 //! ```
 
-pub mod cli;
 pub mod config;
 mod hydraulics;
-pub mod plots;
 pub mod program;
 pub mod sensor;
 mod simulate;
 
 pub use simulate::{SolverStats, Trace};
 
-use crate::dataset::{Dataset, Run, RunEntry};
+use crate::data::dataset::{Dataset, Run, RunEntry};
 use config::BenchConfig;
 use hydraulics::{Damper, Filling};
 use program::RunSpec;

@@ -6,7 +6,7 @@
 
 use super::adjoint::{simulate, RolloutParams, Window};
 use super::params::from_core;
-use crate::preprocess::Sequence;
+use crate::data::preprocess::Sequence;
 use anyhow::{Context, Result};
 use nemm_core::{Estimator, EstimatorConfig, Model};
 

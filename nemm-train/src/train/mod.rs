@@ -8,6 +8,7 @@ pub mod net;
 pub mod params;
 pub mod physics;
 pub mod pipeline;
+pub mod table_check;
 
 #[cfg(test)]
 mod adjoint_tests;

@@ -34,6 +34,9 @@ use burn::tensor::{Device, Tensor, TensorData};
 use nemm_core::Model;
 use serde::{Deserialize, Serialize};
 
+/// Dense audit grid of the reported monotonicity audit: states x alphas.
+pub const AUDIT_GRID: (usize, usize) = (401, 101);
+
 /// Grid of the training-time penalty.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PenaltyGrid {

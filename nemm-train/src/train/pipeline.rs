@@ -21,7 +21,7 @@ use super::fit::{fit, rmse, EpochStats, FitConfig, FitData, StopReason};
 use super::net::{EmmNet, NetFrame, ScalerNet, ScalerSpec};
 use super::params::to_core;
 use super::physics::{physics_loss, PenaltyGrid};
-use crate::preprocess::{Prepared, QuasiStaticPoint};
+use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
@@ -466,7 +466,7 @@ fn qs_regression(
     net.to_rollout(&frame).b_fl.context("b_fl scaler")
 }
 
-fn windows_of(seqs: &[crate::preprocess::Sequence]) -> Vec<Window<'_>> {
+fn windows_of(seqs: &[crate::data::preprocess::Sequence]) -> Vec<Window<'_>> {
     seqs.iter()
         .map(|s| Window {
             u: &s.velocity_m_s,

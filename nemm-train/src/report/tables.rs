@@ -2,18 +2,15 @@
 //! abs-max force, and in newtons), the monotonicity audit, training facts; as `report.json`
 //! and Markdown.
 
-use crate::preprocess::Prepared;
+use crate::data::preprocess::Prepared;
 use crate::train::eval::{rmse_of, sse_per_sequence};
 use crate::train::fit::EpochStats;
-use crate::train::physics::{audit, Audit};
+use crate::train::physics::{audit, Audit, AUDIT_GRID};
 use crate::train::pipeline::{TrainedVariant, Variant};
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
-
-/// Dense audit grid: states x alphas.
-pub const AUDIT_GRID: (usize, usize) = (401, 101);
 
 /// Results of one variant.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -23,15 +23,16 @@
 //! A figure that cannot be drawn (missing runs, rendering trouble) is skipped with a warning;
 //! only I/O errors fail [`write_all`].
 
-use crate::dataset::Dataset;
-use crate::plot::{
+use crate::data::dataset::Dataset;
+use crate::data::preprocess::{process_run, Prepared, RunRole};
+use crate::report::plot::{
     self, nice_levels, palette, ColorMap, Figure, HeatmapPanel, LegendPosition, LinePanel, Panel,
     Series,
 };
-use crate::preprocess::{process_run, Prepared, RunRole};
-use crate::report::{Report, AUDIT_GRID};
+use crate::report::tables::Report;
 use crate::train::eval::predict;
 use crate::train::physics::violation;
+use crate::train::physics::AUDIT_GRID;
 use crate::train::pipeline::{TrainedVariant, Variant};
 use anyhow::{bail, Context, Result};
 use nemm_core::Model;
@@ -222,7 +223,7 @@ impl Ctx<'_> {
 
     /// Distinct oil-loss levels of runs with `role`, ascending.
     fn levels(&self, role: RunRole) -> Vec<f64> {
-        crate::preprocess::distinct_levels(
+        crate::data::preprocess::distinct_levels(
             self.prepared
                 .runs
                 .iter()
@@ -277,7 +278,7 @@ impl Ctx<'_> {
         let fs = self.dataset.sample_rate_hz;
         let fsc = self.force_scale();
         // Signals and shown window of every run.
-        let prepared: Vec<Result<(crate::preprocess::Signals, Range<usize>)>> = picks
+        let prepared: Vec<Result<(crate::data::preprocess::Signals, Range<usize>)>> = picks
             .par_iter()
             .map(|pick| {
                 let run = &self.dataset.runs[pick.index];

@@ -1,7 +1,7 @@
 //! `nemm data check` and `nemm data prepare`: validate a bench dataset and show what the
 //! preprocessing of section 5.3 makes of it.
-use crate::dataset::{self, Dataset};
-use crate::preprocess::{
+use crate::data::dataset::{self, Dataset};
+use crate::data::preprocess::{
     self, PrepareConfig, RunRole, RunSummary, SequenceConfig, SignalConfig, SplitConfig,
     SplitCounts, VelocitySource,
 };

@@ -5,14 +5,14 @@
 //! Each run is reduced to one cycle-averaged loop: the last full periods (at least one, up to
 //! 60 % of the run) are folded onto the phase of the displacement (a least-squares sine fit at
 //! the excitation frequency), and velocity and force are averaged in 256 phase bins. The
-//! velocity is the one the trainer sees ([`crate::preprocess::estimate_velocity`]: zero-phase
+//! velocity is the one the trainer sees ([`crate::data::preprocess::estimate_velocity`]: zero-phase
 //! low-pass of the displacement and central difference, or the measured column). Averaging
 //! over periods removes the sensor noise without the phase lag of a filter. Forces are
 //! normalised by the largest cycle-averaged |force| of the dataset, as in the paper's figures.
 
-use crate::dataset::{self, Dataset, Run};
-use crate::plot::{palette, Figure, LegendPosition, LinePanel, Series};
-use crate::preprocess::{estimate_velocity, SignalConfig};
+use crate::data::dataset::{self, Dataset, Run};
+use crate::data::preprocess::{estimate_velocity, SignalConfig};
+use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Series};
 use anyhow::{bail, Context, Result};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};

@@ -25,7 +25,7 @@
 //!
 //! The model integrates at the data's step `dt = 1 / sample_rate_hz`; nothing is resampled.
 
-use crate::dataset::{Dataset, Run};
+use crate::data::dataset::{Dataset, Run};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 

@@ -1,11 +1,11 @@
 //! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
 //! Table 4 / Table 5 reports from the command line.
 
-use crate::dataset;
+use crate::data::dataset;
+use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::fsutil::write_atomic_bytes;
-use crate::inspect::describe;
-use crate::preprocess::{self, PrepareConfig, Prepared};
-use crate::report::{evaluate, table4_markdown, test_runs_markdown, Report};
+use crate::report::inspect::describe;
+use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::fit::FitConfig;
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::{integrator_by_name, to_core};
@@ -298,7 +298,10 @@ pub fn train(
     // The fast path's verdict at export time, as `nemm export` prints it.
     print!(
         "{}",
-        crate::table_check::report(&tv.model, crate::table_check::DEFAULT_TABLE_BOUND)
+        crate::train::table_check::report(
+            &tv.model,
+            crate::train::table_check::DEFAULT_TABLE_BOUND
+        )
     );
     if let Some(dir) = report_dir {
         let mut report = report;
@@ -338,7 +341,7 @@ fn table_vs_exact(
 ) -> Result<()> {
     use nemm_core::{EstimatorConfig, EvalMode, Flags, TableConfig};
     let t = Instant::now();
-    let bound = crate::table_check::DEFAULT_TABLE_BOUND;
+    let bound = crate::train::table_check::DEFAULT_TABLE_BOUND;
     let (mut worst, mut samples, mut outside, mut runs) = (0.0f64, 0usize, 0usize, 0usize);
     for run in prepared
         .runs
@@ -379,7 +382,7 @@ fn table_vs_exact(
 
 /// `nemm export`: the best model of a checkpoint folder written by `nemm train --checkpoint`.
 /// Also reports whether the tabulated fast path meets `table_bound`
-/// ([`crate::table_check`]).
+/// ([`crate::train::table_check`]).
 pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
     let frame_path = checkpoint.join("frame.json");
     let text = std::fs::read_to_string(&frame_path).with_context(|| {
@@ -408,7 +411,7 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
         checkpoint.join(latest.trim()).display()
     );
     print!("{}", describe(&model, n));
-    print!("{}", crate::table_check::report(&model, table_bound));
+    print!("{}", crate::train::table_check::report(&model, table_bound));
     Ok(())
 }
 
@@ -447,7 +450,7 @@ pub fn compare(
     for tv in &trained {
         print_audit(tv, &report);
     }
-    crate::figures::write_all(&trained, &ds, &prepared, &report, report_dir)?;
+    crate::report::figures::write_all(&trained, &ds, &prepared, &report, report_dir)?;
     println!("report, models and figures in {}", report_dir.display());
     Ok(report)
 }
@@ -750,7 +753,7 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
             "no dataset in {}: generating the default virtual bench",
             paths.data.display()
         );
-        crate::bench::cli::generate(
+        crate::cli::bench::generate(
             &crate::bench::config::BenchConfig::default(),
             1,
             &paths.data,
@@ -776,7 +779,7 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
     let model: nemm_core::Model = nemm_core::decode(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
     print!(
         "{}",
-        crate::table_check::report(&model, crate::table_check::DEFAULT_TABLE_BOUND)
+        crate::train::table_check::report(&model, crate::train::table_check::DEFAULT_TABLE_BOUND)
     );
     let test_runs: Vec<_> = prepared
         .runs

@@ -1,7 +1,7 @@
 //! `nemm bench ...`: generate a virtual-bench dataset, plot a dataset, print the default config.
 
-use super::config::{self, BenchConfig};
-use super::VirtualBench;
+use crate::bench::config::{self, BenchConfig};
+use crate::bench::VirtualBench;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use std::io::Write as _;
@@ -54,7 +54,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             generate(&cfg, seed, &out)
         }
         BenchCmd::Plot { dir, out } => {
-            let files = super::plots::plot_dataset(&dir, &out)?;
+            let files = crate::report::bench_plots::plot_dataset(&dir, &out)?;
             for f in files {
                 println!("wrote {}", f.display());
             }
@@ -88,7 +88,7 @@ pub fn generate(cfg: &BenchConfig, seed: u64, out: &Path) -> Result<()> {
     });
     eprintln!();
     let simulated = start.elapsed().as_secs_f64();
-    crate::dataset::write(out, &dataset)
+    crate::data::dataset::write(out, &dataset)
         .with_context(|| format!("cannot write the dataset to {}", out.display()))?;
     let bytes: u64 = dataset
         .runs

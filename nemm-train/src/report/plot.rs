@@ -6,7 +6,7 @@
 //! libraries are needed.
 //!
 //! ```no_run
-//! use nemm_train::plot::{palette, Figure, LinePanel, Series};
+//! use nemm_train::report::plot::{palette, Figure, LinePanel, Series};
 //! let series = Series::line("loss", vec![(0.0, 1.0), (1.0, 0.5), (2.0, 0.3)], palette::categorical(0));
 //! let panel = LinePanel::new("training", "epoch", "loss").with_series(series);
 //! Figure::new(1, 1).with_title("run 7").with_panel(panel).save_png("loss.png".as_ref())?;
@@ -25,7 +25,7 @@ use std::sync::OnceLock;
 /// The bundled font (DejaVu Sans, Bitstream Vera / DejaVu licence).
 /// Height of a footer line in pixels.
 const FOOTER_LINE: u32 = 21;
-static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 const FAMILY: &str = "sans-serif";
 
 /// Registers the bundled font for all plotters text (idempotent).

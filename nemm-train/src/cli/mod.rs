@@ -1,0 +1,4 @@
+//! The `nemm` command line: argument types and the handlers of each command.
+pub mod bench;
+pub mod data;
+pub mod train;

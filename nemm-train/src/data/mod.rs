@@ -1,0 +1,4 @@
+//! Bench data: the dataset interchange format (manifest + CSV) and its preprocessing into
+//! training sequences (section 5.3).
+pub mod dataset;
+pub mod preprocess;
