@@ -11,8 +11,9 @@
 //! | `NEMM_BENCH_ELF` | the step benchmark, release, `qemu` feature |
 //! | `NEMM_QEMU` | `qemu-system-arm` to use (default: from `PATH`) |
 //!
-//! Without them (plain `cargo test`) the QEMU tests say so and pass without running;
-//! `NEMM_REQUIRE_FIRMWARE=1` turns that into a failure.
+//! The QEMU tests are `#[ignore]`d, so that a plain `cargo test` reports them as not run;
+//! `cargo xtask test` runs them (`--ignored`) with these variables set. Run without them,
+//! they fail and say what is missing.
 
 use crate::elf::Elf;
 use std::collections::BTreeMap;
@@ -35,34 +36,38 @@ pub struct Images {
 }
 
 impl Images {
-    /// The images named in the environment; `None` (after saying why on stderr) if they are
-    /// not set, so the calling test can return early. Panics if `NEMM_REQUIRE_FIRMWARE` is
-    /// set and they are not.
-    pub fn from_env(test: &str) -> Option<Self> {
+    /// The images named in the environment; panics with what is missing and how to run the
+    /// QEMU tests if they are not set.
+    pub fn from_env() -> Self {
         let var = |k: &str| std::env::var_os(k).map(PathBuf::from);
+        let missing: Vec<&str> = [
+            "NEMM_FIRMWARE_ELF",
+            "NEMM_FIRMWARE_RELEASE_ELF",
+            "NEMM_BENCH_ELF",
+        ]
+        .into_iter()
+        .filter(|k| std::env::var_os(k).is_none())
+        .collect();
         match (
             var("NEMM_FIRMWARE_ELF"),
             var("NEMM_FIRMWARE_RELEASE_ELF"),
             var("NEMM_BENCH_ELF"),
         ) {
-            (Some(app), Some(app_release), Some(bench)) => Some(Self {
+            (Some(app), Some(app_release), Some(bench)) => Self {
                 app,
                 app_release,
                 bench,
                 qemu: var("NEMM_QEMU").unwrap_or_else(|| "qemu-system-arm".into()),
-            }),
-            _ => {
-                let msg = format!(
-                    "{test}: not run: NEMM_FIRMWARE_ELF, NEMM_FIRMWARE_RELEASE_ELF and \
-                     NEMM_BENCH_ELF are not set (`cargo xtask test` builds the firmware and \
-                     runs this test)"
-                );
-                if std::env::var_os("NEMM_REQUIRE_FIRMWARE").is_some() {
-                    panic!("{msg}");
+            },
+            _ => panic!(
+                "the QEMU tests need the firmware images, and {} not set: run them with \
+                 `cargo xtask test`, which builds the firmware and sets them",
+                if missing.len() == 1 {
+                    format!("{} is", missing[0])
+                } else {
+                    format!("{} are", missing.join(", "))
                 }
-                eprintln!("{msg}");
-                None
-            }
+            ),
         }
     }
 }

@@ -115,10 +115,9 @@ fn max_abs_force(r: &Reference) -> f32 {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn every_estimate_is_bit_identical_to_the_host() {
-    let Some(images) = Images::from_env("qemu_parity") else {
-        return;
-    };
+    let images = Images::from_env();
     let elf = Elf::read(&images.app).expect("firmware image");
     let contents = Contents::of(&elf);
     let args = [SLOW_CLOCK];
@@ -155,10 +154,9 @@ fn every_estimate_is_bit_identical_to_the_host() {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn digests_match_at_the_real_sample_rate() {
-    let Some(images) = Images::from_env("qemu_parity") else {
-        return;
-    };
+    let images = Images::from_env();
     let elf = Elf::read(&images.app).expect("firmware image");
     let contents = Contents::of(&elf);
     // The board's 10 kHz period: if the step is slower than the period every step overruns
@@ -184,10 +182,9 @@ fn digests_match_at_the_real_sample_rate() {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn the_other_model_kinds_are_bit_identical_too() {
-    let Some(images) = Images::from_env("qemu_parity") else {
-        return;
-    };
+    let images = Images::from_env();
     let elf = Elf::read(&images.app).expect("firmware image");
     let contents = Contents::of(&elf);
     let args = [SLOW_CLOCK, "samples=3000"];
@@ -205,12 +202,11 @@ fn the_other_model_kinds_are_bit_identical_too() {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn table_mode_is_bit_identical_to_the_host() {
     // The tabulated fast path (`mode=table`): tables built and checked on the target at boot,
     // then every period's estimate against the host building the same tables.
-    let Some(images) = Images::from_env("qemu_parity") else {
-        return;
-    };
+    let images = Images::from_env();
     let elf = Elf::read(&images.app).expect("firmware image");
     let contents = Contents::of(&elf);
     let args = [SLOW_CLOCK, "samples=3000", "mode=table"];

@@ -40,9 +40,7 @@ fn expected_line(slot_bytes: &[u8]) -> String {
 /// Runs the firmware with `slot` and checks the report and the exit; `kind` is the error
 /// kind the case is about (`kind=...` in the line).
 fn refused(name: &str, slot_bytes: Vec<u8>, kind: &str) {
-    let Some(images) = Images::from_env("qemu_weights") else {
-        return;
-    };
+    let images = Images::from_env();
     let elf = Elf::read(&images.app).expect("firmware image");
     let want = expected_line(&slot_bytes);
     assert!(
@@ -78,10 +76,10 @@ fn refused(name: &str, slot_bytes: Vec<u8>, kind: &str) {
 }
 
 /// The blob built into the firmware.
-fn built_in_blob() -> Option<Vec<u8>> {
-    let images = Images::from_env("qemu_weights")?;
+fn built_in_blob() -> Vec<u8> {
+    let images = Images::from_env();
     let elf = Elf::read(&images.app).expect("firmware image");
-    Some(Contents::of(&elf).blob().to_vec())
+    Contents::of(&elf).blob().to_vec()
 }
 
 /// Rewrites the CRC trailer after editing a blob (so the edit reaches the later checks).
@@ -96,36 +94,41 @@ fn encoded(model: &Model<8192>) -> Vec<u8> {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn truncated_blob() {
-    let Some(b) = built_in_blob() else { return };
+    let b = built_in_blob();
     refused("truncated", slot_with(&b[..b.len() - 1000]), "truncated");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn blob_truncated_inside_its_header() {
-    let Some(b) = built_in_blob() else { return };
+    let b = built_in_blob();
     refused("truncated-header", slot_with(&b[..3]), "truncated");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn bit_flip_in_the_body() {
-    let Some(mut b) = built_in_blob() else { return };
+    let mut b = built_in_blob();
     let at = b.len() / 2;
     b[at] ^= 0x10;
     refused("bit-flip", slot_with(&b), "crc-mismatch");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn bit_flip_in_the_crc() {
-    let Some(mut b) = built_in_blob() else { return };
+    let mut b = built_in_blob();
     let last = b.len() - 1;
     b[last] ^= 0x80;
     refused("bit-flip-crc", slot_with(&b), "crc-mismatch");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn wrong_format_version() {
-    let Some(mut b) = built_in_blob() else { return };
+    let mut b = built_in_blob();
     // Magic (4 bytes), then the version as a postcard varint: 1 -> 2.
     assert_eq!(b[4], 1);
     b[4] = 2;
@@ -133,27 +136,31 @@ fn wrong_format_version() {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn not_a_nemm_blob() {
-    let Some(mut b) = built_in_blob() else { return };
+    let mut b = built_in_blob();
     b[0] = b'X';
     refused("bad-magic", slot_with(&b), "bad-magic");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn trailing_bytes_after_the_crc() {
-    let Some(mut b) = built_in_blob() else { return };
+    let mut b = built_in_blob();
     b.push(0);
     refused("trailing", slot_with(&b), "trailing-bytes");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn erased_slot() {
     refused("erased", vec![0xFF; CAPACITY], "empty");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn slot_length_beyond_the_slot() {
-    let Some(b) = built_in_blob() else { return };
+    let b = built_in_blob();
     refused(
         "slot-too-long",
         slot_with_len(&b, CAPACITY as u32, CAPACITY),
@@ -162,8 +169,9 @@ fn slot_length_beyond_the_slot() {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn nan_weight_with_a_valid_crc() {
-    let Some(mut b) = built_in_blob() else { return };
+    let mut b = built_in_blob();
     // The example model's dt_s (1e-4, f32) is stored as raw little-endian bytes in the body.
     let dt = 1e-4f32.to_le_bytes();
     let at = b
@@ -176,15 +184,15 @@ fn nan_weight_with_a_valid_crc() {
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn model_larger_than_the_firmware_holds() {
-    let Some(_) = built_in_blob() else { return };
     let big = example_model::<8192>(ModelKind::Nemm, 32, 5).expect("H = 32 example");
     refused("over-capacity", slot_with(&encoded(&big)), "over-capacity");
 }
 
 #[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn model_trained_at_another_rate() {
-    let Some(_) = built_in_blob() else { return };
     let mut m = example_model::<8192>(ModelKind::Nemm, 16, 5).expect("example");
     m.dt_s = 0.5e-4; // 20 kHz
     refused("rate-mismatch", slot_with(&encoded(&m)), "rate-mismatch");

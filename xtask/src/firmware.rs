@@ -1,8 +1,8 @@
 //! Building the firmware configurations once per run, and running its images in QEMU.
 
-use crate::elf::{Elf, MemoryUse};
 use crate::toolchain::{Toolchain, TARGET};
 use crate::{run, Paths};
+use nemm_elf::{Elf, MemoryUse};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Instant;
@@ -16,6 +16,17 @@ pub struct Images {
     pub app_release: PathBuf,
     /// The step benchmark, `qemu` feature.
     pub bench: PathBuf,
+}
+
+impl Images {
+    /// The images with their names in the reports: board build, qemu build, benchmark.
+    pub fn named(&self) -> [(&'static str, &Path); 3] {
+        [
+            ("board build", &self.app_release),
+            ("qemu build", &self.app),
+            ("benchmark", &self.bench),
+        ]
+    }
 }
 
 /// Where the firmware builds go: `<workspace target dir>/nemm-firmware`.

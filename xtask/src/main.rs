@@ -1,45 +1,142 @@
 //! Project automation. Run `cargo xtask help`.
 //!
 //! - `cargo xtask test`: everything: the firmware for the target (found or installed
-//!   toolchain, see [`toolchain`]), its lint, then the host workspace tests (release) with the
-//!   QEMU tests (`tests/tests/qemu_*.rs`) pointed at the firmware images, the firmware
-//!   library's host unit tests, nemm-core's unit tests with `micromath`, and a short
-//!   `bench-target`.
+//!   toolchain, see [`toolchain`]), its lint, the host workspace tests (release), the QEMU
+//!   tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`) pointed at the firmware
+//!   images, the firmware library's host unit tests, nemm-core's unit tests with `micromath`,
+//!   and a short `bench-target`.
 //! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4,
 //!   per model kind and integrator.
-//!
-//! std only, so that it compiles in seconds.
+//! - `cargo xtask results`: the target figures (instructions per step, flash, RAM, stack)
+//!   written into `docs/results.md`; `--training DIR` copies a training report's tables
+//!   there ([`results`]).
 
-#[path = "../../tests/src/elf.rs"]
-#[allow(dead_code)]
-mod elf;
+mod bench;
 mod firmware;
+mod results;
 mod toolchain;
 
+use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
+use nemm_elf::Elf;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 use toolchain::Toolchain;
 
-fn usage() -> &'static str {
-    "usage: cargo xtask <command> [options]
+/// Project automation for NEMM.
+#[derive(Debug, Parser)]
+#[command(name = "cargo xtask", bin_name = "cargo xtask", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Cmd>,
+}
 
-commands:
-  test [--host-only]     every test: the firmware (target build, lint), the host workspace
-                         (release) with the QEMU tests, a short bench-target; --host-only
-                         skips everything that needs the embedded toolchain
-  bench-target [--mode exact|table] [--steps N] [--model KIND]...
-                         instructions per estimator step in QEMU (-icount shift=0; N steps of
-                         the bench trace, default 4000, after 200 warm-up steps), one line
-                         per model kind and integrator:
-                         target-step model=<kind> integrator=<rk4|rk3> mode=<mode> instructions_per_step=<N>
-                         (mode=table adds segments=, table_bytes= (RAM), max_rel_error_ppb=, kinks=,
-                          build_instructions=: building the tables at boot)
-  build-target           build the firmware images and print their flash and RAM use
-  run-target [OPTION]... run the firmware in QEMU with firmware options, e.g.
-                         period_ticks=100000 fault=bus@3000+20 fault=nan@5000+40 samples=2000
-  toolchain              say which toolchain route builds the firmware (install it if root)
-  help                   this text"
+#[derive(Debug, Subcommand)]
+enum Cmd {
+    /// Every test: the firmware (target build, lint), the host workspace (release), the QEMU
+    /// tests, a short bench-target.
+    Test {
+        /// Skip everything that needs the embedded toolchain (no firmware, no QEMU tests).
+        #[arg(long)]
+        host_only: bool,
+    },
+    /// Instructions per estimator step in QEMU, one line per model kind and integrator.
+    ///
+    /// QEMU counts instructions (-icount shift=0); N steps of the bench trace after 200
+    /// warm-up steps. Each line reads
+    ///
+    ///   target-step model=<kind> integrator=<rk4|rk3> mode=<mode> instructions_per_step=<N>
+    ///
+    /// and mode=table adds segments=, table_bytes= (RAM), max_rel_error_ppb=, kinks= and
+    /// build_instructions= (building the tables at boot).
+    BenchTarget {
+        /// The estimator's evaluation: the exact scalers or the tabulated fast path.
+        #[arg(long, value_enum, default_value_t = Mode::Exact)]
+        mode: Mode,
+        /// Measured steps of the bench trace.
+        #[arg(long, default_value_t = 4000)]
+        steps: u32,
+        /// Model kind to benchmark (repeatable; default: all).
+        #[arg(long = "model", value_enum, value_name = "KIND")]
+        models: Vec<Kind>,
+    },
+    /// Build the firmware images and print their flash and RAM use.
+    BuildTarget,
+    /// Run the firmware in QEMU with firmware options.
+    ///
+    /// e.g. `cargo xtask run-target -- period_ticks=100000 fault=bus@3000+20
+    /// fault=nan@5000+40 samples=2000`
+    RunTarget {
+        /// Firmware options (`key=value`, see nemm-firmware/src/options.rs).
+        #[arg(
+            trailing_var_arg = true,
+            allow_hyphen_values = true,
+            value_name = "OPTION"
+        )]
+        options: Vec<String>,
+    },
+    /// Write the target figures (instructions per step, flash, RAM, stack) into
+    /// docs/results.md.
+    ///
+    /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm
+    /// demo` report directory instead (table4.md, table5.md if present, report.json).
+    Results {
+        /// A report directory of `nemm compare` or `nemm demo`.
+        #[arg(long, value_name = "DIR")]
+        training: Option<PathBuf>,
+        /// Measured steps of the bench trace.
+        #[arg(long, default_value_t = 4000)]
+        steps: u32,
+    },
+    /// Say which toolchain route builds the firmware (install it if root).
+    Toolchain,
+}
+
+/// The estimator's evaluation mode (the firmware's `mode=` option).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Mode {
+    /// The scalers evaluated as they are.
+    Exact,
+    /// Scalers tabulated at boot, then interpolated.
+    Table,
+}
+
+impl Mode {
+    /// The firmware's name of the mode.
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Exact => "exact",
+            Mode::Table => "table",
+        }
+    }
+}
+
+/// A model kind (an example blob `nemm-firmware/data/example-<kind>.nemm`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Kind {
+    /// Static empirical model: force-velocity map per oil-loss level.
+    Sem,
+    /// EMM with constant parameters.
+    LinearEmm,
+    /// EMM with a neural `b_fl(v_st, alpha)`.
+    NemmLight,
+    /// EMM with neural `b_fl`, `b_pr` and `k_pr`.
+    Nemm,
+}
+
+impl Kind {
+    /// Every kind, in the order of the paper's tables.
+    pub const ALL: [Kind; 4] = [Kind::Sem, Kind::LinearEmm, Kind::NemmLight, Kind::Nemm];
+
+    /// The name in the blobs' file names and in the firmware's output.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Sem => "sem",
+            Kind::LinearEmm => "linear-emm",
+            Kind::NemmLight => "nemm-light",
+            Kind::Nemm => "nemm",
+        }
+    }
 }
 
 /// Workspace locations.
@@ -58,51 +155,38 @@ impl Paths {
             .to_path_buf();
         let target = match std::env::var_os("CARGO_TARGET_DIR") {
             Some(t) => root.join(t),
-            None => {
-                let meta = Command::new(toolchain::host_cargo())
-                    .args(["metadata", "--format-version", "1", "--no-deps"])
-                    .current_dir(&root)
-                    .output()
-                    .map_err(|e| format!("cannot run cargo metadata: {e}"))?;
-                let text = String::from_utf8_lossy(&meta.stdout);
-                json_string(&text, "target_directory")
-                    .map(PathBuf::from)
-                    .unwrap_or_else(|| root.join("target"))
-            }
+            None => cargo_metadata::MetadataCommand::new()
+                .cargo_path(toolchain::host_cargo())
+                .current_dir(&root)
+                .no_deps()
+                .exec()
+                .map_err(|e| format!("cargo metadata: {e}"))?
+                .target_directory
+                .into_std_path_buf(),
         };
         Ok(Self { root, target })
     }
 }
 
-/// The string value of `"key":"..."` in a JSON text (no escapes other than `\\` and `\"`).
-fn json_string(json: &str, key: &str) -> Option<String> {
-    let start = json.find(&format!("\"{key}\":\""))? + key.len() + 4;
-    let mut out = String::new();
-    let mut chars = json[start..].chars();
-    while let Some(c) = chars.next() {
-        match c {
-            '"' => return Some(out),
-            '\\' => out.push(chars.next()?),
-            c => out.push(c),
-        }
-    }
-    None
-}
-
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let rest = args.get(1..).unwrap_or(&[]);
-    let result = match args.first().map(String::as_str) {
-        Some("test") => test(rest),
-        Some("bench-target") => bench_target(rest),
-        Some("build-target") => build_target(rest),
-        Some("run-target") => run_target(rest),
-        Some("toolchain") => setup().map(|(tc, _)| println!("{}", tc.describe())),
-        Some("help") | Some("-h") | Some("--help") | None => {
-            println!("{}", usage());
-            Ok(())
-        }
-        Some(other) => Err(format!("unknown command `{other}`\n\n{}", usage())),
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Some(Cmd::Test { host_only }) => test(host_only),
+        Some(Cmd::BenchTarget {
+            mode,
+            steps,
+            models,
+        }) => bench_target(mode, steps, &models),
+        Some(Cmd::BuildTarget) => build_target(),
+        Some(Cmd::RunTarget { options }) => run_target(&options),
+        Some(Cmd::Results { training, steps }) => match training {
+            Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir)),
+            None => setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps)),
+        },
+        Some(Cmd::Toolchain) => setup().map(|(tc, _)| println!("{}", tc.describe())),
+        None => Cli::command()
+            .print_help()
+            .map_err(|e| format!("cannot print the help: {e}")),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -156,25 +240,18 @@ fn setup() -> Result<(Toolchain, Paths), String> {
     Ok((tc, paths))
 }
 
-fn no_args(cmd: &str, args: &[String]) -> Result<(), String> {
-    match args.first() {
-        Some(a) => Err(format!("`{cmd}` takes no argument `{a}`\n\n{}", usage())),
-        None => Ok(()),
-    }
-}
+/// The integration tests that run the firmware in QEMU (`tests/tests/qemu_*.rs`), ignored by
+/// a plain `cargo test`.
+const QEMU_TESTS: [&str; 4] = [
+    "qemu_faults",
+    "qemu_no_panic",
+    "qemu_parity",
+    "qemu_weights",
+];
 
-fn test(args: &[String]) -> Result<(), String> {
-    let host_only = match args {
-        [] => false,
-        [a] if a == "--host-only" => true,
-        [a, ..] => return Err(format!("unknown option `{a}` of `test`\n\n{}", usage())),
-    };
+fn test(host_only: bool) -> Result<(), String> {
     let started = Instant::now();
     let paths = Paths::find()?;
-    let mut workspace_tests = cargo();
-    workspace_tests
-        .args(["test", "--workspace", "--release", "--no-fail-fast"])
-        .current_dir(&paths.root);
     let mut firmware_secs = 0.0;
     let firmware = if host_only {
         eprintln!("xtask: --host-only: no firmware build, no QEMU tests");
@@ -189,15 +266,27 @@ fn test(args: &[String]) -> Result<(), String> {
             Some(what) => eprintln!("xtask: firmware lint skipped: no {what}"),
         }
         firmware_secs += t.elapsed().as_secs_f64();
-        workspace_tests
+        Some((tc, paths, images))
+    };
+    run(cargo()
+        .args(["test", "--workspace", "--release", "--no-fail-fast"])
+        .current_dir(&paths.root))?;
+    if let Some((tc, _, images)) = &firmware {
+        // The QEMU tests, with the images; `--workspace` keeps the features (and so the
+        // build) of the run above.
+        let mut qemu_tests = cargo();
+        qemu_tests.args(["test", "--workspace", "--release", "--no-fail-fast"]);
+        for t in QEMU_TESTS {
+            qemu_tests.args(["--test", t]);
+        }
+        run(qemu_tests
+            .args(["--", "--ignored"])
             .env("NEMM_FIRMWARE_ELF", &images.app)
             .env("NEMM_FIRMWARE_RELEASE_ELF", &images.app_release)
             .env("NEMM_BENCH_ELF", &images.bench)
             .env("NEMM_QEMU", &tc.qemu)
-            .env("NEMM_REQUIRE_FIRMWARE", "1");
-        Some((tc, paths, images))
-    };
-    run(&mut workspace_tests)?;
+            .current_dir(&paths.root))?;
+    }
     // The firmware library's own unit tests, on the host.
     run(cargo()
         .args(["test", "--release", "-p", "nemm-firmware", "--lib"])
@@ -217,9 +306,8 @@ fn test(args: &[String]) -> Result<(), String> {
         .current_dir(&paths.root))?;
     if let Some((tc, paths, images)) = firmware {
         let t = Instant::now();
-        let lines = bench(&tc, &paths, &images, "exact", 50, &all_kinds())?;
-        for l in &lines {
-            eprintln!("xtask: (smoke, 50 steps) {l}");
+        for f in bench::run(&tc, &paths, &images, Mode::Exact, 50, &Kind::ALL)? {
+            eprintln!("xtask: (smoke, 50 steps) {}", f.line());
         }
         for (name, path) in [
             ("board build", &images.app_release),
@@ -227,7 +315,7 @@ fn test(args: &[String]) -> Result<(), String> {
         ] {
             eprintln!(
                 "xtask: {}",
-                firmware::memory_report(name, &elf::Elf::read(path)?)
+                firmware::memory_report(name, &Elf::read(path)?)
             );
         }
         firmware_secs += t.elapsed().as_secs_f64();
@@ -243,195 +331,39 @@ fn test(args: &[String]) -> Result<(), String> {
     Ok(())
 }
 
-const KINDS: [&str; 4] = ["sem", "linear-emm", "nemm-light", "nemm"];
-
-fn all_kinds() -> Vec<String> {
-    KINDS.iter().map(|k| k.to_string()).collect()
-}
-
-fn bench_target(args: &[String]) -> Result<(), String> {
-    let mut mode = "exact".to_string();
-    let mut steps = 4000u32;
-    let mut kinds = Vec::new();
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut value = || {
-            it.next()
-                .cloned()
-                .ok_or_else(|| format!("`{a}` needs a value"))
-        };
-        match a.as_str() {
-            "--mode" => mode = value()?,
-            "--steps" => {
-                steps = value()?.parse().map_err(|e| format!("--steps: {e}"))?;
-            }
-            "--model" => {
-                let k = value()?;
-                if !KINDS.contains(&k.as_str()) {
-                    return Err(format!("--model {k}: one of {}", KINDS.join(", ")));
-                }
-                kinds.push(k);
-            }
-            _ => return Err(format!("unknown option `{a}`\n\n{}", usage())),
-        }
-    }
-    if kinds.is_empty() {
-        kinds = all_kinds();
-    }
+fn bench_target(mode: Mode, steps: u32, models: &[Kind]) -> Result<(), String> {
+    let kinds = if models.is_empty() {
+        &Kind::ALL[..]
+    } else {
+        models
+    };
     let (tc, paths) = setup()?;
     let images = firmware::build(&tc, &paths)?;
-    for line in bench(&tc, &paths, &images, &mode, steps, &kinds)? {
-        println!("{line}");
+    for f in bench::run(&tc, &paths, &images, mode, steps, kinds)? {
+        println!("{}", f.line());
     }
     eprintln!(
         "xtask: {}",
-        firmware::memory_report(
-            "firmware (board build)",
-            &elf::Elf::read(&images.app_release)?
-        )
+        firmware::memory_report("firmware (board build)", &Elf::read(&images.app_release)?)
     );
     Ok(())
 }
 
-/// Instructions per SysTick tick: `-icount shift=0` runs one instruction per emulated
-/// nanosecond, and SysTick counts the mps2-an386 core clock of 25 MHz.
-const INSTRUCTIONS_PER_TICK: u64 = 40;
-
-/// Runs the benchmark image once per model kind (the example blobs of
-/// `nemm-firmware/data/`, patched into its weights slot) and returns the `target-step` lines.
-fn bench(
-    tc: &Toolchain,
-    paths: &Paths,
-    images: &firmware::Images,
-    mode: &str,
-    steps: u32,
-    kinds: &[String],
-) -> Result<Vec<String>, String> {
-    let elf = elf::Elf::read(&images.bench)?;
-    let scratch = firmware::target_dir(paths).join("bench");
-    std::fs::create_dir_all(&scratch).map_err(|e| format!("{}: {e}", scratch.display()))?;
-    let mut lines = Vec::new();
-    for kind in kinds {
-        let blob_path = paths
-            .root
-            .join("nemm-firmware/data")
-            .join(format!("example-{kind}.nemm"));
-        let blob =
-            std::fs::read(&blob_path).map_err(|e| format!("{}: {e}", blob_path.display()))?;
-        let image = scratch.join(format!("nemm-bench-{kind}.elf"));
-        firmware::with_weights(&elf, &blob, &image)?;
-        let args = [format!("mode={mode}"), format!("steps={steps}")];
-        let (code, out) = firmware::run_qemu(tc, &image, &args)?;
-        if code != 0 {
-            let hint = if out.contains("kind=bad-option") {
-                format!(" (this firmware build does not know mode={mode} or steps={steps})")
-            } else {
-                String::new()
-            };
-            return Err(format!(
-                "the benchmark failed for {kind} with exit code {code}{hint}:\n{out}"
-            ));
-        }
-        let fields = |line: &str| -> Vec<(String, String)> {
-            line.split_ascii_whitespace()
-                .filter_map(|w| w.split_once('='))
-                .map(|(k, v)| (k.to_string(), v.to_string()))
-                .collect()
-        };
-        let get = |f: &[(String, String)], k: &str| -> Result<String, String> {
-            f.iter()
-                .find(|(key, _)| key == k)
-                .map(|(_, v)| v.clone())
-                .ok_or_else(|| format!("no `{k}` in the benchmark output:\n{out}"))
-        };
-        let num = |f: &[(String, String)], k: &str| -> Result<u64, String> {
-            get(f, k)?
-                .parse()
-                .map_err(|e| format!("`{k}` in the benchmark output: {e}"))
-        };
-        if let Some(cal) = out.lines().find(|l| l.starts_with("calibration")) {
-            // 2 instructions per iteration of the integer loop.
-            let f = fields(cal);
-            let expected = 2 * num(&f, "iterations")?;
-            let measured = num(&f, "int_loop_ticks")? * INSTRUCTIONS_PER_TICK;
-            if measured.abs_diff(expected) * 100 > expected {
-                return Err(format!(
-                    "calibration: the 2-instruction loop measured {measured} instructions for \
-                     {expected}: QEMU does not run at 40 instructions per SysTick tick"
-                ));
-            }
-        }
-        let mut found = 0;
-        for line in out.lines().filter(|l| l.starts_with("bench ")) {
-            let f = fields(line);
-            let n = num(&f, "steps")?.max(1);
-            let ticks = num(&f, "ticks")?.saturating_sub(num(&f, "baseline_ticks")?);
-            let mut per_step = (ticks * INSTRUCTIONS_PER_TICK + n / 2) / n;
-            // The benchmark may compute it itself (with its calibrated factor): the same
-            // number, or something is off.
-            if let Ok(own) = num(&f, "instructions_per_step") {
-                if own.abs_diff(per_step) * 100 > per_step.max(100) {
-                    return Err(format!(
-                        "the benchmark says {own} instructions per step, its ticks say \
-                         {per_step}:\n{line}"
-                    ));
-                }
-                per_step = own;
-            }
-            let model = get(&f, "kind")?;
-            if &model != kind {
-                return Err(format!("benchmarked {model}, expected {kind}"));
-            }
-            let integrator = get(&f, "integrator")?;
-            let mut step_line = format!(
-                "target-step model={model} integrator={integrator} mode={} instructions_per_step={per_step}",
-                get(&f, "mode")?
-            );
-            // Table mode: the `table` line of the same run (segments, RAM bytes of the
-            // tables, measured worst relative error in parts per billion).
-            if let Some(t) = out.lines().find(|l| {
-                l.starts_with("table ") && l.contains(&format!(" integrator={integrator} "))
-            }) {
-                let t = fields(t);
-                for k in ["segments", "table_bytes", "max_rel_error_ppb", "kinks"] {
-                    step_line += &format!(" {k}={}", get(&t, k)?);
-                }
-                // Building the estimator (the tables and their check) at boot.
-                step_line += &format!(
-                    " build_instructions={}",
-                    num(&t, "build_ticks")? * INSTRUCTIONS_PER_TICK
-                );
-            }
-            lines.push(step_line);
-            found += 1;
-        }
-        if found == 0 {
-            return Err(format!("no `bench` line in the output:\n{out}"));
-        }
-    }
-    Ok(lines)
-}
-
-fn build_target(args: &[String]) -> Result<(), String> {
-    no_args("build-target", args)?;
+fn build_target() -> Result<(), String> {
     let (tc, paths) = setup()?;
     let images = firmware::build(&tc, &paths)?;
-    for (name, path) in [
-        ("board build", &images.app_release),
-        ("qemu build", &images.app),
-        ("benchmark", &images.bench),
-    ] {
-        let elf = elf::Elf::read(path)?;
+    for (name, path) in images.named() {
+        let elf = Elf::read(path)?;
         println!("{}\n{}", path.display(), elf.memory_use().table());
         println!("{}\n", firmware::memory_report(name, &elf));
     }
     Ok(())
 }
 
-fn run_target(args: &[String]) -> Result<(), String> {
+fn run_target(options: &[String]) -> Result<(), String> {
     let (tc, paths) = setup()?;
     let images = firmware::build(&tc, &paths)?;
-    let status = firmware::qemu_command(&tc, &images.app, args)
+    let status = firmware::qemu_command(&tc, &images.app, options)
         .status()
         .map_err(|e| format!("cannot run {}: {e}", tc.qemu.display()))?;
     match status.code() {
@@ -445,13 +377,81 @@ mod tests {
     use super::*;
 
     #[test]
-    fn reads_the_target_directory_from_cargo_metadata() {
-        let json = r#"{"packages":[],"target_directory":"/tmp/a \"b\"\\c","version":1}"#;
-        assert_eq!(
-            json_string(json, "target_directory").as_deref(),
-            Some("/tmp/a \"b\"\\c")
-        );
-        assert_eq!(json_string(json, "workspace_root"), None);
+    fn the_command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn parses_every_command_and_option() {
+        let parse = |args: &[&str]| {
+            Cli::try_parse_from(std::iter::once("xtask").chain(args.iter().copied()))
+                .map(|c| c.command)
+        };
+        assert!(matches!(
+            parse(&["test", "--host-only"]),
+            Ok(Some(Cmd::Test { host_only: true }))
+        ));
+        assert!(matches!(
+            parse(&["test"]),
+            Ok(Some(Cmd::Test { host_only: false }))
+        ));
+        match parse(&["bench-target"]) {
+            Ok(Some(Cmd::BenchTarget {
+                mode: Mode::Exact,
+                steps: 4000,
+                models,
+            })) => assert!(models.is_empty()),
+            other => panic!("{other:?}"),
+        }
+        match parse(&[
+            "bench-target",
+            "--mode",
+            "table",
+            "--steps",
+            "50",
+            "--model",
+            "linear-emm",
+            "--model",
+            "nemm",
+        ]) {
+            Ok(Some(Cmd::BenchTarget {
+                mode: Mode::Table,
+                steps: 50,
+                models,
+            })) => assert_eq!(models, [Kind::LinearEmm, Kind::Nemm]),
+            other => panic!("{other:?}"),
+        }
+        assert!(parse(&["bench-target", "--model", "lstm"]).is_err());
+        assert!(parse(&["bench-target", "--mode", "fast"]).is_err());
+        match parse(&["run-target", "--", "samples=2000", "fault=bus@3000+20"]) {
+            Ok(Some(Cmd::RunTarget { options })) => {
+                assert_eq!(options, ["samples=2000", "fault=bus@3000+20"]);
+            }
+            other => panic!("{other:?}"),
+        }
+        match parse(&["results", "--training", "runs/compare"]) {
+            Ok(Some(Cmd::Results { training, .. })) => {
+                assert_eq!(training, Some(PathBuf::from("runs/compare")));
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(
+            parse(&["build-target"]),
+            Ok(Some(Cmd::BuildTarget))
+        ));
+        assert!(matches!(parse(&["toolchain"]), Ok(Some(Cmd::Toolchain))));
+        assert!(matches!(parse(&[]), Ok(None)));
+        assert!(parse(&["build-target", "extra"]).is_err());
+        assert!(parse(&["frobnicate"]).is_err());
+    }
+
+    #[test]
+    fn kind_names_are_the_blob_names() {
+        for k in Kind::ALL {
+            let value = k.to_possible_value().expect("a value");
+            assert_eq!(value.get_name(), k.name());
+        }
+        assert_eq!(Mode::Table.to_possible_value().unwrap().get_name(), "table");
     }
 
     #[test]

@@ -1,0 +1,212 @@
+//! The step benchmark (`nemm-bench`) in QEMU: instructions per estimator step, per model
+//! kind and integrator.
+
+use crate::firmware::{self, Images};
+use crate::toolchain::Toolchain;
+use crate::{Kind, Mode, Paths};
+use nemm_elf::Elf;
+
+/// Instructions per SysTick tick: `-icount shift=0` runs one instruction per emulated
+/// nanosecond, and SysTick counts the mps2-an386 core clock of 25 MHz.
+const INSTRUCTIONS_PER_TICK: u64 = 40;
+
+/// The fields of a `table` line that a `target-step` line of mode `table` carries, in order.
+const TABLE_FIELDS: [&str; 4] = ["segments", "table_bytes", "max_rel_error_ppb", "kinks"];
+
+/// The figures of one model kind and integrator.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepFigures {
+    /// Model kind (`kind=` of the benchmark).
+    pub model: String,
+    /// `rk4` or `rk3`.
+    pub integrator: String,
+    /// `exact` or `table`.
+    pub mode: String,
+    /// Instructions per estimator step.
+    pub instructions_per_step: u64,
+    /// Table mode: [`TABLE_FIELDS`] as printed, then `build_instructions` (building the
+    /// estimator, tables and their check, at boot).
+    pub table: Vec<(&'static str, String)>,
+}
+
+impl StepFigures {
+    /// The `target-step` line: `target-step model=<kind> integrator=<rk4|rk3> mode=<mode>
+    /// instructions_per_step=<N>`, plus the table fields in table mode.
+    pub fn line(&self) -> String {
+        let mut l = format!(
+            "target-step model={} integrator={} mode={} instructions_per_step={}",
+            self.model, self.integrator, self.mode, self.instructions_per_step
+        );
+        for (k, v) in &self.table {
+            l += &format!(" {k}={v}");
+        }
+        l
+    }
+
+    /// A table field by name.
+    pub fn table_field(&self, key: &str) -> Option<&str> {
+        self.table
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map(|(_, v)| v.as_str())
+    }
+}
+
+/// `key=value` words of a line.
+fn fields(line: &str) -> Vec<(&str, &str)> {
+    line.split_ascii_whitespace()
+        .filter_map(|w| w.split_once('='))
+        .collect()
+}
+
+/// The figures of one run's output.
+fn parse(out: &str, kind: Kind) -> Result<Vec<StepFigures>, String> {
+    let get = |f: &[(&str, &str)], k: &str| -> Result<String, String> {
+        f.iter()
+            .find(|(key, _)| *key == k)
+            .map(|(_, v)| v.to_string())
+            .ok_or_else(|| format!("no `{k}` in the benchmark output:\n{out}"))
+    };
+    let num = |f: &[(&str, &str)], k: &str| -> Result<u64, String> {
+        get(f, k)?
+            .parse()
+            .map_err(|e| format!("`{k}` in the benchmark output: {e}"))
+    };
+    if let Some(cal) = out.lines().find(|l| l.starts_with("calibration")) {
+        // 2 instructions per iteration of the integer loop.
+        let f = fields(cal);
+        let expected = 2 * num(&f, "iterations")?;
+        let measured = num(&f, "int_loop_ticks")? * INSTRUCTIONS_PER_TICK;
+        if measured.abs_diff(expected) * 100 > expected {
+            return Err(format!(
+                "calibration: the 2-instruction loop measured {measured} instructions for \
+                 {expected}: QEMU does not run at 40 instructions per SysTick tick"
+            ));
+        }
+    }
+    let mut figures = Vec::new();
+    for line in out.lines().filter(|l| l.starts_with("bench ")) {
+        let f = fields(line);
+        let n = num(&f, "steps")?.max(1);
+        let ticks = num(&f, "ticks")?.saturating_sub(num(&f, "baseline_ticks")?);
+        let mut per_step = (ticks * INSTRUCTIONS_PER_TICK + n / 2) / n;
+        // The benchmark may compute it itself (with its calibrated factor): the same number,
+        // or something is off.
+        if let Ok(own) = num(&f, "instructions_per_step") {
+            if own.abs_diff(per_step) * 100 > per_step.max(100) {
+                return Err(format!(
+                    "the benchmark says {own} instructions per step, its ticks say \
+                     {per_step}:\n{line}"
+                ));
+            }
+            per_step = own;
+        }
+        let model = get(&f, "kind")?;
+        if model != kind.name() {
+            return Err(format!("benchmarked {model}, expected {}", kind.name()));
+        }
+        let integrator = get(&f, "integrator")?;
+        let mut table = Vec::new();
+        // Table mode: the `table` line of the same run (segments, RAM bytes of the tables,
+        // measured worst relative error in parts per billion).
+        if let Some(t) = out
+            .lines()
+            .find(|l| l.starts_with("table ") && l.contains(&format!(" integrator={integrator} ")))
+        {
+            let t = fields(t);
+            for k in TABLE_FIELDS {
+                table.push((k, get(&t, k)?));
+            }
+            table.push((
+                "build_instructions",
+                (num(&t, "build_ticks")? * INSTRUCTIONS_PER_TICK).to_string(),
+            ));
+        }
+        figures.push(StepFigures {
+            model,
+            integrator,
+            mode: get(&f, "mode")?,
+            instructions_per_step: per_step,
+            table,
+        });
+    }
+    if figures.is_empty() {
+        return Err(format!("no `bench` line in the output:\n{out}"));
+    }
+    Ok(figures)
+}
+
+/// Runs the benchmark image once per model kind (the example blobs of
+/// `nemm-firmware/data/`, patched into its weights slot) and returns the figures.
+pub fn run(
+    tc: &Toolchain,
+    paths: &Paths,
+    images: &Images,
+    mode: Mode,
+    steps: u32,
+    kinds: &[Kind],
+) -> Result<Vec<StepFigures>, String> {
+    let elf = Elf::read(&images.bench)?;
+    let scratch = firmware::target_dir(paths).join("bench");
+    std::fs::create_dir_all(&scratch).map_err(|e| format!("{}: {e}", scratch.display()))?;
+    let mut figures = Vec::new();
+    for &kind in kinds {
+        let blob_path = paths
+            .root
+            .join("nemm-firmware/data")
+            .join(format!("example-{}.nemm", kind.name()));
+        let blob =
+            std::fs::read(&blob_path).map_err(|e| format!("{}: {e}", blob_path.display()))?;
+        let image = scratch.join(format!("nemm-bench-{}.elf", kind.name()));
+        firmware::with_weights(&elf, &blob, &image)?;
+        let args = [format!("mode={}", mode.name()), format!("steps={steps}")];
+        let (code, out) = firmware::run_qemu(tc, &image, &args)?;
+        if code != 0 {
+            let hint = if out.contains("kind=bad-option") {
+                format!(
+                    " (this firmware build does not know mode={} or steps={steps})",
+                    mode.name()
+                )
+            } else {
+                String::new()
+            };
+            return Err(format!(
+                "the benchmark failed for {} with exit code {code}{hint}:\n{out}",
+                kind.name()
+            ));
+        }
+        figures.extend(parse(&out, kind)?);
+    }
+    Ok(figures)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_the_benchmark_output_into_target_step_lines() {
+        let out = "\
+calibration iterations=1000 int_loop_ticks=50 fp_loop_ticks=60
+table kind=nemm integrator=rk4 segments=128 tables=2 table_bytes=7168 max_rel_error_ppb=2792 kinks=73 build_ticks=100
+bench kind=nemm integrator=rk4 mode=table steps=4000 ticks=49300 baseline_ticks=100
+";
+        let f = parse(out, Kind::Nemm).expect("parse");
+        assert_eq!(
+            f.iter().map(StepFigures::line).collect::<Vec<_>>(),
+            [
+                "target-step model=nemm integrator=rk4 mode=table instructions_per_step=492 \
+              segments=128 table_bytes=7168 max_rel_error_ppb=2792 kinks=73 \
+              build_instructions=4000"
+            ]
+        );
+        assert_eq!(f[0].table_field("table_bytes"), Some("7168"));
+        assert!(parse(out, Kind::Sem).is_err());
+        assert!(parse(
+            "calibration iterations=1000 int_loop_ticks=80\n",
+            Kind::Nemm
+        )
+        .is_err());
+        assert!(parse("boot\n", Kind::Nemm).is_err());
+    }
+}
