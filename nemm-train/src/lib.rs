@@ -3,7 +3,6 @@
 //! Host side of the NEMM project: test-bench data (interchange format and a first-principles
 //! virtual bench), the preprocessing of section 5.3, training and evaluation of the four model
 //! variants (sections 5-6) and export to the `nemm-core` weight format.
-#![deny(missing_docs)]
 
 pub mod bench;
 pub mod data_cli;
