@@ -14,6 +14,9 @@
 #[allow(dead_code)]
 mod elf;
 mod firmware;
+#[path = "../../nemm-firmware/src/slot.rs"]
+#[allow(dead_code)]
+mod slot;
 mod toolchain;
 
 use std::path::{Path, PathBuf};
