@@ -15,15 +15,23 @@
 //!   conditions instead.
 //!
 //! Relative paths are relative to this crate's directory.
+// A failed build step panics with its reason.
+#![allow(clippy::expect_used, clippy::panic)]
+
+use rand_distr::{Distribution, StandardNormal};
+use rand_xoshiro::rand_core::SeedableRng;
+use rand_xoshiro::SplitMix64;
 use std::env;
 use std::f64::consts::PI;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-/// Must equal `slot::CAPACITY` (the firmware's `include_bytes!` into a `[u8; CAPACITY]`
-/// refuses to compile otherwise).
-const SLOT_CAPACITY: usize = 64 * 1024;
-const SLOT_MAGIC: &[u8; 4] = b"NWSL";
+/// The firmware's weights-slot format, the same source as the firmware's (one writer of
+/// the layout); the build script uses the encoder only.
+#[path = "src/slot.rs"]
+#[allow(dead_code)]
+mod slot;
+
 const TRACE_MAGIC: &[u8; 4] = b"NTRC";
 const SAMPLE_RATE_HZ: f64 = 10_000.0;
 const DEFAULT_OIL_LOSS: f32 = 0.15;
@@ -64,10 +72,8 @@ fn main() {
         Some(p) => {
             let p = manifest_dir.join(p);
             println!("cargo:rerun-if-changed={}", p.display());
-            let text = fs::read_to_string(&p)
-                .unwrap_or_else(|e| panic!("NEMM_TRACE: cannot read {}: {e}", p.display()));
             let (rate, samples) =
-                parse_run_csv(&text).unwrap_or_else(|e| panic!("NEMM_TRACE: {}: {e}", p.display()));
+                parse_run_csv(&p).unwrap_or_else(|e| panic!("NEMM_TRACE: {}: {e}", p.display()));
             encode_trace(rate, oil_loss, &samples)
         }
         None => encode_trace(SAMPLE_RATE_HZ as f32, oil_loss, &synthetic_run()),
@@ -83,20 +89,14 @@ fn input_path(dir: &Path, var: &str, default: &str) -> PathBuf {
 }
 
 fn slot(blob: &[u8], path: &Path) -> Vec<u8> {
-    let room = SLOT_CAPACITY - 8;
-    if blob.len() > room {
+    let mut s = vec![0; slot::CAPACITY];
+    if let Err(e) = slot::encode(blob, &mut s) {
         panic!(
-            "NEMM_WEIGHTS: {} is {} bytes, the weights slot holds {room}; export a smaller model \
-             or raise slot::CAPACITY (and the WEIGHTS region in boards/*.x)",
-            path.display(),
-            blob.len()
+            "NEMM_WEIGHTS: {} does not fit the weights slot ({e:?}); export a smaller model or \
+             raise slot::CAPACITY (and the WEIGHTS region in boards/*.x)",
+            path.display()
         );
     }
-    let mut s = Vec::with_capacity(SLOT_CAPACITY);
-    s.extend_from_slice(SLOT_MAGIC);
-    s.extend_from_slice(&(blob.len() as u32).to_le_bytes());
-    s.extend_from_slice(blob);
-    s.resize(SLOT_CAPACITY, 0xFF); // erased flash
     s
 }
 
@@ -120,25 +120,26 @@ fn encode_trace(rate_hz: f32, oil_loss: f32, samples: &[Sample]) -> Vec<u8> {
 
 /// A run CSV with a header naming `time_s` and `displacement_m` (and optionally
 /// `velocity_m_s`); returns the mean sample rate and the samples.
-fn parse_run_csv(text: &str) -> Result<(f32, Vec<Sample>), String> {
-    let mut lines = text.lines().enumerate();
-    let (_, header) = lines.next().ok_or("empty file")?;
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-    let col = |name: &str| cols.iter().position(|c| *c == name);
+fn parse_run_csv(path: &Path) -> Result<(f32, Vec<Sample>), String> {
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .from_path(path)
+        .map_err(|e| e.to_string())?;
+    let headers = reader.headers().map_err(|e| e.to_string())?.clone();
+    let col = |name: &str| headers.iter().position(|c| c == name);
     let t_col = col("time_s").ok_or("no `time_s` column")?;
     let x_col = col("displacement_m").ok_or("no `displacement_m` column")?;
     let v_col = col("velocity_m_s");
     let (mut t0, mut t1, mut samples) = (None, 0.0f64, Vec::new());
-    for (i, line) in lines {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+    for record in reader.records() {
+        let record = record.map_err(|e| e.to_string())?;
+        let line = record.position().map_or(0, |p| p.line());
         let num = |c: usize| -> Result<f64, String> {
-            f.get(c)
-                .ok_or(format!("line {}: missing column {c}", i + 1))?
+            record
+                .get(c)
+                .ok_or(format!("line {line}: missing column {c}"))?
                 .parse::<f64>()
-                .map_err(|e| format!("line {}: {e}", i + 1))
+                .map_err(|e| format!("line {line}: {e}"))
         };
         let t = num(t_col)?;
         t0.get_or_insert(t);
@@ -157,27 +158,6 @@ fn parse_run_csv(text: &str) -> Result<(f32, Vec<Sample>), String> {
     Ok((rate as f32, samples))
 }
 
-/// SplitMix64 stream for the synthetic noise.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f64 {
-        ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    /// Standard normal (Box-Muller).
-    fn normal(&mut self) -> f64 {
-        let (u1, u2) = (self.uniform(), self.uniform());
-        (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
-    }
-}
-
 /// Synthetic bench run: for each of the paper's Table 1 conditions (stroke amplitude 50 and
 /// 10 mm, target velocities 0.052 .. 1.048 m/s at the zero crossing) a 0.15 s sinusoidal
 /// stroke segment `x = A w(t) sin(v t / A)` that starts at the zero crossing, with a 20 ms
@@ -190,7 +170,7 @@ fn synthetic_run() -> Vec<Sample> {
     const FADE_S: f64 = 0.02;
     const NOISE_M: f64 = 0.5e-6;
     let n_seg = (SEGMENT_S * SAMPLE_RATE_HZ) as usize;
-    let mut rng = Rng(0x4E45_4D4D);
+    let mut rng = SplitMix64::seed_from_u64(0x4E45_4D4D);
     let mut out = Vec::new();
     for a in AMPLITUDES_M {
         for v_peak in VELOCITIES_M_S {
@@ -209,7 +189,8 @@ fn synthetic_run() -> Vec<Sample> {
                 };
                 let x = a * win * (w * t).sin();
                 let v = a * dwin * (w * t).sin() + a * win * w * (w * t).cos();
-                out.push(((x + NOISE_M * rng.normal()) as f32, v as f32));
+                let noise: f64 = StandardNormal.sample(&mut rng);
+                out.push(((x + NOISE_M * noise) as f32, v as f32));
             }
         }
     }

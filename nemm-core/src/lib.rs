@@ -40,7 +40,6 @@
 #![deny(unsafe_code)]
 // Without an allocator, variants cannot be boxed; sizes are bounded by the capacities.
 #![allow(clippy::large_enum_variant)]
-#![deny(missing_docs)]
 #![cfg_attr(
     not(test),
     deny(

@@ -18,15 +18,6 @@
 //! Bad weights are reported with their typed error and the estimator is not started.
 #![no_std]
 #![no_main]
-#![deny(missing_docs)]
-#![deny(
-    clippy::indexing_slicing,
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::unreachable,
-    clippy::todo
-)]
 
 use nemm_firmware as _;
 

@@ -10,7 +10,9 @@
 //! ```
 //!
 //! The slot only frames the blob; everything inside it (magic, version, CRC, shapes,
-//! stability) is checked by [`nemm_core::decode`].
+//! stability) is checked by `nemm_core::decode`. [`encode`] writes a slot: the build
+//! script (which includes this file), `cargo xtask` and the host tests frame their blobs
+//! with it.
 
 /// Magic bytes of a slot.
 pub const MAGIC: [u8; 4] = *b"NWSL";
@@ -33,6 +35,33 @@ pub enum SlotError {
         /// Bytes available for the blob.
         capacity: u32,
     },
+}
+
+/// The slot header of a blob of `len` bytes: [`MAGIC`], then `len` little-endian.
+pub fn header(len: u32) -> [u8; HEADER_LEN] {
+    let [m0, m1, m2, m3] = MAGIC;
+    let [l0, l1, l2, l3] = len.to_le_bytes();
+    [m0, m1, m2, m3, l0, l1, l2, l3]
+}
+
+/// Writes the slot holding `blob` into `slot` (the whole reserved region): the
+/// [`header`], the blob, and erased flash (`0xFF`) up to the end of `slot`.
+///
+/// # Errors
+///
+/// [`SlotError::TooLong`] if the header and `blob` do not fit `slot`.
+pub fn encode(blob: &[u8], slot: &mut [u8]) -> Result<(), SlotError> {
+    let len = u32::try_from(blob.len()).unwrap_or(u32::MAX);
+    let too_long = SlotError::TooLong {
+        len,
+        capacity: u32::try_from(slot.len().saturating_sub(HEADER_LEN)).unwrap_or(u32::MAX),
+    };
+    let (head, body) = slot.split_at_mut_checked(HEADER_LEN).ok_or(too_long)?;
+    let (data, erased) = body.split_at_mut_checked(blob.len()).ok_or(too_long)?;
+    head.copy_from_slice(&header(len));
+    data.copy_from_slice(blob);
+    erased.fill(0xFF);
+    Ok(())
 }
 
 /// The blob framed by `slot` (the whole reserved region).
@@ -63,12 +92,36 @@ mod tests {
     use std::vec::Vec;
 
     fn slot(blob: &[u8], cap: usize) -> Vec<u8> {
-        let mut s = Vec::new();
-        s.extend_from_slice(&MAGIC);
-        s.extend_from_slice(&(blob.len() as u32).to_le_bytes());
-        s.extend_from_slice(blob);
-        s.resize(cap, 0xFF);
+        let mut s = vec![0; cap];
+        encode(blob, &mut s).unwrap();
         s
+    }
+
+    #[test]
+    fn encodes_header_blob_and_erased_flash() {
+        let s = slot(b"NEMM1234", 20);
+        assert_eq!(&s[..8], b"NWSL\x08\x00\x00\x00");
+        assert_eq!(&s[8..16], b"NEMM1234");
+        assert_eq!(&s[16..], &[0xFF; 4]);
+        assert_eq!(blob(&s), Ok(&b"NEMM1234"[..]));
+        // Exactly full, and one byte too many.
+        assert_eq!(blob(&slot(&[7; 12], 20)), Ok(&[7; 12][..]));
+        let mut small = [0u8; 20];
+        assert_eq!(
+            encode(&[7; 13], &mut small),
+            Err(SlotError::TooLong {
+                len: 13,
+                capacity: 12
+            })
+        );
+        assert_eq!(
+            encode(b"", &mut small[..7]),
+            Err(SlotError::TooLong {
+                len: 0,
+                capacity: 0
+            })
+        );
+        assert_eq!(header(0x0102_0304), *b"NWSL\x04\x03\x02\x01");
     }
 
     #[test]

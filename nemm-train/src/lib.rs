@@ -12,7 +12,6 @@
 //!   variants, evaluation and export checks;
 //! - [`report`]: Table 4 / 5, figures and plotting, blob descriptions;
 //! - [`cli`]: the `nemm` command line, a thin layer over the modules above.
-#![deny(missing_docs)]
 
 pub mod bench;
 pub mod cli;

@@ -341,12 +341,9 @@ impl Contents {
 /// A weights slot holding `blob` (header, blob, erased flash up to `capacity`); the length
 /// field says `len` (normally `blob.len()`).
 pub fn slot_with_len(blob: &[u8], len: u32, capacity: usize) -> Vec<u8> {
-    let mut s = Vec::with_capacity(capacity);
-    s.extend_from_slice(&nemm_firmware::slot::MAGIC);
-    s.extend_from_slice(&len.to_le_bytes());
-    s.extend_from_slice(blob);
-    assert!(s.len() <= capacity, "blob does not fit the slot");
-    s.resize(capacity, 0xFF);
+    let mut s = vec![0; capacity];
+    nemm_firmware::slot::encode(blob, &mut s).expect("blob fits the slot");
+    s[..nemm_firmware::slot::HEADER_LEN].copy_from_slice(&nemm_firmware::slot::header(len));
     s
 }
 

@@ -113,20 +113,16 @@ pub fn run_qemu(tc: &Toolchain, elf: &Path, args: &[String]) -> Result<(i32, Str
     ))
 }
 
-/// A weights slot of `capacity` bytes holding `blob` (`src/slot.rs`: `NWSL`, length, blob,
-/// erased flash).
+/// A weights slot of `capacity` bytes holding `blob` (`nemm-firmware/src/slot.rs`: `NWSL`,
+/// length, blob, erased flash).
 pub fn slot(blob: &[u8], capacity: usize) -> Result<Vec<u8>, String> {
-    if blob.len() + 8 > capacity {
-        return Err(format!(
-            "a {}-byte blob does not fit the {capacity}-byte weights slot",
+    let mut s = vec![0; capacity];
+    crate::slot::encode(blob, &mut s).map_err(|e| {
+        format!(
+            "a {}-byte blob does not fit the {capacity}-byte weights slot ({e:?})",
             blob.len()
-        ));
-    }
-    let mut s = Vec::with_capacity(capacity);
-    s.extend_from_slice(b"NWSL");
-    s.extend_from_slice(&(blob.len() as u32).to_le_bytes());
-    s.extend_from_slice(blob);
-    s.resize(capacity, 0xFF);
+        )
+    })?;
     Ok(s)
 }
 

@@ -14,6 +14,9 @@
 mod bench;
 mod firmware;
 mod results;
+#[path = "../../nemm-firmware/src/slot.rs"]
+#[allow(dead_code)]
+mod slot;
 mod toolchain;
 
 use clap::{CommandFactory, Parser, Subcommand, ValueEnum};

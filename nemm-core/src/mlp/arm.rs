@@ -92,6 +92,12 @@ pub(super) fn raw(h: usize, layers: usize, w: &[f32], consts: &[f32; 4], u: f32)
 /// - `nemm_ln n, t, g, y, r, sl`: `n` (even) LayerNorm outputs:
 ///   `s(y + k) = leaky(fma(s(g + k), s(t + k) * s(r), s(y + k)))` with slope `s(sl)`;
 ///   `s(t + k)` is overwritten; uses the core registers `{ra}`, `{rb}`.
+/// - `nemm_ln16 pt, pb`: the 16 LayerNorm outputs of a 16-input block into `s16..s31`
+///   (holding the betas): pre-activations from `[pt]`, gammas from `[pb]` (both
+///   post-incremented), `1 / sqrt(var + eps)` in `s15`, slope in `s14`; uses `s0..s11`.
+/// - `nemm_rnorm v, k0, k1, k2`: `s(v) = 1 / sqrt(s(v) * (1/H) + eps)` with the constants
+///   `[1/H, eps, slope]` loaded from `[{c}]` into `s(k0), s(k1), s(k2)` (`s(k0)` is
+///   overwritten by `1.0`).
 macro_rules! macros_begin {
     () => {
         r#"
@@ -149,6 +155,25 @@ macro_rules! macros_begin {
     .set .Lnemm_l, .Lnemm_l + 2
   .endr
 .endm
+.macro nemm_ln16 qpt, qpb
+  vldmia \qpt!, {{s0-s5}}
+  vldmia \qpb!, {{s6-s11}}
+  nemm_ln 6, 0, 6, 16, 15, 14
+  vldmia \qpt!, {{s0-s5}}
+  vldmia \qpb!, {{s6-s11}}
+  nemm_ln 6, 0, 6, 22, 15, 14
+  vldmia \qpt!, {{s0-s3}}
+  vldmia \qpb!, {{s6-s9}}
+  nemm_ln 4, 0, 6, 28, 15, 14
+.endm
+.macro nemm_rnorm qv, qk0, qk1, qk2
+  vldmia {c}, {{s\qk0-s\qk2}}
+  vmul.f32 s\qv, s\qv, s\qk0
+  vadd.f32 s\qv, s\qv, s\qk1
+  vsqrt.f32 s\qv, s\qv
+  vmov.f32 s\qk0, #1.0
+  vdiv.f32 s\qv, s\qk0, s\qv
+.endm
 "#
     };
 }
@@ -163,27 +188,67 @@ macro_rules! macros_end {
 .purgem nemm_axpy
 .purgem nemm_ln2
 .purgem nemm_ln
+.purgem nemm_ln16
+.purgem nemm_rnorm
 .noaltmacro
 "#
     };
 }
 
-/// `H = 16`: inputs of a layer in `s16..s31`; rows in groups of 4 (accumulators `s0..s3`,
-/// weights streamed through `s4..s14`, 6 `vldmia` per 64 weights), `var` in `s15`.
-#[inline(never)]
-fn raw16(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
-    let mut scratch = MaybeUninit::<[f32; 16]>::uninit();
-    let z: u32;
-    // SAFETY: `raw` checked `w.len() == compiled_len(16, layers)` and `1 <= layers <= 9`.
-    // The block reads `w` from its first to its last element in the compiled layout (layer 1:
-    // 4 x 16, each further layer 256 + 3 x 16, output 17) and the 4 constants, and writes
-    // and reads back only the 16 floats of `scratch`. Every FPU register it touches is
-    // declared clobbered (`d0..d15` = `s0..s31`); the core registers are operands; it does
-    // not use the stack; it changes the APSR flags (no `preserves_flags`).
-    unsafe {
-        asm!(
-            macros_begin!(),
-            r#"
+/// One kernel: `fn $name(w, layers, consts, u) -> f32` running the width's instructions
+/// `$body` between the shared assembler macros, with `$scratch` floats of scratch on the
+/// stack. The operands are the same for every width: `{w}` the weights (advanced by the
+/// block), `{n}` the hidden layers after the first (counted down), `{u}` the input bits in and
+/// the output bits out, `{c}` the 4 constants, `{s}` the scratch, `{b}`, `{t}`, `{ra}`, `{rb}`
+/// free core registers, and every FPU register clobbered.
+macro_rules! kernel {
+    ($(#[$doc:meta])* fn $name:ident, scratch = $scratch:literal, $body:literal) => {
+        $(#[$doc])*
+        #[inline(never)]
+        fn $name(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
+            let mut scratch = MaybeUninit::<[f32; $scratch]>::uninit();
+            let z: u32;
+            // SAFETY: `raw` checked `w.len() == compiled_len(H, layers)` and
+            // `1 <= layers <= MAX_LAYERS`. The block reads `w` from its first to its last
+            // element in the compiled layout (the kernel's "Reads" above) and the 4
+            // constants, and writes and reads back only the `$scratch` floats of `scratch`.
+            // Every FPU register it touches is declared clobbered (`d0..d15` = `s0..s31`);
+            // the core registers are operands; it does not use the stack; it changes the
+            // APSR flags (no `preserves_flags`).
+            unsafe {
+                asm!(
+                    macros_begin!(),
+                    $body,
+                    macros_end!(),
+                    w = inout(reg) w.as_ptr() => _,
+                    n = inout(reg) layers - 1 => _,
+                    u = inout(reg) u.to_bits() => z,
+                    c = in(reg) consts.as_ptr(),
+                    s = in(reg) scratch.as_mut_ptr(),
+                    b = out(reg) _,
+                    t = out(reg) _,
+                    ra = out(reg) _,
+                    rb = out(reg) _,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                    out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                    out("d12") _, out("d13") _, out("d14") _, out("d15") _,
+                    options(nostack),
+                );
+            }
+            f32::from_bits(z)
+        }
+    };
+}
+
+kernel! {
+    /// `H = 16`: inputs of a layer in `s16..s31`; rows in groups of 4 (accumulators `s0..s3`,
+    /// weights streamed through `s4..s14`, 6 `vldmia` per 64 weights), `var` in `s15`.
+    ///
+    /// Reads layer 1: 4 x 16, each further layer 256 + 3 x 16, output 17; scratch: the 16
+    /// pre-activations.
+    fn raw16, scratch = 16,
+    r#"
     vmov s8, {u}
     vldr s15, [{c}, #12]
     add {b}, {w}, #64
@@ -208,24 +273,11 @@ fn raw16(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
     vstmia {t}!, {{s0-s3}}
     .endr
 3:
-    vldmia {c}, {{s12-s14}}
-    vmul.f32 s15, s15, s12
-    vadd.f32 s15, s15, s13
-    vsqrt.f32 s15, s15
-    vmov.f32 s12, #1.0
-    vdiv.f32 s15, s12, s15
+    nemm_rnorm 15, 12, 13, 14
     add {t}, {b}, #64
     vldmia {t}, {{s16-s31}}
     mov {t}, {s}
-    vldmia {t}!, {{s0-s5}}
-    vldmia {b}!, {{s6-s11}}
-    nemm_ln 6, 0, 6, 16, 15, 14
-    vldmia {t}!, {{s0-s5}}
-    vldmia {b}!, {{s6-s11}}
-    nemm_ln 6, 0, 6, 22, 15, 14
-    vldmia {t}, {{s0-s3}}
-    vldmia {b}!, {{s6-s9}}
-    nemm_ln 4, 0, 6, 28, 15, 14
+    nemm_ln16 {t}, {b}
     add {b}, {b}, #64
     subs {n}, {n}, #1
     bpl 2b
@@ -235,39 +287,17 @@ fn raw16(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
     vldr s1, [{b}, #60]
     vfma.f32 s0, s1, s31
     vmov {u}, s0
-"#,
-            macros_end!(),
-            w = inout(reg) w.as_ptr() => _,
-            n = inout(reg) layers - 1 => _,
-            u = inout(reg) u.to_bits() => z,
-            c = in(reg) consts.as_ptr(),
-            s = in(reg) scratch.as_mut_ptr(),
-            b = out(reg) _,
-            t = out(reg) _,
-            ra = out(reg) _,
-            rb = out(reg) _,
-            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-            out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-            out("d12") _, out("d13") _, out("d14") _, out("d15") _,
-            options(nostack),
-        );
-    }
-    f32::from_bits(z)
+"#
 }
 
-/// `H = 8`: inputs in `s24..s31`; all 8 rows at once (accumulators `s0..s7`, two rows of
-/// weights per `vldmia` into `s8..s23`); `var` in `s23` (after the rows).
-#[inline(never)]
-fn raw8(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
-    let mut scratch = MaybeUninit::<[f32; 8]>::uninit();
-    let z: u32;
-    // SAFETY: as in `raw16`, for `compiled_len(8, layers)` (layer 1: 4 x 8, each further
-    // layer 64 + 3 x 8, output 9) and an 8-float scratch.
-    unsafe {
-        asm!(
-            macros_begin!(),
-            r#"
+kernel! {
+    /// `H = 8`: inputs in `s24..s31`; all 8 rows at once (accumulators `s0..s7`, two rows of
+    /// weights per `vldmia` into `s8..s23`); `var` in `s23` (after the rows).
+    ///
+    /// Reads layer 1: 4 x 8, each further layer 64 + 3 x 8, output 9; scratch: the 8
+    /// pre-activations.
+    fn raw8, scratch = 8,
+    r#"
     vmov s16, {u}
     vldr s23, [{c}, #12]
     vldmia {w}!, {{s0-s15}}
@@ -285,12 +315,7 @@ fn raw8(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
     nemm_dot 23, 0, 0, 8
     vstmia {s}, {{s0-s7}}
 3:
-    vldmia {c}, {{s20-s22}}
-    vmul.f32 s23, s23, s20
-    vadd.f32 s23, s23, s21
-    vsqrt.f32 s23, s23
-    vmov.f32 s20, #1.0
-    vdiv.f32 s23, s20, s23
+    nemm_rnorm 23, 20, 21, 22
     add {t}, {b}, #32
     vldmia {t}, {{s24-s31}}
     vldmia {s}, {{s0-s7}}
@@ -302,41 +327,19 @@ fn raw8(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
     vldmia {b}, {{s0-s8}}
     nemm_dot 8, 0, 24, 8
     vmov {u}, s8
-"#,
-            macros_end!(),
-            w = inout(reg) w.as_ptr() => _,
-            n = inout(reg) layers - 1 => _,
-            u = inout(reg) u.to_bits() => z,
-            c = in(reg) consts.as_ptr(),
-            s = in(reg) scratch.as_mut_ptr(),
-            b = out(reg) _,
-            t = out(reg) _,
-            ra = out(reg) _,
-            rb = out(reg) _,
-            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-            out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-            out("d12") _, out("d13") _, out("d14") _, out("d15") _,
-            options(nostack),
-        );
-    }
-    f32::from_bits(z)
+"#
 }
 
-/// `H = 32`: two passes of 16 inputs each (column blocks), inputs in `s16..s31`, partial
-/// sums and activations through the scratch (`t[0..32]`, `act[0..32]`); rows in groups of 4
-/// as for `H = 16`; `var` in `s15` during the second pass.
-#[inline(never)]
-fn raw32(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
-    let mut scratch = MaybeUninit::<[f32; 64]>::uninit();
-    let z: u32;
-    // SAFETY: as in `raw16`, for `compiled_len(32, layers)` (layer 1: 4 x 32, each further
-    // layer 1024 + 3 x 32 with the matrix in two column blocks, output 33) and a 64-float
-    // scratch (pre-activations at `[0, 32)`, activations at `[32, 64)`).
-    unsafe {
-        asm!(
-            macros_begin!(),
-            r#"
+kernel! {
+    /// `H = 32`: two passes of 16 inputs each (column blocks), inputs in `s16..s31`, partial
+    /// sums and activations through the scratch (`t[0..32]`, `act[0..32]`); rows in groups of 4
+    /// as for `H = 16`; `var` in `s15` during the second pass.
+    ///
+    /// Reads layer 1: 4 x 32, each further layer 1024 + 3 x 32 with the matrix in two
+    /// column blocks, output 33; scratch: pre-activations at `[0, 32)`, activations at
+    /// `[32, 64)`.
+    fn raw32, scratch = 64,
+    r#"
     vmov s8, {u}
     vldr s15, [{c}, #12]
     add {b}, {w}, #128
@@ -371,25 +374,12 @@ fn raw32(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
     vstmia {t}!, {{s0-s3}}
     .endr
 3:
-    vldmia {c}, {{s12-s14}}
-    vmul.f32 s15, s15, s12
-    vadd.f32 s15, s15, s13
-    vsqrt.f32 s15, s15
-    vmov.f32 s12, #1.0
-    vdiv.f32 s15, s12, s15
+    nemm_rnorm 15, 12, 13, 14
     mov {t}, {s}
     .rept 2
     add {ra}, {b}, #128
     vldmia {ra}, {{s16-s31}}
-    vldmia {t}!, {{s0-s5}}
-    vldmia {b}!, {{s6-s11}}
-    nemm_ln 6, 0, 6, 16, 15, 14
-    vldmia {t}!, {{s0-s5}}
-    vldmia {b}!, {{s6-s11}}
-    nemm_ln 6, 0, 6, 22, 15, 14
-    vldmia {t}!, {{s0-s3}}
-    vldmia {b}!, {{s6-s9}}
-    nemm_ln 4, 0, 6, 28, 15, 14
+    nemm_ln16 {t}, {b}
     add {ra}, {t}, #64
     vstmia {ra}, {{s16-s31}}
     .endr
@@ -409,23 +399,5 @@ fn raw32(w: &[f32], layers: usize, consts: &[f32; 4], u: f32) -> f32 {
     vldr s1, [{b}]
     vfma.f32 s0, s1, s31
     vmov {u}, s0
-"#,
-            macros_end!(),
-            w = inout(reg) w.as_ptr() => _,
-            n = inout(reg) layers - 1 => _,
-            u = inout(reg) u.to_bits() => z,
-            c = in(reg) consts.as_ptr(),
-            s = in(reg) scratch.as_mut_ptr(),
-            b = out(reg) _,
-            t = out(reg) _,
-            ra = out(reg) _,
-            rb = out(reg) _,
-            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-            out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-            out("d12") _, out("d13") _, out("d14") _, out("d15") _,
-            options(nostack),
-        );
-    }
-    f32::from_bits(z)
+"#
 }

@@ -48,15 +48,6 @@
 //! - `calibrate=0` skips the calibration loops.
 #![no_std]
 #![no_main]
-#![deny(missing_docs)]
-#![deny(
-    clippy::indexing_slicing,
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic,
-    clippy::unreachable,
-    clippy::todo
-)]
 
 use core::hint::black_box;
 use core::sync::atomic::{AtomicU32, Ordering};
