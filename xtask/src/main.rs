@@ -48,7 +48,7 @@ enum Cmd {
     /// QEMU counts instructions (-icount shift=0); N steps of the bench trace after 200
     /// warm-up steps. Each line reads
     ///
-    ///   target-step model=<kind> integrator=<rk4|rk3> mode=<mode> instructions_per_step=<N>
+    /// `target-step model=<kind> integrator=<rk4|rk3> mode=<mode> instructions_per_step=<N>`
     ///
     /// and mode=table adds segments=, table_bytes= (RAM), max_rel_error_ppb=, kinks= and
     /// build_instructions= (building the tables at boot).

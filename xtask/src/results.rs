@@ -169,8 +169,9 @@ fn stack_peak(tc: &Toolchain, images: &Images, options: &[&str]) -> Result<(u64,
 }
 
 /// The markdown of the target figures.
+/// `provenance`: the command and the commit, as markdown.
 fn target_markdown(
-    commit: &str,
+    provenance: &str,
     steps: u32,
     exact: &[StepFigures],
     table: &[StepFigures],
@@ -180,8 +181,8 @@ fn target_markdown(
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "Commit `{commit}`, QEMU `mps2-an386` (Cortex-M4F), `-icount shift=0`: instructions, not \
-         cycles.\n"
+        "Measured by {provenance}, QEMU `mps2-an386` (Cortex-M4F), \
+         `-icount shift=0`: instructions, not cycles.\n"
     );
     let _ = writeln!(
         md,
@@ -262,7 +263,14 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32) -> Result<(), String> {
         println!("stack mode={mode} stack_used={used} room={room}");
         stack.push((mode, used, room));
     }
-    let md = target_markdown(&commit, steps, &exact, &table, &memory, &stack);
+    let md = target_markdown(
+        &format!("`{}` at commit `{commit}`", command_line()),
+        steps,
+        &exact,
+        &table,
+        &memory,
+        &stack,
+    );
     write_block(paths, "target", &md)
 }
 
@@ -288,7 +296,14 @@ pub fn training(paths: &Paths, dir: &Path) -> Result<(), String> {
         Some(json) => report_info(&json).map_err(|e| format!("{}: {e}", dir.display()))?,
         None => Vec::new(),
     };
-    let md = training_markdown(&commit(&paths.root), dir, &info, &table4, table5.as_deref());
+    let md = training_markdown(
+        &command_line(),
+        &commit(&paths.root),
+        dir,
+        &info,
+        &table4,
+        table5.as_deref(),
+    );
     write_block(paths, "training", &md)
 }
 
@@ -311,6 +326,7 @@ fn report_info(json: &str) -> Result<Vec<(String, String)>, String> {
 
 /// The markdown of the training block.
 fn training_markdown(
+    command: &str,
     commit: &str,
     dir: &Path,
     info: &[(String, String)],
@@ -318,7 +334,7 @@ fn training_markdown(
     table5: Option<&str>,
 ) -> String {
     let mut md = format!(
-        "Copied at commit `{commit}` from `{}`.\n\n",
+        "Copied by `{command}` at commit `{commit}` from `{}`.\n\n",
         dir.join("table4.md").display()
     );
     let recorded = |k: &str| info.iter().find(|(key, _)| key == k).map(|(_, v)| v);
@@ -382,13 +398,17 @@ mod tests {
         )
         .unwrap();
         let md = training_markdown(
+            "cargo xtask results --training runs/c",
             "abc1234",
             Path::new("runs/c"),
             &info,
             "| model | RMSE |\n",
             Some("| job |\n"),
         );
-        assert!(md.starts_with("Copied at commit `abc1234` from `runs/c/table4.md`.\n"));
+        assert!(md.starts_with(
+            "Copied by `cargo xtask results --training runs/c` at commit `abc1234` from \
+             `runs/c/table4.md`.\n"
+        ));
         assert!(md.contains("Trained by `nemm compare --data d`."));
         assert!(md.contains("does not record the commit"));
         assert!(md.contains("- dataset: `d`\n- total_seconds: `12.5`\n"));
@@ -423,14 +443,14 @@ mod tests {
             ],
         };
         let md = target_markdown(
-            "abc1234+dirty",
+            "`cargo xtask results` at commit `abc1234+dirty`",
             4000,
             &[fig("exact", 15541, vec![])],
             &[fig("table", 492, t)],
             &[("board build", memory)],
             &[("exact", 1864, 140000)],
         );
-        assert!(md.starts_with("Commit `abc1234+dirty`"));
+        assert!(md.starts_with("Measured by `cargo xtask results` at commit `abc1234+dirty`"));
         assert!(md.contains("| nemm | rk4 | 15541 | 492 | 7168 | 2792 | 73 | 156316320 |\n"));
         assert!(md.contains("| board build | 300 | 108 | 0 | 0 | 0 | 0 | 40 | 40 | 0 |\n"));
         assert!(md.contains("| exact | 1864 | 140000 |\n"));
