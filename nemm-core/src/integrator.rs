@@ -368,4 +368,123 @@ mod tests {
         let r = 1.0 + z + z * z / 2.0 + z * z * z / 6.0;
         assert!((x1.x_pr_m as f64 - r).abs() < 1e-6);
     }
+
+    /// Coefficients affine in the state, `b_fl = 2000 + 4000 v_st`, `k_pr = 5e5 + 1e8 x_pr`,
+    /// in f64 lanes, for the reverse-mode check.
+    struct AffineStage;
+
+    type L2 = crate::math::Lanes<f64, 2>;
+
+    fn affine(s: &State<L2>) -> Coefficients<L2> {
+        Coefficients {
+            b_fl: L2::splat(2000.0) + L2::splat(4000.0) * s.v_st_m_s,
+            b_pr: L2::splat(800.0),
+            k_pr: L2::splat(5e5) + L2::splat(1e8) * s.x_pr_m,
+        }
+    }
+
+    impl Stage<L2> for AffineStage {
+        fn coeffs(&mut self, s: &State<L2>) -> Coefficients<L2> {
+            affine(s)
+        }
+    }
+
+    impl StageBackward<L2> for AffineStage {
+        fn coeffs(&mut self, _: usize, s: &State<L2>) -> Coefficients<L2> {
+            affine(s)
+        }
+        fn backward(&mut self, _: usize, cbar: &Coefficients<L2>, sbar: &mut State<L2>) {
+            sbar.v_st_m_s = sbar.v_st_m_s + L2::splat(4000.0) * cbar.b_fl;
+            sbar.x_pr_m = sbar.x_pr_m + L2::splat(1e8) * cbar.k_pr;
+        }
+    }
+
+    /// `step_backward` is the transpose of `step_with`: `dL/dx` and `dL/d(inv_t_pr)` of
+    /// `L = w . x_n+1` match central differences, for both schemes.
+    #[test]
+    fn step_backward_matches_finite_differences() {
+        use crate::math::{Lanes, Unfused};
+        let h = StepSize::<L2>::splat(1e-4);
+        let x = State {
+            x_pr_m: Lanes([4e-4, -2e-4]),
+            v_st_m_s: Lanes([0.1, -0.3]),
+        };
+        let (u0, u1) = (Lanes([0.3, -0.2]), Lanes([0.35, -0.1]));
+        let it = L2::splat(1.0 / 0.003);
+        let wx = State {
+            x_pr_m: Lanes([1e3, -2e3]),
+            v_st_m_s: Lanes([1.0, 0.5]),
+        };
+        let loss = |x: &State<L2>, it: L2, scheme| -> [f64; 2] {
+            let c1 = affine(x);
+            let y = step_with::<Unfused, L2, _>(scheme, &mut AffineStage, &c1, it, x, u0, u1, &h);
+            let l = wx.x_pr_m * y.x_pr_m + wx.v_st_m_s * y.v_st_m_s;
+            l.0
+        };
+        for scheme in [Integrator::Rk4, Integrator::Rk3] {
+            let c1 = affine(&x);
+            let mut xbar = State::<L2>::default();
+            let mut c1bar = Coefficients::<L2>::default();
+            let mut itbar = L2::default();
+            step_backward::<Unfused, L2, _>(
+                scheme,
+                &mut AffineStage,
+                &c1,
+                it,
+                &x,
+                u0,
+                u1,
+                &h,
+                &wx,
+                &mut xbar,
+                &mut c1bar,
+                &mut itbar,
+            );
+            // Stage 1's coefficients are the caller's: complete the chain.
+            AffineStage.backward(1, &c1bar, &mut xbar);
+            let fd = |f: &dyn Fn(f64) -> [f64; 2], eps: f64| {
+                let (p, m) = (f(eps), f(-eps));
+                [(p[0] - m[0]) / (2.0 * eps), (p[1] - m[1]) / (2.0 * eps)]
+            };
+            let dx = fd(
+                &|e| {
+                    loss(
+                        &State {
+                            x_pr_m: x.x_pr_m + L2::splat(e),
+                            ..x
+                        },
+                        it,
+                        scheme,
+                    )
+                },
+                1e-9,
+            );
+            let dv = fd(
+                &|e| {
+                    loss(
+                        &State {
+                            v_st_m_s: x.v_st_m_s + L2::splat(e),
+                            ..x
+                        },
+                        it,
+                        scheme,
+                    )
+                },
+                1e-6,
+            );
+            let di = fd(&|e| loss(&x, it + L2::splat(e), scheme), 1e-2);
+            for k in 0..2 {
+                for (got, want) in [
+                    (xbar.x_pr_m.0[k], dx[k]),
+                    (xbar.v_st_m_s.0[k], dv[k]),
+                    (itbar.0[k], di[k]),
+                ] {
+                    assert!(
+                        (got - want).abs() <= 1e-6 * want.abs().max(1e-3),
+                        "{scheme:?} {got} vs {want}"
+                    );
+                }
+            }
+        }
+    }
 }

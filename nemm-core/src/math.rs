@@ -162,6 +162,8 @@ pub trait Scalar:
     fn exp(x: Self) -> Self;
     /// Correctly rounded square root.
     fn sqrt(x: Self) -> Self;
+    /// `1 / sqrt(x)` for `x > 0` ([`rsqrt`] for `f32`: the math backend's).
+    fn rsqrt(x: Self) -> Self;
 }
 
 impl Scalar for f32 {
@@ -181,6 +183,10 @@ impl Scalar for f32 {
     fn sqrt(x: Self) -> Self {
         sqrt(x)
     }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        rsqrt(x)
+    }
 }
 
 impl Scalar for f64 {
@@ -199,6 +205,10 @@ impl Scalar for f64 {
     #[inline(always)]
     fn sqrt(x: Self) -> Self {
         libm::sqrt(x)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        1.0 / libm::sqrt(x)
     }
 }
 
@@ -230,6 +240,8 @@ pub trait Lane:
     fn exp(x: Self) -> Self;
     /// Square root per lane.
     fn sqrt(x: Self) -> Self;
+    /// `1 / sqrt(x)` per lane ([`Scalar::rsqrt`]).
+    fn rsqrt(x: Self) -> Self;
     /// Per lane: `if_nonneg` where `test >= 0`, `otherwise` elsewhere (LeakyReLU and its
     /// derivative).
     fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self;
@@ -254,6 +266,10 @@ impl Lane for f32 {
     #[inline(always)]
     fn sqrt(x: Self) -> Self {
         sqrt(x)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        rsqrt(x)
     }
     #[inline(always)]
     fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {
@@ -347,6 +363,10 @@ impl<T: Scalar, const N: usize> Lane for Lanes<T, N> {
     #[inline(always)]
     fn sqrt(x: Self) -> Self {
         x.map(T::sqrt)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        x.map(T::rsqrt)
     }
     #[inline(always)]
     fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {

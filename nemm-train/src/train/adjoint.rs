@@ -34,8 +34,8 @@
 
 use nemm_core::emm::{self, Coefficients, State};
 use nemm_core::integrator::{self, Stage, StageBackward, StepSize};
-use nemm_core::math::{Lane, Lanes, Scalar, Unfused};
-use nemm_core::mlp::{LAYER_NORM_EPS, LEAKY_RELU_SLOPE};
+use nemm_core::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
+use nemm_core::mlp;
 use nemm_core::Integrator;
 use num_traits::Float;
 use rayon::prelude::*;
@@ -278,23 +278,23 @@ impl<'a, T: Real> Mlp<'a, T> {
 struct Act<T> {
     x0: V<T>,
     /// Normalised pre-activations `n = (h - mean) r`, `layers * H`.
-    n: Vec<V<T>>,
+    n: Vec<L<T>>,
     /// `1 / sqrt(var + eps)`, per layer.
-    r: Vec<V<T>>,
+    r: Vec<L<T>>,
     /// Activations after LeakyReLU, `layers * H`.
-    a: Vec<V<T>>,
+    a: Vec<L<T>>,
     /// `sigmoid(z)`.
-    sig: V<T>,
+    sig: L<T>,
 }
 
 impl<T: Real> Act<T> {
     fn new(h: usize, layers: usize) -> Self {
         Self {
             x0: splat(T::zero()),
-            n: vec![splat(T::zero()); h * layers],
-            r: vec![splat(T::zero()); layers],
-            a: vec![splat(T::zero()); h * layers],
-            sig: splat(T::zero()),
+            n: vec![L::splat(T::zero()); h * layers],
+            r: vec![L::splat(T::zero()); layers],
+            a: vec![L::splat(T::zero()); h * layers],
+            sig: L::splat(T::zero()),
         }
     }
 }
@@ -302,23 +302,32 @@ impl<T: Real> Act<T> {
 /// Scratch for forward passes without a record.
 #[derive(Debug, Clone)]
 struct Scratch<T> {
-    t: Vec<V<T>>,
-    a: Vec<V<T>>,
+    t: Vec<L<T>>,
+    a: Vec<L<T>>,
+}
+
+impl<T: Real> Scratch<T> {
+    fn new(h: usize) -> Self {
+        Self {
+            t: vec![L::splat(T::zero()); h],
+            a: vec![L::splat(T::zero()); h],
+        }
+    }
 }
 
 impl<T: Real> Mlp<'_, T> {
-    /// Forward pass: returns `sigmoid(z)`; fills `rec` if given.
+    /// Forward pass: the linear maps here, the centring, normalisation, activation of
+    /// `nemm_core::mlp` ([`mlp::centre`], [`mlp::norm_act`]); returns the raw output `z`
+    /// and fills `rec` if given.
     fn forward(
         &self,
         x0: &V<T>,
         b1: &[V<T>],
         scratch: &mut Scratch<T>,
         mut rec: Option<&mut Act<T>>,
-    ) -> V<T> {
+    ) -> L<T> {
         let h = self.h;
-        let hf = T::c(h as f64);
-        let eps = T::c(LAYER_NORM_EPS as f64);
-        let slope = T::c(LEAKY_RELU_SLOPE as f64);
+        let inv_h = T::one() / T::c(h as f64);
         let w = self.w;
         if let Some(r) = rec.as_deref_mut() {
             r.x0 = *x0;
@@ -330,7 +339,7 @@ impl<T: Real> Mlp<'_, T> {
                 for i in 0..h {
                     let wi = w[lo.w + i * lo.fan_in];
                     let bi = &b1[i];
-                    t[i] = std::array::from_fn(|k| wi * x0[k] + bi[k]);
+                    t[i] = Lanes(std::array::from_fn(|k| wi * x0[k] + bi[k]));
                 }
             } else {
                 let a_in = &scratch.a;
@@ -338,66 +347,53 @@ impl<T: Real> Mlp<'_, T> {
                     let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
                     let mut acc = splat(w[lo.b + i]);
                     for (j, &wij) in row.iter().enumerate() {
-                        let aj = &a_in[j];
+                        let aj = &a_in[j].0;
                         for k in 0..LANES {
                             acc[k] += wij * aj[k];
                         }
                     }
-                    t[i] = acc;
+                    t[i] = Lanes(acc);
                 }
             }
             // LayerNorm + affine + LeakyReLU.
-            let mut mean = splat(T::zero());
-            for ti in t.iter().take(h) {
-                for k in 0..LANES {
-                    mean[k] += ti[k];
+            let t = &mut t[..h];
+            mlp::centre(t, inv_h);
+            let (gamma, beta) = (&w[lo.g..lo.g + h], &w[lo.be..lo.be + h]);
+            let a = &mut scratch.a[..h];
+            match rec.as_deref_mut() {
+                Some(rec) => {
+                    let mut out = a
+                        .iter_mut()
+                        .zip(&mut rec.n[l * h..(l + 1) * h])
+                        .zip(&mut rec.a[l * h..(l + 1) * h]);
+                    rec.r[l] =
+                        mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |n, _, act| {
+                            if let Some(((ai, rn), ra)) = out.next() {
+                                *ai = act;
+                                *rn = n;
+                                *ra = act;
+                            }
+                        });
                 }
-            }
-            for m in mean.iter_mut() {
-                *m /= hf;
-            }
-            let mut var = splat(T::zero());
-            for ti in t.iter_mut().take(h) {
-                for k in 0..LANES {
-                    ti[k] = ti[k] - mean[k];
-                    var[k] += ti[k] * ti[k];
+                None => {
+                    let mut out = a.iter_mut();
+                    mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |_, _, act| {
+                        if let Some(ai) = out.next() {
+                            *ai = act;
+                        }
+                    });
                 }
-            }
-            let r: V<T> = std::array::from_fn(|k| (var[k] / hf + eps).sqrt().recip());
-            let a = &mut scratch.a;
-            for i in 0..h {
-                let (g, be) = (w[lo.g + i], w[lo.be + i]);
-                let ti = &t[i];
-                let mut ai = splat(T::zero());
-                let mut ni = splat(T::zero());
-                for k in 0..LANES {
-                    ni[k] = ti[k] * r[k];
-                    let y = g * ni[k] + be;
-                    ai[k] = if y >= T::zero() { y } else { slope * y };
-                }
-                a[i] = ai;
-                if let Some(rec) = rec.as_deref_mut() {
-                    rec.n[l * h + i] = ni;
-                    rec.a[l * h + i] = ai;
-                }
-            }
-            if let Some(rec) = rec.as_deref_mut() {
-                rec.r[l] = r;
             }
         }
         let mut z = splat(w[self.out_b]);
         for i in 0..h {
             let wo = w[self.out_w + i];
-            let ai = &scratch.a[i];
+            let ai = &scratch.a[i].0;
             for k in 0..LANES {
                 z[k] += wo * ai[k];
             }
         }
-        let sig: V<T> = std::array::from_fn(|k| T::one() / (T::one() + (-z[k]).exp()));
-        if let Some(rec) = rec {
-            rec.sig = sig;
-        }
-        sig
+        Lanes(z)
     }
 
     /// Backward pass from `dL/dz` per lane; accumulates weight gradients into `g` and
@@ -411,71 +407,44 @@ impl<T: Real> Mlp<'_, T> {
         scratch: &mut Scratch<T>,
     ) -> V<T> {
         let h = self.h;
-        let hf = T::c(h as f64);
-        let slope = T::c(LEAKY_RELU_SLOPE as f64);
+        let inv_h = T::one() / T::c(h as f64);
         let w = self.w;
         // Output layer.
         g[self.out_b] += sum(zbar);
         let abar = &mut scratch.a;
         let l_last = self.layers.len() - 1;
         for i in 0..h {
-            let ai = &rec.a[l_last * h + i];
+            let ai = &rec.a[l_last * h + i].0;
             let mut s = T::zero();
             for k in 0..LANES {
                 s += zbar[k] * ai[k];
             }
             g[self.out_w + i] += s;
             let wo = w[self.out_w + i];
-            abar[i] = std::array::from_fn(|k| wo * zbar[k]);
+            abar[i] = Lanes(std::array::from_fn(|k| wo * zbar[k]));
         }
         let mut x0bar = splat(T::zero());
         for l in (0..self.layers.len()).rev() {
             let lo = self.layers[l];
-            // Through LeakyReLU and the affine: nbar = ybar * gamma.
-            let hbar = &mut scratch.t;
-            let mut mean_nbar = splat(T::zero());
-            let mut mean_nbar_n = splat(T::zero());
-            for i in 0..h {
-                let a = &rec.a[l * h + i];
-                let n = &rec.n[l * h + i];
-                let ab = &abar[i];
-                let gam = w[lo.g + i];
-                let mut sg = T::zero();
-                let mut sb = T::zero();
-                let mut nb = splat(T::zero());
-                for k in 0..LANES {
-                    let yb = if a[k] >= T::zero() {
-                        ab[k]
-                    } else {
-                        slope * ab[k]
-                    };
-                    sg += yb * n[k];
-                    sb += yb;
-                    nb[k] = yb * gam;
-                    mean_nbar[k] += nb[k];
-                    mean_nbar_n[k] += nb[k] * n[k];
-                }
-                g[lo.g + i] += sg;
-                g[lo.be + i] += sb;
-                hbar[i] = nb;
-            }
-            // LayerNorm backward: hbar = r (nbar - mean(nbar) - n mean(nbar n)).
-            let r = &rec.r[l];
-            for k in 0..LANES {
-                mean_nbar[k] /= hf;
-                mean_nbar_n[k] /= hf;
-            }
-            for i in 0..h {
-                let n = &rec.n[l * h + i];
-                let hb = &mut hbar[i];
-                for k in 0..LANES {
-                    hb[k] = r[k] * (hb[k] - mean_nbar[k] - n[k] * mean_nbar_n[k]);
-                }
-            }
+            // Through LeakyReLU, the affine, the normalisation and the centring.
+            let hbar = &mut scratch.t[..h];
+            let (gg, gb) = g[lo.g..lo.be + h].split_at_mut(h);
+            mlp::norm_act_backward(
+                &abar[..h],
+                &rec.n[l * h..(l + 1) * h],
+                &rec.a[l * h..(l + 1) * h],
+                rec.r[l],
+                &w[lo.g..lo.g + h],
+                inv_h,
+                hbar,
+                gg,
+                gb,
+            );
+            mlp::centre_backward(hbar, inv_h);
             // Linear backward.
             if l == 0 {
                 for i in 0..h {
-                    let hb = &hbar[i];
+                    let hb = &hbar[i].0;
                     let sb = sum(hb);
                     g[lo.b + i] += sb;
                     let mut s0 = T::zero();
@@ -496,11 +465,11 @@ impl<T: Real> Mlp<'_, T> {
             } else {
                 let prev = (l - 1) * h;
                 for i in 0..h {
-                    let hb = hbar[i];
+                    let hb = hbar[i].0;
                     g[lo.b + i] += sum(&hb);
                     let row = lo.w + i * h;
                     for j in 0..h {
-                        let aj = &rec.a[prev + j];
+                        let aj = &rec.a[prev + j].0;
                         let mut s = T::zero();
                         for k in 0..LANES {
                             s += hb[k] * aj[k];
@@ -510,13 +479,13 @@ impl<T: Real> Mlp<'_, T> {
                 }
                 // abar_{l-1}[j] = sum_i W[i][j] hbar[i]
                 for j in 0..h {
-                    abar[j] = splat(T::zero());
+                    abar[j] = L::splat(T::zero());
                 }
                 for i in 0..h {
-                    let hb = hbar[i];
+                    let hb = hbar[i].0;
                     let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
                     for (j, &wij) in row.iter().enumerate() {
-                        let ab = &mut abar[j];
+                        let ab = &mut abar[j].0;
                         for k in 0..LANES {
                             ab[k] += wij * hb[k];
                         }
@@ -533,7 +502,8 @@ impl<T: Real> Mlp<'_, T> {
 // ---------------------------------------------------------------------------------------
 
 /// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(MLP(state / scale,
-/// alpha_n)))`.
+/// alpha_n)))` (nemm-core's [`mlp::bounded`] with `lo = c0 s_min`, `span = c0 (s_max -
+/// s_min)`).
 struct Coef<'a, T> {
     c0: T,
     neural: Option<NeuralCoef<'a, T>>,
@@ -572,15 +542,25 @@ impl<'a, T: Real> Coef<'a, T> {
     }
 
     #[inline]
-    fn eval(&self, x: &V<T>, scratch: &mut Scratch<T>, rec: Option<&mut Act<T>>) -> V<T> {
+    fn eval(&self, x: &V<T>, scratch: &mut Scratch<T>, mut rec: Option<&mut Act<T>>) -> V<T> {
         match &self.neural {
             None => splat(self.c0),
             Some(n) => {
                 let x0: V<T> = std::array::from_fn(|k| x[k] * n.inv_scale);
-                let sig = n.mlp.forward(&x0, &n.b1, scratch, rec);
-                std::array::from_fn(|k| self.c0 * (n.s_min + n.span * sig[k]))
+                let z = n.mlp.forward(&x0, &n.b1, scratch, rec.as_deref_mut());
+                let (p, sig) = self.bounded(n, z);
+                if let Some(rec) = rec {
+                    rec.sig = sig;
+                }
+                p.0
             }
         }
+    }
+
+    /// The output mapping of the neural coefficient `n` at raw output `z`: `(p, sigmoid)`.
+    #[inline(always)]
+    fn bounded(&self, n: &NeuralCoef<'_, T>, z: L<T>) -> (L<T>, L<T>) {
+        mlp::bounded::<Unfused, L<T>>(z, L::splat(self.c0 * n.s_min), L::splat(self.c0 * n.span))
     }
 
     /// Back-propagates `cbar = dL/d(coefficient)`; returns `dL/d(state component)`.
@@ -596,14 +576,13 @@ impl<'a, T: Real> Coef<'a, T> {
     ) -> V<T> {
         match (&self.neural, rec) {
             (Some(n), Some(rec)) => {
-                let mut zbar = splat(T::zero());
                 let mut s0 = T::zero();
                 for k in 0..LANES {
-                    let sig = rec.sig[k];
-                    s0 += cbar[k] * (n.s_min + n.span * sig);
-                    zbar[k] = cbar[k] * self.c0 * n.span * sig * (T::one() - sig);
+                    s0 += cbar[k] * (n.s_min + n.span * rec.sig.0[k]);
                 }
                 *c0bar += s0;
+                let zbar =
+                    mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), Lanes(*cbar)).0;
                 let x0bar = n.mlp.backward(rec, &zbar, alpha_n, g, scratch);
                 std::array::from_fn(|k| x0bar[k] * n.inv_scale)
             }
@@ -662,15 +641,18 @@ impl<'a, T: Real> Pack<'a, T> {
             None => (splat(p.b_pr0), None),
             Some(s) => {
                 let mlp = Mlp::new(s);
-                let mut scratch = Scratch {
-                    t: vec![splat(T::zero()); s.hidden],
-                    a: vec![splat(T::zero()); s.hidden],
-                };
+                let mut scratch = Scratch::new(s.hidden);
                 let b1 = mlp.bias1(&alpha_n);
                 let mut act = Act::new(s.hidden, s.layers);
-                let sig = mlp.forward(&alpha_n, &b1, &mut scratch, Some(&mut act));
+                let z = mlp.forward(&alpha_n, &b1, &mut scratch, Some(&mut act));
                 let span = s.s_max - s.s_min;
-                let bp = std::array::from_fn(|k| p.b_pr0 * (s.s_min + span * sig[k]));
+                let (bp, sig) = mlp::bounded::<Unfused, L<T>>(
+                    z,
+                    L::splat(p.b_pr0 * s.s_min),
+                    L::splat(p.b_pr0 * span),
+                );
+                act.sig = sig;
+                let bp = bp.0;
                 (
                     bp,
                     Some(BprRecord {
@@ -701,10 +683,7 @@ impl<'a, T: Real> Pack<'a, T> {
             .max()
             .unwrap_or(1);
         Work {
-            scratch: Scratch {
-                t: vec![splat(T::zero()); h],
-                a: vec![splat(T::zero()); h],
-            },
+            scratch: Scratch::new(h),
         }
     }
 
@@ -989,16 +968,11 @@ fn pack_loss_grad<T: Real>(
             s_min,
             span,
         }) => {
-            let mut zbar = splat(T::zero());
             for k in 0..LANES {
-                let sig = act.sig[k];
-                bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * sig);
-                zbar[k] = bp_bar[k] * p.b_pr0 * *span * sig * (T::one() - sig);
+                bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * act.sig.0[k]);
             }
-            let mut scratch = Scratch {
-                t: vec![splat(T::zero()); mlp.h],
-                a: vec![splat(T::zero()); mlp.h],
-            };
+            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp).0;
+            let mut scratch = Scratch::new(mlp.h);
             let alpha_n = pk.alpha_n;
             mlp.backward(act, &zbar, &alpha_n, &mut bar.g.b_pr, &mut scratch);
         }
@@ -1013,7 +987,9 @@ impl<T: Real> Pack<'_, T> {
     fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>) -> Cv<T> {
         let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> V<T> {
             match (&c.neural, r) {
-                (Some(n), Some(r)) => std::array::from_fn(|k| c.c0 * (n.s_min + n.span * r.sig[k])),
+                (Some(n), Some(r)) => {
+                    Unfused::mul_add(L::splat(c.c0 * n.span), r.sig, L::splat(c.c0 * n.s_min)).0
+                }
                 _ => splat(c.c0),
             }
         };
