@@ -23,6 +23,10 @@
 //! x_n+1 = fma(h6, (k1 + k4) + 2*(k2 + k3), x_n)
 //! ```
 //!
+//! [`step_with`] is written once over any [`Lane`] (the estimator's `f32`, the trainer's
+//! packed [`crate::math::Lanes`]) and multiply-add [`MulAdd`]; [`step_backward`], its reverse
+//! mode for the trainer, follows it stage by stage.
+//!
 //! The coefficients (`b_fl`, `b_pr`, `k_pr`) of stage 1 are those of the previous step's
 //! output evaluation at the same state, so they are passed in and never recomputed.
 

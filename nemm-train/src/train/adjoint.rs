@@ -13,9 +13,14 @@
 //! - state at rest and previous input 0 before the first sample;
 //! - sample `n`: one RK step from `(s_{n-1}, u_{n-1})` to `(s_n, u_n)` with linear input
 //!   interpolation (`u_m = 0.5 (u_{n-1} + u_n)`), then `y_n = F(s_n, u_n)`;
-//! - the scalers, the bounded output mapping, the EMM right-hand side and force are those of
-//!   `nemm_core` (`mlp`, `emm`, `integrator` module docs), evaluated here in plain
-//!   (unfused) arithmetic; the parity test bounds the difference.
+//! - the EMM right-hand side and force (`nemm_core::emm`), the RK step
+//!   (`nemm_core::integrator::step_with`), the scalers' centring, normalisation, activation
+//!   and bounded output mapping (`nemm_core::mlp`) are nemm-core's own generic definitions,
+//!   run here over [`Lanes`] of [`LANES`] windows with unfused multiply-adds; their reverse
+//!   modes (`rhs_backward`, `force_backward`, `step_backward`, `norm_act_backward`,
+//!   `centre_backward`, `bounded_backward`) sit next to them in nemm-core. This file keeps
+//!   the scalers' linear maps (forward and backward), the packing, the loss and the sweeps.
+//!   The parity test bounds the difference to the estimator's fused arithmetic.
 //!
 //! # Batching
 //!
