@@ -56,7 +56,7 @@
 //! the fastest time constant is `min((b_pr + b_fl) / k_pr, T_pr)` (see
 //! [`crate::model::Model::fastest_time_constant_s`]).
 
-use crate::math::{Fused, MulAdd};
+use crate::math::{Fused, Lane, MulAdd};
 use serde::{Deserialize, Serialize};
 
 /// Constant EMM parameters, the `*_ini` values of eq. 19 (or the whole model for the Linear
@@ -73,13 +73,14 @@ pub struct EmmConstants {
     pub t_pr_s: f32,
 }
 
-/// EMM state `[x_pr, v_st]`.
+/// EMM state `[x_pr, v_st]`, one `f32` in the estimator or packed [`Lane`]s in the trainer
+/// (then also the adjoint of a state).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct State {
+pub struct State<L = f32> {
     /// Deflection of the pressure-force pair `x_pr` \[m\].
-    pub x_pr_m: f32,
+    pub x_pr_m: L,
     /// Quasi-static valve velocity `v_st` \[m/s\].
-    pub v_st_m_s: f32,
+    pub v_st_m_s: L,
 }
 
 impl State {
@@ -90,56 +91,152 @@ impl State {
     }
 }
 
-/// Parameter values at one state: `b_fl(v_st)`, `k_pr(x_pr)` and `b_pr` (all physical units).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Coefficients {
+impl<L: Lane> State<L> {
+    /// `a * k + self` per component with the multiply-add `M` (an RK stage update).
+    #[inline(always)]
+    pub fn axpy<M: MulAdd>(&self, a: L, k: &Self) -> Self {
+        State {
+            x_pr_m: M::mul_add(a, k.x_pr_m, self.x_pr_m),
+            v_st_m_s: M::mul_add(a, k.v_st_m_s, self.v_st_m_s),
+        }
+    }
+
+    /// Component-wise `f(self, o)`.
+    #[inline(always)]
+    pub fn zip(&self, o: &Self, f: impl Fn(L, L) -> L) -> Self {
+        State {
+            x_pr_m: f(self.x_pr_m, o.x_pr_m),
+            v_st_m_s: f(self.v_st_m_s, o.v_st_m_s),
+        }
+    }
+
+    /// Both components times `a`.
+    #[inline(always)]
+    pub fn scale(&self, a: L) -> Self {
+        State {
+            x_pr_m: a * self.x_pr_m,
+            v_st_m_s: a * self.v_st_m_s,
+        }
+    }
+}
+
+/// Parameter values at one state: `b_fl(v_st)`, `k_pr(x_pr)` and `b_pr` (all physical
+/// units); in the adjoint, the derivatives of the loss with respect to them.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Coefficients<L = f32> {
     /// `b_fl` \[N s/m\].
-    pub b_fl: f32,
+    pub b_fl: L,
     /// `b_pr` \[N s/m\].
-    pub b_pr: f32,
+    pub b_pr: L,
     /// `k_pr` \[N/m\].
-    pub k_pr: f32,
+    pub k_pr: L,
 }
 
 /// Velocity across the flow element, `q = (k_pr x_pr + b_pr u) / (b_pr + b_fl)` \[m/s\].
 #[inline(always)]
 pub fn flow_velocity(c: &Coefficients, x_pr: f32, u: f32) -> f32 {
-    flow_velocity_with::<Fused>(c, x_pr, u)
+    flow_velocity_with::<Fused, f32>(c, x_pr, u)
 }
 
-/// [`flow_velocity`] with the multiply-add `M`.
+/// [`flow_velocity`] with the multiply-add `M`, on any lane type.
 #[inline(always)]
-pub fn flow_velocity_with<M: MulAdd>(c: &Coefficients, x_pr: f32, u: f32) -> f32 {
+pub fn flow_velocity_with<M: MulAdd, L: Lane>(c: &Coefficients<L>, x_pr: L, u: L) -> L {
     M::mul_add(c.k_pr, x_pr, c.b_pr * u) / (c.b_pr + c.b_fl)
+}
+
+/// Reverse mode of [`flow_velocity_with`]: given `qbar = dL/dq` and the value `q`, adds
+/// `dL/d(coefficients)` to `cbar` and returns `dL/dx_pr`.
+#[inline(always)]
+pub fn flow_velocity_backward<L: Lane>(
+    c: &Coefficients<L>,
+    x_pr: L,
+    u: L,
+    q: L,
+    qbar: L,
+    cbar: &mut Coefficients<L>,
+) -> L {
+    let den = c.b_pr + c.b_fl;
+    let numbar = qbar / den;
+    let denbar = -qbar * q / den;
+    cbar.k_pr = cbar.k_pr + numbar * x_pr;
+    cbar.b_pr = cbar.b_pr + (numbar * u + denbar);
+    cbar.b_fl = cbar.b_fl + denbar;
+    numbar * c.k_pr
 }
 
 /// State derivative `[xdot_pr, vdot_st]` (eq. 16 with the parameters of `c`; `inv_t_pr` is
 /// `1 / T_pr` in 1/s).
 #[inline(always)]
 pub fn rhs(c: &Coefficients, inv_t_pr: f32, s: &State, u: f32) -> State {
-    rhs_with::<Fused>(c, inv_t_pr, s, u)
+    rhs_with::<Fused, f32>(c, inv_t_pr, s, u)
 }
 
-/// [`rhs`] with the multiply-add `M`.
+/// [`rhs`] with the multiply-add `M`, on any lane type.
 #[inline(always)]
-pub fn rhs_with<M: MulAdd>(c: &Coefficients, inv_t_pr: f32, s: &State, u: f32) -> State {
-    let q = flow_velocity_with::<M>(c, s.x_pr_m, u);
+pub fn rhs_with<M: MulAdd, L: Lane>(
+    c: &Coefficients<L>,
+    inv_t_pr: L,
+    s: &State<L>,
+    u: L,
+) -> State<L> {
+    let q = flow_velocity_with::<M, L>(c, s.x_pr_m, u);
     State {
         x_pr_m: u - q,
         v_st_m_s: (q - s.v_st_m_s) * inv_t_pr,
     }
 }
 
+/// Reverse mode of [`rhs_with`] (the unfused `M = Unfused` form; with fused multiply-adds
+/// it differs by rounding only): given `kbar = dL/d(rhs)`, adds `dL/ds` to `sbar`,
+/// `dL/d(coefficients)` to `cbar` and `dL/d(inv_t_pr)` to `itbar`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // the inputs of `rhs_with` and their three adjoints
+pub fn rhs_backward<M: MulAdd, L: Lane>(
+    c: &Coefficients<L>,
+    inv_t_pr: L,
+    s: &State<L>,
+    u: L,
+    kbar: &State<L>,
+    sbar: &mut State<L>,
+    cbar: &mut Coefficients<L>,
+    itbar: &mut L,
+) {
+    let q = flow_velocity_with::<M, L>(c, s.x_pr_m, u);
+    let qbar = inv_t_pr * kbar.v_st_m_s - kbar.x_pr_m;
+    sbar.v_st_m_s = sbar.v_st_m_s - inv_t_pr * kbar.v_st_m_s;
+    *itbar = *itbar + (q - s.v_st_m_s) * kbar.v_st_m_s;
+    let xbar = flow_velocity_backward(c, s.x_pr_m, u, q, qbar, cbar);
+    sbar.x_pr_m = sbar.x_pr_m + xbar;
+}
+
 /// Damper force `F = b_fl q` \[N\] (eq. 17/21), positive in tension (rebound).
 #[inline(always)]
 pub fn force(c: &Coefficients, s: &State, u: f32) -> f32 {
-    force_with::<Fused>(c, s, u)
+    force_with::<Fused, f32>(c, s, u)
 }
 
-/// [`force`] with the multiply-add `M`.
+/// [`force`] with the multiply-add `M`, on any lane type.
 #[inline(always)]
-pub fn force_with<M: MulAdd>(c: &Coefficients, s: &State, u: f32) -> f32 {
-    c.b_fl * flow_velocity_with::<M>(c, s.x_pr_m, u)
+pub fn force_with<M: MulAdd, L: Lane>(c: &Coefficients<L>, s: &State<L>, u: L) -> L {
+    c.b_fl * flow_velocity_with::<M, L>(c, s.x_pr_m, u)
+}
+
+/// Reverse mode of [`force_with`]: given `fbar = dL/dF`, adds `dL/ds` to `sbar` and
+/// `dL/d(coefficients)` to `cbar`; returns `F`.
+#[inline(always)]
+pub fn force_backward<M: MulAdd, L: Lane>(
+    c: &Coefficients<L>,
+    s: &State<L>,
+    u: L,
+    fbar: L,
+    sbar: &mut State<L>,
+    cbar: &mut Coefficients<L>,
+) -> L {
+    let q = flow_velocity_with::<M, L>(c, s.x_pr_m, u);
+    cbar.b_fl = cbar.b_fl + fbar * q;
+    let xbar = flow_velocity_backward(c, s.x_pr_m, u, q, fbar * c.b_fl, cbar);
+    sbar.x_pr_m = sbar.x_pr_m + xbar;
+    c.b_fl * q
 }
 
 #[cfg(test)]

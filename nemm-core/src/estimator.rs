@@ -336,7 +336,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         u0: f32,
         u1: f32,
     ) -> (State, Coefficients, f32) {
-        let x1 = integrator::step_with::<M, S>(
+        let x1 = integrator::step_with::<M, f32, S>(
             self.integrator,
             stage,
             c,
@@ -347,7 +347,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             &self.h,
         );
         let c1 = stage.coeffs(&x1);
-        (x1, c1, emm::force_with::<M>(&c1, &x1, u1))
+        (x1, c1, emm::force_with::<M, f32>(&c1, &x1, u1))
     }
 
     /// Re-folds `alpha` into the neural coefficients; in table mode rebuilds and checks the

@@ -23,11 +23,15 @@
 //! x_n+1 = fma(h6, (k1 + k4) + 2*(k2 + k3), x_n)
 //! ```
 //!
+//! [`step_with`] is written once over any [`Lane`] (the estimator's `f32`, the trainer's
+//! packed [`crate::math::Lanes`]) and multiply-add [`MulAdd`]; [`step_backward`], its reverse
+//! mode for the trainer, follows it stage by stage.
+//!
 //! The coefficients (`b_fl`, `b_pr`, `k_pr`) of stage 1 are those of the previous step's
 //! output evaluation at the same state, so they are passed in and never recomputed.
 
 use crate::emm::{self, Coefficients, State};
-use crate::math::{Fused, MulAdd};
+use crate::math::{Fused, Lane, MulAdd};
 use serde::{Deserialize, Serialize};
 
 /// Explicit Runge-Kutta scheme.
@@ -66,33 +70,33 @@ impl Integrator {
     }
 }
 
-/// Precomputed step constants.
+/// Precomputed step constants (per lane: the same in every lane).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepSize {
+pub struct StepSize<L = f32> {
     /// `dt` \[s\].
-    pub dt: f32,
+    pub dt: L,
     /// `dt / 2`.
-    pub h2: f32,
+    pub h2: L,
     /// `dt / 6`.
-    pub h6: f32,
+    pub h6: L,
 }
 
 impl StepSize {
     /// Constants for step `dt_s` \[s\].
     pub fn new(dt_s: f32) -> Self {
-        Self {
-            dt: dt_s,
-            h2: 0.5 * dt_s,
-            h6: dt_s / 6.0,
-        }
+        Self::splat(dt_s)
     }
 }
 
-#[inline(always)]
-fn axpy<M: MulAdd>(a: f32, k: &State, x: &State) -> State {
-    State {
-        x_pr_m: M::mul_add(a, k.x_pr_m, x.x_pr_m),
-        v_st_m_s: M::mul_add(a, k.v_st_m_s, x.v_st_m_s),
+impl<L: Lane> StepSize<L> {
+    /// Constants for step `dt` (an element of the lane type), in every lane.
+    pub fn splat(dt: L::Scalar) -> Self {
+        let dt = L::splat(dt);
+        Self {
+            dt,
+            h2: L::constant(0.5) * dt,
+            h6: dt / L::constant(6.0),
+        }
     }
 }
 
@@ -101,9 +105,9 @@ fn axpy<M: MulAdd>(a: f32, k: &State, x: &State) -> State {
 /// Closures `FnMut(&State) -> Coefficients` are used through [`step`]; a type implementing
 /// this trait with an `#[inline(always)]` method (the estimator's tabulated coefficients) is
 /// inlined into [`step_with`] at every stage whatever its size.
-pub trait Stage {
+pub trait Stage<L = f32> {
     /// Coefficients at `s`.
-    fn coeffs(&mut self, s: &State) -> Coefficients;
+    fn coeffs(&mut self, s: &State<L>) -> Coefficients<L>;
 }
 
 /// A closure as a [`Stage`].
@@ -131,53 +135,154 @@ pub fn step<C: FnMut(&State) -> Coefficients>(
     u1: f32,
     h: &StepSize,
 ) -> State {
-    step_with::<Fused, _>(scheme, &mut FromFn(coeffs), c1, inv_t_pr, x, u0, u1, h)
+    step_with::<Fused, f32, _>(scheme, &mut FromFn(coeffs), c1, inv_t_pr, x, u0, u1, h)
 }
 
 /// [`step`] with the multiply-add `M` (the module's formulas with `fma` replaced by
-/// `M::mul_add`) and the stage coefficients of `stage`.
+/// `M::mul_add`) and the stage coefficients of `stage`, on any lane type: the one
+/// definition of the schemes, used by the estimator (`f32`) and the trainer (packed lanes,
+/// whose reverse mode is [`step_backward`]).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // as `step`
-pub fn step_with<M: MulAdd, S: Stage>(
+pub fn step_with<M: MulAdd, L: Lane, S: Stage<L>>(
     scheme: Integrator,
     stage: &mut S,
-    c1: &Coefficients,
-    inv_t_pr: f32,
-    x: &State,
-    u0: f32,
-    u1: f32,
-    h: &StepSize,
-) -> State {
-    let um = 0.5 * (u0 + u1);
-    let k1 = emm::rhs_with::<M>(c1, inv_t_pr, x, u0);
-    let x2 = axpy::<M>(h.h2, &k1, x);
-    let k2 = emm::rhs_with::<M>(&stage.coeffs(&x2), inv_t_pr, &x2, um);
+    c1: &Coefficients<L>,
+    inv_t_pr: L,
+    x: &State<L>,
+    u0: L,
+    u1: L,
+    h: &StepSize<L>,
+) -> State<L> {
+    let um = L::constant(0.5) * (u0 + u1);
+    let k1 = emm::rhs_with::<M, L>(c1, inv_t_pr, x, u0);
+    let x2 = x.axpy::<M>(h.h2, &k1);
+    let k2 = emm::rhs_with::<M, L>(&stage.coeffs(&x2), inv_t_pr, &x2, um);
     match scheme {
         Integrator::Rk4 => {
-            let x3 = axpy::<M>(h.h2, &k2, x);
-            let k3 = emm::rhs_with::<M>(&stage.coeffs(&x3), inv_t_pr, &x3, um);
-            let x4 = axpy::<M>(h.dt, &k3, x);
-            let k4 = emm::rhs_with::<M>(&stage.coeffs(&x4), inv_t_pr, &x4, u1);
-            let sum = State {
-                x_pr_m: (k1.x_pr_m + k4.x_pr_m) + 2.0 * (k2.x_pr_m + k3.x_pr_m),
-                v_st_m_s: (k1.v_st_m_s + k4.v_st_m_s) + 2.0 * (k2.v_st_m_s + k3.v_st_m_s),
-            };
-            axpy::<M>(h.h6, &sum, x)
+            let x3 = x.axpy::<M>(h.h2, &k2);
+            let k3 = emm::rhs_with::<M, L>(&stage.coeffs(&x3), inv_t_pr, &x3, um);
+            let x4 = x.axpy::<M>(h.dt, &k3);
+            let k4 = emm::rhs_with::<M, L>(&stage.coeffs(&x4), inv_t_pr, &x4, u1);
+            let two = L::constant(2.0);
+            let sum = k1
+                .zip(&k4, |a, b| a + b)
+                .zip(&k2.zip(&k3, |a, b| a + b), |a, b| a + two * b);
+            x.axpy::<M>(h.h6, &sum)
         }
         Integrator::Rk3 => {
-            let d = State {
-                x_pr_m: 2.0 * k2.x_pr_m - k1.x_pr_m,
-                v_st_m_s: 2.0 * k2.v_st_m_s - k1.v_st_m_s,
-            };
-            let x3 = axpy::<M>(h.dt, &d, x);
-            let k3 = emm::rhs_with::<M>(&stage.coeffs(&x3), inv_t_pr, &x3, u1);
-            let sum = State {
-                x_pr_m: M::mul_add(4.0, k2.x_pr_m, k1.x_pr_m + k3.x_pr_m),
-                v_st_m_s: M::mul_add(4.0, k2.v_st_m_s, k1.v_st_m_s + k3.v_st_m_s),
-            };
-            axpy::<M>(h.h6, &sum, x)
+            let two = L::constant(2.0);
+            let d = k2.zip(&k1, |b, a| two * b - a);
+            let x3 = x.axpy::<M>(h.dt, &d);
+            let k3 = emm::rhs_with::<M, L>(&stage.coeffs(&x3), inv_t_pr, &x3, u1);
+            let four = L::constant(4.0);
+            let sum = k2.zip(&k1.zip(&k3, |a, b| a + b), |b, a| M::mul_add(four, b, a));
+            x.axpy::<M>(h.h6, &sum)
         }
     }
+}
+
+/// The coefficients at the RK stages of a step for its reverse mode: the forward evaluation
+/// records what the backward needs (the scalers' activations), per stage.
+pub trait StageBackward<L> {
+    /// Coefficients at the state `s` of stage `i` (1-based: stage 2 is the first
+    /// intermediate state; stage 1's coefficients are an input of the step), recorded.
+    fn coeffs(&mut self, i: usize, s: &State<L>) -> Coefficients<L>;
+    /// Back-propagates `cbar = dL/d(coefficients of stage i)` through the recorded
+    /// evaluation: adds `dL/ds` to `sbar` (and accumulates the parameter gradients).
+    fn backward(&mut self, i: usize, cbar: &Coefficients<L>, sbar: &mut State<L>);
+}
+
+/// Reverse mode of [`step_with`] (exact for `M = Unfused`, up to rounding for `Fused`):
+/// recomputes the stages from `x` through `stage` (which records them), then propagates
+/// `xbar_next = dL/dx_n+1` back. Adds `dL/dx` to `xbar`, `dL/d(c1)` (stage 1's
+/// coefficients, at `x`) to `c1bar` and `dL/d(inv_t_pr)` to `itbar`; the other stages'
+/// coefficient adjoints go to [`StageBackward::backward`]. Each block below is the
+/// transpose of the forward line it names, in reverse order.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // the step's inputs and the four adjoints
+pub fn step_backward<M: MulAdd, L: Lane, S: StageBackward<L>>(
+    scheme: Integrator,
+    stage: &mut S,
+    c1: &Coefficients<L>,
+    inv_t_pr: L,
+    x: &State<L>,
+    u0: L,
+    u1: L,
+    h: &StepSize<L>,
+    xbar_next: &State<L>,
+    xbar: &mut State<L>,
+    c1bar: &mut Coefficients<L>,
+    itbar: &mut L,
+) {
+    let um = L::constant(0.5) * (u0 + u1);
+    let k1 = emm::rhs_with::<M, L>(c1, inv_t_pr, x, u0);
+    let x2 = x.axpy::<M>(h.h2, &k1);
+    let c2 = stage.coeffs(2, &x2);
+    let k2 = emm::rhs_with::<M, L>(&c2, inv_t_pr, &x2, um);
+    let add = |a: L, b: L| a + b;
+    // The stage: k = rhs(c(xs), xs, u); returns dL/dxs.
+    let stage_back = |stage: &mut S,
+                      i: usize,
+                      c: &Coefficients<L>,
+                      xs: &State<L>,
+                      u: L,
+                      kb: &State<L>,
+                      itbar: &mut L| {
+        let mut xsb = State::<L>::default();
+        let mut cb = Coefficients::<L>::default();
+        emm::rhs_backward::<M, L>(c, inv_t_pr, xs, u, kb, &mut xsb, &mut cb, itbar);
+        stage.backward(i, &cb, &mut xsb);
+        xsb
+    };
+    // x_n+1 = x + ...: the identity part.
+    *xbar = xbar.zip(xbar_next, add);
+    let mut k1b;
+    let mut k2b;
+    match scheme {
+        Integrator::Rk4 => {
+            let x3 = x.axpy::<M>(h.h2, &k2);
+            let c3 = stage.coeffs(3, &x3);
+            let k3 = emm::rhs_with::<M, L>(&c3, inv_t_pr, &x3, um);
+            let x4 = x.axpy::<M>(h.dt, &k3);
+            let c4 = stage.coeffs(4, &x4);
+            // x_n+1 = x + h6 ((k1 + k4) + 2 (k2 + k3))
+            let a2 = L::constant(2.0) * h.h6;
+            k1b = xbar_next.scale(h.h6);
+            k2b = xbar_next.scale(a2);
+            let mut k3b = xbar_next.scale(a2);
+            let k4b = xbar_next.scale(h.h6);
+            // k4 = rhs(c4, x4, u1); x4 = x + dt k3
+            let x4b = stage_back(stage, 4, &c4, &x4, u1, &k4b, itbar);
+            *xbar = xbar.zip(&x4b, add);
+            k3b = k3b.zip(&x4b, |a, b| a + h.dt * b);
+            // k3 = rhs(c3, x3, um); x3 = x + h2 k2
+            let x3b = stage_back(stage, 3, &c3, &x3, um, &k3b, itbar);
+            *xbar = xbar.zip(&x3b, add);
+            k2b = k2b.zip(&x3b, |a, b| a + h.h2 * b);
+        }
+        Integrator::Rk3 => {
+            let two = L::constant(2.0);
+            let d = k2.zip(&k1, |b, a| two * b - a);
+            let x3 = x.axpy::<M>(h.dt, &d);
+            let c3 = stage.coeffs(3, &x3);
+            // x_n+1 = x + h6 (4 k2 + (k1 + k3))
+            k1b = xbar_next.scale(h.h6);
+            k2b = xbar_next.scale(L::constant(4.0) * h.h6);
+            let k3b = xbar_next.scale(h.h6);
+            // k3 = rhs(c3, x3, u1); x3 = x + dt (2 k2 - k1)
+            let x3b = stage_back(stage, 3, &c3, &x3, u1, &k3b, itbar);
+            *xbar = xbar.zip(&x3b, add);
+            k2b = k2b.zip(&x3b, |a, b| a + (two * h.dt) * b);
+            k1b = k1b.zip(&x3b, |a, b| a + (-h.dt) * b);
+        }
+    }
+    // k2 = rhs(c2, x2, um); x2 = x + h2 k1
+    let x2b = stage_back(stage, 2, &c2, &x2, um, &k2b, itbar);
+    *xbar = xbar.zip(&x2b, add);
+    k1b = k1b.zip(&x2b, |a, b| a + h.h2 * b);
+    // k1 = rhs(c1, x, u0): the coefficients at x stay with the caller.
+    emm::rhs_backward::<M, L>(c1, inv_t_pr, x, u0, &k1b, xbar, c1bar, itbar);
 }
 
 #[cfg(test)]
@@ -266,5 +371,124 @@ mod tests {
         let z = -0.1f64;
         let r = 1.0 + z + z * z / 2.0 + z * z * z / 6.0;
         assert!((x1.x_pr_m as f64 - r).abs() < 1e-6);
+    }
+
+    /// Coefficients affine in the state, `b_fl = 2000 + 4000 v_st`, `k_pr = 5e5 + 1e8 x_pr`,
+    /// in f64 lanes, for the reverse-mode check.
+    struct AffineStage;
+
+    type L2 = crate::math::Lanes<f64, 2>;
+
+    fn affine(s: &State<L2>) -> Coefficients<L2> {
+        Coefficients {
+            b_fl: L2::splat(2000.0) + L2::splat(4000.0) * s.v_st_m_s,
+            b_pr: L2::splat(800.0),
+            k_pr: L2::splat(5e5) + L2::splat(1e8) * s.x_pr_m,
+        }
+    }
+
+    impl Stage<L2> for AffineStage {
+        fn coeffs(&mut self, s: &State<L2>) -> Coefficients<L2> {
+            affine(s)
+        }
+    }
+
+    impl StageBackward<L2> for AffineStage {
+        fn coeffs(&mut self, _: usize, s: &State<L2>) -> Coefficients<L2> {
+            affine(s)
+        }
+        fn backward(&mut self, _: usize, cbar: &Coefficients<L2>, sbar: &mut State<L2>) {
+            sbar.v_st_m_s = sbar.v_st_m_s + L2::splat(4000.0) * cbar.b_fl;
+            sbar.x_pr_m = sbar.x_pr_m + L2::splat(1e8) * cbar.k_pr;
+        }
+    }
+
+    /// `step_backward` is the transpose of `step_with`: `dL/dx` and `dL/d(inv_t_pr)` of
+    /// `L = w . x_n+1` match central differences, for both schemes.
+    #[test]
+    fn step_backward_matches_finite_differences() {
+        use crate::math::{Lanes, Unfused};
+        let h = StepSize::<L2>::splat(1e-4);
+        let x = State {
+            x_pr_m: Lanes([4e-4, -2e-4]),
+            v_st_m_s: Lanes([0.1, -0.3]),
+        };
+        let (u0, u1) = (Lanes([0.3, -0.2]), Lanes([0.35, -0.1]));
+        let it = L2::splat(1.0 / 0.003);
+        let wx = State {
+            x_pr_m: Lanes([1e3, -2e3]),
+            v_st_m_s: Lanes([1.0, 0.5]),
+        };
+        let loss = |x: &State<L2>, it: L2, scheme| -> [f64; 2] {
+            let c1 = affine(x);
+            let y = step_with::<Unfused, L2, _>(scheme, &mut AffineStage, &c1, it, x, u0, u1, &h);
+            let l = wx.x_pr_m * y.x_pr_m + wx.v_st_m_s * y.v_st_m_s;
+            l.0
+        };
+        for scheme in [Integrator::Rk4, Integrator::Rk3] {
+            let c1 = affine(&x);
+            let mut xbar = State::<L2>::default();
+            let mut c1bar = Coefficients::<L2>::default();
+            let mut itbar = L2::default();
+            step_backward::<Unfused, L2, _>(
+                scheme,
+                &mut AffineStage,
+                &c1,
+                it,
+                &x,
+                u0,
+                u1,
+                &h,
+                &wx,
+                &mut xbar,
+                &mut c1bar,
+                &mut itbar,
+            );
+            // Stage 1's coefficients are the caller's: complete the chain.
+            AffineStage.backward(1, &c1bar, &mut xbar);
+            let fd = |f: &dyn Fn(f64) -> [f64; 2], eps: f64| {
+                let (p, m) = (f(eps), f(-eps));
+                [(p[0] - m[0]) / (2.0 * eps), (p[1] - m[1]) / (2.0 * eps)]
+            };
+            let dx = fd(
+                &|e| {
+                    loss(
+                        &State {
+                            x_pr_m: x.x_pr_m + L2::splat(e),
+                            ..x
+                        },
+                        it,
+                        scheme,
+                    )
+                },
+                1e-9,
+            );
+            let dv = fd(
+                &|e| {
+                    loss(
+                        &State {
+                            v_st_m_s: x.v_st_m_s + L2::splat(e),
+                            ..x
+                        },
+                        it,
+                        scheme,
+                    )
+                },
+                1e-6,
+            );
+            let di = fd(&|e| loss(&x, it + L2::splat(e), scheme), 1e-2);
+            for k in 0..2 {
+                for (got, want) in [
+                    (xbar.x_pr_m.0[k], dx[k]),
+                    (xbar.v_st_m_s.0[k], dv[k]),
+                    (itbar.0[k], di[k]),
+                ] {
+                    assert!(
+                        (got - want).abs() <= 1e-6 * want.abs().max(1e-3),
+                        "{scheme:?} {got} vs {want}"
+                    );
+                }
+            }
+        }
     }
 }

@@ -32,6 +32,8 @@
 //!
 //! If both math features are enabled, `micromath` wins (Cargo features are additive).
 
+use core::ops::{Add, Div, Mul, Neg, Sub};
+
 #[cfg(not(any(feature = "libm", feature = "micromath")))]
 compile_error!(
     "nemm-core needs a math backend: enable the `libm` (default) or `micromath` feature"
@@ -103,16 +105,17 @@ pub fn fma(a: f32, b: f32, c: f32) -> f32 {
     }
 }
 
-/// How the integrator and the EMM multiply and add: `a * b + c`.
+/// How the integrator and the EMM multiply and add: `a * b + c`, on any [`Lane`].
 ///
-/// [`Fused`] is the reference arithmetic (one rounding, what the trainer reproduces);
-/// [`Unfused`] rounds twice and is what the tabulated fast path uses: on the Cortex-M4F the
-/// fused operation goes through `asm!` with three moves in and one out (see the `arm` module),
-/// the unfused one is two FPU instructions. The difference, about one rounding of `f32`
-/// (6e-8 relative) per operation, is far below the table's error bound.
+/// [`Fused`] is the reference arithmetic (one rounding); [`Unfused`] rounds twice and is what
+/// the tabulated fast path and the trainer use: on the Cortex-M4F the fused operation goes
+/// through `asm!` with three moves in and one out (see the `arm` module), the unfused one is
+/// two FPU instructions; on the host the trainer's packed lanes vectorise multiply and add.
+/// The difference, about one rounding of `f32` (6e-8 relative) per operation, is far below
+/// the table's error bound and the trainer's parity bound.
 pub trait MulAdd {
     /// `a * b + c`.
-    fn mul_add(a: f32, b: f32, c: f32) -> f32;
+    fn mul_add<L: Lane>(a: L, b: L, c: L) -> L;
 }
 
 /// Fused multiply-add, [`fma`].
@@ -125,15 +128,260 @@ pub struct Unfused;
 
 impl MulAdd for Fused {
     #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-        fma(a, b, c)
+    fn mul_add<L: Lane>(a: L, b: L, c: L) -> L {
+        L::fma(a, b, c)
     }
 }
 
 impl MulAdd for Unfused {
     #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+    fn mul_add<L: Lane>(a: L, b: L, c: L) -> L {
         a * b + c
+    }
+}
+
+/// A floating-point element type of a [`Lane`]: `f32` (estimator, training) or `f64`
+/// (the trainer's gradient checks).
+///
+/// The operations are associated functions, not methods, so that they never clash with the
+/// inherent or `num_traits` methods of the same names at a call site.
+pub trait Scalar:
+    Copy
+    + PartialOrd
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// `v` converted (exact for the small constants the model uses: 0.5, 2, 4, 6).
+    fn from_f32(v: f32) -> Self;
+    /// Fused multiply-add `a * b + c`, one rounding.
+    fn fma(a: Self, b: Self, c: Self) -> Self;
+    /// `e^x`.
+    fn exp(x: Self) -> Self;
+    /// Correctly rounded square root.
+    fn sqrt(x: Self) -> Self;
+    /// `1 / sqrt(x)` for `x > 0` ([`rsqrt`] for `f32`: the math backend's).
+    fn rsqrt(x: Self) -> Self;
+}
+
+impl Scalar for f32 {
+    #[inline(always)]
+    fn from_f32(v: f32) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn fma(a: Self, b: Self, c: Self) -> Self {
+        fma(a, b, c)
+    }
+    #[inline(always)]
+    fn exp(x: Self) -> Self {
+        exp(x)
+    }
+    #[inline(always)]
+    fn sqrt(x: Self) -> Self {
+        sqrt(x)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        rsqrt(x)
+    }
+}
+
+impl Scalar for f64 {
+    #[inline(always)]
+    fn from_f32(v: f32) -> Self {
+        f64::from(v)
+    }
+    #[inline(always)]
+    fn fma(a: Self, b: Self, c: Self) -> Self {
+        libm::fma(a, b, c)
+    }
+    #[inline(always)]
+    fn exp(x: Self) -> Self {
+        libm::exp(x)
+    }
+    #[inline(always)]
+    fn sqrt(x: Self) -> Self {
+        libm::sqrt(x)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        1.0 / libm::sqrt(x)
+    }
+}
+
+/// The value type the model's pieces ([`crate::emm`], [`crate::integrator`], the scaler
+/// layers of [`crate::mlp`]) are written over: one `f32` in the estimator, [`Lanes`] of `N`
+/// windows advanced in lock step in the trainer. Element-wise arithmetic through the
+/// operators; constants and weights are [`Lane::splat`] into every lane.
+pub trait Lane:
+    Copy
+    + Default
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// The element type.
+    type Scalar: Scalar;
+    /// `v` in every lane.
+    fn splat(v: Self::Scalar) -> Self;
+    /// The constant `v` (see [`Scalar::from_f32`]) in every lane.
+    #[inline(always)]
+    fn constant(v: f32) -> Self {
+        Self::splat(Self::Scalar::from_f32(v))
+    }
+    /// Fused multiply-add per lane.
+    fn fma(a: Self, b: Self, c: Self) -> Self;
+    /// `e^x` per lane.
+    fn exp(x: Self) -> Self;
+    /// Square root per lane.
+    fn sqrt(x: Self) -> Self;
+    /// `1 / sqrt(x)` per lane ([`Scalar::rsqrt`]).
+    fn rsqrt(x: Self) -> Self;
+    /// Per lane: `if_nonneg` where `test >= 0`, `otherwise` elsewhere (LeakyReLU and its
+    /// derivative).
+    fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self;
+    /// Sum over the lanes (a weight gradient from per-lane contributions).
+    fn sum(x: Self) -> Self::Scalar;
+}
+
+impl Lane for f32 {
+    type Scalar = f32;
+    #[inline(always)]
+    fn splat(v: f32) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn fma(a: Self, b: Self, c: Self) -> Self {
+        fma(a, b, c)
+    }
+    #[inline(always)]
+    fn exp(x: Self) -> Self {
+        exp(x)
+    }
+    #[inline(always)]
+    fn sqrt(x: Self) -> Self {
+        sqrt(x)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        rsqrt(x)
+    }
+    #[inline(always)]
+    fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {
+        if test >= 0.0 {
+            if_nonneg
+        } else {
+            otherwise
+        }
+    }
+    #[inline(always)]
+    fn sum(x: Self) -> f32 {
+        x
+    }
+}
+
+/// `N` values of `T` advanced in lock step (the trainer's batch of windows). The operators
+/// work element-wise; fixed-size loops the compiler vectorises.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lanes<T, const N: usize>(pub [T; N]);
+
+impl<T: Scalar, const N: usize> Default for Lanes<T, N> {
+    fn default() -> Self {
+        Self([T::from_f32(0.0); N])
+    }
+}
+
+impl<T: Scalar, const N: usize> Lanes<T, N> {
+    /// Element-wise `f(a_k, b_k)`.
+    #[inline(always)]
+    fn zip_with(self, b: Self, f: impl Fn(T, T) -> T) -> Self {
+        let mut out = self.0;
+        for (o, bk) in out.iter_mut().zip(b.0) {
+            *o = f(*o, bk);
+        }
+        Self(out)
+    }
+
+    /// Element-wise `f(a_k)`.
+    #[inline(always)]
+    fn map(self, f: impl Fn(T) -> T) -> Self {
+        let mut out = self.0;
+        for o in out.iter_mut() {
+            *o = f(*o);
+        }
+        Self(out)
+    }
+}
+
+macro_rules! lanes_binop {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl<T: Scalar, const N: usize> $tr for Lanes<T, N> {
+            type Output = Self;
+            #[inline(always)]
+            fn $f(self, b: Self) -> Self {
+                self.zip_with(b, |x, y| x $op y)
+            }
+        }
+    };
+}
+lanes_binop!(Add, add, +);
+lanes_binop!(Sub, sub, -);
+lanes_binop!(Mul, mul, *);
+lanes_binop!(Div, div, /);
+
+impl<T: Scalar, const N: usize> Neg for Lanes<T, N> {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        self.map(|x| -x)
+    }
+}
+
+impl<T: Scalar, const N: usize> Lane for Lanes<T, N> {
+    type Scalar = T;
+    #[inline(always)]
+    fn splat(v: T) -> Self {
+        Self([v; N])
+    }
+    #[inline(always)]
+    fn fma(a: Self, b: Self, c: Self) -> Self {
+        let mut out = c.0;
+        for ((o, ak), bk) in out.iter_mut().zip(a.0).zip(b.0) {
+            *o = T::fma(ak, bk, *o);
+        }
+        Self(out)
+    }
+    #[inline(always)]
+    fn exp(x: Self) -> Self {
+        x.map(T::exp)
+    }
+    #[inline(always)]
+    fn sqrt(x: Self) -> Self {
+        x.map(T::sqrt)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        x.map(T::rsqrt)
+    }
+    #[inline(always)]
+    fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {
+        let zero = T::from_f32(0.0);
+        let mut out = otherwise.0;
+        for ((o, t), y) in out.iter_mut().zip(test.0).zip(if_nonneg.0) {
+            if t >= zero {
+                *o = y;
+            }
+        }
+        Self(out)
+    }
+    #[inline(always)]
+    fn sum(x: Self) -> T {
+        x.0.into_iter().fold(T::from_f32(0.0), |s, v| s + v)
     }
 }
 

@@ -37,7 +37,7 @@
 //! z     = fma-chain from b_o over w_o_i * a_i
 //! ```
 
-use crate::math;
+use crate::math::{self, Lane};
 use serde::{Deserialize, Serialize};
 
 #[cfg(all(
@@ -280,26 +280,132 @@ const PATTERN_SEED: u64 = 0xcbf2_9ce4_8422_2325;
 
 /// LeakyReLU with [`LEAKY_RELU_SLOPE`].
 #[inline(always)]
-pub fn leaky_relu(y: f32) -> f32 {
-    if y >= 0.0 {
-        y
-    } else {
-        LEAKY_RELU_SLOPE * y
+pub fn leaky_relu<L: Lane>(y: L) -> L {
+    L::select_nonneg(y, y, L::constant(LEAKY_RELU_SLOPE) * y)
+}
+
+// ---------------------------------------------------------------------------------------
+// The hidden layer's normalisation and activation, and the output mapping: the one
+// definition of the scaler architecture past the linear maps, generic over the lane type.
+// The estimator (`f32`, folded weights), the reference forward and the trainer (packed
+// lanes, with the reverse modes below each forward) all run these.
+// ---------------------------------------------------------------------------------------
+
+/// LayerNorm's centring, in place: `t_i <- t_i - mean(t)`, `mean = (sum_i t_i) * inv_h`
+/// (left to right). [`CompiledScaler::compile`] folds the same centring into the weights.
+#[inline(always)]
+pub fn centre<L: Lane>(t: &mut [L], inv_h: L::Scalar) {
+    let mean = t.iter().fold(L::default(), |s, &v| s + v) * L::splat(inv_h);
+    for v in t.iter_mut() {
+        *v = *v - mean;
     }
 }
 
-/// In place: LayerNorm over `h` (mean and biased variance), affine `gamma`, `beta`, then
-/// LeakyReLU, in the exact order of the module docs.
-pub fn layer_norm_leaky(h: &mut [f32], gamma: &[f32], beta: &[f32]) {
-    let n = h.len() as f32;
-    let mean = h.iter().fold(0.0f32, |s, &v| s + v) / n;
-    for v in h.iter_mut() {
-        *v -= mean;
+/// Reverse mode of [`centre`], in place on the adjoints (the centring is an orthogonal
+/// projection: its own transpose).
+#[inline(always)]
+pub fn centre_backward<L: Lane>(tbar: &mut [L], inv_h: L::Scalar) {
+    centre(tbar, inv_h);
+}
+
+/// Normalisation (by the root mean square of the centred pre-activations `t`), affine
+/// `gamma`, `beta` and LeakyReLU of one hidden layer, in the order of the module docs:
+/// `var = (fma-chain of t_i^2) * inv_h`, `r = rsqrt(var + LAYER_NORM_EPS)`,
+/// `n_i = t_i r`, `y_i = fma(gamma_i, n_i, beta_i)`, `a_i = leaky_relu(y_i)`. Calls
+/// `out(n_i, y_i, a_i)` for every neuron in order and returns `r`.
+#[inline(always)]
+pub fn norm_act<M: math::MulAdd, L: Lane>(
+    t: &[L],
+    gamma: &[L::Scalar],
+    beta: &[L::Scalar],
+    inv_h: L::Scalar,
+    mut out: impl FnMut(L, L, L),
+) -> L {
+    let var = t.iter().fold(L::default(), |s, &d| M::mul_add(d, d, s)) * L::splat(inv_h);
+    let r = L::rsqrt(var + L::constant(LAYER_NORM_EPS));
+    for ((&ti, &g), &b) in t.iter().zip(gamma).zip(beta) {
+        let n = ti * r;
+        let y = M::mul_add(L::splat(g), n, L::splat(b));
+        out(n, y, leaky_relu(y));
     }
-    let var = h.iter().fold(0.0f32, |s, &d| math::fma(d, d, s)) / n;
-    let r = math::rsqrt(var + LAYER_NORM_EPS);
-    for ((v, &g), &b) in h.iter_mut().zip(gamma).zip(beta) {
-        *v = leaky_relu(math::fma(g, *v * r, b));
+    r
+}
+
+/// Reverse mode of [`norm_act`] from the adjoints `abar` of the activations and the record
+/// of the forward (`n_i`, `a_i`, `r`): writes the adjoints of the centred pre-activations
+/// `t` into `tbar` and adds the lane sums of `dL/dgamma_i`, `dL/dbeta_i` to `ggamma`,
+/// `gbeta`. `tbar_i = r (nbar_i - n_i mean(nbar n))`, `nbar_i = gamma_i ybar_i`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // the record, the weights and three adjoint outputs
+pub fn norm_act_backward<L: Lane>(
+    abar: &[L],
+    n: &[L],
+    a: &[L],
+    r: L,
+    gamma: &[L::Scalar],
+    inv_h: L::Scalar,
+    tbar: &mut [L],
+    ggamma: &mut [L::Scalar],
+    gbeta: &mut [L::Scalar],
+) {
+    let slope = L::constant(LEAKY_RELU_SLOPE);
+    let mut mean_nbar_n = L::default();
+    for ((((tb, &ab), (&ni, &ai)), &g), (gg, gb)) in tbar
+        .iter_mut()
+        .zip(abar)
+        .zip(n.iter().zip(a))
+        .zip(gamma)
+        .zip(ggamma.iter_mut().zip(gbeta.iter_mut()))
+    {
+        let yb = L::select_nonneg(ai, ab, slope * ab);
+        *gg = *gg + L::sum(yb * ni);
+        *gb = *gb + L::sum(yb);
+        let nb = yb * L::splat(g);
+        mean_nbar_n = mean_nbar_n + nb * ni;
+        *tb = nb;
+    }
+    let mean_nbar_n = mean_nbar_n * L::splat(inv_h);
+    for (tb, &ni) in tbar.iter_mut().zip(n) {
+        *tb = r * (*tb - ni * mean_nbar_n);
+    }
+}
+
+/// Logistic sigmoid `1 / (1 + e^-z)` per lane (as [`math::sigmoid`] for `f32`).
+#[inline(always)]
+pub fn sigmoid<L: Lane>(z: L) -> L {
+    L::constant(1.0) / (L::constant(1.0) + L::exp(-z))
+}
+
+/// The bounded positive output mapping of a scaler, scaled by its constant:
+/// `p = lo + span sigmoid(z)` computed as `mul_add(span, sigmoid(z), lo)`, with
+/// `lo = p_ini s_min` and `span = p_ini (s_max - s_min)`. Returns `(p, sigmoid(z))`.
+#[inline(always)]
+pub fn bounded<M: math::MulAdd, L: Lane>(z: L, lo: L, span: L) -> (L, L) {
+    let sig = sigmoid(z);
+    (M::mul_add(span, sig, lo), sig)
+}
+
+/// Reverse mode of [`bounded`] in `z`: `dL/dz = pbar span sig (1 - sig)` from the recorded
+/// `sig` (the derivatives in `lo` and `span` are `pbar` and `pbar sig`).
+#[inline(always)]
+pub fn bounded_backward<L: Lane>(sig: L, span: L, pbar: L) -> L {
+    pbar * span * sig * (L::constant(1.0) - sig)
+}
+
+/// In place: LayerNorm over `h` (mean and biased variance), affine `gamma`, `beta`, then
+/// LeakyReLU ([`centre`] then [`norm_act`], fused multiply-adds).
+pub fn layer_norm_leaky(h: &mut [f32], gamma: &[f32], beta: &[f32]) {
+    let inv_h = 1.0 / h.len() as f32;
+    centre(h, inv_h);
+    let mut act = [0.0f32; MAX_HIDDEN];
+    let mut it = act.iter_mut();
+    norm_act::<math::Fused, f32>(h, gamma, beta, inv_h, |_, _, a| {
+        if let Some(o) = it.next() {
+            *o = a;
+        }
+    });
+    for (v, &a) in h.iter_mut().zip(&act) {
+        *v = a;
     }
 }
 
@@ -343,10 +449,10 @@ impl<const P: usize> Scaler<P> {
     }
 }
 
-/// `s_min + (s_max - s_min) * sigmoid(z)`.
+/// `s_min + (s_max - s_min) * sigmoid(z)` ([`bounded`] with `p_ini = 1`).
 #[inline(always)]
 pub fn scale_from_raw(z: f32, s_min: f32, s_max: f32) -> f32 {
-    math::fma(s_max - s_min, math::sigmoid(z), s_min)
+    bounded::<math::Fused, f32>(z, s_min, s_max - s_min).0
 }
 
 /// A scaler specialised for a fixed `alpha` and one state input, with the constant
@@ -548,7 +654,7 @@ impl<const P: usize> CompiledScaler<P> {
     /// Physical parameter value `p(u)` at state input `u` (SI units of the state).
     #[inline]
     pub fn eval(&self, u: f32) -> f32 {
-        math::fma(self.span, math::sigmoid(self.raw(u)), self.lo)
+        bounded::<math::Fused, f32>(self.raw(u), self.lo, self.span).0
     }
 
     /// Raw network output `z` at state input `u`: the Arm FPU kernel where there is one
@@ -582,7 +688,10 @@ impl<const P: usize> CompiledScaler<P> {
     pub fn eval_with_pattern(&self, u: f32) -> (f32, u64) {
         let mut pattern = PATTERN_SEED;
         let z = self.raw_generic::<true, math::Fused>(u, &mut pattern);
-        (math::fma(self.span, math::sigmoid(z), self.lo), pattern)
+        (
+            bounded::<math::Fused, f32>(z, self.lo, self.span).0,
+            pattern,
+        )
     }
 
     /// The activation pattern at `u` alone, as [`Self::eval_with_pattern`] hashes it but
@@ -669,15 +778,15 @@ impl<const P: usize> CompiledScaler<P> {
         };
         let th = t.get(..h).unwrap_or(&[]);
         let [inv_h, ..] = self.consts;
-        let var = th.iter().fold(0.0f32, |s, &d| M::mul_add(d, d, s)) * inv_h;
-        let r = math::rsqrt(var + LAYER_NORM_EPS);
-        for (((ai, &ti), &gi), &bi) in a.iter_mut().zip(th).zip(g).zip(be) {
-            let y = M::mul_add(gi, ti * r, bi);
+        let mut out = a.iter_mut();
+        norm_act::<M, f32>(th, g, be, inv_h, |_, y, act| {
             if TRACK {
                 *pattern = (*pattern ^ u64::from(y >= 0.0)).wrapping_mul(0x0000_0100_0000_01b3);
             }
-            *ai = leaky_relu(y);
-        }
+            if let Some(ai) = out.next() {
+                *ai = act;
+            }
+        });
         true
     }
 
@@ -797,5 +906,77 @@ mod tests {
         c.set_alpha(0.3);
         let reference = p_ini * sc.scale(&[0.4 / u_scale, 1.0]).unwrap();
         assert!((c.eval(0.4) - reference).abs() <= 2e-6 * reference);
+    }
+
+    /// `norm_act_backward` after `centre_backward` is the transpose of `centre` then
+    /// `norm_act`: the adjoint of the pre-activations and of `gamma`, `beta` match central
+    /// differences of `L = w . a` (f64 lanes).
+    #[test]
+    fn layer_backward_matches_finite_differences() {
+        use crate::math::{Lanes, Unfused};
+        type L2 = Lanes<f64, 2>;
+        const H: usize = 4;
+        let t0: [L2; H] = [
+            Lanes([0.3, -1.0]),
+            Lanes([-0.7, 0.2]),
+            Lanes([1.1, 0.05]),
+            Lanes([-0.02, 0.9]),
+        ];
+        let gamma = [1.2, -0.4, 0.8, 1.0];
+        let beta = [0.1, -0.3, 0.0, 0.05];
+        let wts = [0.7, -1.3, 0.4, 2.0];
+        let inv_h = 1.0 / H as f64;
+        let forward = |t0: &[L2; H], gamma: &[f64; H], beta: &[f64; H]| -> f64 {
+            let mut t = *t0;
+            centre(&mut t, inv_h);
+            let mut l = L2::default();
+            let mut w = wts.iter();
+            norm_act::<Unfused, L2>(&t, gamma, beta, inv_h, |_, _, a| {
+                l = l + L2::splat(*w.next().unwrap()) * a;
+            });
+            L2::sum(l)
+        };
+        let mut t = t0;
+        centre(&mut t, inv_h);
+        let (mut n, mut a) = ([L2::default(); H], [L2::default(); H]);
+        let mut i = 0;
+        let r = norm_act::<Unfused, L2>(&t, &gamma, &beta, inv_h, |ni, _, ai| {
+            n[i] = ni;
+            a[i] = ai;
+            i += 1;
+        });
+        let abar: [L2; H] = core::array::from_fn(|i| L2::splat(wts[i]));
+        let mut tbar = [L2::default(); H];
+        let (mut gg, mut gb) = ([0.0; H], [0.0; H]);
+        norm_act_backward(&abar, &n, &a, r, &gamma, inv_h, &mut tbar, &mut gg, &mut gb);
+        centre_backward(&mut tbar, inv_h);
+        let eps = 1e-6;
+        for i in 0..H {
+            for k in 0..2 {
+                let (mut p, mut m) = (t0, t0);
+                p[i].0[k] += eps;
+                m[i].0[k] -= eps;
+                let want = (forward(&p, &gamma, &beta) - forward(&m, &gamma, &beta)) / (2.0 * eps);
+                assert!(
+                    (tbar[i].0[k] - want).abs() < 1e-7,
+                    "t {i} {k}: {:?} vs {want}",
+                    tbar[i]
+                );
+            }
+            let (mut p, mut m) = (gamma, gamma);
+            p[i] += eps;
+            m[i] -= eps;
+            let want = (forward(&t0, &p, &beta) - forward(&t0, &m, &beta)) / (2.0 * eps);
+            assert!(
+                (gg[i] - want).abs() < 1e-7,
+                "gamma {i}: {} vs {want}",
+                gg[i]
+            );
+            let (mut p, mut m) = (beta, beta);
+            p[i] += eps;
+            m[i] -= eps;
+            let want = (forward(&t0, &gamma, &p) - forward(&t0, &gamma, &m)) / (2.0 * eps);
+            assert!((gb[i] - want).abs() < 1e-7, "beta {i}: {} vs {want}", gb[i]);
+        }
     }
 }

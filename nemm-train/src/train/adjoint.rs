@@ -13,9 +13,14 @@
 //! - state at rest and previous input 0 before the first sample;
 //! - sample `n`: one RK step from `(s_{n-1}, u_{n-1})` to `(s_n, u_n)` with linear input
 //!   interpolation (`u_m = 0.5 (u_{n-1} + u_n)`), then `y_n = F(s_n, u_n)`;
-//! - the scalers, the bounded output mapping, the EMM right-hand side and force are those of
-//!   `nemm_core` (`mlp`, `emm`, `integrator` module docs), evaluated here in plain
-//!   (unfused) arithmetic; the parity test bounds the difference.
+//! - the EMM right-hand side and force (`nemm_core::emm`), the RK step
+//!   (`nemm_core::integrator::step_with`), the scalers' centring, normalisation, activation
+//!   and bounded output mapping (`nemm_core::mlp`) are nemm-core's own generic definitions,
+//!   run here over [`Lanes`] of [`LANES`] windows with unfused multiply-adds; their reverse
+//!   modes (`rhs_backward`, `force_backward`, `step_backward`, `norm_act_backward`,
+//!   `centre_backward`, `bounded_backward`) sit next to them in nemm-core. This file keeps
+//!   the scalers' linear maps (forward and backward), the packing, the loss and the sweeps.
+//!   The parity test bounds the difference to the estimator's fused arithmetic.
 //!
 //! # Batching
 //!
@@ -32,7 +37,10 @@
 // plain index loops they vectorise reliably, which iterator chains over 3-4 arrays do not.
 #![allow(clippy::needless_range_loop)]
 
-use nemm_core::mlp::{LAYER_NORM_EPS, LEAKY_RELU_SLOPE};
+use nemm_core::emm::{self, Coefficients, State};
+use nemm_core::integrator::{self, Stage, StageBackward, StepSize};
+use nemm_core::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
+use nemm_core::mlp;
 use nemm_core::Integrator;
 use num_traits::Float;
 use rayon::prelude::*;
@@ -43,7 +51,9 @@ use std::ops::{AddAssign, DivAssign};
 pub const LANES: usize = 8;
 
 /// Floating-point type of a rollout (`f32` for training, `f64` for gradient checks).
-pub trait Real: Float + AddAssign + DivAssign + Send + Sync + Debug + Default + 'static {
+pub trait Real:
+    Float + Scalar + AddAssign + DivAssign + Send + Sync + Debug + Default + 'static
+{
     /// From `f64`.
     fn c(v: f64) -> Self;
 }
@@ -273,23 +283,23 @@ impl<'a, T: Real> Mlp<'a, T> {
 struct Act<T> {
     x0: V<T>,
     /// Normalised pre-activations `n = (h - mean) r`, `layers * H`.
-    n: Vec<V<T>>,
+    n: Vec<L<T>>,
     /// `1 / sqrt(var + eps)`, per layer.
-    r: Vec<V<T>>,
+    r: Vec<L<T>>,
     /// Activations after LeakyReLU, `layers * H`.
-    a: Vec<V<T>>,
+    a: Vec<L<T>>,
     /// `sigmoid(z)`.
-    sig: V<T>,
+    sig: L<T>,
 }
 
 impl<T: Real> Act<T> {
     fn new(h: usize, layers: usize) -> Self {
         Self {
             x0: splat(T::zero()),
-            n: vec![splat(T::zero()); h * layers],
-            r: vec![splat(T::zero()); layers],
-            a: vec![splat(T::zero()); h * layers],
-            sig: splat(T::zero()),
+            n: vec![L::splat(T::zero()); h * layers],
+            r: vec![L::splat(T::zero()); layers],
+            a: vec![L::splat(T::zero()); h * layers],
+            sig: L::splat(T::zero()),
         }
     }
 }
@@ -297,23 +307,32 @@ impl<T: Real> Act<T> {
 /// Scratch for forward passes without a record.
 #[derive(Debug, Clone)]
 struct Scratch<T> {
-    t: Vec<V<T>>,
-    a: Vec<V<T>>,
+    t: Vec<L<T>>,
+    a: Vec<L<T>>,
+}
+
+impl<T: Real> Scratch<T> {
+    fn new(h: usize) -> Self {
+        Self {
+            t: vec![L::splat(T::zero()); h],
+            a: vec![L::splat(T::zero()); h],
+        }
+    }
 }
 
 impl<T: Real> Mlp<'_, T> {
-    /// Forward pass: returns `sigmoid(z)`; fills `rec` if given.
+    /// Forward pass: the linear maps here, the centring, normalisation, activation of
+    /// `nemm_core::mlp` ([`mlp::centre`], [`mlp::norm_act`]); returns the raw output `z`
+    /// and fills `rec` if given.
     fn forward(
         &self,
         x0: &V<T>,
         b1: &[V<T>],
         scratch: &mut Scratch<T>,
         mut rec: Option<&mut Act<T>>,
-    ) -> V<T> {
+    ) -> L<T> {
         let h = self.h;
-        let hf = T::c(h as f64);
-        let eps = T::c(LAYER_NORM_EPS as f64);
-        let slope = T::c(LEAKY_RELU_SLOPE as f64);
+        let inv_h = T::one() / T::c(h as f64);
         let w = self.w;
         if let Some(r) = rec.as_deref_mut() {
             r.x0 = *x0;
@@ -325,7 +344,7 @@ impl<T: Real> Mlp<'_, T> {
                 for i in 0..h {
                     let wi = w[lo.w + i * lo.fan_in];
                     let bi = &b1[i];
-                    t[i] = std::array::from_fn(|k| wi * x0[k] + bi[k]);
+                    t[i] = Lanes(std::array::from_fn(|k| wi * x0[k] + bi[k]));
                 }
             } else {
                 let a_in = &scratch.a;
@@ -333,66 +352,53 @@ impl<T: Real> Mlp<'_, T> {
                     let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
                     let mut acc = splat(w[lo.b + i]);
                     for (j, &wij) in row.iter().enumerate() {
-                        let aj = &a_in[j];
+                        let aj = &a_in[j].0;
                         for k in 0..LANES {
                             acc[k] += wij * aj[k];
                         }
                     }
-                    t[i] = acc;
+                    t[i] = Lanes(acc);
                 }
             }
             // LayerNorm + affine + LeakyReLU.
-            let mut mean = splat(T::zero());
-            for ti in t.iter().take(h) {
-                for k in 0..LANES {
-                    mean[k] += ti[k];
+            let t = &mut t[..h];
+            mlp::centre(t, inv_h);
+            let (gamma, beta) = (&w[lo.g..lo.g + h], &w[lo.be..lo.be + h]);
+            let a = &mut scratch.a[..h];
+            match rec.as_deref_mut() {
+                Some(rec) => {
+                    let mut out = a
+                        .iter_mut()
+                        .zip(&mut rec.n[l * h..(l + 1) * h])
+                        .zip(&mut rec.a[l * h..(l + 1) * h]);
+                    rec.r[l] =
+                        mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |n, _, act| {
+                            if let Some(((ai, rn), ra)) = out.next() {
+                                *ai = act;
+                                *rn = n;
+                                *ra = act;
+                            }
+                        });
                 }
-            }
-            for m in mean.iter_mut() {
-                *m /= hf;
-            }
-            let mut var = splat(T::zero());
-            for ti in t.iter_mut().take(h) {
-                for k in 0..LANES {
-                    ti[k] = ti[k] - mean[k];
-                    var[k] += ti[k] * ti[k];
+                None => {
+                    let mut out = a.iter_mut();
+                    mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |_, _, act| {
+                        if let Some(ai) = out.next() {
+                            *ai = act;
+                        }
+                    });
                 }
-            }
-            let r: V<T> = std::array::from_fn(|k| (var[k] / hf + eps).sqrt().recip());
-            let a = &mut scratch.a;
-            for i in 0..h {
-                let (g, be) = (w[lo.g + i], w[lo.be + i]);
-                let ti = &t[i];
-                let mut ai = splat(T::zero());
-                let mut ni = splat(T::zero());
-                for k in 0..LANES {
-                    ni[k] = ti[k] * r[k];
-                    let y = g * ni[k] + be;
-                    ai[k] = if y >= T::zero() { y } else { slope * y };
-                }
-                a[i] = ai;
-                if let Some(rec) = rec.as_deref_mut() {
-                    rec.n[l * h + i] = ni;
-                    rec.a[l * h + i] = ai;
-                }
-            }
-            if let Some(rec) = rec.as_deref_mut() {
-                rec.r[l] = r;
             }
         }
         let mut z = splat(w[self.out_b]);
         for i in 0..h {
             let wo = w[self.out_w + i];
-            let ai = &scratch.a[i];
+            let ai = &scratch.a[i].0;
             for k in 0..LANES {
                 z[k] += wo * ai[k];
             }
         }
-        let sig: V<T> = std::array::from_fn(|k| T::one() / (T::one() + (-z[k]).exp()));
-        if let Some(rec) = rec {
-            rec.sig = sig;
-        }
-        sig
+        Lanes(z)
     }
 
     /// Backward pass from `dL/dz` per lane; accumulates weight gradients into `g` and
@@ -406,71 +412,44 @@ impl<T: Real> Mlp<'_, T> {
         scratch: &mut Scratch<T>,
     ) -> V<T> {
         let h = self.h;
-        let hf = T::c(h as f64);
-        let slope = T::c(LEAKY_RELU_SLOPE as f64);
+        let inv_h = T::one() / T::c(h as f64);
         let w = self.w;
         // Output layer.
         g[self.out_b] += sum(zbar);
         let abar = &mut scratch.a;
         let l_last = self.layers.len() - 1;
         for i in 0..h {
-            let ai = &rec.a[l_last * h + i];
+            let ai = &rec.a[l_last * h + i].0;
             let mut s = T::zero();
             for k in 0..LANES {
                 s += zbar[k] * ai[k];
             }
             g[self.out_w + i] += s;
             let wo = w[self.out_w + i];
-            abar[i] = std::array::from_fn(|k| wo * zbar[k]);
+            abar[i] = Lanes(std::array::from_fn(|k| wo * zbar[k]));
         }
         let mut x0bar = splat(T::zero());
         for l in (0..self.layers.len()).rev() {
             let lo = self.layers[l];
-            // Through LeakyReLU and the affine: nbar = ybar * gamma.
-            let hbar = &mut scratch.t;
-            let mut mean_nbar = splat(T::zero());
-            let mut mean_nbar_n = splat(T::zero());
-            for i in 0..h {
-                let a = &rec.a[l * h + i];
-                let n = &rec.n[l * h + i];
-                let ab = &abar[i];
-                let gam = w[lo.g + i];
-                let mut sg = T::zero();
-                let mut sb = T::zero();
-                let mut nb = splat(T::zero());
-                for k in 0..LANES {
-                    let yb = if a[k] >= T::zero() {
-                        ab[k]
-                    } else {
-                        slope * ab[k]
-                    };
-                    sg += yb * n[k];
-                    sb += yb;
-                    nb[k] = yb * gam;
-                    mean_nbar[k] += nb[k];
-                    mean_nbar_n[k] += nb[k] * n[k];
-                }
-                g[lo.g + i] += sg;
-                g[lo.be + i] += sb;
-                hbar[i] = nb;
-            }
-            // LayerNorm backward: hbar = r (nbar - mean(nbar) - n mean(nbar n)).
-            let r = &rec.r[l];
-            for k in 0..LANES {
-                mean_nbar[k] /= hf;
-                mean_nbar_n[k] /= hf;
-            }
-            for i in 0..h {
-                let n = &rec.n[l * h + i];
-                let hb = &mut hbar[i];
-                for k in 0..LANES {
-                    hb[k] = r[k] * (hb[k] - mean_nbar[k] - n[k] * mean_nbar_n[k]);
-                }
-            }
+            // Through LeakyReLU, the affine, the normalisation and the centring.
+            let hbar = &mut scratch.t[..h];
+            let (gg, gb) = g[lo.g..lo.be + h].split_at_mut(h);
+            mlp::norm_act_backward(
+                &abar[..h],
+                &rec.n[l * h..(l + 1) * h],
+                &rec.a[l * h..(l + 1) * h],
+                rec.r[l],
+                &w[lo.g..lo.g + h],
+                inv_h,
+                hbar,
+                gg,
+                gb,
+            );
+            mlp::centre_backward(hbar, inv_h);
             // Linear backward.
             if l == 0 {
                 for i in 0..h {
-                    let hb = &hbar[i];
+                    let hb = &hbar[i].0;
                     let sb = sum(hb);
                     g[lo.b + i] += sb;
                     let mut s0 = T::zero();
@@ -491,11 +470,11 @@ impl<T: Real> Mlp<'_, T> {
             } else {
                 let prev = (l - 1) * h;
                 for i in 0..h {
-                    let hb = hbar[i];
+                    let hb = hbar[i].0;
                     g[lo.b + i] += sum(&hb);
                     let row = lo.w + i * h;
                     for j in 0..h {
-                        let aj = &rec.a[prev + j];
+                        let aj = &rec.a[prev + j].0;
                         let mut s = T::zero();
                         for k in 0..LANES {
                             s += hb[k] * aj[k];
@@ -505,13 +484,13 @@ impl<T: Real> Mlp<'_, T> {
                 }
                 // abar_{l-1}[j] = sum_i W[i][j] hbar[i]
                 for j in 0..h {
-                    abar[j] = splat(T::zero());
+                    abar[j] = L::splat(T::zero());
                 }
                 for i in 0..h {
-                    let hb = hbar[i];
+                    let hb = hbar[i].0;
                     let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
                     for (j, &wij) in row.iter().enumerate() {
-                        let ab = &mut abar[j];
+                        let ab = &mut abar[j].0;
                         for k in 0..LANES {
                             ab[k] += wij * hb[k];
                         }
@@ -528,7 +507,8 @@ impl<T: Real> Mlp<'_, T> {
 // ---------------------------------------------------------------------------------------
 
 /// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(MLP(state / scale,
-/// alpha_n)))`.
+/// alpha_n)))` (nemm-core's [`mlp::bounded`] with `lo = c0 s_min`, `span = c0 (s_max -
+/// s_min)`).
 struct Coef<'a, T> {
     c0: T,
     neural: Option<NeuralCoef<'a, T>>,
@@ -567,15 +547,25 @@ impl<'a, T: Real> Coef<'a, T> {
     }
 
     #[inline]
-    fn eval(&self, x: &V<T>, scratch: &mut Scratch<T>, rec: Option<&mut Act<T>>) -> V<T> {
+    fn eval(&self, x: &V<T>, scratch: &mut Scratch<T>, mut rec: Option<&mut Act<T>>) -> V<T> {
         match &self.neural {
             None => splat(self.c0),
             Some(n) => {
                 let x0: V<T> = std::array::from_fn(|k| x[k] * n.inv_scale);
-                let sig = n.mlp.forward(&x0, &n.b1, scratch, rec);
-                std::array::from_fn(|k| self.c0 * (n.s_min + n.span * sig[k]))
+                let z = n.mlp.forward(&x0, &n.b1, scratch, rec.as_deref_mut());
+                let (p, sig) = self.bounded(n, z);
+                if let Some(rec) = rec {
+                    rec.sig = sig;
+                }
+                p.0
             }
         }
+    }
+
+    /// The output mapping of the neural coefficient `n` at raw output `z`: `(p, sigmoid)`.
+    #[inline(always)]
+    fn bounded(&self, n: &NeuralCoef<'_, T>, z: L<T>) -> (L<T>, L<T>) {
+        mlp::bounded::<Unfused, L<T>>(z, L::splat(self.c0 * n.s_min), L::splat(self.c0 * n.span))
     }
 
     /// Back-propagates `cbar = dL/d(coefficient)`; returns `dL/d(state component)`.
@@ -591,14 +581,13 @@ impl<'a, T: Real> Coef<'a, T> {
     ) -> V<T> {
         match (&self.neural, rec) {
             (Some(n), Some(rec)) => {
-                let mut zbar = splat(T::zero());
                 let mut s0 = T::zero();
                 for k in 0..LANES {
-                    let sig = rec.sig[k];
-                    s0 += cbar[k] * (n.s_min + n.span * sig);
-                    zbar[k] = cbar[k] * self.c0 * n.span * sig * (T::one() - sig);
+                    s0 += cbar[k] * (n.s_min + n.span * rec.sig.0[k]);
                 }
                 *c0bar += s0;
+                let zbar =
+                    mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), Lanes(*cbar)).0;
                 let x0bar = n.mlp.backward(rec, &zbar, alpha_n, g, scratch);
                 std::array::from_fn(|k| x0bar[k] * n.inv_scale)
             }
@@ -614,19 +603,12 @@ impl<'a, T: Real> Coef<'a, T> {
 // Pack rollout
 // ---------------------------------------------------------------------------------------
 
-/// A state over the lanes.
-#[derive(Debug, Clone, Copy, Default)]
-struct St<T> {
-    x: V<T>,
-    v: V<T>,
-}
-
-/// Coefficient values at one state.
-#[derive(Debug, Clone, Copy)]
-struct Cv<T> {
-    bf: V<T>,
-    k: V<T>,
-}
+/// The lane type of a pack: one value per window.
+type L<T> = Lanes<T, LANES>;
+/// A state over the lanes (or its adjoint).
+type St<T> = State<L<T>>;
+/// Coefficient values at one state over the lanes (or their adjoints).
+type Cv<T> = Coefficients<L<T>>;
 
 /// Where to record the activations of the `b_fl` and `k_pr` evaluations.
 type ActPair<'r, T> = (&'r mut Option<Act<T>>, &'r mut Option<Act<T>>);
@@ -647,11 +629,10 @@ struct Pack<'a, T> {
     /// The `b_pr(alpha)` scaler's evaluation, for its backward pass.
     bp_rec: Option<BprRecord<'a, T>>,
     alpha_n: V<T>,
+    /// `1 / T_pr`.
     it: T,
     integrator: Integrator,
-    dt: T,
-    h2: T,
-    h6: T,
+    h: StepSize<L<T>>,
 }
 
 struct Work<T> {
@@ -665,15 +646,18 @@ impl<'a, T: Real> Pack<'a, T> {
             None => (splat(p.b_pr0), None),
             Some(s) => {
                 let mlp = Mlp::new(s);
-                let mut scratch = Scratch {
-                    t: vec![splat(T::zero()); s.hidden],
-                    a: vec![splat(T::zero()); s.hidden],
-                };
+                let mut scratch = Scratch::new(s.hidden);
                 let b1 = mlp.bias1(&alpha_n);
                 let mut act = Act::new(s.hidden, s.layers);
-                let sig = mlp.forward(&alpha_n, &b1, &mut scratch, Some(&mut act));
+                let z = mlp.forward(&alpha_n, &b1, &mut scratch, Some(&mut act));
                 let span = s.s_max - s.s_min;
-                let bp = std::array::from_fn(|k| p.b_pr0 * (s.s_min + span * sig[k]));
+                let (bp, sig) = mlp::bounded::<Unfused, L<T>>(
+                    z,
+                    L::splat(p.b_pr0 * s.s_min),
+                    L::splat(p.b_pr0 * span),
+                );
+                act.sig = sig;
+                let bp = bp.0;
                 (
                     bp,
                     Some(BprRecord {
@@ -693,9 +677,7 @@ impl<'a, T: Real> Pack<'a, T> {
             alpha_n,
             it: T::one() / p.t_pr,
             integrator: p.integrator,
-            dt: p.dt,
-            h2: T::c(0.5) * p.dt,
-            h6: p.dt / T::c(6.0),
+            h: StepSize::splat(p.dt),
         }
     }
 
@@ -706,85 +688,55 @@ impl<'a, T: Real> Pack<'a, T> {
             .max()
             .unwrap_or(1);
         Work {
-            scratch: Scratch {
-                t: vec![splat(T::zero()); h],
-                a: vec![splat(T::zero()); h],
-            },
+            scratch: Scratch::new(h),
         }
     }
 
     #[inline]
     fn coeffs(&self, s: &St<T>, w: &mut Work<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
-        match rec {
-            None => Cv {
-                bf: self.bf.eval(&s.v, &mut w.scratch, None),
-                k: self.k.eval(&s.x, &mut w.scratch, None),
-            },
-            Some((rb, rk)) => Cv {
-                bf: self.bf.eval(&s.v, &mut w.scratch, rb.as_mut()),
-                k: self.k.eval(&s.x, &mut w.scratch, rk.as_mut()),
-            },
+        let (bf, k) = match rec {
+            None => (
+                self.bf.eval(&s.v_st_m_s.0, &mut w.scratch, None),
+                self.k.eval(&s.x_pr_m.0, &mut w.scratch, None),
+            ),
+            Some((rb, rk)) => (
+                self.bf.eval(&s.v_st_m_s.0, &mut w.scratch, rb.as_mut()),
+                self.k.eval(&s.x_pr_m.0, &mut w.scratch, rk.as_mut()),
+            ),
+        };
+        Coefficients {
+            b_fl: Lanes(bf),
+            b_pr: Lanes(self.bp),
+            k_pr: Lanes(k),
         }
     }
 
-    /// `q = (k x + bp u) / (bp + bf)`.
-    #[inline(always)]
-    fn q(&self, c: &Cv<T>, s: &St<T>, u: &V<T>) -> V<T> {
-        std::array::from_fn(|k| (c.k[k] * s.x[k] + self.bp[k] * u[k]) / (self.bp[k] + c.bf[k]))
-    }
-
-    #[inline(always)]
-    fn rhs(&self, c: &Cv<T>, s: &St<T>, u: &V<T>) -> St<T> {
-        let q = self.q(c, s, u);
-        St {
-            x: std::array::from_fn(|k| u[k] - q[k]),
-            v: std::array::from_fn(|k| (q[k] - s.v[k]) * self.it),
-        }
-    }
-
-    #[inline(always)]
-    fn axpy(a: T, k: &St<T>, s: &St<T>) -> St<T> {
-        St {
-            x: std::array::from_fn(|i| s.x[i] + a * k.x[i]),
-            v: std::array::from_fn(|i| s.v[i] + a * k.v[i]),
-        }
-    }
-
-    /// One RK step from `s` (coefficients `c1`) with inputs `u0` -> `u1`.
+    /// One RK step from `s` (coefficients `c1`) with inputs `u0` -> `u1`: nemm-core's
+    /// [`integrator::step_with`] over the lanes, unfused.
     fn step(&self, s: &St<T>, c1: &Cv<T>, u0: &V<T>, u1: &V<T>, w: &mut Work<T>) -> St<T> {
-        let um: V<T> = std::array::from_fn(|k| T::c(0.5) * (u0[k] + u1[k]));
-        let k1 = self.rhs(c1, s, u0);
-        let s2 = Self::axpy(self.h2, &k1, s);
-        let k2 = self.rhs(&self.coeffs(&s2, w, None), &s2, &um);
-        match self.integrator {
-            Integrator::Rk4 => {
-                let s3 = Self::axpy(self.h2, &k2, s);
-                let k3 = self.rhs(&self.coeffs(&s3, w, None), &s3, &um);
-                let s4 = Self::axpy(self.dt, &k3, s);
-                let k4 = self.rhs(&self.coeffs(&s4, w, None), &s4, u1);
-                let two = T::c(2.0);
-                let sum = St {
-                    x: std::array::from_fn(|i| (k1.x[i] + k4.x[i]) + two * (k2.x[i] + k3.x[i])),
-                    v: std::array::from_fn(|i| (k1.v[i] + k4.v[i]) + two * (k2.v[i] + k3.v[i])),
-                };
-                Self::axpy(self.h6, &sum, s)
-            }
-            Integrator::Rk3 => {
-                let two = T::c(2.0);
-                let d = St {
-                    x: std::array::from_fn(|i| two * k2.x[i] - k1.x[i]),
-                    v: std::array::from_fn(|i| two * k2.v[i] - k1.v[i]),
-                };
-                let s3 = Self::axpy(self.dt, &d, s);
-                let k3 = self.rhs(&self.coeffs(&s3, w, None), &s3, u1);
-                let four = T::c(4.0);
-                let sum = St {
-                    x: std::array::from_fn(|i| four * k2.x[i] + (k1.x[i] + k3.x[i])),
-                    v: std::array::from_fn(|i| four * k2.v[i] + (k1.v[i] + k3.v[i])),
-                };
-                Self::axpy(self.h6, &sum, s)
-            }
-        }
+        integrator::step_with::<Unfused, L<T>, _>(
+            self.integrator,
+            &mut PackStage { pk: self, w },
+            c1,
+            L::splat(self.it),
+            s,
+            Lanes(*u0),
+            Lanes(*u1),
+            &self.h,
+        )
+    }
+}
+
+/// The stage coefficients of a pack's forward step (no record).
+struct PackStage<'p, 'a, T> {
+    pk: &'p Pack<'a, T>,
+    w: &'p mut Work<T>,
+}
+
+impl<T: Real> Stage<L<T>> for PackStage<'_, '_, T> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &St<T>) -> Cv<T> {
+        self.pk.coeffs(s, self.w, None)
     }
 }
 
@@ -792,83 +744,51 @@ impl<'a, T: Real> Pack<'a, T> {
 struct Bar<T> {
     g: RolloutGrads<T>,
     /// dL/d b_pr per lane (b_pr is constant over a window).
-    bp: V<T>,
-    /// dL/d (1/T_pr).
-    it: T,
+    bp: L<T>,
 }
 
-/// Coefficient adjoints at one state.
-#[derive(Debug, Clone, Copy)]
-struct CvBar<T> {
-    bf: V<T>,
-    k: V<T>,
+/// Activation records of the `b_fl` and `k_pr` scalers at one state.
+type RecPair<T> = (Option<Act<T>>, Option<Act<T>>);
+
+/// The stage coefficients of a pack's step for [`integrator::step_backward`]: stages 2..=4
+/// record their scalers' activations and back-propagate through them.
+struct PackStagesBack<'p, 'a, T> {
+    pk: &'p Pack<'a, T>,
+    w: &'p mut Work<T>,
+    bar: &'p mut Bar<T>,
+    recs: &'p mut [RecPair<T>; 3],
+}
+
+impl<T: Real> StageBackward<L<T>> for PackStagesBack<'_, '_, T> {
+    #[inline(always)]
+    fn coeffs(&mut self, i: usize, s: &St<T>) -> Cv<T> {
+        let (rb, rk) = &mut self.recs[i - 2];
+        self.pk.coeffs(s, self.w, Some((rb, rk)))
+    }
+
+    #[inline(always)]
+    fn backward(&mut self, i: usize, cbar: &Cv<T>, sbar: &mut St<T>) {
+        let (rb, rk) = &self.recs[i - 2];
+        self.pk.coef_backward(rb, rk, cbar, sbar, self.bar, self.w);
+    }
 }
 
 impl<T: Real> Pack<'_, T> {
-    /// Backward of `q` given `qbar`: adds to `sbar` (direct) and `cbar`, and `bar.bp`.
-    #[inline(always)]
-    #[allow(clippy::too_many_arguments)] // inputs and the three adjoint accumulators
-    fn q_backward(
-        &self,
-        c: &Cv<T>,
-        s: &St<T>,
-        u: &V<T>,
-        qbar: &V<T>,
-        sbar: &mut St<T>,
-        cbar: &mut CvBar<T>,
-        bar: &mut Bar<T>,
-    ) {
-        for k in 0..LANES {
-            let den = self.bp[k] + c.bf[k];
-            let q = (c.k[k] * s.x[k] + self.bp[k] * u[k]) / den;
-            let numbar = qbar[k] / den;
-            let denbar = -qbar[k] * q / den;
-            cbar.k[k] += numbar * s.x[k];
-            sbar.x[k] += numbar * c.k[k];
-            bar.bp[k] += numbar * u[k] + denbar;
-            cbar.bf[k] += denbar;
-        }
-    }
-
-    /// Backward of `rhs(c, s, u)` given `kbar`.
-    #[inline(always)]
-    #[allow(clippy::too_many_arguments)] // inputs and the three adjoint accumulators
-    fn rhs_backward(
-        &self,
-        c: &Cv<T>,
-        s: &St<T>,
-        u: &V<T>,
-        kbar: &St<T>,
-        sbar: &mut St<T>,
-        cbar: &mut CvBar<T>,
-        bar: &mut Bar<T>,
-    ) {
-        let q = self.q(c, s, u);
-        let mut qbar = splat(T::zero());
-        let mut itbar = T::zero();
-        for k in 0..LANES {
-            qbar[k] = -kbar.x[k] + self.it * kbar.v[k];
-            sbar.v[k] += -self.it * kbar.v[k];
-            itbar += (q[k] - s.v[k]) * kbar.v[k];
-        }
-        bar.it += itbar;
-        self.q_backward(c, s, u, &qbar, sbar, cbar, bar);
-    }
-
-    /// Back-propagates coefficient adjoints through the scalers at the recorded state.
+    /// Back-propagates coefficient adjoints through the scalers at the recorded state (and
+    /// `b_pr`'s into its per-lane accumulator).
     #[inline]
     fn coef_backward(
         &self,
         rb: &Option<Act<T>>,
         rk: &Option<Act<T>>,
-        cbar: &CvBar<T>,
+        cbar: &Cv<T>,
         sbar: &mut St<T>,
         bar: &mut Bar<T>,
         w: &mut Work<T>,
     ) {
         let xv = self.bf.backward(
             rb.as_ref(),
-            &cbar.bf,
+            &cbar.b_fl.0,
             &self.alpha_n,
             &mut bar.g.b_fl0,
             &mut bar.g.b_fl,
@@ -876,23 +796,15 @@ impl<T: Real> Pack<'_, T> {
         );
         let xx = self.k.backward(
             rk.as_ref(),
-            &cbar.k,
+            &cbar.k_pr.0,
             &self.alpha_n,
             &mut bar.g.k0,
             &mut bar.g.k_pr,
             &mut w.scratch,
         );
-        for k in 0..LANES {
-            sbar.v[k] += xv[k];
-            sbar.x[k] += xx[k];
-        }
-    }
-}
-
-fn zero_cbar<T: Real>() -> CvBar<T> {
-    CvBar {
-        bf: splat(T::zero()),
-        k: splat(T::zero()),
+        sbar.v_st_m_s = sbar.v_st_m_s + Lanes(xv);
+        sbar.x_pr_m = sbar.x_pr_m + Lanes(xx);
+        bar.bp = bar.bp + cbar.b_pr;
     }
 }
 
@@ -947,8 +859,7 @@ fn forward_sweep<T: Real>(
     for u in &d.u {
         s = pk.step(&s, &c, &u_prev, u, w);
         c = pk.coeffs(&s, w, None);
-        let q = pk.q(&c, &s, u);
-        ys.push(std::array::from_fn(|k| c.bf[k] * q[k]));
+        ys.push(emm::force_with::<Unfused, L<T>>(&c, &s, Lanes(*u)).0);
         states.push(s);
         u_prev = *u;
     }
@@ -970,121 +881,77 @@ fn pack_loss_grad<T: Real>(
     let mut loss = T::zero();
     let mut bar = Bar {
         g: RolloutGrads::zeros(p),
-        bp: splat(T::zero()),
-        it: T::zero(),
+        bp: L::splat(T::zero()),
     };
-    // Reverse sweep. `sbar` is dL/ds_n (direct paths so far); `cbar_next` the coefficient
-    // adjoint at s_n from stage 1 of step n+1; `rec_n` the activations at s_n.
-    let mut sbar = St::default();
-    let mut cbar_n = zero_cbar::<T>();
+    let it = L::splat(pk.it);
+    // dL/d(1/T_pr) per lane.
+    let mut it_bar = L::<T>::splat(T::zero());
+    // Reverse sweep. `sbar` is dL/ds_n (direct paths so far); `cbar_n` the coefficient
+    // adjoint at s_n from stage 1 of step n+1; `rb_n`/`rk_n` the activations at s_n.
+    let mut sbar = St::<T>::default();
+    let mut cbar_n = Cv::<T>::default();
     let (mut rb_n, mut rk_n) = (pk.bf.act(), pk.k.act());
     let mut have_rec_n = false;
-    let (mut rb2, mut rk2) = (pk.bf.act(), pk.k.act());
-    let (mut rb3, mut rk3) = (pk.bf.act(), pk.k.act());
-    let (mut rb4, mut rk4) = (pk.bf.act(), pk.k.act());
     let (mut rb1, mut rk1) = (pk.bf.act(), pk.k.act());
+    let mut recs: [RecPair<T>; 3] = std::array::from_fn(|_| (pk.bf.act(), pk.k.act()));
     for i in (0..n).rev() {
         let s_n = states[i + 1];
         let s_p = states[i];
-        let u1 = d.u[i];
-        let u0 = if i == 0 { splat(T::zero()) } else { d.u[i - 1] };
+        let u1 = Lanes(d.u[i]);
+        let u0 = if i == 0 {
+            L::splat(T::zero())
+        } else {
+            Lanes(d.u[i - 1])
+        };
         // Coefficients at s_n with activations (carried from the previous iteration's stage 1).
         let c_n = if have_rec_n {
-            // rb_n / rk_n already hold s_n's activations (stage 1 of step i+1).
-            pk.coeffs_from_rec(&rb_n, &rk_n, &s_n)
+            pk.coeffs_from_rec(&rb_n, &rk_n)
         } else {
             pk.coeffs(&s_n, &mut w, Some((&mut rb_n, &mut rk_n)))
         };
-        // Output y_i = bf * q.
-        let q = pk.q(&c_n, &s_n, &u1);
-        let mut qbar = splat(T::zero());
+        // Output y_i = F(s_n, u_i).
         if i >= warmup {
+            let y = emm::force_with::<Unfused, L<T>>(&c_n, &s_n, u1).0;
+            let mut ybar = [T::zero(); LANES];
             for k in 0..LANES {
-                let y = c_n.bf[k] * q[k];
-                let e = (y - d.f[i][k]) * inv_fs * d.lane_w[k];
+                let e = (y[k] - d.f[i][k]) * inv_fs * d.lane_w[k];
                 loss += e * e;
-                let ybar = ybar_scale * (y - d.f[i][k]) * d.lane_w[k];
-                qbar[k] = ybar * c_n.bf[k];
-                cbar_n.bf[k] += ybar * q[k];
+                ybar[k] = ybar_scale * (y[k] - d.f[i][k]) * d.lane_w[k];
             }
-            pk.q_backward(&c_n, &s_n, &u1, &qbar, &mut sbar, &mut cbar_n, &mut bar);
+            emm::force_backward::<Unfused, L<T>>(
+                &c_n,
+                &s_n,
+                u1,
+                Lanes(ybar),
+                &mut sbar,
+                &mut cbar_n,
+            );
         }
         // Scalers at s_n: complete dL/ds_n.
         pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
-        // Step i: s_p -> s_n. Recompute stages with activations.
+        // Step i: s_p -> s_n, its stages recomputed with activations.
         let c1 = pk.coeffs(&s_p, &mut w, Some((&mut rb1, &mut rk1)));
-        let um: V<T> = std::array::from_fn(|k| T::c(0.5) * (u0[k] + u1[k]));
-        let k1 = pk.rhs(&c1, &s_p, &u0);
-        let s2 = Pack::<T>::axpy(pk.h2, &k1, &s_p);
-        let c2 = pk.coeffs(&s2, &mut w, Some((&mut rb2, &mut rk2)));
-        let mut sbar_p = sbar; // identity part of x_{n} = x_{n-1} + ...
-        let mut cbar1 = zero_cbar::<T>();
-        match pk.integrator {
-            Integrator::Rk4 => {
-                let k2 = pk.rhs(&c2, &s2, &um);
-                let s3 = Pack::<T>::axpy(pk.h2, &k2, &s_p);
-                let c3 = pk.coeffs(&s3, &mut w, Some((&mut rb3, &mut rk3)));
-                let k3 = pk.rhs(&c3, &s3, &um);
-                let s4 = Pack::<T>::axpy(pk.dt, &k3, &s_p);
-                let c4 = pk.coeffs(&s4, &mut w, Some((&mut rb4, &mut rk4)));
-                let a1 = pk.h6;
-                let a2 = T::c(2.0) * pk.h6;
-                let mut k1b = scale_st(a1, &sbar);
-                let mut k2b = scale_st(a2, &sbar);
-                let mut k3b = scale_st(a2, &sbar);
-                let k4b = scale_st(a1, &sbar);
-                // Stage 4.
-                let mut s4b = St::default();
-                let mut c4b = zero_cbar::<T>();
-                pk.rhs_backward(&c4, &s4, &u1, &k4b, &mut s4b, &mut c4b, &mut bar);
-                pk.coef_backward(&rb4, &rk4, &c4b, &mut s4b, &mut bar, &mut w);
-                add_st(&mut sbar_p, &s4b);
-                axpy_st(&mut k3b, pk.dt, &s4b);
-                // Stage 3.
-                let mut s3b = St::default();
-                let mut c3b = zero_cbar::<T>();
-                pk.rhs_backward(&c3, &s3, &um, &k3b, &mut s3b, &mut c3b, &mut bar);
-                pk.coef_backward(&rb3, &rk3, &c3b, &mut s3b, &mut bar, &mut w);
-                add_st(&mut sbar_p, &s3b);
-                axpy_st(&mut k2b, pk.h2, &s3b);
-                // Stage 2.
-                let mut s2b = St::default();
-                let mut c2b = zero_cbar::<T>();
-                pk.rhs_backward(&c2, &s2, &um, &k2b, &mut s2b, &mut c2b, &mut bar);
-                pk.coef_backward(&rb2, &rk2, &c2b, &mut s2b, &mut bar, &mut w);
-                add_st(&mut sbar_p, &s2b);
-                axpy_st(&mut k1b, pk.h2, &s2b);
-                // Stage 1 (coefficients at s_p: deferred).
-                pk.rhs_backward(&c1, &s_p, &u0, &k1b, &mut sbar_p, &mut cbar1, &mut bar);
-            }
-            Integrator::Rk3 => {
-                let k2 = pk.rhs(&c2, &s2, &um);
-                let two = T::c(2.0);
-                let dd = St {
-                    x: std::array::from_fn(|j| two * k2.x[j] - k1.x[j]),
-                    v: std::array::from_fn(|j| two * k2.v[j] - k1.v[j]),
-                };
-                let s3 = Pack::<T>::axpy(pk.dt, &dd, &s_p);
-                let c3 = pk.coeffs(&s3, &mut w, Some((&mut rb3, &mut rk3)));
-                let mut k1b = scale_st(pk.h6, &sbar);
-                let mut k2b = scale_st(T::c(4.0) * pk.h6, &sbar);
-                let k3b = scale_st(pk.h6, &sbar);
-                let mut s3b = St::default();
-                let mut c3b = zero_cbar::<T>();
-                pk.rhs_backward(&c3, &s3, &u1, &k3b, &mut s3b, &mut c3b, &mut bar);
-                pk.coef_backward(&rb3, &rk3, &c3b, &mut s3b, &mut bar, &mut w);
-                add_st(&mut sbar_p, &s3b);
-                axpy_st(&mut k2b, two * pk.dt, &s3b);
-                axpy_st(&mut k1b, -pk.dt, &s3b);
-                let mut s2b = St::default();
-                let mut c2b = zero_cbar::<T>();
-                pk.rhs_backward(&c2, &s2, &um, &k2b, &mut s2b, &mut c2b, &mut bar);
-                pk.coef_backward(&rb2, &rk2, &c2b, &mut s2b, &mut bar, &mut w);
-                add_st(&mut sbar_p, &s2b);
-                axpy_st(&mut k1b, pk.h2, &s2b);
-                pk.rhs_backward(&c1, &s_p, &u0, &k1b, &mut sbar_p, &mut cbar1, &mut bar);
-            }
-        }
+        let mut sbar_p = St::<T>::default();
+        let mut cbar1 = Cv::<T>::default();
+        integrator::step_backward::<Unfused, L<T>, _>(
+            pk.integrator,
+            &mut PackStagesBack {
+                pk: &pk,
+                w: &mut w,
+                bar: &mut bar,
+                recs: &mut recs,
+            },
+            &c1,
+            it,
+            &s_p,
+            u0,
+            u1,
+            &pk.h,
+            &sbar,
+            &mut sbar_p,
+            &mut cbar1,
+            &mut it_bar,
+        );
         // Move to s_p: its activations are rb1/rk1, its coefficient adjoint cbar1.
         sbar = sbar_p;
         cbar_n = cbar1;
@@ -1097,70 +964,45 @@ fn pack_loss_grad<T: Real>(
     let mut sdummy = St::default();
     pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar, &mut w);
     // b_pr: constant over the window.
+    let bp_bar = bar.bp.0;
     match &pk.bp_rec {
-        None => bar.g.b_pr0 += sum(&bar.bp),
+        None => bar.g.b_pr0 += sum(&bp_bar),
         Some(BprRecord {
             mlp,
             act,
             s_min,
             span,
         }) => {
-            let mut zbar = splat(T::zero());
             for k in 0..LANES {
-                let sig = act.sig[k];
-                bar.g.b_pr0 += bar.bp[k] * (*s_min + *span * sig);
-                zbar[k] = bar.bp[k] * p.b_pr0 * *span * sig * (T::one() - sig);
+                bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * act.sig.0[k]);
             }
-            let mut scratch = Scratch {
-                t: vec![splat(T::zero()); mlp.h],
-                a: vec![splat(T::zero()); mlp.h],
-            };
+            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp).0;
+            let mut scratch = Scratch::new(mlp.h);
             let alpha_n = pk.alpha_n;
             mlp.backward(act, &zbar, &alpha_n, &mut bar.g.b_pr, &mut scratch);
         }
     }
     // T_pr from 1/T_pr.
-    bar.g.t_pr = -bar.it * pk.it * pk.it;
+    bar.g.t_pr = -L::sum(it_bar) * pk.it * pk.it;
     (loss, bar.g)
 }
 
 impl<T: Real> Pack<'_, T> {
     /// Coefficient values from recorded activations (no recomputation).
-    fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>, _s: &St<T>) -> Cv<T> {
+    fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>) -> Cv<T> {
         let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> V<T> {
             match (&c.neural, r) {
-                (Some(n), Some(r)) => std::array::from_fn(|k| c.c0 * (n.s_min + n.span * r.sig[k])),
+                (Some(n), Some(r)) => {
+                    Unfused::mul_add(L::splat(c.c0 * n.span), r.sig, L::splat(c.c0 * n.s_min)).0
+                }
                 _ => splat(c.c0),
             }
         };
-        Cv {
-            bf: val(&self.bf, rb),
-            k: val(&self.k, rk),
+        Coefficients {
+            b_fl: Lanes(val(&self.bf, rb)),
+            b_pr: Lanes(self.bp),
+            k_pr: Lanes(val(&self.k, rk)),
         }
-    }
-}
-
-#[inline(always)]
-fn scale_st<T: Real>(a: T, s: &St<T>) -> St<T> {
-    St {
-        x: std::array::from_fn(|k| a * s.x[k]),
-        v: std::array::from_fn(|k| a * s.v[k]),
-    }
-}
-
-#[inline(always)]
-fn add_st<T: Real>(a: &mut St<T>, b: &St<T>) {
-    for k in 0..LANES {
-        a.x[k] += b.x[k];
-        a.v[k] += b.v[k];
-    }
-}
-
-#[inline(always)]
-fn axpy_st<T: Real>(a: &mut St<T>, f: T, b: &St<T>) {
-    for k in 0..LANES {
-        a.x[k] += f * b.x[k];
-        a.v[k] += f * b.v[k];
     }
 }
 
@@ -1277,7 +1119,7 @@ pub fn simulate_x_pr<T: Real>(p: &RolloutParams<T>, windows: &[Window<'_>]) -> V
                         .iter()
                         .skip(1)
                         .take(w.u.len())
-                        .map(|s| s.x[k].to_f64().unwrap_or(f64::NAN))
+                        .map(|s| s.x_pr_m.0[k].to_f64().unwrap_or(f64::NAN))
                         .collect::<Vec<f64>>()
                 })
                 .collect::<Vec<_>>()
