@@ -894,8 +894,8 @@ pub fn distinct_levels(alphas: impl IntoIterator<Item = f64>) -> Vec<f64> {
     v
 }
 
-/// Which of a training run's `count` sequences are held out for validation: `round(fraction
-/// * count)` of them (at most `count - 1`, so each run keeps a training sequence), drawn
+/// Which of a training run's `count` sequences are held out for validation:
+/// `round(fraction * count)` of them (at most `count - 1`, so each run keeps a training sequence), drawn
 /// without replacement ([`rand::seq::index::sample`]) by xoshiro256++ seeded with the 64-bit
 /// FNV-1a hash of `seed` and `run_index`, so a run's choice does not depend on the other runs.
 /// Sorted.
