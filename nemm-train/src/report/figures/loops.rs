@@ -1,5 +1,5 @@
 //! The loop figures: Fig. 7 (measured vs model force-velocity loops per oil-loss level and
-//! frequency) and one run with every variant. Which runs they show ([`LoopPicks`]) depends on
+//! frequency) and one run with every variant. Which runs they show depends on
 //! the prepared set only, so the evaluation can simulate exactly those ([`loop_requests`]).
 
 use super::{
@@ -123,7 +123,7 @@ impl LoopPicks {
 }
 
 /// The whole-run predictions the loop figures draw, as `(variant, run index)`: the loop model
-/// ([`loop_model`]) on the Fig. 7 runs, every trained variant on the all-variants run.
+/// (the most complete variant trained) on the Fig. 7 runs, every trained variant on the all-variants run.
 pub fn loop_requests(trained: &[TrainedVariant], prepared: &Prepared) -> Vec<(Variant, usize)> {
     let picks = LoopPicks::of(prepared);
     let mut out: Vec<(Variant, usize)> = Vec::new();

@@ -22,8 +22,8 @@
 //! learned coefficients, Figs. 8-12), [`training`] (the training curves).
 //!
 //! Violations are found exactly as [`crate::train::physics::audit`] finds them, on the same
-//! grid ([`AUDIT_GRID`]): a grid interval where `d(p x)/dx < 0` (eqs. 30, 37) or
-//! `dp/d alpha > 0` (eqs. 31, 38) beyond rounding ([`violation`]). On the maps the cell at
+//! grid ([`AUDIT_GRID`](crate::train::physics::AUDIT_GRID)): a grid interval where `d(p x)/dx < 0` (eqs. 30, 37) or
+//! `dp/d alpha > 0` (eqs. 31, 38) beyond rounding ([`violation`](crate::train::physics::violation)). On the maps the cell at
 //! the lower end of each violating interval is painted yellow.
 //!
 //! A figure that cannot be drawn (missing runs, rendering trouble) is skipped with a warning;
