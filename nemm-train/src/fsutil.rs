@@ -2,9 +2,10 @@
 use std::io::Write;
 use std::path::Path;
 
-/// Writes a file atomically: the content goes to a temporary file in the same folder, which is
-/// flushed to disk and then renamed over `path`. A crash leaves either the old file or the new
-/// one, never a partial file; on error the temporary file is removed.
+/// Writes a file atomically: the content goes to a [`tempfile::NamedTempFile`] in the same
+/// folder (created if missing; with a plain file's permissions), which is flushed to disk and then persisted (renamed) over
+/// `path`. A crash leaves either the old file or the new one, never a partial file; on error
+/// the temporary file is removed.
 pub fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
@@ -14,24 +15,17 @@ pub fn write_atomic(
         _ => Path::new("."),
     };
     std::fs::create_dir_all(parent)?;
-    let file_name = path
-        .file_name()
-        .map_or_else(|| "file".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = parent.join(format!(".{file_name}.tmp{}", std::process::id()));
-    let result = (|| {
-        let file = std::fs::File::create(&tmp)?;
-        let mut w = std::io::BufWriter::with_capacity(1 << 16, file);
-        fill(&mut w)?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    std::fs::rename(&tmp, path).inspect_err(|_| {
-        let _ = std::fs::remove_file(&tmp);
-    })
+    let mut builder = tempfile::Builder::new();
+    // A plain file's mode (0o666 less the umask), not the temporary file's 0o600.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    let tmp = builder.tempfile_in(parent)?;
+    let mut w = std::io::BufWriter::with_capacity(1 << 16, tmp);
+    fill(&mut w)?;
+    let tmp = w.into_inner().map_err(|e| e.into_error())?;
+    tmp.as_file().sync_all()?;
+    tmp.persist(path).map_err(|e| e.error)?;
+    Ok(())
 }
 
 /// [`write_atomic`] of a byte slice.
@@ -45,7 +39,8 @@ mod tests {
 
     #[test]
     fn writes_and_replaces_without_leftovers() {
-        let dir = std::env::temp_dir().join(format!("nemm-fsutil-{}", std::process::id()));
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("sub");
         let p = dir.join("a.bin");
         write_atomic_bytes(&p, b"one").unwrap();
         write_atomic_bytes(&p, b"two").unwrap();
@@ -60,6 +55,11 @@ mod tests {
             .map(|e| e.file_name())
             .collect();
         assert_eq!(names.len(), 1, "{names:?}");
-        std::fs::remove_dir_all(&dir).unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(&p).unwrap().permissions().mode();
+            assert_eq!(mode & 0o044, 0o044, "readable like a plain file: {mode:o}");
+        }
     }
 }

@@ -6,6 +6,7 @@ use nemm_core::ModelKind;
 use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared};
 use nemm_train::report::figures::write_all;
+use nemm_train::report::predictions::RunPredictions;
 use nemm_train::report::tables::{evaluate, Report};
 use nemm_train::train::fit::EpochStats;
 use nemm_train::train::pipeline::{TrainedVariant, Variant};
@@ -193,7 +194,15 @@ fn all_figures_are_written_as_pngs_of_the_expected_size() {
     let report: Report = evaluate(&tr, &prep).expect("report");
     let dir = tempfile::tempdir().expect("tempdir");
     let t = std::time::Instant::now();
-    write_all(&tr, &ds, &prep, &report, dir.path()).expect("figures");
+    write_all(
+        &tr,
+        &ds,
+        &prep,
+        &report,
+        &RunPredictions::for_figures(&tr, &prep).expect("predictions"),
+        dir.path(),
+    )
+    .expect("figures");
     let secs = t.elapsed().as_secs_f64();
     // (file, width, panel rows x panel height): + 40 px title + footer (14 + 21 px per
     // line; the number of lines depends on the wrapping).
@@ -235,7 +244,15 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
     let sem = trained(&[(Variant::Sem, ModelKind::Sem)]);
     let report = evaluate(&sem, &prep).expect("report");
     let dir = tempfile::tempdir().expect("tempdir");
-    write_all(&sem, &ds, &prep, &report, dir.path()).expect("figures");
+    write_all(
+        &sem,
+        &ds,
+        &prep,
+        &report,
+        &RunPredictions::for_figures(&sem, &prep).expect("predictions"),
+        dir.path(),
+    )
+    .expect("figures");
     assert_eq!(
         pngs_in(dir.path()),
         vec!["fig7_loops.png", "loops_all_variants.png"]
@@ -248,7 +265,15 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
     let light = trained(&[(Variant::NemmLight, ModelKind::NemmLight)]);
     let report = evaluate(&light, &prep).expect("report");
     let dir = tempfile::tempdir().expect("tempdir");
-    write_all(&light, &slow, &prep, &report, dir.path()).expect("figures");
+    write_all(
+        &light,
+        &slow,
+        &prep,
+        &report,
+        &RunPredictions::for_figures(&light, &prep).expect("predictions"),
+        dir.path(),
+    )
+    .expect("figures");
     let names = pngs_in(dir.path());
     assert!(
         names.contains(&"fig8_b_fl_nemm-light.png".to_string()),
@@ -266,7 +291,15 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
     }
     // Nothing at all: no figures, no error.
     let dir = tempfile::tempdir().expect("tempdir");
-    write_all(&[], &slow, &prep, &report, dir.path()).expect("figures");
+    write_all(
+        &[],
+        &slow,
+        &prep,
+        &report,
+        &RunPredictions::default(),
+        dir.path(),
+    )
+    .expect("figures");
     assert!(pngs_in(dir.path()).is_empty());
 }
 
@@ -280,7 +313,15 @@ fn an_unwritable_report_folder_is_an_error() {
     // A file where the folder should be.
     let blocker = dir.path().join("figs");
     std::fs::write(&blocker, b"not a folder").expect("write");
-    assert!(write_all(&tr, &ds, &prep, &report, &blocker).is_err());
+    assert!(write_all(
+        &tr,
+        &ds,
+        &prep,
+        &report,
+        &RunPredictions::for_figures(&tr, &prep).expect("predictions"),
+        &blocker
+    )
+    .is_err());
 }
 
 #[test]

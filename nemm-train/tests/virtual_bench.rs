@@ -5,6 +5,7 @@ use nemm_train::bench::config::{self, BenchConfig};
 use nemm_train::bench::program::{run_spec, RunSpec};
 use nemm_train::bench::{Trace, VirtualBench};
 use nemm_train::data::dataset::{self, Run, RunEntry};
+use nemm_train::data::preprocess::{process_run, run_signals, SignalConfig};
 use nemm_train::report::bench_plots::{cycle_loop, CycleLoop};
 use std::path::{Path, PathBuf};
 
@@ -30,7 +31,9 @@ fn trace_loop(b: &VirtualBench, s: &RunSpec, tr: &Trace) -> CycleLoop {
         force_n: tr.force_n.clone(),
         velocity_m_s: None,
     };
-    cycle_loop(&run, b.config().program.sample_rate_hz).expect("loop of a simulated run")
+    let fs = b.config().program.sample_rate_hz;
+    let sig = process_run(&run, 0, fs, &SignalConfig::default()).expect("signals");
+    cycle_loop(&run, &sig.velocity_m_s).expect("loop of a simulated run")
 }
 
 fn temp_dir(tag: &str) -> PathBuf {
@@ -512,8 +515,9 @@ fn plots_are_written_for_a_generated_dataset() {
     }
     // Measured (noisy, quantised) runs give sensible loops.
     let loaded = dataset::load(&data).unwrap();
-    for run in &loaded.runs {
-        let l = cycle_loop(run, loaded.sample_rate_hz).unwrap();
+    let signals = run_signals(&loaded, &SignalConfig::default()).unwrap();
+    for (run, sig) in loaded.runs.iter().zip(&signals) {
+        let l = cycle_loop(run, &sig.velocity_m_s).unwrap();
         assert!(l.dissipated_energy_j() > 0.0);
         let vmax = l.velocity_m_s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         assert!((vmax / 0.524 - 1.0).abs() < 0.05, "{vmax}");

@@ -29,8 +29,10 @@ use crate::data::dataset::{Dataset, Run, RunEntry};
 use config::BenchConfig;
 use hydraulics::{Damper, Filling};
 use program::RunSpec;
+use rand::RngExt;
+use rand_distr::StandardNormal;
 use rayon::prelude::*;
-use sensor::{Quantiser, SplitMix64};
+use sensor::Quantiser;
 use simulate::{Foam, StepSettings};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -174,12 +176,13 @@ impl VirtualBench {
 
     fn apply_sensors(&self, spec: &RunSpec, tr: &Trace, seed: u64) -> Run {
         let s = &self.cfg.sensors;
-        let mut rng = SplitMix64::new(sensor::run_seed(seed, &spec.file.to_string_lossy()));
+        let mut rng = sensor::run_rng(seed, &spec.file.to_string_lossy());
         let qf = Quantiser::new(s.force_resolution_n);
         let qx = Quantiser::new(s.displacement_resolution_m);
         let qt = Quantiser::new(1e-9);
         let qv = Quantiser::new(1e-6);
-        let hum_phase = 2.0 * std::f64::consts::PI * rng.uniform();
+        let hum_phase = 2.0 * std::f64::consts::PI * rng.random::<f64>();
+        let mut normal = || -> f64 { rng.sample(StandardNormal) };
         let n = tr.time_s.len();
         let mut time_s = Vec::with_capacity(n);
         let mut displacement_m = Vec::with_capacity(n);
@@ -189,13 +192,12 @@ impl VirtualBench {
             let t = tr.time_s[i];
             time_s.push(qt.apply(t));
             displacement_m
-                .push(qx.apply(tr.displacement_m[i] + s.displacement_noise_std_m * rng.normal()));
+                .push(qx.apply(tr.displacement_m[i] + s.displacement_noise_std_m * normal()));
             let hum = s.mains_hum_n
                 * (2.0 * std::f64::consts::PI * s.mains_frequency_hz * t + hum_phase).sin();
-            force_n.push(qf.apply(tr.force_n[i] + hum + s.force_noise_std_n * rng.normal()));
+            force_n.push(qf.apply(tr.force_n[i] + hum + s.force_noise_std_n * normal()));
             if s.write_velocity {
-                velocity
-                    .push(qv.apply(tr.velocity_m_s[i] + s.velocity_noise_std_m_s * rng.normal()));
+                velocity.push(qv.apply(tr.velocity_m_s[i] + s.velocity_noise_std_m_s * normal()));
             }
         }
         Run {

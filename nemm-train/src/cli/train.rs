@@ -450,7 +450,8 @@ pub fn compare(
     for tv in &trained {
         print_audit(tv, &report);
     }
-    crate::report::figures::write_all(&trained, &ds, &prepared, &report, report_dir)?;
+    let predictions = crate::report::predictions::RunPredictions::for_figures(&trained, &prepared)?;
+    crate::report::figures::write_all(&trained, &ds, &prepared, &report, &predictions, report_dir)?;
     println!("report, models and figures in {}", report_dir.display());
     Ok(report)
 }

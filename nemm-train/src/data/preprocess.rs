@@ -296,7 +296,7 @@ impl Default for SignalConfig {
 }
 
 /// The derived signals of one run, all of the run's length.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Signals {
     /// Low-passed displacement \[m\].
     pub displacement_m: Vec<f64>,
@@ -357,13 +357,15 @@ pub fn process_run(
     })
 }
 
-/// The velocity of a run as the trainer sees it (see [`process_run`]).
-pub fn estimate_velocity(
-    run: &Run,
-    sample_rate_hz: f64,
-    cfg: &SignalConfig,
-) -> Result<Vec<f64>, PreprocessError> {
-    Ok(process_run(run, 0, sample_rate_hz, cfg)?.velocity_m_s)
+/// [`process_run`] of every run of a dataset (in parallel), in dataset order.
+pub fn run_signals(dataset: &Dataset, cfg: &SignalConfig) -> Result<Vec<Signals>, PreprocessError> {
+    use rayon::prelude::*;
+    dataset
+        .runs
+        .par_iter()
+        .enumerate()
+        .map(|(i, r)| process_run(r, i, dataset.sample_rate_hz, cfg))
+        .collect()
 }
 
 /// Relative RMS difference between the run's measured velocity column and the
@@ -892,27 +894,20 @@ pub fn distinct_levels(alphas: impl IntoIterator<Item = f64>) -> Vec<f64> {
     v
 }
 
-/// SplitMix64 step (deterministic, independent of crate versions).
-fn splitmix64(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-/// Which of a training run's `count` sequences are held out for validation: `round(fraction
-/// * count)` of them (at most `count - 1`, so each run keeps a training sequence), chosen by a
-/// Fisher-Yates shuffle seeded with `seed` and the run index. Sorted.
+/// Which of a training run's `count` sequences are held out for validation:
+/// `round(fraction * count)` of them (at most `count - 1`, so each run keeps a training sequence), drawn
+/// without replacement ([`rand::seq::index::sample`]) by xoshiro256++ seeded with the 64-bit
+/// FNV-1a hash of `seed` and `run_index`, so a run's choice does not depend on the other runs.
+/// Sorted.
 pub fn validation_indices(count: usize, fraction: f64, seed: u64, run_index: usize) -> Vec<usize> {
+    use rand::SeedableRng;
+    use std::hash::Hasher;
     let take = ((fraction * count as f64).round() as usize).min(count.saturating_sub(1));
-    let mut state = seed ^ splitmix64(&mut (run_index as u64 ^ 0xA076_1D64_78BD_642F));
-    let mut idx: Vec<usize> = (0..count).collect();
-    for i in (1..count).rev() {
-        let j = (splitmix64(&mut state) % (i as u64 + 1)) as usize;
-        idx.swap(i, j);
-    }
-    let mut chosen = idx[..take].to_vec();
+    let mut h = fnv::FnvHasher::default();
+    h.write(&seed.to_le_bytes());
+    h.write(&(run_index as u64).to_le_bytes());
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(h.finish());
+    let mut chosen = rand::seq::index::sample(&mut rng, count, take).into_vec();
     chosen.sort_unstable();
     chosen
 }
@@ -1088,6 +1083,9 @@ pub struct Prepared {
     pub scales: Scales,
     /// Per-run role and counts, in dataset order.
     pub runs: Vec<PreparedRun>,
+    /// Derived signals of every run, in dataset order (the source of the sequences and
+    /// quasi-static points, and of the figures' measured loops).
+    pub signals: Vec<Signals>,
 }
 
 /// Counts of one split, for reports.
@@ -1210,6 +1208,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         qs: QuasiStaticSplit,
         /// Abs-max of velocity, force and alpha over the training sequences, in f64.
         train_absmax: [f64; 3],
+        signals: Signals,
     }
     let per_run: Vec<PerRun> = dataset
         .runs
@@ -1244,6 +1243,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                 test: Vec::new(),
                 qs: QuasiStaticSplit::default(),
                 train_absmax: [0.0; 3],
+                signals: Signals::default(),
             };
             let absmax = |x: &[f64]| x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             match role {
@@ -1287,6 +1287,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
             out.prepared.train_sequences = out.train.len();
             out.prepared.validation_sequences = out.validation.len();
             out.prepared.test_sequences = out.test.len();
+            out.signals = signals;
             Ok(out)
         })
         .collect::<Result<_, _>>()?;
@@ -1307,6 +1308,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
             alpha: 1.0,
         },
         runs: Vec::with_capacity(per_run.len()),
+        signals: Vec::with_capacity(per_run.len()),
     };
     let mut train_absmax = [0.0f64; 3];
     for r in per_run {
@@ -1320,6 +1322,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         prepared.quasi_static.validation.extend(r.qs.validation);
         prepared.quasi_static.test.extend(r.qs.test);
         prepared.runs.push(r.prepared);
+        prepared.signals.push(r.signals);
     }
     if prepared.train.is_empty() {
         let train_runs = prepared

@@ -5,13 +5,14 @@
 //! Each run is reduced to one cycle-averaged loop: the last full periods (at least one, up to
 //! 60 % of the run) are folded onto the phase of the displacement (a least-squares sine fit at
 //! the excitation frequency), and velocity and force are averaged in 256 phase bins. The
-//! velocity is the one the trainer sees ([`crate::data::preprocess::estimate_velocity`]: zero-phase
-//! low-pass of the displacement and central difference, or the measured column). Averaging
+//! velocity is the one the trainer sees, derived once per run by the preprocessing
+//! ([`crate::data::preprocess::run_signals`]: zero-phase low-pass of the displacement and
+//! central difference, or the measured column). Averaging
 //! over periods removes the sensor noise without the phase lag of a filter. Forces are
 //! normalised by the largest cycle-averaged |force| of the dataset, as in the paper's figures.
 
 use crate::data::dataset::{self, Dataset, Run};
-use crate::data::preprocess::{estimate_velocity, SignalConfig};
+use crate::data::preprocess::{run_signals, SignalConfig, Signals};
 use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Series};
 use anyhow::{bail, Context, Result};
 use std::f64::consts::PI;
@@ -143,8 +144,9 @@ fn estimate_frequency(run: &Run) -> Option<f64> {
     Some(1.0 / periods[periods.len() / 2])
 }
 
-/// Reduces a run sampled at `sample_rate_hz` to its cycle-averaged loop.
-pub fn cycle_loop(run: &Run, sample_rate_hz: f64) -> Result<CycleLoop> {
+/// Reduces a run to its cycle-averaged loop, with the run's preprocessed `velocity_m_s`
+/// ([`Signals::velocity_m_s`]).
+pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
     let name = run.entry.file.display();
     if run.len() < 16 {
         bail!("run {name}: too short for a loop ({} samples)", run.len());
@@ -164,9 +166,14 @@ pub fn cycle_loop(run: &Run, sample_rate_hz: f64) -> Result<CycleLoop> {
     let i0 = run.time_s.partition_point(|&t| t < t_start);
     let t = &run.time_s[i0..];
     let x = &run.displacement_m[i0..];
-    let v_all = estimate_velocity(run, sample_rate_hz, &SignalConfig::default())
-        .with_context(|| format!("run {name}: cannot estimate the velocity"))?;
-    let v = &v_all[i0..];
+    if velocity_m_s.len() != run.len() {
+        bail!(
+            "run {name}: {} velocity samples for {} samples",
+            velocity_m_s.len(),
+            run.len()
+        );
+    }
+    let v = &velocity_m_s[i0..];
     let f = &run.force_n[i0..];
     // Least-squares fit x ~ a sin(wt) + b cos(wt) + c: phase reference.
     let w = 2.0 * PI * freq;
@@ -261,20 +268,28 @@ fn frequency_label(f: f64) -> String {
     }
 }
 
-/// Loads a dataset and draws its figures into `out`; returns the written files.
+/// Loads a dataset, derives the signals of its runs (default [`SignalConfig`]) and draws its
+/// figures into `out`; returns the written files.
 pub fn plot_dataset(dir: &Path, out: &Path) -> Result<Vec<PathBuf>> {
     let ds =
         dataset::load(dir).with_context(|| format!("cannot load the dataset {}", dir.display()))?;
-    plot_loaded(&ds, out)
+    let signals = run_signals(&ds, &SignalConfig::default())
+        .context("cannot derive the velocity of the runs")?;
+    plot_loaded(&ds, &signals, out)
 }
 
-/// Draws the figures of a loaded dataset into `out`; returns the written files.
-pub fn plot_loaded(ds: &Dataset, out: &Path) -> Result<Vec<PathBuf>> {
+/// Draws the figures of a loaded dataset into `out` from its runs' `signals` (in dataset
+/// order); returns the written files.
+pub fn plot_loaded(ds: &Dataset, signals: &[Signals], out: &Path) -> Result<Vec<PathBuf>> {
     use rayon::prelude::*;
+    if signals.len() != ds.runs.len() {
+        bail!("{} signals for {} runs", signals.len(), ds.runs.len());
+    }
     let loops: Vec<CycleLoop> = ds
         .runs
         .par_iter()
-        .map(|r| cycle_loop(r, ds.sample_rate_hz))
+        .zip(signals)
+        .map(|(r, s)| cycle_loop(r, &s.velocity_m_s))
         .collect::<Result<_>>()?;
     if loops.is_empty() {
         bail!("the dataset has no runs");

@@ -1,0 +1,79 @@
+//! Whole-run force predictions of trained variants: the evaluation output the loop figures
+//! draw ([`crate::report::figures::loop_requests`] names the runs).
+
+use crate::data::preprocess::Prepared;
+use crate::train::eval::predict;
+use crate::train::pipeline::{TrainedVariant, Variant};
+use anyhow::{Context, Result};
+
+/// Forces of whole runs simulated from rest by a variant, on the preprocessed velocity
+/// ([`Prepared::signals`]) at the run's oil loss.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunPredictions {
+    /// `(variant, run index, force per sample [N])`.
+    entries: Vec<(Variant, usize, Vec<f64>)>,
+}
+
+impl RunPredictions {
+    /// Simulates each `(variant, run index)` of `requests` (one batch per variant, the
+    /// variants in parallel). Requests of variants not in `trained` are left out; an unknown
+    /// run index is an error.
+    pub fn simulate(
+        trained: &[TrainedVariant],
+        prepared: &Prepared,
+        requests: &[(Variant, usize)],
+    ) -> Result<Self> {
+        use rayon::prelude::*;
+        let mut batches: Vec<(&TrainedVariant, Vec<usize>)> = Vec::new();
+        for &(v, run) in requests {
+            let Some(tv) = trained.iter().find(|t| t.variant == v) else {
+                continue;
+            };
+            match batches.iter_mut().find(|(t, _)| t.variant == v) {
+                Some((_, runs)) => runs.push(run),
+                None => batches.push((tv, vec![run])),
+            }
+        }
+        let velocity: Vec<Vec<f32>> = prepared
+            .signals
+            .iter()
+            .map(|s| s.velocity_m_s.iter().map(|&v| v as f32).collect())
+            .collect();
+        let simulated: Vec<Vec<(Variant, usize, Vec<f64>)>> = batches
+            .par_iter()
+            .map(|(tv, runs)| {
+                let inputs = runs
+                    .iter()
+                    .map(|&i| {
+                        let v = velocity.get(i).context("run not in the prepared set")?;
+                        Ok((v.as_slice(), prepared.runs[i].summary.alpha as f32))
+                    })
+                    .collect::<Result<Vec<(&[f32], f32)>>>()?;
+                let ys = predict(&tv.model, &inputs)
+                    .with_context(|| format!("cannot simulate the {}", tv.variant.title()))?;
+                Ok(runs
+                    .iter()
+                    .zip(ys)
+                    .map(|(&i, y)| (tv.variant, i, y))
+                    .collect())
+            })
+            .collect::<Result<_>>()?;
+        Ok(RunPredictions {
+            entries: simulated.into_iter().flatten().collect(),
+        })
+    }
+
+    /// [`RunPredictions::simulate`] of the runs the figures show.
+    pub fn for_figures(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Self> {
+        let requests = crate::report::figures::loop_requests(trained, prepared);
+        Self::simulate(trained, prepared, &requests)
+    }
+
+    /// The predicted force of `variant` over run `run`, if simulated.
+    pub fn get(&self, variant: Variant, run: usize) -> Option<&[f64]> {
+        self.entries
+            .iter()
+            .find(|(v, i, _)| *v == variant && *i == run)
+            .map(|(_, _, y)| y.as_slice())
+    }
+}
