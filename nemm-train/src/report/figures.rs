@@ -33,7 +33,7 @@ use crate::report::tables::Report;
 use crate::train::eval::predict;
 use crate::train::physics::violation;
 use crate::train::physics::AUDIT_GRID;
-use crate::train::pipeline::{TrainedVariant, Variant};
+use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
 use anyhow::{bail, Context, Result};
 use nemm_core::Model;
 use plotters::style::RGBColor;
