@@ -285,9 +285,33 @@ pub fn step_backward<M: MulAdd, L: Lane, S: StageBackward<L>>(
     emm::rhs_backward::<M, L>(c1, inv_t_pr, x, u0, &k1b, xbar, c1bar, itbar);
 }
 
+impl core::str::FromStr for Integrator {
+    type Err = crate::model::UnknownName;
+
+    /// Parses [`Integrator::name`]'s spelling (`rk4`, `rk3`).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        [Integrator::Rk4, Integrator::Rk3]
+            .into_iter()
+            .find(|i| i.name() == s)
+            .ok_or(crate::model::UnknownName {
+                what: "integrator",
+                expected: "rk4 or rk3",
+            })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn integrators_parse_from_their_names_only() {
+        assert_eq!("rk4".parse::<Integrator>(), Ok(Integrator::Rk4));
+        assert_eq!("rk3".parse::<Integrator>(), Ok(Integrator::Rk3));
+        let err = "RK4".parse::<Integrator>().unwrap_err();
+        assert_eq!(err.what, "integrator");
+        assert_eq!(err.expected, "rk4 or rk3");
+    }
 
     /// Linear EMM with constant coefficients; closed-form single step for u = const:
     /// x_pr' = u - q, q = (k x + b_pr u) / (b_pr + b_fl) => x' = -a x + c u with

@@ -73,7 +73,7 @@ pub use format::{
 };
 pub use integrator::Integrator;
 pub use mlp::{MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
-pub use model::{Body, InputScales, Meta, Model, ModelError, ModelKind};
+pub use model::{Body, InputScales, Meta, Model, ModelError, ModelKind, UnknownName};
 pub use sem::SemMap;
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 

@@ -61,6 +61,45 @@ impl ModelKind {
     }
 }
 
+/// A name that is none of the accepted spellings of a [`ModelKind`] or an
+/// [`Integrator`] (their `name()`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UnknownName {
+    /// What was being parsed (`model kind`, `integrator`).
+    pub what: &'static str,
+    /// The accepted names.
+    pub expected: &'static str,
+}
+
+impl fmt::Display for UnknownName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "unknown {} (expected {})", self.what, self.expected)
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for UnknownName {}
+
+impl core::str::FromStr for ModelKind {
+    type Err = UnknownName;
+
+    /// Parses [`ModelKind::name`]'s spelling.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        [
+            ModelKind::Sem,
+            ModelKind::LinearEmm,
+            ModelKind::NemmLight,
+            ModelKind::Nemm,
+        ]
+        .into_iter()
+        .find(|k| k.name() == s)
+        .ok_or(UnknownName {
+            what: "model kind",
+            expected: "sem, linear-emm, nemm-light or nemm",
+        })
+    }
+}
+
 /// Abs-max normalisation scales of the scaler inputs, from the training set (section 5.3).
 /// They also bound the training domain of each input.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -635,5 +674,26 @@ mod body_serde {
         ) -> Result<(), D::Error> {
             d.deserialize_enum("Body", VARIANTS, BodyVisitor(place))
         }
+    }
+}
+
+#[cfg(test)]
+mod name_tests {
+    use super::*;
+
+    #[test]
+    fn model_kinds_parse_from_their_names_only() {
+        for k in [
+            ModelKind::Sem,
+            ModelKind::LinearEmm,
+            ModelKind::NemmLight,
+            ModelKind::Nemm,
+        ] {
+            assert_eq!(k.name().parse::<ModelKind>(), Ok(k));
+        }
+        let err = "linear_emm".parse::<ModelKind>().unwrap_err();
+        assert_eq!(err.what, "model kind");
+        assert!(err.expected.contains("linear-emm"));
+        assert!("NEMM".parse::<ModelKind>().is_err());
     }
 }

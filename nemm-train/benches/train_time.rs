@@ -9,7 +9,7 @@
 //! Default settings of `nemm train --variant nemm` (section 5.4: batch 16, H 16, L 5, lr 5e-3,
 //! RK4 at 10 kHz, lambda_ph 5), all epochs up to early stopping. Target: <= 10 minutes on
 //! 2 cores.
-use nemm_train::cli::train::TrainArgs;
+use nemm_train::config::Config;
 use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -27,10 +27,10 @@ fn main() {
         )
         .expect("generate the default virtual bench");
     }
-    let args = TrainArgs::parse_defaults(data.clone());
-    let prepared =
-        nemm_train::cli::train::load_prepared(&data, &args.prepare_config()).expect("dataset");
-    let cfg: PipelineConfig = args.pipeline_config().expect("config");
+    let config = Config::default();
+    let prepared = nemm_train::cli::train::load_prepared(&data, &config.data.prepare_config())
+        .expect("dataset");
+    let cfg: PipelineConfig = config.pipeline_config();
     let t = Instant::now();
     let trained = train_variants(&prepared, &[Variant::Nemm], &cfg, None, false).expect("train");
     let total = t.elapsed().as_secs_f64();

@@ -11,10 +11,12 @@
 //! - [`train`]: the rollout and its adjoint, the physics losses, the training loop, the four
 //!   variants, evaluation and export checks;
 //! - [`report`]: Table 4 / 5, figures and plotting, blob descriptions;
+//! - [`config`]: the configuration of a job (data, model, training), its defaults and TOML;
 //! - [`cli`]: the `nemm` command line, a thin layer over the modules above.
 
 pub mod bench;
 pub mod cli;
+pub mod config;
 pub mod data;
 pub mod fsutil;
 pub mod report;

@@ -33,20 +33,22 @@ enum Cmd {
     Train {
         /// Training options.
         #[command(flatten)]
-        args: nemm_train::cli::train::TrainArgs,
+        args: nemm_train::config::ConfigArgs,
         /// Output weights blob.
         #[arg(long, default_value = "model.nemm")]
         out: PathBuf,
         /// Variant: nemm, nemm-light, linear-emm or sem.
-        #[arg(long, default_value = "nemm")]
-        variant: String,
+        #[arg(long, help = format!(
+            "Variant: nemm, nemm-light, linear-emm or sem [default: {}]",
+            nemm_train::config::ModelConfig::default().variant.name()))]
+        variant: Option<nemm_core::ModelKind>,
         /// Checkpoint folder (one sub-folder per stage, written every epoch).
         #[arg(long)]
         checkpoint: Option<PathBuf>,
         /// Continue from the checkpoints in --checkpoint.
         #[arg(long, requires = "checkpoint")]
         resume: bool,
-        /// Also write report.json and table.md into this folder.
+        /// Also write report.json, table.md and the effective config.toml into this folder.
         #[arg(long)]
         report: Option<PathBuf>,
     },
@@ -67,7 +69,7 @@ enum Cmd {
     Compare {
         /// Training options.
         #[command(flatten)]
-        args: nemm_train::cli::train::TrainArgs,
+        args: nemm_train::config::ConfigArgs,
         /// Report folder.
         #[arg(long, default_value = "report")]
         report: PathBuf,
@@ -78,13 +80,13 @@ enum Cmd {
         #[arg(long, requires = "checkpoint")]
         resume: bool,
     },
-    /// Hyperparameter / lambda_ph sweep (Tables 3 and 5): one `nemm train` process per
-    /// configuration (`--lambda-ph 0,5,15,25` by default: Table 5's values x1000), collected into table5.md
-    /// and sweep.json.
+    /// Hyperparameter / lambda_ph sweep (Tables 3 and 5): one `nemm train --config
+    /// REPORT/jobs/ID/config.toml` process per configuration (`--lambda-ph 0,5,15,25` by
+    /// default: Table 5's values x1000), collected into table5.md and sweep.json.
     Sweep {
         /// Training options (the base of every job).
         #[command(flatten)]
-        args: nemm_train::cli::train::TrainArgs,
+        args: nemm_train::config::ConfigArgs,
         /// Grid: lambda (Table 5) or table3 (Table 3 search space x lambda list).
         #[arg(long, value_enum, default_value_t = nemm_train::cli::train::SweepGrid::Lambda)]
         grid: nemm_train::cli::train::SweepGrid,
@@ -94,7 +96,8 @@ enum Cmd {
         /// Jobs run at the same time on this machine.
         #[arg(long, default_value_t = 1)]
         jobs: usize,
-        /// Only print one `nemm train` command line per job (for a cluster scheduler).
+        /// Only write the jobs' config.toml files and print one `nemm train` command line per
+        /// job (for a cluster scheduler).
         #[arg(long)]
         list: bool,
         /// Only collect finished jobs' reports into the table.
@@ -119,44 +122,8 @@ enum Cmd {
     },
 }
 
-/// The training flags of a sweep's base configuration, as `nemm train` arguments.
-fn sweep_base_args(a: &nemm_train::cli::train::TrainArgs) -> Vec<String> {
-    let mut v = vec![
-        "--data".to_string(),
-        a.data.display().to_string(),
-        "--test-alpha".into(),
-        a.test_alpha
-            .iter()
-            .map(|x| x.to_string())
-            .collect::<Vec<_>>()
-            .join(","),
-    ];
-    let pairs: [(&str, String); 13] = [
-        ("--seed", a.seed.to_string()),
-        ("--hidden", a.hidden.to_string()),
-        ("--layers", a.layers.to_string()),
-        ("--batch", a.batch.to_string()),
-        ("--lr", a.lr.to_string()),
-        ("--lambda-l2", a.lambda_l2.to_string()),
-        ("--integrator", a.integrator.clone()),
-        ("--epochs", a.epochs.to_string()),
-        ("--patience", a.patience.to_string()),
-        ("--linear-epochs", a.linear_epochs.to_string()),
-        ("--window-s", a.window_s.to_string()),
-        ("--warmup-s", a.warmup_s.to_string()),
-        (
-            "--max-batches",
-            a.max_batches.map_or(String::new(), |m| m.to_string()),
-        ),
-    ];
-    for (f, val) in pairs {
-        if !val.is_empty() {
-            v.push(f.to_string());
-            v.push(val);
-        }
-    }
-    v
-}
+/// Epochs of the demo's Linear EMM stage (its budget of a few minutes).
+const DEMO_LINEAR_EPOCHS: usize = 6;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -171,10 +138,12 @@ fn main() -> ExitCode {
             checkpoint,
             resume,
             report,
-        } => nemm_train::train::pipeline::Variant::parse(&variant).and_then(|v| {
+        } => args.resolve().and_then(|mut cfg| {
+            if let Some(v) = variant {
+                cfg.model.variant = v;
+            }
             nemm_train::cli::train::train(
-                &args,
-                v,
+                &cfg,
                 &out,
                 checkpoint.as_deref(),
                 resume,
@@ -191,8 +160,10 @@ fn main() -> ExitCode {
             report,
             checkpoint,
             resume,
-        } => nemm_train::cli::train::compare(&args, &report, checkpoint.as_deref(), resume)
-            .map(|_| ()),
+        } => args.resolve().and_then(|cfg| {
+            nemm_train::cli::train::compare_command(&cfg, &report, checkpoint.as_deref(), resume)
+                .map(|_| ())
+        }),
         Cmd::Sweep {
             args,
             grid,
@@ -200,27 +171,24 @@ fn main() -> ExitCode {
             jobs,
             list,
             collect,
-        } => {
-            let base = sweep_base_args(&args);
-            let lambdas = args
-                .lambda_ph
-                .clone()
-                .unwrap_or_else(|| nemm_train::cli::train::TABLE5_LAMBDAS.to_vec());
+        } => args.base().and_then(|base| {
+            let lambdas = args.lambda_ph_list().map_or_else(
+                || nemm_train::cli::train::TABLE5_LAMBDAS.to_vec(),
+                <[f64]>::to_vec,
+            );
             nemm_train::cli::train::sweep(&base, grid, &lambdas, &report, jobs, list, collect)
-        }
+        }),
         Cmd::Demo {
             data,
             out,
             epochs,
             max_batches,
         } => {
-            let args = nemm_train::cli::train::TrainArgs {
-                epochs,
-                max_batches: Some(max_batches),
-                linear_epochs: 6,
-                ..nemm_train::cli::train::TrainArgs::parse_defaults(data.clone())
-            };
-            nemm_train::cli::train::demo(&nemm_train::cli::train::DemoPaths { data, out }, &args)
+            let mut cfg = nemm_train::config::Config::default();
+            cfg.train.epochs = epochs;
+            cfg.train.max_batches = Some(max_batches);
+            cfg.train.linear_epochs = DEMO_LINEAR_EPOCHS;
+            nemm_train::cli::train::demo(&nemm_train::cli::train::DemoPaths { data, out }, &cfg)
         }
     };
     match result {

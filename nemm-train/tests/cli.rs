@@ -4,7 +4,7 @@
 //! from the checkpoint, `inspect`, a `sweep` run as separate processes and collected, and the
 //! exported blob run through nemm-core's estimator against the trainer's own test RMSE.
 use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind};
-use nemm_train::cli::train::TrainArgs;
+use nemm_train::config::{Config, CONFIG_FILE};
 use nemm_train::data::dataset;
 use nemm_train::data::preprocess;
 use nemm_train::report::tables::Report;
@@ -283,15 +283,15 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     .expect("train report");
     // The preprocessing of `nemm train` with the budget's windows (its seed picks the
     // validation windows, and so the training set's force scale).
-    let args = TrainArgs {
-        window_s: 0.1,
-        warmup_s: 0.02,
-        ..TrainArgs::parse_defaults(data.clone())
-    };
-    let cfg = args.prepare_config();
+    // `nemm train --report` saved the effective configuration, which reproduces it.
+    let saved = Config::load(&train_report.join(CONFIG_FILE)).expect("config.toml");
+    assert_eq!((saved.data.window_s, saved.data.warmup_s), (0.1, 0.02));
+    assert_eq!(saved.data.dir, data);
+    assert_eq!(saved.model.variant, ModelKind::Nemm);
+    let cfg = saved.data.prepare_config();
     // By default the trainer preprocesses as the library (and `nemm data prepare`) does.
     assert_eq!(
-        TrainArgs::parse_defaults(data.clone()).prepare_config(),
+        Config::default().data.prepare_config(),
         preprocess::PrepareConfig::default()
     );
     let prepared = preprocess::prepare(&dataset::load(&data).expect("load"), &cfg).expect("prep");

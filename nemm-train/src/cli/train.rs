@@ -1,181 +1,22 @@
 //! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
 //! Table 4 / Table 5 reports from the command line.
 
+use crate::config::{lambda_ph_scale_note, Config, CONFIG_FILE};
 use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::fsutil::write_atomic_bytes;
 use crate::report::inspect::describe;
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
-use crate::train::fit::FitConfig;
 use crate::train::net::{EmmNet, NetFrame};
-use crate::train::params::{integrator_by_name, to_core};
-use crate::train::pipeline::{train_variants, PipelineConfig, TrainedVariant, Variant};
-use anyhow::{bail, Context, Result};
+use crate::train::params::to_core;
+use crate::train::pipeline::{train_variants, TrainedVariant, Variant, VariantInfo};
+use anyhow::{Context, Result};
 use burn::module::Module;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Default physics-inconsistency weight: the paper's best (Table 5: 0.005) in this crate's
-/// normalisation of the penalty, where it takes 1000 times the paper's number to act (see
-/// docs/training.md, "Loss").
-pub const DEFAULT_LAMBDA_PH: f64 = 5.0;
 /// Default `nemm sweep` list of physics weights: Table 5's 0, 0.005, 0.015, 0.025 times 1000.
 pub const TABLE5_LAMBDAS: [f64; 4] = [0.0, 5.0, 15.0, 25.0];
-
-/// Nonzero `lambda_ph` values below this are most likely the paper's numbers (Table 5: 0.005
-/// to 0.025) rather than this crate's.
-const PAPER_SCALE_LAMBDA_PH: f64 = 0.1;
-
-/// A note for `--lambda-ph` values that look like the paper's numbers: in this crate's
-/// normalisation they barely act (docs/training.md, "The scale of `lambda_ph`"). `None` when
-/// every value is 0 or at least 0.1.
-pub fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
-    let small: Vec<String> = values
-        .iter()
-        .filter(|&&l| l > 0.0 && l < PAPER_SCALE_LAMBDA_PH)
-        .map(|l| l.to_string())
-        .collect();
-    (!small.is_empty()).then(|| {
-        format!(
-            "note: --lambda-ph {} looks like the paper's scale; this crate's penalty takes 1000 \
-             times the paper's numbers (the paper's 0.005 is 5 here), and at this value the \
-             physics loss barely acts (docs/training.md, \"The scale of lambda_ph\")",
-            small.join(",")
-        )
-    })
-}
-
-/// Options shared by every training command.
-#[derive(Debug, Clone, clap::Args)]
-pub struct TrainArgs {
-    /// Dataset folder (manifest.toml + CSV runs; see docs/data-format.md).
-    #[arg(long)]
-    pub data: PathBuf,
-    /// Oil-loss level(s) held out for testing (Table 2), comma-separated.
-    #[arg(long, default_value = "0.15", value_delimiter = ',')]
-    pub test_alpha: Vec<f64>,
-    /// Seed of the split, the initial weights and the data order.
-    #[arg(long, default_value_t = preprocess::DEFAULT_SPLIT_SEED)]
-    pub seed: u64,
-    /// Hidden width H of the scalers (Table 3: 8, 16, 32).
-    #[arg(long, default_value_t = 16)]
-    pub hidden: usize,
-    /// Hidden layers L of the scalers (Table 3: 3, 5, 7, 9).
-    #[arg(long, default_value_t = 5)]
-    pub layers: usize,
-    /// Windows per batch (Table 3: 4, 8, 16).
-    #[arg(long, default_value_t = 16)]
-    pub batch: usize,
-    /// Adam learning rate (Table 3: 5e-3, 1e-2, 1e-3).
-    #[arg(long, default_value_t = 5e-3)]
-    pub lr: f64,
-    /// Physics-inconsistency weight lambda_ph (default 5: the paper's best, 0.005, in this
-    /// crate's penalty normalisation, x1000). `nemm sweep` takes a comma-separated list
-    /// (default 0,5,15,25: Table 5's values x1000).
-    #[arg(long, value_delimiter = ',')]
-    pub lambda_ph: Option<Vec<f64>>,
-    /// L2 weight lambda on the scalers' linear weights.
-    #[arg(long, default_value_t = 1e-3)]
-    pub lambda_l2: f64,
-    /// Integrator: rk4 or rk3.
-    #[arg(long, default_value = "rk4")]
-    pub integrator: String,
-    /// Maximum epochs of the neural stages.
-    #[arg(long, default_value_t = 40)]
-    pub epochs: usize,
-    /// Early stopping: epochs without a better validation RMSE.
-    #[arg(long, default_value_t = 8)]
-    pub patience: usize,
-    /// Epochs of the Linear EMM stage.
-    #[arg(long, default_value_t = 8)]
-    pub linear_epochs: usize,
-    /// At most this many batches per epoch (random subset; for quick runs).
-    #[arg(long)]
-    pub max_batches: Option<usize>,
-    /// Train at most this many epochs per stage in this invocation, then stop with a
-    /// checkpoint (time-boxed sessions); continue with --resume.
-    #[arg(long)]
-    pub session_epochs: Option<usize>,
-    /// Scored length of a training window (s; section 5.3: 0.5 s).
-    #[arg(long, default_value_t = preprocess::DEFAULT_SEQUENCE_S)]
-    pub window_s: f64,
-    /// Warm-up prefix of a window, simulated but not scored (s).
-    #[arg(long, default_value_t = preprocess::DEFAULT_WARMUP_S)]
-    pub warmup_s: f64,
-}
-
-impl TrainArgs {
-    /// The defaults of every option, for dataset `data`.
-    pub fn parse_defaults(data: PathBuf) -> Self {
-        use clap::Parser;
-        #[derive(clap::Parser)]
-        struct Wrapper {
-            #[command(flatten)]
-            args: TrainArgs,
-        }
-        let mut w = Wrapper::parse_from(["nemm", "--data", "."]);
-        w.args.data = data;
-        w.args
-    }
-
-    /// Preprocessing configuration.
-    pub fn prepare_config(&self) -> PrepareConfig {
-        let mut c = PrepareConfig::default();
-        c.split.test_alphas = self.test_alpha.clone();
-        c.split.seed = self.seed;
-        c.sequences.length_s = self.window_s;
-        c.sequences.warmup_s = self.warmup_s;
-        c
-    }
-
-    /// Pipeline configuration.
-    pub fn pipeline_config(&self) -> Result<PipelineConfig> {
-        if self.batch == 0 || self.hidden == 0 || self.layers == 0 {
-            bail!("--batch, --hidden and --layers must be positive");
-        }
-        if self.hidden > nemm_core::mlp::MAX_HIDDEN || self.layers > nemm_core::mlp::MAX_LAYERS {
-            bail!(
-                "--hidden must be <= {} and --layers <= {} (the capacity of nemm-core)",
-                nemm_core::mlp::MAX_HIDDEN,
-                nemm_core::mlp::MAX_LAYERS
-            );
-        }
-        let lambda_ph = match self.lambda_ph.as_deref() {
-            None => DEFAULT_LAMBDA_PH,
-            Some([one]) => *one,
-            Some(list) => bail!(
-                "--lambda-ph takes one value here ({} given); `nemm sweep` trains one model per value",
-                list.len()
-            ),
-        };
-        if !(lambda_ph.is_finite() && lambda_ph >= 0.0) {
-            bail!("--lambda-ph must be a non-negative number");
-        }
-        if let Some(note) = lambda_ph_scale_note(&[lambda_ph]) {
-            eprintln!("{note}");
-        }
-        Ok(PipelineConfig {
-            hidden: self.hidden,
-            layers: self.layers,
-            integrator: integrator_by_name(&self.integrator)?,
-            fit: FitConfig {
-                label: String::new(),
-                epochs: self.epochs,
-                batch: self.batch,
-                lr: self.lr,
-                lambda_l2: self.lambda_l2,
-                lambda_ph,
-                patience: self.patience,
-                max_batches_per_epoch: self.max_batches,
-                seed: self.seed,
-                session_epochs: self.session_epochs,
-                ..FitConfig::default()
-            },
-            linear_epochs: self.linear_epochs,
-            ..PipelineConfig::default()
-        })
-    }
-}
 
 /// Loads and prepares a dataset, printing a one-line summary.
 pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {
@@ -264,19 +105,20 @@ fn print_audit(t: &TrainedVariant, r: &Report) {
     }
 }
 
-/// `nemm train`.
+/// `nemm train`: trains `cfg.model.variant` on `cfg.data` and writes the blob `out`; with
+/// `report_dir`, also `report.json`, `table.md` and the effective `config.toml` there.
 pub fn train(
-    args: &TrainArgs,
-    variant: Variant,
+    cfg: &Config,
     out: &Path,
     checkpoint: Option<&Path>,
     resume: bool,
     report_dir: Option<&Path>,
 ) -> Result<()> {
-    let prepared = load_prepared(&args.data, &args.prepare_config())?;
-    let cfg = args.pipeline_config()?;
+    let variant = cfg.model.variant;
+    let prepared = load_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
+    let pipeline = cfg.pipeline_config();
     let t = Instant::now();
-    let trained = train_variants(&prepared, &[variant], &cfg, checkpoint, resume)?;
+    let trained = train_variants(&prepared, &[variant], &pipeline, checkpoint, resume)?;
     let tv = trained
         .iter()
         .find(|t| t.variant == variant)
@@ -292,7 +134,7 @@ pub fn train(
     print!("{}", describe(&tv.model, n));
     println!(
         "test RMSE at oil loss {:?}: {:.4} of the force scale ({:.1} N); validation {:.4}",
-        args.test_alpha, vr.rmse, vr.rmse_n, vr.val_rmse
+        cfg.data.test_alphas, vr.rmse, vr.rmse_n, vr.val_rmse
     );
     print_audit(tv, &report);
     // The fast path's verdict at export time, as `nemm export` prints it.
@@ -310,6 +152,7 @@ pub fn train(
             std::env::args().collect::<Vec<_>>().join(" "),
         );
         write_report(dir, &report, "table.md")?;
+        cfg.save(&dir.join(CONFIG_FILE))?;
     }
     Ok(())
 }
@@ -415,25 +258,45 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
     Ok(())
 }
 
-/// `nemm compare`: all four variants, Table 4.
-pub fn compare(
-    args: &TrainArgs,
+/// `nemm compare` from the command line: loads and prepares `cfg.data`, then [`compare`].
+pub fn compare_command(
+    cfg: &Config,
     report_dir: &Path,
     checkpoint: Option<&Path>,
     resume: bool,
 ) -> Result<Report> {
-    let (ds, prepared) = load_dataset_prepared(&args.data, &args.prepare_config())?;
-    let cfg = args.pipeline_config()?;
+    let (ds, prepared) =
+        load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
+    compare(&ds, &prepared, cfg, report_dir, checkpoint, resume)
+}
+
+/// All four variants on a prepared dataset (`ds` is the dataset `prepared` was made from;
+/// the figures need its whole runs): Table 4, `report.json`, one blob per variant, the
+/// figures and the effective `config.toml`, all in `report_dir`.
+pub fn compare(
+    ds: &dataset::Dataset,
+    prepared: &Prepared,
+    cfg: &Config,
+    report_dir: &Path,
+    checkpoint: Option<&Path>,
+    resume: bool,
+) -> Result<Report> {
     let t = Instant::now();
-    let trained = train_variants(&prepared, &Variant::ALL, &cfg, checkpoint, resume)?;
-    let mut report = evaluate(&trained, &prepared)?;
+    let trained = train_variants(
+        prepared,
+        &Variant::ALL,
+        &cfg.pipeline_config(),
+        checkpoint,
+        resume,
+    )?;
+    let mut report = evaluate(&trained, prepared)?;
     report.info.insert(
         "command".into(),
         std::env::args().collect::<Vec<_>>().join(" "),
     );
     report
         .info
-        .insert("dataset".into(), args.data.display().to_string());
+        .insert("dataset".into(), cfg.data.dir.display().to_string());
     report.info.insert(
         "total_seconds".into(),
         format!("{:.1}", t.elapsed().as_secs_f64()),
@@ -446,12 +309,13 @@ pub fn compare(
         )?;
     }
     write_report(report_dir, &report, "table4.md")?;
+    cfg.save(&report_dir.join(CONFIG_FILE))?;
     println!("{}", table4_markdown(&report));
     for tv in &trained {
         print_audit(tv, &report);
     }
-    let predictions = crate::report::predictions::RunPredictions::for_figures(&trained, &prepared)?;
-    crate::report::figures::write_all(&trained, &ds, &prepared, &report, &predictions, report_dir)?;
+    let predictions = crate::report::predictions::RunPredictions::for_figures(&trained, prepared)?;
+    crate::report::figures::write_all(&trained, ds, prepared, &report, &predictions, report_dir)?;
     println!("report, models and figures in {}", report_dir.display());
     Ok(report)
 }
@@ -466,29 +330,32 @@ pub enum SweepGrid {
     Table3,
 }
 
-/// One sweep job: its id and the `nemm train` arguments that differ from the base.
+/// One sweep job: its id and its whole configuration (the base with the job's overrides).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SweepJob {
     /// Folder name under `<report>/jobs/`.
     pub id: String,
-    /// `(flag, value)` overrides.
+    /// The overridden settings (`lambda_ph`, and for the Table 3 grid `batch`, `hidden`,
+    /// `layers`, `lr`) with their values, for `sweep.json`.
     pub overrides: Vec<(String, String)>,
+    /// The job's configuration.
+    pub config: Config,
 }
 
-/// The jobs of a sweep.
-pub fn sweep_jobs(grid: SweepGrid, lambdas: &[f64]) -> Vec<SweepJob> {
+/// The jobs of a sweep: one per grid point and `lambdas` value, each a copy of `base` with
+/// the `nemm` variant and the point's settings.
+pub fn sweep_jobs(base: &Config, grid: SweepGrid, lambdas: &[f64]) -> Vec<SweepJob> {
     /// Batch, hidden width, layers, learning rate (`None`: the base configuration's).
-    type Combo = (Option<usize>, Option<usize>, Option<usize>, Option<f64>);
-    let mut jobs = Vec::new();
+    type Combo = Option<(usize, usize, usize, f64)>;
     let combos: Vec<Combo> = match grid {
-        SweepGrid::Lambda => vec![(None, None, None, None)],
+        SweepGrid::Lambda => vec![None],
         SweepGrid::Table3 => {
             let mut v = Vec::new();
             for b in [4, 8, 16] {
                 for h in [8, 16, 32] {
                     for l in [3, 5, 7, 9] {
                         for lr in [5e-3, 1e-2, 1e-3] {
-                            v.push((Some(b), Some(h), Some(l), Some(lr)));
+                            v.push(Some((b, h, l, lr)));
                         }
                     }
                 }
@@ -496,54 +363,56 @@ pub fn sweep_jobs(grid: SweepGrid, lambdas: &[f64]) -> Vec<SweepJob> {
             v
         }
     };
-    for (b, h, l, lr) in combos {
+    let mut jobs = Vec::new();
+    for combo in combos {
         for &lam in lambdas {
+            let mut config = base.clone();
+            config.model.variant = nemm_core::ModelKind::Nemm;
             let mut id = String::new();
-            let mut o = Vec::new();
-            if let (Some(b), Some(h), Some(l), Some(lr)) = (b, h, l, lr) {
+            let mut o: Vec<(String, String)> = Vec::new();
+            if let Some((b, h, l, lr)) = combo {
                 id.push_str(&format!("b{b}_h{h}_l{l}_lr{lr}_"));
-                o.push(("--batch".into(), b.to_string()));
-                o.push(("--hidden".into(), h.to_string()));
-                o.push(("--layers".into(), l.to_string()));
-                o.push(("--lr".into(), lr.to_string()));
+                (config.train.batch, config.model.hidden) = (b, h);
+                (config.model.layers, config.train.lr) = (l, lr);
+                o.push(("batch".into(), b.to_string()));
+                o.push(("hidden".into(), h.to_string()));
+                o.push(("layers".into(), l.to_string()));
+                o.push(("lr".into(), lr.to_string()));
             }
             id.push_str(&format!("lph{lam}"));
-            o.push(("--lambda-ph".into(), lam.to_string()));
-            jobs.push(SweepJob { id, overrides: o });
+            config.train.lambda_ph = lam;
+            o.push(("lambda_ph".into(), lam.to_string()));
+            jobs.push(SweepJob {
+                id,
+                overrides: o,
+                config,
+            });
         }
     }
     jobs
 }
 
-/// The `nemm train` command line of a sweep job (without the program name).
-pub fn job_args(base: &[String], job: &SweepJob, report: &Path) -> Vec<String> {
-    let dir = report.join("jobs").join(&job.id);
-    let mut a: Vec<String> = vec!["train".into()];
-    // Base arguments minus the ones the job overrides.
-    let overridden: Vec<&str> = job.overrides.iter().map(|(f, _)| f.as_str()).collect();
-    let mut i = 0;
-    while i < base.len() {
-        let flag = base[i].split('=').next().unwrap_or("");
-        if overridden.contains(&flag) {
-            i += if base[i].contains('=') { 1 } else { 2 };
-            continue;
-        }
-        a.push(base[i].clone());
-        i += 1;
-    }
-    for (f, v) in &job.overrides {
-        a.push(f.clone());
-        a.push(v.clone());
-    }
-    a.extend([
-        "--variant".into(),
-        "nemm".into(),
+/// A job's folder under `report`.
+fn job_dir(report: &Path, job: &SweepJob) -> PathBuf {
+    report.join("jobs").join(&job.id)
+}
+
+/// Writes the job's configuration to `<report>/jobs/<id>/config.toml` and returns its
+/// `nemm train` command line (without the program name).
+pub fn job_args(job: &SweepJob, report: &Path) -> Result<Vec<String>> {
+    let dir = job_dir(report, job);
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let config = dir.join(CONFIG_FILE);
+    job.config.save(&config)?;
+    Ok(vec![
+        "train".into(),
+        "--config".into(),
+        config.display().to_string(),
         "--out".into(),
         dir.join("model.nemm").display().to_string(),
         "--report".into(),
         dir.display().to_string(),
-    ]);
-    a
+    ])
 }
 
 /// Reads every job's `report.json` under `<report>/jobs/` and writes `sweep.json` and
@@ -585,12 +454,7 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
     }
     let base = rows
         .iter()
-        .find(|r| {
-            r.job
-                .overrides
-                .iter()
-                .any(|(f, v)| f == "--lambda-ph" && v.parse::<f64>().ok() == Some(0.0))
-        })
+        .find(|r| r.job.config.train.lambda_ph == 0.0)
         .or(rows.first())
         .map(|r| r.test);
     let mut md = String::new();
@@ -599,11 +463,7 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
     for r in &rows {
         let (j, val, test, test_n, viol, secs) =
             (&r.job, r.val, r.test, r.test_n, r.violations, r.seconds);
-        let lam = j
-            .overrides
-            .iter()
-            .find(|(f, _)| f == "--lambda-ph")
-            .map_or("-", |(_, v)| v.as_str());
+        let lam = j.config.train.lambda_ph;
         let rel = base.map_or("-".into(), |b| format!("{:.1}", 100.0 * test / b));
         let _ = writeln!(
             md,
@@ -623,7 +483,7 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
         .map(|r| {
             serde_json::json!({
                 "id": r.job.id,
-                "overrides": r.job.overrides.iter().map(|(f, v)| (f.trim_start_matches("--").to_string(), v.clone())).collect::<std::collections::BTreeMap<_, _>>(),
+                "overrides": r.job.overrides.iter().cloned().collect::<std::collections::BTreeMap<_, _>>(),
                 "val_rmse": r.val, "rmse": r.test, "rmse_n": r.test_n, "violations": r.violations, "train_seconds": r.seconds,
             })
         })
@@ -636,10 +496,11 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
     Ok(md)
 }
 
-/// `nemm sweep`: every configuration is an independent `nemm train` process (a cluster
-/// scheduler can run the lines of `--list` instead); results are collected into one table.
+/// `nemm sweep`: every configuration is an independent `nemm train --config
+/// <report>/jobs/<id>/config.toml` process (a cluster scheduler can run the lines of `--list`
+/// instead); results are collected into one table.
 pub fn sweep(
-    base: &[String],
+    base: &Config,
     grid: SweepGrid,
     lambdas: &[f64],
     report: &Path,
@@ -647,14 +508,18 @@ pub fn sweep(
     list_only: bool,
     collect_only: bool,
 ) -> Result<()> {
-    let jobs = sweep_jobs(grid, lambdas);
+    base.data.require_dir()?;
+    let jobs = sweep_jobs(base, grid, lambdas);
+    for j in &jobs {
+        j.config.validate()?;
+    }
     if let Some(note) = lambda_ph_scale_note(lambdas) {
         eprintln!("{note}");
     }
     let exe = std::env::current_exe().context("cannot find the nemm executable")?;
     if list_only {
         for j in &jobs {
-            let args = job_args(base, j, report);
+            let args = job_args(j, report)?;
             println!("{} {}", exe.display(), args.join(" "));
         }
         return Ok(());
@@ -670,7 +535,7 @@ pub fn sweep(
         while !pending.is_empty() || !running.is_empty() {
             while running.len() < jobs_parallel.max(1) {
                 let Some(j) = pending.pop_front() else { break };
-                let dir = report.join("jobs").join(&j.id);
+                let dir = job_dir(report, j);
                 std::fs::create_dir_all(&dir)?;
                 if dir.join("report.json").exists() {
                     eprintln!("[sweep] {} already done, skipped", j.id);
@@ -679,7 +544,7 @@ pub fn sweep(
                 }
                 let log = std::fs::File::create(dir.join("train.log"))?;
                 let child = std::process::Command::new(&exe)
-                    .args(job_args(base, j, report))
+                    .args(job_args(j, report)?)
                     .stdout(log.try_clone()?)
                     .stderr(log)
                     .spawn()
@@ -745,9 +610,10 @@ pub struct DemoPaths {
 }
 
 /// `nemm demo`: virtual bench (generated if absent), all four variants on a budget of a few
-/// minutes, Table 4, figures, `model.nemm`, and the exported NEMM run through nemm-core on a
-/// held-out run.
-pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
+/// minutes, Table 4, `model.nemm`, and the exported NEMM run through nemm-core on a
+/// held-out run. The dataset (`paths.data`; `cfg.data.dir` is replaced by it) is loaded and
+/// prepared once, for the comparison and the estimator check.
+pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let t0 = Instant::now();
     if !paths.data.join(dataset::MANIFEST_FILE).exists() {
         eprintln!(
@@ -760,11 +626,11 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
             &paths.data,
         )?;
     }
-    let args = TrainArgs {
-        data: paths.data.clone(),
-        ..args.clone()
-    };
-    let report = compare(&args, &paths.out, None, false)?;
+    let mut cfg = cfg.clone();
+    cfg.data.dir = paths.data.clone();
+    cfg.validate()?;
+    let (ds, prepared) = load_dataset_prepared(&cfg.data.dir, &cfg.data.prepare_config())?;
+    let report = compare(&ds, &prepared, &cfg, &paths.out, None, false)?;
     let nemm_blob = paths.out.join("nemm.nemm");
     let model_path = paths.out.join("model.nemm");
     std::fs::copy(&nemm_blob, &model_path).with_context(|| {
@@ -775,7 +641,6 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
         )
     })?;
     // The exported blob through nemm-core on a held-out (test) run.
-    let (ds, prepared) = load_dataset_prepared(&args.data, &args.prepare_config())?;
     let blob = std::fs::read(&model_path)?;
     let model: nemm_core::Model = nemm_core::decode(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
     print!(
@@ -851,19 +716,4 @@ pub fn demo(paths: &DemoPaths, args: &TrainArgs) -> Result<()> {
         model_path.display()
     );
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn paper_scale_lambda_ph_gets_a_note() {
-        let note = lambda_ph_scale_note(&[0.0, 0.005, 0.015, 0.025]).expect("a note");
-        assert!(note.contains("0.005,0.015,0.025"), "{note}");
-        assert!(note.contains("0.005 is 5 here"), "{note}");
-        assert_eq!(lambda_ph_scale_note(&TABLE5_LAMBDAS), None);
-        assert_eq!(lambda_ph_scale_note(&[DEFAULT_LAMBDA_PH]), None);
-        assert_eq!(lambda_ph_scale_note(&[0.0]), None);
-    }
 }

@@ -3,7 +3,7 @@
 
 use crate::data::preprocess::Prepared;
 use crate::train::eval::predict;
-use crate::train::pipeline::{TrainedVariant, Variant};
+use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
 use anyhow::{Context, Result};
 
 /// Forces of whole runs simulated from rest by a variant, on the preprocessed velocity

@@ -6,7 +6,7 @@ use crate::data::preprocess::Prepared;
 use crate::train::eval::{rmse_of, sse_per_sequence};
 use crate::train::fit::EpochStats;
 use crate::train::physics::{audit, Audit, AUDIT_GRID};
-use crate::train::pipeline::{TrainedVariant, Variant};
+use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -29,111 +29,53 @@ use nemm_core::mlp::param_count;
 use nemm_core::model::STABILITY_MARGIN;
 use nemm_core::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
 use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
+use rand::{RngExt, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
 
-/// A stage used up the session budget (`--session-epochs`): its checkpoint is written and
-/// the later stages did not run, since they start from this stage's result; nothing is
-/// exported. Returned as the error of [`train_variants`] so that no caller can mistake an
-/// unfinished run for a trained model; the CLI reports it and exits successfully.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct SessionBudgetUsed {
-    /// The stage that stopped (`linear-emm`, `nemm-light`, `nemm`).
-    pub stage: String,
-}
+pub use super::session::SessionBudgetUsed;
 
-impl std::fmt::Display for SessionBudgetUsed {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "session budget used in stage `{}`: its checkpoint is written, the later stages \
-             have not run and nothing is exported yet; continue with --resume",
-            self.stage
-        )
-    }
-}
+/// The four variants of section 6: nemm-core's [`ModelKind`] (parsed and printed by its
+/// `name()`: `sem`, `linear-emm`, `nemm-light`, `nemm`); [`VariantInfo`] adds the report's
+/// names.
+pub type Variant = ModelKind;
 
-impl std::error::Error for SessionBudgetUsed {}
-
-impl SessionBudgetUsed {
-    /// `Err` if the stage `label` ended with `stop` because the session budget was used.
-    fn check(stop: StopReason, label: &str) -> Result<()> {
-        if stop == StopReason::Session {
-            return Err(Self {
-                stage: label.to_string(),
-            }
-            .into());
-        }
-        Ok(())
-    }
-}
-
-/// The four variants of section 6.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
-pub enum Variant {
-    /// Static empirical model.
-    Sem,
-    /// Linear EMM.
-    LinearEmm,
-    /// NEMM-Light.
-    NemmLight,
-    /// NEMM.
-    Nemm,
-}
-
-impl Variant {
+/// The trainer's names and order of the four variants.
+pub trait VariantInfo: Sized {
     /// All four, in the order of Table 4.
-    pub const ALL: [Variant; 4] = [
-        Variant::Sem,
-        Variant::LinearEmm,
-        Variant::NemmLight,
-        Variant::Nemm,
+    const ALL: [Self; 4];
+    /// Key in `report.json` (`sem`, `linear_emm`, `nemm_light`, `nemm`).
+    fn key(self) -> &'static str;
+    /// Name in tables (`SEM`, `Linear EMM`, `NEMM-Light`, `NEMM`).
+    fn title(self) -> &'static str;
+}
+
+impl VariantInfo for ModelKind {
+    const ALL: [ModelKind; 4] = [
+        ModelKind::Sem,
+        ModelKind::LinearEmm,
+        ModelKind::NemmLight,
+        ModelKind::Nemm,
     ];
 
-    /// CLI name (`sem`, `linear-emm`, `nemm-light`, `nemm`).
-    pub fn name(self) -> &'static str {
-        self.kind().name()
-    }
-
-    /// Key in `report.json` (`sem`, `linear_emm`, `nemm_light`, `nemm`).
-    pub fn key(self) -> &'static str {
+    fn key(self) -> &'static str {
         match self {
-            Variant::Sem => "sem",
-            Variant::LinearEmm => "linear_emm",
-            Variant::NemmLight => "nemm_light",
-            Variant::Nemm => "nemm",
+            ModelKind::Sem => "sem",
+            ModelKind::LinearEmm => "linear_emm",
+            ModelKind::NemmLight => "nemm_light",
+            ModelKind::Nemm => "nemm",
         }
     }
 
-    /// Name in tables (`SEM`, `Linear EMM`, `NEMM-Light`, `NEMM`).
-    pub fn title(self) -> &'static str {
+    fn title(self) -> &'static str {
         match self {
-            Variant::Sem => "SEM",
-            Variant::LinearEmm => "Linear EMM",
-            Variant::NemmLight => "NEMM-Light",
-            Variant::Nemm => "NEMM",
+            ModelKind::Sem => "SEM",
+            ModelKind::LinearEmm => "Linear EMM",
+            ModelKind::NemmLight => "NEMM-Light",
+            ModelKind::Nemm => "NEMM",
         }
-    }
-
-    /// nemm-core kind.
-    pub fn kind(self) -> ModelKind {
-        match self {
-            Variant::Sem => ModelKind::Sem,
-            Variant::LinearEmm => ModelKind::LinearEmm,
-            Variant::NemmLight => ModelKind::NemmLight,
-            Variant::Nemm => ModelKind::Nemm,
-        }
-    }
-
-    /// Parses a CLI name.
-    pub fn parse(s: &str) -> Result<Self> {
-        Variant::ALL
-            .into_iter()
-            .find(|v| v.name() == s || v.key() == s)
-            .with_context(|| {
-                format!("unknown variant `{s}` (expected sem, linear-emm, nemm-light or nemm)")
-            })
     }
 }
 
@@ -162,19 +104,10 @@ pub struct PipelineConfig {
     pub pr_bounds: (f32, f32),
 }
 
+/// The defaults are [`crate::config::Config`]'s.
 impl Default for PipelineConfig {
     fn default() -> Self {
-        Self {
-            hidden: 16,
-            layers: 5,
-            integrator: Integrator::Rk4,
-            fit: FitConfig::default(),
-            linear_epochs: 8,
-            linear_lr: 3e-3,
-            qs_steps: 600,
-            b_fl_bounds: (0.1, 10.0),
-            pr_bounds: (0.1, 5.0),
-        }
+        crate::config::Config::default().pipeline_config()
     }
 }
 
@@ -232,18 +165,10 @@ pub fn meta_of(prepared: &Prepared) -> Meta {
     }
 }
 
-fn splitmix(state: &mut u64) -> f32 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    ((z >> 40) as f32) / ((1u64 << 23) as f32) - 1.0
-}
-
 /// A freshly initialised scaler: uniform `+-1/sqrt(fan_in)` weights and biases (burn's and
 /// PyTorch's default), LayerNorm `gamma = 1`, `beta = 0`, small output weights and the output
-/// bias at the identity logit, so that the scale factor starts at ~1 (the constants).
+/// bias at the identity logit, so that the scale factor starts at ~1 (the constants). The
+/// uniform draws come from xoshiro256++ seeded with `seed`.
 pub fn init_scaler(
     inputs: usize,
     hidden: usize,
@@ -251,20 +176,21 @@ pub fn init_scaler(
     bounds: (f32, f32),
     seed: u64,
 ) -> ScalerWeights<f32> {
-    let mut st = seed.wrapping_mul(0xA24B_AED4_963E_E407) ^ 0x5851_F42D_4C95_7F2D;
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut uniform = move || rng.random_range(-1.0f32..1.0);
     let mut w = Vec::with_capacity(param_count(inputs, hidden, layers));
     for l in 0..layers {
         let fan_in = if l == 0 { inputs } else { hidden };
         let k = 1.0 / (fan_in as f32).sqrt();
         for _ in 0..fan_in * hidden + hidden {
-            w.push(k * splitmix(&mut st));
+            w.push(k * uniform());
         }
         w.extend(std::iter::repeat_n(1.0, hidden));
         w.extend(std::iter::repeat_n(0.0, hidden));
     }
     let k = 0.05 / (hidden as f32).sqrt();
     for _ in 0..hidden {
-        w.push(k * splitmix(&mut st));
+        w.push(k * uniform());
     }
     w.push(Scaler::<1>::identity_logit(bounds.0, bounds.1));
     ScalerWeights {
@@ -703,7 +629,7 @@ pub fn train_variants(
             seconds: t.elapsed().as_secs_f64() + qs_seconds + lin_seconds,
         });
     }
-    out.sort_by_key(|t| t.variant);
+    out.sort_by_key(|t| Variant::ALL.iter().position(|&v| v == t.variant));
     Ok(out)
 }
 

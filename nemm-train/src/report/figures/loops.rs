@@ -8,7 +8,7 @@ use super::{
 };
 use crate::data::preprocess::{distinct_levels, Prepared, RunRole};
 use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Panel, Series};
-use crate::train::pipeline::{TrainedVariant, Variant};
+use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
 use anyhow::{Context, Result};
 use std::ops::Range;
 
@@ -133,7 +133,7 @@ pub fn loop_requests(trained: &[TrainedVariant], prepared: &Prepared) -> Vec<(Va
     if let Some((p, _)) = picks.all_variants {
         out.extend(trained.iter().map(|t| (t.variant, p.index)));
     }
-    out.sort();
+    out.sort_by_key(|&(v, run)| (v as u8, run));
     out.dedup();
     out
 }

@@ -10,7 +10,7 @@ use crate::report::plot::{
     nice_levels, palette, ColorMap, Figure, HeatmapPanel, LegendPosition, LinePanel, Series,
 };
 use crate::train::physics::{violation, AUDIT_GRID};
-use crate::train::pipeline::{TrainedVariant, Variant};
+use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
 use anyhow::{bail, Result};
 use nemm_core::Model;
 use plotters::style::RGBColor;

@@ -2,7 +2,7 @@
 
 use super::{value_range, variant_color, Ctx, Drawn};
 use crate::report::plot::{Figure, LegendPosition, LinePanel, Series};
-use crate::train::pipeline::{TrainedVariant, Variant};
+use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
 use anyhow::Result;
 
 /// Epoch of the kept model: the best validation epoch, or 0 if no epoch beat the start.
