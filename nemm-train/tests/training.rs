@@ -125,8 +125,13 @@ fn small_fit_data<'a>(train: &'a [Sequence], val: &'a [Sequence]) -> FitData<'a>
 }
 
 fn light_net(device: &Device) -> (EmmNet, nemm_train::train::net::NetFrame) {
+    light_net_seeded(device, 3)
+}
+
+/// [`light_net`] with the initial `b_fl` weights drawn from `seed`.
+fn light_net_seeded(device: &Device, seed: u64) -> (EmmNet, nemm_train::train::net::NetFrame) {
     let mut p: RolloutParams<f32> = from_core(&truth()).expect("emm");
-    p.b_fl = Some(init_scaler(2, 8, 2, (0.1, 10.0), 3));
+    p.b_fl = Some(init_scaler(2, 8, 2, (0.1, 10.0), seed));
     EmmNet::from_rollout(&p, device)
 }
 
@@ -204,7 +209,9 @@ fn kept_model_is_the_most_accurate_epoch_that_passes_the_audit() {
         lambda_ph: 50.0,
         ..FitConfig::default()
     };
-    let (net, frame) = light_net(&device);
+    // Initial weights of seed 16: epoch 3 is the only clean one, and the inconsistent epochs
+    // 1 and 4-10 are more accurate.
+    let (net, frame) = light_net_seeded(&device, 16);
     let r = fit(net, &frame, data, &cfg, None, false, &device).expect("fit");
     assert_eq!(r.history.len(), 10);
     assert!(r.history.iter().all(|e| e.violations.is_some()));
@@ -213,8 +220,8 @@ fn kept_model_is_the_most_accurate_epoch_that_passes_the_audit() {
         .iter()
         .filter(|e| e.violations == Some(0))
         .collect();
-    // The scenario (seeded) reaches clean epochs after inconsistent ones that were more
-    // accurate (epoch 2: 128 violations at a lower validation RMSE than the clean epoch 3).
+    // The scenario (seeded) reaches clean epochs, and an inconsistent epoch is more accurate
+    // than some clean one.
     assert!(!clean.is_empty(), "the scenario must reach clean epochs");
     assert!(r
         .history
@@ -255,17 +262,17 @@ fn kept_model_is_the_most_accurate_epoch_that_passes_the_audit() {
         ),
     }
     // Stopped after epoch 3 (same schedule), the same run keeps clean epoch 3 over the more
-    // accurate epoch 2 (128 violations) and says so.
+    // accurate starting model (epoch 0, with violations) and says so.
     let short = FitConfig {
         session_epochs: Some(3),
         ..cfg.clone()
     };
-    let (net, frame3) = light_net(&device);
+    let (net, frame3) = light_net_seeded(&device, 16);
     let r3 = fit(net, &frame3, data, &short, None, false, &device).expect("fit");
     assert_eq!(r3.best_epoch, 3, "{:?}", r3.history);
-    let p = r3.passed_over.expect("epoch 2 was passed over");
-    assert_eq!(p.epoch, 2);
-    assert_eq!(r3.history[1].violations, Some(p.violations));
+    let p = r3.passed_over.expect("the starting model was passed over");
+    assert_eq!(p.epoch, 0);
+    assert!(p.violations > 0);
     assert!(p.val_rmse < r3.best_val_rmse);
     // The kept model's own audit agrees with the epoch line.
     let model = nemm_train::train::params::to_core(&r.best.to_rollout(&frame), truth().meta)
