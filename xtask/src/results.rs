@@ -24,6 +24,9 @@ use std::process::Command;
 /// The results file, relative to the workspace root.
 pub const FILE: &str = "docs/results.md";
 
+/// The README, whose `headline` block holds the Table 4 of the last `--training` copy.
+pub const README: &str = "README.md";
+
 /// The file as a first run writes it, before filling its blocks.
 const SKELETON: &str = "\
 # Results
@@ -130,10 +133,15 @@ fn commit(root: &Path) -> String {
 
 /// Replaces block `name` of the results file with `body`.
 fn write_block(paths: &Paths, name: &str, body: &str) -> Result<(), String> {
-    let path = paths.root.join(FILE);
+    write_block_in(paths, FILE, name, body)
+}
+
+/// [`write_block`] into the file `file` (relative to the workspace root).
+fn write_block_in(paths: &Paths, file: &str, name: &str, body: &str) -> Result<(), String> {
+    let path = paths.root.join(file);
     let text = match std::fs::read_to_string(&path) {
         Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => SKELETON.to_string(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound && file == FILE => SKELETON.to_string(),
         Err(e) => return Err(format!("{}: {e}", path.display())),
     };
     let updated = replace_block(&text, name, &block(name, &command_line(), body))?;
@@ -304,7 +312,31 @@ pub fn training(paths: &Paths, dir: &Path) -> Result<(), String> {
         &table4,
         table5.as_deref(),
     );
-    write_block(paths, "training", &md)
+    write_block(paths, "training", &md)?;
+    write_block_in(
+        paths,
+        README,
+        "headline",
+        &headline_markdown(&info, &table4),
+    )
+}
+
+/// The README's headline block: Table 4 of the copied report and where it came from.
+fn headline_markdown(info: &[(String, String)], table4: &str) -> String {
+    let recorded = |key: &str| info.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str());
+    let mut md = table4.trim_end().to_string();
+    md += "\n\n";
+    match (recorded("command"), recorded("commit")) {
+        (Some(cmd), Some(c)) => {
+            let _ = write!(md, "Trained by `{cmd}` at commit `{c}`; ");
+        }
+        (Some(cmd), None) => {
+            let _ = write!(md, "Trained by `{cmd}`; ");
+        }
+        _ => {}
+    }
+    md += "details in [docs/results.md](docs/results.md).";
+    md
 }
 
 /// The `info` facts of a `report.json` (`command`, `dataset`, `total_seconds`, ...).

@@ -98,14 +98,7 @@ impl Mode {
 }
 
 fn parse_kind(s: &str) -> Option<ModelKind> {
-    [
-        ModelKind::Sem,
-        ModelKind::LinearEmm,
-        ModelKind::NemmLight,
-        ModelKind::Nemm,
-    ]
-    .into_iter()
-    .find(|k| k.name() == s)
+    s.parse().ok()
 }
 
 /// Command-line options.

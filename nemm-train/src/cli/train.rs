@@ -147,10 +147,7 @@ pub fn train(
     );
     if let Some(dir) = report_dir {
         let mut report = report;
-        report.info.insert(
-            "command".into(),
-            std::env::args().collect::<Vec<_>>().join(" "),
-        );
+        record_provenance(&mut report);
         write_report(dir, &report, "table.md")?;
         cfg.save(&dir.join(CONFIG_FILE))?;
     }
@@ -290,10 +287,7 @@ pub fn compare(
         resume,
     )?;
     let mut report = evaluate(&trained, prepared)?;
-    report.info.insert(
-        "command".into(),
-        std::env::args().collect::<Vec<_>>().join(" "),
-    );
+    record_provenance(&mut report);
     report
         .info
         .insert("dataset".into(), cfg.data.dir.display().to_string());
@@ -716,4 +710,16 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         model_path.display()
     );
     Ok(())
+}
+
+/// Records in `report.info` the command line that made it and the commit the trainer was
+/// built from (`+dirty`: with uncommitted changes).
+fn record_provenance(report: &mut Report) {
+    report.info.insert(
+        "command".into(),
+        std::env::args().collect::<Vec<_>>().join(" "),
+    );
+    report
+        .info
+        .insert("commit".into(), env!("NEMM_GIT_COMMIT").to_string());
 }
