@@ -7,7 +7,8 @@
 //! A batch is 16 windows of 5000 steps (0.5 s at 10 kHz, Table 3's best batch size), NEMM with
 //! 16-wide, 5-layer scalers, RK4, on a sinusoidal velocity of bench-like amplitude. Measured on
 //! one thread and on all threads (packs of 8 windows run in parallel). The reference figure is
-//! a hand-written single-thread f32 forward + adjoint at 1.0 s per batch (issue 4 probe).
+//! a hand-written single-thread f32 forward + adjoint without the lane packing, 1.0 s per
+//! batch on this machine kind.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nemm_core::testing::example_model;
 use nemm_core::ModelKind;

@@ -1,6 +1,6 @@
 //! The trainer end to end through the `nemm` binary, as a calibration engineer uses it: a
 //! small virtual bench (`bench config`, `bench generate`), `compare` (Table 4, `report.json`
-//! in the schema, one blob per variant, figures), `train` with checkpoints, `export`
+//! in the documented schema, one blob per variant, figures), `train` with checkpoints, `export`
 //! from the checkpoint, `inspect`, a `sweep` run as separate processes and collected, and the
 //! exported blob run through nemm-core's estimator against the trainer's own test RMSE.
 use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind};
@@ -136,7 +136,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         "{stderr}"
     );
 
-    // compare: Table 4, report.json in the schema, blobs and figures.
+    // compare: Table 4, report.json in the documented schema, blobs and figures.
     let report_dir = dir.join("report");
     let stdout = Nemm::new(&["compare", "--data"])
         .arg(&data)
@@ -276,7 +276,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     assert!(inspect.contains("CRC-32:          ok"), "{inspect}");
 
     // The exported blob through nemm-core's estimator matches the trainer's rollout sample by
-    // sample (the 1e-5 of the force scale) and reproduces its reported test RMSE.
+    // sample (1e-5 of the force scale) and reproduces its reported test RMSE.
     let trained: Report = serde_json::from_str(
         &std::fs::read_to_string(train_report.join("report.json")).expect("report.json"),
     )

@@ -172,7 +172,7 @@ fn estimator_input(
 }
 
 /// The tabulated fast path against the exact estimator over every held-out (test) run, whole
-/// and from rest (issue 6 evidence): the largest force difference in units of the force scale,
+/// and from rest: the largest force difference in units of the force scale,
 /// and the samples outside the table domain.
 fn table_vs_exact(
     model: &nemm_core::Model,
