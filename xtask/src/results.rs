@@ -321,10 +321,16 @@ pub fn training(paths: &Paths, dir: &Path) -> Result<(), String> {
     )
 }
 
-/// The README's headline block: Table 4 of the copied report and where it came from.
+/// The README's headline block: the summary of Table 4 of the copied report (without the
+/// per-run breakdown) and where it came from.
 fn headline_markdown(info: &[(String, String)], table4: &str) -> String {
     let recorded = |key: &str| info.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str());
-    let mut md = table4.trim_end().to_string();
+    // The summary table and its test-set line; the per-run breakdown stays in results.md.
+    let summary = table4
+        .split("\nTest RMSE per held-out run")
+        .next()
+        .unwrap_or(table4);
+    let mut md = summary.trim_end().to_string();
     md += "\n\n";
     match (recorded("command"), recorded("commit")) {
         (Some(cmd), Some(c)) => {
@@ -394,6 +400,21 @@ fn training_markdown(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_headline_is_the_summary_table_with_its_provenance() {
+        let table4 = "| Model | RMSE |\n|---|---:|\n| NEMM | 0.0354 |\n\nTest set: oil loss 0.15.\n\nTest RMSE per held-out run [N]:\n\n| run |\n";
+        let info = vec![
+            ("command".to_string(), "nemm demo".to_string()),
+            ("commit".to_string(), "abc1234".to_string()),
+        ];
+        let md = headline_markdown(&info, table4);
+        assert!(md.starts_with("| Model | RMSE |"));
+        assert!(md.contains("Test set: oil loss 0.15."));
+        assert!(!md.contains("per held-out run"), "{md}");
+        assert!(md.contains("Trained by `nemm demo` at commit `abc1234`"));
+        assert!(md.ends_with("[docs/results.md](docs/results.md)."));
+    }
+
     use super::*;
 
     #[test]
