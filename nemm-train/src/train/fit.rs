@@ -10,7 +10,7 @@
 //! # Parts
 //!
 //! [`fit`] is the epoch loop; model selection and early stopping are
-//! [`super::selection`], checkpoints (write, rotate, resume) [`super::checkpoint`], and the
+//! [`super::selection`], checkpoints (write, rotate, resume) `train::checkpoint`, and the
 //! `--session-epochs` budget [`super::session`]. `resume` continues from the epoch after the
 //! latest checkpoint with the same data order (the shuffle of epoch `e` depends only on the
 //! seed and `e`). A non-finite loss stops training with an error and leaves the last good
