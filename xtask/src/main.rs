@@ -21,7 +21,7 @@ mod toolchain;
 
 use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
 use nemm_elf::Elf;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 use toolchain::Toolchain;
@@ -152,7 +152,13 @@ pub struct Paths {
 
 impl Paths {
     fn find() -> Result<Self, String> {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"))
+        // `cargo run` (the `cargo xtask` alias) sets CARGO_MANIFEST_DIR for the process: the
+        // checkout being worked on, even when a target directory shared by several checkouts
+        // hands out a binary built in another one. The compile-time value is the fallback.
+        let manifest_dir = std::env::var_os("CARGO_MANIFEST_DIR")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")));
+        let root = manifest_dir
             .parent()
             .ok_or("xtask has no parent directory")?
             .to_path_buf();
