@@ -5,12 +5,19 @@
 //! | magic "NEMM" (4 raw bytes) | version (varint u16) | kind (varint)      |
 //! | max_scaler_params (varint u32) | body_len (varint u32)                 |
 //! +-------------------------------------------------------------------------+
-//! | body: postcard-encoded [`Model`] (body_len bytes)                       |
+//! | body (body_len bytes): postcard-encoded [`Model`] (version-1 layout),   |
+//! | then, from version 2 on, the postcard-encoded [`Extension`]             |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
 //! +-------------------------------------------------------------------------+
 //! ```
+//!
+//! # Versions
+//!
+//! This build writes [`FORMAT_VERSION`] and reads every version from [`OLDEST_FORMAT_VERSION`]
+//! on. Version 2 appended the [`Extension`] to the body; a version-1 blob decodes with
+//! [`Extension::default`], which reproduces what version 1 meant.
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -21,7 +28,7 @@
 //! capacity, body, header/body agreement, then [`Model::validate`] (finite values, shapes,
 //! bounds, stability of the configured step).
 
-use crate::model::{Model, ModelError, ModelKind};
+use crate::model::{Extension, Model, ModelError, ModelKind};
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
@@ -30,8 +37,10 @@ use serde::{Deserialize, Serialize};
 
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
-/// Format version this build reads and writes.
-pub const FORMAT_VERSION: u16 = 1;
+/// Format version this build writes (and the newest it reads).
+pub const FORMAT_VERSION: u16 = 2;
+/// Oldest format version this build reads.
+pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
 pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 /// Upper bound of the encoded header length in bytes.
@@ -74,7 +83,8 @@ pub enum DecodeError {
     UnsupportedVersion {
         /// Version in the blob.
         found: u16,
-        /// Version this build reads.
+        /// Newest version this build reads (it reads every version from
+        /// [`OLDEST_FORMAT_VERSION`] up to this one).
         supported: u16,
     },
     /// Bytes after the CRC.
@@ -119,8 +129,9 @@ impl fmt::Display for DecodeError {
             ),
             DecodeError::UnsupportedVersion { found, supported } => write!(
                 f,
-                "weights format version {found} is not supported by this firmware (reads version {supported}); \
-                 re-export with a matching `nemm` or update the firmware"
+                "weights format version {found} is not supported by this firmware (reads versions \
+                 {OLDEST_FORMAT_VERSION} to {supported}); re-export with a matching `nemm` or update \
+                 the firmware"
             ),
             DecodeError::TrailingBytes { extra } => write!(
                 f,
@@ -181,10 +192,18 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
     }
 }
 
+/// Length in bytes of the body of `model`: the version-1 part, then the extension.
+fn body_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
+    let v1 =
+        postcard::experimental::serialized_size(model).map_err(|_| EncodeError::BufferTooSmall)?;
+    let ext = postcard::experimental::serialized_size(&model.ext)
+        .map_err(|_| EncodeError::BufferTooSmall)?;
+    v1.checked_add(ext).ok_or(EncodeError::BufferTooSmall)
+}
+
 /// Length in bytes of the blob of `model` (header, body, CRC).
 pub fn encoded_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    let body_len =
-        postcard::experimental::serialized_size(model).map_err(|_| EncodeError::BufferTooSmall)?;
+    let body_len = body_len(model)?;
     let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
         .map_err(|_| EncodeError::BufferTooSmall)?;
     Ok(header_len + body_len + CRC_LEN)
@@ -197,17 +216,22 @@ pub fn encode<'b, const P: usize>(
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let body_len =
-        postcard::experimental::serialized_size(model).map_err(|_| EncodeError::BufferTooSmall)?;
+    let body_len = body_len(model)?;
     let hlen = postcard::to_slice(&header_for(model, body_len), buf)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
-    let end = hlen + body_len;
+    let end = hlen.checked_add(body_len).ok_or(EncodeError::BufferTooSmall)?;
     let body_area = buf.get_mut(hlen..end).ok_or(EncodeError::BufferTooSmall)?;
-    let written = postcard::to_slice(model, body_area)
+    let v1_len = postcard::to_slice(model, body_area)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
-    if written != body_len {
+    let ext_area = body_area
+        .get_mut(v1_len..)
+        .ok_or(EncodeError::BufferTooSmall)?;
+    let ext_len = postcard::to_slice(&model.ext, ext_area)
+        .map_err(|_| EncodeError::BufferTooSmall)?
+        .len();
+    if v1_len + ext_len != body_len {
         return Err(EncodeError::BufferTooSmall);
     }
     let crc = CRC.checksum(buf.get(..end).ok_or(EncodeError::BufferTooSmall)?);
@@ -221,7 +245,8 @@ pub fn encode<'b, const P: usize>(
 #[cfg(feature = "std")]
 pub fn encode_to_vec<const P: usize>(model: &Model<P>) -> Result<std::vec::Vec<u8>, EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let body = postcard::to_stdvec(model).map_err(|_| EncodeError::BufferTooSmall)?;
+    let mut body = postcard::to_stdvec(model).map_err(|_| EncodeError::BufferTooSmall)?;
+    body.extend(postcard::to_stdvec(&model.ext).map_err(|_| EncodeError::BufferTooSmall)?);
     let mut out = postcard::to_stdvec(&header_for(model, body.len()))
         .map_err(|_| EncodeError::BufferTooSmall)?;
     out.extend_from_slice(&body);
@@ -244,7 +269,7 @@ pub fn read_header(blob: &[u8]) -> Result<Header, DecodeError> {
     }
     let ((_magic, version), _) = postcard::take_from_bytes::<([u8; 4], u16)>(blob)
         .map_err(|e| parse_error(e, blob.len(), "header"))?;
-    if version != FORMAT_VERSION {
+    if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&version) {
         return Err(DecodeError::UnsupportedVersion {
             found: version,
             supported: FORMAT_VERSION,
@@ -323,6 +348,15 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
     let rest = de
         .finalize()
         .map_err(|_| DecodeError::Malformed { part: "body" })?;
+    let rest = if header.version >= 2 {
+        let (ext, rest) = postcard::take_from_bytes::<Extension>(rest)
+            .map_err(|_| DecodeError::Malformed { part: "extension" })?;
+        model.ext = ext;
+        rest
+    } else {
+        model.ext = Extension::default();
+        rest
+    };
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {
         return Err(DecodeError::Malformed { part: "body" });
     }

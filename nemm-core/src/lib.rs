@@ -70,10 +70,11 @@ pub use estimator::{
 };
 pub use format::{
     decode, decode_into, encode, read_header, DecodeError, EncodeError, Header, FORMAT_VERSION,
+    OLDEST_FORMAT_VERSION,
 };
 pub use integrator::Integrator;
 pub use mlp::{MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
-pub use model::{Body, InputScales, Meta, Model, ModelError, ModelKind, UnknownName};
+pub use model::{Body, Extension, InputScales, Meta, Model, ModelError, ModelKind, UnknownName};
 pub use sem::SemMap;
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 

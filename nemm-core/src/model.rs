@@ -168,6 +168,24 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     pub meta: Meta,
     /// Variant-specific parameters.
     pub body: Body<P>,
+    /// Fields added after format version 1, encoded after the body (see
+    /// [`crate::format`]); a version-1 blob decodes with [`Extension::default`].
+    #[serde(skip)]
+    pub ext: Extension,
+}
+
+/// The part of a [`Model`] that format version 2 added. It is encoded after the version-1
+/// body, so every version-1 blob still decodes (with the default extension).
+///
+/// Every field has a default that reproduces what a version-1 blob meant.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Extension {}
+
+impl Extension {
+    /// Checks the extension's fields.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        Ok(())
+    }
 }
 
 /// Why a model is not acceptable. Field names are those of the weight format.
@@ -346,6 +364,7 @@ impl<const P: usize> Model<P> {
                 k_pr_n_per_m: 0.0,
                 t_pr_s: 0.0,
             }),
+            ext: Extension {},
         }
     }
 
@@ -473,6 +492,7 @@ impl<const P: usize> Model<P> {
                 check_scaler(k_pr, "k_pr", 2)?;
             }
         }
+        self.ext.validate()?;
         self.check_step(self.integrator, self.dt_s)
     }
 

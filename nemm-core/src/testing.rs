@@ -7,7 +7,7 @@
 use crate::emm::EmmConstants;
 use crate::integrator::Integrator;
 use crate::mlp::{param_count, MlpParams, Scaler};
-use crate::model::{Body, InputScales, Meta, Model, ModelKind};
+use crate::model::{Body, Extension, InputScales, Meta, Model, ModelKind};
 use crate::sem::SemMap;
 
 /// Constants of the examples: `b_fl` 2500 N s/m, `b_pr` 1500 N s/m, `k_pr` 4e5 N/m,
@@ -123,6 +123,7 @@ pub fn example_model<const P: usize>(kind: ModelKind, hidden: u8, layers: u8) ->
             alpha_max: 0.3,
         },
         body,
+        ext: Extension::default(),
     })
 }
 

@@ -185,6 +185,14 @@ fn bad_magic_and_version() {
             supported: FORMAT_VERSION
         })
     );
+    let blob = craft_blob(m, |h| h.version = nemm_core::OLDEST_FORMAT_VERSION - 1);
+    assert_eq!(
+        decode::<64>(&blob),
+        Err(DecodeError::UnsupportedVersion {
+            found: nemm_core::OLDEST_FORMAT_VERSION - 1,
+            supported: FORMAT_VERSION
+        })
+    );
 }
 
 /// A header that disagrees with its body (with a valid CRC) is malformed.
@@ -485,4 +493,24 @@ fn generator_covers_kinds_and_sizes() {
     }
     assert_eq!(kinds.len(), 4);
     assert!(largest > 5000, "{largest}");
+}
+
+/// Every earlier format version still loads: the version-1 blobs in `tests/data/format-v1`
+/// (the example models of every kind as the version-1 encoder wrote them) decode to the
+/// current example models with the default extension, and re-encode as the current version.
+#[test]
+fn version_1_blobs_still_load() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/format-v1");
+    for kind in KINDS {
+        let path = dir.join(format!("example-{}.nemm", kind.name()));
+        let v1 = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert_eq!(read_header(&v1).unwrap().version, 1, "{}", path.display());
+        let model: Model<1400> = decode(&v1).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
+        let expected: Model<1400> = nemm_core::testing::example_model(kind, 16, 5).unwrap();
+        assert_eq!(model, expected, "{kind:?}");
+        assert_eq!(model.ext, nemm_core::Extension::default());
+        let again = blob_of(&model);
+        assert_eq!(read_header(&again).unwrap().version, FORMAT_VERSION);
+        assert_eq!(decode::<1400>(&again).unwrap(), model);
+    }
 }

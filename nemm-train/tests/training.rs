@@ -1,7 +1,7 @@
 //! End-to-end checks of the training pipeline on data whose truth is known.
 use burn::tensor::Device;
 use nemm_core::emm::EmmConstants;
-use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
+use nemm_core::{Body, Estimator, EstimatorConfig, Extension, InputScales, Integrator, Meta, Model};
 use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
 use nemm_train::train::adjoint::RolloutParams;
@@ -34,6 +34,7 @@ fn truth() -> Model {
             k_pr_n_per_m: 1.5e5,
             t_pr_s: 0.002,
         }),
+        ext: Extension::default(),
     }
 }
 

@@ -10,7 +10,8 @@ use nemm_core::mlp::{param_count, MlpParams, Scaler};
 use nemm_core::model::STABILITY_MARGIN;
 use nemm_core::testing::hash_unit;
 use nemm_core::{
-    encode, Body, Header, InputScales, Integrator, Meta, Model, ModelKind, SemMap, FORMAT_VERSION,
+    encode, Body, Extension, Header, InputScales, Integrator, Meta, Model, ModelKind, SemMap,
+    FORMAT_VERSION,
 };
 use proptest::prelude::*;
 
@@ -48,14 +49,17 @@ pub fn blob_of<const Q: usize>(m: &Model<Q>) -> Vec<u8> {
 }
 
 /// The blob layout of `nemm_core::format`, written independently of `encode` and without any
-/// validation: postcard header, postcard body, CRC-32 little-endian. Lets tests build
+/// validation: postcard header, postcard body (version-1 part, then the extension), CRC-32
+/// little-endian. Lets tests build
 /// well-formed blobs with contents `encode` refuses (NaN weights, unstable steps), or
 /// headers that disagree with the body.
 pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) -> Vec<u8> {
     let mut body = vec![0u8; 4 * 3 * Q + 16 * 1024];
-    let body = postcard::to_slice(m, &mut body)
+    let mut body = postcard::to_slice(m, &mut body)
         .expect("body serialises")
         .to_vec();
+    let mut ext = vec![0u8; 64 * 1024];
+    body.extend_from_slice(postcard::to_slice(&m.ext, &mut ext).expect("extension serialises"));
     let mut header = Header {
         magic: MAGIC,
         version: FORMAT_VERSION,
@@ -195,6 +199,7 @@ impl ModelSpec {
             scales: self.scales,
             meta: self.meta,
             body,
+            ext: Extension::default(),
         };
         if let Some(tau) = m.fastest_time_constant_s() {
             let max_dt = STABILITY_MARGIN * self.integrator.stability_limit() * tau;

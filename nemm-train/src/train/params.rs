@@ -6,7 +6,8 @@ use super::adjoint::{Real, RolloutParams, ScalerWeights};
 use anyhow::{bail, Result};
 use nemm_core::emm::EmmConstants;
 use nemm_core::{
-    Body, InputScales, Integrator, Meta, MlpParams, Model, Scaler, DEFAULT_PARAM_CAPACITY,
+    Body, Extension, InputScales, Integrator, Meta, MlpParams, Model, Scaler,
+    DEFAULT_PARAM_CAPACITY,
 };
 
 fn scaler_from_core<T: Real>(s: &Scaler<DEFAULT_PARAM_CAPACITY>) -> ScalerWeights<T> {
@@ -97,6 +98,7 @@ pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
         },
         meta,
         body,
+        ext: Extension::default(),
     };
     model
         .validate()

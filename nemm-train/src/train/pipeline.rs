@@ -26,7 +26,7 @@ use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
 use nemm_core::mlp::param_count;
-use nemm_core::model::STABILITY_MARGIN;
+use nemm_core::model::{Extension, STABILITY_MARGIN};
 use nemm_core::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
 use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
 use rand::{RngExt, SeedableRng};
@@ -445,6 +445,7 @@ pub fn train_variants(
             },
             meta,
             body: Body::Sem(map),
+            ext: Extension::default(),
         };
         model
             .validate()
