@@ -220,7 +220,9 @@ pub fn encode<'b, const P: usize>(
     let hlen = postcard::to_slice(&header_for(model, body_len), buf)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
-    let end = hlen.checked_add(body_len).ok_or(EncodeError::BufferTooSmall)?;
+    let end = hlen
+        .checked_add(body_len)
+        .ok_or(EncodeError::BufferTooSmall)?;
     let body_area = buf.get_mut(hlen..end).ok_or(EncodeError::BufferTooSmall)?;
     let v1_len = postcard::to_slice(model, body_area)
         .map_err(|_| EncodeError::BufferTooSmall)?

@@ -1,7 +1,9 @@
 //! End-to-end checks of the training pipeline on data whose truth is known.
 use burn::tensor::Device;
 use nemm_core::emm::EmmConstants;
-use nemm_core::{Body, Estimator, EstimatorConfig, Extension, InputScales, Integrator, Meta, Model};
+use nemm_core::{
+    Body, Estimator, EstimatorConfig, Extension, InputScales, Integrator, Meta, Model,
+};
 use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
 use nemm_train::train::adjoint::RolloutParams;
