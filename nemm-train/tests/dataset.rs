@@ -169,7 +169,11 @@ fn three_khz_rounded_to_a_tenth_of_a_millisecond_is_accepted() {
     let grid = dataset::fit_time_grid(&d.runs[0].time_s, 1.0 / 3000.0);
     assert!((grid.rate_hz() - 3000.0).abs() < 0.01, "{}", grid.rate_hz());
     assert!(!grid.is_exact());
-    assert!(grid.max_deviation_s <= 0.5e-4 + 1e-9, "{}", grid.max_deviation_s);
+    assert!(
+        grid.max_deviation_s <= 0.5e-4 + 1e-9,
+        "{}",
+        grid.max_deviation_s
+    );
     // Stamps are kept as read.
     assert_eq!(d.runs[0].time_s, times);
 }
@@ -180,7 +184,10 @@ fn exact_stamps_fit_exactly() {
     let grid = dataset::fit_time_grid(&d.runs[0].time_s, 1e-4);
     assert!(grid.is_exact(), "{grid:?}");
     assert!((grid.t0_s - 12.345_678_9).abs() < 1e-12);
-    assert_eq!(grid.max_deviation_sample, grid.max_deviation_sample.min(499));
+    assert_eq!(
+        grid.max_deviation_sample,
+        grid.max_deviation_sample.min(499)
+    );
 }
 
 #[test]
@@ -207,7 +214,10 @@ fn jitter_within_a_quarter_step_is_accepted_beyond_is_refused() {
             assert_eq!(line, 52);
             assert!((deviation_us - 400.0).abs() < 5.0, "{deviation_us}");
             assert!((limit_us - 250.0).abs() < 0.1, "{limit_us}");
-            assert!(e.to_string().contains("runs/x.csv:52: column \"time_s\""), "{e}");
+            assert!(
+                e.to_string().contains("runs/x.csv:52: column \"time_s\""),
+                "{e}"
+            );
         }
         other => panic!("expected an off-grid error, got {other:?}"),
     }

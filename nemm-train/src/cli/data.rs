@@ -1,5 +1,6 @@
 //! `nemm data check` and `nemm data prepare`: validate a bench dataset and show what the
 //! preprocessing of section 5.3 makes of it.
+use crate::data::check::{self, Finding};
 use crate::data::dataset::{self, Dataset};
 use crate::data::preprocess::{
     self, PrepareConfig, RunRole, RunSummary, SequenceConfig, SignalConfig, SplitConfig,
@@ -186,8 +187,12 @@ fn fmt_opt(v: Option<f64>, width: usize, prec: usize) -> String {
     }
 }
 
-/// The per-run table of `nemm data check`, and notes on suspicious runs.
-pub fn check_report(ds: &Dataset, runs: &[RunSummary]) -> String {
+/// Findings of one kind and column printed before the rest are summarised in a count.
+const FINDINGS_SHOWN: usize = 5;
+
+/// The per-run table of `nemm data check`, notes on suspicious runs, and the plausibility
+/// findings of [`check::check_run`] (problems, then information).
+pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{}", header_line(ds));
     let _ = writeln!(
@@ -270,21 +275,57 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary]) -> String {
             at.iter().map(|r| r.duration_s).sum::<f64>()
         );
     }
-    if notes.is_empty() {
+    let (info, problems): (Vec<&Finding>, Vec<&Finding>) =
+        findings.iter().partition(|f| f.kind.is_info());
+    if notes.is_empty() && problems.is_empty() {
         let _ = writeln!(s, "no anomalies found");
-    } else {
+    }
+    if !notes.is_empty() {
         let _ = writeln!(s, "notes:");
         for n in notes {
             let _ = writeln!(s, "  {n}");
         }
     }
+    if !problems.is_empty() {
+        let _ = writeln!(s, "plausibility problems:");
+        write_findings(&mut s, &problems);
+    }
+    if !info.is_empty() {
+        let _ = writeln!(s, "information:");
+        write_findings(&mut s, &info);
+    }
     s
+}
+
+/// Writes findings, at most [`FINDINGS_SHOWN`] per kind and column, then a count of the rest.
+fn write_findings(s: &mut String, findings: &[&Finding]) {
+    let mut groups: Vec<((check::FindingKind, &str), Vec<&Finding>)> = Vec::new();
+    for f in findings {
+        let key = (f.kind, f.column.as_str());
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, g)) => g.push(f),
+            None => groups.push((key, vec![f])),
+        }
+    }
+    for ((kind, column), g) in groups {
+        for f in g.iter().take(FINDINGS_SHOWN) {
+            let _ = writeln!(s, "  {f}");
+        }
+        if g.len() > FINDINGS_SHOWN {
+            let _ = writeln!(
+                s,
+                "  ... {kind} in {column} in {} more run(s)",
+                g.len() - FINDINGS_SHOWN,
+                kind = kind.name()
+            );
+        }
+    }
 }
 
 fn check(dir: &Path, cfg: &SignalConfig) -> Result<()> {
     let ds = load_with_progress(dir)?;
-    let runs = preprocess::summarize(&ds, cfg)?;
-    print!("{}", check_report(&ds, &runs));
+    let (runs, findings) = check::check_dataset(&ds, cfg)?;
+    print!("{}", check_report(&ds, &runs, &findings));
     Ok(())
 }
 
