@@ -121,14 +121,17 @@ impl std::fmt::Display for Finding {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "run {} ({}:{}, t = {} s): {}: {}",
+            "run {} ({}:{}, t = {} s): ",
             self.run,
             self.file.display(),
             self.line,
-            self.time_s,
-            self.kind.name(),
-            self.message
-        )
+            self.time_s
+        )?;
+        // The time-stamp message names its kind itself.
+        if self.kind != FindingKind::TimeStamps {
+            write!(f, "{}: ", self.kind.name())?;
+        }
+        f.write_str(&self.message)
     }
 }
 

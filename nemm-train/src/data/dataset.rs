@@ -907,8 +907,8 @@ pub fn fit_time_grid(time_s: &[f64], nominal_step_s: f64) -> TimeGrid {
 ///
 /// The rule, in order (`h = 1 / sample_rate_hz`; `line_of(i)` is the line of sample `i`):
 /// 1. a step longer than [`GAP_STEPS`]` h` is a gap: [`DatasetError::Gap`] at its line,
-///    unless most steps are that long (the median step is off by more than 50 %), which
-///    is a wrong `sample_rate_hz`: [`DatasetError::RateMismatch`];
+///    unless the fitted step (below) is more than 50 % off `h`, which is a wrong
+///    `sample_rate_hz`: [`DatasetError::RateMismatch`];
 /// 2. the least-squares grid `t = t0 + i dt` is fitted over the whole run; its rate
 ///    `1 / dt` must be within [`MAX_RATE_MISMATCH`] of `sample_rate_hz`
 ///    ([`DatasetError::RateMismatch`], naming both);
@@ -933,11 +933,9 @@ pub fn check_time_grid(
         fitted_hz,
         manifest_hz: sample_rate_hz,
     };
-    let mut steps: Vec<f64> = time_s.windows(2).map(|w| w[1] - w[0]).collect();
-    let mid = steps.len() / 2;
-    let median_step = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
-    let median_off = (median_step / h - 1.0).abs();
-    if median_off.is_nan() || median_off > 0.5 {
+    // A grid more than 50 % off is a wrong rate, not a run full of gaps or bursts.
+    let coarse_off = (grid.step_s * sample_rate_hz - 1.0).abs();
+    if coarse_off.is_nan() || coarse_off > 0.5 {
         return Err(rate_err(grid.rate_hz()));
     }
     for (i, w) in time_s.windows(2).enumerate() {

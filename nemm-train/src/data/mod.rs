@@ -2,4 +2,5 @@
 //! training sequences (section 5.3).
 pub mod check;
 pub mod dataset;
+pub mod import;
 pub mod preprocess;
