@@ -138,39 +138,130 @@ fn byte_order_mark_is_accepted() {
     assert!(load_csv(csv).is_ok());
 }
 
-#[test]
-fn jitter_below_one_percent_is_accepted() {
-    // Steps of 0.0001 s +- 0.9 %.
-    let csv = "time_s,displacement_m,force_n\n0,0,0\n0.0001009,0,0\n0.0002,0,0\n0.0003009,0,0\n";
-    assert!(load_csv(csv).is_ok(), "{:?}", load_csv(csv).err());
+/// A one-run dataset folder at `fs` whose CSV has the given time stamps (zero data).
+fn load_times(fs: f64, times: &[f64]) -> Result<Dataset, DatasetError> {
+    let mut csv = String::from("time_s,displacement_m,force_n\n");
+    for t in times {
+        csv.push_str(&format!("{t},0,0\n"));
+    }
+    let manifest = format!(
+        "name = \"d\"\nsample_rate_hz = {fs}\n[[runs]]\nfile = \"runs/x.csv\"\noil_loss = 0.15\n"
+    );
+    let dir = folder(&manifest, &[("runs/x.csv", &csv)]);
+    dataset::load(dir.path())
+}
+
+/// `n` stamps of a `fs` logger starting at `t0`, rounded to `resolution_s`.
+fn rounded_times(fs: f64, n: usize, t0: f64, resolution_s: f64) -> Vec<f64> {
+    (0..n)
+        .map(|i| ((t0 + i as f64 / fs) / resolution_s).round() * resolution_s)
+        .collect()
 }
 
 #[test]
-fn jitter_above_one_percent_is_refused() {
-    // The step ending at line 4 is 0.000102 s (2 % off).
-    let csv = "time_s,displacement_m,force_n\n0,0,0\n0.0001,0,0\n0.000202,0,0\n";
-    match load_csv(csv) {
-        Err(e @ DatasetError::Jitter { .. }) => {
-            let DatasetError::Jitter {
-                ref path,
+fn three_khz_rounded_to_a_tenth_of_a_millisecond_is_accepted() {
+    // Steps of 0.3 and 0.4 ms (20 % step jitter), deviations below 0.05 ms from the grid.
+    let times = rounded_times(3000.0, 12_345, 0.0, 1e-4);
+    let steps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(steps.iter().any(|s| (s - 3e-4).abs() < 1e-9));
+    assert!(steps.iter().any(|s| (s - 4e-4).abs() < 1e-9));
+    let d = load_times(3000.0, &times).expect("rounded stamps accepted");
+    let grid = dataset::fit_time_grid(&d.runs[0].time_s, 1.0 / 3000.0);
+    assert!((grid.rate_hz() - 3000.0).abs() < 0.01, "{}", grid.rate_hz());
+    assert!(!grid.is_exact());
+    assert!(
+        grid.max_deviation_s <= 0.5e-4 + 1e-9,
+        "{}",
+        grid.max_deviation_s
+    );
+    // Stamps are kept as read.
+    assert_eq!(d.runs[0].time_s, times);
+}
+
+#[test]
+fn exact_stamps_fit_exactly() {
+    let d = sample_dataset(10_000.0);
+    let grid = dataset::fit_time_grid(&d.runs[0].time_s, 1e-4);
+    assert!(grid.is_exact(), "{grid:?}");
+    assert!((grid.t0_s - 12.345_678_9).abs() < 1e-12);
+    assert_eq!(
+        grid.max_deviation_sample,
+        grid.max_deviation_sample.min(499)
+    );
+}
+
+#[test]
+fn jitter_within_a_quarter_step_is_accepted_beyond_is_refused() {
+    // Alternating +-0.2 step: within the rule.
+    let ok: Vec<f64> = (0..200)
+        .map(|i| (i as f64 + if i % 2 == 0 { 0.2 } else { -0.2 }) * 1e-3)
+        .collect();
+    assert!(load_times(1000.0, &ok).is_ok());
+    // One stamp 0.4 steps late (line 52 = sample 50): refused at its line.
+    let mut bad: Vec<f64> = (0..200).map(|i| i as f64 * 1e-3).collect();
+    bad[50] += 0.4e-3;
+    match load_times(1000.0, &bad) {
+        Err(e @ DatasetError::OffGrid { .. }) => {
+            let DatasetError::OffGrid {
                 line,
-                deviation_percent,
+                deviation_us,
+                limit_us,
                 ..
             } = e
             else {
                 unreachable!()
             };
-            assert!(ends_with(path, "runs/x.csv"));
-            assert_eq!(line, 4);
-            assert!((deviation_percent - 2.0).abs() < 0.01);
+            assert_eq!(line, 52);
+            assert!((deviation_us - 400.0).abs() < 5.0, "{deviation_us}");
+            assert!((limit_us - 250.0).abs() < 0.1, "{limit_us}");
             assert!(
-                e.to_string()
-                    .contains("runs/x.csv:4: column \"time_s\": step"),
+                e.to_string().contains("runs/x.csv:52: column \"time_s\""),
                 "{e}"
             );
         }
-        other => panic!("expected a jitter error, got {other:?}"),
+        other => panic!("expected an off-grid error, got {other:?}"),
     }
+}
+
+#[test]
+fn missing_samples_are_a_gap_with_their_line() {
+    // Rounded 3 kHz stamps with samples 100..103 missing: the step ends at sample 100 of the
+    // file, i.e. line 102.
+    let mut times = rounded_times(3000.0, 1000, 0.5, 1e-4);
+    times.drain(100..103);
+    match load_times(3000.0, &times) {
+        Err(e @ DatasetError::Gap { .. }) => {
+            let DatasetError::Gap { line, missing, .. } = e else {
+                unreachable!()
+            };
+            assert_eq!(line, 102);
+            assert_eq!(missing, 3);
+            assert!(e.to_string().contains("runs/x.csv:102:"), "{e}");
+            assert!(e.to_string().contains("--resample-hz"), "{e}");
+        }
+        other => panic!("expected a gap, got {other:?}"),
+    }
+}
+
+#[test]
+fn manifest_rate_is_compared_with_the_fitted_rate() {
+    // 1.5 % slower clock: every step regular, but the grid says 2955.7 Hz.
+    let times: Vec<f64> = (0..3000).map(|i| i as f64 / 2955.7).collect();
+    let e = load_times(3000.0, &times).expect_err("rate mismatch");
+    assert!(
+        matches!(e, DatasetError::RateMismatch { fitted_hz, manifest_hz, .. }
+            if (fitted_hz - 2955.7).abs() < 0.01 && manifest_hz == 3000.0),
+        "{e:?}"
+    );
+    let msg = e.to_string();
+    assert!(msg.contains("2955.7") && msg.contains("3000 Hz"), "{msg}");
+    // A 300 Hz file declared as 1000 Hz is a wrong rate, not a gap at line 3.
+    let times: Vec<f64> = (0..300).map(|i| i as f64 / 300.0).collect();
+    let e = load_times(1000.0, &times).expect_err("wrong rate");
+    assert!(matches!(e, DatasetError::RateMismatch { .. }), "{e:?}");
+    // Within 1 %: accepted.
+    let times: Vec<f64> = (0..3000).map(|i| i as f64 / 2990.0).collect();
+    assert!(load_times(3000.0, &times).is_ok());
 }
 
 #[test]
@@ -457,7 +548,7 @@ fn write_refuses_what_load_would_refuse() {
     let mut d = sample_dataset(10_000.0);
     d.sample_rate_hz = 9000.0;
     let e = dataset::write(dir.path(), &d).expect_err("wrong rate refused");
-    assert!(matches!(e, DatasetError::Jitter { line: 3, .. }), "{e:?}");
+    assert!(matches!(e, DatasetError::RateMismatch { .. }), "{e:?}");
     // Nothing was written by the refused calls.
     assert!(!dir.path().join(MANIFEST_FILE).exists());
 }

@@ -1,6 +1,8 @@
 //! `nemm data check` and `nemm data prepare`: validate a bench dataset and show what the
 //! preprocessing of section 5.3 makes of it.
+use crate::data::check::{self, Finding};
 use crate::data::dataset::{self, Dataset};
+use crate::data::import::{self, ColumnSpec, ImportSpec, SplitMethod};
 use crate::data::preprocess::{
     self, PrepareConfig, RunRole, RunSummary, SequenceConfig, SignalConfig, SplitConfig,
     SplitCounts, VelocitySource,
@@ -68,6 +70,11 @@ pub enum DataCmd {
         #[command(flatten)]
         signal: SignalArgs,
     },
+    /// Convert raw dyno CSV files (any column names and units, sign flips, offsets, long
+    /// records cut into runs) into a dataset folder. Column flags take `NAME:UNIT` or
+    /// `#INDEX:UNIT`; an import spec (`--spec`, TOML) covers the rest (gains, per-file
+    /// levels, time ranges). See docs/data-format.md, "Importing raw dyno files".
+    Import(Box<ImportArgs>),
     /// Split, cut into sequences, scale and extract quasi-static points; print the counts.
     Prepare {
         /// Dataset folder (with manifest.toml).
@@ -105,10 +112,228 @@ pub enum DataCmd {
     },
 }
 
+/// Options of `nemm data import` (flags override the spec's values).
+#[derive(Debug, Clone, clap::Args)]
+pub struct ImportArgs {
+    /// Raw CSV files (not with a spec that lists `[[files]]`).
+    pub files: Vec<PathBuf>,
+    /// Output dataset folder (created; run files and manifest written atomically).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Import spec (TOML): columns, units, gains, signs, per-file levels, cutting.
+    #[arg(long)]
+    pub spec: Option<PathBuf>,
+    /// Dataset name (default: the spec's, else the output folder's name).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Time column and unit (s, ms, us, min), e.g. `"Time [ms]:ms"`.
+    #[arg(long, value_parser = ColumnSpec::parse_flag)]
+    pub time: Option<ColumnSpec>,
+    /// Displacement column and unit (m, cm, mm, um, in).
+    #[arg(long, value_parser = ColumnSpec::parse_flag)]
+    pub displacement: Option<ColumnSpec>,
+    /// Force column and unit (N, kN, lbf, kgf).
+    #[arg(long, value_parser = ColumnSpec::parse_flag)]
+    pub force: Option<ColumnSpec>,
+    /// Measured velocity column and unit (m/s, mm/s, in/s), optional.
+    #[arg(long, value_parser = ColumnSpec::parse_flag)]
+    pub velocity: Option<ColumnSpec>,
+    /// Condition level alpha of the files: one for all, or one per file (comma-separated).
+    #[arg(long, value_delimiter = ',')]
+    pub alpha: Vec<f64>,
+    /// Negate the displacement (stroke positive in compression).
+    #[arg(long)]
+    pub invert_displacement: bool,
+    /// Negate the force (compression force positive).
+    #[arg(long)]
+    pub invert_force: bool,
+    /// Subtract the mid-range of each run's displacement (arbitrary zero).
+    #[arg(long)]
+    pub center_displacement: bool,
+    /// Field delimiter (one character or `tab`).
+    #[arg(long)]
+    pub delimiter: Option<String>,
+    /// Line of the header (lines before it are skipped).
+    #[arg(long)]
+    pub header_line: Option<usize>,
+    /// Sample rate (Hz): needed without a time column; else checked against the stamps.
+    #[arg(long)]
+    pub rate_hz: Option<f64>,
+    /// Resample every run onto a uniform grid at this rate (Hz), by linear interpolation.
+    #[arg(long)]
+    pub resample_hz: Option<f64>,
+    /// Cut each file into runs: at pauses of the excitation or at gaps in the time stamps.
+    #[arg(long, value_enum)]
+    pub split: Option<SplitMethod>,
+    /// Shortest pause for `--split pauses` (s).
+    #[arg(long)]
+    pub min_pause_s: Option<f64>,
+    /// Segments shorter than this are dropped and listed (s).
+    #[arg(long)]
+    pub min_run_s: Option<f64>,
+}
+
+/// The import spec from `--spec` and the flags.
+pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
+    let mut spec = match &a.spec {
+        Some(p) => import::read_spec(p)?,
+        None => {
+            let missing = |f: &str| anyhow::anyhow!("without --spec, --{f} NAME:UNIT is required");
+            ImportSpec {
+                name: None,
+                csv: import::CsvOptions::default(),
+                columns: import::Columns {
+                    time: None,
+                    displacement: a
+                        .displacement
+                        .clone()
+                        .ok_or_else(|| missing("displacement"))?,
+                    force: a.force.clone().ok_or_else(|| missing("force"))?,
+                    velocity: None,
+                },
+                rate_hz: None,
+                resample_hz: None,
+                split: import::SplitSpec::default(),
+                files: Vec::new(),
+            }
+        }
+    };
+    let c = &mut spec.columns;
+    if let Some(t) = &a.time {
+        c.time = Some(t.clone());
+    }
+    if let Some(x) = &a.displacement {
+        c.displacement = x.clone();
+    }
+    if let Some(f) = &a.force {
+        c.force = f.clone();
+    }
+    if let Some(v) = &a.velocity {
+        c.velocity = Some(v.clone());
+    }
+    c.displacement.invert |= a.invert_displacement;
+    c.force.invert |= a.invert_force;
+    c.displacement.center |= a.center_displacement;
+    if a.name.is_some() {
+        spec.name.clone_from(&a.name);
+    }
+    if let Some(d) = &a.delimiter {
+        spec.csv.delimiter.clone_from(d);
+    }
+    if let Some(h) = a.header_line {
+        spec.csv.header_line = h;
+    }
+    spec.rate_hz = a.rate_hz.or(spec.rate_hz);
+    spec.resample_hz = a.resample_hz.or(spec.resample_hz);
+    if let Some(m) = a.split {
+        spec.split.method = m;
+    }
+    if let Some(p) = a.min_pause_s {
+        spec.split.min_pause_s = p;
+    }
+    if let Some(r) = a.min_run_s {
+        spec.split.min_run_s = r;
+    }
+    if !a.files.is_empty() {
+        if !spec.files.is_empty() {
+            anyhow::bail!("the spec lists [[files]]; give no files on the command line");
+        }
+        let alphas: Vec<f64> = match a.alpha.len() {
+            1 => vec![a.alpha[0]; a.files.len()],
+            n if n == a.files.len() => a.alpha.clone(),
+            0 => anyhow::bail!("give the condition level of the files with --alpha"),
+            n => anyhow::bail!(
+                "--alpha has {n} values for {} files (give one, or one per file)",
+                a.files.len()
+            ),
+        };
+        spec.files = a
+            .files
+            .iter()
+            .zip(alphas)
+            .map(|(p, alpha)| import::FileSpec {
+                path: p.clone(),
+                alpha,
+                split: None,
+                runs: Vec::new(),
+            })
+            .collect();
+    } else if !a.alpha.is_empty() {
+        anyhow::bail!("--alpha applies to files given on the command line");
+    }
+    Ok(spec)
+}
+
+/// The report of `nemm data import`.
+pub fn import_report(out: &Path, imported: &import::Imported) -> String {
+    let ds = &imported.dataset;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "imported {} runs, {} samples at {} Hz into {}",
+        ds.runs.len(),
+        ds.total_samples(),
+        ds.sample_rate_hz,
+        out.display()
+    );
+    for (run, acc) in ds.runs.iter().zip(&imported.runs) {
+        let stamps = if acc.resampled {
+            format!(
+                "resampled at {} Hz by linear interpolation (source: fitted {:.1} Hz, max deviation {:.1} us)",
+                ds.sample_rate_hz,
+                acc.grid.rate_hz(),
+                acc.grid.max_deviation_s * 1e6
+            )
+        } else if acc.grid.is_exact() {
+            format!("uniform time stamps at {:.1} Hz", acc.grid.rate_hz())
+        } else {
+            format!(
+                "time stamps rounded/jittered: max deviation {:.1} us from the fitted {:.1} Hz grid, accepted",
+                acc.grid.max_deviation_s * 1e6,
+                acc.grid.rate_hz()
+            )
+        };
+        let _ = writeln!(
+            s,
+            "  {}: alpha {}, {} samples from {}:{}..{} (t = {}..{} s); {stamps}",
+            run.entry.file.display(),
+            run.entry.oil_loss,
+            run.len(),
+            acc.source.display(),
+            acc.lines.0,
+            acc.lines.1,
+            acc.time_s.0,
+            acc.time_s.1
+        );
+    }
+    for (file, a, b) in &imported.dropped {
+        let _ = writeln!(
+            s,
+            "  dropped: {} t = {a}..{b} s (shorter than min_run_s)",
+            file.display()
+        );
+    }
+    let _ = writeln!(s, "next: nemm data check {}", out.display());
+    s
+}
+
+fn import_cmd(a: &ImportArgs) -> Result<()> {
+    let spec = import_spec(a)?;
+    let default_name = a.out.file_name().map_or("imported dyno data".into(), |n| {
+        n.to_string_lossy().into_owned()
+    });
+    let imported = import::import(&spec, &default_name)?;
+    dataset::write(&a.out, &imported.dataset)
+        .with_context(|| format!("cannot write the dataset to {}", a.out.display()))?;
+    print!("{}", import_report(&a.out, &imported));
+    Ok(())
+}
+
 /// Runs a `nemm data` subcommand.
 pub fn run(cmd: DataCmd) -> Result<()> {
     match cmd {
         DataCmd::Check { dir, signal } => check(&dir, &signal.config(false)),
+        DataCmd::Import(args) => import_cmd(&args),
         DataCmd::Prepare {
             dir,
             out,
@@ -186,8 +411,12 @@ fn fmt_opt(v: Option<f64>, width: usize, prec: usize) -> String {
     }
 }
 
-/// The per-run table of `nemm data check`, and notes on suspicious runs.
-pub fn check_report(ds: &Dataset, runs: &[RunSummary]) -> String {
+/// Findings of one kind and column printed before the rest are summarised in a count.
+const FINDINGS_SHOWN: usize = 5;
+
+/// The per-run table of `nemm data check`, notes on suspicious runs, and the plausibility
+/// findings of [`check::check_run`] (problems, then information).
+pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{}", header_line(ds));
     let _ = writeln!(
@@ -270,21 +499,57 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary]) -> String {
             at.iter().map(|r| r.duration_s).sum::<f64>()
         );
     }
-    if notes.is_empty() {
+    let (info, problems): (Vec<&Finding>, Vec<&Finding>) =
+        findings.iter().partition(|f| f.kind.is_info());
+    if notes.is_empty() && problems.is_empty() {
         let _ = writeln!(s, "no anomalies found");
-    } else {
+    }
+    if !notes.is_empty() {
         let _ = writeln!(s, "notes:");
         for n in notes {
             let _ = writeln!(s, "  {n}");
         }
     }
+    if !problems.is_empty() {
+        let _ = writeln!(s, "plausibility problems:");
+        write_findings(&mut s, &problems);
+    }
+    if !info.is_empty() {
+        let _ = writeln!(s, "information:");
+        write_findings(&mut s, &info);
+    }
     s
+}
+
+/// Writes findings, at most [`FINDINGS_SHOWN`] per kind and column, then a count of the rest.
+fn write_findings(s: &mut String, findings: &[&Finding]) {
+    let mut groups: Vec<((check::FindingKind, &str), Vec<&Finding>)> = Vec::new();
+    for f in findings {
+        let key = (f.kind, f.column.as_str());
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, g)) => g.push(f),
+            None => groups.push((key, vec![f])),
+        }
+    }
+    for ((kind, column), g) in groups {
+        for f in g.iter().take(FINDINGS_SHOWN) {
+            let _ = writeln!(s, "  {f}");
+        }
+        if g.len() > FINDINGS_SHOWN {
+            let _ = writeln!(
+                s,
+                "  ... {kind} in {column} in {} more run(s)",
+                g.len() - FINDINGS_SHOWN,
+                kind = kind.name()
+            );
+        }
+    }
 }
 
 fn check(dir: &Path, cfg: &SignalConfig) -> Result<()> {
     let ds = load_with_progress(dir)?;
-    let runs = preprocess::summarize(&ds, cfg)?;
-    print!("{}", check_report(&ds, &runs));
+    let (runs, findings) = check::check_dataset(&ds, cfg)?;
+    print!("{}", check_report(&ds, &runs, &findings));
     Ok(())
 }
 

@@ -16,9 +16,11 @@
 //! `velocity_m_s`. Displacement positive = extension (rebound); force positive = tension
 //! (rebound force). Values are `f64` in memory.
 //!
-//! Time must be uniform at `sample_rate_hz`: every step may deviate from `1 / sample_rate_hz`
-//! by at most [`MAX_STEP_JITTER`] (1 %). Any sample rate works; the model integrates at the
-//! data's step `dt = 1 / sample_rate_hz` (stored in the exported model), nothing is resampled.
+//! Time stamps must lie on a uniform grid, as loggers write them: rounded or jittered stamps
+//! are accepted when they stay within a quarter step of the least-squares grid
+//! `t = t0 + i dt` (see [`check_time_grid`] for the rule), and the fitted rate must match
+//! `sample_rate_hz` within [`MAX_RATE_MISMATCH`]. Gaps (missing samples) and times that do
+//! not increase are refused with their line. Nothing is resampled by the loader.
 //!
 //! [`load`] refuses every malformed input with a [`DatasetError`] that names the file, the
 //! line and (where there is one) the column or manifest key; nothing is silently dropped.
@@ -35,8 +37,27 @@ use toml::Spanned;
 /// File name of the manifest inside a dataset folder.
 pub const MANIFEST_FILE: &str = "manifest.toml";
 
-/// Largest tolerated relative deviation of a time step from `1 / sample_rate_hz` (1 %).
-pub const MAX_STEP_JITTER: f64 = 0.01;
+/// Largest accepted deviation of a time stamp from the fitted uniform grid, as a fraction of
+/// the fitted step (a quarter step).
+///
+/// Rounding stamps to a resolution `q` moves them at most `q / 2` off the grid, so every
+/// logger resolution up to half a sample step is accepted (e.g. 3 kHz rounded to 0.1 ms:
+/// `q = 0.3 dt`, deviations up to `0.15 dt`, steps of 0.3 and 0.4 ms), as is random jitter
+/// of up to a quarter step. A missing sample moves the following stamps a whole step off,
+/// far outside this band.
+pub const MAX_GRID_DEVIATION: f64 = 0.25;
+
+/// Largest accepted relative difference between the rate fitted to the time stamps and the
+/// manifest's `sample_rate_hz` (1 %).
+pub const MAX_RATE_MISMATCH: f64 = 0.01;
+
+/// A time step longer than this many nominal steps `1 / sample_rate_hz` is a gap (missing
+/// samples). With rounding to at most half a step, regular steps stay below it.
+pub const GAP_STEPS: f64 = 1.5;
+
+/// Deviations from the fitted grid below this fraction of a step count as exact (the
+/// float noise of stamps written as decimal numbers).
+const EXACT_GRID_DEVIATION: f64 = 1e-6;
 
 /// Name of the time column \[s\].
 pub const COL_TIME: &str = "time_s";
@@ -294,23 +315,63 @@ pub enum DatasetError {
         /// The previous row's time \[s\].
         previous: f64,
     },
-    /// A time step deviates more than [`MAX_STEP_JITTER`] from `1 / sample_rate_hz`.
+    /// A time step is longer than [`GAP_STEPS`] nominal steps: samples are missing.
     #[error(
-        "{}:{line}: column \"time_s\": step {step} s deviates {deviation_percent:.2} % from \
-         1 / sample_rate_hz = {expected} s (at most 1 % tolerated)",
+        "{}:{line}: column \"time_s\": gap of {step} s after {previous} s, about {missing} \
+         missing sample(s) at 1 / sample_rate_hz = {expected} s (cut the run there, or \
+         resample explicitly with `nemm data import --resample-hz`)",
         path.display()
     )]
-    Jitter {
+    Gap {
         /// The CSV file.
         path: PathBuf,
         /// The row's line (the step ends at this row).
         line: usize,
+        /// Time of the previous row \[s\].
+        previous: f64,
         /// The step \[s\].
         step: f64,
-        /// The nominal step \[s\].
+        /// The nominal step `1 / sample_rate_hz` \[s\].
         expected: f64,
-        /// `|step - expected| / expected` in percent.
-        deviation_percent: f64,
+        /// `round(step / expected) - 1`.
+        missing: usize,
+    },
+    /// The rate fitted to the time stamps differs from `sample_rate_hz` by more than
+    /// [`MAX_RATE_MISMATCH`].
+    #[error(
+        "{}: column \"time_s\": the time stamps give {fitted_hz} Hz (least-squares grid) but \
+         the manifest says sample_rate_hz = {manifest_hz} Hz (at most {} % apart)",
+        path.display(),
+        MAX_RATE_MISMATCH * 100.0
+    )]
+    RateMismatch {
+        /// The CSV file.
+        path: PathBuf,
+        /// Rate fitted to the time stamps \[Hz\].
+        fitted_hz: f64,
+        /// The manifest's `sample_rate_hz` \[Hz\].
+        manifest_hz: f64,
+    },
+    /// A time stamp lies more than [`MAX_GRID_DEVIATION`] steps off the fitted uniform grid.
+    #[error(
+        "{}:{line}: column \"time_s\": {time} s is {deviation_us:.3} us off the fitted \
+         uniform grid ({fitted_hz} Hz); at most a quarter step ({limit_us:.3} us) is accepted \
+         as rounding or jitter (resample explicitly with `nemm data import --resample-hz`)",
+        path.display()
+    )]
+    OffGrid {
+        /// The CSV file.
+        path: PathBuf,
+        /// The row's line.
+        line: usize,
+        /// This row's time \[s\].
+        time: f64,
+        /// Deviation from the fitted grid \[us\] (signed: positive = late).
+        deviation_us: f64,
+        /// The accepted deviation, `MAX_GRID_DEVIATION * fitted step` \[us\].
+        limit_us: f64,
+        /// Rate of the fitted grid \[Hz\].
+        fitted_hz: f64,
     },
     /// The CSV reader failed (malformed quoting, I/O while parsing).
     #[error("{}:{line}: {message}", path.display())]
@@ -682,7 +743,7 @@ pub fn parse_run(
     let mut velocity_m_s = iv.map(|_| Vec::with_capacity(guess));
     let mut record = csv::ByteRecord::new();
     let mut last_line = 1;
-    let nominal_step = 1.0 / sample_rate_hz;
+    let mut lines: Vec<usize> = Vec::with_capacity(guess);
     loop {
         match reader.read_byte_record(&mut record) {
             Ok(true) => {}
@@ -699,9 +760,10 @@ pub fn parse_run(
         };
         let t = cell(it, COL_TIME)?;
         if let Some(&previous) = time_s.last() {
-            check_step(previous, t, nominal_step, path, line)?;
+            check_increasing(previous, t, path, line)?;
         }
         time_s.push(t);
+        lines.push(line);
         displacement_m.push(cell(ix, COL_DISPLACEMENT)?);
         force_n.push(cell(iff, COL_FORCE)?);
         if let (Some(i), Some(v)) = (iv, velocity_m_s.as_mut()) {
@@ -714,6 +776,9 @@ pub fn parse_run(
             line: last_line + 1,
         });
     }
+    check_time_grid(&time_s, sample_rate_hz, path, |i| {
+        lines.get(i).copied().unwrap_or(i + 2)
+    })?;
     Ok(Run {
         entry,
         time_s,
@@ -742,17 +807,15 @@ fn parse_cell(raw: &[u8], path: &Path, line: usize, column: &str) -> Result<f64,
     }
 }
 
-/// Line of sample `i` in a file written by [`write`] (header is line 1).
-fn sample_line(i: usize) -> usize {
+/// Line of sample `i` in a file written by [`write()`] (header is line 1, one row per line).
+pub fn sample_line(i: usize) -> usize {
     i + 2
 }
 
-/// Checks one time step ending at `line`: strictly increasing and within
-/// [`MAX_STEP_JITTER`] of `nominal_step`.
-fn check_step(
+/// Refuses a time that does not strictly increase (the step ending at `line`).
+fn check_increasing(
     previous: f64,
     time: f64,
-    nominal_step: f64,
     path: &Path,
     line: usize,
 ) -> Result<(), DatasetError> {
@@ -765,17 +828,147 @@ fn check_step(
             previous,
         });
     }
-    let deviation = (step - nominal_step).abs() / nominal_step;
-    if deviation > MAX_STEP_JITTER {
-        return Err(DatasetError::Jitter {
+    Ok(())
+}
+
+/// The uniform grid `t = t0 + i step` fitted to a run's time stamps by least squares.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TimeGrid {
+    /// Time of sample 0 on the grid \[s\].
+    pub t0_s: f64,
+    /// Fitted step \[s\].
+    pub step_s: f64,
+    /// Largest `|t_i - (t0 + i step)|` \[s\].
+    pub max_deviation_s: f64,
+    /// Index of the sample with the largest deviation.
+    pub max_deviation_sample: usize,
+}
+
+impl TimeGrid {
+    /// The fitted rate `1 / step_s` \[Hz\].
+    pub fn rate_hz(&self) -> f64 {
+        1.0 / self.step_s
+    }
+
+    /// `true` when the stamps lie on the grid up to decimal float noise (below a millionth
+    /// of a step), `false` for rounded or jittered stamps.
+    pub fn is_exact(&self) -> bool {
+        self.max_deviation_s <= EXACT_GRID_DEVIATION * self.step_s
+    }
+}
+
+/// Least-squares fit of `t_i = t0 + i step` to increasing time stamps.
+///
+/// With fewer than two stamps the step is `nominal_step_s`.
+pub fn fit_time_grid(time_s: &[f64], nominal_step_s: f64) -> TimeGrid {
+    let n = time_s.len();
+    let Some(&first) = time_s.first() else {
+        return TimeGrid {
+            t0_s: 0.0,
+            step_s: nominal_step_s,
+            max_deviation_s: 0.0,
+            max_deviation_sample: 0,
+        };
+    };
+    let step_s = if n < 2 {
+        nominal_step_s
+    } else {
+        // Centred sums, relative to the first stamp for precision.
+        let nf = n as f64;
+        let i_mean = 0.5 * (nf - 1.0);
+        let t_mean = time_s.iter().map(|t| t - first).sum::<f64>() / nf;
+        let sxy: f64 = time_s
+            .iter()
+            .enumerate()
+            .map(|(i, t)| (i as f64 - i_mean) * (t - first - t_mean))
+            .sum();
+        let sxx = nf * (nf * nf - 1.0) / 12.0;
+        sxy / sxx
+    };
+    let t_mean = time_s.iter().map(|t| t - first).sum::<f64>() / n as f64;
+    let offset = t_mean - step_s * 0.5 * (n as f64 - 1.0);
+    let (mut max_dev, mut at) = (0.0f64, 0);
+    for (i, t) in time_s.iter().enumerate() {
+        let d = (t - first - offset - step_s * i as f64).abs();
+        if d > max_dev {
+            (max_dev, at) = (d, i);
+        }
+    }
+    TimeGrid {
+        t0_s: first + offset,
+        step_s,
+        max_deviation_s: max_dev,
+        max_deviation_sample: at,
+    }
+}
+
+/// Checks that increasing time stamps lie on a uniform grid at `sample_rate_hz`, as
+/// rounded or jittered logger stamps do, and returns the fitted grid.
+///
+/// The rule, in order (`h = 1 / sample_rate_hz`; `line_of(i)` is the line of sample `i`):
+/// 1. a step longer than [`GAP_STEPS`]` h` is a gap: [`DatasetError::Gap`] at its line,
+///    unless the fitted step (below) is more than 50 % off `h`, which is a wrong
+///    `sample_rate_hz`: [`DatasetError::RateMismatch`];
+/// 2. the least-squares grid `t = t0 + i dt` is fitted over the whole run; its rate
+///    `1 / dt` must be within [`MAX_RATE_MISMATCH`] of `sample_rate_hz`
+///    ([`DatasetError::RateMismatch`], naming both);
+/// 3. every stamp must lie within [`MAX_GRID_DEVIATION`]` dt` of the fitted grid
+///    ([`DatasetError::OffGrid`] at the line of the largest deviation).
+///
+/// Accepted samples are treated as exactly on the grid (step `h`); the stamps themselves are
+/// kept as read. Increase is checked while parsing ([`DatasetError::NonMonotonicTime`]).
+pub fn check_time_grid(
+    time_s: &[f64],
+    sample_rate_hz: f64,
+    path: &Path,
+    line_of: impl Fn(usize) -> usize,
+) -> Result<TimeGrid, DatasetError> {
+    let h = 1.0 / sample_rate_hz;
+    let grid = fit_time_grid(time_s, h);
+    if time_s.len() < 2 {
+        return Ok(grid);
+    }
+    let rate_err = |fitted_hz: f64| DatasetError::RateMismatch {
+        path: path.to_path_buf(),
+        fitted_hz,
+        manifest_hz: sample_rate_hz,
+    };
+    // A grid more than 50 % off is a wrong rate, not a run full of gaps or bursts.
+    let coarse_off = (grid.step_s * sample_rate_hz - 1.0).abs();
+    if coarse_off.is_nan() || coarse_off > 0.5 {
+        return Err(rate_err(grid.rate_hz()));
+    }
+    for (i, w) in time_s.windows(2).enumerate() {
+        let step = w[1] - w[0];
+        if step > GAP_STEPS * h {
+            let missing = ((step / h).round() as usize).saturating_sub(1).max(1);
+            return Err(DatasetError::Gap {
+                path: path.to_path_buf(),
+                line: line_of(i + 1),
+                previous: w[0],
+                step,
+                expected: h,
+                missing,
+            });
+        }
+    }
+    if (grid.step_s * sample_rate_hz - 1.0).abs() > MAX_RATE_MISMATCH {
+        return Err(rate_err(grid.rate_hz()));
+    }
+    let limit = MAX_GRID_DEVIATION * grid.step_s;
+    if grid.max_deviation_s > limit {
+        let i = grid.max_deviation_sample;
+        let t = time_s.get(i).copied().unwrap_or_default();
+        return Err(DatasetError::OffGrid {
             path: path.to_path_buf(),
-            line,
-            step,
-            expected: nominal_step,
-            deviation_percent: deviation * 100.0,
+            line: line_of(i),
+            time: t,
+            deviation_us: (t - grid.t0_s - grid.step_s * i as f64) * 1e6,
+            limit_us: limit * 1e6,
+            fitted_hz: grid.rate_hz(),
         });
     }
-    Ok(())
+    Ok(grid)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -817,10 +1010,10 @@ fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), Datas
             });
         }
     }
-    let nominal_step = 1.0 / sample_rate_hz;
     for (i, w) in run.time_s.windows(2).enumerate() {
-        check_step(w[0], w[1], nominal_step, path, sample_line(i + 1))?;
+        check_increasing(w[0], w[1], path, sample_line(i + 1))?;
     }
+    check_time_grid(&run.time_s, sample_rate_hz, path, sample_line)?;
     Ok(())
 }
 

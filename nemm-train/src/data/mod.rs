@@ -1,4 +1,6 @@
 //! Bench data: the dataset interchange format (manifest + CSV) and its preprocessing into
 //! training sequences (section 5.3).
+pub mod check;
 pub mod dataset;
+pub mod import;
 pub mod preprocess;

@@ -368,9 +368,17 @@ pub fn run_signals(dataset: &Dataset, cfg: &SignalConfig) -> Result<Vec<Signals>
         .collect()
 }
 
-/// Relative RMS difference between the run's measured velocity column and the
-/// differentiated displacement, both low-passed: a check of units and sign conventions.
-/// `None` without a measured column.
+/// Relative RMS difference between the run's displacement and its measured velocity column
+/// integrated over time: a check of units and sign conventions. `None` without a measured
+/// column.
+///
+/// The velocity is integrated with the trapezoidal rule, the difference to the displacement
+/// is detrended (least-squares offset and slope removed: the integration constant and a
+/// velocity bias) and its RMS is divided by the RMS of the detrended displacement.
+/// Integration averages noise out, so an exact velocity column gives a small mismatch at any
+/// excitation frequency (differentiating a quantised displacement instead would amplify its
+/// noise on slow runs); a scale error `s` gives `|s - 1|`, a sign error about 2.
+/// `cutoff_hz` is validated like the filter's and otherwise unused.
 pub fn measured_velocity_mismatch(
     run: &Run,
     sample_rate_hz: f64,
@@ -379,16 +387,48 @@ pub fn measured_velocity_mismatch(
     let Some(measured) = &run.velocity_m_s else {
         return Ok(None);
     };
-    let x = lowpass_zero_phase(&run.displacement_m, sample_rate_hz, cutoff_hz)?;
-    let diff = differentiate(&x, 1.0 / sample_rate_hz);
-    let meas = lowpass_zero_phase(measured, sample_rate_hz, cutoff_hz)?;
-    let err: f64 = diff.iter().zip(&meas).map(|(a, b)| (a - b).powi(2)).sum();
-    let norm: f64 = diff.iter().map(|a| a * a).sum();
+    check_cutoff(sample_rate_hz, cutoff_hz)?;
+    let dt = 1.0 / sample_rate_hz;
+    let mut integral = 0.0;
+    let mut diff = Vec::with_capacity(measured.len());
+    for (i, x) in run.displacement_m.iter().enumerate() {
+        if i > 0 {
+            integral += 0.5 * dt * (measured[i - 1] + measured[i]);
+        }
+        diff.push(x - integral);
+    }
+    let err = detrended_rms(&diff);
+    let norm = detrended_rms(&run.displacement_m);
     Ok(Some(if norm > 0.0 {
-        (err / norm).sqrt()
-    } else {
+        err / norm
+    } else if err > 0.0 {
         f64::INFINITY
+    } else {
+        0.0
     }))
+}
+
+/// RMS of `y` after removing its least-squares line over the sample index.
+fn detrended_rms(y: &[f64]) -> f64 {
+    let n = y.len();
+    if n < 2 {
+        return 0.0;
+    }
+    let nf = n as f64;
+    let i_mean = 0.5 * (nf - 1.0);
+    let y_mean = y.iter().sum::<f64>() / nf;
+    let sxy: f64 = y
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (i as f64 - i_mean) * (v - y_mean))
+        .sum();
+    let slope = sxy / (nf * (nf * nf - 1.0) / 12.0);
+    let ss: f64 = y
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (v - y_mean - slope * (i as f64 - i_mean)).powi(2))
+        .sum();
+    (ss / nf).sqrt()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -455,19 +495,45 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
     })
 }
 
+/// Fraction of the reference (90th percentile) that a half-cycle must reach to count as
+/// steady in [`steady_median`].
+pub const STEADY_FRACTION: f64 = 0.9;
+
+/// Median of the steady part of per-half-cycle values: those of at least
+/// [`STEADY_FRACTION`] times their 90th percentile. Ramp-in and ramp-out cycles are smaller
+/// and drop out even when they outnumber the steady ones; one outlying half-cycle (a spike)
+/// moves the 90th percentile only when it is more than a tenth of them. `None` for no values.
+pub fn steady_median(values: &[f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let k = ((0.9 * (sorted.len() - 1) as f64).round() as usize).min(sorted.len() - 1);
+    let reference = sorted[k];
+    median(
+        sorted
+            .into_iter()
+            .filter(|v| *v >= STEADY_FRACTION * reference)
+            .collect(),
+    )
+}
+
 /// Estimated excitation of a (periodic) run.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Excitation {
     /// Centre of the stroke \[m\]: mid-range of the filtered displacement.
     pub offset_m: f64,
-    /// Stroke amplitude \[m\]: median over complete half-cycles of the largest
-    /// `|x - offset|` (half the range when the run has no complete half-cycle).
+    /// Stroke amplitude \[m\]: median over the steady complete half-cycles of the largest
+    /// `|x - offset|` (half the range when the run has no complete half-cycle); see
+    /// [`steady_median`].
     pub amplitude_m: f64,
     /// Frequency \[Hz\] from the mean period between rising zero crossings (half periods
     /// when there is only one); `None` with fewer than two crossings.
     pub frequency_hz: Option<f64>,
-    /// Peak velocity \[m/s\]: median over the passes through the centre between two
-    /// turning points of the largest `|v|` (the overall largest `|v|` without such a pass).
+    /// Peak velocity \[m/s\]: median over the steady passes through the centre between two
+    /// turning points of the largest `|v|` (the overall largest `|v|` without such a pass);
+    /// see [`steady_median`].
     pub peak_velocity_m_s: f64,
     /// Complete half-cycles found (between two zero crossings).
     pub half_cycles: usize,
@@ -475,8 +541,9 @@ pub struct Excitation {
 
 /// Estimates amplitude, frequency and peak velocity from filtered displacement and velocity.
 ///
-/// Robust to ramp-in / ramp-out cycles (medians over half-cycles) and to noise (zero
-/// crossings with a hysteresis of 10 % of the half-range).
+/// Robust to ramp-in / ramp-out cycles (medians over the steady half-cycles, however many
+/// ramp cycles there are) and to noise (zero crossings with a hysteresis of 10 % of the
+/// half-range).
 pub fn estimate_excitation(
     displacement_m: &[f64],
     velocity_m_s: &[f64],
@@ -548,9 +615,9 @@ pub fn estimate_excitation(
     };
     Excitation {
         offset_m,
-        amplitude_m: median(amplitudes.clone()).unwrap_or(half_range),
+        amplitude_m: steady_median(&amplitudes).unwrap_or(half_range),
         frequency_hz,
-        peak_velocity_m_s: median(peaks).unwrap_or(max_abs_v),
+        peak_velocity_m_s: steady_median(&peaks).unwrap_or(max_abs_v),
         half_cycles: amplitudes.len(),
     }
 }

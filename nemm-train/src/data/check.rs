@@ -1,0 +1,488 @@
+//! Plausibility checks of loaded runs for `nemm data check` (see `docs/data-format.md`,
+//! "What `nemm data check` reports").
+//!
+//! [`check_run`] looks at the raw columns of one run and reports, each with run, time and
+//! line:
+//!
+//! * **implausible magnitudes**: `|displacement_m|` above [`MAX_ABS_DISPLACEMENT_M`],
+//!   `|force_n|` above [`MAX_ABS_FORCE_N`], `|velocity_m_s|` above [`MAX_ABS_VELOCITY_M_S`]
+//!   (usually a unit error or a corrupt sample);
+//! * **spikes**: one- or two-sample outliers from the running median of five samples, more
+//!   than [`SPIKE_SIGMAS`] robust noise deviations and [`SPIKE_MIN_FRACTION`] of the
+//!   column's robust range away;
+//! * **dropouts**: at least [`REPEAT_MIN_ROWS`] consecutive rows with every data column
+//!   repeated exactly (a held or zero-filled logger), or one column frozen at one value for
+//!   at least [`FLAT_MIN_S`] while it moves elsewhere in the run;
+//! * **clipping**: at least [`CLIP_MIN_SAMPLES`] consecutive samples at the column's largest
+//!   or smallest value, entered and left by a step of more than [`CLIP_STEP_QUANTA`] times
+//!   the column's smallest non-zero step (a smooth, quantised turning point enters its
+//!   plateau by one quantum);
+//! * **offsets** (information, not errors: gas force and untared load cells are real): a
+//!   displacement whose centre lies more than [`OFFSET_FRACTION`] of the half-stroke (and
+//!   0.5 mm) from 0, and a mean force at zero velocity more than [`OFFSET_FRACTION`] of the
+//!   force half-range (and 1 N) from 0;
+//! * **time stamps** (information): rounded or jittered stamps that the loader accepted,
+//!   with their largest deviation from the fitted grid.
+//!
+//! Lines are those of a run file with one header line and one row per line
+//! ([`dataset::sample_line`]), as [`dataset::write()`] and `nemm data import` write them.
+use crate::data::dataset::{self, Run, COL_DISPLACEMENT, COL_FORCE, COL_VELOCITY};
+use crate::data::preprocess;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// Largest plausible `|displacement_m|` \[m\] (no road-vehicle damper strokes a metre).
+pub const MAX_ABS_DISPLACEMENT_M: f64 = 1.0;
+/// Largest plausible `|force_n|` \[N\] (1 MN).
+pub const MAX_ABS_FORCE_N: f64 = 1e6;
+/// Largest plausible `|velocity_m_s|` \[m/s\] (dyno actuators reach a few m/s).
+pub const MAX_ABS_VELOCITY_M_S: f64 = 20.0;
+/// A spike is more than this many robust standard deviations (1.4826 median absolute
+/// deviation of the residuals from the running median of five) from the running median.
+pub const SPIKE_SIGMAS: f64 = 10.0;
+/// ... and more than this fraction of the column's robust range (0.5th to 99.5th percentile).
+pub const SPIKE_MIN_FRACTION: f64 = 0.05;
+/// Fewest consecutive identical rows reported as a dropout.
+pub const REPEAT_MIN_ROWS: usize = 10;
+/// Shortest time \[s\] a single column must stay at one value to be reported as flat.
+pub const FLAT_MIN_S: f64 = 0.25;
+/// Fewest consecutive samples at the column's extreme value reported as clipping.
+pub const CLIP_MIN_SAMPLES: usize = 3;
+/// A clipped plateau is entered and left by a step larger than this many quanta (the
+/// column's smallest non-zero step).
+pub const CLIP_STEP_QUANTA: f64 = 3.0;
+/// Offsets above this fraction of the half-range are reported.
+pub const OFFSET_FRACTION: f64 = 0.1;
+/// Velocities below this fraction of the largest `|v|` count as "zero velocity" for the
+/// force offset.
+pub const ZERO_VELOCITY_FRACTION: f64 = 0.05;
+
+/// What a finding is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FindingKind {
+    /// A value beyond the plausible magnitude of its column.
+    Magnitude,
+    /// One- or two-sample outliers.
+    Spike,
+    /// Repeated rows or a frozen column.
+    Dropout,
+    /// Runs of samples at the column's extreme value.
+    Clipping,
+    /// Displacement not centred or force offset at zero velocity (information).
+    Offset,
+    /// Rounded or jittered time stamps, accepted (information).
+    TimeStamps,
+}
+
+impl FindingKind {
+    /// `true` for findings that are information rather than a problem.
+    pub fn is_info(self) -> bool {
+        matches!(self, FindingKind::Offset | FindingKind::TimeStamps)
+    }
+
+    /// Short name for reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            FindingKind::Magnitude => "implausible magnitude",
+            FindingKind::Spike => "spike",
+            FindingKind::Dropout => "dropout",
+            FindingKind::Clipping => "clipping",
+            FindingKind::Offset => "offset",
+            FindingKind::TimeStamps => "time stamps",
+        }
+    }
+}
+
+/// One finding of [`check_run`]: where it starts and how often it occurs in the run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Finding {
+    /// Run index in the dataset.
+    pub run: usize,
+    /// Run file relative to the manifest.
+    pub file: PathBuf,
+    /// What kind of finding.
+    pub kind: FindingKind,
+    /// The column concerned (`time_s` for time stamps).
+    pub column: String,
+    /// First sample concerned (index in the run).
+    pub sample: usize,
+    /// Its time stamp \[s\].
+    pub time_s: f64,
+    /// Its line in the run file.
+    pub line: usize,
+    /// Occurrences in the run (events, e.g. spikes or plateaus; samples for magnitudes).
+    pub count: usize,
+    /// What was found, with the values.
+    pub message: String,
+}
+
+impl std::fmt::Display for Finding {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "run {} ({}:{}, t = {} s): ",
+            self.run,
+            self.file.display(),
+            self.line,
+            self.time_s
+        )?;
+        // The time-stamp message names its kind itself.
+        if self.kind != FindingKind::TimeStamps {
+            write!(f, "{}: ", self.kind.name())?;
+        }
+        f.write_str(&self.message)
+    }
+}
+
+/// Percentile `p` (0..1) of a copy of `x` (nearest rank).
+fn percentile(x: &[f64], p: f64) -> f64 {
+    if x.is_empty() {
+        return 0.0;
+    }
+    let mut v = x.to_vec();
+    let k = ((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1);
+    *v.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
+/// 0.5th and 99.5th percentile of a column.
+fn robust_bounds(x: &[f64]) -> (f64, f64) {
+    (percentile(x, 0.005), percentile(x, 0.995))
+}
+
+/// Runs the checks of the module docs on one run.
+///
+/// `velocity_m_s` is the run's velocity as used by the preprocessing (measured or
+/// differentiated, see [`crate::data::preprocess::process_run`]); it only selects the
+/// zero-velocity samples for the force offset.
+pub fn check_run(
+    run: &Run,
+    index: usize,
+    sample_rate_hz: f64,
+    velocity_m_s: &[f64],
+) -> Vec<Finding> {
+    let mut out = Vec::new();
+    let finding = |kind: FindingKind, column: &str, sample: usize, count: usize, message| Finding {
+        run: index,
+        file: run.entry.file.clone(),
+        kind,
+        column: column.to_string(),
+        sample,
+        time_s: run.time_s.get(sample).copied().unwrap_or_default(),
+        line: dataset::sample_line(sample),
+        count,
+        message,
+    };
+    let mut columns: Vec<(&str, &[f64], f64, &str)> = vec![
+        (
+            COL_DISPLACEMENT,
+            &run.displacement_m,
+            MAX_ABS_DISPLACEMENT_M,
+            "m",
+        ),
+        (COL_FORCE, &run.force_n, MAX_ABS_FORCE_N, "N"),
+    ];
+    if let Some(v) = &run.velocity_m_s {
+        columns.push((COL_VELOCITY, v, MAX_ABS_VELOCITY_M_S, "m/s"));
+    }
+    for &(name, x, limit, unit) in &columns {
+        if let Some(first) = x.iter().position(|v| v.abs() > limit) {
+            let count = x.iter().filter(|v| v.abs() > limit).count();
+            let largest = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            out.push(finding(
+                FindingKind::Magnitude,
+                name,
+                first,
+                count,
+                format!(
+                    "{name} = {} {unit} exceeds +-{limit} {unit} in {count} sample(s) \
+                     (largest {largest:e} {unit}); wrong unit or a corrupt value?",
+                    x[first]
+                ),
+            ));
+        }
+        if let Some((first, count, value, residual)) = spikes(x) {
+            out.push(finding(
+                FindingKind::Spike,
+                name,
+                first,
+                count,
+                format!(
+                    "{count} spike(s) in {name}; the first is {value} {unit}, {residual:+e} {unit} \
+                     from the running median"
+                ),
+            ));
+        }
+        if let Some((first, len, count, value)) = flat(x, sample_rate_hz) {
+            out.push(finding(
+                FindingKind::Dropout,
+                name,
+                first,
+                count,
+                format!(
+                    "{name} frozen at {value} {unit} for {len} samples ({:.3} s; {count} such \
+                     stretch(es)): stuck sensor or logger dropout?",
+                    len as f64 / sample_rate_hz
+                ),
+            ));
+        }
+        for (at_max, extreme) in [(true, "largest"), (false, "smallest")] {
+            if let Some((first, len, count, value)) = clipped(x, at_max) {
+                out.push(finding(
+                    FindingKind::Clipping,
+                    name,
+                    first,
+                    count,
+                    format!(
+                        "{name} sits at its {extreme} value {value} {unit} for {len} samples \
+                         ({count} plateau(s)), entered and left by steep steps: clipped \
+                         sensor or amplifier range?"
+                    ),
+                ));
+            }
+        }
+    }
+    let data: Vec<&[f64]> = columns.iter().map(|c| c.1).collect();
+    if let Some((first, len, count)) = repeated_rows(&data) {
+        out.push(finding(
+            FindingKind::Dropout,
+            "(all)",
+            first,
+            count,
+            format!(
+                "{len} identical consecutive rows ({count} such stretch(es)): held or \
+                 zero-filled logger output, or a pause in the excitation?"
+            ),
+        ));
+    }
+    out.extend(offsets(run, velocity_m_s, &finding));
+    let grid = dataset::fit_time_grid(&run.time_s, 1.0 / sample_rate_hz);
+    if !grid.is_exact() {
+        out.push(finding(
+            FindingKind::TimeStamps,
+            dataset::COL_TIME,
+            grid.max_deviation_sample,
+            1,
+            format!(
+                "time stamps rounded/jittered: max deviation {:.1} us from the fitted {:.1} Hz \
+                 grid, accepted (at most a quarter step, {:.1} us)",
+                grid.max_deviation_s * 1e6,
+                grid.rate_hz(),
+                dataset::MAX_GRID_DEVIATION * grid.step_s * 1e6
+            ),
+        ));
+    }
+    out
+}
+
+/// Spikes of one column: `(first sample, events, value, residual)`; the first sample is
+/// the largest residual of the first event.
+fn spikes(x: &[f64]) -> Option<(usize, usize, f64, f64)> {
+    let n = x.len();
+    if n < 5 {
+        return None;
+    }
+    let residual: Vec<f64> = (0..n)
+        .map(|i| {
+            let lo = i.saturating_sub(2).min(n - 5);
+            let mut w = [0.0; 5];
+            w.copy_from_slice(&x[lo..lo + 5]);
+            w.sort_by(f64::total_cmp);
+            x[i] - w[2]
+        })
+        .collect();
+    let abs: Vec<f64> = residual.iter().map(|r| r.abs()).collect();
+    let sigma = 1.4826 * percentile(&abs, 0.5);
+    let (lo, hi) = robust_bounds(x);
+    let threshold = (SPIKE_SIGMAS * sigma).max(SPIKE_MIN_FRACTION * (hi - lo));
+    if threshold <= 0.0 {
+        // A constant column (all but at most 0.5 % of its samples): anything else sticks out.
+        let mid = percentile(x, 0.5);
+        let first = x.iter().position(|v| *v != mid)?;
+        let count = events(x.iter().map(|v| *v != mid));
+        return Some((first, count, x[first], x[first] - mid));
+    }
+    let flags = abs.iter().map(|a| *a > threshold);
+    let count = events(flags);
+    if count == 0 {
+        return None;
+    }
+    let start = abs.iter().position(|a| *a > threshold)?;
+    let end = abs[start..]
+        .iter()
+        .position(|a| *a <= threshold)
+        .map_or(n, |k| start + k);
+    let first = (start..end).max_by(|&a, &b| abs[a].total_cmp(&abs[b]))?;
+    Some((first, count, x[first], residual[first]))
+}
+
+/// Number of stretches of consecutive `true`.
+fn events(flags: impl Iterator<Item = bool>) -> usize {
+    let mut count = 0;
+    let mut inside = false;
+    for f in flags {
+        if f && !inside {
+            count += 1;
+        }
+        inside = f;
+    }
+    count
+}
+
+/// Stretches `(start, length)` of consecutive equal values of at least `min_len` samples,
+/// where `equal(i)` says whether sample `i` equals sample `i - 1`.
+fn stretches(n: usize, min_len: usize, equal: impl Fn(usize) -> bool) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    for i in 1..=n {
+        if i == n || !equal(i) {
+            if i - start >= min_len {
+                out.push((start, i - start));
+            }
+            start = i;
+        }
+    }
+    out
+}
+
+/// A column frozen at one value for [`FLAT_MIN_S`] while it varies elsewhere:
+/// `(first start, longest length, stretches, value)`.
+fn flat(x: &[f64], sample_rate_hz: f64) -> Option<(usize, usize, usize, f64)> {
+    let min_len = ((FLAT_MIN_S * sample_rate_hz).ceil() as usize).max(REPEAT_MIN_ROWS);
+    let found = stretches(x.len(), min_len, |i| x[i] == x[i - 1]);
+    let &(start, _) = found.first()?;
+    let longest = found.iter().map(|s| s.1).max()?;
+    // A column that never moves is a constant, not a dropout (spikes reports the outliers).
+    if found.len() == 1 && longest == x.len() {
+        return None;
+    }
+    Some((start, longest, found.len(), x[start]))
+}
+
+/// Plateaus at the extreme value (`at_max`: the largest) of at least [`CLIP_MIN_SAMPLES`]
+/// entered and left by steep steps: `(first start, longest length, plateaus, value)`.
+fn clipped(x: &[f64], at_max: bool) -> Option<(usize, usize, usize, f64)> {
+    let n = x.len();
+    let extreme = if at_max {
+        x.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+    } else {
+        x.iter().copied().fold(f64::INFINITY, f64::min)
+    };
+    let quantum = x
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    if !quantum.is_finite() {
+        return None;
+    }
+    let steep = |a: f64, b: f64| (a - b).abs() > CLIP_STEP_QUANTA * quantum;
+    let found: Vec<(usize, usize)> =
+        stretches(n, CLIP_MIN_SAMPLES, |i| x[i] == x[i - 1] && x[i] == extreme)
+            .into_iter()
+            .filter(|&(start, len)| {
+                x[start] == extreme
+                    && len < n
+                    && (start == 0 || steep(x[start], x[start - 1]))
+                    && (start + len == n || steep(x[start + len - 1], x[start + len]))
+            })
+            .collect();
+    let &(start, _) = found.first()?;
+    let longest = found.iter().map(|s| s.1).max()?;
+    Some((start, longest, found.len(), extreme))
+}
+
+/// Stretches of at least [`REPEAT_MIN_ROWS`] identical rows: `(first start, longest, count)`.
+fn repeated_rows(columns: &[&[f64]]) -> Option<(usize, usize, usize)> {
+    let n = columns.first()?.len();
+    let found = stretches(n, REPEAT_MIN_ROWS, |i| {
+        columns.iter().all(|c| c[i] == c[i - 1])
+    });
+    // A run that is one repeated row throughout is reported by the columns' own checks.
+    if found.len() == 1 && found.first().is_some_and(|s| s.1 == n) {
+        return None;
+    }
+    let &(start, _) = found.first()?;
+    Some((start, found.iter().map(|s| s.1).max()?, found.len()))
+}
+
+/// The displacement centre and the force at zero velocity (information).
+fn offsets(
+    run: &Run,
+    velocity_m_s: &[f64],
+    finding: &impl Fn(FindingKind, &str, usize, usize, String) -> Finding,
+) -> Vec<Finding> {
+    let mut out = Vec::new();
+    let (lo, hi) = robust_bounds(&run.displacement_m);
+    let (centre, half) = (0.5 * (lo + hi), 0.5 * (hi - lo));
+    if centre.abs() > OFFSET_FRACTION * half && centre.abs() > 5e-4 {
+        out.push(finding(
+            FindingKind::Offset,
+            COL_DISPLACEMENT,
+            0,
+            1,
+            format!(
+                "displacement centred at {:+.2} mm, stroke +-{:.2} mm (0.5th..99.5th \
+                 percentile): the position is used as measured; shift it in the import if the \
+                 zero is arbitrary",
+                centre * 1e3,
+                half * 1e3
+            ),
+        ));
+    }
+    if velocity_m_s.len() == run.force_n.len() && !velocity_m_s.is_empty() {
+        let v_max = velocity_m_s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let slow: Vec<usize> = (0..velocity_m_s.len())
+            .filter(|&i| velocity_m_s[i].abs() <= ZERO_VELOCITY_FRACTION * v_max)
+            .collect();
+        let (flo, fhi) = robust_bounds(&run.force_n);
+        let f_half = 0.5 * (fhi - flo);
+        if let Some(&first) = slow.first() {
+            let mean = slow.iter().map(|&i| run.force_n[i]).sum::<f64>() / slow.len() as f64;
+            if mean.abs() > OFFSET_FRACTION * f_half && mean.abs() > 1.0 {
+                out.push(finding(
+                    FindingKind::Offset,
+                    COL_FORCE,
+                    first,
+                    slow.len(),
+                    format!(
+                        "mean force at zero velocity (|v| <= {:.0} % of its peak, {} samples) \
+                         is {mean:+.1} N, {:.0} % of the force half-range {f_half:.1} N: a gas \
+                         force or an untared load cell",
+                        ZERO_VELOCITY_FRACTION * 100.0,
+                        slow.len(),
+                        100.0 * mean.abs() / f_half.max(f64::MIN_POSITIVE)
+                    ),
+                ));
+            }
+        }
+    }
+    out
+}
+
+/// Summaries ([`preprocess::summarize`]) and findings ([`check_run`]) of every run of a
+/// dataset (in parallel), in dataset order.
+pub fn check_dataset(
+    dataset: &crate::data::dataset::Dataset,
+    cfg: &preprocess::SignalConfig,
+) -> Result<(Vec<preprocess::RunSummary>, Vec<Finding>), preprocess::PreprocessError> {
+    use rayon::prelude::*;
+    let fs = dataset.sample_rate_hz;
+    let per_run: Vec<(preprocess::RunSummary, Vec<Finding>)> = dataset
+        .runs
+        .par_iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let (summary, signals) = preprocess::summarize_run(r, i, fs, cfg)?;
+            let findings = check_run(r, i, fs, &signals.velocity_m_s);
+            Ok((summary, findings))
+        })
+        .collect::<Result<_, preprocess::PreprocessError>>()?;
+    let mut summaries = Vec::with_capacity(per_run.len());
+    let mut findings = Vec::new();
+    for (s, f) in per_run {
+        summaries.push(s);
+        findings.extend(f);
+    }
+    Ok((summaries, findings))
+}

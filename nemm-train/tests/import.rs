@@ -1,0 +1,347 @@
+//! `nemm data import`: raw dyno files with other units, signs, headers and long records.
+use nemm_train::data::dataset::{self, DatasetError};
+use nemm_train::data::import::{self, ImportError, ImportSpec};
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// A 300 Hz FSAE-like export: a preamble, `;`-separated, ms / mm / lbf with compression
+/// force positive, a 30 mm potentiometer zero, time stamps rounded to 0.1 ms.
+fn write_fsae(dir: &Path, name: &str, seconds: f64) -> PathBuf {
+    let mut s =
+        String::from("# Dyno export v2\n# operator: test\nTime [ms];Pos [mm];Load [lbf];Temp\n");
+    let n = (300.0 * seconds) as usize;
+    for i in 0..n {
+        let t = i as f64 / 300.0;
+        let x = 30.0 + 25.0 * (2.0 * PI * 0.5 * t).sin();
+        let v = 25.0 * 2.0 * PI * 0.5 * (2.0 * PI * 0.5 * t).cos();
+        let f_lbf = -(0.5 * v + 10.0);
+        s.push_str(&format!("{:.1};{x:.3};{f_lbf:.2};25\n", t * 1e3));
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, s).expect("write raw");
+    p
+}
+
+fn spec_from(text: &str, dir: &Path) -> ImportSpec {
+    let p = dir.join("import.toml");
+    std::fs::write(&p, text).expect("write spec");
+    import::read_spec(&p).expect("spec")
+}
+
+const FSAE_SPEC: &str = r#"
+name = "FSAE damper"
+[csv]
+delimiter = ";"
+header_line = 3
+[columns.time]
+name = "Time [ms]"
+unit = "ms"
+[columns.displacement]
+name = "Pos [mm]"
+unit = "mm"
+[columns.force]
+name = "Load [lbf]"
+unit = "lbf"
+invert = true
+[[files]]
+path = "p150.csv"
+alpha = 0.0
+[[files]]
+path = "p50.csv"
+alpha = 1.0
+"#;
+
+#[test]
+fn a_300_hz_mm_lbf_ms_export_with_a_sign_flip_imports() {
+    let dir = tempfile::tempdir().expect("dir");
+    write_fsae(dir.path(), "p150.csv", 4.0);
+    write_fsae(dir.path(), "p50.csv", 3.0);
+    let spec = spec_from(FSAE_SPEC, dir.path());
+    let imported = import::import(&spec, "x").expect("import");
+    let ds = &imported.dataset;
+    assert_eq!(ds.name, "FSAE damper");
+    assert_eq!(ds.sample_rate_hz, 300.0);
+    assert_eq!(ds.runs.len(), 2);
+    assert_eq!(ds.runs[0].len(), 1200);
+    assert_eq!(ds.runs[1].entry.oil_loss, 1.0);
+    assert_eq!(ds.runs[0].entry.file, PathBuf::from("runs/p150.csv"));
+    // Line 4 of the raw file is the first sample: 0 ms, 30.000 mm, -(0.5 v + 10) lbf.
+    assert_eq!(imported.runs[0].lines, (4, 1203));
+    let r = &ds.runs[0];
+    assert!((r.displacement_m[0] - 0.030).abs() < 1e-12);
+    let v0 = 25.0 * 2.0 * PI * 0.5;
+    let f_lbf = ((0.5 * v0 + 10.0) * 100.0).round() / 100.0;
+    assert!(
+        (r.force_n[0] - f_lbf * 4.448_221_615_260_5).abs() < 1e-9,
+        "{}",
+        r.force_n[0]
+    );
+    assert!(!imported.runs[0].grid.is_exact(), "0.1 ms rounding");
+    // Written atomically and read back by the loader unchanged.
+    let out = dir.path().join("ds");
+    dataset::write(&out, ds).expect("write");
+    assert_eq!(&dataset::load(&out).expect("load"), ds);
+}
+
+#[test]
+fn a_long_record_is_cut_at_pauses_and_by_time_ranges() {
+    let dir = tempfile::tempdir().expect("dir");
+    // 3 kHz, 2 s of motion then 1.5 s at rest, three times; stamps rounded to 0.1 ms.
+    let fs = 3000.0;
+    let mut s = String::from("t,x,F\n");
+    let mut i = 0usize;
+    for _ in 0..3 {
+        for k in 0..6000 {
+            let w = 2.0 * PI * 2.0 * k as f64 / fs;
+            let t = ((i as f64 / fs) * 1e4).round() / 1e4;
+            s.push_str(&format!("{t},{},{}\n", 0.01 * w.sin(), 100.0 * w.cos()));
+            i += 1;
+        }
+        for k in 0..4500 {
+            let t = ((i as f64 / fs) * 1e4).round() / 1e4;
+            s.push_str(&format!("{t},0,{}\n", 0.5 * (k as f64).sin()));
+            i += 1;
+        }
+    }
+    std::fs::write(dir.path().join("long.csv"), s).expect("raw");
+    let base = r#"
+[columns.time]
+name = "t"
+unit = "s"
+[columns.displacement]
+name = "x"
+unit = "m"
+[columns.force]
+name = "F"
+unit = "N"
+"#;
+    let spec = spec_from(
+        &format!(
+            "{base}[split]\nmethod = \"pauses\"\n[[files]]\npath = \"long.csv\"\nalpha = 0.25\n"
+        ),
+        dir.path(),
+    );
+    let imported = import::import(&spec, "long").expect("pauses");
+    let runs = &imported.dataset.runs;
+    assert_eq!(runs.len(), 3, "{:?}", imported.runs);
+    for (k, r) in imported.runs.iter().enumerate() {
+        let start = k as f64 * 3.5;
+        // Cut at the block resolution (a tenth of min_pause_s).
+        assert!((r.time_s.0 - start).abs() < 0.11, "{r:?}");
+        assert!((r.time_s.1 - (start + 2.0)).abs() < 0.11, "{r:?}");
+    }
+    assert_eq!(runs[2].entry.file, PathBuf::from("runs/long_03.csv"));
+    assert!(runs.iter().all(|r| r.entry.oil_loss == 0.25));
+    // Time ranges, one with its own level.
+    let spec = spec_from(
+        &format!(
+            "{base}[[files]]\npath = \"long.csv\"\nalpha = 0.25\n\
+             [[files.runs]]\nstart_s = 0.0\nend_s = 2.0\n\
+             [[files.runs]]\nstart_s = 3.5\nend_s = 5.5\nalpha = 0.5\n"
+        ),
+        dir.path(),
+    );
+    let imported = import::import(&spec, "long").expect("ranges");
+    let runs = &imported.dataset.runs;
+    assert_eq!(runs.len(), 2);
+    assert_eq!(runs[0].len(), 6000);
+    assert_eq!(runs[1].entry.oil_loss, 0.5);
+    assert_eq!(imported.runs[1].lines.0, 10_502);
+}
+
+fn simple_spec(file: &Path, extra: &str) -> String {
+    format!(
+        "{extra}\n[columns.time]\nname = \"t\"\nunit = \"s\"\n[columns.displacement]\nname = \"x\"\nunit = \"mm\"\n\
+         [columns.force]\nname = \"F\"\nunit = \"N\"\n[[files]]\npath = \"{}\"\nalpha = 0.0\n",
+        file.display()
+    )
+}
+
+#[test]
+fn errors_name_file_line_and_column() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("r.csv");
+    std::fs::write(&raw, "t,x,Force\n0,1,2\n").expect("raw");
+    let spec = spec_from(&simple_spec(&raw, ""), dir.path());
+    let e = import::import(&spec, "x").expect_err("missing column");
+    assert!(
+        matches!(e, ImportError::MissingColumn { line: 1, .. }),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string()
+            .contains("r.csv:1: column \"F\" (columns.force)"),
+        "{e}"
+    );
+
+    std::fs::write(&raw, "t,x,F\n0,1,2\n0.001,1,2\n0.002,abc,2\n").expect("raw");
+    let e = import::import(&spec, "x").expect_err("bad cell");
+    assert!(
+        e.to_string().contains("r.csv:4:2: column \"x\": \"abc\""),
+        "{e}"
+    );
+
+    // A gap of three samples at line 5, named in the raw file's lines.
+    let mut s = String::from("t,x,F\n");
+    for i in (0..10).chain(13..40) {
+        s.push_str(&format!("{},0,0\n", i as f64 * 1e-3));
+    }
+    std::fs::write(&raw, s).expect("raw");
+    let e = import::import(&spec, "x").expect_err("gap");
+    assert!(
+        matches!(
+            e,
+            ImportError::Time(DatasetError::Gap {
+                line: 12,
+                missing: 3,
+                ..
+            })
+        ),
+        "{e:?}"
+    );
+
+    let e = import::validate_spec(&spec_from(
+        &simple_spec(&raw, "").replace("unit = \"mm\"", "unit = \"furlong\""),
+        dir.path(),
+    ))
+    .expect_err("unit");
+    assert!(e.to_string().contains("columns.displacement.unit"), "{e}");
+
+    std::fs::write(dir.path().join("bad.toml"), "[columns.force]\nname = 3\n").expect("toml");
+    let e = import::read_spec(&dir.path().join("bad.toml")).expect_err("syntax");
+    assert!(
+        matches!(e, ImportError::SpecSyntax { line: 2, .. }),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn volts_with_a_gain_offset_and_no_time_column() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("v.csv");
+    std::fs::write(&raw, "ch1\tch2\n0.5\t-1.0\n1.0\t-2.0\n1.5\t-3.0\n").expect("raw");
+    let spec = spec_from(
+        &format!(
+            "rate_hz = 1000.0\n[csv]\ndelimiter = \"tab\"\n\
+             [columns.displacement]\nindex = 1\nunit = \"mm\"\ngain = 10.0\noffset = -5.0\n\
+             [columns.force]\nname = \"ch2\"\nunit = \"kN\"\ngain = 2.0\ninvert = true\n\
+             [[files]]\npath = \"{}\"\nalpha = 1.0\n",
+            raw.display()
+        ),
+        dir.path(),
+    );
+    let ds = import::import(&spec, "v").expect("import").dataset;
+    let r = &ds.runs[0];
+    assert_eq!(r.time_s, vec![0.0, 0.001, 0.002]);
+    // (0.5 V * 10 mm/V - 5 mm) = 0 mm; (1.0 * 10 - 5) mm = 5 mm.
+    assert!((r.displacement_m[1] - 0.005).abs() < 1e-15);
+    // -(-1 V * 2 kN/V) = 2 kN.
+    assert!((r.force_n[0] - 2000.0).abs() < 1e-9);
+}
+
+#[test]
+fn non_uniform_stamps_are_resampled_only_on_request() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("n.csv");
+    // A logger clock wandering +-0.4 ms around a 1 kHz grid: every step within 3 % of
+    // 1 ms, but up to 0.4 steps off the fitted grid, beyond a quarter step.
+    let mut s = String::from("t,x,F\n");
+    for i in 0..400 {
+        let t = i as f64 * 1e-3 + 0.4e-3 * (2.0 * PI * i as f64 / 100.0).sin();
+        s.push_str(&format!("{t},{},{}\n", 2.0 * t, -3.0 * t));
+    }
+    std::fs::write(&raw, s).expect("raw");
+    let mut spec = spec_from(&simple_spec(&raw, ""), dir.path());
+    match import::import(&spec, "n") {
+        Err(ImportError::Time(DatasetError::OffGrid { deviation_us, .. })) => {
+            // Beyond the quarter step (the least-squares line tilts with the wander).
+            assert!(
+                deviation_us.abs() > 250.0 && deviation_us.abs() < 500.0,
+                "{deviation_us}"
+            );
+        }
+        Err(e) => panic!("expected an off-grid error, got {e}"),
+        Ok(_) => panic!("non-uniform stamps accepted"),
+    }
+    spec.resample_hz = Some(1000.0);
+    let imported = import::import(&spec, "n").expect("resampled");
+    let r = &imported.dataset.runs[0];
+    assert!(imported.runs[0].resampled);
+    assert_eq!(imported.dataset.sample_rate_hz, 1000.0);
+    let span = imported.runs[0].time_s.1 - imported.runs[0].time_s.0;
+    assert_eq!(r.len(), (span * 1000.0).floor() as usize + 1);
+    // Linear interpolation reproduces a linear signal exactly (x in mm -> m).
+    for (t, x) in r.time_s.iter().zip(&r.displacement_m) {
+        assert!((x - 2e-3 * t).abs() < 1e-12, "{t} {x}");
+    }
+}
+
+#[test]
+fn the_cli_imports_with_flags_only() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = write_fsae(dir.path(), "p100.csv", 3.0);
+    let out = dir.path().join("ds");
+    let o = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["data", "import"])
+        .arg(&raw)
+        .arg("--out")
+        .arg(&out)
+        .args([
+            "--delimiter",
+            ";",
+            "--header-line",
+            "3",
+            "--time",
+            "Time [ms]:ms",
+            "--displacement",
+            "Pos [mm]:mm",
+            "--force",
+            "Load [lbf]:lbf",
+            "--invert-force",
+            "--center-displacement",
+            "--alpha",
+            "0.5",
+        ])
+        .output()
+        .expect("run nemm");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        stdout.contains("time stamps rounded/jittered: max deviation"),
+        "{stdout}"
+    );
+    let ds = dataset::load(&out).expect("load");
+    assert_eq!(ds.runs[0].entry.oil_loss, 0.5);
+    let (lo, hi) = ds.runs[0]
+        .displacement_m
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
+            (l.min(x), h.max(x))
+        });
+    assert!((lo + hi).abs() < 1e-9, "centred: {lo} {hi}");
+    let o = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["data", "import"])
+        .arg(&raw)
+        .arg("--out")
+        .arg(&out)
+        .args([
+            "--displacement",
+            "Pos [mm]:mm",
+            "--force",
+            "Load:lbf",
+            "--rate-hz",
+            "300",
+            "--alpha",
+            "0.5",
+        ])
+        .output()
+        .expect("run nemm");
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("p100.csv:1: column"), "{stderr}");
+}
