@@ -18,6 +18,7 @@
 //! ```
 
 pub mod config;
+pub mod fixtures;
 mod hydraulics;
 pub mod program;
 pub mod sensor;

@@ -2,3 +2,4 @@
 //! training sequences (section 5.3).
 pub mod dataset;
 pub mod preprocess;
+pub mod support;
