@@ -5,9 +5,11 @@
 //!
 //! * **Periodicity** ([`periodicity`]): a run is periodic when its manifest entry gives both
 //!   `amplitude_m` and `target_velocity_m_s` (a sine of frequency `v / (2 pi A)`), or when the
-//!   displacement has at least [`MIN_PERIODS`] + 1 rising zero crossings (about its
-//!   mid-range, hysteresis 10 % of the half-range) whose intervals all lie within
-//!   [`PERIOD_TOLERANCE`] of their median (the period).
+//!   zero crossings of the displacement (about its mid-range, hysteresis 10 % of the
+//!   half-range) are regular: at least [`MIN_INTERVALS`] intervals between consecutive
+//!   crossings all within [`PERIOD_TOLERANCE`] of their median (the half period), or else at
+//!   least [`MIN_INTERVALS`] intervals between every other crossing (full periods, for
+//!   asymmetric strokes) all within that tolerance of their median.
 //! * **Support points of a periodic run**: the paper's rule, [`quasi_static_points`] (the
 //!   extreme force within +-5 % of the amplitude around each centre crossing).
 //! * **Support points of a non-periodic run** ([`low_acceleration_points`]): the samples whose
@@ -23,9 +25,9 @@ use crate::data::dataset::Run;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
-/// Fewest full periods (between rising zero crossings) that make a run periodic without
-/// manifest metadata.
-pub const MIN_PERIODS: usize = 2;
+/// Fewest intervals between zero crossings that make a run periodic without manifest
+/// metadata.
+pub const MIN_INTERVALS: usize = 2;
 /// Largest relative deviation of a period from the median period of a periodic run.
 pub const PERIOD_TOLERANCE: f64 = 0.05;
 /// Velocity bins per direction of [`low_acceleration_points`].
@@ -54,29 +56,43 @@ pub struct Periodicity {
     pub source: PeriodSource,
 }
 
-/// Rising crossings of `y` through 0 with hysteresis `h` (fractional sample indices).
-fn rising_crossings(y: &[f64], h: f64) -> Vec<f64> {
+/// Crossings of `y` through 0 with hysteresis `h`: (fractional sample index, rising). A
+/// crossing counts when `y` goes from below `-h` to above `+h` (rising) or back (falling); its
+/// position is the last sign change of `y` in between, interpolated linearly.
+fn crossings(y: &[f64], h: f64) -> Vec<(f64, bool)> {
     let mut out = Vec::new();
-    let mut below = None;
+    let mut above: Option<bool> = None;
     for i in 0..y.len() {
-        if y[i] < -h {
-            below = Some(true);
-        } else if y[i] > h {
-            if below == Some(true) {
-                // Last crossing of 0 between the band's lower edge and here.
+        let now = if y[i] > h {
+            Some(true)
+        } else if y[i] < -h {
+            Some(false)
+        } else {
+            None
+        };
+        if let (Some(now), Some(before)) = (now, above) {
+            if now != before {
                 let mut j = i;
-                while j > 0 && y[j - 1] >= 0.0 {
+                while j > 0 && (y[j - 1] >= 0.0) == now {
                     j -= 1;
                 }
                 if j > 0 {
                     let (a, b) = (y[j - 1], y[j]);
-                    out.push((j - 1) as f64 + a / (a - b));
+                    out.push(((j - 1) as f64 + a / (a - b), now));
                 }
             }
-            below = Some(false);
+        }
+        if now.is_some() {
+            above = now;
         }
     }
     out
+}
+
+/// The median of `d` if every entry lies within [`PERIOD_TOLERANCE`] of it.
+fn regular(d: &[f64]) -> Option<f64> {
+    let m = median(d.to_vec())?;
+    (m > 0.0 && d.iter().all(|x| (x - m).abs() <= PERIOD_TOLERANCE * m)).then_some(m)
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -114,19 +130,23 @@ pub fn periodicity(run: &Run, displacement_m: &[f64], sample_rate_hz: f64) -> Op
     }
     let mid = 0.5 * (hi + lo);
     let y: Vec<f64> = displacement_m.iter().map(|x| x - mid).collect();
-    let ups = rising_crossings(&y, 0.1 * half);
-    if ups.len() < MIN_PERIODS + 1 {
-        return None;
+    let c = crossings(&y, 0.1 * half);
+    // Half periods between consecutive crossings (symmetric strokes, from 1.5 crossings' worth
+    // of signal), else full periods between crossings of the same direction.
+    let halves: Vec<f64> = c.windows(2).map(|w| w[1].0 - w[0].0).collect();
+    let fulls: Vec<f64> = c.windows(3).map(|w| w[2].0 - w[0].0).collect();
+    let period = if halves.len() >= MIN_INTERVALS {
+        regular(&halves).map(|h| 2.0 * h)
+    } else {
+        None
     }
-    let intervals: Vec<f64> = ups.windows(2).map(|w| w[1] - w[0]).collect();
-    let period = median(intervals.clone())?;
-    if period <= 0.0
-        || intervals
-            .iter()
-            .any(|d| (d - period).abs() > PERIOD_TOLERANCE * period)
-    {
-        return None;
-    }
+    .or_else(|| {
+        if fulls.len() >= MIN_INTERVALS {
+            regular(&fulls)
+        } else {
+            None
+        }
+    })?;
     Some(Periodicity {
         frequency_hz: sample_rate_hz / period,
         source: PeriodSource::ZeroCrossings,
@@ -272,12 +292,13 @@ mod tests {
     }
 
     #[test]
-    fn rising_crossings_of_a_sine_are_one_period_apart() {
+    fn crossings_of_a_sine_are_half_a_period_apart() {
         let y: Vec<f64> = (0..1000).map(|i| (i as f64 * 0.05).sin()).collect();
-        let ups = rising_crossings(&y, 0.1);
-        assert!(ups.len() >= 7, "{ups:?}");
-        for w in ups.windows(2) {
-            assert!((w[1] - w[0] - 2.0 * PI / 0.05).abs() < 0.05, "{ups:?}");
+        let c = crossings(&y, 0.1);
+        assert!(c.len() >= 14, "{c:?}");
+        for w in c.windows(2) {
+            assert!((w[1].0 - w[0].0 - PI / 0.05).abs() < 0.05, "{c:?}");
+            assert_ne!(w[0].1, w[1].1);
         }
     }
 }
