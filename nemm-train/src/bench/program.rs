@@ -412,4 +412,102 @@ mod tests {
         assert!(f64::from(fast.steady_periods) / fast.frequency_hz >= p.min_steady_s);
         assert_eq!(grid(&p).len(), 54);
     }
+
+    fn random_program() -> (Program, RandomProgram) {
+        let mut p = BenchConfig::default().program;
+        p.sample_rate_hz = 1000.0;
+        let r = RandomProgram {
+            seed: 3,
+            velocity_rms_m_s: vec![0.1],
+            band_hz: [1.0, 20.0],
+            duration_s: 2.0,
+            ramp_s: 0.1,
+            max_stroke_m: 0.05,
+        };
+        (p, r)
+    }
+
+    #[test]
+    fn random_excitation_has_a_flat_velocity_spectrum_in_its_band() {
+        let (p, r) = random_program();
+        let spec = random_run_spec(&p, &r, 0.0, 0.1);
+        assert_eq!(spec.file, PathBuf::from("runs/oil00_random_v0100.csv"));
+        let m = spec.random.clone().unwrap();
+        // Lines k / T for k = 2..=40, all of one amplitude.
+        assert_eq!(m.components.len(), 39);
+        // DFT of the steady velocity over one repetition T at every line k / T.
+        let n = (r.duration_s * p.sample_rate_hz) as usize;
+        let v: Vec<f64> = (0..n)
+            .map(|i| m.steady(i as f64 / p.sample_rate_hz).1)
+            .collect();
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
+        assert!((rms / 0.1 - 1.0).abs() < 1e-6, "{rms}");
+        let c = 0.1 * (2.0f64 / 39.0).sqrt();
+        for k in 0..60 {
+            let f = k as f64 / r.duration_s;
+            let (mut re, mut im) = (0.0, 0.0);
+            for (i, x) in v.iter().enumerate() {
+                let ph = 2.0 * PI * f * i as f64 / p.sample_rate_hz;
+                re += x * ph.cos();
+                im += x * ph.sin();
+            }
+            let amp = 2.0 * re.hypot(im) / n as f64;
+            let expect = if (1.0..=20.0).contains(&f) { c } else { 0.0 };
+            assert!(
+                (amp - expect).abs() < 1e-9,
+                "line {f} Hz: {amp} vs {expect}"
+            );
+        }
+        // Velocity is the derivative of the position, ramp included.
+        for i in 0..300 {
+            let t = i as f64 * 7.3e-3;
+            let h = 1e-6;
+            let num = (m.position(t + h) - m.position(t - h)) / (2.0 * h);
+            assert!((num - m.velocity(t)).abs() < 1e-6, "t {t}");
+        }
+        // Same seed and file: same phases; another seed: others.
+        assert_eq!(random_run_spec(&p, &r, 0.0, 0.1), spec);
+        let other = RandomProgram {
+            seed: 4,
+            ..r.clone()
+        };
+        assert_ne!(random_run_spec(&p, &other, 0.0, 0.1).random, spec.random);
+    }
+
+    #[test]
+    fn random_stroke_is_limited_by_scaling_the_amplitudes() {
+        let (p, mut r) = random_program();
+        r.band_hz = [0.5, 5.0];
+        let free = random_run_spec(&p, &r, 0.0, 0.3);
+        r.max_stroke_m = 0.5 * free.amplitude_m;
+        let limited = random_run_spec(&p, &r, 0.0, 0.3);
+        assert!((limited.amplitude_m - r.max_stroke_m).abs() < 1e-12);
+        let ratio = limited.peak_velocity_m_s / free.peak_velocity_m_s;
+        assert!((ratio - 0.5).abs() < 1e-9, "{ratio}");
+    }
+
+    #[test]
+    fn alpha_schedule_alternates_levels_in_segments_of_the_configured_length() {
+        let (p, r) = random_program();
+        let spec = random_run_spec(&p, &r, 0.15, 0.1);
+        let s = AlphaScheduleProgram {
+            seed: 9,
+            min_segment_s: 0.1,
+            max_segment_s: 0.3,
+        };
+        let seg = alpha_schedule(&spec, &s, &[0.0, 0.15, 0.3]);
+        assert!(seg.len() >= 7, "{seg:?}");
+        assert_eq!(seg[0].start_s, 0.0);
+        assert_eq!(seg[0].alpha, 0.15);
+        for w in seg.windows(2) {
+            let d = w[1].start_s - w[0].start_s;
+            assert!((0.1..=0.3).contains(&d), "{seg:?}");
+            assert_ne!(w[0].alpha, w[1].alpha);
+        }
+        assert!(seg.last().unwrap().start_s < spec.duration_s());
+        let mut with = spec.clone();
+        with.alpha_segments = seg.clone();
+        assert_eq!(with.alpha_at(0.0), 0.15);
+        assert_eq!(with.alpha_at(seg[2].start_s + 1e-9), seg[2].alpha);
+    }
 }

@@ -125,7 +125,7 @@ pub fn periodicity(run: &Run, displacement_m: &[f64], sample_rate_hz: f64) -> Op
             (l.min(x), h.max(x))
         });
     let half = 0.5 * (hi - lo);
-    if !(half > super::preprocess::MIN_STROKE_M) {
+    if half.is_nan() || half <= super::preprocess::MIN_STROKE_M {
         return None;
     }
     let mid = 0.5 * (hi + lo);
