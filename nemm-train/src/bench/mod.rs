@@ -125,17 +125,6 @@ impl VirtualBench {
             tau: a.separation_time_s,
         };
         let foam = foam_at(spec.oil_loss);
-        let fs = self.cfg.program.sample_rate_hz;
-        let segments: Vec<Segment> = spec
-            .alpha_segments
-            .iter()
-            .map(|s| Segment {
-                first_sample: (s.start_s * fs).ceil() as usize,
-                alpha: s.alpha,
-                filling: self.filling(s.alpha),
-                foam: foam_at(s.alpha),
-            })
-            .collect();
         let settings = StepSettings {
             h,
             pressure_tolerance: self.cfg.solver.pressure_tolerance_pa,
@@ -155,6 +144,24 @@ impl VirtualBench {
             &settings,
             CONDITIONING_PASSES,
         );
+        // Later segments: the rest state of their level with the run's conditioned free gas
+        // in the chambers (the first segment is the run's own level, `f`).
+        let fs = self.cfg.program.sample_rate_hz;
+        let segments: Vec<Segment> = spec
+            .alpha_segments
+            .iter()
+            .filter(|s| s.start_s > 0.0)
+            .map(|s| Segment {
+                first_sample: (s.start_s * fs).ceil() as usize,
+                alpha: s.alpha,
+                filling: self.damper.with_gas(
+                    &self.filling(s.alpha),
+                    f.gas_rebound,
+                    f.gas_compression,
+                ),
+                foam: foam_at(s.alpha),
+            })
+            .collect();
         simulate::simulate(&simulate::Job {
             damper: &self.damper,
             filling: &f,
