@@ -339,3 +339,60 @@ fn low_acceleration_rule_on_a_sine_stays_close_to_the_paper_rule() {
         }
     }
 }
+
+/// The SEM of sine runs of one amplitude (ramp-in passes included) has a support velocity at
+/// every run's peak velocity (the force there is the cluster's mean, ramp-in passes of similar
+/// velocity included; its distance to the full-amplitude passes is printed).
+#[test]
+fn sem_from_sine_points_reproduces_the_steady_support_points() {
+    use nemm_train::bench::{config::BenchConfig, VirtualBench};
+    let mut cfg = BenchConfig::default();
+    cfg.program.oil_loss = vec![0.0, 0.3];
+    cfg.program.amplitudes_m = vec![0.03];
+    cfg.program.peak_velocities_m_s = vec![0.131, 0.262, 0.524];
+    let ds = VirtualBench::new(cfg).generate(2, |_, _| {});
+    let mut prep = PrepareConfig::default();
+    prep.split.test_alphas = vec![];
+    prep.split.train_alphas = None;
+    prep.split.validation_fraction = 0.0;
+    let p = preprocess::prepare(&ds, &prep).unwrap();
+    let pts = &p.quasi_static.train;
+    let sem = nemm_train::train::pipeline::fit_sem(pts).unwrap();
+    let mut worst: f64 = 0.0;
+    for &alpha in &sem.alphas {
+        let curve = sem.curve_at(alpha).0;
+        for run in &p.runs {
+            if (run.summary.alpha as f32 - alpha).abs() > 1e-6 {
+                continue;
+            }
+            let own: Vec<_> = pts.iter().filter(|q| q.run == run.summary.index).collect();
+            for direction in [Direction::Rebound, Direction::Compression] {
+                let d: Vec<_> = own.iter().filter(|q| q.direction == direction).collect();
+                let v_top = d.iter().map(|q| q.velocity_m_s.abs()).fold(0.0, f64::max);
+                let steady: Vec<_> = d
+                    .iter()
+                    .filter(|q| q.velocity_m_s.abs() >= 0.98 * v_top)
+                    .collect();
+                let n = steady.len() as f64;
+                let v = steady.iter().map(|q| q.velocity_m_s).sum::<f64>() / n;
+                let f = steady.iter().map(|q| q.force_n).sum::<f64>() / n;
+                let model = f64::from(sem.force_on_curve(&curve, v as f32));
+                worst = worst.max(((model - f) / f).abs());
+                assert!(
+                    sem.velocities_m_s
+                        .iter()
+                        .any(|&k| (f64::from(k) / v - 1.0).abs() < 0.02),
+                    "no support velocity near {v}: {:?}",
+                    sem.velocities_m_s
+                );
+            }
+        }
+    }
+    eprintln!(
+        "SEM of {} sine points: {} support velocities, worst error at the steady points {:.2} %",
+        pts.len(),
+        sem.velocities_m_s.len(),
+        100.0 * worst
+    );
+    assert!(worst.is_finite());
+}

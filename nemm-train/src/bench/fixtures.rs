@@ -40,8 +40,10 @@ pub struct Fixture {
 /// A configuration for sample rate `fs` whose internal step (about 25 us) divides the sample
 /// period.
 fn at_rate(name: &str, fs: f64) -> BenchConfig {
-    let mut c = BenchConfig::default();
-    c.name = name.to_string();
+    let mut c = BenchConfig {
+        name: name.to_string(),
+        ..BenchConfig::default()
+    };
     c.program.sample_rate_hz = fs;
     c.solver.internal_step_s = 1.0 / (fs * (1.0 / (fs * 25e-6)).round());
     c

@@ -1,8 +1,8 @@
 //! The paper's training procedure for the four variants (sections 5-6).
 //!
 //! 1. **SEM**: the quasi-static points of the training set (section 5.3) become support
-//!    points per oil-loss level: points of one level whose velocities lie within 5 % of their
-//!    cluster's first velocity are averaged (the gap is widened by factors of 1.5 while there are more clusters than the
+//!    points per oil-loss level: points of one level whose velocities agree within 5 % are
+//!    averaged (a cluster spans at most 20 %) (the gap is widened by factors of 1.5 while there are more clusters than the
 //!    map holds, as with the dense points of random excitation), the origin is added, and
 //!    every level is resampled (piecewise linear) onto the common velocity grid. nemm-core interpolates linearly in alpha between the levels.
 //! 2. **Linear EMM** (first step of the two-step procedure): constant `b_fl`, `b_pr`, `k_pr`,
@@ -207,15 +207,24 @@ pub fn init_scaler(
 /// Relative velocity gap that separates two SEM support velocities (5 %).
 pub const SEM_CLUSTER_GAP: f64 = 0.05;
 
-/// Knots from sorted velocities: the origin plus the mean of every cluster (velocities of one
-/// sign within `gap` times the larger magnitude of the cluster's first velocity, so that dense
-/// points do not chain into one cluster).
+/// Largest span of one velocity cluster, relative to its largest magnitude, in units of the
+/// gap (4 x 5 % = 20 %).
+pub const SEM_CLUSTER_SPAN: f64 = 4.0;
+
+/// Knots from sorted velocities: the origin plus the mean of every cluster. A cluster holds
+/// velocities of one sign, each less than `gap` times the larger magnitude from the previous
+/// one, and spans at most [`SEM_CLUSTER_SPAN`] `gap` times its largest magnitude (so that dense
+/// points, e.g. of random excitation, do not chain into one cluster).
 fn velocity_knots(sorted: &[f64], gap: f64) -> Vec<f64> {
     let mut knots: Vec<f64> = vec![0.0];
     let mut cluster: Vec<f64> = Vec::new();
     for &v in sorted {
-        if let Some(&first) = cluster.first() {
-            if (v - first).abs() > gap * first.abs().max(v.abs()) || v.signum() != first.signum() {
+        if let (Some(&first), Some(&last)) = (cluster.first(), cluster.last()) {
+            let scale = first.abs().max(v.abs());
+            if (v - last).abs() > gap * last.abs().max(v.abs())
+                || (v - first).abs() > SEM_CLUSTER_SPAN * gap * scale
+                || v.signum() != last.signum()
+            {
                 knots.push(cluster.iter().sum::<f64>() / cluster.len() as f64);
                 cluster.clear();
             }
