@@ -84,6 +84,7 @@ fn sine_run(
         displacement_m,
         force_n,
         velocity_m_s: None,
+        alpha: None,
     }
 }
 

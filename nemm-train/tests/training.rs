@@ -69,6 +69,7 @@ fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> D
                 displacement_m,
                 force_n,
                 velocity_m_s: Some(velocity),
+                alpha: None,
             });
         }
     }

@@ -30,6 +30,7 @@ fn trace_loop(b: &VirtualBench, s: &RunSpec, tr: &Trace) -> CycleLoop {
         displacement_m: tr.displacement_m.clone(),
         force_n: tr.force_n.clone(),
         velocity_m_s: None,
+        alpha: None,
     };
     let fs = b.config().program.sample_rate_hz;
     let sig = process_run(&run, 0, fs, &SignalConfig::default()).expect("signals");
@@ -524,4 +525,42 @@ fn plots_are_written_for_a_generated_dataset() {
     }
     let _ = std::fs::remove_dir_all(&data);
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// An oil-loss schedule: the `alpha` column follows the segments, and the force is that of the
+/// constant-level run until the first change and differs from it afterwards.
+#[test]
+fn alpha_schedule_changes_the_force_from_its_first_switch_on() {
+    let cfg = nemm_train::bench::fixtures::fixtures()
+        .into_iter()
+        .find(|f| f.name == "alpha_schedule_1khz")
+        .unwrap()
+        .config;
+    let mut constant = cfg.clone();
+    constant.program.alpha_schedule = None;
+    let (with, without) = (VirtualBench::new(cfg), VirtualBench::new(constant));
+    let spec = with.runs().remove(0);
+    let plain = without.runs().remove(0);
+    assert!(plain.alpha_segments.is_empty());
+    let (a, b) = (with.measure(&spec, 5), without.measure(&plain, 5));
+    let alpha = a.alpha.as_ref().expect("alpha column");
+    assert!(b.alpha.is_none());
+    let fs = with.config().program.sample_rate_hz;
+    for (i, &x) in alpha.iter().enumerate() {
+        assert_eq!(x, spec.alpha_at(i as f64 / fs), "sample {i}");
+    }
+    let switch = alpha.iter().position(|&x| x != alpha[0]).unwrap();
+    assert_eq!(a.force_n[..switch], b.force_n[..switch]);
+    let rms = |r: std::ops::Range<usize>| {
+        (r.clone()
+            .map(|i| (a.force_n[i] - b.force_n[i]).powi(2))
+            .sum::<f64>()
+            / r.len() as f64)
+            .sqrt()
+    };
+    let after = rms(switch..a.len());
+    assert!(
+        after > 10.0,
+        "force RMS difference after the switch {after} N"
+    );
 }

@@ -217,6 +217,47 @@ pub struct Program {
     pub min_steady_periods: u32,
     /// Minimum full-amplitude duration after the ramp \[s\].
     pub min_steady_s: f64,
+    /// Random excitation instead of the sine grid (optional table `[program.random]`).
+    #[serde(default)]
+    pub random: Option<RandomProgram>,
+    /// Oil loss changing within every run (optional table `[program.alpha_schedule]`).
+    #[serde(default)]
+    pub alpha_schedule: Option<AlphaScheduleProgram>,
+}
+
+/// Band-limited random excitation (`[program.random]`): for every oil-loss level and every
+/// velocity RMS one run, a random-phase multisine with a flat velocity spectrum in `band_hz`
+/// (see `bench::program::Multisine`). Replaces the sine grid (`amplitudes_m`,
+/// `peak_velocities_m_s`, `ramp_periods`, `max_ramp_s`, `min_steady_*` are then unused).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RandomProgram {
+    /// Seed of the random phases (with the run's file name, through `sensor::run_rng`).
+    pub seed: u64,
+    /// Velocity RMS of the steady stroke, one run per entry and level \[m/s\].
+    pub velocity_rms_m_s: Vec<f64>,
+    /// Lower and upper edge of the flat velocity spectrum \[Hz\].
+    pub band_hz: [f64; 2],
+    /// Steady duration `T` after the ramp \[s\]; the lines are `k / T`.
+    pub duration_s: f64,
+    /// Raised-cosine ramp-in \[s\].
+    pub ramp_s: f64,
+    /// Largest `|x|` of the steady stroke \[m\]; larger strokes are scaled down.
+    pub max_stroke_m: f64,
+}
+
+/// Oil loss changing within a run (`[program.alpha_schedule]`): segments of random length,
+/// levels drawn from `program.oil_loss` (see `bench::program::alpha_schedule`). The runs get
+/// the per-sample `alpha` column.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AlphaScheduleProgram {
+    /// Seed of the segment lengths and levels.
+    pub seed: u64,
+    /// Shortest segment \[s\].
+    pub min_segment_s: f64,
+    /// Longest segment \[s\].
+    pub max_segment_s: f64,
 }
 
 /// Measurement chain.
@@ -241,6 +282,14 @@ pub struct Sensors {
     pub write_velocity: bool,
     /// Noise of the written velocity column \[m/s\].
     pub velocity_noise_std_m_s: f64,
+    /// Resolution of the written time stamps \[s\] (optional; default 1 ns): a logger that
+    /// rounds its clock, e.g. 1e-4 for 0.1 ms.
+    #[serde(default)]
+    pub time_resolution_s: Option<f64>,
+    /// Zero offset of the displacement transducer \[m\] (optional; default 0): added to every
+    /// written displacement, like a potentiometer whose zero is not the stroke centre.
+    #[serde(default)]
+    pub displacement_offset_m: Option<f64>,
 }
 
 impl Default for BenchConfig {
@@ -504,6 +553,61 @@ impl BenchConfig {
             ));
         }
         non_negative("program.min_steady_s", p.min_steady_s)?;
+        if let Some(r) = &p.random {
+            if r.velocity_rms_m_s.is_empty() {
+                return Err(invalid(
+                    "program.random.velocity_rms_m_s",
+                    "must not be empty".into(),
+                ));
+            }
+            for &v in &r.velocity_rms_m_s {
+                positive("program.random.velocity_rms_m_s", v)?;
+            }
+            positive("program.random.duration_s", r.duration_s)?;
+            non_negative("program.random.ramp_s", r.ramp_s)?;
+            positive("program.random.max_stroke_m", r.max_stroke_m)?;
+            let room = g
+                .rebound_chamber_length_m
+                .min(g.compression_chamber_length_m);
+            if r.max_stroke_m >= 0.9 * room {
+                return Err(invalid(
+                    "program.random.max_stroke_m",
+                    format!("does not fit the chambers (limit {:.4} m)", 0.9 * room),
+                ));
+            }
+            let [lo, hi] = r.band_hz;
+            if !(lo.is_finite() && lo > 0.0 && hi > lo && hi < 0.5 * p.sample_rate_hz) {
+                return Err(invalid(
+                    "program.random.band_hz",
+                    format!(
+                        "must be [low, high] with 0 < low < high < half the sample rate ({} Hz), \
+                         got [{lo}, {hi}]",
+                        0.5 * p.sample_rate_hz
+                    ),
+                ));
+            }
+            if (hi * r.duration_s).floor() < (lo * r.duration_s).ceil() {
+                return Err(invalid(
+                    "program.random.duration_s",
+                    "leaves no line k / duration_s inside band_hz".into(),
+                ));
+            }
+        }
+        if let Some(a) = &p.alpha_schedule {
+            positive("program.alpha_schedule.min_segment_s", a.min_segment_s)?;
+            if !(a.max_segment_s.is_finite() && a.max_segment_s >= a.min_segment_s) {
+                return Err(invalid(
+                    "program.alpha_schedule.max_segment_s",
+                    "must be at least min_segment_s".into(),
+                ));
+            }
+            if p.oil_loss.len() < 2 {
+                return Err(invalid(
+                    "program.oil_loss",
+                    "needs at least two levels for an alpha schedule".into(),
+                ));
+            }
+        }
         let se = &self.sensors;
         non_negative("sensors.force_noise_std_n", se.force_noise_std_n)?;
         positive("sensors.force_resolution_n", se.force_resolution_n)?;
@@ -518,6 +622,17 @@ impl BenchConfig {
             se.displacement_resolution_m,
         )?;
         non_negative("sensors.velocity_noise_std_m_s", se.velocity_noise_std_m_s)?;
+        if let Some(q) = se.time_resolution_s {
+            positive("sensors.time_resolution_s", q)?;
+        }
+        if let Some(x) = se.displacement_offset_m {
+            if !x.is_finite() {
+                return Err(invalid(
+                    "sensors.displacement_offset_m",
+                    format!("must be a finite number, got {x}"),
+                ));
+            }
+        }
         Ok(())
     }
 }

@@ -18,6 +18,7 @@
 //! ```
 
 pub mod config;
+pub mod fixtures;
 mod hydraulics;
 pub mod program;
 pub mod sensor;
@@ -33,7 +34,7 @@ use rand::RngExt;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use sensor::Quantiser;
-use simulate::{Foam, StepSettings};
+use simulate::{Foam, Segment, StepSettings};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Conditioning periods simulated before each run to settle the free gas (see
@@ -118,17 +119,19 @@ impl VirtualBench {
     pub fn simulate_with_step(&self, spec: &RunSpec, h: f64) -> Trace {
         let rest = self.filling(spec.oil_loss);
         let a = &self.cfg.aeration;
-        let foam = Foam {
+        let foam_at = |alpha: f64| Foam {
             c_bg: a.background_gas_per_oil,
-            c_intake: a.intake_gas_per_oil(spec.oil_loss),
+            c_intake: a.intake_gas_per_oil(alpha),
             tau: a.separation_time_s,
         };
+        let foam = foam_at(spec.oil_loss);
         let settings = StepSettings {
             h,
             pressure_tolerance: self.cfg.solver.pressure_tolerance_pa,
             max_iterations: self.cfg.solver.max_newton_iterations,
         };
         // First guess from the mean flows, then two conditioning periods at the sample step.
+        let excitation = spec.excitation();
         let (g_r, g_c) = foam.conditioned(&self.damper, spec.peak_velocity_m_s);
         let guess = self.damper.with_gas(&rest, g_r, g_c);
         let h_condition = h.max(1.0 / self.cfg.program.sample_rate_hz);
@@ -136,20 +139,40 @@ impl VirtualBench {
             &self.damper,
             &guess,
             foam,
-            &spec.excitation(),
+            &excitation,
             h_condition,
             &settings,
             CONDITIONING_PASSES,
         );
+        // Later segments: the rest state of their level with the run's conditioned free gas
+        // in the chambers (the first segment is the run's own level, `f`).
+        let fs = self.cfg.program.sample_rate_hz;
+        let segments: Vec<Segment> = spec
+            .alpha_segments
+            .iter()
+            .filter(|s| s.start_s > 0.0)
+            .map(|s| Segment {
+                first_sample: (s.start_s * fs).ceil() as usize,
+                alpha: s.alpha,
+                filling: self.damper.with_gas(
+                    &self.filling(s.alpha),
+                    f.gas_rebound,
+                    f.gas_compression,
+                ),
+                foam: foam_at(s.alpha),
+            })
+            .collect();
         simulate::simulate(&simulate::Job {
             damper: &self.damper,
             filling: &f,
             foam,
-            excitation: &spec.excitation(),
+            excitation: &excitation,
             sample_rate_hz: self.cfg.program.sample_rate_hz,
             samples: spec.samples,
             settings,
             tare: self.tare(&rest),
+            segments: &segments,
+            alpha: spec.oil_loss,
         })
     }
 
@@ -179,7 +202,8 @@ impl VirtualBench {
         let mut rng = sensor::run_rng(seed, &spec.file.to_string_lossy());
         let qf = Quantiser::new(s.force_resolution_n);
         let qx = Quantiser::new(s.displacement_resolution_m);
-        let qt = Quantiser::new(1e-9);
+        let qt = Quantiser::new(s.time_resolution_s.unwrap_or(1e-9));
+        let x_offset = s.displacement_offset_m.unwrap_or(0.0);
         let qv = Quantiser::new(1e-6);
         let hum_phase = 2.0 * std::f64::consts::PI * rng.random::<f64>();
         let mut normal = || -> f64 { rng.sample(StandardNormal) };
@@ -191,8 +215,9 @@ impl VirtualBench {
         for i in 0..n {
             let t = tr.time_s[i];
             time_s.push(qt.apply(t));
-            displacement_m
-                .push(qx.apply(tr.displacement_m[i] + s.displacement_noise_std_m * normal()));
+            displacement_m.push(
+                qx.apply(tr.displacement_m[i] + x_offset + s.displacement_noise_std_m * normal()),
+            );
             let hum = s.mains_hum_n
                 * (2.0 * std::f64::consts::PI * s.mains_frequency_hz * t + hum_phase).sin();
             force_n.push(qf.apply(tr.force_n[i] + hum + s.force_noise_std_n * normal()));
@@ -200,17 +225,19 @@ impl VirtualBench {
                 velocity.push(qv.apply(tr.velocity_m_s[i] + s.velocity_noise_std_m_s * normal()));
             }
         }
+        let sine = spec.random.is_none();
         Run {
             entry: RunEntry {
                 file: spec.file.clone(),
                 oil_loss: spec.oil_loss,
-                amplitude_m: Some(spec.amplitude_m),
-                target_velocity_m_s: Some(spec.peak_velocity_m_s),
+                amplitude_m: sine.then_some(spec.amplitude_m),
+                target_velocity_m_s: sine.then_some(spec.peak_velocity_m_s),
             },
             time_s,
             displacement_m,
             force_n,
             velocity_m_s: s.write_velocity.then_some(velocity),
+            alpha: (!spec.alpha_segments.is_empty()).then(|| tr.alpha.clone()),
         }
     }
 

@@ -45,6 +45,8 @@ pub struct Trace {
     pub vapour_rebound_m3: Vec<f64>,
     /// Free gas in the compression chamber (normal volume) \[m³\].
     pub gas_compression_m3: Vec<f64>,
+    /// Oil loss alpha in effect at each sample \[-\].
+    pub alpha: Vec<f64>,
     /// Free gas in the rebound chamber (normal volume) \[m³\].
     pub gas_rebound_m3: Vec<f64>,
     /// Work of the integrator.
@@ -308,6 +310,25 @@ pub(crate) struct Job<'a> {
     pub(crate) settings: StepSettings,
     /// Subtracted from the force \[N\].
     pub(crate) tare: f64,
+    /// Oil-loss schedule: from sample `first_sample` on, the damper continues with the
+    /// reservoir (oil, gas charge) of `filling` and the foam intake of `foam` (empty: `filling`
+    /// and `foam` throughout).
+    pub(crate) segments: &'a [Segment],
+    /// Oil loss written to [`Trace::alpha`] before the first segment.
+    pub(crate) alpha: f64,
+}
+
+/// One segment of an oil-loss schedule, in samples.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Segment {
+    /// First output sample of the segment.
+    pub(crate) first_sample: usize,
+    /// Oil loss \[-\].
+    pub(crate) alpha: f64,
+    /// The rest state of `alpha` (its reservoir replaces the running one).
+    pub(crate) filling: Filling,
+    /// Foam transport at `alpha`.
+    pub(crate) foam: Foam,
 }
 
 /// Simulates `job.samples` output samples with internal step `job.settings.h` (rounded to
@@ -326,6 +347,8 @@ pub(crate) fn simulate(job: &Job) -> Trace {
     let sub = ((1.0 / fs) / settings.h).round().max(1.0) as usize;
     let h = 1.0 / fs / sub as f64;
     let mut st = State::new(d, f, foam);
+    let mut alpha = job.alpha;
+    let mut next_segment = 0;
     let mut tr = Trace::default();
     for v in [
         &mut tr.time_s,
@@ -339,6 +362,7 @@ pub(crate) fn simulate(job: &Job) -> Trace {
         &mut tr.vapour_rebound_m3,
         &mut tr.gas_compression_m3,
         &mut tr.gas_rebound_m3,
+        &mut tr.alpha,
     ] {
         v.reserve(samples);
     }
@@ -370,6 +394,19 @@ pub(crate) fn simulate(job: &Job) -> Trace {
         tr.vapour_rebound_m3.push(st.vap_r);
         tr.gas_compression_m3.push(st.g_c);
         tr.gas_rebound_m3.push(st.g_r);
+        // A segment takes effect at its first sample: the steps after it run with the new
+        // reservoir (oil total, gas charge) and foam intake; the chambers keep their oil, free
+        // gas, pressures and valve lifts.
+        while let Some(seg) = job.segments.get(next_segment) {
+            if seg.first_sample > k {
+                break;
+            }
+            st.f = &seg.filling;
+            st.foam = seg.foam;
+            alpha = seg.alpha;
+            next_segment += 1;
+        }
+        tr.alpha.push(alpha);
     }
     tr.stats = st.stats;
     tr
@@ -403,10 +440,11 @@ pub(crate) fn condition(
     settings: &StepSettings,
     passes: u32,
 ) -> Filling {
-    let period = 2.0 * std::f64::consts::PI / exc.omega;
-    let n_ramp = (exc.ramp_s / h).ceil() as usize;
+    let period = exc.conditioning_span_s();
+    let ramp_s = exc.ramp_s();
+    let n_ramp = (ramp_s / h).ceil() as usize;
     let h_ramp = if n_ramp > 0 {
-        exc.ramp_s / n_ramp as f64
+        ramp_s / n_ramp as f64
     } else {
         0.0
     };
@@ -420,7 +458,7 @@ pub(crate) fn condition(
         }
         st.tally = FlowTally::default();
         for k in 0..n_period {
-            let t0 = exc.ramp_s + k as f64 * h_period;
+            let t0 = ramp_s + k as f64 * h_period;
             st.step(t0, t0 + h_period, exc, settings, 0);
         }
         let t = st.tally;

@@ -41,6 +41,13 @@ pub enum BenchCmd {
     },
     /// Print the built-in default configuration (a template for `--config`).
     Config,
+    /// Write the test fixtures (small datasets with the traits of real dyno records) into
+    /// `--out`, replacing their folders (the repository's are in nemm-train/tests/fixtures).
+    Fixtures {
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 /// Runs a `nemm bench` subcommand.
@@ -62,6 +69,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
         BenchCmd::Config => {
             print!("{}", config::DEFAULT_TOML);
+            Ok(())
+        }
+        BenchCmd::Fixtures { out } => {
+            for f in crate::bench::fixtures::write_fixtures(&out)? {
+                println!("wrote {}", f.display());
+            }
             Ok(())
         }
     }

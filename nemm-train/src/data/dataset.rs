@@ -67,6 +67,9 @@ pub const COL_DISPLACEMENT: &str = "displacement_m";
 pub const COL_FORCE: &str = "force_n";
 /// Name of the optional measured velocity column \[m/s\].
 pub const COL_VELOCITY: &str = "velocity_m_s";
+/// Name of the optional per-sample condition level column (alpha changing within a run, in
+/// \[0, 1\]).
+pub const COL_ALPHA: &str = "alpha";
 
 /// The manifest: dataset name, sample rate and the list of runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -107,6 +110,8 @@ pub struct Run {
     pub force_n: Vec<f64>,
     /// Measured stroke velocity \[m/s\], if the file has the column.
     pub velocity_m_s: Option<Vec<f64>>,
+    /// Condition level alpha per sample, if the file has the `alpha` column.
+    pub alpha: Option<Vec<f64>>,
 }
 
 impl Run {
@@ -372,6 +377,16 @@ pub enum DatasetError {
         limit_us: f64,
         /// Rate of the fitted grid \[Hz\].
         fitted_hz: f64,
+    },
+    /// A value of the `alpha` column lies outside \[0, 1\].
+    #[error("{}:{line}: column \"alpha\": {value} is not a level in [0, 1]", path.display())]
+    AlphaRange {
+        /// The CSV file.
+        path: PathBuf,
+        /// The row's line.
+        line: usize,
+        /// The value.
+        value: f64,
     },
     /// The CSV reader failed (malformed quoting, I/O while parsing).
     #[error("{}:{line}: {message}", path.display())]
@@ -734,6 +749,7 @@ pub fn parse_run(
         required(COL_FORCE)?,
     );
     let iv = index.get(COL_VELOCITY).copied();
+    let ia = index.get(COL_ALPHA).copied();
 
     // Pre-size from the byte count (about 30-60 bytes per row).
     let guess = bytes.len() / 32;
@@ -741,6 +757,7 @@ pub fn parse_run(
     let mut displacement_m = Vec::with_capacity(guess);
     let mut force_n = Vec::with_capacity(guess);
     let mut velocity_m_s = iv.map(|_| Vec::with_capacity(guess));
+    let mut alpha = ia.map(|_| Vec::with_capacity(guess));
     let mut record = csv::ByteRecord::new();
     let mut last_line = 1;
     let mut lines: Vec<usize> = Vec::with_capacity(guess);
@@ -769,6 +786,17 @@ pub fn parse_run(
         if let (Some(i), Some(v)) = (iv, velocity_m_s.as_mut()) {
             v.push(cell(i, COL_VELOCITY)?);
         }
+        if let (Some(i), Some(a)) = (ia, alpha.as_mut()) {
+            let value = cell(i, COL_ALPHA)?;
+            if !(0.0..=1.0).contains(&value) {
+                return Err(DatasetError::AlphaRange {
+                    path: path.to_path_buf(),
+                    line,
+                    value,
+                });
+            }
+            a.push(value);
+        }
     }
     if time_s.is_empty() {
         return Err(DatasetError::NoSamples {
@@ -785,6 +813,7 @@ pub fn parse_run(
         displacement_m,
         force_n,
         velocity_m_s,
+        alpha,
     })
 }
 
@@ -992,6 +1021,9 @@ fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), Datas
     if let Some(v) = &run.velocity_m_s {
         columns.push((COL_VELOCITY, v));
     }
+    if let Some(a) = &run.alpha {
+        columns.push((COL_ALPHA, a));
+    }
     for (name, values) in &columns {
         if values.len() != n {
             return Err(DatasetError::LengthMismatch {
@@ -1028,12 +1060,15 @@ fn write_atomic(
     })
 }
 
-/// Writes one run as CSV (`time_s,displacement_m,force_n[,velocity_m_s]`).
+/// Writes one run as CSV (`time_s,displacement_m,force_n[,velocity_m_s][,alpha]`).
 fn write_run_csv(run: &Run, w: &mut dyn std::io::Write) -> std::io::Result<()> {
     let mut line = String::with_capacity(128);
     line.push_str("time_s,displacement_m,force_n");
     if run.velocity_m_s.is_some() {
         line.push_str(",velocity_m_s");
+    }
+    if run.alpha.is_some() {
+        line.push_str(",alpha");
     }
     line.push('\n');
     w.write_all(line.as_bytes())?;
@@ -1047,6 +1082,9 @@ fn write_run_csv(run: &Run, w: &mut dyn std::io::Write) -> std::io::Result<()> {
         );
         if let Some(v) = &run.velocity_m_s {
             let _ = write!(line, ",{}", v[i]);
+        }
+        if let Some(a) = &run.alpha {
+            let _ = write!(line, ",{}", a[i]);
         }
         line.push('\n');
         w.write_all(line.as_bytes())?;

@@ -4,3 +4,4 @@ pub mod check;
 pub mod dataset;
 pub mod import;
 pub mod preprocess;
+pub mod support;

@@ -1290,11 +1290,32 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
             } else {
                 &run.force_n
             };
-            let points = quasi_static_points(i, &signals, &summary.excitation, alpha, window);
             let sequences = match role {
                 RunRole::Unused => Vec::new(),
                 _ => cut_sequences(i, alpha, &signals.velocity_m_s, force, warmup, scored),
             };
+            let held = match role {
+                RunRole::TrainValidation => validation_indices(
+                    sequences.len(),
+                    config.split.validation_fraction,
+                    config.split.seed,
+                    i,
+                ),
+                _ => Vec::new(),
+            };
+            let in_validation = |sample: usize| {
+                sample >= warmup && held.binary_search(&((sample - warmup) / scored)).is_ok()
+            };
+            let periodic = super::support::periodicity(run, &signals.displacement_m, fs).is_some();
+            let points = super::support::support_points(
+                i,
+                periodic,
+                &signals,
+                &summary.excitation,
+                alpha,
+                window,
+                &in_validation,
+            );
             let mut out = PerRun {
                 prepared: PreparedRun {
                     role,
@@ -1320,16 +1341,6 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                     out.qs.test = points;
                 }
                 RunRole::TrainValidation => {
-                    let held = validation_indices(
-                        sequences.len(),
-                        config.split.validation_fraction,
-                        config.split.seed,
-                        i,
-                    );
-                    let in_validation = |sample: usize| {
-                        sample >= warmup
-                            && held.binary_search(&((sample - warmup) / scored)).is_ok()
-                    };
                     for (k, s) in sequences.into_iter().enumerate() {
                         if held.binary_search(&k).is_ok() {
                             out.validation.push(s);

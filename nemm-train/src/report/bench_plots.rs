@@ -2,24 +2,42 @@
 //! against 0 % oil loss (like Fig. 5) and the quasi-static characteristic of any dataset in the
 //! interchange format (virtual or real bench).
 //!
-//! Each run is reduced to one cycle-averaged loop: the last full periods (at least one, up to
-//! 60 % of the run) are folded onto the phase of the displacement (a least-squares sine fit at
-//! the excitation frequency), and velocity and force are averaged in 256 phase bins. The
+//! Periodic runs (the rule of [`crate::data::support::periodicity`]: manifest metadata or
+//! regular zero crossings) are reduced to one cycle-averaged loop each: the last full periods
+//! (at least one, up to 60 % of the run) are folded onto the phase of the displacement (a
+//! least-squares sine fit at the excitation frequency), and velocity and force are averaged in
+//! phase bins: [`MAX_PHASE_BINS`] (256), or, when a period has fewer samples, the largest
+//! power of two not above the samples per period, halved until every bin holds a sample
+//! (at least [`MIN_PHASE_BINS`]). The displacement is centred on the fit's offset, so a
+//! transducer zero away from the stroke centre does not move the quasi-static window. The
 //! velocity is the one the trainer sees, derived once per run by the preprocessing
 //! ([`crate::data::preprocess::run_signals`]: zero-phase low-pass of the displacement and
-//! central difference, or the measured column). Averaging
-//! over periods removes the sensor noise without the phase lag of a filter. Forces are
-//! normalised by the largest cycle-averaged |force| of the dataset, as in the paper's figures.
+//! central difference, or the measured column). Averaging over periods removes the sensor
+//! noise without the phase lag of a filter. Forces are normalised by the largest
+//! cycle-averaged |force| of the dataset, as in the paper's figures.
+//!
+//! Non-periodic runs (random excitation) have no loop: `random_runs.png` shows, per run, the
+//! force-velocity density (a 2-D histogram of the samples) and time traces of force and
+//! velocity.
 
 use crate::data::dataset::{self, Dataset, Run};
 use crate::data::preprocess::{run_signals, SignalConfig, Signals};
-use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Series};
+use crate::data::support::periodicity;
+use crate::report::plot::{palette, Figure, HeatmapPanel, LegendPosition, LinePanel, Series};
 use anyhow::{bail, Context, Result};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
-/// Number of phase bins of a cycle-averaged loop.
-pub const PHASE_BINS: usize = 256;
+/// Phase bins of a cycle-averaged loop when a period has enough samples.
+pub const MAX_PHASE_BINS: usize = 256;
+/// Fewest phase bins of a loop; a period with fewer samples gives no loop.
+pub const MIN_PHASE_BINS: usize = 8;
+/// Runs drawn in `random_runs.png` (the first ones of the dataset's non-periodic runs).
+pub const MAX_RANDOM_RUNS: usize = 8;
+/// Cells per axis of the force-velocity density.
+pub const DENSITY_BINS: usize = 48;
+/// Length of the time traces of a non-periodic run \[s\].
+pub const TRACE_S: f64 = 2.0;
 
 /// One run reduced to a cycle-averaged loop.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,7 +50,8 @@ pub struct CycleLoop {
     pub frequency_hz: f64,
     /// Peak velocity \[m/s\] (metadata, else `2 pi f A`).
     pub peak_velocity_m_s: f64,
-    /// Mean displacement per phase bin \[m\] (bin 0 starts at the upward zero crossing).
+    /// Mean displacement per phase bin \[m\], centred on the fitted stroke centre (bin 0
+    /// starts at the upward zero crossing).
     pub displacement_m: Vec<f64>,
     /// Mean velocity per phase bin \[m/s\].
     pub velocity_m_s: Vec<f64>,
@@ -40,6 +59,18 @@ pub struct CycleLoop {
     pub force_n: Vec<f64>,
     /// Number of periods averaged.
     pub periods: usize,
+}
+
+impl CycleLoop {
+    /// Number of phase bins.
+    pub fn bins(&self) -> usize {
+        self.force_n.len()
+    }
+
+    /// Phase of the centre of bin `k` \[rad\].
+    pub fn bin_phase(&self, k: usize) -> f64 {
+        (k as f64 + 0.5) / self.bins() as f64 * 2.0 * PI
+    }
 }
 
 impl CycleLoop {
@@ -117,33 +148,6 @@ impl CycleLoop {
     }
 }
 
-/// Estimates the excitation frequency from the upward mean crossings of the displacement.
-fn estimate_frequency(run: &Run) -> Option<f64> {
-    let x = &run.displacement_m;
-    let mean = x.iter().sum::<f64>() / x.len() as f64;
-    let ups: Vec<f64> = (1..x.len())
-        .filter(|&i| x[i - 1] < mean && x[i] >= mean)
-        .map(|i| run.time_s[i])
-        .collect();
-    // Ignore chatter from noise: require crossings at least 5 samples apart.
-    let dt = run
-        .time_s
-        .get(1)
-        .map(|t1| t1 - run.time_s[0])
-        .unwrap_or(1.0);
-    let clean: Vec<f64> = ups
-        .windows(2)
-        .filter(|w| w[1] - w[0] > 5.0 * dt)
-        .map(|w| w[1] - w[0])
-        .collect();
-    if clean.len() < 2 {
-        return None;
-    }
-    let mut periods = clean;
-    periods.sort_by(f64::total_cmp);
-    Some(1.0 / periods[periods.len() / 2])
-}
-
 /// Reduces a run to its cycle-averaged loop, with the run's preprocessed `velocity_m_s`
 /// ([`Signals::velocity_m_s`]).
 pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
@@ -151,13 +155,12 @@ pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
     if run.len() < 16 {
         bail!("run {name}: too short for a loop ({} samples)", run.len());
     }
-    let freq = match (run.entry.amplitude_m, run.entry.target_velocity_m_s) {
-        (Some(a), Some(v)) if a > 0.0 && v > 0.0 => v / (2.0 * PI * a),
-        _ => estimate_frequency(run)
-            .with_context(|| format!("run {name}: no periodic displacement found"))?,
-    };
     let t_end = run.time_s[run.len() - 1];
     let duration = t_end - run.time_s[0];
+    let fs = (run.len() - 1) as f64 / duration;
+    let freq = periodicity(run, &run.displacement_m, fs)
+        .with_context(|| format!("run {name}: no periodic displacement found"))?
+        .frequency_hz;
     let periods = ((0.6 * duration * freq).floor() as usize).max(1);
     let t_start = t_end - periods as f64 / freq;
     if t_start < run.time_s[0] - 1e-9 {
@@ -213,31 +216,47 @@ pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
     let (a, b) = (solve(0), solve(1));
     let theta = b.atan2(a); // x ~ R sin(w t + theta)
     let amp_fit = a.hypot(b);
-    let mut sum_x = vec![0.0; PHASE_BINS];
-    let mut sum_v = vec![0.0; PHASE_BINS];
-    let mut sum_f = vec![0.0; PHASE_BINS];
-    let mut count = vec![0usize; PHASE_BINS];
-    for i in 0..t.len() {
-        let phase = (w * t[i] + theta).rem_euclid(2.0 * PI);
-        let k = ((phase / (2.0 * PI) * PHASE_BINS as f64) as usize).min(PHASE_BINS - 1);
-        sum_x[k] += x[i];
-        sum_v[k] += v[i];
-        sum_f[k] += f[i];
-        count[k] += 1;
+    let centre = solve(2);
+    let per_period = t.len() as f64 / periods as f64;
+    let mut bins = MAX_PHASE_BINS;
+    while bins > MIN_PHASE_BINS && bins as f64 > per_period {
+        bins /= 2;
     }
-    if count.contains(&0) {
-        bail!(
-            "run {name}: {} samples per period are too few for {PHASE_BINS} phase bins",
-            (t.len() / periods)
-        );
-    }
+    let (sum_x, sum_v, sum_f, count) = loop {
+        let mut sum_x = vec![0.0; bins];
+        let mut sum_v = vec![0.0; bins];
+        let mut sum_f = vec![0.0; bins];
+        let mut count = vec![0usize; bins];
+        for i in 0..t.len() {
+            let phase = (w * t[i] + theta).rem_euclid(2.0 * PI);
+            let k = ((phase / (2.0 * PI) * bins as f64) as usize).min(bins - 1);
+            sum_x[k] += x[i] - centre;
+            sum_v[k] += v[i];
+            sum_f[k] += f[i];
+            count[k] += 1;
+        }
+        if !count.contains(&0) {
+            break (sum_x, sum_v, sum_f, count);
+        }
+        if bins <= MIN_PHASE_BINS {
+            bail!(
+                "run {name}: {per_period:.0} samples per period are too few for \
+                 {MIN_PHASE_BINS} phase bins"
+            );
+        }
+        bins /= 2;
+    };
     let avg = |s: Vec<f64>| {
         s.iter()
             .zip(&count)
             .map(|(s, &c)| s / c as f64)
             .collect::<Vec<f64>>()
     };
-    let amplitude_m = run.entry.amplitude_m.unwrap_or(amp_fit);
+    // Without metadata the fitted amplitude, rounded to 1 mm so that runs group into rows.
+    let amplitude_m = run
+        .entry
+        .amplitude_m
+        .unwrap_or(((amp_fit * 1e3).round() / 1e3).max(amp_fit.min(1e-3)));
     Ok(CycleLoop {
         oil_loss: run.entry.oil_loss,
         amplitude_m,
@@ -285,16 +304,126 @@ pub fn plot_loaded(ds: &Dataset, signals: &[Signals], out: &Path) -> Result<Vec<
     if signals.len() != ds.runs.len() {
         bail!("{} signals for {} runs", signals.len(), ds.runs.len());
     }
+    if ds.runs.is_empty() {
+        bail!("the dataset has no runs");
+    }
+    let periodic: Vec<bool> = ds
+        .runs
+        .iter()
+        .map(|r| periodicity(r, &r.displacement_m, ds.sample_rate_hz).is_some())
+        .collect();
     let loops: Vec<CycleLoop> = ds
         .runs
         .par_iter()
         .zip(signals)
-        .map(|(r, s)| cycle_loop(r, &s.velocity_m_s))
+        .zip(&periodic)
+        .filter(|(_, p)| **p)
+        .map(|((r, s), _)| cycle_loop(r, &s.velocity_m_s))
         .collect::<Result<_>>()?;
-    if loops.is_empty() {
-        bail!("the dataset has no runs");
-    }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut written = Vec::new();
+    if !loops.is_empty() {
+        written.extend(plot_loops(ds, &loops, out)?);
+    }
+    let others: Vec<usize> = (0..ds.runs.len()).filter(|&i| !periodic[i]).collect();
+    if !others.is_empty() {
+        written.push(plot_random(ds, signals, &others, out)?);
+    }
+    Ok(written)
+}
+
+/// The force-velocity density and time traces of the non-periodic runs `which` (at most
+/// [`MAX_RANDOM_RUNS`]), one row per run: `random_runs.png`.
+fn plot_random(ds: &Dataset, signals: &[Signals], which: &[usize], out: &Path) -> Result<PathBuf> {
+    let which = &which[..which.len().min(MAX_RANDOM_RUNS)];
+    let mut fig = Figure::new(which.len(), 3)
+        .with_title(format!(
+            "{}: non-periodic runs (force-velocity density, time traces)",
+            ds.name
+        ))
+        .with_panel_size(480, 360);
+    for &i in which {
+        let run = &ds.runs[i];
+        let v = &signals[i].velocity_m_s;
+        let f = &run.force_n;
+        let name = run.entry.file.display().to_string();
+        let range = |x: &[f64]| {
+            let (lo, hi) = x
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &y| {
+                    (l.min(y), h.max(y))
+                });
+            if hi > lo {
+                (lo, hi)
+            } else {
+                (lo - 0.5, lo + 0.5)
+            }
+        };
+        let ((v0, v1), (f0, f1)) = (range(v), range(f));
+        let n = DENSITY_BINS;
+        let mut counts = vec![vec![0.0f64; n]; n];
+        for (vi, fi) in v.iter().zip(f) {
+            let ix = (((vi - v0) / (v1 - v0) * n as f64) as usize).min(n - 1);
+            let iy = (((fi - f0) / (f1 - f0) * n as f64) as usize).min(n - 1);
+            counts[iy][ix] += 1.0;
+        }
+        let z: Vec<Vec<f64>> = counts
+            .iter()
+            .map(|row| row.iter().map(|c| (1.0 + c).log10()).collect())
+            .collect();
+        let centres = |lo: f64, hi: f64| {
+            (0..n)
+                .map(|k| lo + (k as f64 + 0.5) / n as f64 * (hi - lo))
+                .collect()
+        };
+        let levels = match &run.alpha {
+            Some(a) => {
+                let (lo, hi) = range(a);
+                format!("alpha {:.2}-{:.2} (column)", lo, hi.min(1.0))
+            }
+            None => format!("alpha {:.2}", run.entry.oil_loss),
+        };
+        fig = fig.with_panel(
+            HeatmapPanel::new(
+                format!("{name}: {levels}"),
+                "velocity [m/s]",
+                "force [N]",
+                centres(v0, v1),
+                centres(f0, f1),
+                z,
+            )
+            .with_z_label("log10(1 + samples)"),
+        );
+        let end = run.time_s[0] + TRACE_S;
+        let k = run.time_s.partition_point(|&t| t <= end);
+        let trace = |y: &[f64]| -> Vec<(f64, f64)> {
+            run.time_s[..k]
+                .iter()
+                .zip(&y[..k])
+                .map(|(&t, &y)| (t, y))
+                .collect()
+        };
+        fig = fig.with_panel(
+            LinePanel::new(format!("{name}: force"), "time [s]", "force [N]")
+                .with_series(Series::line("force", trace(f), palette::categorical(0)).unlabelled())
+                .with_legend(LegendPosition::None),
+        );
+        fig = fig.with_panel(
+            LinePanel::new(format!("{name}: velocity"), "time [s]", "velocity [m/s]")
+                .with_series(
+                    Series::line("velocity", trace(v), palette::categorical(1)).unlabelled(),
+                )
+                .with_zero_lines()
+                .with_legend(LegendPosition::None),
+        );
+    }
+    let path = out.join("random_runs.png");
+    fig.save_png(&path)?;
+    Ok(path)
+}
+
+/// Fig. 4, Fig. 5 and the quasi-static figure of the periodic runs' loops.
+fn plot_loops(ds: &Dataset, loops: &[CycleLoop], out: &Path) -> Result<Vec<PathBuf>> {
     let f_max = loops
         .iter()
         .flat_map(|l| l.force_n.iter())
@@ -399,8 +528,11 @@ pub fn plot_loaded(ds: &Dataset, signals: &[Signals], out: &Path) -> Result<Vec<
                 .with_zero_lines()
                 .with_legend(LegendPosition::UpperLeft);
                 for ((b, l), c) in sel.iter().zip(colors) {
-                    let pts: Vec<(f64, f64)> = (0..PHASE_BINS)
-                        .map(|k| (b.velocity_m_s[k], (b.force_n[k] - l.force_n[k]) / f_max))
+                    let pts: Vec<(f64, f64)> = (0..b.bins())
+                        .map(|k| {
+                            let df = b.force_n[k] - l.force_at_phase(b.bin_phase(k));
+                            (b.velocity_m_s[k], df / f_max)
+                        })
                         .collect();
                     d_lim = pts.iter().fold(d_lim, |m, p| m.max(p.1.abs()));
                     panel =

@@ -2,8 +2,9 @@
 //!
 //! 1. **SEM**: the quasi-static points of the training set (section 5.3) become support
 //!    points per oil-loss level: points of one level whose velocities agree within 5 % are
-//!    averaged, the origin is added, and every level is resampled (piecewise linear) onto the
-//!    common velocity grid. nemm-core interpolates linearly in alpha between the levels.
+//!    averaged (a cluster spans at most 20 %) (the gap is widened by factors of 1.5 while there are more clusters than the
+//!    map holds, as with the dense points of random excitation), the origin is added, and
+//!    every level is resampled (piecewise linear) onto the common velocity grid. nemm-core interpolates linearly in alpha between the levels.
 //! 2. **Linear EMM** (first step of the two-step procedure): constant `b_fl`, `b_pr`, `k_pr`,
 //!    `T_pr`, initialised from the quasi-static data (`b_fl,ini` the least-squares slope of
 //!    force over velocity, `b_pr,ini = b_fl,ini`, `k_pr,ini` such that the pressure branch's
@@ -203,6 +204,41 @@ pub fn init_scaler(
     }
 }
 
+/// Relative velocity gap that separates two SEM support velocities (5 %).
+pub const SEM_CLUSTER_GAP: f64 = 0.05;
+
+/// Largest span of one velocity cluster, relative to its largest magnitude, in units of the
+/// gap (4 x 5 % = 20 %).
+pub const SEM_CLUSTER_SPAN: f64 = 4.0;
+
+/// Knots from sorted velocities: the origin plus the mean of every cluster. A cluster holds
+/// velocities of one sign, each less than `gap` times the larger magnitude from the previous
+/// one, and spans at most [`SEM_CLUSTER_SPAN`] `gap` times its largest magnitude (so that dense
+/// points, e.g. of random excitation, do not chain into one cluster).
+fn velocity_knots(sorted: &[f64], gap: f64) -> Vec<f64> {
+    let mut knots: Vec<f64> = vec![0.0];
+    let mut cluster: Vec<f64> = Vec::new();
+    for &v in sorted {
+        if let (Some(&first), Some(&last)) = (cluster.first(), cluster.last()) {
+            let scale = first.abs().max(v.abs());
+            if (v - last).abs() > gap * last.abs().max(v.abs())
+                || (v - first).abs() > SEM_CLUSTER_SPAN * gap * scale
+                || v.signum() != last.signum()
+            {
+                knots.push(cluster.iter().sum::<f64>() / cluster.len() as f64);
+                cluster.clear();
+            }
+        }
+        cluster.push(v);
+    }
+    if !cluster.is_empty() {
+        knots.push(cluster.iter().sum::<f64>() / cluster.len() as f64);
+    }
+    knots.sort_by(f64::total_cmp);
+    knots.dedup_by(|a, b| (*a - *b).abs() < 1e-6);
+    knots
+}
+
 /// SEM map from quasi-static points (see the module docs).
 pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
     if points.is_empty() {
@@ -217,25 +253,15 @@ pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
             alphas.len()
         );
     }
-    // Velocity clusters over all levels.
+    // Velocity clusters over all levels: 5 % gaps, widened until the knots fit the map.
     let mut vs: Vec<f64> = points.iter().map(|p| p.velocity_m_s).collect();
     vs.sort_by(f64::total_cmp);
-    let mut knots: Vec<f64> = vec![0.0];
-    let mut cluster: Vec<f64> = Vec::new();
-    for v in vs {
-        if let Some(&last) = cluster.last() {
-            if (v - last).abs() > 0.05 * last.abs().max(v.abs()) || v.signum() != last.signum() {
-                knots.push(cluster.iter().sum::<f64>() / cluster.len() as f64);
-                cluster.clear();
-            }
-        }
-        cluster.push(v);
+    let mut gap = SEM_CLUSTER_GAP;
+    let mut knots = velocity_knots(&vs, gap);
+    while knots.len() > MAX_SEM_VELOCITIES && gap < 1.0 {
+        gap *= 1.5;
+        knots = velocity_knots(&vs, gap);
     }
-    if !cluster.is_empty() {
-        knots.push(cluster.iter().sum::<f64>() / cluster.len() as f64);
-    }
-    knots.sort_by(f64::total_cmp);
-    knots.dedup_by(|a, b| (*a - *b).abs() < 1e-6);
     if knots.len() > MAX_SEM_VELOCITIES {
         bail!(
             "{} velocity support points; the SEM holds at most {MAX_SEM_VELOCITIES}",

@@ -1,0 +1,398 @@
+//! The committed fixtures (`nemm-train/tests/fixtures/`, see its README): they equal what
+//! `nemm bench fixtures` generates, `nemm data check` loads each interchange fixture, and
+//! bench plots and the SEM support points work on them.
+use nemm_train::bench::fixtures::{fixtures, write_fixtures};
+use nemm_train::data::dataset;
+use nemm_train::data::preprocess::{self, Direction, PrepareConfig, SignalConfig};
+use nemm_train::data::support::periodicity;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn fixture_dir(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
+}
+
+/// Every file under `dir`, relative path -> content.
+fn files(dir: &Path) -> BTreeMap<PathBuf, String> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<PathBuf, String>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else {
+                let rel = p.strip_prefix(root).unwrap().to_path_buf();
+                out.insert(rel, std::fs::read_to_string(&p).unwrap());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// Decimals printed in a cell (`-12.34` -> 2).
+fn decimals(cell: &str) -> i32 {
+    cell.split_once('.').map_or(0, |(_, d)| d.len() as i32)
+}
+
+/// Compares two CSV texts cell by cell: equal text, or numbers at most one unit of the last
+/// printed decimal of the committed cell apart (the simulation's transcendental functions may
+/// round differently in the last bit on another platform).
+fn same_csv(committed: &str, generated: &str) -> Result<(), String> {
+    let (a, b): (Vec<&str>, Vec<&str>) = (committed.lines().collect(), generated.lines().collect());
+    if a.len() != b.len() {
+        return Err(format!("{} lines, generated {}", a.len(), b.len()));
+    }
+    for (i, (la, lb)) in a.iter().zip(&b).enumerate() {
+        if la == lb {
+            continue;
+        }
+        let (ca, cb): (Vec<&str>, Vec<&str>) = (la.split(',').collect(), lb.split(',').collect());
+        if ca.len() != cb.len() {
+            return Err(format!("line {}: {la:?} vs {lb:?}", i + 1));
+        }
+        for (x, y) in ca.iter().zip(&cb) {
+            if x == y {
+                continue;
+            }
+            let (Ok(u), Ok(v)) = (x.trim().parse::<f64>(), y.trim().parse::<f64>()) else {
+                return Err(format!("line {}: {la:?} vs {lb:?}", i + 1));
+            };
+            let lsb = 10f64.powi(-decimals(x).max(decimals(y)));
+            if (u - v).abs() > 1.000_001 * lsb {
+                return Err(format!("line {}: {la:?} vs {lb:?}", i + 1));
+            }
+        }
+    }
+    Ok(())
+}
+
+#[test]
+fn committed_fixtures_equal_the_generated_ones() {
+    let tmp = tempfile::tempdir().unwrap();
+    write_fixtures(tmp.path()).unwrap();
+    let regenerate = "regenerate with `nemm bench fixtures --out nemm-train/tests/fixtures`";
+    for f in fixtures() {
+        let (committed, generated) = (files(&fixture_dir(f.name)), files(&tmp.path().join(f.name)));
+        assert_eq!(
+            committed.keys().collect::<Vec<_>>(),
+            generated.keys().collect::<Vec<_>>(),
+            "fixture {}: other files than generated; {regenerate}",
+            f.name
+        );
+        for (path, text) in &committed {
+            let gen = &generated[path];
+            let ok = if path.extension().is_some_and(|e| e == "csv") {
+                same_csv(text, gen)
+            } else if text == gen {
+                Ok(())
+            } else {
+                Err("differs".to_string())
+            };
+            if let Err(e) = ok {
+                panic!("fixture {}/{}: {e}; {regenerate}", f.name, path.display());
+            }
+        }
+        let bytes: usize = committed.values().map(String::len).sum();
+        assert!(bytes < 160_000, "fixture {} is {bytes} bytes", f.name);
+    }
+}
+
+/// `nemm data check DIR --cutoff-hz fs/6` (a cut-off every fixture's rate allows).
+fn data_check(name: &str) -> String {
+    let dir = fixture_dir(name);
+    let fs = dataset::read_manifest(&dir).unwrap().sample_rate_hz;
+    let out = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["data", "check", "--cutoff-hz", &format!("{}", fs / 6.0)])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "nemm data check {name}: {text}");
+    text
+}
+
+#[test]
+fn data_check_loads_rate_300hz() {
+    let text = data_check("rate_300hz");
+    assert!(text.contains("loaded 4 runs"), "{text}");
+}
+
+#[test]
+fn data_check_loads_offsets_300hz() {
+    let text = data_check("offsets_300hz");
+    assert!(text.contains("loaded 3 runs"), "{text}");
+}
+
+#[test]
+fn data_check_loads_alpha_schedule_1khz() {
+    let text = data_check("alpha_schedule_1khz");
+    assert!(text.contains("loaded 2 runs"), "{text}");
+    let ds = dataset::load(&fixture_dir("alpha_schedule_1khz")).unwrap();
+    for run in &ds.runs {
+        let a = run.alpha.as_ref().expect("alpha column");
+        assert_eq!(a.len(), run.len());
+        assert_eq!(a[0], run.entry.oil_loss);
+        let changes = a.windows(2).filter(|w| w[0] != w[1]).count();
+        assert!(changes >= 2, "{} changes of alpha", changes);
+        assert!(a.iter().all(|&x| x == 0.0 || x == 0.3));
+    }
+}
+
+/// Rounded time stamps (3 kHz, 0.1 ms) are refused by a loader that checks every step
+/// against 1 % jitter; the loader of issue 15 item 3 fits the uniform grid instead.
+#[test]
+#[ignore = "needs the time-grid loader (issue 15 item 3): turn on when it lands"]
+fn data_check_loads_random_3khz_rounded() {
+    let text = data_check("random_3khz_rounded");
+    assert!(text.contains("loaded 2 runs"), "{text}");
+}
+
+#[test]
+fn raw_dyno_fixture_has_the_documented_layout() {
+    let dir = fixture_dir("raw_dyno");
+    let index = std::fs::read_to_string(dir.join("levels.txt")).unwrap();
+    let mut runs = 0;
+    for line in index.lines().filter(|l| !l.starts_with('#')) {
+        let cells: Vec<&str> = line.split(", ").collect();
+        assert_eq!(cells.len(), 5, "{line}");
+        let text = std::fs::read_to_string(dir.join(cells[0])).unwrap();
+        let rows: Vec<&str> = text.lines().collect();
+        assert_eq!(rows[0], "Time [ms],Position [mm],Force [lbf]");
+        let (first, last): (usize, usize) = (cells[3].parse().unwrap(), cells[4].parse().unwrap());
+        assert!(first >= 2 && last <= rows.len() && first < last, "{line}");
+        // Time continues across the runs of a record at 300 Hz.
+        let t = |l: usize| -> f64 { rows[l - 1].split(',').next().unwrap().parse().unwrap() };
+        assert!((t(last) - t(first) - (last - first) as f64 * 1e3 / 300.0).abs() < 2e-3);
+        runs += 1;
+    }
+    assert_eq!(runs, 4);
+    // Compression positive: the slow run's force is positive where the position falls.
+    let text = std::fs::read_to_string(dir.join("level_00.csv")).unwrap();
+    let rows: Vec<(f64, f64)> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let c: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            (c[1], c[2])
+        })
+        .collect();
+    let (mut falling, mut rising) = (0.0, 0.0);
+    for w in rows.windows(2).skip(200).take(1000) {
+        let dx = w[1].0 - w[0].0;
+        if dx < -0.05 {
+            falling += w[1].1;
+        } else if dx > 0.05 {
+            rising += w[1].1;
+        }
+    }
+    assert!(falling > 0.0 && rising < 0.0, "{falling} {rising}");
+}
+
+#[test]
+fn periodicity_follows_the_documented_rule_on_the_fixtures() {
+    for (name, periodic) in [
+        ("rate_300hz", true),
+        ("offsets_300hz", true),
+        ("alpha_schedule_1khz", false),
+    ] {
+        let ds = dataset::load(&fixture_dir(name)).unwrap();
+        for run in &ds.runs {
+            let mut stripped = run.clone();
+            stripped.entry.amplitude_m = None;
+            stripped.entry.target_velocity_m_s = None;
+            let p = periodicity(&stripped, &run.displacement_m, ds.sample_rate_hz);
+            assert_eq!(p.is_some(), periodic, "{name} {}", run.entry.file.display());
+            if let (Some(p), Some(a), Some(v)) =
+                (p, run.entry.amplitude_m, run.entry.target_velocity_m_s)
+            {
+                let f = v / (2.0 * std::f64::consts::PI * a);
+                assert!(
+                    (p.frequency_hz / f - 1.0).abs() < 0.01,
+                    "{name}: {p:?} vs {f}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn bench_plot_draws_loops_at_300_hz_with_offsets_and_density_for_random_runs() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, expect) in [
+        ("rate_300hz", "force_velocity_loops.png"),
+        ("offsets_300hz", "quasi_static.png"),
+        ("alpha_schedule_1khz", "random_runs.png"),
+    ] {
+        let ds = dataset::load(&fixture_dir(name)).unwrap();
+        let cfg = SignalConfig {
+            cutoff_hz: ds.sample_rate_hz / 6.0,
+            ..SignalConfig::default()
+        };
+        let signals = preprocess::run_signals(&ds, &cfg).unwrap();
+        let out = tmp.path().join(name);
+        let files = nemm_train::report::bench_plots::plot_loaded(&ds, &signals, &out).unwrap();
+        assert!(files.iter().any(|f| f.ends_with(expect)), "{files:?}");
+        for f in &files {
+            assert!(std::fs::metadata(f).unwrap().len() > 10_000);
+        }
+    }
+    // The 1.27 Hz run at 300 Hz (236 samples per period) folds into 128 bins; the quasi-static
+    // force of the offset runs is found although the transducer's zero is 30 mm off centre.
+    let ds = dataset::load(&fixture_dir("offsets_300hz")).unwrap();
+    let cfg = SignalConfig {
+        cutoff_hz: 50.0,
+        ..SignalConfig::default()
+    };
+    for (run, sig) in ds
+        .runs
+        .iter()
+        .zip(preprocess::run_signals(&ds, &cfg).unwrap())
+    {
+        let l = nemm_train::report::bench_plots::cycle_loop(run, &sig.velocity_m_s).unwrap();
+        assert_eq!(l.bins(), 128);
+        let (reb, comp) = l.quasi_static_n();
+        assert!(reb > 100.0 && comp < -100.0, "{reb} {comp}");
+    }
+}
+
+#[test]
+fn random_runs_give_monotone_support_points_and_a_sem() {
+    let ds = dataset::load(&fixture_dir("alpha_schedule_1khz")).unwrap();
+    let mut cfg = PrepareConfig {
+        signal: SignalConfig {
+            cutoff_hz: 100.0,
+            ..SignalConfig::default()
+        },
+        ..PrepareConfig::default()
+    };
+    cfg.split.test_alphas = vec![0.3];
+    let p = preprocess::prepare(&ds, &cfg).unwrap();
+    let pts = &p.quasi_static.train;
+    assert!(pts.len() >= 8, "{} points", pts.len());
+    for direction in [Direction::Rebound, Direction::Compression] {
+        let mut own: Vec<_> = pts.iter().filter(|q| q.direction == direction).collect();
+        assert!(own.len() >= 3, "{direction:?}: {} points", own.len());
+        own.sort_by(|a, b| a.velocity_m_s.total_cmp(&b.velocity_m_s));
+        for w in own.windows(2) {
+            assert!(w[1].force_n >= w[0].force_n, "{direction:?}: {w:?}");
+        }
+        assert!(
+            own.iter().all(|q| q.velocity_m_s * q.force_n > 0.0),
+            "{own:?}"
+        );
+    }
+    let sem = nemm_train::train::pipeline::fit_sem(&p.quasi_static.train).unwrap();
+    assert!(sem.velocities_m_s.len() >= 6, "{:?}", sem.velocities_m_s);
+}
+
+/// On a sine the low-acceleration rule selects the paper's window (`|a| <= 5 % a_max` is
+/// `|x| <= 5 % A`): its fastest points agree with the paper's points of the run.
+#[test]
+fn low_acceleration_rule_on_a_sine_stays_close_to_the_paper_rule() {
+    use nemm_train::bench::{config::BenchConfig, program::run_spec, VirtualBench};
+    use nemm_train::data::support::low_acceleration_points;
+    let bench = VirtualBench::new(BenchConfig::default());
+    for (amp, v) in [(0.03, 0.262), (0.01, 0.524)] {
+        let spec = run_spec(&bench.config().program, 0.0, amp, v);
+        let run = bench.measure(&spec, 3);
+        let fs = bench.config().program.sample_rate_hz;
+        let (summary, sig) =
+            preprocess::summarize_run(&run, 0, fs, &SignalConfig::default()).unwrap();
+        let paper = preprocess::quasi_static_points(0, &sig, &summary.excitation, 0.0, 0.05);
+        let low = low_acceleration_points(0, &sig, 0.0, 0.05, &|_| false);
+        for direction in [Direction::Rebound, Direction::Compression] {
+            // The paper's points of the full-amplitude passes (the ramp-in's are slower).
+            let of = |d| paper.iter().filter(move |p| p.direction == d);
+            let v_top = of(direction)
+                .map(|p| p.velocity_m_s.abs())
+                .fold(0.0, f64::max);
+            let steady: Vec<_> = of(direction)
+                .filter(|p| p.velocity_m_s.abs() >= 0.98 * v_top)
+                .collect();
+            let mean = |x: Vec<f64>| x.iter().sum::<f64>() / x.len() as f64;
+            let pv = mean(steady.iter().map(|p| p.velocity_m_s).collect());
+            let pf = mean(steady.iter().map(|p| p.force_n).collect());
+            let fastest = low
+                .iter()
+                .filter(|p| p.direction == direction)
+                .max_by(|a, b| a.velocity_m_s.abs().total_cmp(&b.velocity_m_s.abs()))
+                .unwrap();
+            let dv = fastest.velocity_m_s / pv - 1.0;
+            let df = fastest.force_n / pf - 1.0;
+            eprintln!(
+                "{amp} m {v} m/s {direction:?}: paper {pv:.4} m/s {pf:.1} N, low-acceleration \
+                 {:.4} m/s {:.1} N ({:+.2} %, {:+.2} %)",
+                fastest.velocity_m_s,
+                fastest.force_n,
+                100.0 * dv,
+                100.0 * df
+            );
+            assert!(dv.abs() < 0.01 && df.abs() < 0.01, "{dv} {df}");
+        }
+    }
+}
+
+/// The SEM of sine runs of one amplitude (ramp-in passes included) has a support velocity at
+/// every run's peak velocity (the force there is the cluster's mean, ramp-in passes of similar
+/// velocity included; its distance to the full-amplitude passes is printed).
+#[test]
+fn sem_from_sine_points_reproduces_the_steady_support_points() {
+    use nemm_train::bench::{config::BenchConfig, VirtualBench};
+    let mut cfg = BenchConfig::default();
+    cfg.program.oil_loss = vec![0.0, 0.3];
+    cfg.program.amplitudes_m = vec![0.03];
+    cfg.program.peak_velocities_m_s = vec![0.131, 0.262, 0.524];
+    let ds = VirtualBench::new(cfg).generate(2, |_, _| {});
+    let mut prep = PrepareConfig::default();
+    prep.split.test_alphas = vec![];
+    prep.split.train_alphas = None;
+    prep.split.validation_fraction = 0.0;
+    let p = preprocess::prepare(&ds, &prep).unwrap();
+    let pts = &p.quasi_static.train;
+    let sem = nemm_train::train::pipeline::fit_sem(pts).unwrap();
+    let mut worst: f64 = 0.0;
+    for &alpha in &sem.alphas {
+        let curve = sem.curve_at(alpha).0;
+        for run in &p.runs {
+            if (run.summary.alpha as f32 - alpha).abs() > 1e-6 {
+                continue;
+            }
+            let own: Vec<_> = pts.iter().filter(|q| q.run == run.summary.index).collect();
+            for direction in [Direction::Rebound, Direction::Compression] {
+                let d: Vec<_> = own.iter().filter(|q| q.direction == direction).collect();
+                let v_top = d.iter().map(|q| q.velocity_m_s.abs()).fold(0.0, f64::max);
+                let steady: Vec<_> = d
+                    .iter()
+                    .filter(|q| q.velocity_m_s.abs() >= 0.98 * v_top)
+                    .collect();
+                let n = steady.len() as f64;
+                let v = steady.iter().map(|q| q.velocity_m_s).sum::<f64>() / n;
+                let f = steady.iter().map(|q| q.force_n).sum::<f64>() / n;
+                let model = f64::from(sem.force_on_curve(&curve, v as f32));
+                worst = worst.max(((model - f) / f).abs());
+                assert!(
+                    sem.velocities_m_s
+                        .iter()
+                        .any(|&k| (f64::from(k) / v - 1.0).abs() < 0.02),
+                    "no support velocity near {v}: {:?}",
+                    sem.velocities_m_s
+                );
+            }
+        }
+    }
+    eprintln!(
+        "SEM of {} sine points: {} support velocities, worst error at the steady points {:.2} %",
+        pts.len(),
+        sem.velocities_m_s.len(),
+        100.0 * worst
+    );
+    assert!(worst.is_finite());
+}
