@@ -48,6 +48,7 @@ fn sine(fs: f64, a: f64, f: f64, seconds: f64, qx: f64, noise_n: f64) -> Run {
         displacement_m,
         force_n,
         velocity_m_s: None,
+        alpha: None,
     }
 }
 

@@ -146,13 +146,13 @@ fn data_check_loads_alpha_schedule_1khz() {
     }
 }
 
-/// Rounded time stamps (3 kHz, 0.1 ms) are refused by a loader that checks every step
-/// against 1 % jitter; the loader of issue 15 item 3 fits the uniform grid instead.
+/// Rounded time stamps (3 kHz, 0.1 ms: steps of 0.3 and 0.4 ms) load: the loader fits the
+/// uniform grid and says so.
 #[test]
-#[ignore = "needs the time-grid loader (issue 15 item 3): turn on when it lands"]
 fn data_check_loads_random_3khz_rounded() {
     let text = data_check("random_3khz_rounded");
     assert!(text.contains("loaded 2 runs"), "{text}");
+    assert!(text.contains("time stamps rounded/jittered"), "{text}");
 }
 
 #[test]

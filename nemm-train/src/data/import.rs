@@ -915,6 +915,7 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
                     .velocity_m_s
                     .as_ref()
                     .map(|v| interpolate(&piece.time_s, v, &tq)),
+                alpha: None,
                 time_s: tq,
             }
         } else {
@@ -927,6 +928,7 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
                 displacement_m: piece.displacement_m.clone(),
                 force_n: piece.force_n.clone(),
                 velocity_m_s: piece.velocity_m_s.clone(),
+                alpha: None,
             }
         };
         account.push(ImportedRun {
