@@ -12,6 +12,11 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+/// A number that JSON wrote as `null` (serde_json writes NaN so) reads back as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// Results of one variant.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VariantReport {
@@ -41,7 +46,9 @@ pub struct VariantReport {
 /// A whole report (`report.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Report {
-    /// Oil-loss level(s) of the test set (the first one; Table 2: 0.15).
+    /// Oil-loss level(s) of the test set (the first one; Table 2: 0.15); NaN (`null` in
+    /// JSON) when the test set is not a level (`--test-runs`, `--test-tail`).
+    #[serde(deserialize_with = "nan_if_null")]
     pub test_alpha: f64,
     /// Abs-max force of the training set \[N\].
     pub force_scale_n: f64,
