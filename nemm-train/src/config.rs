@@ -36,7 +36,7 @@ pub const DATA_OPTIONS_FILE: &str = "nemm-data.toml";
 const PAPER_SCALE_LAMBDA_PH: f64 = 0.1;
 
 /// The adaptive cut-off is at most this fraction of the sample rate (the Butterworth design
-/// needs `fc < fs / 2`; at `0.4 fs` the model's 30 Hz band still passes within 0.01 % at
+/// needs `fc < fs / 2`; at `0.4 fs` the model's 30 Hz band still passes within 0.013 % at
 /// 300 Hz, and the zero-phase filter's zero at Nyquist still removes the noise there).
 pub const CUTOFF_FRACTION_OF_RATE: f64 = 0.4;
 

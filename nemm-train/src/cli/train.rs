@@ -185,8 +185,8 @@ fn estimator_input(
     Ok((u, ds.runs[idx].entry.oil_loss as f32))
 }
 
-/// The tabulated fast path against the exact estimator over every held-out (test) run, whole
-/// and from rest: the largest force difference in units of the force scale,
+/// The tabulated fast path against the exact estimator over every run with test data (a test
+/// run or a run with a test tail), whole and from rest: the largest force difference in units of the force scale,
 /// and the samples outside the table domain.
 fn table_vs_exact(
     model: &nemm_core::Model,
@@ -200,7 +200,7 @@ fn table_vs_exact(
     for run in prepared
         .runs
         .iter()
-        .filter(|r| r.role == preprocess::RunRole::Test)
+        .filter(|r| r.test_sequences > 0)
     {
         let (u, alpha) = estimator_input(ds, prepared, run.summary.index)?;
         let exact_cfg = EstimatorConfig::new(alpha);
@@ -226,7 +226,7 @@ fn table_vs_exact(
         runs += 1;
     }
     println!(
-        "fast path (tables, bound {bound:.0e}) vs exact over {runs} held-out runs ({samples} samples, whole runs from rest): \
+        "fast path (tables, bound {bound:.0e}) vs exact over {runs} runs with test data ({samples} samples, whole runs from rest): \
          max |table - exact| = {:.2e} of the force scale, {outside} samples outside the table domain ({:.1} s)",
         worst / prepared.scales.force_n,
         t.elapsed().as_secs_f64()
@@ -706,7 +706,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let test_runs: Vec<_> = prepared
         .runs
         .iter()
-        .filter(|r| r.role == preprocess::RunRole::Test)
+        .filter(|r| r.test_sequences > 0)
         .collect();
     let run = test_runs
         .iter()
@@ -721,6 +721,11 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         .or(test_runs.first())
         .context("no held-out test run")?;
     let idx = run.summary.index;
+    let what = if run.role == preprocess::RunRole::Test {
+        "held-out run"
+    } else {
+        "run with a test tail (its training part included)"
+    };
     let (u, alpha) = estimator_input(&ds, &prepared, idx)?;
     let mut est = nemm_core::Estimator::new(&model, nemm_core::EstimatorConfig::new(alpha))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -742,7 +747,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b).abs()))
         / fs;
     println!(
-        "most dynamic held-out run {} (oil loss {alpha}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
+        "most dynamic {what} {} (oil loss {alpha}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
          max |nemm-core - trainer| = {:.2e} of the force scale",
         ds.runs[idx].entry.file.display(),
         run.summary.excitation.amplitude_m * 1e3,
