@@ -197,11 +197,7 @@ fn table_vs_exact(
     let t = Instant::now();
     let bound = crate::train::table_check::DEFAULT_TABLE_BOUND;
     let (mut worst, mut samples, mut outside, mut runs) = (0.0f64, 0usize, 0usize, 0usize);
-    for run in prepared
-        .runs
-        .iter()
-        .filter(|r| r.test_sequences > 0)
-    {
+    for run in prepared.runs.iter().filter(|r| r.test_sequences > 0) {
         let (u, alpha) = estimator_input(ds, prepared, run.summary.index)?;
         let exact_cfg = EstimatorConfig::new(alpha);
         let table_cfg = EstimatorConfig {
