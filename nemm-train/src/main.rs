@@ -119,6 +119,9 @@ enum Cmd {
         /// Batches per epoch (random subset).
         #[arg(long, default_value_t = 8)]
         max_batches: usize,
+        /// Data options.
+        #[command(flatten)]
+        data_options: nemm_train::config::DataArgs,
     },
 }
 
@@ -183,8 +186,13 @@ fn main() -> ExitCode {
             out,
             epochs,
             max_batches,
+            data_options,
         } => {
             let mut cfg = nemm_train::config::Config::default();
+            cfg.data = data_options.to_config();
+            if let Some(seed) = data_options.seed {
+                cfg.train.seed = seed;
+            }
             cfg.train.epochs = epochs;
             cfg.train.max_batches = Some(max_batches);
             cfg.train.linear_epochs = DEMO_LINEAR_EPOCHS;

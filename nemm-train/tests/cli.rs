@@ -285,7 +285,10 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     // validation windows, and so the training set's force scale).
     // `nemm train --report` saved the effective configuration, which reproduces it.
     let saved = Config::load(&train_report.join(CONFIG_FILE)).expect("config.toml");
-    assert_eq!((saved.data.window_s, saved.data.warmup_s), (0.1, 0.02));
+    assert_eq!(
+        (saved.data.window_s, saved.data.warmup_s),
+        (Some(0.1), Some(0.02))
+    );
     assert_eq!(saved.data.dir, data);
     assert_eq!(saved.model.variant, ModelKind::Nemm);
     let cfg = saved.data.prepare_config();

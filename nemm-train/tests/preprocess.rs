@@ -497,30 +497,119 @@ fn sequences_tile_the_run() {
     );
 }
 
+/// Checks the stretch invariants of every run of `p` (a dataset of `ds`): the stretches are
+/// disjoint and ordered, every window (warm-up included) lies inside one stretch of its own
+/// part, the windows of a stretch tile it, and no validation or test window shares a sample
+/// with a training window.
+fn assert_stretches(ds: &Dataset, p: &preprocess::Prepared) {
+    use preprocess::Part;
+    let (w, s) = (p.warmup_samples, p.scored_samples);
+    for (i, run) in ds.runs.iter().enumerate() {
+        let st = &p.runs[i].stretches;
+        for pair in st.windows(2) {
+            assert!(pair[0].end <= pair[1].start, "run {i}: {st:?}");
+        }
+        assert!(st.iter().all(|x| x.end <= run.len()));
+        let mut scored_total = 0;
+        for x in st {
+            let set = match x.part {
+                Part::Train => &p.train,
+                Part::Validation => &p.validation,
+                Part::Test => &p.test,
+            };
+            let starts: Vec<usize> = set
+                .iter()
+                .filter(|q| q.run == i && q.start >= x.start && q.start < x.end)
+                .map(|q| q.start)
+                .collect();
+            let expected: Vec<usize> = (0..preprocess::sequence_count(x.end - x.start, w, s))
+                .map(|k| x.start + k * s)
+                .collect();
+            assert_eq!(starts, expected, "run {i}, {x:?}");
+            assert!(starts.iter().all(|&a| a + w + s <= x.end));
+            scored_total += starts.len() * s;
+        }
+        let windows = |set: &[preprocess::Sequence]| -> Vec<(usize, usize)> {
+            set.iter()
+                .filter(|q| q.run == i)
+                .map(|q| (q.start, q.start + w + s))
+                .collect()
+        };
+        let train = windows(&p.train);
+        for (a, b) in windows(&p.validation).into_iter().chain(windows(&p.test)) {
+            for &(c, d) in &train {
+                assert!(
+                    b <= c || d <= a,
+                    "run {i}: window {a}..{b} overlaps training {c}..{d}"
+                );
+            }
+        }
+        let n_windows = train.len() + windows(&p.validation).len() + windows(&p.test).len();
+        assert_eq!(n_windows * s, scored_total);
+        if p.runs[i].role != RunRole::Unused {
+            assert_eq!(p.runs[i].unscored_samples, run.len() - scored_total);
+        }
+    }
+}
+
 #[test]
-fn prepared_sequences_tile_every_run_across_the_split() {
+fn windows_stay_inside_disjoint_stretches() {
     let ds = bench_dataset(10_000.0);
     let p = preprocess::prepare(&ds, &PrepareConfig::default()).expect("prepare");
     assert_eq!((p.warmup_samples, p.scored_samples), (500, 5000));
-    for (i, run) in ds.runs.iter().enumerate() {
-        let mut starts: Vec<usize> = p
-            .train
-            .iter()
-            .chain(&p.validation)
-            .chain(&p.test)
-            .filter(|s| s.run == i)
-            .map(|s| s.start)
-            .collect();
-        starts.sort_unstable();
-        let expected: Vec<usize> = (0..preprocess::sequence_count(run.len(), 500, 5000))
-            .map(|k| k * 5000)
-            .collect();
-        assert_eq!(starts, expected, "run {i}");
-        assert_eq!(
-            p.runs[i].unscored_samples,
-            run.len() - expected.len() * 5000
-        );
+    assert_stretches(&ds, &p);
+    // Shorter windows: more of them, several per stretch, and a validation stretch per run.
+    let mut cfg = PrepareConfig::default();
+    cfg.sequences = SequenceConfig {
+        length_s: 0.1,
+        warmup_s: 0.02,
+    };
+    for seed in 0..5 {
+        cfg.split.seed = seed;
+        let p = preprocess::prepare(&ds, &cfg).expect("prepare");
+        assert_stretches(&ds, &p);
     }
+    // A test run is one test stretch over the whole run.
+    let test_run = p
+        .runs
+        .iter()
+        .find(|r| r.role == RunRole::Test)
+        .expect("a test run");
+    assert_eq!(test_run.stretches.len(), 1);
+    assert_eq!(test_run.stretches[0].part, preprocess::Part::Test);
+}
+
+/// A validation window drawn among a run's windows (the split before stretches) shares its
+/// warm-up with the scored part of the training window before it: the overlap the
+/// stretches remove.
+#[test]
+fn interleaved_windows_would_overlap_in_time() {
+    let (w, s) = (100, 1000);
+    let seqs = preprocess::cut_sequences(0, 0.0, &[0.0; 5000], &[0.0; 5000], w, s);
+    let (before, validation) = (&seqs[1], &seqs[2]);
+    // The validation window's warm-up [2000, 2100) is the end of window 1's scored part.
+    assert!(validation.start < before.start + w + s);
+    let stretches = preprocess::run_stretches(
+        5000,
+        RunRole::TrainValidation,
+        w,
+        s,
+        &SplitConfig {
+            validation_fraction: 0.25,
+            ..SplitConfig::default()
+        },
+        0,
+    );
+    let v: Vec<_> = stretches
+        .iter()
+        .filter(|x| x.part == preprocess::Part::Validation)
+        .collect();
+    assert_eq!(v.len(), 1, "{stretches:?}");
+    assert_eq!(
+        v[0].end - v[0].start,
+        w + s,
+        "one window of four, with its warm-up"
+    );
 }
 
 #[test]
@@ -550,28 +639,38 @@ fn split_is_deterministic_and_respects_the_test_alpha() {
         .iter()
         .chain(&a.quasi_static.validation)
         .all(|p| p.alpha != 0.15));
-    // Per training run: round(20 %) of its sequences are validation (stratified per run).
+    // Per training run: round(20 %) of its windows (if cut whole) are validation, consecutive
+    // (one stretch, stratified per run).
     for r in &a.runs {
-        let total = r.train_sequences + r.validation_sequences;
         match r.role {
             RunRole::TrainValidation => {
                 assert_eq!(r.test_sequences, 0);
+                let whole = preprocess::sequence_count(r.summary.samples, 200, 1000);
                 assert_eq!(
                     r.validation_sequences,
-                    (0.2f64 * total as f64).round() as usize
+                    (0.2f64 * whole as f64).round() as usize
                 );
+                assert!(r.train_sequences + r.validation_sequences + 1 >= whole);
+                let mut starts: Vec<usize> = a
+                    .validation
+                    .iter()
+                    .filter(|s| s.run == r.summary.index)
+                    .map(|s| s.start)
+                    .collect();
+                starts.sort_unstable();
+                assert!(starts.windows(2).all(|p| p[1] - p[0] == 1000), "{starts:?}");
             }
-            RunRole::Test => assert_eq!(total, 0),
+            RunRole::Test => assert_eq!(r.train_sequences + r.validation_sequences, 0),
             RunRole::Unused => panic!("no unused runs by default"),
         }
     }
-    // Validation quasi-static points lie in the scored part of a validation sequence.
+    // Validation quasi-static points lie in the run's validation stretch.
     for p in &a.quasi_static.validation {
-        assert!(a.validation.iter().any(|s| s.run == p.run
-            && p.sample >= s.start + a.warmup_samples
-            && p.sample < s.start + a.warmup_samples + a.scored_samples));
+        assert!(a.runs[p.run].stretches.iter().any(
+            |x| x.part == preprocess::Part::Validation && (x.start..x.end).contains(&p.sample)
+        ));
     }
-    // Another seed holds out other sequences, with the same counts.
+    // Another seed places the validation stretches elsewhere, with the same counts.
     let mut cfg2 = cfg.clone();
     cfg2.split.seed = cfg.split.seed + 1;
     let c = preprocess::prepare(&ds, &cfg2).expect("prepare another seed");
@@ -604,6 +703,7 @@ fn configurable_test_and_train_levels() {
             train_alphas: Some(vec![0.0]),
             validation_fraction: 0.0,
             seed: 0,
+            ..SplitConfig::default()
         },
         ..PrepareConfig::default()
     };
@@ -813,5 +913,138 @@ fn tiny_and_flat_runs_do_not_panic() {
     assert!(matches!(
         preprocess::prepare(&ds, &no_test_level),
         Err(PreprocessError::NoTrainingData(_))
+    ));
+}
+
+/// The error text of preparing `ds` with `cfg`.
+fn prepare_error(ds: &Dataset, cfg: &PrepareConfig) -> String {
+    preprocess::prepare(ds, cfg)
+        .map(|_| ())
+        .expect_err("the split should be refused")
+        .to_string()
+}
+
+#[test]
+fn split_by_run_takes_whole_runs_matched_by_a_glob() {
+    let ds = bench_dataset(10_000.0);
+    let mut cfg = PrepareConfig::default();
+    cfg.split.test_alphas.clear();
+    // A pattern on the path relative to the manifest and one on the file name.
+    cfg.split.test_runs = vec!["runs/oil15_a010_*".into(), "oil30_a050_v0524.csv".into()];
+    let p = preprocess::prepare(&ds, &cfg).expect("prepare");
+    let test_files: Vec<String> = p
+        .runs
+        .iter()
+        .filter(|r| r.role == RunRole::Test)
+        .map(|r| r.summary.file.display().to_string())
+        .collect();
+    assert_eq!(
+        test_files,
+        [
+            "runs/oil15_a010_v0262.csv",
+            "runs/oil15_a010_v0524.csv",
+            "runs/oil30_a050_v0524.csv"
+        ]
+    );
+    assert!(p.test.iter().all(|s| test_files
+        .iter()
+        .any(|f| *f == ds.runs[s.run].entry.file.display().to_string())));
+    assert_eq!(p.train.iter().filter(|s| s.run == 0).count() > 0, true);
+    assert_stretches(&ds, &p);
+    // Excluded runs are not used at all; exclusion wins over a test pattern.
+    cfg.split.exclude_runs = vec!["*_a050_*".into()];
+    let p = preprocess::prepare(&ds, &cfg).expect("prepare");
+    for r in &p.runs {
+        let file = r.summary.file.display().to_string();
+        if file.contains("_a050_") {
+            assert_eq!(r.role, RunRole::Unused, "{file}");
+        }
+    }
+    assert_eq!(p.runs.iter().filter(|r| r.role == RunRole::Test).count(), 2);
+    // A pattern that matches no run is refused, naming it and how the files are named.
+    cfg.split.test_runs = vec!["oil15_*.txt".into()];
+    assert_eq!(
+        prepare_error(&ds, &cfg),
+        "test_runs: pattern \"oil15_*.txt\" matches no run file (the files are named like \
+         runs/oil00_a010_v0262.csv, runs/oil00_a010_v0524.csv, runs/oil00_a050_v0262.csv, ...)"
+    );
+    cfg.split.test_runs = vec!["[".into()];
+    assert!(prepare_error(&ds, &cfg).starts_with("test_runs: \"[\" is not a glob pattern"));
+}
+
+#[test]
+fn split_by_time_tests_the_end_of_every_run_of_a_single_level() {
+    let fs = 10_000.0;
+    let mut rng = Noise::new(3);
+    let runs: Vec<Run> = (0..3)
+        .map(|k| {
+            sine_run(
+                &format!("runs/r{k}.csv"),
+                0.0,
+                0.02,
+                2.0 + k as f64,
+                0.3,
+                30_000,
+                fs,
+                Some((&mut rng, 1e-6, 5.0)),
+            )
+        })
+        .collect();
+    let ds = Dataset {
+        name: "one level".into(),
+        sample_rate_hz: fs,
+        runs,
+    };
+    let mut cfg = PrepareConfig::default();
+    cfg.sequences = SequenceConfig {
+        length_s: 0.2,
+        warmup_s: 0.02,
+    };
+    // The true cause when every run is at the test level.
+    cfg.split.test_alphas = vec![0.0];
+    assert_eq!(
+        prepare_error(&ds, &cfg),
+        "no training data: every run is at the test level 0: nothing left to train on; use \
+         --test-tail FRACTION (the end of every run is the test set) or --test-runs GLOB (some \
+         runs are)"
+    );
+    cfg.split.test_alphas.clear();
+    cfg.split.test_tail = Some(0.25);
+    let p = preprocess::prepare(&ds, &cfg).expect("prepare");
+    assert_stretches(&ds, &p);
+    for r in &p.runs {
+        assert_eq!(r.role, RunRole::TrainValidation);
+        let last = r.stretches.last().expect("stretches");
+        assert_eq!(last.part, preprocess::Part::Test);
+        assert_eq!((last.start, last.end), (22_500, 30_000));
+        // (7500 - 200) / 2000: three test windows per run.
+        assert_eq!(r.test_sequences, 3);
+        assert!(r.train_sequences > 0 && r.validation_sequences > 0);
+    }
+    assert!(p.test.iter().all(|s| s.start >= 22_500));
+    assert!(p
+        .train
+        .iter()
+        .chain(&p.validation)
+        .all(|s| s.start + 2200 <= 22_500));
+    // A tail so long that no training window is left: the cause and the way out.
+    cfg.split.test_tail = Some(0.95);
+    assert_eq!(
+        prepare_error(&ds, &cfg),
+        "no training data: 3 training run(s), whose longest training stretch has 1500 samples \
+         (0.150 s), fewer than one window needs (warm-up 200 + window 2000 = 2200 samples, \
+         0.220 s); use a shorter --window-s or --warmup-s, or a smaller --test-tail"
+    );
+    cfg.split.test_tail = Some(1.0);
+    assert_eq!(
+        prepare_error(&ds, &cfg),
+        "test_tail: 1 is not a fraction of a run in (0, 1)"
+    );
+    // Every run excluded.
+    cfg.split.test_tail = None;
+    cfg.split.exclude_runs = vec!["r*.csv".into()];
+    assert!(prepare_error(&ds, &cfg).starts_with(
+        "no training data: no run is left for training: 0 test run(s) (test levels [], test \
+         runs []) and 3 unused (excluded by [\"r*.csv\"]"
     ));
 }

@@ -38,6 +38,9 @@ pub enum BenchCmd {
         /// Output folder for the PNG files.
         #[arg(long)]
         out: PathBuf,
+        /// Data options (the plots use the cut-off and the velocity source).
+        #[command(flatten)]
+        data: crate::config::DataArgs,
     },
     /// Print the built-in default configuration (a template for `--config`).
     Config,
@@ -60,8 +63,14 @@ pub fn run(args: BenchArgs) -> Result<()> {
             };
             generate(&cfg, seed, &out)
         }
-        BenchCmd::Plot { dir, out } => {
-            let files = crate::report::bench_plots::plot_dataset(&dir, &out)?;
+        BenchCmd::Plot { dir, out, data } => {
+            let resolved = crate::config::resolve_data(&data.with_dir(&dir))?;
+            let signal = resolved.config.prepare_config().signal;
+            let ds = crate::data::dataset::load(&dir)
+                .with_context(|| format!("cannot load the dataset {}", dir.display()))?;
+            let signals = crate::data::preprocess::run_signals(&ds, &signal)
+                .context("cannot derive the velocity of the runs")?;
+            let files = crate::report::bench_plots::plot_loaded(&ds, &signals, &out)?;
             for f in files {
                 println!("wrote {}", f.display());
             }

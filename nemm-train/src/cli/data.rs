@@ -1,11 +1,11 @@
 //! `nemm data check` and `nemm data prepare`: validate a bench dataset and show what the
 //! preprocessing of section 5.3 makes of it.
+use crate::config::{resolve_data, DataArgs};
 use crate::data::check::{self, Finding};
 use crate::data::dataset::{self, Dataset};
 use crate::data::import::{self, ColumnSpec, ImportSpec, SplitMethod};
 use crate::data::preprocess::{
-    self, PrepareConfig, RunRole, RunSummary, SequenceConfig, SignalConfig, SplitConfig,
-    SplitCounts, VelocitySource,
+    self, PrepareConfig, RunRole, RunSummary, SignalConfig, SplitCounts,
 };
 use anyhow::{Context, Result};
 use std::fmt::Write as _;
@@ -16,48 +16,6 @@ use std::time::Instant;
 /// Relative deviation from the manifest metadata above which `check` prints a note.
 const METADATA_TOLERANCE: f64 = 0.05;
 
-/// Velocity source on the command line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum VelocityArg {
-    /// The measured `velocity_m_s` column if present, else differentiation.
-    Auto,
-    /// Always differentiate the displacement.
-    Differentiated,
-    /// Always the measured column.
-    Measured,
-}
-
-impl From<VelocityArg> for VelocitySource {
-    fn from(v: VelocityArg) -> Self {
-        match v {
-            VelocityArg::Auto => VelocitySource::Auto,
-            VelocityArg::Differentiated => VelocitySource::Differentiated,
-            VelocityArg::Measured => VelocitySource::Measured,
-        }
-    }
-}
-
-/// Signal options shared by both subcommands.
-#[derive(Debug, Clone, clap::Args)]
-pub struct SignalArgs {
-    /// Cut-off of the zero-phase low-pass before differentiation (Hz).
-    #[arg(long, default_value_t = preprocess::DEFAULT_CUTOFF_HZ)]
-    pub cutoff_hz: f64,
-    /// Where the velocity comes from.
-    #[arg(long, value_enum, default_value_t = VelocityArg::Auto)]
-    pub velocity: VelocityArg,
-}
-
-impl SignalArgs {
-    fn config(&self, filter_force: bool) -> SignalConfig {
-        SignalConfig {
-            cutoff_hz: self.cutoff_hz,
-            velocity_source: self.velocity.into(),
-            filter_force,
-        }
-    }
-}
-
 /// `nemm data ...`
 #[derive(Debug, Clone, clap::Subcommand)]
 pub enum DataCmd {
@@ -66,9 +24,9 @@ pub enum DataCmd {
     Check {
         /// Dataset folder (with manifest.toml).
         dir: PathBuf,
-        /// Signal options.
+        /// Data options.
         #[command(flatten)]
-        signal: SignalArgs,
+        data: DataArgs,
     },
     /// Convert raw dyno CSV files (any column names and units, sign flips, offsets, long
     /// records cut into runs) into a dataset folder. Column flags take `NAME:UNIT` or
@@ -82,33 +40,19 @@ pub enum DataCmd {
         /// Also write a JSON summary (configuration, counts, scales, per-run facts).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Scored length of a sequence (s).
-        #[arg(long, default_value_t = preprocess::DEFAULT_SEQUENCE_S)]
-        length_s: f64,
-        /// Warm-up prefix of a sequence, simulated but not scored (s).
-        #[arg(long, default_value_t = preprocess::DEFAULT_WARMUP_S)]
-        warmup_s: f64,
-        /// Oil-loss level(s) of the test set (repeat or comma-separate).
-        #[arg(long = "test-alpha", value_delimiter = ',', default_values_t = preprocess::DEFAULT_TEST_ALPHAS)]
-        test_alphas: Vec<f64>,
-        /// Oil-loss level(s) for training and validation (default: all non-test levels).
-        #[arg(long = "train-alpha", value_delimiter = ',')]
-        train_alphas: Vec<f64>,
-        /// Fraction of each training run's sequences held out for validation.
-        #[arg(long, default_value_t = preprocess::DEFAULT_VALIDATION_FRACTION)]
-        validation_fraction: f64,
-        /// Seed of the validation choice (the trainer's default seed).
-        #[arg(long, default_value_t = preprocess::DEFAULT_SPLIT_SEED)]
-        seed: u64,
+        /// Write the resolved data options to DIR/nemm-data.toml, which every command reading
+        /// this dataset then uses (options given on a command line still override it).
+        #[arg(long)]
+        save_options: bool,
         /// Quasi-static window half-width, as a fraction of the amplitude.
         #[arg(long, default_value_t = preprocess::DEFAULT_QS_WINDOW)]
         qs_window: f64,
         /// Low-pass the training force as well (default: raw force).
         #[arg(long)]
         filter_force: bool,
-        /// Signal options.
+        /// Data options.
         #[command(flatten)]
-        signal: SignalArgs,
+        data: DataArgs,
     },
 }
 
@@ -332,33 +276,31 @@ fn import_cmd(a: &ImportArgs) -> Result<()> {
 /// Runs a `nemm data` subcommand.
 pub fn run(cmd: DataCmd) -> Result<()> {
     match cmd {
-        DataCmd::Check { dir, signal } => check(&dir, &signal.config(false)),
+        DataCmd::Check { dir, data } => {
+            let resolved = resolve_data(&data.with_dir(&dir))?;
+            let mut signal = resolved.config.prepare_config().signal;
+            signal.filter_force = false;
+            check(&dir, &signal)
+        }
         DataCmd::Import(args) => import_cmd(&args),
         DataCmd::Prepare {
             dir,
             out,
-            length_s,
-            warmup_s,
-            test_alphas,
-            train_alphas,
-            validation_fraction,
-            seed,
+            save_options,
             qs_window,
             filter_force,
-            signal,
+            data,
         } => {
-            let config = PrepareConfig {
-                signal: signal.config(filter_force),
-                sequences: SequenceConfig { length_s, warmup_s },
-                split: SplitConfig {
-                    test_alphas,
-                    train_alphas: (!train_alphas.is_empty()).then_some(train_alphas),
-                    validation_fraction,
-                    seed,
-                },
-                quasi_static_window: Some(qs_window),
-            };
-            prepare(&dir, &config, out.as_deref())
+            let resolved = resolve_data(&data.with_dir(&dir))?;
+            let mut config = resolved.config.prepare_config();
+            config.signal.filter_force = filter_force;
+            config.quasi_static_window = Some(qs_window);
+            prepare(&dir, &config, out.as_deref())?;
+            if save_options {
+                let path = resolved.config.save_options_file(&dir)?;
+                println!("data options written to {}", path.display());
+            }
+            Ok(())
         }
     }
 }
@@ -558,19 +500,7 @@ pub fn prepare_report(ds: &Dataset, p: &preprocess::Prepared) -> String {
     let sum = p.summary(&ds.name);
     let mut s = String::new();
     let _ = writeln!(s, "{}", header_line(ds));
-    let split = &p.config.split;
-    let _ = writeln!(
-        s,
-        "split: test alpha {:?}; train alpha {}; validation = {:.0} % of each training run's \
-         sequences (seed {})",
-        split.test_alphas,
-        split
-            .train_alphas
-            .as_ref()
-            .map_or("all others".to_string(), |a| format!("{a:?}")),
-        split.validation_fraction * 100.0,
-        split.seed
-    );
+    let _ = writeln!(s, "split: {}", p.config.split.describe());
     let _ = writeln!(
         s,
         "sequences: {} + {} warm-up samples ({} s + {} s at dt = {} s)",

@@ -1,7 +1,7 @@
 //! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
 //! Table 4 / Table 5 reports from the command line.
 
-use crate::config::{lambda_ph_scale_note, Config, CONFIG_FILE};
+use crate::config::{lambda_ph_scale_note, resolve_data, Config, CONFIG_FILE};
 use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::fsutil::write_atomic_bytes;
@@ -9,8 +9,10 @@ use crate::report::inspect::describe;
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
-use crate::train::pipeline::{train_variants, TrainedVariant, Variant, VariantInfo};
-use anyhow::{Context, Result};
+use crate::train::pipeline::{
+    train_each, train_variants, Trained, TrainedVariant, Variant, VariantInfo,
+};
+use anyhow::{bail, Context, Result};
 use burn::module::Module;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -46,11 +48,19 @@ pub fn load_dataset_prepared(
     );
     if prepared.test.is_empty() {
         eprintln!(
-            "warning: no test windows at oil loss {:?}; test RMSE will be NaN",
-            cfg.split.test_alphas
+            "warning: no test windows ({}); test RMSE will be NaN",
+            cfg.split.describe()
         );
     }
     Ok((ds, prepared))
+}
+
+/// `cfg` with its data options resolved for its dataset ([`resolve_data`], which prints
+/// them): what a job runs with and saves as `config.toml`.
+pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
+    let mut cfg = cfg.clone();
+    cfg.data = resolve_data(&cfg.data)?.config;
+    Ok(cfg)
 }
 
 /// Encodes and writes a model blob atomically; returns its size.
@@ -114,6 +124,7 @@ pub fn train(
     resume: bool,
     report_dir: Option<&Path>,
 ) -> Result<()> {
+    let cfg = &with_resolved_data(cfg)?;
     let variant = cfg.model.variant;
     let prepared = load_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
     let pipeline = cfg.pipeline_config();
@@ -133,8 +144,11 @@ pub fn train(
     );
     print!("{}", describe(&tv.model, n));
     println!(
-        "test RMSE at oil loss {:?}: {:.4} of the force scale ({:.1} N); validation {:.4}",
-        cfg.data.test_alphas, vr.rmse, vr.rmse_n, vr.val_rmse
+        "test RMSE ({}): {:.4} of the force scale ({:.1} N); validation {:.4}",
+        prepared.config.split.describe(),
+        vr.rmse,
+        vr.rmse_n,
+        vr.val_rmse
     );
     print_audit(tv, &report);
     // The fast path's verdict at export time, as `nemm export` prints it.
@@ -171,8 +185,8 @@ fn estimator_input(
     Ok((u, ds.runs[idx].entry.oil_loss as f32))
 }
 
-/// The tabulated fast path against the exact estimator over every held-out (test) run, whole
-/// and from rest: the largest force difference in units of the force scale,
+/// The tabulated fast path against the exact estimator over every run with test data (a test
+/// run or a run with a test tail), whole and from rest: the largest force difference in units of the force scale,
 /// and the samples outside the table domain.
 fn table_vs_exact(
     model: &nemm_core::Model,
@@ -183,11 +197,7 @@ fn table_vs_exact(
     let t = Instant::now();
     let bound = crate::train::table_check::DEFAULT_TABLE_BOUND;
     let (mut worst, mut samples, mut outside, mut runs) = (0.0f64, 0usize, 0usize, 0usize);
-    for run in prepared
-        .runs
-        .iter()
-        .filter(|r| r.role == preprocess::RunRole::Test)
-    {
+    for run in prepared.runs.iter().filter(|r| r.test_sequences > 0) {
         let (u, alpha) = estimator_input(ds, prepared, run.summary.index)?;
         let exact_cfg = EstimatorConfig::new(alpha);
         let table_cfg = EstimatorConfig {
@@ -212,7 +222,7 @@ fn table_vs_exact(
         runs += 1;
     }
     println!(
-        "fast path (tables, bound {bound:.0e}) vs exact over {runs} held-out runs ({samples} samples, whole runs from rest): \
+        "fast path (tables, bound {bound:.0e}) vs exact over {runs} runs with test data ({samples} samples, whole runs from rest): \
          max |table - exact| = {:.2e} of the force scale, {outside} samples outside the table domain ({:.1} s)",
         worst / prepared.scales.force_n,
         t.elapsed().as_secs_f64()
@@ -262,6 +272,7 @@ pub fn compare_command(
     checkpoint: Option<&Path>,
     resume: bool,
 ) -> Result<Report> {
+    let cfg = &with_resolved_data(cfg)?;
     let (ds, prepared) =
         load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
     compare(&ds, &prepared, cfg, report_dir, checkpoint, resume)
@@ -279,14 +290,40 @@ pub fn compare(
     resume: bool,
 ) -> Result<Report> {
     let t = Instant::now();
-    let trained = train_variants(
+    let Trained {
+        trained,
+        failed: train_failed,
+    } = train_each(
         prepared,
         &Variant::ALL,
         &cfg.pipeline_config(),
         checkpoint,
         resume,
     )?;
-    let mut report = evaluate(&trained, prepared)?;
+    std::fs::create_dir_all(report_dir)?;
+    let mut failed: Vec<(Variant, String)> = train_failed
+        .into_iter()
+        .map(|f| (f.variant, f.reason))
+        .collect();
+    let mut exported = Vec::new();
+    for tv in trained {
+        let out = report_dir.join(format!("{}.nemm", tv.variant.name()));
+        match export_model(&tv.model, &out) {
+            Ok(_) => exported.push(tv),
+            Err(e) => {
+                eprintln!("[{}] export failed: {e:#}", tv.variant.name());
+                failed.push((tv.variant, format!("export: {e:#}")));
+            }
+        }
+    }
+    let mut report = evaluate(&exported, prepared)?;
+    for (v, reason) in failed {
+        report.failed.insert(v.key().to_string(), reason);
+    }
+    let trained: Vec<TrainedVariant> = exported
+        .into_iter()
+        .filter(|tv| report.variants.contains_key(tv.variant.key()))
+        .collect();
     record_provenance(&mut report);
     report
         .info
@@ -295,22 +332,28 @@ pub fn compare(
         "total_seconds".into(),
         format!("{:.1}", t.elapsed().as_secs_f64()),
     );
-    std::fs::create_dir_all(report_dir)?;
-    for tv in &trained {
-        export_model(
-            &tv.model,
-            &report_dir.join(format!("{}.nemm", tv.variant.name())),
-        )?;
-    }
     write_report(report_dir, &report, "table4.md")?;
     cfg.save(&report_dir.join(CONFIG_FILE))?;
     println!("{}", table4_markdown(&report));
+    if trained.is_empty() {
+        bail!(
+            "every variant failed (reasons in {})",
+            report_dir.join("table4.md").display()
+        );
+    }
     for tv in &trained {
         print_audit(tv, &report);
     }
     let predictions = crate::report::predictions::RunPredictions::for_figures(&trained, prepared)?;
     crate::report::figures::write_all(&trained, ds, prepared, &report, &predictions, report_dir)?;
     println!("report, models and figures in {}", report_dir.display());
+    if !report.failed.is_empty() {
+        eprintln!(
+            "warning: {} of 4 variants failed (their rows in Table 4 give the reason): {}",
+            report.failed.len(),
+            report.failed.keys().cloned().collect::<Vec<_>>().join(", ")
+        );
+    }
     Ok(report)
 }
 
@@ -503,6 +546,14 @@ pub fn sweep(
     collect_only: bool,
 ) -> Result<()> {
     base.data.require_dir()?;
+    // Every job runs with the data options resolved once, as this run prints them.
+    let resolved;
+    let base = if collect_only {
+        base
+    } else {
+        resolved = with_resolved_data(base)?;
+        &resolved
+    };
     let jobs = sweep_jobs(base, grid, lambdas);
     for j in &jobs {
         j.config.validate()?;
@@ -623,8 +674,15 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let mut cfg = cfg.clone();
     cfg.data.dir = paths.data.clone();
     cfg.validate()?;
+    let cfg = with_resolved_data(&cfg)?;
     let (ds, prepared) = load_dataset_prepared(&cfg.data.dir, &cfg.data.prepare_config())?;
     let report = compare(&ds, &prepared, &cfg, &paths.out, None, false)?;
+    if let Some(reason) = report.failed.get(Variant::Nemm.key()) {
+        bail!(
+            "the NEMM failed ({reason}); Table 4 and the other variants are in {}",
+            paths.out.display()
+        );
+    }
     let nemm_blob = paths.out.join("nemm.nemm");
     let model_path = paths.out.join("model.nemm");
     std::fs::copy(&nemm_blob, &model_path).with_context(|| {
@@ -644,7 +702,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let test_runs: Vec<_> = prepared
         .runs
         .iter()
-        .filter(|r| r.role == preprocess::RunRole::Test)
+        .filter(|r| r.test_sequences > 0)
         .collect();
     let run = test_runs
         .iter()
@@ -659,6 +717,11 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         .or(test_runs.first())
         .context("no held-out test run")?;
     let idx = run.summary.index;
+    let what = if run.role == preprocess::RunRole::Test {
+        "held-out run"
+    } else {
+        "run with a test tail (its training part included)"
+    };
     let (u, alpha) = estimator_input(&ds, &prepared, idx)?;
     let mut est = nemm_core::Estimator::new(&model, nemm_core::EstimatorConfig::new(alpha))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -680,7 +743,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b).abs()))
         / fs;
     println!(
-        "most dynamic held-out run {} (oil loss {alpha}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
+        "most dynamic {what} {} (oil loss {alpha}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
          max |nemm-core - trainer| = {:.2e} of the force scale",
         ds.runs[idx].entry.file.display(),
         run.summary.excitation.amplitude_m * 1e3,

@@ -78,8 +78,9 @@ pub enum PreprocessError {
         /// The run's file (relative to the manifest).
         file: PathBuf,
     },
-    /// The split left no training sequence (all runs are test or too short).
-    #[error("no training sequences: {0}")]
+    /// The split left no training sequence (every run is a test run or unused, or the
+    /// training runs are too short); the text names the cause.
+    #[error("no training data: {0}")]
     NoTrainingData(String),
     /// A feature is zero over the whole training set, so it cannot be scaled.
     #[error("the training set's {feature} is zero everywhere; it cannot be abs-max scaled")]
@@ -262,7 +263,7 @@ pub fn differentiate(x: &[f64], dt: f64) -> Vec<f64> {
 }
 
 /// Where the velocity comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum VelocitySource {
     /// The measured `velocity_m_s` column when the run has one, else differentiation.
@@ -846,17 +847,33 @@ pub fn unscored_samples(n: usize, warmup: usize, scored: usize) -> usize {
 // ---------------------------------------------------------------------------------------------
 
 /// How runs and sequences are split (Table 2 by default).
+///
+/// Three kinds of test set, which can be combined: whole runs at a test level
+/// (`test_alphas`), whole runs whose file matches a glob (`test_runs`), and the last part of
+/// every other run (`test_tail`). Every training run gives one contiguous validation stretch
+/// ([`run_stretches`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SplitConfig {
     /// Oil-loss levels whose runs form the test set (default `[0.15]`).
     pub test_alphas: Vec<f64>,
+    /// Glob patterns (`glob` crate syntax) on the run files: a run whose path relative to the
+    /// manifest or whose file name matches one is a test run.
+    #[serde(default)]
+    pub test_runs: Vec<String>,
+    /// Fraction in (0, 1) of every training run, at its end, held out as test data (a split
+    /// in time, for datasets with a single level); `None`: no tail.
+    #[serde(default)]
+    pub test_tail: Option<f64>,
     /// Oil-loss levels used for training and validation; `None` = every level not in
     /// `test_alphas` (default). Runs at other levels are unused.
     pub train_alphas: Option<Vec<f64>>,
-    /// Fraction of each training run's sequences held out for validation, in \[0, 1)
+    /// Glob patterns of run files that are not used at all (as `test_runs`).
+    #[serde(default)]
+    pub exclude_runs: Vec<String>,
+    /// Fraction of each training run's windows held out for validation, in \[0, 1)
     /// (default [`DEFAULT_VALIDATION_FRACTION`]).
     pub validation_fraction: f64,
-    /// Seed of the validation choice (default [`DEFAULT_SPLIT_SEED`]).
+    /// Seed of the position of each run's validation stretch (default [`DEFAULT_SPLIT_SEED`]).
     pub seed: u64,
 }
 
@@ -864,7 +881,10 @@ impl Default for SplitConfig {
     fn default() -> Self {
         SplitConfig {
             test_alphas: DEFAULT_TEST_ALPHAS.to_vec(),
+            test_runs: Vec::new(),
+            test_tail: None,
             train_alphas: None,
+            exclude_runs: Vec::new(),
             validation_fraction: DEFAULT_VALIDATION_FRACTION,
             seed: DEFAULT_SPLIT_SEED,
         }
@@ -883,6 +903,60 @@ pub enum RunRole {
     Unused,
 }
 
+/// `true` if one of `patterns` matches the run file `file`: its path relative to the manifest
+/// (with `/` separators) or its file name.
+fn file_matches(patterns: &[glob::Pattern], file: &std::path::Path) -> bool {
+    let path = file.to_string_lossy().replace('\\', "/");
+    let name = file
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    patterns
+        .iter()
+        .any(|p| p.matches(&path) || p.matches(&name))
+}
+
+/// Compiles glob patterns, naming the setting of a bad one.
+fn compile_globs(
+    key: &'static str,
+    patterns: &[String],
+) -> Result<Vec<glob::Pattern>, PreprocessError> {
+    patterns
+        .iter()
+        .map(|p| {
+            glob::Pattern::new(p)
+                .map_err(|e| config_err(key, format!("{p:?} is not a glob pattern: {e}")))
+        })
+        .collect()
+}
+
+/// A [`SplitConfig`] with its glob patterns compiled.
+#[derive(Debug, Clone)]
+pub struct SplitRules<'a> {
+    config: &'a SplitConfig,
+    test_runs: Vec<glob::Pattern>,
+    exclude_runs: Vec<glob::Pattern>,
+}
+
+impl SplitRules<'_> {
+    /// The role of a run with oil-loss level `alpha` stored in `file`: unused if excluded
+    /// (`exclude_runs`) or not at a training level, test if at a test level or matched by
+    /// `test_runs`, else training and validation.
+    pub fn role(&self, file: &std::path::Path, alpha: f64) -> RunRole {
+        let c = self.config;
+        let has = |set: &[f64]| set.iter().any(|&a| (a - alpha).abs() <= ALPHA_TOLERANCE);
+        if file_matches(&self.exclude_runs, file) {
+            RunRole::Unused
+        } else if has(&c.test_alphas) || file_matches(&self.test_runs, file) {
+            RunRole::Test
+        } else if c.train_alphas.as_deref().is_none_or(has) {
+            RunRole::TrainValidation
+        } else {
+            RunRole::Unused
+        }
+    }
+}
+
 impl SplitConfig {
     fn validate(&self) -> Result<(), PreprocessError> {
         if !(self.validation_fraction.is_finite() && (0.0..1.0).contains(&self.validation_fraction))
@@ -891,6 +965,14 @@ impl SplitConfig {
                 "validation_fraction",
                 format!("{} is not in [0, 1)", self.validation_fraction),
             ));
+        }
+        if let Some(t) = self.test_tail {
+            if !(t.is_finite() && t > 0.0 && t < 1.0) {
+                return Err(config_err(
+                    "test_tail",
+                    format!("{t} is not a fraction of a run in (0, 1)"),
+                ));
+            }
         }
         let all = self
             .test_alphas
@@ -907,8 +989,18 @@ impl SplitConfig {
         Ok(())
     }
 
-    /// Every requested level must match a run of `dataset`: a level that matches none (a typo
-    /// in `--test-alpha`, say) would silently leave the test set empty, or drop training data.
+    /// The split with its glob patterns compiled (errors name a bad pattern).
+    pub fn rules(&self) -> Result<SplitRules<'_>, PreprocessError> {
+        Ok(SplitRules {
+            config: self,
+            test_runs: compile_globs("test_runs", &self.test_runs)?,
+            exclude_runs: compile_globs("exclude_runs", &self.exclude_runs)?,
+        })
+    }
+
+    /// Every requested level must match a run of `dataset`, and every glob a run file: a
+    /// level or pattern that matches none (a typo in `--test-alpha`, say) would silently
+    /// leave the test set empty, or drop training data.
     fn check_levels(&self, dataset: &Dataset) -> Result<(), PreprocessError> {
         let present = |a: f64| {
             dataset
@@ -936,10 +1028,71 @@ impl SplitConfig {
                 ));
             }
         }
+        for (key, patterns) in [
+            ("test_runs", &self.test_runs),
+            ("exclude_runs", &self.exclude_runs),
+        ] {
+            for p in patterns {
+                let one = compile_globs(key, std::slice::from_ref(p))?;
+                if !dataset
+                    .runs
+                    .iter()
+                    .any(|r| file_matches(&one, &r.entry.file))
+                {
+                    let files: Vec<String> = dataset
+                        .runs
+                        .iter()
+                        .take(3)
+                        .map(|r| r.entry.file.display().to_string())
+                        .collect();
+                    return Err(config_err(
+                        key,
+                        format!(
+                            "pattern {p:?} matches no run file (the files are named like {}{})",
+                            files.join(", "),
+                            if dataset.runs.len() > 3 { ", ..." } else { "" }
+                        ),
+                    ));
+                }
+            }
+        }
         Ok(())
     }
 
-    /// The role of a run with oil-loss level `alpha`.
+    /// One line for reports: the test set, the training runs and the validation rule.
+    pub fn describe(&self) -> String {
+        let list = |v: &[f64]| v.iter().map(f64::to_string).collect::<Vec<_>>().join(", ");
+        let mut test = Vec::new();
+        if !self.test_alphas.is_empty() {
+            test.push(format!("runs at oil loss {}", list(&self.test_alphas)));
+        }
+        if !self.test_runs.is_empty() {
+            test.push(format!("runs matching {}", self.test_runs.join(", ")));
+        }
+        if let Some(t) = self.test_tail {
+            test.push(format!("the last {} % of every training run", 100.0 * t));
+        }
+        if test.is_empty() {
+            test.push("none".into());
+        }
+        let mut train = match &self.train_alphas {
+            Some(a) => format!("runs at oil loss {}", list(a)),
+            None => "every other run".into(),
+        };
+        if !self.exclude_runs.is_empty() {
+            train.push_str(&format!(" except {}", self.exclude_runs.join(", ")));
+        }
+        format!(
+            "test: {}; training: {train}; validation: {} % of each training run's windows as \
+             one contiguous stretch (seed {})",
+            test.join(" + "),
+            100.0 * self.validation_fraction,
+            self.seed
+        )
+    }
+
+    /// The role of a run with oil-loss level `alpha` when only levels are known (no file
+    /// patterns): [`SplitRules::role`] without `test_runs` and `exclude_runs`.
     pub fn role(&self, alpha: f64) -> RunRole {
         let has = |set: &[f64]| set.iter().any(|&a| (a - alpha).abs() <= ALPHA_TOLERANCE);
         if has(&self.test_alphas) {
@@ -961,22 +1114,99 @@ pub fn distinct_levels(alphas: impl IntoIterator<Item = f64>) -> Vec<f64> {
     v
 }
 
-/// Which of a training run's `count` sequences are held out for validation:
-/// `round(fraction * count)` of them (at most `count - 1`, so each run keeps a training sequence), drawn
-/// without replacement ([`rand::seq::index::sample`]) by xoshiro256++ seeded with the 64-bit
-/// FNV-1a hash of `seed` and `run_index`, so a run's choice does not depend on the other runs.
-/// Sorted.
-pub fn validation_indices(count: usize, fraction: f64, seed: u64, run_index: usize) -> Vec<usize> {
+/// What a stretch of a run is used for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Part {
+    /// Training windows.
+    Train,
+    /// Validation windows (early stopping, model selection).
+    Validation,
+    /// Test windows.
+    Test,
+}
+
+/// A stretch `[start, end)` of a run's samples and its use. The stretches of a run are
+/// disjoint and each is cut into windows on its own ([`cut_sequences`]), so no window, warm-up
+/// included, reads a sample of another stretch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Stretch {
+    /// Use.
+    pub part: Part,
+    /// First sample.
+    pub start: usize,
+    /// One past the last sample.
+    pub end: usize,
+}
+
+/// The stretches of a run of `n` samples with `role`:
+///
+/// * a test run is one test stretch, an unused run none;
+/// * a training run first loses its last `round(test_tail * n)` samples to a test stretch
+///   (with [`SplitConfig::test_tail`]); in the rest, of `K` windows if cut whole,
+///   `round(validation_fraction * K)` consecutive windows (at most `K - 1`) form one
+///   validation stretch and the samples before and after it are training stretches. Where the
+///   validation stretch sits is drawn uniformly among the places where it fits with its own
+///   warm-up (whole windows of the tiling, from the run's start to its end) by xoshiro256++
+///   seeded with the 64-bit FNV-1a hash of `seed` and `run_index`, so a run's choice does not
+///   depend on the other runs.
+///
+/// Each stretch after the first needs its own warm-up, so a training run gives at most one
+/// window fewer than if it were cut whole (two with a test tail) when its unscored tail is
+/// shorter than the extra warm-ups.
+pub fn run_stretches(
+    n: usize,
+    role: RunRole,
+    warmup: usize,
+    scored: usize,
+    split: &SplitConfig,
+    run_index: usize,
+) -> Vec<Stretch> {
     use rand::SeedableRng;
     use std::hash::Hasher;
-    let take = ((fraction * count as f64).round() as usize).min(count.saturating_sub(1));
-    let mut h = fnv::FnvHasher::default();
-    h.write(&seed.to_le_bytes());
-    h.write(&(run_index as u64).to_le_bytes());
-    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(h.finish());
-    let mut chosen = rand::seq::index::sample(&mut rng, count, take).into_vec();
-    chosen.sort_unstable();
-    chosen
+    let stretch = |part, start, end| Stretch { part, start, end };
+    match role {
+        RunRole::Unused => return Vec::new(),
+        RunRole::Test => return vec![stretch(Part::Test, 0, n)],
+        RunRole::TrainValidation => {}
+    }
+    let mut out = Vec::new();
+    let tail = split
+        .test_tail
+        .map_or(0, |f| ((f * n as f64).round() as usize).min(n));
+    let t = n - tail;
+    let count = sequence_count(t, warmup, scored);
+    let take =
+        ((split.validation_fraction * count as f64).round() as usize).min(count.saturating_sub(1));
+    if take == 0 {
+        if t > 0 {
+            out.push(stretch(Part::Train, 0, t));
+        }
+    } else {
+        // Validation after `j` training windows: [before, before + warmup + take * scored).
+        let before = |j: usize| if j == 0 { 0 } else { warmup + j * scored };
+        let fits: Vec<usize> = (0..=count - take)
+            .filter(|&j| before(j) + warmup + take * scored <= t)
+            .collect();
+        let mut h = fnv::FnvHasher::default();
+        h.write(&split.seed.to_le_bytes());
+        h.write(&(run_index as u64).to_le_bytes());
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(h.finish());
+        let pick = rand::seq::index::sample(&mut rng, fits.len(), 1).index(0);
+        let j = fits[pick];
+        let (a, b) = (before(j), before(j) + warmup + take * scored);
+        if a > 0 {
+            out.push(stretch(Part::Train, 0, a));
+        }
+        out.push(stretch(Part::Validation, a, b));
+        if b < t {
+            out.push(stretch(Part::Train, b, t));
+        }
+    }
+    if tail > 0 {
+        out.push(stretch(Part::Test, t, n));
+    }
+    out
 }
 
 /// Abs-max feature scales from the training set (section 5.3): each feature is divided by
@@ -1110,6 +1340,9 @@ pub struct PreparedRun {
     pub unscored_samples: usize,
     /// Quasi-static points.
     pub quasi_static_points: usize,
+    /// The run's training, validation and test stretches ([`run_stretches`]).
+    #[serde(default)]
+    pub stretches: Vec<Stretch>,
 }
 
 /// Quasi-static points split like the sequences: a point is validation if its sample lies in
@@ -1247,10 +1480,54 @@ pub fn summarize(
         .collect()
 }
 
+/// The true cause when the split leaves no run to train on: every run is a test run, or the
+/// rest are unused.
+fn no_training_runs(dataset: &Dataset, rules: &SplitRules<'_>) -> Result<(), PreprocessError> {
+    let roles: Vec<RunRole> = dataset
+        .runs
+        .iter()
+        .map(|r| rules.role(&r.entry.file, r.entry.oil_loss))
+        .collect();
+    if roles.contains(&RunRole::TrainValidation) {
+        return Ok(());
+    }
+    let test = roles.iter().filter(|&&r| r == RunRole::Test).count();
+    let unused = roles.len() - test;
+    let c = rules.config;
+    let levels = distinct_levels(dataset.runs.iter().map(|r| r.entry.oil_loss));
+    let fmt = |v: &[f64]| v.iter().map(f64::to_string).collect::<Vec<_>>().join(", ");
+    let hint = "nothing left to train on; use --test-tail FRACTION (the end of every run is \
+                the test set) or --test-runs GLOB (some runs are)";
+    let cause = if dataset.runs.is_empty() {
+        "the dataset has no runs".to_string()
+    } else if unused == 0 && levels.len() == 1 && c.role(levels[0]) == RunRole::Test {
+        format!("every run is at the test level {}: {hint}", levels[0])
+    } else if unused == 0 {
+        format!(
+            "every run is a test run (test levels [{}], test runs {:?}): {hint}",
+            fmt(&c.test_alphas),
+            c.test_runs
+        )
+    } else {
+        format!(
+            "no run is left for training: {test} test run(s) (test levels [{}], test runs {:?}) \
+             and {unused} unused (excluded by {:?} or not at the training levels {})",
+            fmt(&c.test_alphas),
+            c.test_runs,
+            c.exclude_runs,
+            c.train_alphas
+                .as_deref()
+                .map_or("(all others)".to_string(), |a| format!("[{}]", fmt(a)))
+        )
+    };
+    Err(PreprocessError::NoTrainingData(cause))
+}
+
 /// Splits, cuts and scales a dataset (see the module docs and `docs/data-format.md`).
 ///
-/// Runs at a test oil-loss level give test sequences; every other run (or those at
-/// `train_alphas`) gives training sequences of which [`validation_indices`] are held out.
+/// Test runs (at a test level or matched by `test_runs`) give test sequences; every other run
+/// (or those at `train_alphas`, and not excluded) is cut into the stretches of
+/// [`run_stretches`]: training, one validation stretch and, with `test_tail`, a test tail.
 /// Deterministic for a given dataset and configuration.
 pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, PreprocessError> {
     use rayon::prelude::*;
@@ -1258,6 +1535,8 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
     check_cutoff(fs, config.signal.cutoff_hz)?;
     config.split.validate()?;
     config.split.check_levels(dataset)?;
+    let rules = config.split.rules()?;
+    no_training_runs(dataset, &rules)?;
     let window = config.quasi_static_window.unwrap_or(DEFAULT_QS_WINDOW);
     if !(window.is_finite() && window > 0.0 && window < 1.0) {
         return Err(config_err(
@@ -1283,28 +1562,21 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         .enumerate()
         .map(|(i, run)| -> Result<PerRun, PreprocessError> {
             let alpha = run.entry.oil_loss;
-            let role = config.split.role(alpha);
+            let role = rules.role(&run.entry.file, alpha);
             let (summary, signals) = summarize_run(run, i, fs, &config.signal)?;
             let force = if config.signal.filter_force {
                 &signals.force_filtered_n
             } else {
                 &run.force_n
             };
-            let sequences = match role {
-                RunRole::Unused => Vec::new(),
-                _ => cut_sequences(i, alpha, &signals.velocity_m_s, force, warmup, scored),
-            };
-            let held = match role {
-                RunRole::TrainValidation => validation_indices(
-                    sequences.len(),
-                    config.split.validation_fraction,
-                    config.split.seed,
-                    i,
-                ),
-                _ => Vec::new(),
-            };
-            let in_validation = |sample: usize| {
-                sample >= warmup && held.binary_search(&((sample - warmup) / scored)).is_ok()
+            let n = run.len().min(signals.velocity_m_s.len()).min(force.len());
+            let stretches = run_stretches(n, role, warmup, scored, &config.split, i);
+            // Samples outside the training stretches are binned apart from training samples
+            // (the low-acceleration rule of non-periodic runs).
+            let outside_training = |sample: usize| {
+                stretches
+                    .iter()
+                    .any(|st| st.part != Part::Train && (st.start..st.end).contains(&sample))
             };
             let periodic = super::support::periodicity(run, &signals.displacement_m, fs).is_some();
             let points = super::support::support_points(
@@ -1314,7 +1586,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                 &summary.excitation,
                 alpha,
                 window,
-                &in_validation,
+                &outside_training,
             );
             let mut out = PerRun {
                 prepared: PreparedRun {
@@ -1322,8 +1594,9 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                     train_sequences: 0,
                     validation_sequences: 0,
                     test_sequences: 0,
-                    unscored_samples: unscored_samples(run.len(), warmup, scored),
+                    unscored_samples: 0,
                     quasi_static_points: points.len(),
+                    stretches: stretches.clone(),
                     summary,
                 },
                 train: Vec::new(),
@@ -1334,32 +1607,51 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                 signals: Signals::default(),
             };
             let absmax = |x: &[f64]| x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            match role {
-                RunRole::Unused => {}
-                RunRole::Test => {
-                    out.test = sequences;
-                    out.qs.test = points;
+            let mut scored_total = 0;
+            for st in &stretches {
+                let (a, b) = (st.start, st.end);
+                let mut seqs = cut_sequences(
+                    i,
+                    alpha,
+                    &signals.velocity_m_s[a..b],
+                    &force[a..b],
+                    warmup,
+                    scored,
+                );
+                for s in &mut seqs {
+                    s.start += a;
                 }
-                RunRole::TrainValidation => {
-                    for (k, s) in sequences.into_iter().enumerate() {
-                        if held.binary_search(&k).is_ok() {
-                            out.validation.push(s);
-                        } else {
+                scored_total += seqs.len() * scored;
+                match st.part {
+                    Part::Test => out.test.extend(seqs),
+                    Part::Validation => out.validation.extend(seqs),
+                    Part::Train => {
+                        for s in &seqs {
                             let range = s.start..s.start + warmup + scored;
                             let m = &mut out.train_absmax;
                             m[0] = m[0].max(absmax(&signals.velocity_m_s[range.clone()]));
                             m[1] = m[1].max(absmax(&force[range]));
                             m[2] = m[2].max(alpha.abs());
-                            out.train.push(s);
                         }
+                        out.train.extend(seqs);
                     }
-                    for p in points {
-                        if in_validation(p.sample) {
-                            out.qs.validation.push(p);
-                        } else {
-                            out.qs.train.push(p);
-                        }
-                    }
+                }
+            }
+            out.prepared.unscored_samples = if role == RunRole::Unused {
+                0
+            } else {
+                n - scored_total
+            };
+            // A quasi-static point belongs to the stretch its sample lies in.
+            for p in points {
+                match stretches
+                    .iter()
+                    .find(|st| (st.start..st.end).contains(&p.sample))
+                {
+                    Some(st) if st.part == Part::Test => out.qs.test.push(p),
+                    Some(st) if st.part == Part::Validation => out.qs.validation.push(p),
+                    Some(_) => out.qs.train.push(p),
+                    None => {}
                 }
             }
             out.prepared.train_sequences = out.train.len();
@@ -1403,15 +1695,31 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         prepared.signals.push(r.signals);
     }
     if prepared.train.is_empty() {
+        let longest = prepared
+            .runs
+            .iter()
+            .flat_map(|r| &r.stretches)
+            .filter(|st| st.part == Part::Train)
+            .map(|st| st.end - st.start)
+            .max()
+            .unwrap_or(0);
         let train_runs = prepared
             .runs
             .iter()
             .filter(|r| r.role == RunRole::TrainValidation)
             .count();
         return Err(PreprocessError::NoTrainingData(format!(
-            "{train_runs} run(s) at training oil-loss levels, none at least {} samples long \
-             (warm-up {warmup} + sequence {scored})",
-            warmup + scored
+            "{train_runs} training run(s), whose longest training stretch has {longest} samples \
+             ({:.3} s), fewer than one window needs (warm-up {warmup} + window {scored} = {} \
+             samples, {:.3} s); use a shorter --window-s or --warmup-s{}",
+            longest as f64 / fs,
+            warmup + scored,
+            (warmup + scored) as f64 / fs,
+            if config.split.test_tail.is_some() {
+                ", or a smaller --test-tail"
+            } else {
+                ""
+            }
         )));
     }
     let [v, f, a] = train_absmax;

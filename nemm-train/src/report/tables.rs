@@ -12,6 +12,11 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+/// A number that JSON wrote as `null` (serde_json writes NaN so) reads back as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// Results of one variant.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VariantReport {
@@ -41,12 +46,21 @@ pub struct VariantReport {
 /// A whole report (`report.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Report {
-    /// Oil-loss level(s) of the test set (the first one; Table 2: 0.15).
+    /// Oil-loss level(s) of the test set (the first one; Table 2: 0.15); NaN (`null` in
+    /// JSON) when the test set is not a level (`--test-runs`, `--test-tail`).
+    #[serde(deserialize_with = "nan_if_null")]
     pub test_alpha: f64,
     /// Abs-max force of the training set \[N\].
     pub force_scale_n: f64,
     /// Per variant, keyed `sem`, `linear_emm`, `nemm_light`, `nemm`.
     pub variants: BTreeMap<String, VariantReport>,
+    /// Variants that could not be trained, exported or evaluated (keys as in
+    /// [`Report::variants`]) and why; Table 4 gives each a row with the reason.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub failed: BTreeMap<String, String>,
+    /// The test set, split and validation rule ([`crate::data::preprocess::SplitConfig::describe`]).
+    #[serde(default)]
+    pub test_set: String,
     /// Test sequences and scored samples.
     pub test_sequences: usize,
     /// The test error per held-out run, in the order of the dataset (where each model errs:
@@ -78,24 +92,34 @@ pub struct RunBreakdown {
 }
 
 /// Evaluates trained variants on the prepared test set: overall (Table 4) and per held-out
-/// run.
+/// run. A variant whose evaluation fails is listed in [`Report::failed`] with the error.
 pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Report> {
     let fs = prepared.scales.force_n;
     let mut variants = BTreeMap::new();
+    let mut failed = BTreeMap::new();
     // run index -> (scored samples, variant -> squared-error sum)
     let mut by_run: BTreeMap<usize, (usize, BTreeMap<String, f64>)> = BTreeMap::new();
-    for (i, t) in trained.iter().enumerate() {
-        let per_seq = sse_per_sequence(&t.model, &prepared.test, prepared.warmup_samples, fs)?;
+    let mut counted = false;
+    for t in trained {
+        let per_seq = match sse_per_sequence(&t.model, &prepared.test, prepared.warmup_samples, fs)
+        {
+            Ok(p) => p,
+            Err(e) => {
+                failed.insert(t.variant.key().to_string(), format!("evaluation: {e:#}"));
+                continue;
+            }
+        };
         let (mut se, mut n) = (0.0f64, 0usize);
         for (seq, &(s, k)) in prepared.test.iter().zip(&per_seq) {
             se += s;
             n += k;
             let run = by_run.entry(seq.run).or_default();
             *run.1.entry(t.variant.key().to_string()).or_default() += s;
-            if i == 0 {
+            if !counted {
                 run.0 += k;
             }
         }
+        counted = true;
         let rmse = rmse_of(se, n);
         let audit = matches!(t.variant, Variant::NemmLight | Variant::Nemm)
             .then(|| audit(&t.model, AUDIT_GRID.0, AUDIT_GRID.1));
@@ -127,6 +151,8 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
             .unwrap_or(f64::NAN),
         force_scale_n: fs,
         variants,
+        failed,
+        test_set: prepared.config.split.describe(),
         test_sequences: prepared.test.len(),
         test_runs: by_run
             .into_iter()
@@ -234,7 +260,11 @@ pub fn table4_markdown(r: &Report) -> String {
     let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
     let sem = r.variants.get("sem").map(|v| v.rmse);
     for v in Variant::ALL {
-        if let Some(x) = r.variants.get(v.key()) {
+        if let Some(reason) = r.failed.get(v.key()) {
+            // One table cell: no pipes or line breaks from the error text.
+            let reason = reason.replace('|', "\\|").replace(['\n', '\r'], " ");
+            let _ = writeln!(s, "| {} | failed: {reason} | - | - | - | - |", v.title());
+        } else if let Some(x) = r.variants.get(v.key()) {
             let rel = sem.map_or("-".to_string(), |b| format!("{:.1}", 100.0 * x.rmse / b));
             let viol = match v {
                 Variant::NemmLight | Variant::Nemm => x.violations.to_string(),
@@ -252,10 +282,15 @@ pub fn table4_markdown(r: &Report) -> String {
             );
         }
     }
+    let split = if r.test_set.is_empty() {
+        format!("test: oil loss {}", r.test_alpha)
+    } else {
+        r.test_set.clone()
+    };
     let _ = writeln!(
         s,
-        "\nTest set: oil loss {} ({} sequences); RMSE normalised by the training set's abs-max force {:.0} N.",
-        r.test_alpha, r.test_sequences, r.force_scale_n
+        "\nSplit: {split} ({} test sequences); RMSE normalised by the training set's abs-max force {:.0} N.",
+        r.test_sequences, r.force_scale_n
     );
     s
 }

@@ -428,7 +428,40 @@ fn windows_of(seqs: &[crate::data::preprocess::Sequence]) -> Vec<Window<'_>> {
         .collect()
 }
 
-/// Trains the requested variants. Checkpoints go to `checkpoint_root/<variant>/` when given.
+/// A variant that could not be trained or exported, and why.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VariantFailure {
+    /// Which.
+    pub variant: Variant,
+    /// The error, with its causes.
+    pub reason: String,
+}
+
+/// What [`train_each`] made of the requested variants.
+#[derive(Debug, Clone)]
+pub struct Trained {
+    /// The variants that were trained, in the order of Table 4.
+    pub trained: Vec<TrainedVariant>,
+    /// The variants that failed, in the order of Table 4.
+    pub failed: Vec<VariantFailure>,
+}
+
+/// Records the failure of `variant`, unless `e` is the end of a time-boxed session (which
+/// stops the whole job with a checkpoint and is returned).
+fn record(failed: &mut Vec<VariantFailure>, variant: Variant, e: anyhow::Error) -> Result<()> {
+    if e.is::<SessionBudgetUsed>() {
+        return Err(e);
+    }
+    eprintln!("[{}] failed: {e:#}", variant.name());
+    failed.push(VariantFailure {
+        variant,
+        reason: format!("{e:#}"),
+    });
+    Ok(())
+}
+
+/// Trains the requested variants; every variant must succeed (the first failure is the
+/// error). [`train_each`] keeps going past failures.
 pub fn train_variants(
     prepared: &Prepared,
     variants: &[Variant],
@@ -436,6 +469,71 @@ pub fn train_variants(
     checkpoint_root: Option<&Path>,
     resume: bool,
 ) -> Result<Vec<TrainedVariant>> {
+    let r = train_each(prepared, variants, cfg, checkpoint_root, resume)?;
+    if let Some(f) = r.failed.first() {
+        bail!("{} failed: {}", f.variant.title(), f.reason);
+    }
+    Ok(r.trained)
+}
+
+/// The SEM from the training set's quasi-static points.
+fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<TrainedVariant> {
+    let t = Instant::now();
+    let map = fit_sem(&prepared.quasi_static.train)?;
+    let model = Model {
+        integrator: cfg.integrator,
+        dt_s: prepared.dt_s as f32,
+        scales: InputScales {
+            velocity_m_s: prepared.scales.velocity_m_s as f32,
+            x_pr_m: 1.0,
+            alpha: prepared.scales.alpha as f32,
+        },
+        meta,
+        body: Body::Sem(map),
+        ext: Extension::default(),
+    };
+    model
+        .validate()
+        .map_err(|e| anyhow::anyhow!("SEM model invalid: {e}"))?;
+    let val = super::eval::rmse_model(
+        &model,
+        &prepared.validation,
+        prepared.warmup_samples,
+        prepared.scales.force_n,
+    )?;
+    eprintln!(
+        "[sem] {} support velocities x {} oil-loss levels, validation RMSE {val:.4}",
+        match &model.body {
+            Body::Sem(m) => m.velocities_m_s.len(),
+            _ => 0,
+        },
+        match &model.body {
+            Body::Sem(m) => m.alphas.len(),
+            _ => 0,
+        }
+    );
+    Ok(TrainedVariant {
+        variant: Variant::Sem,
+        model,
+        history: Vec::new(),
+        val_rmse: val,
+        stop: None,
+        seconds: t.elapsed().as_secs_f64(),
+    })
+}
+
+/// Trains the requested variants, keeping going past a variant that fails (its error is
+/// recorded in [`Trained::failed`]): a failed Linear EMM stage fails every EMM-family variant
+/// (they start from it), a failed quasi-static regression NEMM-Light and NEMM. Checkpoints go
+/// to `checkpoint_root/<variant>/` when given. Errors only when the data cannot train any
+/// EMM-family variant (no validation windows) and when a time-boxed session ends.
+pub fn train_each(
+    prepared: &Prepared,
+    variants: &[Variant],
+    cfg: &PipelineConfig,
+    checkpoint_root: Option<&Path>,
+    resume: bool,
+) -> Result<Trained> {
     if prepared.validation.is_empty() && variants.iter().any(|v| *v != Variant::Sem) {
         bail!(
             "no validation windows: the runs at the training oil-loss levels are too short for \
@@ -458,130 +556,123 @@ pub fn train_variants(
     };
     let mut out = Vec::new();
     let qs = &prepared.quasi_static.train;
+    let mut failed = Vec::new();
     if variants.contains(&Variant::Sem) {
-        let t = Instant::now();
-        let map = fit_sem(qs)?;
-        let model = Model {
-            integrator: cfg.integrator,
-            dt_s: prepared.dt_s as f32,
-            scales: InputScales {
-                velocity_m_s: prepared.scales.velocity_m_s as f32,
-                x_pr_m: 1.0,
-                alpha: prepared.scales.alpha as f32,
-            },
-            meta,
-            body: Body::Sem(map),
-            ext: Extension::default(),
-        };
-        model
-            .validate()
-            .map_err(|e| anyhow::anyhow!("SEM model invalid: {e}"))?;
-        let val = super::eval::rmse_model(
-            &model,
-            &prepared.validation,
-            prepared.warmup_samples,
-            force_scale,
-        )?;
-        eprintln!(
-            "[sem] {} support velocities x {} oil-loss levels, validation RMSE {val:.4}",
-            match &model.body {
-                Body::Sem(m) => m.velocities_m_s.len(),
-                _ => 0,
-            },
-            match &model.body {
-                Body::Sem(m) => m.alphas.len(),
-                _ => 0,
-            }
-        );
-        out.push(TrainedVariant {
-            variant: Variant::Sem,
-            model,
-            history: Vec::new(),
-            val_rmse: val,
-            stop: None,
-            seconds: t.elapsed().as_secs_f64(),
-        });
+        match train_sem(prepared, cfg, meta) {
+            Ok(t) => out.push(t),
+            Err(e) => record(&mut failed, Variant::Sem, e)?,
+        }
     }
     let emm_variants: Vec<Variant> = variants
         .iter()
         .copied()
         .filter(|v| *v != Variant::Sem)
         .collect();
+    let done = |trained: Vec<TrainedVariant>, mut failed: Vec<VariantFailure>| {
+        let order = |v: Variant| Variant::ALL.iter().position(|&w| w == v);
+        let mut trained = trained;
+        trained.sort_by_key(|t| order(t.variant));
+        failed.sort_by_key(|f| order(f.variant));
+        Trained { trained, failed }
+    };
     if emm_variants.is_empty() {
-        return Ok(out);
+        return Ok(done(out, failed));
     }
     // Step 1: Linear EMM (needed by every EMM-family variant).
-    let t_lin = Instant::now();
-    let (num, den) = qs.iter().fold((0.0f64, 0.0f64), |(n, d), p| {
-        (
-            n + p.force_n * p.velocity_m_s,
-            d + p.velocity_m_s * p.velocity_m_s,
-        )
-    });
-    let b_fl0 = if den > 0.0 && num > 0.0 {
-        (num / den) as f32
-    } else {
-        (force_scale / prepared.scales.velocity_m_s.max(1e-6)) as f32
-    };
-    let b_pr0 = b_fl0;
-    let k0 = (b_pr0 + b_fl0) * 2.0 * std::f32::consts::PI * 15.0;
-    let mut p0 = RolloutParams::<f32> {
-        integrator: cfg.integrator,
-        dt: prepared.dt_s as f32,
-        b_fl0,
-        b_pr0,
-        k0,
-        t_pr: 0.002,
-        v_scale: prepared.scales.velocity_m_s as f32,
-        x_scale: 1.0,
-        alpha_scale: prepared.scales.alpha as f32,
-        b_fl: None,
-        b_pr: None,
-        k_pr: None,
-    };
-    let lin_cfg = FitConfig {
-        label: "linear-emm".into(),
-        epochs: cfg.linear_epochs,
-        lr: cfg.linear_lr,
-        lambda_ph: 0.0,
-        ..cfg.fit.clone()
-    };
-    let (net, frame) = EmmNet::from_rollout(&p0, &device);
-    let lin_dir = checkpoint_root.map(|r| r.join("linear-emm"));
-    save_frame(lin_dir.as_deref(), &p0, meta)?;
-    let lin = fit(
-        net,
-        &frame,
-        data,
-        &lin_cfg,
-        lin_dir.as_deref(),
-        resume,
-        &device,
-    )?;
-    SessionBudgetUsed::check(lin.stop, &lin_cfg.label)?;
-    let lin_p = lin.best.to_rollout(&frame);
-    p0.b_fl0 = lin_p.b_fl0;
-    p0.b_pr0 = lin_p.b_pr0;
-    p0.k0 = lin_p.k0;
-    p0.t_pr = lin_p.t_pr;
-    // x_pr scale from the Linear EMM over the training windows.
-    let xs = simulate_x_pr(&lin_p, &windows_of(&prepared.train));
-    let x_scale = xs
-        .iter()
-        .flat_map(|w| w.iter().skip(prepared.warmup_samples))
-        .fold(0.0f64, |m, x| m.max(x.abs()));
-    p0.x_scale = if x_scale > 0.0 { x_scale as f32 } else { 1e-3 };
-    let lin_seconds = t_lin.elapsed().as_secs_f64();
-    if emm_variants.contains(&Variant::LinearEmm) {
-        let model = to_core(&lin_p_with_scale(&lin_p, p0.x_scale), meta)?;
-        out.push(TrainedVariant {
-            variant: Variant::LinearEmm,
-            model,
-            history: lin.history.clone(),
-            val_rmse: lin.best_val_rmse,
-            stop: Some(lin.stop),
-            seconds: lin_seconds,
+    let linear = || -> Result<_> {
+        let t_lin = Instant::now();
+        let (num, den) = qs.iter().fold((0.0f64, 0.0f64), |(n, d), p| {
+            (
+                n + p.force_n * p.velocity_m_s,
+                d + p.velocity_m_s * p.velocity_m_s,
+            )
         });
+        let b_fl0 = if den > 0.0 && num > 0.0 {
+            (num / den) as f32
+        } else {
+            (force_scale / prepared.scales.velocity_m_s.max(1e-6)) as f32
+        };
+        let b_pr0 = b_fl0;
+        let k0 = (b_pr0 + b_fl0) * 2.0 * std::f32::consts::PI * 15.0;
+        let mut p0 = RolloutParams::<f32> {
+            integrator: cfg.integrator,
+            dt: prepared.dt_s as f32,
+            b_fl0,
+            b_pr0,
+            k0,
+            t_pr: 0.002,
+            v_scale: prepared.scales.velocity_m_s as f32,
+            x_scale: 1.0,
+            alpha_scale: prepared.scales.alpha as f32,
+            b_fl: None,
+            b_pr: None,
+            k_pr: None,
+        };
+        let lin_cfg = FitConfig {
+            label: "linear-emm".into(),
+            epochs: cfg.linear_epochs,
+            lr: cfg.linear_lr,
+            lambda_ph: 0.0,
+            ..cfg.fit.clone()
+        };
+        let (net, frame) = EmmNet::from_rollout(&p0, &device);
+        let lin_dir = checkpoint_root.map(|r| r.join("linear-emm"));
+        save_frame(lin_dir.as_deref(), &p0, meta)?;
+        let lin = fit(
+            net,
+            &frame,
+            data,
+            &lin_cfg,
+            lin_dir.as_deref(),
+            resume,
+            &device,
+        )?;
+        SessionBudgetUsed::check(lin.stop, &lin_cfg.label)?;
+        let lin_p = lin.best.to_rollout(&frame);
+        p0.b_fl0 = lin_p.b_fl0;
+        p0.b_pr0 = lin_p.b_pr0;
+        p0.k0 = lin_p.k0;
+        p0.t_pr = lin_p.t_pr;
+        // x_pr scale from the Linear EMM over the training windows.
+        let xs = simulate_x_pr(&lin_p, &windows_of(&prepared.train));
+        let x_scale = xs
+            .iter()
+            .flat_map(|w| w.iter().skip(prepared.warmup_samples))
+            .fold(0.0f64, |m, x| m.max(x.abs()));
+        p0.x_scale = if x_scale > 0.0 { x_scale as f32 } else { 1e-3 };
+        let lin_seconds = t_lin.elapsed().as_secs_f64();
+        Ok((p0, lin_p, lin, lin_seconds))
+    };
+    let (p0, lin_p, lin, lin_seconds) = match linear() {
+        Ok(r) => r,
+        Err(e) => {
+            let e = anyhow::Error::from(e);
+            if e.is::<SessionBudgetUsed>() {
+                return Err(e);
+            }
+            for &v in &emm_variants {
+                let reason = if v == Variant::LinearEmm {
+                    anyhow::anyhow!("{e:#}")
+                } else {
+                    anyhow::anyhow!("the Linear EMM stage it starts from failed: {e:#}")
+                };
+                record(&mut failed, v, reason)?;
+            }
+            return Ok(done(out, failed));
+        }
+    };
+    if emm_variants.contains(&Variant::LinearEmm) {
+        match to_core(&lin_p_with_scale(&lin_p, p0.x_scale), meta) {
+            Ok(model) => out.push(TrainedVariant {
+                variant: Variant::LinearEmm,
+                model,
+                history: lin.history.clone(),
+                val_rmse: lin.best_val_rmse,
+                stop: Some(lin.stop),
+                seconds: lin_seconds,
+            }),
+            Err(e) => record(&mut failed, Variant::LinearEmm, e)?,
+        }
     }
     let neural: Vec<Variant> = emm_variants
         .iter()
@@ -589,12 +680,21 @@ pub fn train_variants(
         .filter(|v| matches!(v, Variant::NemmLight | Variant::Nemm))
         .collect();
     if neural.is_empty() {
-        return Ok(out);
+        return Ok(done(out, failed));
     }
     // Step 2a: b_fl on the quasi-static points (eq. 41).
     let t_qs = Instant::now();
     let b_fl_init = init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed);
-    let b_fl = qs_regression(&p0, b_fl_init, qs, force_scale, cfg, &device)?;
+    let b_fl = match qs_regression(&p0, b_fl_init, qs, force_scale, cfg, &device) {
+        Ok(b) => b,
+        Err(e) => {
+            for &v in &neural {
+                let reason = anyhow::anyhow!("the quasi-static b_fl regression failed: {e:#}");
+                record(&mut failed, v, reason)?;
+            }
+            return Ok(done(out, failed));
+        }
+    };
     let qs_seconds = t_qs.elapsed().as_secs_f64();
     eprintln!(
         "[nemm] quasi-static b_fl regression (eq. 41): {} points, {} steps, {:.1} s",
@@ -603,61 +703,66 @@ pub fn train_variants(
         qs_seconds
     );
     for v in neural {
-        let t = Instant::now();
-        let mut p = p0.clone();
-        p.b_fl = Some(b_fl.clone());
-        if v == Variant::Nemm {
-            let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
-            if k_max < 1.5 {
-                bail!(
+        let one = || -> Result<TrainedVariant> {
+            let t = Instant::now();
+            let mut p = p0.clone();
+            p.b_fl = Some(b_fl.clone());
+            if v == Variant::Nemm {
+                let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
+                if k_max < 1.5 {
+                    bail!(
                     "the fitted EMM is too stiff for dt = {} s: k_pr may only grow {k_max:.2}x before the explicit RK step \
                      becomes unstable; use a shorter step (higher sample rate) or RK4",
                     p.dt
                 );
+                }
+                p.b_pr = Some(init_scaler(
+                    1,
+                    cfg.hidden,
+                    cfg.layers,
+                    cfg.pr_bounds,
+                    cfg.fit.seed + 1,
+                ));
+                p.k_pr = Some(init_scaler(
+                    2,
+                    cfg.hidden,
+                    cfg.layers,
+                    (cfg.pr_bounds.0, k_max),
+                    cfg.fit.seed + 2,
+                ));
             }
-            p.b_pr = Some(init_scaler(
-                1,
-                cfg.hidden,
-                cfg.layers,
-                cfg.pr_bounds,
-                cfg.fit.seed + 1,
-            ));
-            p.k_pr = Some(init_scaler(
-                2,
-                cfg.hidden,
-                cfg.layers,
-                (cfg.pr_bounds.0, k_max),
-                cfg.fit.seed + 2,
-            ));
-        }
-        let fit_cfg = FitConfig {
-            label: v.name().into(),
-            ..cfg.fit.clone()
+            let fit_cfg = FitConfig {
+                label: v.name().into(),
+                ..cfg.fit.clone()
+            };
+            let (net, frame) = EmmNet::from_rollout(&p, &device);
+            let dir = checkpoint_root.map(|root| root.join(v.name()));
+            save_frame(dir.as_deref(), &p, meta)?;
+            let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
+            SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
+            let model = to_core(&r.best.to_rollout(&frame), meta)?;
+            let val = rmse(
+                &r.best,
+                &frame,
+                &prepared.validation,
+                prepared.warmup_samples,
+                force_scale,
+            );
+            Ok(TrainedVariant {
+                variant: v,
+                model,
+                history: r.history,
+                val_rmse: val,
+                stop: Some(r.stop),
+                seconds: t.elapsed().as_secs_f64() + qs_seconds + lin_seconds,
+            })
         };
-        let (net, frame) = EmmNet::from_rollout(&p, &device);
-        let dir = checkpoint_root.map(|root| root.join(v.name()));
-        save_frame(dir.as_deref(), &p, meta)?;
-        let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
-        SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
-        let model = to_core(&r.best.to_rollout(&frame), meta)?;
-        let val = rmse(
-            &r.best,
-            &frame,
-            &prepared.validation,
-            prepared.warmup_samples,
-            force_scale,
-        );
-        out.push(TrainedVariant {
-            variant: v,
-            model,
-            history: r.history,
-            val_rmse: val,
-            stop: Some(r.stop),
-            seconds: t.elapsed().as_secs_f64() + qs_seconds + lin_seconds,
-        });
+        match one() {
+            Ok(t) => out.push(t),
+            Err(e) => record(&mut failed, v, e)?,
+        }
     }
-    out.sort_by_key(|t| Variant::ALL.iter().position(|&v| v == t.variant));
-    Ok(out)
+    Ok(done(out, failed))
 }
 
 fn lin_p_with_scale(p: &RolloutParams<f32>, x_scale: f32) -> RolloutParams<f32> {
