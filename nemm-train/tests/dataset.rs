@@ -29,6 +29,7 @@ fn sine_run(file: &str, oil_loss: f64, n: usize, fs: f64, with_velocity: bool) -
         displacement_m,
         force_n,
         velocity_m_s,
+        alpha: None,
     }
 }
 

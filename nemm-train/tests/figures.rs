@@ -49,6 +49,7 @@ fn run(alpha: f64, amplitude: f64, freq: f64, duration_s: f64) -> Run {
         displacement_m,
         force_n,
         velocity_m_s: None,
+        alpha: None,
     }
 }
 

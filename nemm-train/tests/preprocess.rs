@@ -84,6 +84,7 @@ fn sine_run(
         displacement_m,
         force_n,
         velocity_m_s: None,
+        alpha: None,
     }
 }
 
@@ -466,7 +467,7 @@ fn sequences_tile_the_run() {
     let n = 12_345;
     let v: Vec<f64> = (0..n).map(|i| i as f64).collect();
     let f: Vec<f64> = (0..n).map(|i| -(i as f64)).collect();
-    let seqs = preprocess::cut_sequences(4, 0.3, &v, &f, warmup, scored);
+    let seqs = preprocess::cut_sequences(4, 0.3, &v, &f, None, warmup, scored);
     assert_eq!(seqs.len(), 2);
     let mut next_scored = warmup;
     for s in &seqs {

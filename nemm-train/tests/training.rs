@@ -4,7 +4,7 @@ use nemm_core::emm::EmmConstants;
 use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
 use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
-use nemm_train::train::adjoint::RolloutParams;
+use nemm_train::train::adjoint::{Grid, RolloutParams};
 use nemm_train::train::fit::{fit, FitConfig, FitData};
 use nemm_train::train::net::EmmNet;
 use nemm_train::train::params::from_core;
@@ -66,6 +66,7 @@ fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> D
                 displacement_m,
                 force_n,
                 velocity_m_s: Some(velocity),
+                alpha: None,
             });
         }
     }
@@ -121,6 +122,7 @@ fn small_fit_data<'a>(train: &'a [Sequence], val: &'a [Sequence]) -> FitData<'a>
         validation: val,
         warmup: 200,
         force_scale_n: 2000.0,
+        grid: Grid::SAME,
     }
 }
 

@@ -30,6 +30,7 @@ fn trace_loop(b: &VirtualBench, s: &RunSpec, tr: &Trace) -> CycleLoop {
         displacement_m: tr.displacement_m.clone(),
         force_n: tr.force_n.clone(),
         velocity_m_s: None,
+        alpha: None,
     };
     let fs = b.config().program.sample_rate_hz;
     let sig = process_run(&run, 0, fs, &SignalConfig::default()).expect("signals");

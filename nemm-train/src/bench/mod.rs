@@ -211,6 +211,7 @@ impl VirtualBench {
             displacement_m,
             force_n,
             velocity_m_s: s.write_velocity.then_some(velocity),
+            alpha: None,
         }
     }
 

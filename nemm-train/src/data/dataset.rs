@@ -13,12 +13,13 @@
 //! ```
 //!
 //! Each CSV has a header and one row per sample: `time_s,displacement_m,force_n`, optionally
-//! `velocity_m_s`. Displacement positive = extension (rebound); force positive = tension
-//! (rebound force). Values are `f64` in memory.
+//! `velocity_m_s` and `alpha` (the condition level per sample, in \[0, 1\], for a condition
+//! changing within the run). Displacement positive = extension (rebound); force positive =
+//! tension (rebound force). Values are `f64` in memory.
 //!
 //! Time must be uniform at `sample_rate_hz`: every step may deviate from `1 / sample_rate_hz`
-//! by at most [`MAX_STEP_JITTER`] (1 %). Any sample rate works; the model integrates at the
-//! data's step `dt = 1 / sample_rate_hz` (stored in the exported model), nothing is resampled.
+//! by at most [`MAX_STEP_JITTER`] (1 %). Any sample rate works; the model integrates at its
+//! own rate, independent of the data's (see `docs/preprocessing.md`).
 //!
 //! [`load`] refuses every malformed input with a [`DatasetError`] that names the file, the
 //! line and (where there is one) the column or manifest key; nothing is silently dropped.
@@ -46,6 +47,8 @@ pub const COL_DISPLACEMENT: &str = "displacement_m";
 pub const COL_FORCE: &str = "force_n";
 /// Name of the optional measured velocity column \[m/s\].
 pub const COL_VELOCITY: &str = "velocity_m_s";
+/// Name of the optional per-sample condition level column (in \[0, 1\]).
+pub const COL_ALPHA: &str = "alpha";
 
 /// The manifest: dataset name, sample rate and the list of runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -86,6 +89,9 @@ pub struct Run {
     pub force_n: Vec<f64>,
     /// Measured stroke velocity \[m/s\], if the file has the column.
     pub velocity_m_s: Option<Vec<f64>>,
+    /// Condition level per sample in \[0, 1\] (a condition changing within the run), if the
+    /// file has the `alpha` column; it then replaces the manifest's level for the samples.
+    pub alpha: Option<Vec<f64>>,
 }
 
 impl Run {
@@ -278,6 +284,16 @@ pub enum DatasetError {
         column: String,
         /// The cell as found (or formatted, when writing).
         value: String,
+    },
+    /// A per-sample condition level (`alpha` column) outside \[0, 1\].
+    #[error("{}:{line}: column \"alpha\": {value} is outside [0, 1] (condition level)", path.display())]
+    AlphaOutOfRange {
+        /// The run file.
+        path: PathBuf,
+        /// Line of the sample (1-based; the header is line 1).
+        line: usize,
+        /// The value.
+        value: f64,
     },
     /// Time does not strictly increase.
     #[error(
@@ -673,6 +689,7 @@ pub fn parse_run(
         required(COL_FORCE)?,
     );
     let iv = index.get(COL_VELOCITY).copied();
+    let ia = index.get(COL_ALPHA).copied();
 
     // Pre-size from the byte count (about 30-60 bytes per row).
     let guess = bytes.len() / 32;
@@ -680,6 +697,7 @@ pub fn parse_run(
     let mut displacement_m = Vec::with_capacity(guess);
     let mut force_n = Vec::with_capacity(guess);
     let mut velocity_m_s = iv.map(|_| Vec::with_capacity(guess));
+    let mut alpha = ia.map(|_| Vec::with_capacity(guess));
     let mut record = csv::ByteRecord::new();
     let mut last_line = 1;
     let nominal_step = 1.0 / sample_rate_hz;
@@ -707,6 +725,11 @@ pub fn parse_run(
         if let (Some(i), Some(v)) = (iv, velocity_m_s.as_mut()) {
             v.push(cell(i, COL_VELOCITY)?);
         }
+        if let (Some(i), Some(a)) = (ia, alpha.as_mut()) {
+            let value = cell(i, COL_ALPHA)?;
+            check_alpha(value, path, line)?;
+            a.push(value);
+        }
     }
     if time_s.is_empty() {
         return Err(DatasetError::NoSamples {
@@ -720,7 +743,21 @@ pub fn parse_run(
         displacement_m,
         force_n,
         velocity_m_s,
+        alpha,
     })
+}
+
+/// Checks one per-sample condition level (in \[0, 1\]).
+fn check_alpha(value: f64, path: &Path, line: usize) -> Result<(), DatasetError> {
+    if (0.0..=1.0).contains(&value) {
+        Ok(())
+    } else {
+        Err(DatasetError::AlphaOutOfRange {
+            path: path.to_path_buf(),
+            line,
+            value,
+        })
+    }
 }
 
 fn parse_cell(raw: &[u8], path: &Path, line: usize, column: &str) -> Result<f64, DatasetError> {
@@ -799,6 +836,9 @@ fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), Datas
     if let Some(v) = &run.velocity_m_s {
         columns.push((COL_VELOCITY, v));
     }
+    if let Some(a) = &run.alpha {
+        columns.push((COL_ALPHA, a));
+    }
     for (name, values) in &columns {
         if values.len() != n {
             return Err(DatasetError::LengthMismatch {
@@ -815,6 +855,11 @@ fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), Datas
                 column: (*name).to_string(),
                 value: values[i].to_string(),
             });
+        }
+    }
+    if let Some(a) = &run.alpha {
+        for (i, &value) in a.iter().enumerate() {
+            check_alpha(value, path, sample_line(i))?;
         }
     }
     let nominal_step = 1.0 / sample_rate_hz;
@@ -835,12 +880,15 @@ fn write_atomic(
     })
 }
 
-/// Writes one run as CSV (`time_s,displacement_m,force_n[,velocity_m_s]`).
+/// Writes one run as CSV (`time_s,displacement_m,force_n[,velocity_m_s][,alpha]`).
 fn write_run_csv(run: &Run, w: &mut dyn std::io::Write) -> std::io::Result<()> {
     let mut line = String::with_capacity(128);
     line.push_str("time_s,displacement_m,force_n");
     if run.velocity_m_s.is_some() {
         line.push_str(",velocity_m_s");
+    }
+    if run.alpha.is_some() {
+        line.push_str(",alpha");
     }
     line.push('\n');
     w.write_all(line.as_bytes())?;
@@ -854,6 +902,9 @@ fn write_run_csv(run: &Run, w: &mut dyn std::io::Write) -> std::io::Result<()> {
         );
         if let Some(v) = &run.velocity_m_s {
             let _ = write!(line, ",{}", v[i]);
+        }
+        if let Some(a) = &run.alpha {
+            let _ = write!(line, ",{}", a[i]);
         }
         line.push('\n');
         w.write_all(line.as_bytes())?;

@@ -85,7 +85,13 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
     // run index -> (scored samples, variant -> squared-error sum)
     let mut by_run: BTreeMap<usize, (usize, BTreeMap<String, f64>)> = BTreeMap::new();
     for (i, t) in trained.iter().enumerate() {
-        let per_seq = sse_per_sequence(&t.model, &prepared.test, prepared.warmup_samples, fs)?;
+        let per_seq = sse_per_sequence(
+            &t.model,
+            &prepared.test,
+            prepared.dt_s,
+            prepared.warmup_samples,
+            fs,
+        )?;
         let (mut se, mut n) = (0.0f64, 0usize);
         for (seq, &(s, k)) in prepared.test.iter().zip(&per_seq) {
             se += s;
