@@ -12,7 +12,7 @@ use nemm_train::bench::VirtualBench;
 use nemm_train::data::dataset::{self, Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared, RunRole};
 use nemm_train::train::eval::{predict, run_estimator, Input};
-use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant};
+use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant, VariantInfo};
 use std::path::PathBuf;
 
 /// The rate of the virtual bench and of the model \[Hz\].
@@ -97,10 +97,13 @@ fn train_and_export(prepared: &Prepared, variant: Variant, pipeline: &PipelineCo
     nemm_core::decode(&blob).expect("decode")
 }
 
-/// A small budget: the Linear EMM stage only, 6 epochs.
+/// The Linear EMM stage trained to convergence (40 epochs without early stopping, as in
+/// `training.rs`; a second per epoch here), so that the comparison between data rates is
+/// not one between stopping points.
 fn linear_budget() -> PipelineConfig {
     let mut cfg = PipelineConfig::default();
-    cfg.linear_epochs = 6;
+    cfg.linear_epochs = 40;
+    cfg.fit.patience = 40;
     cfg
 }
 
@@ -141,12 +144,31 @@ fn core_rmse_on_test_runs(model: &Model, ds: &Dataset, prepared: &Prepared) -> f
     (se / n as f64).sqrt()
 }
 
+/// Trains the Linear EMM (converged, [`linear_budget`]) and a small NEMM-Light (H 8, L 2,
+/// 5 epochs) on `prepared` and returns both exported models.
+fn train_both(prepared: &Prepared) -> Vec<(Variant, Model)> {
+    let mut cfg = linear_budget();
+    cfg.hidden = 8;
+    cfg.layers = 2;
+    cfg.qs_steps = 200;
+    cfg.fit.epochs = 5;
+    let variants = [Variant::LinearEmm, Variant::NemmLight];
+    let trained = train_variants(prepared, &variants, &cfg, None, false).expect("training");
+    trained
+        .into_iter()
+        .map(|t| {
+            let blob = nemm_core::encode_to_vec(&t.model).expect("encode");
+            (t.variant, nemm_core::decode(&blob).expect("decode"))
+        })
+        .collect()
+}
+
 #[test]
 fn models_trained_on_decimated_data_are_10_khz_models_close_to_the_full_rate_one() {
     let full = small_bench();
     let full_prepared = prepare(&full);
-    let budget = linear_budget();
-    let mut rmse = Vec::new();
+    // (rate, variant, RMSE on the 10 kHz test runs)
+    let mut rmse: Vec<(f64, Variant, f64)> = Vec::new();
     for rate in [FULL_RATE_HZ, 1000.0, 300.0] {
         let ds = if rate == FULL_RATE_HZ {
             full.clone()
@@ -154,29 +176,50 @@ fn models_trained_on_decimated_data_are_10_khz_models_close_to_the_full_rate_one
             resample(&full, rate)
         };
         let prepared = prepare(&ds);
-        let model = train_and_export(&prepared, Variant::LinearEmm, &budget);
-        // The blob carries the model step, not the data's.
-        assert_eq!(model.dt_s, 1e-4_f32, "{rate} Hz data: exported step");
-        let e = core_rmse_on_test_runs(&model, &full, &full_prepared);
-        eprintln!(
-            "Linear EMM trained on {rate} Hz data ({} training windows): nemm-core RMSE on the \
-             10 kHz test runs {e:.4} ({:.1} N)",
-            prepared.train.len(),
-            e * full_prepared.scales.force_n
-        );
-        rmse.push((rate, e));
+        for (variant, model) in train_both(&prepared) {
+            // The blob carries the model step, not the data's.
+            assert_eq!(model.dt_s, 1e-4_f32, "{rate} Hz data: exported step");
+            let e = core_rmse_on_test_runs(&model, &full, &full_prepared);
+            eprintln!(
+                "{} trained on {rate} Hz data: nemm-core RMSE on the 10 kHz test runs {e:.4} \
+                 ({:.1} N)",
+                variant.title(),
+                e * full_prepared.scales.force_n
+            );
+            rmse.push((rate, variant, e));
+        }
     }
-    let reference = rmse[0].1;
-    // Measured (Linear EMM, 6 epochs, seed 1): 10 kHz 0.0781, 1 kHz 0.0784 (+0.4 %),
-    // 300 Hz 0.0803 (+2.8 %). The 300 Hz data lose accuracy to the central difference
-    // (velocity low by (2 pi f dt)^2 / 6 = 2 % at the fast run's 16.7 Hz) and to the
-    // interpolated input between samples; 1 kHz loses almost nothing. The bounds leave room
-    // for other seeds and thread counts, and stay far below the gap to an untrained model.
-    for (rate, e) in &rmse[1..] {
-        let bound = if *rate >= 1000.0 { 1.03 } else { 1.08 };
+    // The tolerance, measured (seeds 1, 2, 3; RMSE normalised by the force scale, on the
+    // 10 kHz test runs):
+    //
+    // | data    | Linear EMM (40 epochs)  | NEMM-Light (H 8, L 2, 5 epochs) |
+    // |---------|-------------------------|---------------------------------|
+    // | 10 kHz  | 0.1735 0.1735 0.1735    | 0.1012 0.1127 0.1149            |
+    // | 1 kHz   | 0.1735 0.1735 0.1735    | 0.1024 0.1131 0.1144            |
+    // | 300 Hz  | 0.1734 0.1734 0.1734    | 0.0863 0.1039 0.1138            |
+    //
+    // The Linear EMM's error is its structure's (a linear damper), which the data rate does
+    // not move (within 0.1 %): bound 1 %. NEMM-Light's 5 short epochs differ by up to 14 %
+    // between seeds at 10 kHz; with the same seed (same initial weights and window order)
+    // 1 kHz data stay within 1.2 % of 10 kHz data: bound 5 %. 300 Hz data gave a better
+    // model for every seed (1 to 15 %; not the 100 Hz cut-off, which at 10 kHz gives
+    // 0.1026); the bound of 10 % states what the data rate may cost at most, the rest of
+    // the gap to an untrained model (0.2) being the training's.
+    for &(rate, variant, e) in rmse.iter().filter(|r| r.0 != FULL_RATE_HZ) {
+        let reference = rmse
+            .iter()
+            .find(|r| r.0 == FULL_RATE_HZ && r.1 == variant)
+            .expect("full-rate model")
+            .2;
+        let bound = match (variant, rate >= 1000.0) {
+            (Variant::LinearEmm, _) => 1.01,
+            (_, true) => 1.05,
+            (_, false) => 1.10,
+        };
         assert!(
-            *e <= bound * reference,
-            "{rate} Hz: RMSE {e:.4} vs {reference:.4} at 10 kHz (bound x{bound})"
+            e <= bound * reference,
+            "{} on {rate} Hz data: RMSE {e:.4} vs {reference:.4} at 10 kHz (bound x{bound})",
+            variant.title()
         );
     }
 }

@@ -118,7 +118,7 @@ pub struct Dataset {
 }
 
 impl Dataset {
-    /// The integration / sample step `1 / sample_rate_hz` \[s\].
+    /// The sample step `1 / sample_rate_hz` \[s\].
     pub fn dt_s(&self) -> f64 {
         1.0 / self.sample_rate_hz
     }

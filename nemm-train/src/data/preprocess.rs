@@ -1082,9 +1082,9 @@ pub struct QuasiStaticSplit {
 pub struct Prepared {
     /// The configuration used.
     pub config: PrepareConfig,
-    /// Sample rate \[Hz\]; the model integrates at `dt_s`.
+    /// Sample rate \[Hz\] of the data (the model integrates at its own rate).
     pub sample_rate_hz: f64,
-    /// `1 / sample_rate_hz` \[s\].
+    /// Sample step `1 / sample_rate_hz` \[s\].
     pub dt_s: f64,
     /// Warm-up samples at the start of every sequence (simulated, not scored).
     pub warmup_samples: usize,
@@ -1129,7 +1129,7 @@ pub struct PrepareSummary {
     pub config: PrepareConfig,
     /// Sample rate \[Hz\].
     pub sample_rate_hz: f64,
-    /// Integration step \[s\].
+    /// Sample step \[s\].
     pub dt_s: f64,
     /// Warm-up samples per sequence.
     pub warmup_samples: usize,

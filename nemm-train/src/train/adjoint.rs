@@ -934,8 +934,10 @@ struct PackData<T> {
     alpha_steps: Option<Vec<V<T>>>,
     /// Measured force per data sample (empty for a forward-only pack).
     f: Vec<V<T>>,
-    /// [`Grid::sample_at`] of every data sample.
+    /// [`Grid::sample_at`] of every data sample (empty when `identity`).
     at: Vec<(usize, T)>,
+    /// Every model step is a data sample ([`Grid::SAME`]).
+    identity: bool,
     lane_w: V<T>,
 }
 
@@ -979,8 +981,13 @@ fn pack_data<T: Real>(
     let mut alpha0 = splat(T::zero());
     let varying = windows.iter().any(|w| w.alphas.is_some());
     let mut alpha_steps = varying.then(|| vec![splat(T::zero()); n]);
+    let identity = *grid == Grid::SAME;
     // Per model step, the sample position of its input (shared by the lanes).
-    let inputs: Vec<(usize, f64)> = (0..n).map(|j| grid.input_at(j)).collect();
+    let inputs: Vec<(usize, f64)> = if identity {
+        Vec::new()
+    } else {
+        (0..n).map(|j| grid.input_at(j)).collect()
+    };
     for k in 0..LANES {
         let (win, wgt) = match windows.get(k) {
             Some(w) => (w, T::one()),
@@ -989,16 +996,23 @@ fn pack_data<T: Real>(
         lane_w[k] = wgt;
         alpha0[k] = T::c(f64::from(win.alpha));
         let len = win.u.len();
-        for (j, &(i, _)) in inputs.iter().enumerate() {
-            if i < len {
-                u[j][k] = T::c(grid.interpolate(win.u, j));
+        if identity {
+            for (uj, &v) in u.iter_mut().zip(win.u) {
+                uj[k] = T::c(f64::from(v));
+            }
+        } else {
+            for (j, &(i, _)) in inputs.iter().enumerate() {
+                if i < len {
+                    u[j][k] = T::c(grid.interpolate(win.u, j));
+                }
             }
         }
         if let Some(a) = alpha_steps.as_mut() {
             for (j, aj) in a.iter_mut().enumerate() {
-                aj[k] = match win.alphas {
-                    Some(x) => T::c(grid.interpolate(x, j)),
-                    None => alpha0[k],
+                aj[k] = match (win.alphas, identity) {
+                    (Some(x), true) => T::c(f64::from(x[j.min(x.len().saturating_sub(1))])),
+                    (Some(x), false) => T::c(grid.interpolate(x, j)),
+                    (None, _) => alpha0[k],
                 };
             }
         }
@@ -1011,12 +1025,17 @@ fn pack_data<T: Real>(
         alpha0,
         alpha_steps,
         f,
-        at: (0..samples)
-            .map(|k| {
-                let (j, w) = grid.sample_at(k);
-                (j, T::c(w))
-            })
-            .collect(),
+        at: if identity {
+            Vec::new()
+        } else {
+            (0..samples)
+                .map(|k| {
+                    let (j, w) = grid.sample_at(k);
+                    (j, T::c(w))
+                })
+                .collect()
+        },
+        identity,
         lane_w,
     }
 }
@@ -1054,6 +1073,9 @@ fn forward_sweep<T: Real>(
 
 /// The forces of a forward sweep at the data samples (output interpolation of [`Grid`]).
 fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
+    if d.identity {
+        return ys.to_vec();
+    }
     d.at.iter()
         .map(|&(j, w)| {
             if w == T::zero() {
@@ -1103,33 +1125,39 @@ fn pack_loss_grad<T: Real>(
     let mut pk = Pack::new(p, &d.alpha(n.saturating_sub(1)));
     let mut w = pk.work();
     let (states, ys) = forward_sweep(p, d, &mut w);
-    // The loss at the data samples and its adjoint per model step.
+    // The loss at the data samples and its adjoint per model step: formed here on a
+    // coarser data grid, inline in the reverse sweep when every step is a sample.
     let mut loss = T::zero();
-    let mut ybar = vec![splat(T::zero()); n];
-    let mut scored = vec![false; n];
-    for (k, (y, f)) in at_samples(d, &ys).iter().zip(&d.f).enumerate().skip(warmup) {
-        let (j, wgt) = d.at[k];
-        let mut g = [T::zero(); LANES];
-        for l in 0..LANES {
+    let sample_loss = |y: &V<T>, f: &V<T>, loss: &mut T| -> V<T> {
+        std::array::from_fn(|l| {
             let e = (y[l] - f[l]) * d.lane_w[l];
             let en = e * inv_fs;
-            loss += en * en;
-            g[l] = ybar_scale * e;
-        }
-        if wgt == T::zero() {
-            for l in 0..LANES {
-                ybar[j][l] += g[l];
+            *loss += en * en;
+            ybar_scale * e
+        })
+    };
+    let on_grid: Option<(Vec<V<T>>, Vec<bool>)> = (!d.identity).then(|| {
+        let mut ybar = vec![splat(T::zero()); n];
+        let mut scored = vec![false; n];
+        for (k, (y, f)) in at_samples(d, &ys).iter().zip(&d.f).enumerate().skip(warmup) {
+            let (j, wgt) = d.at[k];
+            let g = sample_loss(y, f, &mut loss);
+            if wgt == T::zero() {
+                for l in 0..LANES {
+                    ybar[j][l] += g[l];
+                }
+                scored[j] = true;
+            } else {
+                for l in 0..LANES {
+                    ybar[j][l] += (T::one() - wgt) * g[l];
+                    ybar[j + 1][l] += wgt * g[l];
+                }
+                scored[j] = true;
+                scored[j + 1] = true;
             }
-            scored[j] = true;
-        } else {
-            for l in 0..LANES {
-                ybar[j][l] += (T::one() - wgt) * g[l];
-                ybar[j + 1][l] += wgt * g[l];
-            }
-            scored[j] = true;
-            scored[j + 1] = true;
         }
-    }
+        (ybar, scored)
+    });
     let mut bar = Bar {
         g: RolloutGrads::zeros(p),
         bp: L::splat(T::zero()),
@@ -1161,15 +1189,12 @@ fn pack_loss_grad<T: Real>(
             pk.coeffs(&s_n, &mut w, Some((&mut rb_n, &mut rk_n)))
         };
         // Output y_i = F(s_n, u_i).
-        if scored[i] {
-            emm::force_backward::<Unfused, L<T>>(
-                &c_n,
-                &s_n,
-                u1,
-                Lanes(ybar[i]),
-                &mut sbar,
-                &mut cbar_n,
-            );
+        let ybar_i = match &on_grid {
+            Some((ybar, scored)) => scored[i].then(|| ybar[i]),
+            None => (i >= warmup).then(|| sample_loss(&ys[i], &d.f[i], &mut loss)),
+        };
+        if let Some(yb) = ybar_i {
+            emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, Lanes(yb), &mut sbar, &mut cbar_n);
         }
         // Scalers at s_n: complete dL/ds_n.
         pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);

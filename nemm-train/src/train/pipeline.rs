@@ -428,6 +428,15 @@ pub fn train_variants(
     let force_scale = prepared.scales.force_n;
     let model_dt_s = 1.0 / cfg.model_rate_hz;
     let grid = Grid::new(model_dt_s, prepared.dt_s);
+    if grid != Grid::SAME {
+        eprintln!(
+            "[model] integrating at {} Hz, data at {} Hz: {:.2} model steps per sample \
+             (velocity interpolated between samples, force scored at the samples)",
+            cfg.model_rate_hz,
+            prepared.sample_rate_hz,
+            grid.steps_per_sample()
+        );
+    }
     let data = FitData {
         train: &prepared.train,
         validation: &prepared.validation,
