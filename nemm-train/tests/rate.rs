@@ -101,8 +101,10 @@ fn train_and_export(prepared: &Prepared, variant: Variant, pipeline: &PipelineCo
 /// `training.rs`; a second per epoch here), so that the comparison between data rates is
 /// not one between stopping points.
 fn linear_budget() -> PipelineConfig {
-    let mut cfg = PipelineConfig::default();
-    cfg.linear_epochs = 40;
+    let mut cfg = PipelineConfig {
+        linear_epochs: 40,
+        ..PipelineConfig::default()
+    };
     cfg.fit.patience = 40;
     cfg
 }
@@ -323,11 +325,13 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
     pc.sequences.length_s = 0.3;
     let prepared = preprocess::prepare(&ds, &pc).expect("prepare");
     assert!(prepared.train.iter().all(|s| s.alphas.is_some()));
-    let mut pipeline = PipelineConfig::default();
-    pipeline.hidden = 8;
-    pipeline.layers = 2;
-    pipeline.linear_epochs = 4;
-    pipeline.qs_steps = 200;
+    let mut pipeline = PipelineConfig {
+        hidden: 8,
+        layers: 2,
+        linear_epochs: 4,
+        qs_steps: 200,
+        ..PipelineConfig::default()
+    };
     pipeline.fit.epochs = 3;
     let model = train_and_export(&prepared, Variant::NemmLight, &pipeline);
 
@@ -417,4 +421,41 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
     );
     assert_eq!(tab.state(), before);
     assert_eq!(tab.alpha(), levels[0]);
+}
+
+#[test]
+fn an_alpha_column_outside_0_1_is_refused_with_file_and_line() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path();
+    std::fs::create_dir_all(dir.join("runs")).expect("runs dir");
+    std::fs::write(
+        dir.join("manifest.toml"),
+        "name = \"d\"\nsample_rate_hz = 1000\n[[runs]]\nfile = \"runs/a.csv\"\noil_loss = 0.0\n",
+    )
+    .expect("manifest");
+    let csv = |third: &str| {
+        format!(
+            "time_s,displacement_m,force_n,alpha\n0,0,0,0.2\n0.001,0,0,0.2\n0.002,0,0,{third}\n"
+        )
+    };
+    std::fs::write(dir.join("runs/a.csv"), csv("1.2")).expect("csv");
+    let err = dataset::load(dir)
+        .expect_err("alpha 1.2 refused")
+        .to_string();
+    assert!(
+        err.ends_with("runs/a.csv:4: column \"alpha\": 1.2 is outside [0, 1] (condition level)"),
+        "{err}"
+    );
+    std::fs::write(dir.join("runs/a.csv"), csv("0.8")).expect("csv");
+    let ds = dataset::load(dir).expect("valid alpha column");
+    assert_eq!(ds.runs[0].alpha.as_deref(), Some(&[0.2, 0.2, 0.8][..]));
+    // Writing refuses what loading refuses.
+    let mut bad = ds.clone();
+    if let Some(a) = bad.runs[0].alpha.as_mut() {
+        a[1] = -0.1;
+    }
+    let err = dataset::write(dir, &bad)
+        .expect_err("write refuses")
+        .to_string();
+    assert!(err.contains("a.csv:3: column \"alpha\": -0.1"), "{err}");
 }

@@ -92,7 +92,7 @@ pub fn run_estimator(
     }
     let forces = (0..n)
         .map(|k| match grid.sample_at(k) {
-            (j, w) if w == 0.0 => ys[j],
+            (j, 0.0) => ys[j],
             (j, w) => ys[j] + w * (ys[j + 1] - ys[j]),
         })
         .collect();
