@@ -177,6 +177,9 @@ pub enum EstimatorError {
     Compile,
     /// Table mode: a table could not be built or misses the error bound.
     Table(TableError),
+    /// Table mode: [`Estimator::step_with_alpha`] was given a changed `alpha` (a per-sample
+    /// condition level needs [`EvalMode::Exact`]).
+    AlphaPerSampleInTableMode,
 }
 
 impl fmt::Display for EstimatorError {
@@ -189,6 +192,10 @@ impl fmt::Display for EstimatorError {
             EstimatorError::Model(e) => write!(f, "{e}"),
             EstimatorError::Compile => write!(f, "a scaler has an inconsistent shape"),
             EstimatorError::Table(e) => write!(f, "{e}"),
+            EstimatorError::AlphaPerSampleInTableMode => write!(
+                f,
+                "a per-sample alpha needs exact mode (table mode would rebuild its tables every sample)"
+            ),
         }
     }
 }
@@ -767,5 +774,36 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             Runtime::Emm(rt) => rt.tables().count(),
         };
         (n, n * Table1D::<T>::table_bytes())
+    }
+}
+
+/// A condition level per sample.
+impl<const P: usize, const T: usize> Estimator<P, T> {
+    /// One sample with that sample's condition level `alpha` (a condition changing within a
+    /// run, e.g. an MR damper's control signal mapped to `[0, 1]`): when `alpha` differs
+    /// from the level in use, [`Estimator::set_alpha`] re-folds it first (the state is kept,
+    /// the coefficients at the state are re-evaluated, and the whole step runs at the new
+    /// level), then [`Estimator::step`]. This is the trainer's semantics of a per-sample
+    /// `alpha` column at the model step.
+    ///
+    /// Such models run in [`EvalMode::Exact`], where a change costs one evaluation of the
+    /// `b_pr(alpha)` scaler and of the state scalers at the current state. In
+    /// [`EvalMode::Table`] a change would rebuild and re-check every table (about `128 T`
+    /// exact evaluations each), which no sample period affords: a changed `alpha` is
+    /// refused with [`EstimatorError::AlphaPerSampleInTableMode`] and nothing changes (an
+    /// unchanged `alpha` steps as [`Estimator::step`]). An `alpha` outside `[0, 1]` is
+    /// refused with [`EstimatorError::AlphaOutOfRange`], the state unchanged.
+    pub fn step_with_alpha(
+        &mut self,
+        velocity_m_s: f32,
+        alpha: f32,
+    ) -> Result<Estimate, EstimatorError> {
+        if alpha.to_bits() != self.alpha.to_bits() {
+            if matches!(self.mode, EvalMode::Table(_)) && self.table_bytes().0 > 0 {
+                return Err(EstimatorError::AlphaPerSampleInTableMode);
+            }
+            self.set_alpha(alpha)?;
+        }
+        Ok(self.step(velocity_m_s))
     }
 }

@@ -250,6 +250,9 @@ pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
             table_error(line, t);
             line
         }
+        EstimatorError::AlphaPerSampleInTableMode => {
+            line.ks("kind", "alpha-per-sample-in-table-mode")
+        }
     };
 }
 

@@ -12,7 +12,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nemm_core::testing::example_model;
 use nemm_core::ModelKind;
-use nemm_train::train::adjoint::{loss_and_grad, RolloutParams, Window};
+use nemm_train::train::adjoint::{loss_and_grad, Grid, RolloutParams, Window};
 use nemm_train::train::params::from_core;
 use std::hint::black_box;
 
@@ -42,6 +42,7 @@ fn bench(c: &mut Criterion) {
             u: &us[i],
             f: &fs[i],
             alpha: [0.0, 0.3][i % 2],
+            alphas: None,
         })
         .collect();
     let mut g = c.benchmark_group("batch_gradient_16x5000");
@@ -58,7 +59,13 @@ fn bench(c: &mut Criterion) {
             g.bench_with_input(
                 BenchmarkId::new(kind.name(), format!("{threads}-thread")),
                 &threads,
-                |b, _| b.iter(|| pool.install(|| black_box(loss_and_grad(&p, &wins, 500, 3000.0)))),
+                |b, _| {
+                    b.iter(|| {
+                        pool.install(|| {
+                            black_box(loss_and_grad(&p, &wins, &Grid::SAME, 500, 3000.0))
+                        })
+                    })
+                },
             );
         }
     }

@@ -509,6 +509,10 @@ pub struct ModelConfig {
     /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered if the
     /// explicit-RK stability check needs it).
     pub pr_bounds: (f32, f32),
+    /// Integration (deployment) rate of the model \[Hz\]: the model steps at
+    /// `1 / rate_hz` whatever the data's sample rate, and the exported blob carries that step
+    /// (docs/preprocessing.md, "Model rate and data rate").
+    pub rate_hz: f64,
 }
 
 impl Default for ModelConfig {
@@ -520,9 +524,13 @@ impl Default for ModelConfig {
             integrator: Integrator::Rk4,
             b_fl_bounds: (0.1, 10.0),
             pr_bounds: (0.1, 5.0),
+            rate_hz: DEFAULT_MODEL_RATE_HZ,
         }
     }
 }
+
+/// The default model rate \[Hz\]: the firmware's 10 kHz step.
+pub const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
 
 /// The training procedure: optimiser, penalties, schedule and budget.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -651,6 +659,9 @@ impl Config {
         if !(t.lambda_ph.is_finite() && t.lambda_ph >= 0.0) {
             bail!("--lambda-ph must be a non-negative number");
         }
+        if !(m.rate_hz.is_finite() && m.rate_hz > 0.0) {
+            bail!("--model-rate-hz must be a positive rate in Hz");
+        }
         Ok(())
     }
 
@@ -667,6 +678,7 @@ impl Config {
             qs_steps: t.qs_steps,
             b_fl_bounds: m.b_fl_bounds,
             pr_bounds: m.pr_bounds,
+            model_rate_hz: m.rate_hz,
         }
     }
 }
@@ -721,6 +733,11 @@ pub struct ConfigArgs {
     #[arg(long, help = with_default(
         "Integrator: rk4 or rk3", ModelConfig::default().integrator.name()))]
     pub integrator: Option<Integrator>,
+    /// Overrides [`ModelConfig::rate_hz`].
+    #[arg(long, help = with_default(
+        "Integration rate of the model in Hz, independent of the data's sample rate (the \
+         exported step is 1 / rate)", ModelConfig::default().rate_hz))]
+    pub model_rate_hz: Option<f64>,
     /// Overrides [`TrainConfig::batch`].
     #[arg(long, help = with_default(
         "Windows per batch (Table 3: 4, 8, 16)", TrainConfig::default().batch))]
@@ -913,6 +930,7 @@ impl ConfigArgs {
         set(&mut m.hidden, &self.hidden);
         set(&mut m.layers, &self.layers);
         set(&mut m.integrator, &self.integrator);
+        set(&mut m.rate_hz, &self.model_rate_hz);
         set(&mut t.seed, &self.data_options.seed);
         set(&mut t.batch, &self.batch);
         set(&mut t.lr, &self.lr);

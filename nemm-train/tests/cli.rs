@@ -299,12 +299,13 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     );
     let prepared = preprocess::prepare(&dataset::load(&data).expect("load"), &cfg).expect("prep");
     let core_model = decode_file(&exported);
-    let inputs: Vec<(&[f32], f32)> = prepared
+    let inputs: Vec<nemm_train::train::eval::Input<'_>> = prepared
         .test
         .iter()
-        .map(|s| (s.velocity_m_s.as_slice(), s.alpha))
+        .map(nemm_train::train::eval::input_of)
         .collect();
-    let trainer = nemm_train::train::eval::predict(&core_model, &inputs).expect("trainer");
+    let trainer =
+        nemm_train::train::eval::predict(&core_model, &inputs, prepared.dt_s).expect("trainer");
     let fs = prepared.scales.force_n;
     let (mut se, mut n, mut worst, mut flagged) = (0.0f64, 0usize, 0.0f64, 0u32);
     for (seq, ys) in prepared.test.iter().zip(&trainer) {

@@ -6,7 +6,7 @@ use nemm_core::{
 };
 use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
-use nemm_train::train::adjoint::RolloutParams;
+use nemm_train::train::adjoint::{Grid, RolloutParams};
 use nemm_train::train::fit::{fit, FitConfig, FitData};
 use nemm_train::train::net::EmmNet;
 use nemm_train::train::params::from_core;
@@ -125,6 +125,7 @@ fn small_fit_data<'a>(train: &'a [Sequence], val: &'a [Sequence]) -> FitData<'a>
         validation: val,
         warmup: 200,
         force_scale_n: 2000.0,
+        grid: Grid::SAME,
     }
 }
 

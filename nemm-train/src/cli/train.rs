@@ -725,22 +725,28 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let (u, alpha) = estimator_input(&ds, &prepared, idx)?;
     let mut est = nemm_core::Estimator::new(&model, nemm_core::EstimatorConfig::new(alpha))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let input = crate::train::eval::Input {
+        velocity_m_s: &u,
+        alpha,
+        alphas: None,
+    };
     let t = Instant::now();
-    let forces: Vec<f32> = u.iter().map(|&v| est.step(v).force_n).collect();
-    let ns_per_step = t.elapsed().as_secs_f64() * 1e9 / u.len().max(1) as f64;
+    let (forces, steps) =
+        crate::train::eval::run_estimator(&mut est, f64::from(model.dt_s), &input, prepared.dt_s)?;
+    let ns_per_step = t.elapsed().as_secs_f64() * 1e9 / steps.max(1) as f64;
     let fs = prepared.scales.force_n;
     let skip = prepared.warmup_samples.min(forces.len());
     let se: f64 = forces[skip..]
         .iter()
         .zip(&ds.runs[idx].force_n[skip..])
-        .map(|(&y, &m)| ((y as f64 - m) / fs).powi(2))
+        .map(|(&y, &m)| ((y - m) / fs).powi(2))
         .sum();
     let rmse = (se / (forces.len() - skip).max(1) as f64).sqrt();
-    let trainer = crate::train::eval::predict(&model, &[(&u, alpha)])?;
+    let trainer = crate::train::eval::predict(&model, &[input], prepared.dt_s)?;
     let parity = forces
         .iter()
         .zip(&trainer[0])
-        .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b).abs()))
+        .fold(0.0f64, |m, (&a, &b)| m.max((a - b).abs()))
         / fs;
     println!(
         "most dynamic {what} {} (oil loss {alpha}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \

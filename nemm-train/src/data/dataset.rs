@@ -13,8 +13,9 @@
 //! ```
 //!
 //! Each CSV has a header and one row per sample: `time_s,displacement_m,force_n`, optionally
-//! `velocity_m_s`. Displacement positive = extension (rebound); force positive = tension
-//! (rebound force). Values are `f64` in memory.
+//! `velocity_m_s` and `alpha` (the condition level per sample, in \[0, 1\], for a condition
+//! changing within the run). Displacement positive = extension (rebound); force positive =
+//! tension (rebound force). Values are `f64` in memory.
 //!
 //! Time stamps must lie on a uniform grid, as loggers write them: rounded or jittered stamps
 //! are accepted when they stay within a quarter step of the least-squares grid
@@ -110,7 +111,8 @@ pub struct Run {
     pub force_n: Vec<f64>,
     /// Measured stroke velocity \[m/s\], if the file has the column.
     pub velocity_m_s: Option<Vec<f64>>,
-    /// Condition level alpha per sample, if the file has the `alpha` column.
+    /// Condition level per sample in \[0, 1\] (a condition changing within the run), if the
+    /// file has the `alpha` column; it then replaces the manifest's level for the samples.
     pub alpha: Option<Vec<f64>>,
 }
 
@@ -138,7 +140,7 @@ pub struct Dataset {
 }
 
 impl Dataset {
-    /// The integration / sample step `1 / sample_rate_hz` \[s\].
+    /// The sample step `1 / sample_rate_hz` \[s\].
     pub fn dt_s(&self) -> f64 {
         1.0 / self.sample_rate_hz
     }
@@ -305,6 +307,16 @@ pub enum DatasetError {
         /// The cell as found (or formatted, when writing).
         value: String,
     },
+    /// A per-sample condition level (`alpha` column) outside \[0, 1\].
+    #[error("{}:{line}: column \"alpha\": {value} is outside [0, 1] (condition level)", path.display())]
+    AlphaOutOfRange {
+        /// The run file.
+        path: PathBuf,
+        /// Line of the sample (1-based; the header is line 1).
+        line: usize,
+        /// The value.
+        value: f64,
+    },
     /// Time does not strictly increase.
     #[error(
         "{}:{line}: column \"time_s\": {time} s does not increase (previous sample {previous} s)",
@@ -377,16 +389,6 @@ pub enum DatasetError {
         limit_us: f64,
         /// Rate of the fitted grid \[Hz\].
         fitted_hz: f64,
-    },
-    /// A value of the `alpha` column lies outside \[0, 1\].
-    #[error("{}:{line}: column \"alpha\": {value} is not a level in [0, 1]", path.display())]
-    AlphaRange {
-        /// The CSV file.
-        path: PathBuf,
-        /// The row's line.
-        line: usize,
-        /// The value.
-        value: f64,
     },
     /// The CSV reader failed (malformed quoting, I/O while parsing).
     #[error("{}:{line}: {message}", path.display())]
@@ -788,13 +790,7 @@ pub fn parse_run(
         }
         if let (Some(i), Some(a)) = (ia, alpha.as_mut()) {
             let value = cell(i, COL_ALPHA)?;
-            if !(0.0..=1.0).contains(&value) {
-                return Err(DatasetError::AlphaRange {
-                    path: path.to_path_buf(),
-                    line,
-                    value,
-                });
-            }
+            check_alpha(value, path, line)?;
             a.push(value);
         }
     }
@@ -815,6 +811,19 @@ pub fn parse_run(
         velocity_m_s,
         alpha,
     })
+}
+
+/// Checks one per-sample condition level (in \[0, 1\]).
+fn check_alpha(value: f64, path: &Path, line: usize) -> Result<(), DatasetError> {
+    if (0.0..=1.0).contains(&value) {
+        Ok(())
+    } else {
+        Err(DatasetError::AlphaOutOfRange {
+            path: path.to_path_buf(),
+            line,
+            value,
+        })
+    }
 }
 
 fn parse_cell(raw: &[u8], path: &Path, line: usize, column: &str) -> Result<f64, DatasetError> {
@@ -1040,6 +1049,11 @@ fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), Datas
                 column: (*name).to_string(),
                 value: values[i].to_string(),
             });
+        }
+    }
+    if let Some(a) = &run.alpha {
+        for (i, &value) in a.iter().enumerate() {
+            check_alpha(value, path, sample_line(i))?;
         }
     }
     for (i, w) in run.time_s.windows(2).enumerate() {

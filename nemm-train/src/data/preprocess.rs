@@ -23,7 +23,11 @@
 //!   fit); quasi-static extraction always uses the filtered force, because the maximum of a
 //!   noisy signal is biased upwards by the noise.
 //!
-//! The model integrates at the data's step `dt = 1 / sample_rate_hz`; nothing is resampled.
+//! * A run's per-sample condition level (the optional `alpha` column) is carried unfiltered
+//!   into [`Signals::alpha`] and the sequences ([`Sequence::alphas`]).
+//!
+//! Everything here is at the data's sample rate; the model integrates at its own rate, onto
+//! which the trainer interpolates the sequences (`train::adjoint::Grid`, docs/preprocessing.md).
 
 use crate::data::dataset::{Dataset, Run};
 use serde::{Deserialize, Serialize};
@@ -309,6 +313,8 @@ pub struct Signals {
     pub force_filtered_n: Vec<f64>,
     /// `true` if the velocity is the (filtered) measured column, `false` if differentiated.
     pub measured_velocity: bool,
+    /// Condition level per sample (the run's `alpha` column, unfiltered), if it has one.
+    pub alpha: Option<Vec<f64>>,
 }
 
 /// Derives filtered displacement, velocity, acceleration and filtered force of a run.
@@ -324,6 +330,7 @@ pub fn process_run(
     if run.time_s.len() != n
         || run.force_n.len() != n
         || run.velocity_m_s.as_ref().is_some_and(|v| v.len() != n)
+        || run.alpha.as_ref().is_some_and(|a| a.len() != n)
     {
         return Err(PreprocessError::ColumnLengths {
             run: run_index,
@@ -355,6 +362,7 @@ pub fn process_run(
         acceleration_m_s2,
         force_filtered_n,
         measured_velocity: measured.is_some(),
+        alpha: run.alpha.clone(),
     })
 }
 
@@ -652,7 +660,7 @@ pub struct QuasiStaticPoint {
     pub velocity_m_s: f64,
     /// Largest (rebound) or smallest (compression) filtered force in the window \[N\].
     pub force_n: f64,
-    /// Oil-loss level of the run.
+    /// Condition level at the point: the run's, or its `alpha` column's at `sample`.
     pub alpha: f64,
     /// Estimated amplitude of the run \[m\].
     pub amplitude_m: f64,
@@ -798,17 +806,22 @@ pub struct Sequence {
     pub velocity_m_s: Vec<f32>,
     /// Measured force \[N\], `warmup + scored` samples.
     pub force_n: Vec<f32>,
+    /// Condition level per sample, `warmup + scored` samples, when the run has an `alpha`
+    /// column (it then replaces `alpha` in training and evaluation).
+    pub alphas: Option<Vec<f32>>,
 }
 
 /// Cuts a run into sequences whose scored parts tile `[warmup, warmup + k * scored)` without
 /// gaps or overlap: sequence `k` starts at `k * scored`, its scored part at
 /// `k * scored + warmup`. The first `warmup` samples and a tail shorter than `scored` are not
 /// scored; the count is [`unscored_samples`].
+/// `alphas` is the run's condition level per sample, if it has one.
 pub fn cut_sequences(
     run_index: usize,
     alpha: f64,
     velocity_m_s: &[f64],
     force_n: &[f64],
+    alphas: Option<&[f64]>,
     warmup: usize,
     scored: usize,
 ) -> Vec<Sequence> {
@@ -824,6 +837,7 @@ pub fn cut_sequences(
                 alpha: alpha as f32,
                 velocity_m_s: velocity_m_s[start..end].iter().map(|&v| v as f32).collect(),
                 force_n: force_n[start..end].iter().map(|&v| v as f32).collect(),
+                alphas: alphas.map(|a| a[start..end].iter().map(|&v| v as f32).collect()),
             }
         })
         .collect()
@@ -1272,6 +1286,11 @@ impl Scales {
             alpha: (f64::from(s.alpha) / self.alpha) as f32,
             velocity_m_s: s.velocity_m_s.iter().map(|v| v / sv).collect(),
             force_n: s.force_n.iter().map(|f| f / sf).collect(),
+            alphas: s.alphas.as_ref().map(|a| {
+                a.iter()
+                    .map(|&x| (f64::from(x) / self.alpha) as f32)
+                    .collect()
+            }),
         }
     }
 }
@@ -1363,9 +1382,9 @@ pub struct QuasiStaticSplit {
 pub struct Prepared {
     /// The configuration used.
     pub config: PrepareConfig,
-    /// Sample rate \[Hz\]; the model integrates at `dt_s`.
+    /// Sample rate \[Hz\] of the data (the model integrates at its own rate).
     pub sample_rate_hz: f64,
-    /// `1 / sample_rate_hz` \[s\].
+    /// Sample step `1 / sample_rate_hz` \[s\].
     pub dt_s: f64,
     /// Warm-up samples at the start of every sequence (simulated, not scored).
     pub warmup_samples: usize,
@@ -1410,7 +1429,7 @@ pub struct PrepareSummary {
     pub config: PrepareConfig,
     /// Sample rate \[Hz\].
     pub sample_rate_hz: f64,
-    /// Integration step \[s\].
+    /// Sample step \[s\].
     pub dt_s: f64,
     /// Warm-up samples per sequence.
     pub warmup_samples: usize,
@@ -1579,7 +1598,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                     .any(|st| st.part != Part::Train && (st.start..st.end).contains(&sample))
             };
             let periodic = super::support::periodicity(run, &signals.displacement_m, fs).is_some();
-            let points = super::support::support_points(
+            let mut points = super::support::support_points(
                 i,
                 periodic,
                 &signals,
@@ -1588,6 +1607,11 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                 window,
                 &outside_training,
             );
+            if let Some(a) = &run.alpha {
+                for p in &mut points {
+                    p.alpha = a[p.sample];
+                }
+            }
             let mut out = PerRun {
                 prepared: PreparedRun {
                     role,
@@ -1615,6 +1639,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                     alpha,
                     &signals.velocity_m_s[a..b],
                     &force[a..b],
+                    run.alpha.as_deref().map(|x| &x[a..b]),
                     warmup,
                     scored,
                 );
@@ -1630,8 +1655,11 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                             let range = s.start..s.start + warmup + scored;
                             let m = &mut out.train_absmax;
                             m[0] = m[0].max(absmax(&signals.velocity_m_s[range.clone()]));
-                            m[1] = m[1].max(absmax(&force[range]));
-                            m[2] = m[2].max(alpha.abs());
+                            m[1] = m[1].max(absmax(&force[range.clone()]));
+                            m[2] = m[2].max(match &run.alpha {
+                                Some(a) => absmax(&a[range]),
+                                None => alpha.abs(),
+                            });
                         }
                         out.train.extend(seqs);
                     }

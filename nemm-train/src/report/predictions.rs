@@ -2,12 +2,13 @@
 //! draw ([`crate::report::figures::loop_requests`] names the runs).
 
 use crate::data::preprocess::Prepared;
-use crate::train::eval::predict;
+use crate::train::eval::{predict, Input};
 use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
 use anyhow::{Context, Result};
 
-/// Forces of whole runs simulated from rest by a variant, on the preprocessed velocity
-/// ([`Prepared::signals`]) at the run's oil loss.
+/// Forces of whole runs simulated from rest by a variant at the model's own step, on the
+/// preprocessed velocity ([`Prepared::signals`]) at the run's condition level (per sample
+/// when the run has an `alpha` column), one force per data sample.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RunPredictions {
     /// `(variant, run index, force per sample [N])`.
@@ -39,6 +40,15 @@ impl RunPredictions {
             .iter()
             .map(|s| s.velocity_m_s.iter().map(|&v| v as f32).collect())
             .collect();
+        let alphas: Vec<Option<Vec<f32>>> = prepared
+            .signals
+            .iter()
+            .map(|s| {
+                s.alpha
+                    .as_ref()
+                    .map(|a| a.iter().map(|&v| v as f32).collect())
+            })
+            .collect();
         let simulated: Vec<Vec<(Variant, usize, Vec<f64>)>> = batches
             .par_iter()
             .map(|(tv, runs)| {
@@ -46,10 +56,14 @@ impl RunPredictions {
                     .iter()
                     .map(|&i| {
                         let v = velocity.get(i).context("run not in the prepared set")?;
-                        Ok((v.as_slice(), prepared.runs[i].summary.alpha as f32))
+                        Ok(Input {
+                            velocity_m_s: v,
+                            alpha: prepared.runs[i].summary.alpha as f32,
+                            alphas: alphas.get(i).and_then(|a| a.as_deref()),
+                        })
                     })
-                    .collect::<Result<Vec<(&[f32], f32)>>>()?;
-                let ys = predict(&tv.model, &inputs)
+                    .collect::<Result<Vec<Input<'_>>>>()?;
+                let ys = predict(&tv.model, &inputs, prepared.dt_s)
                     .with_context(|| format!("cannot simulate the {}", tv.variant.title()))?;
                 Ok(runs
                     .iter()

@@ -101,8 +101,13 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
     let mut by_run: BTreeMap<usize, (usize, BTreeMap<String, f64>)> = BTreeMap::new();
     let mut counted = false;
     for t in trained {
-        let per_seq = match sse_per_sequence(&t.model, &prepared.test, prepared.warmup_samples, fs)
-        {
+        let per_seq = match sse_per_sequence(
+            &t.model,
+            &prepared.test,
+            prepared.dt_s,
+            prepared.warmup_samples,
+            fs,
+        ) {
             Ok(p) => p,
             Err(e) => {
                 failed.insert(t.variant.key().to_string(), format!("evaluation: {e:#}"));

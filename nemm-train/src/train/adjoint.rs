@@ -8,11 +8,18 @@
 //! The result is the exact gradient of the discrete loss (up to rounding), checked against
 //! central finite differences and burn's autodiff in the tests.
 //!
-//! # Semantics (identical to `nemm_core::Estimator`)
+//! # Semantics (identical to `nemm_core::Estimator` at the model step)
 //!
-//! - state at rest and previous input 0 before the first sample;
-//! - sample `n`: one RK step from `(s_{n-1}, u_{n-1})` to `(s_n, u_n)` with linear input
+//! - the model integrates at its own step [`RolloutParams::dt`], not at the data's: a
+//!   window's samples are mapped onto the model grid by [`Grid`] (input linearly
+//!   interpolated between samples, output linearly interpolated at the sample times); at
+//!   equal rates this is the identity;
+//! - state at rest and previous input 0 before the first model step;
+//! - model step `n`: one RK step from `(s_{n-1}, u_{n-1})` to `(s_n, u_n)` with linear input
 //!   interpolation (`u_m = 0.5 (u_{n-1} + u_n)`), then `y_n = F(s_n, u_n)`;
+//! - a condition level changing within a window ([`Window::alphas`]) is re-folded before
+//!   the step that uses it, with the coefficients at the step's start state re-evaluated
+//!   (`nemm_core::Estimator::set_alpha`); the whole step runs at the new level;
 //! - the EMM right-hand side and force (`nemm_core::emm`), the RK step
 //!   (`nemm_core::integrator::step_with`), the scalers' centring, normalisation, activation
 //!   and bounded output mapping (`nemm_core::mlp`) are nemm-core's own generic definitions,
@@ -30,8 +37,11 @@
 //!
 //! # Loss
 //!
-//! `L = (1 / M) sum_{windows} sum_{n >= warmup} ((y_n - F_n) / F_scale)^2` with `M` the number
-//! of scored samples: the normalised MSE of eq. 23.
+//! `L = (1 / M) sum_{windows} sum_{k >= warmup} ((y(t_k) - F_k) / F_scale)^2` over the data
+//! samples `k` (`y(t_k)` the model force at the sample time, [`Grid`]) with `M` the number
+//! of scored samples: the normalised MSE of eq. 23. The forward sweep keeps the force of
+//! every model step, the loss and its adjoint per model step are formed at the samples, and
+//! the reverse sweep back-propagates from the model steps that a sample touches.
 
 // The lane loops (`for k in 0..LANES`) index several lane arrays in lock step; written as
 // plain index loops they vectorise reliably, which iterator chains over 3-4 arrays do not.
@@ -194,15 +204,119 @@ impl<T: Real> RolloutGrads<T> {
     }
 }
 
-/// One measured window: stroke velocity and force at the model step, and its oil-loss level.
+/// One measured window: stroke velocity and force at the data samples, and its condition
+/// level.
 #[derive(Debug, Clone, Copy)]
 pub struct Window<'a> {
-    /// Stroke velocity \[m/s\] per sample.
+    /// Stroke velocity \[m/s\] per data sample.
     pub u: &'a [f32],
-    /// Measured force \[N\] per sample (ignored by [`simulate`]).
+    /// Measured force \[N\] per data sample (ignored by [`simulate`]).
     pub f: &'a [f32],
-    /// Oil-loss level.
+    /// Condition level `alpha` of the whole window (used when `alphas` is `None`).
     pub alpha: f32,
+    /// Condition level per data sample (a condition changing within the window), one value
+    /// per sample like `u`; `None`: the constant `alpha`.
+    pub alphas: Option<&'a [f32]>,
+}
+
+/// Relative distance to a whole number below which a grid position counts as exactly on it.
+const GRID_SNAP: f64 = 1e-9;
+
+/// Where a window's data samples fall on the model's integration grid.
+///
+/// The model integrates at its own step `dt` ([`RolloutParams::dt`]), the data are sampled
+/// every `sample_dt`; both grids start at the window's first sample (model step 0 is the
+/// first sample). With `r = sample_dt / dt` model steps per sample:
+///
+/// - **input**: model step `j` lies at sample position `q = j / r`; its stroke velocity (and a
+///   per-sample `alpha`) is the linear interpolation `(1 - w) u_k + w u_{k+1}` with
+///   `k = floor(q)`, `w = q - k` (past the last sample the last value is held);
+/// - **output**: sample `k` lies at model position `p = k r`; the model force there is
+///   `(1 - w) y_j + w y_{j+1}` with `j = floor(p)`, `w = p - j`, i.e. exactly `y_j` when the
+///   sample falls on a model step (positions within 1e-9 of a whole number are snapped to it).
+///
+/// At equal rates (`r = 1`) both are the identity. The loss is scored at the samples through
+/// the output interpolation, and the adjoint back-propagates through it exactly.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    /// Model steps per data sample, `sample_dt / dt`.
+    steps_per_sample: f64,
+}
+
+impl Grid {
+    /// The model step equals the sample step.
+    pub const SAME: Grid = Grid {
+        steps_per_sample: 1.0,
+    };
+
+    /// The grid of a model step `model_dt_s` over samples `sample_dt_s` apart (both
+    /// positive and finite, else [`Grid::SAME`]); a ratio within 1e-9 of a whole number is
+    /// taken as that number.
+    pub fn new(model_dt_s: f64, sample_dt_s: f64) -> Self {
+        let r = sample_dt_s / model_dt_s;
+        if !(r.is_finite() && r > 0.0) {
+            return Self::SAME;
+        }
+        let whole = r.round();
+        Grid {
+            steps_per_sample: if whole >= 1.0 && (r - whole).abs() <= GRID_SNAP * whole {
+                whole
+            } else {
+                r
+            },
+        }
+    }
+
+    /// Model steps per data sample.
+    pub fn steps_per_sample(&self) -> f64 {
+        self.steps_per_sample
+    }
+
+    fn split(x: f64) -> (usize, f64) {
+        let whole = x.round();
+        if (x - whole).abs() <= GRID_SNAP * whole.max(1.0) {
+            (whole as usize, 0.0)
+        } else {
+            let f = x.floor();
+            (f as usize, x - f)
+        }
+    }
+
+    /// `(j, w)`: the model force at sample `k` is `(1 - w) y_j + w y_{j+1}`.
+    pub fn sample_at(&self, k: usize) -> (usize, f64) {
+        Self::split(k as f64 * self.steps_per_sample)
+    }
+
+    /// `(k, w)`: the input at model step `j` is `(1 - w) u_k + w u_{k+1}`.
+    pub fn input_at(&self, j: usize) -> (usize, f64) {
+        Self::split(j as f64 / self.steps_per_sample)
+    }
+
+    /// Model steps a window of `samples` data samples is integrated over (through the last
+    /// sample's output interpolation).
+    pub fn steps(&self, samples: usize) -> usize {
+        match samples.checked_sub(1) {
+            None => 0,
+            Some(last) => {
+                let (j, w) = self.sample_at(last);
+                j + 1 + usize::from(w > 0.0)
+            }
+        }
+    }
+
+    /// The input `x` (one value per data sample) at model step `j`: linearly interpolated
+    /// between the samples around it, the last sample held past the end (0 for an empty `x`).
+    pub fn interpolate(&self, x: &[f32], j: usize) -> f64 {
+        let (k, w) = self.input_at(j);
+        let last = x.len().saturating_sub(1);
+        let a = x.get(k.min(last)).map_or(0.0, |&v| f64::from(v));
+        if w == 0.0 || k >= last {
+            a
+        } else {
+            let b = x.get(k + 1).map_or(a, |&v| f64::from(v));
+            a + w * (b - a)
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -808,55 +922,146 @@ impl<T: Real> Pack<'_, T> {
     }
 }
 
-/// Inputs of one pack: per sample, the lanes' velocity and force; per lane the weight of its
-/// squared error (0 for padding).
+/// Inputs of one pack on the model grid: per model step the lanes' velocity (and condition
+/// level when it varies within a window); per data sample the force and where the sample
+/// lies on the model grid; per lane the weight of its squared error (0 for padding).
 struct PackData<T> {
+    /// Velocity per model step.
     u: Vec<V<T>>,
+    /// Constant condition level per lane (`alpha_steps` is `None`).
+    alpha0: V<T>,
+    /// Condition level per model step when some lane's level changes within its window.
+    alpha_steps: Option<Vec<V<T>>>,
+    /// Measured force per data sample (empty for a forward-only pack).
     f: Vec<V<T>>,
+    /// [`Grid::sample_at`] of every data sample (empty when `identity`).
+    at: Vec<(usize, T)>,
+    /// Every model step is a data sample ([`Grid::SAME`]).
+    identity: bool,
     lane_w: V<T>,
-    alphas: V<T>,
 }
 
-fn pack_data<T: Real>(windows: &[&Window<'_>], n: usize) -> PackData<T> {
+impl<T: Real> PackData<T> {
+    /// The condition level of every lane at model step `j`.
+    #[inline]
+    fn alpha(&self, j: usize) -> V<T> {
+        match &self.alpha_steps {
+            Some(a) if j < a.len() => a[j],
+            _ => self.alpha0,
+        }
+    }
+
+    /// `true` if the condition level changes from step `j - 1` to step `j`.
+    #[inline]
+    fn alpha_changes(&self, j: usize) -> bool {
+        match &self.alpha_steps {
+            Some(a) if j > 0 => a[j] != a[j - 1],
+            _ => false,
+        }
+    }
+}
+
+/// Packs up to [`LANES`] windows of at most `samples` data samples onto the model grid.
+/// Lanes past `windows.len()` repeat the first window with zero weight; a shorter window is
+/// padded with zero input (its tail is not scored). `with_force` copies the forces.
+fn pack_data<T: Real>(
+    windows: &[&Window<'_>],
+    grid: &Grid,
+    samples: usize,
+    with_force: bool,
+) -> PackData<T> {
+    let n = grid.steps(samples);
     let mut u = vec![splat(T::zero()); n];
-    let mut f = vec![splat(T::zero()); n];
+    let mut f = if with_force {
+        vec![splat(T::zero()); samples]
+    } else {
+        Vec::new()
+    };
     let mut lane_w = splat(T::zero());
-    let mut alphas = splat(T::zero());
+    let mut alpha0 = splat(T::zero());
+    let varying = windows.iter().any(|w| w.alphas.is_some());
+    let mut alpha_steps = varying.then(|| vec![splat(T::zero()); n]);
+    let identity = *grid == Grid::SAME;
+    // Per model step, the sample position of its input (shared by the lanes).
+    let inputs: Vec<(usize, f64)> = if identity {
+        Vec::new()
+    } else {
+        (0..n).map(|j| grid.input_at(j)).collect()
+    };
     for k in 0..LANES {
-        // Padding lanes repeat the first window with zero weight.
         let (win, wgt) = match windows.get(k) {
             Some(w) => (w, T::one()),
             None => (&windows[0], T::zero()),
         };
         lane_w[k] = wgt;
-        alphas[k] = T::c(win.alpha as f64);
-        for i in 0..n {
-            u[i][k] = T::c(win.u[i] as f64);
-            f[i][k] = T::c(win.f[i] as f64);
+        alpha0[k] = T::c(f64::from(win.alpha));
+        let len = win.u.len();
+        if identity {
+            for (uj, &v) in u.iter_mut().zip(win.u) {
+                uj[k] = T::c(f64::from(v));
+            }
+        } else {
+            for (j, &(i, _)) in inputs.iter().enumerate() {
+                if i < len {
+                    u[j][k] = T::c(grid.interpolate(win.u, j));
+                }
+            }
+        }
+        if let Some(a) = alpha_steps.as_mut() {
+            for (j, aj) in a.iter_mut().enumerate() {
+                aj[k] = match (win.alphas, identity) {
+                    (Some(x), true) => T::c(f64::from(x[j.min(x.len().saturating_sub(1))])),
+                    (Some(x), false) => T::c(grid.interpolate(x, j)),
+                    (None, _) => alpha0[k],
+                };
+            }
+        }
+        for (i, fi) in f.iter_mut().enumerate().take(win.f.len()) {
+            fi[k] = T::c(f64::from(win.f[i]));
         }
     }
     PackData {
         u,
+        alpha0,
+        alpha_steps,
         f,
+        at: if identity {
+            Vec::new()
+        } else {
+            (0..samples)
+                .map(|k| {
+                    let (j, w) = grid.sample_at(k);
+                    (j, T::c(w))
+                })
+                .collect()
+        },
+        identity,
         lane_w,
-        alphas,
     }
 }
 
-/// Forward sweep: states after every sample (index 0 = rest, before sample 0) and forces.
+/// Forward sweep over the model grid: states after every step (index 0 = rest, before step
+/// 0) and forces per step. A step whose condition level changed re-folds it (a new [`Pack`])
+/// and re-evaluates the coefficients at the step's start state with it, as
+/// `nemm_core::Estimator::set_alpha` does.
 fn forward_sweep<T: Real>(
-    pk: &Pack<'_, T>,
+    p: &RolloutParams<T>,
     d: &PackData<T>,
     w: &mut Work<T>,
 ) -> (Vec<St<T>>, Vec<V<T>>) {
     let n = d.u.len();
+    let mut pk = Pack::new(p, &d.alpha(0));
     let mut states = Vec::with_capacity(n + 1);
     let mut ys = Vec::with_capacity(n);
     let mut s = St::default();
     let mut c = pk.coeffs(&s, w, None);
     let mut u_prev = splat(T::zero());
     states.push(s);
-    for u in &d.u {
+    for (j, u) in d.u.iter().enumerate() {
+        if d.alpha_changes(j) {
+            pk = Pack::new(p, &d.alpha(j));
+            c = pk.coeffs(&s, w, None);
+        }
         s = pk.step(&s, &c, &u_prev, u, w);
         c = pk.coeffs(&s, w, None);
         ys.push(emm::force_with::<Unfused, L<T>>(&c, &s, Lanes(*u)).0);
@@ -866,7 +1071,49 @@ fn forward_sweep<T: Real>(
     (states, ys)
 }
 
-/// Loss sum (unnormalised) and gradient of one pack. `ybar_scale` is `2 / (F_s^2 M)`.
+/// The forces of a forward sweep at the data samples (output interpolation of [`Grid`]).
+fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
+    if d.identity {
+        return ys.to_vec();
+    }
+    d.at.iter()
+        .map(|&(j, w)| {
+            if w == T::zero() {
+                ys[j]
+            } else {
+                let (a, b) = (ys[j], ys[j + 1]);
+                std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
+            }
+        })
+        .collect()
+}
+
+/// Back-propagates the accumulated `dL/d b_pr` of the current condition level through the
+/// `b_pr(alpha)` scaler (or into `b_pr,ini`) and clears it.
+fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T>) {
+    let bp_bar = bar.bp.0;
+    match &pk.bp_rec {
+        None => bar.g.b_pr0 += sum(&bp_bar),
+        Some(BprRecord {
+            mlp,
+            act,
+            s_min,
+            span,
+        }) => {
+            for k in 0..LANES {
+                bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * act.sig.0[k]);
+            }
+            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp).0;
+            let mut scratch = Scratch::new(mlp.h);
+            let alpha_n = pk.alpha_n;
+            mlp.backward(act, &zbar, &alpha_n, &mut bar.g.b_pr, &mut scratch);
+        }
+    }
+    bar.bp = L::splat(T::zero());
+}
+
+/// Loss sum (unnormalised) and gradient of one pack. `ybar_scale` is `2 / (F_s^2 M)`;
+/// samples before `warmup` are not scored.
 fn pack_loss_grad<T: Real>(
     p: &RolloutParams<T>,
     d: &PackData<T>,
@@ -874,11 +1121,43 @@ fn pack_loss_grad<T: Real>(
     inv_fs: T,
     ybar_scale: T,
 ) -> (T, RolloutGrads<T>) {
-    let pk = Pack::new(p, &d.alphas);
-    let mut w = pk.work();
-    let (states, _) = forward_sweep(&pk, d, &mut w);
     let n = d.u.len();
+    let mut pk = Pack::new(p, &d.alpha(n.saturating_sub(1)));
+    let mut w = pk.work();
+    let (states, ys) = forward_sweep(p, d, &mut w);
+    // The loss at the data samples and its adjoint per model step: formed here on a
+    // coarser data grid, inline in the reverse sweep when every step is a sample.
     let mut loss = T::zero();
+    let sample_loss = |y: &V<T>, f: &V<T>, loss: &mut T| -> V<T> {
+        std::array::from_fn(|l| {
+            let e = (y[l] - f[l]) * d.lane_w[l];
+            let en = e * inv_fs;
+            *loss += en * en;
+            ybar_scale * e
+        })
+    };
+    let on_grid: Option<(Vec<V<T>>, Vec<bool>)> = (!d.identity).then(|| {
+        let mut ybar = vec![splat(T::zero()); n];
+        let mut scored = vec![false; n];
+        for (k, (y, f)) in at_samples(d, &ys).iter().zip(&d.f).enumerate().skip(warmup) {
+            let (j, wgt) = d.at[k];
+            let g = sample_loss(y, f, &mut loss);
+            if wgt == T::zero() {
+                for l in 0..LANES {
+                    ybar[j][l] += g[l];
+                }
+                scored[j] = true;
+            } else {
+                for l in 0..LANES {
+                    ybar[j][l] += (T::one() - wgt) * g[l];
+                    ybar[j + 1][l] += wgt * g[l];
+                }
+                scored[j] = true;
+                scored[j + 1] = true;
+            }
+        }
+        (ybar, scored)
+    });
     let mut bar = Bar {
         g: RolloutGrads::zeros(p),
         bp: L::splat(T::zero()),
@@ -910,22 +1189,12 @@ fn pack_loss_grad<T: Real>(
             pk.coeffs(&s_n, &mut w, Some((&mut rb_n, &mut rk_n)))
         };
         // Output y_i = F(s_n, u_i).
-        if i >= warmup {
-            let y = emm::force_with::<Unfused, L<T>>(&c_n, &s_n, u1).0;
-            let mut ybar = [T::zero(); LANES];
-            for k in 0..LANES {
-                let e = (y[k] - d.f[i][k]) * inv_fs * d.lane_w[k];
-                loss += e * e;
-                ybar[k] = ybar_scale * (y[k] - d.f[i][k]) * d.lane_w[k];
-            }
-            emm::force_backward::<Unfused, L<T>>(
-                &c_n,
-                &s_n,
-                u1,
-                Lanes(ybar),
-                &mut sbar,
-                &mut cbar_n,
-            );
+        let ybar_i = match &on_grid {
+            Some((ybar, scored)) => scored[i].then(|| ybar[i]),
+            None => (i >= warmup).then(|| sample_loss(&ys[i], &d.f[i], &mut loss)),
+        };
+        if let Some(yb) = ybar_i {
+            emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, Lanes(yb), &mut sbar, &mut cbar_n);
         }
         // Scalers at s_n: complete dL/ds_n.
         pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
@@ -958,30 +1227,23 @@ fn pack_loss_grad<T: Real>(
         std::mem::swap(&mut rb_n, &mut rb1);
         std::mem::swap(&mut rk_n, &mut rk1);
         have_rec_n = true;
+        if d.alpha_changes(i) {
+            // Step i ran at its own level: its stage-1 coefficients at s_p go back through
+            // that level's scalers, and so does b_pr's adjoint so far; step i - 1 (and the
+            // output at s_p) ran at the previous level.
+            pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
+            cbar_n = Cv::<T>::default();
+            bpr_backward(p, &pk, &mut bar);
+            pk = Pack::new(p, &d.alpha(i - 1));
+            have_rec_n = false;
+        }
     }
     // s_{-1} is the fixed rest state: its adjoint is dropped, but the coefficients there
     // depend on the weights.
     let mut sdummy = St::default();
     pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar, &mut w);
-    // b_pr: constant over the window.
-    let bp_bar = bar.bp.0;
-    match &pk.bp_rec {
-        None => bar.g.b_pr0 += sum(&bp_bar),
-        Some(BprRecord {
-            mlp,
-            act,
-            s_min,
-            span,
-        }) => {
-            for k in 0..LANES {
-                bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * act.sig.0[k]);
-            }
-            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp).0;
-            let mut scratch = Scratch::new(mlp.h);
-            let alpha_n = pk.alpha_n;
-            mlp.backward(act, &zbar, &alpha_n, &mut bar.g.b_pr, &mut scratch);
-        }
-    }
+    // b_pr: constant over the window (or since its last change).
+    bpr_backward(p, &pk, &mut bar);
     // T_pr from 1/T_pr.
     bar.g.t_pr = -L::sum(it_bar) * pk.it * pk.it;
     (loss, bar.g)
@@ -1010,17 +1272,21 @@ impl<T: Real> Pack<'_, T> {
 fn common_len(windows: &[Window<'_>]) -> usize {
     let n = windows.first().map_or(0, |w| w.u.len());
     assert!(
-        windows.iter().all(|w| w.u.len() == n && w.f.len() == n),
+        windows
+            .iter()
+            .all(|w| w.u.len() == n && w.f.len() == n && w.alphas.is_none_or(|a| a.len() == n)),
         "all windows of a batch must have the same length"
     );
     n
 }
 
-/// Normalised MSE loss (eq. 23) over `windows` (scored after `warmup` samples) and its exact
-/// gradient. Returns `(loss, gradient)`; packs of [`LANES`] windows run in parallel.
+/// Normalised MSE loss (eq. 23) over `windows` and its exact gradient. The model integrates
+/// on `grid`'s model steps and is scored at the data samples from sample `warmup` on (see
+/// [`Grid`]). Returns `(loss, gradient)`; packs of [`LANES`] windows run in parallel.
 pub fn loss_and_grad<T: Real>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
+    grid: &Grid,
     warmup: usize,
     force_scale: f64,
 ) -> (f64, RolloutGrads<T>) {
@@ -1035,7 +1301,7 @@ pub fn loss_and_grad<T: Real>(
     let results: Vec<(T, RolloutGrads<T>)> = refs
         .par_chunks(LANES)
         .map(|chunk| {
-            let d = pack_data::<T>(chunk, n);
+            let d = pack_data::<T>(chunk, grid, n, true);
             pack_loss_grad(p, &d, warmup, inv_fs, ybar_scale)
         })
         .collect();
@@ -1048,81 +1314,60 @@ pub fn loss_and_grad<T: Real>(
     (loss / m, g)
 }
 
-/// Simulated forces of every window (same semantics as the estimator), one vector per window.
-pub fn simulate<T: Real>(p: &RolloutParams<T>, windows: &[Window<'_>]) -> Vec<Vec<f64>> {
-    let refs: Vec<&Window<'_>> = windows.iter().collect();
-    let mut out: Vec<Vec<f64>> = Vec::with_capacity(windows.len());
-    let per_pack: Vec<Vec<Vec<f64>>> = refs
-        .par_chunks(LANES)
-        .map(|chunk| {
-            let n = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
-            // Pad shorter windows with zeros (their tail is discarded).
-            let mut d = PackData {
-                u: vec![splat(T::zero()); n],
-                f: vec![splat(T::zero()); n],
-                lane_w: splat(T::zero()),
-                alphas: splat(T::zero()),
-            };
-            for (k, w) in chunk.iter().enumerate() {
-                d.alphas[k] = T::c(w.alpha as f64);
-                for (i, &u) in w.u.iter().enumerate() {
-                    d.u[i][k] = T::c(u as f64);
-                }
-            }
-            let pk = Pack::new(p, &d.alphas);
-            let mut work = pk.work();
-            let (_, ys) = forward_sweep(&pk, &d, &mut work);
-            chunk
-                .iter()
-                .enumerate()
-                .map(|(k, w)| {
-                    ys.iter()
-                        .take(w.u.len())
-                        .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
-                        .collect()
-                })
-                .collect()
-        })
-        .collect();
-    for v in per_pack {
-        out.extend(v);
-    }
-    out
-}
-
-/// Simulated states `x_pr` of every window (for the `x_pr` normalisation scale).
-pub fn simulate_x_pr<T: Real>(p: &RolloutParams<T>, windows: &[Window<'_>]) -> Vec<Vec<f64>> {
+/// Runs every window from rest on `grid` and returns, per window, `out` of the forward
+/// sweep's forces and states at the window's data samples.
+fn sweep_windows<T: Real, R: Send>(
+    p: &RolloutParams<T>,
+    windows: &[Window<'_>],
+    grid: &Grid,
+    out: impl Fn(&PackData<T>, &[St<T>], &[V<T>], usize, usize) -> R + Sync,
+) -> Vec<R> {
     let refs: Vec<&Window<'_>> = windows.iter().collect();
     refs.par_chunks(LANES)
         .flat_map_iter(|chunk| {
-            let n = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
-            let mut d = PackData {
-                u: vec![splat(T::zero()); n],
-                f: vec![splat(T::zero()); n],
-                lane_w: splat(T::zero()),
-                alphas: splat(T::zero()),
-            };
-            for (k, w) in chunk.iter().enumerate() {
-                d.alphas[k] = T::c(w.alpha as f64);
-                for (i, &u) in w.u.iter().enumerate() {
-                    d.u[i][k] = T::c(u as f64);
-                }
-            }
-            let pk = Pack::new(p, &d.alphas);
+            let samples = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
+            let d = pack_data::<T>(chunk, grid, samples, false);
+            let pk = Pack::new(p, &d.alpha(0));
             let mut work = pk.work();
-            let (states, _) = forward_sweep(&pk, &d, &mut work);
+            let (states, ys) = forward_sweep(p, &d, &mut work);
             chunk
                 .iter()
                 .enumerate()
-                .map(|(k, w)| {
-                    states
-                        .iter()
-                        .skip(1)
-                        .take(w.u.len())
-                        .map(|s| s.x_pr_m.0[k].to_f64().unwrap_or(f64::NAN))
-                        .collect::<Vec<f64>>()
-                })
+                .map(|(k, w)| out(&d, &states, &ys, k, w.u.len()))
                 .collect::<Vec<_>>()
         })
         .collect()
+}
+
+/// Simulated forces of every window at its data samples (same semantics as the estimator
+/// at the model step; see [`Grid`] for the samples), one vector per window.
+pub fn simulate<T: Real>(
+    p: &RolloutParams<T>,
+    windows: &[Window<'_>],
+    grid: &Grid,
+) -> Vec<Vec<f64>> {
+    sweep_windows(p, windows, grid, |d, _, ys, k, len| {
+        at_samples(d, ys)
+            .iter()
+            .take(len)
+            .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
+            .collect()
+    })
+}
+
+/// Simulated states `x_pr` of every window at its data samples (for the `x_pr`
+/// normalisation scale).
+pub fn simulate_x_pr<T: Real>(
+    p: &RolloutParams<T>,
+    windows: &[Window<'_>],
+    grid: &Grid,
+) -> Vec<Vec<f64>> {
+    sweep_windows(p, windows, grid, |d, states, _, k, len| {
+        let x: Vec<V<T>> = states.iter().skip(1).map(|s| s.x_pr_m.0).collect();
+        at_samples(d, &x)
+            .iter()
+            .take(len)
+            .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
+            .collect()
+    })
 }

@@ -1,5 +1,5 @@
 //! Checks of the rollout against nemm-core and of the adjoint against finite differences.
-use super::adjoint::{loss_and_grad, simulate, RolloutGrads, RolloutParams, Window};
+use super::adjoint::{loss_and_grad, simulate, Grid, RolloutGrads, RolloutParams, Window};
 use super::params::{convert, from_core};
 use nemm_core::testing::example_model;
 use nemm_core::{Estimator, EstimatorConfig, Integrator, Model, ModelKind};
@@ -35,7 +35,9 @@ fn rollout_matches_core_estimator() {
                     u: &u,
                     f: &f,
                     alpha: 0.15,
+                    alphas: None,
                 }],
+                &Grid::SAME,
             );
             let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("estimator");
             let mut worst = 0.0f64;
@@ -116,23 +118,50 @@ fn windows_for_test(n: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>, Vec<f32>) {
 }
 
 fn check_fd(kind: ModelKind, integ: Integrator) {
+    check_fd_on(kind, integ, 1.0, false);
+}
+
+/// Per-sample condition levels of window `w`: a switch and a ramp (so that the level changes
+/// between model steps in both ways) between distinct levels per window.
+fn alpha_steps(w: usize, n: usize) -> Vec<f32> {
+    let (a, b) = ([0.0f32, 0.15, 0.3][w % 3], [0.3f32, 0.0, 0.2][w % 3]);
+    (0..n)
+        .map(|i| {
+            if i < n / 3 {
+                a
+            } else if i < n / 2 {
+                b
+            } else {
+                let t = (i - n / 2) as f32 / (n - n / 2) as f32;
+                b + (a - b) * t
+            }
+        })
+        .collect()
+}
+
+/// The adjoint against central differences with the data sampled `ratio` model steps apart
+/// (`Grid`) and, with `varying`, a condition level changing within every window.
+fn check_fd_on(kind: ModelKind, integ: Integrator, ratio: f64, varying: bool) {
     let mut m = model(kind, 4, 2);
     m.integrator = integ;
     // A longer step (still stable) so that 60 steps move the states well away from rest.
     m.dt_s = 5e-4;
     let p: RolloutParams<f64> = from_core(&m).expect("emm model");
-    let n = 60;
-    let warmup = 7;
+    let grid = Grid::new(f64::from(m.dt_s), ratio * f64::from(m.dt_s));
+    let n = (60.0 / ratio).ceil() as usize;
+    let warmup = (7.0 / ratio).ceil() as usize;
     let (us, fs, alphas) = windows_for_test(n);
+    let levels: Vec<Vec<f32>> = (0..us.len()).map(|w| alpha_steps(w, n)).collect();
     let wins: Vec<Window<'_>> = (0..us.len())
         .map(|i| Window {
             u: &us[i],
             f: &fs[i],
             alpha: alphas[i],
+            alphas: varying.then_some(levels[i].as_slice()),
         })
         .collect();
     let fs_scale = 1500.0;
-    let (_, g) = loss_and_grad(&p, &wins, warmup, fs_scale);
+    let (_, g) = loss_and_grad(&p, &wins, &grid, warmup, fs_scale);
     let g = flat(&g);
     let gmax = g.iter().fold(0.0f64, |a, (_, x)| a.max(x.abs()));
     let mut worst = 0.0f64;
@@ -143,21 +172,124 @@ fn check_fd(kind: ModelKind, integ: Integrator) {
         let central = |d: f64| {
             let (pp, h) = perturb(&p, idx, d);
             let (pm, _) = perturb(&p, idx, -d);
-            let (lp, _) = loss_and_grad(&pp, &wins, warmup, fs_scale);
-            let (lm, _) = loss_and_grad(&pm, &wins, warmup, fs_scale);
+            let (lp, _) = loss_and_grad(&pp, &wins, &grid, warmup, fs_scale);
+            let (lm, _) = loss_and_grad(&pm, &wins, &grid, warmup, fs_scale);
             (lp - lm) / (2.0 * h)
         };
-        let fd = central(1e-6);
         // Relative to the component, floored at 1e-6 of the largest component (absolute
-        // noise of the difference quotient).
-        let err = (gi - fd).abs() / fd.abs().max(1e-6 * gmax);
+        // noise of the difference quotient). A component far below the largest one drowns in
+        // the loss's rounding noise at step 1e-6 (a per-step level makes many of them); the
+        // smooth loss then gives the derivative at the larger steps 1e-4 and 1e-3.
+        let mut err = f64::INFINITY;
+        let mut fd = 0.0;
+        for d in [1e-6, 1e-4, 1e-3] {
+            fd = central(d);
+            err = err.min((gi - fd).abs() / fd.abs().max(1e-6 * gmax));
+            if err < 1e-4 {
+                break;
+            }
+        }
         worst = worst.max(err);
         assert!(
             err < 1e-4,
-            "{kind:?} {integ:?} {name}: adjoint {gi:e}, finite difference {fd:e}"
+            "{kind:?} {integ:?} ratio {ratio} varying alpha {varying} {name}: adjoint {gi:e}, \
+             finite difference {fd:e}"
         );
     }
-    eprintln!("{kind:?} {integ:?}: worst relative error vs central differences {worst:e}");
+    eprintln!(
+        "{kind:?} {integ:?} ratio {ratio} varying alpha {varying}: worst relative error vs \
+         central differences {worst:e}"
+    );
+}
+
+#[test]
+fn adjoint_is_exact_on_a_coarser_data_grid() {
+    // A non-integer ratio: the loss interpolates the model output between steps.
+    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, false);
+    // An integer ratio: the samples fall on model steps.
+    check_fd_on(ModelKind::NemmLight, Integrator::Rk4, 4.0, false);
+}
+
+#[test]
+fn adjoint_is_exact_with_a_condition_level_changing_within_windows() {
+    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 1.0, true);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk3, 2.5, true);
+}
+
+#[test]
+fn grid_maps_samples_and_steps() {
+    let same = Grid::new(1e-4, 1e-4);
+    assert_eq!(same, Grid::SAME);
+    assert_eq!(
+        (same.sample_at(7), same.input_at(7), same.steps(10)),
+        ((7, 0.0), (7, 0.0), 10)
+    );
+    // 1 kHz data on a 10 kHz model: every 10th step is a sample.
+    let g = Grid::new(1e-4, 1e-3);
+    assert_eq!(g.steps_per_sample(), 10.0);
+    assert_eq!(g.sample_at(3), (30, 0.0));
+    assert_eq!(g.input_at(35), (3, 0.5));
+    assert_eq!(g.steps(4), 31);
+    // 300 Hz data: 33.3 steps per sample, the output interpolated between two steps.
+    let g = Grid::new(1e-4, 1.0 / 300.0);
+    let (j, w) = g.sample_at(1);
+    assert_eq!(j, 33);
+    assert!((w - 1.0 / 3.0).abs() < 1e-9, "{w}");
+    assert_eq!(g.sample_at(3), (100, 0.0));
+    assert_eq!(g.steps(2), 35);
+    // Input interpolation, held past the last sample.
+    let x = [0.0f32, 1.0, 3.0];
+    let g = Grid::new(1e-4, 4e-4);
+    let at: Vec<f64> = (0..10).map(|j| g.interpolate(&x, j)).collect();
+    assert_eq!(at, [0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0, 3.0]);
+}
+
+/// The f32 rollout against nemm-core's estimator fed per model step, with a per-sample
+/// condition level and a data rate below the model rate (`eval::run_estimator`).
+#[test]
+fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
+    use super::eval::{run_estimator, Input};
+    for (kind, ratio) in [
+        (ModelKind::Nemm, 1.0),
+        (ModelKind::Nemm, 100.0 / 3.0),
+        (ModelKind::NemmLight, 10.0),
+    ] {
+        let m = model(kind, 16, 5);
+        let p: RolloutParams<f32> = from_core(&m).expect("emm model");
+        let sample_dt = ratio * f64::from(m.dt_s);
+        let n = (1.5 / sample_dt) as usize;
+        let u = signal(n, sample_dt, 0.8, 8.3, 0.3);
+        let levels = alpha_steps(1, n);
+        let grid = Grid::new(f64::from(m.dt_s), sample_dt);
+        let ys = simulate(
+            &p,
+            &[Window {
+                u: &u,
+                f: &u,
+                alpha: 0.15,
+                alphas: Some(&levels),
+            }],
+            &grid,
+        );
+        let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("estimator");
+        let input = Input {
+            velocity_m_s: &u,
+            alpha: 0.15,
+            alphas: Some(&levels),
+        };
+        let (forces, steps) =
+            run_estimator(&mut est, f64::from(m.dt_s), &input, sample_dt).expect("estimator run");
+        assert_eq!(steps, grid.steps(n));
+        let worst = forces
+            .iter()
+            .zip(&ys[0])
+            .fold(0.0f64, |w, (a, b)| w.max((a - b).abs()));
+        let rel = worst / f64::from(m.meta.force_scale_n);
+        assert!(
+            rel < 1e-5,
+            "{kind:?} ratio {ratio}: max |diff| = {worst} N ({rel:e} of force scale)"
+        );
+    }
 }
 
 #[test]
@@ -189,10 +321,11 @@ fn f32_adjoint_is_close_to_f64() {
             u: &us[i],
             f: &fs[i],
             alpha: alphas[i],
+            alphas: None,
         })
         .collect();
-    let (l64, g64) = loss_and_grad(&p64, &wins, 100, 1500.0);
-    let (l32, g32) = loss_and_grad(&p32, &wins, 100, 1500.0);
+    let (l64, g64) = loss_and_grad(&p64, &wins, &Grid::SAME, 100, 1500.0);
+    let (l32, g32) = loss_and_grad(&p32, &wins, &Grid::SAME, 100, 1500.0);
     assert!((l64 - l32).abs() <= 1e-5 * l64, "loss {l64} vs {l32}");
     let a = flat(&g64);
     let b = flat(&convert_grads(&g32));

@@ -1,51 +1,124 @@
 //! Evaluation of exported models on sequences and whole runs.
 //!
-//! EMM-family models are simulated by the trainer's batched f32 rollout, which reproduces
-//! nemm-core's estimator within 1e-5 of the force scale (test `rollout_matches_core_estimator`);
-//! the SEM, which has no state, runs through nemm-core's estimator directly.
+//! The model runs at its own step (`Model::dt_s`), the data at theirs: inputs are
+//! interpolated onto the model grid and the force is scored at the data samples (see
+//! [`Grid`]). EMM-family models are simulated by the trainer's batched f32 rollout, which
+//! reproduces nemm-core's estimator within 1e-5 of the force scale (test
+//! `rollout_matches_core_estimator`); the SEM, which has no state, runs through nemm-core's
+//! estimator directly, one evaluation per sample.
 
-use super::adjoint::{simulate, RolloutParams, Window};
+use super::adjoint::{simulate, Grid, RolloutParams, Window};
 use super::params::from_core;
 use crate::data::preprocess::Sequence;
 use anyhow::{Context, Result};
 use nemm_core::{Estimator, EstimatorConfig, Model};
 
-/// Forces predicted by `model` for each `(velocity, alpha)` input, starting at rest.
-pub fn predict(model: &Model, inputs: &[(&[f32], f32)]) -> Result<Vec<Vec<f64>>> {
+/// One input of [`predict`]: stroke velocity per sample, the condition level, and the level
+/// per sample when it changes within the input.
+#[derive(Debug, Clone, Copy)]
+pub struct Input<'a> {
+    /// Stroke velocity \[m/s\] per data sample.
+    pub velocity_m_s: &'a [f32],
+    /// Condition level (used when `alphas` is `None`).
+    pub alpha: f32,
+    /// Condition level per data sample.
+    pub alphas: Option<&'a [f32]>,
+}
+
+/// Forces predicted by `model` at the data samples (`sample_dt_s` apart) of each input,
+/// starting at rest; the model integrates at its own step `model.dt_s`.
+pub fn predict(model: &Model, inputs: &[Input<'_>], sample_dt_s: f64) -> Result<Vec<Vec<f64>>> {
     match from_core::<f32>(model) {
         Some(p) => {
             let p: RolloutParams<f32> = p;
+            let grid = Grid::new(f64::from(model.dt_s), sample_dt_s);
             let wins: Vec<Window<'_>> = inputs
                 .iter()
-                .map(|(u, a)| Window { u, f: u, alpha: *a })
+                .map(|i| Window {
+                    u: i.velocity_m_s,
+                    f: i.velocity_m_s,
+                    alpha: i.alpha,
+                    alphas: i.alphas,
+                })
                 .collect();
-            Ok(simulate(&p, &wins))
+            Ok(simulate(&p, &wins, &grid))
         }
         None => inputs
             .iter()
-            .map(|(u, a)| {
-                let mut est = Estimator::new(model, EstimatorConfig::new(*a))
+            .map(|i| {
+                let mut est = Estimator::new(model, EstimatorConfig::new(i.alpha))
                     .map_err(|e| anyhow::anyhow!("{e}"))
                     .context("cannot run the SEM")?;
-                Ok(u.iter().map(|&v| est.step(v).force_n as f64).collect())
+                i.velocity_m_s
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &v)| {
+                        if let Some(a) = i.alphas.and_then(|a| a.get(k)) {
+                            est.set_alpha(*a)
+                                .map_err(|e| anyhow::anyhow!("sample {k}: {e}"))?;
+                        }
+                        Ok(est.step(v).force_n as f64)
+                    })
+                    .collect()
             })
             .collect(),
     }
 }
 
-/// Per sequence of `seqs`: the squared-error sum of `model` (normalised by `force_scale`) and
-/// the count of scored samples (after `warmup`).
+/// Runs nemm-core's estimator `est` (from its current state) over `input`, whose samples are
+/// `sample_dt_s` apart, at the model step `model_dt_s`, as the trainer does ([`Grid`]): each
+/// model step takes the input interpolated between the samples, a per-sample level through
+/// [`Estimator::step_with_alpha`], and the force at each sample is the model force
+/// interpolated at the sample time. Returns one force per sample and the model steps run.
+pub fn run_estimator(
+    est: &mut Estimator,
+    model_dt_s: f64,
+    input: &Input<'_>,
+    sample_dt_s: f64,
+) -> Result<(Vec<f64>, usize)> {
+    let grid = Grid::new(model_dt_s, sample_dt_s);
+    let n = input.velocity_m_s.len();
+    let steps = grid.steps(n);
+    let mut ys = Vec::with_capacity(steps);
+    for j in 0..steps {
+        let v = grid.interpolate(input.velocity_m_s, j) as f32;
+        let e = match input.alphas {
+            Some(a) => est
+                .step_with_alpha(v, grid.interpolate(a, j) as f32)
+                .map_err(|e| anyhow::anyhow!("model step {j}: {e}"))?,
+            None => est.step(v),
+        };
+        ys.push(f64::from(e.force_n));
+    }
+    let forces = (0..n)
+        .map(|k| match grid.sample_at(k) {
+            (j, 0.0) => ys[j],
+            (j, w) => ys[j] + w * (ys[j + 1] - ys[j]),
+        })
+        .collect();
+    Ok((forces, steps))
+}
+
+/// The [`predict`] input of a sequence.
+pub fn input_of(s: &Sequence) -> Input<'_> {
+    Input {
+        velocity_m_s: &s.velocity_m_s,
+        alpha: s.alpha,
+        alphas: s.alphas.as_deref(),
+    }
+}
+
+/// Per sequence of `seqs` (samples `sample_dt_s` apart): the squared-error sum of `model`
+/// (normalised by `force_scale`) and the count of scored samples (after `warmup`).
 pub fn sse_per_sequence(
     model: &Model,
     seqs: &[Sequence],
+    sample_dt_s: f64,
     warmup: usize,
     force_scale: f64,
 ) -> Result<Vec<(f64, usize)>> {
-    let inputs: Vec<(&[f32], f32)> = seqs
-        .iter()
-        .map(|s| (s.velocity_m_s.as_slice(), s.alpha))
-        .collect();
-    let ys = predict(model, &inputs)?;
+    let inputs: Vec<Input<'_>> = seqs.iter().map(input_of).collect();
+    let ys = predict(model, &inputs, sample_dt_s)?;
     Ok(seqs
         .iter()
         .zip(&ys)
@@ -66,22 +139,26 @@ pub fn sse_per_sequence(
 pub fn sse_model(
     model: &Model,
     seqs: &[Sequence],
+    sample_dt_s: f64,
     warmup: usize,
     force_scale: f64,
 ) -> Result<(f64, usize)> {
-    Ok(sse_per_sequence(model, seqs, warmup, force_scale)?
-        .into_iter()
-        .fold((0.0, 0), |(se, n), (s, k)| (se + s, n + k)))
+    Ok(
+        sse_per_sequence(model, seqs, sample_dt_s, warmup, force_scale)?
+            .into_iter()
+            .fold((0.0, 0), |(se, n), (s, k)| (se + s, n + k)),
+    )
 }
 
 /// Normalised RMSE of `model` over `seqs` (NaN without samples).
 pub fn rmse_model(
     model: &Model,
     seqs: &[Sequence],
+    sample_dt_s: f64,
     warmup: usize,
     force_scale: f64,
 ) -> Result<f64> {
-    let (se, n) = sse_model(model, seqs, warmup, force_scale)?;
+    let (se, n) = sse_model(model, seqs, sample_dt_s, warmup, force_scale)?;
     Ok(rmse_of(se, n))
 }
 

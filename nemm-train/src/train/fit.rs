@@ -16,7 +16,7 @@
 //! seed and `e`). A non-finite loss stops training with an error and leaves the last good
 //! checkpoint in place.
 
-use super::adjoint::{loss_and_grad, simulate, Window};
+use super::adjoint::{loss_and_grad, simulate, Grid, Window};
 use super::checkpoint::{self, CheckpointState};
 use super::net::{EmmNet, NetFrame};
 use super::params::to_core;
@@ -87,6 +87,8 @@ pub struct FitData<'a> {
     pub warmup: usize,
     /// Abs-max force of the training set \[N\].
     pub force_scale_n: f64,
+    /// Where the sequences' samples fall on the model's integration grid.
+    pub grid: Grid,
 }
 
 /// Statistics of one epoch.
@@ -151,21 +153,25 @@ fn epoch_order(n: usize, seed: u64, epoch: usize) -> Vec<usize> {
     idx
 }
 
-fn windows(seqs: &[Sequence]) -> Vec<Window<'_>> {
+/// The rollout windows of `seqs` (velocity, force and condition level per sample).
+pub fn windows(seqs: &[Sequence]) -> Vec<Window<'_>> {
     seqs.iter()
         .map(|s| Window {
             u: &s.velocity_m_s,
             f: &s.force_n,
             alpha: s.alpha,
+            alphas: s.alphas.as_deref(),
         })
         .collect()
 }
 
-/// Normalised RMSE of `net` over `seqs` (scored after `warmup`), by the f32 rollout.
+/// Normalised RMSE of `net` over `seqs` (scored at the samples after `warmup`, the model on
+/// `grid`), by the f32 rollout.
 pub fn rmse(
     net: &EmmNet,
     frame: &NetFrame,
     seqs: &[Sequence],
+    grid: &Grid,
     warmup: usize,
     force_scale: f64,
 ) -> f64 {
@@ -174,7 +180,7 @@ pub fn rmse(
     }
     let p = net.to_rollout(frame);
     let wins = windows(seqs);
-    let ys = simulate(&p, &wins);
+    let ys = simulate(&p, &wins, grid);
     let (mut se, mut n) = (0.0f64, 0usize);
     for (w, y) in wins.iter().zip(&ys) {
         for (&yi, &fi) in y.iter().zip(w.f).skip(warmup) {
@@ -258,6 +264,7 @@ pub fn fit(
         &net,
         frame,
         data.validation,
+        &data.grid,
         data.warmup,
         data.force_scale_n,
     );
@@ -346,6 +353,7 @@ pub fn fit(
             &net,
             frame,
             data.validation,
+            &data.grid,
             data.warmup,
             data.force_scale_n,
         );
@@ -459,7 +467,7 @@ fn train_epoch(
         let idx = &order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())];
         let batch: Vec<Window<'_>> = idx.iter().map(|&i| train_w[i]).collect();
         let p = net.to_rollout(frame);
-        let (mse, g) = loss_and_grad(&p, &batch, data.warmup, data.force_scale_n);
+        let (mse, g) = loss_and_grad(&p, &batch, &data.grid, data.warmup, data.force_scale_n);
         if !mse.is_finite() {
             bail!(
                 "[{}] the training loss became {mse} in epoch {epoch}, batch {}: stopping. \

@@ -1,6 +1,6 @@
 //! The adjoint against burn's autodiff: the same rollout written with burn tensor ops,
 //! differentiated by burn's tape (feasible only for short windows), gives the reference.
-use super::adjoint::{loss_and_grad, RolloutGrads, RolloutParams, Window};
+use super::adjoint::{loss_and_grad, Grid, RolloutGrads, RolloutParams, Window};
 use super::net::{EmmNet, NetFrame, ScalerNet};
 use super::params::from_core;
 use burn::optim::GradientsParams;
@@ -229,9 +229,10 @@ fn check(kind: ModelKind, integ: Integrator) {
             u: &us[i],
             f: &fs[i],
             alpha: alphas[i],
+            alphas: None,
         })
         .collect();
-    let (loss_adj, g) = loss_and_grad(&p, &wins, warmup, fscale as f64);
+    let (loss_adj, g) = loss_and_grad(&p, &wins, &Grid::SAME, warmup, fscale as f64);
     assert!(
         ((loss_adj as f32) - loss_burn).abs() <= 1e-5 * loss_burn,
         "loss {loss_adj} vs burn {loss_burn}"

@@ -17,8 +17,8 @@
 //!
 //! All variants share the split, the normalisation and the force scale.
 
-use super::adjoint::{simulate_x_pr, RolloutParams, ScalerWeights, Window};
-use super::fit::{fit, rmse, EpochStats, FitConfig, FitData, StopReason};
+use super::adjoint::{simulate_x_pr, Grid, RolloutParams, ScalerWeights};
+use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, StopReason};
 use super::net::{EmmNet, NetFrame, ScalerNet, ScalerSpec};
 use super::params::to_core;
 use super::physics::{physics_loss, PenaltyGrid};
@@ -103,6 +103,9 @@ pub struct PipelineConfig {
     /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered if the
     /// explicit-RK stability check needs it).
     pub pr_bounds: (f32, f32),
+    /// Integration rate of the model \[Hz\] (the exported step is `1 / model_rate_hz`),
+    /// independent of the data's sample rate.
+    pub model_rate_hz: f64,
 }
 
 /// The defaults are [`crate::config::Config`]'s.
@@ -155,7 +158,10 @@ pub struct TrainedVariant {
 
 /// Training-data facts every model carries.
 pub fn meta_of(prepared: &Prepared) -> Meta {
-    let alphas = prepared.train.iter().map(|s| s.alpha);
+    let alphas = prepared.train.iter().flat_map(|s| match &s.alphas {
+        Some(a) => a.clone(),
+        None => vec![s.alpha],
+    });
     let (lo, hi) = alphas.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), a| {
         (lo.min(a), hi.max(a))
     });
@@ -418,16 +424,6 @@ fn qs_regression(
     net.to_rollout(&frame).b_fl.context("b_fl scaler")
 }
 
-fn windows_of(seqs: &[crate::data::preprocess::Sequence]) -> Vec<Window<'_>> {
-    seqs.iter()
-        .map(|s| Window {
-            u: &s.velocity_m_s,
-            f: &s.force_n,
-            alpha: s.alpha,
-        })
-        .collect()
-}
-
 /// A variant that could not be trained or exported, and why.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VariantFailure {
@@ -482,7 +478,7 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
     let map = fit_sem(&prepared.quasi_static.train)?;
     let model = Model {
         integrator: cfg.integrator,
-        dt_s: prepared.dt_s as f32,
+        dt_s: (1.0 / cfg.model_rate_hz) as f32,
         scales: InputScales {
             velocity_m_s: prepared.scales.velocity_m_s as f32,
             x_pr_m: 1.0,
@@ -498,6 +494,7 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
     let val = super::eval::rmse_model(
         &model,
         &prepared.validation,
+        prepared.dt_s,
         prepared.warmup_samples,
         prepared.scales.force_n,
     )?;
@@ -545,14 +542,32 @@ pub fn train_each(
             prepared.train.len()
         );
     }
+    if !(cfg.model_rate_hz.is_finite() && cfg.model_rate_hz > 0.0) {
+        bail!(
+            "model rate {} Hz: must be a positive rate (--model-rate-hz)",
+            cfg.model_rate_hz
+        );
+    }
     let device = Device::flex().autodiff();
     let meta = meta_of(prepared);
     let force_scale = prepared.scales.force_n;
+    let model_dt_s = 1.0 / cfg.model_rate_hz;
+    let grid = Grid::new(model_dt_s, prepared.dt_s);
+    if grid != Grid::SAME {
+        eprintln!(
+            "[model] integrating at {} Hz, data at {} Hz: {:.2} model steps per sample \
+             (velocity interpolated between samples, force scored at the samples)",
+            cfg.model_rate_hz,
+            prepared.sample_rate_hz,
+            grid.steps_per_sample()
+        );
+    }
     let data = FitData {
         train: &prepared.train,
         validation: &prepared.validation,
         warmup: prepared.warmup_samples,
         force_scale_n: force_scale,
+        grid,
     };
     let mut out = Vec::new();
     let qs = &prepared.quasi_static.train;
@@ -596,7 +611,7 @@ pub fn train_each(
         let k0 = (b_pr0 + b_fl0) * 2.0 * std::f32::consts::PI * 15.0;
         let mut p0 = RolloutParams::<f32> {
             integrator: cfg.integrator,
-            dt: prepared.dt_s as f32,
+            dt: model_dt_s as f32,
             b_fl0,
             b_pr0,
             k0,
@@ -634,7 +649,7 @@ pub fn train_each(
         p0.k0 = lin_p.k0;
         p0.t_pr = lin_p.t_pr;
         // x_pr scale from the Linear EMM over the training windows.
-        let xs = simulate_x_pr(&lin_p, &windows_of(&prepared.train));
+        let xs = simulate_x_pr(&lin_p, &windows(&prepared.train), &grid);
         let x_scale = xs
             .iter()
             .flat_map(|w| w.iter().skip(prepared.warmup_samples))
@@ -745,6 +760,7 @@ pub fn train_each(
                 &r.best,
                 &frame,
                 &prepared.validation,
+                &grid,
                 prepared.warmup_samples,
                 force_scale,
             );
