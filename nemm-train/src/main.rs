@@ -188,8 +188,10 @@ fn main() -> ExitCode {
             max_batches,
             data_options,
         } => {
-            let mut cfg = nemm_train::config::Config::default();
-            cfg.data = data_options.to_config();
+            let mut cfg = nemm_train::config::Config {
+                data: data_options.to_config(),
+                ..Default::default()
+            };
             if let Some(seed) = data_options.seed {
                 cfg.train.seed = seed;
             }

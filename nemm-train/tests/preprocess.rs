@@ -559,10 +559,12 @@ fn windows_stay_inside_disjoint_stretches() {
     assert_eq!((p.warmup_samples, p.scored_samples), (500, 5000));
     assert_stretches(&ds, &p);
     // Shorter windows: more of them, several per stretch, and a validation stretch per run.
-    let mut cfg = PrepareConfig::default();
-    cfg.sequences = SequenceConfig {
-        length_s: 0.1,
-        warmup_s: 0.02,
+    let mut cfg = PrepareConfig {
+        sequences: SequenceConfig {
+            length_s: 0.1,
+            warmup_s: 0.02,
+        },
+        ..Default::default()
     };
     for seed in 0..5 {
         cfg.split.seed = seed;
@@ -949,7 +951,7 @@ fn split_by_run_takes_whole_runs_matched_by_a_glob() {
     assert!(p.test.iter().all(|s| test_files
         .iter()
         .any(|f| *f == ds.runs[s.run].entry.file.display().to_string())));
-    assert_eq!(p.train.iter().filter(|s| s.run == 0).count() > 0, true);
+    assert!(p.train.iter().any(|s| s.run == 0));
     assert_stretches(&ds, &p);
     // Excluded runs are not used at all; exclusion wins over a test pattern.
     cfg.split.exclude_runs = vec!["*_a050_*".into()];
@@ -995,10 +997,12 @@ fn split_by_time_tests_the_end_of_every_run_of_a_single_level() {
         sample_rate_hz: fs,
         runs,
     };
-    let mut cfg = PrepareConfig::default();
-    cfg.sequences = SequenceConfig {
-        length_s: 0.2,
-        warmup_s: 0.02,
+    let mut cfg = PrepareConfig {
+        sequences: SequenceConfig {
+            length_s: 0.2,
+            warmup_s: 0.02,
+        },
+        ..Default::default()
     };
     // The true cause when every run is at the test level.
     cfg.split.test_alphas = vec![0.0];

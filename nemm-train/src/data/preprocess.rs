@@ -491,7 +491,8 @@ fn zero_crossings(y: &[f64], h: f64) -> Vec<Crossing> {
     out
 }
 
-fn median(mut v: Vec<f64>) -> Option<f64> {
+/// Median of `v` (the mean of the two middle values for an even count); `None` when empty.
+pub(crate) fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
     }

@@ -20,7 +20,9 @@
 //!   sample counts). For a sine, `|a| <= window a_max` is `|x| <= window A`: the same samples
 //!   as the paper's window.
 
-use super::preprocess::{quasi_static_points, Direction, Excitation, QuasiStaticPoint, Signals};
+use super::preprocess::{
+    median, quasi_static_points, Direction, Excitation, QuasiStaticPoint, Signals,
+};
 use crate::data::dataset::Run;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -93,19 +95,6 @@ fn crossings(y: &[f64], h: f64) -> Vec<(f64, bool)> {
 fn regular(d: &[f64]) -> Option<f64> {
     let m = median(d.to_vec())?;
     (m > 0.0 && d.iter().all(|x| (x - m).abs() <= PERIOD_TOLERANCE * m)).then_some(m)
-}
-
-fn median(mut v: Vec<f64>) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    Some(if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    })
 }
 
 /// The period of a run, or `None` when it is not periodic (see the module docs).

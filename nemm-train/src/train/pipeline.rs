@@ -661,7 +661,6 @@ pub fn train_each(
     let (p0, lin_p, lin, lin_seconds) = match linear() {
         Ok(r) => r,
         Err(e) => {
-            let e = anyhow::Error::from(e);
             if e.is::<SessionBudgetUsed>() {
                 return Err(e);
             }
