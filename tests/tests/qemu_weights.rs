@@ -129,9 +129,10 @@ fn bit_flip_in_the_crc() {
 #[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn wrong_format_version() {
     let mut b = built_in_blob();
-    // Magic (4 bytes), then the version as a postcard varint: 1 -> 2.
-    assert_eq!(b[4], 1);
-    b[4] = 2;
+    // Magic (4 bytes), then the version as a postcard varint (one byte below 128): the
+    // current version -> the next one.
+    assert_eq!(u16::from(b[4]), nemm_core::FORMAT_VERSION);
+    b[4] = u8::try_from(nemm_core::FORMAT_VERSION + 1).expect("a one-byte varint");
     refused("wrong-version", slot_with(&b), "unsupported-version");
 }
 
