@@ -83,6 +83,9 @@ impl Flags {
     /// Table mode: the new state lies outside a table's domain, so its coefficient was
     /// clamped to the boundary value (RK stages outside are clamped too, unflagged).
     pub const OUT_OF_TABLE_DOMAIN: u8 = 1 << 5;
+    /// The estimator holds no model ([`Estimator::empty`], or a failed
+    /// [`Estimator::load`]): the force is 0.
+    pub const NO_MODEL: u8 = 1 << 7;
 
     /// True if every bit of `bits` is set.
     pub const fn contains(self, bits: u8) -> bool {
@@ -203,42 +206,124 @@ impl fmt::Display for EstimatorError {
 #[cfg(feature = "std")]
 impl std::error::Error for EstimatorError {}
 
+/// How a [`Coef`] is evaluated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum CoefKind {
+    /// The constant `value`.
+    Const,
+    /// The compiled scaler `exact`.
+    Neural,
+    /// The table `table` (of `exact`, which is kept to rebuild it on `set_alpha`).
+    Table,
+}
+
 /// A coefficient that is constant, a compiled neural scaler of one state input, or a table
-/// of that scaler (which is kept to rebuild the table on `set_alpha`). `repr(C)`: the table
-/// (its scalars first) right after the tag, near the start of the runtime.
+/// of that scaler. Every representation has its storage, so that [`Estimator::load`] writes
+/// in place whatever the model; `kind` says which one is in use. `repr(C)`: the table (its
+/// scalars first) right after the kind, near the start of the runtime.
 #[derive(Debug, Clone)]
 #[repr(C)]
-enum Coef<const P: usize, const T: usize> {
-    Const(f32),
-    Neural(CompiledScaler<P>),
-    Table {
-        table: Table1D<T>,
-        exact: CompiledScaler<P>,
-        name: &'static str,
-    },
+struct Coef<const P: usize, const T: usize> {
+    kind: CoefKind,
+    value: f32,
+    table: Table1D<T>,
+    exact: CompiledScaler<P>,
+    name: &'static str,
 }
 
 impl<const P: usize, const T: usize> Coef<P, T> {
+    const fn empty(name: &'static str) -> Self {
+        Self {
+            kind: CoefKind::Const,
+            value: 0.0,
+            table: Table1D::empty(),
+            exact: CompiledScaler::empty(),
+            name,
+        }
+    }
+
     /// The coefficient at state input `u`; a clamped table input sets `*out`.
     #[inline(always)]
     fn eval(&self, u: f32, out: &mut bool) -> f32 {
-        match self {
-            Coef::Const(c) => *c,
-            Coef::Neural(s) => s.eval(u),
-            Coef::Table { table, .. } => table.eval(u, out),
+        match self.kind {
+            CoefKind::Const => self.value,
+            CoefKind::Neural => self.exact.eval(u),
+            CoefKind::Table => self.table.eval(u, out),
         }
     }
-}
 
-/// Tabulates a compiled scaler over `[-m s, m s]` (`s` its input scale).
-fn build_table<const P: usize, const T: usize>(
-    exact: &CompiledScaler<P>,
-    lo: f32,
-    hi: f32,
-    cfg: &TableConfig,
-    name: &'static str,
-) -> Result<Table1D<T>, EstimatorError> {
-    Table1D::compile(exact, lo, hi, cfg.max_rel_error, name).map_err(EstimatorError::Table)
+    /// The table, in table mode.
+    fn table(&self) -> Option<&Table1D<T>> {
+        (self.kind == CoefKind::Table).then_some(&self.table)
+    }
+
+    /// In place: the constant `p_ini` without a scaler; otherwise the scaler compiled for
+    /// `alpha` and, in table mode, its table over `[-m u_scale, m u_scale]` (`m` the
+    /// configured domain margin).
+    fn load(
+        &mut self,
+        scaler: Option<&Scaler<P>>,
+        p_ini: f32,
+        u_scale: f32,
+        alpha: f32,
+        alpha_scale: f32,
+        mode: &EvalMode,
+    ) -> Result<(), EstimatorError> {
+        self.kind = CoefKind::Const;
+        self.value = p_ini;
+        let Some(scaler) = scaler else {
+            return Ok(());
+        };
+        self.exact
+            .compile_into(scaler, p_ini, u_scale, alpha, alpha_scale)
+            .ok_or(EstimatorError::Compile)?;
+        self.kind = CoefKind::Neural;
+        if let EvalMode::Table(tc) = mode {
+            let d = tc.domain_margin * u_scale;
+            self.table
+                .compile_into(&self.exact, -d, d, tc.max_rel_error, self.name)
+                .map_err(EstimatorError::Table)?;
+            self.kind = CoefKind::Table;
+        }
+        Ok(())
+    }
+
+    /// Re-folds `alpha` into the scaler and, in table mode, rebuilds the table over its
+    /// domain. If the new table misses the bound, the scaler and the table are rebuilt at
+    /// `old_alpha` (compilation is deterministic: the same bits as before) and the error is
+    /// returned.
+    fn set_alpha(
+        &mut self,
+        alpha: f32,
+        old_alpha: f32,
+        cfg: Option<&TableConfig>,
+    ) -> Result<(), EstimatorError> {
+        match self.kind {
+            CoefKind::Const => Ok(()),
+            CoefKind::Neural => {
+                self.exact.set_alpha(alpha);
+                Ok(())
+            }
+            CoefKind::Table => {
+                let Some(cfg) = cfg else {
+                    return Err(EstimatorError::Compile);
+                };
+                let (lo, hi) = self.table.domain();
+                self.exact.set_alpha(alpha);
+                let built =
+                    self.table
+                        .compile_into(&self.exact, lo, hi, cfg.max_rel_error, self.name);
+                if let Err(e) = built {
+                    self.exact.set_alpha(old_alpha);
+                    self.table
+                        .compile_into(&self.exact, lo, hi, cfg.max_rel_error, self.name)
+                        .map_err(EstimatorError::Table)?;
+                    return Err(EstimatorError::Table(e));
+                }
+                Ok(())
+            }
+        }
+    }
 }
 
 /// One coefficient at a stage as a function of its state input: a constant (`f32`), a
@@ -316,11 +401,49 @@ struct EmmRuntime<const P: usize, const T: usize> {
     k_pr: Coef<P, T>,
     /// The table configuration in table mode.
     table_cfg: Option<TableConfig>,
-    /// The `b_pr(alpha)` scaler with `b_pr,ini` and the alpha scale, kept for `set_alpha`.
-    b_pr_scaler: Option<(Scaler<P>, f32, f32)>,
+    /// Whether `b_pr` is `b_pr_ini * b_pr_scaler(alpha / alpha_scale)` (the NEMM) rather
+    /// than the constant `b_pr_ini`.
+    b_pr_neural: bool,
+    b_pr_ini: f32,
+    alpha_scale: f32,
+    /// The `b_pr(alpha)` scaler, kept for `set_alpha`.
+    b_pr_scaler: Scaler<P>,
 }
 
 impl<const P: usize, const T: usize> EmmRuntime<P, T> {
+    const fn empty() -> Self {
+        Self {
+            b_pr: 0.0,
+            inv_t_pr: 0.0,
+            integrator: Integrator::Rk4,
+            h: StepSize {
+                dt: 0.0,
+                h2: 0.0,
+                h6: 0.0,
+            },
+            x_limit: 0.0,
+            v_limit: 0.0,
+            b_fl: Coef::empty("b_fl"),
+            k_pr: Coef::empty("k_pr"),
+            table_cfg: None,
+            b_pr_neural: false,
+            b_pr_ini: 0.0,
+            alpha_scale: 1.0,
+            b_pr_scaler: Scaler::empty(),
+        }
+    }
+
+    /// `b_pr` at `alpha`.
+    fn b_pr_at(&self, alpha: f32) -> Result<f32, EstimatorError> {
+        if !self.b_pr_neural {
+            return Ok(self.b_pr_ini);
+        }
+        self.b_pr_scaler
+            .scale(&[alpha / self.alpha_scale])
+            .map(|s| self.b_pr_ini * s)
+            .ok_or(EstimatorError::Compile)
+    }
+
     #[inline(always)]
     fn coeffs(&self, s: &State, out: &mut bool) -> Coefficients {
         Coefficients {
@@ -357,64 +480,45 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         (x1, c1, emm::force_with::<M, f32>(&c1, &x1, u1))
     }
 
-    /// Re-folds `alpha` into the neural coefficients; in table mode rebuilds and checks the
-    /// tables first and changes nothing if one misses the bound.
+    /// Re-folds `alpha` into the neural coefficients and `b_pr`; in table mode rebuilds and
+    /// checks the tables first and changes nothing if one misses the bound.
     fn set_alpha(&mut self, alpha: f32, old_alpha: f32) -> Result<(), EstimatorError> {
+        let b_pr = self.b_pr_at(alpha)?;
         let cfg = self.table_cfg;
-        let mut fresh: [Option<Table1D<T>>; 2] = [None, None];
-        let mut failure = None;
-        for (coef, slot) in [&mut self.b_fl, &mut self.k_pr].into_iter().zip(&mut fresh) {
-            match coef {
-                Coef::Const(_) => {}
-                Coef::Neural(s) => s.set_alpha(alpha),
-                Coef::Table { table, exact, name } => {
-                    let (lo, hi) = table.domain();
-                    exact.set_alpha(alpha);
-                    match cfg.map(|c| build_table(exact, lo, hi, &c, name)) {
-                        Some(Ok(t)) => *slot = Some(t),
-                        Some(Err(e)) => failure = Some(e),
-                        None => failure = Some(EstimatorError::Compile),
-                    }
-                }
-            }
-            if failure.is_some() {
-                break;
-            }
-        }
-        if let Some(e) = failure {
-            for coef in [&mut self.b_fl, &mut self.k_pr] {
-                if let Coef::Table { exact, .. } = coef {
-                    exact.set_alpha(old_alpha);
-                }
-            }
+        self.b_fl.set_alpha(alpha, old_alpha, cfg.as_ref())?;
+        if let Err(e) = self.k_pr.set_alpha(alpha, old_alpha, cfg.as_ref()) {
+            self.b_fl.set_alpha(old_alpha, alpha, cfg.as_ref())?;
             return Err(e);
         }
-        for (coef, t) in [&mut self.b_fl, &mut self.k_pr].into_iter().zip(fresh) {
-            if let (Coef::Table { table, .. }, Some(t)) = (coef, t) {
-                *table = t;
-            }
-        }
+        self.b_pr = b_pr;
         Ok(())
     }
 
     fn tables(&self) -> impl Iterator<Item = &Table1D<T>> {
-        [&self.b_fl, &self.k_pr]
-            .into_iter()
-            .filter_map(|c| match c {
-                Coef::Table { table, .. } => Some(table),
-                _ => None,
-            })
+        [&self.b_fl, &self.k_pr].into_iter().filter_map(Coef::table)
     }
 }
 
+/// Which model an estimator runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum RuntimeKind {
+    /// None yet ([`Estimator::empty`], or a [`Estimator::load`] that failed).
+    Empty,
+    /// The SEM map.
+    Sem,
+    /// An EMM variant.
+    Emm,
+}
+
+/// Storage for every model kind (so that [`Estimator::load`] writes in place); `kind` says
+/// which is in use. `repr(C)`: the EMM runtime first (short offsets on Arm), the SEM after.
 #[derive(Debug, Clone)]
 #[repr(C)]
-enum Runtime<const P: usize, const T: usize> {
-    Sem {
-        map: SemMap,
-        curve: heapless::Vec<f32, MAX_SEM_VELOCITIES>,
-    },
-    Emm(EmmRuntime<P, T>),
+struct Runtime<const P: usize, const T: usize> {
+    kind: RuntimeKind,
+    emm: EmmRuntime<P, T>,
+    sem_map: SemMap,
+    sem_curve: heapless::Vec<f32, MAX_SEM_VELOCITIES>,
 }
 
 /// Online estimator for one damper at one oil-loss level. Owns everything it needs; the
@@ -445,7 +549,7 @@ impl<const P: usize> Estimator<P> {
     /// Builds an estimator: validates the model with the configured step and integrator and
     /// precomputes all alpha-only work (in table mode: builds and checks the tables, with
     /// [`DEFAULT_TABLE_SEGMENTS`] segments each; [`Estimator::with_segments`] picks another
-    /// number).
+    /// number). Returned by value: where the stack is small, use [`Estimator::load`].
     pub fn new(model: &Model<P>, cfg: EstimatorConfig) -> Result<Self, EstimatorError> {
         Self::with_segments(model, cfg)
     }
@@ -455,6 +559,65 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// [`Estimator::new`] with `T` segments per table in [`EvalMode::Table`]
     /// (`Estimator::<P, T>::with_segments(&model, cfg)`).
     pub fn with_segments(model: &Model<P>, cfg: EstimatorConfig) -> Result<Self, EstimatorError> {
+        let mut est = Self::empty();
+        est.load(model, cfg)?;
+        Ok(est)
+    }
+
+    /// An estimator without a model: the storage to [`load`](Self::load) one into, e.g. a
+    /// `static` (a `const fn`, so the storage needs no stack). Until a model is loaded,
+    /// [`step`](Self::step) returns 0 N with [`Flags::NO_MODEL`].
+    pub const fn empty() -> Self {
+        Self::EMPTY
+    }
+
+    /// The value of [`Estimator::empty`] (a constant: an unoptimised build copies it rather
+    /// than building each part on the stack).
+    const EMPTY: Self = Self {
+        state: State {
+            x_pr_m: 0.0,
+            v_st_m_s: 0.0,
+        },
+        coeffs: Coefficients {
+            b_fl: 0.0,
+            b_pr: 0.0,
+            k_pr: 0.0,
+        },
+        last_u: 0.0,
+        velocity_limit: 0.0,
+        sticky: Flags(Flags::NO_MODEL),
+        diag: Diagnostics {
+            steps: 0,
+            held_samples: 0,
+            resets: 0,
+        },
+        alpha: 0.0,
+        alpha_range: (0.0, 0.0),
+        mode: EvalMode::Exact,
+        rt: Runtime {
+            kind: RuntimeKind::Empty,
+            emm: EmmRuntime::empty(),
+            sem_map: SemMap {
+                velocities_m_s: heapless::Vec::new(),
+                alphas: heapless::Vec::new(),
+                forces_n: heapless::Vec::new(),
+            },
+            sem_curve: heapless::Vec::new(),
+        },
+    };
+
+    /// Loads `model` into this estimator **in place**: what [`Estimator::new`] does, without
+    /// building anything large on the stack (the compiled scalers and the tables are written
+    /// where they live). The state returns to rest and the diagnostics restart.
+    ///
+    /// On error the estimator is empty (as [`Estimator::empty`]: 0 N with
+    /// [`Flags::NO_MODEL`]) until a model loads.
+    pub fn load(&mut self, model: &Model<P>, cfg: EstimatorConfig) -> Result<(), EstimatorError> {
+        self.rt.kind = RuntimeKind::Empty;
+        self.sticky = Flags(Flags::NO_MODEL);
+        self.diag = Diagnostics::default();
+        self.state = State::default();
+        self.last_u = 0.0;
         model.validate().map_err(EstimatorError::Model)?;
         let alpha = cfg.alpha;
         if !(alpha.is_finite() && (0.0..=1.0).contains(&alpha)) {
@@ -475,11 +638,12 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             table::check_config(tc).map_err(EstimatorError::Table)?;
         }
         let sc = &model.scales;
-        let rt = match &model.body {
-            Body::Sem(map) => Runtime::Sem {
-                map: map.clone(),
-                curve: map.curve_at(alpha).0,
-            },
+        let kind = match &model.body {
+            Body::Sem(map) => {
+                self.rt.sem_map.clone_from(map);
+                self.rt.sem_curve = map.curve_at(alpha).0;
+                RuntimeKind::Sem
+            }
             body => {
                 let (emm, b_fl, b_pr, k_pr) = match body {
                     Body::LinearEmm(e) => (e, None, None, None),
@@ -492,79 +656,57 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     } => (emm, Some(b_fl), Some(b_pr), Some(k_pr)),
                     Body::Sem(_) => return Err(EstimatorError::Compile),
                 };
-                let compile = |s: Option<&Scaler<P>>,
-                               p_ini: f32,
-                               u_scale: f32,
-                               name: &'static str|
-                 -> Result<Coef<P, T>, EstimatorError> {
-                    let Some(s) = s else {
-                        return Ok(Coef::Const(p_ini));
-                    };
-                    let exact = CompiledScaler::compile(s, p_ini, u_scale, alpha, sc.alpha)
-                        .ok_or(EstimatorError::Compile)?;
-                    match &cfg.mode {
-                        EvalMode::Exact => Ok(Coef::Neural(exact)),
-                        EvalMode::Table(tc) => {
-                            let d = tc.domain_margin * u_scale;
-                            Ok(Coef::Table {
-                                table: build_table(&exact, -d, d, tc, name)?,
-                                exact,
-                                name,
-                            })
-                        }
-                    }
+                let rt = &mut self.rt.emm;
+                rt.b_fl.load(
+                    b_fl,
+                    emm.b_fl_ns_per_m,
+                    sc.velocity_m_s,
+                    alpha,
+                    sc.alpha,
+                    &cfg.mode,
+                )?;
+                rt.k_pr.load(
+                    k_pr,
+                    emm.k_pr_n_per_m,
+                    sc.x_pr_m,
+                    alpha,
+                    sc.alpha,
+                    &cfg.mode,
+                )?;
+                rt.table_cfg = match cfg.mode {
+                    EvalMode::Exact => None,
+                    EvalMode::Table(tc) => Some(tc),
                 };
-                let b_pr_value = match b_pr {
-                    None => emm.b_pr_ns_per_m,
-                    Some(s) => {
-                        emm.b_pr_ns_per_m
-                            * s.scale(&[alpha / sc.alpha])
-                                .ok_or(EstimatorError::Compile)?
-                    }
-                };
-                Runtime::Emm(EmmRuntime {
-                    b_fl: compile(b_fl, emm.b_fl_ns_per_m, sc.velocity_m_s, "b_fl")?,
-                    k_pr: compile(k_pr, emm.k_pr_n_per_m, sc.x_pr_m, "k_pr")?,
-                    table_cfg: match cfg.mode {
-                        EvalMode::Exact => None,
-                        EvalMode::Table(tc) => Some(tc),
-                    },
-                    b_pr: b_pr_value,
-                    b_pr_scaler: b_pr.map(|s| (s.clone(), emm.b_pr_ns_per_m, sc.alpha)),
-                    inv_t_pr: 1.0 / emm.t_pr_s,
-                    integrator,
-                    h: StepSize::new(dt),
-                    x_limit: DIVERGENCE_FACTOR * sc.x_pr_m,
-                    v_limit: DIVERGENCE_FACTOR * sc.velocity_m_s,
-                })
+                rt.b_pr_neural = b_pr.is_some();
+                if let Some(s) = b_pr {
+                    rt.b_pr_scaler.clone_from(s);
+                }
+                rt.b_pr_ini = emm.b_pr_ns_per_m;
+                rt.alpha_scale = sc.alpha;
+                rt.b_pr = rt.b_pr_at(alpha)?;
+                rt.inv_t_pr = 1.0 / emm.t_pr_s;
+                rt.integrator = integrator;
+                rt.h = StepSize::new(dt);
+                rt.x_limit = DIVERGENCE_FACTOR * sc.x_pr_m;
+                rt.v_limit = DIVERGENCE_FACTOR * sc.velocity_m_s;
+                RuntimeKind::Emm
             }
         };
-        let mut est = Self {
-            rt,
-            mode: cfg.mode,
-            alpha,
-            alpha_range: (model.meta.alpha_min, model.meta.alpha_max),
-            state: State::default(),
-            coeffs: Coefficients {
-                b_fl: 0.0,
-                b_pr: 0.0,
-                k_pr: 0.0,
-            },
-            last_u: 0.0,
-            velocity_limit,
-            sticky: Flags(0),
-            diag: Diagnostics::default(),
-        };
-        est.update_alpha_flags();
-        est.reset();
-        Ok(est)
+        self.rt.kind = kind;
+        self.mode = cfg.mode;
+        self.alpha = alpha;
+        self.alpha_range = (model.meta.alpha_min, model.meta.alpha_max);
+        self.velocity_limit = velocity_limit;
+        self.update_alpha_flags();
+        self.reset();
+        Ok(())
     }
 
     fn update_alpha_flags(&mut self) {
         let (lo, hi) = self.alpha_range;
         let mut extrapolated = !(lo..=hi).contains(&self.alpha);
-        if let Runtime::Sem { map, .. } = &self.rt {
-            extrapolated |= map.curve_at(self.alpha).1;
+        if self.rt.kind == RuntimeKind::Sem {
+            extrapolated |= self.rt.sem_map.curve_at(self.alpha).1;
         }
         self.sticky = Flags(if extrapolated {
             Flags::ALPHA_EXTRAPOLATED
@@ -577,8 +719,8 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     pub fn reset(&mut self) {
         self.state = State::default();
         self.last_u = 0.0;
-        if let Runtime::Emm(rt) = &self.rt {
-            self.coeffs = rt.coeffs(&self.state, &mut false);
+        if self.rt.kind == RuntimeKind::Emm {
+            self.coeffs = self.rt.emm.coeffs(&self.state, &mut false);
         }
     }
 
@@ -591,20 +733,15 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         if !(alpha.is_finite() && (0.0..=1.0).contains(&alpha)) {
             return Err(EstimatorError::AlphaOutOfRange);
         }
-        match &mut self.rt {
-            Runtime::Sem { map, curve } => *curve = map.curve_at(alpha).0,
-            Runtime::Emm(rt) => rt.set_alpha(alpha, self.alpha)?,
+        match self.rt.kind {
+            RuntimeKind::Empty => return Ok(()),
+            RuntimeKind::Sem => self.rt.sem_curve = self.rt.sem_map.curve_at(alpha).0,
+            RuntimeKind::Emm => self.rt.emm.set_alpha(alpha, self.alpha)?,
         }
         self.alpha = alpha;
         self.update_alpha_flags();
-        if let Runtime::Emm(rt) = &mut self.rt {
-            if let Some((scaler, b_pr_ini, alpha_scale)) = &rt.b_pr_scaler {
-                rt.b_pr = *b_pr_ini
-                    * scaler
-                        .scale(&[alpha / *alpha_scale])
-                        .ok_or(EstimatorError::Compile)?;
-            }
-            self.coeffs = rt.coeffs(&self.state, &mut false);
+        if self.rt.kind == RuntimeKind::Emm {
+            self.coeffs = self.rt.emm.coeffs(&self.state, &mut false);
         }
         Ok(())
     }
@@ -626,17 +763,20 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             self.diag.held_samples = self.diag.held_samples.wrapping_add(1);
         }
         self.diag.steps = self.diag.steps.wrapping_add(1);
-        let force_n = match &self.rt {
-            Runtime::Sem { map, curve } => map.force_on_curve(curve, u),
-            Runtime::Emm(rt) => {
+        let force_n = match self.rt.kind {
+            RuntimeKind::Empty => 0.0,
+            RuntimeKind::Sem => self.rt.sem_map.force_on_curve(&self.rt.sem_curve, u),
+            RuntimeKind::Emm => {
+                let rt = &self.rt.emm;
                 // The domain flag reports the new state (the output evaluation); the RK
                 // stages in between are clamped alike, unflagged (their states lie between
                 // the old and the new one up to the local error).
                 // Table mode dispatches once per step, not per coefficient evaluation.
                 let mut out = false;
                 let (x0, c0, u0, b_pr) = (&self.state, &self.coeffs, self.last_u, rt.b_pr);
-                let (x1, c1, f) = match (&rt.b_fl, &rt.k_pr) {
-                    (Coef::Table { table: tb, .. }, Coef::Table { table: tk, .. }) => {
+                let (x1, c1, f) = match (rt.b_fl.kind, rt.k_pr.kind) {
+                    (CoefKind::Table, CoefKind::Table) => {
+                        let (tb, tk) = (&rt.b_fl.table, &rt.k_pr.table);
                         let mut stage = CoefStage {
                             b_fl: tb,
                             k_pr: tk,
@@ -646,10 +786,11 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                         out = !(tb.contains(r.0.v_st_m_s) && tk.contains(r.0.x_pr_m));
                         r
                     }
-                    (Coef::Table { table: tb, .. }, Coef::Const(k)) => {
+                    (CoefKind::Table, CoefKind::Const) => {
+                        let tb = &rt.b_fl.table;
                         let mut stage = CoefStage {
                             b_fl: tb,
-                            k_pr: *k,
+                            k_pr: rt.k_pr.value,
                             b_pr,
                         };
                         let r = rt.run::<Unfused, _>(&mut stage, x0, c0, u0, u);
@@ -657,23 +798,27 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                         r
                     }
                     // Exact mode: the reference (fused) arithmetic; the scalers out of line.
-                    (Coef::Neural(b_fl), Coef::Neural(k_pr)) => {
-                        let mut stage = CoefStage { b_fl, k_pr, b_pr };
+                    (CoefKind::Neural, CoefKind::Neural) => {
+                        let mut stage = CoefStage {
+                            b_fl: &rt.b_fl.exact,
+                            k_pr: &rt.k_pr.exact,
+                            b_pr,
+                        };
                         rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
                     }
-                    (Coef::Neural(b_fl), Coef::Const(k_pr)) => {
+                    (CoefKind::Neural, CoefKind::Const) => {
                         let mut stage = CoefStage {
-                            b_fl,
-                            k_pr: *k_pr,
+                            b_fl: &rt.b_fl.exact,
+                            k_pr: rt.k_pr.value,
                             b_pr,
                         };
                         rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
                     }
                     // The Linear EMM: constants, the reference (fused) arithmetic.
-                    (Coef::Const(b_fl), Coef::Const(k_pr)) => {
+                    (CoefKind::Const, CoefKind::Const) => {
                         let mut stage = CoefStage {
-                            b_fl: *b_fl,
-                            k_pr: *k_pr,
+                            b_fl: rt.b_fl.value,
+                            k_pr: rt.k_pr.value,
                             b_pr,
                         };
                         rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
@@ -755,23 +900,26 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// Table mode: the worst accuracy of the tables in use, measured when they were built
     /// (`None` in exact mode and for kinds without neural coefficients).
     pub fn table_accuracy(&self) -> Option<TableAccuracy> {
-        match &self.rt {
-            Runtime::Sem { .. } => None,
-            Runtime::Emm(rt) => rt
-                .tables()
-                .map(|t| t.accuracy())
-                .fold(None, |w, a| match w {
-                    Some(w) if w.max_rel_error >= a.max_rel_error => Some(w),
-                    _ => Some(a),
-                }),
+        match self.rt.kind {
+            RuntimeKind::Empty | RuntimeKind::Sem => None,
+            RuntimeKind::Emm => {
+                self.rt
+                    .emm
+                    .tables()
+                    .map(|t| t.accuracy())
+                    .fold(None, |w, a| match w {
+                        Some(w) if w.max_rel_error >= a.max_rel_error => Some(w),
+                        _ => Some(a),
+                    })
+            }
         }
     }
 
     /// Number of tables in use and their bytes (`28 T` each, [`Table1D::table_bytes`]).
     pub fn table_bytes(&self) -> (usize, usize) {
-        let n = match &self.rt {
-            Runtime::Sem { .. } => 0,
-            Runtime::Emm(rt) => rt.tables().count(),
+        let n = match self.rt.kind {
+            RuntimeKind::Empty | RuntimeKind::Sem => 0,
+            RuntimeKind::Emm => self.rt.emm.tables().count(),
         };
         (n, n * Table1D::<T>::table_bytes())
     }

@@ -105,7 +105,10 @@ pub enum ShapeError {
 }
 
 /// Weights of one MLP, in the layout of the module docs.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+///
+/// `clone_from` copies in place, and `Deserialize::deserialize_in_place` decodes the
+/// parameters where they are (no temporary of `P` floats on the stack either way).
+#[derive(Debug, PartialEq, Serialize)]
 pub struct MlpParams<const P: usize> {
     /// Number of inputs `d` (1 or 2).
     pub inputs: u8,
@@ -115,6 +118,108 @@ pub struct MlpParams<const P: usize> {
     pub layers: u8,
     /// All parameters, flat.
     pub params: heapless::Vec<f32, P>,
+}
+
+impl<const P: usize> Clone for MlpParams<P> {
+    fn clone(&self) -> Self {
+        let mut c = Self {
+            inputs: 0,
+            hidden: 0,
+            layers: 0,
+            params: heapless::Vec::new(),
+        };
+        c.clone_from(self);
+        c
+    }
+
+    fn clone_from(&mut self, source: &Self) {
+        self.inputs = source.inputs;
+        self.hidden = source.hidden;
+        self.layers = source.layers;
+        self.params.clear();
+        // Same capacity `P`: cannot fail.
+        let _ = self.params.extend_from_slice(&source.params);
+    }
+}
+
+/// `Deserialize` by hand (the wire format is the derived one: the four fields in order, the
+/// parameters as a length-prefixed sequence) so that the parameters are decoded straight
+/// into the existing vector.
+mod de {
+    use super::MlpParams;
+    use core::fmt;
+    use serde::de::{self, DeserializeSeed, Deserializer, SeqAccess, Visitor};
+    use serde::Deserialize;
+
+    const FIELDS: &[&str] = &["inputs", "hidden", "layers", "params"];
+
+    /// Appends a sequence of `f32` to a cleared vector.
+    struct Params<'a, const P: usize>(&'a mut heapless::Vec<f32, P>);
+
+    impl<'de, const P: usize> Visitor<'de> for Params<'_, P> {
+        type Value = ();
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            write!(f, "at most {P} parameters")
+        }
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+            self.0.clear();
+            while let Some(v) = seq.next_element::<f32>()? {
+                if self.0.push(v).is_err() {
+                    return Err(de::Error::invalid_length(P + 1, &self));
+                }
+            }
+            Ok(())
+        }
+    }
+
+    impl<'de, const P: usize> DeserializeSeed<'de> for Params<'_, P> {
+        type Value = ();
+        fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+            d.deserialize_seq(self)
+        }
+    }
+
+    struct Fields<'a, const P: usize>(&'a mut MlpParams<P>);
+
+    impl<'de, const P: usize> Visitor<'de> for Fields<'_, P> {
+        type Value = ();
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("the fields of an MLP")
+        }
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+            let m = self.0;
+            for (i, field) in [&mut m.inputs, &mut m.hidden, &mut m.layers]
+                .into_iter()
+                .enumerate()
+            {
+                *field = seq
+                    .next_element()?
+                    .ok_or_else(|| de::Error::invalid_length(i, &"the fields of an MLP"))?;
+            }
+            seq.next_element_seed(Params(&mut m.params))?
+                .ok_or_else(|| de::Error::invalid_length(3, &"the fields of an MLP"))
+        }
+    }
+
+    impl<'de, const P: usize> Deserialize<'de> for MlpParams<P> {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            let mut m = MlpParams {
+                inputs: 0,
+                hidden: 0,
+                layers: 0,
+                params: heapless::Vec::new(),
+            };
+            Self::deserialize_in_place(d, &mut m)?;
+            Ok(m)
+        }
+
+        fn deserialize_in_place<D: Deserializer<'de>>(
+            d: D,
+            place: &mut Self,
+        ) -> Result<(), D::Error> {
+            d.deserialize_struct("MlpParams", FIELDS, Fields(place))
+        }
+    }
 }
 
 /// One hidden layer's parameters, borrowed from the flat vector.
@@ -410,7 +515,9 @@ pub fn layer_norm_leaky(h: &mut [f32], gamma: &[f32], beta: &[f32]) {
 }
 
 /// A neural scaler: MLP plus the bounded positive output mapping of the module docs.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+///
+/// `clone_from` copies in place (no temporary of `P` floats on the stack).
+#[derive(Debug, PartialEq, Serialize, Deserialize)]
 pub struct Scaler<const P: usize> {
     /// The MLP producing the raw output `z`.
     pub mlp: MlpParams<P>,
@@ -418,6 +525,20 @@ pub struct Scaler<const P: usize> {
     pub s_min: f32,
     /// Upper bound of the scale factor, `> s_min` (dimensionless).
     pub s_max: f32,
+}
+
+impl<const P: usize> Clone for Scaler<P> {
+    fn clone(&self) -> Self {
+        let mut c = Self::empty();
+        c.clone_from(self);
+        c
+    }
+
+    fn clone_from(&mut self, source: &Self) {
+        self.mlp.clone_from(&source.mlp);
+        self.s_min = source.s_min;
+        self.s_max = source.s_max;
+    }
 }
 
 impl<const P: usize> Scaler<P> {
@@ -533,8 +654,24 @@ pub const fn compiled_len(h: usize, layers: usize) -> Option<usize> {
 }
 
 impl<const P: usize> CompiledScaler<P> {
+    /// A scaler with no weights (`eval` returns `lo = 0`): the place to
+    /// [`compile_into`](Self::compile_into), e.g. inside a `static`.
+    pub const fn empty() -> Self {
+        Self {
+            hidden: 0,
+            layers: 0,
+            consts: [0.0; 4],
+            w: heapless::Vec::new(),
+            alpha_col: [0.0; MAX_HIDDEN],
+            b1_raw: [0.0; MAX_HIDDEN],
+            lo: 0.0,
+            span: 0.0,
+        }
+    }
+
     /// Compiles `scaler` for parameter constant `p_ini`, state scale `u_scale` (input 0) and
-    /// `alpha` normalised by `alpha_scale` (input 1, if the MLP has two inputs).
+    /// `alpha` normalised by `alpha_scale` (input 1, if the MLP has two inputs), returned by
+    /// value ([`Self::compile_into`] writes in place).
     ///
     /// Returns `None` if the scaler's shape is inconsistent (never for a validated model).
     pub fn compile(
@@ -544,13 +681,34 @@ impl<const P: usize> CompiledScaler<P> {
         alpha: f32,
         alpha_scale: f32,
     ) -> Option<Self> {
+        let mut c = Self::empty();
+        c.compile_into(scaler, p_ini, u_scale, alpha, alpha_scale)?;
+        Some(c)
+    }
+
+    /// [`Self::compile`] into `self`, in place: no copy of the weight vector on the stack.
+    /// On `None` `self` holds a partial compilation and must be compiled again before use
+    /// (its evaluation stays finite and panic-free, but meaningless).
+    pub fn compile_into(
+        &mut self,
+        scaler: &Scaler<P>,
+        p_ini: f32,
+        u_scale: f32,
+        alpha: f32,
+        alpha_scale: f32,
+    ) -> Option<()> {
         let mlp = &scaler.mlp;
         mlp.check_shape().ok()?;
         let h = mlp.hidden as usize;
         let d = mlp.inputs as usize;
-        let mut w = heapless::Vec::<f32, P>::new();
-        let mut alpha_col = [0.0f32; MAX_HIDDEN];
-        let mut b1_raw = [0.0f32; MAX_HIDDEN];
+        self.hidden = 0;
+        self.layers = 0;
+        let w = &mut self.w;
+        w.clear();
+        let alpha_col = &mut self.alpha_col;
+        let b1_raw = &mut self.b1_raw;
+        *alpha_col = [0.0f32; MAX_HIDDEN];
+        *b1_raw = [0.0f32; MAX_HIDDEN];
         let hf = h as f32;
         for l in 0..mlp.layers as usize {
             let layer = mlp.layer(l)?;
@@ -619,18 +777,13 @@ impl<const P: usize> CompiledScaler<P> {
         if Some(w.len()) != compiled_len(h, mlp.layers as usize) {
             return None;
         }
-        let mut c = Self {
-            hidden: h,
-            layers: mlp.layers as usize,
-            consts: [1.0 / hf, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, 0.0],
-            w,
-            alpha_col,
-            b1_raw,
-            lo: p_ini * scaler.s_min,
-            span: p_ini * (scaler.s_max - scaler.s_min),
-        };
-        c.set_alpha(alpha);
-        Some(c)
+        self.hidden = h;
+        self.layers = mlp.layers as usize;
+        self.consts = [1.0 / hf, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, 0.0];
+        self.lo = p_ini * scaler.s_min;
+        self.span = p_ini * (scaler.s_max - scaler.s_min);
+        self.set_alpha(alpha);
+        Some(())
     }
 
     /// Re-folds the alpha column into the first-layer bias (`alpha` in the same units as at

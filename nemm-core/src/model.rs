@@ -345,28 +345,32 @@ impl<const P: usize> Model<P> {
     /// A placeholder model (an all-zero Linear EMM, not valid) to decode into with
     /// [`crate::format::decode_into`]; `const`, so it can initialise a `static`.
     pub const fn empty() -> Self {
-        Self {
-            integrator: Integrator::Rk4,
-            dt_s: 0.0,
-            scales: InputScales {
-                velocity_m_s: 0.0,
-                x_pr_m: 0.0,
-                alpha: 0.0,
-            },
-            meta: Meta {
-                force_scale_n: 0.0,
-                alpha_min: 0.0,
-                alpha_max: 0.0,
-            },
-            body: Body::LinearEmm(EmmConstants {
-                b_fl_ns_per_m: 0.0,
-                b_pr_ns_per_m: 0.0,
-                k_pr_n_per_m: 0.0,
-                t_pr_s: 0.0,
-            }),
-            ext: Extension {},
-        }
+        Self::EMPTY
     }
+
+    /// The value of [`Model::empty`] (a constant: an unoptimised build copies it rather than
+    /// building it on the stack).
+    const EMPTY: Self = Self {
+        integrator: Integrator::Rk4,
+        dt_s: 0.0,
+        scales: InputScales {
+            velocity_m_s: 0.0,
+            x_pr_m: 0.0,
+            alpha: 0.0,
+        },
+        meta: Meta {
+            force_scale_n: 0.0,
+            alpha_min: 0.0,
+            alpha_max: 0.0,
+        },
+        body: Body::LinearEmm(EmmConstants {
+            b_fl_ns_per_m: 0.0,
+            b_pr_ns_per_m: 0.0,
+            k_pr_n_per_m: 0.0,
+            t_pr_s: 0.0,
+        }),
+        ext: Extension {},
+    };
 
     /// The variant.
     pub fn kind(&self) -> ModelKind {
@@ -557,6 +561,30 @@ mod body_serde {
         t_pr_s: 0.0,
     };
 
+    /// The empty variants a place is switched to before its fields are decoded in place:
+    /// constants, so that even an unoptimised build copies them from a constant rather than
+    /// building each part on the stack (the vectors' storage is uninitialised; only their
+    /// lengths are written).
+    struct Switch<const P: usize>;
+
+    impl<const P: usize> Switch<P> {
+        const SEM: Body<P> = Body::Sem(SemMap {
+            velocities_m_s: heapless::Vec::new(),
+            alphas: heapless::Vec::new(),
+            forces_n: heapless::Vec::new(),
+        });
+        const NEMM_LIGHT: Body<P> = Body::NemmLight {
+            emm: ZERO,
+            b_fl: Scaler::empty(),
+        };
+        const NEMM: Body<P> = Body::Nemm {
+            emm: ZERO,
+            b_fl: Scaler::empty(),
+            b_pr: Scaler::empty(),
+            k_pr: Scaler::empty(),
+        };
+    }
+
     /// Deserializes a value into an existing place.
     struct InPlace<'a, T>(&'a mut T);
 
@@ -610,11 +638,7 @@ mod body_serde {
             match idx {
                 0 => {
                     if !matches!(place, Body::Sem(_)) {
-                        *place = Body::Sem(SemMap {
-                            velocities_m_s: heapless::Vec::new(),
-                            alphas: heapless::Vec::new(),
-                            forces_n: heapless::Vec::new(),
-                        });
+                        *place = Switch::<P>::SEM;
                     }
                     match place {
                         Body::Sem(m) => variant.newtype_variant_seed(InPlace(m)),
@@ -632,10 +656,7 @@ mod body_serde {
                 }
                 2 => {
                     if !matches!(place, Body::NemmLight { .. }) {
-                        *place = Body::NemmLight {
-                            emm: ZERO,
-                            b_fl: Scaler::empty(),
-                        };
+                        *place = Switch::<P>::NEMM_LIGHT;
                     }
                     match place {
                         Body::NemmLight { emm, b_fl } => variant.struct_variant(
@@ -650,12 +671,7 @@ mod body_serde {
                 }
                 3 => {
                     if !matches!(place, Body::Nemm { .. }) {
-                        *place = Body::Nemm {
-                            emm: ZERO,
-                            b_fl: Scaler::empty(),
-                            b_pr: Scaler::empty(),
-                            k_pr: Scaler::empty(),
-                        };
+                        *place = Switch::<P>::NEMM;
                     }
                     match place {
                         Body::Nemm {

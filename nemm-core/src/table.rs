@@ -414,12 +414,47 @@ impl<const N: usize> Table1D<N> {
     /// of the scan grid ([`SCAN_POINTS_PER_SEGMENT`] points per segment) is bisected to the
     /// adjacent floats and becomes a knot, so that no segment straddles a kink.
     pub fn compile(
-        mut exact: impl Tabulate,
+        exact: impl Tabulate,
         lo: f32,
         hi: f32,
         max_rel_error: f32,
         scaler: &'static str,
     ) -> Result<Self, TableError> {
+        let mut t = Self::empty();
+        t.compile_into(exact, lo, hi, max_rel_error, scaler)?;
+        Ok(t)
+    }
+
+    /// A table with no segments: the place to [`compile_into`](Self::compile_into) (every
+    /// evaluation returns 0 until then).
+    pub const fn empty() -> Self {
+        Self {
+            lo: 0.0,
+            hi: 0.0,
+            cell_scale: 0.0,
+            cell_offset: 0.0,
+            first: [[0; 2]; N],
+            seg: [[0.0; 6]; N],
+            accuracy: TableAccuracy {
+                max_rel_error: 0.0,
+                at: 0.0,
+                kinks: 0,
+                max_knots_per_cell: 0,
+            },
+        }
+    }
+
+    /// [`Self::compile`] into `self`, in place (no copy of the table on the stack). After an
+    /// error `self` holds a partial table that must be compiled again before use (its
+    /// evaluation stays finite and panic-free, but meaningless).
+    pub fn compile_into(
+        &mut self,
+        mut exact: impl Tabulate,
+        lo: f32,
+        hi: f32,
+        max_rel_error: f32,
+        scaler: &'static str,
+    ) -> Result<(), TableError> {
         if N < MIN_SEGMENTS
             || N > usize::from(u16::MAX)
             || !(lo.is_finite() && hi.is_finite() && hi > lo)
@@ -444,11 +479,11 @@ impl<const N: usize> Table1D<N> {
         let suspect = max_rel_error / REFINE_FRACTION;
         let mut round = 0usize;
         loop {
-            let mut t = Self::build(&mut exact, lo, hi, kinks.as_slice(), scaler)?;
+            self.build(&mut exact, lo, hi, kinks.as_slice(), scaler)?;
             // 5. Error check on the grid CHECK_POINTS_PER_SEGMENT x finer, plus the upper
             //    end; the neighbourhoods of suspect points are rescanned finely.
             let mut ranges = [(0.0f32, 0.0f32); REFINE_RANGES];
-            let (n_ranges, worst) = t.check(&mut exact, suspect, seg_w, &mut ranges, scaler)?;
+            let (n_ranges, worst) = self.check(&mut exact, suspect, seg_w, &mut ranges, scaler)?;
             let mut found = 0usize;
             if round < REFINE_ROUNDS {
                 for &(a, b) in ranges.get(..n_ranges).unwrap_or(&[]) {
@@ -465,26 +500,27 @@ impl<const N: usize> Table1D<N> {
                 if worst > f64::from(max_rel_error) {
                     return Err(TableError::ExceedsBound {
                         scaler,
-                        max_rel_error: t.accuracy.max_rel_error,
+                        max_rel_error: self.accuracy.max_rel_error,
                         bound: max_rel_error,
-                        at: t.accuracy.at,
+                        at: self.accuracy.at,
                         segments: N,
                     });
                 }
-                return Ok(t);
+                return Ok(());
             }
         }
     }
 
-    /// Steps 2-4 of [`Self::compile`]: the segments between the breakpoints `lo`, `kinks`
+    /// Steps 2-4 of [`Self::compile`], into `self`: the segments between the breakpoints `lo`, `kinks`
     /// (sorted, inside the domain) and `hi`, and the lookup cells.
     fn build(
+        &mut self,
         exact: &mut impl Tabulate,
         lo: f32,
         hi: f32,
         kinks: &[f64],
         scaler: &'static str,
-    ) -> Result<Self, TableError> {
+    ) -> Result<(), TableError> {
         let (lo64, hi64) = (f64::from(lo), f64::from(hi));
         let span = hi64 - lo64;
         // Segments inside the domain, and the lookup cells' width.
@@ -567,19 +603,18 @@ impl<const N: usize> Table1D<N> {
         }
         // 3. Hermite segments; slopes by central differences inside a piece, one-sided
         //    second-order differences at its ends (never across a kink).
-        let mut t = Self {
-            lo,
-            hi,
-            cell_scale,
-            cell_offset: (-(lo64 - cell_w) / cell_w) as f32,
-            first: [[0; 2]; N],
-            seg: [[0.0; 6]; N],
-            accuracy: TableAccuracy {
-                max_rel_error: 0.0,
-                at: lo,
-                kinks: n_kinks,
-                max_knots_per_cell: 0,
-            },
+        let t = self;
+        t.lo = lo;
+        t.hi = hi;
+        t.cell_scale = cell_scale;
+        t.cell_offset = (-(lo64 - cell_w) / cell_w) as f32;
+        t.first.fill([0; 2]);
+        t.seg.fill([0.0; 6]);
+        t.accuracy = TableAccuracy {
+            max_rel_error: 0.0,
+            at: lo,
+            kinks: n_kinks,
+            max_knots_per_cell: 0,
         };
         // Segment 0 is the boundary value below `lo`; the domain's start at 1.
         let mut used = 1usize;
@@ -646,7 +681,7 @@ impl<const N: usize> Table1D<N> {
             prev = i;
             *f = i as u16;
         }
-        Ok(t)
+        Ok(())
     }
 
     /// Measures the table against `exact` on the check grid (sets the accuracy) and returns

@@ -4,10 +4,11 @@
 
 mod common;
 
-use common::{example, reference_run, stroke, table1_grid, KINDS, P};
+use common::{boxed, example, reference_run, stroke, table1_grid, KINDS, P};
 use nemm_core::emm::{Coefficients, State};
 use nemm_core::integrator::{self, StepSize};
 use nemm_core::model::{ModelError, STABILITY_MARGIN};
+use nemm_core::DEFAULT_TABLE_SEGMENTS;
 use nemm_core::{
     Body, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags, Integrator, Model, ModelKind,
 };
@@ -316,7 +317,7 @@ fn bad_configuration_is_refused() {
     let m = example(ModelKind::NemmLight);
     for alpha in [f32::NAN, -0.01, 1.01, f32::INFINITY] {
         assert_eq!(
-            Estimator::new(&m, EstimatorConfig::new(alpha)).err(),
+            boxed::<DEFAULT_TABLE_SEGMENTS>(&m, EstimatorConfig::new(alpha)).err(),
             Some(EstimatorError::AlphaOutOfRange)
         );
     }
@@ -326,7 +327,7 @@ fn bad_configuration_is_refused() {
             ..EstimatorConfig::new(0.1)
         };
         assert_eq!(
-            Estimator::new(&m, cfg).err(),
+            boxed::<DEFAULT_TABLE_SEGMENTS>(&m, cfg).err(),
             Some(EstimatorError::BadVelocityLimit)
         );
     }
@@ -339,11 +340,11 @@ fn bad_configuration_is_refused() {
             ..EstimatorConfig::new(0.1)
         };
         assert_eq!(
-            Estimator::new(&m, cfg).err(),
+            boxed::<DEFAULT_TABLE_SEGMENTS>(&m, cfg).err(),
             Some(EstimatorError::Model(want))
         );
     }
-    let mut est = Estimator::new(&m, EstimatorConfig::new(0.1)).unwrap();
+    let mut est = boxed::<DEFAULT_TABLE_SEGMENTS>(&m, EstimatorConfig::new(0.1)).unwrap();
     assert_eq!(
         est.set_alpha(f32::NAN),
         Err(EstimatorError::AlphaOutOfRange)

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{example, stroke, table1_grid, P};
+use common::{boxed, example, stroke, table1_grid, P};
 use nemm_core::mlp::CompiledScaler;
 use nemm_core::{
     Body, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, Model, ModelKind, Table1D,
@@ -224,9 +224,9 @@ fn table_mode_follows_exact_over_the_programme() {
 fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
     let m = example(ModelKind::Nemm);
     let inputs = stroke(0.01, 0.524, 0.5, f64::from(m.dt_s));
-    let mut a = Estimator::<P, 128>::with_segments(&m, table_cfg(1.0)).unwrap();
+    let mut a = boxed::<128>(&m, table_cfg(1.0)).unwrap();
     a.set_alpha(0.3).unwrap();
-    let mut b = Estimator::<P, 128>::with_segments(
+    let mut b = boxed::<128>(
         &m,
         EstimatorConfig {
             alpha: 0.3,
@@ -239,7 +239,7 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
         assert_eq!(a.step(u), b.step(u));
     }
     // A bound below f32 resolution: new refuses it with the measured error.
-    match Estimator::<P, 128>::with_segments(&m, table_cfg(1e-9)) {
+    match boxed::<128>(&m, table_cfg(1e-9)) {
         Err(EstimatorError::Table(TableError::ExceedsBound {
             max_rel_error,
             bound,
@@ -249,7 +249,7 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
     }
     // Fewer segments than the MLP has kinks (the example has 60-90 per table).
     assert!(matches!(
-        Estimator::<P, 16>::with_segments(&m, table_cfg(1.0)),
+        boxed::<16>(&m, table_cfg(1.0)),
         Err(EstimatorError::Table(TableError::TooManyKinks {
             segments: 16,
             ..
@@ -259,7 +259,7 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
     let tight = (0..=30)
         .map(|i| i as f32 / 100.0)
         .filter_map(|alpha| {
-            let e = Estimator::<P, 128>::with_segments(
+            let e = boxed::<128>(
                 &m,
                 EstimatorConfig {
                     alpha,
@@ -286,7 +286,7 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
         .map(|t| t.0)
         .find(|&alpha| {
             matches!(
-                Estimator::<P, 128>::with_segments(
+                boxed::<128>(
                     &m,
                     EstimatorConfig {
                         alpha,
@@ -297,7 +297,7 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
             )
         })
         .expect("an alpha whose table misses the bound");
-    let mut est = Estimator::<P, 128>::with_segments(
+    let mut est = boxed::<128>(
         &m,
         EstimatorConfig {
             alpha: a_lo,

@@ -10,8 +10,8 @@ use nemm_core::mlp::{param_count, MlpParams, Scaler};
 use nemm_core::model::STABILITY_MARGIN;
 use nemm_core::testing::hash_unit;
 use nemm_core::{
-    encode, Body, Extension, Header, InputScales, Integrator, Meta, Model, ModelKind, SemMap,
-    FORMAT_VERSION,
+    encode, Body, Estimator, EstimatorConfig, EstimatorError, Extension, Header, InputScales,
+    Integrator, Meta, Model, ModelKind, SemMap, FORMAT_VERSION,
 };
 use proptest::prelude::*;
 
@@ -39,6 +39,18 @@ pub fn with_big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static)
         .expect("spawn test thread")
         .join()
         .unwrap_or_else(|e| std::panic::resume_unwind(e))
+}
+
+/// An estimator built in place on the heap ([`Estimator::load`]): tests that hold several
+/// estimators keep only their boxes on the stack, which an unoptimised build needs (an
+/// `Estimator<P>` of the default capacity is about 128 KB).
+pub fn boxed<const T: usize>(
+    m: &Model<P>,
+    cfg: EstimatorConfig,
+) -> Result<Box<Estimator<P, T>>, EstimatorError> {
+    let mut e = Box::new(Estimator::<P, T>::empty());
+    e.load(m, cfg)?;
+    Ok(e)
 }
 
 /// Encodes a valid model into a fresh vector (the no_std `encode` with a large buffer).
