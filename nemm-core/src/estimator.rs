@@ -228,17 +228,15 @@ struct Coef<const P: usize, const T: usize> {
     value: f32,
     table: Table1D<T>,
     exact: CompiledScaler<P>,
-    name: &'static str,
 }
 
 impl<const P: usize, const T: usize> Coef<P, T> {
-    const fn empty(name: &'static str) -> Self {
+    const fn empty() -> Self {
         Self {
             kind: CoefKind::Const,
             value: 0.0,
             table: Table1D::empty(),
             exact: CompiledScaler::empty(),
-            name,
         }
     }
 
@@ -259,14 +257,14 @@ impl<const P: usize, const T: usize> Coef<P, T> {
 
     /// In place: the constant `p_ini` without a scaler; otherwise the scaler compiled for
     /// `alpha` and, in table mode, its table over `[-m u_scale, m u_scale]` (`m` the
-    /// configured domain margin).
+    /// configured domain margin). `name` names the coefficient in errors.
     fn load(
         &mut self,
+        name: &'static str,
         scaler: Option<&Scaler<P>>,
         p_ini: f32,
         u_scale: f32,
-        alpha: f32,
-        alpha_scale: f32,
+        (alpha, alpha_scale): (f32, f32),
         mode: &EvalMode,
     ) -> Result<(), EstimatorError> {
         self.kind = CoefKind::Const;
@@ -281,7 +279,7 @@ impl<const P: usize, const T: usize> Coef<P, T> {
         if let EvalMode::Table(tc) = mode {
             let d = tc.domain_margin * u_scale;
             self.table
-                .compile_into(&self.exact, -d, d, tc.max_rel_error, self.name)
+                .compile_into(&self.exact, -d, d, tc.max_rel_error, name)
                 .map_err(EstimatorError::Table)?;
             self.kind = CoefKind::Table;
         }
@@ -294,6 +292,7 @@ impl<const P: usize, const T: usize> Coef<P, T> {
     /// returned.
     fn set_alpha(
         &mut self,
+        name: &'static str,
         alpha: f32,
         old_alpha: f32,
         cfg: Option<&TableConfig>,
@@ -310,13 +309,13 @@ impl<const P: usize, const T: usize> Coef<P, T> {
                 };
                 let (lo, hi) = self.table.domain();
                 self.exact.set_alpha(alpha);
-                let built =
-                    self.table
-                        .compile_into(&self.exact, lo, hi, cfg.max_rel_error, self.name);
+                let built = self
+                    .table
+                    .compile_into(&self.exact, lo, hi, cfg.max_rel_error, name);
                 if let Err(e) = built {
                     self.exact.set_alpha(old_alpha);
                     self.table
-                        .compile_into(&self.exact, lo, hi, cfg.max_rel_error, self.name)
+                        .compile_into(&self.exact, lo, hi, cfg.max_rel_error, name)
                         .map_err(EstimatorError::Table)?;
                     return Err(EstimatorError::Table(e));
                 }
@@ -423,12 +422,12 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             },
             x_limit: 0.0,
             v_limit: 0.0,
-            b_fl: Coef::empty("b_fl"),
-            k_pr: Coef::empty("k_pr"),
+            b_fl: Coef::empty(),
+            k_pr: Coef::empty(),
             table_cfg: None,
             b_pr_neural: false,
             b_pr_ini: 0.0,
-            alpha_scale: 1.0,
+            alpha_scale: 0.0,
             b_pr_scaler: Scaler::empty(),
         }
     }
@@ -485,9 +484,11 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
     fn set_alpha(&mut self, alpha: f32, old_alpha: f32) -> Result<(), EstimatorError> {
         let b_pr = self.b_pr_at(alpha)?;
         let cfg = self.table_cfg;
-        self.b_fl.set_alpha(alpha, old_alpha, cfg.as_ref())?;
-        if let Err(e) = self.k_pr.set_alpha(alpha, old_alpha, cfg.as_ref()) {
-            self.b_fl.set_alpha(old_alpha, alpha, cfg.as_ref())?;
+        self.b_fl
+            .set_alpha("b_fl", alpha, old_alpha, cfg.as_ref())?;
+        if let Err(e) = self.k_pr.set_alpha("k_pr", alpha, old_alpha, cfg.as_ref()) {
+            self.b_fl
+                .set_alpha("b_fl", old_alpha, alpha, cfg.as_ref())?;
             return Err(e);
         }
         self.b_pr = b_pr;
@@ -572,7 +573,8 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     }
 
     /// The value of [`Estimator::empty`] (a constant: an unoptimised build copies it rather
-    /// than building each part on the stack).
+    /// than building each part on the stack). All its bytes are zero (or uninitialised vector
+    /// storage), so that filling a `static` with it is a `memset`, not a copy from flash.
     const EMPTY: Self = Self {
         state: State {
             x_pr_m: 0.0,
@@ -585,7 +587,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         },
         last_u: 0.0,
         velocity_limit: 0.0,
-        sticky: Flags(Flags::NO_MODEL),
+        sticky: Flags(0),
         diag: Diagnostics {
             steps: 0,
             held_samples: 0,
@@ -614,7 +616,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// [`Flags::NO_MODEL`]) until a model loads.
     pub fn load(&mut self, model: &Model<P>, cfg: EstimatorConfig) -> Result<(), EstimatorError> {
         self.rt.kind = RuntimeKind::Empty;
-        self.sticky = Flags(Flags::NO_MODEL);
+        self.sticky = Flags(0);
         self.diag = Diagnostics::default();
         self.state = State::default();
         self.last_u = 0.0;
@@ -658,19 +660,19 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 };
                 let rt = &mut self.rt.emm;
                 rt.b_fl.load(
+                    "b_fl",
                     b_fl,
                     emm.b_fl_ns_per_m,
                     sc.velocity_m_s,
-                    alpha,
-                    sc.alpha,
+                    (alpha, sc.alpha),
                     &cfg.mode,
                 )?;
                 rt.k_pr.load(
+                    "k_pr",
                     k_pr,
                     emm.k_pr_n_per_m,
                     sc.x_pr_m,
-                    alpha,
-                    sc.alpha,
+                    (alpha, sc.alpha),
                     &cfg.mode,
                 )?;
                 rt.table_cfg = match cfg.mode {
@@ -764,7 +766,10 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         }
         self.diag.steps = self.diag.steps.wrapping_add(1);
         let force_n = match self.rt.kind {
-            RuntimeKind::Empty => 0.0,
+            RuntimeKind::Empty => {
+                flags |= Flags::NO_MODEL;
+                0.0
+            }
             RuntimeKind::Sem => self.rt.sem_map.force_on_curve(&self.rt.sem_curve, u),
             RuntimeKind::Emm => {
                 let rt = &self.rt.emm;

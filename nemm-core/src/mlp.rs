@@ -544,17 +544,22 @@ impl<const P: usize> Clone for Scaler<P> {
 impl<const P: usize> Scaler<P> {
     /// A scaler without parameters (not valid on its own; a place to decode into).
     pub const fn empty() -> Self {
-        Self {
-            mlp: MlpParams {
-                inputs: 0,
-                hidden: 0,
-                layers: 0,
-                params: heapless::Vec::new(),
-            },
-            s_min: 0.0,
-            s_max: 0.0,
-        }
+        Self::EMPTY
     }
+
+    /// The value of [`Scaler::empty`]: a constant, so that an unoptimised build copies it
+    /// rather than building its parameter vector on the stack first. All its bytes are zero
+    /// (or uninitialised vector storage), which an optimised build writes with a `memset`.
+    pub(crate) const EMPTY: Self = Self {
+        mlp: MlpParams {
+            inputs: 0,
+            hidden: 0,
+            layers: 0,
+            params: heapless::Vec::new(),
+        },
+        s_min: 0.0,
+        s_max: 0.0,
+    };
 
     /// Scale factor `s(z) = s_min + (s_max - s_min) sigmoid(z)` for normalised inputs.
     pub fn scale(&self, x: &[f32]) -> Option<f32> {

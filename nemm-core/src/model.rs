@@ -342,14 +342,15 @@ fn check_scaler<const P: usize>(
 }
 
 impl<const P: usize> Model<P> {
-    /// A placeholder model (an all-zero Linear EMM, not valid) to decode into with
+    /// A placeholder model (an empty SEM map, not valid) to decode into with
     /// [`crate::format::decode_into`]; `const`, so it can initialise a `static`.
     pub const fn empty() -> Self {
         Self::EMPTY
     }
 
     /// The value of [`Model::empty`] (a constant: an unoptimised build copies it rather than
-    /// building it on the stack).
+    /// building it on the stack). All its bytes are zero (or uninitialised vector storage),
+    /// so that filling a `static` with it is a `memset`, not a copy from flash.
     const EMPTY: Self = Self {
         integrator: Integrator::Rk4,
         dt_s: 0.0,
@@ -363,11 +364,10 @@ impl<const P: usize> Model<P> {
             alpha_min: 0.0,
             alpha_max: 0.0,
         },
-        body: Body::LinearEmm(EmmConstants {
-            b_fl_ns_per_m: 0.0,
-            b_pr_ns_per_m: 0.0,
-            k_pr_n_per_m: 0.0,
-            t_pr_s: 0.0,
+        body: Body::Sem(SemMap {
+            velocities_m_s: heapless::Vec::new(),
+            alphas: heapless::Vec::new(),
+            forces_n: heapless::Vec::new(),
         }),
         ext: Extension {},
     };
@@ -561,27 +561,39 @@ mod body_serde {
         t_pr_s: 0.0,
     };
 
-    /// The empty variants a place is switched to before its fields are decoded in place:
-    /// constants, so that even an unoptimised build copies them from a constant rather than
-    /// building each part on the stack (the vectors' storage is uninitialised; only their
-    /// lengths are written).
-    struct Switch<const P: usize>;
+    // The variant switches, each out of line: an unoptimised build gives every temporary its
+    // own stack slot, so inside the visitor the three would add up; here only the one in use
+    // is on the stack. An optimised build writes the tag and the vector lengths in place.
 
-    impl<const P: usize> Switch<P> {
-        const SEM: Body<P> = Body::Sem(SemMap {
+    #[inline(never)]
+    fn switch_to_sem<const P: usize>(place: &mut Body<P>) {
+        *place = Body::Sem(SemMap {
             velocities_m_s: heapless::Vec::new(),
             alphas: heapless::Vec::new(),
             forces_n: heapless::Vec::new(),
         });
-        const NEMM_LIGHT: Body<P> = Body::NemmLight {
+    }
+
+    #[inline(never)]
+    fn switch_to_linear_emm<const P: usize>(place: &mut Body<P>) {
+        *place = Body::LinearEmm(ZERO);
+    }
+
+    #[inline(never)]
+    fn switch_to_nemm_light<const P: usize>(place: &mut Body<P>) {
+        *place = Body::NemmLight {
             emm: ZERO,
-            b_fl: Scaler::empty(),
+            b_fl: Scaler::EMPTY,
         };
-        const NEMM: Body<P> = Body::Nemm {
+    }
+
+    #[inline(never)]
+    fn switch_to_nemm<const P: usize>(place: &mut Body<P>) {
+        *place = Body::Nemm {
             emm: ZERO,
-            b_fl: Scaler::empty(),
-            b_pr: Scaler::empty(),
-            k_pr: Scaler::empty(),
+            b_fl: Scaler::EMPTY,
+            b_pr: Scaler::EMPTY,
+            k_pr: Scaler::EMPTY,
         };
     }
 
@@ -638,7 +650,7 @@ mod body_serde {
             match idx {
                 0 => {
                     if !matches!(place, Body::Sem(_)) {
-                        *place = Switch::<P>::SEM;
+                        switch_to_sem(place);
                     }
                     match place {
                         Body::Sem(m) => variant.newtype_variant_seed(InPlace(m)),
@@ -647,7 +659,7 @@ mod body_serde {
                 }
                 1 => {
                     if !matches!(place, Body::LinearEmm(_)) {
-                        *place = Body::LinearEmm(ZERO);
+                        switch_to_linear_emm(place);
                     }
                     match place {
                         Body::LinearEmm(e) => variant.newtype_variant_seed(InPlace(e)),
@@ -656,7 +668,7 @@ mod body_serde {
                 }
                 2 => {
                     if !matches!(place, Body::NemmLight { .. }) {
-                        *place = Switch::<P>::NEMM_LIGHT;
+                        switch_to_nemm_light(place);
                     }
                     match place {
                         Body::NemmLight { emm, b_fl } => variant.struct_variant(
@@ -671,7 +683,7 @@ mod body_serde {
                 }
                 3 => {
                     if !matches!(place, Body::Nemm { .. }) {
-                        *place = Switch::<P>::NEMM;
+                        switch_to_nemm(place);
                     }
                     match place {
                         Body::Nemm {

@@ -35,11 +35,10 @@ pub mod board;
 /// optimum scaler (`H = 16, L = 5`, section 5.4: 1,313 parameters), which also holds `H = 8`
 /// at any depth of the search space (Table 3) and `H = 32` up to `L = 2`.
 ///
-/// RAM: the model and the estimator hold six vectors of `P` floats (31 KiB), and the boot
-/// needs about 105 KiB of stack here (measured by stack painting: `init`'s frame, in which
-/// the estimator is built by value, and `nemm_core::decode`, which builds the model by value;
-/// both grow with `P`). Statics and stack must fit the 192 KiB of an STM32F4, which rules
-/// out `H = 16, L = 9` (`P` = 2,529: 226 KiB of decode stack when it was measured).
+/// RAM: the model and the estimator hold six vectors of `P` floats (31 KiB) in statics; both
+/// are built in place (`nemm_core::decode_into`, `nemm_core::Estimator::load`), so the boot
+/// stack does not grow with `P` (`cargo xtask build-target` prints it, `boot-stack bytes=`).
+/// A larger `P` costs 24 bytes of RAM per parameter.
 pub const PARAM_CAPACITY: usize = nemm_core::mlp::param_count(2, 16, 5);
 
 /// Bound of the tabulated fast path: each table's largest relative error against its exact
@@ -49,10 +48,9 @@ pub const PARAM_CAPACITY: usize = nemm_core::mlp::param_count(2, 16, 5);
 pub const TABLE_MAX_REL_ERROR: f32 = 1e-4;
 
 /// Segments per table: 128 (28 bytes of RAM each, 3.5 KiB per table). Half the host
-/// default: the estimator (model, compiled scalers and tables) is built on the stack before
-/// it moves into its static, and with 256 segments that peak no longer fits the 192 KiB
-/// next to the statics. The example models have 60-90 kinks per scaler, the demo's trained
-/// NEMM about 40, so 128 segments separate them (a model with more is refused at boot with
+/// default: the tables are built and checked at boot, and that work grows with the number of
+/// segments. The example models have 60-90 kinks per scaler, the demo's trained NEMM about
+/// 40, so 128 segments separate them (a model with more is refused at boot with
 /// `table=too-many-kinks`).
 pub const TABLE_SEGMENTS: usize = 128;
 

@@ -29,6 +29,70 @@ impl Images {
     }
 }
 
+/// Firmware options of the stack measurement runs: a short replay (the peak is at boot),
+/// in each evaluation mode.
+pub const STACK_RUNS: [(&str, &[&str]); 2] = [
+    ("exact", &["samples=2000", "mode=exact"]),
+    ("table", &["samples=2000", "mode=table"]),
+];
+
+/// Stack figures of one QEMU run of the application, by stack painting (bytes).
+#[derive(Debug, Clone, Copy)]
+pub struct StackFigures {
+    /// Used when the boot ends (`boot_stack` of the `start` line): decoding the weights and
+    /// building the estimator.
+    pub boot: u64,
+    /// Used by the whole run (`stack_used` of the `summary` line).
+    pub peak: u64,
+    /// The room the memory layout leaves the stack (`_stack_start - _stack_end`).
+    pub room: u64,
+}
+
+impl StackFigures {
+    /// `boot-stack bytes=<boot> mode=<mode> peak=<peak> room=<room>`.
+    pub fn line(&self, mode: &str) -> String {
+        format!(
+            "boot-stack bytes={} mode={mode} peak={} room={}",
+            self.boot, self.peak, self.room
+        )
+    }
+}
+
+/// Runs the qemu build of the application with `options` and reads its stack figures.
+pub fn stack_figures(
+    tc: &Toolchain,
+    images: &Images,
+    options: &[&str],
+) -> Result<StackFigures, String> {
+    let elf = Elf::read(&images.app)?;
+    let symbol = |name: &str| {
+        elf.symbol(name)
+            .map(|s| u64::from(s.value))
+            .ok_or_else(|| format!("{}: no symbol {name}", images.app.display()))
+    };
+    let room = symbol("_stack_start")? - symbol("_stack_end")?;
+    let options: Vec<String> = options.iter().map(|o| o.to_string()).collect();
+    let (code, out) = run_qemu(tc, &images.app, &options)?;
+    if code != 0 {
+        return Err(format!("the firmware exited with {code}:\n{out}"));
+    }
+    let value = |line: &str, key: &str| -> Result<u64, String> {
+        let prefix = format!("{key}=");
+        out.lines()
+            .filter(|l| l.starts_with(&format!("{line} ")))
+            .flat_map(|l| l.split_ascii_whitespace())
+            .find_map(|w| w.strip_prefix(prefix.as_str()))
+            .ok_or_else(|| format!("no `{key}` in the firmware's `{line}` line:\n{out}"))?
+            .parse()
+            .map_err(|e| format!("{key}: {e}"))
+    };
+    Ok(StackFigures {
+        boot: value("start", "boot_stack")?,
+        peak: value("summary", "stack_used")?,
+        room,
+    })
+}
+
 /// Where the firmware builds go: `<workspace target dir>/nemm-firmware`.
 pub fn target_dir(paths: &Paths) -> PathBuf {
     paths.target.join("nemm-firmware")

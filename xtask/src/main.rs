@@ -63,7 +63,9 @@ enum Cmd {
         #[arg(long = "model", value_enum, value_name = "KIND")]
         models: Vec<Kind>,
     },
-    /// Build the firmware images and print their flash and RAM use.
+    /// Build the firmware images, print their flash and RAM use, and run the application in
+    /// QEMU to print its stack at the end of the boot (`boot-stack bytes=<n>`, by stack
+    /// painting) in each evaluation mode.
     BuildTarget,
     /// Run the firmware in QEMU with firmware options.
     ///
@@ -365,6 +367,12 @@ fn build_target() -> Result<(), String> {
         let elf = Elf::read(path)?;
         println!("{}\n{}", path.display(), elf.memory_use().table());
         println!("{}\n", firmware::memory_report(name, &elf));
+    }
+    for (mode, options) in firmware::STACK_RUNS {
+        println!(
+            "{}",
+            firmware::stack_figures(&tc, &images, options)?.line(mode)
+        );
     }
     Ok(())
 }

@@ -13,7 +13,7 @@
 //!   the facts its `report.json` records (the command that trained it, ...).
 
 use crate::bench::{self, StepFigures};
-use crate::firmware::{self, Images};
+use crate::firmware;
 use crate::toolchain::Toolchain;
 use crate::{Kind, Mode, Paths};
 use nemm_elf::Elf;
@@ -48,13 +48,6 @@ Not generated yet: `cargo xtask results --training DIR` copies the tables of a f
 `nemm compare` or `nemm demo` report directory here.
 <!-- END training -->
 ";
-
-/// Firmware options of the stack measurement runs: a short replay (the peak is at boot, while
-/// the blob is decoded and the estimator built), in each mode.
-const STACK_RUNS: [(&str, &[&str]); 2] = [
-    ("exact", &["samples=2000"]),
-    ("table", &["samples=2000", "mode=table"]),
-];
 
 /// `text` with block `name` replaced by `block` (which carries its own markers), or with
 /// `block` appended if `text` has no such block.
@@ -150,32 +143,6 @@ fn write_block_in(paths: &Paths, file: &str, name: &str, body: &str) -> Result<(
     Ok(())
 }
 
-/// The stack peak (`stack_used` of the `summary` line) of the qemu build with `options`, and
-/// the room the memory layout leaves the stack (`_stack_start - _stack_end`).
-fn stack_peak(tc: &Toolchain, images: &Images, options: &[&str]) -> Result<(u64, u64), String> {
-    let elf = Elf::read(&images.app)?;
-    let symbol = |name: &str| {
-        elf.symbol(name)
-            .map(|s| u64::from(s.value))
-            .ok_or_else(|| format!("{}: no symbol {name}", images.app.display()))
-    };
-    let room = symbol("_stack_start")? - symbol("_stack_end")?;
-    let options: Vec<String> = options.iter().map(|o| o.to_string()).collect();
-    let (code, out) = firmware::run_qemu(tc, &images.app, &options)?;
-    if code != 0 {
-        return Err(format!("the firmware exited with {code}:\n{out}"));
-    }
-    let used = out
-        .lines()
-        .filter(|l| l.starts_with("summary "))
-        .flat_map(|l| l.split_ascii_whitespace())
-        .find_map(|w| w.strip_prefix("stack_used="))
-        .ok_or_else(|| format!("no `stack_used` in the firmware's summary:\n{out}"))?
-        .parse()
-        .map_err(|e| format!("stack_used: {e}"))?;
-    Ok((used, room))
-}
-
 /// The markdown of the target figures.
 /// `provenance`: the command and the commit, as markdown.
 fn target_markdown(
@@ -184,7 +151,7 @@ fn target_markdown(
     exact: &[StepFigures],
     table: &[StepFigures],
     memory: &[(&str, nemm_elf::MemoryUse)],
-    stack: &[(&str, u64, u64)],
+    stack: &[(&str, firmware::StackFigures)],
 ) -> String {
     let mut md = String::new();
     let _ = writeln!(
@@ -241,11 +208,12 @@ fn target_markdown(
             m.size_of(".uninit"),
         );
     }
-    md += "\n**Stack peak** of the application (qemu build, the built-in NEMM blob, \
-           2000 samples; painted stack, deepest at boot).\n\n";
-    md += "| mode | stack peak (B) | room the layout leaves (B) |\n|---|---:|---:|\n";
-    for (mode, used, room) in stack {
-        let _ = writeln!(md, "| {mode} | {used} | {room} |");
+    md += "\n**Stack** of the application (qemu build, the built-in NEMM blob, 2000 samples; \
+           painted stack): at the end of the boot, and the peak of the whole run.\n\n";
+    md += "| mode | boot stack (B) | stack peak (B) | room the layout leaves (B) |\n\
+           |---|---:|---:|---:|\n";
+    for (mode, f) in stack {
+        let _ = writeln!(md, "| {mode} | {} | {} | {} |", f.boot, f.peak, f.room);
     }
     md
 }
@@ -266,10 +234,10 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32) -> Result<(), String> {
         memory.push((name, elf.memory_use()));
     }
     let mut stack = Vec::new();
-    for (mode, options) in STACK_RUNS {
-        let (used, room) = stack_peak(tc, &images, options)?;
-        println!("stack mode={mode} stack_used={used} room={room}");
-        stack.push((mode, used, room));
+    for (mode, options) in firmware::STACK_RUNS {
+        let f = firmware::stack_figures(tc, &images, options)?;
+        println!("{}", f.line(mode));
+        stack.push((mode, f));
     }
     let md = target_markdown(
         &format!("`{}` at commit `{commit}`", command_line()),
@@ -501,11 +469,18 @@ mod tests {
             &[fig("exact", 15541, vec![])],
             &[fig("table", 492, t)],
             &[("board build", memory)],
-            &[("exact", 1864, 140000)],
+            &[(
+                "exact",
+                firmware::StackFigures {
+                    boot: 1200,
+                    peak: 1864,
+                    room: 140000,
+                },
+            )],
         );
         assert!(md.starts_with("Measured by `cargo xtask results` at commit `abc1234+dirty`"));
         assert!(md.contains("| nemm | rk4 | 15541 | 492 | 7168 | 2792 | 73 | 156316320 |\n"));
         assert!(md.contains("| board build | 300 | 108 | 0 | 0 | 0 | 0 | 40 | 40 | 0 |\n"));
-        assert!(md.contains("| exact | 1864 | 140000 |\n"));
+        assert!(md.contains("| exact | 1200 | 1864 | 140000 |\n"));
     }
 }
