@@ -547,9 +547,7 @@ impl<const P: usize> Scaler<P> {
         Self::EMPTY
     }
 
-    /// The value of [`Scaler::empty`]: a constant, so that an unoptimised build copies it
-    /// rather than building its parameter vector on the stack first. All its bytes are zero
-    /// (or uninitialised vector storage), which an optimised build writes with a `memset`.
+    /// The value of [`Scaler::empty`] as a constant.
     pub(crate) const EMPTY: Self = Self {
         mlp: MlpParams {
             inputs: 0,

@@ -561,6 +561,33 @@ mod body_serde {
         t_pr_s: 0.0,
     };
 
+    /// The empty scaler of a variant switch. An unoptimised build copies the constant into
+    /// place (a call's result would be one more copy on the stack); an optimised build writes
+    /// the few fields of an inlined constructor in place (the constant would be copied through
+    /// the stack).
+    #[cfg(debug_assertions)]
+    macro_rules! empty_scaler {
+        () => {
+            Scaler::EMPTY
+        };
+    }
+
+    #[cfg(not(debug_assertions))]
+    macro_rules! empty_scaler {
+        () => {
+            Scaler {
+                mlp: crate::mlp::MlpParams {
+                    inputs: 0,
+                    hidden: 0,
+                    layers: 0,
+                    params: heapless::Vec::new(),
+                },
+                s_min: 0.0,
+                s_max: 0.0,
+            }
+        };
+    }
+
     // The variant switches, each out of line: an unoptimised build gives every temporary its
     // own stack slot, so inside the visitor the three would add up; here only the one in use
     // is on the stack. An optimised build writes the tag and the vector lengths in place.
@@ -583,7 +610,7 @@ mod body_serde {
     fn switch_to_nemm_light<const P: usize>(place: &mut Body<P>) {
         *place = Body::NemmLight {
             emm: ZERO,
-            b_fl: Scaler::EMPTY,
+            b_fl: empty_scaler!(),
         };
     }
 
@@ -591,9 +618,9 @@ mod body_serde {
     fn switch_to_nemm<const P: usize>(place: &mut Body<P>) {
         *place = Body::Nemm {
             emm: ZERO,
-            b_fl: Scaler::EMPTY,
-            b_pr: Scaler::EMPTY,
-            k_pr: Scaler::EMPTY,
+            b_fl: empty_scaler!(),
+            b_pr: empty_scaler!(),
+            k_pr: empty_scaler!(),
         };
     }
 

@@ -1,10 +1,11 @@
 //! Project automation. Run `cargo xtask help`.
 //!
 //! - `cargo xtask test`: everything: the firmware for the target (found or installed
-//!   toolchain, see [`toolchain`]), its lint, the host workspace tests (release), the QEMU
-//!   tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`) pointed at the firmware
-//!   images, the firmware library's host unit tests, nemm-core's unit tests with `micromath`,
-//!   and a short `bench-target`.
+//!   toolchain, see [`toolchain`]), its lint, the host workspace tests (release, then the
+//!   default debug profile), the QEMU tests (`tests/tests/qemu_*.rs`, ignored by a plain
+//!   `cargo test`) pointed at the firmware images, the firmware library's host unit tests,
+//!   nemm-core's feature sets on the host and the target (`features`), the `rust-version`
+//!   check (`msrv`), and a short `bench-target`.
 //! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4,
 //!   per model kind and integrator.
 //! - `cargo xtask results`: the target figures (instructions per step, flash, RAM, stack)
@@ -12,6 +13,7 @@
 //!   there ([`results`]).
 
 mod bench;
+mod checks;
 mod firmware;
 mod results;
 #[path = "../../nemm-firmware/src/slot.rs"]
@@ -36,8 +38,9 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Cmd {
-    /// Every test: the firmware (target build, lint), the host workspace (release), the QEMU
-    /// tests, a short bench-target.
+    /// Every test: the firmware (target build, lint), the host workspace (release and the
+    /// default debug profile), the QEMU tests, nemm-core's feature sets (`features`), the
+    /// rust-version check (`msrv`), a short bench-target.
     Test {
         /// Skip everything that needs the embedded toolchain (no firmware, no QEMU tests).
         #[arg(long)]
@@ -95,6 +98,12 @@ enum Cmd {
     },
     /// Say which toolchain route builds the firmware (install it if root).
     Toolchain,
+    /// nemm-core's tests with every valid feature set on the host, and its library built for
+    /// the target with every `no_std` set.
+    Features,
+    /// Check that every workspace package's `rust-version` is at least what every crate it
+    /// compiles declares (one `rust-version package=..` line each).
+    Msrv,
 }
 
 /// The estimator's evaluation mode (the firmware's `mode=` option).
@@ -189,6 +198,11 @@ fn main() -> ExitCode {
             models,
         }) => bench_target(mode, steps, &models),
         Some(Cmd::BuildTarget) => build_target(),
+        Some(Cmd::Features) => Paths::find().and_then(|paths| {
+            let tc = toolchain::detect(&paths.root, true)?;
+            checks::features(Some(&tc), &paths)
+        }),
+        Some(Cmd::Msrv) => Paths::find().and_then(|paths| checks::msrv(&paths)),
         Some(Cmd::RunTarget { options }) => run_target(&options),
         Some(Cmd::Results { training, steps }) => match training {
             Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir)),
@@ -302,19 +316,14 @@ fn test(host_only: bool) -> Result<(), String> {
     run(cargo()
         .args(["test", "--release", "-p", "nemm-firmware", "--lib"])
         .current_dir(&paths.root))?;
-    // nemm-core's unit tests with the fast math backend (the integration tests' tolerances
-    // are those of libm; the micromath error is measured by the math_backends example).
+    // The default (debug) profile: nemm-core at opt-level 0, the rest as the dev profile of
+    // Cargo.toml sets it; every test on the default 2 MiB test threads.
     run(cargo()
-        .args([
-            "test",
-            "--release",
-            "-p",
-            "nemm-core",
-            "--features",
-            "micromath",
-            "--lib",
-        ])
+        .args(["test", "--workspace", "--no-fail-fast"])
         .current_dir(&paths.root))?;
+    checks::example(&paths)?;
+    checks::features(firmware.as_ref().map(|f| &f.0), &paths)?;
+    checks::msrv(&paths)?;
     if let Some((tc, paths, images)) = firmware {
         let t = Instant::now();
         for f in bench::run(&tc, &paths, &images, Mode::Exact, 50, &Kind::ALL)? {
