@@ -37,6 +37,7 @@
 //! `unwrap_used`, `expect_used`, `panic` are denied outside tests); every failure is a typed
 //! error ([`DecodeError`], [`ModelError`], [`EstimatorError`]).
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
+#![cfg_attr(docsrs, feature(doc_cfg))]
 #![deny(unsafe_code)]
 // Without an allocator, variants cannot be boxed; sizes are bounded by the capacities.
 #![allow(clippy::large_enum_variant)]
