@@ -8,7 +8,9 @@
 //!
 //! This library holds the portable parts (host-tested with
 //! `cargo test --lib --target x86_64-unknown-linux-gnu`) and, on the target, the board
-//! support of QEMU's `mps2-an386` ([`board`]).
+//! support of QEMU's `mps2-an386` (`board`, cargo feature `mps2-an386`, on by default).
+//! Other boards depend on the library without that feature and bring their own (the
+//! STM32F407 image in `boards/nemm-stm32f407`).
 //!
 //! - [`sensor`]: ADC frame, calibration, differentiation filter, the driver.
 //! - [`pipeline`]: one sample period (sensor, estimator, fault classification) and the
@@ -28,7 +30,7 @@ pub mod sensor;
 pub mod slot;
 pub mod trace;
 
-#[cfg(target_os = "none")]
+#[cfg(all(target_os = "none", feature = "mps2-an386"))]
 pub mod board;
 
 /// Parameter capacity `P` of `Model<P>` / `Estimator<P>` in this firmware: the paper's
