@@ -37,13 +37,6 @@ pub type Sensor = StrokeSensor<ReplayAdc<'static>>;
 static TRACE: [u8; include_bytes!(concat!(env!("OUT_DIR"), "/trace.bin")).len()] =
     *include_bytes!(concat!(env!("OUT_DIR"), "/trace.bin"));
 
-extern "C" {
-    /// Lowest address of the stack (end of the statics), from cortex-m-rt's `link.x`.
-    static _stack_end: u32;
-    /// Initial stack pointer (top of RAM).
-    static _stack_start: u32;
-}
-
 /// The recorded trace.
 pub fn trace_bytes() -> &'static [u8] {
     &TRACE
@@ -157,27 +150,7 @@ pub fn args(buf: &mut [u8; ARGS_CAPACITY]) -> Option<&str> {
     }
 }
 
-/// Bytes of stack used so far: the stack is painted with `0xCCCC_CCCC` at reset
-/// (cortex-m-rt's `paint-stack`); the lowest overwritten word is the high-water mark.
-pub fn stack_used() -> u32 {
-    // SAFETY: only the addresses of the linker symbols are taken.
-    let (lo, hi) = {
-        (
-            core::ptr::addr_of!(_stack_end) as usize,
-            core::ptr::addr_of!(_stack_start) as usize,
-        )
-    };
-    let mut p = lo;
-    while p < hi {
-        // SAFETY: `p` is word-aligned and inside the stack region [_stack_end, _stack_start).
-        let w = unsafe { core::ptr::read_volatile(p as *const u32) };
-        if w != 0xCCCC_CCCC {
-            break;
-        }
-        p += 4;
-    }
-    (hi - p) as u32
-}
+pub use crate::stack_used;
 
 /// Hard faults end the run with [`crate::report::EXIT_HARD_FAULT`] (never expected).
 #[cortex_m_rt::exception]

@@ -7,11 +7,12 @@
 //! QEMU's SPI2 has nothing attached and answers every byte with 0: a ready conversion at
 //! the bottom of the range, so the sensor path runs without errors at a constant stroke.
 //! What this checks is that the image boots, decodes its weights, builds its tables and
-//! keeps the 10 kHz loop going without overruns; cycle figures need the board (QEMU has
-//! no cycle counter).
+//! keeps the 10 kHz loop going without overruns, and that its boot stack fits the board's
+//! stack region; cycle figures need the board (QEMU has no cycle counter).
 //!
 //! Run by `cargo xtask test` (see `nemm_tests::firmware` for the environment it sets).
 
+use nemm_tests::elf::Elf;
 use nemm_tests::firmware::{run_machine, BoardImages};
 use std::time::Duration;
 
@@ -62,10 +63,29 @@ fn stm32f407_image_runs_its_10_khz_loop_on_netduinoplus2() {
     assert_eq!(summary.num("overruns"), 0, "{}", run.describe());
     assert_eq!(summary.num("sensor_errors"), 0, "{}", run.describe());
     assert_eq!(summary.num("invalid_samples"), 0, "{}", run.describe());
+    // The boot stack (painted) fits the stack region of the board's own layout
+    // (boards/stm32f407.x: SRAM1+2, the statics being in CCM), which the QEMU layout is
+    // larger than.
+    let board = Elf::read(&images.board).expect("board image");
+    let symbol = |name: &str| {
+        board
+            .symbols
+            .iter()
+            .find(|s| s.name == name)
+            .unwrap_or_else(|| panic!("no symbol {name} in the board image"))
+            .value
+    };
+    let room = symbol("_stack_start") - symbol("_stack_end");
+    let stack = summary.num("stack_used");
+    assert!(
+        stack < room,
+        "the boot stack ({stack} B) does not fit the board's {room} B"
+    );
     let force = f32::from_bits(summary.num("force"));
     assert!(force.is_finite(), "force {force}\n{}", run.describe());
     eprintln!(
-        "qemu_board: {} steps at 10 kHz on netduinoplus2 in {:.1} s, 0 overruns, force {force} N",
+        "qemu_board: {} steps at 10 kHz on netduinoplus2 in {:.1} s, 0 overruns, force {force} \
+         N, stack peak {stack} B of the board's {room} B",
         summary.num("steps"),
         run.wall.as_secs_f64()
     );

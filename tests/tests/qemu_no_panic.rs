@@ -3,9 +3,9 @@
 //! Reads the release images (the board build and the `qemu` build of nemm-firmware, and both
 //! builds of the STM32F407 image) and follows the direct call graph of the Thumb-2 code
 //! (`bl`, `b`, conditional branches into other functions) from the handler of the 10 kHz
-//! task (SysTick in nemm-firmware, TIM2 on the STM32F407). No function on it may reach a panic symbol
-//! (`core::panicking::*`, the panic handler `rust_begin_unwind`, anything named `panic`), and
-//! none may call through a register (which the graph could not follow).
+//! task (SysTick in nemm-firmware, TIM2 on the STM32F407). No function on it may reach a
+//! panic symbol (`core::panicking::*`, the panic handler `rust_begin_unwind`, anything named
+//! `panic`), and none may call through a register (which the graph could not follow).
 //!
 //! Then the whole image: it may hold no panic symbol at all, so that boot, decoding the
 //! weights blob and building the tables cannot panic either (nemm-core's "never panics on

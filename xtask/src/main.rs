@@ -1,9 +1,9 @@
 //! Project automation. Run `cargo xtask help`.
 //!
 //! - `cargo xtask test`: everything: the firmware and the STM32F407 image for the target
-//!   (found or installed toolchain, see [`toolchain`]), their lint, the host workspace tests (release), the QEMU
-//!   tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`) pointed at the firmware
-//!   images, the firmware library's host unit tests, nemm-core's unit tests with `micromath`,
+//!   (found or installed toolchain, see [`toolchain`]), their lint, the host workspace tests
+//!   (release), the QEMU tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`)
+//!   pointed at the images, the firmware library's host unit tests, nemm-core's unit tests with `micromath`,
 //!   and a short `bench-target`.
 //! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
 //!   for QEMU's netduinoplus2 ([`board`]).
@@ -376,7 +376,12 @@ fn bench_target(mode: Mode, steps: u32, models: &[Kind]) -> Result<(), String> {
 fn build_target() -> Result<(), String> {
     let (tc, paths) = setup()?;
     let images = firmware::build(&tc, &paths)?;
-    for (name, path) in images.named() {
+    print_memory(&images.named())
+}
+
+/// Prints each image's sections and its memory report.
+fn print_memory(named: &[(&str, &std::path::Path)]) -> Result<(), String> {
+    for (name, path) in named {
         let elf = Elf::read(path)?;
         println!("{}\n{}", path.display(), elf.memory_use().table());
         println!("{}\n", firmware::memory_report(name, &elf));
@@ -387,11 +392,7 @@ fn build_target() -> Result<(), String> {
 fn build_board() -> Result<(), String> {
     let (tc, paths) = setup()?;
     let images = board::build(&tc, &paths)?;
-    for (name, path) in images.named() {
-        let elf = Elf::read(path)?;
-        println!("{}\n{}", path.display(), elf.memory_use().table());
-        println!("{}\n", firmware::memory_report(name, &elf));
-    }
+    print_memory(&images.named())?;
     eprintln!(
         "xtask: flash with `probe-rs run --chip STM32F407VGTx {}` ({}/README.md)",
         images.board.display(),

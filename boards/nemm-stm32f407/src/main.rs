@@ -14,7 +14,9 @@
 //! Every step reads the DWT cycle counter at its start and end: `worst_step_cycles` is the
 //! longest step since boot in core cycles (the budget is 16,800 at 168 MHz and 10 kHz) and
 //! `overruns` counts the steps that ended after the next TIM2 update (the update flag set
-//! again). QEMU does not model the cycle counter: there the cycle figures read 0.
+//! again). QEMU does not model the cycle counter: there the cycle figures read 0. The lines
+//! also carry `stack_used`, the stack's high-water mark by stack painting (deepest at boot,
+//! while the model and the estimator are built).
 #![no_std]
 #![no_main]
 
@@ -370,7 +372,8 @@ mod app {
                 st.invalid_samples.load(Ordering::Relaxed),
             )
             .kx("force", st.force_bits.load(Ordering::Relaxed))
-            .kv("console_dropped", console.dropped());
+            .kv("console_dropped", console.dropped())
+            .kv("stack_used", nemm_firmware::stack_used());
         console.write(l.finish());
     }
 
