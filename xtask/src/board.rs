@@ -3,7 +3,6 @@
 
 use crate::toolchain::{Toolchain, TARGET};
 use crate::{run, Paths};
-use nemm_elf::Elf;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
