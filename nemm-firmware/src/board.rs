@@ -37,41 +37,14 @@ pub type Sensor = StrokeSensor<ReplayAdc<'static>>;
 static TRACE: [u8; include_bytes!(concat!(env!("OUT_DIR"), "/trace.bin")).len()] =
     *include_bytes!(concat!(env!("OUT_DIR"), "/trace.bin"));
 
-/// The weights slot with the blob chosen at build time (`NEMM_WEIGHTS`, see `build.rs`).
-#[link_section = ".nemm_weights"]
-#[used]
-static WEIGHTS_SLOT: [u8; crate::slot::CAPACITY] =
-    *include_bytes!(concat!(env!("OUT_DIR"), "/weights.slot"));
-
-extern "C" {
-    /// Start of the weights region (`nemm-sections.x`).
-    static __nemm_weights_start: u8;
-    /// Lowest address of the stack (end of the statics), from cortex-m-rt's `link.x`.
-    static _stack_end: u32;
-    /// Initial stack pointer (top of RAM).
-    static _stack_start: u32;
-}
-
 /// The recorded trace.
 pub fn trace_bytes() -> &'static [u8] {
     &TRACE
 }
 
-/// The weights slot as flashed. Read through the region's address rather than the `static`,
-/// so the compiler cannot assume the build-time contents: whatever is programmed into the
-/// region (a new model flashed on its own) is what the firmware validates.
+/// The weights slot as flashed ([`crate::slot::flashed`]).
 pub fn weights_slot() -> &'static [u8] {
-    // Keep the default contents in the image.
-    let _ = core::hint::black_box(&WEIGHTS_SLOT);
-    // SAFETY: `__nemm_weights_start` is the first byte of the `.nemm_weights` output section,
-    // which `nemm-sections.x` places at the start of the WEIGHTS region and which holds
-    // `WEIGHTS_SLOT` (`slot::CAPACITY` bytes of read-only flash); nothing writes it at run time.
-    unsafe {
-        core::slice::from_raw_parts(
-            core::ptr::addr_of!(__nemm_weights_start),
-            crate::slot::CAPACITY,
-        )
-    }
+    crate::slot::flashed()
 }
 
 /// The trace parsed, and the sensor on the replay device.
@@ -177,27 +150,7 @@ pub fn args(buf: &mut [u8; ARGS_CAPACITY]) -> Option<&str> {
     }
 }
 
-/// Bytes of stack used so far: the stack is painted with `0xCCCC_CCCC` at reset
-/// (cortex-m-rt's `paint-stack`); the lowest overwritten word is the high-water mark.
-pub fn stack_used() -> u32 {
-    // SAFETY: only the addresses of the linker symbols are taken.
-    let (lo, hi) = {
-        (
-            core::ptr::addr_of!(_stack_end) as usize,
-            core::ptr::addr_of!(_stack_start) as usize,
-        )
-    };
-    let mut p = lo;
-    while p < hi {
-        // SAFETY: `p` is word-aligned and inside the stack region [_stack_end, _stack_start).
-        let w = unsafe { core::ptr::read_volatile(p as *const u32) };
-        if w != 0xCCCC_CCCC {
-            break;
-        }
-        p += 4;
-    }
-    (hi - p) as u32
-}
+pub use crate::stack_used;
 
 /// Hard faults end the run with [`crate::report::EXIT_HARD_FAULT`] (never expected).
 #[cortex_m_rt::exception]

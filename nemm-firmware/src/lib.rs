@@ -8,7 +8,9 @@
 //!
 //! This library holds the portable parts (host-tested with
 //! `cargo test --lib --target x86_64-unknown-linux-gnu`) and, on the target, the board
-//! support of QEMU's `mps2-an386` ([`board`]).
+//! support of QEMU's `mps2-an386` (`board`, cargo feature `mps2-an386`, on by default).
+//! Other boards depend on the library without that feature and bring their own (the
+//! STM32F407 image in `boards/nemm-stm32f407`).
 //!
 //! - [`sensor`]: ADC frame, calibration, differentiation filter, the driver.
 //! - [`pipeline`]: one sample period (sensor, estimator, fault classification) and the
@@ -28,8 +30,37 @@ pub mod sensor;
 pub mod slot;
 pub mod trace;
 
-#[cfg(target_os = "none")]
+#[cfg(all(target_os = "none", feature = "mps2-an386"))]
 pub mod board;
+
+#[cfg(target_os = "none")]
+extern "C" {
+    /// Lowest address of the stack (end of the statics), from cortex-m-rt's `link.x`.
+    static _stack_end: u32;
+    /// Initial stack pointer (top of the stack region).
+    static _stack_start: u32;
+}
+
+/// Bytes of stack used so far: the stack is painted with `0xCCCC_CCCC` at reset
+/// (cortex-m-rt's `paint-stack`); the lowest overwritten word is the high-water mark.
+#[cfg(target_os = "none")]
+pub fn stack_used() -> u32 {
+    // Only the addresses of the linker symbols are taken.
+    let (lo, hi) = (
+        core::ptr::addr_of!(_stack_end) as usize,
+        core::ptr::addr_of!(_stack_start) as usize,
+    );
+    let mut p = lo;
+    while p < hi {
+        // SAFETY: `p` is word-aligned and inside the stack region [_stack_end, _stack_start).
+        let w = unsafe { core::ptr::read_volatile(p as *const u32) };
+        if w != 0xCCCC_CCCC {
+            break;
+        }
+        p += 4;
+    }
+    (hi - p) as u32
+}
 
 /// Parameter capacity `P` of `Model<P>` / `Estimator<P>` in this firmware: the paper's
 /// optimum scaler (`H = 16, L = 5`, section 5.4: 1,313 parameters), which also holds `H = 8`

@@ -174,13 +174,8 @@ mod app {
                 return (Shared {}, no_estimator(console));
             }
         };
-        let period_s = 1.0 / SAMPLE_RATE_HZ as f32;
-        if (model.dt_s - period_s).abs() > 1e-3 * period_s {
-            let mut l = Line::new();
-            l.str("weights-error")
-                .ks("source", "firmware")
-                .ks("kind", "rate-mismatch")
-                .kx("dt_s", model.dt_s.to_bits());
+        let mut l = Line::new();
+        if !report::check_rate(&mut l, model.dt_s) {
             console.write(l.finish());
             return (Shared {}, no_estimator(console));
         }
@@ -200,16 +195,7 @@ mod app {
             return (Shared {}, no_estimator(console));
         }
         let mut l = Line::new();
-        l.str("weights ok")
-            .ks("kind", model.kind().name())
-            .kv("bytes", blob.len() as u32)
-            .ks("integrator", model.integrator.name())
-            .kv("dt_ns", (model.dt_s * 1e9 + 0.5) as u32)
-            .ks("mode", estimator.mode().name());
-        if let Some(acc) = estimator.table_accuracy() {
-            l.kv("table_bytes", estimator.table_bytes().1 as u32)
-                .kv("table_max_rel_error_ppb", report::ppb(acc.max_rel_error));
-        }
+        report::weights_ok(&mut l, model, blob.len(), estimator);
         console.write(l.finish());
 
         let Some(queue) = LOG.init(Queue::new()) else {

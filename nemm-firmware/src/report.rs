@@ -29,7 +29,7 @@
 //! `decode`, `firmware` or `estimator`) and the typed error as `kind=` plus its fields;
 //! a model rejected by its checks adds the [`ModelError`] as `reason=` plus its fields.
 
-use nemm_core::{DecodeError, EstimatorError, ModelError, TableError};
+use nemm_core::{DecodeError, Estimator, EstimatorError, Model, ModelError, TableError};
 
 use crate::slot::SlotError;
 
@@ -254,6 +254,40 @@ pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
             line.ks("kind", "alpha-per-sample-in-table-mode")
         }
     };
+}
+
+/// Whether a model stepping `dt_s` seconds runs at [`crate::SAMPLE_RATE_HZ`] (within
+/// 0.1 %); if not, writes the `weights-error source=firmware kind=rate-mismatch` line.
+pub fn check_rate(line: &mut Line, dt_s: f32) -> bool {
+    let period_s = 1.0 / crate::SAMPLE_RATE_HZ as f32;
+    if (dt_s - period_s).abs() > 1e-3 * period_s {
+        line.str("weights-error")
+            .ks("source", "firmware")
+            .ks("kind", "rate-mismatch")
+            .kx("dt_s", dt_s.to_bits());
+        return false;
+    }
+    true
+}
+
+/// The `weights ok` line of a validated blob of `bytes` bytes and the estimator built from
+/// it (in table mode with `table_bytes=` and `table_max_rel_error_ppb=`).
+pub fn weights_ok<const P: usize, const T: usize>(
+    line: &mut Line,
+    model: &Model<P>,
+    bytes: usize,
+    estimator: &Estimator<P, T>,
+) {
+    line.str("weights ok")
+        .ks("kind", model.kind().name())
+        .kv("bytes", bytes as u32)
+        .ks("integrator", model.integrator.name())
+        .kv("dt_ns", (model.dt_s * 1e9 + 0.5) as u32)
+        .ks("mode", estimator.mode().name());
+    if let Some(acc) = estimator.table_accuracy() {
+        line.kv("table_bytes", estimator.table_bytes().1 as u32)
+            .kv("table_max_rel_error_ppb", ppb(acc.max_rel_error));
+    }
 }
 
 /// A relative error in parts per billion (saturating), for lines without floats.

@@ -86,6 +86,33 @@ pub fn blob(slot: &[u8]) -> Result<&[u8], SlotError> {
     })
 }
 
+/// The weights slot with the blob chosen at build time (`NEMM_WEIGHTS`, framed by
+/// `build.rs`), in the `.nemm_weights` section that `nemm-sections.x` places at the start of
+/// the board's WEIGHTS region. Every image linked with this library carries it.
+#[cfg(target_os = "none")]
+#[link_section = ".nemm_weights"]
+#[used]
+static WEIGHTS_SLOT: [u8; CAPACITY] = *include_bytes!(concat!(env!("OUT_DIR"), "/weights.slot"));
+
+#[cfg(target_os = "none")]
+extern "C" {
+    /// Start of the weights region (`nemm-sections.x`).
+    static __nemm_weights_start: u8;
+}
+
+/// The weights slot as flashed. Read through the region's address rather than the `static`,
+/// so the compiler cannot assume the build-time contents: whatever is programmed into the
+/// region (a new model flashed on its own) is what the firmware validates.
+#[cfg(target_os = "none")]
+pub fn flashed() -> &'static [u8] {
+    // Keep the default contents in the image.
+    let _ = core::hint::black_box(&WEIGHTS_SLOT);
+    // SAFETY: `__nemm_weights_start` is the first byte of the `.nemm_weights` output section,
+    // which `nemm-sections.x` places at the start of the WEIGHTS region and which holds
+    // `WEIGHTS_SLOT` (`CAPACITY` bytes of read-only flash); nothing writes it at run time.
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(__nemm_weights_start), CAPACITY) }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

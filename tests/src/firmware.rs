@@ -9,6 +9,8 @@
 //! | `NEMM_FIRMWARE_ELF` | the application, release, `qemu` feature |
 //! | `NEMM_FIRMWARE_RELEASE_ELF` | the application as flashed to a board (release, no `qemu`) |
 //! | `NEMM_BENCH_ELF` | the step benchmark, release, `qemu` feature |
+//! | `NEMM_BOARD_ELF` | the STM32F407 image as flashed (`boards/nemm-stm32f407`) |
+//! | `NEMM_BOARD_QEMU_ELF` | the STM32F407 image with its `qemu` feature (netduinoplus2) |
 //! | `NEMM_QEMU` | `qemu-system-arm` to use (default: from `PATH`) |
 //!
 //! The QEMU tests are `#[ignore]`d, so that a plain `cargo test` reports them as not run;
@@ -72,6 +74,37 @@ impl Images {
     }
 }
 
+/// The STM32F407 images (`boards/nemm-stm32f407`), from `cargo xtask test`:
+/// `NEMM_BOARD_ELF` (as flashed) and `NEMM_BOARD_QEMU_ELF` (`qemu` feature, for
+/// netduinoplus2).
+#[derive(Debug, Clone)]
+pub struct BoardImages {
+    /// The image as flashed to a board.
+    pub board: PathBuf,
+    /// The image for QEMU's netduinoplus2.
+    pub qemu_image: PathBuf,
+    /// The emulator.
+    pub qemu: PathBuf,
+}
+
+impl BoardImages {
+    /// The images named in the environment; panics with how to get them if not set.
+    pub fn from_env() -> Self {
+        let var = |k: &str| std::env::var_os(k).map(PathBuf::from);
+        match (var("NEMM_BOARD_ELF"), var("NEMM_BOARD_QEMU_ELF")) {
+            (Some(board), Some(qemu_image)) => Self {
+                board,
+                qemu_image,
+                qemu: var("NEMM_QEMU").unwrap_or_else(|| "qemu-system-arm".into()),
+            },
+            _ => panic!(
+                "the board tests need NEMM_BOARD_ELF and NEMM_BOARD_QEMU_ELF: run them with \
+                 `cargo xtask test`, which builds boards/nemm-stm32f407 and sets them"
+            ),
+        }
+    }
+}
+
 /// What one QEMU run printed and how it ended.
 #[derive(Debug, Clone)]
 pub struct Run {
@@ -113,12 +146,31 @@ pub fn run_qemu(qemu: &Path, elf: &Path, args: &[&str], timeout: Duration) -> Ru
         assert!(!a.contains(','), "option {a:?} contains a comma");
         semihosting += &format!(",arg={a}");
     }
+    run_machine(
+        qemu,
+        &["-cpu", "cortex-m4", "-machine", "mps2-an386"],
+        elf,
+        &semihosting,
+        timeout,
+    )
+}
+
+/// Runs `elf` on the QEMU machine `machine` (e.g. `["-machine", "netduinoplus2"]`) with the
+/// instruction counter on, no monitor or serial port, and semihosting configured by
+/// `semihosting`; kills it after `timeout`.
+pub fn run_machine(
+    qemu: &Path,
+    machine: &[&str],
+    elf: &Path,
+    semihosting: &str,
+    timeout: Duration,
+) -> Run {
     let start = Instant::now();
     let mut child = Command::new(qemu)
-        .args(["-cpu", "cortex-m4", "-machine", "mps2-an386", "-nographic"])
-        .args(["-monitor", "none", "-serial", "none"])
+        .args(machine)
+        .args(["-nographic", "-monitor", "none", "-serial", "none"])
         .args(["-icount", "shift=0,sleep=off"])
-        .args(["-semihosting-config", &semihosting])
+        .args(["-semihosting-config", semihosting])
         .arg("-kernel")
         .arg(elf)
         .stdin(Stdio::null())

@@ -1,10 +1,11 @@
 //! No panicking code path in the firmware: not from the 10 kHz step, and not at all.
 //!
-//! Reads the release images (the board build and the `qemu` build) and follows the direct
-//! call graph of the Thumb-2 code (`bl`, `b`, conditional branches into other functions) from
-//! the SysTick handler, the 10 kHz task. No function on it may reach a panic symbol
-//! (`core::panicking::*`, the panic handler `rust_begin_unwind`, anything named `panic`), and
-//! none may call through a register (which the graph could not follow).
+//! Reads the release images (the board build and the `qemu` build of nemm-firmware, and both
+//! builds of the STM32F407 image) and follows the direct call graph of the Thumb-2 code
+//! (`bl`, `b`, conditional branches into other functions) from the handler of the 10 kHz
+//! task (SysTick in nemm-firmware, TIM2 on the STM32F407). No function on it may reach a
+//! panic symbol (`core::panicking::*`, the panic handler `rust_begin_unwind`, anything named
+//! `panic`), and none may call through a register (which the graph could not follow).
 //!
 //! Then the whole image: it may hold no panic symbol at all, so that boot, decoding the
 //! weights blob and building the tables cannot panic either (nemm-core's "never panics on
@@ -16,7 +17,7 @@
 //! Run by `cargo xtask test` (see `nemm_tests::firmware` for the environment it sets).
 
 use nemm_tests::elf::{is_panic_symbol, CallGraph, Elf};
-use nemm_tests::firmware::Images;
+use nemm_tests::firmware::{BoardImages, Images};
 use std::collections::BTreeSet;
 use std::path::Path;
 
@@ -59,14 +60,15 @@ fn remaining(elf: &Elf, g: &CallGraph, roots: &BTreeSet<u32>) -> Vec<String> {
         .collect()
 }
 
-fn check(path: &Path, what: &str) {
+/// Checks the image at `path`, whose 10 kHz step is the interrupt handler `step_handler`.
+fn check(path: &Path, what: &str, step_handler: &str) {
     let elf = Elf::read(path).expect("firmware image");
     let g = elf.call_graph();
-    let systick = elf
-        .function("SysTick")
-        .unwrap_or_else(|| panic!("{what}: no SysTick handler in {}", path.display()))
+    let step = elf
+        .function(step_handler)
+        .unwrap_or_else(|| panic!("{what}: no {step_handler} handler in {}", path.display()))
         .start();
-    let reached = g.reachable(systick);
+    let reached = g.reachable(step);
     let roots = panic_roots(&elf);
     let bad: Vec<String> = reached
         .keys()
@@ -95,8 +97,8 @@ fn check(path: &Path, what: &str) {
         rest.join("\n    ")
     );
     eprintln!(
-        "qemu_no_panic: {what}: {} functions reachable from SysTick, none panics; no panic \
-         symbol in the image",
+        "qemu_no_panic: {what}: {} functions reachable from {step_handler}, none panics; no \
+         panic symbol in the image",
         reached.len(),
     );
 }
@@ -105,12 +107,26 @@ fn check(path: &Path, what: &str) {
 #[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn no_panic_path_in_the_board_build() {
     let images = Images::from_env();
-    check(&images.app_release, "board build");
+    check(&images.app_release, "board build", "SysTick");
 }
 
 #[test]
 #[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn no_panic_path_in_the_qemu_build() {
     let images = Images::from_env();
-    check(&images.app, "qemu build");
+    check(&images.app, "qemu build", "SysTick");
+}
+
+#[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
+fn no_panic_path_in_the_stm32f407_image() {
+    let images = BoardImages::from_env();
+    check(&images.board, "stm32f407 image", "TIM2");
+}
+
+#[test]
+#[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
+fn no_panic_path_in_the_stm32f407_qemu_image() {
+    let images = BoardImages::from_env();
+    check(&images.qemu_image, "stm32f407 qemu image", "TIM2");
 }

@@ -1,11 +1,13 @@
 //! Project automation. Run `cargo xtask help`.
 //!
-//! - `cargo xtask test`: everything: the firmware for the target (found or installed
-//!   toolchain, see [`toolchain`]), its lint, the host workspace tests (release, then the
-//!   default debug profile), the QEMU tests (`tests/tests/qemu_*.rs`, ignored by a plain
-//!   `cargo test`) pointed at the firmware images, the firmware library's host unit tests,
-//!   nemm-core's feature sets on the host and the target (`features`), the `rust-version`
-//!   check (`msrv`), and a short `bench-target`.
+//! - `cargo xtask test`: everything: the firmware and the STM32F407 image for the target
+//!   (found or installed toolchain, see [`toolchain`]), their lint, the host workspace tests
+//!   (release, then the default debug profile), the QEMU tests (`tests/tests/qemu_*.rs`,
+//!   ignored by a plain `cargo test`) pointed at the images, the firmware library's host unit
+//!   tests, nemm-core's feature sets on the host and the target (`features`), the
+//!   `rust-version` check (`msrv`), and a short `bench-target`.
+//! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
+//!   for QEMU's netduinoplus2 ([`board`]).
 //! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4,
 //!   per model kind and integrator.
 //! - `cargo xtask results`: the target figures (instructions per step, flash, RAM, stack)
@@ -13,6 +15,7 @@
 //!   there ([`results`]).
 
 mod bench;
+mod board;
 mod checks;
 mod firmware;
 mod results;
@@ -70,6 +73,9 @@ enum Cmd {
     /// QEMU to print its stack at the end of the boot (`boot-stack bytes=<n>`, by stack
     /// painting) in each evaluation mode.
     BuildTarget,
+    /// Build and link the STM32F407 image (boards/nemm-stm32f407), as flashed and for QEMU's
+    /// netduinoplus2, and print their flash and RAM use.
+    BuildBoard,
     /// Run the firmware in QEMU with firmware options.
     ///
     /// e.g. `cargo xtask run-target -- period_ticks=100000 fault=bus@3000+20
@@ -203,6 +209,7 @@ fn main() -> ExitCode {
             checks::features(Some(&tc), &paths)
         }),
         Some(Cmd::Msrv) => Paths::find().and_then(|paths| checks::msrv(&paths)),
+        Some(Cmd::BuildBoard) => build_board(),
         Some(Cmd::RunTarget { options }) => run_target(&options),
         Some(Cmd::Results { training, steps }) => match training {
             Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir)),
@@ -267,7 +274,8 @@ fn setup() -> Result<(Toolchain, Paths), String> {
 
 /// The integration tests that run the firmware in QEMU (`tests/tests/qemu_*.rs`), ignored by
 /// a plain `cargo test`.
-const QEMU_TESTS: [&str; 4] = [
+const QEMU_TESTS: [&str; 5] = [
+    "qemu_board",
     "qemu_faults",
     "qemu_no_panic",
     "qemu_parity",
@@ -286,17 +294,21 @@ fn test(host_only: bool) -> Result<(), String> {
         let (tc, paths) = setup()?;
         let t = Instant::now();
         let images = firmware::build(&tc, &paths)?;
+        let board_images = board::build(&tc, &paths)?;
         match tc.clippy_gap() {
-            None => firmware::clippy(&tc, &paths)?,
+            None => {
+                firmware::clippy(&tc, &paths)?;
+                board::clippy(&tc, &paths)?;
+            }
             Some(what) => eprintln!("xtask: firmware lint skipped: no {what}"),
         }
         firmware_secs += t.elapsed().as_secs_f64();
-        Some((tc, paths, images))
+        Some((tc, paths, images, board_images))
     };
     run(cargo()
         .args(["test", "--workspace", "--release", "--no-fail-fast"])
         .current_dir(&paths.root))?;
-    if let Some((tc, _, images)) = &firmware {
+    if let Some((tc, _, images, board_images)) = &firmware {
         // The QEMU tests, with the images; `--workspace` keeps the features (and so the
         // build) of the run above.
         let mut qemu_tests = cargo();
@@ -309,6 +321,8 @@ fn test(host_only: bool) -> Result<(), String> {
             .env("NEMM_FIRMWARE_ELF", &images.app)
             .env("NEMM_FIRMWARE_RELEASE_ELF", &images.app_release)
             .env("NEMM_BENCH_ELF", &images.bench)
+            .env("NEMM_BOARD_ELF", &board_images.board)
+            .env("NEMM_BOARD_QEMU_ELF", &board_images.qemu)
             .env("NEMM_QEMU", &tc.qemu)
             .current_dir(&paths.root))?;
     }
@@ -324,15 +338,16 @@ fn test(host_only: bool) -> Result<(), String> {
     checks::example(&paths)?;
     checks::features(firmware.as_ref().map(|f| &f.0), &paths)?;
     checks::msrv(&paths)?;
-    if let Some((tc, paths, images)) = firmware {
+    if let Some((tc, paths, images, board_images)) = firmware {
         let t = Instant::now();
         for f in bench::run(&tc, &paths, &images, Mode::Exact, 50, &Kind::ALL)? {
             eprintln!("xtask: (smoke, 50 steps) {}", f.line());
         }
-        for (name, path) in [
-            ("board build", &images.app_release),
-            ("qemu build", &images.app),
-        ] {
+        let named = [
+            ("board build", images.app_release.as_path()),
+            ("qemu build", images.app.as_path()),
+        ];
+        for (name, path) in named.into_iter().chain(board_images.named()) {
             eprintln!(
                 "xtask: {}",
                 firmware::memory_report(name, &Elf::read(path)?)
@@ -372,17 +387,35 @@ fn bench_target(mode: Mode, steps: u32, models: &[Kind]) -> Result<(), String> {
 fn build_target() -> Result<(), String> {
     let (tc, paths) = setup()?;
     let images = firmware::build(&tc, &paths)?;
-    for (name, path) in images.named() {
-        let elf = Elf::read(path)?;
-        println!("{}\n{}", path.display(), elf.memory_use().table());
-        println!("{}\n", firmware::memory_report(name, &elf));
-    }
+    print_memory(&images.named())?;
     for (mode, options) in firmware::STACK_RUNS {
         println!(
             "{}",
             firmware::stack_figures(&tc, &images, options)?.line(mode)
         );
     }
+    Ok(())
+}
+
+/// Prints each image's sections and its memory report.
+fn print_memory(named: &[(&str, &std::path::Path)]) -> Result<(), String> {
+    for (name, path) in named {
+        let elf = Elf::read(path)?;
+        println!("{}\n{}", path.display(), elf.memory_use().table());
+        println!("{}\n", firmware::memory_report(name, &elf));
+    }
+    Ok(())
+}
+
+fn build_board() -> Result<(), String> {
+    let (tc, paths) = setup()?;
+    let images = board::build(&tc, &paths)?;
+    print_memory(&images.named())?;
+    eprintln!(
+        "xtask: flash with `probe-rs run --chip STM32F407VGTx {}` ({}/README.md)",
+        images.board.display(),
+        board::DIR
+    );
     Ok(())
 }
 
@@ -465,6 +498,7 @@ mod tests {
             parse(&["build-target"]),
             Ok(Some(Cmd::BuildTarget))
         ));
+        assert!(matches!(parse(&["build-board"]), Ok(Some(Cmd::BuildBoard))));
         assert!(matches!(parse(&["toolchain"]), Ok(Some(Cmd::Toolchain))));
         assert!(matches!(parse(&[]), Ok(None)));
         assert!(parse(&["build-target", "extra"]).is_err());
