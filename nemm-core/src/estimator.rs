@@ -54,7 +54,7 @@
 use crate::emm::{self, Coefficients, State};
 use crate::integrator::{self, Integrator, Stage, StepSize};
 use crate::math::{Fused, MulAdd, Unfused};
-use crate::mlp::{CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
+use crate::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
 use crate::table::{self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
@@ -316,8 +316,9 @@ struct EmmRuntime<const P: usize, const T: usize> {
     k_pr: Coef<P, T>,
     /// The table configuration in table mode.
     table_cfg: Option<TableConfig>,
-    /// The `b_pr(alpha)` scaler with `b_pr,ini` and the alpha scale, kept for `set_alpha`.
-    b_pr_scaler: Option<(Scaler<P>, f32, f32)>,
+    /// The `b_pr(alpha)` scaler with its alpha branch, `b_pr,ini` and the alpha scale,
+    /// kept for `set_alpha`.
+    b_pr_scaler: Option<(Scaler<P>, Option<AlphaBranch>, f32, f32)>,
 }
 
 impl<const P: usize, const T: usize> EmmRuntime<P, T> {
@@ -492,7 +493,9 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     } => (emm, Some(b_fl), Some(b_pr), Some(k_pr)),
                     Body::Sem(_) => return Err(EstimatorError::Compile),
                 };
+                let branches = &model.ext.alpha_branches;
                 let compile = |s: Option<&Scaler<P>>,
+                               branch: Option<&AlphaBranch>,
                                p_ini: f32,
                                u_scale: f32,
                                name: &'static str|
@@ -500,8 +503,10 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     let Some(s) = s else {
                         return Ok(Coef::Const(p_ini));
                     };
-                    let exact = CompiledScaler::compile(s, p_ini, u_scale, alpha, sc.alpha)
-                        .ok_or(EstimatorError::Compile)?;
+                    let exact = CompiledScaler::compile_with_branch(
+                        s, branch, p_ini, u_scale, alpha, sc.alpha,
+                    )
+                    .ok_or(EstimatorError::Compile)?;
                     match &cfg.mode {
                         EvalMode::Exact => Ok(Coef::Neural(exact)),
                         EvalMode::Table(tc) => {
@@ -518,19 +523,38 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     None => emm.b_pr_ns_per_m,
                     Some(s) => {
                         emm.b_pr_ns_per_m
-                            * s.scale(&[alpha / sc.alpha])
+                            * s.scale_with(&[alpha / sc.alpha], branches.b_pr.as_ref())
                                 .ok_or(EstimatorError::Compile)?
                     }
                 };
                 Runtime::Emm(EmmRuntime {
-                    b_fl: compile(b_fl, emm.b_fl_ns_per_m, sc.velocity_m_s, "b_fl")?,
-                    k_pr: compile(k_pr, emm.k_pr_n_per_m, sc.x_pr_m, "k_pr")?,
+                    b_fl: compile(
+                        b_fl,
+                        branches.b_fl.as_ref(),
+                        emm.b_fl_ns_per_m,
+                        sc.velocity_m_s,
+                        "b_fl",
+                    )?,
+                    k_pr: compile(
+                        k_pr,
+                        branches.k_pr.as_ref(),
+                        emm.k_pr_n_per_m,
+                        sc.x_pr_m,
+                        "k_pr",
+                    )?,
                     table_cfg: match cfg.mode {
                         EvalMode::Exact => None,
                         EvalMode::Table(tc) => Some(tc),
                     },
                     b_pr: b_pr_value,
-                    b_pr_scaler: b_pr.map(|s| (s.clone(), emm.b_pr_ns_per_m, sc.alpha)),
+                    b_pr_scaler: b_pr.map(|s| {
+                        (
+                            s.clone(),
+                            branches.b_pr.clone(),
+                            emm.b_pr_ns_per_m,
+                            sc.alpha,
+                        )
+                    }),
                     inv_t_pr: 1.0 / emm.t_pr_s,
                     integrator,
                     h: StepSize::new(dt),
@@ -598,10 +622,10 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         self.alpha = alpha;
         self.update_alpha_flags();
         if let Runtime::Emm(rt) = &mut self.rt {
-            if let Some((scaler, b_pr_ini, alpha_scale)) = &rt.b_pr_scaler {
+            if let Some((scaler, branch, b_pr_ini, alpha_scale)) = &rt.b_pr_scaler {
                 rt.b_pr = *b_pr_ini
                     * scaler
-                        .scale(&[alpha / *alpha_scale])
+                        .scale_with(&[alpha / *alpha_scale], branch.as_ref())
                         .ok_or(EstimatorError::Compile)?;
             }
             self.coeffs = rt.coeffs(&self.state, &mut false);
