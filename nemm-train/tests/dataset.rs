@@ -37,6 +37,7 @@ fn sample_dataset(fs: f64) -> Dataset {
     Dataset {
         name: "test damper \"A\"".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs: vec![
             sine_run("runs/oil00.csv", 0.0, 500, fs, false),
             sine_run("runs/oil15.csv", 0.15, 300, fs, true),
@@ -598,6 +599,7 @@ fn load_speed_five_million_rows() {
     let d = Dataset {
         name: "speed".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs,
     };
     let t = std::time::Instant::now();

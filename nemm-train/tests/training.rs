@@ -76,6 +76,7 @@ fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> D
     Dataset {
         name: "synthetic linear EMM".into(),
         sample_rate_hz: FS,
+        condition: None,
         runs,
     }
 }
