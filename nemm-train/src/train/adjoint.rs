@@ -504,11 +504,15 @@ impl<'a, T: Real> Branch<'a, T> {
         Some(Self { s, k, d, w, bias })
     }
 
-    /// Adds the branch at normalised state `x0` to `z`; records the pre-activations.
+    /// Adds the branch at normalised state `x0` to `z`; records the pre-activations. The
+    /// branch is summed from zero and then added to the MLP's `z`, in nemm-core's order
+    /// (`AlphaBranch::raw`, `CompiledBranch::raw`): accumulating its terms into `z` directly
+    /// would round differently from the estimator.
     #[inline]
     fn forward(&self, x0: &V<T>, z: &mut L<T>, rec: Option<&mut Vec<L<T>>>) {
         let (s, k) = (self.s, self.k);
         let mut rec = rec;
+        let mut zb = L::splat(T::zero());
         for i in 0..k {
             let b = &self.bias[i];
             let t: L<T> = if s == 1 {
@@ -518,11 +522,12 @@ impl<'a, T: Real> Branch<'a, T> {
                 Lanes(*b)
             };
             let tv = self.w[k * s + 2 * k + i];
-            *z = *z + L::splat(tv * tv) * mlp::leaky_relu(t);
+            zb = zb + L::splat(tv * tv) * mlp::leaky_relu(t);
             if let Some(r) = rec.as_deref_mut() {
                 r[i] = t;
             }
         }
+        *z = *z + zb;
     }
 
     /// Back-propagates `zbar` through the branch at the recorded pre-activations `bt`:
