@@ -54,7 +54,7 @@
 use crate::emm::{self, Coefficients, State};
 use crate::integrator::{self, Integrator, Stage, StepSize};
 use crate::math::{Fused, MulAdd, Unfused};
-use crate::mlp::{CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
+use crate::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
 use crate::table::{self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
@@ -261,7 +261,7 @@ impl<const P: usize, const T: usize> Coef<P, T> {
     fn load(
         &mut self,
         name: &'static str,
-        scaler: Option<&Scaler<P>>,
+        scaler: Option<(&Scaler<P>, Option<&AlphaBranch>)>,
         p_ini: f32,
         u_scale: f32,
         (alpha, alpha_scale): (f32, f32),
@@ -269,11 +269,11 @@ impl<const P: usize, const T: usize> Coef<P, T> {
     ) -> Result<(), EstimatorError> {
         self.kind = CoefKind::Const;
         self.value = p_ini;
-        let Some(scaler) = scaler else {
+        let Some((scaler, branch)) = scaler else {
             return Ok(());
         };
         self.exact
-            .compile_into(scaler, p_ini, u_scale, alpha, alpha_scale)
+            .compile_into(scaler, branch, p_ini, u_scale, alpha, alpha_scale)
             .ok_or(EstimatorError::Compile)?;
         self.kind = CoefKind::Neural;
         if let EvalMode::Table(tc) = mode {
@@ -405,8 +405,9 @@ struct EmmRuntime<const P: usize, const T: usize> {
     b_pr_neural: bool,
     b_pr_ini: f32,
     alpha_scale: f32,
-    /// The `b_pr(alpha)` scaler, kept for `set_alpha`.
+    /// The `b_pr(alpha)` scaler and its alpha branch, kept for `set_alpha`.
     b_pr_scaler: Scaler<P>,
+    b_pr_branch: Option<AlphaBranch>,
 }
 
 impl<const P: usize, const T: usize> EmmRuntime<P, T> {
@@ -429,6 +430,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             b_pr_ini: 0.0,
             alpha_scale: 0.0,
             b_pr_scaler: Scaler::empty(),
+            b_pr_branch: None,
         }
     }
 
@@ -438,7 +440,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             return Ok(self.b_pr_ini);
         }
         self.b_pr_scaler
-            .scale(&[alpha / self.alpha_scale])
+            .scale_with(&[alpha / self.alpha_scale], self.b_pr_branch.as_ref())
             .map(|s| self.b_pr_ini * s)
             .ok_or(EstimatorError::Compile)
     }
@@ -658,10 +660,11 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     } => (emm, Some(b_fl), Some(b_pr), Some(k_pr)),
                     Body::Sem(_) => return Err(EstimatorError::Compile),
                 };
+                let branches = &model.ext.alpha_branches;
                 let rt = &mut self.rt.emm;
                 rt.b_fl.load(
                     "b_fl",
-                    b_fl,
+                    b_fl.map(|s| (s, branches.b_fl.as_ref())),
                     emm.b_fl_ns_per_m,
                     sc.velocity_m_s,
                     (alpha, sc.alpha),
@@ -669,7 +672,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 )?;
                 rt.k_pr.load(
                     "k_pr",
-                    k_pr,
+                    k_pr.map(|s| (s, branches.k_pr.as_ref())),
                     emm.k_pr_n_per_m,
                     sc.x_pr_m,
                     (alpha, sc.alpha),
@@ -683,6 +686,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 if let Some(s) = b_pr {
                     rt.b_pr_scaler.clone_from(s);
                 }
+                rt.b_pr_branch.clone_from(&branches.b_pr);
                 rt.b_pr_ini = emm.b_pr_ns_per_m;
                 rt.alpha_scale = sc.alpha;
                 rt.b_pr = rt.b_pr_at(alpha)?;

@@ -6,7 +6,7 @@
 //! | max_scaler_params (varint u32) | body_len (varint u32)                 |
 //! +-------------------------------------------------------------------------+
 //! | body (body_len bytes): postcard-encoded [`Model`] (version-1 layout),   |
-//! | then, from version 2 on, the postcard-encoded [`Extension`]             |
+//! | then, from version 3 on, the postcard-encoded [`Extension`]             |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -16,8 +16,11 @@
 //! # Versions
 //!
 //! This build writes [`FORMAT_VERSION`] and reads every version from [`OLDEST_FORMAT_VERSION`]
-//! on. Version 2 appended the [`Extension`] to the body; a version-1 blob decodes with
-//! [`Extension::default`], which reproduces what version 1 meant.
+//! on. Version 2 appended an empty [`Extension`] to the body (zero bytes, so a version-2
+//! body is a version-1 body); version 3 fills it with the condition (name, unit, map to
+//! `alpha`, declared priors) and the alpha branches of the scalers. A version-1 or -2 blob
+//! decodes with [`Extension::default`], which reproduces what those versions meant (the
+//! paper's oil loss, no branches).
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -38,7 +41,7 @@ use serde::{Deserialize, Serialize};
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
 /// Oldest format version this build reads.
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
@@ -350,7 +353,7 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
     let rest = de
         .finalize()
         .map_err(|_| DecodeError::Malformed { part: "body" })?;
-    let rest = if header.version >= 2 {
+    let rest = if header.version >= 3 {
         let (ext, rest) = postcard::take_from_bytes::<Extension>(rest)
             .map_err(|_| DecodeError::Malformed { part: "extension" })?;
         model.ext = ext;

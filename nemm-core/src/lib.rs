@@ -74,8 +74,11 @@ pub use format::{
     OLDEST_FORMAT_VERSION,
 };
 pub use integrator::Integrator;
-pub use mlp::{MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
-pub use model::{Body, Extension, InputScales, Meta, Model, ModelError, ModelKind, UnknownName};
+pub use mlp::{AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
+pub use model::{
+    AlphaBranches, Body, Condition, Extension, InputScales, Meta, Model, ModelError, ModelKind,
+    Priors, UnknownName,
+};
 pub use sem::SemMap;
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 

@@ -48,6 +48,12 @@ use serde::{Deserialize, Serialize};
 ))]
 #[allow(unsafe_code)]
 mod arm;
+mod branch;
+
+pub use branch::{
+    branch_param_count, AlphaBranch, BranchError, BranchView, CompiledBranch, Direction,
+    BRANCH_CAPACITY, MAX_BRANCH_UNITS,
+};
 
 /// Negative-side slope of the LeakyReLU activation (PyTorch and burn default).
 pub const LEAKY_RELU_SLOPE: f32 = 0.01;
@@ -565,6 +571,39 @@ impl<const P: usize> Scaler<P> {
         Some(scale_from_raw(z, self.s_min, self.s_max))
     }
 
+    /// Scale factor with an optional alpha branch ([`AlphaBranch`]): `x` are the
+    /// normalised inputs as for [`Self::scale`] (`alpha` last). With a branch the MLP gets
+    /// `alpha_n = 0` (its alpha column, zero in a valid model, sees nothing) and the raw
+    /// output is `f(x) + branch(x_state, alpha_n)`.
+    pub fn scale_with(&self, x: &[f32], branch: Option<&AlphaBranch>) -> Option<f32> {
+        let Some(b) = branch else {
+            return self.scale(x);
+        };
+        let (&alpha_n, state) = x.split_last()?;
+        let mut xin = [0.0f32; MAX_INPUTS];
+        xin.get_mut(..state.len())?.copy_from_slice(state);
+        let z = self.mlp.forward(xin.get(..x.len())?)?;
+        let z = z + b.raw(state.first().copied().unwrap_or(0.0), alpha_n);
+        Some(scale_from_raw(z, self.s_min, self.s_max))
+    }
+
+    /// The largest magnitude of the MLP's alpha input column (the last input of layer 1):
+    /// 0 when the MLP does not see `alpha`, as a scaler with an alpha branch requires.
+    pub fn alpha_column_max_abs(&self) -> f32 {
+        let d = self.mlp.inputs as usize;
+        self.mlp.layer(0).map_or(0.0, |l| {
+            l.w.chunks_exact(d.max(1))
+                .filter_map(|row| row.last())
+                .fold(0.0f32, |m, &v| {
+                    if v.abs() > m || v.is_nan() {
+                        v.abs()
+                    } else {
+                        m
+                    }
+                })
+        })
+    }
+
     /// Raw output `z` that makes `s(z) = 1`, i.e. reproduces the constant `p_ini`:
     /// `logit((1 - s_min) / (s_max - s_min))`. The trainer initialises the output bias with it.
     pub fn identity_logit(s_min: f32, s_max: f32) -> f32 {
@@ -608,7 +647,10 @@ pub fn scale_from_raw(z: f32, s_min: f32, s_max: f32) -> f32 {
 /// each:     var = (fma-chain of t_i * t_i from 0, i ascending) * (1 / H)
 ///           r   = 1 / sqrt(var + LAYER_NORM_EPS)
 ///           a_i = leaky_relu(fma(gamma_i, t_i * r, beta_i))
-/// output:   z   = fma-chain from b_o over w_o_i * a_i;  p = fma(span, sigmoid(z), lo)
+/// output:   z   = fma-chain from b_o over w_o_i * a_i
+/// branch:   z   = z + (fma-chain from 0 over v_k * leaky_relu(fma(r_k, u, bias_k)))
+///                 (only with an alpha branch, see [`CompiledBranch`])
+///           p   = fma(span, sigmoid(z), lo)
 /// ```
 ///
 /// On bare-metal hard-float Arm (Cortex-M4F) and `H` = 8, 16 or 32 the part from `u` to `z`
@@ -630,6 +672,8 @@ pub struct CompiledScaler<const P: usize> {
     b1_raw: [f32; MAX_HIDDEN],
     lo: f32,
     span: f32,
+    /// The alpha branch folded for the current `alpha`, if the scaler has one.
+    branch: Option<CompiledBranch>,
 }
 
 /// Inputs per column block of a compiled hidden-layer matrix (see [`CompiledScaler`]).
@@ -669,6 +713,7 @@ impl<const P: usize> CompiledScaler<P> {
             b1_raw: [0.0; MAX_HIDDEN],
             lo: 0.0,
             span: 0.0,
+            branch: None,
         }
     }
 
@@ -684,28 +729,52 @@ impl<const P: usize> CompiledScaler<P> {
         alpha: f32,
         alpha_scale: f32,
     ) -> Option<Self> {
+        Self::compile_with_branch(scaler, None, p_ini, u_scale, alpha, alpha_scale)
+    }
+
+    /// [`Self::compile`] with an optional alpha branch ([`AlphaBranch`]): the MLP's alpha
+    /// column is ignored (zero in a valid model) and the branch is folded for `alpha`
+    /// ([`CompiledBranch`]); [`Self::set_alpha`] re-folds both. The branch adds `K` fused
+    /// multiply-adds, LeakyReLUs and fused multiply-adds per evaluation. Returned by value
+    /// ([`Self::compile_into`] writes in place).
+    ///
+    /// Returns `None` if the scaler's or the branch's shape is inconsistent.
+    pub fn compile_with_branch(
+        scaler: &Scaler<P>,
+        branch: Option<&AlphaBranch>,
+        p_ini: f32,
+        u_scale: f32,
+        alpha: f32,
+        alpha_scale: f32,
+    ) -> Option<Self> {
         let mut c = Self::empty();
-        c.compile_into(scaler, p_ini, u_scale, alpha, alpha_scale)?;
+        c.compile_into(scaler, branch, p_ini, u_scale, alpha, alpha_scale)?;
         Some(c)
     }
 
-    /// [`Self::compile`] into `self`, in place: no copy of the weight vector on the stack.
-    /// On `None` `self` holds a partial compilation and must be compiled again before use
-    /// (its evaluation stays finite and panic-free, but meaningless).
+    /// [`Self::compile_with_branch`] into `self`, in place: no copy of the weight vector on
+    /// the stack. On `None` `self` holds a partial compilation and must be compiled again
+    /// before use (its evaluation stays finite and panic-free, but meaningless).
     pub fn compile_into(
         &mut self,
         scaler: &Scaler<P>,
+        branch: Option<&AlphaBranch>,
         p_ini: f32,
         u_scale: f32,
         alpha: f32,
         alpha_scale: f32,
     ) -> Option<()> {
+        let compiled_branch = match branch {
+            None => None,
+            Some(b) => Some(CompiledBranch::compile(b, u_scale, alpha, alpha_scale)?),
+        };
         let mlp = &scaler.mlp;
         mlp.check_shape().ok()?;
         let h = mlp.hidden as usize;
         let d = mlp.inputs as usize;
         self.hidden = 0;
         self.layers = 0;
+        self.branch = None;
         let w = &mut self.w;
         w.clear();
         let alpha_col = &mut self.alpha_col;
@@ -725,7 +794,7 @@ impl<const P: usize> CompiledScaler<P> {
                     .take(h)
                 {
                     *c = *row.first()? / u_scale;
-                    *ac = if d > 1 {
+                    *ac = if d > 1 && compiled_branch.is_none() {
                         *row.get(1)? / alpha_scale
                     } else {
                         0.0
@@ -785,13 +854,18 @@ impl<const P: usize> CompiledScaler<P> {
         self.consts = [1.0 / hf, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, 0.0];
         self.lo = p_ini * scaler.s_min;
         self.span = p_ini * (scaler.s_max - scaler.s_min);
+        self.branch = compiled_branch;
         self.set_alpha(alpha);
         Some(())
     }
 
     /// Re-folds the alpha column into the first-layer bias (`alpha` in the same units as at
-    /// compile time, before normalisation). `H` fused multiply-adds; no per-step cost.
+    /// compile time, before normalisation), and into the alpha branch's biases if there is
+    /// one. `H` (+ `K`) fused multiply-adds; no per-step cost.
     pub fn set_alpha(&mut self, alpha: f32) {
+        if let Some(b) = self.branch.as_mut() {
+            b.set_alpha(alpha);
+        }
         let h = self.hidden;
         let mut b = [0.0f32; MAX_HIDDEN];
         for ((bi, &br), &ac) in b.iter_mut().zip(&self.b1_raw).zip(&self.alpha_col).take(h) {
@@ -826,7 +900,10 @@ impl<const P: usize> CompiledScaler<P> {
             not(feature = "micromath")
         ))]
         if let Some(z) = arm::raw(self.hidden, self.layers, &self.w, &self.consts, u) {
-            return z;
+            return match &self.branch {
+                None => z,
+                Some(b) => z + b.raw::<false, math::Fused>(u, &mut 0),
+            };
         }
         self.raw_portable(u)
     }
@@ -912,11 +989,20 @@ impl<const P: usize> CompiledScaler<P> {
         let (Some(w_o), Some(b_o)) = (take(&mut rest, h), take(&mut rest, 1)) else {
             return fallback;
         };
-        dot_acc_with::<M>(
+        let z = dot_acc_with::<M>(
             w_o,
             a.get(..h).unwrap_or(&[]),
             b_o.first().copied().unwrap_or(0.0),
-        )
+        );
+        match &self.branch {
+            None => z,
+            Some(b) => z + b.raw::<TRACK, M>(u, pattern),
+        }
+    }
+
+    /// True if the scaler has an alpha branch.
+    pub fn has_branch(&self) -> bool {
+        self.branch.is_some()
     }
 
     /// Centred LayerNorm + affine + LeakyReLU from `t` into `a`; consumes gamma and beta.

@@ -25,7 +25,7 @@
 
 use crate::emm::EmmConstants;
 use crate::integrator::Integrator;
-use crate::mlp::{Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
+use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
 use crate::sem::{SemError, SemMap};
 use core::fmt;
 use serde::{Deserialize, Serialize};
@@ -174,16 +174,228 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     pub ext: Extension,
 }
 
-/// The part of a [`Model`] that format version 2 added. It is encoded after the version-1
-/// body, so every version-1 blob still decodes (with the default extension).
+/// The part of a [`Model`] that format versions 2 and later added. It is encoded after the
+/// version-1 body, so every version-1 blob still decodes (with the default extension).
 ///
 /// Every field has a default that reproduces what a version-1 blob meant.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct Extension {}
+pub struct Extension {
+    /// The degradation condition `alpha` stands for and its declared priors (version 3).
+    pub condition: Condition,
+    /// The alpha branches that make the declared priors hold by construction (version 3).
+    pub alpha_branches: AlphaBranches,
+}
 
 impl Extension {
-    /// Checks the extension's fields.
+    /// An extension with an unnamed condition and no branches; `const`, for
+    /// [`Model::empty`].
+    pub const EMPTY: Extension = Extension {
+        condition: Condition {
+            name: heapless::String::new(),
+            unit: heapless::String::new(),
+            at_alpha_0: 0.0,
+            at_alpha_1: 1.0,
+            priors: Priors::PAPER,
+        },
+        alpha_branches: AlphaBranches {
+            b_fl: None,
+            b_pr: None,
+            k_pr: None,
+        },
+    };
+
+    /// Checks the extension's own fields (the branches against the body:
+    /// [`AlphaBranches::validate`]).
     pub fn validate(&self) -> Result<(), ModelError> {
+        self.condition.validate()
+    }
+}
+
+/// Longest condition name in bytes.
+pub const MAX_CONDITION_NAME: usize = 32;
+/// Longest condition unit in bytes.
+pub const MAX_CONDITION_UNIT: usize = 16;
+
+/// The declared direction of each coefficient's monotonicity prior in `alpha` (the second
+/// conditions of eqs. 31, 37 and 38).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Priors {
+    /// Direction of `b_fl` in `alpha`.
+    pub b_fl: Direction,
+    /// Direction of `b_pr` in `alpha`.
+    pub b_pr: Direction,
+    /// Direction of `k_pr` in `alpha`.
+    pub k_pr: Direction,
+}
+
+impl Priors {
+    /// The paper's priors: every coefficient decreases with oil loss.
+    pub const PAPER: Priors = Priors {
+        b_fl: Direction::Decreasing,
+        b_pr: Direction::Decreasing,
+        k_pr: Direction::Decreasing,
+    };
+
+    /// `[b_fl, b_pr, k_pr]`.
+    pub const fn all(&self) -> [Direction; 3] {
+        [self.b_fl, self.b_pr, self.k_pr]
+    }
+}
+
+impl Default for Priors {
+    fn default() -> Self {
+        Self::PAPER
+    }
+}
+
+/// The degradation condition the model's `alpha` in `[0, 1]` stands for (named by the
+/// dataset's manifest): its name and unit, the linear map from `alpha` to the user's unit,
+/// and the declared priors in `alpha`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Condition {
+    /// Name, e.g. `oil loss`, `gas charge` (at most [`MAX_CONDITION_NAME`] bytes, not
+    /// empty).
+    pub name: heapless::String<MAX_CONDITION_NAME>,
+    /// Unit of the condition value, e.g. `-`, `psi` (at most [`MAX_CONDITION_UNIT`] bytes).
+    pub unit: heapless::String<MAX_CONDITION_UNIT>,
+    /// Condition value (in `unit`) at `alpha = 0`.
+    pub at_alpha_0: f32,
+    /// Condition value (in `unit`) at `alpha = 1`; differs from `at_alpha_0`.
+    pub at_alpha_1: f32,
+    /// Declared monotonicity priors in `alpha`.
+    pub priors: Priors,
+}
+
+impl Default for Condition {
+    /// The paper's condition: oil loss as a fraction (`alpha` itself), every coefficient
+    /// decreasing with it.
+    fn default() -> Self {
+        let mut name = heapless::String::new();
+        let _ = name.push_str("oil loss");
+        let mut unit = heapless::String::new();
+        let _ = unit.push('-');
+        Self {
+            name,
+            unit,
+            at_alpha_0: 0.0,
+            at_alpha_1: 1.0,
+            priors: Priors::PAPER,
+        }
+    }
+}
+
+impl Condition {
+    /// A validated condition; a name or unit longer than [`MAX_CONDITION_NAME`] /
+    /// [`MAX_CONDITION_UNIT`] bytes is refused like an empty name.
+    pub fn new(
+        name: &str,
+        unit: &str,
+        at_alpha_0: f32,
+        at_alpha_1: f32,
+        priors: Priors,
+    ) -> Result<Self, ModelError> {
+        let c = Self {
+            name: heapless::String::try_from(name).map_err(|_| ModelError::Condition {
+                field: "condition.name",
+            })?,
+            unit: heapless::String::try_from(unit).map_err(|_| ModelError::Condition {
+                field: "condition.unit",
+            })?,
+            at_alpha_0,
+            at_alpha_1,
+            priors,
+        };
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// The condition value (in [`Condition::unit`]) at `alpha`.
+    pub fn value_at(&self, alpha: f32) -> f32 {
+        self.at_alpha_0 + (self.at_alpha_1 - self.at_alpha_0) * alpha
+    }
+
+    /// The `alpha` of a condition value (in [`Condition::unit`]).
+    pub fn alpha_of(&self, value: f32) -> f32 {
+        (value - self.at_alpha_0) / (self.at_alpha_1 - self.at_alpha_0)
+    }
+
+    /// Checks: a non-empty name, finite and distinct end points.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if self.name.is_empty() {
+            return Err(ModelError::Condition {
+                field: "condition.name",
+            });
+        }
+        for (v, field) in [
+            (self.at_alpha_0, "condition.at_alpha_0"),
+            (self.at_alpha_1, "condition.at_alpha_1"),
+        ] {
+            if !v.is_finite() {
+                return Err(ModelError::NonFinite { field });
+            }
+        }
+        let span = self.at_alpha_1 - self.at_alpha_0;
+        if !(span.is_finite() && span != 0.0) {
+            return Err(ModelError::Condition {
+                field: "condition.at_alpha_1",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The alpha branches ([`AlphaBranch`]) of the three neural coefficients; `None` where the
+/// coefficient's dependence on `alpha` is its MLP's own (no prior, or a penalty only).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct AlphaBranches {
+    /// Branch of `b_fl(v_st, alpha)` (one state input).
+    pub b_fl: Option<AlphaBranch>,
+    /// Branch of `b_pr(alpha)` (no state input).
+    pub b_pr: Option<AlphaBranch>,
+    /// Branch of `k_pr(x_pr, alpha)` (one state input).
+    pub k_pr: Option<AlphaBranch>,
+}
+
+impl AlphaBranches {
+    /// Checks every branch against the model: its own shape and values, the scaler it
+    /// belongs to (present, alpha column zero), its number of state inputs and its
+    /// direction against the declared `priors`.
+    pub fn validate<const P: usize>(
+        &self,
+        body: &Body<P>,
+        priors: &Priors,
+    ) -> Result<(), ModelError> {
+        let (fl, bp, k) = match body {
+            Body::Sem(_) | Body::LinearEmm(_) => (None, None, None),
+            Body::NemmLight { b_fl, .. } => (Some(b_fl), None, None),
+            Body::Nemm {
+                b_fl, b_pr, k_pr, ..
+            } => (Some(b_fl), Some(b_pr), Some(k_pr)),
+        };
+        for (branch, scaler, name, state, dir) in [
+            (&self.b_fl, fl, "b_fl", 1u8, priors.b_fl),
+            (&self.b_pr, bp, "b_pr", 0, priors.b_pr),
+            (&self.k_pr, k, "k_pr", 1, priors.k_pr),
+        ] {
+            let Some(b) = branch else { continue };
+            let err = |error| ModelError::Branch {
+                scaler: name,
+                error,
+            };
+            b.check().map_err(err)?;
+            let Some(s) = scaler else {
+                return Err(err(BranchError::NoScaler));
+            };
+            if b.state_inputs != state {
+                return Err(err(BranchError::WrongStateInputs { expected: state }));
+            }
+            if b.direction != dir {
+                return Err(err(BranchError::DirectionMismatch));
+            }
+            if s.alpha_column_max_abs() != 0.0 {
+                return Err(err(BranchError::AlphaColumnNotZero));
+            }
+        }
         Ok(())
     }
 }
@@ -217,6 +429,19 @@ pub enum ModelError {
         scaler: &'static str,
         /// What is wrong.
         error: ShapeError,
+    },
+    /// A scaler's alpha branch is not acceptable.
+    Branch {
+        /// Which scaler.
+        scaler: &'static str,
+        /// What is wrong.
+        error: BranchError,
+    },
+    /// The condition's name is empty or too long, its unit too long, or its end points
+    /// coincide.
+    Condition {
+        /// Which field.
+        field: &'static str,
     },
     /// A scaler has the wrong number of inputs for its role.
     WrongInputCount {
@@ -272,6 +497,14 @@ impl fmt::Display for ModelError {
                      (raise the capacity `P` of `Model<P>`/`Estimator<P>`)"
                 ),
             },
+            ModelError::Branch { scaler, error } => {
+                write!(f, "alpha branch of `{scaler}`: {error}")
+            }
+            ModelError::Condition { field } => write!(
+                f,
+                "`{field}`: the condition needs a name of 1 to {MAX_CONDITION_NAME} bytes, a unit of \
+                 at most {MAX_CONDITION_UNIT} bytes and distinct values at alpha 0 and 1"
+            ),
             ModelError::WrongInputCount {
                 scaler,
                 expected,
@@ -369,7 +602,7 @@ impl<const P: usize> Model<P> {
             alphas: heapless::Vec::new(),
             forces_n: heapless::Vec::new(),
         }),
-        ext: Extension {},
+        ext: Extension::EMPTY,
     };
 
     /// The variant.
@@ -497,6 +730,9 @@ impl<const P: usize> Model<P> {
             }
         }
         self.ext.validate()?;
+        self.ext
+            .alpha_branches
+            .validate(&self.body, &self.ext.condition.priors)?;
         self.check_step(self.integrator, self.dt_s)
     }
 
@@ -510,7 +746,10 @@ impl<const P: usize> Model<P> {
                     v_st_m_s / self.scales.velocity_m_s,
                     alpha / self.scales.alpha,
                 ];
-                Some(emm.b_fl_ns_per_m * b_fl.scale(&x)?)
+                Some(
+                    emm.b_fl_ns_per_m
+                        * b_fl.scale_with(&x, self.ext.alpha_branches.b_fl.as_ref())?,
+                )
             }
         }
     }
@@ -520,9 +759,13 @@ impl<const P: usize> Model<P> {
         match &self.body {
             Body::Sem(_) => None,
             Body::LinearEmm(e) | Body::NemmLight { emm: e, .. } => Some(e.b_pr_ns_per_m),
-            Body::Nemm { emm, b_pr, .. } => {
-                Some(emm.b_pr_ns_per_m * b_pr.scale(&[alpha / self.scales.alpha])?)
-            }
+            Body::Nemm { emm, b_pr, .. } => Some(
+                emm.b_pr_ns_per_m
+                    * b_pr.scale_with(
+                        &[alpha / self.scales.alpha],
+                        self.ext.alpha_branches.b_pr.as_ref(),
+                    )?,
+            ),
         }
     }
 
@@ -533,7 +776,10 @@ impl<const P: usize> Model<P> {
             Body::LinearEmm(e) | Body::NemmLight { emm: e, .. } => Some(e.k_pr_n_per_m),
             Body::Nemm { emm, k_pr, .. } => {
                 let x = [x_pr_m / self.scales.x_pr_m, alpha / self.scales.alpha];
-                Some(emm.k_pr_n_per_m * k_pr.scale(&x)?)
+                Some(
+                    emm.k_pr_n_per_m
+                        * k_pr.scale_with(&x, self.ext.alpha_branches.k_pr.as_ref())?,
+                )
             }
         }
     }

@@ -6,8 +6,10 @@
 
 use crate::emm::EmmConstants;
 use crate::integrator::Integrator;
-use crate::mlp::{param_count, MlpParams, Scaler};
-use crate::model::{Body, Extension, InputScales, Meta, Model, ModelKind};
+use crate::mlp::{branch_param_count, param_count, AlphaBranch, Direction, MlpParams, Scaler};
+use crate::model::{
+    AlphaBranches, Body, Condition, Extension, InputScales, Meta, Model, ModelKind, Priors,
+};
 use crate::sem::SemMap;
 
 /// Constants of the examples: `b_fl` 2500 N s/m, `b_pr` 1500 N s/m, `k_pr` 4e5 N/m,
@@ -125,6 +127,79 @@ pub fn example_model<const P: usize>(kind: ModelKind, hidden: u8, layers: u8) ->
         body,
         ext: Extension::default(),
     })
+}
+
+/// An example alpha branch: `units` units, `state_inputs` state inputs, pseudo-random
+/// weights in `+-1` (`theta_u` in `+-1.5`).
+pub fn example_branch(
+    direction: Direction,
+    state_inputs: u8,
+    units: u8,
+    seed: u64,
+) -> Option<AlphaBranch> {
+    let n = branch_param_count(state_inputs as usize, units as usize);
+    let k = units as usize;
+    let p: heapless::Vec<f32, { crate::mlp::BRANCH_CAPACITY }> = (0..n)
+        .map(|i| {
+            let u = hash_unit(700_000 + i as u64, seed);
+            let in_theta_u =
+                (k * state_inputs as usize..k * (state_inputs as usize + 1)).contains(&i);
+            if in_theta_u {
+                1.5 * u
+            } else {
+                u
+            }
+        })
+        .collect();
+    AlphaBranch::new(direction, state_inputs, units, &p).ok()
+}
+
+/// The example NEMM ([`example_model`]) with the condition's `priors` held by
+/// construction: every coefficient with a direction gets an [`example_branch`] of `units`
+/// units and its MLP's alpha column set to zero.
+pub fn example_model_with_branches<const P: usize>(
+    hidden: u8,
+    layers: u8,
+    units: u8,
+    priors: Priors,
+) -> Option<Model<P>> {
+    let mut m = example_model::<P>(ModelKind::Nemm, hidden, layers)?;
+    let mut branches = AlphaBranches::default();
+    if let Body::Nemm {
+        b_fl, b_pr, k_pr, ..
+    } = &mut m.body
+    {
+        for (scaler, slot, dir, state, seed) in [
+            (b_fl, &mut branches.b_fl, priors.b_fl, 1u8, 11u64),
+            (b_pr, &mut branches.b_pr, priors.b_pr, 0, 12),
+            (k_pr, &mut branches.k_pr, priors.k_pr, 1, 13),
+        ] {
+            if dir == Direction::None {
+                continue;
+            }
+            let d = scaler.mlp.inputs as usize;
+            for (i, w) in scaler
+                .mlp
+                .params
+                .iter_mut()
+                .take(d * scaler.mlp.hidden as usize)
+                .enumerate()
+            {
+                if i % d == d - 1 {
+                    *w = 0.0;
+                }
+            }
+            *slot = Some(example_branch(dir, state, units, seed)?);
+        }
+    }
+    m.ext = Extension {
+        condition: Condition {
+            priors,
+            ..Condition::default()
+        },
+        alpha_branches: branches,
+    };
+    Some(m)
 }
 
 /// Capacity of [`example_blob`].

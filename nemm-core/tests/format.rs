@@ -500,16 +500,30 @@ fn generator_covers_kinds_and_sizes() {
     assert!(largest > 5000, "{largest}");
 }
 
-/// Every earlier format version still loads: the version-1 blobs in `tests/data/format-v1`
-/// (the example models of every kind as the version-1 encoder wrote them) decode to the
-/// current example models with the default extension, and re-encode as the current version.
+/// Every earlier format version still loads: the version-1 and version-2 blobs in
+/// `tests/data/format-v1` and `format-v2` (the example models of every kind as those
+/// encoders wrote them; a version-2 body is the version-1 body with an empty extension)
+/// decode to the current example models with the default extension (the paper's oil loss,
+/// no alpha branches), and re-encode as the current version.
 #[test]
-fn version_1_blobs_still_load() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/format-v1");
+fn version_1_and_2_blobs_still_load() {
+    for version in [1u16, 2] {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(format!("tests/data/format-v{version}"));
+        check_old_blobs(&dir, version);
+    }
+}
+
+fn check_old_blobs(dir: &std::path::Path, version: u16) {
     for kind in KINDS {
         let path = dir.join(format!("example-{}.nemm", kind.name()));
         let v1 = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        assert_eq!(read_header(&v1).unwrap().version, 1, "{}", path.display());
+        assert_eq!(
+            read_header(&v1).unwrap().version,
+            version,
+            "{}",
+            path.display()
+        );
         let model: Model<1400> = decode(&v1).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
         let expected: Model<1400> = nemm_core::testing::example_model(kind, 16, 5).unwrap();
         assert_eq!(model, expected, "{kind:?}");

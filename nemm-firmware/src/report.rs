@@ -182,6 +182,8 @@ pub fn model_error(line: &mut Line, e: &ModelError) {
         ModelError::Sem(_) => line.ks("reason", "sem-map"),
         ModelError::AlphaRange => line.ks("reason", "alpha-range"),
         ModelError::UnstableStep { .. } => line.ks("reason", "unstable-step"),
+        ModelError::Branch { scaler, .. } => line.ks("reason", "alpha-branch").ks("scaler", scaler),
+        ModelError::Condition { field } => line.ks("reason", "condition").ks("field", field),
     };
 }
 

@@ -17,7 +17,7 @@ use crate::data::preprocess::{
     DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
 };
 use crate::train::fit::FitConfig;
-use crate::train::pipeline::PipelineConfig;
+use crate::train::pipeline::{AlphaPriors, PipelineConfig};
 use anyhow::{bail, Context, Result};
 use nemm_core::{Integrator, ModelKind};
 use serde::{Deserialize, Serialize};
@@ -474,6 +474,11 @@ mod by_name {
             self.name()
         }
     }
+    impl Named for crate::train::pipeline::AlphaPriors {
+        fn name_of(&self) -> &'static str {
+            self.name()
+        }
+    }
 
     pub fn serialize<T: Named, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
         s.serialize_str(v.name_of())
@@ -513,6 +518,13 @@ pub struct ModelConfig {
     /// `1 / rate_hz` whatever the data's sample rate, and the exported blob carries that step
     /// (docs/preprocessing.md, "Model rate and data rate").
     pub rate_hz: f64,
+    /// How the condition's declared monotonicity priors in alpha are imposed:
+    /// `construction` (an alpha branch that holds them for every weight) or `penalty`
+    /// (the paper's physics penalty alone) (docs/training.md, "Priors in alpha").
+    #[serde(with = "by_name")]
+    pub alpha_priors: AlphaPriors,
+    /// Units `K` of each alpha branch.
+    pub branch_units: usize,
 }
 
 impl Default for ModelConfig {
@@ -525,6 +537,8 @@ impl Default for ModelConfig {
             b_fl_bounds: (0.1, 10.0),
             pr_bounds: (0.1, 5.0),
             rate_hz: DEFAULT_MODEL_RATE_HZ,
+            alpha_priors: AlphaPriors::Construction,
+            branch_units: 16,
         }
     }
 }
@@ -679,6 +693,8 @@ impl Config {
             b_fl_bounds: m.b_fl_bounds,
             pr_bounds: m.pr_bounds,
             model_rate_hz: m.rate_hz,
+            alpha_priors: m.alpha_priors,
+            branch_units: m.branch_units,
         }
     }
 }
@@ -738,6 +754,12 @@ pub struct ConfigArgs {
         "Integration rate of the model in Hz, independent of the data's sample rate (the \
          exported step is 1 / rate)", ModelConfig::default().rate_hz))]
     pub model_rate_hz: Option<f64>,
+    /// Overrides [`ModelConfig::alpha_priors`].
+    #[arg(long, help = with_default(
+        "How the declared priors in alpha are imposed: construction (an alpha branch, \
+         monotone for every weight) or penalty (the paper's physics penalty alone)",
+        ModelConfig::default().alpha_priors.name()))]
+    pub alpha_priors: Option<AlphaPriors>,
     /// Overrides [`TrainConfig::batch`].
     #[arg(long, help = with_default(
         "Windows per batch (Table 3: 4, 8, 16)", TrainConfig::default().batch))]
@@ -931,6 +953,7 @@ impl ConfigArgs {
         set(&mut m.layers, &self.layers);
         set(&mut m.integrator, &self.integrator);
         set(&mut m.rate_hz, &self.model_rate_hz);
+        set(&mut m.alpha_priors, &self.alpha_priors);
         set(&mut t.seed, &self.data_options.seed);
         set(&mut t.batch, &self.batch);
         set(&mut t.lr, &self.lr);
@@ -1042,6 +1065,7 @@ mod tests {
         Manifest {
             name: "m".into(),
             sample_rate_hz,
+            condition: None,
             runs: levels
                 .iter()
                 .enumerate()

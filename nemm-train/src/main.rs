@@ -119,6 +119,10 @@ enum Cmd {
         /// Batches per epoch (random subset).
         #[arg(long, default_value_t = 8)]
         max_batches: usize,
+        /// How the declared priors in alpha are imposed: construction (an alpha branch,
+        /// monotone for every weight; default) or penalty (the paper's physics penalty alone).
+        #[arg(long)]
+        alpha_priors: Option<nemm_train::train::pipeline::AlphaPriors>,
         /// Data options.
         #[command(flatten)]
         data_options: nemm_train::config::DataArgs,
@@ -186,6 +190,7 @@ fn main() -> ExitCode {
             out,
             epochs,
             max_batches,
+            alpha_priors,
             data_options,
         } => {
             let mut cfg = nemm_train::config::Config {
@@ -198,6 +203,9 @@ fn main() -> ExitCode {
             cfg.train.epochs = epochs;
             cfg.train.max_batches = Some(max_batches);
             cfg.train.linear_epochs = DEMO_LINEAR_EPOCHS;
+            if let Some(a) = alpha_priors {
+                cfg.model.alpha_priors = a;
+            }
             nemm_train::cli::train::demo(&nemm_train::cli::train::DemoPaths { data, out }, &cfg)
         }
     };

@@ -56,6 +56,7 @@ fn dataset(fs: f64, run: Run) -> Dataset {
     Dataset {
         name: "t".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs: vec![run],
     }
 }

@@ -37,6 +37,7 @@ fn sample_dataset(fs: f64) -> Dataset {
     Dataset {
         name: "test damper \"A\"".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs: vec![
             sine_run("runs/oil00.csv", 0.0, 500, fs, false),
             sine_run("runs/oil15.csv", 0.15, 300, fs, true),
@@ -598,6 +599,7 @@ fn load_speed_five_million_rows() {
     let d = Dataset {
         name: "speed".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs,
     };
     let t = std::time::Instant::now();
@@ -614,4 +616,91 @@ fn load_speed_five_million_rows() {
     assert_eq!(back.total_samples(), 5_000_000);
     assert!(back == d, "round trip");
     assert!(load_s < 30.0, "load took {load_s:.1} s");
+}
+
+/// A manifest with a `[condition]` table (before the runs), `alpha` for a run's level.
+fn condition_manifest(condition: &str) -> String {
+    format!(
+        "name = \"d\"\nsample_rate_hz = 10000.0\n[condition]\n{condition}\n[[runs]]\nfile = \"runs/x.csv\"\nalpha = 0.5\n"
+    )
+}
+
+#[test]
+fn condition_table_names_the_condition_and_its_priors() {
+    let d = load_manifest(&condition_manifest(
+        "name = \"gas charge\"\nunit = \"psi\"\nat_alpha_0 = 150.0\nat_alpha_1 = 50.0\nb_fl = \"decreasing\"\nb_pr = \"none\"\nk_pr = \"increasing\"",
+    ))
+    .expect("loads");
+    assert_eq!(d.runs[0].entry.oil_loss, 0.5);
+    let c = d.condition();
+    assert_eq!(c.name.as_str(), "gas charge");
+    assert_eq!(c.unit.as_str(), "psi");
+    assert_eq!(c.value_at(0.5), 100.0);
+    assert_eq!(
+        c.priors,
+        nemm_core::Priors {
+            b_fl: nemm_core::Direction::Decreasing,
+            b_pr: nemm_core::Direction::None,
+            k_pr: nemm_core::Direction::Increasing,
+        }
+    );
+    let spec = d.condition.clone().expect("declared");
+    assert_eq!(spec.level(0.5), "gas charge 100 psi (alpha 0.5)");
+    // Omitted keys take the paper's defaults; a dataset without the table is the oil loss.
+    let d = load_manifest(&condition_manifest("name = \"voltage\"")).expect("loads");
+    assert_eq!(d.condition().priors, nemm_core::Priors::PAPER);
+    assert_eq!(
+        load_csv_default().condition(),
+        nemm_core::Condition::default()
+    );
+    // The condition survives writing and loading.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut w = sample_dataset(10_000.0);
+    w.condition = Some(spec);
+    dataset::write(dir.path(), &w).expect("write");
+    assert_eq!(dataset::load(dir.path()).expect("load"), w);
+}
+
+fn load_csv_default() -> Dataset {
+    load_csv("time_s,displacement_m,force_n\n0,0,0\n0.0001,0,0\n").expect("loads")
+}
+
+#[test]
+fn bad_condition_values_are_refused_with_file_and_line() {
+    for (table, line, key, text) in [
+        (
+            "name = \"gas\"\nb_pr = \"falling\"",
+            5,
+            "condition.b_pr",
+            "unknown monotonicity direction",
+        ),
+        (
+            "name = \"gas\"\nat_alpha_0 = 2.0\nat_alpha_1 = 2.0",
+            6,
+            "condition.at_alpha_1",
+            "equals at_alpha_0",
+        ),
+        ("name = \"\"", 4, "condition.name", "0 bytes"),
+        (
+            "name = \"a condition name that is far too long\"",
+            4,
+            "condition.name",
+            "must be 1 to 32 bytes",
+        ),
+    ] {
+        let e = load_manifest(&condition_manifest(table)).expect_err("refused");
+        assert!(
+            matches!(&e, DatasetError::ManifestValue { line: Some(l), key: k, .. } if *l == line && k == key),
+            "{table}: {e:?}"
+        );
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("manifest.toml:{line}: {key}")) && msg.contains(text),
+            "{msg}"
+        );
+    }
+    // An unknown key of the table is a syntax error with its line.
+    let e = load_manifest(&condition_manifest("name = \"gas\"\ndirection = \"up\""))
+        .expect_err("refused");
+    assert!(e.to_string().contains("manifest.toml:5"), "{e}");
 }

@@ -68,6 +68,7 @@ fn dataset() -> Dataset {
     Dataset {
         name: "figures test".into(),
         sample_rate_hz: FS,
+        condition: None,
         runs,
     }
 }

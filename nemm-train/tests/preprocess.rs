@@ -120,6 +120,7 @@ fn bench_dataset(fs: f64) -> Dataset {
     Dataset {
         name: "synthetic".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs,
     }
 }
@@ -908,6 +909,7 @@ fn tiny_and_flat_runs_do_not_panic() {
     let ds = Dataset {
         name: "short".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs: vec![sine_run("a.csv", 0.0, 0.01, 5.0, 0.0, 3, fs, None)],
     };
     let mut no_test_level = PrepareConfig::default();
@@ -995,6 +997,7 @@ fn split_by_time_tests_the_end_of_every_run_of_a_single_level() {
     let ds = Dataset {
         name: "one level".into(),
         sample_rate_hz: fs,
+        condition: None,
         runs,
     };
     let mut cfg = PrepareConfig {

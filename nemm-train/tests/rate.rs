@@ -69,6 +69,7 @@ fn resample(ds: &Dataset, rate_hz: f64) -> Dataset {
     Dataset {
         name: format!("{} at {rate_hz} Hz", ds.name),
         sample_rate_hz: rate_hz,
+        condition: None,
         runs,
     }
 }
@@ -310,6 +311,7 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
     let ds = Dataset {
         name: "switching".into(),
         sample_rate_hz: FULL_RATE_HZ,
+        condition: None,
         runs: vec![
             switching_run(&steady, &[0, 1], 8, 0.0, "runs/switch_a.csv"),
             switching_run(&steady, &[1, 0], 8, 0.3, "runs/switch_b.csv"),

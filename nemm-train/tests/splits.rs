@@ -60,6 +60,7 @@ fn write_dataset(dir: &Path, fs: f64, levels: &[f64], seconds: f64) {
         &Dataset {
             name: "splits".into(),
             sample_rate_hz: fs,
+            condition: None,
             runs,
         },
     )

@@ -76,6 +76,7 @@ fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> D
     Dataset {
         name: "synthetic linear EMM".into(),
         sample_rate_hz: FS,
+        condition: None,
         runs,
     }
 }
@@ -344,4 +345,47 @@ fn nan_loss_stops_with_a_clear_error_and_keeps_the_checkpoint() {
         "epoch-0001"
     );
     std::fs::remove_dir_all(&dir).expect("cleanup");
+}
+
+/// A `b_fl` with an alpha branch, trained without any physics penalty, is monotone in
+/// alpha after every epoch (the construction), while the same scaler without the branch
+/// is free to break the prior.
+#[test]
+fn alpha_branch_keeps_the_trained_model_clean_in_alpha_without_a_penalty() {
+    use nemm_core::Direction;
+    use nemm_train::train::physics::{audit, AUDIT_GRID};
+    use nemm_train::train::pipeline::with_branch;
+    let device = Device::flex().autodiff();
+    let (train, val) = small_windows();
+    let data = small_fit_data(&train, &val);
+    let cfg = FitConfig {
+        label: "nemm-light".into(),
+        epochs: 4,
+        batch: 4,
+        patience: 20,
+        lambda_ph: 0.0,
+        ..FitConfig::default()
+    };
+    let mut p: RolloutParams<f32> = from_core(&truth()).expect("emm");
+    p.b_fl = Some(with_branch(
+        init_scaler(2, 8, 2, (0.1, 10.0), 16),
+        Direction::Decreasing,
+        1,
+        8,
+        17,
+    ));
+    let (net, frame) = EmmNet::from_rollout(&p, &device);
+    let r = fit(net, &frame, data, &cfg, None, false, &device).expect("fit");
+    let trained = r.best.to_rollout(&frame);
+    let model = nemm_train::train::params::to_core(&trained, truth().meta).expect("valid model");
+    assert!(model.ext.alpha_branches.b_fl.is_some());
+    // The branch was trained (not left at its initial values).
+    assert_ne!(
+        trained.b_fl.as_ref().map(|s| s.branch_w().to_vec()),
+        p.b_fl.as_ref().map(|s| s.branch_w().to_vec())
+    );
+    let a = audit(&model, AUDIT_GRID.0, AUDIT_GRID.1);
+    let b_fl = a.b_fl.expect("audited");
+    assert!(b_fl.alpha.checked > 0);
+    assert_eq!(b_fl.alpha.violations, 0, "{a:?}");
 }

@@ -258,6 +258,7 @@ impl VirtualBench {
         Dataset {
             name: self.cfg.name.clone(),
             sample_rate_hz: self.cfg.program.sample_rate_hz,
+            condition: None,
             runs,
         }
     }

@@ -12,6 +12,21 @@
 //! target_velocity_m_s = 0.524           # optional metadata
 //! ```
 //!
+//! An optional `[condition]` table names what `alpha` stands for ([`ConditionSpec`]; default:
+//! the paper's oil loss, every coefficient decreasing with it), and `alpha` is accepted as
+//! a synonym of a run's `oil_loss`:
+//!
+//! ```toml
+//! [condition]
+//! name = "gas charge"       # used in tables, figures and the blob
+//! unit = "psi"
+//! at_alpha_0 = 150.0        # condition value at alpha = 0 and at alpha = 1 (linear map)
+//! at_alpha_1 = 50.0
+//! b_fl = "decreasing"       # prior of each coefficient in alpha:
+//! b_pr = "none"             # "decreasing", "increasing" or "none"
+//! k_pr = "increasing"
+//! ```
+//!
 //! Each CSV has a header and one row per sample: `time_s,displacement_m,force_n`, optionally
 //! `velocity_m_s` and `alpha` (the condition level per sample, in \[0, 1\], for a condition
 //! changing within the run). Displacement positive = extension (rebound); force positive =
@@ -28,6 +43,7 @@
 //! [`write()`] writes each file atomically (temporary file + rename, manifest last) with
 //! Rust's shortest round-trip float format, so `load(write(d)) == d` exactly.
 
+use nemm_core::{Condition, Direction, Priors};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -72,15 +88,153 @@ pub const COL_VELOCITY: &str = "velocity_m_s";
 /// \[0, 1\]).
 pub const COL_ALPHA: &str = "alpha";
 
-/// The manifest: dataset name, sample rate and the list of runs.
+/// The manifest: dataset name, sample rate, the condition and the list of runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
     /// Human-readable name of the damper / dataset.
     pub name: String,
     /// Sample rate of every run \[Hz\].
     pub sample_rate_hz: f64,
+    /// What `alpha` stands for (`None`: the paper's oil loss).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub condition: Option<ConditionSpec>,
     /// The runs.
     pub runs: Vec<RunEntry>,
+}
+
+/// The degradation condition of a dataset, as the manifest's `[condition]` table declares
+/// it: name and unit, the linear map from `alpha` in `[0, 1]` to the condition value, and
+/// the direction of each coefficient's monotonicity prior in `alpha` (eqs. 31, 37-38).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ConditionSpec {
+    /// Name, e.g. `gas charge` (1 to [`nemm_core::model::MAX_CONDITION_NAME`] bytes).
+    pub name: String,
+    /// Unit of the condition value, e.g. `psi` (default `-`; at most
+    /// [`nemm_core::model::MAX_CONDITION_UNIT`] bytes).
+    #[serde(default = "ConditionSpec::default_unit")]
+    pub unit: String,
+    /// Condition value at `alpha = 0` (default 0).
+    #[serde(default)]
+    pub at_alpha_0: f64,
+    /// Condition value at `alpha = 1` (default 1).
+    #[serde(default = "ConditionSpec::default_at_alpha_1")]
+    pub at_alpha_1: f64,
+    /// Prior of `b_fl` in alpha (default decreasing).
+    #[serde(default)]
+    pub b_fl: Direction,
+    /// Prior of `b_pr` in alpha (default decreasing).
+    #[serde(default)]
+    pub b_pr: Direction,
+    /// Prior of `k_pr` in alpha (default decreasing).
+    #[serde(default)]
+    pub k_pr: Direction,
+}
+
+impl Default for ConditionSpec {
+    /// The paper's condition: oil loss as a fraction, every coefficient decreasing with it.
+    fn default() -> Self {
+        Self::from_core(&Condition::default())
+    }
+}
+
+impl ConditionSpec {
+    /// The condition a weights blob carries.
+    pub fn from_core(c: &Condition) -> Self {
+        Self {
+            name: c.name.as_str().into(),
+            unit: c.unit.as_str().into(),
+            at_alpha_0: f64::from(c.at_alpha_0),
+            at_alpha_1: f64::from(c.at_alpha_1),
+            b_fl: c.priors.b_fl,
+            b_pr: c.priors.b_pr,
+            k_pr: c.priors.k_pr,
+        }
+    }
+
+    /// True if `alpha` is the condition value itself (`0 -> 0`, `1 -> 1`, unit `-`).
+    pub fn is_alpha_itself(&self) -> bool {
+        self.at_alpha_0 == 0.0 && self.at_alpha_1 == 1.0 && self.unit == "-"
+    }
+
+    /// The condition value at `alpha`.
+    pub fn value_at(&self, alpha: f64) -> f64 {
+        self.at_alpha_0 + (self.at_alpha_1 - self.at_alpha_0) * alpha
+    }
+
+    /// A table column title: `oil loss`, `gas charge [psi]`.
+    pub fn column(&self) -> String {
+        if self.is_alpha_itself() {
+            self.name.clone()
+        } else {
+            format!("{} [{}]", self.name, self.unit)
+        }
+    }
+
+    /// A value in a table column ([`Self::column`]): alpha itself, or the condition value.
+    pub fn cell(&self, alpha: f64) -> String {
+        if self.is_alpha_itself() {
+            alpha.to_string()
+        } else {
+            format!("{:.4}", self.value_at(alpha))
+                .trim_end_matches('0')
+                .trim_end_matches('.')
+                .to_string()
+        }
+    }
+
+    /// A level in words: `oil loss 0.15`, `gas charge 100 psi (alpha 0.5)`.
+    pub fn level(&self, alpha: f64) -> String {
+        if self.is_alpha_itself() {
+            format!("{} {alpha}", self.name)
+        } else {
+            format!(
+                "{} {} {} (alpha {alpha})",
+                self.name,
+                self.cell(alpha),
+                self.unit
+            )
+        }
+    }
+
+    /// A figure's alpha axis title: `oil loss α [-]`, `gas charge α (0: 150 psi, 1: 50 psi)`.
+    pub fn axis_label(&self) -> String {
+        if self.is_alpha_itself() {
+            format!("{} α [-]", self.name)
+        } else {
+            format!(
+                "{} α (0: {} {u}, 1: {} {u})",
+                self.name,
+                self.cell(0.0),
+                self.cell(1.0),
+                u = self.unit
+            )
+        }
+    }
+
+    fn default_unit() -> String {
+        "-".into()
+    }
+
+    fn default_at_alpha_1() -> f64 {
+        1.0
+    }
+
+    /// The condition as the weights blob carries it (`None` if a name or unit is too long or
+    /// a value is not acceptable: [`validate_manifest`] refuses those with their line).
+    pub fn to_core(&self) -> Option<Condition> {
+        Condition::new(
+            &self.name,
+            &self.unit,
+            self.at_alpha_0 as f32,
+            self.at_alpha_1 as f32,
+            Priors {
+                b_fl: self.b_fl,
+                b_pr: self.b_pr,
+                k_pr: self.k_pr,
+            },
+        )
+        .ok()
+    }
 }
 
 /// One run as listed in the manifest.
@@ -88,7 +242,9 @@ pub struct Manifest {
 pub struct RunEntry {
     /// CSV file, relative to the manifest.
     pub file: PathBuf,
-    /// Oil-loss level `alpha` (fraction of oil volume lost, 0..1).
+    /// Condition level `alpha` in `[0, 1]` (the paper's oil loss: fraction of oil volume
+    /// lost); the manifest key `alpha` is accepted as well.
+    #[serde(alias = "alpha")]
     pub oil_loss: f64,
     /// Stroke amplitude \[m\] (optional metadata).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -135,6 +291,8 @@ pub struct Dataset {
     pub name: String,
     /// Sample rate \[Hz\].
     pub sample_rate_hz: f64,
+    /// What `alpha` stands for (`None`: the paper's oil loss).
+    pub condition: Option<ConditionSpec>,
     /// The runs, in manifest order.
     pub runs: Vec<Run>,
 }
@@ -150,11 +308,20 @@ impl Dataset {
         self.runs.iter().map(Run::len).sum()
     }
 
+    /// The condition as models carry it: the manifest's, or the paper's oil loss.
+    pub fn condition(&self) -> Condition {
+        self.condition
+            .as_ref()
+            .and_then(ConditionSpec::to_core)
+            .unwrap_or_default()
+    }
+
     /// The manifest describing this dataset.
     pub fn manifest(&self) -> Manifest {
         Manifest {
             name: self.name.clone(),
             sample_rate_hz: self.sample_rate_hz,
+            condition: self.condition.clone(),
             runs: self.runs.iter().map(|r| r.entry.clone()).collect(),
         }
     }
@@ -449,13 +616,34 @@ struct RawManifest {
     name: String,
     sample_rate_hz: Spanned<f64>,
     #[serde(default)]
+    condition: Option<RawCondition>,
+    #[serde(default)]
     runs: Vec<RawRun>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCondition {
+    name: Spanned<String>,
+    #[serde(default)]
+    unit: Option<Spanned<String>>,
+    #[serde(default)]
+    at_alpha_0: Option<Spanned<f64>>,
+    #[serde(default)]
+    at_alpha_1: Option<Spanned<f64>>,
+    #[serde(default)]
+    b_fl: Option<Spanned<String>>,
+    #[serde(default)]
+    b_pr: Option<Spanned<String>>,
+    #[serde(default)]
+    k_pr: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawRun {
     file: Spanned<PathBuf>,
+    #[serde(alias = "alpha")]
     oil_loss: Spanned<f64>,
     #[serde(default)]
     amplitude_m: Option<Spanned<f64>>,
@@ -466,7 +654,17 @@ struct RawRun {
 /// Spans of the manifest values, for error lines (`None` for in-memory manifests).
 struct ManifestLines {
     sample_rate_hz: usize,
+    condition: Option<ConditionLines>,
     runs: Vec<RunLines>,
+}
+
+/// Lines of the `[condition]` values (the table's name line where a key is absent).
+#[derive(Clone, Copy)]
+struct ConditionLines {
+    name: usize,
+    unit: usize,
+    at_alpha_0: usize,
+    at_alpha_1: usize,
 }
 
 struct RunLines {
@@ -495,6 +693,64 @@ fn validate_manifest(
             "sample_rate_hz".into(),
             format!("{} is not a positive finite rate in Hz", m.sample_rate_hz),
         ));
+    }
+    if let Some(c) = &m.condition {
+        let cl = lines.and_then(|l| l.condition.as_ref());
+        let limits = [
+            (
+                "condition.name",
+                c.name.len(),
+                1,
+                nemm_core::model::MAX_CONDITION_NAME,
+                cl.map(|l| l.name),
+            ),
+            (
+                "condition.unit",
+                c.unit.len(),
+                0,
+                nemm_core::model::MAX_CONDITION_UNIT,
+                cl.map(|l| l.unit),
+            ),
+        ];
+        for (key, len, lo, hi, line) in limits {
+            if !(lo..=hi).contains(&len) {
+                return Err(value_err(
+                    line,
+                    key.into(),
+                    format!("{len} bytes; must be {lo} to {hi} bytes"),
+                ));
+            }
+        }
+        for (key, v, line) in [
+            (
+                "condition.at_alpha_0",
+                c.at_alpha_0,
+                cl.map(|l| l.at_alpha_0),
+            ),
+            (
+                "condition.at_alpha_1",
+                c.at_alpha_1,
+                cl.map(|l| l.at_alpha_1),
+            ),
+        ] {
+            if !(v.is_finite() && (v as f32).is_finite()) {
+                return Err(value_err(
+                    line,
+                    key.into(),
+                    format!("{v} is not a finite number"),
+                ));
+            }
+        }
+        if c.at_alpha_0 as f32 == c.at_alpha_1 as f32 {
+            return Err(value_err(
+                cl.map(|l| l.at_alpha_1),
+                "condition.at_alpha_1".into(),
+                format!(
+                    "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
+                    c.at_alpha_1
+                ),
+            ));
+        }
     }
     if m.runs.is_empty() {
         return Err(value_err(
@@ -526,7 +782,8 @@ fn validate_manifest(
                 rl.map(|l| l.oil_loss),
                 key("oil_loss"),
                 format!(
-                    "{} is outside [0, 1] (fraction of oil volume lost)",
+                    "{} is outside [0, 1] (condition level alpha, e.g. the fraction of oil \
+                     volume lost)",
                     r.oil_loss
                 ),
             ));
@@ -588,8 +845,13 @@ fn read_manifest_with_lines(dir: &Path) -> Result<(Manifest, ManifestLines), Dat
         }
     })?;
     let line_of = |span: std::ops::Range<usize>| line_col(&text, span.start).0;
+    let condition = raw
+        .condition
+        .map(|c| raw_condition(c, &text, &path))
+        .transpose()?;
     let lines = ManifestLines {
         sample_rate_hz: line_of(raw.sample_rate_hz.span()),
+        condition: condition.as_ref().map(|c| c.1),
         runs: raw
             .runs
             .iter()
@@ -604,6 +866,7 @@ fn read_manifest_with_lines(dir: &Path) -> Result<(Manifest, ManifestLines), Dat
     let manifest = Manifest {
         name: raw.name,
         sample_rate_hz: raw.sample_rate_hz.into_inner(),
+        condition: condition.map(|c| c.0),
         runs: raw
             .runs
             .into_iter()
@@ -617,6 +880,52 @@ fn read_manifest_with_lines(dir: &Path) -> Result<(Manifest, ManifestLines), Dat
     };
     validate_manifest(&manifest, &path, Some(&lines))?;
     Ok((manifest, lines))
+}
+
+/// The `[condition]` table with its lines; a direction that is none of the accepted names
+/// is refused with its line.
+fn raw_condition(
+    c: RawCondition,
+    text: &str,
+    path: &Path,
+) -> Result<(ConditionSpec, ConditionLines), DatasetError> {
+    let line_of = |span: std::ops::Range<usize>| line_col(text, span.start).0;
+    let name_line = line_of(c.name.span());
+    let line = |s: &Option<Spanned<f64>>| s.as_ref().map_or(name_line, |s| line_of(s.span()));
+    let lines = ConditionLines {
+        name: name_line,
+        unit: c.unit.as_ref().map_or(name_line, |s| line_of(s.span())),
+        at_alpha_0: line(&c.at_alpha_0),
+        at_alpha_1: line(&c.at_alpha_1),
+    };
+    let direction = |s: Option<Spanned<String>>, key: &str| -> Result<Direction, DatasetError> {
+        match s {
+            None => Ok(Direction::default()),
+            Some(s) => {
+                let l = line_of(s.span());
+                s.into_inner()
+                    .parse::<Direction>()
+                    .map_err(|e| DatasetError::ManifestValue {
+                        path: path.to_path_buf(),
+                        line: Some(l),
+                        key: format!("condition.{key}"),
+                        message: format!("{e}"),
+                    })
+            }
+        }
+    };
+    let spec = ConditionSpec {
+        name: c.name.into_inner(),
+        unit: c
+            .unit
+            .map_or_else(ConditionSpec::default_unit, Spanned::into_inner),
+        at_alpha_0: c.at_alpha_0.map_or(0.0, Spanned::into_inner),
+        at_alpha_1: c.at_alpha_1.map_or(1.0, Spanned::into_inner),
+        b_fl: direction(c.b_fl, "b_fl")?,
+        b_pr: direction(c.b_pr, "b_pr")?,
+        k_pr: direction(c.k_pr, "k_pr")?,
+    };
+    Ok((spec, lines))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -673,6 +982,7 @@ pub fn load_with_progress(
     Ok(Dataset {
         name: manifest.name,
         sample_rate_hz: fs,
+        condition: manifest.condition,
         runs,
     })
 }

@@ -950,6 +950,7 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
         dataset: Dataset {
             name: spec.name.clone().unwrap_or_else(|| name.to_string()),
             sample_rate_hz: rate_hz,
+            condition: None,
             runs,
         },
         runs: account,

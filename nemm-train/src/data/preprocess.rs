@@ -1076,10 +1076,21 @@ impl SplitConfig {
 
     /// One line for reports: the test set, the training runs and the validation rule.
     pub fn describe(&self) -> String {
-        let list = |v: &[f64]| v.iter().map(f64::to_string).collect::<Vec<_>>().join(", ");
+        self.describe_for(&crate::data::dataset::ConditionSpec::default())
+    }
+
+    /// [`Self::describe`] with the levels named by the dataset's `condition`.
+    pub fn describe_for(&self, condition: &crate::data::dataset::ConditionSpec) -> String {
+        let list = |v: &[f64]| {
+            v.iter()
+                .map(|&a| condition.cell(a))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let what = condition.column();
         let mut test = Vec::new();
         if !self.test_alphas.is_empty() {
-            test.push(format!("runs at oil loss {}", list(&self.test_alphas)));
+            test.push(format!("runs at {what} {}", list(&self.test_alphas)));
         }
         if !self.test_runs.is_empty() {
             test.push(format!("runs matching {}", self.test_runs.join(", ")));
@@ -1091,7 +1102,7 @@ impl SplitConfig {
             test.push("none".into());
         }
         let mut train = match &self.train_alphas {
-            Some(a) => format!("runs at oil loss {}", list(a)),
+            Some(a) => format!("runs at {what} {}", list(a)),
             None => "every other run".into(),
         };
         if !self.exclude_runs.is_empty() {
@@ -1406,6 +1417,8 @@ pub struct Prepared {
     /// Derived signals of every run, in dataset order (the source of the sequences and
     /// quasi-static points, and of the figures' measured loops).
     pub signals: Vec<Signals>,
+    /// The dataset's condition (name, unit, map to alpha, declared priors).
+    pub condition: nemm_core::Condition,
 }
 
 /// Counts of one split, for reports.
@@ -1708,6 +1721,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         },
         runs: Vec::with_capacity(per_run.len()),
         signals: Vec::with_capacity(per_run.len()),
+        condition: dataset.condition(),
     };
     let mut train_absmax = [0.0f64; 3];
     for r in per_run {

@@ -49,7 +49,7 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
         Body::Sem(m) => {
             let _ = writeln!(
                 s,
-                "SEM map:         {} velocities in [{}, {}] m/s x {} oil-loss levels {:?}",
+                "SEM map:         {} velocities in [{}, {}] m/s x {} condition levels (alpha) {:?}",
                 m.velocities_m_s.len(),
                 m.velocities_m_s.first().copied().unwrap_or(0.0),
                 m.velocities_m_s.last().copied().unwrap_or(0.0),
@@ -65,6 +65,30 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
             scaler(&mut s, "b_fl", b_fl);
             scaler(&mut s, "b_pr", b_pr);
             scaler(&mut s, "k_pr", k_pr);
+        }
+    }
+    let c = &model.ext.condition;
+    let spec = crate::data::dataset::ConditionSpec::from_core(c);
+    let _ = writeln!(
+        s,
+        "condition:       {} (alpha 0 = {} {u}, alpha 1 = {} {u}); priors in alpha: b_fl {}, b_pr {}, k_pr {}",
+        c.name,
+        spec.cell(0.0),
+        spec.cell(1.0),
+        c.priors.b_fl.name(),
+        c.priors.b_pr.name(),
+        c.priors.k_pr.name(),
+        u = c.unit
+    );
+    let br = &model.ext.alpha_branches;
+    for (name, b) in [("b_fl", &br.b_fl), ("b_pr", &br.b_pr), ("k_pr", &br.k_pr)] {
+        if let Some(b) = b {
+            let _ = writeln!(
+                s,
+                "alpha branch {name}: {} units, {} in alpha by construction",
+                b.units,
+                b.direction.name()
+            );
         }
     }
     if let Some(tau) = model.fastest_time_constant_s() {

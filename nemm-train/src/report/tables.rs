@@ -2,6 +2,7 @@
 //! abs-max force, and in newtons), the monotonicity audit, training facts; as `report.json`
 //! and Markdown.
 
+use crate::data::dataset::ConditionSpec;
 use crate::data::preprocess::Prepared;
 use crate::train::eval::{rmse_of, sse_per_sequence};
 use crate::train::fit::EpochStats;
@@ -70,6 +71,9 @@ pub struct Report {
     /// Free-form facts about the run (configuration, dataset).
     #[serde(default)]
     pub info: BTreeMap<String, String>,
+    /// What `alpha` stands for (the dataset's `[condition]`; default the paper's oil loss).
+    #[serde(default)]
+    pub condition: ConditionSpec,
 }
 
 /// The test error of every variant on one held-out run (its scored test sequences).
@@ -146,7 +150,9 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
             },
         );
     }
+    let condition = ConditionSpec::from_core(&prepared.condition);
     Ok(Report {
+        condition: condition.clone(),
         test_alpha: prepared
             .config
             .split
@@ -157,7 +163,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
         force_scale_n: fs,
         variants,
         failed,
-        test_set: prepared.config.split.describe(),
+        test_set: prepared.config.split.describe_for(&condition),
         test_sequences: prepared.test.len(),
         test_runs: by_run
             .into_iter()
@@ -207,9 +213,10 @@ pub fn test_runs_markdown(r: &Report) -> String {
         })
         .sum();
     let _ = writeln!(s, "Test RMSE per held-out run [N]:\n");
-    let mut head =
-        "| run | oil loss | amplitude [mm] | frequency [Hz] | peak velocity [m/s] | samples |"
-            .to_string();
+    let mut head = format!(
+        "| run | {} | amplitude [mm] | frequency [Hz] | peak velocity [m/s] | samples |",
+        r.condition.column()
+    );
     let mut rule = "|---|---:|---:|---:|---:|---:|".to_string();
     for v in &keys {
         head.push_str(&format!(" {} |", v.title()));
@@ -225,7 +232,7 @@ pub fn test_runs_markdown(r: &Report) -> String {
         let mut row = format!(
             "| {} | {} | {:.0} | {} | {:.3} | {} |",
             t.file,
-            t.alpha,
+            r.condition.cell(t.alpha),
             t.amplitude_m * 1e3,
             t.frequency_hz.map_or("-".into(), |f| format!("{f:.1}")),
             t.peak_velocity_m_s,
@@ -288,7 +295,7 @@ pub fn table4_markdown(r: &Report) -> String {
         }
     }
     let split = if r.test_set.is_empty() {
-        format!("test: oil loss {}", r.test_alpha)
+        format!("test: {}", r.condition.level(r.test_alpha))
     } else {
         r.test_set.clone()
     };

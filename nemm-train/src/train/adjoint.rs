@@ -50,8 +50,8 @@
 use nemm_core::emm::{self, Coefficients, State};
 use nemm_core::integrator::{self, Stage, StageBackward, StepSize};
 use nemm_core::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
-use nemm_core::mlp;
-use nemm_core::Integrator;
+use nemm_core::mlp::{self, Direction};
+use nemm_core::{Integrator, Priors};
 use num_traits::Float;
 use rayon::prelude::*;
 use std::fmt::Debug;
@@ -92,7 +92,32 @@ fn sum<T: Real>(v: &V<T>) -> T {
     v.iter().fold(T::zero(), |a, &b| a + b)
 }
 
-/// Weights of one scaler in nemm-core's flat layout (see `nemm_core::mlp`).
+/// Shape of a scaler's alpha branch (`nemm_core::mlp::AlphaBranch`): its weights follow
+/// the MLP's in [`ScalerWeights::w`], in nemm-core's branch layout.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BranchShape {
+    /// Declared direction in alpha (increasing or decreasing).
+    pub direction: Direction,
+    /// State inputs (1 for `b_fl`, `k_pr`; 0 for `b_pr`).
+    pub state_inputs: usize,
+    /// Units `K`.
+    pub units: usize,
+}
+
+impl BranchShape {
+    /// Number of branch parameters.
+    pub fn len(&self) -> usize {
+        mlp::branch_param_count(self.state_inputs, self.units)
+    }
+
+    /// True without parameters (never for a valid shape).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Weights of one scaler in nemm-core's flat layout (see `nemm_core::mlp`), followed by
+/// its alpha branch's weights if it has one.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ScalerWeights<T> {
     /// Inputs `d` (2: state and alpha; 1: alpha only).
@@ -101,12 +126,32 @@ pub struct ScalerWeights<T> {
     pub hidden: usize,
     /// Hidden layers `L`.
     pub layers: usize,
-    /// Flat parameters.
+    /// Flat parameters: the MLP's, then the branch's.
     pub w: Vec<T>,
     /// Lower bound of the scale factor.
     pub s_min: T,
     /// Upper bound of the scale factor.
     pub s_max: T,
+    /// The alpha branch, if the scaler has one (its MLP then ignores alpha).
+    #[serde(default)]
+    pub branch: Option<BranchShape>,
+}
+
+impl<T> ScalerWeights<T> {
+    /// Number of the MLP's parameters (the head of [`Self::w`]).
+    pub fn mlp_len(&self) -> usize {
+        mlp::param_count(self.inputs, self.hidden, self.layers)
+    }
+
+    /// The MLP's parameters.
+    pub fn mlp_w(&self) -> &[T] {
+        &self.w[..self.mlp_len().min(self.w.len())]
+    }
+
+    /// The branch's parameters (empty without a branch).
+    pub fn branch_w(&self) -> &[T] {
+        &self.w[self.mlp_len().min(self.w.len())..]
+    }
 }
 
 /// Everything a rollout needs: constants, scalers, normalisation, integrator.
@@ -136,6 +181,10 @@ pub struct RolloutParams<T> {
     pub b_pr: Option<ScalerWeights<T>>,
     /// `k_pr(x_pr, alpha)` scaler, if neural.
     pub k_pr: Option<ScalerWeights<T>>,
+    /// Declared monotonicity priors in alpha (the physics penalty and the audit follow
+    /// them; a scaler with an alpha branch holds its prior by construction).
+    #[serde(default)]
+    pub priors: Priors,
 }
 
 /// Gradient of the loss with respect to every trainable quantity of [`RolloutParams`].
@@ -361,7 +410,7 @@ impl<'a, T: Real> Mlp<'a, T> {
             layers.push(lo);
         }
         assert_eq!(
-            off + h + 1,
+            off + h + 1 + s.branch.map_or(0, |b| b.len()),
             s.w.len(),
             "scaler weight count does not match its shape"
         );
@@ -371,7 +420,7 @@ impl<'a, T: Real> Mlp<'a, T> {
             layers,
             out_w: off,
             out_b: off + h,
-            w: &s.w,
+            w: s.mlp_w(),
         }
     }
 
@@ -404,16 +453,126 @@ struct Act<T> {
     a: Vec<L<T>>,
     /// `sigmoid(z)`.
     sig: L<T>,
+    /// The alpha branch's pre-activations `t_k` (empty without a branch).
+    bt: Vec<L<T>>,
 }
 
 impl<T: Real> Act<T> {
-    fn new(h: usize, layers: usize) -> Self {
+    fn new(h: usize, layers: usize, units: usize) -> Self {
         Self {
             x0: splat(T::zero()),
             n: vec![L::splat(T::zero()); h * layers],
             r: vec![L::splat(T::zero()); layers],
             a: vec![L::splat(T::zero()); h * layers],
             sig: L::splat(T::zero()),
+            bt: vec![L::splat(T::zero()); units],
+        }
+    }
+}
+
+/// A scaler's alpha branch over the lanes (`nemm_core::mlp::AlphaBranch`): `z +=
+/// sum_k v_k leaky_relu(r_k x0 + u_k alpha_n + c_k)`, `v_k = theta_v,k^2`,
+/// `u_k = d theta_u,k^2`, with `u_k alpha_n + c_k` folded per lane for the pack's alpha.
+#[derive(Debug, Clone)]
+struct Branch<'a, T> {
+    /// State inputs (0 or 1).
+    s: usize,
+    /// Units.
+    k: usize,
+    /// Direction sign.
+    d: T,
+    /// Branch weights: `r (K s), theta_u (K), c (K), theta_v (K)`.
+    w: &'a [T],
+    /// `u_k alpha_n + c_k` per unit and lane.
+    bias: Vec<V<T>>,
+}
+
+impl<'a, T: Real> Branch<'a, T> {
+    fn new(sw: &'a ScalerWeights<T>, alpha_n: &V<T>) -> Option<Self> {
+        let b = sw.branch?;
+        let (s, k) = (b.state_inputs, b.units);
+        let w = sw.branch_w();
+        let d = T::c(f64::from(b.direction.sign()));
+        let bias = (0..k)
+            .map(|i| {
+                let tu = w[k * s + i];
+                let u = d * (tu * tu);
+                let c = w[k * s + k + i];
+                std::array::from_fn(|l| u * alpha_n[l] + c)
+            })
+            .collect();
+        Some(Self { s, k, d, w, bias })
+    }
+
+    /// Adds the branch at normalised state `x0` to `z`; records the pre-activations. The
+    /// branch is summed from zero and then added to the MLP's `z`, in nemm-core's order
+    /// (`AlphaBranch::raw`, `CompiledBranch::raw`): accumulating its terms into `z` directly
+    /// would round differently from the estimator.
+    #[inline]
+    fn forward(&self, x0: &V<T>, z: &mut L<T>, rec: Option<&mut Vec<L<T>>>) {
+        let (s, k) = (self.s, self.k);
+        let mut rec = rec;
+        let mut zb = L::splat(T::zero());
+        for i in 0..k {
+            let b = &self.bias[i];
+            let t: L<T> = if s == 1 {
+                let r = self.w[i];
+                Lanes(std::array::from_fn(|l| r * x0[l] + b[l]))
+            } else {
+                Lanes(*b)
+            };
+            let tv = self.w[k * s + 2 * k + i];
+            zb = zb + L::splat(tv * tv) * mlp::leaky_relu(t);
+            if let Some(r) = rec.as_deref_mut() {
+                r[i] = t;
+            }
+        }
+        *z = *z + zb;
+    }
+
+    /// Back-propagates `zbar` through the branch at the recorded pre-activations `bt`:
+    /// adds the weight gradients to `g` (branch layout) and `dL/dx0` to `x0bar`.
+    #[inline]
+    fn backward(
+        &self,
+        bt: &[L<T>],
+        x0: &V<T>,
+        alpha_n: &V<T>,
+        zbar: &V<T>,
+        g: &mut [T],
+        x0bar: &mut V<T>,
+    ) {
+        let (s, k) = (self.s, self.k);
+        let slope = T::c(f64::from(mlp::LEAKY_RELU_SLOPE));
+        let two = T::c(2.0);
+        for i in 0..k {
+            let t = bt[i].0;
+            let (tu, tv) = (self.w[k * s + i], self.w[k * s + 2 * k + i]);
+            let v = tv * tv;
+            let mut s_act = T::zero();
+            let mut s_t = T::zero();
+            let mut s_tx = T::zero();
+            let mut s_ta = T::zero();
+            let r = if s == 1 { self.w[i] } else { T::zero() };
+            for l in 0..LANES {
+                let (a, da) = if t[l] >= T::zero() {
+                    (t[l], T::one())
+                } else {
+                    (slope * t[l], slope)
+                };
+                s_act += zbar[l] * a;
+                let tbar = zbar[l] * v * da;
+                s_t += tbar;
+                s_tx += tbar * x0[l];
+                s_ta += tbar * alpha_n[l];
+                x0bar[l] += r * tbar;
+            }
+            if s == 1 {
+                g[i] += s_tx;
+            }
+            g[k * s + i] += s_ta * self.d * two * tu;
+            g[k * s + k + i] += s_t;
+            g[k * s + 2 * k + i] += s_act * two * tv;
         }
     }
 }
@@ -634,6 +793,19 @@ struct NeuralCoef<'a, T> {
     span: T,
     inv_scale: T,
     b1: Vec<V<T>>,
+    /// The alpha branch, if any.
+    branch: Option<Branch<'a, T>>,
+    /// The MLP's alpha input: `alpha_n`, or 0 with a branch.
+    mlp_alpha: V<T>,
+}
+
+/// The MLP's alpha input of scaler `s`: 0 when the alpha branch carries `alpha`.
+fn mlp_alpha<T: Real>(s: &ScalerWeights<T>, alpha_n: &V<T>) -> V<T> {
+    if s.branch.is_some() {
+        splat(T::zero())
+    } else {
+        *alpha_n
+    }
 }
 
 impl<'a, T: Real> Coef<'a, T> {
@@ -642,22 +814,29 @@ impl<'a, T: Real> Coef<'a, T> {
             c0,
             neural: s.map(|s| {
                 let mlp = Mlp::new(s);
-                let b1 = mlp.bias1(alpha_n);
+                let mlp_alpha = mlp_alpha(s, alpha_n);
+                let b1 = mlp.bias1(&mlp_alpha);
                 NeuralCoef {
                     mlp,
                     s_min: s.s_min,
                     span: s.s_max - s.s_min,
                     inv_scale: T::one() / scale,
                     b1,
+                    branch: Branch::new(s, alpha_n),
+                    mlp_alpha,
                 }
             }),
         }
     }
 
     fn act(&self) -> Option<Act<T>> {
-        self.neural
-            .as_ref()
-            .map(|n| Act::new(n.mlp.h, n.mlp.layers.len()))
+        self.neural.as_ref().map(|n| {
+            Act::new(
+                n.mlp.h,
+                n.mlp.layers.len(),
+                n.branch.as_ref().map_or(0, |b| b.k),
+            )
+        })
     }
 
     #[inline]
@@ -666,7 +845,10 @@ impl<'a, T: Real> Coef<'a, T> {
             None => splat(self.c0),
             Some(n) => {
                 let x0: V<T> = std::array::from_fn(|k| x[k] * n.inv_scale);
-                let z = n.mlp.forward(&x0, &n.b1, scratch, rec.as_deref_mut());
+                let mut z = n.mlp.forward(&x0, &n.b1, scratch, rec.as_deref_mut());
+                if let Some(b) = &n.branch {
+                    b.forward(&x0, &mut z, rec.as_deref_mut().map(|r| &mut r.bt));
+                }
                 let (p, sig) = self.bounded(n, z);
                 if let Some(rec) = rec {
                     rec.sig = sig;
@@ -702,7 +884,11 @@ impl<'a, T: Real> Coef<'a, T> {
                 *c0bar += s0;
                 let zbar =
                     mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), Lanes(*cbar)).0;
-                let x0bar = n.mlp.backward(rec, &zbar, alpha_n, g, scratch);
+                let (gm, gb) = g.split_at_mut(n.mlp.w.len());
+                let mut x0bar = n.mlp.backward(rec, &zbar, &n.mlp_alpha, gm, scratch);
+                if let Some(b) = &n.branch {
+                    b.backward(&rec.bt, &rec.x0, alpha_n, &zbar, gb, &mut x0bar);
+                }
                 std::array::from_fn(|k| x0bar[k] * n.inv_scale)
             }
             _ => {
@@ -727,9 +913,13 @@ type Cv<T> = Coefficients<L<T>>;
 /// Where to record the activations of the `b_fl` and `k_pr` evaluations.
 type ActPair<'r, T> = (&'r mut Option<Act<T>>, &'r mut Option<Act<T>>);
 
-/// The `b_pr(alpha)` scaler of a pack: its MLP, activations and output bounds.
+/// The `b_pr(alpha)` scaler of a pack: its MLP, alpha branch, activations and output
+/// bounds.
 struct BprRecord<'a, T> {
     mlp: Mlp<'a, T>,
+    branch: Option<Branch<'a, T>>,
+    /// The MLP's input: `alpha_n`, or 0 with a branch.
+    mlp_alpha: V<T>,
     act: Act<T>,
     s_min: T,
     span: T,
@@ -761,9 +951,14 @@ impl<'a, T: Real> Pack<'a, T> {
             Some(s) => {
                 let mlp = Mlp::new(s);
                 let mut scratch = Scratch::new(s.hidden);
-                let b1 = mlp.bias1(&alpha_n);
-                let mut act = Act::new(s.hidden, s.layers);
-                let z = mlp.forward(&alpha_n, &b1, &mut scratch, Some(&mut act));
+                let mlp_alpha = mlp_alpha(s, &alpha_n);
+                let b1 = mlp.bias1(&mlp_alpha);
+                let branch = Branch::new(s, &alpha_n);
+                let mut act = Act::new(s.hidden, s.layers, branch.as_ref().map_or(0, |b| b.k));
+                let mut z = mlp.forward(&mlp_alpha, &b1, &mut scratch, Some(&mut act));
+                if let Some(b) = &branch {
+                    b.forward(&mlp_alpha, &mut z, Some(&mut act.bt));
+                }
                 let span = s.s_max - s.s_min;
                 let (bp, sig) = mlp::bounded::<Unfused, L<T>>(
                     z,
@@ -776,6 +971,8 @@ impl<'a, T: Real> Pack<'a, T> {
                     bp,
                     Some(BprRecord {
                         mlp,
+                        branch,
+                        mlp_alpha,
                         act,
                         s_min: s.s_min,
                         span,
@@ -1096,6 +1293,8 @@ fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T
         None => bar.g.b_pr0 += sum(&bp_bar),
         Some(BprRecord {
             mlp,
+            branch,
+            mlp_alpha,
             act,
             s_min,
             span,
@@ -1105,8 +1304,13 @@ fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T
             }
             let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp).0;
             let mut scratch = Scratch::new(mlp.h);
-            let alpha_n = pk.alpha_n;
-            mlp.backward(act, &zbar, &alpha_n, &mut bar.g.b_pr, &mut scratch);
+            let (gm, gb) = bar.g.b_pr.split_at_mut(mlp.w.len());
+            mlp.backward(act, &zbar, mlp_alpha, gm, &mut scratch);
+            if let Some(b) = branch {
+                // No state input: the state adjoint is not used.
+                let mut unused = splat(T::zero());
+                b.backward(&act.bt, mlp_alpha, &pk.alpha_n, &zbar, gb, &mut unused);
+            }
         }
     }
     bar.bp = L::splat(T::zero());

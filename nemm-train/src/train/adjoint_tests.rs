@@ -21,9 +21,18 @@ fn signal(n: usize, dt: f64, a: f64, f1: f64, phase: f64) -> Vec<f32> {
 
 #[test]
 fn rollout_matches_core_estimator() {
-    for kind in [ModelKind::LinearEmm, ModelKind::NemmLight, ModelKind::Nemm] {
+    for (kind, with_branches) in [
+        (ModelKind::LinearEmm, false),
+        (ModelKind::NemmLight, false),
+        (ModelKind::Nemm, false),
+        (ModelKind::Nemm, true),
+    ] {
         for integ in [Integrator::Rk4, Integrator::Rk3] {
-            let mut m = model(kind, 16, 5);
+            let mut m = if with_branches {
+                branched(16, 5, 16)
+            } else {
+                model(kind, 16, 5)
+            };
             m.integrator = integ;
             let p: RolloutParams<f32> = from_core(&m).expect("emm model");
             let n = 20_000;
@@ -144,6 +153,30 @@ fn alpha_steps(w: usize, n: usize) -> Vec<f32> {
 fn check_fd_on(kind: ModelKind, integ: Integrator, ratio: f64, varying: bool) {
     let mut m = model(kind, 4, 2);
     m.integrator = integ;
+    check_fd_model(&m, &format!("{kind:?}"), ratio, varying);
+}
+
+/// The example NEMM with alpha branches of `units` units on every coefficient (`b_pr`
+/// increasing, the others decreasing).
+fn branched(h: u8, l: u8, units: u8) -> Model {
+    use nemm_core::{Direction, Priors};
+    nemm_core::testing::example_model_with_branches(
+        h,
+        l,
+        units,
+        Priors {
+            b_fl: Direction::Decreasing,
+            b_pr: Direction::Increasing,
+            k_pr: Direction::Decreasing,
+        },
+    )
+    .expect("branched example model")
+}
+
+/// [`check_fd_on`] for a given model (its integrator; the step set to 5e-4 s).
+fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
+    let mut m = m.clone();
+    let integ = m.integrator;
     // A longer step (still stable) so that 60 steps move the states well away from rest.
     m.dt_s = 5e-4;
     let p: RolloutParams<f64> = from_core(&m).expect("emm model");
@@ -179,10 +212,12 @@ fn check_fd_on(kind: ModelKind, integ: Integrator, ratio: f64, varying: bool) {
         // Relative to the component, floored at 1e-6 of the largest component (absolute
         // noise of the difference quotient). A component far below the largest one drowns in
         // the loss's rounding noise at step 1e-6 (a per-step level makes many of them); the
-        // smooth loss then gives the derivative at the larger steps 1e-4 and 1e-3.
+        // smooth loss then gives the derivative at the larger steps 1e-4 and 1e-3. A kink
+        // (LeakyReLU input crossing zero at some step) within 1e-6 of the point spoils the
+        // larger steps alike; the step 1e-7 then still sees the one-sided derivative.
         let mut err = f64::INFINITY;
         let mut fd = 0.0;
-        for d in [1e-6, 1e-4, 1e-3] {
+        for d in [1e-6, 1e-7, 1e-4, 1e-3] {
             fd = central(d);
             err = err.min((gi - fd).abs() / fd.abs().max(1e-6 * gmax));
             if err < 1e-4 {
@@ -192,12 +227,12 @@ fn check_fd_on(kind: ModelKind, integ: Integrator, ratio: f64, varying: bool) {
         worst = worst.max(err);
         assert!(
             err < 1e-4,
-            "{kind:?} {integ:?} ratio {ratio} varying alpha {varying} {name}: adjoint {gi:e}, \
+            "{label} {integ:?} ratio {ratio} varying alpha {varying} {name}: adjoint {gi:e}, \
              finite difference {fd:e}"
         );
     }
     eprintln!(
-        "{kind:?} {integ:?} ratio {ratio} varying alpha {varying}: worst relative error vs \
+        "{label} {integ:?} ratio {ratio} varying alpha {varying}: worst relative error vs \
          central differences {worst:e}"
     );
 }
@@ -214,6 +249,15 @@ fn adjoint_is_exact_on_a_coarser_data_grid() {
 fn adjoint_is_exact_with_a_condition_level_changing_within_windows() {
     check_fd_on(ModelKind::Nemm, Integrator::Rk4, 1.0, true);
     check_fd_on(ModelKind::Nemm, Integrator::Rk3, 2.5, true);
+}
+
+/// The alpha branches' weights (and the MLPs' without their alpha column) get their exact
+/// gradients, also with a level changing within the windows and on a coarser data grid.
+#[test]
+fn adjoint_is_exact_with_alpha_branches() {
+    let m = branched(4, 2, 3);
+    check_fd_model(&m, "branched NEMM", 1.0, false);
+    check_fd_model(&m, "branched NEMM", 2.5, true);
 }
 
 #[test]
@@ -249,12 +293,18 @@ fn grid_maps_samples_and_steps() {
 #[test]
 fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
     use super::eval::{run_estimator, Input};
-    for (kind, ratio) in [
-        (ModelKind::Nemm, 1.0),
-        (ModelKind::Nemm, 100.0 / 3.0),
-        (ModelKind::NemmLight, 10.0),
+    for (kind, ratio, with_branches) in [
+        (ModelKind::Nemm, 1.0, false),
+        (ModelKind::Nemm, 100.0 / 3.0, false),
+        (ModelKind::NemmLight, 10.0, false),
+        (ModelKind::Nemm, 1.0, true),
+        (ModelKind::Nemm, 10.0, true),
     ] {
-        let m = model(kind, 16, 5);
+        let m = if with_branches {
+            branched(16, 5, 16)
+        } else {
+            model(kind, 16, 5)
+        };
         let p: RolloutParams<f32> = from_core(&m).expect("emm model");
         let sample_dt = ratio * f64::from(m.dt_s);
         let n = (1.5 / sample_dt) as usize;
@@ -287,7 +337,8 @@ fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
         let rel = worst / f64::from(m.meta.force_scale_n);
         assert!(
             rel < 1e-5,
-            "{kind:?} ratio {ratio}: max |diff| = {worst} N ({rel:e} of force scale)"
+            "{kind:?} ratio {ratio} branches {with_branches}: max |diff| = {worst} N ({rel:e} \
+             of force scale)"
         );
     }
 }

@@ -13,13 +13,14 @@
 //! [`super::adjoint`] and is added with [`EmmNet::add_rollout_grads`] before one optimizer
 //! step.
 
-use super::adjoint::{RolloutGrads, RolloutParams, ScalerWeights};
+use super::adjoint::{BranchShape, RolloutGrads, RolloutParams, ScalerWeights};
 use burn::module::{Module, Param};
 use burn::nn::{LayerNorm, LayerNormConfig, LeakyRelu, Linear};
 use burn::optim::GradientsParams;
-use burn::tensor::activation::sigmoid;
+use burn::tensor::activation::{leaky_relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
 use nemm_core::mlp::LEAKY_RELU_SLOPE;
+use nemm_core::Priors;
 
 /// One hidden block.
 #[derive(Module, Debug)]
@@ -32,6 +33,21 @@ pub struct Block {
     pub act: LeakyRelu,
 }
 
+/// A scaler's alpha branch (`nemm_core::mlp::AlphaBranch`) as a burn module: per unit `k`,
+/// `v_k leaky_relu(r_k x + u_k alpha_n + c_k)` with `v_k = theta_v,k^2`,
+/// `u_k = d theta_u,k^2` (the direction `d` is in the [`ScalerSpec`]).
+#[derive(Module, Debug)]
+pub struct BranchNet {
+    /// State weights `r` `[K]` (absent for `b_pr`).
+    pub r: Option<Param<Tensor<1>>>,
+    /// `theta_u` `[K]`.
+    pub theta_u: Param<Tensor<1>>,
+    /// Biases `c` `[K]`.
+    pub c: Param<Tensor<1>>,
+    /// `theta_v` `[K]`.
+    pub theta_v: Param<Tensor<1>>,
+}
+
 /// A neural scaler as a burn module.
 #[derive(Module, Debug)]
 pub struct ScalerNet {
@@ -39,6 +55,8 @@ pub struct ScalerNet {
     pub blocks: Vec<Block>,
     /// Output neuron, weight `[H, 1]`.
     pub out: Linear,
+    /// The alpha branch, if any.
+    pub branch: Option<BranchNet>,
 }
 
 /// Shape and output bounds of a scaler (not trained).
@@ -54,6 +72,8 @@ pub struct ScalerSpec {
     pub s_min: f32,
     /// Upper bound of the scale factor.
     pub s_max: f32,
+    /// The alpha branch's shape, if the scaler has one.
+    pub branch: Option<BranchShape>,
 }
 
 fn plain(device: &Device) -> Device {
@@ -110,12 +130,24 @@ impl ScalerNet {
         }
         let wo = &s.w[off..off + h];
         let bo = &s.w[off + h..off + h + 1];
+        let branch = s.branch.map(|b| {
+            let (k, st) = (b.units, b.state_inputs);
+            let bw = s.branch_w();
+            let p = |from: usize| Param::from_tensor(tensor1(&bw[from..from + k], device));
+            BranchNet {
+                r: (st == 1).then(|| p(0)),
+                theta_u: p(k * st),
+                c: p(k * st + k),
+                theta_v: p(k * st + 2 * k),
+            }
+        });
         Self {
             blocks,
             out: Linear {
                 weight: Param::from_tensor(weight_tensor(wo, 1, h, device)),
                 bias: Some(Param::from_tensor(tensor1(bo, device))),
             },
+            branch,
         }
     }
 
@@ -136,11 +168,48 @@ impl ScalerNet {
         if let Some(bias) = &self.out.bias {
             v.extend(to_vec(bias.val()));
         }
+        if let Some(b) = &self.branch {
+            if let Some(r) = &b.r {
+                v.extend(to_vec(r.val()));
+            }
+            for p in [&b.theta_u, &b.c, &b.theta_v] {
+                v.extend(to_vec(p.val()));
+            }
+        }
         v
     }
 
-    /// Raw output `z` for normalised inputs `[batch, inputs]`: `[batch, 1]`.
-    pub fn forward_raw(&self, x: Tensor<2>) -> Tensor<2> {
+    /// Raw output `z` for normalised inputs `[batch, inputs]` (alpha last): `[batch, 1]`.
+    /// With an alpha branch the MLP gets its alpha column at zero and the branch adds
+    /// `sum_k v_k leaky_relu(r_k x + u_k alpha_n + c_k)`.
+    pub fn forward_raw(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
+        let (Some(b), Some(shape)) = (&self.branch, &spec.branch) else {
+            return self.mlp_raw(x);
+        };
+        let [_, d] = x.dims();
+        let device = x.device();
+        let alpha = x.clone().narrow(1, d - 1, 1);
+        let mut mask = vec![1.0f32; d];
+        mask[d - 1] = 0.0;
+        let mask = Tensor::<2>::from_data(TensorData::new(mask, [1, d]), &device);
+        let z = self.mlp_raw(x.clone() * mask);
+        let k = shape.units;
+        let row = |t: Tensor<1>| t.reshape([1, k]);
+        let u = row(b
+            .theta_u
+            .val()
+            .powi_scalar(2)
+            .mul_scalar(shape.direction.sign()));
+        let mut pre = alpha.matmul(u) + row(b.c.val());
+        if let Some(r) = &b.r {
+            pre = pre + x.narrow(1, 0, 1).matmul(row(r.val()));
+        }
+        let v = b.theta_v.val().powi_scalar(2).reshape([k, 1]);
+        z + leaky_relu(pre, LEAKY_RELU_SLOPE as f64).matmul(v)
+    }
+
+    /// The MLP's raw output for inputs `[batch, inputs]`: `[batch, 1]`.
+    fn mlp_raw(&self, x: Tensor<2>) -> Tensor<2> {
         let mut h = x;
         for b in &self.blocks {
             h = b.act.forward(b.norm.forward(b.linear.forward(h)));
@@ -150,17 +219,23 @@ impl ScalerNet {
 
     /// Scale factor `s_min + (s_max - s_min) sigmoid(z)`: `[batch, 1]`.
     pub fn forward_scale(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
-        sigmoid(self.forward_raw(x))
+        sigmoid(self.forward_raw(x, spec))
             .mul_scalar(spec.s_max - spec.s_min)
             .add_scalar(spec.s_min)
     }
 
-    /// Sum of squared weights of the linear maps (`||W||^2`; biases and LayerNorm parameters
-    /// are not regularised).
+    /// Sum of squared weights of the linear maps and of the alpha branch's `r`,
+    /// `theta_u`, `theta_v` (`||W||^2`; biases and LayerNorm parameters are not
+    /// regularised).
     pub fn weight_sq_sum(&self) -> Tensor<1> {
         let mut total = self.out.weight.val().powi_scalar(2).sum();
         for b in &self.blocks {
             total = total + b.linear.weight.val().powi_scalar(2).sum();
+        }
+        if let Some(b) = &self.branch {
+            for p in b.r.iter().chain([&b.theta_u, &b.theta_v]) {
+                total = total + p.val().powi_scalar(2).sum();
+            }
         }
         total
     }
@@ -206,6 +281,14 @@ impl ScalerNet {
         if let Some(bias) = &self.out.bias {
             add1(gp, bias, &g[off + h..off + h + 1]);
         }
+        off += h + 1;
+        if let Some(b) = &self.branch {
+            let k = b.theta_u.val().dims()[0];
+            for p in b.r.iter().chain([&b.theta_u, &b.c, &b.theta_v]) {
+                add1(gp, p, &g[off..off + k]);
+                off += k;
+            }
+        }
     }
 }
 
@@ -248,6 +331,8 @@ pub struct NetFrame {
     pub b_pr: Option<ScalerSpec>,
     /// `k_pr` scaler spec.
     pub k_pr: Option<ScalerSpec>,
+    /// Declared monotonicity priors in alpha.
+    pub priors: Priors,
 }
 
 fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
@@ -257,6 +342,7 @@ fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
         layers: s.layers,
         s_min: s.s_min,
         s_max: s.s_max,
+        branch: s.branch,
     })
 }
 
@@ -279,6 +365,7 @@ impl EmmNet {
             b_fl: spec_of(&p.b_fl),
             b_pr: spec_of(&p.b_pr),
             k_pr: spec_of(&p.k_pr),
+            priors: p.priors,
         };
         (net, frame)
     }
@@ -301,6 +388,7 @@ impl EmmNet {
                 w: n.to_flat(),
                 s_min: s.s_min,
                 s_max: s.s_max,
+                branch: s.branch,
             }),
             _ => None,
         };
@@ -317,6 +405,7 @@ impl EmmNet {
             b_fl: flat(&self.b_fl, &f.b_fl),
             b_pr: flat(&self.b_pr, &f.b_pr),
             k_pr: flat(&self.k_pr, &f.k_pr),
+            priors: f.priors,
         }
     }
 

@@ -2,50 +2,86 @@
 //! weight layout and the semantics are nemm-core's, so exporting is a copy, not a
 //! re-implementation.
 
-use super::adjoint::{Real, RolloutParams, ScalerWeights};
+use super::adjoint::{BranchShape, Real, RolloutParams, ScalerWeights};
 use anyhow::{bail, Result};
 use nemm_core::emm::EmmConstants;
+use nemm_core::mlp::AlphaBranch;
 use nemm_core::{
-    Body, Extension, InputScales, Integrator, Meta, MlpParams, Model, Scaler,
-    DEFAULT_PARAM_CAPACITY,
+    AlphaBranches, Body, Condition, Extension, InputScales, Integrator, Meta, MlpParams, Model,
+    Scaler, DEFAULT_PARAM_CAPACITY,
 };
 
-fn scaler_from_core<T: Real>(s: &Scaler<DEFAULT_PARAM_CAPACITY>) -> ScalerWeights<T> {
+fn scaler_from_core<T: Real>(
+    s: &Scaler<DEFAULT_PARAM_CAPACITY>,
+    branch: Option<&AlphaBranch>,
+) -> ScalerWeights<T> {
+    let tail: &[f32] = branch.map_or(&[], |b| &b.params);
     ScalerWeights {
         inputs: s.mlp.inputs as usize,
         hidden: s.mlp.hidden as usize,
         layers: s.mlp.layers as usize,
-        w: s.mlp.params.iter().map(|&v| T::c(v as f64)).collect(),
+        w: s.mlp
+            .params
+            .iter()
+            .chain(tail)
+            .map(|&v| T::c(v as f64))
+            .collect(),
         s_min: T::c(s.s_min as f64),
         s_max: T::c(s.s_max as f64),
+        branch: branch.map(|b| BranchShape {
+            direction: b.direction,
+            state_inputs: b.state_inputs as usize,
+            units: b.units as usize,
+        }),
     }
 }
 
-fn scaler_to_core<T: Real>(s: &ScalerWeights<T>) -> Result<Scaler<DEFAULT_PARAM_CAPACITY>> {
-    let w: Vec<f32> = s.w.iter().map(|v| v.to_f32().unwrap_or(f32::NAN)).collect();
+type CoreScaler = (Scaler<DEFAULT_PARAM_CAPACITY>, Option<AlphaBranch>);
+
+fn scaler_to_core<T: Real>(s: &ScalerWeights<T>) -> Result<CoreScaler> {
+    let f = |v: &T| v.to_f32().unwrap_or(f32::NAN);
+    let w: Vec<f32> = s.mlp_w().iter().map(f).collect();
     let mlp = MlpParams::new(s.inputs as u8, s.hidden as u8, s.layers as u8, &w)
         .map_err(|e| anyhow::anyhow!("scaler shape: {e:?}"))?;
-    Ok(Scaler {
-        mlp,
-        s_min: s.s_min.to_f32().unwrap_or(f32::NAN),
-        s_max: s.s_max.to_f32().unwrap_or(f32::NAN),
-    })
+    let branch = match s.branch {
+        None => None,
+        Some(b) => {
+            let bw: Vec<f32> = s.branch_w().iter().map(f).collect();
+            let units = u8::try_from(b.units)?;
+            let state = u8::try_from(b.state_inputs)?;
+            Some(
+                AlphaBranch::new(b.direction, state, units, &bw)
+                    .map_err(|e| anyhow::anyhow!("alpha branch: {e}"))?,
+            )
+        }
+    };
+    Ok((
+        Scaler {
+            mlp,
+            s_min: s.s_min.to_f32().unwrap_or(f32::NAN),
+            s_max: s.s_max.to_f32().unwrap_or(f32::NAN),
+        },
+        branch,
+    ))
 }
 
 /// Rollout parameters of a core EMM-family model (`None` for the SEM).
 pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
     let e = m.emm()?;
     let c = |v: f32| T::c(v as f64);
+    let br = &m.ext.alpha_branches;
     let (b_fl, b_pr, k_pr) = match &m.body {
         Body::Sem(_) => return None,
         Body::LinearEmm(_) => (None, None, None),
-        Body::NemmLight { b_fl, .. } => (Some(scaler_from_core(b_fl)), None, None),
+        Body::NemmLight { b_fl, .. } => {
+            (Some(scaler_from_core(b_fl, br.b_fl.as_ref())), None, None)
+        }
         Body::Nemm {
             b_fl, b_pr, k_pr, ..
         } => (
-            Some(scaler_from_core(b_fl)),
-            Some(scaler_from_core(b_pr)),
-            Some(scaler_from_core(k_pr)),
+            Some(scaler_from_core(b_fl, br.b_fl.as_ref())),
+            Some(scaler_from_core(b_pr, br.b_pr.as_ref())),
+            Some(scaler_from_core(k_pr, br.k_pr.as_ref())),
         ),
     };
     Some(RolloutParams {
@@ -61,12 +97,28 @@ pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
         b_fl,
         b_pr,
         k_pr,
+        priors: m.ext.condition.priors,
     })
 }
 
-/// The core model of rollout parameters, with training-data facts `meta`. The kind follows
-/// from which scalers are present (none: Linear EMM; `b_fl`: NEMM-Light; all: NEMM).
+/// The core model of rollout parameters, with training-data facts `meta` and the paper's
+/// condition (oil loss) with the parameters' priors ([`to_core_with`]).
 pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
+    let condition = Condition {
+        priors: p.priors,
+        ..Condition::default()
+    };
+    to_core_with(p, meta, &condition)
+}
+
+/// The core model of rollout parameters, with training-data facts `meta` and the dataset's
+/// `condition`. The kind follows from which scalers are present (none: Linear EMM; `b_fl`:
+/// NEMM-Light; all: NEMM); the scalers' alpha branches go into the extension.
+pub fn to_core_with<T: Real>(
+    p: &RolloutParams<T>,
+    meta: Meta,
+    condition: &Condition,
+) -> Result<Model> {
     let f = |v: T| v.to_f32().unwrap_or(f32::NAN);
     let emm = EmmConstants {
         b_fl_ns_per_m: f(p.b_fl0),
@@ -74,18 +126,30 @@ pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
         k_pr_n_per_m: f(p.k0),
         t_pr_s: f(p.t_pr),
     };
+    let mut branches = AlphaBranches::default();
     let body = match (&p.b_fl, &p.b_pr, &p.k_pr) {
         (None, None, None) => Body::LinearEmm(emm),
-        (Some(b_fl), None, None) => Body::NemmLight {
-            emm,
-            b_fl: scaler_to_core(b_fl)?,
-        },
-        (Some(b_fl), Some(b_pr), Some(k_pr)) => Body::Nemm {
-            emm,
-            b_fl: scaler_to_core(b_fl)?,
-            b_pr: scaler_to_core(b_pr)?,
-            k_pr: scaler_to_core(k_pr)?,
-        },
+        (Some(b_fl), None, None) => {
+            let (b_fl, bb) = scaler_to_core(b_fl)?;
+            branches.b_fl = bb;
+            Body::NemmLight { emm, b_fl }
+        }
+        (Some(b_fl), Some(b_pr), Some(k_pr)) => {
+            let (b_fl, bf) = scaler_to_core(b_fl)?;
+            let (b_pr, bp) = scaler_to_core(b_pr)?;
+            let (k_pr, bk) = scaler_to_core(k_pr)?;
+            branches = AlphaBranches {
+                b_fl: bf,
+                b_pr: bp,
+                k_pr: bk,
+            };
+            Body::Nemm {
+                emm,
+                b_fl,
+                b_pr,
+                k_pr,
+            }
+        }
         _ => bail!("unsupported scaler combination (need none, b_fl, or all three)"),
     };
     let model = Model {
@@ -98,7 +162,10 @@ pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
         },
         meta,
         body,
-        ext: Extension::default(),
+        ext: Extension {
+            condition: condition.clone(),
+            alpha_branches: branches,
+        },
     };
     model
         .validate()
@@ -117,6 +184,7 @@ pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
             w: s.w.iter().map(|&v| c(v)).collect(),
             s_min: c(s.s_min),
             s_max: c(s.s_max),
+            branch: s.branch,
         })
     };
     RolloutParams {
@@ -132,6 +200,7 @@ pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
         b_fl: s(&p.b_fl),
         b_pr: s(&p.b_pr),
         k_pr: s(&p.k_pr),
+        priors: p.priors,
     }
 }
 

@@ -30,7 +30,7 @@
 use super::net::{EmmNet, NetFrame, ScalerNet, ScalerSpec};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::Model;
+use nemm_core::{Direction, Model};
 use serde::{Deserialize, Serialize};
 
 /// Dense audit grid of the reported monotonicity audit: states x alphas.
@@ -67,11 +67,25 @@ fn linspace(a: f32, b: f32, n: usize) -> Vec<f32> {
         .collect()
 }
 
+/// The alpha term of the penalty for a scale factor's differences `ds` along alpha:
+/// `max(0, -d ds + m)^2` for the declared direction `d` (none: no term). A scaler with an
+/// alpha branch holds its direction by construction and gets no term.
+fn alpha_term<const D: usize>(ds: Tensor<D>, spec: &ScalerSpec, dir: Direction) -> Tensor<1> {
+    let sign = dir.sign();
+    if spec.branch.is_some() || sign == 0.0 {
+        return Tensor::<1>::zeros([1], &ds.device());
+    }
+    relu(ds.mul_scalar(-sign).add_scalar(ALPHA_MARGIN))
+        .powi_scalar(2)
+        .mean()
+}
+
 /// Penalty of a two-input scaler (`b_fl` or `k_pr`): state derivative of `s * state` and alpha
-/// derivative of `s`.
+/// derivative of `s` in the declared direction `dir`.
 fn penalty_2d(
     net: &ScalerNet,
     spec: &ScalerSpec,
+    dir: Direction,
     alpha_scale: f32,
     g: &PenaltyGrid,
     device: &Device,
@@ -94,13 +108,14 @@ fn penalty_2d(
     let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
     let df = (f.clone().narrow(1, 1, nx - 1) - f.narrow(1, 0, nx - 1)).div_scalar(dx);
     let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
-    relu(df.neg()).powi_scalar(2).mean() + relu(ds.add_scalar(ALPHA_MARGIN)).powi_scalar(2).mean()
+    relu(df.neg()).powi_scalar(2).mean() + alpha_term(ds, spec, dir)
 }
 
-/// Penalty of the one-input `b_pr(alpha)` scaler.
+/// Penalty of the one-input `b_pr(alpha)` scaler in the declared direction `dir`.
 fn penalty_1d(
     net: &ScalerNet,
     spec: &ScalerSpec,
+    dir: Direction,
     alpha_scale: f32,
     g: &PenaltyGrid,
     device: &Device,
@@ -117,21 +132,22 @@ fn penalty_1d(
     let s = net.forward_scale(input, spec).reshape([na]);
     let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
     let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
-    relu(ds.add_scalar(ALPHA_MARGIN)).powi_scalar(2).mean()
+    alpha_term(ds, spec, dir)
 }
 
 /// Sum of the physics-inconsistency losses of every scaler in `net` (a differentiable
 /// scalar, `[1]`).
 pub fn physics_loss(net: &EmmNet, f: &NetFrame, g: &PenaltyGrid, device: &Device) -> Tensor<1> {
     let mut total = Tensor::<1>::zeros([1], device);
+    let pr = &f.priors;
     if let (Some(n), Some(s)) = (&net.b_fl, &f.b_fl) {
-        total = total + penalty_2d(n, s, f.alpha_scale, g, device);
+        total = total + penalty_2d(n, s, pr.b_fl, f.alpha_scale, g, device);
     }
     if let (Some(n), Some(s)) = (&net.k_pr, &f.k_pr) {
-        total = total + penalty_2d(n, s, f.alpha_scale, g, device);
+        total = total + penalty_2d(n, s, pr.k_pr, f.alpha_scale, g, device);
     }
     if let (Some(n), Some(s)) = (&net.b_pr, &f.b_pr) {
-        total = total + penalty_1d(n, s, f.alpha_scale, g, device);
+        total = total + penalty_1d(n, s, pr.b_pr, f.alpha_scale, g, device);
     }
     total
 }
@@ -152,7 +168,8 @@ pub struct ConditionAudit {
 pub struct ScalerAudit {
     /// Force-like function increasing in the state (eqs. 30 / 37); absent for `b_pr`.
     pub state: Option<ConditionAudit>,
-    /// Coefficient non-increasing in alpha (eqs. 31 / 38).
+    /// Coefficient monotone in alpha in the declared direction (eqs. 31 / 38; nothing is
+    /// checked for a coefficient without a prior in alpha).
     pub alpha: ConditionAudit,
 }
 
@@ -218,7 +235,8 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
     let al = linspace(0.0, 1.0, n_alpha);
     let dx = (xs[1] - xs[0]) as f64;
     let da = (al[1] - al[0]) as f64;
-    let audit_2d = |eval: &dyn Fn(f32, f32) -> Option<f32>, scale: f32, p0: f32| {
+    let priors = model.ext.condition.priors;
+    let audit_2d = |eval: &dyn Fn(f32, f32) -> Option<f32>, scale: f32, p0: f32, dir: Direction| {
         let mut a = ScalerAudit {
             state: Some(ConditionAudit::default()),
             alpha: ConditionAudit::default(),
@@ -240,9 +258,11 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
                 }
             }
         }
-        for rows in s.windows(2) {
-            for (&lo, &hi) in rows[0].iter().zip(&rows[1]) {
-                check(lo, hi, da, false, &mut a.alpha);
+        if dir != Direction::None {
+            for rows in s.windows(2) {
+                for (&lo, &hi) in rows[0].iter().zip(&rows[1]) {
+                    check(lo, hi, da, dir == Direction::Increasing, &mut a.alpha);
+                }
             }
         }
         a
@@ -257,6 +277,7 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
             &|v, a| model.b_fl(v, a),
             model.scales.velocity_m_s,
             e.b_fl_ns_per_m,
+            priors.b_fl,
         )
     });
     let k_pr = matches!(kind, nemm_core::ModelKind::Nemm).then(|| {
@@ -264,6 +285,7 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
             &|x, a| model.k_pr(x, a),
             model.scales.x_pr_m,
             e.k_pr_n_per_m,
+            priors.k_pr,
         )
     });
     let b_pr = matches!(kind, nemm_core::ModelKind::Nemm).then(|| {
@@ -276,8 +298,10 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
                     .map_or(f64::NAN, |p| (p / e.b_pr_ns_per_m) as f64)
             })
             .collect();
-        for w in s.windows(2) {
-            check(w[0], w[1], da, false, &mut c);
+        if priors.b_pr != Direction::None {
+            for w in s.windows(2) {
+                check(w[0], w[1], da, priors.b_pr == Direction::Increasing, &mut c);
+            }
         }
         ScalerAudit {
             state: None,

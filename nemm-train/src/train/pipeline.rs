@@ -17,16 +17,16 @@
 //!
 //! All variants share the split, the normalisation and the force scale.
 
-use super::adjoint::{simulate_x_pr, Grid, RolloutParams, ScalerWeights};
+use super::adjoint::{simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights};
 use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, StopReason};
-use super::net::{EmmNet, NetFrame, ScalerNet, ScalerSpec};
-use super::params::to_core;
+use super::net::EmmNet;
+use super::params::to_core_with;
 use super::physics::{physics_loss, PenaltyGrid};
 use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::mlp::param_count;
+use nemm_core::mlp::{branch_param_count, param_count, Direction};
 use nemm_core::model::{Extension, STABILITY_MARGIN};
 use nemm_core::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
 use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
@@ -80,6 +80,41 @@ impl VariantInfo for ModelKind {
     }
 }
 
+/// How the declared monotonicity priors in alpha (eqs. 31, 37-38, second conditions) are
+/// imposed on the neural coefficients.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum AlphaPriors {
+    /// An alpha branch per coefficient with a declared direction
+    /// (`nemm_core::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
+    /// penalty keeps only the state conditions.
+    Construction,
+    /// The paper's physics penalty on a grid alone (section 5.2), checked by the audit.
+    Penalty,
+}
+
+impl AlphaPriors {
+    /// `construction` or `penalty`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            AlphaPriors::Construction => "construction",
+            AlphaPriors::Penalty => "penalty",
+        }
+    }
+}
+
+impl std::str::FromStr for AlphaPriors {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "construction" => Ok(AlphaPriors::Construction),
+            "penalty" => Ok(AlphaPriors::Penalty),
+            other => Err(format!(
+                "unknown alpha-priors mode `{other}` (expected construction or penalty)"
+            )),
+        }
+    }
+}
+
 /// Settings of the whole procedure.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PipelineConfig {
@@ -106,6 +141,10 @@ pub struct PipelineConfig {
     /// Integration rate of the model \[Hz\] (the exported step is `1 / model_rate_hz`),
     /// independent of the data's sample rate.
     pub model_rate_hz: f64,
+    /// How the declared priors in alpha are imposed.
+    pub alpha_priors: AlphaPriors,
+    /// Units `K` of each alpha branch.
+    pub branch_units: usize,
 }
 
 /// The defaults are [`crate::config::Config`]'s.
@@ -207,7 +246,52 @@ pub fn init_scaler(
         w,
         s_min: bounds.0,
         s_max: bounds.1,
+        branch: None,
     }
+}
+
+/// Gives `s` an alpha branch of `units` units in `direction` (with `state_inputs` state
+/// inputs: 1 for `b_fl`, `k_pr`, 0 for `b_pr`): the MLP's alpha column (the last input of
+/// layer 1) is set to zero, where it stays (its gradient is zero, the MLP gets `alpha_n =
+/// 0`), and the branch weights are drawn from xoshiro256++ seeded with `seed`: `r`, `c`
+/// uniform in `+-1`, `theta_u` uniform in `[0.2, 0.6]` (a moderate slope in alpha),
+/// `theta_v = 0.3`. The output bias absorbs the branch's value at the origin, so the scale
+/// factor still starts at ~1.
+pub fn with_branch(
+    mut s: ScalerWeights<f32>,
+    direction: Direction,
+    state_inputs: usize,
+    units: usize,
+    seed: u64,
+) -> ScalerWeights<f32> {
+    let d = s.inputs;
+    for i in 0..s.hidden {
+        s.w[i * d + d - 1] = 0.0;
+    }
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut uniform = move |a: f32, b: f32| rng.random_range(a..b);
+    let mut bw = Vec::with_capacity(branch_param_count(state_inputs, units));
+    for _ in 0..units * state_inputs {
+        bw.push(uniform(-1.0, 1.0));
+    }
+    let theta_u: Vec<f32> = (0..units).map(|_| uniform(0.2, 0.6)).collect();
+    let c: Vec<f32> = (0..units).map(|_| uniform(-1.0, 1.0)).collect();
+    bw.extend(&theta_u);
+    bw.extend(&c);
+    bw.extend(std::iter::repeat_n(0.3f32, units));
+    let at_origin: f32 = c
+        .iter()
+        .map(|&ci| 0.09 * nemm_core::mlp::leaky_relu(ci))
+        .sum();
+    let mlp_len = s.mlp_len();
+    s.w[mlp_len - 1] -= at_origin;
+    s.w.extend(bw);
+    s.branch = Some(BranchShape {
+        direction,
+        state_inputs,
+        units,
+    });
+    s
 }
 
 /// Relative velocity gap that separates two SEM support velocities (5 %).
@@ -353,38 +437,16 @@ fn qs_regression(
     if pts.is_empty() {
         return Ok(scaler);
     }
-    let spec = ScalerSpec {
-        inputs: 2,
-        hidden: scaler.hidden,
-        layers: scaler.layers,
-        s_min: scaler.s_min,
-        s_max: scaler.s_max,
-    };
-    let mut net = EmmNet {
-        log_c: burn::module::Param::from_tensor(Tensor::<1>::from_data(
-            TensorData::new(
-                [p.b_fl0, p.b_pr0, p.k0, p.t_pr]
-                    .iter()
-                    .map(|c| c.ln() / super::net::LOG_CONSTANT_SCALE)
-                    .collect::<Vec<f32>>(),
-                [4],
-            ),
-            device,
-        )),
-        b_fl: Some(ScalerNet::from_flat(&scaler, device)),
-        b_pr: None,
-        k_pr: None,
-    };
-    let frame = NetFrame {
-        integrator: p.integrator,
-        dt: p.dt,
-        v_scale: p.v_scale,
-        x_scale: p.x_scale,
-        alpha_scale: p.alpha_scale,
-        b_fl: Some(spec),
-        b_pr: None,
-        k_pr: None,
-    };
+    let (mut net, frame) = EmmNet::from_rollout(
+        &RolloutParams {
+            b_fl: Some(scaler),
+            b_pr: None,
+            k_pr: None,
+            ..p.clone()
+        },
+        device,
+    );
+    let spec = frame.b_fl.context("b_fl scaler")?;
     let n = pts.len();
     let x: Vec<f32> = pts
         .iter()
@@ -486,7 +548,10 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
         },
         meta,
         body: Body::Sem(map),
-        ext: Extension::default(),
+        ext: Extension {
+            condition: prepared.condition.clone(),
+            ..Extension::default()
+        },
     };
     model
         .validate()
@@ -550,6 +615,7 @@ pub fn train_each(
     }
     let device = Device::flex().autodiff();
     let meta = meta_of(prepared);
+    let condition = &prepared.condition;
     let force_scale = prepared.scales.force_n;
     let model_dt_s = 1.0 / cfg.model_rate_hz;
     let grid = Grid::new(model_dt_s, prepared.dt_s);
@@ -622,6 +688,7 @@ pub fn train_each(
             b_fl: None,
             b_pr: None,
             k_pr: None,
+            priors: condition.priors,
         };
         let lin_cfg = FitConfig {
             label: "linear-emm".into(),
@@ -676,7 +743,7 @@ pub fn train_each(
         }
     };
     if emm_variants.contains(&Variant::LinearEmm) {
-        match to_core(&lin_p_with_scale(&lin_p, p0.x_scale), meta) {
+        match to_core_with(&lin_p_with_scale(&lin_p, p0.x_scale), meta, condition) {
             Ok(model) => out.push(TrainedVariant {
                 variant: Variant::LinearEmm,
                 model,
@@ -698,7 +765,21 @@ pub fn train_each(
     }
     // Step 2a: b_fl on the quasi-static points (eq. 41).
     let t_qs = Instant::now();
-    let b_fl_init = init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed);
+    let construction = cfg.alpha_priors == AlphaPriors::Construction;
+    // A coefficient with a declared prior gets an alpha branch under the construction.
+    let branched = |s: ScalerWeights<f32>, dir: Direction, state: usize, seed: u64| {
+        if construction && dir != Direction::None {
+            with_branch(s, dir, state, cfg.branch_units, seed)
+        } else {
+            s
+        }
+    };
+    let b_fl_init = branched(
+        init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
+        condition.priors.b_fl,
+        1,
+        cfg.fit.seed + 10,
+    );
     let b_fl = match qs_regression(&p0, b_fl_init, qs, force_scale, cfg, &device) {
         Ok(b) => b,
         Err(e) => {
@@ -730,19 +811,23 @@ pub fn train_each(
                     p.dt
                 );
                 }
-                p.b_pr = Some(init_scaler(
-                    1,
-                    cfg.hidden,
-                    cfg.layers,
-                    cfg.pr_bounds,
-                    cfg.fit.seed + 1,
+                p.b_pr = Some(branched(
+                    init_scaler(1, cfg.hidden, cfg.layers, cfg.pr_bounds, cfg.fit.seed + 1),
+                    condition.priors.b_pr,
+                    0,
+                    cfg.fit.seed + 11,
                 ));
-                p.k_pr = Some(init_scaler(
-                    2,
-                    cfg.hidden,
-                    cfg.layers,
-                    (cfg.pr_bounds.0, k_max),
-                    cfg.fit.seed + 2,
+                p.k_pr = Some(branched(
+                    init_scaler(
+                        2,
+                        cfg.hidden,
+                        cfg.layers,
+                        (cfg.pr_bounds.0, k_max),
+                        cfg.fit.seed + 2,
+                    ),
+                    condition.priors.k_pr,
+                    1,
+                    cfg.fit.seed + 12,
                 ));
             }
             let fit_cfg = FitConfig {
@@ -754,7 +839,7 @@ pub fn train_each(
             save_frame(dir.as_deref(), &p, meta)?;
             let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
             SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
-            let model = to_core(&r.best.to_rollout(&frame), meta)?;
+            let model = to_core_with(&r.best.to_rollout(&frame), meta, condition)?;
             let val = rmse(
                 &r.best,
                 &frame,

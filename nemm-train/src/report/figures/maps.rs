@@ -187,6 +187,11 @@ fn percent(p: f64) -> String {
     }
 }
 
+/// The alpha axis title, named by the model's condition.
+fn alpha_axis(m: &Model) -> String {
+    crate::data::dataset::ConditionSpec::from_core(&m.ext.condition).axis_label()
+}
+
 fn vline(x: f64, y0: f64, y1: f64) -> Vec<(f64, f64)> {
     vec![(x, y0), (x, y1)]
 }
@@ -223,7 +228,7 @@ pub(super) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
             violation_text(&g, "v")
         ),
         "quasi-static velocity v_st [m/s]",
-        "oil loss α [-]",
+        alpha_axis(m),
         g.state.clone(),
         g.alpha.clone(),
         g.value.clone(),
@@ -258,7 +263,7 @@ pub(super) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
             rel_change(at(0.0), at(a_max)),
             num(a_max)
         ),
-        "oil loss α [-]",
+        alpha_axis(m),
         "b_fl [N s/m]",
     )
     .with_legend(LegendPosition::LowerLeft)
@@ -420,7 +425,7 @@ pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
             num(at(a_max)),
             num(a_max)
         ),
-        "oil loss α [-]",
+        alpha_axis(m),
         "b_pr [N s/m]",
     )
     .with_y_range(0.0, y_top)
@@ -451,7 +456,7 @@ pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
                 format!("{} violations of eq. 38", viol.len())
             }
         ),
-        "oil loss α [-]",
+        alpha_axis(m),
         "b_pr(α) / b_pr(0) - 1 [%]",
     )
     .with_legend(LegendPosition::LowerLeft)
@@ -490,7 +495,7 @@ pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         .with_panel(pb)
         .with_footer(format!(
             "Left: b_pr on an axis from zero with the Linear EMM's constant; right: the same, zoomed, as change relative to α = 0.\n\
-             Yellow dots: grid intervals (audit grid, {} values of α) where b_pr grows with oil loss (eq. 38); α above {} is extrapolation.",
+             Yellow dots: grid intervals (audit grid, {} values of α) where b_pr breaks its declared prior in α (eq. 38); α above {} is extrapolation.",
             AUDIT_GRID.1,
             num(a_max)
         ));
@@ -534,7 +539,7 @@ pub(super) fn fig12_k_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
             violation_text(&g, "x_pr")
         ),
         "valve deflection x_pr [mm]",
-        "oil loss α [-]",
+        alpha_axis(m),
         g.state.iter().map(|x| x * 1e3).collect(),
         g.alpha.clone(),
         z,
@@ -593,11 +598,11 @@ pub(super) fn fig12_k_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
     let at0 = |a: f64| m.k_pr(0.0, a as f32).map_or(f64::NAN, f64::from);
     let mut pd = LinePanel::new(
         format!(
-            "D: k_pr over oil loss; at x_pr = 0: {} from α = 0 to {}",
+            "D: k_pr over α; at x_pr = 0: {} from α = 0 to {}",
             rel_change(at0(0.0), at0(a_max)),
             num(a_max)
         ),
-        "oil loss α [-]",
+        alpha_axis(m),
         format!("k_pr [{kname}]"),
     )
     .with_legend(LegendPosition::LowerLeft);
