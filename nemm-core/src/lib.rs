@@ -12,6 +12,8 @@
 //! - [`sem`]: the static force-velocity map.
 //! - [`table`]: the tabulated fixed-alpha fast path (1-D cubic tables with a verified error
 //!   bound).
+//! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
+//!   low-pass) that feeds the estimator online.
 //! - [`math`]: `exp`, `sqrt` and `fma` backends (`libm` exact, `micromath` fast).
 //!
 //! Units are SI throughout: m, m/s, N, N s/m, N/m, s. `alpha` is the oil-loss fraction in
@@ -61,6 +63,7 @@ pub mod mlp;
 pub mod model;
 pub mod sem;
 pub mod table;
+pub mod velocity;
 #[doc(hidden)]
 pub mod testing;
 
@@ -74,7 +77,9 @@ pub use format::{
 };
 pub use integrator::Integrator;
 pub use mlp::{MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
-pub use model::{Body, Extension, InputScales, Meta, Model, ModelError, ModelKind, UnknownName};
+pub use model::{
+    Body, Extension, InputScales, Meta, Model, ModelError, ModelKind, Provenance, UnknownName,
+};
 pub use sem::SemMap;
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 

@@ -174,16 +174,97 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     pub ext: Extension,
 }
 
-/// The part of a [`Model`] that format version 2 added. It is encoded after the version-1
-/// body, so every version-1 blob still decodes (with the default extension).
+/// The part of a [`Model`] added after format version 1. It is encoded after the version-1
+/// body, so every earlier blob still decodes (with the fields its version did not have at
+/// their defaults).
 ///
-/// Every field has a default that reproduces what a version-1 blob meant.
+/// Every field has a default that reproduces what an earlier blob meant.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct Extension {}
+pub struct Extension {
+    /// Where the weights came from (format version 3; empty in earlier blobs).
+    pub provenance: Provenance,
+}
 
 impl Extension {
+    /// The default extension, `const` (for [`Model::empty`]).
+    pub const fn empty() -> Self {
+        Self {
+            provenance: Provenance::empty(),
+        }
+    }
+
     /// Checks the extension's fields.
     pub fn validate(&self) -> Result<(), ModelError> {
+        self.provenance.validate()
+    }
+}
+
+/// Longest [`Provenance::command`] in bytes.
+pub const PROVENANCE_COMMAND_LEN: usize = 192;
+/// Longest [`Provenance::dataset`] in bytes.
+pub const PROVENANCE_DATASET_LEN: usize = 96;
+/// Longest [`Provenance::commit`] in bytes.
+pub const PROVENANCE_COMMIT_LEN: usize = 48;
+
+/// Where a model came from, recorded by the exporter: free text for people and tools
+/// (`nemm inspect` prints it); the estimator never reads it. Each field is printable: no
+/// control characters (so each prints as one line). Empty means unknown.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Provenance {
+    /// The command that trained and exported the model.
+    pub command: heapless::String<PROVENANCE_COMMAND_LEN>,
+    /// The training data: a dataset path or a description of a generated dataset.
+    pub dataset: heapless::String<PROVENANCE_DATASET_LEN>,
+    /// The source revision of the trainer (e.g. a git commit).
+    pub commit: heapless::String<PROVENANCE_COMMIT_LEN>,
+}
+
+impl Provenance {
+    /// No provenance recorded.
+    pub const fn empty() -> Self {
+        Self {
+            command: heapless::String::new(),
+            dataset: heapless::String::new(),
+            commit: heapless::String::new(),
+        }
+    }
+
+    /// A provenance with each text cut to its field's capacity (at a character boundary)
+    /// and control characters replaced by spaces, so that it always validates.
+    pub fn new(command: &str, dataset: &str, commit: &str) -> Self {
+        fn fit<const N: usize>(s: &str) -> heapless::String<N> {
+            let mut out = heapless::String::new();
+            for c in s.chars() {
+                let c = if c.is_control() { ' ' } else { c };
+                if out.push(c).is_err() {
+                    break;
+                }
+            }
+            out
+        }
+        Self {
+            command: fit(command),
+            dataset: fit(dataset),
+            commit: fit(commit),
+        }
+    }
+
+    /// True if nothing is recorded.
+    pub fn is_empty(&self) -> bool {
+        self.command.is_empty() && self.dataset.is_empty() && self.commit.is_empty()
+    }
+
+    /// Checks that no field holds a control character.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        for (text, field) in [
+            (self.command.as_str(), "provenance.command"),
+            (self.dataset.as_str(), "provenance.dataset"),
+            (self.commit.as_str(), "provenance.commit"),
+        ] {
+            if text.chars().any(char::is_control) {
+                return Err(ModelError::ControlCharacter { field });
+            }
+        }
         Ok(())
     }
 }
@@ -231,6 +312,11 @@ pub enum ModelError {
     Sem(SemError),
     /// The training alpha range is not `0 <= alpha_min <= alpha_max <= 1`.
     AlphaRange,
+    /// A text field holds a control character.
+    ControlCharacter {
+        /// Which field.
+        field: &'static str,
+    },
     /// The step is too long for the fastest time constant the model can reach.
     UnstableStep {
         /// Integration step \[s\].
@@ -280,6 +366,9 @@ impl fmt::Display for ModelError {
             ModelError::Sem(e) => write!(f, "SEM map: {e:?}"),
             ModelError::AlphaRange => {
                 write!(f, "training alpha range must satisfy 0 <= alpha_min <= alpha_max <= 1")
+            }
+            ModelError::ControlCharacter { field } => {
+                write!(f, "`{field}` holds a control character")
             }
             ModelError::UnstableStep {
                 dt_s,
@@ -364,7 +453,7 @@ impl<const P: usize> Model<P> {
                 k_pr_n_per_m: 0.0,
                 t_pr_s: 0.0,
             }),
-            ext: Extension {},
+            ext: Extension::empty(),
         }
     }
 

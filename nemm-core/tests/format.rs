@@ -495,17 +495,29 @@ fn generator_covers_kinds_and_sizes() {
     assert!(largest > 5000, "{largest}");
 }
 
-/// Every earlier format version still loads: the version-1 blobs in `tests/data/format-v1`
-/// (the example models of every kind as the version-1 encoder wrote them) decode to the
-/// current example models with the default extension, and re-encode as the current version.
+/// Every earlier format version still loads: the version-1 and version-2 blobs in
+/// `tests/data/format-v<N>` (the example models of every kind as that version's encoder wrote
+/// them) decode to the current example models with the default extension, and re-encode as
+/// the current version.
 #[test]
 fn version_1_blobs_still_load() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/format-v1");
+    earlier_blobs_still_load(1);
+}
+
+/// See [`version_1_blobs_still_load`].
+#[test]
+fn version_2_blobs_still_load() {
+    earlier_blobs_still_load(2);
+}
+
+fn earlier_blobs_still_load(version: u16) {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("tests/data/format-v{version}"));
     for kind in KINDS {
         let path = dir.join(format!("example-{}.nemm", kind.name()));
-        let v1 = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        assert_eq!(read_header(&v1).unwrap().version, 1, "{}", path.display());
-        let model: Model<1400> = decode(&v1).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
+        let old = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert_eq!(read_header(&old).unwrap().version, version, "{}", path.display());
+        let model: Model<1400> = decode(&old).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
         let expected: Model<1400> = nemm_core::testing::example_model(kind, 16, 5).unwrap();
         assert_eq!(model, expected, "{kind:?}");
         assert_eq!(model.ext, nemm_core::Extension::default());
@@ -513,4 +525,35 @@ fn version_1_blobs_still_load() {
         assert_eq!(read_header(&again).unwrap().version, FORMAT_VERSION);
         assert_eq!(decode::<1400>(&again).unwrap(), model);
     }
+}
+
+/// The provenance round-trips, is cut to its capacity on construction, and a blob whose
+/// provenance holds a control character is refused with the field named.
+#[test]
+fn provenance_round_trips_and_is_validated() {
+    use nemm_core::model::{Provenance, PROVENANCE_COMMIT_LEN};
+    let mut model: Model<1400> = nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
+    let long_commit = "0123456789abcdef".repeat(8);
+    model.ext.provenance = Provenance::new(
+        "nemm train --data bench\nx --out m.nemm",
+        "virtual bench, seed 1",
+        &long_commit,
+    );
+    assert_eq!(model.ext.provenance.commit.len(), PROVENANCE_COMMIT_LEN);
+    assert!(long_commit.starts_with(model.ext.provenance.commit.as_str()));
+    let blob = blob_of(&model);
+    let back: Model<1400> = decode(&blob).unwrap();
+    assert_eq!(back.ext, model.ext);
+    assert!(!back.ext.provenance.is_empty());
+    // Control characters are replaced on construction...
+    let p = Provenance::new("a\tb", "", "");
+    assert_eq!(p.command.as_str(), "a b");
+    // ... and refused in a blob.
+    model.ext.provenance.dataset = heapless::String::try_from("line\nbreak").unwrap();
+    assert_eq!(
+        model.validate(),
+        Err(ModelError::ControlCharacter {
+            field: "provenance.dataset"
+        })
+    );
 }
