@@ -63,9 +63,9 @@ pub mod mlp;
 pub mod model;
 pub mod sem;
 pub mod table;
-pub mod velocity;
 #[doc(hidden)]
 pub mod testing;
+pub mod velocity;
 
 pub use emm::{Coefficients, EmmConstants, State};
 pub use estimator::{

@@ -516,7 +516,12 @@ fn earlier_blobs_still_load(version: u16) {
     for kind in KINDS {
         let path = dir.join(format!("example-{}.nemm", kind.name()));
         let old = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        assert_eq!(read_header(&old).unwrap().version, version, "{}", path.display());
+        assert_eq!(
+            read_header(&old).unwrap().version,
+            version,
+            "{}",
+            path.display()
+        );
         let model: Model<1400> = decode(&old).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
         let expected: Model<1400> = nemm_core::testing::example_model(kind, 16, 5).unwrap();
         assert_eq!(model, expected, "{kind:?}");

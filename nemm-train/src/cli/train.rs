@@ -64,13 +64,18 @@ pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
 }
 
 /// Encodes and writes a model blob atomically, with its provenance (this command line, the
-/// commit the trainer was built from, and `dataset`) in the blob; returns its size.
-pub fn export_model(model: &nemm_core::Model, out: &Path, dataset: &str) -> Result<usize> {
+/// commit the trainer was built from, and `dataset`) in the blob; returns its size and the
+/// model as written.
+pub fn export_model(
+    model: &nemm_core::Model,
+    out: &Path,
+    dataset: &str,
+) -> Result<(usize, nemm_core::Model)> {
     let mut model = model.clone();
     model.ext.provenance = provenance(dataset);
     let blob = nemm_core::encode_to_vec(&model).map_err(|e| anyhow::anyhow!("{e}"))?;
     write_atomic_bytes(out, &blob).with_context(|| format!("cannot write {}", out.display()))?;
-    Ok(blob.len())
+    Ok((blob.len(), model))
 }
 
 /// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run) into
@@ -138,7 +143,7 @@ pub fn train(
         .iter()
         .find(|t| t.variant == variant)
         .context("training produced no model")?;
-    let n = export_model(&tv.model, out, &dataset_provenance(&ds, &cfg.data.dir))?;
+    let (n, written) = export_model(&tv.model, out, &dataset_provenance(&ds, &cfg.data.dir))?;
     let report = evaluate(std::slice::from_ref(tv), &prepared)?;
     let vr = report.variants.get(variant.key()).context("report")?;
     println!(
@@ -146,7 +151,7 @@ pub fn train(
         out.display(),
         t.elapsed().as_secs_f64()
     );
-    print!("{}", describe(&tv.model, n));
+    print!("{}", describe(&written, n));
     println!(
         "test RMSE ({}): {:.4} of the force scale ({:.1} N); validation {:.4}",
         prepared.config.split.describe(),
@@ -258,11 +263,7 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
         .try_load_file(checkpoint.join(latest.trim()).join("best"))
         .map_err(|e| anyhow::anyhow!("cannot load the best module: {e:?}"))?;
     let model = to_core(&net.to_rollout(&frame), saved.meta)?;
-    let n = export_model(
-        &model,
-        out,
-        &format!("checkpoint {}", checkpoint.display()),
-    )?;
+    let (n, model) = export_model(&model, out, &format!("checkpoint {}", checkpoint.display()))?;
     println!(
         "wrote {} ({n} bytes) from {}",
         out.display(),

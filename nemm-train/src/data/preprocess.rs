@@ -275,8 +275,10 @@ pub fn differentiate(x: &[f64], dt: f64) -> Vec<f64> {
 /// (`nemm_core::velocity::Differentiator`, same low-pass): the two differ by the ADC's
 /// quantisation of the stroke only.
 pub fn causal_velocity(x: &[f64], sample_rate_hz: f64) -> Vec<f64> {
-    let mut low_pass =
-        nemm_core::velocity::LowPass::new(sample_rate_hz as f32, nemm_core::velocity::DEFAULT_CUTOFF_HZ);
+    let mut low_pass = nemm_core::velocity::LowPass::new(
+        sample_rate_hz as f32,
+        nemm_core::velocity::DEFAULT_CUTOFF_HZ,
+    );
     let mut v = Vec::with_capacity(x.len());
     if !x.is_empty() {
         v.push(0.0);

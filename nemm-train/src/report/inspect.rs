@@ -71,7 +71,13 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
     if p.is_empty() {
         let _ = writeln!(s, "provenance:      none recorded");
     } else {
-        let or_unknown = |t: &str| if t.is_empty() { "unknown".to_string() } else { t.to_string() };
+        let or_unknown = |t: &str| {
+            if t.is_empty() {
+                "unknown".to_string()
+            } else {
+                t.to_string()
+            }
+        };
         let _ = writeln!(s, "provenance:      command {}", or_unknown(&p.command));
         let _ = writeln!(s, "                 dataset {}", or_unknown(&p.dataset));
         let _ = writeln!(s, "                 commit  {}", or_unknown(&p.commit));
