@@ -5,12 +5,14 @@
 //!   STM32F405/407), and `nemm-sections.x`, which every layout includes. (There is no
 //!   `memory.x` in the crate directory: the linker would find it there first.)
 //! - `weights.slot`: the weights slot (`src/slot.rs`) holding the `.nemm` blob named by
-//!   `NEMM_WEIGHTS` (default `data/example-nemm.nemm`, the example NEMM of `nemm-core`,
-//!   H = 16, L = 5, pseudo-random weights; the trainer's `model.nemm` drops in here).
+//!   `NEMM_WEIGHTS` (default `data/trained-nemm.nemm`, the NEMM the project trained on its
+//!   virtual bench with `cargo xtask firmware-model`; any trainer's `model.nemm` drops in
+//!   here).
 //! - `trace.bin`: the bench trace the replay device serves (`src/trace.rs`): the run CSV
 //!   named by `NEMM_TRACE` (`time_s,displacement_m,force_n[,velocity_m_s]`, the project's
-//!   dataset format; oil loss from `NEMM_TRACE_OIL_LOSS`, default 0.15), by default
-//!   `data/bench-oil15-a050-v1048.csv` (a virtual-bench run, see `data/README.md`);
+//!   dataset format, the measured force included; oil loss from `NEMM_TRACE_OIL_LOSS`,
+//!   default 0.15), by default
+//!   `data/e2e/runs/oil15_a050_v1048.csv` (a virtual-bench run, see `data/README.md`);
 //!   `NEMM_TRACE=synthetic` selects a deterministic synthetic run over the paper's Table 1
 //!   conditions instead.
 //!
@@ -32,10 +34,14 @@ use std::path::{Path, PathBuf};
 #[allow(dead_code)]
 mod slot;
 
-const TRACE_MAGIC: &[u8; 4] = b"NTRC";
+/// The trace format, the same source as the firmware's (one writer of the format).
+#[path = "src/trace.rs"]
+#[allow(dead_code)]
+mod trace;
+
 const SAMPLE_RATE_HZ: f64 = 10_000.0;
 const DEFAULT_OIL_LOSS: f32 = 0.15;
-const DEFAULT_TRACE: &str = "data/bench-oil15-a050-v1048.csv";
+const DEFAULT_TRACE: &str = "data/e2e/runs/oil15_a050_v1048.csv";
 
 fn main() {
     let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets it"));
@@ -52,7 +58,7 @@ fn main() {
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed=nemm-sections.x");
 
-    let weights = input_path(&manifest_dir, "NEMM_WEIGHTS", "data/example-nemm.nemm");
+    let weights = input_path(&manifest_dir, "NEMM_WEIGHTS", "data/trained-nemm.nemm");
     let blob = fs::read(&weights)
         .unwrap_or_else(|e| panic!("NEMM_WEIGHTS: cannot read {}: {e}", weights.display()));
     fs::write(out.join("weights.slot"), slot(&blob, &weights)).expect("write weights.slot");
@@ -100,26 +106,18 @@ fn slot(blob: &[u8], path: &Path) -> Vec<u8> {
     s
 }
 
-/// `(displacement_m, velocity_m_s)` per sample; velocity NaN if not recorded.
-type Sample = (f32, f32);
+/// `(displacement_m, velocity_m_s, force_n)` per sample; velocity or force NaN if not
+/// recorded.
+type Sample = (f32, f32, f32);
 
 fn encode_trace(rate_hz: f32, oil_loss: f32, samples: &[Sample]) -> Vec<u8> {
-    let mut b = Vec::with_capacity(20 + 8 * samples.len());
-    b.extend_from_slice(TRACE_MAGIC);
-    b.extend_from_slice(&1u16.to_le_bytes());
-    b.extend_from_slice(&0u16.to_le_bytes());
-    b.extend_from_slice(&rate_hz.to_le_bytes());
-    b.extend_from_slice(&oil_loss.to_le_bytes());
-    b.extend_from_slice(&(samples.len() as u32).to_le_bytes());
-    for (x, v) in samples {
-        b.extend_from_slice(&x.to_le_bytes());
-        b.extend_from_slice(&v.to_le_bytes());
-    }
+    let mut b = vec![0; trace::encoded_len(samples.len()).expect("trace length")];
+    trace::encode(rate_hz, oil_loss, samples, &mut b).expect("the trace fits its buffer");
     b
 }
 
-/// A run CSV with a header naming `time_s` and `displacement_m` (and optionally
-/// `velocity_m_s`); returns the mean sample rate and the samples.
+/// A run CSV with a header naming `time_s` and `displacement_m` (and optionally `force_n`
+/// and `velocity_m_s`); returns the mean sample rate and the samples.
 fn parse_run_csv(path: &Path) -> Result<(f32, Vec<Sample>), String> {
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
@@ -130,6 +128,7 @@ fn parse_run_csv(path: &Path) -> Result<(f32, Vec<Sample>), String> {
     let t_col = col("time_s").ok_or("no `time_s` column")?;
     let x_col = col("displacement_m").ok_or("no `displacement_m` column")?;
     let v_col = col("velocity_m_s");
+    let f_col = col("force_n");
     let (mut t0, mut t1, mut samples) = (None, 0.0f64, Vec::new());
     for record in reader.records() {
         let record = record.map_err(|e| e.to_string())?;
@@ -144,11 +143,8 @@ fn parse_run_csv(path: &Path) -> Result<(f32, Vec<Sample>), String> {
         let t = num(t_col)?;
         t0.get_or_insert(t);
         t1 = t;
-        let v = match v_col {
-            Some(c) => num(c)? as f32,
-            None => f32::NAN,
-        };
-        samples.push((num(x_col)? as f32, v));
+        let optional = |c: Option<usize>| c.map_or(Ok(f32::NAN), |c| num(c).map(|v| v as f32));
+        samples.push((num(x_col)? as f32, optional(v_col)?, optional(f_col)?));
     }
     let t0 = t0.ok_or("no samples")?;
     if samples.len() < 2 || t1 <= t0 {
@@ -162,7 +158,8 @@ fn parse_run_csv(path: &Path) -> Result<(f32, Vec<Sample>), String> {
 /// 10 mm, target velocities 0.052 .. 1.048 m/s at the zero crossing) a 0.15 s sinusoidal
 /// stroke segment `x = A w(t) sin(v t / A)` that starts at the zero crossing, with a 20 ms
 /// raised-cosine fade in and out `w(t)` (so the stroke is continuous from segment to segment),
-/// plus 0.5 um RMS white displacement noise. The velocity channel is the exact derivative.
+/// plus 0.5 um RMS white displacement noise. The velocity channel is the exact derivative;
+/// there is no force (NaN).
 fn synthetic_run() -> Vec<Sample> {
     const AMPLITUDES_M: [f64; 2] = [0.05, 0.01];
     const VELOCITIES_M_S: [f64; 6] = [0.052, 0.131, 0.262, 0.393, 0.524, 1.048];
@@ -190,7 +187,7 @@ fn synthetic_run() -> Vec<Sample> {
                 let x = a * win * (w * t).sin();
                 let v = a * dwin * (w * t).sin() + a * win * w * (w * t).cos();
                 let noise: f64 = StandardNormal.sample(&mut rng);
-                out.push(((x + NOISE_M * noise) as f32, v as f32));
+                out.push(((x + NOISE_M * noise) as f32, v as f32, f32::NAN));
             }
         }
     }

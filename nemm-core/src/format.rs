@@ -18,9 +18,10 @@
 //! This build writes [`FORMAT_VERSION`] and reads every version from [`OLDEST_FORMAT_VERSION`]
 //! on. Version 2 appended an empty [`Extension`] to the body (zero bytes, so a version-2
 //! body is a version-1 body); version 3 fills it with the condition (name, unit, map to
-//! `alpha`, declared priors) and the alpha branches of the scalers. A version-1 or -2 blob
-//! decodes with [`Extension::default`], which reproduces what those versions meant (the
-//! paper's oil loss, no branches).
+//! `alpha`, declared priors), the alpha branches of the scalers and the
+//! [`crate::model::Provenance`]. A version-1 or -2 blob decodes with [`Extension::default`],
+//! which reproduces what those versions meant (the paper's oil loss, no branches, no
+//! provenance).
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -353,6 +354,7 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
     let rest = de
         .finalize()
         .map_err(|_| DecodeError::Malformed { part: "body" })?;
+    // Version 2's extension has no fields (zero bytes); version 3 holds its fields.
     let rest = if header.version >= 3 {
         let (ext, rest) = postcard::take_from_bytes::<Extension>(rest)
             .map_err(|_| DecodeError::Malformed { part: "extension" })?;

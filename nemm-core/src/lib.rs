@@ -12,6 +12,8 @@
 //! - [`sem`]: the static force-velocity map.
 //! - [`table`]: the tabulated fixed-alpha fast path (1-D cubic tables with a verified error
 //!   bound).
+//! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
+//!   low-pass) that feeds the estimator online.
 //! - [`math`]: `exp`, `sqrt` and `fma` backends (`libm` exact, `micromath` fast).
 //!
 //! Units are SI throughout: m, m/s, N, N s/m, N/m, s. `alpha` is the oil-loss fraction in
@@ -64,6 +66,7 @@ pub mod sem;
 pub mod table;
 #[doc(hidden)]
 pub mod testing;
+pub mod velocity;
 
 pub use emm::{Coefficients, EmmConstants, State};
 pub use estimator::{
@@ -77,7 +80,7 @@ pub use integrator::Integrator;
 pub use mlp::{AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
 pub use model::{
     AlphaBranches, Body, Condition, Extension, InputScales, Meta, Model, ModelError, ModelKind,
-    Priors, UnknownName,
+    Priors, Provenance, UnknownName,
 };
 pub use sem::SemMap;
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};

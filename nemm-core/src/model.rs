@@ -177,17 +177,19 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
 /// The part of a [`Model`] that format versions 2 and later added. It is encoded after the
 /// version-1 body, so every version-1 blob still decodes (with the default extension).
 ///
-/// Every field has a default that reproduces what a version-1 blob meant.
+/// Every field has a default that reproduces what an earlier blob meant.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct Extension {
     /// The degradation condition `alpha` stands for and its declared priors (version 3).
     pub condition: Condition,
     /// The alpha branches that make the declared priors hold by construction (version 3).
     pub alpha_branches: AlphaBranches,
+    /// Where the weights came from (format version 3; empty in earlier blobs).
+    pub provenance: Provenance,
 }
 
 impl Extension {
-    /// An extension with an unnamed condition and no branches; `const`, for
+    /// An extension with an unnamed condition, no branches and no provenance; `const`, for
     /// [`Model::empty`].
     pub const EMPTY: Extension = Extension {
         condition: Condition {
@@ -202,12 +204,84 @@ impl Extension {
             b_pr: None,
             k_pr: None,
         },
+        provenance: Provenance::empty(),
     };
 
     /// Checks the extension's own fields (the branches against the body:
     /// [`AlphaBranches::validate`]).
     pub fn validate(&self) -> Result<(), ModelError> {
-        self.condition.validate()
+        self.condition.validate()?;
+        self.provenance.validate()
+    }
+}
+
+/// Longest [`Provenance::command`] in bytes.
+pub const PROVENANCE_COMMAND_LEN: usize = 192;
+/// Longest [`Provenance::dataset`] in bytes.
+pub const PROVENANCE_DATASET_LEN: usize = 96;
+/// Longest [`Provenance::commit`] in bytes.
+pub const PROVENANCE_COMMIT_LEN: usize = 48;
+
+/// Where a model came from, recorded by the exporter: free text for people and tools
+/// (`nemm inspect` prints it); the estimator never reads it. Each field is printable: no
+/// control characters (so each prints as one line). Empty means unknown.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Provenance {
+    /// The command that trained and exported the model.
+    pub command: heapless::String<PROVENANCE_COMMAND_LEN>,
+    /// The training data: a dataset path or a description of a generated dataset.
+    pub dataset: heapless::String<PROVENANCE_DATASET_LEN>,
+    /// The source revision of the trainer (e.g. a git commit).
+    pub commit: heapless::String<PROVENANCE_COMMIT_LEN>,
+}
+
+impl Provenance {
+    /// No provenance recorded.
+    pub const fn empty() -> Self {
+        Self {
+            command: heapless::String::new(),
+            dataset: heapless::String::new(),
+            commit: heapless::String::new(),
+        }
+    }
+
+    /// A provenance with each text cut to its field's capacity (at a character boundary)
+    /// and control characters replaced by spaces, so that it always validates.
+    pub fn new(command: &str, dataset: &str, commit: &str) -> Self {
+        fn fit<const N: usize>(s: &str) -> heapless::String<N> {
+            let mut out = heapless::String::new();
+            for c in s.chars() {
+                let c = if c.is_control() { ' ' } else { c };
+                if out.push(c).is_err() {
+                    break;
+                }
+            }
+            out
+        }
+        Self {
+            command: fit(command),
+            dataset: fit(dataset),
+            commit: fit(commit),
+        }
+    }
+
+    /// True if nothing is recorded.
+    pub fn is_empty(&self) -> bool {
+        self.command.is_empty() && self.dataset.is_empty() && self.commit.is_empty()
+    }
+
+    /// Checks that no field holds a control character.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        for (text, field) in [
+            (self.command.as_str(), "provenance.command"),
+            (self.dataset.as_str(), "provenance.dataset"),
+            (self.commit.as_str(), "provenance.commit"),
+        ] {
+            if text.chars().any(char::is_control) {
+                return Err(ModelError::ControlCharacter { field });
+            }
+        }
+        Ok(())
     }
 }
 
@@ -456,6 +530,11 @@ pub enum ModelError {
     Sem(SemError),
     /// The training alpha range is not `0 <= alpha_min <= alpha_max <= 1`.
     AlphaRange,
+    /// A text field holds a control character.
+    ControlCharacter {
+        /// Which field.
+        field: &'static str,
+    },
     /// The step is too long for the fastest time constant the model can reach.
     UnstableStep {
         /// Integration step \[s\].
@@ -513,6 +592,9 @@ impl fmt::Display for ModelError {
             ModelError::Sem(e) => write!(f, "SEM map: {e:?}"),
             ModelError::AlphaRange => {
                 write!(f, "training alpha range must satisfy 0 <= alpha_min <= alpha_max <= 1")
+            }
+            ModelError::ControlCharacter { field } => {
+                write!(f, "`{field}` holds a control character")
             }
             ModelError::UnstableStep {
                 dt_s,

@@ -198,6 +198,7 @@ pub fn example_model_with_branches<const P: usize>(
             ..Condition::default()
         },
         alpha_branches: branches,
+        ..Extension::default()
     };
     Some(m)
 }

@@ -533,3 +533,34 @@ fn check_old_blobs(dir: &std::path::Path, version: u16) {
         assert_eq!(decode::<1400>(&again).unwrap(), model);
     }
 }
+
+/// The provenance round-trips, is cut to its capacity on construction, and a blob whose
+/// provenance holds a control character is refused with the field named.
+#[test]
+fn provenance_round_trips_and_is_validated() {
+    use nemm_core::model::{Provenance, PROVENANCE_COMMIT_LEN};
+    let mut model: Model<1400> = nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
+    let long_commit = "0123456789abcdef".repeat(8);
+    model.ext.provenance = Provenance::new(
+        "nemm train --data bench\nx --out m.nemm",
+        "virtual bench, seed 1",
+        &long_commit,
+    );
+    assert_eq!(model.ext.provenance.commit.len(), PROVENANCE_COMMIT_LEN);
+    assert!(long_commit.starts_with(model.ext.provenance.commit.as_str()));
+    let blob = blob_of(&model);
+    let back: Model<1400> = decode(&blob).unwrap();
+    assert_eq!(back.ext, model.ext);
+    assert!(!back.ext.provenance.is_empty());
+    // Control characters are replaced on construction...
+    let p = Provenance::new("a\tb", "", "");
+    assert_eq!(p.command.as_str(), "a b");
+    // ... and refused in a blob.
+    model.ext.provenance.dataset = heapless::String::try_from("line\nbreak").unwrap();
+    assert_eq!(
+        model.validate(),
+        Err(ModelError::ControlCharacter {
+            field: "provenance.dataset"
+        })
+    );
+}

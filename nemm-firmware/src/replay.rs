@@ -174,21 +174,12 @@ impl SpiDevice for ReplayAdc<'_> {
 mod tests {
     use super::*;
     use crate::sensor::{SensorError, StrokeSensor};
-    use crate::trace::{MAGIC, VERSION};
     use std::vec::Vec;
 
     fn trace_bytes(xs: &[f32]) -> Vec<u8> {
-        let mut b = Vec::new();
-        b.extend_from_slice(&MAGIC);
-        b.extend_from_slice(&VERSION.to_le_bytes());
-        b.extend_from_slice(&0u16.to_le_bytes());
-        b.extend_from_slice(&10_000f32.to_le_bytes());
-        b.extend_from_slice(&0.0f32.to_le_bytes());
-        b.extend_from_slice(&(xs.len() as u32).to_le_bytes());
-        for x in xs {
-            b.extend_from_slice(&x.to_le_bytes());
-            b.extend_from_slice(&f32::NAN.to_le_bytes());
-        }
+        let samples: Vec<_> = xs.iter().map(|&x| (x, f32::NAN, f32::NAN)).collect();
+        let mut b = vec![0; crate::trace::encoded_len(xs.len()).unwrap()];
+        crate::trace::encode(10_000.0, 0.0, &samples, &mut b).unwrap();
         b
     }
 

@@ -181,6 +181,9 @@ pub fn model_error(line: &mut Line, e: &ModelError) {
             .kv("found", u32::from(*found)),
         ModelError::Sem(_) => line.ks("reason", "sem-map"),
         ModelError::AlphaRange => line.ks("reason", "alpha-range"),
+        ModelError::ControlCharacter { field } => {
+            line.ks("reason", "control-character").ks("field", field)
+        }
         ModelError::UnstableStep { .. } => line.ks("reason", "unstable-step"),
         ModelError::Branch { scaler, .. } => line.ks("reason", "alpha-branch").ks("scaler", scaler),
         ModelError::Condition { field } => line.ks("reason", "condition").ks("field", field),

@@ -24,18 +24,12 @@
 //! # Differentiation filter
 //!
 //! The paper's bench computes velocity by numerical differentiation of the measured stroke
-//! (section 3). Here, per sample `n` with ADC codes `c_n` at rate `fs`:
-//!
-//! ```text
-//! raw_n = (c_n - c_n-1) * k                 k = metres_per_lsb * fs  (integer difference: exact)
-//! v_n   = fma(a, raw_n - v_n-1, v_n-1)      a = w / (1 + w),  w = 2 pi fc / fs
-//! ```
-//!
-//! a backward difference followed by a first-order low-pass (backward-Euler RC, corner `fc`,
-//! default [`DEFAULT_CUTOFF_HZ`]). At 10 kHz and `fc` = 500 Hz the group delay at low
-//! frequency is `1/(2 pi fc) + 1/(2 fs)` = 0.37 ms, i.e. 4 degrees of phase at 30 Hz (the top
-//! of the model's frequency range, paper section 4); 0.5 um RMS displacement noise becomes
-//! about 3 mm/s RMS of velocity noise.
+//! (section 3). Here the codes go through [`nemm_core::velocity::Differentiator`]: a
+//! backward difference of the integer codes (exact) times `metres_per_lsb * fs`, followed by
+//! a first-order low-pass (backward-Euler RC, corner [`Calibration::cutoff_hz`], default
+//! [`DEFAULT_CUTOFF_HZ`]: 0.37 ms of group delay at 10 kHz, 4 degrees of phase at 30 Hz; see
+//! that module for the formulas). The trainer's `--velocity causal` preprocessing runs the
+//! same filter. 0.5 um RMS displacement noise becomes about 3 mm/s RMS of velocity noise.
 //!
 //! After a failed or invalid sample the difference is undefined: the next good sample only
 //! re-primes the filter ([`SensorError::Priming`]), and the sample after it seeds the
@@ -53,8 +47,7 @@ pub const STATUS_ADC_ERROR: u8 = 1 << 6;
 pub const ZERO_CODE: i32 = 0x80_0000;
 /// Largest result code.
 pub const MAX_CODE: i32 = 0xFF_FFFF;
-/// Default corner frequency of the velocity low-pass \[Hz\].
-pub const DEFAULT_CUTOFF_HZ: f32 = 500.0;
+pub use nemm_core::velocity::{Differentiator, DEFAULT_CUTOFF_HZ};
 
 /// One conversion result as it arrives on the bus.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -140,51 +133,6 @@ pub enum SensorError<E> {
     Priming,
 }
 
-/// Backward difference plus first-order low-pass (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Differentiator {
-    k: f32,
-    a: f32,
-    last_code: Option<i32>,
-    v: Option<f32>,
-}
-
-impl Differentiator {
-    /// Filter for `cal`.
-    pub fn new(cal: &Calibration) -> Self {
-        let w = 2.0 * core::f32::consts::PI * cal.cutoff_hz / cal.sample_rate_hz;
-        Self {
-            k: cal.metres_per_lsb * cal.sample_rate_hz,
-            a: w / (1.0 + w),
-            last_code: None,
-            v: None,
-        }
-    }
-
-    /// Low-pass coefficient `a`.
-    pub fn coefficient(&self) -> f32 {
-        self.a
-    }
-
-    /// Next good code; `None` while priming.
-    pub fn push(&mut self, code: i32) -> Option<f32> {
-        let prev = self.last_code.replace(code)?;
-        let raw = (code - prev) as f32 * self.k;
-        let v = match self.v {
-            None => raw,
-            Some(v) => nemm_core::math::fma(self.a, raw - v, v),
-        };
-        self.v = Some(v);
-        Some(v)
-    }
-
-    /// Forgets the history after a missing sample: the next code primes again.
-    pub fn invalidate(&mut self) {
-        self.last_code = None;
-        self.v = None;
-    }
-}
-
 /// Driver of the stroke channel on any [`SpiDevice`].
 #[derive(Debug)]
 pub struct StrokeSensor<SPI> {
@@ -198,7 +146,7 @@ impl<SPI: SpiDevice> StrokeSensor<SPI> {
     pub fn new(spi: SPI, cal: Calibration) -> Self {
         Self {
             spi,
-            diff: Differentiator::new(&cal),
+            diff: Differentiator::new(cal.metres_per_lsb, cal.sample_rate_hz, cal.cutoff_hz),
             cal,
         }
     }
@@ -335,23 +283,5 @@ mod tests {
         // Seeded with the raw difference of the new direction, no transient from before.
         assert_eq!(s.read_velocity(), Ok(-expected));
         assert_eq!(s.read_velocity(), Ok(-expected));
-    }
-
-    #[test]
-    fn low_pass_step_response_matches_its_formula() {
-        let cal = Calibration::new(0.1, 10_000.0);
-        let mut d = Differentiator::new(&cal);
-        let a = d.coefficient() as f64;
-        let w = 2.0 * std::f64::consts::PI * 500.0 / 10_000.0;
-        assert!((a - w / (1.0 + w)).abs() < 1e-7);
-        // Rest, then a ramp of 100 LSB per sample: v_n = raw (1 - (1 - a)^n) after the seed 0.
-        assert_eq!(d.push(0), None);
-        assert_eq!(d.push(0), Some(0.0));
-        let raw = 100.0 * cal.metres_per_lsb as f64 * 10_000.0;
-        for n in 1..50 {
-            let v = d.push(100 * n).unwrap() as f64;
-            let expect = raw * (1.0 - (1.0 - a).powi(n));
-            assert!((v - expect).abs() < 1e-5 * raw, "{n}: {v} vs {expect}");
-        }
     }
 }

@@ -3,28 +3,73 @@
 //! ```text
 //! offset  field
 //!  0      magic "NTRC"
-//!  4      version: u16 LE = 1
+//!  4      version: u16 LE = 2
 //!  6      reserved: u16 LE = 0
 //!  8      sample_rate_hz: f32 LE
 //! 12      oil_loss (alpha): f32 LE, the run's oil-loss level
 //! 16      n_samples: u32 LE
-//! 20      n_samples x (displacement_m: f32 LE, velocity_m_s: f32 LE)
+//! 20      n_samples x (displacement_m: f32 LE, velocity_m_s: f32 LE, force_n: f32 LE)
 //! ```
 //!
 //! `displacement_m` is the stroke as recorded (positive = extension); NaN marks a dropout
 //! in the recording (served as an invalid conversion). `velocity_m_s` is the bench's own
-//! velocity channel if the recording has one (NaN otherwise); the firmware never reads it, the
-//! host tests compare against it. `build.rs` writes this format from the project's run CSV
-//! (`time_s,displacement_m,force_n[,velocity_m_s]`) or generates a synthetic run.
+//! velocity channel if the recording has one (NaN otherwise); `force_n` is the measured force
+//! (NaN if the recording has none, e.g. the synthetic run). The firmware reads neither: the
+//! host tests compare the estimates against them (the end-to-end force error). `build.rs`
+//! writes this format from the project's run CSV (`time_s,displacement_m,force_n[,
+//! velocity_m_s]`) or generates a synthetic run.
 
 /// Magic bytes of a trace.
 pub const MAGIC: [u8; 4] = *b"NTRC";
 /// Format version.
-pub const VERSION: u16 = 1;
+pub const VERSION: u16 = 2;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 20;
 /// Bytes per sample.
-pub const SAMPLE_LEN: usize = 8;
+pub const SAMPLE_LEN: usize = 12;
+
+/// Bytes of a trace of `n` samples (`None` on overflow).
+pub const fn encoded_len(n: usize) -> Option<usize> {
+    match n.checked_mul(SAMPLE_LEN) {
+        Some(b) => b.checked_add(HEADER_LEN),
+        None => None,
+    }
+}
+
+/// Writes a trace of `samples` (`(displacement_m, velocity_m_s, force_n)` each) recorded at
+/// `sample_rate_hz` from a damper at oil loss `oil_loss` into the start of `out`; returns
+/// the bytes written, `None` if `out` is too short or there are more than `u32::MAX` samples.
+/// The one writer of the format: `build.rs` and the host tests use it.
+pub fn encode(
+    sample_rate_hz: f32,
+    oil_loss: f32,
+    samples: &[(f32, f32, f32)],
+    out: &mut [u8],
+) -> Option<usize> {
+    let len = encoded_len(samples.len())?;
+    let out = out.get_mut(..len)?;
+    let n = u32::try_from(samples.len()).ok()?;
+    let (header, body) = out.split_at_mut(HEADER_LEN);
+    let mut words = [0u32; 5];
+    for (w, v) in words.iter_mut().zip([
+        u32::from_le_bytes(MAGIC),
+        u32::from(VERSION),
+        sample_rate_hz.to_bits(),
+        oil_loss.to_bits(),
+        n,
+    ]) {
+        *w = v;
+    }
+    for (chunk, w) in header.chunks_exact_mut(4).zip(words) {
+        chunk.copy_from_slice(&w.to_le_bytes());
+    }
+    for (chunk, (x, v, f)) in body.chunks_exact_mut(SAMPLE_LEN).zip(samples) {
+        for (field, value) in chunk.chunks_exact_mut(4).zip([x, v, f]) {
+            field.copy_from_slice(&value.to_le_bytes());
+        }
+    }
+    Some(len)
+}
 
 /// Why a trace is not usable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,6 +160,11 @@ impl<'a> Trace<'a> {
     pub fn velocity_m_s(&self, i: usize) -> Option<f32> {
         u32_at(self.samples, i.checked_mul(SAMPLE_LEN)?.checked_add(4)?).map(f32::from_bits)
     }
+
+    /// The measured force of sample `i` \[N\] (NaN if not recorded), `None` past the end.
+    pub fn force_n(&self, i: usize) -> Option<f32> {
+        u32_at(self.samples, i.checked_mul(SAMPLE_LEN)?.checked_add(8)?).map(f32::from_bits)
+    }
 }
 
 #[cfg(test)]
@@ -122,29 +172,24 @@ mod tests {
     use super::*;
     use std::vec::Vec;
 
-    fn trace_bytes(samples: &[(f32, f32)]) -> Vec<u8> {
-        let mut b = Vec::new();
-        b.extend_from_slice(&MAGIC);
-        b.extend_from_slice(&VERSION.to_le_bytes());
-        b.extend_from_slice(&0u16.to_le_bytes());
-        b.extend_from_slice(&10_000f32.to_le_bytes());
-        b.extend_from_slice(&0.15f32.to_le_bytes());
-        b.extend_from_slice(&(samples.len() as u32).to_le_bytes());
-        for (x, v) in samples {
-            b.extend_from_slice(&x.to_le_bytes());
-            b.extend_from_slice(&v.to_le_bytes());
-        }
+    fn trace_bytes(samples: &[(f32, f32, f32)]) -> Vec<u8> {
+        let mut b = std::vec![0; encoded_len(samples.len()).unwrap()];
+        assert_eq!(encode(10_000.0, 0.15, samples, &mut b), Some(b.len()));
+        assert_eq!(encode(10_000.0, 0.15, samples, &mut b[1..]), None);
         b
     }
 
     #[test]
     fn parses_samples_and_rejects_damage() {
-        let b = trace_bytes(&[(0.001, 0.5), (f32::NAN, -0.25)]);
+        let b = trace_bytes(&[(0.001, 0.5, 12.5), (f32::NAN, -0.25, f32::NAN)]);
         let t = Trace::parse(&b).unwrap();
         assert_eq!((t.len(), t.sample_rate_hz, t.oil_loss), (2, 10_000.0, 0.15));
         assert_eq!(t.displacement_m(0), Some(0.001));
         assert!(t.displacement_m(1).unwrap().is_nan());
         assert_eq!(t.velocity_m_s(1), Some(-0.25));
+        assert_eq!(t.force_n(0), Some(12.5));
+        assert!(t.force_n(1).unwrap().is_nan());
+        assert_eq!(t.force_n(2), None);
         assert_eq!(t.displacement_m(2), None);
         assert_eq!(
             Trace::parse(&b[..b.len() - 1]).unwrap_err(),

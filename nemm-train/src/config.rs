@@ -62,7 +62,8 @@ pub struct DataConfig {
     /// data: `min(150 Hz, 0.4 x sample rate)`.
     pub cutoff_hz: Option<f64>,
     /// Velocity source: `auto` (the CSV's `velocity_m_s` column where a run has one, else the
-    /// differentiated displacement; default), `differentiated` or `measured`.
+    /// differentiated displacement; default), `differentiated`, `measured` or `causal` (the
+    /// firmware's online estimate, [`crate::data::preprocess::causal_velocity`]).
     pub velocity: Option<VelocitySource>,
     /// Scored length of a training window \[s\] (section 5.3: 0.5 s).
     pub window_s: Option<f64>,
@@ -356,6 +357,9 @@ pub fn resolve_with(
         }
         VelocitySource::Differentiated => "differentiated (d/dt of the filtered displacement)",
         VelocitySource::Measured => "measured (the velocity_m_s column of every run)",
+        VelocitySource::Causal => {
+            "causal (the firmware's backward difference and 500 Hz low-pass, lag included)"
+        }
     };
     choices.push((
         "velocity",
@@ -813,7 +817,8 @@ pub struct DataArgs {
     /// Overrides [`DataConfig::velocity`].
     #[arg(long, value_enum, help = with_default(
         "Velocity source: auto (the CSV's velocity_m_s column where present, else d/dt \
-         displacement), differentiated or measured", "auto"))]
+         displacement), differentiated, measured, or causal (the firmware's online estimate: \
+         backward difference and 500 Hz first-order low-pass, with its lag)", "auto"))]
     pub velocity: Option<VelocitySource>,
     /// Overrides [`DataConfig::window_s`].
     #[arg(long, alias = "length-s", value_name = "S", help = with_default(

@@ -39,3 +39,19 @@ fn example_blobs_are_the_core_examples() {
         assert_eq!(back, model);
     }
 }
+
+/// The trained blob the firmware embeds by default decodes at the firmware's capacity and
+/// records where it came from (`cargo xtask firmware-model` writes it).
+#[test]
+fn the_trained_blob_decodes_and_records_its_provenance() {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../nemm-firmware/data/trained-nemm.nemm");
+    let blob = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let model: Model<PARAM_CAPACITY> = decode(&blob).expect("decodes at the firmware's P");
+    assert_eq!(model.kind(), ModelKind::Nemm);
+    let p = &model.ext.provenance;
+    assert!(
+        p.command.starts_with("nemm train ") && !p.dataset.is_empty() && !p.commit.is_empty(),
+        "{p:?}"
+    );
+}

@@ -10,6 +10,9 @@
 //!   for QEMU's netduinoplus2 ([`board`]).
 //! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4,
 //!   per model kind and integrator.
+//! - `cargo xtask firmware-model`: trains the model the firmware embeds ([`model`]).
+//! - `cargo xtask e2e`: held-out runs through the firmware in QEMU, its force error against
+//!   the trainer's ([`model`]).
 //! - `cargo xtask results`: the target figures (instructions per step, flash, RAM, stack)
 //!   written into `docs/results.md`; `--training DIR` copies a training report's tables
 //!   there ([`results`]).
@@ -18,6 +21,7 @@ mod bench;
 mod board;
 mod checks;
 mod firmware;
+mod model;
 mod results;
 #[path = "../../nemm-firmware/src/slot.rs"]
 #[allow(dead_code)]
@@ -110,6 +114,31 @@ enum Cmd {
     /// Check that every workspace package's `rust-version` is at least what every crate it
     /// compiles declares (one `rust-version package=..` line each).
     Msrv,
+    /// Train the model the firmware images embed (nemm-firmware/data/trained-nemm.nemm).
+    ///
+    /// One `nemm train` on the default virtual bench (seed 1, generated into
+    /// out/firmware-bench if absent): the NEMM at the demo's budget, 15 % oil loss held out.
+    /// The blob records the command, the dataset and the commit (`nemm inspect` prints them).
+    FirmwareModel {
+        /// Velocity preprocessing: `causal` trains on the firmware's online velocity estimate
+        /// (`nemm train --velocity causal`); default: the trainer's zero-phase filter.
+        #[arg(long, value_parser = ["causal"])]
+        velocity: Option<String>,
+        /// Output blob (relative to the workspace root).
+        #[arg(long, default_value = model::FIRMWARE_MODEL)]
+        out: String,
+    },
+    /// End-to-end accuracy: held-out runs (nemm-firmware/data/e2e) through the firmware's SPI
+    /// sensor path in QEMU.
+    ///
+    /// One line per run: `e2e run=<file> firmware_rmse_n=<x> host_rmse_n=<y>`, where
+    /// host_rmse_n is the trainer's whole-run evaluation of the same model on the same run.
+    /// Fails if the firmware is worse than 1.10 x host + 2 N on a run.
+    E2e {
+        /// A weights blob to run instead of the embedded one (patched into the slot).
+        #[arg(long, value_name = "FILE")]
+        weights: Option<PathBuf>,
+    },
 }
 
 /// The estimator's evaluation mode (the firmware's `mode=` option).
@@ -216,6 +245,12 @@ fn main() -> ExitCode {
             None => setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps)),
         },
         Some(Cmd::Toolchain) => setup().map(|(tc, _)| println!("{}", tc.describe())),
+        Some(Cmd::FirmwareModel { velocity, out }) => {
+            Paths::find().and_then(|p| model::firmware_model(&p, velocity.as_deref(), &out))
+        }
+        Some(Cmd::E2e { weights }) => {
+            setup().and_then(|(tc, p)| model::e2e(&tc, &p, weights.as_deref()))
+        }
         None => Cli::command()
             .print_help()
             .map_err(|e| format!("cannot print the help: {e}")),
@@ -274,9 +309,11 @@ fn setup() -> Result<(Toolchain, Paths), String> {
 
 /// The integration tests that run the firmware in QEMU (`tests/tests/qemu_*.rs`), ignored by
 /// a plain `cargo test`.
-const QEMU_TESTS: [&str; 5] = [
+const QEMU_TESTS: [&str; 7] = [
     "qemu_board",
+    "qemu_e2e",
     "qemu_faults",
+    "qemu_model",
     "qemu_no_panic",
     "qemu_parity",
     "qemu_weights",
@@ -500,6 +537,20 @@ mod tests {
         ));
         assert!(matches!(parse(&["build-board"]), Ok(Some(Cmd::BuildBoard))));
         assert!(matches!(parse(&["toolchain"]), Ok(Some(Cmd::Toolchain))));
+        match parse(&["firmware-model", "--velocity", "causal", "--out", "m.nemm"]) {
+            Ok(Some(Cmd::FirmwareModel { velocity, out })) => {
+                assert_eq!(
+                    (velocity.as_deref(), out.as_str()),
+                    (Some("causal"), "m.nemm")
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(parse(&["firmware-model", "--velocity", "acausal"]).is_err());
+        match parse(&["e2e"]) {
+            Ok(Some(Cmd::E2e { weights })) => assert_eq!(weights, None),
+            other => panic!("{other:?}"),
+        }
         assert!(matches!(parse(&[]), Ok(None)));
         assert!(parse(&["build-target", "extra"]).is_err());
         assert!(parse(&["frobnicate"]).is_err());

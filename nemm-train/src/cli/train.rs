@@ -63,11 +63,19 @@ pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
     Ok(cfg)
 }
 
-/// Encodes and writes a model blob atomically; returns its size.
-pub fn export_model(model: &nemm_core::Model, out: &Path) -> Result<usize> {
-    let blob = nemm_core::encode_to_vec(model).map_err(|e| anyhow::anyhow!("{e}"))?;
+/// Encodes and writes a model blob atomically, with its provenance (this command line, the
+/// commit the trainer was built from, and `dataset`) in the blob; returns its size and the
+/// model as written.
+pub fn export_model(
+    model: &nemm_core::Model,
+    out: &Path,
+    dataset: &str,
+) -> Result<(usize, nemm_core::Model)> {
+    let mut model = model.clone();
+    model.ext.provenance = provenance(dataset);
+    let blob = nemm_core::encode_to_vec(&model).map_err(|e| anyhow::anyhow!("{e}"))?;
     write_atomic_bytes(out, &blob).with_context(|| format!("cannot write {}", out.display()))?;
-    Ok(blob.len())
+    Ok((blob.len(), model))
 }
 
 /// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run) into
@@ -126,7 +134,8 @@ pub fn train(
 ) -> Result<()> {
     let cfg = &with_resolved_data(cfg)?;
     let variant = cfg.model.variant;
-    let prepared = load_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
+    let (ds, prepared) =
+        load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
     let pipeline = cfg.pipeline_config();
     let t = Instant::now();
     let trained = train_variants(&prepared, &[variant], &pipeline, checkpoint, resume)?;
@@ -134,7 +143,7 @@ pub fn train(
         .iter()
         .find(|t| t.variant == variant)
         .context("training produced no model")?;
-    let n = export_model(&tv.model, out)?;
+    let (n, written) = export_model(&tv.model, out, &dataset_provenance(&ds, &cfg.data.dir))?;
     let report = evaluate(std::slice::from_ref(tv), &prepared)?;
     let vr = report.variants.get(variant.key()).context("report")?;
     println!(
@@ -142,7 +151,7 @@ pub fn train(
         out.display(),
         t.elapsed().as_secs_f64()
     );
-    print!("{}", describe(&tv.model, n));
+    print!("{}", describe(&written, n));
     println!(
         "test RMSE ({}): {:.4} of the force scale ({:.1} N); validation {:.4}",
         prepared.config.split.describe(),
@@ -254,7 +263,7 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
         .try_load_file(checkpoint.join(latest.trim()).join("best"))
         .map_err(|e| anyhow::anyhow!("cannot load the best module: {e:?}"))?;
     let model = to_core(&net.to_rollout(&frame), saved.meta)?;
-    let n = export_model(&model, out)?;
+    let (n, model) = export_model(&model, out, &format!("checkpoint {}", checkpoint.display()))?;
     println!(
         "wrote {} ({n} bytes) from {}",
         out.display(),
@@ -306,9 +315,10 @@ pub fn compare(
         .map(|f| (f.variant, f.reason))
         .collect();
     let mut exported = Vec::new();
+    let dataset = dataset_provenance(ds, &cfg.data.dir);
     for tv in trained {
         let out = report_dir.join(format!("{}.nemm", tv.variant.name()));
-        match export_model(&tv.model, &out) {
+        match export_model(&tv.model, &out, &dataset) {
             Ok(_) => exported.push(tv),
             Err(e) => {
                 eprintln!("[{}] export failed: {e:#}", tv.variant.name());
@@ -784,11 +794,36 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
 /// Records in `report.info` the command line that made it and the commit the trainer was
 /// built from (`+dirty`: with uncommitted changes).
 fn record_provenance(report: &mut Report) {
-    report.info.insert(
-        "command".into(),
-        std::env::args().collect::<Vec<_>>().join(" "),
-    );
+    report.info.insert("command".into(), command_line());
     report
         .info
         .insert("commit".into(), env!("NEMM_GIT_COMMIT").to_string());
+}
+
+/// This process's command line, the program by its file name (`nemm train ...`).
+fn command_line() -> String {
+    let mut args = std::env::args();
+    let program = args
+        .next()
+        .map(|p| {
+            Path::new(&p)
+                .file_name()
+                .map_or(p.clone(), |f| f.to_string_lossy().into_owned())
+        })
+        .unwrap_or_default();
+    std::iter::once(program)
+        .chain(args)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The provenance a blob exported by this process records: the command line, `dataset` and
+/// the commit the trainer was built from (each cut to its field's capacity).
+pub fn provenance(dataset: &str) -> nemm_core::Provenance {
+    nemm_core::Provenance::new(&command_line(), dataset, env!("NEMM_GIT_COMMIT"))
+}
+
+/// How a blob names its training data: the dataset's name and folder.
+pub fn dataset_provenance(ds: &dataset::Dataset, dir: &Path) -> String {
+    format!("{} ({})", ds.name, dir.display())
 }

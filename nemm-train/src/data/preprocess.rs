@@ -266,6 +266,30 @@ pub fn differentiate(x: &[f64], dt: f64) -> Vec<f64> {
     }
 }
 
+/// The online estimate of the stroke velocity as the firmware computes it: the backward
+/// difference of the recorded displacement `x` (sampled at `sample_rate_hz`) through
+/// [`nemm_core::velocity::LowPass`] at its default corner
+/// ([`nemm_core::velocity::DEFAULT_CUTOFF_HZ`]), in `f32` as on the target. The first sample,
+/// which has no difference yet, is 0 (the firmware primes its filter there and the estimator
+/// holds its input at rest). The firmware differentiates integer ADC codes
+/// (`nemm_core::velocity::Differentiator`, same low-pass): the two differ by the ADC's
+/// quantisation of the stroke only.
+pub fn causal_velocity(x: &[f64], sample_rate_hz: f64) -> Vec<f64> {
+    let mut low_pass = nemm_core::velocity::LowPass::new(
+        sample_rate_hz as f32,
+        nemm_core::velocity::DEFAULT_CUTOFF_HZ,
+    );
+    let mut v = Vec::with_capacity(x.len());
+    if !x.is_empty() {
+        v.push(0.0);
+    }
+    v.extend(
+        x.windows(2)
+            .map(|w| f64::from(low_pass.push(((w[1] - w[0]) * sample_rate_hz) as f32))),
+    );
+    v
+}
+
 /// Where the velocity comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
@@ -277,6 +301,9 @@ pub enum VelocitySource {
     Differentiated,
     /// Always the measured column (a run without it is an error).
     Measured,
+    /// What the firmware sees: the backward difference of the recorded displacement through
+    /// the online estimator's first-order low-pass ([`causal_velocity`]), lag included.
+    Causal,
 }
 
 /// How signals are derived from a run.
@@ -340,7 +367,7 @@ pub fn process_run(
     let dt = 1.0 / sample_rate_hz;
     let displacement_m = lowpass_zero_phase(&run.displacement_m, sample_rate_hz, cfg.cutoff_hz)?;
     let measured = match (cfg.velocity_source, &run.velocity_m_s) {
-        (VelocitySource::Differentiated, _) => None,
+        (VelocitySource::Differentiated | VelocitySource::Causal, _) => None,
         (VelocitySource::Auto, v) => v.as_ref(),
         (VelocitySource::Measured, Some(v)) => Some(v),
         (VelocitySource::Measured, None) => {
@@ -352,6 +379,9 @@ pub fn process_run(
     };
     let velocity_m_s = match measured {
         Some(v) => lowpass_zero_phase(v, sample_rate_hz, cfg.cutoff_hz)?,
+        None if cfg.velocity_source == VelocitySource::Causal => {
+            causal_velocity(&run.displacement_m, sample_rate_hz)
+        }
         None => differentiate(&displacement_m, dt),
     };
     let acceleration_m_s2 = differentiate(&velocity_m_s, dt);

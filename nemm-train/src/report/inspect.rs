@@ -91,6 +91,21 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
             );
         }
     }
+    let p = &model.ext.provenance;
+    if p.is_empty() {
+        let _ = writeln!(s, "provenance:      none recorded");
+    } else {
+        let or_unknown = |t: &str| {
+            if t.is_empty() {
+                "unknown".to_string()
+            } else {
+                t.to_string()
+            }
+        };
+        let _ = writeln!(s, "provenance:      command {}", or_unknown(&p.command));
+        let _ = writeln!(s, "                 dataset {}", or_unknown(&p.dataset));
+        let _ = writeln!(s, "                 commit  {}", or_unknown(&p.commit));
+    }
     if let Some(tau) = model.fastest_time_constant_s() {
         let _ = writeln!(
             s,

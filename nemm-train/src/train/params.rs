@@ -162,9 +162,11 @@ pub fn to_core_with<T: Real>(
         },
         meta,
         body,
+        // The provenance is the exporter's (cli::train::export_model).
         ext: Extension {
             condition: condition.clone(),
             alpha_branches: branches,
+            ..Extension::default()
         },
     };
     model
