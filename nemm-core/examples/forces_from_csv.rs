@@ -42,7 +42,8 @@ fn run() -> Result<(), Box<dyn Error>> {
     let mut model: Box<Model> = Box::new(Model::empty());
     decode_into(&blob, &mut model).map_err(|e| format!("{model_path}: {e}"))?;
     let mut est: Box<Estimator> = Box::new(Estimator::empty());
-    est.load(&model, EstimatorConfig::new(alpha))?;
+    est.load(&model, EstimatorConfig::new(alpha))
+        .map_err(|e| format!("{model_path}: {e}"))?;
 
     let mut reader = csv::Reader::from_path(csv_path).map_err(|e| format!("{csv_path}: {e}"))?;
     let headers = reader.headers()?.clone();

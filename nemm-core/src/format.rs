@@ -356,10 +356,12 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
         .map_err(|_| DecodeError::Malformed { part: "body" })?;
     // Version 2's extension has no fields (zero bytes); version 3 holds its fields.
     let rest = if header.version >= 3 {
-        let (ext, rest) = postcard::take_from_bytes::<Extension>(rest)
+        // In place too: the extension holds the branches' parameter vectors.
+        let mut de = postcard::Deserializer::from_bytes(rest);
+        Extension::deserialize_in_place(&mut de, &mut model.ext)
             .map_err(|_| DecodeError::Malformed { part: "extension" })?;
-        model.ext = ext;
-        rest
+        de.finalize()
+            .map_err(|_| DecodeError::Malformed { part: "extension" })?
     } else {
         model.ext = Extension::default();
         rest

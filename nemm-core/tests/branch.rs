@@ -288,11 +288,25 @@ fn corrupt_branches_are_refused() {
 fn decoder_refuses_a_blob_with_a_corrupt_branch() {
     let m = branched();
     let blob = blob_of(&m);
-    // The last theta_v of k_pr's branch sits right before the extension's end; make it NaN.
+    // The last theta_v of k_pr's branch (the last branch parameter of the extension, found
+    // by its bytes): make it NaN.
     let n = blob.len() - 4;
     let mut bad = blob.clone();
-    let at = n - 4;
-    bad[at..n].copy_from_slice(&f32::NAN.to_le_bytes());
+    let last = m
+        .ext
+        .alpha_branches
+        .k_pr
+        .as_ref()
+        .unwrap()
+        .params
+        .last()
+        .unwrap()
+        .to_le_bytes();
+    let at = blob[..n]
+        .windows(4)
+        .rposition(|w| w == last)
+        .expect("the last branch parameter is in the blob");
+    bad[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
     let crc = nemm_core::format::CRC.checksum(&bad[..n]);
     bad[n..].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(
