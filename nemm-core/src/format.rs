@@ -16,8 +16,9 @@
 //! # Versions
 //!
 //! This build writes [`FORMAT_VERSION`] and reads every version from [`OLDEST_FORMAT_VERSION`]
-//! on. Version 2 appended the [`Extension`] to the body; a version-1 blob decodes with
-//! [`Extension::default`], which reproduces what version 1 meant.
+//! on. Version 2 appended the [`Extension`] to the body (then empty, zero bytes); version 3
+//! added [`Extension::static_force`]. A version-1 or version-2 blob decodes with
+//! [`Extension::default`], which reproduces what those versions meant.
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -38,7 +39,7 @@ use serde::{Deserialize, Serialize};
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
 /// Oldest format version this build reads.
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
@@ -350,7 +351,8 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
     let rest = de
         .finalize()
         .map_err(|_| DecodeError::Malformed { part: "body" })?;
-    let rest = if header.version >= 2 {
+    // Version 2's extension was empty (zero bytes): only version 3 on carries one.
+    let rest = if header.version >= 3 {
         let (ext, rest) = postcard::take_from_bytes::<Extension>(rest)
             .map_err(|_| DecodeError::Malformed { part: "extension" })?;
         model.ext = ext;

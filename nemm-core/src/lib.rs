@@ -10,6 +10,7 @@
 //! - [`format`](mod@format): the postcard weight blob with magic, version and CRC-32.
 //! - [`estimator`]: the online estimator, one `step(velocity) -> force` per sample.
 //! - [`sem`]: the static force-velocity map.
+//! - [`static_force`]: the optional static force of eq. 17 (gas force, seal friction).
 //! - [`table`]: the tabulated fixed-alpha fast path (1-D cubic tables with a verified error
 //!   bound).
 //! - [`math`]: `exp`, `sqrt` and `fma` backends (`libm` exact, `micromath` fast).
@@ -60,6 +61,7 @@ pub mod math;
 pub mod mlp;
 pub mod model;
 pub mod sem;
+pub mod static_force;
 pub mod table;
 #[doc(hidden)]
 pub mod testing;
@@ -76,6 +78,7 @@ pub use integrator::Integrator;
 pub use mlp::{MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
 pub use model::{Body, Extension, InputScales, Meta, Model, ModelError, ModelKind, UnknownName};
 pub use sem::SemMap;
+pub use static_force::StaticForce;
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 
 #[cfg(feature = "std")]

@@ -27,6 +27,7 @@ use crate::emm::EmmConstants;
 use crate::integrator::Integrator;
 use crate::mlp::{Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
 use crate::sem::{SemError, SemMap};
+use crate::static_force::StaticForce;
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
@@ -174,16 +175,30 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     pub ext: Extension,
 }
 
-/// The part of a [`Model`] that format version 2 added. It is encoded after the version-1
-/// body, so every version-1 blob still decodes (with the default extension).
+/// The part of a [`Model`] that format versions 2 and later added. It is encoded after the
+/// version-1 body, so every version-1 blob still decodes (with the default extension).
 ///
-/// Every field has a default that reproduces what a version-1 blob meant.
+/// Every field has a default that reproduces what an older blob meant. Fields by the
+/// version that added them:
+///
+/// | version | field |
+/// |---|---|
+/// | 2 | (none: the extension itself, empty) |
+/// | 3 | [`Extension::static_force`] |
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct Extension {}
+pub struct Extension {
+    /// The static force `r` of eq. 17 (gas force and seal friction, see
+    /// [`crate::static_force`]) added to the EMM force; `None`: no static force (the
+    /// paper's model). Refused on the SEM.
+    pub static_force: Option<StaticForce>,
+}
 
 impl Extension {
-    /// Checks the extension's fields.
+    /// Checks the extension's fields (the model kind's part: [`Model::validate`]).
     pub fn validate(&self) -> Result<(), ModelError> {
+        if let Some(s) = &self.static_force {
+            s.validate()?;
+        }
         Ok(())
     }
 }
@@ -201,6 +216,14 @@ pub enum ModelError {
         /// Which field.
         field: &'static str,
     },
+    /// A value that must not be negative is.
+    Negative {
+        /// Which field.
+        field: &'static str,
+    },
+    /// A static force ([`Extension::static_force`]) on the SEM, whose map already holds
+    /// every force of its data.
+    StaticForceOnSem,
     /// A scale outside [`SCALE_RANGE`].
     OutOfRange {
         /// Which field.
@@ -249,6 +272,11 @@ impl fmt::Display for ModelError {
         match self {
             ModelError::NonFinite { field } => write!(f, "`{field}` holds a NaN or infinite value"),
             ModelError::NotPositive { field } => write!(f, "`{field}` must be positive"),
+            ModelError::Negative { field } => write!(f, "`{field}` must not be negative"),
+            ModelError::StaticForceOnSem => write!(
+                f,
+                "the SEM takes no static force (its map already holds every force of its data)"
+            ),
             ModelError::OutOfRange { field } => write!(
                 f,
                 "`{field}` must lie in [{:e}, {:e}] (SI units)",
@@ -364,7 +392,7 @@ impl<const P: usize> Model<P> {
                 k_pr_n_per_m: 0.0,
                 t_pr_s: 0.0,
             }),
-            ext: Extension {},
+            ext: Extension { static_force: None },
         }
     }
 
@@ -493,6 +521,9 @@ impl<const P: usize> Model<P> {
             }
         }
         self.ext.validate()?;
+        if self.ext.static_force.is_some() && matches!(self.body, Body::Sem(_)) {
+            return Err(ModelError::StaticForceOnSem);
+        }
         self.check_step(self.integrator, self.dt_s)
     }
 
