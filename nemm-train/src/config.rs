@@ -513,6 +513,10 @@ pub struct ModelConfig {
     /// `1 / rate_hz` whatever the data's sample rate, and the exported blob carries that step
     /// (docs/preprocessing.md, "Model rate and data rate").
     pub rate_hz: f64,
+    /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
+    /// position, `nemm_core::static_force`) to every EMM-family variant (docs/training.md,
+    /// "The static force").
+    pub static_force: bool,
 }
 
 impl Default for ModelConfig {
@@ -525,9 +529,13 @@ impl Default for ModelConfig {
             b_fl_bounds: (0.1, 10.0),
             pr_bounds: (0.1, 5.0),
             rate_hz: DEFAULT_MODEL_RATE_HZ,
+            static_force: DEFAULT_STATIC_FORCE,
         }
     }
 }
+
+/// Whether the EMM-family variants get the static force by default.
+pub const DEFAULT_STATIC_FORCE: bool = false;
 
 /// The default model rate \[Hz\]: the firmware's 10 kHz step.
 pub const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
@@ -679,6 +687,7 @@ impl Config {
             b_fl_bounds: m.b_fl_bounds,
             pr_bounds: m.pr_bounds,
             model_rate_hz: m.rate_hz,
+            static_force: m.static_force,
         }
     }
 }
@@ -738,6 +747,13 @@ pub struct ConfigArgs {
         "Integration rate of the model in Hz, independent of the data's sample rate (the \
          exported step is 1 / rate)", ModelConfig::default().rate_hz))]
     pub model_rate_hz: Option<f64>,
+    /// Overrides [`ModelConfig::static_force`].
+    #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL",
+        help = with_default(
+        "Add the static force of eq. 17 (gas force and gas spring in the stroke position, \
+         seal friction) to every EMM-family variant: --static-force or --static-force=false",
+        ModelConfig::default().static_force))]
+    pub static_force: Option<bool>,
     /// Overrides [`TrainConfig::batch`].
     #[arg(long, help = with_default(
         "Windows per batch (Table 3: 4, 8, 16)", TrainConfig::default().batch))]
@@ -931,6 +947,7 @@ impl ConfigArgs {
         set(&mut m.layers, &self.layers);
         set(&mut m.integrator, &self.integrator);
         set(&mut m.rate_hz, &self.model_rate_hz);
+        set(&mut m.static_force, &self.static_force);
         set(&mut t.seed, &self.data_options.seed);
         set(&mut t.batch, &self.batch);
         set(&mut t.lr, &self.lr);

@@ -119,6 +119,11 @@ enum Cmd {
         /// Batches per epoch (random subset).
         #[arg(long, default_value_t = 8)]
         max_batches: usize,
+        /// Adds the static force of eq. 17 (gas force, gas spring, seal friction) to every
+        /// EMM-family variant (docs/training.md, "The static force").
+        #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL",
+            default_value_t = nemm_train::config::DEFAULT_STATIC_FORCE)]
+        static_force: bool,
         /// Data options.
         #[command(flatten)]
         data_options: nemm_train::config::DataArgs,
@@ -186,6 +191,7 @@ fn main() -> ExitCode {
             out,
             epochs,
             max_batches,
+            static_force,
             data_options,
         } => {
             let mut cfg = nemm_train::config::Config {
@@ -198,6 +204,7 @@ fn main() -> ExitCode {
             cfg.train.epochs = epochs;
             cfg.train.max_batches = Some(max_batches);
             cfg.train.linear_epochs = DEMO_LINEAR_EPOCHS;
+            cfg.model.static_force = static_force;
             nemm_train::cli::train::demo(&nemm_train::cli::train::DemoPaths { data, out }, &cfg)
         }
     };

@@ -137,7 +137,7 @@ fn light_net(device: &Device) -> (EmmNet, nemm_train::train::net::NetFrame) {
 fn light_net_seeded(device: &Device, seed: u64) -> (EmmNet, nemm_train::train::net::NetFrame) {
     let mut p: RolloutParams<f32> = from_core(&truth()).expect("emm");
     p.b_fl = Some(init_scaler(2, 8, 2, (0.1, 10.0), seed));
-    EmmNet::from_rollout(&p, device)
+    EmmNet::from_rollout(&p, None, device)
 }
 
 fn flat(net: &EmmNet, frame: &nemm_train::train::net::NetFrame) -> Vec<f32> {

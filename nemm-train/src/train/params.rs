@@ -2,11 +2,11 @@
 //! weight layout and the semantics are nemm-core's, so exporting is a copy, not a
 //! re-implementation.
 
-use super::adjoint::{Real, RolloutParams, ScalerWeights};
+use super::adjoint::{Real, RolloutParams, ScalerWeights, StaticParams};
 use anyhow::{bail, Result};
 use nemm_core::emm::EmmConstants;
 use nemm_core::{
-    Body, Extension, InputScales, Integrator, Meta, MlpParams, Model, Scaler,
+    Body, Extension, InputScales, Integrator, Meta, MlpParams, Model, Scaler, StaticForce,
     DEFAULT_PARAM_CAPACITY,
 };
 
@@ -61,6 +61,11 @@ pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
         b_fl,
         b_pr,
         k_pr,
+        static_force: m.ext.static_force.map(|s| StaticParams {
+            theta: s.params().map(c),
+            x_ref: c(s.x_ref_m),
+            v_c: c(s.v_c_m_s),
+        }),
     })
 }
 
@@ -98,7 +103,17 @@ pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
         },
         meta,
         body,
-        ext: Extension::default(),
+        ext: Extension {
+            static_force: p.static_force.map(|s| StaticForce {
+                f_gas0_n: f(s.theta[0]),
+                f_gas0_per_alpha_n: f(s.theta[1]),
+                k_gas_n_per_m: f(s.theta[2]),
+                k_gas_per_alpha_n_per_m: f(s.theta[3]),
+                x_ref_m: f(s.x_ref),
+                f_c_n: f(s.theta[4]),
+                v_c_m_s: f(s.v_c),
+            }),
+        },
     };
     model
         .validate()
@@ -132,6 +147,11 @@ pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
         b_fl: s(&p.b_fl),
         b_pr: s(&p.b_pr),
         k_pr: s(&p.k_pr),
+        static_force: p.static_force.map(|s| StaticParams {
+            theta: s.theta.map(c),
+            x_ref: c(s.x_ref),
+            v_c: c(s.v_c),
+        }),
     }
 }
 
