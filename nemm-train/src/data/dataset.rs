@@ -220,7 +220,7 @@ impl ConditionSpec {
     }
 
     /// The condition as the weights blob carries it (`None` if a name or unit is too long or
-    /// a value is not acceptable: [`validate_manifest`] refuses those with their line).
+    /// a value is not acceptable: the manifest check refuses those with their line).
     pub fn to_core(&self) -> Option<Condition> {
         Condition::new(
             &self.name,
