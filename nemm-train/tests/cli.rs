@@ -206,9 +206,14 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         .arg("--out")
         .arg(&exported)
         .ok();
+    // The same model; each blob's provenance names the command that wrote it.
+    let (mut from_ckpt, mut trained) = (decode_file(&exported), decode_file(&model));
+    assert!(from_ckpt.ext.provenance.command.starts_with("nemm export"));
+    assert!(trained.ext.provenance.command.starts_with("nemm train"));
+    from_ckpt.ext.provenance = Default::default();
+    trained.ext.provenance = Default::default();
     assert_eq!(
-        std::fs::read(&exported).expect("exported"),
-        std::fs::read(&model).expect("model"),
+        from_ckpt, trained,
         "export from the checkpoint writes the trained model"
     );
     // A folder without a checkpoint (the SEM's, say) is refused with what to do instead.
@@ -266,9 +271,15 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
             assert!(stderr.contains("resuming after epoch 1"), "{stderr}");
         }
     }
+    // The same model (the provenance records each run's own command line).
+    let without_provenance = |path: &Path| {
+        let mut m = decode_file(path);
+        m.ext.provenance = Default::default();
+        m
+    };
     assert_eq!(
-        std::fs::read(&resumed).expect("resumed"),
-        std::fs::read(&model).expect("model"),
+        without_provenance(&resumed),
+        without_provenance(&model),
         "an interrupted and resumed run gives the uninterrupted model"
     );
     let inspect = Nemm::new(&["inspect"]).arg(&exported).ok();
