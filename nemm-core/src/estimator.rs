@@ -601,11 +601,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         rt: Runtime {
             kind: RuntimeKind::Empty,
             emm: EmmRuntime::empty(),
-            sem_map: SemMap {
-                velocities_m_s: heapless::Vec::new(),
-                alphas: heapless::Vec::new(),
-                forces_n: heapless::Vec::new(),
-            },
+            sem_map: SemMap::empty(),
             sem_curve: heapless::Vec::new(),
         },
     };

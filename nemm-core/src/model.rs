@@ -679,11 +679,7 @@ impl<const P: usize> Model<P> {
             alpha_min: 0.0,
             alpha_max: 0.0,
         },
-        body: Body::Sem(SemMap {
-            velocities_m_s: heapless::Vec::new(),
-            alphas: heapless::Vec::new(),
-            forces_n: heapless::Vec::new(),
-        }),
+        body: Body::Sem(SemMap::empty()),
         ext: Extension::EMPTY,
     };
 
@@ -922,11 +918,7 @@ mod body_serde {
 
     #[inline(never)]
     fn switch_to_sem<const P: usize>(place: &mut Body<P>) {
-        *place = Body::Sem(SemMap {
-            velocities_m_s: heapless::Vec::new(),
-            alphas: heapless::Vec::new(),
-            forces_n: heapless::Vec::new(),
-        });
+        *place = Body::Sem(SemMap::empty());
     }
 
     #[inline(never)]

@@ -46,6 +46,15 @@ fn strictly_increasing(v: &[f32]) -> bool {
 }
 
 impl SemMap {
+    /// A map without support points (not valid; a place to decode into).
+    pub const fn empty() -> Self {
+        Self {
+            velocities_m_s: heapless::Vec::new(),
+            alphas: heapless::Vec::new(),
+            forces_n: heapless::Vec::new(),
+        }
+    }
+
     /// Checks the grid.
     pub fn validate(&self) -> Result<(), SemError> {
         let (nv, na) = (self.velocities_m_s.len(), self.alphas.len());
