@@ -272,6 +272,15 @@ fn grid_maps_samples_and_steps() {
         (same.sample_at(7), same.input_at(7), same.steps(10)),
         ((7, 0.0), (7, 0.0), 10)
     );
+    // The model step is stored in f32: 10 kHz data on it is the same grid, 1 kHz data ten
+    // steps per sample; a ratio off a whole number by more than f32 resolution is kept.
+    let stored = f64::from(1e-4f32);
+    assert_eq!(Grid::new(stored, 1e-4), Grid::SAME);
+    assert_eq!(Grid::new(stored, 1e-3).steps_per_sample(), 10.0);
+    assert_eq!(
+        Grid::new(1e-4, 1e-4 * (1.0 + 1e-6)).steps_per_sample(),
+        1.0 + 1e-6
+    );
     // 1 kHz data on a 10 kHz model: every 10th step is a sample.
     let g = Grid::new(1e-4, 1e-3);
     assert_eq!(g.steps_per_sample(), 10.0);
