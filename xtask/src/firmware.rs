@@ -192,47 +192,29 @@ pub fn build(tc: &Toolchain, paths: &Paths, board: Board) -> Result<Images, Stri
     let out = target.join(TARGET).join("release");
     let images = target.join("images");
     std::fs::create_dir_all(&images).map_err(|e| format!("{}: {e}", images.display()))?;
-    let copy = |from: &str| -> Result<PathBuf, String> {
-        let to = match from {
-            "nemm-firmware" => format!("nemm-firmware{}.elf", board.suffix()),
-            _ => format!("{from}{}-qemu.elf", board.suffix()),
-        };
-        let (src, dst) = (out.join(from), images.join(to));
+    // `<bin>` from cargo's output to `<bin><board suffix><tag>.elf`.
+    let copy = |bin: &str, tag: &str| -> Result<PathBuf, String> {
+        let (src, dst) = (
+            out.join(bin),
+            images.join(format!("{bin}{}{tag}.elf", board.suffix())),
+        );
         std::fs::copy(&src, &dst)
             .map_err(|e| format!("copy {} to {}: {e}", src.display(), dst.display()))?;
         Ok(dst)
     };
     let t = Instant::now();
-    let qemu_features = match board {
-        Board::An386 => vec!["--features", "qemu"],
-        b => vec![
-            "--no-default-features",
-            "--features",
-            b.machine(),
-            "--features",
-            "qemu",
-        ],
-    };
     run(tc
         .cargo("build", &dir, &target)
         .args(["--release", "--bins"])
-        .args(&qemu_features))?;
-    // The qemu build's application, under the name the board build takes next.
-    let app = {
-        let (src, dst) = (
-            out.join("nemm-firmware"),
-            images.join(format!("nemm-firmware{}-qemu.elf", board.suffix())),
-        );
-        std::fs::copy(&src, &dst)
-            .map_err(|e| format!("copy {} to {}: {e}", src.display(), dst.display()))?;
-        dst
-    };
-    let bench = copy("nemm-bench")?;
+        .args(board.features())
+        .args(["--features", "qemu"]))?;
+    let app = copy("nemm-firmware", "-qemu")?;
+    let bench = copy("nemm-bench", "-qemu")?;
     run(tc
         .cargo("build", &dir, &target)
         .args(["--release", "--bin", "nemm-firmware"])
         .args(board.features()))?;
-    let app_release = copy("nemm-firmware")?;
+    let app_release = copy("nemm-firmware", "")?;
     eprintln!(
         "xtask: firmware for {} built in {:.0} s: {}",
         board.machine(),
@@ -257,18 +239,15 @@ pub fn build_all(tc: &Toolchain, paths: &Paths, boards: &[Board]) -> Result<Vec<
 pub fn clippy(tc: &Toolchain, paths: &Paths) -> Result<(), String> {
     let dir = paths.root.join("nemm-firmware");
     let target = target_dir(paths);
-    let an500 = ["--no-default-features", "--features", "mps2-an500"];
-    for features in [
-        &["--features", "qemu"][..],
-        &[],
-        &an500,
-        &["--no-default-features", "--features", "mps2-an500,qemu"],
-    ] {
-        run(tc
-            .cargo("clippy", &dir, &target)
-            .args(["--release", "--bins", "--lib"])
-            .args(features)
-            .args(["--", "-D", "warnings"]))?;
+    for board in Board::ALL {
+        for qemu in [&["--features", "qemu"][..], &[]] {
+            run(tc
+                .cargo("clippy", &dir, &target)
+                .args(["--release", "--bins", "--lib"])
+                .args(board.features())
+                .args(qemu)
+                .args(["--", "-D", "warnings"]))?;
+        }
     }
     Ok(())
 }
