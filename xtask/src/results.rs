@@ -209,26 +209,22 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
            clocks at the cycles per instruction of the exact NEMM RK4 step (the network \
            kernels, which build the tables in table mode; the exact-mode boot is mostly \
            integer code, which this overestimates).\n\n";
-    md += "| board | mode | instructions | cycles per instruction | ms at 168 MHz | \
-           ms at 216 MHz | ms at 480 MHz |\n|---|---|---:|---:|---:|---:|---:|\n";
+    let _ = writeln!(
+        md,
+        "| board | mode | instructions | cycles per instruction | {} |\n\
+         |---|---|---:|---:|{}",
+        clock_headers("ms at "),
+        "---:|".repeat(CLOCK_COLUMNS.len())
+    );
     for (_, b) in f.boot {
-        let ms = |mhz: u32| {
-            if b.board.chip().clocks_mhz().contains(&mhz) {
-                format!("{:.1}", b.ms_at(mhz))
-            } else {
-                "-".into()
-            }
-        };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {:.2} | {} | {} | {} |",
+            "| {} | {} | {} | {:.2} | {} |",
             b.board.machine(),
             b.mode,
             b.instructions,
             b.cycles_per_instruction,
-            ms(168),
-            ms(216),
-            ms(480)
+            clock_cells(b.board.chip(), |mhz| format!("{:.1}", b.ms_at(mhz)))
         );
     }
     md += "\n**Flash and RAM** of the images (`cargo xtask build-target`; RAM: the statics, the \
@@ -283,21 +279,17 @@ fn fit_markdown(cycles: &[CycleFigures], intro: bool) -> String {
                **yes**: under 1; the rest of the period is left to the sensor read, the \
                publication and the other tasks.\n\n";
     }
-    md += "| chip | model | integrator | mode | instructions | est. cycles | cycles per \
-           instruction | 168 MHz | 216 MHz | 480 MHz |\n\
-           |---|---|---|---|---:|---:|---:|---:|---:|---:|\n";
+    let _ = writeln!(
+        md,
+        "| chip | model | integrator | mode | instructions | est. cycles | cycles per \
+         instruction | {} |\n|---|---|---|---|---:|---:|---:|{}",
+        clock_headers(""),
+        "---:|".repeat(CLOCK_COLUMNS.len())
+    );
     for c in cycles {
-        let at = |mhz: u32| {
-            if c.chip.clocks_mhz().contains(&mhz) {
-                let f = c.budget_fraction(mhz);
-                format!("{f:.2} {}", if f < 1.0 { "**yes**" } else { "no" })
-            } else {
-                "-".into()
-            }
-        };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} | {:.2} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {:.2} | {} |",
             c.chip.name(),
             c.model,
             c.integrator,
@@ -305,12 +297,40 @@ fn fit_markdown(cycles: &[CycleFigures], intro: bool) -> String {
             c.instructions_per_step,
             c.cycles_per_step(),
             c.cycles_per_instruction,
-            at(168),
-            at(216),
-            at(480)
+            clock_cells(c.chip, |mhz| {
+                let f = c.budget_fraction(mhz);
+                format!("{f:.2} {}", if f < 1.0 { "**yes**" } else { "no" })
+            })
         );
     }
     md
+}
+
+/// The clock columns of the tables \[MHz\]: every chip's stated clocks.
+const CLOCK_COLUMNS: [u32; 3] = [168, 216, 480];
+
+/// The headers of the clock columns: `<prefix><f> MHz`, joined as table cells.
+fn clock_headers(prefix: &str) -> String {
+    CLOCK_COLUMNS
+        .iter()
+        .map(|mhz| format!("{prefix}{mhz} MHz"))
+        .collect::<Vec<_>>()
+        .join(" | ")
+}
+
+/// One cell per clock column, joined: `cell(f)` where `chip` is stated at `f`, `-` elsewhere.
+fn clock_cells(chip: crate::cycles::Chip, cell: impl Fn(u32) -> String) -> String {
+    CLOCK_COLUMNS
+        .iter()
+        .map(|&mhz| {
+            if chip.clocks_mhz().contains(&mhz) {
+                cell(mhz)
+            } else {
+                "-".into()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" | ")
 }
 
 /// The README's `fit` block: the NEMM's rows of the fit table and where the rest is.
