@@ -71,9 +71,9 @@ core::arch::global_asm!(
 /// The reload value of the boot clock (SysTick's 24-bit maximum, as `__pre_init` sets it).
 const BOOT_CLOCK_TOP: u32 = 0x00FF_FFFF;
 
-/// SysTick ticks since reset (the boot clock started by `__pre_init`, see above), while SysTick still runs the boot
-/// clock; `None` once it wrapped (COUNTFLAG set: more than 2^24 ticks, or SysTick was
-/// reconfigured).
+/// SysTick ticks since reset (the boot clock `__pre_init` starts, see above) while SysTick
+/// still runs it; `None` once it wrapped (COUNTFLAG set: more than 2^24 ticks, or SysTick
+/// was reconfigured).
 pub fn boot_ticks() -> Option<u32> {
     let csr = cortex_m::peripheral::SYST::PTR;
     // SAFETY: reads of SysTick's CSR and CVR (reading CSR clears COUNTFLAG, which nothing
@@ -82,8 +82,8 @@ pub fn boot_ticks() -> Option<u32> {
     (flags & (1 << 16) == 0).then(|| BOOT_CLOCK_TOP - (current & BOOT_CLOCK_TOP))
 }
 
-/// SysTick clock \[Hz\]: QEMU's mps2-an386 runs SysTick (core clock source) at 25 MHz. On an
-/// STM32F4 at full speed this is 168 MHz.
+/// SysTick clock \[Hz\]: QEMU's mps2-an386 and mps2-an500 run SysTick (core clock source) at
+/// 25 MHz. On an STM32F4 at full speed this is 168 MHz.
 pub const SYSTICK_HZ: u32 = 25_000_000;
 
 /// SysTick ticks per sample period.
