@@ -64,7 +64,8 @@ pub mod mlp;
 pub mod model;
 pub mod sem;
 pub mod table;
-#[doc(hidden)]
+#[cfg(any(test, feature = "testing"))]
+#[cfg_attr(docsrs, doc(cfg(feature = "testing")))]
 pub mod testing;
 pub mod velocity;
 

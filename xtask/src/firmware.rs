@@ -207,7 +207,7 @@ pub fn build(tc: &Toolchain, paths: &Paths, board: Board) -> Result<Images, Stri
         .cargo("build", &dir, &target)
         .args(["--release", "--bins"])
         .args(board.features())
-        .args(["--features", "qemu"]))?;
+        .args(["--features", "qemu,bench"]))?;
     let app = copy("nemm-firmware", "-qemu")?;
     let bench = copy("nemm-bench", "-qemu")?;
     run(tc
@@ -240,7 +240,7 @@ pub fn clippy(tc: &Toolchain, paths: &Paths) -> Result<(), String> {
     let dir = paths.root.join("nemm-firmware");
     let target = target_dir(paths);
     for board in Board::ALL {
-        for qemu in [&["--features", "qemu"][..], &[]] {
+        for qemu in [&["--features", "qemu,bench"][..], &[]] {
             run(tc
                 .cargo("clippy", &dir, &target)
                 .args(["--release", "--bins", "--lib"])
