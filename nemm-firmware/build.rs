@@ -1,8 +1,9 @@
 //! Build-time inputs of the firmware, all written to `OUT_DIR`:
 //!
 //! - `memory.x` for cortex-m-rt's `link.x`: the layout named by `NEMM_MEMORY_X`, default
-//!   `boards/mps2-an386.x` (QEMU, with an STM32F4's budget; `boards/stm32f407.x` for an
-//!   STM32F405/407), and `nemm-sections.x`, which every layout includes. (There is no
+//!   `boards/mps2-an386.x` (QEMU, with an STM32F4's budget; `boards/mps2-an500.x` with the
+//!   `mps2-an500` feature; `boards/stm32f407.x` for an STM32F405/407), and
+//!   `nemm-sections.x`, which every layout includes. (There is no
 //!   `memory.x` in the crate directory: the linker would find it there first.)
 //! - `weights.slot`: the weights slot (`src/slot.rs`) holding the `.nemm` blob named by
 //!   `NEMM_WEIGHTS` (default `data/trained-nemm.nemm`, the NEMM the project trained on its
@@ -47,7 +48,13 @@ fn main() {
     let manifest_dir = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets it"));
     let out = PathBuf::from(env::var("OUT_DIR").expect("cargo sets it"));
 
-    let memory = input_path(&manifest_dir, "NEMM_MEMORY_X", "boards/mps2-an386.x");
+    // The board feature's layout unless NEMM_MEMORY_X names another.
+    let board_layout = if env::var_os("CARGO_FEATURE_MPS2_AN500").is_some() {
+        "boards/mps2-an500.x"
+    } else {
+        "boards/mps2-an386.x"
+    };
+    let memory = input_path(&manifest_dir, "NEMM_MEMORY_X", board_layout);
     fs::copy(&memory, out.join("memory.x"))
         .unwrap_or_else(|e| panic!("NEMM_MEMORY_X: cannot copy {}: {e}", memory.display()));
     fs::copy(

@@ -1,6 +1,16 @@
-//! Board support: QEMU's `mps2-an386` (Cortex-M4 with FPU), linked with the memory budget of
-//! an STM32F4 (see `boards/`). Porting to a real board replaces this module: the clock,
-//! the sensor's SPI device, where the force is published, and the console.
+//! Board support: QEMU's `mps2-an386` (Cortex-M4 with FPU, cargo feature `mps2-an386`) or
+//! `mps2-an500` (Cortex-M7 with FPU, cargo feature `mps2-an500`), linked with the memory
+//! budget of an STM32F4 (see `boards/`). Porting to a real board replaces this module: the
+//! clock, the sensor's SPI device, where the force is published, and the console.
+//!
+//! Both MPS2 images share everything here but the name, the memory layout (`build.rs`
+//! picks `boards/<name>.x`) and [`init`], which enables the Cortex-M7's caches. QEMU 7.2
+//! maps the code memory at 0x00000000 and the data RAM at 0x20000000 on both machines
+//! (the AN500's PSRAM and peripherals move, which the firmware does not use: its console is
+//! semihosting) and clocks SysTick at 25 MHz on both.
+//!
+//! The board also measures the boot: `__pre_init` runs SysTick free from the reset vector,
+//! before RAM is initialised, and [`boot_ticks`] reads how far it got.
 //!
 //! Everything else in the firmware is board-independent.
 
@@ -10,11 +20,70 @@ use crate::trace::Trace;
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m_semihosting::hio::{self, HostStream};
 
-/// Board name in the boot line.
-pub const NAME: &str = "mps2-an386";
+#[cfg(all(feature = "mps2-an386", feature = "mps2-an500"))]
+compile_error!("features `mps2-an386` and `mps2-an500` select different boards: enable one");
 
-/// SysTick clock \[Hz\]: QEMU's mps2-an386 runs SysTick (core clock source) at 25 MHz. On an
-/// STM32F4 at full speed this is 168 MHz.
+/// Board name in the boot line.
+#[cfg(not(feature = "mps2-an500"))]
+pub const NAME: &str = "mps2-an386";
+/// Board name in the boot line.
+#[cfg(feature = "mps2-an500")]
+pub const NAME: &str = "mps2-an500";
+
+/// Board set-up at the start of `init`: on the Cortex-M7 (mps2-an500), invalidate and
+/// enable the instruction and data caches (a product runs with them on; QEMU does not model
+/// caches, so under QEMU this costs only its instructions); nothing on the Cortex-M4.
+pub fn init() {
+    #[cfg(feature = "mps2-an500")]
+    {
+        // SAFETY: called once from `init`, with interrupts disabled, before anything else
+        // touches the system control block or the CPUID registers.
+        let mut p = unsafe { cortex_m::Peripherals::steal() };
+        p.SCB.enable_icache();
+        p.SCB.enable_dcache(&mut p.CPUID);
+    }
+}
+
+// The boot clock: SysTick counting down freely from its top (core clock, no interrupt),
+// started as cortex-m-rt's `__pre_init`, the first thing the reset vector calls (before RAM
+// is initialised, so in assembly), so that `boot_ticks` counts from reset. Under QEMU's
+// `-icount shift=0` one tick is 40 instructions; the 24-bit counter covers 671 million
+// instructions of boot. Registers: SYST_CSR 0xE000E010, RVR +4, CVR +8; CSR = ENABLE |
+// CLKSOURCE (core clock), no TICKINT.
+core::arch::global_asm!(
+    ".section .text.__pre_init,\"ax\",%progbits",
+    ".global __pre_init",
+    ".type __pre_init,%function",
+    ".thumb_func",
+    "__pre_init:",
+    "ldr r0, =0xE000E010",
+    "ldr r1, =0x00FFFFFF",
+    "str r1, [r0, #4]",
+    "movs r1, #0",
+    "str r1, [r0, #8]",
+    "movs r1, #5",
+    "str r1, [r0]",
+    "bx lr",
+    ".ltorg",
+    ".size __pre_init, . - __pre_init",
+);
+
+/// The reload value of the boot clock (SysTick's 24-bit maximum, as `__pre_init` sets it).
+const BOOT_CLOCK_TOP: u32 = 0x00FF_FFFF;
+
+/// SysTick ticks since reset (the boot clock `__pre_init` starts, see above) while SysTick
+/// still runs it; `None` once it wrapped (COUNTFLAG set: more than 2^24 ticks, or SysTick
+/// was reconfigured).
+pub fn boot_ticks() -> Option<u32> {
+    let csr = cortex_m::peripheral::SYST::PTR;
+    // SAFETY: reads of SysTick's CSR and CVR (reading CSR clears COUNTFLAG, which nothing
+    // else uses before the application configures SysTick).
+    let (flags, current) = unsafe { ((*csr).csr.read(), (*csr).cvr.read()) };
+    (flags & (1 << 16) == 0).then(|| BOOT_CLOCK_TOP - (current & BOOT_CLOCK_TOP))
+}
+
+/// SysTick clock \[Hz\]: QEMU's mps2-an386 and mps2-an500 run SysTick (core clock source) at
+/// 25 MHz. On an STM32F4 at full speed this is 168 MHz.
 pub const SYSTICK_HZ: u32 = 25_000_000;
 
 /// SysTick ticks per sample period.

@@ -8,7 +8,8 @@
 //!
 //! This library holds the portable parts (host-tested with
 //! `cargo test --lib --target x86_64-unknown-linux-gnu`) and, on the target, the board
-//! support of QEMU's `mps2-an386` (`board`, cargo feature `mps2-an386`, on by default).
+//! support of QEMU's `mps2-an386` (`board`, cargo feature `mps2-an386`, on by default) or
+//! `mps2-an500` (Cortex-M7, cargo feature `mps2-an500`).
 //! Other boards depend on the library without that feature and bring their own (the
 //! STM32F407 image in `boards/nemm-stm32f407`).
 //!
@@ -30,7 +31,7 @@ pub mod sensor;
 pub mod slot;
 pub mod trace;
 
-#[cfg(all(target_os = "none", feature = "mps2-an386"))]
+#[cfg(all(target_os = "none", feature = "mps2"))]
 pub mod board;
 
 #[cfg(target_os = "none")]

@@ -113,6 +113,7 @@ mod app {
 
     #[init]
     fn init(_: init::Context) -> (Shared, Local) {
+        board::init();
         let mut console = Console::open();
         let mut line = Line::new();
         line.str("boot")
@@ -202,6 +203,9 @@ mod app {
             board::exit(report::EXIT_USAGE)
         };
         let (log, logger) = queue.split();
+        // Reset to here: the estimator is ready; the first step runs one period after the
+        // SysTick set-up below.
+        let boot_ticks = board::boot_ticks();
         let mut l = Line::new();
         l.str("start")
             .kv("period_ticks", period_ticks)
@@ -211,6 +215,10 @@ mod app {
             .kv("faults", options.faults.len() as u32)
             .kv("stalls", options.stalls.len() as u32)
             .kv("boot_stack", board::stack_used());
+        match boot_ticks {
+            Some(t) => l.kv("boot_ticks", t),
+            None => l.ks("boot_ticks", "wrapped"),
+        };
         console.write(l.finish());
 
         // SAFETY: init runs once with interrupts disabled; the SysTick registers are owned by

@@ -8,7 +8,7 @@
 //! weights ok kind=nemm bytes=15791 integrator=rk4 dt_ns=100000
 //! weights-error source=decode kind=crc-mismatch stored=0x1234abcd computed=0x89abcdef
 //! weights-error source=decode kind=invalid reason=non-finite field=b_fl.params
-//! start period_ticks=2500 core_hz=25000000 samples=10500 alpha=0x3e19999a faults=0 stalls=0
+//! start period_ticks=2500 core_hz=25000000 samples=10500 alpha=0x3e19999a faults=0 stalls=0 boot_stack=8208 boot_ticks=18000
 //! s <k> <velocity f32 bits> <force f32 bits> <estimator flags> <firmware flags> <ticks>
 //! digest chunk=0 first=0 steps=1000 crc=0x1c2b3a49
 //! summary steps=10500 sensor_errors=0 invalid_samples=0 priming=1 held=1 resets=0 overruns=0 dropped=0 max_step_ticks=412 chunks=11 digest=0x0badf00d stack_used=1864

@@ -1,5 +1,6 @@
-//! Running the firmware in QEMU (`qemu-system-arm -machine mps2-an386`) and parsing what it
-//! prints (the line format of `nemm_firmware::report`).
+//! Running the firmware in QEMU (`qemu-system-arm -machine mps2-an386`, or the machine
+//! `NEMM_QEMU_MACHINE` names) and parsing what it prints (the line format of
+//! `nemm_firmware::report`).
 //!
 //! The firmware images come from `cargo xtask test`, which builds each configuration once and
 //! passes the paths in the environment:
@@ -12,6 +13,7 @@
 //! | `NEMM_BOARD_ELF` | the STM32F407 image as flashed (`boards/nemm-stm32f407`) |
 //! | `NEMM_BOARD_QEMU_ELF` | the STM32F407 image with its `qemu` feature (netduinoplus2) |
 //! | `NEMM_QEMU` | `qemu-system-arm` to use (default: from `PATH`) |
+//! | `NEMM_QEMU_MACHINE`, `NEMM_QEMU_CPU` | the board of the images (default `mps2-an386`, `cortex-m4`; `cargo xtask test` runs the tests again with `mps2-an500`, `cortex-m7`) |
 //!
 //! The QEMU tests are `#[ignore]`d, so that a plain `cargo test` reports them as not run;
 //! `cargo xtask test` runs them (`--ignored`) with these variables set. Run without them,
@@ -137,21 +139,37 @@ impl Run {
     }
 }
 
-/// Runs `elf` in QEMU with the instruction counter on (`-icount shift=0`: one instruction per
-/// emulated nanosecond, idle time skipped) and the firmware options `args`; kills it after
-/// `timeout`.
+/// Runs `elf` in QEMU on the board of [`board`] with the instruction counter on (`-icount
+/// shift=0`: one instruction per emulated nanosecond, idle time skipped) and the firmware
+/// options `args`; kills it after `timeout`.
 pub fn run_qemu(qemu: &Path, elf: &Path, args: &[&str], timeout: Duration) -> Run {
     let mut semihosting = String::from("enable=on,target=native,arg=nemm-firmware");
     for a in args {
         assert!(!a.contains(','), "option {a:?} contains a comma");
         semihosting += &format!(",arg={a}");
     }
+    let (cpu, machine) = board();
     run_machine(
         qemu,
-        &["-cpu", "cortex-m4", "-machine", "mps2-an386"],
+        &["-cpu", &cpu, "-machine", &machine],
         elf,
         &semihosting,
         timeout,
+    )
+}
+
+/// The QEMU CPU and machine of the images under test: `NEMM_QEMU_CPU` and
+/// `NEMM_QEMU_MACHINE`, default `cortex-m4` on `mps2-an386`.
+pub fn board() -> (String, String) {
+    let var = |k: &str, default: &str| {
+        std::env::var(k)
+            .ok()
+            .filter(|v| !v.is_empty())
+            .unwrap_or_else(|| default.to_string())
+    };
+    (
+        var("NEMM_QEMU_CPU", "cortex-m4"),
+        var("NEMM_QEMU_MACHINE", "mps2-an386"),
     )
 }
 

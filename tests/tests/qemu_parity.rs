@@ -31,6 +31,12 @@ fn run(images: &Images, elf: &Path, args: &[&str]) -> (Run, Output) {
     let r = run_qemu(&images.qemu, elf, args, TIMEOUT);
     assert_eq!(r.code, Some(0), "the firmware run failed: {}", r.describe());
     let o = r.output();
+    // The image is the one built for the machine it runs on.
+    assert_eq!(
+        o.expect("boot").get("board"),
+        Some(nemm_tests::firmware::board().1.as_str()),
+        "the image's board"
+    );
     (r, o)
 }
 

@@ -5,10 +5,9 @@ use crate::firmware::{self, Images};
 use crate::toolchain::Toolchain;
 use crate::{Kind, Mode, Paths};
 use nemm_elf::Elf;
+use std::path::PathBuf;
 
-/// Instructions per SysTick tick: `-icount shift=0` runs one instruction per emulated
-/// nanosecond, and SysTick counts the mps2-an386 core clock of 25 MHz.
-const INSTRUCTIONS_PER_TICK: u64 = 40;
+use crate::firmware::INSTRUCTIONS_PER_TICK;
 
 /// The fields of a `table` line that a `target-step` line of mode `table` carries, in order.
 const TABLE_FIELDS: [&str; 4] = ["segments", "table_bytes", "max_rel_error_ppb", "kinks"];
@@ -136,6 +135,27 @@ fn parse(out: &str, kind: Kind) -> Result<Vec<StepFigures>, String> {
     Ok(figures)
 }
 
+/// The benchmark image of `images` with the example blob of `kind`
+/// (`nemm-firmware/data/example-<kind>.nemm`) in its weights slot, written under the
+/// firmware target directory.
+pub fn image_with_example(paths: &Paths, images: &Images, kind: Kind) -> Result<PathBuf, String> {
+    let elf = Elf::read(&images.bench)?;
+    let scratch = firmware::target_dir(paths).join("bench");
+    std::fs::create_dir_all(&scratch).map_err(|e| format!("{}: {e}", scratch.display()))?;
+    let blob_path = paths
+        .root
+        .join("nemm-firmware/data")
+        .join(format!("example-{}.nemm", kind.name()));
+    let blob = std::fs::read(&blob_path).map_err(|e| format!("{}: {e}", blob_path.display()))?;
+    let image = scratch.join(format!(
+        "nemm-bench-{}-{}.elf",
+        images.board.machine(),
+        kind.name()
+    ));
+    firmware::with_weights(&elf, &blob, &image)?;
+    Ok(image)
+}
+
 /// Runs the benchmark image once per model kind (the example blobs of
 /// `nemm-firmware/data/`, patched into its weights slot) and returns the figures.
 pub fn run(
@@ -146,21 +166,11 @@ pub fn run(
     steps: u32,
     kinds: &[Kind],
 ) -> Result<Vec<StepFigures>, String> {
-    let elf = Elf::read(&images.bench)?;
-    let scratch = firmware::target_dir(paths).join("bench");
-    std::fs::create_dir_all(&scratch).map_err(|e| format!("{}: {e}", scratch.display()))?;
     let mut figures = Vec::new();
     for &kind in kinds {
-        let blob_path = paths
-            .root
-            .join("nemm-firmware/data")
-            .join(format!("example-{}.nemm", kind.name()));
-        let blob =
-            std::fs::read(&blob_path).map_err(|e| format!("{}: {e}", blob_path.display()))?;
-        let image = scratch.join(format!("nemm-bench-{}.elf", kind.name()));
-        firmware::with_weights(&elf, &blob, &image)?;
+        let image = image_with_example(paths, images, kind)?;
         let args = [format!("mode={}", mode.name()), format!("steps={steps}")];
-        let (code, out) = firmware::run_qemu(tc, &image, &args)?;
+        let (code, out) = firmware::run_qemu(tc, images.board, &image, &args)?;
         if code != 0 {
             let hint = if out.contains("kind=bad-option") {
                 format!(

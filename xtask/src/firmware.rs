@@ -7,9 +7,67 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
-/// The built images (copied out of cargo's output, which each configuration overwrites).
+/// A QEMU board the firmware builds for (`nemm-firmware`'s board features).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Board {
+    /// `mps2-an386`: Cortex-M4 with FPU (the default image).
+    An386,
+    /// `mps2-an500`: Cortex-M7 with FPU.
+    An500,
+}
+
+impl Board {
+    /// Both boards, the default image first.
+    pub const ALL: [Board; 2] = [Board::An386, Board::An500];
+
+    /// QEMU's machine name, which is also the cargo feature and the `board=` of the boot
+    /// line.
+    pub fn machine(self) -> &'static str {
+        match self {
+            Board::An386 => "mps2-an386",
+            Board::An500 => "mps2-an500",
+        }
+    }
+
+    /// QEMU's CPU name.
+    pub fn cpu(self) -> &'static str {
+        match self {
+            Board::An386 => "cortex-m4",
+            Board::An500 => "cortex-m7",
+        }
+    }
+
+    /// The cycle model of its core.
+    pub fn chip(self) -> crate::cycles::Chip {
+        match self {
+            Board::An386 => crate::cycles::Chip::M4f,
+            Board::An500 => crate::cycles::Chip::M7,
+        }
+    }
+
+    /// The cargo features that select it (the default features select the AN386).
+    fn features(self) -> &'static [&'static str] {
+        match self {
+            Board::An386 => &[],
+            Board::An500 => &["--no-default-features", "--features", "mps2-an500"],
+        }
+    }
+
+    /// Suffix of its image files (`nemm-firmware<suffix>.elf`).
+    fn suffix(self) -> &'static str {
+        match self {
+            Board::An386 => "",
+            Board::An500 => "-an500",
+        }
+    }
+}
+
+/// The built images of one board (copied out of cargo's output, which each configuration
+/// overwrites).
 #[derive(Debug, Clone)]
 pub struct Images {
+    /// The board they run on.
+    pub board: Board,
     /// The application, `qemu` feature.
     pub app: PathBuf,
     /// The application as flashed to a board (no `qemu` feature).
@@ -19,13 +77,30 @@ pub struct Images {
 }
 
 impl Images {
-    /// The images with their names in the reports: board build, qemu build, benchmark.
-    pub fn named(&self) -> [(&'static str, &Path); 3] {
+    /// The images with their names in the reports: board build, qemu build, benchmark (with
+    /// the board's name for the AN500).
+    pub fn named(&self) -> [(String, &Path); 3] {
+        let tag = match self.board {
+            Board::An386 => String::new(),
+            b => format!(" ({})", b.machine()),
+        };
         [
-            ("board build", &self.app_release),
-            ("qemu build", &self.app),
-            ("benchmark", &self.bench),
+            (format!("board build{tag}"), &self.app_release),
+            (format!("qemu build{tag}"), &self.app),
+            (format!("benchmark{tag}"), &self.bench),
         ]
+    }
+}
+
+impl Images {
+    /// Points the QEMU tests (`tests/src/firmware.rs`) at these images and this board.
+    pub fn test_env(&self, cmd: &mut Command, tc: &Toolchain) {
+        cmd.env("NEMM_FIRMWARE_ELF", &self.app)
+            .env("NEMM_FIRMWARE_RELEASE_ELF", &self.app_release)
+            .env("NEMM_BENCH_ELF", &self.bench)
+            .env("NEMM_QEMU_MACHINE", self.board.machine())
+            .env("NEMM_QEMU_CPU", self.board.cpu())
+            .env("NEMM_QEMU", &tc.qemu);
     }
 }
 
@@ -36,16 +111,24 @@ pub const STACK_RUNS: [(&str, &[&str]); 2] = [
     ("table", &["samples=2000", "mode=table"]),
 ];
 
-/// Stack figures of one QEMU run of the application, by stack painting (bytes).
+/// Instructions per SysTick tick: `-icount shift=0` runs one instruction per emulated
+/// nanosecond, and SysTick counts the MPS2 core clock of 25 MHz (both boards).
+pub const INSTRUCTIONS_PER_TICK: u64 = 40;
+
+/// Stack and boot figures of one QEMU run of the application.
 #[derive(Debug, Clone, Copy)]
 pub struct StackFigures {
-    /// Used when the boot ends (`boot_stack` of the `start` line): decoding the weights and
-    /// building the estimator.
+    /// Stack used when the boot ends (`boot_stack` of the `start` line, by stack painting,
+    /// bytes): decoding the weights and building the estimator.
     pub boot: u64,
-    /// Used by the whole run (`stack_used` of the `summary` line).
+    /// Stack used by the whole run (`stack_used` of the `summary` line, bytes).
     pub peak: u64,
-    /// The room the memory layout leaves the stack (`_stack_start - _stack_end`).
+    /// The room the memory layout leaves the stack (`_stack_start - _stack_end`, bytes).
     pub room: u64,
+    /// Instructions from reset to the estimator ready and the sample timer about to start
+    /// (`boot_ticks` of the `start` line x [`INSTRUCTIONS_PER_TICK`]); the first step runs
+    /// one sample period (100 us) later.
+    pub boot_instructions: u64,
 }
 
 impl StackFigures {
@@ -58,7 +141,8 @@ impl StackFigures {
     }
 }
 
-/// Runs the qemu build of the application with `options` and reads its stack figures.
+/// Runs the qemu build of the application with `options` and reads its stack and boot
+/// figures.
 pub fn stack_figures(
     tc: &Toolchain,
     images: &Images,
@@ -72,7 +156,7 @@ pub fn stack_figures(
     };
     let room = symbol("_stack_start")? - symbol("_stack_end")?;
     let options: Vec<String> = options.iter().map(|o| o.to_string()).collect();
-    let (code, out) = run_qemu(tc, &images.app, &options)?;
+    let (code, out) = run_qemu(tc, images.board, &images.app, &options)?;
     if code != 0 {
         return Err(format!("the firmware exited with {code}:\n{out}"));
     }
@@ -84,12 +168,13 @@ pub fn stack_figures(
             .find_map(|w| w.strip_prefix(prefix.as_str()))
             .ok_or_else(|| format!("no `{key}` in the firmware's `{line}` line:\n{out}"))?
             .parse()
-            .map_err(|e| format!("{key}: {e}"))
+            .map_err(|e| format!("{key} in the `{line}` line: {e}"))
     };
     Ok(StackFigures {
         boot: value("start", "boot_stack")?,
         peak: value("summary", "stack_used")?,
         room,
+        boot_instructions: value("start", "boot_ticks")? * INSTRUCTIONS_PER_TICK,
     })
 }
 
@@ -98,79 +183,107 @@ pub fn target_dir(paths: &Paths) -> PathBuf {
     paths.target.join("nemm-firmware")
 }
 
-/// Builds the two configurations (release with `qemu`: application and benchmark; release
-/// without: the board application) and copies the images to `<target>/nemm-firmware/images`.
-pub fn build(tc: &Toolchain, paths: &Paths) -> Result<Images, String> {
+/// Builds the two configurations of `board` (release with `qemu`: application and
+/// benchmark; release without: the board application) and copies the images to
+/// `<target>/nemm-firmware/images`.
+pub fn build(tc: &Toolchain, paths: &Paths, board: Board) -> Result<Images, String> {
     let dir = paths.root.join("nemm-firmware");
     let target = target_dir(paths);
     let out = target.join(TARGET).join("release");
     let images = target.join("images");
     std::fs::create_dir_all(&images).map_err(|e| format!("{}: {e}", images.display()))?;
-    let copy = |from: &str, to: &str| -> Result<PathBuf, String> {
-        let (src, dst) = (out.join(from), images.join(to));
+    // `<bin>` from cargo's output to `<bin><board suffix><tag>.elf`.
+    let copy = |bin: &str, tag: &str| -> Result<PathBuf, String> {
+        let (src, dst) = (
+            out.join(bin),
+            images.join(format!("{bin}{}{tag}.elf", board.suffix())),
+        );
         std::fs::copy(&src, &dst)
             .map_err(|e| format!("copy {} to {}: {e}", src.display(), dst.display()))?;
         Ok(dst)
     };
     let t = Instant::now();
-    run(tc.cargo("build", &dir, &target).args([
-        "--release",
-        "--features",
-        "qemu,bench",
-        "--bins",
-    ]))?;
-    let app = copy("nemm-firmware", "nemm-firmware-qemu.elf")?;
-    let bench = copy("nemm-bench", "nemm-bench-qemu.elf")?;
     run(tc
         .cargo("build", &dir, &target)
-        .args(["--release", "--bin", "nemm-firmware"]))?;
-    let app_release = copy("nemm-firmware", "nemm-firmware.elf")?;
+        .args(["--release", "--bins"])
+        .args(board.features())
+        .args(["--features", "qemu,bench"]))?;
+    let app = copy("nemm-firmware", "-qemu")?;
+    let bench = copy("nemm-bench", "-qemu")?;
+    run(tc
+        .cargo("build", &dir, &target)
+        .args(["--release", "--bin", "nemm-firmware"])
+        .args(board.features()))?;
+    let app_release = copy("nemm-firmware", "")?;
     eprintln!(
-        "xtask: firmware built in {:.0} s: {}",
+        "xtask: firmware for {} built in {:.0} s: {}",
+        board.machine(),
         t.elapsed().as_secs_f64(),
         images.display()
     );
     Ok(Images {
+        board,
         app,
         app_release,
         bench,
     })
 }
 
-/// Lints the firmware crate for the target (clippy, warnings denied), both configurations.
+/// Builds the images of every board in `boards`.
+pub fn build_all(tc: &Toolchain, paths: &Paths, boards: &[Board]) -> Result<Vec<Images>, String> {
+    boards.iter().map(|&b| build(tc, paths, b)).collect()
+}
+
+/// Lints the firmware crate for the target (clippy, warnings denied), both configurations of
+/// both boards.
 pub fn clippy(tc: &Toolchain, paths: &Paths) -> Result<(), String> {
     let dir = paths.root.join("nemm-firmware");
     let target = target_dir(paths);
-    for features in [&["--features", "qemu,bench"][..], &[]] {
-        run(tc
-            .cargo("clippy", &dir, &target)
-            .args(["--release", "--bins", "--lib"])
-            .args(features)
-            .args(["--", "-D", "warnings"]))?;
+    for board in Board::ALL {
+        for qemu in [&["--features", "qemu,bench"][..], &[]] {
+            run(tc
+                .cargo("clippy", &dir, &target)
+                .args(["--release", "--bins", "--lib"])
+                .args(board.features())
+                .args(qemu)
+                .args(["--", "-D", "warnings"]))?;
+        }
     }
     Ok(())
 }
 
-/// A QEMU command for `elf` with the instruction counter on and the firmware options `args`.
-pub fn qemu_command(tc: &Toolchain, elf: &Path, args: &[String]) -> Command {
+/// A QEMU command for `elf` on `board` with the instruction counter on and the firmware
+/// options `args`.
+pub fn qemu_command(tc: &Toolchain, board: Board, elf: &Path, args: &[String]) -> Command {
     let mut semihosting = String::from("enable=on,target=native,arg=nemm-firmware");
     for a in args {
         semihosting += &format!(",arg={a}");
     }
     let mut c = Command::new(&tc.qemu);
-    c.args(["-cpu", "cortex-m4", "-machine", "mps2-an386", "-nographic"])
-        .args(["-monitor", "none", "-serial", "none"])
-        .args(["-icount", "shift=0,sleep=off"])
-        .args(["-semihosting-config", &semihosting])
-        .arg("-kernel")
-        .arg(elf)
-        .stdin(Stdio::null());
+    c.args([
+        "-cpu",
+        board.cpu(),
+        "-machine",
+        board.machine(),
+        "-nographic",
+    ])
+    .args(["-monitor", "none", "-serial", "none"])
+    .args(["-icount", "shift=0,sleep=off"])
+    .args(["-semihosting-config", &semihosting])
+    .arg("-kernel")
+    .arg(elf)
+    .stdin(Stdio::null());
     c
 }
 
-/// Runs `elf` in QEMU and returns its exit code and output.
-pub fn run_qemu(tc: &Toolchain, elf: &Path, args: &[String]) -> Result<(i32, String), String> {
-    let out = qemu_command(tc, elf, args)
+/// Runs `elf` in QEMU on `board` and returns its exit code and output.
+pub fn run_qemu(
+    tc: &Toolchain,
+    board: Board,
+    elf: &Path,
+    args: &[String],
+) -> Result<(i32, String), String> {
+    let out = qemu_command(tc, board, elf, args)
         .stderr(Stdio::inherit())
         .output()
         .map_err(|e| format!("cannot run {}: {e}", tc.qemu.display()))?;

@@ -8,8 +8,9 @@
 //!   `rust-version` check (`msrv`), and a short `bench-target`.
 //! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
 //!   for QEMU's netduinoplus2 ([`board`]).
-//! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4,
-//!   per model kind and integrator.
+//! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4
+//!   and Cortex-M7, per model kind and integrator, and the cycles the cycle model
+//!   ([`cycles`]) estimates from the traced instruction mix.
 //! - `cargo xtask firmware-model`: trains the model the firmware embeds ([`model`]).
 //! - `cargo xtask e2e`: held-out runs through the firmware in QEMU, its force error against
 //!   the trainer's ([`model`]).
@@ -20,6 +21,7 @@
 mod bench;
 mod board;
 mod checks;
+mod cycles;
 mod firmware;
 mod model;
 mod results;
@@ -53,7 +55,8 @@ enum Cmd {
         #[arg(long)]
         host_only: bool,
     },
-    /// Instructions per estimator step in QEMU, one line per model kind and integrator.
+    /// Instructions and estimated cycles per estimator step in QEMU, per board, model kind
+    /// and integrator.
     ///
     /// QEMU counts instructions (-icount shift=0); N steps of the bench trace after 200
     /// warm-up steps. Each line reads
@@ -61,7 +64,15 @@ enum Cmd {
     /// `target-step model=<kind> integrator=<rk4|rk3> mode=<mode> instructions_per_step=<N>`
     ///
     /// and mode=table adds segments=, table_bytes= (RAM), max_rel_error_ppb=, kinks= and
-    /// build_instructions= (building the tables at boot).
+    /// build_instructions= (building the tables at boot). Then, per chip (m4f on
+    /// mps2-an386, m7 on mps2-an500), one line per model kind and integrator:
+    ///
+    /// `target-cycles chip=<m4f|m7> board=<machine> model=<kind> integrator=<rk4|rk3>
+    /// mode=<mode> instructions_per_step=<N> est_cycles_per_step=<C>
+    /// cycles_per_instruction=<x> budget_<f>mhz=<fraction of the 10 kHz period>`
+    ///
+    /// from the instruction mix of two traced steps priced by the cycle model
+    /// (nemm-firmware/README.md, "Cycle model").
     BenchTarget {
         /// The estimator's evaluation: the exact scalers or the tabulated fast path.
         #[arg(long, value_enum, default_value_t = Mode::Exact)]
@@ -72,11 +83,27 @@ enum Cmd {
         /// Model kind to benchmark (repeatable; default: all).
         #[arg(long = "model", value_enum, value_name = "KIND")]
         models: Vec<Kind>,
+        /// Board to benchmark (repeatable; default: both).
+        #[arg(long = "board", value_enum, value_name = "BOARD")]
+        boards: Vec<firmware::Board>,
+        /// Instructions only: no traced mix, no cycle estimate.
+        #[arg(long)]
+        no_cycles: bool,
     },
     /// Build the firmware images, print their flash and RAM use, and run the application in
     /// QEMU to print its stack at the end of the boot (`boot-stack bytes=<n>`, by stack
-    /// painting) in each evaluation mode.
-    BuildTarget,
+    /// painting) and its boot time in each evaluation mode.
+    ///
+    /// The boot time: `boot board=<machine> mode=<mode> instructions=<n>
+    /// est_ms_at_<f>mhz=<t>`, instructions from reset to the estimator ready (QEMU's
+    /// instruction count; the first step follows one 100 us period later), and the time they
+    /// take at the chip's stated clocks at the cycles per instruction of the cycle model for
+    /// the exact NEMM step.
+    BuildTarget {
+        /// Board to build (repeatable; default: both).
+        #[arg(long = "board", value_enum, value_name = "BOARD")]
+        boards: Vec<firmware::Board>,
+    },
     /// Build and link the STM32F407 image (boards/nemm-stm32f407), as flashed and for QEMU's
     /// netduinoplus2, and print their flash and RAM use.
     BuildBoard,
@@ -231,8 +258,10 @@ fn main() -> ExitCode {
             mode,
             steps,
             models,
-        }) => bench_target(mode, steps, &models),
-        Some(Cmd::BuildTarget) => build_target(),
+            boards,
+            no_cycles,
+        }) => bench_target(mode, steps, &models, &boards, !no_cycles),
+        Some(Cmd::BuildTarget { boards }) => build_target(&boards),
         Some(Cmd::Features) => Paths::find().and_then(|paths| {
             let tc = toolchain::detect(&paths.root, true)?;
             checks::features(Some(&tc), &paths)
@@ -308,12 +337,24 @@ fn setup() -> Result<(Toolchain, Paths), String> {
 }
 
 /// The integration tests that run the firmware in QEMU (`tests/tests/qemu_*.rs`), ignored by
-/// a plain `cargo test`.
+/// a plain `cargo test`: all of them on the mps2-an386 images.
 const QEMU_TESTS: [&str; 7] = [
     "qemu_board",
     "qemu_e2e",
     "qemu_faults",
     "qemu_model",
+    "qemu_no_panic",
+    "qemu_parity",
+    "qemu_weights",
+];
+
+/// The QEMU tests run on the mps2-an500 (Cortex-M7) images too: bit-identity with the host,
+/// end-to-end accuracy, faults, no panic path and the weights errors (about half a minute).
+/// Not `qemu_board` (the STM32F407 image) nor `qemu_model` (it trains a model to check the
+/// embedded blob, which does not depend on the core).
+const QEMU_TESTS_AN500: [&str; 5] = [
+    "qemu_e2e",
+    "qemu_faults",
     "qemu_no_panic",
     "qemu_parity",
     "qemu_weights",
@@ -330,7 +371,7 @@ fn test(host_only: bool) -> Result<(), String> {
         // Fails here, before the long host build, if the toolchain is missing.
         let (tc, paths) = setup()?;
         let t = Instant::now();
-        let images = firmware::build(&tc, &paths)?;
+        let images = firmware::build_all(&tc, &paths, &firmware::Board::ALL)?;
         let board_images = board::build(&tc, &paths)?;
         match tc.clippy_gap() {
             None => {
@@ -348,20 +389,23 @@ fn test(host_only: bool) -> Result<(), String> {
     if let Some((tc, _, images, board_images)) = &firmware {
         // The QEMU tests, with the images; `--workspace` keeps the features (and so the
         // build) of the run above.
-        let mut qemu_tests = cargo();
-        qemu_tests.args(["test", "--workspace", "--release", "--no-fail-fast"]);
-        for t in QEMU_TESTS {
-            qemu_tests.args(["--test", t]);
+        for im in images {
+            let tests: &[&str] = match im.board {
+                firmware::Board::An386 => &QEMU_TESTS,
+                firmware::Board::An500 => &QEMU_TESTS_AN500,
+            };
+            let mut qemu_tests = cargo();
+            qemu_tests.args(["test", "--workspace", "--release", "--no-fail-fast"]);
+            for t in tests {
+                qemu_tests.args(["--test", t]);
+            }
+            qemu_tests.args(["--", "--ignored"]);
+            im.test_env(&mut qemu_tests, tc);
+            run(qemu_tests
+                .env("NEMM_BOARD_ELF", &board_images.board)
+                .env("NEMM_BOARD_QEMU_ELF", &board_images.qemu)
+                .current_dir(&paths.root))?;
         }
-        run(qemu_tests
-            .args(["--", "--ignored"])
-            .env("NEMM_FIRMWARE_ELF", &images.app)
-            .env("NEMM_FIRMWARE_RELEASE_ELF", &images.app_release)
-            .env("NEMM_BENCH_ELF", &images.bench)
-            .env("NEMM_BOARD_ELF", &board_images.board)
-            .env("NEMM_BOARD_QEMU_ELF", &board_images.qemu)
-            .env("NEMM_QEMU", &tc.qemu)
-            .current_dir(&paths.root))?;
     }
     // The firmware library's own unit tests, on the host.
     run(cargo()
@@ -377,17 +421,40 @@ fn test(host_only: bool) -> Result<(), String> {
     checks::msrv(&paths)?;
     if let Some((tc, paths, images, board_images)) = firmware {
         let t = Instant::now();
-        for f in bench::run(&tc, &paths, &images, Mode::Exact, 50, &Kind::ALL)? {
-            eprintln!("xtask: (smoke, 50 steps) {}", f.line());
+        for im in &images {
+            let steps = bench::run(&tc, &paths, im, Mode::Exact, 50, &Kind::ALL)?;
+            for f in &steps {
+                eprintln!(
+                    "xtask: (smoke, 50 steps, {}) {}",
+                    im.board.machine(),
+                    f.line()
+                );
+            }
+            // The cycle model's trace, on the smallest model.
+            let sem: Vec<_> = steps.into_iter().filter(|f| f.model == "sem").collect();
+            for c in cycles::estimate(&tc, &paths, im, Mode::Exact, &sem)? {
+                eprintln!("xtask: (smoke) {}", c.line());
+            }
         }
-        let named = [
-            ("board build", images.app_release.as_path()),
-            ("qemu build", images.app.as_path()),
-        ];
-        for (name, path) in named.into_iter().chain(board_images.named()) {
+        let named: Vec<(String, &std::path::Path)> = images
+            .iter()
+            .flat_map(|im| {
+                [
+                    (im.named()[0].0.clone(), im.app_release.as_path()),
+                    (im.named()[1].0.clone(), im.app.as_path()),
+                ]
+            })
+            .chain(
+                board_images
+                    .named()
+                    .into_iter()
+                    .map(|(n, p)| (n.to_string(), p)),
+            )
+            .collect();
+        for (name, path) in named {
             eprintln!(
                 "xtask: {}",
-                firmware::memory_report(name, &Elf::read(path)?)
+                firmware::memory_report(&name, &Elf::read(path)?)
             );
         }
         firmware_secs += t.elapsed().as_secs_f64();
@@ -403,33 +470,130 @@ fn test(host_only: bool) -> Result<(), String> {
     Ok(())
 }
 
-fn bench_target(mode: Mode, steps: u32, models: &[Kind]) -> Result<(), String> {
+/// `boards`, or both if empty.
+fn boards_or_all(boards: &[firmware::Board]) -> &[firmware::Board] {
+    if boards.is_empty() {
+        &firmware::Board::ALL
+    } else {
+        boards
+    }
+}
+
+fn bench_target(
+    mode: Mode,
+    steps: u32,
+    models: &[Kind],
+    boards: &[firmware::Board],
+    with_cycles: bool,
+) -> Result<(), String> {
     let kinds = if models.is_empty() {
         &Kind::ALL[..]
     } else {
         models
     };
     let (tc, paths) = setup()?;
-    let images = firmware::build(&tc, &paths)?;
-    for f in bench::run(&tc, &paths, &images, mode, steps, kinds)? {
-        println!("{}", f.line());
+    let images = firmware::build_all(&tc, &paths, boards_or_all(boards))?;
+    for im in &images {
+        let figures = bench::run(&tc, &paths, im, mode, steps, kinds)?;
+        if im.board == firmware::Board::An386 {
+            for f in &figures {
+                println!("{}", f.line());
+            }
+        }
+        if with_cycles {
+            for c in cycles::estimate(&tc, &paths, im, mode, &figures)? {
+                println!("{}", c.line());
+            }
+        }
+        eprintln!(
+            "xtask: {}",
+            firmware::memory_report(
+                &format!("firmware ({})", im.named()[0].0),
+                &Elf::read(&im.app_release)?
+            )
+        );
     }
-    eprintln!(
-        "xtask: {}",
-        firmware::memory_report("firmware (board build)", &Elf::read(&images.app_release)?)
-    );
     Ok(())
 }
 
-fn build_target() -> Result<(), String> {
-    let (tc, paths) = setup()?;
-    let images = firmware::build(&tc, &paths)?;
-    print_memory(&images.named())?;
-    for (mode, options) in firmware::STACK_RUNS {
-        println!(
-            "{}",
-            firmware::stack_figures(&tc, &images, options)?.line(mode)
+/// Boot figures of one image and mode: instructions from reset to the estimator ready (the
+/// first step follows one sample period later), and the estimated time at the chip's clocks.
+#[derive(Debug, Clone)]
+pub struct BootFigures {
+    /// The board.
+    pub board: firmware::Board,
+    /// `exact` or `table`.
+    pub mode: &'static str,
+    /// Instructions from reset to the estimator ready.
+    pub instructions: u64,
+    /// Cycles per instruction the estimate uses (the exact NEMM step's, by the cycle model).
+    pub cycles_per_instruction: f64,
+}
+
+impl BootFigures {
+    /// Estimated milliseconds at `mhz`.
+    pub fn ms_at(&self, mhz: u32) -> f64 {
+        self.instructions as f64 * self.cycles_per_instruction / (f64::from(mhz) * 1000.0)
+    }
+
+    /// `boot board=<machine> mode=<mode> instructions=<n> est_ms_at_<f>mhz=<t>` (one per
+    /// stated clock of the chip).
+    pub fn line(&self) -> String {
+        let mut l = format!(
+            "boot board={} mode={} instructions={}",
+            self.board.machine(),
+            self.mode,
+            self.instructions
         );
+        for &mhz in self.board.chip().clocks_mhz() {
+            l += &format!(" est_ms_at_{mhz}mhz={:.1}", self.ms_at(mhz));
+        }
+        l
+    }
+}
+
+/// Runs the application of `images` in each mode of [`firmware::STACK_RUNS`]: stack and boot
+/// figures. The boot's cycles per instruction are those of the exact NEMM RK4 step (the
+/// network kernels, which also build the tables in table mode).
+pub fn boot_figures(
+    tc: &Toolchain,
+    paths: &Paths,
+    images: &firmware::Images,
+) -> Result<Vec<(firmware::StackFigures, BootFigures)>, String> {
+    let nemm = bench::image_with_example(paths, images, Kind::Nemm)?;
+    let mix = cycles::trace_mix(tc, images.board, &nemm, Mode::Exact, "rk4")?;
+    let cpi = mix.cycles_per_instruction(images.board.chip());
+    let mut out = Vec::new();
+    for (mode, options) in firmware::STACK_RUNS {
+        let s = firmware::stack_figures(tc, images, options)?;
+        let b = BootFigures {
+            board: images.board,
+            mode,
+            instructions: s.boot_instructions,
+            cycles_per_instruction: cpi,
+        };
+        out.push((s, b));
+    }
+    Ok(out)
+}
+
+fn build_target(boards: &[firmware::Board]) -> Result<(), String> {
+    let (tc, paths) = setup()?;
+    let images = firmware::build_all(&tc, &paths, boards_or_all(boards))?;
+    for im in &images {
+        let named = im.named();
+        print_memory(
+            &named
+                .iter()
+                .map(|(n, p)| (n.as_str(), *p))
+                .collect::<Vec<_>>(),
+        )?;
+    }
+    for im in &images {
+        for (stack, boot) in boot_figures(&tc, &paths, im)? {
+            println!("{} board={}", stack.line(boot.mode), im.board.machine());
+            println!("{}", boot.line());
+        }
     }
     Ok(())
 }
@@ -458,8 +622,8 @@ fn build_board() -> Result<(), String> {
 
 fn run_target(options: &[String]) -> Result<(), String> {
     let (tc, paths) = setup()?;
-    let images = firmware::build(&tc, &paths)?;
-    let status = firmware::qemu_command(&tc, &images.app, options)
+    let images = firmware::build(&tc, &paths, firmware::Board::An386)?;
+    let status = firmware::qemu_command(&tc, images.board, &images.app, options)
         .status()
         .map_err(|e| format!("cannot run {}: {e}", tc.qemu.display()))?;
     match status.code() {
@@ -496,7 +660,9 @@ mod tests {
                 mode: Mode::Exact,
                 steps: 4000,
                 models,
-            })) => assert!(models.is_empty()),
+                boards,
+                no_cycles: false,
+            })) => assert!(models.is_empty() && boards.is_empty()),
             other => panic!("{other:?}"),
         }
         match parse(&[
@@ -509,12 +675,20 @@ mod tests {
             "linear-emm",
             "--model",
             "nemm",
+            "--board",
+            "an500",
+            "--no-cycles",
         ]) {
             Ok(Some(Cmd::BenchTarget {
                 mode: Mode::Table,
                 steps: 50,
                 models,
-            })) => assert_eq!(models, [Kind::LinearEmm, Kind::Nemm]),
+                boards,
+                no_cycles: true,
+            })) => {
+                assert_eq!(models, [Kind::LinearEmm, Kind::Nemm]);
+                assert_eq!(boards, [firmware::Board::An500]);
+            }
             other => panic!("{other:?}"),
         }
         assert!(parse(&["bench-target", "--model", "lstm"]).is_err());
@@ -531,10 +705,15 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
-        assert!(matches!(
-            parse(&["build-target"]),
-            Ok(Some(Cmd::BuildTarget))
-        ));
+        match parse(&["build-target"]) {
+            Ok(Some(Cmd::BuildTarget { boards })) => assert!(boards.is_empty()),
+            other => panic!("{other:?}"),
+        }
+        match parse(&["build-target", "--board", "an500"]) {
+            Ok(Some(Cmd::BuildTarget { boards })) => assert_eq!(boards, [firmware::Board::An500]),
+            other => panic!("{other:?}"),
+        }
+        assert!(parse(&["build-target", "--board", "an999"]).is_err());
         assert!(matches!(parse(&["build-board"]), Ok(Some(Cmd::BuildBoard))));
         assert!(matches!(parse(&["toolchain"]), Ok(Some(Cmd::Toolchain))));
         match parse(&["firmware-model", "--velocity", "causal", "--out", "m.nemm"]) {

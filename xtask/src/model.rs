@@ -78,7 +78,7 @@ pub fn firmware_model(paths: &Paths, velocity: Option<&str>, out: &str) -> Resul
 /// (with `weights` in the slot instead of the embedded blob, if given) and prints its
 /// `e2e run=<file> firmware_rmse_n=<x> host_rmse_n=<y>` lines.
 pub fn e2e(tc: &Toolchain, paths: &Paths, weights: Option<&Path>) -> Result<(), String> {
-    let images = firmware::build(tc, paths)?;
+    let images = firmware::build(tc, paths, firmware::Board::An386)?;
     let mut c = cargo();
     if let Some(w) = weights {
         c.env(
@@ -88,12 +88,9 @@ pub fn e2e(tc: &Toolchain, paths: &Paths, weights: Option<&Path>) -> Result<(), 
     }
     // `--workspace`, as `cargo xtask test` runs the QEMU tests: the same features, the same
     // build.
+    images.test_env(&mut c, tc);
     c.args(["test", "--workspace", "--release", "--test", "qemu_e2e"])
         .args(["--", "--ignored", "--nocapture", "--test-threads", "1"])
-        .env("NEMM_FIRMWARE_ELF", &images.app)
-        .env("NEMM_FIRMWARE_RELEASE_ELF", &images.app_release)
-        .env("NEMM_BENCH_ELF", &images.bench)
-        .env("NEMM_QEMU", &tc.qemu)
         .current_dir(&paths.root)
         .stderr(Stdio::inherit());
     eprintln!("xtask: running {}", crate::show(&c));

@@ -6,15 +6,18 @@
 //! other than `docs/results.md` differ from it) and the command that wrote it.
 //!
 //! - `target` ([`target`], `cargo xtask results`): instructions per estimator step per model
-//!   kind, integrator and mode (exact, table) in QEMU; flash and RAM of each image; the
-//!   stack peak of the application.
+//!   kind, integrator and mode (exact, table) in QEMU; the estimated cycles per chip
+//!   (Cortex-M4F, Cortex-M7) and which combinations fit 10 kHz (also the README's `fit`
+//!   block); the boot time; flash and RAM of each image; the stack of the application.
 //! - `training` ([`training`], `cargo xtask results --training DIR`): the Table 4 (and
 //!   Table 5, if present) of a finished `nemm compare` / `nemm demo` report directory, with
 //!   the facts its `report.json` records (the command that trained it, ...).
 
 use crate::bench::{self, StepFigures};
+use crate::cycles::CycleFigures;
 use crate::firmware;
 use crate::toolchain::Toolchain;
+use crate::BootFigures;
 use crate::{Kind, Mode, Paths};
 use nemm_elf::Elf;
 use std::fmt::Write as _;
@@ -35,7 +38,7 @@ The figures below are generated: each block between `BEGIN` and `END` comments i
 the command named in its header, with the commit it measured. Do not edit inside the blocks
 (the next run replaces them); the text around them is kept.
 
-## On the target (Cortex-M4F, emulated)
+## On the target (Cortex-M4F and Cortex-M7, emulated)
 
 <!-- BEGIN target -->
 Not generated yet: run `cargo xtask results`.
@@ -143,29 +146,40 @@ fn write_block_in(paths: &Paths, file: &str, name: &str, body: &str) -> Result<(
     Ok(())
 }
 
+/// What `cargo xtask results` measures on the target.
+pub struct TargetFigures<'a> {
+    /// Measured steps per benchmark run.
+    pub steps: u32,
+    /// Instructions per step on the mps2-an386, exact mode.
+    pub exact: &'a [StepFigures],
+    /// The same in table mode.
+    pub table: &'a [StepFigures],
+    /// Estimated cycles per chip, model kind, integrator and mode.
+    pub cycles: &'a [CycleFigures],
+    /// Flash and RAM per image.
+    pub memory: &'a [(String, nemm_elf::MemoryUse)],
+    /// Stack and boot figures per board and mode.
+    pub boot: &'a [(firmware::StackFigures, BootFigures)],
+}
+
 /// The markdown of the target figures.
 /// `provenance`: the command and the commit, as markdown.
-fn target_markdown(
-    provenance: &str,
-    steps: u32,
-    exact: &[StepFigures],
-    table: &[StepFigures],
-    memory: &[(&str, nemm_elf::MemoryUse)],
-    stack: &[(&str, firmware::StackFigures)],
-) -> String {
+fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
+    let (steps, exact, table) = (f.steps, f.exact, f.table);
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "Measured by {provenance}, QEMU `mps2-an386` (Cortex-M4F), \
-         `-icount shift=0`: instructions, not cycles.\n"
+        "Measured by {provenance}, QEMU `mps2-an386` (Cortex-M4F) and `mps2-an500` \
+         (Cortex-M7), `-icount shift=0`: instructions, not cycles; cycles are estimated by \
+         the cycle model of `nemm-firmware/README.md` (\"Cycle model\").\n"
     );
     let _ = writeln!(
         md,
-        "**Instructions per estimator step**: {steps} steps of the bench trace after 200 \
-         warm-up steps, weights slot = `nemm-firmware/data/example-<kind>.nemm` (`cargo xtask \
-         bench-target --mode exact|table`). Table mode: its RAM, the worst relative error of \
-         the tables against the exact scalers (parts per billion), the kinks placed, and the \
-         instructions that build the estimator at boot.\n"
+        "**Instructions per estimator step** (`mps2-an386`): {steps} steps of the bench trace \
+         after 200 warm-up steps, weights slot = `nemm-firmware/data/example-<kind>.nemm` \
+         (`cargo xtask bench-target --mode exact|table`). Table mode: its RAM, the worst \
+         relative error of the tables against the exact scalers (parts per billion), the \
+         kinks placed, and the instructions that build the estimator at boot.\n"
     );
     md += "| model | integrator | exact | table | table RAM (B) | table error (ppb) | kinks | \
            table build (instructions) |\n";
@@ -188,12 +202,37 @@ fn target_markdown(
             field("build_instructions"),
         );
     }
+    md += &fit_markdown(f.cycles, true);
+    md += "\n**Boot time**: instructions from reset to the estimator ready (the application \
+           with the built-in NEMM blob, QEMU's count from the reset vector to the `start` \
+           line; the first step follows one 100 us period later), and the time at the chip's \
+           clocks at the cycles per instruction of the exact NEMM RK4 step (the network \
+           kernels, which build the tables in table mode; the exact-mode boot is mostly \
+           integer code, which this overestimates).\n\n";
+    let _ = writeln!(
+        md,
+        "| board | mode | instructions | cycles per instruction | {} |\n\
+         |---|---|---:|---:|{}",
+        clock_headers("ms at "),
+        "---:|".repeat(CLOCK_COLUMNS.len())
+    );
+    for (_, b) in f.boot {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:.2} | {} |",
+            b.board.machine(),
+            b.mode,
+            b.instructions,
+            b.cycles_per_instruction,
+            clock_cells(b.board.chip(), |mhz| format!("{:.1}", b.ms_at(mhz)))
+        );
+    }
     md += "\n**Flash and RAM** of the images (`cargo xtask build-target`; RAM: the statics, the \
            stack takes the rest).\n\n";
     md += "| image | flash (B) | code | rodata | trace | weights slot | data | RAM (B) | bss | \
            uninit |\n";
     md += "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
-    for (name, m) in memory {
+    for (name, m) in f.memory {
         let _ = writeln!(
             md,
             "| {name} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
@@ -210,44 +249,173 @@ fn target_markdown(
     }
     md += "\n**Stack** of the application (qemu build, the built-in NEMM blob, 2000 samples; \
            painted stack): at the end of the boot, and the peak of the whole run.\n\n";
-    md += "| mode | boot stack (B) | stack peak (B) | room the layout leaves (B) |\n\
-           |---|---:|---:|---:|\n";
-    for (mode, f) in stack {
-        let _ = writeln!(md, "| {mode} | {} | {} | {} |", f.boot, f.peak, f.room);
+    md += "| board | mode | boot stack (B) | stack peak (B) | room the layout leaves (B) |\n\
+           |---|---|---:|---:|---:|\n";
+    for (s, b) in f.boot {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} |",
+            b.board.machine(),
+            b.mode,
+            s.boot,
+            s.peak,
+            s.room
+        );
     }
     md
 }
 
-/// `cargo xtask results`: builds the firmware, measures it and writes the `target` block.
+/// The 10 kHz fit table: per chip, model kind, integrator and mode, the instructions and
+/// estimated cycles per step and the fraction of the 100 us period at each stated clock;
+/// `intro` adds its explanation.
+fn fit_markdown(cycles: &[CycleFigures], intro: bool) -> String {
+    let mut md = String::new();
+    if intro {
+        md += "\n**Does it fit 10 kHz?** Estimated cycles per step (`cargo xtask \
+               bench-target`: instructions per step measured in QEMU on each core, times the \
+               cycles per instruction of the traced step's instruction mix under the chip's \
+               cycle model; M4F about +-15 %, M7 about +-30 %) and the fraction of the 100 us \
+               period at each clock (STM32F407 168 MHz; STM32F7 216 MHz, STM32H7 480 MHz). \
+               **yes**: under 1; the rest of the period is left to the sensor read, the \
+               publication and the other tasks, and a fraction within the model's \
+               uncertainty of 1 is a fit to be measured on the chip, not counted on.\n\n";
+    }
+    let _ = writeln!(
+        md,
+        "| chip | model | integrator | mode | instructions | est. cycles | cycles per \
+         instruction | {} |\n|---|---|---|---|---:|---:|---:|{}",
+        clock_headers(""),
+        "---:|".repeat(CLOCK_COLUMNS.len())
+    );
+    for c in cycles {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {:.2} | {} |",
+            c.chip.name(),
+            c.model,
+            c.integrator,
+            c.mode,
+            c.instructions_per_step,
+            c.cycles_per_step(),
+            c.cycles_per_instruction,
+            clock_cells(c.chip, |mhz| {
+                let f = c.budget_fraction(mhz);
+                format!("{f:.2} {}", if f < 1.0 { "**yes**" } else { "no" })
+            })
+        );
+    }
+    md
+}
+
+/// The clock columns of the tables \[MHz\]: every chip's stated clocks.
+const CLOCK_COLUMNS: [u32; 3] = [168, 216, 480];
+
+/// The headers of the clock columns: `<prefix><f> MHz`, joined as table cells.
+fn clock_headers(prefix: &str) -> String {
+    CLOCK_COLUMNS
+        .iter()
+        .map(|mhz| format!("{prefix}{mhz} MHz"))
+        .collect::<Vec<_>>()
+        .join(" | ")
+}
+
+/// One cell per clock column, joined: `cell(f)` where `chip` is stated at `f`, `-` elsewhere.
+fn clock_cells(chip: crate::cycles::Chip, cell: impl Fn(u32) -> String) -> String {
+    CLOCK_COLUMNS
+        .iter()
+        .map(|&mhz| {
+            if chip.clocks_mhz().contains(&mhz) {
+                cell(mhz)
+            } else {
+                "-".into()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" | ")
+}
+
+/// The README's `fit` block: the NEMM's rows of the fit table and where the rest is.
+fn fit_readme_markdown(provenance: &str, cycles: &[CycleFigures]) -> String {
+    let nemm: Vec<CycleFigures> = cycles
+        .iter()
+        .filter(|c| c.model == "nemm")
+        .cloned()
+        .collect();
+    format!(
+        "The NEMM (H = 16, L = 5) against the 10 kHz budget by the cycle model (estimated \
+         cycles per step and the fraction of the 100 us period; **yes** fits), measured by \
+         {provenance}; every model kind, the boot time and the model itself: \
+         [docs/results.md](docs/results.md), \
+         [nemm-firmware/README.md](nemm-firmware/README.md#cycle-model).\n\n{}",
+        fit_markdown(&nemm, false)
+    )
+}
+
+/// `cargo xtask results`: builds the firmware, measures it and writes the `target` block
+/// (and the README's `fit` block).
 pub fn target(tc: &Toolchain, paths: &Paths, steps: u32) -> Result<(), String> {
     let commit = commit(&paths.root);
-    let images = firmware::build(tc, paths)?;
-    let exact = bench::run(tc, paths, &images, Mode::Exact, steps, &Kind::ALL)?;
-    let table = bench::run(tc, paths, &images, Mode::Table, steps, &Kind::ALL)?;
-    for f in exact.iter().chain(&table) {
-        println!("{}", f.line());
-    }
+    let images = firmware::build_all(tc, paths, &firmware::Board::ALL)?;
+    let mut exact = Vec::new();
+    let mut table = Vec::new();
+    let mut cycles = Vec::new();
     let mut memory = Vec::new();
-    for (name, path) in images.named() {
-        let elf = Elf::read(path)?;
-        println!("{}", firmware::memory_report(name, &elf));
-        memory.push((name, elf.memory_use()));
+    let mut boot = Vec::new();
+    for im in &images {
+        let e = bench::run(tc, paths, im, Mode::Exact, steps, &Kind::ALL)?;
+        let t = bench::run(tc, paths, im, Mode::Table, steps, &Kind::ALL)?;
+        for f in e.iter().chain(&t) {
+            println!("{} board={}", f.line(), im.board.machine());
+        }
+        for (mode, figs) in [(Mode::Exact, &e), (Mode::Table, &t)] {
+            for c in crate::cycles::estimate(tc, paths, im, mode, figs)? {
+                println!("{}", c.line());
+                cycles.push(c);
+            }
+        }
+        if im.board == firmware::Board::An386 {
+            (exact, table) = (e, t);
+        }
+        for (name, path) in im.named() {
+            let elf = Elf::read(path)?;
+            println!("{}", firmware::memory_report(&name, &elf));
+            memory.push((name, elf.memory_use()));
+        }
+        for (s, b) in crate::boot_figures(tc, paths, im)? {
+            println!("{} board={}", s.line(b.mode), im.board.machine());
+            println!("{}", b.line());
+            boot.push((s, b));
+        }
     }
-    let mut stack = Vec::new();
-    for (mode, options) in firmware::STACK_RUNS {
-        let f = firmware::stack_figures(tc, &images, options)?;
-        println!("{}", f.line(mode));
-        stack.push((mode, f));
-    }
+    // Chip by chip, then model kind, integrator, mode.
+    cycles.sort_by_key(|c| {
+        let kind = Kind::ALL.iter().position(|k| k.name() == c.model);
+        (
+            c.chip.name() != "m4f",
+            kind,
+            c.integrator != "rk4",
+            c.mode.clone(),
+        )
+    });
+    let provenance = format!("`{}` at commit `{commit}`", command_line());
     let md = target_markdown(
-        &format!("`{}` at commit `{commit}`", command_line()),
-        steps,
-        &exact,
-        &table,
-        &memory,
-        &stack,
+        &provenance,
+        &TargetFigures {
+            steps,
+            exact: &exact,
+            table: &table,
+            cycles: &cycles,
+            memory: &memory,
+            boot: &boot,
+        },
     );
-    write_block(paths, "target", &md)
+    write_block(paths, "target", &md)?;
+    write_block_in(
+        paths,
+        README,
+        "fit",
+        &fit_readme_markdown(&provenance, &cycles),
+    )
 }
 
 /// `cargo xtask results --training DIR`: the `training` block from a report directory.
@@ -463,24 +631,50 @@ mod tests {
                 (".bss".into(), 0x2000_0000, 40),
             ],
         };
+        let cycles = [crate::cycles::CycleFigures {
+            chip: crate::cycles::Chip::M7,
+            board: firmware::Board::An500,
+            model: "nemm".into(),
+            integrator: "rk4".into(),
+            mode: "exact".into(),
+            instructions_per_step: 15541,
+            cycles_per_instruction: 2.0,
+            fp_mac_per_step: 9728.0,
+        }];
+        let stack = firmware::StackFigures {
+            boot: 1200,
+            peak: 1864,
+            room: 140000,
+            boot_instructions: 480_000,
+        };
+        let boot = BootFigures {
+            board: firmware::Board::An386,
+            mode: "exact",
+            instructions: 480_000,
+            cycles_per_instruction: 3.5,
+        };
         let md = target_markdown(
             "`cargo xtask results` at commit `abc1234+dirty`",
-            4000,
-            &[fig("exact", 15541, vec![])],
-            &[fig("table", 492, t)],
-            &[("board build", memory)],
-            &[(
-                "exact",
-                firmware::StackFigures {
-                    boot: 1200,
-                    peak: 1864,
-                    room: 140000,
-                },
-            )],
+            &TargetFigures {
+                steps: 4000,
+                exact: &[fig("exact", 15541, vec![])],
+                table: &[fig("table", 492, t)],
+                cycles: &cycles,
+                memory: &[("board build".into(), memory)],
+                boot: &[(stack, boot)],
+            },
         );
         assert!(md.starts_with("Measured by `cargo xtask results` at commit `abc1234+dirty`"));
         assert!(md.contains("| nemm | rk4 | 15541 | 492 | 7168 | 2792 | 73 | 156316320 |\n"));
         assert!(md.contains("| board build | 300 | 108 | 0 | 0 | 0 | 0 | 40 | 40 | 0 |\n"));
-        assert!(md.contains("| exact | 1200 | 1864 | 140000 |\n"));
+        assert!(md.contains("| mps2-an386 | exact | 1200 | 1864 | 140000 |\n"));
+        // 31,082 cycles: 0.65 of the period at 480 MHz, 1.44 at 216 MHz.
+        assert!(md.contains(
+            "| m7 | nemm | rk4 | exact | 15541 | 31082 | 2.00 | - | 1.44 no | 0.65 **yes** |\n"
+        ));
+        // 480,000 x 3.5 cycles at 168 MHz: 10.0 ms.
+        assert!(md.contains("| mps2-an386 | exact | 480000 | 3.50 | 10.0 | - | - |\n"));
+        let readme = fit_readme_markdown("`cargo xtask results`", &cycles);
+        assert!(readme.contains("| m7 | nemm | rk4 | exact | 15541 | 31082 |"));
     }
 }

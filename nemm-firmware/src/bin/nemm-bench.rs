@@ -371,6 +371,7 @@ fn build_estimator<'a>(
 
 #[entry]
 fn main() -> ! {
+    board::init();
     let mut console = Console::open();
     let mut opt = Options {
         mode: Mode::Exact,
