@@ -501,13 +501,14 @@ fn generator_covers_kinds_and_sizes() {
 }
 
 /// Every earlier format version still loads: the version-1 and version-2 blobs in
-/// `tests/data/format-v1` and `format-v2` (the example models of every kind as those
-/// encoders wrote them; a version-2 body is the version-1 body with an empty extension)
+/// `tests/data/format-v1`, `format-v2` and `format-v3` (the example models of every kind as
+/// those encoders wrote them; a version-2 body is the version-1 body with an empty
+/// extension, a version-3 body adds the extension's condition, branches and provenance)
 /// decode to the current example models with the default extension (the paper's oil loss,
 /// no alpha branches), and re-encode as the current version.
 #[test]
-fn version_1_and_2_blobs_still_load() {
-    for version in [1u16, 2] {
+fn version_1_to_3_blobs_still_load() {
+    for version in [1u16, 2, 3] {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join(format!("tests/data/format-v{version}"));
         check_old_blobs(&dir, version);
