@@ -6,6 +6,10 @@
 //! residual `F - y_EMM` on the features `phi` at the scored samples. The friction `F_c`
 //! must not be negative: a negative fit is refitted without the friction column (`F_c = 0`).
 
+// The normal equations index rows and columns of small arrays together; index loops read as
+// the algebra does.
+#![allow(clippy::needless_range_loop)]
+
 use super::adjoint::{simulate, Grid, RolloutParams, StaticParams, Window};
 use super::net::static_units;
 use crate::data::preprocess::Sequence;
