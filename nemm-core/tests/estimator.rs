@@ -468,6 +468,10 @@ fn hot_path_matches_reference_model() {
 /// with a position.
 #[test]
 fn static_force_adds_r_and_needs_the_position() {
+    common::with_big_stack(static_force_adds_r);
+}
+
+fn static_force_adds_r() {
     use nemm_core::testing::EXAMPLE_STATIC_FORCE as SF;
     use nemm_core::{EvalMode, TableConfig};
     let dt = 1e-4f32;
@@ -487,8 +491,8 @@ fn static_force_adds_r_and_needs_the_position() {
                 mode,
                 ..EstimatorConfig::new(alpha)
             };
-            let mut e0 = Estimator::new(&plain, cfg).unwrap();
-            let mut e1 = Estimator::new(&with, cfg).unwrap();
+            let mut e0 = boxed::<DEFAULT_TABLE_SEGMENTS>(&plain, cfg).unwrap();
+            let mut e1 = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, cfg).unwrap();
             assert!(!e0.needs_position() && e1.needs_position());
             for k in 0..n {
                 let a = e0.step_with_position(v[k], x[k]);
@@ -530,8 +534,10 @@ fn static_force_adds_r_and_needs_the_position() {
     // A per-sample condition level with the position (exact mode).
     let mut with = example(ModelKind::Nemm);
     with.ext.static_force = Some(SF);
-    let mut e = Estimator::new(&with, EstimatorConfig::new(0.0)).unwrap();
-    let mut plain = Estimator::new(&example(ModelKind::Nemm), EstimatorConfig::new(0.0)).unwrap();
+    let mut e = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, EstimatorConfig::new(0.0)).unwrap();
+    let mut plain =
+        boxed::<DEFAULT_TABLE_SEGMENTS>(&example(ModelKind::Nemm), EstimatorConfig::new(0.0))
+            .unwrap();
     for k in 0..200 {
         let a = if k < 100 { 0.0 } else { 0.3 };
         let f = e.step_with_alpha_and_position(v[k], a, x[k]).unwrap();
@@ -555,8 +561,8 @@ proptest! {
         let plain = example(ModelKind::LinearEmm);
         let mut with = plain.clone();
         with.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
-        let mut e0 = Estimator::new(&plain, EstimatorConfig::new(0.1)).unwrap();
-        let mut e1 = Estimator::new(&with, EstimatorConfig::new(0.1)).unwrap();
+        let mut e0 = boxed::<DEFAULT_TABLE_SEGMENTS>(&plain, EstimatorConfig::new(0.1)).unwrap();
+        let mut e1 = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, EstimatorConfig::new(0.1)).unwrap();
         for (&x, &v) in xs.iter().zip(vs.iter().cycle()) {
             let b = e1.step_with_position(v, x);
             e0.step(v);
