@@ -134,15 +134,7 @@ mod tests {
     use super::*;
 
     fn example() -> StaticForce {
-        StaticForce {
-            f_gas0_n: -90.0,
-            f_gas0_per_alpha_n: 20.0,
-            k_gas_n_per_m: 800.0,
-            k_gas_per_alpha_n_per_m: -200.0,
-            x_ref_m: 0.03,
-            f_c_n: 15.0,
-            v_c_m_s: 0.005,
-        }
+        crate::testing::EXAMPLE_STATIC_FORCE
     }
 
     #[test]

@@ -8,6 +8,21 @@ fn model(kind: ModelKind, h: u8, l: u8) -> Model {
     example_model(kind, h, l).expect("example model")
 }
 
+/// The example model of `kind` (H = 16, L = 5), or with `branches` the [`branched`] NEMM,
+/// with the example static force if `stat`.
+fn example_16x5(kind: ModelKind, branches: bool, stat: bool) -> Model {
+    let m = if branches {
+        branched(16, 5, 16)
+    } else {
+        model(kind, 16, 5)
+    };
+    if stat {
+        with_static(m)
+    } else {
+        m
+    }
+}
+
 /// The example model with the example static force.
 fn with_static(mut m: Model) -> Model {
     m.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
@@ -45,14 +60,7 @@ fn rollout_matches_core_estimator() {
     ] {
         for integ in [Integrator::Rk4, Integrator::Rk3] {
             for stat in [false, true] {
-                let mut m = if with_branches {
-                    branched(16, 5, 16)
-                } else {
-                    model(kind, 16, 5)
-                };
-                if stat {
-                    m = with_static(m);
-                }
+                let mut m = example_16x5(kind, with_branches, stat);
                 m.integrator = integ;
                 let p: RolloutParams<f32> = from_core(&m).expect("emm model");
                 let n = 20_000;
@@ -366,14 +374,7 @@ fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
         (ModelKind::LinearEmm, 10.0, false, true),
         (ModelKind::Nemm, 10.0, true, true),
     ] {
-        let mut m = if with_branches {
-            branched(16, 5, 16)
-        } else {
-            model(kind, 16, 5)
-        };
-        if stat {
-            m = with_static(m);
-        }
+        let m = example_16x5(kind, with_branches, stat);
         let p: RolloutParams<f32> = from_core(&m).expect("emm model");
         let sample_dt = ratio * f64::from(m.dt_s);
         let n = (1.5 / sample_dt) as usize;
