@@ -287,7 +287,7 @@ mod tests {
         for n in 1..20 {
             // Constant input: the low-pass is at its fixed point after the seed.
             assert_eq!(s.read_velocity(), Ok(expected));
-            assert_eq!(s.position_m(), cal.displacement_m(n * step));
+            assert_eq!(s.position_m(), cal.displacement_m(ZERO_CODE + n * step));
         }
         assert!((expected - 0.3).abs() < 1e-3);
         assert_eq!(s.read_velocity(), Err(SensorError::Bus(ErrorKind::Overrun)));
