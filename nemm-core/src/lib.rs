@@ -66,7 +66,8 @@ pub mod model;
 pub mod sem;
 pub mod static_force;
 pub mod table;
-#[doc(hidden)]
+#[cfg(any(test, feature = "testing"))]
+#[cfg_attr(docsrs, doc(cfg(feature = "testing")))]
 pub mod testing;
 pub mod velocity;
 

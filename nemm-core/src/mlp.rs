@@ -888,11 +888,10 @@ impl<const P: usize> CompiledScaler<P> {
     }
 
     /// Raw network output `z` at state input `u`: the Arm FPU kernel where there is one
-    /// for this width, the portable code otherwise (same bits; public for the on-target
-    /// comparison with [`Self::raw_portable`] in the firmware's bench).
-    #[doc(hidden)]
+    /// for this width, the portable code otherwise (same bits; compared on the target by
+    /// the firmware's bench through `testing::scaler_raw`).
     #[inline(always)]
-    pub fn raw(&self, u: f32) -> f32 {
+    pub(crate) fn raw(&self, u: f32) -> f32 {
         #[cfg(all(
             target_arch = "arm",
             target_abi = "eabihf",
@@ -909,8 +908,7 @@ impl<const P: usize> CompiledScaler<P> {
     }
 
     /// Portable evaluation of the raw output `z`: the reference of the Arm kernel.
-    #[doc(hidden)]
-    pub fn raw_portable(&self, u: f32) -> f32 {
+    pub(crate) fn raw_portable(&self, u: f32) -> f32 {
         self.raw_generic::<false, math::Fused>(u, &mut 0)
     }
 

@@ -226,3 +226,16 @@ pub fn example_blob() -> heapless::Vec<u8, EXAMPLE_BLOB_CAPACITY> {
         _ => heapless::Vec::new(),
     }
 }
+
+/// The raw network output `z` of a compiled scaler at state input `u` as the estimator
+/// computes it: the Arm FPU kernel where there is one for the scaler's width, the portable
+/// code otherwise.
+pub fn scaler_raw<const P: usize>(scaler: &crate::mlp::CompiledScaler<P>, u: f32) -> f32 {
+    scaler.raw(u)
+}
+
+/// The portable evaluation of [`scaler_raw`]: the reference the Arm kernel must match bit for
+/// bit.
+pub fn scaler_raw_portable<const P: usize>(scaler: &crate::mlp::CompiledScaler<P>, u: f32) -> f32 {
+    scaler.raw_portable(u)
+}

@@ -345,3 +345,140 @@ fn the_cli_imports_with_flags_only() {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(stderr.contains("p100.csv:1: column"), "{stderr}");
 }
+
+/// A 3 kHz MR-damper-like record whose control voltage (0, 2.5 or 5 V) switches every 20 to
+/// 70 ms: the level per sample comes from the voltage column (`gain = 0.2` per volt). The
+/// column holds the voltage times `scale`; `bad_line` gets 6 V (level 1.2) instead.
+fn write_mr(dir: &Path, name: &str, bad_line: Option<usize>, scale: f64) -> PathBuf {
+    let mut s = String::from("time_s,stroke_mm,force_kN,U_ctrl_V\n");
+    let levels = [0.0, 2.5, 5.0];
+    let (mut seg_end, mut k, mut u) = (0usize, 0usize, 0.0);
+    for i in 0..9000 {
+        if i == seg_end {
+            u = levels[k % 3];
+            seg_end = i + 60 + (k * 37) % 150;
+            k += 1;
+        }
+        let t = i as f64 / 3000.0;
+        let x = 10.0 * (2.0 * PI * 1.7 * t).sin() + 4.0 * (2.0 * PI * 7.3 * t).sin();
+        let cell = if Some(i + 2) == bad_line { 6.0 } else { u } * scale;
+        s.push_str(&format!(
+            "{t:.4},{x:.3},{:.4},{cell}\n",
+            0.001 * x * (1.0 + cell)
+        ));
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, s).expect("write raw");
+    p
+}
+
+const MR_SPEC: &str = r#"
+[columns.time]
+name = "time_s"
+unit = "s"
+[columns.displacement]
+name = "stroke_mm"
+unit = "mm"
+[columns.force]
+name = "force_kN"
+unit = "kN"
+[columns.alpha]
+name = "U_ctrl_V"
+unit = "1"
+gain = 0.2
+[[files]]
+path = "mr.csv"
+"#;
+
+#[test]
+fn a_level_column_becomes_the_runs_alpha_per_sample() {
+    let dir = tempfile::tempdir().expect("dir");
+    write_mr(dir.path(), "mr.csv", None, 1.0);
+    let spec = spec_from(MR_SPEC, dir.path());
+    let imported = import::import(&spec, "mr").expect("import");
+    let ds = &imported.dataset;
+    assert_eq!(ds.runs.len(), 1);
+    let run = &ds.runs[0];
+    let levels = run.alpha.as_ref().expect("per-sample levels");
+    assert_eq!(levels.len(), run.len());
+    assert!(levels.iter().all(|a| [0.0, 0.5, 1.0].contains(a)), "levels");
+    assert!(levels.windows(2).filter(|w| w[0] != w[1]).count() > 50);
+    // Without a level in the spec, the run's label is the mean of its levels.
+    let mean = levels.iter().sum::<f64>() / levels.len() as f64;
+    assert!((run.entry.oil_loss - mean).abs() < 1e-12);
+    // The run file carries the column and reads back the same.
+    let out = dir.path().join("dataset");
+    dataset::write(&out, ds).expect("write");
+    assert_eq!(&dataset::load(&out).expect("load"), ds);
+
+    // Resampled on request, the levels are interpolated with the rest.
+    let mut resampled = spec.clone();
+    resampled.resample_hz = Some(1000.0);
+    let r = import::import(&resampled, "mr").expect("resampled");
+    let run = &r.dataset.runs[0];
+    assert_eq!(run.alpha.as_ref().map(Vec::len), Some(run.len()));
+}
+
+#[test]
+fn a_level_cell_outside_0_1_and_a_missing_level_are_refused_with_their_place() {
+    let dir = tempfile::tempdir().expect("dir");
+    write_mr(dir.path(), "mr.csv", Some(4321), 1.0);
+    let spec = spec_from(MR_SPEC, dir.path());
+    let e = import::import(&spec, "mr").expect_err("6 V is level 1.2");
+    assert!(
+        matches!(
+            e,
+            ImportError::LevelOutOfRange {
+                line: 4321,
+                field: 4,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string().contains("mr.csv:4321:4: column \"U_ctrl_V\""),
+        "{e}"
+    );
+    // Without a level column, every file needs its level.
+    let no_column = MR_SPEC.replace(
+        "[columns.alpha]\nname = \"U_ctrl_V\"\nunit = \"1\"\ngain = 0.2\n",
+        "",
+    );
+    let spec = spec_from(&no_column, dir.path());
+    let e = import::import(&spec, "mr").expect_err("no level");
+    assert!(e.to_string().contains("files[0].alpha: missing"), "{e}");
+}
+
+#[test]
+fn the_cli_takes_a_level_column_instead_of_file_levels() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = write_mr(dir.path(), "mr.csv", None, 0.2);
+    let out = dir.path().join("ds");
+    let o = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["data", "import"])
+        .arg(&raw)
+        .arg("--out")
+        .arg(&out)
+        .args([
+            "--time",
+            "time_s:s",
+            "--displacement",
+            "stroke_mm:mm",
+            "--force",
+            "force_kN:kN",
+            "--alpha-column",
+            "U_ctrl_V:1",
+        ])
+        .output()
+        .expect("run nemm");
+    assert!(
+        o.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let ds = dataset::load(&out).expect("load");
+    let levels = ds.runs[0].alpha.as_ref().expect("levels");
+    assert!(levels.contains(&0.0) && levels.contains(&0.5) && levels.contains(&1.0));
+}

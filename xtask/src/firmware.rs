@@ -113,9 +113,12 @@ pub fn build(tc: &Toolchain, paths: &Paths) -> Result<Images, String> {
         Ok(dst)
     };
     let t = Instant::now();
-    run(tc
-        .cargo("build", &dir, &target)
-        .args(["--release", "--features", "qemu", "--bins"]))?;
+    run(tc.cargo("build", &dir, &target).args([
+        "--release",
+        "--features",
+        "qemu,bench",
+        "--bins",
+    ]))?;
     let app = copy("nemm-firmware", "nemm-firmware-qemu.elf")?;
     let bench = copy("nemm-bench", "nemm-bench-qemu.elf")?;
     run(tc
@@ -138,7 +141,7 @@ pub fn build(tc: &Toolchain, paths: &Paths) -> Result<Images, String> {
 pub fn clippy(tc: &Toolchain, paths: &Paths) -> Result<(), String> {
     let dir = paths.root.join("nemm-firmware");
     let target = target_dir(paths);
-    for features in [&["--features", "qemu"][..], &[]] {
+    for features in [&["--features", "qemu,bench"][..], &[]] {
         run(tc
             .cargo("clippy", &dir, &target)
             .args(["--release", "--bins", "--lib"])

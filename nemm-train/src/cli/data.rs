@@ -83,8 +83,13 @@ pub struct ImportArgs {
     #[arg(long, value_parser = ColumnSpec::parse_flag)]
     pub velocity: Option<ColumnSpec>,
     /// Condition level alpha of the files: one for all, or one per file (comma-separated).
+    /// Optional with `--alpha-column` (each run is then labelled with its mean level).
     #[arg(long, value_delimiter = ',')]
     pub alpha: Vec<f64>,
+    /// Condition level per sample: column and unit `1` (the value must lie in [0, 1]; a
+    /// gain or offset, e.g. for a control voltage, goes in the spec's `columns.alpha`).
+    #[arg(long, value_parser = ColumnSpec::parse_flag)]
+    pub alpha_column: Option<ColumnSpec>,
     /// Negate the displacement (stroke positive in compression).
     #[arg(long)]
     pub invert_displacement: bool,
@@ -134,6 +139,7 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
                         .ok_or_else(|| missing("displacement"))?,
                     force: a.force.clone().ok_or_else(|| missing("force"))?,
                     velocity: None,
+                    alpha: None,
                 },
                 rate_hz: None,
                 resample_hz: None,
@@ -154,6 +160,9 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
     }
     if let Some(v) = &a.velocity {
         c.velocity = Some(v.clone());
+    }
+    if let Some(l) = &a.alpha_column {
+        c.alpha = Some(l.clone());
     }
     c.displacement.invert |= a.invert_displacement;
     c.force.invert |= a.invert_force;
@@ -182,10 +191,14 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
         if !spec.files.is_empty() {
             anyhow::bail!("the spec lists [[files]]; give no files on the command line");
         }
-        let alphas: Vec<f64> = match a.alpha.len() {
-            1 => vec![a.alpha[0]; a.files.len()],
-            n if n == a.files.len() => a.alpha.clone(),
-            0 => anyhow::bail!("give the condition level of the files with --alpha"),
+        let alphas: Vec<Option<f64>> = match a.alpha.len() {
+            1 => vec![Some(a.alpha[0]); a.files.len()],
+            n if n == a.files.len() => a.alpha.iter().copied().map(Some).collect(),
+            0 if spec.columns.alpha.is_some() => vec![None; a.files.len()],
+            0 => anyhow::bail!(
+                "give the condition level of the files with --alpha (or a level column with \
+                 --alpha-column)"
+            ),
             n => anyhow::bail!(
                 "--alpha has {n} values for {} files (give one, or one per file)",
                 a.files.len()

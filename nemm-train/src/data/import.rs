@@ -84,6 +84,22 @@ pub enum ImportError {
         /// The cell as found.
         value: String,
     },
+    /// A condition-level cell converts to a level outside \[0, 1\].
+    #[error("{}:{line}:{field}: column \"{column}\": {value} converts to the condition level {level}, outside [0, 1] (columns.alpha: raw * gain + offset)", path.display())]
+    LevelOutOfRange {
+        /// The raw file.
+        path: PathBuf,
+        /// The line.
+        line: usize,
+        /// The field number (1-based).
+        field: usize,
+        /// The column's header name.
+        column: String,
+        /// The cell as found.
+        value: String,
+        /// The converted level.
+        level: f64,
+    },
     /// A file or a cut gives no run.
     #[error("{}: {message}", path.display())]
     NoRuns {
@@ -212,6 +228,24 @@ pub struct Columns {
     /// Measured velocity (units `m/s`, `mm/s`, `in/s`), optional.
     #[serde(default)]
     pub velocity: Option<ColumnSpec>,
+    /// Condition level per sample (unit `1`), optional: `raw * gain + offset` must lie in
+    /// \[0, 1\] (e.g. an MR damper's 0-5 V control voltage with `gain = 0.2`). The runs then
+    /// carry the level per sample (the run file's `alpha` column).
+    #[serde(default)]
+    pub alpha: Option<ColumnSpec>,
+}
+
+impl Columns {
+    /// Every column with its role, in reading order (absent optional ones as `None`).
+    fn roles(&self) -> [(&'static str, Option<&ColumnSpec>); 5] {
+        [
+            ("time", self.time.as_ref()),
+            ("displacement", Some(&self.displacement)),
+            ("force", Some(&self.force)),
+            ("velocity", self.velocity.as_ref()),
+            ("alpha", self.alpha.as_ref()),
+        ]
+    }
 }
 
 /// How a long record is cut into runs.
@@ -273,8 +307,11 @@ pub struct RunRange {
 pub struct FileSpec {
     /// The file (relative to the spec file; as given on the command line).
     pub path: PathBuf,
-    /// Condition level `alpha` in \[0, 1\] of every run from this file.
-    pub alpha: f64,
+    /// Condition level `alpha` in \[0, 1\] of every run from this file: the runs' label in the
+    /// manifest. Optional with a level column (`columns.alpha`); each run's label is then
+    /// the mean of its levels.
+    #[serde(default)]
+    pub alpha: Option<f64>,
     /// Cutting for this file (default: the spec's `split`).
     #[serde(default)]
     pub split: Option<SplitSpec>,
@@ -345,8 +382,8 @@ pub fn read_spec(path: &Path) -> Result<ImportSpec, ImportError> {
 }
 
 /// SI factor of a unit name (`m`, `cm`, `mm`, `um`, `in`; `N`, `kN`, `lbf`, `kgf`; `m/s`,
-/// `mm/s`, `in/s`; `s`, `ms`, `us`, `min`) for a column role (`time`, `displacement`,
-/// `force`, `velocity`).
+/// `mm/s`, `in/s`; `s`, `ms`, `us`, `min`; `1` for the level) for a column role (`time`,
+/// `displacement`, `force`, `velocity`, `alpha`).
 pub fn unit_factor(role: &str, unit: &str) -> Option<f64> {
     let table: &[(&str, f64)] = match role {
         "time" => &[("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("min", 60.0)],
@@ -364,6 +401,7 @@ pub fn unit_factor(role: &str, unit: &str) -> Option<f64> {
             ("kgf", 9.806_65),
         ],
         "velocity" => &[("m/s", 1.0), ("mm/s", 1e-3), ("in/s", 0.0254)],
+        "alpha" => &[("1", 1.0)],
         _ => &[],
     };
     table.iter().find(|(u, _)| *u == unit).map(|(_, f)| *f)
@@ -371,13 +409,7 @@ pub fn unit_factor(role: &str, unit: &str) -> Option<f64> {
 
 /// Checks the spec's values (units, gains, levels, rates, cutting options).
 pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
-    let roles: [(&str, Option<&ColumnSpec>); 4] = [
-        ("time", spec.columns.time.as_ref()),
-        ("displacement", Some(&spec.columns.displacement)),
-        ("force", Some(&spec.columns.force)),
-        ("velocity", spec.columns.velocity.as_ref()),
-    ];
-    for (role, c) in roles {
+    for (role, c) in spec.columns.roles() {
         let Some(c) = c else { continue };
         let key = |k: &str| format!("columns.{role}.{k}");
         if c.name.is_some() == c.index.is_some() {
@@ -392,7 +424,7 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
         if unit_factor(role, &c.unit).is_none() {
             let accepted: Vec<&str> = ["s", "ms", "us", "min", "m", "cm", "mm", "um", "in"]
                 .into_iter()
-                .chain(["N", "kN", "lbf", "kgf", "m/s", "mm/s", "in/s"])
+                .chain(["N", "kN", "lbf", "kgf", "m/s", "mm/s", "in/s", "1"])
                 .filter(|u| unit_factor(role, u).is_some())
                 .collect();
             return Err(spec_err(
@@ -465,11 +497,21 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
     check_split("split".into(), &spec.split)?;
     for (i, f) in spec.files.iter().enumerate() {
         let level_ok = |a: f64| (0.0..=1.0).contains(&a);
-        if !level_ok(f.alpha) {
-            return Err(spec_err(
-                format!("files[{i}].alpha"),
-                format!("{} is outside [0, 1]", f.alpha),
-            ));
+        match f.alpha {
+            Some(a) if !level_ok(a) => {
+                return Err(spec_err(
+                    format!("files[{i}].alpha"),
+                    format!("{a} is outside [0, 1]"),
+                ))
+            }
+            None if spec.columns.alpha.is_none() => {
+                return Err(spec_err(
+                    format!("files[{i}].alpha"),
+                    "missing: give the file's condition level, or a level column \
+                     (columns.alpha)",
+                ))
+            }
+            _ => {}
         }
         if let Some(s) = &f.split {
             check_split(format!("files[{i}].split"), s)?;
@@ -510,6 +552,7 @@ struct Converted {
     displacement_m: Vec<f64>,
     force_n: Vec<f64>,
     velocity_m_s: Option<Vec<f64>>,
+    alpha: Option<Vec<f64>>,
     lines: Vec<usize>,
 }
 
@@ -541,6 +584,7 @@ fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
         displacement_m: Vec::new(),
         force_n: Vec::new(),
         velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
+        alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
         lines: Vec::new(),
     };
     let mut record = csv::StringRecord::new();
@@ -560,13 +604,7 @@ fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
                 continue;
             }
             let names: Vec<String> = record.iter().map(str::to_string).collect();
-            let roles: [(&'static str, Option<&ColumnSpec>); 4] = [
-                ("time", spec.columns.time.as_ref()),
-                ("displacement", Some(&spec.columns.displacement)),
-                ("force", Some(&spec.columns.force)),
-                ("velocity", spec.columns.velocity.as_ref()),
-            ];
-            for (role, c) in roles {
+            for (role, c) in spec.columns.roles() {
                 let Some(c) = c else { continue };
                 let found = match (&c.name, c.index) {
                     (Some(n), _) => names.iter().position(|h| h == n),
@@ -615,6 +653,21 @@ fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
                 "time" => time = Some(si),
                 "displacement" => out.displacement_m.push(si),
                 "force" => out.force_n.push(si),
+                "alpha" => {
+                    if !(0.0..=1.0).contains(&si) {
+                        return Err(ImportError::LevelOutOfRange {
+                            path: path.to_path_buf(),
+                            line,
+                            field: i + 1,
+                            column: names.get(i).cloned().unwrap_or_default(),
+                            value: raw.to_string(),
+                            level: si,
+                        });
+                    }
+                    if let Some(a) = out.alpha.as_mut() {
+                        a.push(si);
+                    }
+                }
                 _ => {
                     if let Some(vel) = out.velocity_m_s.as_mut() {
                         vel.push(si);
@@ -795,11 +848,11 @@ pub struct Imported {
 /// Reads, converts and cuts every file of `spec` into a dataset named `name`.
 pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
     validate_spec(spec)?;
-    let mut pieces: Vec<(usize, Converted, f64)> = Vec::new();
+    let mut pieces: Vec<(usize, Converted, Option<f64>)> = Vec::new();
     let mut dropped = Vec::new();
     for (fi, f) in spec.files.iter().enumerate() {
         let c = read_file(spec, &f.path)?;
-        let mut ranges: Vec<(usize, usize, f64)> = Vec::new();
+        let mut ranges: Vec<(usize, usize, Option<f64>)> = Vec::new();
         if f.runs.is_empty() {
             let split = f.split.as_ref().unwrap_or(&spec.split);
             let (segs, short) = segments(&c, split);
@@ -835,7 +888,7 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
                         ),
                     });
                 }
-                ranges.push((a, b, r.alpha.unwrap_or(f.alpha)));
+                ranges.push((a, b, r.alpha.or(f.alpha)));
             }
         }
         for (a, b, alpha) in ranges {
@@ -844,6 +897,7 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
                 displacement_m: c.displacement_m[a..b].to_vec(),
                 force_n: c.force_n[a..b].to_vec(),
                 velocity_m_s: c.velocity_m_s.as_ref().map(|v| v[a..b].to_vec()),
+                alpha: c.alpha.as_ref().map(|v| v[a..b].to_vec()),
                 lines: c.lines[a..b].to_vec(),
             };
             if spec.columns.displacement.center {
@@ -896,9 +950,16 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
         } else {
             PathBuf::from(format!("runs/{stem}.csv"))
         };
+        // The label: the given level, else the mean of the run's levels (a level column).
+        let label = alpha.unwrap_or_else(|| {
+            piece
+                .alpha
+                .as_ref()
+                .map_or(0.0, |a| a.iter().sum::<f64>() / a.len().max(1) as f64)
+        });
         let entry = RunEntry {
             file,
-            oil_loss: *alpha,
+            oil_loss: label,
             amplitude_m: None,
             target_velocity_m_s: None,
         };
@@ -915,7 +976,10 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
                     .velocity_m_s
                     .as_ref()
                     .map(|v| interpolate(&piece.time_s, v, &tq)),
-                alpha: None,
+                alpha: piece
+                    .alpha
+                    .as_ref()
+                    .map(|a| interpolate(&piece.time_s, a, &tq)),
                 time_s: tq,
             }
         } else {
@@ -928,7 +992,7 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
                 displacement_m: piece.displacement_m.clone(),
                 force_n: piece.force_n.clone(),
                 velocity_m_s: piece.velocity_m_s.clone(),
-                alpha: None,
+                alpha: piece.alpha.clone(),
             }
         };
         account.push(ImportedRun {

@@ -476,16 +476,16 @@ fn detrended_rms(y: &[f64]) -> f64 {
 
 /// A zero crossing of the displacement (relative to its centre).
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Crossing {
+pub(crate) struct Crossing {
     /// Fractional sample index of the crossing (linear interpolation).
-    at: f64,
+    pub(crate) at: f64,
     /// `true` for extension (x increasing, rebound), `false` for compression.
-    rising: bool,
+    pub(crate) rising: bool,
 }
 
 /// Zero crossings of `y` with hysteresis `h`: a crossing counts once, and the next one only
 /// after `y` has left the band `[-h, h]` on the other side.
-fn zero_crossings(y: &[f64], h: f64) -> Vec<Crossing> {
+pub(crate) fn zero_crossings(y: &[f64], h: f64) -> Vec<Crossing> {
     let mut out = Vec::new();
     // Confirmed side: Some(true) above +h, Some(false) below -h.
     let mut side = None;

@@ -21,7 +21,7 @@
 //!   as the paper's window.
 
 use super::preprocess::{
-    median, quasi_static_points, Direction, Excitation, QuasiStaticPoint, Signals,
+    median, quasi_static_points, zero_crossings, Direction, Excitation, QuasiStaticPoint, Signals,
 };
 use crate::data::dataset::Run;
 use serde::{Deserialize, Serialize};
@@ -58,39 +58,6 @@ pub struct Periodicity {
     pub source: PeriodSource,
 }
 
-/// Crossings of `y` through 0 with hysteresis `h`: (fractional sample index, rising). A
-/// crossing counts when `y` goes from below `-h` to above `+h` (rising) or back (falling); its
-/// position is the last sign change of `y` in between, interpolated linearly.
-fn crossings(y: &[f64], h: f64) -> Vec<(f64, bool)> {
-    let mut out = Vec::new();
-    let mut above: Option<bool> = None;
-    for i in 0..y.len() {
-        let now = if y[i] > h {
-            Some(true)
-        } else if y[i] < -h {
-            Some(false)
-        } else {
-            None
-        };
-        if let (Some(now), Some(before)) = (now, above) {
-            if now != before {
-                let mut j = i;
-                while j > 0 && (y[j - 1] >= 0.0) == now {
-                    j -= 1;
-                }
-                if j > 0 {
-                    let (a, b) = (y[j - 1], y[j]);
-                    out.push(((j - 1) as f64 + a / (a - b), now));
-                }
-            }
-        }
-        if now.is_some() {
-            above = now;
-        }
-    }
-    out
-}
-
 /// The median of `d` if every entry lies within [`PERIOD_TOLERANCE`] of it.
 fn regular(d: &[f64]) -> Option<f64> {
     let m = median(d.to_vec())?;
@@ -119,11 +86,14 @@ pub fn periodicity(run: &Run, displacement_m: &[f64], sample_rate_hz: f64) -> Op
     }
     let mid = 0.5 * (hi + lo);
     let y: Vec<f64> = displacement_m.iter().map(|x| x - mid).collect();
-    let c = crossings(&y, 0.1 * half);
+    let c: Vec<f64> = zero_crossings(&y, 0.1 * half)
+        .iter()
+        .map(|c| c.at)
+        .collect();
     // Half periods between consecutive crossings (symmetric strokes, from 1.5 crossings' worth
     // of signal), else full periods between crossings of the same direction.
-    let halves: Vec<f64> = c.windows(2).map(|w| w[1].0 - w[0].0).collect();
-    let fulls: Vec<f64> = c.windows(3).map(|w| w[2].0 - w[0].0).collect();
+    let halves: Vec<f64> = c.windows(2).map(|w| w[1] - w[0]).collect();
+    let fulls: Vec<f64> = c.windows(3).map(|w| w[2] - w[0]).collect();
     let period = if halves.len() >= MIN_INTERVALS {
         regular(&halves).map(|h| 2.0 * h)
     } else {
@@ -283,11 +253,11 @@ mod tests {
     #[test]
     fn crossings_of_a_sine_are_half_a_period_apart() {
         let y: Vec<f64> = (0..1000).map(|i| (i as f64 * 0.05).sin()).collect();
-        let c = crossings(&y, 0.1);
+        let c = zero_crossings(&y, 0.1);
         assert!(c.len() >= 14, "{c:?}");
         for w in c.windows(2) {
-            assert!((w[1].0 - w[0].0 - PI / 0.05).abs() < 0.05, "{c:?}");
-            assert_ne!(w[0].1, w[1].1);
+            assert!((w[1].at - w[0].at - PI / 0.05).abs() < 0.05, "{c:?}");
+            assert_ne!(w[0].rising, w[1].rising);
         }
     }
 }

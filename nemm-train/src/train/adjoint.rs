@@ -302,6 +302,14 @@ pub struct Window<'a> {
 /// Relative distance to a whole number below which a grid position counts as exactly on it.
 const GRID_SNAP: f64 = 1e-9;
 
+/// Relative distance to a whole number below which the ratio of the sample step to the model
+/// step counts as that number: the model step is stored in f32 (`Model::dt_s`), so a sample
+/// step within f32 resolution of a whole multiple of it is that multiple (10 kHz data and a
+/// 10 kHz model: `1e-4 / f64::from(1e-4f32)` is 1 - 4.7e-8). Left unsnapped, the output
+/// interpolation would mix a sliver of the next step's force into every sample, which shows
+/// at a condition level's switch.
+const RATIO_SNAP: f64 = f32::EPSILON as f64;
+
 /// Where a window's data samples fall on the model's integration grid.
 ///
 /// The model integrates at its own step `dt` ([`RolloutParams::dt`]), the data are sampled
@@ -330,8 +338,8 @@ impl Grid {
     };
 
     /// The grid of a model step `model_dt_s` over samples `sample_dt_s` apart (both
-    /// positive and finite, else [`Grid::SAME`]); a ratio within 1e-9 of a whole number is
-    /// taken as that number.
+    /// positive and finite, else [`Grid::SAME`]); a ratio within f32 resolution
+    /// (`f32::EPSILON`, relative) of a whole number is taken as that number.
     pub fn new(model_dt_s: f64, sample_dt_s: f64) -> Self {
         let r = sample_dt_s / model_dt_s;
         if !(r.is_finite() && r > 0.0) {
@@ -339,7 +347,7 @@ impl Grid {
         }
         let whole = r.round();
         Grid {
-            steps_per_sample: if whole >= 1.0 && (r - whole).abs() <= GRID_SNAP * whole {
+            steps_per_sample: if whole >= 1.0 && (r - whole).abs() <= RATIO_SNAP * whole {
                 whole
             } else {
                 r

@@ -275,10 +275,12 @@ fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
         // the loss's rounding noise at step 1e-6 (a per-step level makes many of them); the
         // smooth loss then gives the derivative at the larger steps 1e-4 and 1e-3. A kink
         // (LeakyReLU input crossing zero at some step) within 1e-6 of the point spoils the
-        // larger steps alike; the step 1e-7 then still sees the one-sided derivative.
+        // larger steps alike; the steps 1e-7 and 1e-8 then still see the one-sided
+        // derivatives (with many per-sample levels and a branch, kinks come within 1e-7:
+        // the forward and backward quotients at 1e-7 then differ by a few per cent).
         let mut err = f64::INFINITY;
         let mut fd = 0.0;
-        for d in [1e-6, 1e-7, 1e-4, 1e-3] {
+        for d in [1e-6, 1e-7, 1e-8, 1e-4, 1e-3] {
             fd = central(d);
             err = err.min((gi - fd).abs() / fd.abs().max(1e-6 * gmax));
             if err < 1e-4 {
@@ -310,6 +312,7 @@ fn adjoint_is_exact_on_a_coarser_data_grid() {
 fn adjoint_is_exact_with_a_condition_level_changing_within_windows() {
     check_fd_on(ModelKind::Nemm, Integrator::Rk4, 1.0, true, false);
     check_fd_on(ModelKind::Nemm, Integrator::Rk3, 2.5, true, false);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, true, false);
 }
 
 #[test]
@@ -328,6 +331,7 @@ fn adjoint_is_exact_with_alpha_branches() {
     let m = branched(4, 2, 3);
     check_fd_model(&m, "branched NEMM", 1.0, false);
     check_fd_model(&m, "branched NEMM", 2.5, true);
+    check_fd_model(&m, "branched NEMM", 3.3, true);
     check_fd_model(&with_static(m), "branched NEMM", 2.5, true);
 }
 
@@ -338,6 +342,15 @@ fn grid_maps_samples_and_steps() {
     assert_eq!(
         (same.sample_at(7), same.input_at(7), same.steps(10)),
         ((7, 0.0), (7, 0.0), 10)
+    );
+    // The model step is stored in f32: 10 kHz data on it is the same grid, 1 kHz data ten
+    // steps per sample; a ratio off a whole number by more than f32 resolution is kept.
+    let stored = f64::from(1e-4f32);
+    assert_eq!(Grid::new(stored, 1e-4), Grid::SAME);
+    assert_eq!(Grid::new(stored, 1e-3).steps_per_sample(), 10.0);
+    assert_eq!(
+        Grid::new(1e-4, 1e-4 * (1.0 + 1e-6)).steps_per_sample(),
+        1.0 + 1e-6
     );
     // 1 kHz data on a 10 kHz model: every 10th step is a sample.
     let g = Grid::new(1e-4, 1e-3);
