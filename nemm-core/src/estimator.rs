@@ -18,6 +18,12 @@
 //!    flagged; it never propagates.
 //! 4. The force `F(x_n+1, u_n+1)`; the coefficients computed for it are reused as stage 1 of
 //!    the next step.
+//! 5. A model with a static force ([`crate::static_force`]) adds `r(x, u, alpha)` at the
+//!    stroke position `x` given to [`Estimator::step_with_position`]. `r` does not enter
+//!    the state. [`Estimator::step`] gives no position: `r` then uses the last good position
+//!    and the step is flagged [`Flags::POSITION_MISSING`] (as is a non-finite position), so
+//!    a firmware that forgets the position never gets an unflagged wrong force. Models
+//!    without a static force ignore the position.
 //!
 //! Everything that depends on `alpha` only (the alpha column of each first layer, `b_pr`, the
 //! SEM curve) is computed in [`Estimator::new`] / [`Estimator::set_alpha`], never per step.
@@ -57,6 +63,7 @@ use crate::math::{Fused, MulAdd, Unfused};
 use crate::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
+use crate::static_force::StaticForce;
 use crate::table::{self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 use core::fmt;
 
@@ -86,6 +93,10 @@ impl Flags {
     /// The estimator holds no model ([`Estimator::empty`], or a failed
     /// [`Estimator::load`]): the force is 0.
     pub const NO_MODEL: u8 = 1 << 7;
+    /// The model has a static force ([`crate::Extension::static_force`]) and this step had
+    /// no usable stroke position ([`Estimator::step`] without one, or a non-finite
+    /// position): its position term used the last good position (`x_ref` before the first).
+    pub const POSITION_MISSING: u8 = 1 << 6;
 
     /// True if every bit of `bits` is set.
     pub const fn contains(self, bits: u8) -> bool {
@@ -544,6 +555,10 @@ pub struct Estimator<
     diag: Diagnostics,
     alpha: f32,
     alpha_range: (f32, f32),
+    /// The static force, if the model has one.
+    static_force: Option<StaticForce>,
+    /// Last good stroke position \[m\] (`x_ref` after a reset).
+    last_x: f32,
     mode: EvalMode,
     rt: Runtime<P, T>,
 }
@@ -597,6 +612,8 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         },
         alpha: 0.0,
         alpha_range: (0.0, 0.0),
+        static_force: None,
+        last_x: 0.0,
         mode: EvalMode::Exact,
         rt: Runtime {
             kind: RuntimeKind::Empty,
@@ -614,6 +631,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// [`Flags::NO_MODEL`]) until a model loads.
     pub fn load(&mut self, model: &Model<P>, cfg: EstimatorConfig) -> Result<(), EstimatorError> {
         self.rt.kind = RuntimeKind::Empty;
+        self.static_force = None;
         self.sticky = Flags(0);
         self.diag = Diagnostics::default();
         self.state = State::default();
@@ -699,6 +717,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         self.alpha = alpha;
         self.alpha_range = (model.meta.alpha_min, model.meta.alpha_max);
         self.velocity_limit = velocity_limit;
+        self.static_force = model.ext.static_force;
         self.update_alpha_flags();
         self.reset();
         Ok(())
@@ -717,10 +736,12 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         });
     }
 
-    /// Returns to rest: `x_pr = 0`, `v_st = 0`, last input 0. Diagnostics are kept.
+    /// Returns to rest: `x_pr = 0`, `v_st = 0`, last input 0, last position `x_ref` (with a
+    /// static force). Diagnostics are kept.
     pub fn reset(&mut self) {
         self.state = State::default();
         self.last_u = 0.0;
+        self.last_x = self.static_force.map_or(0.0, |s| s.x_ref_m);
         if self.rt.kind == RuntimeKind::Emm {
             self.coeffs = self.rt.emm.coeffs(&self.state, &mut false);
         }
@@ -749,8 +770,33 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     }
 
     /// One sample: velocity \[m/s\] in (positive = extension), force estimate out.
+    ///
+    /// A model with a static force needs the stroke position too
+    /// ([`Estimator::step_with_position`]); here its position term holds the last good
+    /// position and the step is flagged [`Flags::POSITION_MISSING`].
     #[inline]
     pub fn step(&mut self, velocity_m_s: f32) -> Estimate {
+        self.step_at(velocity_m_s, None)
+    }
+
+    /// One sample with the stroke position \[m\] as the position sensor measures it (the
+    /// coordinates the model was trained in): velocity in, force estimate out, including
+    /// the static force of a model that has one. A non-finite position is replaced by the
+    /// last good one and flagged [`Flags::POSITION_MISSING`]; it never reaches the state.
+    /// Models without a static force ignore the position (the result equals
+    /// [`Estimator::step`]).
+    #[inline]
+    pub fn step_with_position(&mut self, velocity_m_s: f32, position_m: f32) -> Estimate {
+        self.step_at(velocity_m_s, Some(position_m))
+    }
+
+    /// Whether the model adds a static force (and so needs the stroke position).
+    pub fn needs_position(&self) -> bool {
+        self.static_force.is_some()
+    }
+
+    #[inline(always)]
+    fn step_at(&mut self, velocity_m_s: f32, position_m: Option<f32>) -> Estimate {
         let mut flags = self.sticky.0;
         let u = if !velocity_m_s.is_finite() {
             flags |= Flags::INPUT_NON_FINITE | Flags::INPUT_HELD;
@@ -858,6 +904,16 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             }
         };
         self.last_u = u;
+        let force_n = match &self.static_force {
+            None => force_n,
+            Some(s) => {
+                match position_m {
+                    Some(x) if x.is_finite() => self.last_x = x,
+                    _ => flags |= Flags::POSITION_MISSING,
+                }
+                force_n + s.force(self.last_x, u, self.alpha)
+            }
+        };
         Estimate {
             force_n: if force_n.is_finite() { force_n } else { 0.0 },
             flags: Flags(flags),
@@ -951,12 +1007,29 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         velocity_m_s: f32,
         alpha: f32,
     ) -> Result<Estimate, EstimatorError> {
+        self.alpha_per_sample(alpha)?;
+        Ok(self.step(velocity_m_s))
+    }
+
+    /// [`Estimator::step_with_alpha`] with the stroke position of
+    /// [`Estimator::step_with_position`].
+    pub fn step_with_alpha_and_position(
+        &mut self,
+        velocity_m_s: f32,
+        alpha: f32,
+        position_m: f32,
+    ) -> Result<Estimate, EstimatorError> {
+        self.alpha_per_sample(alpha)?;
+        Ok(self.step_with_position(velocity_m_s, position_m))
+    }
+
+    fn alpha_per_sample(&mut self, alpha: f32) -> Result<(), EstimatorError> {
         if alpha.to_bits() != self.alpha.to_bits() {
             if matches!(self.mode, EvalMode::Table(_)) && self.table_bytes().0 > 0 {
                 return Err(EstimatorError::AlphaPerSampleInTableMode);
             }
             self.set_alpha(alpha)?;
         }
-        Ok(self.step(velocity_m_s))
+        Ok(())
     }
 }

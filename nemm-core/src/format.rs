@@ -6,7 +6,8 @@
 //! | max_scaler_params (varint u32) | body_len (varint u32)                 |
 //! +-------------------------------------------------------------------------+
 //! | body (body_len bytes): postcard-encoded [`Model`] (version-1 layout),   |
-//! | then, from version 3 on, the postcard-encoded [`Extension`]             |
+//! | then, from version 3 on, the postcard-encoded [`Extension`], then, from |
+//! | version 4 on, its version-4 sections (`Option<StaticForce>`)            |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -19,9 +20,12 @@
 //! on. Version 2 appended an empty [`Extension`] to the body (zero bytes, so a version-2
 //! body is a version-1 body); version 3 fills it with the condition (name, unit, map to
 //! `alpha`, declared priors), the alpha branches of the scalers and the
-//! [`crate::model::Provenance`]. A version-1 or -2 blob decodes with [`Extension::default`],
-//! which reproduces what those versions meant (the paper's oil loss, no branches, no
-//! provenance).
+//! [`crate::model::Provenance`]; version 4 appends its sections after those fields, each
+//! one a separately encoded field of the [`Extension`] (not part of the extension's own
+//! postcard encoding): first [`Extension::static_force`] (`Option<StaticForce>`). A blob
+//! of an earlier version decodes with the fields it lacks at their defaults
+//! ([`Extension::default`]), which reproduces what those versions meant (the paper's oil
+//! loss, no branches, no provenance, no static force).
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -33,6 +37,7 @@
 //! bounds, stability of the configured step).
 
 use crate::model::{Extension, Model, ModelError, ModelKind};
+use crate::static_force::StaticForce;
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
@@ -42,7 +47,7 @@ use serde::{Deserialize, Serialize};
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 3;
+pub const FORMAT_VERSION: u16 = 4;
 /// Oldest format version this build reads.
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
@@ -196,13 +201,18 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
     }
 }
 
-/// Length in bytes of the body of `model`: the version-1 part, then the extension.
+/// Length in bytes of the body of `model`: the version-1 part, the version-3 extension,
+/// then the version-4 sections.
 fn body_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    let v1 =
-        postcard::experimental::serialized_size(model).map_err(|_| EncodeError::BufferTooSmall)?;
-    let ext = postcard::experimental::serialized_size(&model.ext)
-        .map_err(|_| EncodeError::BufferTooSmall)?;
-    v1.checked_add(ext).ok_or(EncodeError::BufferTooSmall)
+    let size = |len: Result<usize, postcard::Error>| len.map_err(|_| EncodeError::BufferTooSmall);
+    let v1 = size(postcard::experimental::serialized_size(model))?;
+    let ext = size(postcard::experimental::serialized_size(&model.ext))?;
+    let v4 = size(postcard::experimental::serialized_size(
+        &model.ext.static_force,
+    ))?;
+    v1.checked_add(ext)
+        .and_then(|n| n.checked_add(v4))
+        .ok_or(EncodeError::BufferTooSmall)
 }
 
 /// Length in bytes of the blob of `model` (header, body, CRC).
@@ -237,7 +247,13 @@ pub fn encode<'b, const P: usize>(
     let ext_len = postcard::to_slice(&model.ext, ext_area)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
-    if v1_len + ext_len != body_len {
+    let v4_area = body_area
+        .get_mut(v1_len + ext_len..)
+        .ok_or(EncodeError::BufferTooSmall)?;
+    let v4_len = postcard::to_slice(&model.ext.static_force, v4_area)
+        .map_err(|_| EncodeError::BufferTooSmall)?
+        .len();
+    if v1_len + ext_len + v4_len != body_len {
         return Err(EncodeError::BufferTooSmall);
     }
     let crc = CRC.checksum(buf.get(..end).ok_or(EncodeError::BufferTooSmall)?);
@@ -253,6 +269,9 @@ pub fn encode_to_vec<const P: usize>(model: &Model<P>) -> Result<std::vec::Vec<u
     model.validate().map_err(EncodeError::Invalid)?;
     let mut body = postcard::to_stdvec(model).map_err(|_| EncodeError::BufferTooSmall)?;
     body.extend(postcard::to_stdvec(&model.ext).map_err(|_| EncodeError::BufferTooSmall)?);
+    body.extend(
+        postcard::to_stdvec(&model.ext.static_force).map_err(|_| EncodeError::BufferTooSmall)?,
+    );
     let mut out = postcard::to_stdvec(&header_for(model, body.len()))
         .map_err(|_| EncodeError::BufferTooSmall)?;
     out.extend_from_slice(&body);
@@ -364,6 +383,21 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
             .map_err(|_| DecodeError::Malformed { part: "extension" })?
     } else {
         model.ext = Extension::default();
+        rest
+    };
+    // Version 4's sections, each decoded in place after the version-3 fields.
+    let rest = if header.version >= 4 {
+        let mut de = postcard::Deserializer::from_bytes(rest);
+        Option::<StaticForce>::deserialize_in_place(&mut de, &mut model.ext.static_force).map_err(
+            |_| DecodeError::Malformed {
+                part: "static_force",
+            },
+        )?;
+        de.finalize().map_err(|_| DecodeError::Malformed {
+            part: "static_force",
+        })?
+    } else {
+        model.ext.static_force = None;
         rest
     };
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {

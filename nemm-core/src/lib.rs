@@ -10,6 +10,7 @@
 //! - [`format`](mod@format): the postcard weight blob with magic, version and CRC-32.
 //! - [`estimator`]: the online estimator, one `step(velocity) -> force` per sample.
 //! - [`sem`]: the static force-velocity map.
+//! - [`static_force`]: the optional static force of eq. 17 (gas force, seal friction).
 //! - [`table`]: the tabulated fixed-alpha fast path (1-D cubic tables with a verified error
 //!   bound).
 //! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
@@ -63,6 +64,7 @@ pub mod math;
 pub mod mlp;
 pub mod model;
 pub mod sem;
+pub mod static_force;
 pub mod table;
 #[cfg(any(test, feature = "testing"))]
 #[cfg_attr(docsrs, doc(cfg(feature = "testing")))]
@@ -84,6 +86,7 @@ pub use model::{
     Priors, Provenance, UnknownName,
 };
 pub use sem::SemMap;
+pub use static_force::StaticForce;
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 
 #[cfg(feature = "std")]

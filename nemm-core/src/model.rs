@@ -27,6 +27,7 @@ use crate::emm::EmmConstants;
 use crate::integrator::Integrator;
 use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
 use crate::sem::{SemError, SemMap};
+use crate::static_force::StaticForce;
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
@@ -186,6 +187,13 @@ pub struct Extension {
     pub alpha_branches: AlphaBranches,
     /// Where the weights came from (format version 3; empty in earlier blobs).
     pub provenance: Provenance,
+    /// The static force `r` of eq. 17 (gas force and seal friction, see
+    /// [`crate::static_force`]) added to the EMM force; `None`: no static force (the
+    /// paper's model). Refused on the SEM. Format version 4's first section, encoded after
+    /// the version-3 fields (not part of this struct's own encoding, see
+    /// [`crate::format`]); `None` in earlier blobs.
+    #[serde(skip)]
+    pub static_force: Option<StaticForce>,
 }
 
 impl Extension {
@@ -205,13 +213,18 @@ impl Extension {
             k_pr: None,
         },
         provenance: Provenance::empty(),
+        static_force: None,
     };
 
     /// Checks the extension's own fields (the branches against the body:
     /// [`AlphaBranches::validate`]).
     pub fn validate(&self) -> Result<(), ModelError> {
         self.condition.validate()?;
-        self.provenance.validate()
+        self.provenance.validate()?;
+        if let Some(s) = &self.static_force {
+            s.validate()?;
+        }
+        Ok(())
     }
 }
 
@@ -487,6 +500,14 @@ pub enum ModelError {
         /// Which field.
         field: &'static str,
     },
+    /// A value that must not be negative is.
+    Negative {
+        /// Which field.
+        field: &'static str,
+    },
+    /// A static force ([`Extension::static_force`]) on the SEM, whose map already holds
+    /// every force of its data.
+    StaticForceOnSem,
     /// A scale outside [`SCALE_RANGE`].
     OutOfRange {
         /// Which field.
@@ -553,6 +574,11 @@ impl fmt::Display for ModelError {
         match self {
             ModelError::NonFinite { field } => write!(f, "`{field}` holds a NaN or infinite value"),
             ModelError::NotPositive { field } => write!(f, "`{field}` must be positive"),
+            ModelError::Negative { field } => write!(f, "`{field}` must not be negative"),
+            ModelError::StaticForceOnSem => write!(
+                f,
+                "the SEM takes no static force (its map already holds every force of its data)"
+            ),
             ModelError::OutOfRange { field } => write!(
                 f,
                 "`{field}` must lie in [{:e}, {:e}] (SI units)",
@@ -811,6 +837,9 @@ impl<const P: usize> Model<P> {
         self.ext
             .alpha_branches
             .validate(&self.body, &self.ext.condition.priors)?;
+        if self.ext.static_force.is_some() && matches!(self.body, Body::Sem(_)) {
+            return Err(ModelError::StaticForceOnSem);
+        }
         self.check_step(self.integrator, self.dt_s)
     }
 

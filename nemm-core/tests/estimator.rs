@@ -461,3 +461,114 @@ fn hot_path_matches_reference_model() {
         }
     }
 }
+
+/// The static force adds `r(x, u, alpha)` to the force of the same model without it, in
+/// exact and table mode, and leaves the states alone; `step` without a position and a
+/// non-finite position are flagged and hold the last good position; per-sample alpha works
+/// with a position.
+#[test]
+fn static_force_adds_r_and_needs_the_position() {
+    common::with_big_stack(static_force_adds_r);
+}
+
+fn static_force_adds_r() {
+    use nemm_core::testing::EXAMPLE_STATIC_FORCE as SF;
+    use nemm_core::{EvalMode, TableConfig};
+    let dt = 1e-4f32;
+    let n = 4000;
+    let t = |k: usize| k as f32 * dt;
+    let v: Vec<f32> = (0..n).map(|k| 0.3 * (TAU * 3.0 * t(k)).cos()).collect();
+    let x: Vec<f32> = (0..n)
+        .map(|k| 0.03 + 0.3 / (TAU * 3.0) * (TAU * 3.0 * t(k)).sin())
+        .collect();
+    let alpha = 0.15;
+    for kind in [ModelKind::LinearEmm, ModelKind::NemmLight, ModelKind::Nemm] {
+        for mode in [EvalMode::Exact, EvalMode::Table(TableConfig::new(1e-4))] {
+            let plain = example(kind);
+            let mut with = plain.clone();
+            with.ext.static_force = Some(SF);
+            let cfg = EstimatorConfig {
+                mode,
+                ..EstimatorConfig::new(alpha)
+            };
+            let mut e0 = boxed::<DEFAULT_TABLE_SEGMENTS>(&plain, cfg).unwrap();
+            let mut e1 = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, cfg).unwrap();
+            assert!(!e0.needs_position() && e1.needs_position());
+            for k in 0..n {
+                let a = e0.step_with_position(v[k], x[k]);
+                let b = e1.step_with_position(v[k], x[k]);
+                assert_eq!(a.flags, b.flags, "{kind:?} {k}");
+                assert_eq!(e0.state(), e1.state(), "r must not enter the state");
+                let r = SF.force(x[k], v[k], alpha);
+                assert!(
+                    (b.force_n - a.force_n - r).abs() <= 1e-4 * a.force_n.abs().max(100.0),
+                    "{kind:?} {}: {} + {r} != {}",
+                    mode.name(),
+                    a.force_n,
+                    b.force_n
+                );
+            }
+            // `step` without a position: flagged, the last good position held.
+            let (vk, xk) = (v[n - 1], x[n - 1]);
+            let a = e0.step(vk);
+            let b = e1.step(vk);
+            assert!(b.flags.contains(Flags::POSITION_MISSING));
+            assert!(!a.flags.contains(Flags::POSITION_MISSING));
+            let r = SF.force(xk, vk, alpha);
+            assert!((b.force_n - a.force_n - r).abs() <= 1e-4 * a.force_n.abs().max(100.0));
+            // A non-finite position: flagged, held, the state unharmed.
+            for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+                let a = e0.step_with_position(vk, bad);
+                let b = e1.step_with_position(vk, bad);
+                assert!(b.flags.contains(Flags::POSITION_MISSING));
+                assert!(!b.flags.contains(Flags::STATE_RESET) && b.force_n.is_finite());
+                assert_eq!(e0.state(), e1.state());
+                assert!((b.force_n - a.force_n - r).abs() <= 1e-4 * a.force_n.abs().max(100.0));
+            }
+            // After a reset the held position is x_ref.
+            e1.reset();
+            let b = e1.step(0.0);
+            assert!((b.force_n - SF.force(SF.x_ref_m, 0.0, alpha)).abs() < 1e-3);
+        }
+    }
+    // A per-sample condition level with the position (exact mode).
+    let mut with = example(ModelKind::Nemm);
+    with.ext.static_force = Some(SF);
+    let mut e = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, EstimatorConfig::new(0.0)).unwrap();
+    let mut plain =
+        boxed::<DEFAULT_TABLE_SEGMENTS>(&example(ModelKind::Nemm), EstimatorConfig::new(0.0))
+            .unwrap();
+    for k in 0..200 {
+        let a = if k < 100 { 0.0 } else { 0.3 };
+        let f = e.step_with_alpha_and_position(v[k], a, x[k]).unwrap();
+        let f0 = plain.step_with_alpha(v[k], a).unwrap();
+        assert!(f.flags.is_empty());
+        let r = SF.force(x[k], v[k], a);
+        assert!((f.force_n - f0.force_n - r).abs() <= 1e-4 * f0.force_n.abs().max(100.0));
+    }
+}
+
+proptest! {
+    /// Any position (finite or not, huge or tiny) and any velocity: the force is finite and
+    /// the state equals that of the model without the static force.
+    #[test]
+    fn static_force_never_poisons(
+        xs in proptest::collection::vec(prop_oneof![
+            Just(f32::NAN), Just(f32::INFINITY), Just(-1e30f32), Just(1e30f32), -1.0f32..1.0
+        ], 1..60),
+        vs in proptest::collection::vec(prop_oneof![Just(f32::NAN), -3.0f32..3.0], 1..60),
+    ) {
+        let plain = example(ModelKind::LinearEmm);
+        let mut with = plain.clone();
+        with.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+        let mut e0 = boxed::<DEFAULT_TABLE_SEGMENTS>(&plain, EstimatorConfig::new(0.1)).unwrap();
+        let mut e1 = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, EstimatorConfig::new(0.1)).unwrap();
+        for (&x, &v) in xs.iter().zip(vs.iter().cycle()) {
+            let b = e1.step_with_position(v, x);
+            e0.step(v);
+            prop_assert!(b.force_n.is_finite());
+            prop_assert_eq!(e0.state(), e1.state());
+            prop_assert_eq!(b.flags.contains(Flags::POSITION_MISSING), !x.is_finite());
+        }
+    }
+}

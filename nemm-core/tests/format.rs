@@ -501,13 +501,14 @@ fn generator_covers_kinds_and_sizes() {
 }
 
 /// Every earlier format version still loads: the version-1 and version-2 blobs in
-/// `tests/data/format-v1` and `format-v2` (the example models of every kind as those
-/// encoders wrote them; a version-2 body is the version-1 body with an empty extension)
+/// `tests/data/format-v1`, `format-v2` and `format-v3` (the example models of every kind as
+/// those encoders wrote them; a version-2 body is the version-1 body with an empty
+/// extension, a version-3 body adds the extension's condition, branches and provenance)
 /// decode to the current example models with the default extension (the paper's oil loss,
 /// no alpha branches), and re-encode as the current version.
 #[test]
-fn version_1_and_2_blobs_still_load() {
-    for version in [1u16, 2] {
+fn version_1_to_3_blobs_still_load() {
+    for version in [1u16, 2, 3] {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join(format!("tests/data/format-v{version}"));
         check_old_blobs(&dir, version);
@@ -562,5 +563,96 @@ fn provenance_round_trips_and_is_validated() {
         Err(ModelError::ControlCharacter {
             field: "provenance.dataset"
         })
+    );
+}
+
+/// A static force round-trips on every EMM kind; the SEM refuses one; invalid fields are
+/// refused by `encode` and, crafted into a blob, by `decode` with the same typed error.
+#[test]
+fn static_force_round_trips_and_is_validated() {
+    let sf = nemm_core::testing::EXAMPLE_STATIC_FORCE;
+    for kind in KINDS {
+        let mut m: Model<64> = nemm_core::testing::example_model(kind, 2, 1).unwrap();
+        m.ext.static_force = Some(sf);
+        if kind == ModelKind::Sem {
+            assert_eq!(m.validate(), Err(ModelError::StaticForceOnSem));
+            let blob = craft_blob(&m, |_| {});
+            assert_eq!(
+                decode::<64>(&blob),
+                Err(DecodeError::Invalid(ModelError::StaticForceOnSem))
+            );
+            continue;
+        }
+        let blob = blob_of(&m);
+        let back = decode::<64>(&blob).unwrap();
+        assert_eq!(back.ext.static_force, Some(sf), "{kind:?}");
+        assert_eq!(back, m);
+    }
+    let base: Model<64> = nemm_core::testing::example_model(ModelKind::LinearEmm, 2, 1).unwrap();
+    type Edit = fn(&mut nemm_core::StaticForce);
+    let cases: [(Edit, ModelError); 4] = [
+        (
+            |s| s.f_gas0_n = f32::NAN,
+            ModelError::NonFinite {
+                field: "static_force.f_gas0_n",
+            },
+        ),
+        (
+            |s| s.x_ref_m = f32::INFINITY,
+            ModelError::NonFinite {
+                field: "static_force.x_ref_m",
+            },
+        ),
+        (
+            |s| s.f_c_n = -0.5,
+            ModelError::Negative {
+                field: "static_force.f_c_n",
+            },
+        ),
+        (
+            |s| s.v_c_m_s = -1e-3,
+            ModelError::NotPositive {
+                field: "static_force.v_c_m_s",
+            },
+        ),
+    ];
+    for (edit, err) in cases {
+        let mut m = base.clone();
+        let mut s = sf;
+        edit(&mut s);
+        m.ext.static_force = Some(s);
+        assert_eq!(encode(&m, &mut [0u8; 512]), Err(EncodeError::Invalid(err)));
+        let blob = craft_blob(&m, |_| {});
+        assert_eq!(decode::<64>(&blob), Err(DecodeError::Invalid(err)));
+    }
+}
+
+/// The static force goes with every version-3 field (condition, alpha branches,
+/// provenance): decoded in place into a model that held another one, it is replaced; a
+/// version-3 blob decoded into a model with a static force leaves none.
+#[test]
+fn static_force_decodes_in_place_with_the_version_3_fields() {
+    use nemm_core::model::{Priors, Provenance};
+    let sf = nemm_core::testing::EXAMPLE_STATIC_FORCE;
+    let mut m: Model<1400> =
+        nemm_core::testing::example_model_with_branches(16, 5, 4, Priors::PAPER).unwrap();
+    m.ext.provenance = Provenance::new("nemm train --static-force", "bench", "abc");
+    m.ext.static_force = Some(sf);
+    let blob = blob_of(&m);
+    let mut into: Box<Model<1400>> = Box::new(Model::empty());
+    into.ext.static_force = Some(sf.with_params([1.0, 2.0, 3.0, 4.0, 5.0]));
+    nemm_core::decode_into(&blob, &mut into).unwrap();
+    assert_eq!(*into, m);
+    assert!(into.ext.alpha_branches.b_fl.is_some());
+    let v3 = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/format-v3/example-nemm.nemm"),
+    )
+    .unwrap();
+    nemm_core::decode_into(&v3, &mut into).unwrap();
+    assert_eq!(into.ext.static_force, None);
+    assert_eq!(
+        *into,
+        nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap()
     );
 }

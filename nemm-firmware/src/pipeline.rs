@@ -1,7 +1,7 @@
-//! One sample period of the estimator, board-independent: read the stroke sensor, step the
-//! estimator, classify what went wrong. The firmware's 10 kHz task calls [`run_period`]; the
-//! host tests call the same function over the same recording to get the reference the
-//! target's output must match bit for bit.
+//! One sample period of the estimator, board-independent: read the stroke sensor (velocity
+//! and position), step the estimator, classify what went wrong. The firmware's 10 kHz task
+//! calls [`run_period`]; the host tests call the same function over the same recording to
+//! get the reference the target's output must match bit for bit.
 //!
 //! Faults never stop the loop: a failed or invalid sensor read is counted and flagged, and the
 //! estimator is fed NaN, on which it holds its last good input (and flags that too).
@@ -60,8 +60,10 @@ pub fn run_period<SPI: SpiDevice, const P: usize, const T: usize>(
             (f32::NAN, FW_SENSOR_ERROR)
         }
     };
-    // NaN in: the estimator holds its last good input and flags the step.
-    let estimate = estimator.step(velocity_m_s);
+    // NaN in: the estimator holds its last good input and flags the step. The position
+    // feeds a model's static force (NaN: the last good position, flagged); models without
+    // one ignore it.
+    let estimate = estimator.step_with_position(velocity_m_s, sensor.position_m());
     PeriodOutput {
         velocity_m_s,
         estimate,

@@ -165,6 +165,8 @@ pub fn model_error(line: &mut Line, e: &ModelError) {
     match e {
         ModelError::NonFinite { field } => line.ks("reason", "non-finite").ks("field", field),
         ModelError::NotPositive { field } => line.ks("reason", "not-positive").ks("field", field),
+        ModelError::Negative { field } => line.ks("reason", "negative").ks("field", field),
+        ModelError::StaticForceOnSem => line.ks("reason", "static-force-on-sem"),
         ModelError::OutOfRange { field } => line.ks("reason", "out-of-range").ks("field", field),
         ModelError::BadScalerBounds { scaler } => {
             line.ks("reason", "bad-scaler-bounds").ks("scaler", scaler)

@@ -139,6 +139,7 @@ pub struct StrokeSensor<SPI> {
     spi: SPI,
     cal: Calibration,
     diff: Differentiator,
+    position_m: f32,
 }
 
 impl<SPI: SpiDevice> StrokeSensor<SPI> {
@@ -148,6 +149,7 @@ impl<SPI: SpiDevice> StrokeSensor<SPI> {
             spi,
             diff: Differentiator::new(cal.metres_per_lsb, cal.sample_rate_hz, cal.cutoff_hz),
             cal,
+            position_m: f32::NAN,
         }
     }
 
@@ -162,8 +164,9 @@ impl<SPI: SpiDevice> StrokeSensor<SPI> {
     }
 
     /// Reads the next sample and returns the stroke velocity \[m/s\] (positive = extension).
-    /// Call once per sample period.
+    /// Call once per sample period. The sample's position is [`StrokeSensor::position_m`].
     pub fn read_velocity(&mut self) -> Result<f32, SensorError<SPI::Error>> {
+        self.position_m = f32::NAN;
         let frame = match self.read_frame() {
             Ok(f) => f,
             Err(e) => {
@@ -179,7 +182,15 @@ impl<SPI: SpiDevice> StrokeSensor<SPI> {
             self.diff.invalidate();
             return Err(SensorError::Invalid);
         }
+        self.position_m = self.cal.displacement_m(frame.code);
         self.diff.push(frame.code).ok_or(SensorError::Priming)
+    }
+
+    /// Stroke position \[m\] of the last [`StrokeSensor::read_velocity`], in the
+    /// transducer's coordinates (zero at code `0x800000`): the input of a model's static
+    /// force. NaN when that read gave no valid conversion (also while priming it is valid).
+    pub fn position_m(&self) -> f32 {
+        self.position_m
     }
 
     /// The calibration in use.
@@ -269,17 +280,24 @@ mod tests {
             frames.push(frame(ZERO_CODE - n * step, 0));
         }
         let mut s = StrokeSensor::new(Script { frames, next: 0 }, cal);
+        assert!(s.position_m().is_nan(), "no read yet");
         assert_eq!(s.read_velocity(), Err(SensorError::Priming));
+        assert_eq!(s.position_m(), 0.0, "the priming sample has a position");
         let expected = step as f32 * cal.metres_per_lsb * cal.sample_rate_hz;
-        for _ in 1..20 {
+        for n in 1..20 {
             // Constant input: the low-pass is at its fixed point after the seed.
             assert_eq!(s.read_velocity(), Ok(expected));
+            assert_eq!(s.position_m(), cal.displacement_m(ZERO_CODE + n * step));
         }
         assert!((expected - 0.3).abs() < 1e-3);
         assert_eq!(s.read_velocity(), Err(SensorError::Bus(ErrorKind::Overrun)));
+        assert!(s.position_m().is_nan());
         assert_eq!(s.read_velocity(), Err(SensorError::Invalid));
+        assert!(s.position_m().is_nan());
         assert_eq!(s.read_velocity(), Err(SensorError::NotReady));
+        assert!(s.position_m().is_nan());
         assert_eq!(s.read_velocity(), Err(SensorError::Priming));
+        assert_eq!(s.position_m(), 0.0);
         // Seeded with the raw difference of the new direction, no transient from before.
         assert_eq!(s.read_velocity(), Ok(-expected));
         assert_eq!(s.read_velocity(), Ok(-expected));

@@ -43,6 +43,7 @@ fn bench(c: &mut Criterion) {
             f: &fs[i],
             alpha: [0.0, 0.3][i % 2],
             alphas: None,
+            x: None,
         })
         .collect();
     let mut g = c.benchmark_group("batch_gradient_16x5000");

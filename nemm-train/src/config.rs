@@ -529,6 +529,10 @@ pub struct ModelConfig {
     pub alpha_priors: AlphaPriors,
     /// Units `K` of each alpha branch.
     pub branch_units: usize,
+    /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
+    /// position, `nemm_core::static_force`) to every EMM-family variant (docs/training.md,
+    /// "The static force").
+    pub static_force: bool,
 }
 
 impl Default for ModelConfig {
@@ -543,9 +547,13 @@ impl Default for ModelConfig {
             rate_hz: DEFAULT_MODEL_RATE_HZ,
             alpha_priors: AlphaPriors::Construction,
             branch_units: 16,
+            static_force: DEFAULT_STATIC_FORCE,
         }
     }
 }
+
+/// Whether the EMM-family variants get the static force by default.
+pub const DEFAULT_STATIC_FORCE: bool = false;
 
 /// The default model rate \[Hz\]: the firmware's 10 kHz step.
 pub const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
@@ -699,6 +707,7 @@ impl Config {
             model_rate_hz: m.rate_hz,
             alpha_priors: m.alpha_priors,
             branch_units: m.branch_units,
+            static_force: m.static_force,
         }
     }
 }
@@ -764,6 +773,13 @@ pub struct ConfigArgs {
          monotone for every weight) or penalty (the paper's physics penalty alone)",
         ModelConfig::default().alpha_priors.name()))]
     pub alpha_priors: Option<AlphaPriors>,
+    /// Overrides [`ModelConfig::static_force`].
+    #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL",
+        help = with_default(
+        "Add the static force of eq. 17 (gas force and gas spring in the stroke position, \
+         seal friction) to every EMM-family variant: --static-force or --static-force=false",
+        ModelConfig::default().static_force))]
+    pub static_force: Option<bool>,
     /// Overrides [`TrainConfig::batch`].
     #[arg(long, help = with_default(
         "Windows per batch (Table 3: 4, 8, 16)", TrainConfig::default().batch))]
@@ -959,6 +975,7 @@ impl ConfigArgs {
         set(&mut m.integrator, &self.integrator);
         set(&mut m.rate_hz, &self.model_rate_hz);
         set(&mut m.alpha_priors, &self.alpha_priors);
+        set(&mut m.static_force, &self.static_force);
         set(&mut t.seed, &self.data_options.seed);
         set(&mut t.batch, &self.batch);
         set(&mut t.lr, &self.lr);

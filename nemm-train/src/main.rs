@@ -123,6 +123,11 @@ enum Cmd {
         /// monotone for every weight; default) or penalty (the paper's physics penalty alone).
         #[arg(long)]
         alpha_priors: Option<nemm_train::train::pipeline::AlphaPriors>,
+        /// Adds the static force of eq. 17 (gas force, gas spring, seal friction) to every
+        /// EMM-family variant (docs/training.md, "The static force").
+        #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL",
+            default_value_t = nemm_train::config::DEFAULT_STATIC_FORCE)]
+        static_force: bool,
         /// Data options.
         #[command(flatten)]
         data_options: nemm_train::config::DataArgs,
@@ -191,6 +196,7 @@ fn main() -> ExitCode {
             epochs,
             max_batches,
             alpha_priors,
+            static_force,
             data_options,
         } => {
             let mut cfg = nemm_train::config::Config {
@@ -206,6 +212,7 @@ fn main() -> ExitCode {
             if let Some(a) = alpha_priors {
                 cfg.model.alpha_priors = a;
             }
+            cfg.model.static_force = static_force;
             nemm_train::cli::train::demo(&nemm_train::cli::train::DemoPaths { data, out }, &cfg)
         }
     };

@@ -468,8 +468,13 @@ fn sequences_tile_the_run() {
     let n = 12_345;
     let v: Vec<f64> = (0..n).map(|i| i as f64).collect();
     let f: Vec<f64> = (0..n).map(|i| -(i as f64)).collect();
-    let seqs = preprocess::cut_sequences(4, 0.3, &v, &f, None, warmup, scored);
+    let x: Vec<f64> = (0..n).map(|i| 1e-3 * i as f64).collect();
+    let seqs = preprocess::cut_sequences(4, 0.3, &v, &f, &x, None, warmup, scored);
     assert_eq!(seqs.len(), 2);
+    for s in &seqs {
+        assert_eq!(s.position_m.len(), s.velocity_m_s.len());
+        assert_eq!(s.position_m[0], (1e-3 * s.start as f64) as f32);
+    }
     let mut next_scored = warmup;
     for s in &seqs {
         assert_eq!(s.run, 4);
@@ -588,7 +593,8 @@ fn windows_stay_inside_disjoint_stretches() {
 #[test]
 fn interleaved_windows_would_overlap_in_time() {
     let (w, s) = (100, 1000);
-    let seqs = preprocess::cut_sequences(0, 0.0, &[0.0; 5000], &[0.0; 5000], None, w, s);
+    let seqs =
+        preprocess::cut_sequences(0, 0.0, &[0.0; 5000], &[0.0; 5000], &[0.0; 5000], None, w, s);
     let (before, validation) = (&seqs[1], &seqs[2]);
     // The validation window's warm-up [2000, 2100) is the end of window 1's scored part.
     assert!(validation.start < before.start + w + s);

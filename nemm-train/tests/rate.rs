@@ -127,6 +127,7 @@ fn core_rmse_on_test_runs(model: &Model, ds: &Dataset, prepared: &Prepared) -> f
             velocity_m_s: &u,
             alpha: r.summary.alpha as f32,
             alphas: alphas.as_deref(),
+            position_m: None,
         };
         let mut est =
             Estimator::new(model, EstimatorConfig::new(input.alpha)).expect("estimator accepts");
@@ -361,6 +362,7 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
         velocity_m_s: &u,
         alpha: test.summary.alpha as f32,
         alphas: Some(&levels),
+        position_m: None,
     };
     let trainer = predict(&model, &[input], prepared.dt_s).expect("trainer prediction");
     let mut est = Estimator::new(&model, EstimatorConfig::new(levels[0])).expect("estimator");

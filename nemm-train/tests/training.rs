@@ -138,7 +138,7 @@ fn light_net(device: &Device) -> (EmmNet, nemm_train::train::net::NetFrame) {
 fn light_net_seeded(device: &Device, seed: u64) -> (EmmNet, nemm_train::train::net::NetFrame) {
     let mut p: RolloutParams<f32> = from_core(&truth()).expect("emm");
     p.b_fl = Some(init_scaler(2, 8, 2, (0.1, 10.0), seed));
-    EmmNet::from_rollout(&p, device)
+    EmmNet::from_rollout(&p, None, device)
 }
 
 fn flat(net: &EmmNet, frame: &nemm_train::train::net::NetFrame) -> Vec<f32> {
@@ -374,7 +374,7 @@ fn alpha_branch_keeps_the_trained_model_clean_in_alpha_without_a_penalty() {
         8,
         17,
     ));
-    let (net, frame) = EmmNet::from_rollout(&p, &device);
+    let (net, frame) = EmmNet::from_rollout(&p, None, &device);
     let r = fit(net, &frame, data, &cfg, None, false, &device).expect("fit");
     let trained = r.best.to_rollout(&frame);
     let model = nemm_train::train::params::to_core(&trained, truth().meta).expect("valid model");

@@ -31,7 +31,13 @@ pub fn check_model<const P: usize>(model: &Model<P>) {
                 11 => 1e30,
                 _ => (k as f32 * 0.3).sin(),
             };
-            let e = est.step(v);
+            // Every other step with a position (finite, huge or NaN), the others without.
+            let e = match k % 4 {
+                0 => est.step(v),
+                1 => est.step_with_position(v, (k as f32 * 0.1).cos()),
+                2 => est.step_with_position(v, if k % 8 == 2 { f32::NAN } else { -1e30 }),
+                _ => est.step_with_position(v, 0.0),
+            };
             assert!(e.force_n.is_finite());
         }
     }

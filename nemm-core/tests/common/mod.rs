@@ -61,8 +61,8 @@ pub fn blob_of<const Q: usize>(m: &Model<Q>) -> Vec<u8> {
 }
 
 /// The blob layout of `nemm_core::format`, written independently of `encode` and without any
-/// validation: postcard header, postcard body (version-1 part, then the extension), CRC-32
-/// little-endian. Lets tests build
+/// validation: postcard header, postcard body (version-1 part, the extension, then the
+/// version-4 static force), CRC-32 little-endian. Lets tests build
 /// well-formed blobs with contents `encode` refuses (NaN weights, unstable steps), or
 /// headers that disagree with the body.
 pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) -> Vec<u8> {
@@ -72,6 +72,9 @@ pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) 
         .to_vec();
     let mut ext = vec![0u8; 64 * 1024];
     body.extend_from_slice(postcard::to_slice(&m.ext, &mut ext).expect("extension serialises"));
+    body.extend_from_slice(
+        postcard::to_slice(&m.ext.static_force, &mut ext).expect("static force serialises"),
+    );
     let mut header = Header {
         magic: MAGIC,
         version: FORMAT_VERSION,

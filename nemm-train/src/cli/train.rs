@@ -183,7 +183,7 @@ fn estimator_input(
     ds: &dataset::Dataset,
     prepared: &preprocess::Prepared,
     idx: usize,
-) -> Result<(Vec<f32>, f32)> {
+) -> Result<(Vec<f32>, Vec<f32>, f32)> {
     let signals = preprocess::process_run(
         &ds.runs[idx],
         idx,
@@ -191,7 +191,13 @@ fn estimator_input(
         &prepared.config.signal,
     )?;
     let u = signals.velocity_m_s.iter().map(|&v| v as f32).collect();
-    Ok((u, ds.runs[idx].entry.oil_loss as f32))
+    // The position as the sensor measures it (unfiltered), as the firmware gets it.
+    let x = ds.runs[idx]
+        .displacement_m
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    Ok((u, x, ds.runs[idx].entry.oil_loss as f32))
 }
 
 /// The tabulated fast path against the exact estimator over every run with test data (a test
@@ -207,7 +213,7 @@ fn table_vs_exact(
     let bound = crate::train::table_check::DEFAULT_TABLE_BOUND;
     let (mut worst, mut samples, mut outside, mut runs) = (0.0f64, 0usize, 0usize, 0usize);
     for run in prepared.runs.iter().filter(|r| r.test_sequences > 0) {
-        let (u, alpha) = estimator_input(ds, prepared, run.summary.index)?;
+        let (u, x, alpha) = estimator_input(ds, prepared, run.summary.index)?;
         let exact_cfg = EstimatorConfig::new(alpha);
         let table_cfg = EstimatorConfig {
             mode: EvalMode::Table(TableConfig::new(bound)),
@@ -222,8 +228,11 @@ fn table_vs_exact(
                 return Ok(());
             }
         };
-        for &v in &u {
-            let (a, b) = (exact.step(v), table.step(v));
+        for (&v, &x) in u.iter().zip(&x) {
+            let (a, b) = (
+                exact.step_with_position(v, x),
+                table.step_with_position(v, x),
+            );
             worst = worst.max(f64::from((a.force_n - b.force_n).abs()));
             outside += usize::from(b.flags.contains(Flags::OUT_OF_TABLE_DOMAIN));
         }
@@ -258,7 +267,8 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
     let latest = std::fs::read_to_string(checkpoint.join("latest"))
         .with_context(|| format!("no finished epoch in {}", checkpoint.display()))?;
     let device = burn::tensor::Device::flex();
-    let (net, frame): (EmmNet, NetFrame) = EmmNet::from_rollout(&saved.initial, &device);
+    let (net, frame): (EmmNet, NetFrame) =
+        EmmNet::from_rollout(&saved.initial, saved.static_units, &device);
     let net = net
         .try_load_file(checkpoint.join(latest.trim()).join("best"))
         .map_err(|e| anyhow::anyhow!("cannot load the best module: {e:?}"))?;
@@ -732,13 +742,14 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     } else {
         "run with a test tail (its training part included)"
     };
-    let (u, alpha) = estimator_input(&ds, &prepared, idx)?;
+    let (u, x, alpha) = estimator_input(&ds, &prepared, idx)?;
     let mut est = nemm_core::Estimator::new(&model, nemm_core::EstimatorConfig::new(alpha))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let input = crate::train::eval::Input {
         velocity_m_s: &u,
         alpha,
         alphas: None,
+        position_m: Some(&x),
     };
     let t = Instant::now();
     let (forces, steps) =

@@ -837,6 +837,10 @@ pub struct Sequence {
     pub velocity_m_s: Vec<f32>,
     /// Measured force \[N\], `warmup + scored` samples.
     pub force_n: Vec<f32>,
+    /// Stroke position \[m\] as the position sensor measures it (low-passed like the
+    /// velocity, its zero where the sensor has it), `warmup + scored` samples: the input of
+    /// the static force.
+    pub position_m: Vec<f32>,
     /// Condition level per sample, `warmup + scored` samples, when the run has an `alpha`
     /// column (it then replaces `alpha` in training and evaluation).
     pub alphas: Option<Vec<f32>>,
@@ -846,17 +850,20 @@ pub struct Sequence {
 /// gaps or overlap: sequence `k` starts at `k * scored`, its scored part at
 /// `k * scored + warmup`. The first `warmup` samples and a tail shorter than `scored` are not
 /// scored; the count is [`unscored_samples`].
-/// `alphas` is the run's condition level per sample, if it has one.
+/// `alphas` is the run's condition level per sample, if it has one; `position_m` the stroke
+/// position per sample.
+#[allow(clippy::too_many_arguments)]
 pub fn cut_sequences(
     run_index: usize,
     alpha: f64,
     velocity_m_s: &[f64],
     force_n: &[f64],
+    position_m: &[f64],
     alphas: Option<&[f64]>,
     warmup: usize,
     scored: usize,
 ) -> Vec<Sequence> {
-    let n = velocity_m_s.len().min(force_n.len());
+    let n = velocity_m_s.len().min(force_n.len()).min(position_m.len());
     let count = sequence_count(n, warmup, scored);
     (0..count)
         .map(|k| {
@@ -868,6 +875,7 @@ pub fn cut_sequences(
                 alpha: alpha as f32,
                 velocity_m_s: velocity_m_s[start..end].iter().map(|&v| v as f32).collect(),
                 force_n: force_n[start..end].iter().map(|&v| v as f32).collect(),
+                position_m: position_m[start..end].iter().map(|&v| v as f32).collect(),
                 alphas: alphas.map(|a| a[start..end].iter().map(|&v| v as f32).collect()),
             }
         })
@@ -1328,6 +1336,7 @@ impl Scales {
             alpha: (f64::from(s.alpha) / self.alpha) as f32,
             velocity_m_s: s.velocity_m_s.iter().map(|v| v / sv).collect(),
             force_n: s.force_n.iter().map(|f| f / sf).collect(),
+            position_m: s.position_m.clone(),
             alphas: s.alphas.as_ref().map(|a| {
                 a.iter()
                     .map(|&x| (f64::from(x) / self.alpha) as f32)
@@ -1683,6 +1692,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                     alpha,
                     &signals.velocity_m_s[a..b],
                     &force[a..b],
+                    &signals.displacement_m[a..b],
                     run.alpha.as_deref().map(|x| &x[a..b]),
                     warmup,
                     scored,

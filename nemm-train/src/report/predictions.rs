@@ -40,6 +40,11 @@ impl RunPredictions {
             .iter()
             .map(|s| s.velocity_m_s.iter().map(|&v| v as f32).collect())
             .collect();
+        let positions: Vec<Vec<f32>> = prepared
+            .signals
+            .iter()
+            .map(|s| s.displacement_m.iter().map(|&v| v as f32).collect())
+            .collect();
         let alphas: Vec<Option<Vec<f32>>> = prepared
             .signals
             .iter()
@@ -60,6 +65,7 @@ impl RunPredictions {
                             velocity_m_s: v,
                             alpha: prepared.runs[i].summary.alpha as f32,
                             alphas: alphas.get(i).and_then(|a| a.as_deref()),
+                            position_m: positions.get(i).map(Vec::as_slice),
                         })
                     })
                     .collect::<Result<Vec<Input<'_>>>>()?;

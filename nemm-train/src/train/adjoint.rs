@@ -51,6 +51,7 @@ use nemm_core::emm::{self, Coefficients, State};
 use nemm_core::integrator::{self, Stage, StageBackward, StepSize};
 use nemm_core::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
 use nemm_core::mlp::{self, Direction};
+use nemm_core::static_force::{self, STATIC_PARAMS};
 use nemm_core::{Integrator, Priors};
 use num_traits::Float;
 use rayon::prelude::*;
@@ -185,6 +186,22 @@ pub struct RolloutParams<T> {
     /// them; a scaler with an alpha branch holds its prior by construction).
     #[serde(default)]
     pub priors: Priors,
+    /// The static force `r` of eq. 17 (`nemm_core::static_force`), if the model has one.
+    #[serde(default)]
+    pub static_force: Option<StaticParams<T>>,
+}
+
+/// The static force of a rollout: `r = theta . features(x_ref, v_c, x, u, alpha)`
+/// (`nemm_core::static_force::features`), added to the force at every model step.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StaticParams<T> {
+    /// Trained parameters `[F_gas0,0, F_gas0,alpha, k_gas,0, k_gas,alpha, F_c]` (N, N, N/m,
+    /// N/m, N), the order of `nemm_core::StaticForce::params`.
+    pub theta: [T; STATIC_PARAMS],
+    /// Reference position `x_ref` \[m\] (fixed).
+    pub x_ref: T,
+    /// Smoothing velocity `v_c` \[m/s\] of the friction (fixed).
+    pub v_c: T,
 }
 
 /// Gradient of the loss with respect to every trainable quantity of [`RolloutParams`].
@@ -204,6 +221,8 @@ pub struct RolloutGrads<T> {
     pub b_pr: Vec<T>,
     /// dL / d (k_pr scaler weights).
     pub k_pr: Vec<T>,
+    /// dL / d [`StaticParams::theta`], empty without a static force.
+    pub static_force: Vec<T>,
 }
 
 impl<T: Real> RolloutGrads<T> {
@@ -220,6 +239,9 @@ impl<T: Real> RolloutGrads<T> {
             b_fl: z(&p.b_fl),
             b_pr: z(&p.b_pr),
             k_pr: z(&p.k_pr),
+            static_force: p
+                .static_force
+                .map_or(Vec::new(), |_| vec![T::zero(); STATIC_PARAMS]),
         }
     }
 
@@ -232,6 +254,7 @@ impl<T: Real> RolloutGrads<T> {
             (&mut self.b_fl, &o.b_fl),
             (&mut self.b_pr, &o.b_pr),
             (&mut self.k_pr, &o.k_pr),
+            (&mut self.static_force, &o.static_force),
         ] {
             for (x, &y) in a.iter_mut().zip(b) {
                 *x += y;
@@ -245,7 +268,12 @@ impl<T: Real> RolloutGrads<T> {
         self.b_pr0 = self.b_pr0 * f;
         self.k0 = self.k0 * f;
         self.t_pr = self.t_pr * f;
-        for v in [&mut self.b_fl, &mut self.b_pr, &mut self.k_pr] {
+        for v in [
+            &mut self.b_fl,
+            &mut self.b_pr,
+            &mut self.k_pr,
+            &mut self.static_force,
+        ] {
             for x in v.iter_mut() {
                 *x = *x * f;
             }
@@ -266,6 +294,9 @@ pub struct Window<'a> {
     /// Condition level per data sample (a condition changing within the window), one value
     /// per sample like `u`; `None`: the constant `alpha`.
     pub alphas: Option<&'a [f32]>,
+    /// Stroke position \[m\] per data sample as the position sensor measures it, the input
+    /// of the static force ([`RolloutParams::static_force`]); `None`: `x_ref` throughout.
+    pub x: Option<&'a [f32]>,
 }
 
 /// Relative distance to a whole number below which a grid position counts as exactly on it.
@@ -1144,6 +1175,9 @@ struct PackData<T> {
     /// Every model step is a data sample ([`Grid::SAME`]).
     identity: bool,
     lane_w: V<T>,
+    /// With a static force: its features per model step
+    /// (`nemm_core::static_force::features` at the step's position, velocity and level).
+    phi: Option<Vec<[V<T>; STATIC_PARAMS]>>,
 }
 
 impl<T: Real> PackData<T> {
@@ -1153,6 +1187,17 @@ impl<T: Real> PackData<T> {
         match &self.alpha_steps {
             Some(a) if j < a.len() => a[j],
             _ => self.alpha0,
+        }
+    }
+
+    /// The static force of every lane at model step `j` (0 without one).
+    #[inline]
+    fn static_at(&self, p: &RolloutParams<T>, j: usize) -> V<T> {
+        match (&self.phi, &p.static_force) {
+            (Some(phi), Some(sp)) => std::array::from_fn(|l| {
+                (0..STATIC_PARAMS).fold(T::zero(), |r, q| r + sp.theta[q] * phi[j][q][l])
+            }),
+            _ => splat(T::zero()),
         }
     }
 
@@ -1174,6 +1219,7 @@ fn pack_data<T: Real>(
     grid: &Grid,
     samples: usize,
     with_force: bool,
+    stat: Option<&StaticParams<T>>,
 ) -> PackData<T> {
     let n = grid.steps(samples);
     let mut u = vec![splat(T::zero()); n];
@@ -1187,6 +1233,7 @@ fn pack_data<T: Real>(
     let varying = windows.iter().any(|w| w.alphas.is_some());
     let mut alpha_steps = varying.then(|| vec![splat(T::zero()); n]);
     let identity = *grid == Grid::SAME;
+    let mut phi = stat.map(|_| vec![[splat(T::zero()); STATIC_PARAMS]; n]);
     // Per model step, the sample position of its input (shared by the lanes).
     let inputs: Vec<(usize, f64)> = if identity {
         Vec::new()
@@ -1224,6 +1271,24 @@ fn pack_data<T: Real>(
         for (i, fi) in f.iter_mut().enumerate().take(win.f.len()) {
             fi[k] = T::c(f64::from(win.f[i]));
         }
+        if let (Some(phi), Some(sp)) = (phi.as_mut(), stat) {
+            let phi: &mut Vec<[V<T>; STATIC_PARAMS]> = phi;
+            for (j, pj) in phi.iter_mut().enumerate() {
+                let x = match win.x {
+                    Some(x) if identity => x.get(j).map_or(sp.x_ref, |&v| T::c(f64::from(v))),
+                    Some(x) => T::c(grid.interpolate(x, j)),
+                    None => sp.x_ref,
+                };
+                let a = match &alpha_steps {
+                    Some(a) => a[j][k],
+                    None => alpha0[k],
+                };
+                let f = static_force::features(sp.x_ref, sp.v_c, x, u[j][k], a);
+                for q in 0..STATIC_PARAMS {
+                    pj[q][k] = f[q];
+                }
+            }
+        }
     }
     PackData {
         u,
@@ -1242,6 +1307,7 @@ fn pack_data<T: Real>(
         },
         identity,
         lane_w,
+        phi,
     }
 }
 
@@ -1269,7 +1335,9 @@ fn forward_sweep<T: Real>(
         }
         s = pk.step(&s, &c, &u_prev, u, w);
         c = pk.coeffs(&s, w, None);
-        ys.push(emm::force_with::<Unfused, L<T>>(&c, &s, Lanes(*u)).0);
+        let r = d.static_at(p, j);
+        let y = emm::force_with::<Unfused, L<T>>(&c, &s, Lanes(*u)).0;
+        ys.push(std::array::from_fn(|l| y[l] + r[l]));
         states.push(s);
         u_prev = *u;
     }
@@ -1405,6 +1473,11 @@ fn pack_loss_grad<T: Real>(
             Some((ybar, scored)) => scored[i].then(|| ybar[i]),
             None => (i >= warmup).then(|| sample_loss(&ys[i], &d.f[i], &mut loss)),
         };
+        if let (Some(yb), Some(phi)) = (&ybar_i, &d.phi) {
+            for (q, gq) in bar.g.static_force.iter_mut().enumerate() {
+                *gq += (0..LANES).fold(T::zero(), |a, l| a + yb[l] * phi[i][q][l]);
+            }
+        }
         if let Some(yb) = ybar_i {
             emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, Lanes(yb), &mut sbar, &mut cbar_n);
         }
@@ -1484,9 +1557,10 @@ impl<T: Real> Pack<'_, T> {
 fn common_len(windows: &[Window<'_>]) -> usize {
     let n = windows.first().map_or(0, |w| w.u.len());
     assert!(
-        windows
-            .iter()
-            .all(|w| w.u.len() == n && w.f.len() == n && w.alphas.is_none_or(|a| a.len() == n)),
+        windows.iter().all(|w| w.u.len() == n
+            && w.f.len() == n
+            && w.alphas.is_none_or(|a| a.len() == n)
+            && w.x.is_none_or(|x| x.len() == n)),
         "all windows of a batch must have the same length"
     );
     n
@@ -1513,7 +1587,7 @@ pub fn loss_and_grad<T: Real>(
     let results: Vec<(T, RolloutGrads<T>)> = refs
         .par_chunks(LANES)
         .map(|chunk| {
-            let d = pack_data::<T>(chunk, grid, n, true);
+            let d = pack_data::<T>(chunk, grid, n, true, p.static_force.as_ref());
             pack_loss_grad(p, &d, warmup, inv_fs, ybar_scale)
         })
         .collect();
@@ -1538,7 +1612,7 @@ fn sweep_windows<T: Real, R: Send>(
     refs.par_chunks(LANES)
         .flat_map_iter(|chunk| {
             let samples = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
-            let d = pack_data::<T>(chunk, grid, samples, false);
+            let d = pack_data::<T>(chunk, grid, samples, false, p.static_force.as_ref());
             let pk = Pack::new(p, &d.alpha(0));
             let mut work = pk.work();
             let (states, ys) = forward_sweep(p, &d, &mut work);

@@ -8,6 +8,37 @@ fn model(kind: ModelKind, h: u8, l: u8) -> Model {
     example_model(kind, h, l).expect("example model")
 }
 
+/// The example model of `kind` (H = 16, L = 5), or with `branches` the [`branched`] NEMM,
+/// with the example static force if `stat`.
+fn example_16x5(kind: ModelKind, branches: bool, stat: bool) -> Model {
+    let m = if branches {
+        branched(16, 5, 16)
+    } else {
+        model(kind, 16, 5)
+    };
+    if stat {
+        with_static(m)
+    } else {
+        m
+    }
+}
+
+/// The example model with the example static force.
+fn with_static(mut m: Model) -> Model {
+    m.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+    m
+}
+
+/// A stroke position around 30 mm (the example static force's `x_ref`) \[m\].
+fn position(n: usize, dt: f64, f1: f64, phase: f64) -> Vec<f32> {
+    (0..n)
+        .map(|i| {
+            let t = i as f64 * dt;
+            (0.03 + 0.02 * (2.0 * std::f64::consts::PI * f1 * t + phase).sin()) as f32
+        })
+        .collect()
+}
+
 /// A bench-like velocity signal: sum of two sinusoids.
 fn signal(n: usize, dt: f64, a: f64, f1: f64, phase: f64) -> Vec<f32> {
     (0..n)
@@ -28,37 +59,38 @@ fn rollout_matches_core_estimator() {
         (ModelKind::Nemm, true),
     ] {
         for integ in [Integrator::Rk4, Integrator::Rk3] {
-            let mut m = if with_branches {
-                branched(16, 5, 16)
-            } else {
-                model(kind, 16, 5)
-            };
-            m.integrator = integ;
-            let p: RolloutParams<f32> = from_core(&m).expect("emm model");
-            let n = 20_000;
-            let u = signal(n, 1e-4, 0.8, 8.3, 0.3);
-            let f = vec![0.0f32; n];
-            let ys = simulate(
-                &p,
-                &[Window {
-                    u: &u,
-                    f: &f,
-                    alpha: 0.15,
-                    alphas: None,
-                }],
-                &Grid::SAME,
-            );
-            let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("estimator");
-            let mut worst = 0.0f64;
-            for (i, &ui) in u.iter().enumerate() {
-                let e = est.step(ui);
-                worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
+            for stat in [false, true] {
+                let mut m = example_16x5(kind, with_branches, stat);
+                m.integrator = integ;
+                let p: RolloutParams<f32> = from_core(&m).expect("emm model");
+                let n = 20_000;
+                let u = signal(n, 1e-4, 0.8, 8.3, 0.3);
+                let x = position(n, 1e-4, 8.3, 0.3);
+                let f = vec![0.0f32; n];
+                let ys = simulate(
+                    &p,
+                    &[Window {
+                        u: &u,
+                        f: &f,
+                        alpha: 0.15,
+                        alphas: None,
+                        x: Some(&x),
+                    }],
+                    &Grid::SAME,
+                );
+                let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("estimator");
+                let mut worst = 0.0f64;
+                for (i, &ui) in u.iter().enumerate() {
+                    let e = est.step_with_position(ui, x[i]);
+                    worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
+                }
+                let rel = worst / m.meta.force_scale_n as f64;
+                assert!(
+                    rel < 1e-5,
+                    "{kind:?} {integ:?} branches {with_branches} static {stat}: max |diff| = \
+                     {worst} N ({rel:e} of force scale)"
+                );
             }
-            let rel = worst / m.meta.force_scale_n as f64;
-            assert!(
-                rel < 1e-5,
-                "{kind:?} {integ:?}: max |diff| = {worst} N ({rel:e} of force scale)"
-            );
         }
     }
 }
@@ -71,7 +103,12 @@ fn flat(g: &RolloutGrads<f64>) -> Vec<(String, f64)> {
         ("k0".to_string(), g.k0),
         ("t_pr".to_string(), g.t_pr),
     ];
-    for (name, w) in [("b_fl", &g.b_fl), ("b_pr", &g.b_pr), ("k_pr", &g.k_pr)] {
+    for (name, w) in [
+        ("b_fl", &g.b_fl),
+        ("b_pr", &g.b_pr),
+        ("k_pr", &g.k_pr),
+        ("static", &g.static_force),
+    ] {
         v.extend(
             w.iter()
                 .enumerate()
@@ -94,17 +131,34 @@ fn perturb(p: &RolloutParams<f64>, idx: usize, delta: f64) -> (RolloutParams<f64
         }
     }
     let mut i = idx - 4;
+    let mut done = false;
     for s in [&mut q.b_fl, &mut q.b_pr, &mut q.k_pr]
         .into_iter()
         .flatten()
     {
         if i < s.w.len() {
             s.w[i] += delta;
+            done = true;
             break;
         }
         i -= s.w.len();
     }
+    if done {
+        return (q, delta);
+    }
+    if let Some(sf) = q.static_force.as_mut() {
+        let h = delta * sf.theta[i].abs().max(1.0);
+        sf.theta[i] += h;
+        return (q, h);
+    }
     (q, delta)
+}
+
+/// Per window of [`windows_for_test`], a stroke position \[m\].
+fn positions_for_test(n: usize) -> Vec<Vec<f32>> {
+    (0..10)
+        .map(|w| position(n, 5e-4, 20.0 + 3.0 * w as f64, 0.4 * w as f64))
+        .collect()
 }
 
 fn windows_for_test(n: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>, Vec<f32>) {
@@ -127,7 +181,7 @@ fn windows_for_test(n: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>, Vec<f32>) {
 }
 
 fn check_fd(kind: ModelKind, integ: Integrator) {
-    check_fd_on(kind, integ, 1.0, false);
+    check_fd_on(kind, integ, 1.0, false, false);
 }
 
 /// Per-sample condition levels of window `w`: a switch and a ramp (so that the level changes
@@ -149,9 +203,13 @@ fn alpha_steps(w: usize, n: usize) -> Vec<f32> {
 }
 
 /// The adjoint against central differences with the data sampled `ratio` model steps apart
-/// (`Grid`) and, with `varying`, a condition level changing within every window.
-fn check_fd_on(kind: ModelKind, integ: Integrator, ratio: f64, varying: bool) {
+/// (`Grid`), with `varying` a condition level changing within every window, and with
+/// `stat` the example static force fed with a stroke position.
+fn check_fd_on(kind: ModelKind, integ: Integrator, ratio: f64, varying: bool, stat: bool) {
     let mut m = model(kind, 4, 2);
+    if stat {
+        m = with_static(m);
+    }
     m.integrator = integ;
     check_fd_model(&m, &format!("{kind:?}"), ratio, varying);
 }
@@ -177,6 +235,7 @@ fn branched(h: u8, l: u8, units: u8) -> Model {
 fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
     let mut m = m.clone();
     let integ = m.integrator;
+    let stat = m.ext.static_force.is_some();
     // A longer step (still stable) so that 60 steps move the states well away from rest.
     m.dt_s = 5e-4;
     let p: RolloutParams<f64> = from_core(&m).expect("emm model");
@@ -185,12 +244,14 @@ fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
     let warmup = (7.0 / ratio).ceil() as usize;
     let (us, fs, alphas) = windows_for_test(n);
     let levels: Vec<Vec<f32>> = (0..us.len()).map(|w| alpha_steps(w, n)).collect();
+    let xs = positions_for_test(n);
     let wins: Vec<Window<'_>> = (0..us.len())
         .map(|i| Window {
             u: &us[i],
             f: &fs[i],
             alpha: alphas[i],
             alphas: varying.then_some(levels[i].as_slice()),
+            x: stat.then_some(xs[i].as_slice()),
         })
         .collect();
     let fs_scale = 1500.0;
@@ -229,39 +290,49 @@ fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
         worst = worst.max(err);
         assert!(
             err < 1e-4,
-            "{label} {integ:?} ratio {ratio} varying alpha {varying} {name}: adjoint {gi:e}, \
-             finite difference {fd:e}"
+            "{label} {integ:?} ratio {ratio} varying alpha {varying} static {stat} {name}: \
+             adjoint {gi:e}, finite difference {fd:e}"
         );
     }
     eprintln!(
-        "{label} {integ:?} ratio {ratio} varying alpha {varying}: worst relative error vs \
-         central differences {worst:e}"
+        "{label} {integ:?} ratio {ratio} varying alpha {varying} static {stat}: worst \
+         relative error vs central differences {worst:e}"
     );
 }
 
 #[test]
 fn adjoint_is_exact_on_a_coarser_data_grid() {
     // A non-integer ratio: the loss interpolates the model output between steps.
-    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, false);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, false, false);
     // An integer ratio: the samples fall on model steps.
-    check_fd_on(ModelKind::NemmLight, Integrator::Rk4, 4.0, false);
+    check_fd_on(ModelKind::NemmLight, Integrator::Rk4, 4.0, false, false);
 }
 
 #[test]
 fn adjoint_is_exact_with_a_condition_level_changing_within_windows() {
-    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 1.0, true);
-    check_fd_on(ModelKind::Nemm, Integrator::Rk3, 2.5, true);
-    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, true);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 1.0, true, false);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk3, 2.5, true, false);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, true, false);
+}
+
+#[test]
+fn adjoint_is_exact_with_a_static_force() {
+    check_fd_on(ModelKind::LinearEmm, Integrator::Rk4, 1.0, false, true);
+    check_fd_on(ModelKind::NemmLight, Integrator::Rk4, 1.0, true, true);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, false, true);
+    check_fd_on(ModelKind::Nemm, Integrator::Rk3, 2.5, true, true);
 }
 
 /// The alpha branches' weights (and the MLPs' without their alpha column) get their exact
-/// gradients, also with a level changing within the windows and on a coarser data grid.
+/// gradients, also with a level changing within the windows, on a coarser data grid and
+/// with a static force.
 #[test]
 fn adjoint_is_exact_with_alpha_branches() {
     let m = branched(4, 2, 3);
     check_fd_model(&m, "branched NEMM", 1.0, false);
     check_fd_model(&m, "branched NEMM", 2.5, true);
     check_fd_model(&m, "branched NEMM", 3.3, true);
+    check_fd_model(&with_static(m), "branched NEMM", 2.5, true);
 }
 
 #[test]
@@ -306,22 +377,22 @@ fn grid_maps_samples_and_steps() {
 #[test]
 fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
     use super::eval::{run_estimator, Input};
-    for (kind, ratio, with_branches) in [
-        (ModelKind::Nemm, 1.0, false),
-        (ModelKind::Nemm, 100.0 / 3.0, false),
-        (ModelKind::NemmLight, 10.0, false),
-        (ModelKind::Nemm, 1.0, true),
-        (ModelKind::Nemm, 10.0, true),
+    for (kind, ratio, with_branches, stat) in [
+        (ModelKind::Nemm, 1.0, false, false),
+        (ModelKind::Nemm, 100.0 / 3.0, false, false),
+        (ModelKind::NemmLight, 10.0, false, false),
+        (ModelKind::Nemm, 1.0, true, false),
+        (ModelKind::Nemm, 10.0, true, false),
+        (ModelKind::Nemm, 100.0 / 3.0, false, true),
+        (ModelKind::LinearEmm, 10.0, false, true),
+        (ModelKind::Nemm, 10.0, true, true),
     ] {
-        let m = if with_branches {
-            branched(16, 5, 16)
-        } else {
-            model(kind, 16, 5)
-        };
+        let m = example_16x5(kind, with_branches, stat);
         let p: RolloutParams<f32> = from_core(&m).expect("emm model");
         let sample_dt = ratio * f64::from(m.dt_s);
         let n = (1.5 / sample_dt) as usize;
         let u = signal(n, sample_dt, 0.8, 8.3, 0.3);
+        let x = position(n, sample_dt, 8.3, 0.3);
         let levels = alpha_steps(1, n);
         let grid = Grid::new(f64::from(m.dt_s), sample_dt);
         let ys = simulate(
@@ -331,6 +402,7 @@ fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
                 f: &u,
                 alpha: 0.15,
                 alphas: Some(&levels),
+                x: Some(&x),
             }],
             &grid,
         );
@@ -339,6 +411,7 @@ fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
             velocity_m_s: &u,
             alpha: 0.15,
             alphas: Some(&levels),
+            position_m: Some(&x),
         };
         let (forces, steps) =
             run_estimator(&mut est, f64::from(m.dt_s), &input, sample_dt).expect("estimator run");
@@ -350,8 +423,8 @@ fn rollout_matches_core_estimator_with_alpha_per_sample_on_a_coarse_grid() {
         let rel = worst / f64::from(m.meta.force_scale_n);
         assert!(
             rel < 1e-5,
-            "{kind:?} ratio {ratio} branches {with_branches}: max |diff| = {worst} N ({rel:e} \
-             of force scale)"
+            "{kind:?} ratio {ratio} branches {with_branches} static {stat}: max |diff| = \
+             {worst} N ({rel:e} of force scale)"
         );
     }
 }
@@ -386,6 +459,7 @@ fn f32_adjoint_is_close_to_f64() {
             f: &fs[i],
             alpha: alphas[i],
             alphas: None,
+            x: None,
         })
         .collect();
     let (l64, g64) = loss_and_grad(&p64, &wins, &Grid::SAME, 100, 1500.0);
@@ -419,5 +493,6 @@ fn convert_grads(g: &RolloutGrads<f32>) -> RolloutGrads<f64> {
         b_fl: v(&g.b_fl),
         b_pr: v(&g.b_pr),
         k_pr: v(&g.k_pr),
+        static_force: v(&g.static_force),
     }
 }

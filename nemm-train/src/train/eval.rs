@@ -13,8 +13,8 @@ use crate::data::preprocess::Sequence;
 use anyhow::{Context, Result};
 use nemm_core::{Estimator, EstimatorConfig, Model};
 
-/// One input of [`predict`]: stroke velocity per sample, the condition level, and the level
-/// per sample when it changes within the input.
+/// One input of [`predict`]: stroke velocity per sample, the condition level, the level per
+/// sample when it changes within the input, and the stroke position.
 #[derive(Debug, Clone, Copy)]
 pub struct Input<'a> {
     /// Stroke velocity \[m/s\] per data sample.
@@ -23,6 +23,10 @@ pub struct Input<'a> {
     pub alpha: f32,
     /// Condition level per data sample.
     pub alphas: Option<&'a [f32]>,
+    /// Stroke position \[m\] per data sample as the position sensor measures it (the input
+    /// of a model's static force; `None`: the static force's `x_ref` throughout, and
+    /// [`run_estimator`] steps without a position).
+    pub position_m: Option<&'a [f32]>,
 }
 
 /// Forces predicted by `model` at the data samples (`sample_dt_s` apart) of each input,
@@ -39,6 +43,7 @@ pub fn predict(model: &Model, inputs: &[Input<'_>], sample_dt_s: f64) -> Result<
                     f: i.velocity_m_s,
                     alpha: i.alpha,
                     alphas: i.alphas,
+                    x: i.position_m,
                 })
                 .collect();
             Ok(simulate(&p, &wins, &grid))
@@ -68,7 +73,8 @@ pub fn predict(model: &Model, inputs: &[Input<'_>], sample_dt_s: f64) -> Result<
 /// Runs nemm-core's estimator `est` (from its current state) over `input`, whose samples are
 /// `sample_dt_s` apart, at the model step `model_dt_s`, as the trainer does ([`Grid`]): each
 /// model step takes the input interpolated between the samples, a per-sample level through
-/// [`Estimator::step_with_alpha`], and the force at each sample is the model force
+/// [`Estimator::step_with_alpha`], the position (interpolated likewise) through
+/// [`Estimator::step_with_position`], and the force at each sample is the model force
 /// interpolated at the sample time. Returns one force per sample and the model steps run.
 pub fn run_estimator(
     est: &mut Estimator,
@@ -82,11 +88,16 @@ pub fn run_estimator(
     let mut ys = Vec::with_capacity(steps);
     for j in 0..steps {
         let v = grid.interpolate(input.velocity_m_s, j) as f32;
-        let e = match input.alphas {
-            Some(a) => est
+        let x = input.position_m.map(|x| grid.interpolate(x, j) as f32);
+        let e = match (input.alphas, x) {
+            (Some(a), Some(x)) => est
+                .step_with_alpha_and_position(v, grid.interpolate(a, j) as f32, x)
+                .map_err(|e| anyhow::anyhow!("model step {j}: {e}"))?,
+            (Some(a), None) => est
                 .step_with_alpha(v, grid.interpolate(a, j) as f32)
                 .map_err(|e| anyhow::anyhow!("model step {j}: {e}"))?,
-            None => est.step(v),
+            (None, Some(x)) => est.step_with_position(v, x),
+            (None, None) => est.step(v),
         };
         ys.push(f64::from(e.force_n));
     }
@@ -105,6 +116,7 @@ pub fn input_of(s: &Sequence) -> Input<'_> {
         velocity_m_s: &s.velocity_m_s,
         alpha: s.alpha,
         alphas: s.alphas.as_deref(),
+        position_m: Some(&s.position_m),
     }
 }
 

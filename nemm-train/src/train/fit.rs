@@ -153,7 +153,7 @@ fn epoch_order(n: usize, seed: u64, epoch: usize) -> Vec<usize> {
     idx
 }
 
-/// The rollout windows of `seqs` (velocity, force and condition level per sample).
+/// The rollout windows of `seqs` (velocity, force, condition level and position per sample).
 pub fn windows(seqs: &[Sequence]) -> Vec<Window<'_>> {
     seqs.iter()
         .map(|s| Window {
@@ -161,6 +161,7 @@ pub fn windows(seqs: &[Sequence]) -> Vec<Window<'_>> {
             f: &s.force_n,
             alpha: s.alpha,
             alphas: s.alphas.as_deref(),
+            x: Some(&s.position_m),
         })
         .collect()
 }
@@ -488,7 +489,7 @@ fn train_epoch(
         } else {
             (GradientsParams::new(), 0.0)
         };
-        net.add_rollout_grads(&g, [true; 4], &mut gp, device);
+        net.add_rollout_grads(frame, &g, [true; 4], &mut gp, device);
         let step = (epoch - 1) * n_batches + b;
         let lr = learning_rate(cfg.lr, step, total_steps);
         net = optim.step(lr, net, gp);

@@ -12,6 +12,7 @@ pub mod physics;
 pub mod pipeline;
 pub mod selection;
 pub mod session;
+pub mod static_fit;
 pub mod table_check;
 
 #[cfg(test)]

@@ -13,13 +13,14 @@
 //! [`super::adjoint`] and is added with [`EmmNet::add_rollout_grads`] before one optimizer
 //! step.
 
-use super::adjoint::{BranchShape, RolloutGrads, RolloutParams, ScalerWeights};
+use super::adjoint::{BranchShape, RolloutGrads, RolloutParams, ScalerWeights, StaticParams};
 use burn::module::{Module, Param};
 use burn::nn::{LayerNorm, LayerNormConfig, LeakyRelu, Linear};
 use burn::optim::GradientsParams;
 use burn::tensor::activation::{leaky_relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
 use nemm_core::mlp::LEAKY_RELU_SLOPE;
+use nemm_core::static_force::STATIC_PARAMS;
 use nemm_core::Priors;
 
 /// One hidden block.
@@ -310,6 +311,10 @@ pub struct EmmNet {
     pub b_pr: Option<ScalerNet>,
     /// `k_pr(x_pr, alpha)` scaler.
     pub k_pr: Option<ScalerNet>,
+    /// The static force's trained parameters (order of `nemm_core::StaticForce::params`),
+    /// each divided by its unit ([`StaticFrame::units`]); the last, `F_c`, enters as its
+    /// absolute value, so that `F_c >= 0`.
+    pub static_force: Option<Param<Tensor<1>>>,
 }
 
 /// What is fixed during training: integration, normalisation, scaler shapes and bounds.
@@ -333,6 +338,32 @@ pub struct NetFrame {
     pub k_pr: Option<ScalerSpec>,
     /// Declared monotonicity priors in alpha.
     pub priors: Priors,
+    /// The static force's fixed part, if the model has one.
+    pub static_force: Option<StaticFrame>,
+}
+
+/// The fixed part of a static force in training.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StaticFrame {
+    /// Reference position `x_ref` \[m\].
+    pub x_ref: f32,
+    /// Smoothing velocity `v_c` \[m/s\].
+    pub v_c: f32,
+    /// Physical value of one unit of each trained parameter ([`static_units`]).
+    pub units: [f32; STATIC_PARAMS],
+}
+
+/// Fraction of the force scale by which one unit of a static-force parameter moves the
+/// force: Adam moves a parameter by about the learning rate per step, so at 5e-3 and a
+/// 2000 N force scale a step moves the gas offset and the friction by about 1 N.
+pub const STATIC_UNIT: f32 = 0.1;
+
+/// Units of the static-force parameters: [`STATIC_UNIT`] times the force scale \[N\] for
+/// the forces, that divided by the span of `x - x_ref` \[m\] for the gas springs.
+pub fn static_units(force_scale_n: f32, x_span_m: f32) -> [f32; STATIC_PARAMS] {
+    let f = STATIC_UNIT * force_scale_n;
+    let k = f / x_span_m.max(1e-6);
+    [f, f, k, k, f]
 }
 
 fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
@@ -347,14 +378,25 @@ fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
 }
 
 impl EmmNet {
-    /// Builds the module and its frame from rollout parameters.
-    pub fn from_rollout(p: &RolloutParams<f32>, device: &Device) -> (Self, NetFrame) {
+    /// The module and frame of rollout parameters; a static force is trained in `units`
+    /// ([`static_units`]; `None`: the default of [`static_units`] at a 1 kN force scale and a
+    /// 0.1 m span).
+    pub fn from_rollout(
+        p: &RolloutParams<f32>,
+        units: Option<[f32; STATIC_PARAMS]>,
+        device: &Device,
+    ) -> (Self, NetFrame) {
+        let units = units.unwrap_or_else(|| static_units(1000.0, 0.1));
         let c = [p.b_fl0, p.b_pr0, p.k0, p.t_pr].map(|v| v.ln() / LOG_CONSTANT_SCALE);
         let net = Self {
             log_c: Param::from_tensor(tensor1(&c, device)),
             b_fl: p.b_fl.as_ref().map(|s| ScalerNet::from_flat(s, device)),
             b_pr: p.b_pr.as_ref().map(|s| ScalerNet::from_flat(s, device)),
             k_pr: p.k_pr.as_ref().map(|s| ScalerNet::from_flat(s, device)),
+            static_force: p.static_force.as_ref().map(|s| {
+                let t: Vec<f32> = (0..STATIC_PARAMS).map(|q| s.theta[q] / units[q]).collect();
+                Param::from_tensor(tensor1(&t, device))
+            }),
         };
         let frame = NetFrame {
             integrator: p.integrator,
@@ -366,6 +408,11 @@ impl EmmNet {
             b_pr: spec_of(&p.b_pr),
             k_pr: spec_of(&p.k_pr),
             priors: p.priors,
+            static_force: p.static_force.as_ref().map(|s| StaticFrame {
+                x_ref: s.x_ref,
+                v_c: s.v_c,
+                units,
+            }),
         };
         (net, frame)
     }
@@ -406,6 +453,26 @@ impl EmmNet {
             b_pr: flat(&self.b_pr, &f.b_pr),
             k_pr: flat(&self.k_pr, &f.k_pr),
             priors: f.priors,
+            static_force: self
+                .static_force
+                .as_ref()
+                .zip(f.static_force)
+                .map(|(t, sf)| {
+                    let v = to_vec(t.val());
+                    let theta: [f32; STATIC_PARAMS] = std::array::from_fn(|q| {
+                        let x = v.get(q).copied().unwrap_or(f32::NAN) * sf.units[q];
+                        if q == STATIC_PARAMS - 1 {
+                            x.abs()
+                        } else {
+                            x
+                        }
+                    });
+                    StaticParams {
+                        theta,
+                        x_ref: sf.x_ref,
+                        v_c: sf.v_c,
+                    }
+                }),
         }
     }
 
@@ -415,6 +482,7 @@ impl EmmNet {
     /// receive a gradient (`[b_fl, b_pr, k_pr, T_pr]`).
     pub fn add_rollout_grads(
         &self,
+        frame: &NetFrame,
         g: &RolloutGrads<f32>,
         train_constants: [bool; 4],
         gp: &mut GradientsParams,
@@ -447,6 +515,27 @@ impl EmmNet {
                 n.add_flat_grads(flat, gp, device);
             }
         }
+        if let (Some(t), Some(sf), Some(fr)) = (
+            &self.static_force,
+            g.static_force.get(..STATIC_PARAMS),
+            frame.static_force,
+        ) {
+            let v = to_vec(t.val());
+            // d theta_q / d raw_q = unit_q, times sign(raw) for |raw| of F_c.
+            let d: Vec<f32> = (0..STATIC_PARAMS)
+                .map(|q| {
+                    let negative = q == STATIC_PARAMS - 1 && v.get(q).is_some_and(|&r| r < 0.0);
+                    let sign = if negative { -1.0 } else { 1.0 };
+                    sf[q] * fr.units[q] * sign
+                })
+                .collect();
+            let d = tensor1(&d, &dev);
+            let d = match gp.remove::<1>(t.id) {
+                Some(old) => old + d,
+                None => d,
+            };
+            gp.register(t.id, d);
+        }
     }
 
     /// The regularisation term of eq. 24, `sum_i ||W_i||_2`: for every scaler the Euclidean
@@ -475,7 +564,7 @@ mod tests {
         let device = Device::flex();
         let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
         let p: RolloutParams<f32> = from_core(&m).expect("emm");
-        let (net, frame) = EmmNet::from_rollout(&p, &device);
+        let (net, frame) = EmmNet::from_rollout(&p, None, &device);
         let q = net.to_rollout(&frame);
         assert_eq!(q.b_fl.as_ref().map(|s| &s.w), p.b_fl.as_ref().map(|s| &s.w));
         assert_eq!(q.k_pr.as_ref().map(|s| &s.w), p.k_pr.as_ref().map(|s| &s.w));

@@ -186,6 +186,7 @@ fn flat_grads(net: &EmmNet, gp: &GradientsParams) -> RolloutGrads<f32> {
         b_fl: scaler(&net.b_fl),
         b_pr: scaler(&net.b_pr),
         k_pr: scaler(&net.k_pr),
+        static_force: Vec::new(),
     }
 }
 
@@ -195,7 +196,7 @@ fn check(kind: ModelKind, integ: Integrator) {
     m.integrator = integ;
     m.dt_s = 5e-4;
     let p: RolloutParams<f32> = from_core(&m).expect("emm");
-    let (net, frame) = EmmNet::from_rollout(&p, &device);
+    let (net, frame) = EmmNet::from_rollout(&p, None, &device);
     let n = 40;
     let warmup = 5;
     let nw = 5;
@@ -230,6 +231,7 @@ fn check(kind: ModelKind, integ: Integrator) {
             f: &fs[i],
             alpha: alphas[i],
             alphas: None,
+            x: None,
         })
         .collect();
     let (loss_adj, g) = loss_and_grad(&p, &wins, &Grid::SAME, warmup, fscale as f64);

@@ -2,13 +2,13 @@
 //! weight layout and the semantics are nemm-core's, so exporting is a copy, not a
 //! re-implementation.
 
-use super::adjoint::{BranchShape, Real, RolloutParams, ScalerWeights};
+use super::adjoint::{BranchShape, Real, RolloutParams, ScalerWeights, StaticParams};
 use anyhow::{bail, Result};
 use nemm_core::emm::EmmConstants;
 use nemm_core::mlp::AlphaBranch;
 use nemm_core::{
     AlphaBranches, Body, Condition, Extension, InputScales, Integrator, Meta, MlpParams, Model,
-    Scaler, DEFAULT_PARAM_CAPACITY,
+    Scaler, StaticForce, DEFAULT_PARAM_CAPACITY,
 };
 
 fn scaler_from_core<T: Real>(
@@ -98,6 +98,11 @@ pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
         b_pr,
         k_pr,
         priors: m.ext.condition.priors,
+        static_force: m.ext.static_force.map(|s| StaticParams {
+            theta: s.params().map(c),
+            x_ref: c(s.x_ref_m),
+            v_c: c(s.v_c_m_s),
+        }),
     })
 }
 
@@ -166,6 +171,15 @@ pub fn to_core_with<T: Real>(
         ext: Extension {
             condition: condition.clone(),
             alpha_branches: branches,
+            static_force: p.static_force.map(|s| StaticForce {
+                f_gas0_n: f(s.theta[0]),
+                f_gas0_per_alpha_n: f(s.theta[1]),
+                k_gas_n_per_m: f(s.theta[2]),
+                k_gas_per_alpha_n_per_m: f(s.theta[3]),
+                x_ref_m: f(s.x_ref),
+                f_c_n: f(s.theta[4]),
+                v_c_m_s: f(s.v_c),
+            }),
             ..Extension::default()
         },
     };
@@ -203,6 +217,11 @@ pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
         b_pr: s(&p.b_pr),
         k_pr: s(&p.k_pr),
         priors: p.priors,
+        static_force: p.static_force.map(|s| StaticParams {
+            theta: s.theta.map(c),
+            x_ref: c(s.x_ref),
+            v_c: c(s.v_c),
+        }),
     }
 }
 

@@ -324,7 +324,7 @@ mod tests {
         let device = Device::flex().autodiff();
         let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
         let mut p: RolloutParams<f32> = from_core(&m).expect("emm");
-        let (net, frame) = EmmNet::from_rollout(&p, &device);
+        let (net, frame) = EmmNet::from_rollout(&p, None, &device);
         let random = physics_loss(&net, &frame, &PenaltyGrid::default(), &device)
             .into_data()
             .convert::<f32>()
@@ -345,7 +345,7 @@ mod tests {
                 *w = 0.0;
             }
         }
-        let (net, frame) = EmmNet::from_rollout(&p, &device);
+        let (net, frame) = EmmNet::from_rollout(&p, None, &device);
         let flat = physics_loss(&net, &frame, &PenaltyGrid::default(), &device)
             .into_data()
             .convert::<f32>()

@@ -17,11 +17,14 @@
 //!
 //! All variants share the split, the normalisation and the force scale.
 
-use super::adjoint::{simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights};
+use super::adjoint::{
+    simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights, StaticParams,
+};
 use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, StopReason};
 use super::net::EmmNet;
 use super::params::to_core_with;
 use super::physics::{physics_loss, PenaltyGrid};
+use super::static_fit::{fit_residual, StaticSetup};
 use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
@@ -29,6 +32,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use nemm_core::mlp::{branch_param_count, param_count, Direction};
 use nemm_core::model::{Extension, STABILITY_MARGIN};
 use nemm_core::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
+use nemm_core::static_force::STATIC_PARAMS;
 use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -145,6 +149,8 @@ pub struct PipelineConfig {
     pub alpha_priors: AlphaPriors,
     /// Units `K` of each alpha branch.
     pub branch_units: usize,
+    /// Adds the static force of eq. 17 to every EMM-family variant.
+    pub static_force: bool,
 }
 
 /// The defaults are [`crate::config::Config`]'s.
@@ -163,14 +169,23 @@ pub struct SavedFrame {
     pub initial: RolloutParams<f32>,
     /// Training-data facts.
     pub meta: Meta,
+    /// Units of the static force's parameters in training (`None` without a static force).
+    #[serde(default)]
+    pub static_units: Option<[f32; STATIC_PARAMS]>,
 }
 
-fn save_frame(dir: Option<&Path>, p: &RolloutParams<f32>, meta: Meta) -> Result<()> {
+fn save_frame(
+    dir: Option<&Path>,
+    p: &RolloutParams<f32>,
+    meta: Meta,
+    static_units: Option<[f32; STATIC_PARAMS]>,
+) -> Result<()> {
     if let Some(dir) = dir {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let text = serde_json::to_string_pretty(&SavedFrame {
             initial: p.clone(),
             meta,
+            static_units,
         })?;
         crate::fsutil::write_atomic_bytes(&dir.join("frame.json"), text.as_bytes())
             .with_context(|| format!("cannot write {}", dir.join("frame.json").display()))?;
@@ -442,8 +457,10 @@ fn qs_regression(
             b_fl: Some(scaler),
             b_pr: None,
             k_pr: None,
+            static_force: None,
             ..p.clone()
         },
+        None,
         device,
     );
     let spec = frame.b_fl.context("b_fl scaler")?;
@@ -636,6 +653,21 @@ pub fn train_each(
         grid,
     };
     let mut out = Vec::new();
+    let train_w = windows(&prepared.train);
+    let static_setup = cfg
+        .static_force
+        .then(|| StaticSetup::of(&prepared.train, prepared.scales.velocity_m_s));
+    let static_units = static_setup.map(|s| s.units(force_scale));
+    if let Some(s) = &static_setup {
+        eprintln!(
+            "[static] static force on: x_ref {:.2} mm (mean training position), span {:.2} mm, \
+             v_c {:.1} mm/s",
+            1e3 * s.x_ref,
+            1e3 * s.x_span,
+            1e3 * s.v_c
+        );
+    }
+    let qs_owned: Vec<QuasiStaticPoint>;
     let qs = &prepared.quasi_static.train;
     let mut failed = Vec::new();
     if variants.contains(&Variant::Sem) {
@@ -689,7 +721,14 @@ pub fn train_each(
             b_pr: None,
             k_pr: None,
             priors: condition.priors,
+            static_force: None,
         };
+        if let Some(setup) = &static_setup {
+            // Least squares on the residual of the initial constants.
+            let sp = fit_residual(&p0, &train_w, &grid, prepared.warmup_samples, setup);
+            print_static("initial least-squares fit", &sp);
+            p0.static_force = Some(sp);
+        }
         let lin_cfg = FitConfig {
             label: "linear-emm".into(),
             epochs: cfg.linear_epochs,
@@ -697,9 +736,9 @@ pub fn train_each(
             lambda_ph: 0.0,
             ..cfg.fit.clone()
         };
-        let (net, frame) = EmmNet::from_rollout(&p0, &device);
+        let (net, frame) = EmmNet::from_rollout(&p0, static_units, &device);
         let lin_dir = checkpoint_root.map(|r| r.join("linear-emm"));
-        save_frame(lin_dir.as_deref(), &p0, meta)?;
+        save_frame(lin_dir.as_deref(), &p0, meta, static_units)?;
         let lin = fit(
             net,
             &frame,
@@ -715,8 +754,16 @@ pub fn train_each(
         p0.b_pr0 = lin_p.b_pr0;
         p0.k0 = lin_p.k0;
         p0.t_pr = lin_p.t_pr;
+        if let Some(setup) = &static_setup {
+            // The neural stages start from the least-squares static force of the trained
+            // Linear EMM's residual (the best one for its dynamics).
+            let sp = fit_residual(&lin_p, &train_w, &grid, prepared.warmup_samples, setup);
+            print_static("Linear EMM", lin_p.static_force.as_ref().unwrap_or(&sp));
+            print_static("least-squares refit for the neural stages", &sp);
+            p0.static_force = Some(sp);
+        }
         // x_pr scale from the Linear EMM over the training windows.
-        let xs = simulate_x_pr(&lin_p, &windows(&prepared.train), &grid);
+        let xs = simulate_x_pr(&lin_p, &train_w, &grid);
         let x_scale = xs
             .iter()
             .flat_map(|w| w.iter().skip(prepared.warmup_samples))
@@ -780,6 +827,15 @@ pub fn train_each(
         1,
         cfg.fit.seed + 10,
     );
+    // With a static force, the quasi-static points lose its part at their position (the
+    // run's stroke centre, where they are taken) before the b_fl regression.
+    let qs = match &p0.static_force {
+        None => qs,
+        Some(sp) => {
+            qs_owned = without_static_force(qs, prepared, sp);
+            &qs_owned
+        }
+    };
     let b_fl = match qs_regression(&p0, b_fl_init, qs, force_scale, cfg, &device) {
         Ok(b) => b,
         Err(e) => {
@@ -834,9 +890,9 @@ pub fn train_each(
                 label: v.name().into(),
                 ..cfg.fit.clone()
             };
-            let (net, frame) = EmmNet::from_rollout(&p, &device);
+            let (net, frame) = EmmNet::from_rollout(&p, static_units, &device);
             let dir = checkpoint_root.map(|root| root.join(v.name()));
-            save_frame(dir.as_deref(), &p, meta)?;
+            save_frame(dir.as_deref(), &p, meta, static_units)?;
             let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
             SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
             let model = to_core_with(&r.best.to_rollout(&frame), meta, condition)?;
@@ -863,6 +919,47 @@ pub fn train_each(
         }
     }
     Ok(done(out, failed))
+}
+
+/// Prints a static force's parameters.
+fn print_static(what: &str, s: &StaticParams<f32>) {
+    let t = s.theta;
+    eprintln!(
+        "[static] {what}: F_gas0 = {:.1} N {:+.1} N x alpha, k_gas = {:.0} N/m {:+.0} N/m x alpha, \
+         F_c = {:.1} N",
+        t[0], t[1], t[2], t[3], t[4]
+    );
+}
+
+/// Quasi-static points with the static force at their position (the stroke centre of their
+/// run, [`crate::data::preprocess::Excitation::offset_m`]) subtracted.
+fn without_static_force(
+    qs: &[QuasiStaticPoint],
+    prepared: &Prepared,
+    sp: &StaticParams<f32>,
+) -> Vec<QuasiStaticPoint> {
+    qs.iter()
+        .map(|q| {
+            let x = prepared
+                .runs
+                .get(q.run)
+                .map_or(f64::from(sp.x_ref), |r| r.summary.excitation.offset_m);
+            let phi = nemm_core::static_force::features(
+                f64::from(sp.x_ref),
+                f64::from(sp.v_c),
+                x,
+                q.velocity_m_s,
+                q.alpha,
+            );
+            let r: f64 = (0..STATIC_PARAMS)
+                .map(|i| f64::from(sp.theta[i]) * phi[i])
+                .sum();
+            QuasiStaticPoint {
+                force_n: q.force_n - r,
+                ..*q
+            }
+        })
+        .collect()
 }
 
 fn lin_p_with_scale(p: &RolloutParams<f32>, x_scale: f32) -> RolloutParams<f32> {

@@ -84,15 +84,18 @@ pub fn recorded_config(model: &Model) -> Config {
 }
 
 /// The trainer's whole-run evaluation: `model`'s forces \[N\] at every sample of run `index`
-/// of `ds`, from rest, on the velocity the trainer's preprocessing (`signal`) derives.
+/// of `ds`, from rest, on the velocity and stroke position the trainer's preprocessing
+/// (`signal`) derives.
 pub fn host_forces(model: &Model, ds: &Dataset, index: usize, signal: &SignalConfig) -> Vec<f64> {
     let run = &ds.runs[index];
     let s = preprocess::process_run(run, index, ds.sample_rate_hz, signal).expect("preprocess");
     let u: Vec<f32> = s.velocity_m_s.iter().map(|&v| v as f32).collect();
+    let x: Vec<f32> = s.displacement_m.iter().map(|&v| v as f32).collect();
     let input = Input {
         velocity_m_s: &u,
         alpha: run.entry.oil_loss as f32,
         alphas: None,
+        position_m: Some(&x),
     };
     predict(model, &[input], 1.0 / ds.sample_rate_hz)
         .expect("evaluation")
