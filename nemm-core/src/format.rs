@@ -6,7 +6,8 @@
 //! | max_scaler_params (varint u32) | body_len (varint u32)                 |
 //! +-------------------------------------------------------------------------+
 //! | body (body_len bytes): postcard-encoded [`Model`] (version-1 layout),   |
-//! | then, from version 3 on, the postcard-encoded [`Extension`]             |
+//! | then, from version 3 on, the postcard-encoded [`Extension`],            |
+//! | then, from version 4 on, the tables section ([`crate::stored_tables`])  |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -21,7 +22,9 @@
 //! `alpha`, declared priors), the alpha branches of the scalers and the
 //! [`crate::model::Provenance`]. A version-1 or -2 blob decodes with [`Extension::default`],
 //! which reproduces what those versions meant (the paper's oil loss, no branches, no
-//! provenance).
+//! provenance). Version 4 appends the tables section: precomputed fast-path tables for
+//! declared oil-loss levels ([`crate::stored_tables`]; one byte, no levels, in a blob
+//! written by [`encode`]); a blob of an earlier version decodes with no tables.
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -32,7 +35,10 @@
 //! capacity, body, header/body agreement, then [`Model::validate`] (finite values, shapes,
 //! bounds, stability of the configured step).
 
+use crate::estimator::Estimator;
 use crate::model::{Extension, Model, ModelError, ModelKind};
+use crate::stored_tables::{self, StoredTables, Writer};
+use crate::table::DEFAULT_TABLE_SEGMENTS;
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
@@ -42,7 +48,7 @@ use serde::{Deserialize, Serialize};
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 3;
+pub const FORMAT_VERSION: u16 = 4;
 /// Oldest format version this build reads.
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
@@ -170,6 +176,10 @@ pub enum EncodeError {
     Invalid(ModelError),
     /// The output buffer is too small.
     BufferTooSmall,
+    /// An estimator given for the tables section is not in table mode, does not fit the
+    /// model (its tables are not those of the model's neural coefficients on the model's
+    /// domain), or there are more than [`stored_tables::MAX_TABLE_LEVELS`].
+    Tables,
 }
 
 impl fmt::Display for EncodeError {
@@ -179,6 +189,12 @@ impl fmt::Display for EncodeError {
             EncodeError::BufferTooSmall => {
                 write!(f, "output buffer too small for the weights blob")
             }
+            EncodeError::Tables => write!(
+                f,
+                "the tables to store must come from table-mode estimators of this model \
+                 (at most {} levels)",
+                stored_tables::MAX_TABLE_LEVELS
+            ),
         }
     }
 }
@@ -196,31 +212,68 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
     }
 }
 
-/// Length in bytes of the body of `model`: the version-1 part, then the extension.
-fn body_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    let v1 =
-        postcard::experimental::serialized_size(model).map_err(|_| EncodeError::BufferTooSmall)?;
-    let ext = postcard::experimental::serialized_size(&model.ext)
-        .map_err(|_| EncodeError::BufferTooSmall)?;
-    v1.checked_add(ext).ok_or(EncodeError::BufferTooSmall)
+/// Writes (or counts) the body of `model`: the version-1 part, the extension, then the
+/// tables section of `levels`.
+fn write_body<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+    w: &mut Writer<'_>,
+) -> Result<(), EncodeError> {
+    w.put(model).ok_or(EncodeError::BufferTooSmall)?;
+    w.put(&model.ext).ok_or(EncodeError::BufferTooSmall)?;
+    stored_tables::write_section(model, levels, w)
+}
+
+/// Length in bytes of the body of `model` with the tables of `levels`.
+fn body_len<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+) -> Result<usize, EncodeError> {
+    let mut w = Writer::counter();
+    write_body(model, levels, &mut w)?;
+    Ok(w.len())
 }
 
 /// Length in bytes of the blob of `model` (header, body, CRC).
 pub fn encoded_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    let body_len = body_len(model)?;
+    encoded_len_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
+}
+
+/// Length in bytes of the blob of `model` with the tables of `levels` (see
+/// [`encode_with_tables`]).
+pub fn encoded_len_with_tables<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+) -> Result<usize, EncodeError> {
+    let body_len = body_len(model, levels)?;
     let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
         .map_err(|_| EncodeError::BufferTooSmall)?;
     Ok(header_len + body_len + CRC_LEN)
 }
 
-/// Encodes a validated model into `buf` (at least [`encoded_len`] bytes); returns the blob
-/// (a prefix of `buf`).
+/// Encodes a validated model into `buf` (at least [`encoded_len`] bytes), with an empty
+/// tables section; returns the blob (a prefix of `buf`).
 pub fn encode<'b, const P: usize>(
     model: &Model<P>,
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
+    encode_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[], buf)
+}
+
+/// Encodes a validated model with precomputed fast-path tables: the tables of each
+/// estimator of `levels` (at most [`stored_tables::MAX_TABLE_LEVELS`], each loaded from
+/// `model` in [`crate::EvalMode::Table`]) at its alpha, bit for bit (see
+/// [`crate::stored_tables`]). `buf` needs at least [`encoded_len_with_tables`] bytes; returns
+/// the blob (a prefix of `buf`). An estimator that is not in table mode, or whose tables do
+/// not fit the model (another kind, another domain), is refused with
+/// [`EncodeError::Tables`].
+pub fn encode_with_tables<'b, const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+    buf: &'b mut [u8],
+) -> Result<&'b [u8], EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let body_len = body_len(model)?;
+    let body_len = body_len(model, levels)?;
     let hlen = postcard::to_slice(&header_for(model, body_len), buf)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
@@ -228,16 +281,9 @@ pub fn encode<'b, const P: usize>(
         .checked_add(body_len)
         .ok_or(EncodeError::BufferTooSmall)?;
     let body_area = buf.get_mut(hlen..end).ok_or(EncodeError::BufferTooSmall)?;
-    let v1_len = postcard::to_slice(model, body_area)
-        .map_err(|_| EncodeError::BufferTooSmall)?
-        .len();
-    let ext_area = body_area
-        .get_mut(v1_len..)
-        .ok_or(EncodeError::BufferTooSmall)?;
-    let ext_len = postcard::to_slice(&model.ext, ext_area)
-        .map_err(|_| EncodeError::BufferTooSmall)?
-        .len();
-    if v1_len + ext_len != body_len {
+    let mut w = Writer::new(body_area);
+    write_body(model, levels, &mut w)?;
+    if w.len() != body_len {
         return Err(EncodeError::BufferTooSmall);
     }
     let crc = CRC.checksum(buf.get(..end).ok_or(EncodeError::BufferTooSmall)?);
@@ -250,14 +296,19 @@ pub fn encode<'b, const P: usize>(
 /// Encodes a validated model into a new vector.
 #[cfg(feature = "std")]
 pub fn encode_to_vec<const P: usize>(model: &Model<P>) -> Result<std::vec::Vec<u8>, EncodeError> {
+    encode_to_vec_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
+}
+
+/// [`encode_with_tables`] into a new vector.
+#[cfg(feature = "std")]
+pub fn encode_to_vec_with_tables<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+) -> Result<std::vec::Vec<u8>, EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let mut body = postcard::to_stdvec(model).map_err(|_| EncodeError::BufferTooSmall)?;
-    body.extend(postcard::to_stdvec(&model.ext).map_err(|_| EncodeError::BufferTooSmall)?);
-    let mut out = postcard::to_stdvec(&header_for(model, body.len()))
-        .map_err(|_| EncodeError::BufferTooSmall)?;
-    out.extend_from_slice(&body);
-    let crc = CRC.checksum(&out);
-    out.extend_from_slice(&crc.to_le_bytes());
+    let mut out = std::vec![0u8; encoded_len_with_tables(model, levels)?];
+    let n = encode_with_tables(model, levels, &mut out)?.len();
+    out.truncate(n);
     Ok(out)
 }
 
@@ -364,6 +415,17 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
             .map_err(|_| DecodeError::Malformed { part: "extension" })?
     } else {
         model.ext = Extension::default();
+        rest
+    };
+    // Version 4: the tables section (an index of it; the tables stay in the blob).
+    let rest = if header.version >= 4 {
+        let neural = stored_tables::neural(model);
+        model
+            .tables
+            .read(rest, covered, stored, neural)
+            .ok_or(DecodeError::Malformed { part: "tables" })?
+    } else {
+        model.tables = StoredTables::EMPTY;
         rest
     };
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {

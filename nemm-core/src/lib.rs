@@ -63,6 +63,7 @@ pub mod math;
 pub mod mlp;
 pub mod model;
 pub mod sem;
+pub mod stored_tables;
 pub mod table;
 #[doc(hidden)]
 pub mod testing;
@@ -70,11 +71,11 @@ pub mod velocity;
 
 pub use emm::{Coefficients, EmmConstants, State};
 pub use estimator::{
-    Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags,
+    Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, TableOrigin,
 };
 pub use format::{
-    decode, decode_into, encode, read_header, DecodeError, EncodeError, Header, FORMAT_VERSION,
-    OLDEST_FORMAT_VERSION,
+    decode, decode_into, encode, encode_with_tables, read_header, DecodeError, EncodeError, Header,
+    FORMAT_VERSION, OLDEST_FORMAT_VERSION,
 };
 pub use integrator::Integrator;
 pub use mlp::{AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
@@ -83,7 +84,8 @@ pub use model::{
     Priors, Provenance, UnknownName,
 };
 pub use sem::SemMap;
+pub use stored_tables::{StoredTables, StoredUnused};
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 
 #[cfg(feature = "std")]
-pub use format::encode_to_vec;
+pub use format::{encode_to_vec, encode_to_vec_with_tables};

@@ -131,6 +131,34 @@ fn decoding_and_loading_in_place_use_bounded_stack() {
         assert!(bytes <= load_bound, "{op}: {bytes} > {load_bound}");
     }
 
+    // A blob with stored tables at 0.15: decoding indexes them, loading reads them in place.
+    let tables_blob = {
+        let mut built: Box<Estimator<P>> = Box::new(Estimator::empty());
+        built.load(&model, table_mode(0.15)).expect("loads");
+        common::blob_with_tables(&model, &[&*built]).expect("encodes")
+    };
+    let mut place: Box<Model<P>> = Box::new(Model::empty());
+    let b = tables_blob.clone();
+    let in_place = peak_stack(move || {
+        decode_into(&b, &mut place).expect("decodes");
+        place
+    });
+    report("decode_into-tables", in_place);
+    assert!(in_place <= in_place_bound, "{in_place} > {in_place_bound}");
+    let mut with_tables: Box<Model<P>> = Box::new(Model::empty());
+    decode_into(&tables_blob, &mut with_tables).expect("decodes");
+    let mut est: Box<Estimator<P>> = Box::new(Estimator::empty());
+    let bytes = peak_stack(move || {
+        est.load_with_tables(&with_tables, table_mode(0.15), &tables_blob)
+            .expect("loads");
+        assert_eq!(est.table_origin(), nemm_core::TableOrigin::Stored);
+    });
+    report("load-stored-tables", bytes);
+    assert!(
+        bytes <= load_bound,
+        "load-stored-tables: {bytes} > {load_bound}"
+    );
+
     // The by-value paths, for the docs: they hold the model / the estimator on the stack.
     let b = blob.clone();
     report(

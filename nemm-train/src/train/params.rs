@@ -168,6 +168,7 @@ pub fn to_core_with<T: Real>(
             alpha_branches: branches,
             ..Extension::default()
         },
+        tables: nemm_core::stored_tables::StoredTables::EMPTY,
     };
     model
         .validate()
