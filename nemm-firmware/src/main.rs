@@ -101,6 +101,10 @@ mod app {
     /// the logger reads them after it received [`LogItem::Done`] (the queue orders the two).
     static CHUNK_DIGESTS: [AtomicU32; MAX_CHUNKS] = [const { AtomicU32::new(0) }; MAX_CHUNKS];
 
+    /// SysTick's count range (24 bits): the boot is timed within one range (at
+    /// [`board::SYSTICK_HZ`], 0.67 s; under QEMU's `-icount shift=0`, 671 M instructions).
+    const BOOT_TICKS_RANGE: u32 = 1 << 24;
+
     /// Decodes and validates the weights into the model's static storage, in place: the one
     /// place the blob is decoded.
     fn load_model(blob: &[u8]) -> Result<&'static Model<PARAM_CAPACITY>, DecodeError> {
@@ -113,6 +117,16 @@ mod app {
 
     #[init]
     fn init(_: init::Context) -> (Shared, Local) {
+        // SysTick free-running over the boot (no interrupt): `boot_ticks` of the `start`
+        // line counts from here to the end of the estimator's loading.
+        // SAFETY: init runs once with interrupts disabled; the SysTick registers are owned
+        // by this application (RTIC's `peripherals = false` leaves them to us).
+        let mut boot_syst = unsafe { cortex_m::Peripherals::steal() }.SYST;
+        boot_syst.set_clock_source(SystClkSource::Core);
+        boot_syst.set_reload(BOOT_TICKS_RANGE - 1);
+        boot_syst.clear_current();
+        let _ = boot_syst.has_wrapped();
+        boot_syst.enable_counter();
         let mut console = Console::open();
         let mut line = Line::new();
         line.str("boot")
@@ -188,12 +202,16 @@ mod app {
         let Some(estimator) = ESTIMATOR.init(nemm_firmware::FwEstimator::empty()) else {
             board::exit(report::EXIT_USAGE) // init runs once
         };
-        if let Err(e) = estimator.load(model, cfg) {
+        // The blob's stored tables at this alpha, if it has them (no table build at boot).
+        if let Err(e) = estimator.load_with_tables(model, cfg, blob) {
             let mut l = Line::new();
             report::estimator_error(&mut l, &e);
             console.write(l.finish());
             return (Shared {}, no_estimator(console));
         }
+        // The boot's SysTick ticks (at most one count range: a wrap is reported as none).
+        let boot_ticks = (!boot_syst.has_wrapped())
+            .then(|| (BOOT_TICKS_RANGE - 1).wrapping_sub(SYST::get_current()));
         let mut l = Line::new();
         report::weights_ok(&mut l, model, blob.len(), estimator);
         console.write(l.finish());
@@ -211,6 +229,9 @@ mod app {
             .kv("faults", options.faults.len() as u32)
             .kv("stalls", options.stalls.len() as u32)
             .kv("boot_stack", board::stack_used());
+        if let Some(t) = boot_ticks {
+            l.kv("boot_ticks", t);
+        }
         console.write(l.finish());
 
         // SAFETY: init runs once with interrupts disabled; the SysTick registers are owned by

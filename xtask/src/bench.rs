@@ -8,7 +8,7 @@ use nemm_elf::Elf;
 
 /// Instructions per SysTick tick: `-icount shift=0` runs one instruction per emulated
 /// nanosecond, and SysTick counts the mps2-an386 core clock of 25 MHz.
-const INSTRUCTIONS_PER_TICK: u64 = 40;
+pub const INSTRUCTIONS_PER_TICK: u64 = 40;
 
 /// The fields of a `table` line that a `target-step` line of mode `table` carries, in order.
 const TABLE_FIELDS: [&str; 4] = ["segments", "table_bytes", "max_rel_error_ppb", "kinks"];

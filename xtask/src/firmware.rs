@@ -46,6 +46,13 @@ pub struct StackFigures {
     pub peak: u64,
     /// The room the memory layout leaves the stack (`_stack_start - _stack_end`).
     pub room: u64,
+    /// QEMU instructions of the boot (`boot_ticks` of the `start` line times
+    /// [`crate::bench::INSTRUCTIONS_PER_TICK`]): from the start of `init` to the end of the estimator's
+    /// loading (decoding the weights, and building or reading the tables in table mode).
+    pub boot_instructions: u64,
+    /// Table mode: whether the tables were read from the blob (`tables=stored` of the
+    /// `weights ok` line) rather than built at boot; `None` without tables.
+    pub tables_stored: Option<bool>,
 }
 
 impl StackFigures {
@@ -54,6 +61,19 @@ impl StackFigures {
         format!(
             "boot-stack bytes={} mode={mode} peak={} room={}",
             self.boot, self.peak, self.room
+        )
+    }
+
+    /// `boot-instructions n=<boot_instructions> mode=<mode> tables=<stored|built|none>`.
+    pub fn boot_line(&self, mode: &str) -> String {
+        let tables = match self.tables_stored {
+            Some(true) => "stored",
+            Some(false) => "built",
+            None => "none",
+        };
+        format!(
+            "boot-instructions n={} mode={mode} tables={tables}",
+            self.boot_instructions
         )
     }
 }
@@ -86,10 +106,17 @@ pub fn stack_figures(
             .parse()
             .map_err(|e| format!("{key}: {e}"))
     };
+    let tables = out
+        .lines()
+        .filter(|l| l.starts_with("weights ok "))
+        .flat_map(|l| l.split_ascii_whitespace())
+        .find_map(|w| w.strip_prefix("tables="));
     Ok(StackFigures {
         boot: value("start", "boot_stack")?,
         peak: value("summary", "stack_used")?,
         room,
+        boot_instructions: value("start", "boot_ticks")? * crate::bench::INSTRUCTIONS_PER_TICK,
+        tables_stored: tables.map(|t| t == "stored"),
     })
 }
 

@@ -75,7 +75,9 @@ enum Cmd {
     },
     /// Build the firmware images, print their flash and RAM use, and run the application in
     /// QEMU to print its stack at the end of the boot (`boot-stack bytes=<n>`, by stack
-    /// painting) in each evaluation mode.
+    /// painting) and the boot's instructions (`boot-instructions n=<n>`: decoding the
+    /// weights and loading the estimator, with its tables stored or built) in each
+    /// evaluation mode.
     BuildTarget,
     /// Build and link the STM32F407 image (boards/nemm-stm32f407), as flashed and for QEMU's
     /// netduinoplus2, and print their flash and RAM use.
@@ -426,10 +428,9 @@ fn build_target() -> Result<(), String> {
     let images = firmware::build(&tc, &paths)?;
     print_memory(&images.named())?;
     for (mode, options) in firmware::STACK_RUNS {
-        println!(
-            "{}",
-            firmware::stack_figures(&tc, &images, options)?.line(mode)
-        );
+        let f = firmware::stack_figures(&tc, &images, options)?;
+        println!("{}", f.line(mode));
+        println!("{}", f.boot_line(mode));
     }
     Ok(())
 }

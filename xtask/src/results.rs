@@ -475,6 +475,8 @@ mod tests {
                     boot: 1200,
                     peak: 1864,
                     room: 140000,
+                    boot_instructions: 2_400_000,
+                    tables_stored: Some(true),
                 },
             )],
         );
