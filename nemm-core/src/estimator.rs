@@ -35,7 +35,10 @@
 //!   refuse, with [`EstimatorError::Table`], a table whose relative error exceeds
 //!   [`TableConfig::max_rel_error`]. A state outside a table's domain is clamped and sets
 //!   [`Flags::OUT_OF_TABLE_DOMAIN`]. The SEM and the Linear EMM have nothing to tabulate and
-//!   run the same code in both modes.
+//!   run the same code in both modes. A blob can store the tables for declared alpha levels
+//!   (format version 4, [`crate::stored_tables`]): [`Estimator::load_with_tables`] then
+//!   reads them from the blob instead of building them, bit for bit the same tables
+//!   ([`Estimator::table_origin`] says which happened, and why stored ones were not used).
 //!
 //! ```
 //! use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
