@@ -41,7 +41,10 @@
 //!   refuse, with [`EstimatorError::Table`], a table whose relative error exceeds
 //!   [`TableConfig::max_rel_error`]. A state outside a table's domain is clamped and sets
 //!   [`Flags::OUT_OF_TABLE_DOMAIN`]. The SEM and the Linear EMM have nothing to tabulate and
-//!   run the same code in both modes.
+//!   run the same code in both modes. A blob can store the tables for declared alpha levels
+//!   (format version 4, [`crate::stored_tables`]): [`Estimator::load_with_tables`] then
+//!   reads them from the blob instead of building them, bit for bit the same tables
+//!   ([`Estimator::table_origin`] says which happened, and why stored ones were not used).
 //!
 //! ```
 //! use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
@@ -64,6 +67,7 @@ use crate::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
 use crate::static_force::StaticForce;
+use crate::stored_tables::{StoredTable, StoredUnused};
 use crate::table::{self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 use core::fmt;
 
@@ -147,6 +151,19 @@ impl EvalMode {
             EvalMode::Table(_) => "table",
         }
     }
+}
+
+/// Where the tables of an estimator came from ([`Estimator::table_origin`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TableOrigin {
+    /// No tables: exact mode, a model without neural coefficients, or no model.
+    #[default]
+    None,
+    /// Built and checked by the estimator; why stored tables were not used.
+    Built(StoredUnused),
+    /// Read from the blob's tables section ([`Estimator::load_with_tables`]): bit for bit
+    /// the tables the estimator would build, without building them.
+    Stored,
 }
 
 /// Settings of an estimator.
@@ -268,7 +285,10 @@ impl<const P: usize, const T: usize> Coef<P, T> {
 
     /// In place: the constant `p_ini` without a scaler; otherwise the scaler compiled for
     /// `alpha` and, in table mode, its table over `[-m u_scale, m u_scale]` (`m` the
-    /// configured domain margin). `name` names the coefficient in errors.
+    /// configured domain margin): read from `stored` (a stored table of `T` segments, see
+    /// [`crate::stored_tables`]) if given and it reads back on that domain, else built.
+    /// `name` names the coefficient in errors. Returns, in table mode, whether the table
+    /// was read from `stored`.
     fn load(
         &mut self,
         name: &'static str,
@@ -276,25 +296,29 @@ impl<const P: usize, const T: usize> Coef<P, T> {
         p_ini: f32,
         u_scale: f32,
         (alpha, alpha_scale): (f32, f32),
-        mode: &EvalMode,
-    ) -> Result<(), EstimatorError> {
+        (mode, stored): (&EvalMode, Option<&[u8]>),
+    ) -> Result<Option<bool>, EstimatorError> {
         self.kind = CoefKind::Const;
         self.value = p_ini;
         let Some((scaler, branch)) = scaler else {
-            return Ok(());
+            return Ok(None);
         };
         self.exact
             .compile_into(scaler, branch, p_ini, u_scale, alpha, alpha_scale)
             .ok_or(EstimatorError::Compile)?;
         self.kind = CoefKind::Neural;
-        if let EvalMode::Table(tc) = mode {
-            let d = tc.domain_margin * u_scale;
+        let EvalMode::Table(tc) = mode else {
+            return Ok(None);
+        };
+        let d = tc.domain_margin * u_scale;
+        let read = stored.is_some_and(|b| self.table.read_stored(b, -d, d).is_some());
+        if !read {
             self.table
                 .compile_into(&self.exact, -d, d, tc.max_rel_error, name)
                 .map_err(EstimatorError::Table)?;
-            self.kind = CoefKind::Table;
         }
-        Ok(())
+        self.kind = CoefKind::Table;
+        Ok(Some(read))
     }
 
     /// Re-folds `alpha` into the scaler and, in table mode, rebuilds the table over its
@@ -560,6 +584,7 @@ pub struct Estimator<
     /// Last good stroke position \[m\] (`x_ref` after a reset).
     last_x: f32,
     mode: EvalMode,
+    origin: TableOrigin,
     rt: Runtime<P, T>,
 }
 
@@ -615,6 +640,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         static_force: None,
         last_x: 0.0,
         mode: EvalMode::Exact,
+        origin: TableOrigin::None,
         rt: Runtime {
             kind: RuntimeKind::Empty,
             emm: EmmRuntime::empty(),
@@ -630,8 +656,34 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// On error the estimator is empty (as [`Estimator::empty`]: 0 N with
     /// [`Flags::NO_MODEL`]) until a model loads.
     pub fn load(&mut self, model: &Model<P>, cfg: EstimatorConfig) -> Result<(), EstimatorError> {
+        self.load_from(model, cfg, None)
+    }
+
+    /// [`Estimator::load`] with the blob `model` was decoded from: in table mode, the
+    /// tables are read from the blob's tables section ([`crate::stored_tables`]) when it
+    /// holds a level that matches this estimator (its alpha, `T` segments and the table
+    /// configuration, bit for bit), instead of being built; the result is bit for bit the
+    /// same estimator. Otherwise they are built as by [`Estimator::load`], and
+    /// [`Estimator::table_origin`] says why the stored ones were not used (a mismatch is
+    /// not an error).
+    pub fn load_with_tables(
+        &mut self,
+        model: &Model<P>,
+        cfg: EstimatorConfig,
+        blob: &[u8],
+    ) -> Result<(), EstimatorError> {
+        self.load_from(model, cfg, Some(blob))
+    }
+
+    fn load_from(
+        &mut self,
+        model: &Model<P>,
+        cfg: EstimatorConfig,
+        blob: Option<&[u8]>,
+    ) -> Result<(), EstimatorError> {
         self.rt.kind = RuntimeKind::Empty;
         self.static_force = None;
+        self.origin = TableOrigin::None;
         self.sticky = Flags(0);
         self.diag = Diagnostics::default();
         self.state = State::default();
@@ -675,23 +727,40 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     Body::Sem(_) => return Err(EstimatorError::Compile),
                 };
                 let branches = &model.ext.alpha_branches;
+                let level = match blob {
+                    Some(b) => model.tables.find(&cfg, T, b),
+                    None => Err(StoredUnused::NotOffered),
+                };
+                let bytes = |t: Option<StoredTable>| -> Option<&[u8]> {
+                    blob?.get(usize::try_from(t?.offset).ok()?..)
+                };
+                let (stored_b_fl, stored_k_pr) = match level {
+                    Ok(l) => (bytes(l.b_fl), bytes(l.k_pr)),
+                    Err(_) => (None, None),
+                };
                 let rt = &mut self.rt.emm;
-                rt.b_fl.load(
+                let read_b_fl = rt.b_fl.load(
                     "b_fl",
                     b_fl.map(|s| (s, branches.b_fl.as_ref())),
                     emm.b_fl_ns_per_m,
                     sc.velocity_m_s,
                     (alpha, sc.alpha),
-                    &cfg.mode,
+                    (&cfg.mode, stored_b_fl),
                 )?;
-                rt.k_pr.load(
+                let read_k_pr = rt.k_pr.load(
                     "k_pr",
                     k_pr.map(|s| (s, branches.k_pr.as_ref())),
                     emm.k_pr_n_per_m,
                     sc.x_pr_m,
                     (alpha, sc.alpha),
-                    &cfg.mode,
+                    (&cfg.mode, stored_k_pr),
                 )?;
+                self.origin = match (read_b_fl, read_k_pr, level) {
+                    (None, None, _) => TableOrigin::None,
+                    (_, _, Err(why)) => TableOrigin::Built(why),
+                    (b, k, Ok(_)) if b != Some(false) && k != Some(false) => TableOrigin::Stored,
+                    _ => TableOrigin::Built(StoredUnused::Table),
+                };
                 rt.table_cfg = match cfg.mode {
                     EvalMode::Exact => None,
                     EvalMode::Table(tc) => Some(tc),
@@ -759,7 +828,12 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         match self.rt.kind {
             RuntimeKind::Empty => return Ok(()),
             RuntimeKind::Sem => self.rt.sem_curve = self.rt.sem_map.curve_at(alpha).0,
-            RuntimeKind::Emm => self.rt.emm.set_alpha(alpha, self.alpha)?,
+            RuntimeKind::Emm => {
+                self.rt.emm.set_alpha(alpha, self.alpha)?;
+                if self.origin != TableOrigin::None {
+                    self.origin = TableOrigin::Built(StoredUnused::NotOffered);
+                }
+            }
         }
         self.alpha = alpha;
         self.update_alpha_flags();
@@ -956,6 +1030,29 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// The evaluation mode.
     pub fn mode(&self) -> EvalMode {
         self.mode
+    }
+
+    /// Where the tables in use came from: built, or read from the blob
+    /// ([`Estimator::load_with_tables`]); [`TableOrigin::None`] without tables.
+    pub fn table_origin(&self) -> TableOrigin {
+        self.origin
+    }
+
+    /// Table mode: what the tables section of a blob stores for this estimator (its alpha,
+    /// table configuration and the tables of `b_fl` and `k_pr`); `None` in exact mode or
+    /// without neural coefficients.
+    pub(crate) fn stored_parts(
+        &self,
+    ) -> Option<(f32, TableConfig, Option<&Table1D<T>>, Option<&Table1D<T>>)> {
+        let EvalMode::Table(tc) = self.mode else {
+            return None;
+        };
+        if self.rt.kind != RuntimeKind::Emm {
+            return None;
+        }
+        let rt = &self.rt.emm;
+        let (b, k) = (rt.b_fl.table(), rt.k_pr.table());
+        (b.is_some() || k.is_some()).then_some((self.alpha, tc, b, k))
     }
 
     /// Table mode: the worst accuracy of the tables in use, measured when they were built

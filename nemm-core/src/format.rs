@@ -7,7 +7,8 @@
 //! +-------------------------------------------------------------------------+
 //! | body (body_len bytes): postcard-encoded [`Model`] (version-1 layout),   |
 //! | then, from version 3 on, the postcard-encoded [`Extension`], then, from |
-//! | version 4 on, its version-4 sections (`Option<StaticForce>`)            |
+//! | version 4 on, `Option<StaticForce>` and the tables section              |
+//! | ([`crate::stored_tables`])                                              |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -20,12 +21,14 @@
 //! on. Version 2 appended an empty [`Extension`] to the body (zero bytes, so a version-2
 //! body is a version-1 body); version 3 fills it with the condition (name, unit, map to
 //! `alpha`, declared priors), the alpha branches of the scalers and the
-//! [`crate::model::Provenance`]; version 4 appends its sections after those fields, each
-//! one a separately encoded field of the [`Extension`] (not part of the extension's own
-//! postcard encoding): first [`Extension::static_force`] (`Option<StaticForce>`). A blob
-//! of an earlier version decodes with the fields it lacks at their defaults
-//! ([`Extension::default`]), which reproduces what those versions meant (the paper's oil
-//! loss, no branches, no provenance, no static force).
+//! [`crate::model::Provenance`]; version 4 appends two sections after those fields, each
+//! encoded on its own (not part of the extension's own postcard encoding): first
+//! [`Extension::static_force`] (`Option<StaticForce>`), then the tables section:
+//! precomputed fast-path tables for declared oil-loss levels ([`crate::stored_tables`]; one
+//! byte, no levels, in a blob written by [`encode`]). A blob of an earlier version decodes
+//! with the fields it lacks at their defaults ([`Extension::default`], no tables), which
+//! reproduces what those versions meant (the paper's oil loss, no branches, no provenance,
+//! no static force).
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -36,8 +39,11 @@
 //! capacity, body, header/body agreement, then [`Model::validate`] (finite values, shapes,
 //! bounds, stability of the configured step).
 
+use crate::estimator::Estimator;
 use crate::model::{Extension, Model, ModelError, ModelKind};
 use crate::static_force::StaticForce;
+use crate::stored_tables::{self, StoredTables, Writer};
+use crate::table::DEFAULT_TABLE_SEGMENTS;
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
@@ -175,6 +181,10 @@ pub enum EncodeError {
     Invalid(ModelError),
     /// The output buffer is too small.
     BufferTooSmall,
+    /// An estimator given for the tables section is not in table mode, does not fit the
+    /// model (its tables are not those of the model's neural coefficients on the model's
+    /// domain), or there are more than [`stored_tables::MAX_TABLE_LEVELS`].
+    Tables,
 }
 
 impl fmt::Display for EncodeError {
@@ -184,6 +194,12 @@ impl fmt::Display for EncodeError {
             EncodeError::BufferTooSmall => {
                 write!(f, "output buffer too small for the weights blob")
             }
+            EncodeError::Tables => write!(
+                f,
+                "the tables to store must come from table-mode estimators of this model \
+                 (at most {} levels)",
+                stored_tables::MAX_TABLE_LEVELS
+            ),
         }
     }
 }
@@ -201,36 +217,70 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
     }
 }
 
-/// Length in bytes of the body of `model`: the version-1 part, the version-3 extension,
-/// then the version-4 sections.
-fn body_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    let size = |len: Result<usize, postcard::Error>| len.map_err(|_| EncodeError::BufferTooSmall);
-    let v1 = size(postcard::experimental::serialized_size(model))?;
-    let ext = size(postcard::experimental::serialized_size(&model.ext))?;
-    let v4 = size(postcard::experimental::serialized_size(
-        &model.ext.static_force,
-    ))?;
-    v1.checked_add(ext)
-        .and_then(|n| n.checked_add(v4))
-        .ok_or(EncodeError::BufferTooSmall)
+/// Writes (or counts) the body of `model`: the version-1 part, the extension, then the
+/// version-4 sections: the static force and the tables section of `levels`.
+fn write_body<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+    w: &mut Writer<'_>,
+) -> Result<(), EncodeError> {
+    w.put(model).ok_or(EncodeError::BufferTooSmall)?;
+    w.put(&model.ext).ok_or(EncodeError::BufferTooSmall)?;
+    w.put(&model.ext.static_force)
+        .ok_or(EncodeError::BufferTooSmall)?;
+    stored_tables::write_section(model, levels, w)
+}
+
+/// Length in bytes of the body of `model` with the tables of `levels`.
+fn body_len<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+) -> Result<usize, EncodeError> {
+    let mut w = Writer::counter();
+    write_body(model, levels, &mut w)?;
+    Ok(w.len())
 }
 
 /// Length in bytes of the blob of `model` (header, body, CRC).
 pub fn encoded_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    let body_len = body_len(model)?;
+    encoded_len_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
+}
+
+/// Length in bytes of the blob of `model` with the tables of `levels` (see
+/// [`encode_with_tables`]).
+pub fn encoded_len_with_tables<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+) -> Result<usize, EncodeError> {
+    let body_len = body_len(model, levels)?;
     let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
         .map_err(|_| EncodeError::BufferTooSmall)?;
     Ok(header_len + body_len + CRC_LEN)
 }
 
-/// Encodes a validated model into `buf` (at least [`encoded_len`] bytes); returns the blob
-/// (a prefix of `buf`).
+/// Encodes a validated model into `buf` (at least [`encoded_len`] bytes), with an empty
+/// tables section; returns the blob (a prefix of `buf`).
 pub fn encode<'b, const P: usize>(
     model: &Model<P>,
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
+    encode_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[], buf)
+}
+
+/// Encodes a validated model with precomputed fast-path tables: the tables of each
+/// estimator of `levels` (at most [`stored_tables::MAX_TABLE_LEVELS`], each loaded from
+/// `model` in [`crate::EvalMode::Table`]) at its alpha, bit for bit (see
+/// [`crate::stored_tables`]). `buf` needs at least [`encoded_len_with_tables`] bytes; returns
+/// the blob (a prefix of `buf`). An estimator that is not in table mode, or whose tables do
+/// not fit the model (another kind, another domain), is refused with
+/// [`EncodeError::Tables`].
+pub fn encode_with_tables<'b, const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+    buf: &'b mut [u8],
+) -> Result<&'b [u8], EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let body_len = body_len(model)?;
+    let body_len = body_len(model, levels)?;
     let hlen = postcard::to_slice(&header_for(model, body_len), buf)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
@@ -238,22 +288,9 @@ pub fn encode<'b, const P: usize>(
         .checked_add(body_len)
         .ok_or(EncodeError::BufferTooSmall)?;
     let body_area = buf.get_mut(hlen..end).ok_or(EncodeError::BufferTooSmall)?;
-    let v1_len = postcard::to_slice(model, body_area)
-        .map_err(|_| EncodeError::BufferTooSmall)?
-        .len();
-    let ext_area = body_area
-        .get_mut(v1_len..)
-        .ok_or(EncodeError::BufferTooSmall)?;
-    let ext_len = postcard::to_slice(&model.ext, ext_area)
-        .map_err(|_| EncodeError::BufferTooSmall)?
-        .len();
-    let v4_area = body_area
-        .get_mut(v1_len + ext_len..)
-        .ok_or(EncodeError::BufferTooSmall)?;
-    let v4_len = postcard::to_slice(&model.ext.static_force, v4_area)
-        .map_err(|_| EncodeError::BufferTooSmall)?
-        .len();
-    if v1_len + ext_len + v4_len != body_len {
+    let mut w = Writer::new(body_area);
+    write_body(model, levels, &mut w)?;
+    if w.len() != body_len {
         return Err(EncodeError::BufferTooSmall);
     }
     let crc = CRC.checksum(buf.get(..end).ok_or(EncodeError::BufferTooSmall)?);
@@ -266,17 +303,19 @@ pub fn encode<'b, const P: usize>(
 /// Encodes a validated model into a new vector.
 #[cfg(feature = "std")]
 pub fn encode_to_vec<const P: usize>(model: &Model<P>) -> Result<std::vec::Vec<u8>, EncodeError> {
+    encode_to_vec_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
+}
+
+/// [`encode_with_tables`] into a new vector.
+#[cfg(feature = "std")]
+pub fn encode_to_vec_with_tables<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+) -> Result<std::vec::Vec<u8>, EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let mut body = postcard::to_stdvec(model).map_err(|_| EncodeError::BufferTooSmall)?;
-    body.extend(postcard::to_stdvec(&model.ext).map_err(|_| EncodeError::BufferTooSmall)?);
-    body.extend(
-        postcard::to_stdvec(&model.ext.static_force).map_err(|_| EncodeError::BufferTooSmall)?,
-    );
-    let mut out = postcard::to_stdvec(&header_for(model, body.len()))
-        .map_err(|_| EncodeError::BufferTooSmall)?;
-    out.extend_from_slice(&body);
-    let crc = CRC.checksum(&out);
-    out.extend_from_slice(&crc.to_le_bytes());
+    let mut out = std::vec![0u8; encoded_len_with_tables(model, levels)?];
+    let n = encode_with_tables(model, levels, &mut out)?.len();
+    out.truncate(n);
     Ok(out)
 }
 
@@ -385,7 +424,8 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
         model.ext = Extension::default();
         rest
     };
-    // Version 4's sections, each decoded in place after the version-3 fields.
+    // Version 4's sections after the version-3 fields: the static force (in place), then
+    // the tables section (an index of it; the tables stay in the blob).
     let rest = if header.version >= 4 {
         let mut de = postcard::Deserializer::from_bytes(rest);
         Option::<StaticForce>::deserialize_in_place(&mut de, &mut model.ext.static_force).map_err(
@@ -393,11 +433,17 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
                 part: "static_force",
             },
         )?;
-        de.finalize().map_err(|_| DecodeError::Malformed {
+        let rest = de.finalize().map_err(|_| DecodeError::Malformed {
             part: "static_force",
-        })?
+        })?;
+        let neural = stored_tables::neural(model);
+        model
+            .tables
+            .read(rest, covered, stored, neural)
+            .ok_or(DecodeError::Malformed { part: "tables" })?
     } else {
         model.ext.static_force = None;
+        model.tables = StoredTables::EMPTY;
         rest
     };
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {

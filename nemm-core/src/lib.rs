@@ -65,6 +65,7 @@ pub mod mlp;
 pub mod model;
 pub mod sem;
 pub mod static_force;
+pub mod stored_tables;
 pub mod table;
 #[cfg(any(test, feature = "testing"))]
 #[cfg_attr(docsrs, doc(cfg(feature = "testing")))]
@@ -73,11 +74,11 @@ pub mod velocity;
 
 pub use emm::{Coefficients, EmmConstants, State};
 pub use estimator::{
-    Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags,
+    Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, TableOrigin,
 };
 pub use format::{
-    decode, decode_into, encode, read_header, DecodeError, EncodeError, Header, FORMAT_VERSION,
-    OLDEST_FORMAT_VERSION,
+    decode, decode_into, encode, encode_with_tables, read_header, DecodeError, EncodeError, Header,
+    FORMAT_VERSION, OLDEST_FORMAT_VERSION,
 };
 pub use integrator::Integrator;
 pub use mlp::{AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
@@ -87,7 +88,8 @@ pub use model::{
 };
 pub use sem::SemMap;
 pub use static_force::StaticForce;
+pub use stored_tables::{StoredTables, StoredUnused};
 pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 
 #[cfg(feature = "std")]
-pub use format::encode_to_vec;
+pub use format::{encode_to_vec, encode_to_vec_with_tables};

@@ -28,6 +28,7 @@ use crate::integrator::Integrator;
 use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
 use crate::sem::{SemError, SemMap};
 use crate::static_force::StaticForce;
+use crate::stored_tables::StoredTables;
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
@@ -173,6 +174,12 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     /// [`crate::format`]); a version-1 blob decodes with [`Extension::default`].
     #[serde(skip)]
     pub ext: Extension,
+    /// The index of the blob's precomputed fast-path tables (format version 4, see
+    /// [`crate::stored_tables`]): filled by [`crate::format::decode_into`], empty for a
+    /// model not decoded from a blob with tables. Not written by [`crate::format::encode`]
+    /// (the tables come from estimators: [`crate::format::encode_with_tables`]).
+    #[serde(skip)]
+    pub tables: StoredTables,
 }
 
 /// The part of a [`Model`] that format versions 2 and later added. It is encoded after the
@@ -707,6 +714,7 @@ impl<const P: usize> Model<P> {
         },
         body: Body::Sem(SemMap::empty()),
         ext: Extension::EMPTY,
+        tables: StoredTables::EMPTY,
     };
 
     /// The variant.

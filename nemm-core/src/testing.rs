@@ -126,6 +126,7 @@ pub fn example_model<const P: usize>(kind: ModelKind, hidden: u8, layers: u8) ->
         },
         body,
         ext: Extension::default(),
+        tables: crate::stored_tables::StoredTables::EMPTY,
     })
 }
 

@@ -131,6 +131,43 @@ fn decoding_and_loading_in_place_use_bounded_stack() {
         assert!(bytes <= load_bound, "{op}: {bytes} > {load_bound}");
     }
 
+    // A blob with stored tables at 0.15: decoding indexes them, loading reads them in place.
+    // Made on a thread of the measuring size: an unoptimised build needs more than the
+    // 2 MiB of a test thread to build the tables and encode them.
+    let m = model.clone();
+    let (tables_blob, with_tables) = std::thread::Builder::new()
+        .stack_size(STACK)
+        .spawn(move || {
+            let mut built: Box<Estimator<P>> = Box::new(Estimator::empty());
+            built.load(&m, table_mode(0.15)).expect("loads");
+            let blob = common::blob_with_tables(&m, &[&*built]).expect("encodes");
+            let mut with_tables: Box<Model<P>> = Box::new(Model::empty());
+            decode_into(&blob, &mut with_tables).expect("decodes");
+            (blob, with_tables)
+        })
+        .expect("thread")
+        .join()
+        .expect("tables made");
+    let mut place: Box<Model<P>> = Box::new(Model::empty());
+    let b = tables_blob.clone();
+    let in_place = peak_stack(move || {
+        decode_into(&b, &mut place).expect("decodes");
+        place
+    });
+    report("decode_into-tables", in_place);
+    assert!(in_place <= in_place_bound, "{in_place} > {in_place_bound}");
+    let mut est: Box<Estimator<P>> = Box::new(Estimator::empty());
+    let bytes = peak_stack(move || {
+        est.load_with_tables(&with_tables, table_mode(0.15), &tables_blob)
+            .expect("loads");
+        assert_eq!(est.table_origin(), nemm_core::TableOrigin::Stored);
+    });
+    report("load-stored-tables", bytes);
+    assert!(
+        bytes <= load_bound,
+        "load-stored-tables: {bytes} > {load_bound}"
+    );
+
     // The by-value paths, for the docs: they hold the model / the estimator on the stack.
     let b = blob.clone();
     report(

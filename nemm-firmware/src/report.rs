@@ -6,6 +6,7 @@
 //! ```text
 //! boot firmware=nemm-firmware version=0.1.0 board=mps2-an386 capacity=1313
 //! weights ok kind=nemm bytes=15791 integrator=rk4 dt_ns=100000
+//! weights ok kind=nemm bytes=30231 integrator=rk4 dt_ns=100000 mode=table table_bytes=7168 table_max_rel_error_ppb=2792 tables=stored
 //! weights-error source=decode kind=crc-mismatch stored=0x1234abcd computed=0x89abcdef
 //! weights-error source=decode kind=invalid reason=non-finite field=b_fl.params
 //! start period_ticks=2500 core_hz=25000000 samples=10500 alpha=0x3e19999a faults=0 stalls=0 boot_stack=8208 boot_ticks=18000
@@ -25,11 +26,19 @@
 //! them after the run, and `summary`'s `digest` is the CRC over those
 //! ([`crate::pipeline::run_digest`]).
 //!
+//! In table mode `weights ok` says where the tables came from: `tables=stored` (read from
+//! the blob's tables section) or `tables=built stored_unused=<reason>` (built at boot; the
+//! reason is [`nemm_core::StoredUnused::name`]). `boot_ticks` of `start` are the SysTick
+//! ticks from the start of `init` to the end of the estimator's loading (absent if they
+//! exceed SysTick's 24-bit range).
+//!
 //! A `weights-error` line names the layer that refused the weights (`source=slot`,
 //! `decode`, `firmware` or `estimator`) and the typed error as `kind=` plus its fields;
 //! a model rejected by its checks adds the [`ModelError`] as `reason=` plus its fields.
 
-use nemm_core::{DecodeError, Estimator, EstimatorError, Model, ModelError, TableError};
+use nemm_core::{
+    DecodeError, Estimator, EstimatorError, Model, ModelError, TableError, TableOrigin,
+};
 
 use crate::slot::SlotError;
 
@@ -294,6 +303,17 @@ pub fn weights_ok<const P: usize, const T: usize>(
     if let Some(acc) = estimator.table_accuracy() {
         line.kv("table_bytes", estimator.table_bytes().1 as u32)
             .kv("table_max_rel_error_ppb", ppb(acc.max_rel_error));
+    }
+    // Where the tables came from: the blob's tables section, or built at boot (and why the
+    // blob's were not used).
+    match estimator.table_origin() {
+        TableOrigin::None => {}
+        TableOrigin::Stored => {
+            line.ks("tables", "stored");
+        }
+        TableOrigin::Built(why) => {
+            line.ks("tables", "built").ks("stored_unused", why.name());
+        }
     }
 }
 

@@ -51,6 +51,9 @@ enum Cmd {
         /// Also write report.json, table.md and the effective config.toml into this folder.
         #[arg(long)]
         report: Option<PathBuf>,
+        /// Precomputed fast-path tables in the blob.
+        #[command(flatten)]
+        tables: nemm_train::cli::train::TablesArgs,
     },
     /// Export the best model of a checkpoint folder (`--checkpoint DIR/<variant>` of `nemm train`).
     Export {
@@ -64,6 +67,9 @@ enum Cmd {
         /// (see docs/core.md, "Tabulated fast path").
         #[arg(long, default_value_t = nemm_train::train::table_check::DEFAULT_TABLE_BOUND)]
         table_bound: f32,
+        /// Precomputed fast-path tables in the blob.
+        #[command(flatten)]
+        tables: nemm_train::cli::train::TablesArgs,
     },
     /// Train all four variants and write Table 4 (table4.md, report.json), models and figures.
     Compare {
@@ -150,6 +156,7 @@ fn main() -> ExitCode {
             checkpoint,
             resume,
             report,
+            tables,
         } => args.resolve().and_then(|mut cfg| {
             if let Some(v) = variant {
                 cfg.model.variant = v;
@@ -160,13 +167,15 @@ fn main() -> ExitCode {
                 checkpoint.as_deref(),
                 resume,
                 report.as_deref(),
+                &tables,
             )
         }),
         Cmd::Export {
             checkpoint,
             out,
             table_bound,
-        } => nemm_train::cli::train::export(&checkpoint, &out, table_bound),
+            tables,
+        } => nemm_train::cli::train::export(&checkpoint, &out, table_bound, &tables),
         Cmd::Compare {
             args,
             report,

@@ -37,6 +37,7 @@ fn truth() -> Model {
             t_pr_s: 0.002,
         }),
         ext: Extension::default(),
+        tables: nemm_core::stored_tables::StoredTables::EMPTY,
     }
 }
 

@@ -54,7 +54,8 @@ fn the_embedded_model_is_what_its_recorded_command_trains() {
             .expect("generate the virtual bench");
             cfg.data.dir = bench;
             let out = dir.join("fresh.nemm");
-            nemm_train::cli::train::train(&cfg, &out, None, false, None).expect("training");
+            nemm_train::cli::train::train(&cfg, &out, None, false, None, &Default::default())
+                .expect("training");
             out
         }
     };

@@ -210,8 +210,9 @@ fn the_other_model_kinds_are_bit_identical_too() {
 #[test]
 #[ignore = "needs the firmware images and QEMU: run by `cargo xtask test`"]
 fn table_mode_is_bit_identical_to_the_host() {
-    // The tabulated fast path (`mode=table`): tables built and checked on the target at boot,
-    // then every period's estimate against the host building the same tables.
+    // The tabulated fast path (`mode=table`): the target reads the tables the embedded blob
+    // stores at the trace's alpha (no table build at boot), and every period's estimate
+    // equals the host's, which builds and checks its tables.
     let images = Images::from_env();
     let elf = Elf::read(&images.app).expect("firmware image");
     let contents = Contents::of(&elf);
@@ -221,6 +222,7 @@ fn table_mode_is_bit_identical_to_the_host() {
     let ok = out.expect("weights ok");
     assert_eq!(ok.get("kind"), Some("nemm"));
     assert_eq!(ok.get("mode"), Some("table"));
+    assert_eq!(ok.get("tables"), Some("stored"));
     let reference = reference::run(&contents.trace, contents.blob(), &options);
     assert_parity("nemm, table mode", &out, &reference, true);
 }

@@ -129,6 +129,9 @@ pub struct StackFigures {
     /// (`boot_ticks` of the `start` line x [`INSTRUCTIONS_PER_TICK`]); the first step runs
     /// one sample period (100 us) later.
     pub boot_instructions: u64,
+    /// Table mode: whether the tables were read from the blob (`tables=stored` of the
+    /// `weights ok` line) rather than built at boot; `None` without tables.
+    pub tables_stored: Option<bool>,
 }
 
 impl StackFigures {
@@ -138,6 +141,15 @@ impl StackFigures {
             "boot-stack bytes={} mode={mode} peak={} room={}",
             self.boot, self.peak, self.room
         )
+    }
+
+    /// `stored`, `built` or `none`: where table mode's tables came from at boot.
+    pub fn tables(&self) -> &'static str {
+        match self.tables_stored {
+            Some(true) => "stored",
+            Some(false) => "built",
+            None => "none",
+        }
     }
 }
 
@@ -170,11 +182,17 @@ pub fn stack_figures(
             .parse()
             .map_err(|e| format!("{key} in the `{line}` line: {e}"))
     };
+    let tables = out
+        .lines()
+        .filter(|l| l.starts_with("weights ok "))
+        .flat_map(|l| l.split_ascii_whitespace())
+        .find_map(|w| w.strip_prefix("tables="));
     Ok(StackFigures {
         boot: value("start", "boot_stack")?,
         peak: value("summary", "stack_used")?,
         room,
         boot_instructions: value("start", "boot_ticks")? * INSTRUCTIONS_PER_TICK,
+        tables_stored: tables.map(|t| t == "stored"),
     })
 }
 

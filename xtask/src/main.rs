@@ -592,7 +592,7 @@ fn build_target(boards: &[firmware::Board]) -> Result<(), String> {
     for im in &images {
         for (stack, boot) in boot_figures(&tc, &paths, im)? {
             println!("{} board={}", stack.line(boot.mode), im.board.machine());
-            println!("{}", boot.line());
+            println!("{} tables={}", boot.line(), stack.tables());
         }
     }
     Ok(())

@@ -21,9 +21,15 @@ pub const BENCH_DIR: &str = "out/firmware-bench";
 /// Seed of the virtual bench.
 pub const BENCH_SEED: &str = "1";
 
+/// The oil-loss level the firmware images run at, whose fast-path tables the embedded blob
+/// stores: the bench trace's (nemm-firmware's `trace`) and the board's `ALPHA`, 15 %.
+pub const FIRMWARE_ALPHA: &str = "0.15";
+
 /// The `nemm train` arguments of the firmware's model: the demo's NEMM budget (12 epochs of
 /// 8 batches, 6 Linear EMM epochs), the default data options (15 % oil loss held out),
-/// `velocity` the velocity source (`None`: the default zero-phase preprocessing).
+/// `velocity` the velocity source (`None`: the default zero-phase preprocessing); the blob
+/// stores the fast-path tables at [`FIRMWARE_ALPHA`] with the firmware's segment count and
+/// bound (the trainer's defaults), so that the images boot without building them.
 pub fn train_args(out: &str, velocity: Option<&str>) -> Vec<String> {
     let mut a: Vec<String> = [
         "train",
@@ -44,6 +50,7 @@ pub fn train_args(out: &str, velocity: Option<&str>) -> Vec<String> {
     if let Some(v) = velocity {
         a.extend(["--velocity".to_string(), v.to_string()]);
     }
+    a.extend(["--tables-alpha".to_string(), FIRMWARE_ALPHA.to_string()]);
     a.extend(["--out".to_string(), out.to_string()]);
     a
 }

@@ -208,20 +208,23 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
            line; the first step follows one 100 us period later), and the time at the chip's \
            clocks at the cycles per instruction of the exact NEMM RK4 step (the network \
            kernels, which build the tables in table mode; the exact-mode boot is mostly \
-           integer code, which this overestimates).\n\n";
+           integer code, which this overestimates). Tables: `stored` when the blob's stored \
+           tables were read (the embedded model is exported with `--tables-alpha` at the \
+           firmware's alpha), `built` when they were built at boot.\n\n";
     let _ = writeln!(
         md,
-        "| board | mode | instructions | cycles per instruction | {} |\n\
-         |---|---|---:|---:|{}",
+        "| board | mode | tables | instructions | cycles per instruction | {} |\n\
+         |---|---|---|---:|---:|{}",
         clock_headers("ms at "),
         "---:|".repeat(CLOCK_COLUMNS.len())
     );
-    for (_, b) in f.boot {
+    for (s, b) in f.boot {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {:.2} | {} |",
+            "| {} | {} | {} | {} | {:.2} | {} |",
             b.board.machine(),
             b.mode,
+            s.tables(),
             b.instructions,
             b.cycles_per_instruction,
             clock_cells(b.board.chip(), |mhz| format!("{:.1}", b.ms_at(mhz)))
@@ -646,6 +649,7 @@ mod tests {
             peak: 1864,
             room: 140000,
             boot_instructions: 480_000,
+            tables_stored: None,
         };
         let boot = BootFigures {
             board: firmware::Board::An386,

@@ -237,7 +237,8 @@ mod app {
         let Some(estimator) = ESTIMATOR.init(FwEstimator::empty()) else {
             crate::stop() // init runs once
         };
-        if let Err(e) = estimator.load(model, cfg) {
+        // The blob's stored tables at this alpha, if it has them (no table build at boot).
+        if let Err(e) = estimator.load_with_tables(model, cfg, blob) {
             let mut l = Line::new();
             report::estimator_error(&mut l, &e);
             return stopped(console, leds, &mut l);

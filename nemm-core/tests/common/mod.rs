@@ -60,6 +60,17 @@ pub fn blob_of<const Q: usize>(m: &Model<Q>) -> Vec<u8> {
     blob.to_vec()
 }
 
+/// The blob of a valid model with the tables of `levels` (table-mode estimators of `m`).
+pub fn blob_with_tables<const Q: usize, const S: usize>(
+    m: &Model<Q>,
+    levels: &[&nemm_core::Estimator<Q, S>],
+) -> Result<Vec<u8>, nemm_core::EncodeError> {
+    let mut buf = vec![0u8; nemm_core::format::encoded_len_with_tables(m, levels)?];
+    let n = nemm_core::encode_with_tables(m, levels, &mut buf)?.len();
+    buf.truncate(n);
+    Ok(buf)
+}
+
 /// The blob layout of `nemm_core::format`, written independently of `encode` and without any
 /// validation: postcard header, postcard body (version-1 part, the extension, then the
 /// version-4 static force), CRC-32 little-endian. Lets tests build
@@ -75,6 +86,8 @@ pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) 
     body.extend_from_slice(
         postcard::to_slice(&m.ext.static_force, &mut ext).expect("static force serialises"),
     );
+    // Version 4's tables section, without levels.
+    body.push(0);
     let mut header = Header {
         magic: MAGIC,
         version: FORMAT_VERSION,
@@ -215,6 +228,7 @@ impl ModelSpec {
             meta: self.meta,
             body,
             ext: Extension::default(),
+            tables: nemm_core::stored_tables::StoredTables::EMPTY,
         };
         if let Some(tau) = m.fastest_time_constant_s() {
             let max_dt = STABILITY_MARGIN * self.integrator.stability_limit() * tau;

@@ -63,19 +63,95 @@ pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
     Ok(cfg)
 }
 
+/// Precomputed fast-path tables to store in an exported blob (the format's tables section,
+/// `nemm_core::stored_tables`): a firmware in table mode at one of these oil-loss levels, with
+/// the same segment count and bound, boots without building its tables.
+#[derive(Debug, Clone, PartialEq, clap::Args)]
+pub struct TablesArgs {
+    /// Oil-loss levels alpha (comma-separated, each in [0, 1]; at most 4) whose fast-path
+    /// tables the blob stores. A firmware in table mode at one of them reads its tables from
+    /// the blob instead of building them at boot. None by default.
+    #[arg(long, value_delimiter = ',')]
+    pub tables_alpha: Vec<f32>,
+    /// Segments per stored table: the `T` of the firmware's estimator (128, nemm-firmware's
+    /// TABLE_SEGMENTS, or 256, nemm-core's default).
+    #[arg(long, default_value_t = DEFAULT_STORED_TABLE_SEGMENTS)]
+    pub tables_segments: usize,
+    /// Relative error bound the stored tables are built and checked with (the firmware's
+    /// TABLE_MAX_REL_ERROR; it must be the same bit for bit for the firmware to use them).
+    #[arg(long, default_value_t = crate::train::table_check::DEFAULT_TABLE_BOUND)]
+    pub tables_bound: f32,
+}
+
+/// Segments of stored tables unless told otherwise: the example firmware's (128).
+pub const DEFAULT_STORED_TABLE_SEGMENTS: usize = 128;
+
+impl Default for TablesArgs {
+    fn default() -> Self {
+        Self {
+            tables_alpha: Vec::new(),
+            tables_segments: DEFAULT_STORED_TABLE_SEGMENTS,
+            tables_bound: crate::train::table_check::DEFAULT_TABLE_BOUND,
+        }
+    }
+}
+
+/// The blob of `model` with the tables of `tables` (none if it lists no levels).
+fn encode_with_tables(model: &nemm_core::Model, tables: &TablesArgs) -> Result<Vec<u8>> {
+    match tables.tables_segments {
+        _ if tables.tables_alpha.is_empty() => {
+            nemm_core::encode_to_vec(model).map_err(|e| anyhow::anyhow!("{e}"))
+        }
+        128 => encode_with_segments::<128>(model, tables),
+        256 => encode_with_segments::<256>(model, tables),
+        n => bail!("--tables-segments {n}: stored tables have 128 or 256 segments"),
+    }
+}
+
+/// [`encode_with_tables`] with `T` segments per table: builds the estimator at each level in
+/// table mode, as a firmware does at boot, and stores its tables.
+fn encode_with_segments<const T: usize>(
+    model: &nemm_core::Model,
+    tables: &TablesArgs,
+) -> Result<Vec<u8>> {
+    use nemm_core::{Estimator, EstimatorConfig, EvalMode, ModelKind, TableConfig};
+    if !matches!(model.kind(), ModelKind::NemmLight | ModelKind::Nemm) {
+        bail!(
+            "--tables-alpha: a {} model has no neural coefficients to tabulate",
+            model.kind().name()
+        );
+    }
+    let mut levels: Vec<Box<Estimator<{ nemm_core::DEFAULT_PARAM_CAPACITY }, T>>> = Vec::new();
+    for &alpha in &tables.tables_alpha {
+        let cfg = EstimatorConfig {
+            mode: EvalMode::Table(TableConfig::new(tables.tables_bound)),
+            ..EstimatorConfig::new(alpha)
+        };
+        let mut est = Box::new(Estimator::empty());
+        est.load(model, cfg)
+            .map_err(|e| anyhow::anyhow!("tables at alpha {alpha} ({T} segments): {e}"))?;
+        levels.push(est);
+    }
+    let refs: Vec<&Estimator<{ nemm_core::DEFAULT_PARAM_CAPACITY }, T>> =
+        levels.iter().map(|e| &**e).collect();
+    nemm_core::encode_to_vec_with_tables(model, &refs).map_err(|e| anyhow::anyhow!("{e}"))
+}
+
 /// Encodes and writes a model blob atomically, with its provenance (this command line, the
-/// commit the trainer was built from, and `dataset`) in the blob; returns its size and the
-/// model as written.
+/// commit the trainer was built from, and `dataset`) and the fast-path tables of `tables` in
+/// the blob; returns its size and the model as written (as decoded from the blob).
 pub fn export_model(
     model: &nemm_core::Model,
     out: &Path,
     dataset: &str,
+    tables: &TablesArgs,
 ) -> Result<(usize, nemm_core::Model)> {
     let mut model = model.clone();
     model.ext.provenance = provenance(dataset);
-    let blob = nemm_core::encode_to_vec(&model).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let blob = encode_with_tables(&model, tables)?;
     write_atomic_bytes(out, &blob).with_context(|| format!("cannot write {}", out.display()))?;
-    Ok((blob.len(), model))
+    let written = nemm_core::decode(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok((blob.len(), written))
 }
 
 /// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run) into
@@ -131,6 +207,7 @@ pub fn train(
     checkpoint: Option<&Path>,
     resume: bool,
     report_dir: Option<&Path>,
+    tables: &TablesArgs,
 ) -> Result<()> {
     let cfg = &with_resolved_data(cfg)?;
     let variant = cfg.model.variant;
@@ -143,7 +220,12 @@ pub fn train(
         .iter()
         .find(|t| t.variant == variant)
         .context("training produced no model")?;
-    let (n, written) = export_model(&tv.model, out, &dataset_provenance(&ds, &cfg.data.dir))?;
+    let (n, written) = export_model(
+        &tv.model,
+        out,
+        &dataset_provenance(&ds, &cfg.data.dir),
+        tables,
+    )?;
     let report = evaluate(std::slice::from_ref(tv), &prepared)?;
     let vr = report.variants.get(variant.key()).context("report")?;
     println!(
@@ -251,7 +333,7 @@ fn table_vs_exact(
 /// `nemm export`: the best model of a checkpoint folder written by `nemm train --checkpoint`.
 /// Also reports whether the tabulated fast path meets `table_bound`
 /// ([`crate::train::table_check`]).
-pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
+pub fn export(checkpoint: &Path, out: &Path, table_bound: f32, tables: &TablesArgs) -> Result<()> {
     let frame_path = checkpoint.join("frame.json");
     let text = std::fs::read_to_string(&frame_path).with_context(|| {
         format!(
@@ -273,7 +355,12 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32) -> Result<()> {
         .try_load_file(checkpoint.join(latest.trim()).join("best"))
         .map_err(|e| anyhow::anyhow!("cannot load the best module: {e:?}"))?;
     let model = to_core(&net.to_rollout(&frame), saved.meta)?;
-    let (n, model) = export_model(&model, out, &format!("checkpoint {}", checkpoint.display()))?;
+    let (n, model) = export_model(
+        &model,
+        out,
+        &format!("checkpoint {}", checkpoint.display()),
+        tables,
+    )?;
     println!(
         "wrote {} ({n} bytes) from {}",
         out.display(),
@@ -328,7 +415,7 @@ pub fn compare(
     let dataset = dataset_provenance(ds, &cfg.data.dir);
     for tv in trained {
         let out = report_dir.join(format!("{}.nemm", tv.variant.name()));
-        match export_model(&tv.model, &out, &dataset) {
+        match export_model(&tv.model, &out, &dataset, &TablesArgs::default()) {
             Ok(_) => exported.push(tv),
             Err(e) => {
                 eprintln!("[{}] export failed: {e:#}", tv.variant.name());

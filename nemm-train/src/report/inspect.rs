@@ -106,6 +106,32 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
         let _ = writeln!(s, "                 dataset {}", or_unknown(&p.dataset));
         let _ = writeln!(s, "                 commit  {}", or_unknown(&p.commit));
     }
+    if model.tables.levels.is_empty() {
+        let _ = writeln!(
+            s,
+            "stored tables:   none (a table-mode estimator builds them)"
+        );
+    }
+    for level in &model.tables.levels {
+        let mut tables = Vec::new();
+        for (name, t) in [("b_fl", &level.b_fl), ("k_pr", &level.k_pr)] {
+            if let Some(t) = t {
+                tables.push(format!(
+                    "{name} on [{}, {}] ({} kinks, max rel. error {:.2e})",
+                    t.domain.0, t.domain.1, t.accuracy.kinks, t.accuracy.max_rel_error
+                ));
+            }
+        }
+        let _ = writeln!(
+            s,
+            "stored tables:   alpha {}, {} segments, bound {:.0e}, domain margin {}: {}",
+            level.alpha,
+            level.segments,
+            level.config.max_rel_error,
+            level.config.domain_margin,
+            tables.join("; ")
+        );
+    }
     if let Some(tau) = model.fastest_time_constant_s() {
         let _ = writeln!(
             s,

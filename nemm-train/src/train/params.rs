@@ -182,6 +182,7 @@ pub fn to_core_with<T: Real>(
             }),
             ..Extension::default()
         },
+        tables: nemm_core::stored_tables::StoredTables::EMPTY,
     };
     model
         .validate()

@@ -569,6 +569,7 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
             condition: prepared.condition.clone(),
             ..Extension::default()
         },
+        tables: nemm_core::stored_tables::StoredTables::EMPTY,
     };
     model
         .validate()

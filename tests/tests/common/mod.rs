@@ -65,6 +65,8 @@ enum Recorded {
         out: PathBuf,
         #[arg(long)]
         variant: Option<nemm_core::ModelKind>,
+        #[command(flatten)]
+        tables: nemm_train::cli::train::TablesArgs,
     },
 }
 

@@ -1,0 +1,383 @@
+//! The `tables` section of the weight format (version 4): fast-path tables precomputed by
+//! the exporter for declared oil-loss levels, so that a firmware in [`EvalMode::Table`]
+//! boots without building them.
+//!
+//! # Layout (postcard, after the version-3 [`crate::model::Extension`])
+//!
+//! ```text
+//! levels: varint                         0 ..= MAX_TABLE_LEVELS
+//! per level:
+//!   alpha: f32                           the oil-loss level the tables are built at [-]
+//!   segments: varint u32                 `T` of the `Estimator<P, T>` that built them
+//!   max_rel_error: f32                   the TableConfig they were built and checked with
+//!   domain_margin: f32
+//!   b_fl: u8 (0 or 1), then the table    present iff the model has a `b_fl` scaler
+//!   k_pr: u8 (0 or 1), then the table    present iff the model has a `k_pr` scaler
+//! table:
+//!   lo, hi, cell_scale, cell_offset: f32 the domain [m/s or m] and the lookup scalars
+//!   max_rel_error, at: f32               the accuracy measured when it was built
+//!   kinks, max_knots_per_cell: varint u32
+//!   segments x [x0, 1/width, c0, c1, c2, c3]: 6 x f32
+//! ```
+//!
+//! The tables are written from estimators that built them ([`crate::format::encode_with_tables`]),
+//! so they are the estimator's tables bit for bit; the lookup cells are not stored but
+//! recomputed on loading by the same code. A blob without tables (every version up to 3, or
+//! a version-4 blob exported without levels) holds no levels.
+//!
+//! # Decoding: an index, not a copy
+//!
+//! [`crate::format::decode_into`] parses and checks the whole section (every value finite,
+//! knots in order, alpha in `[0, 1]`, a valid [`TableConfig`], a table for exactly the neural
+//! coefficients of the model) and keeps only this index ([`StoredTables`] in
+//! [`crate::Model::tables`]: per level its alpha, segment count, configuration and where its
+//! tables lie in the blob), a few dozen bytes. The tables themselves stay in the blob (on a
+//! microcontroller: in flash) and are read straight into the estimator's own tables by
+//! [`crate::Estimator::load_with_tables`], which therefore takes the blob as well as the
+//! model. A model's RAM does not grow with the tables.
+//!
+//! # Matching
+//!
+//! [`crate::Estimator::load_with_tables`] uses a level when its alpha, its segment count and
+//! its table configuration are bit for bit those the estimator is loaded with, the blob is
+//! the one the model was decoded from (length and CRC), and each table's domain is the one
+//! the estimator would build. Otherwise the stored tables are **ignored**, not refused: the
+//! estimator builds its tables as without them and says why in
+//! [`crate::estimator::TableOrigin::Built`] ([`StoredUnused`]), which a firmware reports.
+//! A mismatch is a configuration choice (another alpha, another segment count), not a fault
+//! of the blob: a corrupt section never gets this far, its blob is refused by the CRC or by
+//! the section's checks with [`crate::DecodeError::Malformed`] `{ part: "tables" }`.
+//!
+//! [`crate::Estimator::set_alpha`] rebuilds the tables as without a section.
+
+use crate::estimator::{Estimator, EstimatorConfig, EvalMode};
+use crate::format::EncodeError;
+use crate::model::{Body, Model};
+use crate::table::{self, TableAccuracy, TableConfig, MIN_SEGMENTS};
+use core::fmt;
+use serde::Serialize;
+
+/// Most oil-loss levels a blob's tables section holds.
+pub const MAX_TABLE_LEVELS: usize = 4;
+
+/// Where one stored table lies in its blob, and what it says of itself.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StoredTable {
+    /// Byte offset of the table in the blob.
+    pub offset: u32,
+    /// The table's domain `[lo, hi]` (m/s for `b_fl`, m for `k_pr`).
+    pub domain: (f32, f32),
+    /// The accuracy measured when it was built.
+    pub accuracy: TableAccuracy,
+}
+
+/// The tables of one oil-loss level.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StoredLevel {
+    /// The oil-loss level `alpha` \[-\] the tables were built at.
+    pub alpha: f32,
+    /// Segments per table (`T` of the estimator that built them).
+    pub segments: u32,
+    /// The configuration they were built and checked with.
+    pub config: TableConfig,
+    /// The table of `b_fl(v_st)` (if the model has that scaler).
+    pub b_fl: Option<StoredTable>,
+    /// The table of `k_pr(x_pr)` (if the model has that scaler).
+    pub k_pr: Option<StoredTable>,
+}
+
+/// The index of a blob's tables section ([`crate::Model::tables`]): empty for a blob
+/// without tables and for a model not decoded from a blob.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct StoredTables {
+    /// The stored levels, in the blob's order.
+    pub levels: heapless::Vec<StoredLevel, MAX_TABLE_LEVELS>,
+    /// Length of the blob the levels lie in (bytes; 0 without levels).
+    pub blob_len: u32,
+    /// CRC-32 trailer of that blob (0 without levels).
+    pub blob_crc: u32,
+}
+
+/// Why an estimator in table mode built its tables instead of reading stored ones.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StoredUnused {
+    /// Loaded without a blob ([`crate::Estimator::load`]), or re-built by
+    /// [`crate::Estimator::set_alpha`].
+    NotOffered,
+    /// The blob holds no tables (format version 3 or earlier, or exported without levels).
+    NoLevels,
+    /// No stored level has the estimator's alpha.
+    Alpha,
+    /// A level has the estimator's alpha but another segment count.
+    Segments {
+        /// Segments of the stored tables.
+        stored: u32,
+        /// Segments of this estimator (`T`).
+        capacity: u32,
+    },
+    /// A level has the alpha and segment count but another table configuration (bound or
+    /// domain margin).
+    Config,
+    /// The blob is not the one the model was decoded from (length or CRC differ).
+    OtherBlob,
+    /// A stored table's domain differs from the one the estimator builds (other input
+    /// scales), or it does not read back.
+    Table,
+}
+
+impl StoredUnused {
+    /// A short name for report lines: `not-offered`, `no-levels`, `alpha`, `segments`,
+    /// `config`, `other-blob`, `table`.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            StoredUnused::NotOffered => "not-offered",
+            StoredUnused::NoLevels => "no-levels",
+            StoredUnused::Alpha => "alpha",
+            StoredUnused::Segments { .. } => "segments",
+            StoredUnused::Config => "config",
+            StoredUnused::OtherBlob => "other-blob",
+            StoredUnused::Table => "table",
+        }
+    }
+}
+
+impl fmt::Display for StoredUnused {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            StoredUnused::NotOffered => write!(f, "no stored tables offered"),
+            StoredUnused::NoLevels => write!(f, "the blob holds no tables"),
+            StoredUnused::Alpha => write!(f, "no stored tables at this alpha"),
+            StoredUnused::Segments { stored, capacity } => write!(
+                f,
+                "stored tables have {stored} segments, the estimator {capacity}"
+            ),
+            StoredUnused::Config => write!(
+                f,
+                "stored tables were built with another error bound or domain margin"
+            ),
+            StoredUnused::OtherBlob => write!(f, "the blob is not the one the model came from"),
+            StoredUnused::Table => write!(f, "a stored table does not match the model's domain"),
+        }
+    }
+}
+
+impl StoredTables {
+    /// No levels; `const`, for [`crate::Model::empty`].
+    pub const EMPTY: StoredTables = StoredTables {
+        levels: heapless::Vec::new(),
+        blob_len: 0,
+        blob_crc: 0,
+    };
+
+    /// The level an estimator with `segments` segments and configuration `cfg` uses from
+    /// `blob`, or why there is none.
+    pub fn find(
+        &self,
+        cfg: &EstimatorConfig,
+        segments: usize,
+        blob: &[u8],
+    ) -> Result<&StoredLevel, StoredUnused> {
+        let EvalMode::Table(tc) = &cfg.mode else {
+            return Err(StoredUnused::NotOffered);
+        };
+        if self.levels.is_empty() {
+            return Err(StoredUnused::NoLevels);
+        }
+        if u32::try_from(blob.len()).ok() != Some(self.blob_len)
+            || trailer(blob) != Some(self.blob_crc)
+        {
+            return Err(StoredUnused::OtherBlob);
+        }
+        let mut why = StoredUnused::Alpha;
+        for level in &self.levels {
+            if level.alpha.to_bits() != cfg.alpha.to_bits() {
+                continue;
+            }
+            if usize::try_from(level.segments).ok() != Some(segments) {
+                why = StoredUnused::Segments {
+                    stored: level.segments,
+                    capacity: u32::try_from(segments).unwrap_or(u32::MAX),
+                };
+                continue;
+            }
+            if level.config.max_rel_error.to_bits() != tc.max_rel_error.to_bits()
+                || level.config.domain_margin.to_bits() != tc.domain_margin.to_bits()
+            {
+                why = StoredUnused::Config;
+                continue;
+            }
+            return Ok(level);
+        }
+        Err(why)
+    }
+
+    /// Parses and checks a tables section at the start of `bytes` into `self` (module
+    /// docs); `covered` is the CRC-covered part of the blob that `bytes` is a suffix of
+    /// (offsets are taken from its start), `crc` the blob's trailer; `b_fl` / `k_pr`: whether
+    /// the model has those scalers. Returns the bytes after the section.
+    pub(crate) fn read<'a>(
+        &mut self,
+        bytes: &'a [u8],
+        covered: &[u8],
+        crc: u32,
+        (b_fl, k_pr): (bool, bool),
+    ) -> Option<&'a [u8]> {
+        // Without levels the index is empty (equal to a model's not decoded from a blob).
+        *self = StoredTables::EMPTY;
+        let (n, mut rest) = postcard::take_from_bytes::<u32>(bytes).ok()?;
+        if usize::try_from(n).ok()? > MAX_TABLE_LEVELS {
+            return None;
+        }
+        for _ in 0..n {
+            let ((alpha, segments, max_rel_error, domain_margin), r) =
+                postcard::take_from_bytes::<(f32, u32, f32, f32)>(rest).ok()?;
+            let config = TableConfig {
+                max_rel_error,
+                domain_margin,
+            };
+            let n_seg = usize::try_from(segments).ok()?;
+            let valid = alpha.is_finite()
+                && (0.0..=1.0).contains(&alpha)
+                && (MIN_SEGMENTS..=usize::from(u16::MAX)).contains(&n_seg)
+                && config.is_valid();
+            if !valid {
+                return None;
+            }
+            let (b_fl_table, r) = read_table(r, covered, n_seg, b_fl)?;
+            let (k_pr_table, r) = read_table(r, covered, n_seg, k_pr)?;
+            rest = r;
+            self.levels
+                .push(StoredLevel {
+                    alpha,
+                    segments,
+                    config,
+                    b_fl: b_fl_table,
+                    k_pr: k_pr_table,
+                })
+                .ok()?;
+        }
+        if n > 0 {
+            self.blob_len =
+                u32::try_from(covered.len().checked_add(crate::format::CRC_LEN)?).ok()?;
+            self.blob_crc = crc;
+        }
+        Some(rest)
+    }
+}
+
+/// One optional table of a level: its presence byte must say `expected`.
+fn read_table<'a>(
+    bytes: &'a [u8],
+    covered: &[u8],
+    segments: usize,
+    expected: bool,
+) -> Option<(Option<StoredTable>, &'a [u8])> {
+    let (present, rest) = postcard::take_from_bytes::<u8>(bytes).ok()?;
+    match (present, expected) {
+        (0, false) => Some((None, rest)),
+        (1, true) => {
+            let offset = u32::try_from(covered.len().checked_sub(rest.len())?).ok()?;
+            let (head, after) = table::parse_stored(rest, segments, |_, _| {})?;
+            let t = StoredTable {
+                offset,
+                domain: head.domain,
+                accuracy: head.accuracy,
+            };
+            Some((Some(t), after))
+        }
+        _ => None,
+    }
+}
+
+/// The CRC trailer of a blob.
+fn trailer(blob: &[u8]) -> Option<u32> {
+    let at = blob.len().checked_sub(crate::format::CRC_LEN)?;
+    let bytes: [u8; 4] = blob.get(at..)?.try_into().ok()?;
+    Some(u32::from_le_bytes(bytes))
+}
+
+/// A postcard writer into a buffer, or (without one) a counter of the bytes it would write.
+pub(crate) struct Writer<'a> {
+    buf: Option<&'a mut [u8]>,
+    len: usize,
+}
+
+impl<'a> Writer<'a> {
+    /// Writes into `buf`.
+    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
+        Self {
+            buf: Some(buf),
+            len: 0,
+        }
+    }
+
+    /// Counts only.
+    pub(crate) fn counter() -> Self {
+        Self { buf: None, len: 0 }
+    }
+
+    /// Bytes written (or counted).
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Appends `v`; `None` if the buffer is too small.
+    pub(crate) fn put<T: Serialize + ?Sized>(&mut self, v: &T) -> Option<()> {
+        let n = match self.buf.as_deref_mut() {
+            Some(buf) => postcard::to_slice(v, buf.get_mut(self.len..)?).ok()?.len(),
+            None => postcard::experimental::serialized_size(v).ok()?,
+        };
+        self.len = self.len.checked_add(n)?;
+        Some(())
+    }
+}
+
+/// Which neural coefficients `model` has: `(b_fl, k_pr)`.
+pub(crate) fn neural<const P: usize>(model: &Model<P>) -> (bool, bool) {
+    match &model.body {
+        Body::Sem(_) | Body::LinearEmm(_) => (false, false),
+        Body::NemmLight { .. } => (true, false),
+        Body::Nemm { .. } => (true, true),
+    }
+}
+
+/// Writes (or counts) the tables section of `levels` for `model` (module docs).
+pub(crate) fn write_section<const P: usize, const T: usize>(
+    model: &Model<P>,
+    levels: &[&Estimator<P, T>],
+    w: &mut Writer<'_>,
+) -> Result<(), EncodeError> {
+    if levels.len() > MAX_TABLE_LEVELS {
+        return Err(EncodeError::Tables);
+    }
+    let too_small = EncodeError::BufferTooSmall;
+    let n = u32::try_from(levels.len()).map_err(|_| EncodeError::Tables)?;
+    w.put(&n).ok_or(too_small)?;
+    let (has_b_fl, has_k_pr) = neural(model);
+    let sc = &model.scales;
+    for est in levels {
+        let (alpha, tc, b_fl, k_pr) = est.stored_parts().ok_or(EncodeError::Tables)?;
+        let segments = u32::try_from(T).map_err(|_| EncodeError::Tables)?;
+        w.put(&(alpha, segments, tc.max_rel_error, tc.domain_margin))
+            .ok_or(too_small)?;
+        for (table, present, scale) in [
+            (b_fl, has_b_fl, sc.velocity_m_s),
+            (k_pr, has_k_pr, sc.x_pr_m),
+        ] {
+            match table {
+                Some(t) if present => {
+                    let d = tc.domain_margin * scale;
+                    let (lo, hi) = t.domain();
+                    if lo.to_bits() != (-d).to_bits() || hi.to_bits() != d.to_bits() {
+                        return Err(EncodeError::Tables);
+                    }
+                    w.put(&1u8).ok_or(too_small)?;
+                    t.write_stored(w).ok_or(too_small)?;
+                }
+                None if !present => w.put(&0u8).ok_or(too_small)?,
+                _ => return Err(EncodeError::Tables),
+            }
+        }
+    }
+    Ok(())
+}
