@@ -285,6 +285,44 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     let inspect = Nemm::new(&["inspect"]).arg(&exported).ok();
     assert!(inspect.contains("kind:            nemm"), "{inspect}");
     assert!(inspect.contains("CRC-32:          ok"), "{inspect}");
+    assert!(inspect.contains("stored tables:   none"), "{inspect}");
+
+    // The same export with fast-path tables at two levels: the blob stores them (the model
+    // part unchanged), an estimator at one of them reads them, `inspect` lists them.
+    let with_tables = dir.join("tables.nemm");
+    Nemm::new(&["export", "--checkpoint"])
+        .arg(ckpt.join("nemm"))
+        .arg("--out")
+        .arg(&with_tables)
+        .arg("--tables-alpha")
+        .arg("0.1,0.2")
+        .arg("--tables-segments")
+        .arg("256")
+        .ok();
+    let blob = std::fs::read(&with_tables).expect("the blob");
+    let tabled = decode_file(&with_tables);
+    assert_eq!(tabled.body, decode_file(&exported).body);
+    let levels: Vec<(f32, u32)> = tabled
+        .tables
+        .levels
+        .iter()
+        .map(|l| (l.alpha, l.segments))
+        .collect();
+    assert_eq!(levels, [(0.1, 256), (0.2, 256)]);
+    let cfg = nemm_core::EstimatorConfig {
+        mode: nemm_core::EvalMode::Table(nemm_core::TableConfig::new(1e-4)),
+        ..nemm_core::EstimatorConfig::new(0.2)
+    };
+    let mut est: Box<nemm_core::Estimator> = Box::new(nemm_core::Estimator::empty());
+    est.load_with_tables(&tabled, cfg, &blob)
+        .expect("the estimator loads");
+    assert_eq!(est.table_origin(), nemm_core::TableOrigin::Stored);
+    let inspect = Nemm::new(&["inspect"]).arg(&with_tables).ok();
+    assert!(
+        inspect.contains("stored tables:   alpha 0.1, 256 segments")
+            && inspect.contains("stored tables:   alpha 0.2, 256 segments"),
+        "{inspect}"
+    );
 
     // The exported blob through nemm-core's estimator matches the trainer's rollout sample by
     // sample (1e-5 of the force scale) and reproduces its reported test RMSE.
