@@ -286,6 +286,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     assert!(inspect.contains("kind:            nemm"), "{inspect}");
     assert!(inspect.contains("CRC-32:          ok"), "{inspect}");
     assert!(inspect.contains("stored tables:   none"), "{inspect}");
+    assert!(inspect.contains("static force:    none"), "{inspect}");
 
     // The same export with fast-path tables at two levels: the blob stores them (the model
     // part unchanged), an estimator at one of them reads them, `inspect` lists them.

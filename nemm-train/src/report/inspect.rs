@@ -91,6 +91,25 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
             );
         }
     }
+    match &model.ext.static_force {
+        None => {
+            let _ = writeln!(s, "static force:    none");
+        }
+        Some(f) => {
+            let _ = writeln!(
+                s,
+                "static force:    gas force {} N + {} N x alpha at x_ref {} m, gas spring {} N/m + \
+                 {} N/m x alpha, seal friction {} N (v_c {} m/s)",
+                f.f_gas0_n,
+                f.f_gas0_per_alpha_n,
+                f.x_ref_m,
+                f.k_gas_n_per_m,
+                f.k_gas_per_alpha_n_per_m,
+                f.f_c_n,
+                f.v_c_m_s
+            );
+        }
+    }
     let p = &model.ext.provenance;
     if p.is_empty() {
         let _ = writeln!(s, "provenance:      none recorded");
@@ -154,4 +173,24 @@ pub fn run(path: &Path) -> Result<()> {
     print!("{}", describe(&model, blob.len()));
     println!("CRC-32:          ok");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::describe;
+    use nemm_core::{Model, ModelKind};
+
+    #[test]
+    fn the_static_force_is_described() {
+        let mut m: Model = nemm_core::testing::example_model(ModelKind::Nemm, 4, 2).unwrap();
+        assert!(describe(&m, 0).contains("static force:    none"));
+        m.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+        let text = describe(&m, 0);
+        let f = nemm_core::testing::EXAMPLE_STATIC_FORCE;
+        assert!(
+            text.contains(&format!("gas force {} N", f.f_gas0_n))
+                && text.contains(&format!("seal friction {} N", f.f_c_n)),
+            "{text}"
+        );
+    }
 }
