@@ -869,7 +869,9 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         self.static_force.is_some()
     }
 
-    #[inline(always)]
+    /// The step of [`Estimator::step`] and [`Estimator::step_with_position`]: one function
+    /// for both (not forced inline), which the target's cycle trace finds by name.
+    #[inline]
     fn step_at(&mut self, velocity_m_s: f32, position_m: Option<f32>) -> Estimate {
         let mut flags = self.sticky.0;
         let u = if !velocity_m_s.is_finite() {

@@ -426,7 +426,7 @@ const TRACE_SKIP: u32 = 40;
 /// Steps traced.
 const TRACE_STEPS: u32 = 2;
 
-/// The instruction mix of `Estimator::step` in the benchmark image `elf` (with the blob of
+/// The instruction mix of `Estimator::step` (its body `step_at`) in the benchmark image `elf` (with the blob of
 /// `kind` in its slot, as [`crate::bench::run`] patches it), evaluation `mode`, integrator
 /// `integrator`: [`TRACE_STEPS`] steps after [`TRACE_SKIP`], single-stepped through QEMU's
 /// gdb stub on `board`.
@@ -443,7 +443,8 @@ pub fn trace_mix(
         .into_values()
         .find(|s| {
             let d = nemm_elf::demangle(&s.name);
-            d.contains("nemm_core::estimator::Estimator<") && d.ends_with(">>::step")
+            d.contains("nemm_core::estimator::Estimator<")
+                && (d.ends_with(">>::step") || d.ends_with(">>::step_at"))
         })
         .ok_or_else(|| format!("{}: no Estimator::step function", elf_path.display()))?
         .start();
