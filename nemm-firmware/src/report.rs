@@ -29,8 +29,8 @@
 //! In table mode `weights ok` says where the tables came from: `tables=stored` (read from
 //! the blob's tables section) or `tables=built stored_unused=<reason>` (built at boot; the
 //! reason is [`nemm_core::StoredUnused::name`]). `boot_ticks` of `start` are the SysTick
-//! ticks from the start of `init` to the end of the estimator's loading (absent if they
-//! exceed SysTick's 24-bit range).
+//! ticks from reset to the estimator ready (`board::boot_ticks`; `wrapped` if
+//! they exceed SysTick's 24-bit range).
 //!
 //! A `weights-error` line names the layer that refused the weights (`source=slot`,
 //! `decode`, `firmware` or `estimator`) and the typed error as `kind=` plus its fields;
