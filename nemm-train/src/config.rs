@@ -595,6 +595,22 @@ pub struct TrainConfig {
     /// Adam's epsilon (PyTorch's default 1e-8; burn's default 1e-5 would dominate the small
     /// gradients of a normalised MSE).
     pub adam_eps: f32,
+    /// How the training windows are drawn into batches: every run equally often
+    /// ([`Balance::Runs`], the default) or every window once per epoch ([`Balance::Windows`]).
+    pub balance: Balance,
+}
+
+/// How the training windows are drawn into an epoch's batches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Balance {
+    /// Each draw picks a training run uniformly, then one of its windows uniformly (with
+    /// replacement): short runs (the fast, small-stroke ones where degradation shows) weigh
+    /// as much as long slow ones.
+    #[default]
+    Runs,
+    /// Each window once per epoch in a shuffled order: a run weighs by its length.
+    Windows,
 }
 
 impl Default for TrainConfig {
@@ -614,6 +630,7 @@ impl Default for TrainConfig {
             seed: DEFAULT_SPLIT_SEED,
             grad_clip: 1.0,
             adam_eps: 1e-8,
+            balance: Balance::default(),
         }
     }
 }
@@ -634,6 +651,7 @@ impl TrainConfig {
             seed: self.seed,
             session_epochs: self.session_epochs,
             adam_eps: self.adam_eps,
+            balance: self.balance,
         }
     }
 }
@@ -813,6 +831,10 @@ pub struct ConfigArgs {
     /// At most this many batches per epoch (random subset; for quick runs).
     #[arg(long)]
     pub max_batches: Option<usize>,
+    /// Overrides [`TrainConfig::balance`].
+    #[arg(long, value_enum, help = "How batches draw the training windows: runs (every run \
+        equally often) or windows (every window once per epoch) [default: runs]")]
+    pub balance: Option<Balance>,
     /// Train at most this many epochs per stage in this invocation, then stop with a
     /// checkpoint (time-boxed sessions); continue with --resume.
     #[arg(long)]
@@ -986,6 +1008,7 @@ impl ConfigArgs {
         set(&mut t.epochs, &self.epochs);
         set(&mut t.patience, &self.patience);
         set(&mut t.linear_epochs, &self.linear_epochs);
+        set(&mut t.balance, &self.balance);
         if self.max_batches.is_some() {
             t.max_batches = self.max_batches;
         }

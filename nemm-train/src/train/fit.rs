@@ -23,6 +23,7 @@ use super::params::to_core;
 use super::physics::{audit, physics_loss, PenaltyGrid};
 use super::selection::{kept_model_summary, passed_over, PassedOver, Selection};
 use super::session::SessionBudget;
+use crate::config::Balance;
 use crate::data::preprocess::Sequence;
 use crate::train::physics::AUDIT_GRID;
 use anyhow::{bail, Result};
@@ -30,7 +31,7 @@ use burn::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::Device;
 use nemm_core::Meta;
-use rand::seq::SliceRandom;
+use rand::seq::{IndexedRandom, SliceRandom};
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
@@ -67,6 +68,8 @@ pub struct FitConfig {
     /// Adam's epsilon (PyTorch's default 1e-8; burn's default 1e-5 would dominate the small
     /// gradients of a normalised MSE).
     pub adam_eps: f32,
+    /// How batches draw the training windows.
+    pub balance: Balance,
 }
 
 /// The defaults are [`crate::config::TrainConfig`]'s, for the stage `nemm`.
@@ -142,15 +145,33 @@ pub struct FitResult {
     pub passed_over: Option<PassedOver>,
 }
 
-/// Order of the training windows in `epoch`: a shuffle by xoshiro256++ seeded from
-/// `(seed, epoch)`, so that a resumed run sees the same order.
-fn epoch_order(n: usize, seed: u64, epoch: usize) -> Vec<usize> {
+/// Order of the training windows in `epoch`, one entry per window of `runs` (the run of
+/// each training window), drawn by xoshiro256++ seeded from `(seed, epoch)` so that a
+/// resumed run sees the same order. [`Balance::Windows`]: a shuffle, every window once.
+/// [`Balance::Runs`]: as many draws, each a run chosen uniformly among the runs that have
+/// windows and then one of its windows uniformly, so that every run weighs the same whatever
+/// its length.
+fn epoch_order(runs: &[usize], balance: Balance, seed: u64, epoch: usize) -> Vec<usize> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(
         seed ^ (epoch as u64).wrapping_mul(0xD1B5_4A32_D192_ED03),
     );
-    let mut idx: Vec<usize> = (0..n).collect();
-    idx.shuffle(&mut rng);
-    idx
+    match balance {
+        Balance::Windows => {
+            let mut idx: Vec<usize> = (0..runs.len()).collect();
+            idx.shuffle(&mut rng);
+            idx
+        }
+        Balance::Runs => {
+            let mut by_run: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+            for (i, &r) in runs.iter().enumerate() {
+                by_run.entry(r).or_default().push(i);
+            }
+            let groups: Vec<Vec<usize>> = by_run.into_values().collect();
+            (0..runs.len())
+                .filter_map(|_| groups.choose(&mut rng)?.choose(&mut rng).copied())
+                .collect()
+        }
+    }
 }
 
 /// The rollout windows of `seqs` (velocity, force, condition level and position per sample).
@@ -462,7 +483,8 @@ fn train_epoch(
         n_batches,
         total_steps,
     } = plan;
-    let order = epoch_order(train_w.len(), cfg.seed, epoch);
+    let runs: Vec<usize> = data.train.iter().map(|s| s.run).collect();
+    let order = epoch_order(&runs, cfg.balance, cfg.seed, epoch);
     let (mut mse_sum, mut phys_sum) = (0.0f64, 0.0f64);
     for b in 0..n_batches {
         let idx = &order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())];
@@ -515,12 +537,34 @@ mod tests {
 
     #[test]
     fn epoch_order_is_a_permutation_and_reproducible() {
-        let a = epoch_order(100, 7, 3);
+        let runs: Vec<usize> = (0..100).map(|i| i / 10).collect();
+        let a = epoch_order(&runs, Balance::Windows, 7, 3);
         let mut s = a.clone();
         s.sort();
         assert_eq!(s, (0..100).collect::<Vec<_>>());
-        assert_eq!(a, epoch_order(100, 7, 3));
-        assert_ne!(a, epoch_order(100, 7, 4));
+        assert_eq!(a, epoch_order(&runs, Balance::Windows, 7, 3));
+        assert_ne!(a, epoch_order(&runs, Balance::Windows, 7, 4));
+    }
+
+    #[test]
+    fn run_balanced_order_weighs_every_run_alike() {
+        // Run 0 has 90 windows, run 1 has 10: by windows run 1 gets 10 % of the draws, by
+        // runs about half of them.
+        let runs: Vec<usize> = (0..100).map(|i| usize::from(i >= 90)).collect();
+        let mut short = 0usize;
+        let epochs = 200;
+        for epoch in 1..=epochs {
+            let order = epoch_order(&runs, Balance::Runs, 3, epoch);
+            assert_eq!(order.len(), runs.len());
+            assert!(order.iter().all(|&i| i < runs.len()));
+            short += order.iter().filter(|&&i| runs[i] == 1).count();
+        }
+        let share = short as f64 / (epochs * runs.len()) as f64;
+        assert!((share - 0.5).abs() < 0.02, "share of the short run {share}");
+        assert_eq!(
+            epoch_order(&runs, Balance::Runs, 3, 5),
+            epoch_order(&runs, Balance::Runs, 3, 5)
+        );
     }
 
     #[test]

@@ -225,18 +225,15 @@ impl ScalerNet {
             .add_scalar(spec.s_min)
     }
 
-    /// Sum of squared weights of the linear maps and of the alpha branch's `r`,
-    /// `theta_u`, `theta_v` (`||W||^2`; biases and LayerNorm parameters are not
-    /// regularised).
+    /// Sum of squared weights of the MLP's linear maps (`||W||^2` of eq. 23; biases,
+    /// LayerNorm parameters and the alpha branch are not regularised: the branch's slopes
+    /// `theta_u^2 theta_v^2` are fourth order in its weights, so an L2 pull would hold them
+    /// at zero, where their data gradient vanishes, and the learned coefficients would not
+    /// move with alpha).
     pub fn weight_sq_sum(&self) -> Tensor<1> {
         let mut total = self.out.weight.val().powi_scalar(2).sum();
         for b in &self.blocks {
             total = total + b.linear.weight.val().powi_scalar(2).sum();
-        }
-        if let Some(b) = &self.branch {
-            for p in b.r.iter().chain([&b.theta_u, &b.theta_v]) {
-                total = total + p.val().powi_scalar(2).sum();
-            }
         }
         total
     }
