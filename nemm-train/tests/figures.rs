@@ -3,9 +3,12 @@
 //! were not trained are left out; only I/O failures are errors.
 use nemm_core::testing::example_model;
 use nemm_core::ModelKind;
+use nemm_train::bench::config::BenchConfig;
+use nemm_train::bench::reference::{self, EmmReference};
+use nemm_train::bench::VirtualBench;
 use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared};
-use nemm_train::report::figures::write_all;
+use nemm_train::report::figures::{write_all, write_all_with_reference};
 use nemm_train::report::predictions::RunPredictions;
 use nemm_train::report::tables::{evaluate, Report};
 use nemm_train::train::fit::EpochStats;
@@ -393,4 +396,71 @@ fn the_report_breaks_the_test_error_down_by_held_out_run() {
     let old: Report = serde_json::from_value(old).expect("old report");
     assert!(old.test_runs.is_empty());
     assert!(nemm_train::report::tables::test_runs_markdown(&old).is_empty());
+}
+
+#[test]
+fn coefficient_figures_draw_the_bench_reference_on_bench_data() {
+    let ds = dataset();
+    let prep = prepared(&ds);
+    let tr = all_four();
+    let report: Report = evaluate(&tr, &prep).expect("report");
+    let predictions = RunPredictions::for_figures(&tr, &prep).expect("predictions");
+    let r = EmmReference::of(&VirtualBench::new(BenchConfig::default())).expect("reference");
+    let plain = tempfile::tempdir().expect("tempdir");
+    let with = tempfile::tempdir().expect("tempdir");
+    write_all(&tr, &ds, &prep, &report, &predictions, plain.path()).expect("figures");
+    write_all_with_reference(
+        &tr,
+        &ds,
+        &prep,
+        &report,
+        &predictions,
+        Some(&r),
+        with.path(),
+    )
+    .expect("figures");
+    assert_eq!(pngs_in(plain.path()), pngs_in(with.path()));
+    for name in ["fig8_b_fl.png", "fig11_b_pr.png", "fig12_k_pr.png"] {
+        let (w0, h0, _, _) = png_header(&plain.path().join(name));
+        let (w1, h1, d, c) = png_header(&with.path().join(name));
+        assert_eq!((w1, d, c), (w0, 8, 2), "{name}");
+        // The caption gains the reference lines.
+        assert!(h1 > h0 && (h1 - h0) % 21 == 0, "{name}: {h0} -> {h1}");
+    }
+    // The other figures do not change.
+    for name in ["fig7_loops.png", "training_curves.png"] {
+        let a = std::fs::read(plain.path().join(name)).expect("png");
+        let b = std::fs::read(with.path().join(name)).expect("png");
+        assert_eq!(a, b, "{name}");
+    }
+    // The report's comparison: every pair, the bench's k_pr falling.
+    let nemm = tr
+        .iter()
+        .find(|t| t.variant == Variant::Nemm)
+        .expect("nemm");
+    let cmp = nemm_train::report::reference::compare(&nemm.model, &r);
+    assert_eq!(cmp.rows.len(), 4 + 1 + 6, "{cmp:?}");
+    for row in cmp.rows.iter().filter(|r| r.learned.starts_with("k_pr")) {
+        assert!(row.reference_change < -0.5, "{row:?}");
+        assert!(
+            row.learned_from.is_finite() && row.ratio.is_finite(),
+            "{row:?}"
+        );
+    }
+    assert!(cmp
+        .markdown()
+        .contains("| k_pr(x_pr = 0) | k_pr, both chambers |"));
+}
+
+#[test]
+fn a_generated_dataset_names_its_bench_and_other_data_have_no_reference() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    assert!(reference::for_dataset(dir.path()).expect("none").is_none());
+    nemm_train::cli::bench::write_bench_config(&BenchConfig::default(), dir.path()).expect("write");
+    let r = reference::for_dataset(dir.path())
+        .expect("read")
+        .expect("bench data");
+    assert_eq!(r.bench().config(), &BenchConfig::default());
+    std::fs::write(dir.path().join(reference::BENCH_CONFIG_FILE), "name = 1").expect("write");
+    assert!(reference::for_dataset(dir.path()).is_err());
 }

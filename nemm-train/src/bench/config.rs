@@ -4,14 +4,14 @@
 //! key (unknown keys are rejected so that typos do not silently fall back to a default).
 
 use anyhow::{bail, Context, Result};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The built-in default configuration (reproduces Table 1 of the paper).
 pub const DEFAULT_TOML: &str = include_str!("../../assets/bench.toml");
 
 /// The whole virtual-bench configuration.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BenchConfig {
     /// Name written to the dataset manifest.
@@ -39,7 +39,7 @@ pub struct BenchConfig {
 }
 
 /// Damper geometry \[m, m³\].
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Geometry {
     /// Piston (= pressure-tube bore) diameter \[m\].
@@ -62,7 +62,7 @@ pub struct Geometry {
 }
 
 /// Oil properties.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Oil {
     /// Bulk modulus of the gas-free oil at working temperature \[Pa\] (the pressure-tube
@@ -75,7 +75,7 @@ pub struct Oil {
 }
 
 /// Reservoir gas charge.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Gas {
     /// Ambient pressure and reference pressure of normal gas volumes \[Pa\].
@@ -92,7 +92,7 @@ pub struct Gas {
 
 /// Free gas (foam) in the working chambers, transported with the oil flow; normal volumes
 /// (at atmospheric pressure) per volume of oil.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Aeration {
     /// Undissolved gas that never separates \[-\].
@@ -116,7 +116,7 @@ impl Aeration {
 
 /// A power-law restriction `dp = B q^exponent` (Reybrouck 1994, Appendix A), with `B` given by
 /// one reference point `(flow_ref, dp_ref)`.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Restriction {
     /// Pressure difference at the reference flow \[Pa\].
@@ -128,7 +128,7 @@ pub struct Restriction {
 }
 
 /// A preloaded disc valve with a first-order opening lag.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DiscValve {
     /// Cracking pressure difference \[Pa\].
@@ -144,7 +144,7 @@ pub struct DiscValve {
 }
 
 /// Piston valve parameters.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PistonValve {
     /// Leak (bleed) restriction, both directions.
@@ -158,7 +158,7 @@ pub struct PistonValve {
 }
 
 /// Base valve parameters.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BaseValve {
     /// Leak (bleed) restriction, both directions.
@@ -170,7 +170,7 @@ pub struct BaseValve {
 }
 
 /// Seal friction `F = (coulomb + c_p (p_rebound - p_atm)^+) tanh(v / v_s)`.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Friction {
     /// Coulomb friction \[N\].
@@ -182,7 +182,7 @@ pub struct Friction {
 }
 
 /// Integrator settings.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Solver {
     /// Backward-Euler step \[s\]; must divide the sample period.
@@ -198,7 +198,7 @@ pub struct Solver {
 }
 
 /// The test programme.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Program {
     /// Output sample rate \[Hz\].
@@ -218,10 +218,10 @@ pub struct Program {
     /// Minimum full-amplitude duration after the ramp \[s\].
     pub min_steady_s: f64,
     /// Random excitation instead of the sine grid (optional table `[program.random]`).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub random: Option<RandomProgram>,
     /// Oil loss changing within every run (optional table `[program.alpha_schedule]`).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub alpha_schedule: Option<AlphaScheduleProgram>,
 }
 
@@ -229,7 +229,7 @@ pub struct Program {
 /// velocity RMS one run, a random-phase multisine with a flat velocity spectrum in `band_hz`
 /// (see `bench::program::Multisine`). Replaces the sine grid (`amplitudes_m`,
 /// `peak_velocities_m_s`, `ramp_periods`, `max_ramp_s`, `min_steady_*` are then unused).
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RandomProgram {
     /// Seed of the random phases (with the run's file name, through `sensor::run_rng`).
@@ -249,7 +249,7 @@ pub struct RandomProgram {
 /// Oil loss changing within a run (`[program.alpha_schedule]`): segments of random length,
 /// levels drawn from `program.oil_loss` (see `bench::program::alpha_schedule`). The runs get
 /// the per-sample `alpha` column.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AlphaScheduleProgram {
     /// Seed of the segment lengths and levels.
@@ -261,7 +261,7 @@ pub struct AlphaScheduleProgram {
 }
 
 /// Measurement chain.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Sensors {
     /// Standard deviation of the white load-cell noise \[N\].
@@ -284,11 +284,11 @@ pub struct Sensors {
     pub velocity_noise_std_m_s: f64,
     /// Resolution of the written time stamps \[s\] (optional; default 1 ns): a logger that
     /// rounds its clock, e.g. 1e-4 for 0.1 ms.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time_resolution_s: Option<f64>,
     /// Zero offset of the displacement transducer \[m\] (optional; default 0): added to every
     /// written displacement, like a potentiometer whose zero is not the stroke centre.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub displacement_offset_m: Option<f64>,
 }
 
@@ -296,6 +296,13 @@ impl Default for BenchConfig {
     fn default() -> Self {
         // The embedded default is checked by a unit test; failing here would be a build defect.
         parse(DEFAULT_TOML, "<built-in bench.toml>").expect("built-in bench.toml is valid")
+    }
+}
+
+impl BenchConfig {
+    /// The configuration as TOML that [`parse`] reads back to the same value.
+    pub fn to_toml(&self) -> Result<String> {
+        toml::to_string(self).context("cannot write the bench config as TOML")
     }
 }
 
@@ -676,6 +683,22 @@ mod tests {
             vec![0.052, 0.131, 0.262, 0.393, 0.524, 1.048]
         );
         assert_eq!(cfg.program.sample_rate_hz, 10_000.0);
+    }
+
+    #[test]
+    fn config_round_trips_through_toml() {
+        let mut cfg = BenchConfig::default();
+        assert_eq!(parse(&cfg.to_toml().unwrap(), "written").unwrap(), cfg);
+        cfg.sensors.time_resolution_s = Some(1e-4);
+        cfg.program.random = Some(RandomProgram {
+            seed: 3,
+            velocity_rms_m_s: vec![0.1],
+            band_hz: [0.5, 10.0],
+            duration_s: 4.0,
+            ramp_s: 0.05,
+            max_stroke_m: 0.04,
+        });
+        assert_eq!(parse(&cfg.to_toml().unwrap(), "written").unwrap(), cfg);
     }
 
     #[test]

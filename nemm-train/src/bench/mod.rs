@@ -21,6 +21,7 @@ pub mod config;
 pub mod fixtures;
 mod hydraulics;
 pub mod program;
+pub mod reference;
 pub mod sensor;
 mod simulate;
 
@@ -115,35 +116,51 @@ impl VirtualBench {
         self.simulate_with_step(spec, self.cfg.solver.internal_step_s)
     }
 
-    /// Noise-free simulation with internal step `h` \[s\] (rounded to divide the sample period).
-    pub fn simulate_with_step(&self, spec: &RunSpec, h: f64) -> Trace {
-        let rest = self.filling(spec.oil_loss);
+    fn foam_at(&self, alpha: f64) -> Foam {
         let a = &self.cfg.aeration;
-        let foam_at = |alpha: f64| Foam {
+        Foam {
             c_bg: a.background_gas_per_oil,
             c_intake: a.intake_gas_per_oil(alpha),
             tau: a.separation_time_s,
-        };
-        let foam = foam_at(spec.oil_loss);
-        let settings = StepSettings {
+        }
+    }
+
+    fn step_settings(&self, h: f64) -> StepSettings {
+        StepSettings {
             h,
             pressure_tolerance: self.cfg.solver.pressure_tolerance_pa,
             max_iterations: self.cfg.solver.max_newton_iterations,
-        };
+        }
+    }
+
+    /// The state a run of `spec` starts from: the rest state of its level with the free gas
+    /// conditioned to the run's periodic state ([`simulate::condition`]), for internal step `h`.
+    fn conditioned_start(&self, spec: &RunSpec, h: f64) -> Filling {
+        let rest = self.filling(spec.oil_loss);
+        let foam = self.foam_at(spec.oil_loss);
         // First guess from the mean flows, then two conditioning periods at the sample step.
-        let excitation = spec.excitation();
         let (g_r, g_c) = foam.conditioned(&self.damper, spec.peak_velocity_m_s);
         let guess = self.damper.with_gas(&rest, g_r, g_c);
         let h_condition = h.max(1.0 / self.cfg.program.sample_rate_hz);
-        let f = simulate::condition(
+        simulate::condition(
             &self.damper,
             &guess,
             foam,
-            &excitation,
+            &spec.excitation(),
             h_condition,
-            &settings,
+            &self.step_settings(h),
             CONDITIONING_PASSES,
-        );
+        )
+    }
+
+    /// Noise-free simulation with internal step `h` \[s\] (rounded to divide the sample period).
+    pub fn simulate_with_step(&self, spec: &RunSpec, h: f64) -> Trace {
+        let rest = self.filling(spec.oil_loss);
+        let foam_at = |alpha: f64| self.foam_at(alpha);
+        let foam = foam_at(spec.oil_loss);
+        let settings = self.step_settings(h);
+        let excitation = spec.excitation();
+        let f = self.conditioned_start(spec, h);
         // Later segments: the rest state of their level with the run's conditioned free gas
         // in the chambers (the first segment is the run's own level, `f`).
         let fs = self.cfg.program.sample_rate_hz;

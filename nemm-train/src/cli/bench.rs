@@ -1,6 +1,7 @@
 //! `nemm bench ...`: generate a virtual-bench dataset, plot a dataset, print the default config.
 
 use crate::bench::config::{self, BenchConfig};
+use crate::bench::reference::{EmmReference, BENCH_CONFIG_FILE};
 use crate::bench::VirtualBench;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -44,6 +45,17 @@ pub enum BenchCmd {
     },
     /// Print the built-in default configuration (a template for `--config`).
     Config,
+    /// Print the equivalent EMM coefficients the bench implies per oil-loss level (the
+    /// reference curves of Figs. 10-12; docs/virtual-bench.md, "Equivalent EMM coefficients").
+    Reference {
+        /// Bench configuration (default: the built-in `bench.toml`); a generated dataset
+        /// folder's `bench.toml` reproduces its bench.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Print JSON instead of Markdown tables.
+        #[arg(long)]
+        json: bool,
+    },
     /// Write the test fixtures (small datasets with the traits of real dyno records) into
     /// `--out`, replacing their folders (the repository's are in nemm-train/tests/fixtures).
     Fixtures {
@@ -73,6 +85,19 @@ pub fn run(args: BenchArgs) -> Result<()> {
             let files = crate::report::bench_plots::plot_loaded(&ds, &signals, &out)?;
             for f in files {
                 println!("wrote {}", f.display());
+            }
+            Ok(())
+        }
+        BenchCmd::Reference { config, json } => {
+            let cfg = match &config {
+                Some(path) => config::load(path)?,
+                None => BenchConfig::default(),
+            };
+            let r = EmmReference::of(&VirtualBench::new(cfg))?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                print!("{}", r.markdown());
             }
             Ok(())
         }
@@ -112,6 +137,7 @@ pub fn generate(cfg: &BenchConfig, seed: u64, out: &Path) -> Result<()> {
     let simulated = start.elapsed().as_secs_f64();
     crate::data::dataset::write(out, &dataset)
         .with_context(|| format!("cannot write the dataset to {}", out.display()))?;
+    write_bench_config(cfg, out)?;
     let bytes: u64 = dataset
         .runs
         .iter()
@@ -133,4 +159,19 @@ pub fn generate(cfg: &BenchConfig, seed: u64, out: &Path) -> Result<()> {
         simulated
     );
     Ok(())
+}
+
+/// Writes the configuration a dataset was generated with into its folder
+/// ([`BENCH_CONFIG_FILE`]): it marks the data as the virtual bench's and lets the report draw
+/// the bench's reference coefficients (`bench::reference::for_dataset`).
+pub fn write_bench_config(cfg: &BenchConfig, dir: &Path) -> Result<()> {
+    let path = dir.join(BENCH_CONFIG_FILE);
+    let text = format!(
+        "# The virtual-bench configuration this dataset was generated with (nemm bench generate).\n\
+         # The report reads it to draw the bench's equivalent EMM coefficients\n\
+         # (docs/virtual-bench.md, \"Equivalent EMM coefficients\").\n{}",
+        cfg.to_toml()?
+    );
+    crate::fsutil::write_atomic_bytes(&path, text.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))
 }

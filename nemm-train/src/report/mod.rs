@@ -1,4 +1,5 @@
-//! Results: Table 4 / 5 and the JSON report ([`tables`]), the whole-run predictions the loop
+//! Results: Table 4 / 5 and the JSON report ([`tables`]), the comparison with the virtual
+//! bench's reference coefficients ([`reference`](mod@reference)), the whole-run predictions the loop
 //! figures draw ([`predictions`]), the figures ([`figures`], [`bench_plots`]) drawn with the
 //! plotting helpers ([`plot`]), and the description of a weights blob ([`inspect`]).
 pub mod bench_plots;
@@ -6,4 +7,5 @@ pub mod figures;
 pub mod inspect;
 pub mod plot;
 pub mod predictions;
+pub mod reference;
 pub mod tables;

@@ -74,6 +74,10 @@ pub struct Report {
     /// What `alpha` stands for (the dataset's `[condition]`; default the paper's oil loss).
     #[serde(default)]
     pub condition: ConditionSpec,
+    /// The NEMM's coefficients against the virtual bench's equivalent EMM coefficients
+    /// (datasets written by `nemm bench generate`; absent for other data).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bench_reference: Option<crate::report::reference::ReferenceComparison>,
 }
 
 /// The test error of every variant on one held-out run (its scored test sequences).
@@ -152,6 +156,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
     }
     let condition = ConditionSpec::from_core(&prepared.condition);
     Ok(Report {
+        bench_reference: None,
         condition: condition.clone(),
         test_alpha: prepared
             .config

@@ -6,6 +6,7 @@ use super::{
     linspace, num, sym_range, value_range, variant_color, Ctx, Drawn, CUT_VELOCITY_M_S,
     MEASURED_GREY, VIOLATION_DOT,
 };
+use crate::bench::reference::{Coefficient, EmmReference};
 use crate::report::plot::{
     nice_levels, palette, ColorMap, Figure, HeatmapPanel, LegendPosition, LinePanel, Series,
 };
@@ -196,6 +197,53 @@ fn vline(x: f64, y0: f64, y1: f64) -> Vec<(f64, f64)> {
     vec![(x, y0), (x, y1)]
 }
 
+/// Colour of the bench's reference curves.
+const REFERENCE_BLACK: RGBColor = RGBColor(0, 0, 0);
+
+/// Colours of the `k_pr` reference curves: both chambers, compression, rebound, describing
+/// function.
+const REFERENCE_K_COLORS: [RGBColor; 4] = [
+    REFERENCE_BLACK,
+    RGBColor(140, 70, 0),
+    RGBColor(110, 110, 110),
+    RGBColor(130, 0, 130),
+];
+
+/// The reference curve of `c` scaled to `model_at_0` at alpha = 0: `model(0) r(alpha) / r(0)`.
+fn scaled_reference(r: &EmmReference, c: Coefficient, model_at_0: f64) -> Vec<(f64, f64)> {
+    let pts = r.curve(c);
+    let r0 = pts.first().map_or(f64::NAN, |p| p.1);
+    pts.into_iter()
+        .map(|(a, v)| (a, model_at_0 * v / r0))
+        .collect()
+}
+
+/// Caption line comparing the learned change from alpha = 0 to `a1` with the reference's.
+fn reference_line(r: &EmmReference, pairs: &[(&str, f64, f64, Coefficient)], a1: f64) -> String {
+    let parts: Vec<String> = pairs
+        .iter()
+        .map(|(name, l0, l1, c)| {
+            let rc = r
+                .relative(*c, a1)
+                .map_or("n/a".to_string(), |x| rel_change(1.0, 1.0 + x));
+            format!(
+                "{name}: learned {}, bench {} ({})",
+                rel_change(*l0, *l1),
+                rc,
+                c.name()
+            )
+        })
+        .collect();
+    format!(
+        "Dashed black/coloured: the virtual bench's equivalent coefficients (reference run {} mm, {} m/s; \
+         docs/virtual-bench.md), scaled to the model at α = 0. Change from α = 0 to {}:\n{}.",
+        num(r.run.amplitude_m * 1e3),
+        num(r.run.peak_velocity_m_s),
+        num(a1),
+        parts.join(";\n")
+    )
+}
+
 // ---------------------------------------------------------------------------------------------
 // Figs. 8-10: b_fl
 // ---------------------------------------------------------------------------------------------
@@ -277,6 +325,15 @@ pub(super) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
             Series::dashed("max. training α", vline(a_max, ylo, yhi), MEASURED_GREY).with_width(1),
         );
     }
+    let reference = ctx.reference;
+    let ref_a1 = reference.map(|r| crate::report::reference::comparison_alpha(m, r));
+    if let Some(r) = reference {
+        pb = pb.with_series(Series::dashed(
+            "bench: quasi-static b_fl (scaled to α = 0)",
+            scaled_reference(r, Coefficient::BFl(-vc), at(0.0)),
+            REFERENCE_BLACK,
+        ));
+    }
     let viol = curve_violations(&comp, false, 1.0, b0);
     if !viol.is_empty() {
         pb = pb
@@ -316,6 +373,24 @@ pub(super) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         f_all.extend(f.iter().map(|p| p.1));
         pc = pc.with_series(Series::line(name.clone(), b, alpha_color(i)));
         pd = pd.with_series(Series::line(name.clone(), f, alpha_color(i)));
+    }
+    if let Some(r) = reference {
+        // Absolute: b_fl is regressed on the quasi-static force, which the bench knows.
+        let pts: Vec<(f64, f64)> = v_axis
+            .iter()
+            .filter(|v| v.abs() >= 0.02 * v_lim)
+            .map(|&v| (v, crate::bench::reference::b_fl(r.bench(), v, 0.0)))
+            .collect();
+        b_max = pts
+            .iter()
+            .map(|p| p.1)
+            .filter(|v| v.is_finite())
+            .fold(b_max, f64::max);
+        pc = pc.with_series(Series::dashed(
+            "bench: quasi-static b_fl at α = 0 (absolute)",
+            pts,
+            REFERENCE_BLACK,
+        ));
     }
     pc = pc
         .with_series(Series::dashed(
@@ -360,6 +435,36 @@ pub(super) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
             Series::dots("dF_fl/dv < 0 (eq. 30)", f_viol, VIOLATION_DOT).with_width(3),
         );
     }
+    let mut footer = format!(
+        "A: b_fl on the audit grid ({} x {}: v_st in ±1.2 v_scale, α in [0, 1]); thin black lines: iso-lines. \
+         Yellow cells: monotonicity violations, eq. 30 (d(b_fl v)/dv < 0)\n\
+         or eq. 31 (db_fl/dα > 0), beyond f32 rounding; white dots: quasi-static training points \
+         (eq. 41); white dashes: training velocity range ±v_scale.\n\
+         B-D: cuts through the map; yellow dots: violations along a cut; α above {} is extrapolation.",
+        AUDIT_GRID.0,
+        AUDIT_GRID.1,
+        num(a_max)
+    );
+    if let (Some(r), Some(a1)) = (reference, ref_a1) {
+        let pairs: Vec<(String, f64, f64, Coefficient)> = [-vc, vc]
+            .iter()
+            .map(|&v| {
+                let f = |a: f64| m.b_fl(v as f32, a as f32).map_or(f64::NAN, f64::from);
+                (
+                    format!("b_fl({} m/s)", num(v)),
+                    f(0.0),
+                    f(a1),
+                    Coefficient::BFl(v),
+                )
+            })
+            .collect();
+        let pairs: Vec<(&str, f64, f64, Coefficient)> = pairs
+            .iter()
+            .map(|(n, a, b, c)| (n.as_str(), *a, *b, *c))
+            .collect();
+        footer.push('\n');
+        footer.push_str(&reference_line(r, &pairs, a1));
+    }
     let fig = Figure::new(2, 2)
         .with_panel_size(680, 480)
         .with_title(format!(
@@ -372,16 +477,7 @@ pub(super) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         .with_panel(pb)
         .with_panel(pc)
         .with_panel(pd)
-        .with_footer(format!(
-            "A: b_fl on the audit grid ({} x {}: v_st in ±1.2 v_scale, α in [0, 1]); thin black lines: iso-lines. \
-             Yellow cells: monotonicity violations, eq. 30 (d(b_fl v)/dv < 0)\n\
-             or eq. 31 (db_fl/dα > 0), beyond f32 rounding; white dots: quasi-static training points \
-             (eq. 41); white dashes: training velocity range ±v_scale.\n\
-             B-D: cuts through the map; yellow dots: violations along a cut; α above {} is extrapolation.",
-            AUDIT_GRID.0,
-            AUDIT_GRID.1,
-            num(a_max)
-        ));
+        .with_footer(footer);
     Ok(Drawn::Figure(Box::new(fig)))
 }
 
@@ -389,7 +485,7 @@ pub(super) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
 // Fig. 11: b_pr
 // ---------------------------------------------------------------------------------------------
 
-pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
+pub(super) fn fig11_b_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
     let m = &tv.model;
     let Some(e) = m.emm() else {
         bail!("NEMM has no EMM constants");
@@ -416,7 +512,20 @@ pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         .filter(|&i| violation(s[i], s[i + 1], da, false).is_some())
         .map(|i| (f64::from(al[i]), 100.0 * (s[i] * b0 / ref0 - 1.0)))
         .collect();
-    let (_, yhi) = value_range(curve.iter().map(|p| p.1).chain([b0]));
+    let reference = ctx.reference;
+    let ref_abs = reference.map(|r| scaled_reference(r, Coefficient::BPrDescribing, ref0));
+    let ref_rel: Option<Vec<(f64, f64)>> = ref_abs.as_ref().map(|c| {
+        c.iter()
+            .map(|&(a, b)| (a, 100.0 * (b / ref0 - 1.0)))
+            .collect()
+    });
+    let (_, yhi) = value_range(
+        curve
+            .iter()
+            .chain(ref_abs.iter().flatten())
+            .map(|p| p.1)
+            .chain([b0]),
+    );
     let y_top = 1.15 * yhi;
     let mut pa = LinePanel::new(
         format!(
@@ -444,7 +553,7 @@ pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         .iter()
         .map(|&(a, b)| (a, 100.0 * (b / ref0 - 1.0)))
         .collect();
-    let (rlo, rhi) = value_range(rel.iter().map(|p| p.1));
+    let (rlo, rhi) = value_range(rel.iter().chain(ref_rel.iter().flatten()).map(|p| p.1));
     let mut pb = LinePanel::new(
         format!(
             "change relative to α = 0: {} at α = {}; {}",
@@ -465,6 +574,11 @@ pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         rel,
         variant_color(Variant::Nemm),
     ));
+    if let (Some(abs), Some(rel)) = (ref_abs, ref_rel) {
+        let label = "bench: describing-function b_pr (scaled to α = 0)";
+        pa = pa.with_series(Series::dashed(label, abs, REFERENCE_BLACK));
+        pb = pb.with_series(Series::dashed(label, rel, REFERENCE_BLACK));
+    }
     for p in [&mut pa, &mut pb] {
         p.reference_y.push(0.0);
     }
@@ -488,17 +602,27 @@ pub(super) fn fig11_b_pr(_ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         pb = pb
             .with_series(Series::dots("db_pr/dα > 0 (eq. 38)", viol, VIOLATION_DOT).with_width(3));
     }
+    let mut footer = format!(
+        "Left: b_pr on an axis from zero with the Linear EMM's constant; right: the same, zoomed, as change relative to α = 0.\n\
+         Yellow dots: grid intervals (audit grid, {} values of α) where b_pr breaks its declared prior in α (eq. 38); α above {} is extrapolation.",
+        AUDIT_GRID.1,
+        num(a_max)
+    );
+    if let Some(r) = reference {
+        let a1 = crate::report::reference::comparison_alpha(m, r);
+        footer.push('\n');
+        footer.push_str(&reference_line(
+            r,
+            &[("b_pr", ref0, at(a1), Coefficient::BPrDescribing)],
+            a1,
+        ));
+    }
     let fig = Figure::new(1, 2)
         .with_panel_size(680, 480)
         .with_title("Fig. 11: pressure-force damping b_pr(α) of the NEMM")
         .with_panel(pa)
         .with_panel(pb)
-        .with_footer(format!(
-            "Left: b_pr on an axis from zero with the Linear EMM's constant; right: the same, zoomed, as change relative to α = 0.\n\
-             Yellow dots: grid intervals (audit grid, {} values of α) where b_pr breaks its declared prior in α (eq. 38); α above {} is extrapolation.",
-            AUDIT_GRID.1,
-            num(a_max)
-        ));
+        .with_footer(footer);
     Ok(Drawn::Figure(Box::new(fig)))
 }
 
@@ -626,6 +750,23 @@ pub(super) fn fig12_k_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
             palette::categorical([0, 2, 3][i]),
         ));
     }
+    let reference = ctx.reference;
+    let k_ref = [
+        Coefficient::KPrCombined,
+        Coefficient::KPrCompression,
+        Coefficient::KPrRebound,
+        Coefficient::KPrDescribing,
+    ];
+    if let Some(r) = reference {
+        for (c, color) in k_ref.iter().zip(REFERENCE_K_COLORS) {
+            let pts: Vec<(f64, f64)> = scaled_reference(r, *c, at0(0.0))
+                .into_iter()
+                .map(|(a, k)| (a, k * ku))
+                .collect();
+            d_all.extend(pts.iter().map(|p| p.1));
+            pd = pd.with_series(Series::dashed(format!("bench: {}", c.name()), pts, color));
+        }
+    }
     let (dlo, dhi) = value_range(d_all.into_iter());
     if a_max > 0.0 && dlo.is_finite() {
         pd = pd.with_series(
@@ -636,6 +777,26 @@ pub(super) fn fig12_k_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         pd = pd.with_series(
             Series::dots("dk_pr/dα > 0 (eq. 38)", d_viol, VIOLATION_DOT).with_width(3),
         );
+    }
+    let mut footer = format!(
+        "A: k_pr on the audit grid ({} x {}: x_pr in ±1.2 x_scale, α in [0, 1]); thin black lines: iso-lines. \
+         Yellow cells: monotonicity violations, eq. 37 (d(k_pr x_pr)/dx_pr < 0)\n\
+         or eq. 38 (dk_pr/dα > 0), beyond f32 rounding; white dashes: the range of x_pr reached \
+         on the training data (±x_scale).\n\
+         B-D: cuts through the map (B and D zoomed: read the values); yellow dots: violations along a cut; \
+         α above {} is extrapolation.",
+        AUDIT_GRID.0,
+        AUDIT_GRID.1,
+        num(a_max)
+    );
+    if let Some(r) = reference {
+        let a1 = crate::report::reference::comparison_alpha(m, r);
+        let pairs: Vec<(&str, f64, f64, Coefficient)> = k_ref
+            .iter()
+            .map(|c| ("k_pr(x_pr = 0)", at0(0.0), at0(a1), *c))
+            .collect();
+        footer.push('\n');
+        footer.push_str(&reference_line(r, &pairs, a1));
     }
     let fig = Figure::new(2, 2)
         .with_panel_size(680, 480)
@@ -648,17 +809,7 @@ pub(super) fn fig12_k_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
         .with_panel(pb)
         .with_panel(pc)
         .with_panel(pd)
-        .with_footer(format!(
-            "A: k_pr on the audit grid ({} x {}: x_pr in ±1.2 x_scale, α in [0, 1]); thin black lines: iso-lines. \
-             Yellow cells: monotonicity violations, eq. 37 (d(k_pr x_pr)/dx_pr < 0)\n\
-             or eq. 38 (dk_pr/dα > 0), beyond f32 rounding; white dashes: the range of x_pr reached \
-             on the training data (±x_scale).\n\
-             B-D: cuts through the map (B and D zoomed: read the values); yellow dots: violations along a cut; \
-             α above {} is extrapolation.",
-            AUDIT_GRID.0,
-            AUDIT_GRID.1,
-            num(a_max)
-        ));
+        .with_footer(footer);
     Ok(Drawn::Figure(Box::new(fig)))
 }
 
