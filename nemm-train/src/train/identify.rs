@@ -100,10 +100,12 @@ pub struct Fit {
 }
 
 impl Fit {
-    /// `true` if the best fit is within `tolerance` of the label (`false` when flat).
+    /// `true` if the best fit is within `tolerance` (plus
+    /// [`crate::data::preprocess::ALPHA_TOLERANCE`]) of the label (`false` when flat).
     pub fn within(&self, tolerance: f64) -> bool {
-        self.best
-            .is_some_and(|b| (b - self.label).abs() <= tolerance + 1e-9)
+        self.best.is_some_and(|b| {
+            (b - self.label).abs() <= tolerance + crate::data::preprocess::ALPHA_TOLERANCE
+        })
     }
 }
 
@@ -188,4 +190,146 @@ pub fn identify_runs(
     runs.par_iter()
         .map(|r| identify(model, r, grid, sample_dt_s, warmup))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nemm_core::testing::example_model;
+    use nemm_core::{Body, ModelKind, DEFAULT_PARAM_CAPACITY};
+
+    /// A 10 mm sine at 5 Hz for 0.4 s at 10 kHz: velocity and position.
+    fn sine() -> (Vec<f32>, Vec<f32>) {
+        let (a, w, dt) = (0.01f64, 2.0 * std::f64::consts::PI * 5.0, 1e-4);
+        (0..4000)
+            .map(|k| {
+                let t = k as f64 * dt;
+                ((a * w * (w * t).cos()) as f32, (a * (w * t).sin()) as f32)
+            })
+            .unzip()
+    }
+
+    fn model(kind: ModelKind) -> Model {
+        example_model::<DEFAULT_PARAM_CAPACITY>(kind, 8, 3).expect("example model")
+    }
+
+    /// The force of `model` over `sine()` at `alpha`, simulated by [`predict`] alone.
+    fn force_at(model: &Model, v: &[f32], x: &[f32], alpha: f32) -> Vec<f64> {
+        let input = Input {
+            velocity_m_s: v,
+            alpha,
+            alphas: None,
+            position_m: Some(x),
+        };
+        predict(model, &[input], 1e-4).expect("predict").remove(0)
+    }
+
+    #[test]
+    fn the_grid_runs_from_zero_to_the_largest_multiple_of_the_step() {
+        let g = AlphaGrid::new(0.01, 0.3).expect("grid");
+        assert_eq!(g.alphas.len(), 31);
+        assert_eq!((g.alphas[7], g.alphas[20], g.alphas[30]), (0.07, 0.2, 0.3));
+        let g = AlphaGrid::new(0.07, 0.3).expect("grid");
+        assert_eq!(g.alphas, [0.0, 0.07, 0.14, 0.21, 0.28]);
+        assert_eq!(
+            AlphaGrid::for_model(&model(ModelKind::Nemm), 0.05)
+                .expect("grid")
+                .alphas
+                .len(),
+            7
+        );
+        assert!(AlphaGrid::new(0.0, 0.3).is_err());
+        assert!(AlphaGrid::new(0.01, 1.5).is_err());
+    }
+
+    #[test]
+    fn a_run_simulated_at_a_grid_level_is_identified_exactly() {
+        let (v, x) = sine();
+        let grid = AlphaGrid::new(0.01, 0.3).expect("grid");
+        for kind in [ModelKind::Nemm, ModelKind::NemmLight, ModelKind::Sem] {
+            let m = model(kind);
+            for (truth, k) in [(0.2f32, 20usize), (0.07, 7)] {
+                let f = force_at(&m, &v, &x, truth);
+                let run = |label: f64| Run {
+                    velocity_m_s: &v,
+                    position_m: Some(&x),
+                    force_n: &f,
+                    label,
+                    label_alphas: None,
+                };
+                let fit = identify(&m, &run(grid.alphas[k]), &grid, 1e-4, 100).expect("fit");
+                let what = format!("{} at {truth}", kind.name());
+                assert_eq!(fit.best, Some(grid.alphas[k]), "{what}: {:?}", fit.curve_n);
+                // The force runs to about 2 kN: nothing but last-bit differences.
+                assert!(fit.rmse_best_n <= 1e-3, "{what}: {}", fit.rmse_best_n);
+                assert_eq!(fit.curve_n[k], fit.rmse_best_n, "{what}");
+                assert!(fit.rmse_label_n <= 1e-3, "{what}: {}", fit.rmse_label_n);
+                assert_eq!((fit.curve_n.len(), fit.samples), (31, 3900), "{what}");
+                assert!(fit.within(0.0), "{what}");
+                // Every other level errs.
+                assert!(
+                    fit.curve_n
+                        .iter()
+                        .enumerate()
+                        .all(|(j, &e)| j == k || e > 100.0 * fit.rmse_best_n),
+                    "{what}: {:?}",
+                    fit.curve_n
+                );
+                // Labelled 0.15: the fit is still the truth, the label's error is not 0.
+                let other = identify(&m, &run(0.15), &grid, 1e-4, 100).expect("fit");
+                assert_eq!(other.best, fit.best, "{what}");
+                assert!(other.rmse_label_n > 0.0, "{what}");
+                assert_eq!(other.within(0.03), (f64::from(truth) - 0.15).abs() <= 0.03);
+            }
+        }
+    }
+
+    #[test]
+    fn a_model_without_alpha_dependence_has_a_flat_curve_and_no_best_fit() {
+        let (v, x) = sine();
+        let grid = AlphaGrid::new(0.01, 0.3).expect("grid");
+        // The Linear EMM, and the example NEMM with the alpha column of every scaler's first
+        // layer zeroed.
+        let mut constant = model(ModelKind::Nemm);
+        if let Body::Nemm {
+            b_fl, b_pr, k_pr, ..
+        } = &mut constant.body
+        {
+            for s in [b_fl, b_pr, k_pr] {
+                let d = s.mlp.inputs as usize;
+                for (i, w) in s
+                    .mlp
+                    .params
+                    .iter_mut()
+                    .take(d * s.mlp.hidden as usize)
+                    .enumerate()
+                {
+                    if i % d == d - 1 {
+                        *w = 0.0;
+                    }
+                }
+            }
+        }
+        let measured = force_at(&model(ModelKind::Nemm), &v, &x, 0.1);
+        let runs: Vec<Run<'_>> = (0..3)
+            .map(|_| Run {
+                velocity_m_s: &v,
+                position_m: Some(&x),
+                force_n: &measured,
+                label: 0.1,
+                label_alphas: None,
+            })
+            .collect();
+        for m in [model(ModelKind::LinearEmm), constant] {
+            let fits = identify_runs(&m, &runs, &grid, 1e-4, 100).expect("fits");
+            for fit in &fits {
+                assert_eq!(fit.best, None, "{}: {:?}", m.kind().name(), fit.curve_n);
+                assert!(is_flat(&fit.curve_n) && fit.rmse_best_n > 0.0);
+                assert!(!fit.within(1.0));
+            }
+            assert_eq!(fits[0], fits[2], "runs in parallel give the same fits");
+        }
+        assert!(is_flat(&[2.0, 2.0 * (1.0 - 0.9 * FLAT_TOLERANCE)]));
+        assert!(!is_flat(&[2.0, 2.0 * (1.0 - 1.1 * FLAT_TOLERANCE)]));
+    }
 }
