@@ -71,7 +71,8 @@ enum Cmd {
         #[command(flatten)]
         tables: nemm_train::cli::train::TablesArgs,
     },
-    /// Train all four variants and write Table 4 (table4.md, report.json), models and figures.
+    /// Train all four variants and write Table 4 (table4.md, report.json), the best-fit level
+    /// of every run (identify.md), models and figures.
     Compare {
         /// Training options.
         #[command(flatten)]
