@@ -71,7 +71,8 @@ enum Cmd {
         #[command(flatten)]
         tables: nemm_train::cli::train::TablesArgs,
     },
-    /// Train all four variants and write Table 4 (table4.md, report.json), models and figures.
+    /// Train all four variants and write Table 4 (table4.md, report.json), the best-fit level
+    /// of every run (identify.md), models and figures.
     Compare {
         /// Training options.
         #[command(flatten)]
@@ -109,6 +110,30 @@ enum Cmd {
         /// Only collect finished jobs' reports into the table.
         #[arg(long)]
         collect: bool,
+    },
+    /// The best-fit condition level of every run of a dataset for a trained model (the level
+    /// of least whole-run force RMSE on a grid), against the run's label, and the model's
+    /// whole-run error per level and run.
+    Identify {
+        /// The weights blob.
+        #[arg(long)]
+        model: PathBuf,
+        /// Dataset folder (manifest.toml + CSV runs).
+        #[arg(long)]
+        data: PathBuf,
+        /// Runs to identify: glob(s) on the run files' paths (relative to the manifest) or
+        /// names, e.g. 'runs/oil15_*' (repeatable) [default: every run the split uses].
+        #[arg(long, value_name = "GLOB")]
+        runs: Vec<String>,
+        /// Step of the grid of levels (0 up to the model's largest training level).
+        #[arg(long, default_value_t = nemm_train::train::identify::DEFAULT_STEP)]
+        step: f64,
+        /// Also write identify.json and identify.md into this folder.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Data options.
+        #[command(flatten)]
+        data_options: nemm_train::config::DataArgs,
     },
     /// The main job: virtual bench (generated if absent), all four variants on a budget of a
     /// few minutes, Table 4, figures, model.nemm, and the exported model run through nemm-core.
@@ -199,6 +224,20 @@ fn main() -> ExitCode {
             );
             nemm_train::cli::train::sweep(&base, grid, &lambdas, &report, jobs, list, collect)
         }),
+        Cmd::Identify {
+            model,
+            data,
+            runs,
+            step,
+            report,
+            data_options,
+        } => nemm_train::cli::identify::identify(
+            &model,
+            &data_options.with_dir(&data),
+            &runs,
+            step,
+            report.as_deref(),
+        ),
         Cmd::Demo {
             data,
             out,

@@ -171,6 +171,52 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         assert!(table.contains(row), "{row} missing:\n{table}");
     }
     assert!(table.contains("Test RMSE per held-out run"), "{table}");
+    // Whole-run errors per level and run (training levels included), the identifiability
+    // tables in identify.md, linked from table4.md, and the same in report.json.
+    for part in [
+        "Whole-run RMSE at the label per level",
+        "| 0 | train | 2 |",
+        "| 0.15 | test | 2 |",
+        "| 10 | 16.7 | 0.3 | train | runs/oil30_a010_v1048.csv |",
+        "[identify.md](identify.md)",
+    ] {
+        assert!(table.contains(part), "{part} missing:\n{table}");
+    }
+    let identify_md = std::fs::read_to_string(report_dir.join("identify.md")).expect("identify.md");
+    for part in [
+        "### NEMM (grid 0 to 0.3",
+        "### NEMM-Light",
+        "### Linear EMM",
+        "### SEM",
+    ] {
+        assert!(identify_md.contains(part), "{part} missing:\n{identify_md}");
+    }
+    let id = report.identify.as_ref().expect("report.json: identify");
+    assert_eq!(id.runs.len(), 6, "every run the split uses");
+    assert_eq!(id.force_scale_n, report.force_scale_n);
+    for key in ["sem", "linear_emm", "nemm_light", "nemm"] {
+        let v = &id.variants[key];
+        assert_eq!(
+            (v.grid.len(), v.fits.len(), v.levels.len()),
+            (31, 6, 3),
+            "{key}"
+        );
+        for (l, role) in v.levels.iter().zip(["train", "test", "train"]) {
+            assert_eq!((l.role.as_str(), l.runs), (role, 2), "{key}");
+            assert!(l.rmse.is_finite() && l.rmse > 0.0, "{key}: {l:?}");
+            assert!((l.rmse_n - l.rmse * id.force_scale_n).abs() <= 1e-9 * l.rmse_n);
+            assert!(l.within <= l.runs && l.flat <= l.runs);
+        }
+        let order = v.order.as_ref().expect("three levels");
+        assert_eq!(order.conditions, 2, "{key}");
+        for fit in &v.fits {
+            assert!(fit.rmse_label_n.is_finite() && fit.rmse_best_n <= fit.rmse_label_n + 1e-9);
+        }
+    }
+    assert_eq!(
+        id.variants["linear_emm"].fits[0].best, None,
+        "the Linear EMM is flat"
+    );
     for (file, kind) in [
         ("sem.nemm", ModelKind::Sem),
         ("linear-emm.nemm", ModelKind::LinearEmm),
@@ -451,4 +497,105 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         ModelKind::Nemm
     );
     no_temp_files(&demo);
+}
+
+/// `nemm identify` on a fixture (three levels at 300 Hz) with example blobs: the tables and
+/// `identify.json` for every run the split uses or the runs of `--runs`; a model without
+/// alpha dependence is flat; a pattern that matches nothing is refused.
+#[test]
+fn identify_prints_and_writes_the_best_fit_level_of_each_run() {
+    use nemm_train::report::identify::IdentifyReport;
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path();
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/offsets_300hz");
+    let blob = |kind: ModelKind| {
+        let m =
+            nemm_core::testing::example_model::<{ nemm_core::DEFAULT_PARAM_CAPACITY }>(kind, 8, 3)
+                .expect("example model");
+        let path = dir.join(format!("{}.nemm", kind.name()));
+        std::fs::write(&path, nemm_core::encode_to_vec(&m).expect("encode")).expect("write");
+        path
+    };
+    let read = |report: &Path| -> IdentifyReport {
+        serde_json::from_str(
+            &std::fs::read_to_string(report.join("identify.json")).expect("identify.json"),
+        )
+        .expect("IdentifyReport")
+    };
+
+    let report = dir.join("nemm-id");
+    let stdout = Nemm::new(&["identify", "--model"])
+        .arg(blob(ModelKind::Nemm))
+        .arg("--data")
+        .arg(&data)
+        .arg("--report")
+        .arg(&report)
+        .ok();
+    for part in [
+        "## Identifiability",
+        "### NEMM (grid 0 to 0.3, 31 levels",
+        "| runs/oil15_a030_v0240.csv | test | 0.15 |",
+        "Whole-run RMSE at the label per level",
+        "identified 3 runs",
+    ] {
+        assert!(stdout.contains(part), "{part} missing:\n{stdout}");
+    }
+    let id = read(&report);
+    assert_eq!(id.runs.len(), 3);
+    assert_eq!(id.step, 0.01);
+    let nemm = &id.variants["nemm"];
+    assert_eq!(nemm.grid.len(), 31);
+    assert_eq!(nemm.fits.len(), 3);
+    for (run, fit) in id.runs.iter().zip(&nemm.fits) {
+        assert_eq!(fit.label, run.alpha);
+        assert_eq!(fit.curve_n.len(), 31);
+        assert!(
+            fit.rmse_label_n.is_finite() && fit.rmse_label_n > 0.0,
+            "{fit:?}"
+        );
+        let least = fit.curve_n.iter().copied().fold(f64::INFINITY, f64::min);
+        assert_eq!(fit.rmse_best_n, least);
+        if let Some(b) = fit.best {
+            assert!(nemm.grid.contains(&b));
+        }
+    }
+    let levels: Vec<(f64, &str, usize)> = nemm
+        .levels
+        .iter()
+        .map(|l| (l.alpha, l.role.as_str(), l.runs))
+        .collect();
+    assert_eq!(
+        levels,
+        [(0.0, "train", 1), (0.15, "test", 1), (0.3, "train", 1)]
+    );
+    let order = nemm.order.as_ref().expect("two levels or more");
+    assert_eq!((order.low, order.high, order.conditions), (0.0, 0.3, 1));
+    let md = std::fs::read_to_string(report.join("identify.md")).expect("identify.md");
+    assert!(md.contains("## Identifiability"), "{md}");
+
+    // The Linear EMM does not depend on alpha: every run flat; one run by its name.
+    let report = dir.join("linear-id");
+    let stdout = Nemm::new(&["identify", "--runs", "oil30_*", "--step", "0.05", "--model"])
+        .arg(blob(ModelKind::LinearEmm))
+        .arg("--data")
+        .arg(&data)
+        .arg("--report")
+        .arg(&report)
+        .ok();
+    assert!(
+        stdout.contains("| runs/oil30_a030_v0240.csv | train | 0.3 | flat |"),
+        "{stdout}"
+    );
+    let id = read(&report);
+    let linear = &id.variants["linear_emm"];
+    assert_eq!((id.runs.len(), linear.grid.len()), (1, 7));
+    assert_eq!(linear.fits[0].best, None);
+    assert_eq!(linear.levels[0].flat, 1);
+
+    let err = Nemm::new(&["identify", "--runs", "nothing*", "--model"])
+        .arg(blob(ModelKind::Nemm))
+        .arg("--data")
+        .arg(&data)
+        .fails();
+    assert!(err.contains("no run to identify"), "{err}");
 }

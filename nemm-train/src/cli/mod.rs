@@ -1,4 +1,5 @@
 //! The `nemm` command line: argument types and the handlers of each command.
 pub mod bench;
 pub mod data;
+pub mod identify;
 pub mod train;

@@ -5,6 +5,7 @@ use crate::config::{lambda_ph_scale_note, resolve_data, Config, CONFIG_FILE};
 use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::fsutil::write_atomic_bytes;
+use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use crate::report::inspect::describe;
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::net::{EmmNet, NetFrame};
@@ -154,23 +155,35 @@ pub fn export_model(
     Ok((blob.len(), written))
 }
 
-/// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run) into
-/// `dir`.
+/// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run, then
+/// the whole-run error per level and run) into `dir`; with the report's identification,
+/// also `identify.md`, which `table4.md` links to.
 pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     write_atomic_bytes(
         &dir.join("report.json"),
         serde_json::to_string_pretty(report)?.as_bytes(),
     )?;
+    let mut table = table4_markdown(report);
     let runs = test_runs_markdown(report);
-    let table = if runs.is_empty() {
-        table4_markdown(report)
-    } else {
-        format!("{}\n{runs}", table4_markdown(report))
-    };
+    if !runs.is_empty() {
+        table = format!("{table}\n{runs}");
+    }
+    if let Some(id) = &report.identify {
+        table = format!(
+            "{table}\n{}\nThe best-fit {} of every run per model (can the model read the level \
+             back?): [{IDENTIFY_MD}]({IDENTIFY_MD}).\n",
+            whole_run_markdown(id),
+            id.condition.column()
+        );
+        write_atomic_bytes(&dir.join(IDENTIFY_MD), identify_markdown(id).as_bytes())?;
+    }
     write_atomic_bytes(&dir.join(table_name), table.as_bytes())?;
     Ok(())
 }
+
+/// The identifiability tables' file in a report folder.
+pub const IDENTIFY_MD: &str = "identify.md";
 
 fn print_audit(t: &TrainedVariant, r: &Report) {
     if let Some(v) = r.variants.get(t.variant.key()) {
@@ -385,8 +398,10 @@ pub fn compare_command(
 }
 
 /// All four variants on a prepared dataset (`ds` is the dataset `prepared` was made from;
-/// the figures need its whole runs): Table 4, `report.json`, one blob per variant, the
-/// figures and the effective `config.toml`, all in `report_dir`.
+/// the figures need its whole runs): Table 4, `report.json`, the identifiability of the
+/// level and the whole-run errors of every run the split uses
+/// ([`crate::report::identify`], `identify.md`), one blob per variant, the figures and the
+/// effective `config.toml`, all in `report_dir`.
 pub fn compare(
     ds: &dataset::Dataset,
     prepared: &Prepared,
@@ -438,6 +453,19 @@ pub fn compare(
         .into_iter()
         .filter(|tv| report.variants.contains_key(tv.variant.key()))
         .collect();
+    let models: Vec<(Variant, &nemm_core::Model)> =
+        trained.iter().map(|tv| (tv.variant, &tv.model)).collect();
+    match identify_report(
+        &models,
+        ds,
+        prepared,
+        &used_runs(prepared),
+        crate::train::identify::DEFAULT_STEP,
+        prepared.scales.force_n,
+    ) {
+        Ok(id) => report.identify = Some(id),
+        Err(e) => eprintln!("warning: no identifiability tables: {e:#}"),
+    }
     record_provenance(&mut report);
     report
         .info

@@ -1,9 +1,12 @@
-//! Results: Table 4 / 5 and the JSON report ([`tables`]), the comparison with the virtual
-//! bench's reference coefficients ([`reference`](mod@reference)), the whole-run predictions the loop
-//! figures draw ([`predictions`]), the figures ([`figures`], [`bench_plots`]) drawn with the
-//! plotting helpers ([`plot`]), and the description of a weights blob ([`inspect`]).
+//! Results: Table 4 / 5 and the JSON report ([`tables`]), the identifiability of the level
+//! and the whole-run errors per level and condition ([`identify`]), the comparison with the
+//! virtual bench's reference coefficients ([`reference`](mod@reference)), the whole-run
+//! predictions the loop figures draw ([`predictions`]), the figures ([`figures`],
+//! [`bench_plots`]) drawn with the plotting helpers ([`plot`]), and the description of a
+//! weights blob ([`inspect`]).
 pub mod bench_plots;
 pub mod figures;
+pub mod identify;
 pub mod inspect;
 pub mod plot;
 pub mod predictions;

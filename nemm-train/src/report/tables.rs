@@ -4,6 +4,7 @@
 
 use crate::data::dataset::ConditionSpec;
 use crate::data::preprocess::Prepared;
+use crate::report::identify::IdentifyReport;
 use crate::train::eval::{rmse_of, sse_per_sequence};
 use crate::train::fit::EpochStats;
 use crate::train::physics::{audit, Audit, AUDIT_GRID};
@@ -68,6 +69,10 @@ pub struct Report {
     /// amplitude, frequency). Empty in reports written before it existed.
     #[serde(default)]
     pub test_runs: Vec<RunBreakdown>,
+    /// Identifiability of the level and whole-run errors per level and condition, every
+    /// run the split uses ([`crate::report::identify`]); absent where not computed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub identify: Option<IdentifyReport>,
     /// Free-form facts about the run (configuration, dataset).
     #[serde(default)]
     pub info: BTreeMap<String, String>,
@@ -192,6 +197,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
                 })
             })
             .collect(),
+        identify: None,
         info: BTreeMap::new(),
     })
 }

@@ -1,11 +1,13 @@
 //! Training of the four variants (sections 5-6): the rollout and its discrete adjoint, the
 //! burn modules, the physics losses, the training loop (epochs in [`fit`], model selection
 //! in [`selection`], checkpoints, the session budget in [`session`]), the two-step
-//! procedure, evaluation and the conversion to and from nemm-core models.
+//! procedure, evaluation, identification of the level ([`identify`]) and the conversion
+//! to and from nemm-core models.
 pub mod adjoint;
 mod checkpoint;
 pub mod eval;
 pub mod fit;
+pub mod identify;
 pub mod net;
 pub mod params;
 pub mod physics;
