@@ -832,8 +832,12 @@ pub struct ConfigArgs {
     #[arg(long)]
     pub max_batches: Option<usize>,
     /// Overrides [`TrainConfig::balance`].
-    #[arg(long, value_enum, help = "How batches draw the training windows: runs (every run \
-        equally often) or windows (every window once per epoch) [default: runs]")]
+    #[arg(
+        long,
+        value_enum,
+        help = "How batches draw the training windows: runs (every run \
+        equally often) or windows (every window once per epoch) [default: runs]"
+    )]
     pub balance: Option<Balance>,
     /// Train at most this many epochs per stage in this invocation, then stop with a
     /// checkpoint (time-boxed sessions); continue with --resume.

@@ -117,6 +117,7 @@ fn trained(kinds: &[(Variant, ModelKind)]) -> Vec<TrainedVariant> {
                 val_rmse: history.last().map_or(0.05, |h| h.val_rmse),
                 history,
                 stop: None,
+                kept_epoch: None,
                 seconds: 1.0,
             }
         })

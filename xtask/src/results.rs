@@ -439,6 +439,8 @@ pub fn training(paths: &Paths, dir: &Path) -> Result<(), String> {
         )
     })?;
     let table5 = read("table5.md")?;
+    let identify = read("identify.md")?;
+    let table4 = with_identify_summary(&table4, identify.as_deref());
     let info = match read("report.json")? {
         Some(json) => report_info(&json).map_err(|e| format!("{}: {e}", dir.display()))?,
         None => Vec::new(),
@@ -499,6 +501,46 @@ fn report_info(json: &str) -> Result<Vec<(String, String)>, String> {
                 .collect()
         })
         .unwrap_or_default())
+}
+
+/// `table4.md` for `docs/results.md`: without the whole-run error of every single run (the
+/// report folder keeps it), and with the link to the report's `identify.md` replaced by its
+/// summary (each model's heading and its lines per level), which a link out of
+/// `docs/results.md` could not reach.
+fn with_identify_summary(table4: &str, identify: Option<&str>) -> String {
+    const PER_RUN: &str = "Whole-run RMSE at the label per run";
+    let mut out = String::new();
+    let mut skipping = false;
+    for line in table4.lines() {
+        if line.starts_with(PER_RUN) {
+            skipping = true;
+            continue;
+        }
+        if line.contains("(identify.md)") {
+            skipping = false;
+            match identify {
+                Some(id) => {
+                    out += "Identifiability of the level (the report's `identify.md`: each run \
+                            simulated whole at every level of the grid; the best fit is the \
+                            level of least force RMSE):\n\n";
+                    for l in id.lines() {
+                        if let Some(h) = l.strip_prefix("### ") {
+                            let _ = writeln!(out, "- **{h}**");
+                        } else if l.starts_with("- ") {
+                            let _ = writeln!(out, "  {l}");
+                        }
+                    }
+                }
+                None => out += "The report has no `identify.md`.\n",
+            }
+            continue;
+        }
+        if !skipping {
+            out += line;
+            out.push('\n');
+        }
+    }
+    out
 }
 
 /// The markdown of the training block.
@@ -581,6 +623,21 @@ mod tests {
             "# R\n\nB\n"
         );
         assert!(replace_block("<!-- BEGIN target -->\n", "target", "B").is_err());
+    }
+
+    #[test]
+    fn the_training_block_summarises_the_identifiability() {
+        let table4 = "| Model |\n\nWhole-run RMSE at the label per level:\n\n| 0 |\n\n\
+                      Whole-run RMSE at the label per run, by amplitude:\n\n| run |\n\n\
+                      The best-fit level: [identify.md](identify.md).\n";
+        let identify = "## Identifiability\n\n### NEMM (grid 0 to 0.3)\n\n| run |\n\n\
+                        - oil loss 0.15 (test): 4 of 18 runs within 0.03 of the label\n";
+        let md = with_identify_summary(table4, Some(identify));
+        assert!(md.contains("per level:\n\n| 0 |\n"), "{md}");
+        assert!(!md.contains("per run"), "{md}");
+        assert!(!md.contains("(identify.md)"), "{md}");
+        assert!(md.contains("- **NEMM (grid 0 to 0.3)**\n  - oil loss 0.15 (test): 4 of 18"));
+        assert!(with_identify_summary(table4, None).contains("no `identify.md`"));
     }
 
     #[test]

@@ -53,7 +53,8 @@ pub struct FitConfig {
     pub lambda_l2: f64,
     /// Physics-inconsistency weight `lambda_ph`.
     pub lambda_ph: f64,
-    /// Stop after this many epochs without a better validation RMSE.
+    /// Stop after this many epochs without a better validation RMSE (not before half of
+    /// `epochs` are done).
     pub patience: usize,
     /// Gradient clipping by norm, per parameter tensor.
     pub grad_clip: f32,
@@ -339,12 +340,19 @@ pub fn fit(
     };
     let t_start = Instant::now();
     let mut stop = StopReason::Epochs;
+    // Early stopping waits for the first half of the stage: the learning rate peaks after
+    // the warm-up, where a pre-trained model can be knocked off its start, and comes down
+    // only in the second half of the cosine schedule, where such a model recovers.
+    let min_epochs = cfg.epochs / 2;
+    let stopping = |sel: &Selection, epoch: usize| {
+        epoch > min_epochs + 1 && sel.patience_used(cfg.patience, audited)
+    };
     // A resumed run may have used its patience already (then the loop does not run either).
-    if sel.patience_used(cfg.patience, audited) {
+    if stopping(&sel, start_epoch) {
         stop = StopReason::EarlyStopping;
     }
     for epoch in start_epoch..=cfg.epochs {
-        if sel.patience_used(cfg.patience, audited) {
+        if stopping(&sel, epoch) {
             stop = StopReason::EarlyStopping;
             break;
         }

@@ -206,6 +206,9 @@ pub struct TrainedVariant {
     pub val_rmse: f64,
     /// Why its training ended (`None` for the SEM).
     pub stop: Option<StopReason>,
+    /// The epoch of its rollout stage whose model was kept: `Some(0)` is the model the stage
+    /// started from (no epoch improved on it); `None` for the SEM.
+    pub kept_epoch: Option<usize>,
     /// Training wall time \[s\] of this variant's own stages.
     pub seconds: f64,
 }
@@ -598,6 +601,7 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
         history: Vec::new(),
         val_rmse: val,
         stop: None,
+        kept_epoch: None,
         seconds: t.elapsed().as_secs_f64(),
     })
 }
@@ -798,6 +802,7 @@ pub fn train_each(
                 history: lin.history.clone(),
                 val_rmse: lin.best_val_rmse,
                 stop: Some(lin.stop),
+                kept_epoch: Some(lin.best_epoch),
                 seconds: lin_seconds,
             }),
             Err(e) => record(&mut failed, Variant::LinearEmm, e)?,
@@ -911,6 +916,7 @@ pub fn train_each(
                 history: r.history,
                 val_rmse: val,
                 stop: Some(r.stop),
+                kept_epoch: Some(r.best_epoch),
                 seconds: t.elapsed().as_secs_f64() + qs_seconds + lin_seconds,
             })
         };
