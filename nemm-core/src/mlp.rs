@@ -49,6 +49,9 @@ use serde::{Deserialize, Serialize};
 #[allow(unsafe_code)]
 mod arm;
 mod branch;
+mod layout;
+
+pub use layout::{BranchLayout, BranchRanges, LayerRanges, ScalerLayout};
 
 pub use branch::{
     branch_param_count, AlphaBranch, BranchError, BranchView, CompiledBranch, Direction,
@@ -303,37 +306,31 @@ impl<const P: usize> MlpParams<P> {
         Ok(())
     }
 
+    /// The layout of the parameters ([`ScalerLayout`], no branch).
+    pub fn layout(&self) -> ScalerLayout {
+        ScalerLayout::mlp(
+            self.inputs as usize,
+            self.hidden as usize,
+            self.layers as usize,
+        )
+    }
+
     /// Hidden layer `l` (0-based), or `None` if out of range or the shape is inconsistent.
     pub fn layer(&self, l: usize) -> Option<LayerView<'_>> {
-        let (d, h) = (self.inputs as usize, self.hidden as usize);
-        if l >= self.layers as usize {
-            return None;
-        }
-        let mut rest: &[f32] = &self.params;
-        let first = d.checked_mul(h)?.checked_add(h.checked_mul(3)?)?;
-        let other = h.checked_mul(h)?.checked_add(h.checked_mul(3)?)?;
-        let skip = if l == 0 {
-            0
-        } else {
-            first.checked_add(other.checked_mul(l - 1)?)?
-        };
-        take(&mut rest, skip)?;
-        let fan_in = if l == 0 { d } else { h };
+        let r = self.layout().layer(l)?;
+        let p: &[f32] = &self.params;
         Some(LayerView {
-            w: take(&mut rest, fan_in.checked_mul(h)?)?,
-            b: take(&mut rest, h)?,
-            gamma: take(&mut rest, h)?,
-            beta: take(&mut rest, h)?,
+            w: p.get(r.w)?,
+            b: p.get(r.b)?,
+            gamma: p.get(r.gamma)?,
+            beta: p.get(r.beta)?,
         })
     }
 
     /// Output weights `w_o` (`H`) and bias `b_o`.
     pub fn output(&self) -> Option<(&[f32], f32)> {
-        let h = self.hidden as usize;
-        let n = self.params.len();
-        let w = self.params.get(n.checked_sub(h + 1)?..n - 1)?;
-        let b = *self.params.last()?;
-        Some((w, b))
+        let (w, b) = self.layout().output()?;
+        Some((self.params.get(w)?, *self.params.get(b)?))
     }
 
     /// Reference forward pass: raw output `z` for normalised inputs `x` (length `inputs`).

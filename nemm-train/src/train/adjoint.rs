@@ -108,7 +108,15 @@ pub struct BranchShape {
 impl BranchShape {
     /// Number of branch parameters.
     pub fn len(&self) -> usize {
-        mlp::branch_param_count(self.state_inputs, self.units)
+        self.layout().len()
+    }
+
+    /// nemm-core's layout of the branch's parameters.
+    pub fn layout(&self) -> mlp::BranchLayout {
+        mlp::BranchLayout {
+            state_inputs: self.state_inputs,
+            units: self.units,
+        }
     }
 
     /// True without parameters (never for a valid shape).
@@ -139,9 +147,19 @@ pub struct ScalerWeights<T> {
 }
 
 impl<T> ScalerWeights<T> {
+    /// Where each block sits in [`Self::w`]: nemm-core's one definition of the layout.
+    pub fn layout(&self) -> mlp::ScalerLayout {
+        mlp::ScalerLayout::mlp(self.inputs, self.hidden, self.layers).with_branch(self.branch.map(
+            |b| mlp::BranchLayout {
+                state_inputs: b.state_inputs,
+                units: b.units,
+            },
+        ))
+    }
+
     /// Number of the MLP's parameters (the head of [`Self::w`]).
     pub fn mlp_len(&self) -> usize {
-        mlp::param_count(self.inputs, self.hidden, self.layers)
+        self.layout().mlp_len()
     }
 
     /// The MLP's parameters.
@@ -433,32 +451,31 @@ struct Mlp<'a, T> {
 
 impl<'a, T: Real> Mlp<'a, T> {
     fn new(s: &'a ScalerWeights<T>) -> Self {
-        let (h, d) = (s.hidden, s.inputs);
-        let mut off = 0;
-        let mut layers = Vec::with_capacity(s.layers);
-        for l in 0..s.layers {
-            let fan_in = if l == 0 { d } else { h };
-            let lo = LayerOff {
-                w: off,
-                b: off + fan_in * h,
-                g: off + fan_in * h + h,
-                be: off + fan_in * h + 2 * h,
-                fan_in,
-            };
-            off = lo.be + h;
-            layers.push(lo);
-        }
+        let layout = s.layout();
+        let layers = (0..s.layers)
+            .map(|l| {
+                let r = layout.layer(l).expect("layer of the layout");
+                LayerOff {
+                    w: r.w.start,
+                    b: r.b.start,
+                    g: r.gamma.start,
+                    be: r.beta.start,
+                    fan_in: r.fan_in,
+                }
+            })
+            .collect();
         assert_eq!(
-            off + h + 1 + s.branch.map_or(0, |b| b.len()),
+            layout.len(),
             s.w.len(),
             "scaler weight count does not match its shape"
         );
+        let (w_o, b_o) = layout.output().expect("an MLP with layers");
         Self {
-            h,
-            inputs: d,
+            h: s.hidden,
+            inputs: s.inputs,
             layers,
-            out_w: off,
-            out_b: off + h,
+            out_w: w_o.start,
+            out_b: b_o,
             w: s.mlp_w(),
         }
     }
