@@ -265,19 +265,20 @@ impl AlphaBranch {
     /// without a state input) and normalised `alpha_n` (module docs' arithmetic); 0 for an
     /// inconsistent shape.
     pub fn raw(&self, x: f32, alpha_n: f32) -> f32 {
-        let Some(v) = self.view() else {
-            return 0.0;
-        };
-        let d = self.direction.sign();
-        let mut z = 0.0f32;
-        for (k, ((&tu, &c), &tv)) in v.theta_u.iter().zip(v.c).zip(v.theta_v).enumerate() {
-            let mut t = math::fma(d * (tu * tu), alpha_n, c);
-            if let Some(&r) = v.r.get(k) {
-                t = math::fma(r, x, t);
-            }
-            z = math::fma(tv * tv, leaky_relu(t), z);
-        }
-        z
+        let mut bias = [0.0f32; MAX_BRANCH_UNITS];
+        let layout = self.layout();
+        super::pass::fold_branch::<math::Fused, f32>(
+            layout,
+            &self.params,
+            self.direction,
+            alpha_n,
+            &mut bias,
+        )
+        .and_then(|()| {
+            super::pass::branch_raw::<math::Fused, f32>(layout, &self.params, &bias, x, None)
+        })
+        .filter(|_| self.params.len() == layout.len())
+        .unwrap_or(0.0)
     }
 }
 

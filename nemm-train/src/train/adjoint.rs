@@ -21,13 +21,14 @@
 //!   the step that uses it, with the coefficients at the step's start state re-evaluated
 //!   (`nemm_core::Estimator::set_alpha`); the whole step runs at the new level;
 //! - the EMM right-hand side and force (`nemm_core::emm`), the RK step
-//!   (`nemm_core::integrator::step_with`), the scalers' centring, normalisation, activation
-//!   and bounded output mapping (`nemm_core::mlp`) are nemm-core's own generic definitions,
-//!   run here over [`Lanes`] of [`LANES`] windows with unfused multiply-adds; their reverse
-//!   modes (`rhs_backward`, `force_backward`, `step_backward`, `norm_act_backward`,
-//!   `centre_backward`, `bounded_backward`) sit next to them in nemm-core. This file keeps
-//!   the scalers' linear maps (forward and backward), the packing, the loss and the sweeps.
-//!   The parity test bounds the difference to the estimator's fused arithmetic.
+//!   (`nemm_core::integrator::step_with`) and the scalers (MLP and alpha branch,
+//!   `nemm_core::mlp::ScalerView::raw`, with the bounded output mapping `mlp::bounded`) are
+//!   nemm-core's own generic definitions, run here over [`Lanes`] of [`LANES`] windows with
+//!   unfused multiply-adds; their reverse modes (`rhs_backward`, `force_backward`,
+//!   `step_backward`, `ScalerView::raw_backward`, `bounded_backward`) sit next to them in
+//!   nemm-core, as does the weight layout (`mlp::ScalerLayout`). This file keeps the
+//!   packing, the activation records, the loss and the sweeps. The parity test bounds the
+//!   difference to the estimator's fused arithmetic.
 //!
 //! # Batching
 //!
@@ -426,81 +427,81 @@ impl Grid {
 }
 
 // ---------------------------------------------------------------------------------------
-// MLP over lanes
+// Scalers over lanes: nemm-core's `ScalerView` (forward `raw`, reverse `raw_backward`)
 // ---------------------------------------------------------------------------------------
 
-/// Offsets of one layer in the flat layout.
-#[derive(Debug, Clone, Copy)]
-struct LayerOff {
-    w: usize,
-    b: usize,
-    g: usize,
-    be: usize,
-    fan_in: usize,
-}
-
+/// One scaler over the lanes at the pack's condition level: nemm-core's view of its
+/// weights ([`mlp::ScalerView`]) and its alpha level folded in ([`mlp::Folded`]).
 #[derive(Debug, Clone)]
-struct Mlp<'a, T> {
-    h: usize,
-    inputs: usize,
-    layers: Vec<LayerOff>,
-    out_w: usize,
-    out_b: usize,
-    w: &'a [T],
+struct LaneScaler<'a, T> {
+    view: mlp::ScalerView<'a, T>,
+    fold: Box<mlp::Folded<L<T>>>,
+    /// The MLP's first input when it has no state input (`b_pr`: `alpha_n`, or 0 with a
+    /// branch).
+    x_alpha: L<T>,
+    /// The MLP's second input (`alpha_n`, or 0 with a branch).
+    second: L<T>,
+    /// The branch's `alpha_n`.
+    alpha_n: L<T>,
 }
 
-impl<'a, T: Real> Mlp<'a, T> {
-    fn new(s: &'a ScalerWeights<T>) -> Self {
-        let layout = s.layout();
-        let layers = (0..s.layers)
-            .map(|l| {
-                let r = layout.layer(l).expect("layer of the layout");
-                LayerOff {
-                    w: r.w.start,
-                    b: r.b.start,
-                    g: r.gamma.start,
-                    be: r.beta.start,
-                    fan_in: r.fan_in,
-                }
-            })
-            .collect();
-        assert_eq!(
-            layout.len(),
-            s.w.len(),
-            "scaler weight count does not match its shape"
+impl<'a, T: Real> LaneScaler<'a, T> {
+    fn new(s: &'a ScalerWeights<T>, alpha_n: &V<T>) -> Self {
+        let direction = s.branch.map_or(Direction::None, |b| b.direction);
+        let view = mlp::ScalerView::new(s.layout(), &s.w, direction)
+            .expect("scaler weight count does not match its shape");
+        let alpha_n = Lanes(*alpha_n);
+        let (x_alpha, second) = view.inputs(L::default(), alpha_n);
+        let fold = Box::new(
+            view.fold::<Unfused, L<T>>(second, alpha_n)
+                .expect("consistent scaler shape"),
         );
-        let (w_o, b_o) = layout.output().expect("an MLP with layers");
         Self {
-            h: s.hidden,
-            inputs: s.inputs,
-            layers,
-            out_w: w_o.start,
-            out_b: b_o,
-            w: s.mlp_w(),
+            view,
+            fold,
+            x_alpha,
+            second,
+            alpha_n,
         }
     }
 
-    /// Layer-1 bias with the alpha column folded in, per lane.
-    fn bias1(&self, alpha_n: &V<T>) -> Vec<V<T>> {
-        let l0 = self.layers[0];
-        (0..self.h)
-            .map(|i| {
-                let b = self.w[l0.b + i];
-                if self.inputs == 2 {
-                    let wa = self.w[l0.w + i * 2 + 1];
-                    std::array::from_fn(|k| b + wa * alpha_n[k])
-                } else {
-                    splat(b)
-                }
-            })
-            .collect()
+    /// A record of the right size for this scaler.
+    fn act(&self) -> Act<T> {
+        let l = &self.view.layout;
+        Act::new(l.hidden, l.layers, l.branch.map_or(0, |b| b.units))
+    }
+
+    /// Raw output `z` at first input `x`, recording into `rec` if given.
+    #[inline]
+    fn raw(&self, x: L<T>, rec: Option<&mut Act<T>>) -> L<T> {
+        let z = match rec {
+            None => self.view.raw::<Unfused, L<T>>(&self.fold, x, None),
+            Some(r) => {
+                r.x0 = x;
+                self.view
+                    .raw::<Unfused, L<T>>(&self.fold, x, Some(&mut r.tape_mut()))
+            }
+        };
+        z.expect("consistent scaler shape")
+    }
+
+    /// Reverse mode of [`Self::raw`]: adds the weight gradients to `g` (the flat layout)
+    /// and returns `dL/dx`.
+    #[inline]
+    fn backward(&self, rec: &Act<T>, zbar: L<T>, g: &mut [T]) -> L<T> {
+        let (gm, gb) = g.split_at_mut(self.view.layout.mlp_len());
+        self.view
+            .raw_backward(&rec.tape(), rec.x0, self.second, self.alpha_n, zbar, gm, gb)
+            .expect("consistent scaler shape")
     }
 }
 
-/// Activations of one MLP evaluation over the lanes (for the backward pass).
+/// Activations of one scaler evaluation over the lanes (for the backward pass): the
+/// storage of nemm-core's [`mlp::Tape`], the input and the sigmoid.
 #[derive(Debug, Clone)]
 struct Act<T> {
-    x0: V<T>,
+    /// The MLP's first input.
+    x0: L<T>,
     /// Normalised pre-activations `n = (h - mean) r`, `layers * H`.
     n: Vec<L<T>>,
     /// `1 / sqrt(var + eps)`, per layer.
@@ -516,318 +517,31 @@ struct Act<T> {
 impl<T: Real> Act<T> {
     fn new(h: usize, layers: usize, units: usize) -> Self {
         Self {
-            x0: splat(T::zero()),
-            n: vec![L::splat(T::zero()); h * layers],
-            r: vec![L::splat(T::zero()); layers],
-            a: vec![L::splat(T::zero()); h * layers],
-            sig: L::splat(T::zero()),
-            bt: vec![L::splat(T::zero()); units],
+            x0: L::default(),
+            n: vec![L::default(); h * layers],
+            r: vec![L::default(); layers],
+            a: vec![L::default(); h * layers],
+            sig: L::default(),
+            bt: vec![L::default(); units],
         }
     }
-}
 
-/// A scaler's alpha branch over the lanes (`nemm_core::mlp::AlphaBranch`): `z +=
-/// sum_k v_k leaky_relu(r_k x0 + u_k alpha_n + c_k)`, `v_k = theta_v,k^2`,
-/// `u_k = d theta_u,k^2`, with `u_k alpha_n + c_k` folded per lane for the pack's alpha.
-#[derive(Debug, Clone)]
-struct Branch<'a, T> {
-    /// State inputs (0 or 1).
-    s: usize,
-    /// Units.
-    k: usize,
-    /// Direction sign.
-    d: T,
-    /// Branch weights: `r (K s), theta_u (K), c (K), theta_v (K)`.
-    w: &'a [T],
-    /// `u_k alpha_n + c_k` per unit and lane.
-    bias: Vec<V<T>>,
-}
-
-impl<'a, T: Real> Branch<'a, T> {
-    fn new(sw: &'a ScalerWeights<T>, alpha_n: &V<T>) -> Option<Self> {
-        let b = sw.branch?;
-        let (s, k) = (b.state_inputs, b.units);
-        let w = sw.branch_w();
-        let d = T::c(f64::from(b.direction.sign()));
-        let bias = (0..k)
-            .map(|i| {
-                let tu = w[k * s + i];
-                let u = d * (tu * tu);
-                let c = w[k * s + k + i];
-                std::array::from_fn(|l| u * alpha_n[l] + c)
-            })
-            .collect();
-        Some(Self { s, k, d, w, bias })
-    }
-
-    /// Adds the branch at normalised state `x0` to `z`; records the pre-activations. The
-    /// branch is summed from zero and then added to the MLP's `z`, in nemm-core's order
-    /// (`AlphaBranch::raw`, `CompiledBranch::raw`): accumulating its terms into `z` directly
-    /// would round differently from the estimator.
-    #[inline]
-    fn forward(&self, x0: &V<T>, z: &mut L<T>, rec: Option<&mut Vec<L<T>>>) {
-        let (s, k) = (self.s, self.k);
-        let mut rec = rec;
-        let mut zb = L::splat(T::zero());
-        for i in 0..k {
-            let b = &self.bias[i];
-            let t: L<T> = if s == 1 {
-                let r = self.w[i];
-                Lanes(std::array::from_fn(|l| r * x0[l] + b[l]))
-            } else {
-                Lanes(*b)
-            };
-            let tv = self.w[k * s + 2 * k + i];
-            zb = zb + L::splat(tv * tv) * mlp::leaky_relu(t);
-            if let Some(r) = rec.as_deref_mut() {
-                r[i] = t;
-            }
-        }
-        *z = *z + zb;
-    }
-
-    /// Back-propagates `zbar` through the branch at the recorded pre-activations `bt`:
-    /// adds the weight gradients to `g` (branch layout) and `dL/dx0` to `x0bar`.
-    #[inline]
-    fn backward(
-        &self,
-        bt: &[L<T>],
-        x0: &V<T>,
-        alpha_n: &V<T>,
-        zbar: &V<T>,
-        g: &mut [T],
-        x0bar: &mut V<T>,
-    ) {
-        let (s, k) = (self.s, self.k);
-        let slope = T::c(f64::from(mlp::LEAKY_RELU_SLOPE));
-        let two = T::c(2.0);
-        for i in 0..k {
-            let t = bt[i].0;
-            let (tu, tv) = (self.w[k * s + i], self.w[k * s + 2 * k + i]);
-            let v = tv * tv;
-            let mut s_act = T::zero();
-            let mut s_t = T::zero();
-            let mut s_tx = T::zero();
-            let mut s_ta = T::zero();
-            let r = if s == 1 { self.w[i] } else { T::zero() };
-            for l in 0..LANES {
-                let (a, da) = if t[l] >= T::zero() {
-                    (t[l], T::one())
-                } else {
-                    (slope * t[l], slope)
-                };
-                s_act += zbar[l] * a;
-                let tbar = zbar[l] * v * da;
-                s_t += tbar;
-                s_tx += tbar * x0[l];
-                s_ta += tbar * alpha_n[l];
-                x0bar[l] += r * tbar;
-            }
-            if s == 1 {
-                g[i] += s_tx;
-            }
-            g[k * s + i] += s_ta * self.d * two * tu;
-            g[k * s + k + i] += s_t;
-            g[k * s + 2 * k + i] += s_act * two * tv;
+    fn tape_mut(&mut self) -> mlp::TapeMut<'_, L<T>> {
+        mlp::TapeMut {
+            n: &mut self.n,
+            r: &mut self.r,
+            a: &mut self.a,
+            branch_t: &mut self.bt,
         }
     }
-}
 
-/// Scratch for forward passes without a record.
-#[derive(Debug, Clone)]
-struct Scratch<T> {
-    t: Vec<L<T>>,
-    a: Vec<L<T>>,
-}
-
-impl<T: Real> Scratch<T> {
-    fn new(h: usize) -> Self {
-        Self {
-            t: vec![L::splat(T::zero()); h],
-            a: vec![L::splat(T::zero()); h],
+    fn tape(&self) -> mlp::Tape<'_, L<T>> {
+        mlp::Tape {
+            n: &self.n,
+            r: &self.r,
+            a: &self.a,
+            branch_t: &self.bt,
         }
-    }
-}
-
-impl<T: Real> Mlp<'_, T> {
-    /// Forward pass: the linear maps here, the centring, normalisation, activation of
-    /// `nemm_core::mlp` ([`mlp::centre`], [`mlp::norm_act`]); returns the raw output `z`
-    /// and fills `rec` if given.
-    fn forward(
-        &self,
-        x0: &V<T>,
-        b1: &[V<T>],
-        scratch: &mut Scratch<T>,
-        mut rec: Option<&mut Act<T>>,
-    ) -> L<T> {
-        let h = self.h;
-        let inv_h = T::one() / T::c(h as f64);
-        let w = self.w;
-        if let Some(r) = rec.as_deref_mut() {
-            r.x0 = *x0;
-        }
-        for (l, lo) in self.layers.iter().enumerate() {
-            // Pre-activation h = W a + b.
-            let t = &mut scratch.t;
-            if l == 0 {
-                for i in 0..h {
-                    let wi = w[lo.w + i * lo.fan_in];
-                    let bi = &b1[i];
-                    t[i] = Lanes(std::array::from_fn(|k| wi * x0[k] + bi[k]));
-                }
-            } else {
-                let a_in = &scratch.a;
-                for i in 0..h {
-                    let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
-                    let mut acc = splat(w[lo.b + i]);
-                    for (j, &wij) in row.iter().enumerate() {
-                        let aj = &a_in[j].0;
-                        for k in 0..LANES {
-                            acc[k] += wij * aj[k];
-                        }
-                    }
-                    t[i] = Lanes(acc);
-                }
-            }
-            // LayerNorm + affine + LeakyReLU.
-            let t = &mut t[..h];
-            mlp::centre(t, inv_h);
-            let (gamma, beta) = (&w[lo.g..lo.g + h], &w[lo.be..lo.be + h]);
-            let a = &mut scratch.a[..h];
-            match rec.as_deref_mut() {
-                Some(rec) => {
-                    let mut out = a
-                        .iter_mut()
-                        .zip(&mut rec.n[l * h..(l + 1) * h])
-                        .zip(&mut rec.a[l * h..(l + 1) * h]);
-                    rec.r[l] =
-                        mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |n, _, act| {
-                            if let Some(((ai, rn), ra)) = out.next() {
-                                *ai = act;
-                                *rn = n;
-                                *ra = act;
-                            }
-                        });
-                }
-                None => {
-                    let mut out = a.iter_mut();
-                    mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |_, _, act| {
-                        if let Some(ai) = out.next() {
-                            *ai = act;
-                        }
-                    });
-                }
-            }
-        }
-        let mut z = splat(w[self.out_b]);
-        for i in 0..h {
-            let wo = w[self.out_w + i];
-            let ai = &scratch.a[i].0;
-            for k in 0..LANES {
-                z[k] += wo * ai[k];
-            }
-        }
-        Lanes(z)
-    }
-
-    /// Backward pass from `dL/dz` per lane; accumulates weight gradients into `g` and
-    /// returns `dL/dx0` per lane. `alpha_n` is the second input (for its weight gradient).
-    fn backward(
-        &self,
-        rec: &Act<T>,
-        zbar: &V<T>,
-        alpha_n: &V<T>,
-        g: &mut [T],
-        scratch: &mut Scratch<T>,
-    ) -> V<T> {
-        let h = self.h;
-        let inv_h = T::one() / T::c(h as f64);
-        let w = self.w;
-        // Output layer.
-        g[self.out_b] += sum(zbar);
-        let abar = &mut scratch.a;
-        let l_last = self.layers.len() - 1;
-        for i in 0..h {
-            let ai = &rec.a[l_last * h + i].0;
-            let mut s = T::zero();
-            for k in 0..LANES {
-                s += zbar[k] * ai[k];
-            }
-            g[self.out_w + i] += s;
-            let wo = w[self.out_w + i];
-            abar[i] = Lanes(std::array::from_fn(|k| wo * zbar[k]));
-        }
-        let mut x0bar = splat(T::zero());
-        for l in (0..self.layers.len()).rev() {
-            let lo = self.layers[l];
-            // Through LeakyReLU, the affine, the normalisation and the centring.
-            let hbar = &mut scratch.t[..h];
-            let (gg, gb) = g[lo.g..lo.be + h].split_at_mut(h);
-            mlp::norm_act_backward(
-                &abar[..h],
-                &rec.n[l * h..(l + 1) * h],
-                &rec.a[l * h..(l + 1) * h],
-                rec.r[l],
-                &w[lo.g..lo.g + h],
-                inv_h,
-                hbar,
-                gg,
-                gb,
-            );
-            mlp::centre_backward(hbar, inv_h);
-            // Linear backward.
-            if l == 0 {
-                for i in 0..h {
-                    let hb = &hbar[i].0;
-                    let sb = sum(hb);
-                    g[lo.b + i] += sb;
-                    let mut s0 = T::zero();
-                    let mut s1 = T::zero();
-                    for k in 0..LANES {
-                        s0 += hb[k] * rec.x0[k];
-                        s1 += hb[k] * alpha_n[k];
-                    }
-                    g[lo.w + i * lo.fan_in] += s0;
-                    if lo.fan_in == 2 {
-                        g[lo.w + i * 2 + 1] += s1;
-                    }
-                    let w0 = w[lo.w + i * lo.fan_in];
-                    for k in 0..LANES {
-                        x0bar[k] += w0 * hb[k];
-                    }
-                }
-            } else {
-                let prev = (l - 1) * h;
-                for i in 0..h {
-                    let hb = hbar[i].0;
-                    g[lo.b + i] += sum(&hb);
-                    let row = lo.w + i * h;
-                    for j in 0..h {
-                        let aj = &rec.a[prev + j].0;
-                        let mut s = T::zero();
-                        for k in 0..LANES {
-                            s += hb[k] * aj[k];
-                        }
-                        g[row + j] += s;
-                    }
-                }
-                // abar_{l-1}[j] = sum_i W[i][j] hbar[i]
-                for j in 0..h {
-                    abar[j] = L::splat(T::zero());
-                }
-                for i in 0..h {
-                    let hb = hbar[i].0;
-                    let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
-                    for (j, &wij) in row.iter().enumerate() {
-                        let ab = &mut abar[j].0;
-                        for k in 0..LANES {
-                            ab[k] += wij * hb[k];
-                        }
-                    }
-                }
-            }
-        }
-        x0bar
     }
 }
 
@@ -835,7 +549,7 @@ impl<T: Real> Mlp<'_, T> {
 // Coefficients
 // ---------------------------------------------------------------------------------------
 
-/// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(MLP(state / scale,
+/// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(z(state / scale,
 /// alpha_n)))` (nemm-core's [`mlp::bounded`] with `lo = c0 s_min`, `span = c0 (s_max -
 /// s_min)`).
 struct Coef<'a, T> {
@@ -844,67 +558,36 @@ struct Coef<'a, T> {
 }
 
 struct NeuralCoef<'a, T> {
-    mlp: Mlp<'a, T>,
+    scaler: LaneScaler<'a, T>,
     s_min: T,
     span: T,
     inv_scale: T,
-    b1: Vec<V<T>>,
-    /// The alpha branch, if any.
-    branch: Option<Branch<'a, T>>,
-    /// The MLP's alpha input: `alpha_n`, or 0 with a branch.
-    mlp_alpha: V<T>,
-}
-
-/// The MLP's alpha input of scaler `s`: 0 when the alpha branch carries `alpha`.
-fn mlp_alpha<T: Real>(s: &ScalerWeights<T>, alpha_n: &V<T>) -> V<T> {
-    if s.branch.is_some() {
-        splat(T::zero())
-    } else {
-        *alpha_n
-    }
 }
 
 impl<'a, T: Real> Coef<'a, T> {
     fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: &V<T>) -> Self {
         Self {
             c0,
-            neural: s.map(|s| {
-                let mlp = Mlp::new(s);
-                let mlp_alpha = mlp_alpha(s, alpha_n);
-                let b1 = mlp.bias1(&mlp_alpha);
-                NeuralCoef {
-                    mlp,
-                    s_min: s.s_min,
-                    span: s.s_max - s.s_min,
-                    inv_scale: T::one() / scale,
-                    b1,
-                    branch: Branch::new(s, alpha_n),
-                    mlp_alpha,
-                }
+            neural: s.map(|s| NeuralCoef {
+                scaler: LaneScaler::new(s, alpha_n),
+                s_min: s.s_min,
+                span: s.s_max - s.s_min,
+                inv_scale: T::one() / scale,
             }),
         }
     }
 
     fn act(&self) -> Option<Act<T>> {
-        self.neural.as_ref().map(|n| {
-            Act::new(
-                n.mlp.h,
-                n.mlp.layers.len(),
-                n.branch.as_ref().map_or(0, |b| b.k),
-            )
-        })
+        self.neural.as_ref().map(|n| n.scaler.act())
     }
 
     #[inline]
-    fn eval(&self, x: &V<T>, scratch: &mut Scratch<T>, mut rec: Option<&mut Act<T>>) -> V<T> {
+    fn eval(&self, x: &V<T>, mut rec: Option<&mut Act<T>>) -> V<T> {
         match &self.neural {
             None => splat(self.c0),
             Some(n) => {
-                let x0: V<T> = std::array::from_fn(|k| x[k] * n.inv_scale);
-                let mut z = n.mlp.forward(&x0, &n.b1, scratch, rec.as_deref_mut());
-                if let Some(b) = &n.branch {
-                    b.forward(&x0, &mut z, rec.as_deref_mut().map(|r| &mut r.bt));
-                }
+                let x0 = Lanes(*x) * L::splat(n.inv_scale);
+                let z = n.scaler.raw(x0, rec.as_deref_mut());
                 let (p, sig) = self.bounded(n, z);
                 if let Some(rec) = rec {
                     rec.sig = sig;
@@ -922,15 +605,7 @@ impl<'a, T: Real> Coef<'a, T> {
 
     /// Back-propagates `cbar = dL/d(coefficient)`; returns `dL/d(state component)`.
     #[inline]
-    fn backward(
-        &self,
-        rec: Option<&Act<T>>,
-        cbar: &V<T>,
-        alpha_n: &V<T>,
-        c0bar: &mut T,
-        g: &mut [T],
-        scratch: &mut Scratch<T>,
-    ) -> V<T> {
+    fn backward(&self, rec: Option<&Act<T>>, cbar: &V<T>, c0bar: &mut T, g: &mut [T]) -> V<T> {
         match (&self.neural, rec) {
             (Some(n), Some(rec)) => {
                 let mut s0 = T::zero();
@@ -938,14 +613,8 @@ impl<'a, T: Real> Coef<'a, T> {
                     s0 += cbar[k] * (n.s_min + n.span * rec.sig.0[k]);
                 }
                 *c0bar += s0;
-                let zbar =
-                    mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), Lanes(*cbar)).0;
-                let (gm, gb) = g.split_at_mut(n.mlp.w.len());
-                let mut x0bar = n.mlp.backward(rec, &zbar, &n.mlp_alpha, gm, scratch);
-                if let Some(b) = &n.branch {
-                    b.backward(&rec.bt, &rec.x0, alpha_n, &zbar, gb, &mut x0bar);
-                }
-                std::array::from_fn(|k| x0bar[k] * n.inv_scale)
+                let zbar = mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), Lanes(*cbar));
+                (n.scaler.backward(rec, zbar, g) * L::splat(n.inv_scale)).0
             }
             _ => {
                 *c0bar += sum(cbar);
@@ -972,10 +641,7 @@ type ActPair<'r, T> = (&'r mut Option<Act<T>>, &'r mut Option<Act<T>>);
 /// The `b_pr(alpha)` scaler of a pack: its MLP, alpha branch, activations and output
 /// bounds.
 struct BprRecord<'a, T> {
-    mlp: Mlp<'a, T>,
-    branch: Option<Branch<'a, T>>,
-    /// The MLP's input: `alpha_n`, or 0 with a branch.
-    mlp_alpha: V<T>,
+    scaler: LaneScaler<'a, T>,
     act: Act<T>,
     s_min: T,
     span: T,
@@ -988,15 +654,10 @@ struct Pack<'a, T> {
     bp: V<T>,
     /// The `b_pr(alpha)` scaler's evaluation, for its backward pass.
     bp_rec: Option<BprRecord<'a, T>>,
-    alpha_n: V<T>,
     /// `1 / T_pr`.
     it: T,
     integrator: Integrator,
     h: StepSize<L<T>>,
-}
-
-struct Work<T> {
-    scratch: Scratch<T>,
 }
 
 impl<'a, T: Real> Pack<'a, T> {
@@ -1005,16 +666,9 @@ impl<'a, T: Real> Pack<'a, T> {
         let (bp, bp_rec) = match &p.b_pr {
             None => (splat(p.b_pr0), None),
             Some(s) => {
-                let mlp = Mlp::new(s);
-                let mut scratch = Scratch::new(s.hidden);
-                let mlp_alpha = mlp_alpha(s, &alpha_n);
-                let b1 = mlp.bias1(&mlp_alpha);
-                let branch = Branch::new(s, &alpha_n);
-                let mut act = Act::new(s.hidden, s.layers, branch.as_ref().map_or(0, |b| b.k));
-                let mut z = mlp.forward(&mlp_alpha, &b1, &mut scratch, Some(&mut act));
-                if let Some(b) = &branch {
-                    b.forward(&mlp_alpha, &mut z, Some(&mut act.bt));
-                }
+                let scaler = LaneScaler::new(s, &alpha_n);
+                let mut act = scaler.act();
+                let z = scaler.raw(scaler.x_alpha, Some(&mut act));
                 let span = s.s_max - s.s_min;
                 let (bp, sig) = mlp::bounded::<Unfused, L<T>>(
                     z,
@@ -1022,13 +676,10 @@ impl<'a, T: Real> Pack<'a, T> {
                     L::splat(p.b_pr0 * span),
                 );
                 act.sig = sig;
-                let bp = bp.0;
                 (
-                    bp,
+                    bp.0,
                     Some(BprRecord {
-                        mlp,
-                        branch,
-                        mlp_alpha,
+                        scaler,
                         act,
                         s_min: s.s_min,
                         span,
@@ -1041,34 +692,22 @@ impl<'a, T: Real> Pack<'a, T> {
             k: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, &alpha_n),
             bp,
             bp_rec,
-            alpha_n,
             it: T::one() / p.t_pr,
             integrator: p.integrator,
             h: StepSize::splat(p.dt),
         }
     }
 
-    fn work(&self) -> Work<T> {
-        let h = [&self.bf, &self.k]
-            .iter()
-            .filter_map(|c| c.neural.as_ref().map(|n| n.mlp.h))
-            .max()
-            .unwrap_or(1);
-        Work {
-            scratch: Scratch::new(h),
-        }
-    }
-
     #[inline]
-    fn coeffs(&self, s: &St<T>, w: &mut Work<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
+    fn coeffs(&self, s: &St<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
         let (bf, k) = match rec {
             None => (
-                self.bf.eval(&s.v_st_m_s.0, &mut w.scratch, None),
-                self.k.eval(&s.x_pr_m.0, &mut w.scratch, None),
+                self.bf.eval(&s.v_st_m_s.0, None),
+                self.k.eval(&s.x_pr_m.0, None),
             ),
             Some((rb, rk)) => (
-                self.bf.eval(&s.v_st_m_s.0, &mut w.scratch, rb.as_mut()),
-                self.k.eval(&s.x_pr_m.0, &mut w.scratch, rk.as_mut()),
+                self.bf.eval(&s.v_st_m_s.0, rb.as_mut()),
+                self.k.eval(&s.x_pr_m.0, rk.as_mut()),
             ),
         };
         Coefficients {
@@ -1080,10 +719,10 @@ impl<'a, T: Real> Pack<'a, T> {
 
     /// One RK step from `s` (coefficients `c1`) with inputs `u0` -> `u1`: nemm-core's
     /// [`integrator::step_with`] over the lanes, unfused.
-    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: &V<T>, u1: &V<T>, w: &mut Work<T>) -> St<T> {
+    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: &V<T>, u1: &V<T>) -> St<T> {
         integrator::step_with::<Unfused, L<T>, _>(
             self.integrator,
-            &mut PackStage { pk: self, w },
+            &mut PackStage { pk: self },
             c1,
             L::splat(self.it),
             s,
@@ -1097,13 +736,12 @@ impl<'a, T: Real> Pack<'a, T> {
 /// The stage coefficients of a pack's forward step (no record).
 struct PackStage<'p, 'a, T> {
     pk: &'p Pack<'a, T>,
-    w: &'p mut Work<T>,
 }
 
 impl<T: Real> Stage<L<T>> for PackStage<'_, '_, T> {
     #[inline(always)]
     fn coeffs(&mut self, s: &St<T>) -> Cv<T> {
-        self.pk.coeffs(s, self.w, None)
+        self.pk.coeffs(s, None)
     }
 }
 
@@ -1121,7 +759,6 @@ type RecPair<T> = (Option<Act<T>>, Option<Act<T>>);
 /// record their scalers' activations and back-propagate through them.
 struct PackStagesBack<'p, 'a, T> {
     pk: &'p Pack<'a, T>,
-    w: &'p mut Work<T>,
     bar: &'p mut Bar<T>,
     recs: &'p mut [RecPair<T>; 3],
 }
@@ -1130,13 +767,13 @@ impl<T: Real> StageBackward<L<T>> for PackStagesBack<'_, '_, T> {
     #[inline(always)]
     fn coeffs(&mut self, i: usize, s: &St<T>) -> Cv<T> {
         let (rb, rk) = &mut self.recs[i - 2];
-        self.pk.coeffs(s, self.w, Some((rb, rk)))
+        self.pk.coeffs(s, Some((rb, rk)))
     }
 
     #[inline(always)]
     fn backward(&mut self, i: usize, cbar: &Cv<T>, sbar: &mut St<T>) {
         let (rb, rk) = &self.recs[i - 2];
-        self.pk.coef_backward(rb, rk, cbar, sbar, self.bar, self.w);
+        self.pk.coef_backward(rb, rk, cbar, sbar, self.bar);
     }
 }
 
@@ -1151,24 +788,13 @@ impl<T: Real> Pack<'_, T> {
         cbar: &Cv<T>,
         sbar: &mut St<T>,
         bar: &mut Bar<T>,
-        w: &mut Work<T>,
     ) {
-        let xv = self.bf.backward(
-            rb.as_ref(),
-            &cbar.b_fl.0,
-            &self.alpha_n,
-            &mut bar.g.b_fl0,
-            &mut bar.g.b_fl,
-            &mut w.scratch,
-        );
-        let xx = self.k.backward(
-            rk.as_ref(),
-            &cbar.k_pr.0,
-            &self.alpha_n,
-            &mut bar.g.k0,
-            &mut bar.g.k_pr,
-            &mut w.scratch,
-        );
+        let xv = self
+            .bf
+            .backward(rb.as_ref(), &cbar.b_fl.0, &mut bar.g.b_fl0, &mut bar.g.b_fl);
+        let xx = self
+            .k
+            .backward(rk.as_ref(), &cbar.k_pr.0, &mut bar.g.k0, &mut bar.g.k_pr);
         sbar.v_st_m_s = sbar.v_st_m_s + Lanes(xv);
         sbar.x_pr_m = sbar.x_pr_m + Lanes(xx);
         bar.bp = bar.bp + cbar.b_pr;
@@ -1332,26 +958,22 @@ fn pack_data<T: Real>(
 /// 0) and forces per step. A step whose condition level changed re-folds it (a new [`Pack`])
 /// and re-evaluates the coefficients at the step's start state with it, as
 /// `nemm_core::Estimator::set_alpha` does.
-fn forward_sweep<T: Real>(
-    p: &RolloutParams<T>,
-    d: &PackData<T>,
-    w: &mut Work<T>,
-) -> (Vec<St<T>>, Vec<V<T>>) {
+fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>, Vec<V<T>>) {
     let n = d.u.len();
     let mut pk = Pack::new(p, &d.alpha(0));
     let mut states = Vec::with_capacity(n + 1);
     let mut ys = Vec::with_capacity(n);
     let mut s = St::default();
-    let mut c = pk.coeffs(&s, w, None);
+    let mut c = pk.coeffs(&s, None);
     let mut u_prev = splat(T::zero());
     states.push(s);
     for (j, u) in d.u.iter().enumerate() {
         if d.alpha_changes(j) {
             pk = Pack::new(p, &d.alpha(j));
-            c = pk.coeffs(&s, w, None);
+            c = pk.coeffs(&s, None);
         }
-        s = pk.step(&s, &c, &u_prev, u, w);
-        c = pk.coeffs(&s, w, None);
+        s = pk.step(&s, &c, &u_prev, u);
+        c = pk.coeffs(&s, None);
         let r = d.static_at(p, j);
         let y = emm::force_with::<Unfused, L<T>>(&c, &s, Lanes(*u)).0;
         ys.push(std::array::from_fn(|l| y[l] + r[l]));
@@ -1385,9 +1007,7 @@ fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T
     match &pk.bp_rec {
         None => bar.g.b_pr0 += sum(&bp_bar),
         Some(BprRecord {
-            mlp,
-            branch,
-            mlp_alpha,
+            scaler,
             act,
             s_min,
             span,
@@ -1395,15 +1015,9 @@ fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T
             for k in 0..LANES {
                 bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * act.sig.0[k]);
             }
-            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp).0;
-            let mut scratch = Scratch::new(mlp.h);
-            let (gm, gb) = bar.g.b_pr.split_at_mut(mlp.w.len());
-            mlp.backward(act, &zbar, mlp_alpha, gm, &mut scratch);
-            if let Some(b) = branch {
-                // No state input: the state adjoint is not used.
-                let mut unused = splat(T::zero());
-                b.backward(&act.bt, mlp_alpha, &pk.alpha_n, &zbar, gb, &mut unused);
-            }
+            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp);
+            // No state input: the input's adjoint is not used.
+            let _ = scaler.backward(act, zbar, &mut bar.g.b_pr);
         }
     }
     bar.bp = L::splat(T::zero());
@@ -1420,8 +1034,7 @@ fn pack_loss_grad<T: Real>(
 ) -> (T, RolloutGrads<T>) {
     let n = d.u.len();
     let mut pk = Pack::new(p, &d.alpha(n.saturating_sub(1)));
-    let mut w = pk.work();
-    let (states, ys) = forward_sweep(p, d, &mut w);
+    let (states, ys) = forward_sweep(p, d);
     // The loss at the data samples and its adjoint per model step: formed here on a
     // coarser data grid, inline in the reverse sweep when every step is a sample.
     let mut loss = T::zero();
@@ -1483,7 +1096,7 @@ fn pack_loss_grad<T: Real>(
         let c_n = if have_rec_n {
             pk.coeffs_from_rec(&rb_n, &rk_n)
         } else {
-            pk.coeffs(&s_n, &mut w, Some((&mut rb_n, &mut rk_n)))
+            pk.coeffs(&s_n, Some((&mut rb_n, &mut rk_n)))
         };
         // Output y_i = F(s_n, u_i).
         let ybar_i = match &on_grid {
@@ -1499,16 +1112,15 @@ fn pack_loss_grad<T: Real>(
             emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, Lanes(yb), &mut sbar, &mut cbar_n);
         }
         // Scalers at s_n: complete dL/ds_n.
-        pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
+        pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
         // Step i: s_p -> s_n, its stages recomputed with activations.
-        let c1 = pk.coeffs(&s_p, &mut w, Some((&mut rb1, &mut rk1)));
+        let c1 = pk.coeffs(&s_p, Some((&mut rb1, &mut rk1)));
         let mut sbar_p = St::<T>::default();
         let mut cbar1 = Cv::<T>::default();
         integrator::step_backward::<Unfused, L<T>, _>(
             pk.integrator,
             &mut PackStagesBack {
                 pk: &pk,
-                w: &mut w,
                 bar: &mut bar,
                 recs: &mut recs,
             },
@@ -1533,7 +1145,7 @@ fn pack_loss_grad<T: Real>(
             // Step i ran at its own level: its stage-1 coefficients at s_p go back through
             // that level's scalers, and so does b_pr's adjoint so far; step i - 1 (and the
             // output at s_p) ran at the previous level.
-            pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
+            pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
             cbar_n = Cv::<T>::default();
             bpr_backward(p, &pk, &mut bar);
             pk = Pack::new(p, &d.alpha(i - 1));
@@ -1543,7 +1155,7 @@ fn pack_loss_grad<T: Real>(
     // s_{-1} is the fixed rest state: its adjoint is dropped, but the coefficients there
     // depend on the weights.
     let mut sdummy = St::default();
-    pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar, &mut w);
+    pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar);
     // b_pr: constant over the window (or since its last change).
     bpr_backward(p, &pk, &mut bar);
     // T_pr from 1/T_pr.
@@ -1630,9 +1242,7 @@ fn sweep_windows<T: Real, R: Send>(
         .flat_map_iter(|chunk| {
             let samples = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
             let d = pack_data::<T>(chunk, grid, samples, false, p.static_force.as_ref());
-            let pk = Pack::new(p, &d.alpha(0));
-            let mut work = pk.work();
-            let (states, ys) = forward_sweep(p, &d, &mut work);
+            let (states, ys) = forward_sweep(p, &d);
             chunk
                 .iter()
                 .enumerate()
