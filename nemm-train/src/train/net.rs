@@ -592,4 +592,57 @@ mod tests {
             assert!((s[i] - r).abs() < 1e-5, "{} vs {}", s[i], r);
         }
     }
+
+    /// With alpha branches: the flat round trip keeps the branch weights (nemm-core's
+    /// layout) and burn's forward equals nemm-core's reference (`ScalerView::raw` through
+    /// `Model::b_fl`, `Model::b_pr`) for a scaler with a state input and one of alpha alone.
+    #[test]
+    fn branched_scalers_round_trip_and_match_core() {
+        use crate::train::pipeline::with_branch;
+        use nemm_core::mlp::Direction;
+        let device = Device::flex();
+        let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
+        let mut p: RolloutParams<f32> = from_core(&m).expect("emm");
+        p.b_fl = p
+            .b_fl
+            .take()
+            .map(|s| with_branch(s, Direction::Decreasing, 1, 4, 7));
+        p.b_pr = p
+            .b_pr
+            .take()
+            .map(|s| with_branch(s, Direction::Decreasing, 0, 3, 8));
+        let (net, frame) = EmmNet::from_rollout(&p, None, &device);
+        let q = net.to_rollout(&frame);
+        assert_eq!(q.b_fl.as_ref().map(|s| &s.w), p.b_fl.as_ref().map(|s| &s.w));
+        assert_eq!(q.b_pr.as_ref().map(|s| &s.w), p.b_pr.as_ref().map(|s| &s.w));
+        let core = crate::train::params::to_core(&p, m.meta).expect("valid model");
+        let (vs, al) = (p.v_scale, p.alpha_scale);
+        let pts = [(0.3f32, 0.1f32), (-0.9, 0.0), (1.1, 0.9), (0.05, 0.45)];
+        let col = |v: Vec<f32>, d: usize| {
+            let n = v.len() / d;
+            Tensor::<2>::from_data(TensorData::new(v, [n, d]), &device)
+        };
+        let (nb, sb) = (net.b_fl.as_ref().expect("b_fl"), frame.b_fl.expect("spec"));
+        let x = col(pts.iter().flat_map(|&(v, a)| [v / vs, a / al]).collect(), 2);
+        let s = to_vec(nb.forward_scale(x, &sb));
+        for (i, &(v, a)) in pts.iter().enumerate() {
+            let want = core.b_fl(v, a).expect("b_fl") / p.b_fl0;
+            assert!(
+                (s[i] - want).abs() < 1e-5 * want.abs().max(1.0),
+                "b_fl {i}: {} vs {want}",
+                s[i]
+            );
+        }
+        let (nb, sb) = (net.b_pr.as_ref().expect("b_pr"), frame.b_pr.expect("spec"));
+        let x = col(pts.iter().map(|&(_, a)| a / al).collect(), 1);
+        let s = to_vec(nb.forward_scale(x, &sb));
+        for (i, &(_, a)) in pts.iter().enumerate() {
+            let want = core.b_pr(a).expect("b_pr") / p.b_pr0;
+            assert!(
+                (s[i] - want).abs() < 1e-5 * want.abs().max(1.0),
+                "b_pr {i}: {} vs {want}",
+                s[i]
+            );
+        }
+    }
 }
