@@ -82,17 +82,8 @@ impl Real for f64 {
     }
 }
 
-type V<T> = [T; LANES];
-
-#[inline(always)]
-fn splat<T: Real>(v: T) -> V<T> {
-    [v; LANES]
-}
-
-#[inline(always)]
-fn sum<T: Real>(v: &V<T>) -> T {
-    v.iter().fold(T::zero(), |a, &b| a + b)
-}
+/// The lane type of a pack: one value per window (nemm-core's [`Lanes`]).
+type L<T> = Lanes<T, LANES>;
 
 /// Shape of a scaler's alpha branch (`nemm_core::mlp::AlphaBranch`): its weights follow
 /// the MLP's in [`ScalerWeights::w`], in nemm-core's branch layout.
@@ -446,11 +437,10 @@ struct LaneScaler<'a, T> {
 }
 
 impl<'a, T: Real> LaneScaler<'a, T> {
-    fn new(s: &'a ScalerWeights<T>, alpha_n: &V<T>) -> Self {
+    fn new(s: &'a ScalerWeights<T>, alpha_n: L<T>) -> Self {
         let direction = s.branch.map_or(Direction::None, |b| b.direction);
         let view = mlp::ScalerView::new(s.layout(), &s.w, direction)
             .expect("scaler weight count does not match its shape");
-        let alpha_n = Lanes(*alpha_n);
         let (x_alpha, second) = view.inputs(L::default(), alpha_n);
         let fold = Box::new(
             view.fold::<Unfused, L<T>>(second, alpha_n)
@@ -565,7 +555,7 @@ struct NeuralCoef<'a, T> {
 }
 
 impl<'a, T: Real> Coef<'a, T> {
-    fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: &V<T>) -> Self {
+    fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: L<T>) -> Self {
         Self {
             c0,
             neural: s.map(|s| NeuralCoef {
@@ -582,17 +572,17 @@ impl<'a, T: Real> Coef<'a, T> {
     }
 
     #[inline]
-    fn eval(&self, x: &V<T>, mut rec: Option<&mut Act<T>>) -> V<T> {
+    fn eval(&self, x: L<T>, mut rec: Option<&mut Act<T>>) -> L<T> {
         match &self.neural {
-            None => splat(self.c0),
+            None => L::splat(self.c0),
             Some(n) => {
-                let x0 = Lanes(*x) * L::splat(n.inv_scale);
+                let x0 = x * L::splat(n.inv_scale);
                 let z = n.scaler.raw(x0, rec.as_deref_mut());
                 let (p, sig) = self.bounded(n, z);
                 if let Some(rec) = rec {
                     rec.sig = sig;
                 }
-                p.0
+                p
             }
         }
     }
@@ -605,20 +595,16 @@ impl<'a, T: Real> Coef<'a, T> {
 
     /// Back-propagates `cbar = dL/d(coefficient)`; returns `dL/d(state component)`.
     #[inline]
-    fn backward(&self, rec: Option<&Act<T>>, cbar: &V<T>, c0bar: &mut T, g: &mut [T]) -> V<T> {
+    fn backward(&self, rec: Option<&Act<T>>, cbar: L<T>, c0bar: &mut T, g: &mut [T]) -> L<T> {
         match (&self.neural, rec) {
             (Some(n), Some(rec)) => {
-                let mut s0 = T::zero();
-                for k in 0..LANES {
-                    s0 += cbar[k] * (n.s_min + n.span * rec.sig.0[k]);
-                }
-                *c0bar += s0;
-                let zbar = mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), Lanes(*cbar));
-                (n.scaler.backward(rec, zbar, g) * L::splat(n.inv_scale)).0
+                *c0bar += L::sum(cbar * (L::splat(n.s_min) + L::splat(n.span) * rec.sig));
+                let zbar = mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), cbar);
+                n.scaler.backward(rec, zbar, g) * L::splat(n.inv_scale)
             }
             _ => {
-                *c0bar += sum(cbar);
-                splat(T::zero())
+                *c0bar += L::sum(cbar);
+                L::default()
             }
         }
     }
@@ -628,8 +614,6 @@ impl<'a, T: Real> Coef<'a, T> {
 // Pack rollout
 // ---------------------------------------------------------------------------------------
 
-/// The lane type of a pack: one value per window.
-type L<T> = Lanes<T, LANES>;
 /// A state over the lanes (or its adjoint).
 type St<T> = State<L<T>>;
 /// Coefficient values at one state over the lanes (or their adjoints).
@@ -651,7 +635,7 @@ struct BprRecord<'a, T> {
 struct Pack<'a, T> {
     bf: Coef<'a, T>,
     k: Coef<'a, T>,
-    bp: V<T>,
+    bp: L<T>,
     /// The `b_pr(alpha)` scaler's evaluation, for its backward pass.
     bp_rec: Option<BprRecord<'a, T>>,
     /// `1 / T_pr`.
@@ -661,12 +645,12 @@ struct Pack<'a, T> {
 }
 
 impl<'a, T: Real> Pack<'a, T> {
-    fn new(p: &'a RolloutParams<T>, alphas: &V<T>) -> Self {
-        let alpha_n: V<T> = std::array::from_fn(|k| alphas[k] / p.alpha_scale);
+    fn new(p: &'a RolloutParams<T>, alphas: L<T>) -> Self {
+        let alpha_n = alphas / L::splat(p.alpha_scale);
         let (bp, bp_rec) = match &p.b_pr {
-            None => (splat(p.b_pr0), None),
+            None => (L::splat(p.b_pr0), None),
             Some(s) => {
-                let scaler = LaneScaler::new(s, &alpha_n);
+                let scaler = LaneScaler::new(s, alpha_n);
                 let mut act = scaler.act();
                 let z = scaler.raw(scaler.x_alpha, Some(&mut act));
                 let span = s.s_max - s.s_min;
@@ -677,7 +661,7 @@ impl<'a, T: Real> Pack<'a, T> {
                 );
                 act.sig = sig;
                 (
-                    bp.0,
+                    bp,
                     Some(BprRecord {
                         scaler,
                         act,
@@ -688,8 +672,8 @@ impl<'a, T: Real> Pack<'a, T> {
             }
         };
         Self {
-            bf: Coef::new(p.b_fl0, p.b_fl.as_ref(), p.v_scale, &alpha_n),
-            k: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, &alpha_n),
+            bf: Coef::new(p.b_fl0, p.b_fl.as_ref(), p.v_scale, alpha_n),
+            k: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, alpha_n),
             bp,
             bp_rec,
             it: T::one() / p.t_pr,
@@ -701,33 +685,30 @@ impl<'a, T: Real> Pack<'a, T> {
     #[inline]
     fn coeffs(&self, s: &St<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
         let (bf, k) = match rec {
-            None => (
-                self.bf.eval(&s.v_st_m_s.0, None),
-                self.k.eval(&s.x_pr_m.0, None),
-            ),
+            None => (self.bf.eval(s.v_st_m_s, None), self.k.eval(s.x_pr_m, None)),
             Some((rb, rk)) => (
-                self.bf.eval(&s.v_st_m_s.0, rb.as_mut()),
-                self.k.eval(&s.x_pr_m.0, rk.as_mut()),
+                self.bf.eval(s.v_st_m_s, rb.as_mut()),
+                self.k.eval(s.x_pr_m, rk.as_mut()),
             ),
         };
         Coefficients {
-            b_fl: Lanes(bf),
-            b_pr: Lanes(self.bp),
-            k_pr: Lanes(k),
+            b_fl: bf,
+            b_pr: self.bp,
+            k_pr: k,
         }
     }
 
     /// One RK step from `s` (coefficients `c1`) with inputs `u0` -> `u1`: nemm-core's
     /// [`integrator::step_with`] over the lanes, unfused.
-    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: &V<T>, u1: &V<T>) -> St<T> {
+    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: L<T>, u1: L<T>) -> St<T> {
         integrator::step_with::<Unfused, L<T>, _>(
             self.integrator,
             &mut PackStage { pk: self },
             c1,
             L::splat(self.it),
             s,
-            Lanes(*u0),
-            Lanes(*u1),
+            u0,
+            u1,
             &self.h,
         )
     }
@@ -791,12 +772,12 @@ impl<T: Real> Pack<'_, T> {
     ) {
         let xv = self
             .bf
-            .backward(rb.as_ref(), &cbar.b_fl.0, &mut bar.g.b_fl0, &mut bar.g.b_fl);
+            .backward(rb.as_ref(), cbar.b_fl, &mut bar.g.b_fl0, &mut bar.g.b_fl);
         let xx = self
             .k
-            .backward(rk.as_ref(), &cbar.k_pr.0, &mut bar.g.k0, &mut bar.g.k_pr);
-        sbar.v_st_m_s = sbar.v_st_m_s + Lanes(xv);
-        sbar.x_pr_m = sbar.x_pr_m + Lanes(xx);
+            .backward(rk.as_ref(), cbar.k_pr, &mut bar.g.k0, &mut bar.g.k_pr);
+        sbar.v_st_m_s = sbar.v_st_m_s + xv;
+        sbar.x_pr_m = sbar.x_pr_m + xx;
         bar.bp = bar.bp + cbar.b_pr;
     }
 }
@@ -806,27 +787,27 @@ impl<T: Real> Pack<'_, T> {
 /// lies on the model grid; per lane the weight of its squared error (0 for padding).
 struct PackData<T> {
     /// Velocity per model step.
-    u: Vec<V<T>>,
+    u: Vec<L<T>>,
     /// Constant condition level per lane (`alpha_steps` is `None`).
-    alpha0: V<T>,
+    alpha0: L<T>,
     /// Condition level per model step when some lane's level changes within its window.
-    alpha_steps: Option<Vec<V<T>>>,
+    alpha_steps: Option<Vec<L<T>>>,
     /// Measured force per data sample (empty for a forward-only pack).
-    f: Vec<V<T>>,
+    f: Vec<L<T>>,
     /// [`Grid::sample_at`] of every data sample (empty when `identity`).
     at: Vec<(usize, T)>,
     /// Every model step is a data sample ([`Grid::SAME`]).
     identity: bool,
-    lane_w: V<T>,
+    lane_w: L<T>,
     /// With a static force: its features per model step
     /// (`nemm_core::static_force::features` at the step's position, velocity and level).
-    phi: Option<Vec<[V<T>; STATIC_PARAMS]>>,
+    phi: Option<Vec<[L<T>; STATIC_PARAMS]>>,
 }
 
 impl<T: Real> PackData<T> {
     /// The condition level of every lane at model step `j`.
     #[inline]
-    fn alpha(&self, j: usize) -> V<T> {
+    fn alpha(&self, j: usize) -> L<T> {
         match &self.alpha_steps {
             Some(a) if j < a.len() => a[j],
             _ => self.alpha0,
@@ -835,12 +816,12 @@ impl<T: Real> PackData<T> {
 
     /// The static force of every lane at model step `j` (0 without one).
     #[inline]
-    fn static_at(&self, p: &RolloutParams<T>, j: usize) -> V<T> {
+    fn static_at(&self, p: &RolloutParams<T>, j: usize) -> L<T> {
         match (&self.phi, &p.static_force) {
-            (Some(phi), Some(sp)) => std::array::from_fn(|l| {
-                (0..STATIC_PARAMS).fold(T::zero(), |r, q| r + sp.theta[q] * phi[j][q][l])
-            }),
-            _ => splat(T::zero()),
+            (Some(phi), Some(sp)) => Lanes(std::array::from_fn(|l| {
+                (0..STATIC_PARAMS).fold(T::zero(), |r, q| r + sp.theta[q] * phi[j][q].0[l])
+            })),
+            _ => L::default(),
         }
     }
 
@@ -865,18 +846,18 @@ fn pack_data<T: Real>(
     stat: Option<&StaticParams<T>>,
 ) -> PackData<T> {
     let n = grid.steps(samples);
-    let mut u = vec![splat(T::zero()); n];
+    let mut u = vec![L::default(); n];
     let mut f = if with_force {
-        vec![splat(T::zero()); samples]
+        vec![L::default(); samples]
     } else {
         Vec::new()
     };
-    let mut lane_w = splat(T::zero());
-    let mut alpha0 = splat(T::zero());
+    let mut lane_w = L::<T>::default();
+    let mut alpha0 = L::<T>::default();
     let varying = windows.iter().any(|w| w.alphas.is_some());
-    let mut alpha_steps = varying.then(|| vec![splat(T::zero()); n]);
+    let mut alpha_steps = varying.then(|| vec![L::default(); n]);
     let identity = *grid == Grid::SAME;
-    let mut phi = stat.map(|_| vec![[splat(T::zero()); STATIC_PARAMS]; n]);
+    let mut phi = stat.map(|_| vec![[L::default(); STATIC_PARAMS]; n]);
     // Per model step, the sample position of its input (shared by the lanes).
     let inputs: Vec<(usize, f64)> = if identity {
         Vec::new()
@@ -888,34 +869,34 @@ fn pack_data<T: Real>(
             Some(w) => (w, T::one()),
             None => (&windows[0], T::zero()),
         };
-        lane_w[k] = wgt;
-        alpha0[k] = T::c(f64::from(win.alpha));
+        lane_w.0[k] = wgt;
+        alpha0.0[k] = T::c(f64::from(win.alpha));
         let len = win.u.len();
         if identity {
             for (uj, &v) in u.iter_mut().zip(win.u) {
-                uj[k] = T::c(f64::from(v));
+                uj.0[k] = T::c(f64::from(v));
             }
         } else {
             for (j, &(i, _)) in inputs.iter().enumerate() {
                 if i < len {
-                    u[j][k] = T::c(grid.interpolate(win.u, j));
+                    u[j].0[k] = T::c(grid.interpolate(win.u, j));
                 }
             }
         }
         if let Some(a) = alpha_steps.as_mut() {
             for (j, aj) in a.iter_mut().enumerate() {
-                aj[k] = match (win.alphas, identity) {
+                aj.0[k] = match (win.alphas, identity) {
                     (Some(x), true) => T::c(f64::from(x[j.min(x.len().saturating_sub(1))])),
                     (Some(x), false) => T::c(grid.interpolate(x, j)),
-                    (None, _) => alpha0[k],
+                    (None, _) => alpha0.0[k],
                 };
             }
         }
         for (i, fi) in f.iter_mut().enumerate().take(win.f.len()) {
-            fi[k] = T::c(f64::from(win.f[i]));
+            fi.0[k] = T::c(f64::from(win.f[i]));
         }
         if let (Some(phi), Some(sp)) = (phi.as_mut(), stat) {
-            let phi: &mut Vec<[V<T>; STATIC_PARAMS]> = phi;
+            let phi: &mut Vec<[L<T>; STATIC_PARAMS]> = phi;
             for (j, pj) in phi.iter_mut().enumerate() {
                 let x = match win.x {
                     Some(x) if identity => x.get(j).map_or(sp.x_ref, |&v| T::c(f64::from(v))),
@@ -923,12 +904,12 @@ fn pack_data<T: Real>(
                     None => sp.x_ref,
                 };
                 let a = match &alpha_steps {
-                    Some(a) => a[j][k],
-                    None => alpha0[k],
+                    Some(a) => a[j].0[k],
+                    None => alpha0.0[k],
                 };
-                let f = static_force::features(sp.x_ref, sp.v_c, x, u[j][k], a);
+                let f = static_force::features(sp.x_ref, sp.v_c, x, u[j].0[k], a);
                 for q in 0..STATIC_PARAMS {
-                    pj[q][k] = f[q];
+                    pj[q].0[k] = f[q];
                 }
             }
         }
@@ -958,25 +939,25 @@ fn pack_data<T: Real>(
 /// 0) and forces per step. A step whose condition level changed re-folds it (a new [`Pack`])
 /// and re-evaluates the coefficients at the step's start state with it, as
 /// `nemm_core::Estimator::set_alpha` does.
-fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>, Vec<V<T>>) {
+fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>, Vec<L<T>>) {
     let n = d.u.len();
-    let mut pk = Pack::new(p, &d.alpha(0));
+    let mut pk = Pack::new(p, d.alpha(0));
     let mut states = Vec::with_capacity(n + 1);
     let mut ys = Vec::with_capacity(n);
     let mut s = St::default();
     let mut c = pk.coeffs(&s, None);
-    let mut u_prev = splat(T::zero());
+    let mut u_prev = L::default();
     states.push(s);
     for (j, u) in d.u.iter().enumerate() {
         if d.alpha_changes(j) {
-            pk = Pack::new(p, &d.alpha(j));
+            pk = Pack::new(p, d.alpha(j));
             c = pk.coeffs(&s, None);
         }
-        s = pk.step(&s, &c, &u_prev, u);
+        s = pk.step(&s, &c, u_prev, *u);
         c = pk.coeffs(&s, None);
         let r = d.static_at(p, j);
-        let y = emm::force_with::<Unfused, L<T>>(&c, &s, Lanes(*u)).0;
-        ys.push(std::array::from_fn(|l| y[l] + r[l]));
+        let y = emm::force_with::<Unfused, L<T>>(&c, &s, *u);
+        ys.push(y + r);
         states.push(s);
         u_prev = *u;
     }
@@ -984,7 +965,7 @@ fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>,
 }
 
 /// The forces of a forward sweep at the data samples (output interpolation of [`Grid`]).
-fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
+fn at_samples<T: Real>(d: &PackData<T>, ys: &[L<T>]) -> Vec<L<T>> {
     if d.identity {
         return ys.to_vec();
     }
@@ -994,7 +975,7 @@ fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
                 ys[j]
             } else {
                 let (a, b) = (ys[j], ys[j + 1]);
-                std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
+                Lanes(std::array::from_fn(|k| a.0[k] + w * (b.0[k] - a.0[k])))
             }
         })
         .collect()
@@ -1005,7 +986,7 @@ fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
 fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T>) {
     let bp_bar = bar.bp.0;
     match &pk.bp_rec {
-        None => bar.g.b_pr0 += sum(&bp_bar),
+        None => bar.g.b_pr0 += L::sum(bar.bp),
         Some(BprRecord {
             scaler,
             act,
@@ -1033,35 +1014,31 @@ fn pack_loss_grad<T: Real>(
     ybar_scale: T,
 ) -> (T, RolloutGrads<T>) {
     let n = d.u.len();
-    let mut pk = Pack::new(p, &d.alpha(n.saturating_sub(1)));
+    let mut pk = Pack::new(p, d.alpha(n.saturating_sub(1)));
     let (states, ys) = forward_sweep(p, d);
     // The loss at the data samples and its adjoint per model step: formed here on a
     // coarser data grid, inline in the reverse sweep when every step is a sample.
     let mut loss = T::zero();
-    let sample_loss = |y: &V<T>, f: &V<T>, loss: &mut T| -> V<T> {
-        std::array::from_fn(|l| {
-            let e = (y[l] - f[l]) * d.lane_w[l];
+    let sample_loss = |y: &L<T>, f: &L<T>, loss: &mut T| -> L<T> {
+        Lanes(std::array::from_fn(|l| {
+            let e = (y.0[l] - f.0[l]) * d.lane_w.0[l];
             let en = e * inv_fs;
             *loss += en * en;
             ybar_scale * e
-        })
+        }))
     };
-    let on_grid: Option<(Vec<V<T>>, Vec<bool>)> = (!d.identity).then(|| {
-        let mut ybar = vec![splat(T::zero()); n];
+    let on_grid: Option<(Vec<L<T>>, Vec<bool>)> = (!d.identity).then(|| {
+        let mut ybar = vec![L::<T>::default(); n];
         let mut scored = vec![false; n];
         for (k, (y, f)) in at_samples(d, &ys).iter().zip(&d.f).enumerate().skip(warmup) {
             let (j, wgt) = d.at[k];
             let g = sample_loss(y, f, &mut loss);
             if wgt == T::zero() {
-                for l in 0..LANES {
-                    ybar[j][l] += g[l];
-                }
+                ybar[j] = ybar[j] + g;
                 scored[j] = true;
             } else {
-                for l in 0..LANES {
-                    ybar[j][l] += (T::one() - wgt) * g[l];
-                    ybar[j + 1][l] += wgt * g[l];
-                }
+                ybar[j] = ybar[j] + L::splat(T::one() - wgt) * g;
+                ybar[j + 1] = ybar[j + 1] + L::splat(wgt) * g;
                 scored[j] = true;
                 scored[j + 1] = true;
             }
@@ -1086,12 +1063,8 @@ fn pack_loss_grad<T: Real>(
     for i in (0..n).rev() {
         let s_n = states[i + 1];
         let s_p = states[i];
-        let u1 = Lanes(d.u[i]);
-        let u0 = if i == 0 {
-            L::splat(T::zero())
-        } else {
-            Lanes(d.u[i - 1])
-        };
+        let u1 = d.u[i];
+        let u0 = if i == 0 { L::default() } else { d.u[i - 1] };
         // Coefficients at s_n with activations (carried from the previous iteration's stage 1).
         let c_n = if have_rec_n {
             pk.coeffs_from_rec(&rb_n, &rk_n)
@@ -1105,11 +1078,11 @@ fn pack_loss_grad<T: Real>(
         };
         if let (Some(yb), Some(phi)) = (&ybar_i, &d.phi) {
             for (q, gq) in bar.g.static_force.iter_mut().enumerate() {
-                *gq += (0..LANES).fold(T::zero(), |a, l| a + yb[l] * phi[i][q][l]);
+                *gq += (0..LANES).fold(T::zero(), |a, l| a + yb.0[l] * phi[i][q].0[l]);
             }
         }
         if let Some(yb) = ybar_i {
-            emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, Lanes(yb), &mut sbar, &mut cbar_n);
+            emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, yb, &mut sbar, &mut cbar_n);
         }
         // Scalers at s_n: complete dL/ds_n.
         pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
@@ -1148,7 +1121,7 @@ fn pack_loss_grad<T: Real>(
             pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
             cbar_n = Cv::<T>::default();
             bpr_backward(p, &pk, &mut bar);
-            pk = Pack::new(p, &d.alpha(i - 1));
+            pk = Pack::new(p, d.alpha(i - 1));
             have_rec_n = false;
         }
     }
@@ -1166,18 +1139,18 @@ fn pack_loss_grad<T: Real>(
 impl<T: Real> Pack<'_, T> {
     /// Coefficient values from recorded activations (no recomputation).
     fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>) -> Cv<T> {
-        let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> V<T> {
+        let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> L<T> {
             match (&c.neural, r) {
                 (Some(n), Some(r)) => {
-                    Unfused::mul_add(L::splat(c.c0 * n.span), r.sig, L::splat(c.c0 * n.s_min)).0
+                    Unfused::mul_add(L::splat(c.c0 * n.span), r.sig, L::splat(c.c0 * n.s_min))
                 }
-                _ => splat(c.c0),
+                _ => L::splat(c.c0),
             }
         };
         Coefficients {
-            b_fl: Lanes(val(&self.bf, rb)),
-            b_pr: Lanes(self.bp),
-            k_pr: Lanes(val(&self.k, rk)),
+            b_fl: val(&self.bf, rb),
+            b_pr: self.bp,
+            k_pr: val(&self.k, rk),
         }
     }
 }
@@ -1235,7 +1208,7 @@ fn sweep_windows<T: Real, R: Send>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
     grid: &Grid,
-    out: impl Fn(&PackData<T>, &[St<T>], &[V<T>], usize, usize) -> R + Sync,
+    out: impl Fn(&PackData<T>, &[St<T>], &[L<T>], usize, usize) -> R + Sync,
 ) -> Vec<R> {
     let refs: Vec<&Window<'_>> = windows.iter().collect();
     refs.par_chunks(LANES)
@@ -1263,7 +1236,7 @@ pub fn simulate<T: Real>(
         at_samples(d, ys)
             .iter()
             .take(len)
-            .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
+            .map(|y| y.0[k].to_f64().unwrap_or(f64::NAN))
             .collect()
     })
 }
@@ -1276,11 +1249,11 @@ pub fn simulate_x_pr<T: Real>(
     grid: &Grid,
 ) -> Vec<Vec<f64>> {
     sweep_windows(p, windows, grid, |d, states, _, k, len| {
-        let x: Vec<V<T>> = states.iter().skip(1).map(|s| s.x_pr_m.0).collect();
+        let x: Vec<L<T>> = states.iter().skip(1).map(|s| s.x_pr_m).collect();
         at_samples(d, &x)
             .iter()
             .take(len)
-            .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
+            .map(|y| y.0[k].to_f64().unwrap_or(f64::NAN))
             .collect()
     })
 }
