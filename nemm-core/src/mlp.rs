@@ -24,10 +24,23 @@
 //! output:         w_o (H), b_o (1)
 //! ```
 //!
+//! [`ScalerLayout`] is the one definition of these positions (and of the alpha branch's,
+//! [`BranchLayout`]); every reader of a flat vector, here and in the trainer, asks it.
+//!
+//! # The forward pass and its reverse mode, once
+//!
+//! [`ScalerView::raw`] is the scaler's raw output `z` (MLP and alpha branch) over any
+//! [`Lane`] and [`math::MulAdd`], with [`ScalerView::raw_backward`] beside it: the
+//! reference path ([`MlpParams::forward`], [`Scaler::scale_with`]: `f32`, fused), the
+//! trainer's rollout and adjoint (`Lanes<f32, 8>`, unfused) and its gradient checks (`f64`)
+//! run it. [`CompiledScaler`] (the estimator's folded hot path) and its Arm kernel are
+//! optimised forms of it, tested against it (`tests/scaler.rs`, `tests/estimator.rs`).
+//!
 //! # Exact arithmetic of [`MlpParams::forward`] (the reference the trainer reproduces)
 //!
 //! ```text
-//! h_i   = fma-chain:  acc = b_i; for j in 0..in: acc = fma(W_ij, x_j, acc)
+//! b1'_i = fma(W_i1, x_1, b_i)          (second input folded into the bias; b_i for d = 1)
+//! h_i   = layer 1: fma(W_i0, x_0, b1'_i); layer l: acc = b_i; acc = fma(W_ij, a_j, acc), j ascending
 //! mean  = (sum_i h_i, left to right) / H
 //! d_i   = h_i - mean
 //! var   = (fma-chain of d_i * d_i from 0) / H
@@ -36,6 +49,9 @@
 //! a_i   = y_i if y_i >= 0 else LEAKY_RELU_SLOPE * y_i
 //! z     = fma-chain from b_o over w_o_i * a_i
 //! ```
+//!
+//! (the second input is folded first, as [`CompiledScaler::set_alpha`] and the trainer do,
+//! so that it is computed once per condition level).
 
 use crate::math::{self, Lane};
 use serde::{Deserialize, Serialize};
@@ -49,6 +65,11 @@ use serde::{Deserialize, Serialize};
 #[allow(unsafe_code)]
 mod arm;
 mod branch;
+mod layout;
+mod pass;
+
+pub use layout::{BranchLayout, BranchRanges, LayerRanges, ScalerLayout};
+pub use pass::{Folded, ScalerView, Tape, TapeMut};
 
 pub use branch::{
     branch_param_count, AlphaBranch, BranchError, BranchView, CompiledBranch, Direction,
@@ -303,70 +324,60 @@ impl<const P: usize> MlpParams<P> {
         Ok(())
     }
 
+    /// The layout of the parameters ([`ScalerLayout`], no branch).
+    pub fn layout(&self) -> ScalerLayout {
+        ScalerLayout::mlp(
+            self.inputs as usize,
+            self.hidden as usize,
+            self.layers as usize,
+        )
+    }
+
     /// Hidden layer `l` (0-based), or `None` if out of range or the shape is inconsistent.
     pub fn layer(&self, l: usize) -> Option<LayerView<'_>> {
-        let (d, h) = (self.inputs as usize, self.hidden as usize);
-        if l >= self.layers as usize {
-            return None;
-        }
-        let mut rest: &[f32] = &self.params;
-        let first = d.checked_mul(h)?.checked_add(h.checked_mul(3)?)?;
-        let other = h.checked_mul(h)?.checked_add(h.checked_mul(3)?)?;
-        let skip = if l == 0 {
-            0
-        } else {
-            first.checked_add(other.checked_mul(l - 1)?)?
-        };
-        take(&mut rest, skip)?;
-        let fan_in = if l == 0 { d } else { h };
+        let r = self.layout().layer(l)?;
+        let p: &[f32] = &self.params;
         Some(LayerView {
-            w: take(&mut rest, fan_in.checked_mul(h)?)?,
-            b: take(&mut rest, h)?,
-            gamma: take(&mut rest, h)?,
-            beta: take(&mut rest, h)?,
+            w: p.get(r.w)?,
+            b: p.get(r.b)?,
+            gamma: p.get(r.gamma)?,
+            beta: p.get(r.beta)?,
         })
     }
 
     /// Output weights `w_o` (`H`) and bias `b_o`.
     pub fn output(&self) -> Option<(&[f32], f32)> {
-        let h = self.hidden as usize;
-        let n = self.params.len();
-        let w = self.params.get(n.checked_sub(h + 1)?..n - 1)?;
-        let b = *self.params.last()?;
-        Some((w, b))
+        let (w, b) = self.layout().output()?;
+        Some((self.params.get(w)?, *self.params.get(b)?))
     }
 
-    /// Reference forward pass: raw output `z` for normalised inputs `x` (length `inputs`).
+    /// Reference forward pass: raw output `z` for normalised inputs `x` (length `inputs`),
+    /// [`ScalerView::raw`] in `f32` with fused multiply-adds.
     ///
     /// Returns `None` only if the shape is inconsistent (never for a validated model).
     pub fn forward(&self, x: &[f32]) -> Option<f32> {
-        let h = self.hidden as usize;
-        if x.len() != self.inputs as usize || x.is_empty() || h == 0 {
+        if x.len() != self.inputs as usize {
             return None;
         }
-        let mut a_in = [0.0f32; MAX_HIDDEN];
-        let mut a_out = [0.0f32; MAX_HIDDEN];
-        a_in.get_mut(..x.len())?.copy_from_slice(x);
-        let mut fan_in = x.len();
-        for l in 0..self.layers as usize {
-            let layer = self.layer(l)?;
-            let input = a_in.get(..fan_in)?;
-            let out = a_out.get_mut(..h)?;
-            for ((o, row), &b) in out
-                .iter_mut()
-                // `max(1)`: `fan_in` is never 0 (checked above), but `chunks_exact` panics on
-                // 0 and the compiler cannot see that; with it no panic path is left.
-                .zip(layer.w.chunks_exact(fan_in.max(1)))
-                .zip(layer.b)
-            {
-                *o = dot_acc(row, input, b);
-            }
-            layer_norm_leaky(out, layer.gamma, layer.beta);
-            core::mem::swap(&mut a_in, &mut a_out);
-            fan_in = h;
-        }
-        let (w_o, b_o) = self.output()?;
-        Some(dot_acc(w_o, a_in.get(..h)?, b_o))
+        let view = self.view(None)?;
+        let fold = view.fold::<math::Fused, f32>(x.get(1).copied().unwrap_or(0.0), 0.0)?;
+        view.raw::<math::Fused, f32>(&fold, *x.first()?, None)
+    }
+
+    /// The lane-generic view of these weights ([`ScalerView`]) with the alpha branch
+    /// `branch`, if any; `None` if the branch's parameter count does not match its shape.
+    pub fn view<'a>(&'a self, branch: Option<&'a AlphaBranch>) -> Option<ScalerView<'a, f32>> {
+        let layout = self.layout().with_branch(branch.map(AlphaBranch::layout));
+        let (bw, direction): (&[f32], _) = match branch {
+            Some(b) => (&b.params, b.direction),
+            None => (&[], Direction::None),
+        };
+        (bw.len() == layout.branch_len()).then_some(ScalerView {
+            layout,
+            mlp: &self.params,
+            branch: bw,
+            direction,
+        })
     }
 }
 
@@ -580,10 +591,13 @@ impl<const P: usize> Scaler<P> {
             return self.scale(x);
         };
         let (&alpha_n, state) = x.split_last()?;
-        let mut xin = [0.0f32; MAX_INPUTS];
-        xin.get_mut(..state.len())?.copy_from_slice(state);
-        let z = self.mlp.forward(xin.get(..x.len())?)?;
-        let z = z + b.raw(state.first().copied().unwrap_or(0.0), alpha_n);
+        if x.len() != self.mlp.inputs as usize {
+            return None;
+        }
+        let view = self.mlp.view(Some(b))?;
+        let (xi, second) = view.inputs(state.first().copied().unwrap_or(0.0), alpha_n);
+        let fold = view.fold::<math::Fused, f32>(second, alpha_n)?;
+        let z = view.raw::<math::Fused, f32>(&fold, xi, None)?;
         Some(scale_from_raw(z, self.s_min, self.s_max))
     }
 

@@ -33,7 +33,7 @@
 //! z   = fma-chain from 0 over v_k leaky_relu(t_k), k ascending
 //! ```
 
-use super::leaky_relu;
+use super::{leaky_relu, BranchLayout};
 use crate::math::{self, MulAdd};
 use core::fmt;
 use serde::{Deserialize, Serialize};
@@ -159,7 +159,11 @@ impl fmt::Display for BranchError {
 
 /// Number of parameters of a branch with `units` units and `state_inputs` state inputs.
 pub const fn branch_param_count(state_inputs: usize, units: usize) -> usize {
-    units.saturating_mul(3usize.saturating_add(state_inputs))
+    BranchLayout {
+        state_inputs,
+        units,
+    }
+    .len()
 }
 
 /// The alpha branch of a scaler (module docs).
@@ -235,19 +239,25 @@ impl AlphaBranch {
         Ok(())
     }
 
+    /// The layout of the parameters ([`BranchLayout`]).
+    pub fn layout(&self) -> BranchLayout {
+        BranchLayout {
+            state_inputs: self.state_inputs as usize,
+            units: self.units as usize,
+        }
+    }
+
     /// The weights by role, or `None` if the shape is inconsistent.
     pub fn view(&self) -> Option<BranchView<'_>> {
-        let k = self.units as usize;
-        let mut rest: &[f32] = &self.params;
-        let r = super::take(&mut rest, k.checked_mul(self.state_inputs as usize)?)?;
-        let theta_u = super::take(&mut rest, k)?;
-        let c = super::take(&mut rest, k)?;
-        let theta_v = super::take(&mut rest, k)?;
-        rest.is_empty().then_some(BranchView {
-            r,
-            theta_u,
-            c,
-            theta_v,
+        let layout = self.layout();
+        let r = layout.ranges()?;
+        let p: &[f32] = &self.params;
+        (p.len() == layout.len()).then_some(())?;
+        Some(BranchView {
+            r: p.get(r.r)?,
+            theta_u: p.get(r.theta_u)?,
+            c: p.get(r.c)?,
+            theta_v: p.get(r.theta_v)?,
         })
     }
 
@@ -255,19 +265,20 @@ impl AlphaBranch {
     /// without a state input) and normalised `alpha_n` (module docs' arithmetic); 0 for an
     /// inconsistent shape.
     pub fn raw(&self, x: f32, alpha_n: f32) -> f32 {
-        let Some(v) = self.view() else {
-            return 0.0;
-        };
-        let d = self.direction.sign();
-        let mut z = 0.0f32;
-        for (k, ((&tu, &c), &tv)) in v.theta_u.iter().zip(v.c).zip(v.theta_v).enumerate() {
-            let mut t = math::fma(d * (tu * tu), alpha_n, c);
-            if let Some(&r) = v.r.get(k) {
-                t = math::fma(r, x, t);
-            }
-            z = math::fma(tv * tv, leaky_relu(t), z);
-        }
-        z
+        let mut bias = [0.0f32; MAX_BRANCH_UNITS];
+        let layout = self.layout();
+        super::pass::fold_branch::<math::Fused, f32>(
+            layout,
+            &self.params,
+            self.direction,
+            alpha_n,
+            &mut bias,
+        )
+        .and_then(|()| {
+            super::pass::branch_raw::<math::Fused, f32>(layout, &self.params, &bias, x, None)
+        })
+        .filter(|_| self.params.len() == layout.len())
+        .unwrap_or(0.0)
     }
 }
 

@@ -21,13 +21,14 @@
 //!   the step that uses it, with the coefficients at the step's start state re-evaluated
 //!   (`nemm_core::Estimator::set_alpha`); the whole step runs at the new level;
 //! - the EMM right-hand side and force (`nemm_core::emm`), the RK step
-//!   (`nemm_core::integrator::step_with`), the scalers' centring, normalisation, activation
-//!   and bounded output mapping (`nemm_core::mlp`) are nemm-core's own generic definitions,
-//!   run here over [`Lanes`] of [`LANES`] windows with unfused multiply-adds; their reverse
-//!   modes (`rhs_backward`, `force_backward`, `step_backward`, `norm_act_backward`,
-//!   `centre_backward`, `bounded_backward`) sit next to them in nemm-core. This file keeps
-//!   the scalers' linear maps (forward and backward), the packing, the loss and the sweeps.
-//!   The parity test bounds the difference to the estimator's fused arithmetic.
+//!   (`nemm_core::integrator::step_with`) and the scalers (MLP and alpha branch,
+//!   `nemm_core::mlp::ScalerView::raw`, with the bounded output mapping `mlp::bounded`) are
+//!   nemm-core's own generic definitions, run here over [`Lanes`] of [`LANES`] windows with
+//!   unfused multiply-adds; their reverse modes (`rhs_backward`, `force_backward`,
+//!   `step_backward`, `ScalerView::raw_backward`, `bounded_backward`) sit next to them in
+//!   nemm-core, as does the weight layout (`mlp::ScalerLayout`). This file keeps the
+//!   packing, the activation records, the loss and the sweeps. The parity test bounds the
+//!   difference to the estimator's fused arithmetic.
 //!
 //! # Batching
 //!
@@ -81,17 +82,8 @@ impl Real for f64 {
     }
 }
 
-type V<T> = [T; LANES];
-
-#[inline(always)]
-fn splat<T: Real>(v: T) -> V<T> {
-    [v; LANES]
-}
-
-#[inline(always)]
-fn sum<T: Real>(v: &V<T>) -> T {
-    v.iter().fold(T::zero(), |a, &b| a + b)
-}
+/// The lane type of a pack: one value per window (nemm-core's [`Lanes`]).
+type L<T> = Lanes<T, LANES>;
 
 /// Shape of a scaler's alpha branch (`nemm_core::mlp::AlphaBranch`): its weights follow
 /// the MLP's in [`ScalerWeights::w`], in nemm-core's branch layout.
@@ -108,7 +100,15 @@ pub struct BranchShape {
 impl BranchShape {
     /// Number of branch parameters.
     pub fn len(&self) -> usize {
-        mlp::branch_param_count(self.state_inputs, self.units)
+        self.layout().len()
+    }
+
+    /// nemm-core's layout of the branch's parameters.
+    pub fn layout(&self) -> mlp::BranchLayout {
+        mlp::BranchLayout {
+            state_inputs: self.state_inputs,
+            units: self.units,
+        }
     }
 
     /// True without parameters (never for a valid shape).
@@ -139,9 +139,19 @@ pub struct ScalerWeights<T> {
 }
 
 impl<T> ScalerWeights<T> {
+    /// Where each block sits in [`Self::w`]: nemm-core's one definition of the layout.
+    pub fn layout(&self) -> mlp::ScalerLayout {
+        mlp::ScalerLayout::mlp(self.inputs, self.hidden, self.layers).with_branch(self.branch.map(
+            |b| mlp::BranchLayout {
+                state_inputs: b.state_inputs,
+                units: b.units,
+            },
+        ))
+    }
+
     /// Number of the MLP's parameters (the head of [`Self::w`]).
     pub fn mlp_len(&self) -> usize {
-        mlp::param_count(self.inputs, self.hidden, self.layers)
+        self.layout().mlp_len()
     }
 
     /// The MLP's parameters.
@@ -408,82 +418,80 @@ impl Grid {
 }
 
 // ---------------------------------------------------------------------------------------
-// MLP over lanes
+// Scalers over lanes: nemm-core's `ScalerView` (forward `raw`, reverse `raw_backward`)
 // ---------------------------------------------------------------------------------------
 
-/// Offsets of one layer in the flat layout.
-#[derive(Debug, Clone, Copy)]
-struct LayerOff {
-    w: usize,
-    b: usize,
-    g: usize,
-    be: usize,
-    fan_in: usize,
-}
-
+/// One scaler over the lanes at the pack's condition level: nemm-core's view of its
+/// weights ([`mlp::ScalerView`]) and its alpha level folded in ([`mlp::Folded`]).
 #[derive(Debug, Clone)]
-struct Mlp<'a, T> {
-    h: usize,
-    inputs: usize,
-    layers: Vec<LayerOff>,
-    out_w: usize,
-    out_b: usize,
-    w: &'a [T],
+struct LaneScaler<'a, T> {
+    view: mlp::ScalerView<'a, T>,
+    fold: Box<mlp::Folded<L<T>>>,
+    /// The MLP's first input when it has no state input (`b_pr`: `alpha_n`, or 0 with a
+    /// branch).
+    x_alpha: L<T>,
+    /// The MLP's second input (`alpha_n`, or 0 with a branch).
+    second: L<T>,
+    /// The branch's `alpha_n`.
+    alpha_n: L<T>,
 }
 
-impl<'a, T: Real> Mlp<'a, T> {
-    fn new(s: &'a ScalerWeights<T>) -> Self {
-        let (h, d) = (s.hidden, s.inputs);
-        let mut off = 0;
-        let mut layers = Vec::with_capacity(s.layers);
-        for l in 0..s.layers {
-            let fan_in = if l == 0 { d } else { h };
-            let lo = LayerOff {
-                w: off,
-                b: off + fan_in * h,
-                g: off + fan_in * h + h,
-                be: off + fan_in * h + 2 * h,
-                fan_in,
-            };
-            off = lo.be + h;
-            layers.push(lo);
-        }
-        assert_eq!(
-            off + h + 1 + s.branch.map_or(0, |b| b.len()),
-            s.w.len(),
-            "scaler weight count does not match its shape"
+impl<'a, T: Real> LaneScaler<'a, T> {
+    fn new(s: &'a ScalerWeights<T>, alpha_n: L<T>) -> Self {
+        let direction = s.branch.map_or(Direction::None, |b| b.direction);
+        let view = mlp::ScalerView::new(s.layout(), &s.w, direction)
+            .expect("scaler weight count does not match its shape");
+        let (x_alpha, second) = view.inputs(L::default(), alpha_n);
+        let fold = Box::new(
+            view.fold::<Unfused, L<T>>(second, alpha_n)
+                .expect("consistent scaler shape"),
         );
         Self {
-            h,
-            inputs: d,
-            layers,
-            out_w: off,
-            out_b: off + h,
-            w: s.mlp_w(),
+            view,
+            fold,
+            x_alpha,
+            second,
+            alpha_n,
         }
     }
 
-    /// Layer-1 bias with the alpha column folded in, per lane.
-    fn bias1(&self, alpha_n: &V<T>) -> Vec<V<T>> {
-        let l0 = self.layers[0];
-        (0..self.h)
-            .map(|i| {
-                let b = self.w[l0.b + i];
-                if self.inputs == 2 {
-                    let wa = self.w[l0.w + i * 2 + 1];
-                    std::array::from_fn(|k| b + wa * alpha_n[k])
-                } else {
-                    splat(b)
-                }
-            })
-            .collect()
+    /// A record of the right size for this scaler.
+    fn act(&self) -> Act<T> {
+        let l = &self.view.layout;
+        Act::new(l.hidden, l.layers, l.branch.map_or(0, |b| b.units))
+    }
+
+    /// Raw output `z` at first input `x`, recording into `rec` if given.
+    #[inline]
+    fn raw(&self, x: L<T>, rec: Option<&mut Act<T>>) -> L<T> {
+        let z = match rec {
+            None => self.view.raw::<Unfused, L<T>>(&self.fold, x, None),
+            Some(r) => {
+                r.x0 = x;
+                self.view
+                    .raw::<Unfused, L<T>>(&self.fold, x, Some(&mut r.tape_mut()))
+            }
+        };
+        z.expect("consistent scaler shape")
+    }
+
+    /// Reverse mode of [`Self::raw`]: adds the weight gradients to `g` (the flat layout)
+    /// and returns `dL/dx`.
+    #[inline]
+    fn backward(&self, rec: &Act<T>, zbar: L<T>, g: &mut [T]) -> L<T> {
+        let (gm, gb) = g.split_at_mut(self.view.layout.mlp_len());
+        self.view
+            .raw_backward(&rec.tape(), rec.x0, self.second, self.alpha_n, zbar, gm, gb)
+            .expect("consistent scaler shape")
     }
 }
 
-/// Activations of one MLP evaluation over the lanes (for the backward pass).
+/// Activations of one scaler evaluation over the lanes (for the backward pass): the
+/// storage of nemm-core's [`mlp::Tape`], the input and the sigmoid.
 #[derive(Debug, Clone)]
 struct Act<T> {
-    x0: V<T>,
+    /// The MLP's first input.
+    x0: L<T>,
     /// Normalised pre-activations `n = (h - mean) r`, `layers * H`.
     n: Vec<L<T>>,
     /// `1 / sqrt(var + eps)`, per layer.
@@ -499,318 +507,31 @@ struct Act<T> {
 impl<T: Real> Act<T> {
     fn new(h: usize, layers: usize, units: usize) -> Self {
         Self {
-            x0: splat(T::zero()),
-            n: vec![L::splat(T::zero()); h * layers],
-            r: vec![L::splat(T::zero()); layers],
-            a: vec![L::splat(T::zero()); h * layers],
-            sig: L::splat(T::zero()),
-            bt: vec![L::splat(T::zero()); units],
+            x0: L::default(),
+            n: vec![L::default(); h * layers],
+            r: vec![L::default(); layers],
+            a: vec![L::default(); h * layers],
+            sig: L::default(),
+            bt: vec![L::default(); units],
         }
     }
-}
 
-/// A scaler's alpha branch over the lanes (`nemm_core::mlp::AlphaBranch`): `z +=
-/// sum_k v_k leaky_relu(r_k x0 + u_k alpha_n + c_k)`, `v_k = theta_v,k^2`,
-/// `u_k = d theta_u,k^2`, with `u_k alpha_n + c_k` folded per lane for the pack's alpha.
-#[derive(Debug, Clone)]
-struct Branch<'a, T> {
-    /// State inputs (0 or 1).
-    s: usize,
-    /// Units.
-    k: usize,
-    /// Direction sign.
-    d: T,
-    /// Branch weights: `r (K s), theta_u (K), c (K), theta_v (K)`.
-    w: &'a [T],
-    /// `u_k alpha_n + c_k` per unit and lane.
-    bias: Vec<V<T>>,
-}
-
-impl<'a, T: Real> Branch<'a, T> {
-    fn new(sw: &'a ScalerWeights<T>, alpha_n: &V<T>) -> Option<Self> {
-        let b = sw.branch?;
-        let (s, k) = (b.state_inputs, b.units);
-        let w = sw.branch_w();
-        let d = T::c(f64::from(b.direction.sign()));
-        let bias = (0..k)
-            .map(|i| {
-                let tu = w[k * s + i];
-                let u = d * (tu * tu);
-                let c = w[k * s + k + i];
-                std::array::from_fn(|l| u * alpha_n[l] + c)
-            })
-            .collect();
-        Some(Self { s, k, d, w, bias })
-    }
-
-    /// Adds the branch at normalised state `x0` to `z`; records the pre-activations. The
-    /// branch is summed from zero and then added to the MLP's `z`, in nemm-core's order
-    /// (`AlphaBranch::raw`, `CompiledBranch::raw`): accumulating its terms into `z` directly
-    /// would round differently from the estimator.
-    #[inline]
-    fn forward(&self, x0: &V<T>, z: &mut L<T>, rec: Option<&mut Vec<L<T>>>) {
-        let (s, k) = (self.s, self.k);
-        let mut rec = rec;
-        let mut zb = L::splat(T::zero());
-        for i in 0..k {
-            let b = &self.bias[i];
-            let t: L<T> = if s == 1 {
-                let r = self.w[i];
-                Lanes(std::array::from_fn(|l| r * x0[l] + b[l]))
-            } else {
-                Lanes(*b)
-            };
-            let tv = self.w[k * s + 2 * k + i];
-            zb = zb + L::splat(tv * tv) * mlp::leaky_relu(t);
-            if let Some(r) = rec.as_deref_mut() {
-                r[i] = t;
-            }
-        }
-        *z = *z + zb;
-    }
-
-    /// Back-propagates `zbar` through the branch at the recorded pre-activations `bt`:
-    /// adds the weight gradients to `g` (branch layout) and `dL/dx0` to `x0bar`.
-    #[inline]
-    fn backward(
-        &self,
-        bt: &[L<T>],
-        x0: &V<T>,
-        alpha_n: &V<T>,
-        zbar: &V<T>,
-        g: &mut [T],
-        x0bar: &mut V<T>,
-    ) {
-        let (s, k) = (self.s, self.k);
-        let slope = T::c(f64::from(mlp::LEAKY_RELU_SLOPE));
-        let two = T::c(2.0);
-        for i in 0..k {
-            let t = bt[i].0;
-            let (tu, tv) = (self.w[k * s + i], self.w[k * s + 2 * k + i]);
-            let v = tv * tv;
-            let mut s_act = T::zero();
-            let mut s_t = T::zero();
-            let mut s_tx = T::zero();
-            let mut s_ta = T::zero();
-            let r = if s == 1 { self.w[i] } else { T::zero() };
-            for l in 0..LANES {
-                let (a, da) = if t[l] >= T::zero() {
-                    (t[l], T::one())
-                } else {
-                    (slope * t[l], slope)
-                };
-                s_act += zbar[l] * a;
-                let tbar = zbar[l] * v * da;
-                s_t += tbar;
-                s_tx += tbar * x0[l];
-                s_ta += tbar * alpha_n[l];
-                x0bar[l] += r * tbar;
-            }
-            if s == 1 {
-                g[i] += s_tx;
-            }
-            g[k * s + i] += s_ta * self.d * two * tu;
-            g[k * s + k + i] += s_t;
-            g[k * s + 2 * k + i] += s_act * two * tv;
+    fn tape_mut(&mut self) -> mlp::TapeMut<'_, L<T>> {
+        mlp::TapeMut {
+            n: &mut self.n,
+            r: &mut self.r,
+            a: &mut self.a,
+            branch_t: &mut self.bt,
         }
     }
-}
 
-/// Scratch for forward passes without a record.
-#[derive(Debug, Clone)]
-struct Scratch<T> {
-    t: Vec<L<T>>,
-    a: Vec<L<T>>,
-}
-
-impl<T: Real> Scratch<T> {
-    fn new(h: usize) -> Self {
-        Self {
-            t: vec![L::splat(T::zero()); h],
-            a: vec![L::splat(T::zero()); h],
+    fn tape(&self) -> mlp::Tape<'_, L<T>> {
+        mlp::Tape {
+            n: &self.n,
+            r: &self.r,
+            a: &self.a,
+            branch_t: &self.bt,
         }
-    }
-}
-
-impl<T: Real> Mlp<'_, T> {
-    /// Forward pass: the linear maps here, the centring, normalisation, activation of
-    /// `nemm_core::mlp` ([`mlp::centre`], [`mlp::norm_act`]); returns the raw output `z`
-    /// and fills `rec` if given.
-    fn forward(
-        &self,
-        x0: &V<T>,
-        b1: &[V<T>],
-        scratch: &mut Scratch<T>,
-        mut rec: Option<&mut Act<T>>,
-    ) -> L<T> {
-        let h = self.h;
-        let inv_h = T::one() / T::c(h as f64);
-        let w = self.w;
-        if let Some(r) = rec.as_deref_mut() {
-            r.x0 = *x0;
-        }
-        for (l, lo) in self.layers.iter().enumerate() {
-            // Pre-activation h = W a + b.
-            let t = &mut scratch.t;
-            if l == 0 {
-                for i in 0..h {
-                    let wi = w[lo.w + i * lo.fan_in];
-                    let bi = &b1[i];
-                    t[i] = Lanes(std::array::from_fn(|k| wi * x0[k] + bi[k]));
-                }
-            } else {
-                let a_in = &scratch.a;
-                for i in 0..h {
-                    let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
-                    let mut acc = splat(w[lo.b + i]);
-                    for (j, &wij) in row.iter().enumerate() {
-                        let aj = &a_in[j].0;
-                        for k in 0..LANES {
-                            acc[k] += wij * aj[k];
-                        }
-                    }
-                    t[i] = Lanes(acc);
-                }
-            }
-            // LayerNorm + affine + LeakyReLU.
-            let t = &mut t[..h];
-            mlp::centre(t, inv_h);
-            let (gamma, beta) = (&w[lo.g..lo.g + h], &w[lo.be..lo.be + h]);
-            let a = &mut scratch.a[..h];
-            match rec.as_deref_mut() {
-                Some(rec) => {
-                    let mut out = a
-                        .iter_mut()
-                        .zip(&mut rec.n[l * h..(l + 1) * h])
-                        .zip(&mut rec.a[l * h..(l + 1) * h]);
-                    rec.r[l] =
-                        mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |n, _, act| {
-                            if let Some(((ai, rn), ra)) = out.next() {
-                                *ai = act;
-                                *rn = n;
-                                *ra = act;
-                            }
-                        });
-                }
-                None => {
-                    let mut out = a.iter_mut();
-                    mlp::norm_act::<Unfused, L<T>>(t, gamma, beta, inv_h, |_, _, act| {
-                        if let Some(ai) = out.next() {
-                            *ai = act;
-                        }
-                    });
-                }
-            }
-        }
-        let mut z = splat(w[self.out_b]);
-        for i in 0..h {
-            let wo = w[self.out_w + i];
-            let ai = &scratch.a[i].0;
-            for k in 0..LANES {
-                z[k] += wo * ai[k];
-            }
-        }
-        Lanes(z)
-    }
-
-    /// Backward pass from `dL/dz` per lane; accumulates weight gradients into `g` and
-    /// returns `dL/dx0` per lane. `alpha_n` is the second input (for its weight gradient).
-    fn backward(
-        &self,
-        rec: &Act<T>,
-        zbar: &V<T>,
-        alpha_n: &V<T>,
-        g: &mut [T],
-        scratch: &mut Scratch<T>,
-    ) -> V<T> {
-        let h = self.h;
-        let inv_h = T::one() / T::c(h as f64);
-        let w = self.w;
-        // Output layer.
-        g[self.out_b] += sum(zbar);
-        let abar = &mut scratch.a;
-        let l_last = self.layers.len() - 1;
-        for i in 0..h {
-            let ai = &rec.a[l_last * h + i].0;
-            let mut s = T::zero();
-            for k in 0..LANES {
-                s += zbar[k] * ai[k];
-            }
-            g[self.out_w + i] += s;
-            let wo = w[self.out_w + i];
-            abar[i] = Lanes(std::array::from_fn(|k| wo * zbar[k]));
-        }
-        let mut x0bar = splat(T::zero());
-        for l in (0..self.layers.len()).rev() {
-            let lo = self.layers[l];
-            // Through LeakyReLU, the affine, the normalisation and the centring.
-            let hbar = &mut scratch.t[..h];
-            let (gg, gb) = g[lo.g..lo.be + h].split_at_mut(h);
-            mlp::norm_act_backward(
-                &abar[..h],
-                &rec.n[l * h..(l + 1) * h],
-                &rec.a[l * h..(l + 1) * h],
-                rec.r[l],
-                &w[lo.g..lo.g + h],
-                inv_h,
-                hbar,
-                gg,
-                gb,
-            );
-            mlp::centre_backward(hbar, inv_h);
-            // Linear backward.
-            if l == 0 {
-                for i in 0..h {
-                    let hb = &hbar[i].0;
-                    let sb = sum(hb);
-                    g[lo.b + i] += sb;
-                    let mut s0 = T::zero();
-                    let mut s1 = T::zero();
-                    for k in 0..LANES {
-                        s0 += hb[k] * rec.x0[k];
-                        s1 += hb[k] * alpha_n[k];
-                    }
-                    g[lo.w + i * lo.fan_in] += s0;
-                    if lo.fan_in == 2 {
-                        g[lo.w + i * 2 + 1] += s1;
-                    }
-                    let w0 = w[lo.w + i * lo.fan_in];
-                    for k in 0..LANES {
-                        x0bar[k] += w0 * hb[k];
-                    }
-                }
-            } else {
-                let prev = (l - 1) * h;
-                for i in 0..h {
-                    let hb = hbar[i].0;
-                    g[lo.b + i] += sum(&hb);
-                    let row = lo.w + i * h;
-                    for j in 0..h {
-                        let aj = &rec.a[prev + j].0;
-                        let mut s = T::zero();
-                        for k in 0..LANES {
-                            s += hb[k] * aj[k];
-                        }
-                        g[row + j] += s;
-                    }
-                }
-                // abar_{l-1}[j] = sum_i W[i][j] hbar[i]
-                for j in 0..h {
-                    abar[j] = L::splat(T::zero());
-                }
-                for i in 0..h {
-                    let hb = hbar[i].0;
-                    let row = &w[lo.w + i * h..lo.w + (i + 1) * h];
-                    for (j, &wij) in row.iter().enumerate() {
-                        let ab = &mut abar[j].0;
-                        for k in 0..LANES {
-                            ab[k] += wij * hb[k];
-                        }
-                    }
-                }
-            }
-        }
-        x0bar
     }
 }
 
@@ -818,7 +539,7 @@ impl<T: Real> Mlp<'_, T> {
 // Coefficients
 // ---------------------------------------------------------------------------------------
 
-/// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(MLP(state / scale,
+/// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(z(state / scale,
 /// alpha_n)))` (nemm-core's [`mlp::bounded`] with `lo = c0 s_min`, `span = c0 (s_max -
 /// s_min)`).
 struct Coef<'a, T> {
@@ -827,72 +548,41 @@ struct Coef<'a, T> {
 }
 
 struct NeuralCoef<'a, T> {
-    mlp: Mlp<'a, T>,
+    scaler: LaneScaler<'a, T>,
     s_min: T,
     span: T,
     inv_scale: T,
-    b1: Vec<V<T>>,
-    /// The alpha branch, if any.
-    branch: Option<Branch<'a, T>>,
-    /// The MLP's alpha input: `alpha_n`, or 0 with a branch.
-    mlp_alpha: V<T>,
-}
-
-/// The MLP's alpha input of scaler `s`: 0 when the alpha branch carries `alpha`.
-fn mlp_alpha<T: Real>(s: &ScalerWeights<T>, alpha_n: &V<T>) -> V<T> {
-    if s.branch.is_some() {
-        splat(T::zero())
-    } else {
-        *alpha_n
-    }
 }
 
 impl<'a, T: Real> Coef<'a, T> {
-    fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: &V<T>) -> Self {
+    fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: L<T>) -> Self {
         Self {
             c0,
-            neural: s.map(|s| {
-                let mlp = Mlp::new(s);
-                let mlp_alpha = mlp_alpha(s, alpha_n);
-                let b1 = mlp.bias1(&mlp_alpha);
-                NeuralCoef {
-                    mlp,
-                    s_min: s.s_min,
-                    span: s.s_max - s.s_min,
-                    inv_scale: T::one() / scale,
-                    b1,
-                    branch: Branch::new(s, alpha_n),
-                    mlp_alpha,
-                }
+            neural: s.map(|s| NeuralCoef {
+                scaler: LaneScaler::new(s, alpha_n),
+                s_min: s.s_min,
+                span: s.s_max - s.s_min,
+                inv_scale: T::one() / scale,
             }),
         }
     }
 
     fn act(&self) -> Option<Act<T>> {
-        self.neural.as_ref().map(|n| {
-            Act::new(
-                n.mlp.h,
-                n.mlp.layers.len(),
-                n.branch.as_ref().map_or(0, |b| b.k),
-            )
-        })
+        self.neural.as_ref().map(|n| n.scaler.act())
     }
 
     #[inline]
-    fn eval(&self, x: &V<T>, scratch: &mut Scratch<T>, mut rec: Option<&mut Act<T>>) -> V<T> {
+    fn eval(&self, x: L<T>, mut rec: Option<&mut Act<T>>) -> L<T> {
         match &self.neural {
-            None => splat(self.c0),
+            None => L::splat(self.c0),
             Some(n) => {
-                let x0: V<T> = std::array::from_fn(|k| x[k] * n.inv_scale);
-                let mut z = n.mlp.forward(&x0, &n.b1, scratch, rec.as_deref_mut());
-                if let Some(b) = &n.branch {
-                    b.forward(&x0, &mut z, rec.as_deref_mut().map(|r| &mut r.bt));
-                }
+                let x0 = x * L::splat(n.inv_scale);
+                let z = n.scaler.raw(x0, rec.as_deref_mut());
                 let (p, sig) = self.bounded(n, z);
                 if let Some(rec) = rec {
                     rec.sig = sig;
                 }
-                p.0
+                p
             }
         }
     }
@@ -905,34 +595,16 @@ impl<'a, T: Real> Coef<'a, T> {
 
     /// Back-propagates `cbar = dL/d(coefficient)`; returns `dL/d(state component)`.
     #[inline]
-    fn backward(
-        &self,
-        rec: Option<&Act<T>>,
-        cbar: &V<T>,
-        alpha_n: &V<T>,
-        c0bar: &mut T,
-        g: &mut [T],
-        scratch: &mut Scratch<T>,
-    ) -> V<T> {
+    fn backward(&self, rec: Option<&Act<T>>, cbar: L<T>, c0bar: &mut T, g: &mut [T]) -> L<T> {
         match (&self.neural, rec) {
             (Some(n), Some(rec)) => {
-                let mut s0 = T::zero();
-                for k in 0..LANES {
-                    s0 += cbar[k] * (n.s_min + n.span * rec.sig.0[k]);
-                }
-                *c0bar += s0;
-                let zbar =
-                    mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), Lanes(*cbar)).0;
-                let (gm, gb) = g.split_at_mut(n.mlp.w.len());
-                let mut x0bar = n.mlp.backward(rec, &zbar, &n.mlp_alpha, gm, scratch);
-                if let Some(b) = &n.branch {
-                    b.backward(&rec.bt, &rec.x0, alpha_n, &zbar, gb, &mut x0bar);
-                }
-                std::array::from_fn(|k| x0bar[k] * n.inv_scale)
+                *c0bar += L::sum(cbar * (L::splat(n.s_min) + L::splat(n.span) * rec.sig));
+                let zbar = mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), cbar);
+                n.scaler.backward(rec, zbar, g) * L::splat(n.inv_scale)
             }
             _ => {
-                *c0bar += sum(cbar);
-                splat(T::zero())
+                *c0bar += L::sum(cbar);
+                L::default()
             }
         }
     }
@@ -942,8 +614,6 @@ impl<'a, T: Real> Coef<'a, T> {
 // Pack rollout
 // ---------------------------------------------------------------------------------------
 
-/// The lane type of a pack: one value per window.
-type L<T> = Lanes<T, LANES>;
 /// A state over the lanes (or its adjoint).
 type St<T> = State<L<T>>;
 /// Coefficient values at one state over the lanes (or their adjoints).
@@ -955,10 +625,7 @@ type ActPair<'r, T> = (&'r mut Option<Act<T>>, &'r mut Option<Act<T>>);
 /// The `b_pr(alpha)` scaler of a pack: its MLP, alpha branch, activations and output
 /// bounds.
 struct BprRecord<'a, T> {
-    mlp: Mlp<'a, T>,
-    branch: Option<Branch<'a, T>>,
-    /// The MLP's input: `alpha_n`, or 0 with a branch.
-    mlp_alpha: V<T>,
+    scaler: LaneScaler<'a, T>,
     act: Act<T>,
     s_min: T,
     span: T,
@@ -968,36 +635,24 @@ struct BprRecord<'a, T> {
 struct Pack<'a, T> {
     bf: Coef<'a, T>,
     k: Coef<'a, T>,
-    bp: V<T>,
+    bp: L<T>,
     /// The `b_pr(alpha)` scaler's evaluation, for its backward pass.
     bp_rec: Option<BprRecord<'a, T>>,
-    alpha_n: V<T>,
     /// `1 / T_pr`.
     it: T,
     integrator: Integrator,
     h: StepSize<L<T>>,
 }
 
-struct Work<T> {
-    scratch: Scratch<T>,
-}
-
 impl<'a, T: Real> Pack<'a, T> {
-    fn new(p: &'a RolloutParams<T>, alphas: &V<T>) -> Self {
-        let alpha_n: V<T> = std::array::from_fn(|k| alphas[k] / p.alpha_scale);
+    fn new(p: &'a RolloutParams<T>, alphas: L<T>) -> Self {
+        let alpha_n = alphas / L::splat(p.alpha_scale);
         let (bp, bp_rec) = match &p.b_pr {
-            None => (splat(p.b_pr0), None),
+            None => (L::splat(p.b_pr0), None),
             Some(s) => {
-                let mlp = Mlp::new(s);
-                let mut scratch = Scratch::new(s.hidden);
-                let mlp_alpha = mlp_alpha(s, &alpha_n);
-                let b1 = mlp.bias1(&mlp_alpha);
-                let branch = Branch::new(s, &alpha_n);
-                let mut act = Act::new(s.hidden, s.layers, branch.as_ref().map_or(0, |b| b.k));
-                let mut z = mlp.forward(&mlp_alpha, &b1, &mut scratch, Some(&mut act));
-                if let Some(b) = &branch {
-                    b.forward(&mlp_alpha, &mut z, Some(&mut act.bt));
-                }
+                let scaler = LaneScaler::new(s, alpha_n);
+                let mut act = scaler.act();
+                let z = scaler.raw(scaler.x_alpha, Some(&mut act));
                 let span = s.s_max - s.s_min;
                 let (bp, sig) = mlp::bounded::<Unfused, L<T>>(
                     z,
@@ -1005,13 +660,10 @@ impl<'a, T: Real> Pack<'a, T> {
                     L::splat(p.b_pr0 * span),
                 );
                 act.sig = sig;
-                let bp = bp.0;
                 (
                     bp,
                     Some(BprRecord {
-                        mlp,
-                        branch,
-                        mlp_alpha,
+                        scaler,
                         act,
                         s_min: s.s_min,
                         span,
@@ -1020,58 +672,43 @@ impl<'a, T: Real> Pack<'a, T> {
             }
         };
         Self {
-            bf: Coef::new(p.b_fl0, p.b_fl.as_ref(), p.v_scale, &alpha_n),
-            k: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, &alpha_n),
+            bf: Coef::new(p.b_fl0, p.b_fl.as_ref(), p.v_scale, alpha_n),
+            k: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, alpha_n),
             bp,
             bp_rec,
-            alpha_n,
             it: T::one() / p.t_pr,
             integrator: p.integrator,
             h: StepSize::splat(p.dt),
         }
     }
 
-    fn work(&self) -> Work<T> {
-        let h = [&self.bf, &self.k]
-            .iter()
-            .filter_map(|c| c.neural.as_ref().map(|n| n.mlp.h))
-            .max()
-            .unwrap_or(1);
-        Work {
-            scratch: Scratch::new(h),
-        }
-    }
-
     #[inline]
-    fn coeffs(&self, s: &St<T>, w: &mut Work<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
+    fn coeffs(&self, s: &St<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
         let (bf, k) = match rec {
-            None => (
-                self.bf.eval(&s.v_st_m_s.0, &mut w.scratch, None),
-                self.k.eval(&s.x_pr_m.0, &mut w.scratch, None),
-            ),
+            None => (self.bf.eval(s.v_st_m_s, None), self.k.eval(s.x_pr_m, None)),
             Some((rb, rk)) => (
-                self.bf.eval(&s.v_st_m_s.0, &mut w.scratch, rb.as_mut()),
-                self.k.eval(&s.x_pr_m.0, &mut w.scratch, rk.as_mut()),
+                self.bf.eval(s.v_st_m_s, rb.as_mut()),
+                self.k.eval(s.x_pr_m, rk.as_mut()),
             ),
         };
         Coefficients {
-            b_fl: Lanes(bf),
-            b_pr: Lanes(self.bp),
-            k_pr: Lanes(k),
+            b_fl: bf,
+            b_pr: self.bp,
+            k_pr: k,
         }
     }
 
     /// One RK step from `s` (coefficients `c1`) with inputs `u0` -> `u1`: nemm-core's
     /// [`integrator::step_with`] over the lanes, unfused.
-    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: &V<T>, u1: &V<T>, w: &mut Work<T>) -> St<T> {
+    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: L<T>, u1: L<T>) -> St<T> {
         integrator::step_with::<Unfused, L<T>, _>(
             self.integrator,
-            &mut PackStage { pk: self, w },
+            &mut PackStage { pk: self },
             c1,
             L::splat(self.it),
             s,
-            Lanes(*u0),
-            Lanes(*u1),
+            u0,
+            u1,
             &self.h,
         )
     }
@@ -1080,13 +717,12 @@ impl<'a, T: Real> Pack<'a, T> {
 /// The stage coefficients of a pack's forward step (no record).
 struct PackStage<'p, 'a, T> {
     pk: &'p Pack<'a, T>,
-    w: &'p mut Work<T>,
 }
 
 impl<T: Real> Stage<L<T>> for PackStage<'_, '_, T> {
     #[inline(always)]
     fn coeffs(&mut self, s: &St<T>) -> Cv<T> {
-        self.pk.coeffs(s, self.w, None)
+        self.pk.coeffs(s, None)
     }
 }
 
@@ -1104,7 +740,6 @@ type RecPair<T> = (Option<Act<T>>, Option<Act<T>>);
 /// record their scalers' activations and back-propagate through them.
 struct PackStagesBack<'p, 'a, T> {
     pk: &'p Pack<'a, T>,
-    w: &'p mut Work<T>,
     bar: &'p mut Bar<T>,
     recs: &'p mut [RecPair<T>; 3],
 }
@@ -1113,13 +748,13 @@ impl<T: Real> StageBackward<L<T>> for PackStagesBack<'_, '_, T> {
     #[inline(always)]
     fn coeffs(&mut self, i: usize, s: &St<T>) -> Cv<T> {
         let (rb, rk) = &mut self.recs[i - 2];
-        self.pk.coeffs(s, self.w, Some((rb, rk)))
+        self.pk.coeffs(s, Some((rb, rk)))
     }
 
     #[inline(always)]
     fn backward(&mut self, i: usize, cbar: &Cv<T>, sbar: &mut St<T>) {
         let (rb, rk) = &self.recs[i - 2];
-        self.pk.coef_backward(rb, rk, cbar, sbar, self.bar, self.w);
+        self.pk.coef_backward(rb, rk, cbar, sbar, self.bar);
     }
 }
 
@@ -1134,26 +769,15 @@ impl<T: Real> Pack<'_, T> {
         cbar: &Cv<T>,
         sbar: &mut St<T>,
         bar: &mut Bar<T>,
-        w: &mut Work<T>,
     ) {
-        let xv = self.bf.backward(
-            rb.as_ref(),
-            &cbar.b_fl.0,
-            &self.alpha_n,
-            &mut bar.g.b_fl0,
-            &mut bar.g.b_fl,
-            &mut w.scratch,
-        );
-        let xx = self.k.backward(
-            rk.as_ref(),
-            &cbar.k_pr.0,
-            &self.alpha_n,
-            &mut bar.g.k0,
-            &mut bar.g.k_pr,
-            &mut w.scratch,
-        );
-        sbar.v_st_m_s = sbar.v_st_m_s + Lanes(xv);
-        sbar.x_pr_m = sbar.x_pr_m + Lanes(xx);
+        let xv = self
+            .bf
+            .backward(rb.as_ref(), cbar.b_fl, &mut bar.g.b_fl0, &mut bar.g.b_fl);
+        let xx = self
+            .k
+            .backward(rk.as_ref(), cbar.k_pr, &mut bar.g.k0, &mut bar.g.k_pr);
+        sbar.v_st_m_s = sbar.v_st_m_s + xv;
+        sbar.x_pr_m = sbar.x_pr_m + xx;
         bar.bp = bar.bp + cbar.b_pr;
     }
 }
@@ -1163,27 +787,27 @@ impl<T: Real> Pack<'_, T> {
 /// lies on the model grid; per lane the weight of its squared error (0 for padding).
 struct PackData<T> {
     /// Velocity per model step.
-    u: Vec<V<T>>,
+    u: Vec<L<T>>,
     /// Constant condition level per lane (`alpha_steps` is `None`).
-    alpha0: V<T>,
+    alpha0: L<T>,
     /// Condition level per model step when some lane's level changes within its window.
-    alpha_steps: Option<Vec<V<T>>>,
+    alpha_steps: Option<Vec<L<T>>>,
     /// Measured force per data sample (empty for a forward-only pack).
-    f: Vec<V<T>>,
+    f: Vec<L<T>>,
     /// [`Grid::sample_at`] of every data sample (empty when `identity`).
     at: Vec<(usize, T)>,
     /// Every model step is a data sample ([`Grid::SAME`]).
     identity: bool,
-    lane_w: V<T>,
+    lane_w: L<T>,
     /// With a static force: its features per model step
     /// (`nemm_core::static_force::features` at the step's position, velocity and level).
-    phi: Option<Vec<[V<T>; STATIC_PARAMS]>>,
+    phi: Option<Vec<[L<T>; STATIC_PARAMS]>>,
 }
 
 impl<T: Real> PackData<T> {
     /// The condition level of every lane at model step `j`.
     #[inline]
-    fn alpha(&self, j: usize) -> V<T> {
+    fn alpha(&self, j: usize) -> L<T> {
         match &self.alpha_steps {
             Some(a) if j < a.len() => a[j],
             _ => self.alpha0,
@@ -1192,12 +816,12 @@ impl<T: Real> PackData<T> {
 
     /// The static force of every lane at model step `j` (0 without one).
     #[inline]
-    fn static_at(&self, p: &RolloutParams<T>, j: usize) -> V<T> {
+    fn static_at(&self, p: &RolloutParams<T>, j: usize) -> L<T> {
         match (&self.phi, &p.static_force) {
-            (Some(phi), Some(sp)) => std::array::from_fn(|l| {
-                (0..STATIC_PARAMS).fold(T::zero(), |r, q| r + sp.theta[q] * phi[j][q][l])
-            }),
-            _ => splat(T::zero()),
+            (Some(phi), Some(sp)) => Lanes(std::array::from_fn(|l| {
+                (0..STATIC_PARAMS).fold(T::zero(), |r, q| r + sp.theta[q] * phi[j][q].0[l])
+            })),
+            _ => L::default(),
         }
     }
 
@@ -1222,18 +846,18 @@ fn pack_data<T: Real>(
     stat: Option<&StaticParams<T>>,
 ) -> PackData<T> {
     let n = grid.steps(samples);
-    let mut u = vec![splat(T::zero()); n];
+    let mut u = vec![L::default(); n];
     let mut f = if with_force {
-        vec![splat(T::zero()); samples]
+        vec![L::default(); samples]
     } else {
         Vec::new()
     };
-    let mut lane_w = splat(T::zero());
-    let mut alpha0 = splat(T::zero());
+    let mut lane_w = L::<T>::default();
+    let mut alpha0 = L::<T>::default();
     let varying = windows.iter().any(|w| w.alphas.is_some());
-    let mut alpha_steps = varying.then(|| vec![splat(T::zero()); n]);
+    let mut alpha_steps = varying.then(|| vec![L::default(); n]);
     let identity = *grid == Grid::SAME;
-    let mut phi = stat.map(|_| vec![[splat(T::zero()); STATIC_PARAMS]; n]);
+    let mut phi = stat.map(|_| vec![[L::default(); STATIC_PARAMS]; n]);
     // Per model step, the sample position of its input (shared by the lanes).
     let inputs: Vec<(usize, f64)> = if identity {
         Vec::new()
@@ -1245,34 +869,34 @@ fn pack_data<T: Real>(
             Some(w) => (w, T::one()),
             None => (&windows[0], T::zero()),
         };
-        lane_w[k] = wgt;
-        alpha0[k] = T::c(f64::from(win.alpha));
+        lane_w.0[k] = wgt;
+        alpha0.0[k] = T::c(f64::from(win.alpha));
         let len = win.u.len();
         if identity {
             for (uj, &v) in u.iter_mut().zip(win.u) {
-                uj[k] = T::c(f64::from(v));
+                uj.0[k] = T::c(f64::from(v));
             }
         } else {
             for (j, &(i, _)) in inputs.iter().enumerate() {
                 if i < len {
-                    u[j][k] = T::c(grid.interpolate(win.u, j));
+                    u[j].0[k] = T::c(grid.interpolate(win.u, j));
                 }
             }
         }
         if let Some(a) = alpha_steps.as_mut() {
             for (j, aj) in a.iter_mut().enumerate() {
-                aj[k] = match (win.alphas, identity) {
+                aj.0[k] = match (win.alphas, identity) {
                     (Some(x), true) => T::c(f64::from(x[j.min(x.len().saturating_sub(1))])),
                     (Some(x), false) => T::c(grid.interpolate(x, j)),
-                    (None, _) => alpha0[k],
+                    (None, _) => alpha0.0[k],
                 };
             }
         }
         for (i, fi) in f.iter_mut().enumerate().take(win.f.len()) {
-            fi[k] = T::c(f64::from(win.f[i]));
+            fi.0[k] = T::c(f64::from(win.f[i]));
         }
         if let (Some(phi), Some(sp)) = (phi.as_mut(), stat) {
-            let phi: &mut Vec<[V<T>; STATIC_PARAMS]> = phi;
+            let phi: &mut Vec<[L<T>; STATIC_PARAMS]> = phi;
             for (j, pj) in phi.iter_mut().enumerate() {
                 let x = match win.x {
                     Some(x) if identity => x.get(j).map_or(sp.x_ref, |&v| T::c(f64::from(v))),
@@ -1280,12 +904,12 @@ fn pack_data<T: Real>(
                     None => sp.x_ref,
                 };
                 let a = match &alpha_steps {
-                    Some(a) => a[j][k],
-                    None => alpha0[k],
+                    Some(a) => a[j].0[k],
+                    None => alpha0.0[k],
                 };
-                let f = static_force::features(sp.x_ref, sp.v_c, x, u[j][k], a);
+                let f = static_force::features(sp.x_ref, sp.v_c, x, u[j].0[k], a);
                 for q in 0..STATIC_PARAMS {
-                    pj[q][k] = f[q];
+                    pj[q].0[k] = f[q];
                 }
             }
         }
@@ -1315,29 +939,25 @@ fn pack_data<T: Real>(
 /// 0) and forces per step. A step whose condition level changed re-folds it (a new [`Pack`])
 /// and re-evaluates the coefficients at the step's start state with it, as
 /// `nemm_core::Estimator::set_alpha` does.
-fn forward_sweep<T: Real>(
-    p: &RolloutParams<T>,
-    d: &PackData<T>,
-    w: &mut Work<T>,
-) -> (Vec<St<T>>, Vec<V<T>>) {
+fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>, Vec<L<T>>) {
     let n = d.u.len();
-    let mut pk = Pack::new(p, &d.alpha(0));
+    let mut pk = Pack::new(p, d.alpha(0));
     let mut states = Vec::with_capacity(n + 1);
     let mut ys = Vec::with_capacity(n);
     let mut s = St::default();
-    let mut c = pk.coeffs(&s, w, None);
-    let mut u_prev = splat(T::zero());
+    let mut c = pk.coeffs(&s, None);
+    let mut u_prev = L::default();
     states.push(s);
     for (j, u) in d.u.iter().enumerate() {
         if d.alpha_changes(j) {
-            pk = Pack::new(p, &d.alpha(j));
-            c = pk.coeffs(&s, w, None);
+            pk = Pack::new(p, d.alpha(j));
+            c = pk.coeffs(&s, None);
         }
-        s = pk.step(&s, &c, &u_prev, u, w);
-        c = pk.coeffs(&s, w, None);
+        s = pk.step(&s, &c, u_prev, *u);
+        c = pk.coeffs(&s, None);
         let r = d.static_at(p, j);
-        let y = emm::force_with::<Unfused, L<T>>(&c, &s, Lanes(*u)).0;
-        ys.push(std::array::from_fn(|l| y[l] + r[l]));
+        let y = emm::force_with::<Unfused, L<T>>(&c, &s, *u);
+        ys.push(y + r);
         states.push(s);
         u_prev = *u;
     }
@@ -1345,7 +965,7 @@ fn forward_sweep<T: Real>(
 }
 
 /// The forces of a forward sweep at the data samples (output interpolation of [`Grid`]).
-fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
+fn at_samples<T: Real>(d: &PackData<T>, ys: &[L<T>]) -> Vec<L<T>> {
     if d.identity {
         return ys.to_vec();
     }
@@ -1355,7 +975,7 @@ fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
                 ys[j]
             } else {
                 let (a, b) = (ys[j], ys[j + 1]);
-                std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
+                Lanes(std::array::from_fn(|k| a.0[k] + w * (b.0[k] - a.0[k])))
             }
         })
         .collect()
@@ -1366,11 +986,9 @@ fn at_samples<T: Real>(d: &PackData<T>, ys: &[V<T>]) -> Vec<V<T>> {
 fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T>) {
     let bp_bar = bar.bp.0;
     match &pk.bp_rec {
-        None => bar.g.b_pr0 += sum(&bp_bar),
+        None => bar.g.b_pr0 += L::sum(bar.bp),
         Some(BprRecord {
-            mlp,
-            branch,
-            mlp_alpha,
+            scaler,
             act,
             s_min,
             span,
@@ -1378,15 +996,9 @@ fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T
             for k in 0..LANES {
                 bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * act.sig.0[k]);
             }
-            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp).0;
-            let mut scratch = Scratch::new(mlp.h);
-            let (gm, gb) = bar.g.b_pr.split_at_mut(mlp.w.len());
-            mlp.backward(act, &zbar, mlp_alpha, gm, &mut scratch);
-            if let Some(b) = branch {
-                // No state input: the state adjoint is not used.
-                let mut unused = splat(T::zero());
-                b.backward(&act.bt, mlp_alpha, &pk.alpha_n, &zbar, gb, &mut unused);
-            }
+            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp);
+            // No state input: the input's adjoint is not used.
+            let _ = scaler.backward(act, zbar, &mut bar.g.b_pr);
         }
     }
     bar.bp = L::splat(T::zero());
@@ -1402,36 +1014,31 @@ fn pack_loss_grad<T: Real>(
     ybar_scale: T,
 ) -> (T, RolloutGrads<T>) {
     let n = d.u.len();
-    let mut pk = Pack::new(p, &d.alpha(n.saturating_sub(1)));
-    let mut w = pk.work();
-    let (states, ys) = forward_sweep(p, d, &mut w);
+    let mut pk = Pack::new(p, d.alpha(n.saturating_sub(1)));
+    let (states, ys) = forward_sweep(p, d);
     // The loss at the data samples and its adjoint per model step: formed here on a
     // coarser data grid, inline in the reverse sweep when every step is a sample.
     let mut loss = T::zero();
-    let sample_loss = |y: &V<T>, f: &V<T>, loss: &mut T| -> V<T> {
-        std::array::from_fn(|l| {
-            let e = (y[l] - f[l]) * d.lane_w[l];
+    let sample_loss = |y: &L<T>, f: &L<T>, loss: &mut T| -> L<T> {
+        Lanes(std::array::from_fn(|l| {
+            let e = (y.0[l] - f.0[l]) * d.lane_w.0[l];
             let en = e * inv_fs;
             *loss += en * en;
             ybar_scale * e
-        })
+        }))
     };
-    let on_grid: Option<(Vec<V<T>>, Vec<bool>)> = (!d.identity).then(|| {
-        let mut ybar = vec![splat(T::zero()); n];
+    let on_grid: Option<(Vec<L<T>>, Vec<bool>)> = (!d.identity).then(|| {
+        let mut ybar = vec![L::<T>::default(); n];
         let mut scored = vec![false; n];
         for (k, (y, f)) in at_samples(d, &ys).iter().zip(&d.f).enumerate().skip(warmup) {
             let (j, wgt) = d.at[k];
             let g = sample_loss(y, f, &mut loss);
             if wgt == T::zero() {
-                for l in 0..LANES {
-                    ybar[j][l] += g[l];
-                }
+                ybar[j] = ybar[j] + g;
                 scored[j] = true;
             } else {
-                for l in 0..LANES {
-                    ybar[j][l] += (T::one() - wgt) * g[l];
-                    ybar[j + 1][l] += wgt * g[l];
-                }
+                ybar[j] = ybar[j] + L::splat(T::one() - wgt) * g;
+                ybar[j + 1] = ybar[j + 1] + L::splat(wgt) * g;
                 scored[j] = true;
                 scored[j + 1] = true;
             }
@@ -1456,17 +1063,13 @@ fn pack_loss_grad<T: Real>(
     for i in (0..n).rev() {
         let s_n = states[i + 1];
         let s_p = states[i];
-        let u1 = Lanes(d.u[i]);
-        let u0 = if i == 0 {
-            L::splat(T::zero())
-        } else {
-            Lanes(d.u[i - 1])
-        };
+        let u1 = d.u[i];
+        let u0 = if i == 0 { L::default() } else { d.u[i - 1] };
         // Coefficients at s_n with activations (carried from the previous iteration's stage 1).
         let c_n = if have_rec_n {
             pk.coeffs_from_rec(&rb_n, &rk_n)
         } else {
-            pk.coeffs(&s_n, &mut w, Some((&mut rb_n, &mut rk_n)))
+            pk.coeffs(&s_n, Some((&mut rb_n, &mut rk_n)))
         };
         // Output y_i = F(s_n, u_i).
         let ybar_i = match &on_grid {
@@ -1475,23 +1078,22 @@ fn pack_loss_grad<T: Real>(
         };
         if let (Some(yb), Some(phi)) = (&ybar_i, &d.phi) {
             for (q, gq) in bar.g.static_force.iter_mut().enumerate() {
-                *gq += (0..LANES).fold(T::zero(), |a, l| a + yb[l] * phi[i][q][l]);
+                *gq += (0..LANES).fold(T::zero(), |a, l| a + yb.0[l] * phi[i][q].0[l]);
             }
         }
         if let Some(yb) = ybar_i {
-            emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, Lanes(yb), &mut sbar, &mut cbar_n);
+            emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, yb, &mut sbar, &mut cbar_n);
         }
         // Scalers at s_n: complete dL/ds_n.
-        pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
+        pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
         // Step i: s_p -> s_n, its stages recomputed with activations.
-        let c1 = pk.coeffs(&s_p, &mut w, Some((&mut rb1, &mut rk1)));
+        let c1 = pk.coeffs(&s_p, Some((&mut rb1, &mut rk1)));
         let mut sbar_p = St::<T>::default();
         let mut cbar1 = Cv::<T>::default();
         integrator::step_backward::<Unfused, L<T>, _>(
             pk.integrator,
             &mut PackStagesBack {
                 pk: &pk,
-                w: &mut w,
                 bar: &mut bar,
                 recs: &mut recs,
             },
@@ -1516,17 +1118,17 @@ fn pack_loss_grad<T: Real>(
             // Step i ran at its own level: its stage-1 coefficients at s_p go back through
             // that level's scalers, and so does b_pr's adjoint so far; step i - 1 (and the
             // output at s_p) ran at the previous level.
-            pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar, &mut w);
+            pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
             cbar_n = Cv::<T>::default();
             bpr_backward(p, &pk, &mut bar);
-            pk = Pack::new(p, &d.alpha(i - 1));
+            pk = Pack::new(p, d.alpha(i - 1));
             have_rec_n = false;
         }
     }
     // s_{-1} is the fixed rest state: its adjoint is dropped, but the coefficients there
     // depend on the weights.
     let mut sdummy = St::default();
-    pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar, &mut w);
+    pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar);
     // b_pr: constant over the window (or since its last change).
     bpr_backward(p, &pk, &mut bar);
     // T_pr from 1/T_pr.
@@ -1537,18 +1139,18 @@ fn pack_loss_grad<T: Real>(
 impl<T: Real> Pack<'_, T> {
     /// Coefficient values from recorded activations (no recomputation).
     fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>) -> Cv<T> {
-        let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> V<T> {
+        let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> L<T> {
             match (&c.neural, r) {
                 (Some(n), Some(r)) => {
-                    Unfused::mul_add(L::splat(c.c0 * n.span), r.sig, L::splat(c.c0 * n.s_min)).0
+                    Unfused::mul_add(L::splat(c.c0 * n.span), r.sig, L::splat(c.c0 * n.s_min))
                 }
-                _ => splat(c.c0),
+                _ => L::splat(c.c0),
             }
         };
         Coefficients {
-            b_fl: Lanes(val(&self.bf, rb)),
-            b_pr: Lanes(self.bp),
-            k_pr: Lanes(val(&self.k, rk)),
+            b_fl: val(&self.bf, rb),
+            b_pr: self.bp,
+            k_pr: val(&self.k, rk),
         }
     }
 }
@@ -1606,16 +1208,14 @@ fn sweep_windows<T: Real, R: Send>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
     grid: &Grid,
-    out: impl Fn(&PackData<T>, &[St<T>], &[V<T>], usize, usize) -> R + Sync,
+    out: impl Fn(&PackData<T>, &[St<T>], &[L<T>], usize, usize) -> R + Sync,
 ) -> Vec<R> {
     let refs: Vec<&Window<'_>> = windows.iter().collect();
     refs.par_chunks(LANES)
         .flat_map_iter(|chunk| {
             let samples = chunk.iter().map(|w| w.u.len()).max().unwrap_or(0);
             let d = pack_data::<T>(chunk, grid, samples, false, p.static_force.as_ref());
-            let pk = Pack::new(p, &d.alpha(0));
-            let mut work = pk.work();
-            let (states, ys) = forward_sweep(p, &d, &mut work);
+            let (states, ys) = forward_sweep(p, &d);
             chunk
                 .iter()
                 .enumerate()
@@ -1636,7 +1236,7 @@ pub fn simulate<T: Real>(
         at_samples(d, ys)
             .iter()
             .take(len)
-            .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
+            .map(|y| y.0[k].to_f64().unwrap_or(f64::NAN))
             .collect()
     })
 }
@@ -1649,11 +1249,11 @@ pub fn simulate_x_pr<T: Real>(
     grid: &Grid,
 ) -> Vec<Vec<f64>> {
     sweep_windows(p, windows, grid, |d, states, _, k, len| {
-        let x: Vec<V<T>> = states.iter().skip(1).map(|s| s.x_pr_m.0).collect();
+        let x: Vec<L<T>> = states.iter().skip(1).map(|s| s.x_pr_m).collect();
         at_samples(d, &x)
             .iter()
             .take(len)
-            .map(|y| y[k].to_f64().unwrap_or(f64::NAN))
+            .map(|y| y.0[k].to_f64().unwrap_or(f64::NAN))
             .collect()
     })
 }

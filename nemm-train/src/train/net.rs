@@ -102,80 +102,90 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 impl ScalerNet {
     /// Builds from flat nemm-core weights.
     pub fn from_flat(s: &ScalerWeights<f32>, device: &Device) -> Self {
-        let (h, d) = (s.hidden, s.inputs);
-        let mut off = 0;
-        let mut blocks = Vec::with_capacity(s.layers);
-        for l in 0..s.layers {
-            let fan_in = if l == 0 { d } else { h };
-            let w = &s.w[off..off + fan_in * h];
-            off += fan_in * h;
-            let b = &s.w[off..off + h];
-            off += h;
-            let g = &s.w[off..off + h];
-            off += h;
-            let be = &s.w[off..off + h];
-            off += h;
-            let mut norm: LayerNorm = LayerNormConfig::new(h).init(device);
-            norm.gamma = Param::from_tensor(tensor1(g, device));
-            norm.beta = Some(Param::from_tensor(tensor1(be, device)));
-            blocks.push(Block {
-                linear: Linear {
-                    weight: Param::from_tensor(weight_tensor(w, h, fan_in, device)),
-                    bias: Some(Param::from_tensor(tensor1(b, device))),
-                },
-                norm,
-                act: LeakyRelu {
-                    negative_slope: LEAKY_RELU_SLOPE as f64,
-                },
-            });
-        }
-        let wo = &s.w[off..off + h];
-        let bo = &s.w[off + h..off + h + 1];
-        let branch = s.branch.map(|b| {
-            let (k, st) = (b.units, b.state_inputs);
-            let bw = s.branch_w();
-            let p = |from: usize| Param::from_tensor(tensor1(&bw[from..from + k], device));
+        let layout = s.layout();
+        assert_eq!(layout.len(), s.w.len(), "scaler weight count");
+        let h = s.hidden;
+        let blocks = (0..s.layers)
+            .map(|l| {
+                let r = layout.layer(l).expect("layer of the layout");
+                let mut norm: LayerNorm = LayerNormConfig::new(h).init(device);
+                norm.gamma = Param::from_tensor(tensor1(&s.w[r.gamma], device));
+                norm.beta = Some(Param::from_tensor(tensor1(&s.w[r.beta], device)));
+                Block {
+                    linear: Linear {
+                        weight: Param::from_tensor(weight_tensor(&s.w[r.w], h, r.fan_in, device)),
+                        bias: Some(Param::from_tensor(tensor1(&s.w[r.b], device))),
+                    },
+                    norm,
+                    act: LeakyRelu {
+                        negative_slope: LEAKY_RELU_SLOPE as f64,
+                    },
+                }
+            })
+            .collect();
+        let (wo, bo) = layout.output().expect("an MLP with layers");
+        let branch = layout.branch_ranges().map(|r| {
+            let p = |range| Param::from_tensor(tensor1(&s.w[range], device));
             BranchNet {
-                r: (st == 1).then(|| p(0)),
-                theta_u: p(k * st),
-                c: p(k * st + k),
-                theta_v: p(k * st + 2 * k),
+                r: (!r.r.is_empty()).then(|| p(r.r.clone())),
+                theta_u: p(r.theta_u),
+                c: p(r.c),
+                theta_v: p(r.theta_v),
             }
         });
         Self {
             blocks,
             out: Linear {
-                weight: Param::from_tensor(weight_tensor(wo, 1, h, device)),
-                bias: Some(Param::from_tensor(tensor1(bo, device))),
+                weight: Param::from_tensor(weight_tensor(&s.w[wo], 1, h, device)),
+                bias: Some(Param::from_tensor(tensor1(&s.w[bo..bo + 1], device))),
             },
             branch,
         }
     }
 
+    /// nemm-core's layout of this scaler's flat weights ([`Self::to_flat`]).
+    pub fn layout(&self) -> nemm_core::mlp::ScalerLayout {
+        let [inputs, hidden] = self
+            .blocks
+            .first()
+            .map_or([0, 0], |b| b.linear.weight.val().dims());
+        let branch = self.branch.as_ref().map(|b| nemm_core::mlp::BranchLayout {
+            state_inputs: usize::from(b.r.is_some()),
+            units: b.theta_u.val().dims()[0],
+        });
+        nemm_core::mlp::ScalerLayout::mlp(inputs, hidden, self.blocks.len()).with_branch(branch)
+    }
+
     /// Flat nemm-core weights.
     pub fn to_flat(&self) -> Vec<f32> {
-        let mut v = Vec::new();
-        for b in &self.blocks {
-            v.extend(to_vec(b.linear.weight.val().transpose()));
+        let layout = self.layout();
+        let mut v = vec![0.0f32; layout.len()];
+        let mut put = |range: std::ops::Range<usize>, vals: Vec<f32>| {
+            v[range].copy_from_slice(&vals);
+        };
+        for (l, b) in self.blocks.iter().enumerate() {
+            let r = layout.layer(l).expect("layer of the layout");
+            put(r.w, to_vec(b.linear.weight.val().transpose()));
             if let Some(bias) = &b.linear.bias {
-                v.extend(to_vec(bias.val()));
+                put(r.b, to_vec(bias.val()));
             }
-            v.extend(to_vec(b.norm.gamma.val()));
+            put(r.gamma, to_vec(b.norm.gamma.val()));
             if let Some(beta) = &b.norm.beta {
-                v.extend(to_vec(beta.val()));
+                put(r.beta, to_vec(beta.val()));
             }
         }
-        v.extend(to_vec(self.out.weight.val().transpose()));
+        let (wo, bo) = layout.output().expect("an MLP with layers");
+        put(wo, to_vec(self.out.weight.val().transpose()));
         if let Some(bias) = &self.out.bias {
-            v.extend(to_vec(bias.val()));
+            put(bo..bo + 1, to_vec(bias.val()));
         }
-        if let Some(b) = &self.branch {
-            if let Some(r) = &b.r {
-                v.extend(to_vec(r.val()));
+        if let (Some(b), Some(r)) = (&self.branch, layout.branch_ranges()) {
+            if let Some(p) = &b.r {
+                put(r.r, to_vec(p.val()));
             }
-            for p in [&b.theta_u, &b.c, &b.theta_v] {
-                v.extend(to_vec(p.val()));
-            }
+            put(r.theta_u, to_vec(b.theta_u.val()));
+            put(r.c, to_vec(b.c.val()));
+            put(r.theta_v, to_vec(b.theta_v.val()));
         }
         v
     }
@@ -238,11 +248,12 @@ impl ScalerNet {
         total
     }
 
-    /// Adds a flat gradient (nemm-core layout) to the parameters' entries in `gp`.
+    /// Adds a flat gradient (nemm-core layout, [`Self::layout`]) to the parameters' entries
+    /// in `gp`.
     pub fn add_flat_grads(&self, g: &[f32], gp: &mut GradientsParams, device: &Device) {
         let dev = plain(device);
-        let h = self.out.weight.val().dims()[0];
-        let mut off = 0;
+        let layout = self.layout();
+        let h = layout.hidden;
         let add1 = |gp: &mut GradientsParams, p: &Param<Tensor<1>>, v: &[f32]| {
             let t = tensor1(v, &dev);
             let t = match gp.remove::<1>(p.id) {
@@ -260,32 +271,29 @@ impl ScalerNet {
                 };
                 gp.register(p.id, t);
             };
-        for b in &self.blocks {
-            let fan_in = b.linear.weight.val().dims()[0];
-            add2(gp, &b.linear.weight, &g[off..off + fan_in * h], h, fan_in);
-            off += fan_in * h;
+        for (l, b) in self.blocks.iter().enumerate() {
+            let r = layout.layer(l).expect("layer of the layout");
+            add2(gp, &b.linear.weight, &g[r.w], h, r.fan_in);
             if let Some(bias) = &b.linear.bias {
-                add1(gp, bias, &g[off..off + h]);
+                add1(gp, bias, &g[r.b]);
             }
-            off += h;
-            add1(gp, &b.norm.gamma, &g[off..off + h]);
-            off += h;
+            add1(gp, &b.norm.gamma, &g[r.gamma]);
             if let Some(beta) = &b.norm.beta {
-                add1(gp, beta, &g[off..off + h]);
+                add1(gp, beta, &g[r.beta]);
             }
-            off += h;
         }
-        add2(gp, &self.out.weight, &g[off..off + h], 1, h);
+        let (wo, bo) = layout.output().expect("an MLP with layers");
+        add2(gp, &self.out.weight, &g[wo], 1, h);
         if let Some(bias) = &self.out.bias {
-            add1(gp, bias, &g[off + h..off + h + 1]);
+            add1(gp, bias, &g[bo..bo + 1]);
         }
-        off += h + 1;
-        if let Some(b) = &self.branch {
-            let k = b.theta_u.val().dims()[0];
-            for p in b.r.iter().chain([&b.theta_u, &b.c, &b.theta_v]) {
-                add1(gp, p, &g[off..off + k]);
-                off += k;
+        if let (Some(b), Some(r)) = (&self.branch, layout.branch_ranges()) {
+            if let Some(p) = &b.r {
+                add1(gp, p, &g[r.r]);
             }
+            add1(gp, &b.theta_u, &g[r.theta_u]);
+            add1(gp, &b.c, &g[r.c]);
+            add1(gp, &b.theta_v, &g[r.theta_v]);
         }
     }
 }
@@ -582,6 +590,59 @@ mod tests {
         for (i, x) in xs.iter().enumerate() {
             let r = core.scale(x).expect("scale");
             assert!((s[i] - r).abs() < 1e-5, "{} vs {}", s[i], r);
+        }
+    }
+
+    /// With alpha branches: the flat round trip keeps the branch weights (nemm-core's
+    /// layout) and burn's forward equals nemm-core's reference (`ScalerView::raw` through
+    /// `Model::b_fl`, `Model::b_pr`) for a scaler with a state input and one of alpha alone.
+    #[test]
+    fn branched_scalers_round_trip_and_match_core() {
+        use crate::train::pipeline::with_branch;
+        use nemm_core::mlp::Direction;
+        let device = Device::flex();
+        let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
+        let mut p: RolloutParams<f32> = from_core(&m).expect("emm");
+        p.b_fl = p
+            .b_fl
+            .take()
+            .map(|s| with_branch(s, Direction::Decreasing, 1, 4, 7));
+        p.b_pr = p
+            .b_pr
+            .take()
+            .map(|s| with_branch(s, Direction::Decreasing, 0, 3, 8));
+        let (net, frame) = EmmNet::from_rollout(&p, None, &device);
+        let q = net.to_rollout(&frame);
+        assert_eq!(q.b_fl.as_ref().map(|s| &s.w), p.b_fl.as_ref().map(|s| &s.w));
+        assert_eq!(q.b_pr.as_ref().map(|s| &s.w), p.b_pr.as_ref().map(|s| &s.w));
+        let core = crate::train::params::to_core(&p, m.meta).expect("valid model");
+        let (vs, al) = (p.v_scale, p.alpha_scale);
+        let pts = [(0.3f32, 0.1f32), (-0.9, 0.0), (1.1, 0.9), (0.05, 0.45)];
+        let col = |v: Vec<f32>, d: usize| {
+            let n = v.len() / d;
+            Tensor::<2>::from_data(TensorData::new(v, [n, d]), &device)
+        };
+        let (nb, sb) = (net.b_fl.as_ref().expect("b_fl"), frame.b_fl.expect("spec"));
+        let x = col(pts.iter().flat_map(|&(v, a)| [v / vs, a / al]).collect(), 2);
+        let s = to_vec(nb.forward_scale(x, &sb));
+        for (i, &(v, a)) in pts.iter().enumerate() {
+            let want = core.b_fl(v, a).expect("b_fl") / p.b_fl0;
+            assert!(
+                (s[i] - want).abs() < 1e-5 * want.abs().max(1.0),
+                "b_fl {i}: {} vs {want}",
+                s[i]
+            );
+        }
+        let (nb, sb) = (net.b_pr.as_ref().expect("b_pr"), frame.b_pr.expect("spec"));
+        let x = col(pts.iter().map(|&(_, a)| a / al).collect(), 1);
+        let s = to_vec(nb.forward_scale(x, &sb));
+        for (i, &(_, a)) in pts.iter().enumerate() {
+            let want = core.b_pr(a).expect("b_pr") / p.b_pr0;
+            assert!(
+                (s[i] - want).abs() < 1e-5 * want.abs().max(1.0),
+                "b_pr {i}: {} vs {want}",
+                s[i]
+            );
         }
     }
 }

@@ -29,7 +29,7 @@ use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::mlp::{branch_param_count, param_count, Direction};
+use nemm_core::mlp::{BranchLayout, Direction, ScalerLayout};
 use nemm_core::model::{Extension, STABILITY_MARGIN};
 use nemm_core::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
 use nemm_core::static_force::STATIC_PARAMS;
@@ -242,21 +242,24 @@ pub fn init_scaler(
 ) -> ScalerWeights<f32> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let mut uniform = move || rng.random_range(-1.0f32..1.0);
-    let mut w = Vec::with_capacity(param_count(inputs, hidden, layers));
+    let layout = ScalerLayout::mlp(inputs, hidden, layers);
+    let mut w = vec![0.0f32; layout.mlp_len()];
     for l in 0..layers {
-        let fan_in = if l == 0 { inputs } else { hidden };
-        let k = 1.0 / (fan_in as f32).sqrt();
-        for _ in 0..fan_in * hidden + hidden {
-            w.push(k * uniform());
+        let r = layout.layer(l).expect("layer of the layout");
+        let k = 1.0 / (r.fan_in as f32).sqrt();
+        // Weights then biases, in one stream of draws.
+        for v in w[r.w.start..r.b.end].iter_mut() {
+            *v = k * uniform();
         }
-        w.extend(std::iter::repeat_n(1.0, hidden));
-        w.extend(std::iter::repeat_n(0.0, hidden));
+        w[r.gamma].fill(1.0);
+        w[r.beta].fill(0.0);
     }
+    let (w_o, b_o) = layout.output().expect("an MLP with layers");
     let k = 0.05 / (hidden as f32).sqrt();
-    for _ in 0..hidden {
-        w.push(k * uniform());
+    for v in w[w_o].iter_mut() {
+        *v = k * uniform();
     }
-    w.push(Scaler::<1>::identity_logit(bounds.0, bounds.1));
+    w[b_o] = Scaler::<1>::identity_logit(bounds.0, bounds.1);
     ScalerWeights {
         inputs,
         hidden,
@@ -282,27 +285,37 @@ pub fn with_branch(
     units: usize,
     seed: u64,
 ) -> ScalerWeights<f32> {
-    let d = s.inputs;
+    let layout = s.layout();
     for i in 0..s.hidden {
-        s.w[i * d + d - 1] = 0.0;
+        let alpha_col = layout
+            .first_layer_weight(i, s.inputs - 1)
+            .expect("first-layer weight");
+        s.w[alpha_col] = 0.0;
     }
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let mut uniform = move |a: f32, b: f32| rng.random_range(a..b);
-    let mut bw = Vec::with_capacity(branch_param_count(state_inputs, units));
-    for _ in 0..units * state_inputs {
-        bw.push(uniform(-1.0, 1.0));
+    let branch = BranchLayout {
+        state_inputs,
+        units,
+    };
+    let ranges = branch.ranges().expect("branch layout");
+    let mut bw = vec![0.0f32; branch.len()];
+    for v in bw[ranges.r].iter_mut() {
+        *v = uniform(-1.0, 1.0);
     }
-    let theta_u: Vec<f32> = (0..units).map(|_| uniform(0.2, 0.6)).collect();
-    let c: Vec<f32> = (0..units).map(|_| uniform(-1.0, 1.0)).collect();
-    bw.extend(&theta_u);
-    bw.extend(&c);
-    bw.extend(std::iter::repeat_n(0.3f32, units));
-    let at_origin: f32 = c
+    for v in bw[ranges.theta_u].iter_mut() {
+        *v = uniform(0.2, 0.6);
+    }
+    for v in bw[ranges.c.clone()].iter_mut() {
+        *v = uniform(-1.0, 1.0);
+    }
+    bw[ranges.theta_v].fill(0.3);
+    let at_origin: f32 = bw[ranges.c]
         .iter()
         .map(|&ci| 0.09 * nemm_core::mlp::leaky_relu(ci))
         .sum();
-    let mlp_len = s.mlp_len();
-    s.w[mlp_len - 1] -= at_origin;
+    let (_, b_o) = layout.output().expect("an MLP with layers");
+    s.w[b_o] -= at_origin;
     s.w.extend(bw);
     s.branch = Some(BranchShape {
         direction,
