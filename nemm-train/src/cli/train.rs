@@ -155,8 +155,9 @@ pub fn export_model(
     Ok((blob.len(), written))
 }
 
-/// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run, then
-/// the whole-run error per level and run) into `dir`; with the report's identification,
+/// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run, the
+/// learned against the virtual bench's reference coefficients when the data are the bench's,
+/// then the whole-run error per level and run) into `dir`; with the report's identification,
 /// also `identify.md`, which `table4.md` links to.
 pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -168,6 +169,9 @@ pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()>
     let runs = test_runs_markdown(report);
     if !runs.is_empty() {
         table = format!("{table}\n{runs}");
+    }
+    if let Some(c) = &report.bench_reference {
+        table = format!("{table}\n{}\n", c.markdown().trim_end());
     }
     if let Some(id) = &report.identify {
         table = format!(
