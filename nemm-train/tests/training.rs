@@ -399,8 +399,10 @@ fn alpha_branch_keeps_the_trained_model_clean_in_alpha_without_a_penalty() {
 fn other_damper() -> nemm_train::data::dataset::Dataset {
     use nemm_train::bench::config::BenchConfig;
     use nemm_train::bench::VirtualBench;
-    let mut cfg = BenchConfig::default();
-    cfg.name = "another damper".into();
+    let mut cfg = BenchConfig {
+        name: "another damper".into(),
+        ..BenchConfig::default()
+    };
     cfg.geometry.piston_diameter_m = 0.036;
     cfg.geometry.rod_diameter_m = 0.022;
     cfg.gas.charge_pressure_pa = 6.0e5;
