@@ -333,6 +333,22 @@ impl<const P: usize> MlpParams<P> {
         )
     }
 
+    /// Sets the first layer's weights of the last input (the alpha column of a scaler) to
+    /// zero, so that the MLP does not see `alpha` (an alpha branch then carries the whole
+    /// alpha dependence). Weights outside the parameter vector are left alone.
+    pub fn clear_alpha_column(&mut self) {
+        let layout = self.layout();
+        let last = layout.inputs.saturating_sub(1);
+        for i in 0..layout.hidden {
+            if let Some(w) = layout
+                .first_layer_weight(i, last)
+                .and_then(|k| self.params.get_mut(k))
+            {
+                *w = 0.0;
+            }
+        }
+    }
+
     /// Hidden layer `l` (0-based), or `None` if out of range or the shape is inconsistent.
     pub fn layer(&self, l: usize) -> Option<LayerView<'_>> {
         let r = self.layout().layer(l)?;

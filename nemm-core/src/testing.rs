@@ -178,18 +178,7 @@ pub fn example_model_with_branches<const P: usize>(
             if dir == Direction::None {
                 continue;
             }
-            let d = scaler.mlp.inputs as usize;
-            for (i, w) in scaler
-                .mlp
-                .params
-                .iter_mut()
-                .take(d * scaler.mlp.hidden as usize)
-                .enumerate()
-            {
-                if i % d == d - 1 {
-                    *w = 0.0;
-                }
-            }
+            scaler.mlp.clear_alpha_column();
             *slot = Some(example_branch(dir, state, units, seed)?);
         }
     }

@@ -296,18 +296,7 @@ mod tests {
         } = &mut constant.body
         {
             for s in [b_fl, b_pr, k_pr] {
-                let d = s.mlp.inputs as usize;
-                for (i, w) in s
-                    .mlp
-                    .params
-                    .iter_mut()
-                    .take(d * s.mlp.hidden as usize)
-                    .enumerate()
-                {
-                    if i % d == d - 1 {
-                        *w = 0.0;
-                    }
-                }
+                s.mlp.clear_alpha_column();
             }
         }
         let measured = force_at(&model(ModelKind::Nemm), &v, &x, 0.1);
