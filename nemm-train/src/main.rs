@@ -94,7 +94,8 @@ enum Cmd {
         /// Training options (the base of every job).
         #[command(flatten)]
         args: nemm_train::config::ConfigArgs,
-        /// Grid: lambda (Table 5) or table3 (Table 3 search space x lambda list).
+        /// Grid: lambda (Table 5), priors (Table 5 by construction and by the penalty
+        /// alone) or table3 (Table 3 search space x lambda list).
         #[arg(long, value_enum, default_value_t = nemm_train::cli::train::SweepGrid::Lambda)]
         grid: nemm_train::cli::train::SweepGrid,
         /// Report folder (jobs in REPORT/jobs/ID/).

@@ -472,8 +472,33 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         String::from_utf8_lossy(&run.stderr)
     );
     let table5 = std::fs::read_to_string(sweep.join("table5.md")).expect("table5.md");
-    for job in ["| lph0 | 0 |", "| lph5 | 5 |"] {
+    for job in ["| lph0 | construction | 0 |", "| lph5 | construction | 5 |"] {
         assert!(table5.contains(job), "{job} missing:\n{table5}");
+    }
+    assert!(
+        table5.starts_with("Sweep of the NEMM trained at commit `")
+            && table5.contains("Rel. test error: the job's test RMSE against `lph0`'s."),
+        "{table5}"
+    );
+    // The priors grid: the lambda list once by construction and once by the penalty alone.
+    let list = sweep_cmd(&["--grid", "priors", "--list"]);
+    assert!(list.status.success());
+    let list = String::from_utf8_lossy(&list.stdout).into_owned();
+    let commands: Vec<&str> = list.lines().filter(|l| l.contains(" train ")).collect();
+    assert_eq!(commands.len(), 4, "{list}");
+    for id in [
+        "construction_lph0",
+        "construction_lph5",
+        "penalty_lph0",
+        "penalty_lph5",
+    ] {
+        let config = sweep.join("jobs").join(id).join("config.toml");
+        let text = std::fs::read_to_string(&config).expect("the job's config.toml");
+        let priors = id.split('_').next().expect("prefix");
+        assert!(
+            text.contains(&format!("alpha_priors = \"{priors}\"")),
+            "{id}: {text}"
+        );
     }
     let sweep_json: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(sweep.join("sweep.json")).expect("sweep.json"),

@@ -11,7 +11,7 @@ use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Repor
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
 use crate::train::pipeline::{
-    train_each, train_variants, Trained, TrainedVariant, Variant, VariantInfo,
+    train_each, train_variants, AlphaPriors, Trained, TrainedVariant, Variant, VariantInfo,
 };
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
@@ -535,6 +535,10 @@ pub enum SweepGrid {
     /// The Table 3 search space (batch {4, 8, 16} x hidden {8, 16, 32} x layers {3, 5, 7, 9}
     /// x lr {5e-3, 1e-2, 1e-3}: 108 jobs) times the `--lambda-ph` list.
     Table3,
+    /// The `--lambda-ph` list twice: with the priors in alpha held by construction (the alpha
+    /// branches) and imposed by the physics penalty alone (the paper's way), other
+    /// hyperparameters as given (Table 5 with the construction-against-penalty ablation).
+    Priors,
 }
 
 /// One sweep job: its id and its whole configuration (the base with the job's overrides).
@@ -542,8 +546,9 @@ pub enum SweepGrid {
 pub struct SweepJob {
     /// Folder name under `<report>/jobs/`.
     pub id: String,
-    /// The overridden settings (`lambda_ph`, and for the Table 3 grid `batch`, `hidden`,
-    /// `layers`, `lr`) with their values, for `sweep.json`.
+    /// The overridden settings (`lambda_ph`; for the Table 3 grid `batch`, `hidden`,
+    /// `layers`, `lr`; for the priors grid `alpha_priors`) with their values, for
+    /// `sweep.json`.
     pub overrides: Vec<(String, String)>,
     /// The job's configuration.
     pub config: Config,
@@ -555,7 +560,7 @@ pub fn sweep_jobs(base: &Config, grid: SweepGrid, lambdas: &[f64]) -> Vec<SweepJ
     /// Batch, hidden width, layers, learning rate (`None`: the base configuration's).
     type Combo = Option<(usize, usize, usize, f64)>;
     let combos: Vec<Combo> = match grid {
-        SweepGrid::Lambda => vec![None],
+        SweepGrid::Lambda | SweepGrid::Priors => vec![None],
         SweepGrid::Table3 => {
             let mut v = Vec::new();
             for b in [4, 8, 16] {
@@ -570,13 +575,25 @@ pub fn sweep_jobs(base: &Config, grid: SweepGrid, lambdas: &[f64]) -> Vec<SweepJ
             v
         }
     };
+    let priors: Vec<Option<AlphaPriors>> = match grid {
+        SweepGrid::Priors => vec![Some(AlphaPriors::Construction), Some(AlphaPriors::Penalty)],
+        SweepGrid::Lambda | SweepGrid::Table3 => vec![None],
+    };
     let mut jobs = Vec::new();
     for combo in combos {
-        for &lam in lambdas {
+        for (&prior, &lam) in priors
+            .iter()
+            .flat_map(|p| lambdas.iter().map(move |l| (p, l)))
+        {
             let mut config = base.clone();
             config.model.variant = nemm_core::ModelKind::Nemm;
             let mut id = String::new();
             let mut o: Vec<(String, String)> = Vec::new();
+            if let Some(p) = prior {
+                id.push_str(&format!("{}_", p.name()));
+                config.model.alpha_priors = p;
+                o.push(("alpha_priors".into(), p.name().into()));
+            }
             if let Some((b, h, l, lr)) = combo {
                 id.push_str(&format!("b{b}_h{h}_l{l}_lr{lr}_"));
                 (config.train.batch, config.model.hidden) = (b, h);
@@ -633,6 +650,7 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
         test_n: f64,
         violations: usize,
         seconds: f64,
+        info: std::collections::BTreeMap<String, String>,
     }
     let mut rows: Vec<Row> = Vec::new();
     for j in jobs {
@@ -649,6 +667,7 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
                         test_n: v.rmse_n,
                         violations: v.violations,
                         seconds: v.train_seconds,
+                        info: r.info.clone(),
                     });
                 }
             }
@@ -662,19 +681,29 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
     let base = rows
         .iter()
         .find(|r| r.job.config.train.lambda_ph == 0.0)
-        .or(rows.first())
-        .map(|r| r.test);
+        .or(rows.first());
     let mut md = String::new();
-    let _ = writeln!(md, "| Job | lambda_ph | Validation RMSE | Test RMSE | Test RMSE [N] | Rel. test error (%) | Violations | Time |");
-    let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|---:|---:|");
+    if let Some(r) = rows.first() {
+        md += &sweep_provenance(&r.job.config, &r.info);
+    }
+    if let Some(b) = base {
+        let _ = writeln!(
+            md,
+            "Rel. test error: the job's test RMSE against `{}`'s.\n",
+            b.job.id
+        );
+    }
+    let _ = writeln!(md, "| Job | Alpha priors | lambda_ph | Validation RMSE | Test RMSE | Test RMSE [N] | Rel. test error (%) | Violations | Time |");
+    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for r in &rows {
         let (j, val, test, test_n, viol, secs) =
             (&r.job, r.val, r.test, r.test_n, r.violations, r.seconds);
         let lam = j.config.train.lambda_ph;
-        let rel = base.map_or("-".into(), |b| format!("{:.1}", 100.0 * test / b));
+        let priors = j.config.model.alpha_priors.name();
+        let rel = base.map_or("-".into(), |b| format!("{:.1}", 100.0 * test / b.test));
         let _ = writeln!(
             md,
-            "| {} | {lam} | {val:.4} | {test:.4} | {test_n:.1} | {rel} | {viol} | {secs:.0} s |",
+            "| {} | {priors} | {lam} | {val:.4} | {test:.4} | {test_n:.1} | {rel} | {viol} | {secs:.0} s |",
             j.id
         );
     }
@@ -701,6 +730,27 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
     )?;
     write_atomic_bytes(&report.join("table5.md"), md.as_bytes())?;
     Ok(md)
+}
+
+/// The sweep table's first lines: the commit the jobs were trained at (from the first job's
+/// report) and the budget they share.
+fn sweep_provenance(config: &Config, info: &std::collections::BTreeMap<String, String>) -> String {
+    let t = &config.train;
+    let batches = t.max_batches.map_or("every batch".to_string(), |b| {
+        format!("at most {b} batches")
+    });
+    format!(
+        "Sweep of the NEMM trained at commit `{}` on `{}`: {} epochs ({batches} each, patience \
+         {}), {} Linear EMM epochs, seed {}, batch {}, lr {}.\n\n",
+        info.get("commit").map_or("unrecorded", String::as_str),
+        config.data.dir.display(),
+        t.epochs,
+        t.patience,
+        t.linear_epochs,
+        t.seed,
+        t.batch,
+        t.lr,
+    )
 }
 
 /// `nemm sweep`: every configuration is an independent `nemm train --config
