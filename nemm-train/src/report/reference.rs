@@ -131,7 +131,10 @@ impl ReferenceComparison {
              change from alpha = {} to {}:\n\n\
              | learned | reference | learned change | reference change | ratio |\n\
              |---|---|---:|---:|---:|\n",
-            self.run, self.alpha_from, self.alpha_to
+            self.run,
+            // Levels come from the blob's f32 (0.3 would print as 0.30000001192092896).
+            self.alpha_from as f32,
+            self.alpha_to as f32
         );
         for r in &self.rows {
             let _ = writeln!(
@@ -145,5 +148,25 @@ impl ReferenceComparison {
             );
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ReferenceComparison;
+
+    #[test]
+    fn the_table_prints_levels_as_the_blob_stores_them() {
+        let c = ReferenceComparison {
+            alpha_from: 0.0,
+            alpha_to: f64::from(0.3f32),
+            run: "10 mm, 1.048 m/s".into(),
+            rows: Vec::new(),
+        };
+        assert!(
+            c.markdown().contains("change from alpha = 0 to 0.3:"),
+            "{}",
+            c.markdown()
+        );
     }
 }
