@@ -147,6 +147,8 @@ pub fn flow_velocity_with<M: MulAdd, L: Lane>(c: &Coefficients<L>, x_pr: L, u: L
 /// Reverse mode of [`flow_velocity_with`]: given `qbar = dL/dq` and the value `q`, adds
 /// `dL/d(coefficients)` to `cbar` and returns `dL/dx_pr`.
 #[inline(always)]
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub fn flow_velocity_backward<L: Lane>(
     c: &Coefficients<L>,
     x_pr: L,
@@ -191,6 +193,8 @@ pub fn rhs_with<M: MulAdd, L: Lane>(
 /// `dL/d(coefficients)` to `cbar` and `dL/d(inv_t_pr)` to `itbar`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // the inputs of `rhs_with` and their three adjoints
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub fn rhs_backward<M: MulAdd, L: Lane>(
     c: &Coefficients<L>,
     inv_t_pr: L,
@@ -224,6 +228,8 @@ pub fn force_with<M: MulAdd, L: Lane>(c: &Coefficients<L>, s: &State<L>, u: L) -
 /// Reverse mode of [`force_with`]: given `fbar = dL/dF`, adds `dL/ds` to `sbar` and
 /// `dL/d(coefficients)` to `cbar`; returns `F`.
 #[inline(always)]
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub fn force_backward<M: MulAdd, L: Lane>(
     c: &Coefficients<L>,
     s: &State<L>,

@@ -24,8 +24,8 @@
 //! ```
 //!
 //! [`step_with`] is written once over any [`Lane`] (the estimator's `f32`, the trainer's
-//! packed [`crate::math::Lanes`]) and multiply-add [`MulAdd`]; [`step_backward`], its reverse
-//! mode for the trainer, follows it stage by stage.
+//! packed `Lanes`) and multiply-add [`MulAdd`]; `step_backward` (feature `reverse`), its
+//! reverse mode for the trainer, follows it stage by stage.
 //!
 //! The coefficients (`b_fl`, `b_pr`, `k_pr`) of stage 1 are those of the previous step's
 //! output evaluation at the same state, so they are passed in and never recomputed.
@@ -141,7 +141,7 @@ pub fn step<C: FnMut(&State) -> Coefficients>(
 /// [`step`] with the multiply-add `M` (the module's formulas with `fma` replaced by
 /// `M::mul_add`) and the stage coefficients of `stage`, on any lane type: the one
 /// definition of the schemes, used by the estimator (`f32`) and the trainer (packed lanes,
-/// whose reverse mode is [`step_backward`]).
+/// whose reverse mode is `step_backward`, feature `reverse`).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // as `step`
 pub fn step_with<M: MulAdd, L: Lane, S: Stage<L>>(
@@ -184,6 +184,8 @@ pub fn step_with<M: MulAdd, L: Lane, S: Stage<L>>(
 
 /// The coefficients at the RK stages of a step for its reverse mode: the forward evaluation
 /// records what the backward needs (the scalers' activations), per stage.
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub trait StageBackward<L> {
     /// Coefficients at the state `s` of stage `i` (1-based: stage 2 is the first
     /// intermediate state; stage 1's coefficients are an input of the step), recorded.
@@ -201,6 +203,8 @@ pub trait StageBackward<L> {
 /// transpose of the forward line it names, in reverse order.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // the step's inputs and the four adjoints
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub fn step_backward<M: MulAdd, L: Lane, S: StageBackward<L>>(
     scheme: Integrator,
     stage: &mut S,

@@ -30,7 +30,7 @@
 //! # The forward pass and its reverse mode, once
 //!
 //! [`ScalerView::raw`] is the scaler's raw output `z` (MLP and alpha branch) over any
-//! [`Lane`] and [`math::MulAdd`], with [`ScalerView::raw_backward`] beside it: the
+//! [`Lane`] and [`math::MulAdd`], with `ScalerView::raw_backward` (feature `reverse`) beside it: the
 //! reference path ([`MlpParams::forward`], [`Scaler::scale_with`]: `f32`, fused), the
 //! trainer's rollout and adjoint (`Lanes<f32, 8>`, unfused) and its gradient checks (`f64`)
 //! run it. [`CompiledScaler`] (the estimator's folded hot path) and its Arm kernel are
@@ -442,6 +442,8 @@ pub fn centre<L: Lane>(t: &mut [L], inv_h: L::Scalar) {
 /// Reverse mode of [`centre`], in place on the adjoints (the centring is an orthogonal
 /// projection: its own transpose).
 #[inline(always)]
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub fn centre_backward<L: Lane>(tbar: &mut [L], inv_h: L::Scalar) {
     centre(tbar, inv_h);
 }
@@ -475,6 +477,8 @@ pub fn norm_act<M: math::MulAdd, L: Lane>(
 /// `gbeta`. `tbar_i = r (nbar_i - n_i mean(nbar n))`, `nbar_i = gamma_i ybar_i`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // the record, the weights and three adjoint outputs
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub fn norm_act_backward<L: Lane>(
     abar: &[L],
     n: &[L],
@@ -526,6 +530,8 @@ pub fn bounded<M: math::MulAdd, L: Lane>(z: L, lo: L, span: L) -> (L, L) {
 /// Reverse mode of [`bounded`] in `z`: `dL/dz = pbar span sig (1 - sig)` from the recorded
 /// `sig` (the derivatives in `lo` and `span` are `pbar` and `pbar sig`).
 #[inline(always)]
+#[cfg(feature = "reverse")]
+#[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
 pub fn bounded_backward<L: Lane>(sig: L, span: L, pbar: L) -> L {
     pbar * span * sig * (L::constant(1.0) - sig)
 }

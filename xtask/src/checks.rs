@@ -20,8 +20,9 @@ pub fn host_feature_sets() -> Vec<String> {
 }
 
 /// `cargo xtask features`: `nemm-core`'s tests for every host feature set (release), then a
-/// build of the library for the target with every `no_std` set (when a target toolchain is
-/// given).
+/// build of the library for the target with every `no_std` set and with `reverse` (when a
+/// target toolchain is given). The tests always have `reverse` (the crate's own
+/// dev-dependency turns it on); the target builds check the library without it.
 ///
 /// The integration and doc tests hold the exact backend's tolerances (their reference is
 /// computed with `libm`); with `micromath` on, the library's unit tests run and the examples
@@ -47,7 +48,8 @@ pub fn features(tc: Option<&Toolchain>, paths: &Paths) -> Result<(), String> {
     match tc {
         Some(tc) => {
             let target_dir = paths.target.join("nemm-core-features");
-            for set in BACKENDS {
+            // `reverse` (the trainer's reverse mode) stays `no_std` too.
+            for set in BACKENDS.into_iter().chain(["libm,reverse"]) {
                 eprintln!("xtask: nemm-core features {set} (build for {TARGET})");
                 run(tc
                     .cargo("build", &paths.root, &target_dir)

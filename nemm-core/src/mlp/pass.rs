@@ -31,10 +31,12 @@
 //! `x = alpha_n`. With an alpha branch the MLP's alpha input is 0 (its alpha column is zero
 //! in a valid model) and the branch carries `alpha_n`.
 
-use super::{centre, centre_backward, leaky_relu, norm_act, norm_act_backward};
-use super::{
-    BranchLayout, Direction, ScalerLayout, LEAKY_RELU_SLOPE, MAX_BRANCH_UNITS, MAX_HIDDEN,
-};
+#[cfg(feature = "reverse")]
+use super::LEAKY_RELU_SLOPE;
+use super::{centre, leaky_relu, norm_act};
+#[cfg(feature = "reverse")]
+use super::{centre_backward, norm_act_backward};
+use super::{BranchLayout, Direction, ScalerLayout, MAX_BRANCH_UNITS, MAX_HIDDEN};
 use crate::math::{Lane, MulAdd, Scalar};
 
 /// A scaler's weights in the layout of [`ScalerLayout`]: the MLP's and the alpha
@@ -86,7 +88,8 @@ pub struct TapeMut<'t, L> {
     pub branch_t: &'t mut [L],
 }
 
-/// A recorded forward pass ([`TapeMut`]), read by [`ScalerView::raw_backward`].
+/// A recorded forward pass ([`TapeMut`]), read by `ScalerView::raw_backward` (feature
+/// `reverse`).
 #[derive(Debug, Clone, Copy)]
 pub struct Tape<'t, L> {
     /// `n_i = t_i r`, `L H`.
@@ -108,6 +111,7 @@ fn dot<M: MulAdd, L: Lane>(w: &[L::Scalar], x: &[L], init: L) -> L {
 }
 
 /// `*g += v`.
+#[cfg(feature = "reverse")]
 #[inline(always)]
 fn add<S: Scalar>(g: Option<&mut S>, v: S) {
     if let Some(g) = g {
@@ -261,6 +265,8 @@ impl<'a, S: Scalar> ScalerView<'a, S> {
     /// [`Self::branch`]) and returns `dL/dx`. `None` for an inconsistent shape.
     #[allow(clippy::too_many_arguments)] // the record, the three inputs, two gradients
     #[inline]
+    #[cfg(feature = "reverse")]
+    #[cfg_attr(docsrs, doc(cfg(feature = "reverse")))]
     pub fn raw_backward<L: Lane<Scalar = S>>(
         &self,
         tape: &Tape<'_, L>,
