@@ -408,11 +408,6 @@ impl Condition {
         self.at_alpha_0 + (self.at_alpha_1 - self.at_alpha_0) * alpha
     }
 
-    /// The `alpha` of a condition value (in [`Condition::unit`]).
-    pub fn alpha_of(&self, value: f32) -> f32 {
-        (value - self.at_alpha_0) / (self.at_alpha_1 - self.at_alpha_0)
-    }
-
     /// Checks: a non-empty name, finite and distinct end points.
     pub fn validate(&self) -> Result<(), ModelError> {
         if self.name.is_empty() {

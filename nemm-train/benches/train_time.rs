@@ -9,8 +9,9 @@
 //! Default settings of `nemm train --variant nemm` (section 5.4: batch 16, H 16, L 5, lr 5e-3,
 //! RK4 at 10 kHz, lambda_ph 5), all epochs up to early stopping. Target: <= 10 minutes on
 //! 2 cores.
+use nemm_core::ModelKind;
 use nemm_train::config::Config;
-use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant};
+use nemm_train::train::pipeline::{train_variants, PipelineConfig};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -32,11 +33,11 @@ fn main() {
         .expect("dataset");
     let cfg: PipelineConfig = config.pipeline_config();
     let t = Instant::now();
-    let trained = train_variants(&prepared, &[Variant::Nemm], &cfg, None, false).expect("train");
+    let trained = train_variants(&prepared, &[ModelKind::Nemm], &cfg, None, false).expect("train");
     let total = t.elapsed().as_secs_f64();
     let nemm = trained
         .iter()
-        .find(|t| t.variant == Variant::Nemm)
+        .find(|t| t.variant == ModelKind::Nemm)
         .expect("nemm");
     let epochs = nemm.history.len();
     let epoch_s: f64 = nemm.history.iter().map(|e| e.seconds).sum::<f64>() / epochs.max(1) as f64;

@@ -503,7 +503,7 @@ mod by_name {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ModelConfig {
-    /// Variant `nemm train` trains (`nemm compare` trains all four).
+    /// ModelKind `nemm train` trains (`nemm compare` trains all four).
     #[serde(with = "by_name")]
     pub variant: ModelKind,
     /// Hidden width H of every scaler (Table 3: 8, 16, 32).

@@ -37,9 +37,9 @@ enum Cmd {
         /// Output weights blob.
         #[arg(long, default_value = "model.nemm")]
         out: PathBuf,
-        /// Variant: nemm, nemm-light, linear-emm or sem.
+        /// ModelKind: nemm, nemm-light, linear-emm or sem.
         #[arg(long, help = format!(
-            "Variant: nemm, nemm-light, linear-emm or sem [default: {}]",
+            "ModelKind: nemm, nemm-light, linear-emm or sem [default: {}]",
             nemm_train::config::ModelConfig::default().variant.name()))]
         variant: Option<nemm_core::ModelKind>,
         /// Checkpoint folder (one sub-folder per stage, written every epoch).

@@ -12,7 +12,7 @@ use nemm_train::report::figures::{write_all, write_all_with_reference};
 use nemm_train::report::predictions::RunPredictions;
 use nemm_train::report::tables::{evaluate, Report};
 use nemm_train::train::fit::EpochStats;
-use nemm_train::train::pipeline::{TrainedVariant, Variant};
+use nemm_train::train::pipeline::TrainedVariant;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
@@ -101,12 +101,12 @@ fn history(n: usize, start: f64) -> Vec<EpochStats> {
         .collect()
 }
 
-fn trained(kinds: &[(Variant, ModelKind)]) -> Vec<TrainedVariant> {
+fn trained(kinds: &[(ModelKind, ModelKind)]) -> Vec<TrainedVariant> {
     kinds
         .iter()
         .map(|&(variant, kind)| {
             let model = example_model(kind, 8, 3).expect("example model");
-            let history = if variant == Variant::Sem {
+            let history = if variant == ModelKind::Sem {
                 vec![]
             } else {
                 history(4, 0.01)
@@ -126,10 +126,10 @@ fn trained(kinds: &[(Variant, ModelKind)]) -> Vec<TrainedVariant> {
 
 fn all_four() -> Vec<TrainedVariant> {
     trained(&[
-        (Variant::Sem, ModelKind::Sem),
-        (Variant::LinearEmm, ModelKind::LinearEmm),
-        (Variant::NemmLight, ModelKind::NemmLight),
-        (Variant::Nemm, ModelKind::Nemm),
+        (ModelKind::Sem, ModelKind::Sem),
+        (ModelKind::LinearEmm, ModelKind::LinearEmm),
+        (ModelKind::NemmLight, ModelKind::NemmLight),
+        (ModelKind::Nemm, ModelKind::Nemm),
     ])
 }
 
@@ -247,7 +247,7 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
     let ds = dataset();
     let prep = prepared(&ds);
     // Only the SEM: no EMM figures, no training curves (no history).
-    let sem = trained(&[(Variant::Sem, ModelKind::Sem)]);
+    let sem = trained(&[(ModelKind::Sem, ModelKind::Sem)]);
     let report = evaluate(&sem, &prep).expect("report");
     let dir = tempfile::tempdir().expect("tempdir");
     write_all(
@@ -268,7 +268,7 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
     let mut slow = dataset();
     slow.runs.retain(|r| r.entry.amplitude_m == Some(0.050));
     let prep = prepared_with_test(&slow, &[]);
-    let light = trained(&[(Variant::NemmLight, ModelKind::NemmLight)]);
+    let light = trained(&[(ModelKind::NemmLight, ModelKind::NemmLight)]);
     let report = evaluate(&light, &prep).expect("report");
     let dir = tempfile::tempdir().expect("tempdir");
     write_all(
@@ -437,7 +437,7 @@ fn coefficient_figures_draw_the_bench_reference_on_bench_data() {
     // The report's comparison: every pair, the bench's k_pr falling.
     let nemm = tr
         .iter()
-        .find(|t| t.variant == Variant::Nemm)
+        .find(|t| t.variant == ModelKind::Nemm)
         .expect("nemm");
     let cmp = nemm_train::report::reference::compare(&nemm.model, &r);
     assert_eq!(cmp.rows.len(), 4 + 1 + 6, "{cmp:?}");

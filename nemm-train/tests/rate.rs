@@ -5,6 +5,7 @@
 //! ```text
 //! cargo test --release -p nemm-train --test rate -- --nocapture
 //! ```
+use nemm_core::ModelKind;
 use nemm_core::{Estimator, EstimatorConfig, EstimatorError, EvalMode, Model, TableConfig};
 use nemm_train::bench::config::BenchConfig;
 use nemm_train::bench::program::run_spec;
@@ -12,7 +13,7 @@ use nemm_train::bench::VirtualBench;
 use nemm_train::data::dataset::{self, Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared, RunRole};
 use nemm_train::train::eval::{predict, run_estimator, Input};
-use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant, VariantInfo};
+use nemm_train::train::pipeline::{train_variants, PipelineConfig, VariantInfo};
 use std::path::PathBuf;
 
 /// The rate of the virtual bench and of the model \[Hz\].
@@ -86,7 +87,7 @@ fn prepare(ds: &Dataset) -> Prepared {
 
 /// Trains `variant` with a small budget at the default model rate (10 kHz) and returns the
 /// model after an encode / decode round trip (the exported blob).
-fn train_and_export(prepared: &Prepared, variant: Variant, pipeline: &PipelineConfig) -> Model {
+fn train_and_export(prepared: &Prepared, variant: ModelKind, pipeline: &PipelineConfig) -> Model {
     let trained =
         train_variants(prepared, &[variant], pipeline, None, false).expect("training succeeds");
     let model = &trained
@@ -150,13 +151,13 @@ fn core_rmse_on_test_runs(model: &Model, ds: &Dataset, prepared: &Prepared) -> f
 
 /// Trains the Linear EMM (converged, [`linear_budget`]) and a small NEMM-Light (H 8, L 2,
 /// 5 epochs) on `prepared` and returns both exported models.
-fn train_both(prepared: &Prepared) -> Vec<(Variant, Model)> {
+fn train_both(prepared: &Prepared) -> Vec<(ModelKind, Model)> {
     let mut cfg = linear_budget();
     cfg.hidden = 8;
     cfg.layers = 2;
     cfg.qs_steps = 200;
     cfg.fit.epochs = 5;
-    let variants = [Variant::LinearEmm, Variant::NemmLight];
+    let variants = [ModelKind::LinearEmm, ModelKind::NemmLight];
     let trained = train_variants(prepared, &variants, &cfg, None, false).expect("training");
     trained
         .into_iter()
@@ -172,7 +173,7 @@ fn models_trained_on_decimated_data_are_10_khz_models_close_to_the_full_rate_one
     let full = small_bench();
     let full_prepared = prepare(&full);
     // (rate, variant, RMSE on the 10 kHz test runs)
-    let mut rmse: Vec<(f64, Variant, f64)> = Vec::new();
+    let mut rmse: Vec<(f64, ModelKind, f64)> = Vec::new();
     for rate in [FULL_RATE_HZ, 1000.0, 300.0] {
         let ds = if rate == FULL_RATE_HZ {
             full.clone()
@@ -215,7 +216,7 @@ fn models_trained_on_decimated_data_are_10_khz_models_close_to_the_full_rate_one
             .expect("full-rate model")
             .2;
         let bound = match (variant, rate >= 1000.0) {
-            (Variant::LinearEmm, _) => 1.01,
+            (ModelKind::LinearEmm, _) => 1.01,
             (_, true) => 1.05,
             (_, false) => 1.10,
         };
@@ -235,13 +236,13 @@ fn a_300_hz_dataset_exports_a_10_khz_blob_that_the_estimator_accepts() {
     assert_eq!(prepared.sample_rate_hz, 300.0);
     let mut cfg = linear_budget();
     cfg.linear_epochs = 1;
-    let model = train_and_export(&prepared, Variant::LinearEmm, &cfg);
+    let model = train_and_export(&prepared, ModelKind::LinearEmm, &cfg);
     assert_eq!(model.dt_s, 1e-4_f32);
     let mut est = Estimator::new(&model, EstimatorConfig::new(0.15)).expect("estimator");
     assert!(est.step(0.1).force_n.is_finite());
     // Another model rate is a choice of the trainer.
     cfg.model_rate_hz = 5000.0;
-    let model = train_and_export(&prepared, Variant::LinearEmm, &cfg);
+    let model = train_and_export(&prepared, ModelKind::LinearEmm, &cfg);
     assert_eq!(model.dt_s, 2e-4_f32);
 }
 
@@ -335,7 +336,7 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
         ..PipelineConfig::default()
     };
     pipeline.fit.epochs = 3;
-    let model = train_and_export(&prepared, Variant::NemmLight, &pipeline);
+    let model = train_and_export(&prepared, ModelKind::NemmLight, &pipeline);
 
     // Parity: the trainer's whole-run prediction with alpha(t) and nemm-core's estimator fed
     // the level per sample (exact mode).

@@ -8,11 +8,12 @@
 //! ```text
 //! cargo test --release -p nemm-train --test static_force -- --nocapture
 //! ```
+use nemm_core::ModelKind;
 use nemm_core::{Estimator, EstimatorConfig, Flags, Model};
 use nemm_train::data::dataset;
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared, RunRole};
 use nemm_train::train::eval::{input_of, predict, rmse_model, run_estimator};
-use nemm_train::train::pipeline::{train_variants, PipelineConfig, Variant};
+use nemm_train::train::pipeline::{train_variants, PipelineConfig};
 use std::path::PathBuf;
 
 fn fixture(name: &str) -> PathBuf {
@@ -40,7 +41,7 @@ fn linear_emm(prepared: &Prepared, static_force: bool) -> Model {
     };
     cfg.fit.patience = 40;
     let trained =
-        train_variants(prepared, &[Variant::LinearEmm], &cfg, None, false).expect("training");
+        train_variants(prepared, &[ModelKind::LinearEmm], &cfg, None, false).expect("training");
     let blob = nemm_core::encode_to_vec(&trained[0].model).expect("encode");
     nemm_core::decode(&blob).expect("decode")
 }

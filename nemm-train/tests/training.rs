@@ -1,6 +1,7 @@
 //! End-to-end checks of the training pipeline on data whose truth is known.
 use burn::tensor::Device;
 use nemm_core::emm::EmmConstants;
+use nemm_core::ModelKind;
 use nemm_core::{
     Body, Estimator, EstimatorConfig, Extension, InputScales, Integrator, Meta, Model,
 };
@@ -10,7 +11,7 @@ use nemm_train::train::adjoint::{Grid, RolloutParams};
 use nemm_train::train::fit::{fit, FitConfig, FitData};
 use nemm_train::train::net::EmmNet;
 use nemm_train::train::params::from_core;
-use nemm_train::train::pipeline::{init_scaler, train_variants, PipelineConfig, Variant};
+use nemm_train::train::pipeline::{init_scaler, train_variants, PipelineConfig};
 use std::path::PathBuf;
 
 const FS: f64 = 10_000.0;
@@ -96,7 +97,7 @@ fn linear_emm_stage_recovers_known_constants() {
         ..PipelineConfig::default()
     };
     let trained =
-        train_variants(&prepared, &[Variant::LinearEmm], &cfg, None, false).expect("train");
+        train_variants(&prepared, &[ModelKind::LinearEmm], &cfg, None, false).expect("train");
     let e = trained[0].model.emm().copied().expect("emm");
     let t = truth.emm().copied().expect("emm");
     let rel = |a: f32, b: f32| ((a - b) / b).abs();
@@ -436,7 +437,7 @@ fn every_stage_improves_on_its_start_on_another_damper() {
     cfg.fit.epochs = 10;
     let trained = train_variants(
         &prepared,
-        &[Variant::LinearEmm, Variant::NemmLight, Variant::Nemm],
+        &[ModelKind::LinearEmm, ModelKind::NemmLight, ModelKind::Nemm],
         &cfg,
         None,
         false,
@@ -444,7 +445,7 @@ fn every_stage_improves_on_its_start_on_another_damper() {
     .expect("training");
     let linear = trained
         .iter()
-        .find(|t| t.variant == Variant::LinearEmm)
+        .find(|t| t.variant == ModelKind::LinearEmm)
         .expect("linear");
     for t in &trained {
         let kept = t.kept_epoch.expect("a rollout stage");
@@ -453,7 +454,7 @@ fn every_stage_improves_on_its_start_on_another_damper() {
             t.variant, t.val_rmse
         );
         assert!(kept > 0, "{:?} kept its starting model", t.variant);
-        if t.variant != Variant::LinearEmm {
+        if t.variant != ModelKind::LinearEmm {
             assert!(
                 t.val_rmse < 0.8 * linear.val_rmse,
                 "{:?}: validation RMSE {} against the Linear EMM's {}",

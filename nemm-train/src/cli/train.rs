@@ -11,10 +11,11 @@ use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Repor
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
 use crate::train::pipeline::{
-    train_each, train_variants, AlphaPriors, Trained, TrainedVariant, Variant, VariantInfo,
+    train_each, train_variants, AlphaPriors, Trained, TrainedVariant, VariantInfo,
 };
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
+use nemm_core::ModelKind;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -115,7 +116,7 @@ fn encode_with_segments<const T: usize>(
     model: &nemm_core::Model,
     tables: &TablesArgs,
 ) -> Result<Vec<u8>> {
-    use nemm_core::{Estimator, EstimatorConfig, EvalMode, ModelKind, TableConfig};
+    use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
     if !matches!(model.kind(), ModelKind::NemmLight | ModelKind::Nemm) {
         bail!(
             "--tables-alpha: a {} model has no neural coefficients to tabulate",
@@ -420,13 +421,13 @@ pub fn compare(
         failed: train_failed,
     } = train_each(
         prepared,
-        &Variant::ALL,
+        &ModelKind::ALL,
         &cfg.pipeline_config(),
         checkpoint,
         resume,
     )?;
     std::fs::create_dir_all(report_dir)?;
-    let mut failed: Vec<(Variant, String)> = train_failed
+    let mut failed: Vec<(ModelKind, String)> = train_failed
         .into_iter()
         .map(|f| (f.variant, f.reason))
         .collect();
@@ -446,7 +447,7 @@ pub fn compare(
     let reference = bench_reference(&cfg.data.dir);
     if let (Some(r), Some(tv)) = (
         &reference,
-        exported.iter().find(|t| t.variant == Variant::Nemm),
+        exported.iter().find(|t| t.variant == ModelKind::Nemm),
     ) {
         report.bench_reference = Some(crate::report::reference::compare(&tv.model, r));
     }
@@ -457,7 +458,7 @@ pub fn compare(
         .into_iter()
         .filter(|tv| report.variants.contains_key(tv.variant.key()))
         .collect();
-    let models: Vec<(Variant, &nemm_core::Model)> =
+    let models: Vec<(ModelKind, &nemm_core::Model)> =
         trained.iter().map(|tv| (tv.variant, &tv.model)).collect();
     match identify_report(
         &models,
@@ -897,7 +898,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let cfg = with_resolved_data(&cfg)?;
     let (ds, prepared) = load_dataset_prepared(&cfg.data.dir, &cfg.data.prepare_config())?;
     let report = compare(&ds, &prepared, &cfg, &paths.out, None, false)?;
-    if let Some(reason) = report.failed.get(Variant::Nemm.key()) {
+    if let Some(reason) = report.failed.get(ModelKind::Nemm.key()) {
         bail!(
             "the NEMM failed ({reason}); Table 4 and the other variants are in {}",
             paths.out.display()

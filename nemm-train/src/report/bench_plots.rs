@@ -118,14 +118,6 @@ impl CycleLoop {
         self.force_at_phase(0.5 * PI) - self.force_at_phase(1.5 * PI)
     }
 
-    /// Widths of the loop at half the peak velocity \[N\], `(rebound, compression)`: the force
-    /// while the speed falls minus the force while it rises, on each side (positive when
-    /// the force lags the velocity, negative when it leads, e.g. from a lagging valve).
-    pub fn half_velocity_widths_n(&self) -> (f64, f64) {
-        let f = |deg: f64| self.force_at_phase(deg.to_radians());
-        (f(60.0) - f(300.0), f(120.0) - f(240.0))
-    }
-
     /// Largest cycle-averaged |force| \[N\].
     pub fn peak_force_n(&self) -> f64 {
         self.force_n.iter().fold(0.0f64, |m, f| m.max(f.abs()))

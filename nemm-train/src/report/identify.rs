@@ -6,8 +6,9 @@
 use crate::data::dataset::{ConditionSpec, Dataset};
 use crate::data::preprocess::{distinct_levels, Prepared, RunRole, ALPHA_TOLERANCE};
 use crate::train::identify::{identify_runs, AlphaGrid, Fit, Run, FLAT_TOLERANCE};
-use crate::train::pipeline::{Variant, VariantInfo};
+use crate::train::pipeline::VariantInfo;
 use anyhow::{Context, Result};
+use nemm_core::ModelKind;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -147,7 +148,7 @@ pub fn used_runs(prepared: &Prepared) -> Vec<usize> {
 /// or low-passed with `filter_force`), each model on its [`AlphaGrid::for_model`] grid of
 /// step `step`; normalises by `force_scale_n`.
 pub fn identify_report(
-    models: &[(Variant, &nemm_core::Model)],
+    models: &[(ModelKind, &nemm_core::Model)],
     ds: &Dataset,
     prepared: &Prepared,
     runs: &[usize],
@@ -330,8 +331,8 @@ fn order_check(infos: &[RunInfo], fits: &[Fit]) -> Option<OrderCheck> {
 }
 
 /// The variants of `r` in Table 4's order.
-fn variants_of(r: &IdentifyReport) -> Vec<(Variant, &VariantFits)> {
-    Variant::ALL
+fn variants_of(r: &IdentifyReport) -> Vec<(ModelKind, &VariantFits)> {
+    ModelKind::ALL
         .into_iter()
         .filter_map(|v| r.variants.get(v.key()).map(|f| (v, f)))
         .collect()

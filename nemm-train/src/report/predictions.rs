@@ -3,8 +3,9 @@
 
 use crate::data::preprocess::Prepared;
 use crate::train::eval::{predict, Input};
-use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
+use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::{Context, Result};
+use nemm_core::ModelKind;
 
 /// Forces of whole runs simulated from rest by a variant at the model's own step, on the
 /// preprocessed velocity ([`Prepared::signals`]) at the run's condition level (per sample
@@ -12,7 +13,7 @@ use anyhow::{Context, Result};
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RunPredictions {
     /// `(variant, run index, force per sample [N])`.
-    entries: Vec<(Variant, usize, Vec<f64>)>,
+    entries: Vec<(ModelKind, usize, Vec<f64>)>,
 }
 
 impl RunPredictions {
@@ -22,7 +23,7 @@ impl RunPredictions {
     pub fn simulate(
         trained: &[TrainedVariant],
         prepared: &Prepared,
-        requests: &[(Variant, usize)],
+        requests: &[(ModelKind, usize)],
     ) -> Result<Self> {
         use rayon::prelude::*;
         let mut batches: Vec<(&TrainedVariant, Vec<usize>)> = Vec::new();
@@ -54,7 +55,7 @@ impl RunPredictions {
                     .map(|a| a.iter().map(|&v| v as f32).collect())
             })
             .collect();
-        let simulated: Vec<Vec<(Variant, usize, Vec<f64>)>> = batches
+        let simulated: Vec<Vec<(ModelKind, usize, Vec<f64>)>> = batches
             .par_iter()
             .map(|(tv, runs)| {
                 let inputs = runs
@@ -90,7 +91,7 @@ impl RunPredictions {
     }
 
     /// The predicted force of `variant` over run `run`, if simulated.
-    pub fn get(&self, variant: Variant, run: usize) -> Option<&[f64]> {
+    pub fn get(&self, variant: ModelKind, run: usize) -> Option<&[f64]> {
         self.entries
             .iter()
             .find(|(v, i, _)| *v == variant && *i == run)

@@ -8,8 +8,9 @@ use crate::report::identify::IdentifyReport;
 use crate::train::eval::{rmse_of, sse_per_sequence};
 use crate::train::fit::EpochStats;
 use crate::train::physics::{audit, Audit, AUDIT_GRID};
-use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
+use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::Result;
+use nemm_core::ModelKind;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -139,7 +140,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
         }
         counted = true;
         let rmse = rmse_of(se, n);
-        let audit = matches!(t.variant, Variant::NemmLight | Variant::Nemm)
+        let audit = matches!(t.variant, ModelKind::NemmLight | ModelKind::Nemm)
             .then(|| audit(&t.model, AUDIT_GRID.0, AUDIT_GRID.1));
         let blob_bytes = nemm_core::encode_to_vec(&t.model)
             .map(|b| b.len())
@@ -210,7 +211,7 @@ pub fn test_runs_markdown(r: &Report) -> String {
     if r.test_runs.is_empty() {
         return s;
     }
-    let keys: Vec<Variant> = Variant::ALL
+    let keys: Vec<ModelKind> = ModelKind::ALL
         .into_iter()
         .filter(|v| r.test_runs.iter().any(|t| t.rmse.contains_key(v.key())))
         .collect();
@@ -219,7 +220,7 @@ pub fn test_runs_markdown(r: &Report) -> String {
         .iter()
         .filter_map(|t| {
             t.rmse
-                .get(Variant::Nemm.key())
+                .get(ModelKind::Nemm.key())
                 .map(|e| e * e * t.samples as f64)
         })
         .sum();
@@ -233,7 +234,7 @@ pub fn test_runs_markdown(r: &Report) -> String {
         head.push_str(&format!(" {} |", v.title()));
         rule.push_str("---:|");
     }
-    let has_pair = keys.contains(&Variant::Sem) && keys.contains(&Variant::Nemm);
+    let has_pair = keys.contains(&ModelKind::Sem) && keys.contains(&ModelKind::Nemm);
     if has_pair {
         head.push_str(" NEMM / SEM | share of NEMM's squared error |");
         rule.push_str("---:|---:|");
@@ -257,8 +258,8 @@ pub fn test_runs_markdown(r: &Report) -> String {
         }
         if has_pair {
             match (
-                t.rmse.get(Variant::Sem.key()),
-                t.rmse.get(Variant::Nemm.key()),
+                t.rmse.get(ModelKind::Sem.key()),
+                t.rmse.get(ModelKind::Nemm.key()),
             ) {
                 (Some(sem), Some(nemm)) => row.push_str(&format!(
                     " {:.0} % | {:.1} % |",
@@ -282,7 +283,7 @@ pub fn table4_markdown(r: &Report) -> String {
     );
     let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
     let sem = r.variants.get("sem").map(|v| v.rmse);
-    for v in Variant::ALL {
+    for v in ModelKind::ALL {
         if let Some(reason) = r.failed.get(v.key()) {
             // One table cell: no pipes or line breaks from the error text.
             let reason = reason.replace('|', "\\|").replace(['\n', '\r'], " ");
@@ -290,7 +291,7 @@ pub fn table4_markdown(r: &Report) -> String {
         } else if let Some(x) = r.variants.get(v.key()) {
             let rel = sem.map_or("-".to_string(), |b| format!("{:.1}", 100.0 * x.rmse / b));
             let viol = match v {
-                Variant::NemmLight | Variant::Nemm => x.violations.to_string(),
+                ModelKind::NemmLight | ModelKind::Nemm => x.violations.to_string(),
                 _ => "-".to_string(),
             };
             let _ = writeln!(

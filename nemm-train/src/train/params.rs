@@ -7,8 +7,8 @@ use anyhow::{bail, Result};
 use nemm_core::emm::EmmConstants;
 use nemm_core::mlp::AlphaBranch;
 use nemm_core::{
-    AlphaBranches, Body, Condition, Extension, InputScales, Integrator, Meta, MlpParams, Model,
-    Scaler, StaticForce, DEFAULT_PARAM_CAPACITY,
+    AlphaBranches, Body, Condition, Extension, InputScales, Meta, MlpParams, Model, Scaler,
+    StaticForce, DEFAULT_PARAM_CAPACITY,
 };
 
 fn scaler_from_core<T: Real>(
@@ -223,14 +223,5 @@ pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
             x_ref: c(s.x_ref),
             v_c: c(s.v_c),
         }),
-    }
-}
-
-/// The integrator by CLI name.
-pub fn integrator_by_name(name: &str) -> Result<Integrator> {
-    match name {
-        "rk4" => Ok(Integrator::Rk4),
-        "rk3" => Ok(Integrator::Rk3),
-        other => bail!("unknown integrator `{other}` (expected rk4 or rk3)"),
     }
 }

@@ -42,12 +42,9 @@ use std::time::Instant;
 
 pub use super::session::SessionBudgetUsed;
 
-/// The four variants of section 6: nemm-core's [`ModelKind`] (parsed and printed by its
-/// `name()`: `sem`, `linear-emm`, `nemm-light`, `nemm`); [`VariantInfo`] adds the report's
-/// names.
-pub type Variant = ModelKind;
-
-/// The trainer's names and order of the four variants.
+/// The trainer's names and order of the four variants of section 6 (nemm-core's
+/// [`ModelKind`], parsed and printed by its `name()`: `sem`, `linear-emm`, `nemm-light`,
+/// `nemm`).
 pub trait VariantInfo: Sized {
     /// All four, in the order of Table 4.
     const ALL: [Self; 4];
@@ -197,7 +194,7 @@ fn save_frame(
 #[derive(Debug, Clone)]
 pub struct TrainedVariant {
     /// Which.
-    pub variant: Variant,
+    pub variant: ModelKind,
     /// The exportable model.
     pub model: Model,
     /// Training history of its rollout stage (empty for the SEM).
@@ -523,7 +520,7 @@ fn qs_regression(
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VariantFailure {
     /// Which.
-    pub variant: Variant,
+    pub variant: ModelKind,
     /// The error, with its causes.
     pub reason: String,
 }
@@ -539,7 +536,7 @@ pub struct Trained {
 
 /// Records the failure of `variant`, unless `e` is the end of a time-boxed session (which
 /// stops the whole job with a checkpoint and is returned).
-fn record(failed: &mut Vec<VariantFailure>, variant: Variant, e: anyhow::Error) -> Result<()> {
+fn record(failed: &mut Vec<VariantFailure>, variant: ModelKind, e: anyhow::Error) -> Result<()> {
     if e.is::<SessionBudgetUsed>() {
         return Err(e);
     }
@@ -555,7 +552,7 @@ fn record(failed: &mut Vec<VariantFailure>, variant: Variant, e: anyhow::Error) 
 /// error). [`train_each`] keeps going past failures.
 pub fn train_variants(
     prepared: &Prepared,
-    variants: &[Variant],
+    variants: &[ModelKind],
     cfg: &PipelineConfig,
     checkpoint_root: Option<&Path>,
     resume: bool,
@@ -609,7 +606,7 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
         }
     );
     Ok(TrainedVariant {
-        variant: Variant::Sem,
+        variant: ModelKind::Sem,
         model,
         history: Vec::new(),
         val_rmse: val,
@@ -626,12 +623,12 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
 /// EMM-family variant (no validation windows) and when a time-boxed session ends.
 pub fn train_each(
     prepared: &Prepared,
-    variants: &[Variant],
+    variants: &[ModelKind],
     cfg: &PipelineConfig,
     checkpoint_root: Option<&Path>,
     resume: bool,
 ) -> Result<Trained> {
-    if prepared.validation.is_empty() && variants.iter().any(|v| *v != Variant::Sem) {
+    if prepared.validation.is_empty() && variants.iter().any(|v| *v != ModelKind::Sem) {
         bail!(
             "no validation windows: the runs at the training oil-loss levels are too short for \
              the {:.0} % validation split of their {:.2} s windows ({} training windows in all); \
@@ -688,19 +685,19 @@ pub fn train_each(
     let qs_owned: Vec<QuasiStaticPoint>;
     let qs = &prepared.quasi_static.train;
     let mut failed = Vec::new();
-    if variants.contains(&Variant::Sem) {
+    if variants.contains(&ModelKind::Sem) {
         match train_sem(prepared, cfg, meta) {
             Ok(t) => out.push(t),
-            Err(e) => record(&mut failed, Variant::Sem, e)?,
+            Err(e) => record(&mut failed, ModelKind::Sem, e)?,
         }
     }
-    let emm_variants: Vec<Variant> = variants
+    let emm_variants: Vec<ModelKind> = variants
         .iter()
         .copied()
-        .filter(|v| *v != Variant::Sem)
+        .filter(|v| *v != ModelKind::Sem)
         .collect();
     let done = |trained: Vec<TrainedVariant>, mut failed: Vec<VariantFailure>| {
-        let order = |v: Variant| Variant::ALL.iter().position(|&w| w == v);
+        let order = |v: ModelKind| ModelKind::ALL.iter().position(|&w| w == v);
         let mut trained = trained;
         trained.sort_by_key(|t| order(t.variant));
         failed.sort_by_key(|f| order(f.variant));
@@ -797,7 +794,7 @@ pub fn train_each(
                 return Err(e);
             }
             for &v in &emm_variants {
-                let reason = if v == Variant::LinearEmm {
+                let reason = if v == ModelKind::LinearEmm {
                     anyhow::anyhow!("{e:#}")
                 } else {
                     anyhow::anyhow!("the Linear EMM stage it starts from failed: {e:#}")
@@ -807,10 +804,10 @@ pub fn train_each(
             return Ok(done(out, failed));
         }
     };
-    if emm_variants.contains(&Variant::LinearEmm) {
+    if emm_variants.contains(&ModelKind::LinearEmm) {
         match to_core_with(&lin_p_with_scale(&lin_p, p0.x_scale), meta, condition) {
             Ok(model) => out.push(TrainedVariant {
-                variant: Variant::LinearEmm,
+                variant: ModelKind::LinearEmm,
                 model,
                 history: lin.history.clone(),
                 val_rmse: lin.best_val_rmse,
@@ -818,13 +815,13 @@ pub fn train_each(
                 kept_epoch: Some(lin.best_epoch),
                 seconds: lin_seconds,
             }),
-            Err(e) => record(&mut failed, Variant::LinearEmm, e)?,
+            Err(e) => record(&mut failed, ModelKind::LinearEmm, e)?,
         }
     }
-    let neural: Vec<Variant> = emm_variants
+    let neural: Vec<ModelKind> = emm_variants
         .iter()
         .copied()
-        .filter(|v| matches!(v, Variant::NemmLight | Variant::Nemm))
+        .filter(|v| matches!(v, ModelKind::NemmLight | ModelKind::Nemm))
         .collect();
     if neural.is_empty() {
         return Ok(done(out, failed));
@@ -877,7 +874,7 @@ pub fn train_each(
             let t = Instant::now();
             let mut p = p0.clone();
             p.b_fl = Some(b_fl.clone());
-            if v == Variant::Nemm {
+            if v == ModelKind::Nemm {
                 let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
                 if k_max < 1.5 {
                     bail!(

@@ -8,8 +8,9 @@ use super::{
 };
 use crate::data::preprocess::{distinct_levels, Prepared, RunRole};
 use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Panel, Series};
-use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
+use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::{Context, Result};
+use nemm_core::ModelKind;
 use std::ops::Range;
 
 /// A run chosen for a loop figure.
@@ -124,9 +125,9 @@ impl LoopPicks {
 
 /// The whole-run predictions the loop figures draw, as `(variant, run index)`: the loop model
 /// (the most complete variant trained) on the Fig. 7 runs, every trained variant on the all-variants run.
-pub fn loop_requests(trained: &[TrainedVariant], prepared: &Prepared) -> Vec<(Variant, usize)> {
+pub fn loop_requests(trained: &[TrainedVariant], prepared: &Prepared) -> Vec<(ModelKind, usize)> {
     let picks = LoopPicks::of(prepared);
-    let mut out: Vec<(Variant, usize)> = Vec::new();
+    let mut out: Vec<(ModelKind, usize)> = Vec::new();
     if let Some(tv) = loop_model(trained) {
         out.extend(picks.fig7.iter().map(|(_, p)| (tv.variant, p.index)));
     }
@@ -141,10 +142,10 @@ pub fn loop_requests(trained: &[TrainedVariant], prepared: &Prepared) -> Vec<(Va
 /// The model of the loop figure: the most complete variant trained.
 fn loop_model(trained: &[TrainedVariant]) -> Option<&TrainedVariant> {
     [
-        Variant::Nemm,
-        Variant::NemmLight,
-        Variant::LinearEmm,
-        Variant::Sem,
+        ModelKind::Nemm,
+        ModelKind::NemmLight,
+        ModelKind::LinearEmm,
+        ModelKind::Sem,
     ]
     .into_iter()
     .find_map(|v| trained.iter().find(|t| t.variant == v))
@@ -200,7 +201,7 @@ fn pick_run(
 impl Ctx<'_> {
     /// The last `LOOP_PERIODS` full-amplitude periods of a run: its preprocessed signals and
     /// the evaluation's prediction of each of `variants`.
-    fn loop_of(&self, pick: &RunPick, variants: &[Variant]) -> Result<LoopData> {
+    fn loop_of(&self, pick: &RunPick, variants: &[ModelKind]) -> Result<LoopData> {
         let fs = self.prepared.sample_rate_hz;
         let fsc = self.force_scale();
         let run = self
@@ -257,7 +258,7 @@ impl Ctx<'_> {
     }
 
     /// [`Ctx::loop_of`] for several runs.
-    fn loops_of(&self, picks: &[RunPick], variants: &[Variant]) -> Vec<Result<LoopData>> {
+    fn loops_of(&self, picks: &[RunPick], variants: &[ModelKind]) -> Vec<Result<LoopData>> {
         picks.iter().map(|p| self.loop_of(p, variants)).collect()
     }
 }
@@ -450,11 +451,11 @@ pub(super) fn loops_all_variants(ctx: &Ctx<'_>) -> Result<Drawn> {
     let Some((pick, role)) = ctx.picks.all_variants else {
         return Ok(Drawn::Skipped("no run with a frequency estimate".into()));
     };
-    let variants: Vec<&TrainedVariant> = Variant::ALL
+    let variants: Vec<&TrainedVariant> = ModelKind::ALL
         .iter()
         .filter_map(|&v| ctx.variant(v))
         .collect();
-    let shown: Vec<Variant> = variants.iter().map(|t| t.variant).collect();
+    let shown: Vec<ModelKind> = variants.iter().map(|t| t.variant).collect();
     let d = ctx.loop_of(&pick, &shown)?;
     let xr = sym_range(d.velocity_m_s.iter());
     let yr = sym_range(d.measured.iter().chain(d.models.iter().flatten()));

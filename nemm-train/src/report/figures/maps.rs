@@ -11,9 +11,10 @@ use crate::report::plot::{
     nice_levels, palette, ColorMap, Figure, HeatmapPanel, LegendPosition, LinePanel, Series,
 };
 use crate::train::physics::{violation, AUDIT_GRID};
-use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
+use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::{bail, Result};
 use nemm_core::Model;
+use nemm_core::ModelKind;
 use plotters::style::RGBColor;
 
 /// A learned coefficient on the audit grid: state in `[-1.2, 1.2]` of its scale, alpha in
@@ -542,7 +543,7 @@ pub(super) fn fig11_b_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
     .with_series(Series::line(
         "b_pr(α) (NEMM)",
         curve.clone(),
-        variant_color(Variant::Nemm),
+        variant_color(ModelKind::Nemm),
     ))
     .with_series(Series::dashed(
         "b_pr,ini (Linear EMM constant)",
@@ -572,7 +573,7 @@ pub(super) fn fig11_b_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
     .with_series(Series::line(
         "b_pr(α) / b_pr(0) - 1",
         rel,
-        variant_color(Variant::Nemm),
+        variant_color(ModelKind::Nemm),
     ));
     if let (Some(abs), Some(rel)) = (ref_abs, ref_rel) {
         let label = "bench: describing-function b_pr (scaled to α = 0)";

@@ -46,10 +46,11 @@ use crate::data::preprocess::{Prepared, RunRole};
 use crate::report::plot::{self, palette, Figure};
 use crate::report::predictions::RunPredictions;
 use crate::report::tables::Report;
-use crate::train::pipeline::{TrainedVariant, Variant};
+use crate::train::pipeline::TrainedVariant;
 use anyhow::{Context, Result};
 use loops::{fig7_loops, loops_all_variants, LoopPicks};
 use maps::{fig11_b_pr, fig12_k_pr, fig_b_fl};
+use nemm_core::ModelKind;
 use plotters::style::RGBColor;
 use std::panic::AssertUnwindSafe;
 use std::path::Path;
@@ -68,9 +69,9 @@ pub const LOOP_TRAIN_ALPHAS: [f64; 2] = [0.0, 0.3];
 pub const CUT_VELOCITY_M_S: f64 = 0.5;
 
 /// File name of the `b_fl` figure of a variant.
-pub fn b_fl_file(v: Variant) -> String {
+pub fn b_fl_file(v: ModelKind) -> String {
     match v {
-        Variant::Nemm => "fig8_b_fl.png".into(),
+        ModelKind::Nemm => "fig8_b_fl.png".into(),
         other => format!("fig8_b_fl_{}.png", other.name()),
     }
 }
@@ -132,12 +133,12 @@ pub fn write_all_with_reference(
             Box::new(move || loops_all_variants(ctx)),
         ));
     }
-    for v in [Variant::Nemm, Variant::NemmLight] {
+    for v in [ModelKind::Nemm, ModelKind::NemmLight] {
         if let Some(tv) = ctx.variant(v) {
             jobs.push((b_fl_file(v), Box::new(move || fig_b_fl(ctx, tv))));
         }
     }
-    if let Some(tv) = ctx.variant(Variant::Nemm) {
+    if let Some(tv) = ctx.variant(ModelKind::Nemm) {
         jobs.push((
             "fig11_b_pr.png".into(),
             Box::new(move || fig11_b_pr(ctx, tv)),
@@ -202,7 +203,7 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
-    fn variant(&self, v: Variant) -> Option<&TrainedVariant> {
+    fn variant(&self, v: ModelKind) -> Option<&TrainedVariant> {
         self.trained.iter().find(|t| t.variant == v)
     }
 
@@ -211,12 +212,12 @@ impl Ctx<'_> {
     }
 }
 
-fn variant_color(v: Variant) -> RGBColor {
+fn variant_color(v: ModelKind) -> RGBColor {
     match v {
-        Variant::Sem => palette::categorical(4),
-        Variant::LinearEmm => palette::categorical(1),
-        Variant::NemmLight => palette::categorical(2),
-        Variant::Nemm => palette::categorical(0),
+        ModelKind::Sem => palette::categorical(4),
+        ModelKind::LinearEmm => palette::categorical(1),
+        ModelKind::NemmLight => palette::categorical(2),
+        ModelKind::Nemm => palette::categorical(0),
     }
 }
 

@@ -2,8 +2,9 @@
 
 use super::{value_range, variant_color, Ctx, Drawn};
 use crate::report::plot::{Figure, LegendPosition, LinePanel, Series};
-use crate::train::pipeline::{TrainedVariant, Variant, VariantInfo};
+use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::Result;
+use nemm_core::ModelKind;
 
 /// Epoch of the kept model: the best validation epoch, or 0 if no epoch beat the start.
 fn best_epoch(tv: &TrainedVariant) -> Option<(usize, f64)> {
@@ -20,7 +21,7 @@ fn best_epoch(tv: &TrainedVariant) -> Option<(usize, f64)> {
 }
 
 pub(super) fn training_curves(ctx: &Ctx<'_>) -> Result<Drawn> {
-    let with_history: Vec<&TrainedVariant> = Variant::ALL
+    let with_history: Vec<&TrainedVariant> = ModelKind::ALL
         .iter()
         .filter_map(|&v| ctx.variant(v))
         .filter(|t| !t.history.is_empty())
@@ -94,12 +95,12 @@ pub(super) fn training_curves(ctx: &Ctx<'_>) -> Result<Drawn> {
                 .with_series(Series::dots("", phys, c).unlabelled());
         }
     }
-    if let Some(sem) = ctx.variant(Variant::Sem) {
+    if let Some(sem) = ctx.variant(ModelKind::Sem) {
         if sem.val_rmse.is_finite() && sem.val_rmse > 0.0 {
             p_val = p_val.with_series(Series::dashed(
                 format!("SEM (no training): {:.4}", sem.val_rmse),
                 vec![(x_range.0, sem.val_rmse), (x_range.1, sem.val_rmse)],
-                variant_color(Variant::Sem),
+                variant_color(ModelKind::Sem),
             ));
         }
     }
