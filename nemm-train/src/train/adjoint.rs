@@ -83,7 +83,7 @@ impl Real for f64 {
 }
 
 /// The lane type of a pack: one value per window (nemm-core's [`Lanes`]).
-type L<T> = Lanes<T, LANES>;
+type WindowLanes<T> = Lanes<T, LANES>;
 
 /// Shape of a scaler's alpha branch (`nemm_core::mlp::AlphaBranch`): its weights follow
 /// the MLP's in [`ScalerWeights::w`], in nemm-core's branch layout.
@@ -426,24 +426,24 @@ impl Grid {
 #[derive(Debug, Clone)]
 struct LaneScaler<'a, T> {
     view: mlp::ScalerView<'a, T>,
-    fold: Box<mlp::Folded<L<T>>>,
+    fold: Box<mlp::Folded<WindowLanes<T>>>,
     /// The MLP's first input when it has no state input (`b_pr`: `alpha_n`, or 0 with a
     /// branch).
-    x_alpha: L<T>,
+    x_alpha: WindowLanes<T>,
     /// The MLP's second input (`alpha_n`, or 0 with a branch).
-    second: L<T>,
+    second: WindowLanes<T>,
     /// The branch's `alpha_n`.
-    alpha_n: L<T>,
+    alpha_n: WindowLanes<T>,
 }
 
 impl<'a, T: Real> LaneScaler<'a, T> {
-    fn new(s: &'a ScalerWeights<T>, alpha_n: L<T>) -> Self {
+    fn new(s: &'a ScalerWeights<T>, alpha_n: WindowLanes<T>) -> Self {
         let direction = s.branch.map_or(Direction::None, |b| b.direction);
         let view = mlp::ScalerView::new(s.layout(), &s.w, direction)
             .expect("scaler weight count does not match its shape");
-        let (x_alpha, second) = view.inputs(L::default(), alpha_n);
+        let (x_alpha, second) = view.inputs(WindowLanes::default(), alpha_n);
         let fold = Box::new(
-            view.fold::<Unfused, L<T>>(second, alpha_n)
+            view.fold::<Unfused, WindowLanes<T>>(second, alpha_n)
                 .expect("consistent scaler shape"),
         );
         Self {
@@ -463,13 +463,15 @@ impl<'a, T: Real> LaneScaler<'a, T> {
 
     /// Raw output `z` at first input `x`, recording into `rec` if given.
     #[inline]
-    fn raw(&self, x: L<T>, rec: Option<&mut Act<T>>) -> L<T> {
+    fn raw(&self, x: WindowLanes<T>, rec: Option<&mut Act<T>>) -> WindowLanes<T> {
         let z = match rec {
-            None => self.view.raw::<Unfused, L<T>>(&self.fold, x, None),
+            None => self
+                .view
+                .raw::<Unfused, WindowLanes<T>>(&self.fold, x, None),
             Some(r) => {
                 r.x0 = x;
                 self.view
-                    .raw::<Unfused, L<T>>(&self.fold, x, Some(&mut r.tape_mut()))
+                    .raw::<Unfused, WindowLanes<T>>(&self.fold, x, Some(&mut r.tape_mut()))
             }
         };
         z.expect("consistent scaler shape")
@@ -478,7 +480,7 @@ impl<'a, T: Real> LaneScaler<'a, T> {
     /// Reverse mode of [`Self::raw`]: adds the weight gradients to `g` (the flat layout)
     /// and returns `dL/dx`.
     #[inline]
-    fn backward(&self, rec: &Act<T>, zbar: L<T>, g: &mut [T]) -> L<T> {
+    fn backward(&self, rec: &Act<T>, zbar: WindowLanes<T>, g: &mut [T]) -> WindowLanes<T> {
         let (gm, gb) = g.split_at_mut(self.view.layout.mlp_len());
         self.view
             .raw_backward(&rec.tape(), rec.x0, self.second, self.alpha_n, zbar, gm, gb)
@@ -491,32 +493,32 @@ impl<'a, T: Real> LaneScaler<'a, T> {
 #[derive(Debug, Clone)]
 struct Act<T> {
     /// The MLP's first input.
-    x0: L<T>,
+    x0: WindowLanes<T>,
     /// Normalised pre-activations `n = (h - mean) r`, `layers * H`.
-    n: Vec<L<T>>,
+    n: Vec<WindowLanes<T>>,
     /// `1 / sqrt(var + eps)`, per layer.
-    r: Vec<L<T>>,
+    r: Vec<WindowLanes<T>>,
     /// Activations after LeakyReLU, `layers * H`.
-    a: Vec<L<T>>,
+    a: Vec<WindowLanes<T>>,
     /// `sigmoid(z)`.
-    sig: L<T>,
+    sig: WindowLanes<T>,
     /// The alpha branch's pre-activations `t_k` (empty without a branch).
-    bt: Vec<L<T>>,
+    bt: Vec<WindowLanes<T>>,
 }
 
 impl<T: Real> Act<T> {
     fn new(h: usize, layers: usize, units: usize) -> Self {
         Self {
-            x0: L::default(),
-            n: vec![L::default(); h * layers],
-            r: vec![L::default(); layers],
-            a: vec![L::default(); h * layers],
-            sig: L::default(),
-            bt: vec![L::default(); units],
+            x0: WindowLanes::default(),
+            n: vec![WindowLanes::default(); h * layers],
+            r: vec![WindowLanes::default(); layers],
+            a: vec![WindowLanes::default(); h * layers],
+            sig: WindowLanes::default(),
+            bt: vec![WindowLanes::default(); units],
         }
     }
 
-    fn tape_mut(&mut self) -> mlp::TapeMut<'_, L<T>> {
+    fn tape_mut(&mut self) -> mlp::TapeMut<'_, WindowLanes<T>> {
         mlp::TapeMut {
             n: &mut self.n,
             r: &mut self.r,
@@ -525,7 +527,7 @@ impl<T: Real> Act<T> {
         }
     }
 
-    fn tape(&self) -> mlp::Tape<'_, L<T>> {
+    fn tape(&self) -> mlp::Tape<'_, WindowLanes<T>> {
         mlp::Tape {
             n: &self.n,
             r: &self.r,
@@ -555,7 +557,7 @@ struct NeuralCoef<'a, T> {
 }
 
 impl<'a, T: Real> Coef<'a, T> {
-    fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: L<T>) -> Self {
+    fn new(c0: T, s: Option<&'a ScalerWeights<T>>, scale: T, alpha_n: WindowLanes<T>) -> Self {
         Self {
             c0,
             neural: s.map(|s| NeuralCoef {
@@ -572,11 +574,11 @@ impl<'a, T: Real> Coef<'a, T> {
     }
 
     #[inline]
-    fn eval(&self, x: L<T>, mut rec: Option<&mut Act<T>>) -> L<T> {
+    fn eval(&self, x: WindowLanes<T>, mut rec: Option<&mut Act<T>>) -> WindowLanes<T> {
         match &self.neural {
-            None => L::splat(self.c0),
+            None => WindowLanes::splat(self.c0),
             Some(n) => {
-                let x0 = x * L::splat(n.inv_scale);
+                let x0 = x * WindowLanes::splat(n.inv_scale);
                 let z = n.scaler.raw(x0, rec.as_deref_mut());
                 let (p, sig) = self.bounded(n, z);
                 if let Some(rec) = rec {
@@ -589,22 +591,39 @@ impl<'a, T: Real> Coef<'a, T> {
 
     /// The output mapping of the neural coefficient `n` at raw output `z`: `(p, sigmoid)`.
     #[inline(always)]
-    fn bounded(&self, n: &NeuralCoef<'_, T>, z: L<T>) -> (L<T>, L<T>) {
-        mlp::bounded::<Unfused, L<T>>(z, L::splat(self.c0 * n.s_min), L::splat(self.c0 * n.span))
+    fn bounded(
+        &self,
+        n: &NeuralCoef<'_, T>,
+        z: WindowLanes<T>,
+    ) -> (WindowLanes<T>, WindowLanes<T>) {
+        mlp::bounded::<Unfused, WindowLanes<T>>(
+            z,
+            WindowLanes::splat(self.c0 * n.s_min),
+            WindowLanes::splat(self.c0 * n.span),
+        )
     }
 
     /// Back-propagates `cbar = dL/d(coefficient)`; returns `dL/d(state component)`.
     #[inline]
-    fn backward(&self, rec: Option<&Act<T>>, cbar: L<T>, c0bar: &mut T, g: &mut [T]) -> L<T> {
+    fn backward(
+        &self,
+        rec: Option<&Act<T>>,
+        cbar: WindowLanes<T>,
+        c0bar: &mut T,
+        g: &mut [T],
+    ) -> WindowLanes<T> {
         match (&self.neural, rec) {
             (Some(n), Some(rec)) => {
-                *c0bar += L::sum(cbar * (L::splat(n.s_min) + L::splat(n.span) * rec.sig));
-                let zbar = mlp::bounded_backward(rec.sig, L::splat(self.c0 * n.span), cbar);
-                n.scaler.backward(rec, zbar, g) * L::splat(n.inv_scale)
+                *c0bar += WindowLanes::sum(
+                    cbar * (WindowLanes::splat(n.s_min) + WindowLanes::splat(n.span) * rec.sig),
+                );
+                let zbar =
+                    mlp::bounded_backward(rec.sig, WindowLanes::splat(self.c0 * n.span), cbar);
+                n.scaler.backward(rec, zbar, g) * WindowLanes::splat(n.inv_scale)
             }
             _ => {
-                *c0bar += L::sum(cbar);
-                L::default()
+                *c0bar += WindowLanes::sum(cbar);
+                WindowLanes::default()
             }
         }
     }
@@ -615,9 +634,9 @@ impl<'a, T: Real> Coef<'a, T> {
 // ---------------------------------------------------------------------------------------
 
 /// A state over the lanes (or its adjoint).
-type St<T> = State<L<T>>;
+type LaneState<T> = State<WindowLanes<T>>;
 /// Coefficient values at one state over the lanes (or their adjoints).
-type Cv<T> = Coefficients<L<T>>;
+type LaneCoefficients<T> = Coefficients<WindowLanes<T>>;
 
 /// Where to record the activations of the `b_fl` and `k_pr` evaluations.
 type ActPair<'r, T> = (&'r mut Option<Act<T>>, &'r mut Option<Act<T>>);
@@ -631,33 +650,37 @@ struct BprRecord<'a, T> {
     span: T,
 }
 
-/// Everything fixed for one pack.
+/// Everything fixed for one pack (a batch of windows advanced in lock step).
 struct Pack<'a, T> {
-    bf: Coef<'a, T>,
-    k: Coef<'a, T>,
-    bp: L<T>,
+    /// The `b_fl(v_st, alpha)` coefficient at the pack's levels.
+    b_fl: Coef<'a, T>,
+    /// The `k_pr(x_pr, alpha)` coefficient at the pack's levels.
+    k_pr: Coef<'a, T>,
+    /// `b_pr(alpha)` per lane (constant over a window).
+    b_pr: WindowLanes<T>,
     /// The `b_pr(alpha)` scaler's evaluation, for its backward pass.
-    bp_rec: Option<BprRecord<'a, T>>,
+    b_pr_record: Option<BprRecord<'a, T>>,
     /// `1 / T_pr`.
-    it: T,
+    inv_t_pr: T,
     integrator: Integrator,
-    h: StepSize<L<T>>,
+    /// The model step `dt` and its fractions.
+    step_size: StepSize<WindowLanes<T>>,
 }
 
 impl<'a, T: Real> Pack<'a, T> {
-    fn new(p: &'a RolloutParams<T>, alphas: L<T>) -> Self {
-        let alpha_n = alphas / L::splat(p.alpha_scale);
-        let (bp, bp_rec) = match &p.b_pr {
-            None => (L::splat(p.b_pr0), None),
+    fn new(p: &'a RolloutParams<T>, alphas: WindowLanes<T>) -> Self {
+        let alpha_n = alphas / WindowLanes::splat(p.alpha_scale);
+        let (bp, b_pr_record) = match &p.b_pr {
+            None => (WindowLanes::splat(p.b_pr0), None),
             Some(s) => {
                 let scaler = LaneScaler::new(s, alpha_n);
                 let mut act = scaler.act();
                 let z = scaler.raw(scaler.x_alpha, Some(&mut act));
                 let span = s.s_max - s.s_min;
-                let (bp, sig) = mlp::bounded::<Unfused, L<T>>(
+                let (bp, sig) = mlp::bounded::<Unfused, WindowLanes<T>>(
                     z,
-                    L::splat(p.b_pr0 * s.s_min),
-                    L::splat(p.b_pr0 * span),
+                    WindowLanes::splat(p.b_pr0 * s.s_min),
+                    WindowLanes::splat(p.b_pr0 * span),
                 );
                 act.sig = sig;
                 (
@@ -672,44 +695,53 @@ impl<'a, T: Real> Pack<'a, T> {
             }
         };
         Self {
-            bf: Coef::new(p.b_fl0, p.b_fl.as_ref(), p.v_scale, alpha_n),
-            k: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, alpha_n),
-            bp,
-            bp_rec,
-            it: T::one() / p.t_pr,
+            b_fl: Coef::new(p.b_fl0, p.b_fl.as_ref(), p.v_scale, alpha_n),
+            k_pr: Coef::new(p.k0, p.k_pr.as_ref(), p.x_scale, alpha_n),
+            b_pr: bp,
+            b_pr_record,
+            inv_t_pr: T::one() / p.t_pr,
             integrator: p.integrator,
-            h: StepSize::splat(p.dt),
+            step_size: StepSize::splat(p.dt),
         }
     }
 
     #[inline]
-    fn coeffs(&self, s: &St<T>, rec: Option<ActPair<'_, T>>) -> Cv<T> {
+    fn coeffs(&self, s: &LaneState<T>, rec: Option<ActPair<'_, T>>) -> LaneCoefficients<T> {
         let (bf, k) = match rec {
-            None => (self.bf.eval(s.v_st_m_s, None), self.k.eval(s.x_pr_m, None)),
+            None => (
+                self.b_fl.eval(s.v_st_m_s, None),
+                self.k_pr.eval(s.x_pr_m, None),
+            ),
             Some((rb, rk)) => (
-                self.bf.eval(s.v_st_m_s, rb.as_mut()),
-                self.k.eval(s.x_pr_m, rk.as_mut()),
+                self.b_fl.eval(s.v_st_m_s, rb.as_mut()),
+                self.k_pr.eval(s.x_pr_m, rk.as_mut()),
             ),
         };
         Coefficients {
             b_fl: bf,
-            b_pr: self.bp,
+            b_pr: self.b_pr,
             k_pr: k,
         }
     }
 
     /// One RK step from `s` (coefficients `c1`) with inputs `u0` -> `u1`: nemm-core's
     /// [`integrator::step_with`] over the lanes, unfused.
-    fn step(&self, s: &St<T>, c1: &Cv<T>, u0: L<T>, u1: L<T>) -> St<T> {
-        integrator::step_with::<Unfused, L<T>, _>(
+    fn step(
+        &self,
+        s: &LaneState<T>,
+        c1: &LaneCoefficients<T>,
+        u0: WindowLanes<T>,
+        u1: WindowLanes<T>,
+    ) -> LaneState<T> {
+        integrator::step_with::<Unfused, WindowLanes<T>, _>(
             self.integrator,
             &mut PackStage { pk: self },
             c1,
-            L::splat(self.it),
+            WindowLanes::splat(self.inv_t_pr),
             s,
             u0,
             u1,
-            &self.h,
+            &self.step_size,
         )
     }
 }
@@ -719,18 +751,18 @@ struct PackStage<'p, 'a, T> {
     pk: &'p Pack<'a, T>,
 }
 
-impl<T: Real> Stage<L<T>> for PackStage<'_, '_, T> {
+impl<T: Real> Stage<WindowLanes<T>> for PackStage<'_, '_, T> {
     #[inline(always)]
-    fn coeffs(&mut self, s: &St<T>) -> Cv<T> {
+    fn coeffs(&mut self, s: &LaneState<T>) -> LaneCoefficients<T> {
         self.pk.coeffs(s, None)
     }
 }
 
 /// Adjoint accumulators of one pack.
-struct Bar<T> {
+struct PackAdjoint<T> {
     g: RolloutGrads<T>,
     /// dL/d b_pr per lane (b_pr is constant over a window).
-    bp: L<T>,
+    b_pr: WindowLanes<T>,
 }
 
 /// Activation records of the `b_fl` and `k_pr` scalers at one state.
@@ -740,19 +772,19 @@ type RecPair<T> = (Option<Act<T>>, Option<Act<T>>);
 /// record their scalers' activations and back-propagate through them.
 struct PackStagesBack<'p, 'a, T> {
     pk: &'p Pack<'a, T>,
-    bar: &'p mut Bar<T>,
+    bar: &'p mut PackAdjoint<T>,
     recs: &'p mut [RecPair<T>; 3],
 }
 
-impl<T: Real> StageBackward<L<T>> for PackStagesBack<'_, '_, T> {
+impl<T: Real> StageBackward<WindowLanes<T>> for PackStagesBack<'_, '_, T> {
     #[inline(always)]
-    fn coeffs(&mut self, i: usize, s: &St<T>) -> Cv<T> {
+    fn coeffs(&mut self, i: usize, s: &LaneState<T>) -> LaneCoefficients<T> {
         let (rb, rk) = &mut self.recs[i - 2];
         self.pk.coeffs(s, Some((rb, rk)))
     }
 
     #[inline(always)]
-    fn backward(&mut self, i: usize, cbar: &Cv<T>, sbar: &mut St<T>) {
+    fn backward(&mut self, i: usize, cbar: &LaneCoefficients<T>, sbar: &mut LaneState<T>) {
         let (rb, rk) = &self.recs[i - 2];
         self.pk.coef_backward(rb, rk, cbar, sbar, self.bar);
     }
@@ -766,19 +798,19 @@ impl<T: Real> Pack<'_, T> {
         &self,
         rb: &Option<Act<T>>,
         rk: &Option<Act<T>>,
-        cbar: &Cv<T>,
-        sbar: &mut St<T>,
-        bar: &mut Bar<T>,
+        cbar: &LaneCoefficients<T>,
+        sbar: &mut LaneState<T>,
+        bar: &mut PackAdjoint<T>,
     ) {
         let xv = self
-            .bf
+            .b_fl
             .backward(rb.as_ref(), cbar.b_fl, &mut bar.g.b_fl0, &mut bar.g.b_fl);
         let xx = self
-            .k
+            .k_pr
             .backward(rk.as_ref(), cbar.k_pr, &mut bar.g.k0, &mut bar.g.k_pr);
         sbar.v_st_m_s = sbar.v_st_m_s + xv;
         sbar.x_pr_m = sbar.x_pr_m + xx;
-        bar.bp = bar.bp + cbar.b_pr;
+        bar.b_pr = bar.b_pr + cbar.b_pr;
     }
 }
 
@@ -787,27 +819,27 @@ impl<T: Real> Pack<'_, T> {
 /// lies on the model grid; per lane the weight of its squared error (0 for padding).
 struct PackData<T> {
     /// Velocity per model step.
-    u: Vec<L<T>>,
+    u: Vec<WindowLanes<T>>,
     /// Constant condition level per lane (`alpha_steps` is `None`).
-    alpha0: L<T>,
+    alpha0: WindowLanes<T>,
     /// Condition level per model step when some lane's level changes within its window.
-    alpha_steps: Option<Vec<L<T>>>,
+    alpha_steps: Option<Vec<WindowLanes<T>>>,
     /// Measured force per data sample (empty for a forward-only pack).
-    f: Vec<L<T>>,
+    f: Vec<WindowLanes<T>>,
     /// [`Grid::sample_at`] of every data sample (empty when `identity`).
     at: Vec<(usize, T)>,
     /// Every model step is a data sample ([`Grid::SAME`]).
     identity: bool,
-    lane_w: L<T>,
+    lane_w: WindowLanes<T>,
     /// With a static force: its features per model step
     /// (`nemm_core::static_force::features` at the step's position, velocity and level).
-    phi: Option<Vec<[L<T>; STATIC_PARAMS]>>,
+    phi: Option<Vec<[WindowLanes<T>; STATIC_PARAMS]>>,
 }
 
 impl<T: Real> PackData<T> {
     /// The condition level of every lane at model step `j`.
     #[inline]
-    fn alpha(&self, j: usize) -> L<T> {
+    fn alpha(&self, j: usize) -> WindowLanes<T> {
         match &self.alpha_steps {
             Some(a) if j < a.len() => a[j],
             _ => self.alpha0,
@@ -816,12 +848,12 @@ impl<T: Real> PackData<T> {
 
     /// The static force of every lane at model step `j` (0 without one).
     #[inline]
-    fn static_at(&self, p: &RolloutParams<T>, j: usize) -> L<T> {
+    fn static_at(&self, p: &RolloutParams<T>, j: usize) -> WindowLanes<T> {
         match (&self.phi, &p.static_force) {
             (Some(phi), Some(sp)) => Lanes(std::array::from_fn(|l| {
                 (0..STATIC_PARAMS).fold(T::zero(), |r, q| r + sp.theta[q] * phi[j][q].0[l])
             })),
-            _ => L::default(),
+            _ => WindowLanes::default(),
         }
     }
 
@@ -846,18 +878,18 @@ fn pack_data<T: Real>(
     stat: Option<&StaticParams<T>>,
 ) -> PackData<T> {
     let n = grid.steps(samples);
-    let mut u = vec![L::default(); n];
+    let mut u = vec![WindowLanes::default(); n];
     let mut f = if with_force {
-        vec![L::default(); samples]
+        vec![WindowLanes::default(); samples]
     } else {
         Vec::new()
     };
-    let mut lane_w = L::<T>::default();
-    let mut alpha0 = L::<T>::default();
+    let mut lane_w = WindowLanes::<T>::default();
+    let mut alpha0 = WindowLanes::<T>::default();
     let varying = windows.iter().any(|w| w.alphas.is_some());
-    let mut alpha_steps = varying.then(|| vec![L::default(); n]);
+    let mut alpha_steps = varying.then(|| vec![WindowLanes::default(); n]);
     let identity = *grid == Grid::SAME;
-    let mut phi = stat.map(|_| vec![[L::default(); STATIC_PARAMS]; n]);
+    let mut phi = stat.map(|_| vec![[WindowLanes::default(); STATIC_PARAMS]; n]);
     // Per model step, the sample position of its input (shared by the lanes).
     let inputs: Vec<(usize, f64)> = if identity {
         Vec::new()
@@ -896,7 +928,7 @@ fn pack_data<T: Real>(
             fi.0[k] = T::c(f64::from(win.f[i]));
         }
         if let (Some(phi), Some(sp)) = (phi.as_mut(), stat) {
-            let phi: &mut Vec<[L<T>; STATIC_PARAMS]> = phi;
+            let phi: &mut Vec<[WindowLanes<T>; STATIC_PARAMS]> = phi;
             for (j, pj) in phi.iter_mut().enumerate() {
                 let x = match win.x {
                     Some(x) if identity => x.get(j).map_or(sp.x_ref, |&v| T::c(f64::from(v))),
@@ -939,14 +971,17 @@ fn pack_data<T: Real>(
 /// 0) and forces per step. A step whose condition level changed re-folds it (a new [`Pack`])
 /// and re-evaluates the coefficients at the step's start state with it, as
 /// `nemm_core::Estimator::set_alpha` does.
-fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>, Vec<L<T>>) {
+fn forward_sweep<T: Real>(
+    p: &RolloutParams<T>,
+    d: &PackData<T>,
+) -> (Vec<LaneState<T>>, Vec<WindowLanes<T>>) {
     let n = d.u.len();
     let mut pk = Pack::new(p, d.alpha(0));
     let mut states = Vec::with_capacity(n + 1);
     let mut ys = Vec::with_capacity(n);
-    let mut s = St::default();
+    let mut s = LaneState::default();
     let mut c = pk.coeffs(&s, None);
-    let mut u_prev = L::default();
+    let mut u_prev = WindowLanes::default();
     states.push(s);
     for (j, u) in d.u.iter().enumerate() {
         if d.alpha_changes(j) {
@@ -956,7 +991,7 @@ fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>,
         s = pk.step(&s, &c, u_prev, *u);
         c = pk.coeffs(&s, None);
         let r = d.static_at(p, j);
-        let y = emm::force_with::<Unfused, L<T>>(&c, &s, *u);
+        let y = emm::force_with::<Unfused, WindowLanes<T>>(&c, &s, *u);
         ys.push(y + r);
         states.push(s);
         u_prev = *u;
@@ -965,7 +1000,7 @@ fn forward_sweep<T: Real>(p: &RolloutParams<T>, d: &PackData<T>) -> (Vec<St<T>>,
 }
 
 /// The forces of a forward sweep at the data samples (output interpolation of [`Grid`]).
-fn at_samples<T: Real>(d: &PackData<T>, ys: &[L<T>]) -> Vec<L<T>> {
+fn at_samples<T: Real>(d: &PackData<T>, ys: &[WindowLanes<T>]) -> Vec<WindowLanes<T>> {
     if d.identity {
         return ys.to_vec();
     }
@@ -983,10 +1018,10 @@ fn at_samples<T: Real>(d: &PackData<T>, ys: &[L<T>]) -> Vec<L<T>> {
 
 /// Back-propagates the accumulated `dL/d b_pr` of the current condition level through the
 /// `b_pr(alpha)` scaler (or into `b_pr,ini`) and clears it.
-fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T>) {
-    let bp_bar = bar.bp.0;
-    match &pk.bp_rec {
-        None => bar.g.b_pr0 += L::sum(bar.bp),
+fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut PackAdjoint<T>) {
+    let bp_bar = bar.b_pr.0;
+    match &pk.b_pr_record {
+        None => bar.g.b_pr0 += WindowLanes::sum(bar.b_pr),
         Some(BprRecord {
             scaler,
             act,
@@ -996,12 +1031,13 @@ fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut Bar<T
             for k in 0..LANES {
                 bar.g.b_pr0 += bp_bar[k] * (*s_min + *span * act.sig.0[k]);
             }
-            let zbar = mlp::bounded_backward(act.sig, L::splat(p.b_pr0 * *span), bar.bp);
+            let zbar =
+                mlp::bounded_backward(act.sig, WindowLanes::splat(p.b_pr0 * *span), bar.b_pr);
             // No state input: the input's adjoint is not used.
             let _ = scaler.backward(act, zbar, &mut bar.g.b_pr);
         }
     }
-    bar.bp = L::splat(T::zero());
+    bar.b_pr = WindowLanes::splat(T::zero());
 }
 
 /// Loss sum (unnormalised) and gradient of one pack. `ybar_scale` is `2 / (F_s^2 M)`;
@@ -1019,7 +1055,7 @@ fn pack_loss_grad<T: Real>(
     // The loss at the data samples and its adjoint per model step: formed here on a
     // coarser data grid, inline in the reverse sweep when every step is a sample.
     let mut loss = T::zero();
-    let sample_loss = |y: &L<T>, f: &L<T>, loss: &mut T| -> L<T> {
+    let sample_loss = |y: &WindowLanes<T>, f: &WindowLanes<T>, loss: &mut T| -> WindowLanes<T> {
         Lanes(std::array::from_fn(|l| {
             let e = (y.0[l] - f.0[l]) * d.lane_w.0[l];
             let en = e * inv_fs;
@@ -1027,8 +1063,8 @@ fn pack_loss_grad<T: Real>(
             ybar_scale * e
         }))
     };
-    let on_grid: Option<(Vec<L<T>>, Vec<bool>)> = (!d.identity).then(|| {
-        let mut ybar = vec![L::<T>::default(); n];
+    let on_grid: Option<(Vec<WindowLanes<T>>, Vec<bool>)> = (!d.identity).then(|| {
+        let mut ybar = vec![WindowLanes::<T>::default(); n];
         let mut scored = vec![false; n];
         for (k, (y, f)) in at_samples(d, &ys).iter().zip(&d.f).enumerate().skip(warmup) {
             let (j, wgt) = d.at[k];
@@ -1037,34 +1073,38 @@ fn pack_loss_grad<T: Real>(
                 ybar[j] = ybar[j] + g;
                 scored[j] = true;
             } else {
-                ybar[j] = ybar[j] + L::splat(T::one() - wgt) * g;
-                ybar[j + 1] = ybar[j + 1] + L::splat(wgt) * g;
+                ybar[j] = ybar[j] + WindowLanes::splat(T::one() - wgt) * g;
+                ybar[j + 1] = ybar[j + 1] + WindowLanes::splat(wgt) * g;
                 scored[j] = true;
                 scored[j + 1] = true;
             }
         }
         (ybar, scored)
     });
-    let mut bar = Bar {
+    let mut bar = PackAdjoint {
         g: RolloutGrads::zeros(p),
-        bp: L::splat(T::zero()),
+        b_pr: WindowLanes::splat(T::zero()),
     };
-    let it = L::splat(pk.it);
+    let it = WindowLanes::splat(pk.inv_t_pr);
     // dL/d(1/T_pr) per lane.
-    let mut it_bar = L::<T>::splat(T::zero());
+    let mut it_bar = WindowLanes::<T>::splat(T::zero());
     // Reverse sweep. `sbar` is dL/ds_n (direct paths so far); `cbar_n` the coefficient
     // adjoint at s_n from stage 1 of step n+1; `rb_n`/`rk_n` the activations at s_n.
-    let mut sbar = St::<T>::default();
-    let mut cbar_n = Cv::<T>::default();
-    let (mut rb_n, mut rk_n) = (pk.bf.act(), pk.k.act());
+    let mut sbar = LaneState::<T>::default();
+    let mut cbar_n = LaneCoefficients::<T>::default();
+    let (mut rb_n, mut rk_n) = (pk.b_fl.act(), pk.k_pr.act());
     let mut have_rec_n = false;
-    let (mut rb1, mut rk1) = (pk.bf.act(), pk.k.act());
-    let mut recs: [RecPair<T>; 3] = std::array::from_fn(|_| (pk.bf.act(), pk.k.act()));
+    let (mut rb1, mut rk1) = (pk.b_fl.act(), pk.k_pr.act());
+    let mut recs: [RecPair<T>; 3] = std::array::from_fn(|_| (pk.b_fl.act(), pk.k_pr.act()));
     for i in (0..n).rev() {
         let s_n = states[i + 1];
         let s_p = states[i];
         let u1 = d.u[i];
-        let u0 = if i == 0 { L::default() } else { d.u[i - 1] };
+        let u0 = if i == 0 {
+            WindowLanes::default()
+        } else {
+            d.u[i - 1]
+        };
         // Coefficients at s_n with activations (carried from the previous iteration's stage 1).
         let c_n = if have_rec_n {
             pk.coeffs_from_rec(&rb_n, &rk_n)
@@ -1082,15 +1122,22 @@ fn pack_loss_grad<T: Real>(
             }
         }
         if let Some(yb) = ybar_i {
-            emm::force_backward::<Unfused, L<T>>(&c_n, &s_n, u1, yb, &mut sbar, &mut cbar_n);
+            emm::force_backward::<Unfused, WindowLanes<T>>(
+                &c_n,
+                &s_n,
+                u1,
+                yb,
+                &mut sbar,
+                &mut cbar_n,
+            );
         }
         // Scalers at s_n: complete dL/ds_n.
         pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
         // Step i: s_p -> s_n, its stages recomputed with activations.
         let c1 = pk.coeffs(&s_p, Some((&mut rb1, &mut rk1)));
-        let mut sbar_p = St::<T>::default();
-        let mut cbar1 = Cv::<T>::default();
-        integrator::step_backward::<Unfused, L<T>, _>(
+        let mut sbar_p = LaneState::<T>::default();
+        let mut cbar1 = LaneCoefficients::<T>::default();
+        integrator::step_backward::<Unfused, WindowLanes<T>, _>(
             pk.integrator,
             &mut PackStagesBack {
                 pk: &pk,
@@ -1102,7 +1149,7 @@ fn pack_loss_grad<T: Real>(
             &s_p,
             u0,
             u1,
-            &pk.h,
+            &pk.step_size,
             &sbar,
             &mut sbar_p,
             &mut cbar1,
@@ -1119,7 +1166,7 @@ fn pack_loss_grad<T: Real>(
             // that level's scalers, and so does b_pr's adjoint so far; step i - 1 (and the
             // output at s_p) ran at the previous level.
             pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sbar, &mut bar);
-            cbar_n = Cv::<T>::default();
+            cbar_n = LaneCoefficients::<T>::default();
             bpr_backward(p, &pk, &mut bar);
             pk = Pack::new(p, d.alpha(i - 1));
             have_rec_n = false;
@@ -1127,30 +1174,32 @@ fn pack_loss_grad<T: Real>(
     }
     // s_{-1} is the fixed rest state: its adjoint is dropped, but the coefficients there
     // depend on the weights.
-    let mut sdummy = St::default();
+    let mut sdummy = LaneState::default();
     pk.coef_backward(&rb_n, &rk_n, &cbar_n, &mut sdummy, &mut bar);
     // b_pr: constant over the window (or since its last change).
     bpr_backward(p, &pk, &mut bar);
     // T_pr from 1/T_pr.
-    bar.g.t_pr = -L::sum(it_bar) * pk.it * pk.it;
+    bar.g.t_pr = -WindowLanes::sum(it_bar) * pk.inv_t_pr * pk.inv_t_pr;
     (loss, bar.g)
 }
 
 impl<T: Real> Pack<'_, T> {
     /// Coefficient values from recorded activations (no recomputation).
-    fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>) -> Cv<T> {
-        let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> L<T> {
+    fn coeffs_from_rec(&self, rb: &Option<Act<T>>, rk: &Option<Act<T>>) -> LaneCoefficients<T> {
+        let val = |c: &Coef<'_, T>, r: &Option<Act<T>>| -> WindowLanes<T> {
             match (&c.neural, r) {
-                (Some(n), Some(r)) => {
-                    Unfused::mul_add(L::splat(c.c0 * n.span), r.sig, L::splat(c.c0 * n.s_min))
-                }
-                _ => L::splat(c.c0),
+                (Some(n), Some(r)) => Unfused::mul_add(
+                    WindowLanes::splat(c.c0 * n.span),
+                    r.sig,
+                    WindowLanes::splat(c.c0 * n.s_min),
+                ),
+                _ => WindowLanes::splat(c.c0),
             }
         };
         Coefficients {
-            b_fl: val(&self.bf, rb),
-            b_pr: self.bp,
-            k_pr: val(&self.k, rk),
+            b_fl: val(&self.b_fl, rb),
+            b_pr: self.b_pr,
+            k_pr: val(&self.k_pr, rk),
         }
     }
 }
@@ -1208,7 +1257,7 @@ fn sweep_windows<T: Real, R: Send>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
     grid: &Grid,
-    out: impl Fn(&PackData<T>, &[St<T>], &[L<T>], usize, usize) -> R + Sync,
+    out: impl Fn(&PackData<T>, &[LaneState<T>], &[WindowLanes<T>], usize, usize) -> R + Sync,
 ) -> Vec<R> {
     let refs: Vec<&Window<'_>> = windows.iter().collect();
     refs.par_chunks(LANES)
@@ -1249,7 +1298,7 @@ pub fn simulate_x_pr<T: Real>(
     grid: &Grid,
 ) -> Vec<Vec<f64>> {
     sweep_windows(p, windows, grid, |d, states, _, k, len| {
-        let x: Vec<L<T>> = states.iter().skip(1).map(|s| s.x_pr_m).collect();
+        let x: Vec<WindowLanes<T>> = states.iter().skip(1).map(|s| s.x_pr_m).collect();
         at_samples(d, &x)
             .iter()
             .take(len)
