@@ -1,6 +1,7 @@
 //! Records the commit the trainer is built from (`NEMM_GIT_COMMIT`: `git rev-parse --short
 //! HEAD`, with `+dirty` when tracked files differ from it; `unknown` outside a git checkout),
-//! so every report names the code that produced it.
+//! so every report names the code that produced it. The script reruns when HEAD, the index
+//! or the sources of the trainer and nemm-core change.
 use std::process::Command;
 
 fn git(args: &[&str]) -> Option<String> {
@@ -19,6 +20,17 @@ fn main() {
     if let Some(dir) = git(&["rev-parse", "--git-dir"]) {
         println!("cargo:rerun-if-changed={dir}/HEAD");
         println!("cargo:rerun-if-changed={dir}/index");
+    }
+    // The sources whose edits make the tree dirty: without these the script would rerun only
+    // when HEAD or the index move, and a binary built from an edited tree would carry a clean
+    // commit.
+    for dir in [
+        "src",
+        "Cargo.toml",
+        "../nemm-core/src",
+        "../nemm-core/Cargo.toml",
+    ] {
+        println!("cargo:rerun-if-changed={dir}");
     }
     println!("cargo:rerun-if-changed=build.rs");
 }

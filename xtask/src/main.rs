@@ -132,6 +132,10 @@ enum Cmd {
         /// Measured steps of the bench trace.
         #[arg(long, default_value_t = 4000)]
         steps: u32,
+        /// Write the block although the work tree (or, with --training, the code that trained
+        /// the report) has uncommitted changes; the block then names the commit `+dirty`.
+        #[arg(long)]
+        allow_dirty: bool,
     },
     /// Say which toolchain route builds the firmware (install it if root).
     Toolchain,
@@ -269,9 +273,15 @@ fn main() -> ExitCode {
         Some(Cmd::Msrv) => Paths::find().and_then(|paths| checks::msrv(&paths)),
         Some(Cmd::BuildBoard) => build_board(),
         Some(Cmd::RunTarget { options }) => run_target(&options),
-        Some(Cmd::Results { training, steps }) => match training {
-            Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir)),
-            None => setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps)),
+        Some(Cmd::Results {
+            training,
+            steps,
+            allow_dirty,
+        }) => match training {
+            Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty)),
+            None => {
+                setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty))
+            }
         },
         Some(Cmd::Toolchain) => setup().map(|(tc, _)| println!("{}", tc.describe())),
         Some(Cmd::FirmwareModel { velocity, out }) => {

@@ -127,6 +127,19 @@ fn commit(root: &Path) -> String {
     }
 }
 
+/// Refuses a block whose figures come from code with uncommitted changes (`commit` ends in
+/// `+dirty`): nobody could rebuild what produced them. `allow_dirty` writes it anyway (the
+/// block then names the `+dirty` commit).
+fn refuse_dirty(what: &str, commit: &str, allow_dirty: bool) -> Result<(), String> {
+    if commit.ends_with("+dirty") && !allow_dirty {
+        return Err(format!(
+            "{what} has uncommitted changes ({commit}): commit them and rebuild first, or pass \
+             --allow-dirty to write a block marked +dirty"
+        ));
+    }
+    Ok(())
+}
+
 /// Replaces block `name` of the results file with `body`.
 fn write_block(paths: &Paths, name: &str, body: &str) -> Result<(), String> {
     write_block_in(paths, FILE, name, body)
@@ -356,8 +369,9 @@ fn fit_readme_markdown(provenance: &str, cycles: &[CycleFigures]) -> String {
 
 /// `cargo xtask results`: builds the firmware, measures it and writes the `target` block
 /// (and the README's `fit` block).
-pub fn target(tc: &Toolchain, paths: &Paths, steps: u32) -> Result<(), String> {
+pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> Result<(), String> {
     let commit = commit(&paths.root);
+    refuse_dirty("the work tree", &commit, allow_dirty)?;
     let images = firmware::build_all(tc, paths, &firmware::Board::ALL)?;
     let mut exact = Vec::new();
     let mut table = Vec::new();
@@ -422,7 +436,7 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32) -> Result<(), String> {
 }
 
 /// `cargo xtask results --training DIR`: the `training` block from a report directory.
-pub fn training(paths: &Paths, dir: &Path) -> Result<(), String> {
+pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), String> {
     let read = |name: &str| -> Result<Option<String>, String> {
         let p = dir.join(name);
         match std::fs::read_to_string(&p) {
@@ -440,11 +454,28 @@ pub fn training(paths: &Paths, dir: &Path) -> Result<(), String> {
     })?;
     let table5 = read("table5.md")?;
     let identify = read("identify.md")?;
-    let table4 = with_identify_summary(&table4, identify.as_deref());
     let info = match read("report.json")? {
         Some(json) => report_info(&json).map_err(|e| format!("{}: {e}", dir.display()))?,
         None => Vec::new(),
     };
+    refuse_dirty("the work tree", &commit(&paths.root), allow_dirty)?;
+    if let Some((_, c)) = info.iter().find(|(k, _)| k == "commit") {
+        refuse_dirty(
+            &format!("{}/report.json's training", dir.display()),
+            c,
+            allow_dirty,
+        )?;
+    }
+    if let Some(t5) = &table5 {
+        if t5.lines().next().is_some_and(|l| l.contains("+dirty`")) {
+            refuse_dirty(
+                &format!("{}/table5.md's sweep", dir.display()),
+                "+dirty",
+                allow_dirty,
+            )?;
+        }
+    }
+    let table4 = with_identify_summary(&table4, identify.as_deref());
     let md = training_markdown(
         &command_line(),
         &commit(&paths.root),
@@ -597,6 +628,17 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn figures_from_uncommitted_code_are_refused_unless_allowed() {
+        let e = super::refuse_dirty("the work tree", "abc1234+dirty", false).unwrap_err();
+        assert!(
+            e.contains("abc1234+dirty") && e.contains("--allow-dirty"),
+            "{e}"
+        );
+        assert!(super::refuse_dirty("the work tree", "abc1234+dirty", true).is_ok());
+        assert!(super::refuse_dirty("the work tree", "abc1234", false).is_ok());
+    }
 
     #[test]
     fn replaces_only_its_block() {

@@ -566,7 +566,7 @@ pub fn prepare_report(ds: &Dataset, p: &preprocess::Prepared) -> String {
     }
     let _ = writeln!(
         s,
-        "scales (training set, abs-max): velocity {} m/s, force {} N, alpha {}",
+        "scales (training set, abs-max): velocity {:.4} m/s, force {:.1} N, alpha {}",
         p.scales.velocity_m_s, p.scales.force_n, p.scales.alpha
     );
     s
