@@ -5,6 +5,9 @@ use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, SignalConfig};
 use std::f64::consts::PI;
 use std::path::PathBuf;
+use support::quantise;
+
+mod support;
 
 /// Deterministic pseudo-noise in [-0.5, 0.5) (a small LCG: tests need no statistics).
 struct Lcg(u64);
@@ -16,10 +19,6 @@ impl Lcg {
             .wrapping_add(1_442_695_040_888_963_407);
         (self.0 >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     }
-}
-
-fn quantise(x: f64, q: f64) -> f64 {
-    (x / q).round() * q
 }
 
 /// A sine run at `fs`: amplitude `a` \[m\], frequency `f` \[Hz\], damping force with noise
@@ -53,12 +52,7 @@ fn sine(fs: f64, a: f64, f: f64, seconds: f64, qx: f64, noise_n: f64) -> Run {
 }
 
 fn dataset(fs: f64, run: Run) -> Dataset {
-    Dataset {
-        name: "t".into(),
-        sample_rate_hz: fs,
-        condition: None,
-        runs: vec![run],
-    }
+    support::dataset("t", fs, vec![run])
 }
 
 /// Signal options with a cut-off below every test rate's Nyquist frequency.

@@ -6,15 +6,18 @@ use nemm_core::ModelKind;
 use nemm_train::bench::config::BenchConfig;
 use nemm_train::bench::reference::{self, EmmReference};
 use nemm_train::bench::VirtualBench;
-use nemm_train::data::dataset::{Dataset, Run, RunEntry};
+use nemm_train::data::dataset::{Dataset, Run};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared};
 use nemm_train::report::figures::{write_all, write_all_with_reference};
 use nemm_train::report::predictions::RunPredictions;
 use nemm_train::report::tables::{evaluate, Report};
 use nemm_train::train::fit::EpochStats;
 use nemm_train::train::pipeline::TrainedVariant;
-use std::f64::consts::PI;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use support::{DamperForce, SineRun};
+
+mod support;
 
 const FS: f64 = 10_000.0;
 
@@ -22,38 +25,23 @@ const FS: f64 = 10_000.0;
 /// periods, force `c(v, alpha) v + k x` (asymmetric damping, a spring term: a hysteresis loop
 /// in the force-velocity plane).
 fn run(alpha: f64, amplitude: f64, freq: f64, duration_s: f64) -> Run {
-    let n = (duration_s * FS) as usize;
-    let ramp = 2.0 / freq;
-    let (mut time_s, mut displacement_m, mut force_n) = (vec![], vec![], vec![]);
-    for i in 0..n {
-        let t = i as f64 / FS;
-        let (w, dw) = if t < ramp {
-            let a = PI * t / ramp;
-            (0.5 * (1.0 - a.cos()), 0.5 * PI / ramp * a.sin())
-        } else {
-            (1.0, 0.0)
-        };
-        let om = 2.0 * PI * freq;
-        let x = amplitude * w * (om * t).sin();
-        let v = amplitude * (dw * (om * t).sin() + w * om * (om * t).cos());
-        let c = if v > 0.0 { 2600.0 } else { 1500.0 } * (1.0 - 0.6 * alpha);
-        time_s.push(t);
-        displacement_m.push(x);
-        force_n.push(c * v + 40_000.0 * x);
-    }
-    Run {
-        entry: RunEntry {
-            file: PathBuf::from(format!("runs/oil{:02.0}_f{freq:.1}.csv", alpha * 100.0)),
-            oil_loss: alpha,
-            amplitude_m: Some(amplitude),
-            target_velocity_m_s: Some(2.0 * PI * freq * amplitude),
-        },
-        time_s,
-        displacement_m,
-        force_n,
-        velocity_m_s: None,
-        alpha: None,
-    }
+    let file = format!("runs/oil{:02.0}_f{freq:.1}.csv", alpha * 100.0);
+    let mut s = SineRun::new(
+        &file,
+        alpha,
+        amplitude,
+        freq,
+        FS,
+        (duration_s * FS) as usize,
+    );
+    s.ramp_periods = 2.0;
+    s.force = DamperForce {
+        c_rebound_ns_per_m: 2600.0,
+        c_compression_ns_per_m: 1500.0,
+        softening: 0.6,
+        k_n_per_m: 40_000.0,
+    };
+    s.build()
 }
 
 /// Runs at 0 %, 30 % (training) and 15 % (test) oil loss, 10 mm at 8.3 and 16.7 Hz, plus a
@@ -68,12 +56,7 @@ fn dataset() -> Dataset {
             runs.push(run(alpha, 0.050, 1.0, 1.0));
         }
     }
-    Dataset {
-        name: "figures test".into(),
-        sample_rate_hz: FS,
-        condition: None,
-        runs,
-    }
+    support::dataset("figures test", FS, runs)
 }
 
 fn prepared(ds: &Dataset) -> Prepared {

@@ -1,48 +1,23 @@
 //! Preprocessing (section 5.3): differentiation, excitation estimates, quasi-static points,
 //! sequences, split and scales, on synthetic signals with known answers.
-use nemm_train::data::dataset::{self, Dataset, Run, RunEntry};
+use nemm_train::data::dataset::{self, Dataset, Run};
 use nemm_train::data::preprocess::{
     self, Direction, PrepareConfig, PreprocessError, QuasiStaticPoint, RunRole, SequenceConfig,
     SignalConfig, SplitConfig, VelocitySource,
 };
-use rand::{RngExt, SeedableRng};
-use rand_distr::StandardNormal;
-use rand_xoshiro::Xoshiro256PlusPlus;
 use std::f64::consts::PI;
-use std::path::PathBuf;
+use support::{dataset as make_dataset, quantise, rms, DamperForce, Noise, SineRun};
 
-/// Deterministic noise for the tests: xoshiro256++ with uniform and standard-normal draws.
-struct Noise(Xoshiro256PlusPlus);
+mod support;
 
-impl Noise {
-    fn new(seed: u64) -> Self {
-        Noise(Xoshiro256PlusPlus::seed_from_u64(seed))
-    }
-    fn uniform(&mut self) -> f64 {
-        self.0.random()
-    }
-    fn normal(&mut self) -> f64 {
-        self.0.sample(StandardNormal)
-    }
-}
-
-fn quantise(x: f64, lsb: f64) -> f64 {
-    (x / lsb).round() * lsb
-}
-
-fn rms(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
-    (s / n as f64).sqrt()
-}
-
-/// Damper-like force: asymmetric damping plus a spring term (an elliptical hysteresis loop
-/// in the force-velocity plane).
+/// The tests' damper force ([`DamperForce::DEFAULT`]).
 fn damper_force(x: f64, v: f64, alpha: f64) -> f64 {
-    let c = if v > 0.0 { 2000.0 } else { 1200.0 } * (1.0 - 0.5 * alpha);
-    c * v + 30_000.0 * x
+    DamperForce::DEFAULT.at(x, v, alpha)
 }
 
-/// A sinusoidal run `x = A sin(w t + phase)` with the damper force, optional noise.
+/// A sinusoidal run `x = A sin(w t + phase)` with the damper force; with `noise = (rng, sx,
+/// sf)` the displacement gets `sx` and the force `sf` of normal noise, the displacement
+/// quantised to 1 um.
 #[allow(clippy::too_many_arguments)]
 fn sine_run(
     file: &str,
@@ -54,37 +29,14 @@ fn sine_run(
     fs: f64,
     noise: Option<(&mut Noise, f64, f64)>,
 ) -> Run {
-    let w = 2.0 * PI * freq;
-    let mut time_s = Vec::with_capacity(n);
-    let mut displacement_m = Vec::with_capacity(n);
-    let mut force_n = Vec::with_capacity(n);
-    let mut noise = noise;
-    for i in 0..n {
-        let t = i as f64 / fs;
-        let x = amplitude * (w * t + phase).sin();
-        let v = amplitude * w * (w * t + phase).cos();
-        let mut f = damper_force(x, v, alpha);
-        let mut xm = x;
-        if let Some((rng, sx, sf)) = noise.as_mut() {
-            xm = quantise(x + *sx * rng.normal(), 1e-6);
-            f += *sf * rng.normal();
-        }
-        time_s.push(t);
-        displacement_m.push(xm);
-        force_n.push(f);
-    }
-    Run {
-        entry: RunEntry {
-            file: PathBuf::from(file),
-            oil_loss: alpha,
-            amplitude_m: Some(amplitude),
-            target_velocity_m_s: Some(amplitude * w),
-        },
-        time_s,
-        displacement_m,
-        force_n,
-        velocity_m_s: None,
-        alpha: None,
+    let mut s = SineRun::new(file, alpha, amplitude, freq, fs, n);
+    s.phase = phase;
+    match noise {
+        None => s.build(),
+        Some((rng, sx, sf)) => s.build_measured(|x, f| {
+            let xm = quantise(x + sx * rng.normal(), 1e-6);
+            (xm, f + sf * rng.normal())
+        }),
     }
 }
 
@@ -117,12 +69,7 @@ fn bench_dataset(fs: f64) -> Dataset {
             }
         }
     }
-    Dataset {
-        name: "synthetic".into(),
-        sample_rate_hz: fs,
-        condition: None,
-        runs,
-    }
+    make_dataset("synthetic", fs, runs)
 }
 
 #[test]
@@ -912,12 +859,11 @@ fn tiny_and_flat_runs_do_not_panic() {
         Err(PreprocessError::ColumnLengths { run: 2, .. })
     ));
     // A dataset of short runs prepares to "no training data", not a panic.
-    let ds = Dataset {
-        name: "short".into(),
-        sample_rate_hz: fs,
-        condition: None,
-        runs: vec![sine_run("a.csv", 0.0, 0.01, 5.0, 0.0, 3, fs, None)],
-    };
+    let ds = make_dataset(
+        "short",
+        fs,
+        vec![sine_run("a.csv", 0.0, 0.01, 5.0, 0.0, 3, fs, None)],
+    );
     let mut no_test_level = PrepareConfig::default();
     no_test_level.split.test_alphas.clear();
     assert!(matches!(
@@ -1000,12 +946,7 @@ fn split_by_time_tests_the_end_of_every_run_of_a_single_level() {
             )
         })
         .collect();
-    let ds = Dataset {
-        name: "one level".into(),
-        sample_rate_hz: fs,
-        condition: None,
-        runs,
-    };
+    let ds = make_dataset("one level", fs, runs);
     let mut cfg = PrepareConfig {
         sequences: SequenceConfig {
             length_s: 0.2,

@@ -3,11 +3,13 @@
 //! that leaves nothing to train on, a split in time of a single-level dataset, and a
 //! comparison in which one variant fails but Table 4 is still written.
 use nemm_train::config::{Config, CONFIG_FILE, DATA_OPTIONS_FILE};
-use nemm_train::data::dataset::{self, Dataset, Run, RunEntry};
+use nemm_train::data::dataset;
 use nemm_train::report::tables::Report;
-use std::f64::consts::PI;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
+use support::SineRun;
+
+mod support;
 
 fn nemm(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_nemm"))
@@ -21,50 +23,21 @@ fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
 }
 
-/// Sinusoidal runs, one per level, of `seconds` at `fs`, with a damper-like force.
+/// Sinusoidal runs, one per level, of `seconds` at `fs`, with the tests' damper force (no
+/// nominal velocity in the manifest).
 fn write_dataset(dir: &Path, fs: f64, levels: &[f64], seconds: f64) {
     let n = (seconds * fs) as usize;
     let runs = levels
         .iter()
         .enumerate()
         .map(|(k, &alpha)| {
-            let (a, f) = (0.02, 1.5 + 0.25 * k as f64);
-            let w = 2.0 * PI * f;
-            let time_s: Vec<f64> = (0..n).map(|i| i as f64 / fs).collect();
-            let displacement_m = time_s.iter().map(|t| a * (w * t).sin()).collect();
-            let force_n = time_s
-                .iter()
-                .map(|t| {
-                    let (x, v) = (a * (w * t).sin(), a * w * (w * t).cos());
-                    let c = if v > 0.0 { 2000.0 } else { 1200.0 } * (1.0 - 0.5 * alpha);
-                    c * v + 30_000.0 * x
-                })
-                .collect();
-            Run {
-                entry: RunEntry {
-                    file: PathBuf::from(format!("runs/level{k}.csv")),
-                    oil_loss: alpha,
-                    amplitude_m: Some(a),
-                    target_velocity_m_s: None,
-                },
-                time_s,
-                displacement_m,
-                force_n,
-                velocity_m_s: None,
-                alpha: None,
-            }
+            let file = format!("runs/level{k}.csv");
+            let mut run = SineRun::new(&file, alpha, 0.02, 1.5 + 0.25 * k as f64, fs, n).build();
+            run.entry.target_velocity_m_s = None;
+            run
         })
         .collect();
-    dataset::write(
-        dir,
-        &Dataset {
-            name: "splits".into(),
-            sample_rate_hz: fs,
-            condition: None,
-            runs,
-        },
-    )
-    .expect("write the dataset");
+    dataset::write(dir, &support::dataset("splits", fs, runs)).expect("write the dataset");
 }
 
 #[test]
