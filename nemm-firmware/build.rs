@@ -5,7 +5,7 @@
 //!   `mps2-an500` feature; `boards/stm32f407.x` for an STM32F405/407), and
 //!   `nemm-sections.x`, which every layout includes. (There is no
 //!   `memory.x` in the crate directory: the linker would find it there first.)
-//! - `weights.slot`: the weights slot (`src/slot.rs`) holding the `.nemm` blob named by
+//! - `weights.slot`: the weights slot (the `nemm-slot` format) holding the `.nemm` blob named by
 //!   `NEMM_WEIGHTS` (default `data/trained-nemm.nemm`, the NEMM the project trained on its
 //!   virtual bench with `cargo xtask firmware-model`; any trainer's `model.nemm` drops in
 //!   here).
@@ -29,11 +29,8 @@ use std::f64::consts::PI;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-/// The firmware's weights-slot format, the same source as the firmware's (one writer of
-/// the layout); the build script uses the encoder only.
-#[path = "src/slot.rs"]
-#[allow(dead_code)]
-mod slot;
+/// The firmware's weights-slot format (one writer of the layout).
+use nemm_slot as slot;
 
 /// The trace format, the same source as the firmware's (one writer of the format).
 #[path = "src/trace.rs"]

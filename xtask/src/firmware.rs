@@ -311,7 +311,7 @@ pub fn run_qemu(
     ))
 }
 
-/// A weights slot of `capacity` bytes holding `blob` (`nemm-firmware/src/slot.rs`: `NWSL`,
+/// A weights slot of `capacity` bytes holding `blob` (the `nemm-slot` format: `NWSL`,
 /// length, blob, erased flash).
 pub fn slot(blob: &[u8], capacity: usize) -> Result<Vec<u8>, String> {
     let mut s = vec![0; capacity];

@@ -25,9 +25,7 @@ mod cycles;
 mod firmware;
 mod model;
 mod results;
-#[path = "../../nemm-firmware/src/slot.rs"]
-#[allow(dead_code)]
-mod slot;
+use nemm_slot as slot;
 mod toolchain;
 
 use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
