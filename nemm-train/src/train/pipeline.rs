@@ -18,9 +18,9 @@
 //! All variants share the split, the normalisation and the force scale.
 
 use super::adjoint::{
-    simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights, StaticParams,
+    simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights, StaticParams, Window,
 };
-use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, StopReason};
+use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, FitResult, StopReason};
 use super::net::EmmNet;
 use super::params::to_core_with;
 use super::physics::{physics_loss, PenaltyGrid};
@@ -616,18 +616,318 @@ fn train_sem(prepared: &Prepared, cfg: &PipelineConfig, meta: Meta) -> Result<Tr
     })
 }
 
-/// Trains the requested variants, keeping going past a variant that fails (its error is
-/// recorded in [`Trained::failed`]): a failed Linear EMM stage fails every EMM-family variant
-/// (they start from it), a failed quasi-static regression NEMM-Light and NEMM. Checkpoints go
-/// to `checkpoint_root/<variant>/` when given. Errors only when the data cannot train any
-/// EMM-family variant (no validation windows) and when a time-boxed session ends.
-pub fn train_each(
+/// What every EMM-family stage of one [`train_each`] call shares: the data, the model grid,
+/// the static-force setup and where checkpoints go.
+struct Stages<'a> {
+    prepared: &'a Prepared,
+    cfg: &'a PipelineConfig,
+    checkpoint_root: Option<&'a Path>,
+    resume: bool,
+    device: Device,
+    meta: Meta,
+    grid: Grid,
+    train_windows: Vec<Window<'a>>,
+    static_setup: Option<StaticSetup>,
+    static_units: Option<[f32; STATIC_PARAMS]>,
+}
+
+/// The Linear EMM stage's outcome: the starting point of the neural stages (`p0`: the
+/// trained constants, the `x_pr` scale and the static force refitted to its residual), the
+/// trained Linear EMM itself and its fit.
+struct LinearStage {
+    p0: RolloutParams<f32>,
+    trained: RolloutParams<f32>,
+    fit: FitResult,
+    seconds: f64,
+}
+
+impl<'a> Stages<'a> {
+    fn new(
+        prepared: &'a Prepared,
+        cfg: &'a PipelineConfig,
+        checkpoint_root: Option<&'a Path>,
+        resume: bool,
+    ) -> Self {
+        let grid = Grid::new(1.0 / cfg.model_rate_hz, prepared.dt_s);
+        if grid != Grid::SAME {
+            eprintln!(
+                "[model] integrating at {} Hz, data at {} Hz: {:.2} model steps per sample \
+                 (velocity interpolated between samples, force scored at the samples)",
+                cfg.model_rate_hz,
+                prepared.sample_rate_hz,
+                grid.steps_per_sample()
+            );
+        }
+        let static_setup = cfg
+            .static_force
+            .then(|| StaticSetup::of(&prepared.train, prepared.scales.velocity_m_s));
+        if let Some(s) = &static_setup {
+            eprintln!(
+                "[static] static force on: x_ref {:.2} mm (mean training position), span \
+                 {:.2} mm, v_c {:.1} mm/s",
+                1e3 * s.x_ref,
+                1e3 * s.x_span,
+                1e3 * s.v_c
+            );
+        }
+        Stages {
+            prepared,
+            cfg,
+            checkpoint_root,
+            resume,
+            device: Device::flex().autodiff(),
+            meta: meta_of(prepared),
+            grid,
+            train_windows: windows(&prepared.train),
+            static_units: static_setup.map(|s| s.units(prepared.scales.force_n)),
+            static_setup,
+        }
+    }
+
+    fn data(&self) -> FitData<'a> {
+        FitData {
+            train: &self.prepared.train,
+            validation: &self.prepared.validation,
+            warmup: self.prepared.warmup_samples,
+            force_scale_n: self.prepared.scales.force_n,
+            grid: self.grid,
+        }
+    }
+
+    /// Step 1: the Linear EMM (every EMM-family variant starts from it), from constants
+    /// fitted to the quasi-static points `qs`.
+    fn linear(&self, qs: &[QuasiStaticPoint]) -> Result<LinearStage> {
+        let (prepared, cfg) = (self.prepared, self.cfg);
+        let force_scale = prepared.scales.force_n;
+        let t_lin = Instant::now();
+        let (num, den) = qs.iter().fold((0.0f64, 0.0f64), |(n, d), p| {
+            (
+                n + p.force_n * p.velocity_m_s,
+                d + p.velocity_m_s * p.velocity_m_s,
+            )
+        });
+        let b_fl0 = if den > 0.0 && num > 0.0 {
+            (num / den) as f32
+        } else {
+            (force_scale / prepared.scales.velocity_m_s.max(1e-6)) as f32
+        };
+        let b_pr0 = b_fl0;
+        let k0 = (b_pr0 + b_fl0) * 2.0 * std::f32::consts::PI * 15.0;
+        let mut p0 = RolloutParams::<f32> {
+            integrator: cfg.integrator,
+            dt: (1.0 / cfg.model_rate_hz) as f32,
+            b_fl0,
+            b_pr0,
+            k0,
+            t_pr: 0.002,
+            v_scale: prepared.scales.velocity_m_s as f32,
+            x_scale: 1.0,
+            alpha_scale: prepared.scales.alpha as f32,
+            b_fl: None,
+            b_pr: None,
+            k_pr: None,
+            priors: prepared.condition.priors,
+            static_force: None,
+        };
+        let (train_w, grid) = (&self.train_windows, &self.grid);
+        if let Some(setup) = &self.static_setup {
+            // Least squares on the residual of the initial constants.
+            let sp = fit_residual(&p0, train_w, grid, prepared.warmup_samples, setup);
+            print_static("initial least-squares fit", &sp);
+            p0.static_force = Some(sp);
+        }
+        let lin_cfg = FitConfig {
+            label: "linear-emm".into(),
+            epochs: cfg.linear_epochs,
+            lr: cfg.linear_lr,
+            lambda_ph: 0.0,
+            ..cfg.fit.clone()
+        };
+        let (net, frame) = EmmNet::from_rollout(&p0, self.static_units, &self.device);
+        let lin_dir = self.checkpoint_root.map(|r| r.join("linear-emm"));
+        save_frame(lin_dir.as_deref(), &p0, self.meta, self.static_units)?;
+        let lin = fit(
+            net,
+            &frame,
+            self.data(),
+            &lin_cfg,
+            lin_dir.as_deref(),
+            self.resume,
+            &self.device,
+        )?;
+        SessionBudgetUsed::check(lin.stop, &lin_cfg.label)?;
+        let lin_p = lin.best.to_rollout(&frame);
+        p0.b_fl0 = lin_p.b_fl0;
+        p0.b_pr0 = lin_p.b_pr0;
+        p0.k0 = lin_p.k0;
+        p0.t_pr = lin_p.t_pr;
+        if let Some(setup) = &self.static_setup {
+            // The neural stages start from the least-squares static force of the trained
+            // Linear EMM's residual (the best one for its dynamics).
+            let sp = fit_residual(&lin_p, train_w, grid, prepared.warmup_samples, setup);
+            print_static("Linear EMM", lin_p.static_force.as_ref().unwrap_or(&sp));
+            print_static("least-squares refit for the neural stages", &sp);
+            p0.static_force = Some(sp);
+        }
+        // x_pr scale from the Linear EMM over the training windows.
+        let xs = simulate_x_pr(&lin_p, train_w, grid);
+        let x_scale = xs
+            .iter()
+            .flat_map(|w| w.iter().skip(prepared.warmup_samples))
+            .fold(0.0f64, |m, x| m.max(x.abs()));
+        p0.x_scale = if x_scale > 0.0 { x_scale as f32 } else { 1e-3 };
+        Ok(LinearStage {
+            p0,
+            trained: lin_p,
+            fit: lin,
+            seconds: t_lin.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// `s` with an alpha branch in its declared direction `dir` when the priors are held by
+    /// construction.
+    fn branched(
+        &self,
+        s: ScalerWeights<f32>,
+        dir: Direction,
+        state: usize,
+        seed: u64,
+    ) -> ScalerWeights<f32> {
+        if self.cfg.alpha_priors == AlphaPriors::Construction && dir != Direction::None {
+            with_branch(s, dir, state, self.cfg.branch_units, seed)
+        } else {
+            s
+        }
+    }
+
+    /// Step 2a: the `b_fl` scaler regressed on the quasi-static points (eq. 41), from `p0`.
+    fn quasi_static_b_fl(
+        &self,
+        p0: &RolloutParams<f32>,
+        qs: &[QuasiStaticPoint],
+    ) -> Result<ScalerWeights<f32>> {
+        let cfg = self.cfg;
+        let b_fl_init = self.branched(
+            init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
+            self.prepared.condition.priors.b_fl,
+            1,
+            cfg.fit.seed + 10,
+        );
+        // With a static force, the quasi-static points lose its part at their position (the
+        // run's stroke centre, where they are taken) before the b_fl regression.
+        let qs_owned: Vec<QuasiStaticPoint>;
+        let qs = match &p0.static_force {
+            None => qs,
+            Some(sp) => {
+                qs_owned = without_static_force(qs, self.prepared, sp);
+                &qs_owned
+            }
+        };
+        let t_qs = Instant::now();
+        let b_fl = qs_regression(
+            p0,
+            b_fl_init,
+            qs,
+            self.prepared.scales.force_n,
+            cfg,
+            &self.device,
+        )?;
+        eprintln!(
+            "[nemm] quasi-static b_fl regression (eq. 41): {} points, {} steps, {:.1} s",
+            qs.len(),
+            cfg.qs_steps,
+            t_qs.elapsed().as_secs_f64()
+        );
+        Ok(b_fl)
+    }
+
+    /// Step 2b: the neural variant `v` (NEMM-Light or NEMM) trained from `p0` with the
+    /// quasi-static `b_fl`; `earlier_s` is the wall time of the stages it builds on.
+    fn neural(
+        &self,
+        v: ModelKind,
+        p0: &RolloutParams<f32>,
+        b_fl: &ScalerWeights<f32>,
+        earlier_s: f64,
+    ) -> Result<TrainedVariant> {
+        let (prepared, cfg) = (self.prepared, self.cfg);
+        let condition = &prepared.condition;
+        let t = Instant::now();
+        let mut p = p0.clone();
+        p.b_fl = Some(b_fl.clone());
+        if v == ModelKind::Nemm {
+            let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
+            if k_max < 1.5 {
+                bail!(
+                    "the fitted EMM is too stiff for dt = {} s: k_pr may only grow {k_max:.2}x \
+                     before the explicit RK step becomes unstable; use a shorter step (higher \
+                     sample rate) or RK4",
+                    p.dt
+                );
+            }
+            p.b_pr = Some(self.branched(
+                init_scaler(1, cfg.hidden, cfg.layers, cfg.pr_bounds, cfg.fit.seed + 1),
+                condition.priors.b_pr,
+                0,
+                cfg.fit.seed + 11,
+            ));
+            p.k_pr = Some(self.branched(
+                init_scaler(
+                    2,
+                    cfg.hidden,
+                    cfg.layers,
+                    (cfg.pr_bounds.0, k_max),
+                    cfg.fit.seed + 2,
+                ),
+                condition.priors.k_pr,
+                1,
+                cfg.fit.seed + 12,
+            ));
+        }
+        let fit_cfg = FitConfig {
+            label: v.name().into(),
+            ..cfg.fit.clone()
+        };
+        let (net, frame) = EmmNet::from_rollout(&p, self.static_units, &self.device);
+        let dir = self.checkpoint_root.map(|root| root.join(v.name()));
+        save_frame(dir.as_deref(), &p, self.meta, self.static_units)?;
+        let r = fit(
+            net,
+            &frame,
+            self.data(),
+            &fit_cfg,
+            dir.as_deref(),
+            self.resume,
+            &self.device,
+        )?;
+        SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
+        let model = to_core_with(&r.best.to_rollout(&frame), self.meta, condition)?;
+        let val = rmse(
+            &r.best,
+            &frame,
+            &prepared.validation,
+            &self.grid,
+            prepared.warmup_samples,
+            prepared.scales.force_n,
+        );
+        Ok(TrainedVariant {
+            variant: v,
+            model,
+            history: r.history,
+            val_rmse: val,
+            stop: Some(r.stop),
+            kept_epoch: Some(r.best_epoch),
+            seconds: t.elapsed().as_secs_f64() + earlier_s,
+        })
+    }
+}
+
+/// Refuses data and options no EMM-family variant can be trained with.
+fn check_trainable(
     prepared: &Prepared,
     variants: &[ModelKind],
     cfg: &PipelineConfig,
-    checkpoint_root: Option<&Path>,
-    resume: bool,
-) -> Result<Trained> {
+) -> Result<()> {
     if prepared.validation.is_empty() && variants.iter().any(|v| *v != ModelKind::Sem) {
         bail!(
             "no validation windows: the runs at the training oil-loss levels are too short for \
@@ -645,48 +945,28 @@ pub fn train_each(
             cfg.model_rate_hz
         );
     }
-    let device = Device::flex().autodiff();
-    let meta = meta_of(prepared);
-    let condition = &prepared.condition;
-    let force_scale = prepared.scales.force_n;
-    let model_dt_s = 1.0 / cfg.model_rate_hz;
-    let grid = Grid::new(model_dt_s, prepared.dt_s);
-    if grid != Grid::SAME {
-        eprintln!(
-            "[model] integrating at {} Hz, data at {} Hz: {:.2} model steps per sample \
-             (velocity interpolated between samples, force scored at the samples)",
-            cfg.model_rate_hz,
-            prepared.sample_rate_hz,
-            grid.steps_per_sample()
-        );
-    }
-    let data = FitData {
-        train: &prepared.train,
-        validation: &prepared.validation,
-        warmup: prepared.warmup_samples,
-        force_scale_n: force_scale,
-        grid,
-    };
-    let mut out = Vec::new();
-    let train_w = windows(&prepared.train);
-    let static_setup = cfg
-        .static_force
-        .then(|| StaticSetup::of(&prepared.train, prepared.scales.velocity_m_s));
-    let static_units = static_setup.map(|s| s.units(force_scale));
-    if let Some(s) = &static_setup {
-        eprintln!(
-            "[static] static force on: x_ref {:.2} mm (mean training position), span {:.2} mm, \
-             v_c {:.1} mm/s",
-            1e3 * s.x_ref,
-            1e3 * s.x_span,
-            1e3 * s.v_c
-        );
-    }
-    let qs_owned: Vec<QuasiStaticPoint>;
+    Ok(())
+}
+
+/// Trains the requested variants, keeping going past a variant that fails (its error is
+/// recorded in [`Trained::failed`]): a failed Linear EMM stage fails every EMM-family variant
+/// (they start from it), a failed quasi-static regression NEMM-Light and NEMM. Checkpoints go
+/// to `checkpoint_root/<variant>/` when given. Errors only when the data cannot train any
+/// EMM-family variant (no validation windows) and when a time-boxed session ends.
+pub fn train_each(
+    prepared: &Prepared,
+    variants: &[ModelKind],
+    cfg: &PipelineConfig,
+    checkpoint_root: Option<&Path>,
+    resume: bool,
+) -> Result<Trained> {
+    check_trainable(prepared, variants, cfg)?;
+    let stages = Stages::new(prepared, cfg, checkpoint_root, resume);
     let qs = &prepared.quasi_static.train;
+    let mut out = Vec::new();
     let mut failed = Vec::new();
     if variants.contains(&ModelKind::Sem) {
-        match train_sem(prepared, cfg, meta) {
+        match train_sem(prepared, cfg, stages.meta) {
             Ok(t) => out.push(t),
             Err(e) => record(&mut failed, ModelKind::Sem, e)?,
         }
@@ -706,88 +986,7 @@ pub fn train_each(
     if emm_variants.is_empty() {
         return Ok(done(out, failed));
     }
-    // Step 1: Linear EMM (needed by every EMM-family variant).
-    let linear = || -> Result<_> {
-        let t_lin = Instant::now();
-        let (num, den) = qs.iter().fold((0.0f64, 0.0f64), |(n, d), p| {
-            (
-                n + p.force_n * p.velocity_m_s,
-                d + p.velocity_m_s * p.velocity_m_s,
-            )
-        });
-        let b_fl0 = if den > 0.0 && num > 0.0 {
-            (num / den) as f32
-        } else {
-            (force_scale / prepared.scales.velocity_m_s.max(1e-6)) as f32
-        };
-        let b_pr0 = b_fl0;
-        let k0 = (b_pr0 + b_fl0) * 2.0 * std::f32::consts::PI * 15.0;
-        let mut p0 = RolloutParams::<f32> {
-            integrator: cfg.integrator,
-            dt: model_dt_s as f32,
-            b_fl0,
-            b_pr0,
-            k0,
-            t_pr: 0.002,
-            v_scale: prepared.scales.velocity_m_s as f32,
-            x_scale: 1.0,
-            alpha_scale: prepared.scales.alpha as f32,
-            b_fl: None,
-            b_pr: None,
-            k_pr: None,
-            priors: condition.priors,
-            static_force: None,
-        };
-        if let Some(setup) = &static_setup {
-            // Least squares on the residual of the initial constants.
-            let sp = fit_residual(&p0, &train_w, &grid, prepared.warmup_samples, setup);
-            print_static("initial least-squares fit", &sp);
-            p0.static_force = Some(sp);
-        }
-        let lin_cfg = FitConfig {
-            label: "linear-emm".into(),
-            epochs: cfg.linear_epochs,
-            lr: cfg.linear_lr,
-            lambda_ph: 0.0,
-            ..cfg.fit.clone()
-        };
-        let (net, frame) = EmmNet::from_rollout(&p0, static_units, &device);
-        let lin_dir = checkpoint_root.map(|r| r.join("linear-emm"));
-        save_frame(lin_dir.as_deref(), &p0, meta, static_units)?;
-        let lin = fit(
-            net,
-            &frame,
-            data,
-            &lin_cfg,
-            lin_dir.as_deref(),
-            resume,
-            &device,
-        )?;
-        SessionBudgetUsed::check(lin.stop, &lin_cfg.label)?;
-        let lin_p = lin.best.to_rollout(&frame);
-        p0.b_fl0 = lin_p.b_fl0;
-        p0.b_pr0 = lin_p.b_pr0;
-        p0.k0 = lin_p.k0;
-        p0.t_pr = lin_p.t_pr;
-        if let Some(setup) = &static_setup {
-            // The neural stages start from the least-squares static force of the trained
-            // Linear EMM's residual (the best one for its dynamics).
-            let sp = fit_residual(&lin_p, &train_w, &grid, prepared.warmup_samples, setup);
-            print_static("Linear EMM", lin_p.static_force.as_ref().unwrap_or(&sp));
-            print_static("least-squares refit for the neural stages", &sp);
-            p0.static_force = Some(sp);
-        }
-        // x_pr scale from the Linear EMM over the training windows.
-        let xs = simulate_x_pr(&lin_p, &train_w, &grid);
-        let x_scale = xs
-            .iter()
-            .flat_map(|w| w.iter().skip(prepared.warmup_samples))
-            .fold(0.0f64, |m, x| m.max(x.abs()));
-        p0.x_scale = if x_scale > 0.0 { x_scale as f32 } else { 1e-3 };
-        let lin_seconds = t_lin.elapsed().as_secs_f64();
-        Ok((p0, lin_p, lin, lin_seconds))
-    };
-    let (p0, lin_p, lin, lin_seconds) = match linear() {
+    let lin = match stages.linear(qs) {
         Ok(r) => r,
         Err(e) => {
             if e.is::<SessionBudgetUsed>() {
@@ -805,15 +1004,16 @@ pub fn train_each(
         }
     };
     if emm_variants.contains(&ModelKind::LinearEmm) {
-        match to_core_with(&lin_p_with_scale(&lin_p, p0.x_scale), meta, condition) {
+        let scaled = lin_p_with_scale(&lin.trained, lin.p0.x_scale);
+        match to_core_with(&scaled, stages.meta, &prepared.condition) {
             Ok(model) => out.push(TrainedVariant {
                 variant: ModelKind::LinearEmm,
                 model,
-                history: lin.history.clone(),
-                val_rmse: lin.best_val_rmse,
-                stop: Some(lin.stop),
-                kept_epoch: Some(lin.best_epoch),
-                seconds: lin_seconds,
+                history: lin.fit.history.clone(),
+                val_rmse: lin.fit.best_val_rmse,
+                stop: Some(lin.fit.stop),
+                kept_epoch: Some(lin.fit.best_epoch),
+                seconds: lin.seconds,
             }),
             Err(e) => record(&mut failed, ModelKind::LinearEmm, e)?,
         }
@@ -826,33 +1026,8 @@ pub fn train_each(
     if neural.is_empty() {
         return Ok(done(out, failed));
     }
-    // Step 2a: b_fl on the quasi-static points (eq. 41).
     let t_qs = Instant::now();
-    let construction = cfg.alpha_priors == AlphaPriors::Construction;
-    // A coefficient with a declared prior gets an alpha branch under the construction.
-    let branched = |s: ScalerWeights<f32>, dir: Direction, state: usize, seed: u64| {
-        if construction && dir != Direction::None {
-            with_branch(s, dir, state, cfg.branch_units, seed)
-        } else {
-            s
-        }
-    };
-    let b_fl_init = branched(
-        init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
-        condition.priors.b_fl,
-        1,
-        cfg.fit.seed + 10,
-    );
-    // With a static force, the quasi-static points lose its part at their position (the
-    // run's stroke centre, where they are taken) before the b_fl regression.
-    let qs = match &p0.static_force {
-        None => qs,
-        Some(sp) => {
-            qs_owned = without_static_force(qs, prepared, sp);
-            &qs_owned
-        }
-    };
-    let b_fl = match qs_regression(&p0, b_fl_init, qs, force_scale, cfg, &device) {
+    let b_fl = match stages.quasi_static_b_fl(&lin.p0, qs) {
         Ok(b) => b,
         Err(e) => {
             for &v in &neural {
@@ -862,75 +1037,9 @@ pub fn train_each(
             return Ok(done(out, failed));
         }
     };
-    let qs_seconds = t_qs.elapsed().as_secs_f64();
-    eprintln!(
-        "[nemm] quasi-static b_fl regression (eq. 41): {} points, {} steps, {:.1} s",
-        qs.len(),
-        cfg.qs_steps,
-        qs_seconds
-    );
+    let earlier_s = t_qs.elapsed().as_secs_f64() + lin.seconds;
     for v in neural {
-        let one = || -> Result<TrainedVariant> {
-            let t = Instant::now();
-            let mut p = p0.clone();
-            p.b_fl = Some(b_fl.clone());
-            if v == ModelKind::Nemm {
-                let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
-                if k_max < 1.5 {
-                    bail!(
-                    "the fitted EMM is too stiff for dt = {} s: k_pr may only grow {k_max:.2}x before the explicit RK step \
-                     becomes unstable; use a shorter step (higher sample rate) or RK4",
-                    p.dt
-                );
-                }
-                p.b_pr = Some(branched(
-                    init_scaler(1, cfg.hidden, cfg.layers, cfg.pr_bounds, cfg.fit.seed + 1),
-                    condition.priors.b_pr,
-                    0,
-                    cfg.fit.seed + 11,
-                ));
-                p.k_pr = Some(branched(
-                    init_scaler(
-                        2,
-                        cfg.hidden,
-                        cfg.layers,
-                        (cfg.pr_bounds.0, k_max),
-                        cfg.fit.seed + 2,
-                    ),
-                    condition.priors.k_pr,
-                    1,
-                    cfg.fit.seed + 12,
-                ));
-            }
-            let fit_cfg = FitConfig {
-                label: v.name().into(),
-                ..cfg.fit.clone()
-            };
-            let (net, frame) = EmmNet::from_rollout(&p, static_units, &device);
-            let dir = checkpoint_root.map(|root| root.join(v.name()));
-            save_frame(dir.as_deref(), &p, meta, static_units)?;
-            let r = fit(net, &frame, data, &fit_cfg, dir.as_deref(), resume, &device)?;
-            SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
-            let model = to_core_with(&r.best.to_rollout(&frame), meta, condition)?;
-            let val = rmse(
-                &r.best,
-                &frame,
-                &prepared.validation,
-                &grid,
-                prepared.warmup_samples,
-                force_scale,
-            );
-            Ok(TrainedVariant {
-                variant: v,
-                model,
-                history: r.history,
-                val_rmse: val,
-                stop: Some(r.stop),
-                kept_epoch: Some(r.best_epoch),
-                seconds: t.elapsed().as_secs_f64() + qs_seconds + lin_seconds,
-            })
-        };
-        match one() {
+        match stages.neural(v, &lin.p0, &b_fl, earlier_s) {
             Ok(t) => out.push(t),
             Err(e) => record(&mut failed, v, e)?,
         }
