@@ -392,6 +392,15 @@ fn disc(key: &str, d: &DiscValve) -> Result<(), Invalid> {
 impl BenchConfig {
     /// Checks ranges and consistency; the error names the offending key.
     pub fn validate(&self) -> Result<(), Invalid> {
+        self.check_geometry()?;
+        self.check_fluids()?;
+        self.check_restrictions()?;
+        self.check_solver_and_program()?;
+        self.check_sensors()
+    }
+
+    /// `[geometry]`: positive sizes, a rod thinner than the piston, gas room in the reservoir, a thin tube wall.
+    fn check_geometry(&self) -> Result<(), Invalid> {
         let g = &self.geometry;
         positive("geometry.piston_diameter_m", g.piston_diameter_m)?;
         positive("geometry.rod_diameter_m", g.rod_diameter_m)?;
@@ -434,6 +443,11 @@ impl BenchConfig {
             ));
         }
         positive("geometry.tube_youngs_modulus_pa", g.tube_youngs_modulus_pa)?;
+        Ok(())
+    }
+
+    /// `[oil]`, `[gas]` and `[aeration]`.
+    fn check_fluids(&self) -> Result<(), Invalid> {
         positive("oil.bulk_modulus_pa", self.oil.bulk_modulus_pa)?;
         positive("oil.density_kg_m3", self.oil.density_kg_m3)?;
         positive(
@@ -477,6 +491,11 @@ impl BenchConfig {
                 "gives more gas than oil in the intake flow at alpha = 1".into(),
             ));
         }
+        Ok(())
+    }
+
+    /// The valves and leaks of `[piston]` and `[base]`, and `[friction]`.
+    fn check_restrictions(&self) -> Result<(), Invalid> {
         restriction("piston.leak", &self.piston.leak)?;
         restriction("piston.port", &self.piston.port)?;
         disc("piston.rebound_valve", &self.piston.rebound_valve)?;
@@ -493,6 +512,12 @@ impl BenchConfig {
             "friction.smoothing_velocity_m_s",
             self.friction.smoothing_velocity_m_s,
         )?;
+        Ok(())
+    }
+
+    /// `[solver]` and `[program]`: steps against the sample rate, levels, strokes that fit the tube.
+    fn check_solver_and_program(&self) -> Result<(), Invalid> {
+        let g = &self.geometry;
         let s = &self.solver;
         positive("solver.internal_step_s", s.internal_step_s)?;
         positive("solver.pressure_tolerance_pa", s.pressure_tolerance_pa)?;
@@ -615,6 +640,11 @@ impl BenchConfig {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// `[sensors]`.
+    fn check_sensors(&self) -> Result<(), Invalid> {
         let se = &self.sensors;
         non_negative("sensors.force_noise_std_n", se.force_noise_std_n)?;
         positive("sensors.force_resolution_n", se.force_resolution_n)?;
