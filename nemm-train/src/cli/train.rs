@@ -737,12 +737,12 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
 /// report) and the budget they share.
 fn sweep_provenance(config: &Config, info: &std::collections::BTreeMap<String, String>) -> String {
     let t = &config.train;
-    let batches = t.max_batches.map_or("every batch".to_string(), |b| {
+    let batches = t.max_batches.map_or("all batches".to_string(), |b| {
         format!("at most {b} batches")
     });
     format!(
-        "Sweep of the NEMM trained at commit `{}` on `{}`: {} epochs ({batches} each, patience \
-         {}), {} Linear EMM epochs, seed {}, batch {}, lr {}.\n\n",
+        "Sweep of the NEMM trained at commit `{}` on `{}`: at most {} epochs of {batches} \
+         (patience {}), {} Linear EMM epochs, seed {}, batch {}, lr {}.\n\n",
         info.get("commit").map_or("unrecorded", String::as_str),
         config.data.dir.display(),
         t.epochs,
