@@ -605,7 +605,13 @@ fn training_markdown(
     }
     let _ = writeln!(md, "\n{}", table4.trim_end());
     if let Some(t5) = table5 {
-        let _ = writeln!(md, "\n{}", t5.trim_end());
+        let _ = writeln!(
+            md,
+            "\n**Table 5**: the `lambda_ph` sweep of the NEMM (the report folder's `table5.md`, \
+             from `nemm sweep --report` into it; rows `penalty_*` train with the priors in \
+             alpha imposed by the physics penalty alone).\n\n{}",
+            t5.trim_end()
+        );
     }
     md
 }
