@@ -709,7 +709,8 @@ mod tests {
         assert!(md.contains("Trained by `nemm compare --data d`."));
         assert!(md.contains("does not record the commit"));
         assert!(md.contains("- dataset: `d`\n- total_seconds: `12.5`\n"));
-        assert!(md.contains("\n| model | RMSE |\n\n| job |\n"));
+        assert!(md.contains("\n| model | RMSE |\n\n**Table 5**"), "{md}");
+        assert!(md.ends_with("alone).\n\n| job |\n"), "{md}");
         assert!(report_info("{").is_err());
         assert!(report_info("{}").unwrap().is_empty());
     }
