@@ -1,0 +1,419 @@
+//! The data options ([`DataConfig`]): their layers (command line, `--config`, the dataset's
+//! options file) and their resolution, with the choices made from the data.
+
+use super::*;
+
+/// Which dataset a job reads and how it is filtered, split and cut into windows: the data
+/// options every dataset-reading command shares (`nemm data check/prepare`, `bench plot`,
+/// `train`, `compare`, `sweep`, `demo`).
+///
+/// `None` means "not given": [`resolve_data`] fills it from the dataset's
+/// [`DATA_OPTIONS_FILE`] or chooses it from the data (the cut-off from the sample rate, the
+/// test set from the levels present). A resolved configuration (as saved in `config.toml`)
+/// has every key set. The test set is one group: `test_alphas`, `test_runs` and `test_tail`
+/// given at one layer replace all three of a lower layer.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DataConfig {
+    /// Dataset folder (manifest.toml + CSV runs; see docs/data-format.md). Empty: none given.
+    pub dir: PathBuf,
+    /// Cut-off of the zero-phase low-pass before differentiation \[Hz\]; chosen from the
+    /// data: `min(150 Hz, 0.4 x sample rate)`.
+    pub cutoff_hz: Option<f64>,
+    /// Velocity source: `auto` (the CSV's `velocity_m_s` column where a run has one, else the
+    /// differentiated displacement; default), `differentiated`, `measured` or `causal` (the
+    /// firmware's online estimate, [`crate::data::preprocess::causal_velocity`]).
+    pub velocity: Option<VelocitySource>,
+    /// Scored length of a training window \[s\] (section 5.3: 0.5 s).
+    pub window_s: Option<f64>,
+    /// Warm-up prefix of a window, simulated but not scored \[s\] (default 0.05 s).
+    pub warmup_s: Option<f64>,
+    /// Oil-loss level(s) whose runs are held out for testing (Table 2: 0.15).
+    pub test_alphas: Option<Vec<f64>>,
+    /// Glob patterns on run files (path relative to the manifest, or file name) of runs held
+    /// out for testing.
+    pub test_runs: Option<Vec<String>>,
+    /// Fraction of every training run, at its end, held out for testing.
+    pub test_tail: Option<f64>,
+    /// Levels used for training and validation (default: every level not held out).
+    pub train_alphas: Option<Vec<f64>>,
+    /// Glob patterns of run files not used at all.
+    pub exclude_runs: Option<Vec<String>>,
+    /// Fraction of each training run held out for validation, as one contiguous stretch
+    /// (default 0.2).
+    pub validation_fraction: Option<f64>,
+    /// Seed of the validation stretches' places (default 1).
+    pub seed: Option<u64>,
+}
+
+/// Where a resolved data option came from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum OptionSource {
+    /// The command line or `--config`.
+    Given,
+    /// The dataset's [`DATA_OPTIONS_FILE`].
+    DatasetFile,
+    /// Chosen from the data, with the reason.
+    Data(String),
+    /// The built-in default.
+    Default,
+}
+
+impl std::fmt::Display for OptionSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            OptionSource::Given => write!(f, "given"),
+            OptionSource::DatasetFile => write!(f, "{DATA_OPTIONS_FILE}"),
+            OptionSource::Data(why) => write!(f, "chosen from the data: {why}"),
+            OptionSource::Default => write!(f, "default"),
+        }
+    }
+}
+
+/// A resolved data configuration and where each option came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ResolvedData {
+    /// Every key set.
+    pub config: DataConfig,
+    /// `(option, value, source)` in print order.
+    pub choices: Vec<(&'static str, String, OptionSource)>,
+    /// The dataset's options file, if one was read.
+    pub options_file: Option<PathBuf>,
+}
+
+impl ResolvedData {
+    /// The block printed at the start of every dataset-reading command.
+    pub fn block(&self) -> String {
+        let mut s = String::new();
+        let _ = write!(s, "data options");
+        if let Some(f) = &self.options_file {
+            let _ = write!(s, " (options file {} read; flags override it)", f.display());
+        }
+        let _ = writeln!(s, ":");
+        for (key, value, source) in &self.choices {
+            let _ = writeln!(s, "  {key:<12} {value}  ({source})");
+        }
+        s
+    }
+}
+
+fn list<T: std::fmt::Display>(v: &[T]) -> String {
+    v.iter().map(T::to_string).collect::<Vec<_>>().join(", ")
+}
+
+impl DataConfig {
+    /// `true` if any key of the test-set group is set.
+    fn has_test_set(&self) -> bool {
+        self.test_alphas.is_some() || self.test_runs.is_some() || self.test_tail.is_some()
+    }
+
+    /// `self` over `lower`: every key set here wins; the test-set group
+    /// (`test_alphas`, `test_runs`, `test_tail`) is taken whole from the higher layer that
+    /// sets any of it.
+    pub fn over(&self, lower: &DataConfig) -> DataConfig {
+        let group = if self.has_test_set() { self } else { lower };
+        DataConfig {
+            dir: if self.dir.as_os_str().is_empty() {
+                lower.dir.clone()
+            } else {
+                self.dir.clone()
+            },
+            cutoff_hz: self.cutoff_hz.or(lower.cutoff_hz),
+            velocity: self.velocity.or(lower.velocity),
+            window_s: self.window_s.or(lower.window_s),
+            warmup_s: self.warmup_s.or(lower.warmup_s),
+            test_alphas: group.test_alphas.clone(),
+            test_runs: group.test_runs.clone(),
+            test_tail: group.test_tail,
+            train_alphas: self.train_alphas.clone().or(lower.train_alphas.clone()),
+            exclude_runs: self.exclude_runs.clone().or(lower.exclude_runs.clone()),
+            validation_fraction: self.validation_fraction.or(lower.validation_fraction),
+            seed: self.seed.or(lower.seed),
+        }
+    }
+
+    /// The preprocessing configuration of section 5.3 with these options; keys not set take
+    /// the library's defaults (use a [`resolve_data`]d configuration to get the choices made
+    /// from the data).
+    pub fn prepare_config(&self) -> PrepareConfig {
+        let mut c = PrepareConfig::default();
+        if let Some(v) = self.cutoff_hz {
+            c.signal.cutoff_hz = v;
+        }
+        if let Some(v) = self.velocity {
+            c.signal.velocity_source = v;
+        }
+        if let Some(v) = self.window_s {
+            c.sequences.length_s = v;
+        }
+        if let Some(v) = self.warmup_s {
+            c.sequences.warmup_s = v;
+        }
+        if self.has_test_set() {
+            c.split.test_alphas = self.test_alphas.clone().unwrap_or_default();
+            c.split.test_runs = self.test_runs.clone().unwrap_or_default();
+            c.split.test_tail = self.test_tail;
+        }
+        c.split.train_alphas = self.train_alphas.clone();
+        c.split.exclude_runs = self.exclude_runs.clone().unwrap_or_default();
+        if let Some(v) = self.validation_fraction {
+            c.split.validation_fraction = v;
+        }
+        if let Some(v) = self.seed {
+            c.split.seed = v;
+        }
+        c
+    }
+
+    /// The dataset folder, or an error naming the option when none is given.
+    pub fn require_dir(&self) -> Result<&Path> {
+        if self.dir.as_os_str().is_empty() {
+            bail!("no dataset: give --data DIR (or `[data] dir` in --config)");
+        }
+        Ok(&self.dir)
+    }
+
+    /// Reads a dataset's [`DATA_OPTIONS_FILE`] (`None` if it has none). Its keys are those of
+    /// `[data]` without `dir`.
+    pub fn load_options_file(dataset_dir: &Path) -> Result<Option<DataConfig>> {
+        let path = dataset_dir.join(DATA_OPTIONS_FILE);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+        };
+        let c: DataConfig =
+            toml::from_str(&text).with_context(|| format!("invalid {}", path.display()))?;
+        if !c.dir.as_os_str().is_empty() {
+            bail!(
+                "{}: `dir` has no place in a dataset's options file (it is the folder it is in)",
+                path.display()
+            );
+        }
+        Ok(Some(c))
+    }
+
+    /// Writes these options (without `dir`) as the dataset's [`DATA_OPTIONS_FILE`]; returns
+    /// its path.
+    pub fn save_options_file(&self, dataset_dir: &Path) -> Result<PathBuf> {
+        let path = dataset_dir.join(DATA_OPTIONS_FILE);
+        let mut c = self.clone();
+        c.dir = PathBuf::new();
+        let text = format!(
+            "# nemm data options of this dataset, read by every nemm command that reads it;\n\
+             # command-line options override them (docs/preprocessing.md, \"Data options\").\n{}",
+            toml::to_string(&c)?
+        );
+        crate::fsutil::write_atomic_bytes(&path, text.as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(path)
+    }
+}
+
+/// The test set chosen from the levels of a dataset when none is given: the paper's 0.15
+/// (Table 2) if it is an interior level, else the interior level nearest the middle of the
+/// range (the lower one on a tie), so that the test is an interpolation in alpha as in the
+/// paper; with fewer than three levels, the last [`DEFAULT_TEST_TAIL`] of every run.
+pub fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
+    let interior: Vec<f64> = match levels {
+        [_, inner @ .., _] => inner.to_vec(),
+        _ => Vec::new(),
+    };
+    let paper = DEFAULT_TEST_ALPHAS[0];
+    if interior
+        .iter()
+        .any(|&a| (a - paper).abs() <= preprocess::ALPHA_TOLERANCE)
+    {
+        return (
+            Some(paper),
+            None,
+            format!(
+                "the paper's test level (Table 2), between levels {}",
+                list(levels)
+            ),
+        );
+    }
+    if let (Some(&lo), Some(&hi)) = (levels.first(), levels.last()) {
+        let mid = 0.5 * (lo + hi);
+        if let Some(&a) = interior
+            .iter()
+            .min_by(|a, b| (*a - mid).abs().total_cmp(&(*b - mid).abs()))
+        {
+            return (
+                Some(a),
+                None,
+                format!(
+                    "the level nearest the middle of {lo}..{hi} with levels on both sides \
+                     (levels {})",
+                    list(levels)
+                ),
+            );
+        }
+    }
+    (
+        None,
+        Some(DEFAULT_TEST_TAIL),
+        format!(
+            "{} level(s) ({}): none can be held out between others, so the end of every run",
+            levels.len(),
+            list(levels)
+        ),
+    )
+}
+
+/// The cut-off chosen from the sample rate: `min(150 Hz, 0.4 fs)`.
+pub fn adaptive_cutoff_hz(sample_rate_hz: f64) -> f64 {
+    DEFAULT_CUTOFF_HZ.min(CUTOFF_FRACTION_OF_RATE * sample_rate_hz)
+}
+
+/// Resolves the data options `given` (command line over `--config`) over the dataset's
+/// options file `file` over the choices from the dataset `manifest`, recording where each
+/// came from.
+pub fn resolve_with(
+    given: &DataConfig,
+    file: Option<&DataConfig>,
+    manifest: &Manifest,
+) -> ResolvedData {
+    let empty = DataConfig::default();
+    let file = file.unwrap_or(&empty);
+    let merged = given.over(file);
+    let src = |in_given: bool, in_file: bool| {
+        if in_given {
+            OptionSource::Given
+        } else if in_file {
+            OptionSource::DatasetFile
+        } else {
+            OptionSource::Default
+        }
+    };
+    let mut c = merged.clone();
+    let mut choices = Vec::new();
+    let fs = manifest.sample_rate_hz;
+    let cutoff_source = match (given.cutoff_hz, file.cutoff_hz) {
+        (None, None) => {
+            c.cutoff_hz = Some(adaptive_cutoff_hz(fs));
+            if DEFAULT_CUTOFF_HZ < CUTOFF_FRACTION_OF_RATE * fs {
+                OptionSource::Default
+            } else {
+                OptionSource::Data(format!(
+                    "{CUTOFF_FRACTION_OF_RATE} x the {fs} Hz sample rate, below its Nyquist \
+                     frequency {} Hz",
+                    fs / 2.0
+                ))
+            }
+        }
+        (g, _) => src(g.is_some(), true),
+    };
+    choices.push((
+        "cutoff_hz",
+        format!("{} Hz", c.cutoff_hz.unwrap_or(DEFAULT_CUTOFF_HZ)),
+        cutoff_source,
+    ));
+    let velocity = c.velocity.get_or_insert(VelocitySource::Auto);
+    let velocity_text = match velocity {
+        VelocitySource::Auto => {
+            "auto (the velocity_m_s column where a run has one, else d/dt displacement)"
+        }
+        VelocitySource::Differentiated => "differentiated (d/dt of the filtered displacement)",
+        VelocitySource::Measured => "measured (the velocity_m_s column of every run)",
+        VelocitySource::Causal => {
+            "causal (the firmware's backward difference and 500 Hz low-pass, lag included)"
+        }
+    };
+    choices.push((
+        "velocity",
+        velocity_text.to_string(),
+        src(given.velocity.is_some(), file.velocity.is_some()),
+    ));
+    let window = *c.window_s.get_or_insert(DEFAULT_SEQUENCE_S);
+    let warmup = *c.warmup_s.get_or_insert(DEFAULT_WARMUP_S);
+    choices.push((
+        "window_s",
+        format!("{window} s scored + {warmup} s warm-up"),
+        src(
+            given.window_s.is_some() || given.warmup_s.is_some(),
+            file.window_s.is_some() || file.warmup_s.is_some(),
+        ),
+    ));
+    let test_source = if given.has_test_set() {
+        OptionSource::Given
+    } else if file.has_test_set() {
+        OptionSource::DatasetFile
+    } else {
+        let levels = preprocess::distinct_levels(manifest.runs.iter().map(|r| r.oil_loss));
+        let (alpha, tail, why) = adaptive_test_set(&levels);
+        c.test_alphas = Some(alpha.into_iter().collect());
+        c.test_tail = tail;
+        OptionSource::Data(why)
+    };
+    let test_alphas = c.test_alphas.get_or_insert_with(Vec::new).clone();
+    let test_runs = c.test_runs.get_or_insert_with(Vec::new).clone();
+    let mut parts = Vec::new();
+    if !test_alphas.is_empty() {
+        parts.push(format!("runs at alpha {}", list(&test_alphas)));
+    }
+    if !test_runs.is_empty() {
+        parts.push(format!("runs matching {}", list(&test_runs)));
+    }
+    if let Some(t) = c.test_tail {
+        parts.push(format!("the last {} % of every other run", 100.0 * t));
+    }
+    if parts.is_empty() {
+        parts.push("none".into());
+    }
+    choices.push(("test set", parts.join(" + "), test_source));
+    let exclude = c.exclude_runs.get_or_insert_with(Vec::new).clone();
+    let train_text = match &c.train_alphas {
+        Some(a) => format!("runs at alpha {}", list(a)),
+        None => "every other run".to_string(),
+    };
+    let train_text = if exclude.is_empty() {
+        train_text
+    } else {
+        format!("{train_text}, except runs matching {}", list(&exclude))
+    };
+    choices.push((
+        "training",
+        train_text,
+        src(
+            given.train_alphas.is_some() || given.exclude_runs.is_some(),
+            file.train_alphas.is_some() || file.exclude_runs.is_some(),
+        ),
+    ));
+    let fraction = *c
+        .validation_fraction
+        .get_or_insert(DEFAULT_VALIDATION_FRACTION);
+    let seed = *c.seed.get_or_insert(DEFAULT_SPLIT_SEED);
+    choices.push((
+        "validation",
+        format!(
+            "{} % of each training run's windows as one contiguous stretch, placed by seed {seed}",
+            100.0 * fraction
+        ),
+        src(
+            given.validation_fraction.is_some() || given.seed.is_some(),
+            file.validation_fraction.is_some() || file.seed.is_some(),
+        ),
+    ));
+    ResolvedData {
+        config: c,
+        choices,
+        options_file: None,
+    }
+}
+
+/// Resolves the data options of `given` for its dataset (`given.dir`): reads the manifest
+/// and the dataset's [`DATA_OPTIONS_FILE`] if there is one, chooses the rest from the data
+/// ([`resolve_with`]) and prints the "data options" block on stderr.
+pub fn resolve_data(given: &DataConfig) -> Result<ResolvedData> {
+    let dir = given.require_dir()?;
+    let manifest = dataset::read_manifest(dir)
+        .with_context(|| format!("cannot read the dataset in {}", dir.display()))?;
+    let file = DataConfig::load_options_file(dir)?;
+    let mut resolved = resolve_with(given, file.as_ref(), &manifest);
+    if file.is_some() {
+        resolved.options_file = Some(dir.join(DATA_OPTIONS_FILE));
+    }
+    eprint!("{}", resolved.block());
+    Ok(resolved)
+}

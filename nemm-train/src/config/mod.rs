@@ -1,0 +1,610 @@
+//! The configuration of a job, with every default written once.
+//!
+//! [`Config`] holds the three parts a dataset-reading, model-training command needs:
+//! [`DataConfig`] (which dataset, how it is split and cut into windows), [`ModelConfig`]
+//! (variant, scaler size, integrator) and [`TrainConfig`] (the optimiser and its schedule).
+//! Their `Default` impls are the only place defaults are written: the library's
+//! [`PipelineConfig`] and [`FitConfig`] are built from them, and the command line
+//! ([`ConfigArgs`]) holds only `Option`s that override a configuration (the defaults, or a
+//! TOML file given with `--config`). A configuration is written to and read from TOML
+//! ([`Config::to_toml`], [`Config::load`]); `nemm train --report`, `nemm compare` and
+//! `nemm demo` save the effective one as `config.toml`, and `nemm sweep` runs each job from
+//! such a file.
+
+use crate::data::dataset::{self, Manifest};
+use crate::data::preprocess::{
+    self, PrepareConfig, VelocitySource, DEFAULT_CUTOFF_HZ, DEFAULT_SEQUENCE_S, DEFAULT_SPLIT_SEED,
+    DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
+};
+use crate::train::fit::FitConfig;
+use crate::train::pipeline::{AlphaPriors, PipelineConfig};
+use anyhow::{bail, Context, Result};
+use nemm_core::{Integrator, ModelKind};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Name of the effective configuration saved into a report folder.
+pub const CONFIG_FILE: &str = "config.toml";
+
+/// Name of a dataset's own data options, next to its `manifest.toml`: read by every command
+/// that reads the dataset, written by `nemm data prepare --save-options`.
+pub const DATA_OPTIONS_FILE: &str = "nemm-data.toml";
+
+/// Nonzero `lambda_ph` values below this are most likely the paper's numbers (Table 5: 0.005
+/// to 0.025) rather than this crate's.
+const PAPER_SCALE_LAMBDA_PH: f64 = 0.1;
+
+/// The adaptive cut-off is at most this fraction of the sample rate (the Butterworth design
+/// needs `fc < fs / 2`; at `0.4 fs` the model's 30 Hz band still passes within 0.013 % at
+/// 300 Hz, and the zero-phase filter's zero at Nyquist still removes the noise there).
+pub const CUTOFF_FRACTION_OF_RATE: f64 = 0.4;
+
+/// Test fraction at the end of every run chosen when the dataset has fewer than three
+/// levels (no level can be held out and interpolated).
+pub const DEFAULT_TEST_TAIL: f64 = 0.2;
+
+mod args;
+mod data;
+
+pub use args::*;
+pub use data::*;
+
+/// Serde of `ModelKind` / `Integrator` by their `name()` (the CLI spelling).
+mod by_name {
+    use serde::{Deserialize, Deserializer, Serializer};
+    use std::fmt::Display;
+    use std::str::FromStr;
+
+    pub trait Named: FromStr {
+        fn name_of(&self) -> &'static str;
+    }
+    impl Named for nemm_core::ModelKind {
+        fn name_of(&self) -> &'static str {
+            self.name()
+        }
+    }
+    impl Named for nemm_core::Integrator {
+        fn name_of(&self) -> &'static str {
+            self.name()
+        }
+    }
+    impl Named for crate::train::pipeline::AlphaPriors {
+        fn name_of(&self) -> &'static str {
+            self.name()
+        }
+    }
+
+    pub fn serialize<T: Named, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(v.name_of())
+    }
+
+    pub fn deserialize<'de, T, D>(d: D) -> Result<T, D::Error>
+    where
+        T: Named,
+        T::Err: Display,
+        D: Deserializer<'de>,
+    {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(serde::de::Error::custom)
+    }
+}
+
+/// The model: variant, scaler size and integrator.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelConfig {
+    /// ModelKind `nemm train` trains (`nemm compare` trains all four).
+    #[serde(with = "by_name")]
+    pub variant: ModelKind,
+    /// Hidden width H of every scaler (Table 3: 8, 16, 32).
+    pub hidden: usize,
+    /// Hidden layers L of every scaler (Table 3: 3, 5, 7, 9).
+    pub layers: usize,
+    /// Integrator (paper: RK4; RK3 selectable).
+    #[serde(with = "by_name")]
+    pub integrator: Integrator,
+    /// Bounds `(s_min, s_max)` of the `b_fl` scale factor.
+    pub b_fl_bounds: (f32, f32),
+    /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered if the
+    /// explicit-RK stability check needs it).
+    pub pr_bounds: (f32, f32),
+    /// Integration (deployment) rate of the model \[Hz\]: the model steps at
+    /// `1 / rate_hz` whatever the data's sample rate, and the exported blob carries that step
+    /// (docs/preprocessing.md, "Model rate and data rate").
+    pub rate_hz: f64,
+    /// How the condition's declared monotonicity priors in alpha are imposed:
+    /// `construction` (an alpha branch that holds them for every weight) or `penalty`
+    /// (the paper's physics penalty alone) (docs/training.md, "Priors in alpha").
+    #[serde(with = "by_name")]
+    pub alpha_priors: AlphaPriors,
+    /// Units `K` of each alpha branch.
+    pub branch_units: usize,
+    /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
+    /// position, `nemm_core::static_force`) to every EMM-family variant (docs/training.md,
+    /// "The static force").
+    pub static_force: bool,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self {
+            variant: ModelKind::Nemm,
+            hidden: 16,
+            layers: 5,
+            integrator: Integrator::Rk4,
+            b_fl_bounds: (0.1, 10.0),
+            pr_bounds: (0.1, 5.0),
+            rate_hz: DEFAULT_MODEL_RATE_HZ,
+            alpha_priors: AlphaPriors::Construction,
+            branch_units: 16,
+            static_force: DEFAULT_STATIC_FORCE,
+        }
+    }
+}
+
+/// Whether the EMM-family variants get the static force by default.
+pub const DEFAULT_STATIC_FORCE: bool = false;
+
+/// The default model rate \[Hz\]: the firmware's 10 kHz step.
+pub const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
+
+/// The training procedure: optimiser, penalties, schedule and budget.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Windows per batch (Table 3: 4, 8, 16).
+    pub batch: usize,
+    /// Adam learning rate at the start (Table 3: 5e-3, 1e-2, 1e-3); cosine decay to 10 %.
+    pub lr: f64,
+    /// Physics-inconsistency weight `lambda_ph`: 5 is the paper's best (Table 5: 0.005) in
+    /// this crate's normalisation of the penalty, which takes 1000 times the paper's number
+    /// to act (docs/training.md, "The scale of `lambda_ph`").
+    pub lambda_ph: f64,
+    /// Weight of the L2 term `sum ||W||_2` over the scalers' linear weights (paper: 1e-3).
+    pub lambda_l2: f64,
+    /// Maximum epochs of the neural stages.
+    pub epochs: usize,
+    /// Early stopping: epochs without progress on the validation RMSE.
+    pub patience: usize,
+    /// Epochs of the Linear EMM stage.
+    pub linear_epochs: usize,
+    /// Adam learning rate of the Linear EMM stage (on `ln(c) / LOG_CONSTANT_SCALE`: 3e-3 moves
+    /// the constants by ~3 % per step).
+    pub linear_lr: f64,
+    /// Full-batch Adam steps of the quasi-static `b_fl` regression (eq. 41).
+    pub qs_steps: usize,
+    /// At most this many batches per epoch (a random subset; for quick runs).
+    pub max_batches: Option<usize>,
+    /// Train at most this many epochs per stage in one invocation, then stop with a
+    /// checkpoint (time-boxed sessions); `--resume` continues.
+    pub session_epochs: Option<usize>,
+    /// Seed of the initial weights and the data order.
+    pub seed: u64,
+    /// Gradient clipping by norm, per parameter tensor.
+    pub grad_clip: f32,
+    /// Adam's epsilon (PyTorch's default 1e-8; burn's default 1e-5 would dominate the small
+    /// gradients of a normalised MSE).
+    pub adam_eps: f32,
+    /// How the training windows are drawn into batches: every run equally often
+    /// ([`Balance::Runs`], the default) or every window once per epoch ([`Balance::Windows`]).
+    pub balance: Balance,
+}
+
+/// How the training windows are drawn into an epoch's batches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Balance {
+    /// Each draw picks a training run uniformly, then one of its windows uniformly (with
+    /// replacement): short runs (the fast, small-stroke ones where degradation shows) weigh
+    /// as much as long slow ones.
+    #[default]
+    Runs,
+    /// Each window once per epoch in a shuffled order: a run weighs by its length.
+    Windows,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            batch: 16,
+            lr: 5e-3,
+            lambda_ph: 5.0,
+            lambda_l2: 1e-3,
+            epochs: 40,
+            patience: 8,
+            linear_epochs: 8,
+            linear_lr: 3e-3,
+            qs_steps: 600,
+            max_batches: None,
+            session_epochs: None,
+            seed: DEFAULT_SPLIT_SEED,
+            grad_clip: 1.0,
+            adam_eps: 1e-8,
+            balance: Balance::default(),
+        }
+    }
+}
+
+impl TrainConfig {
+    /// The settings of one stage labelled `label` (the neural stages' epochs and lr).
+    pub fn fit_config(&self, label: &str) -> FitConfig {
+        FitConfig {
+            label: label.to_string(),
+            epochs: self.epochs,
+            batch: self.batch,
+            lr: self.lr,
+            lambda_l2: self.lambda_l2,
+            lambda_ph: self.lambda_ph,
+            patience: self.patience,
+            grad_clip: self.grad_clip,
+            max_batches_per_epoch: self.max_batches,
+            seed: self.seed,
+            session_epochs: self.session_epochs,
+            adam_eps: self.adam_eps,
+            balance: self.balance,
+        }
+    }
+}
+
+/// Everything a training job reads: data, model, training.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    /// Dataset and split.
+    pub data: DataConfig,
+    /// Model.
+    pub model: ModelConfig,
+    /// Training.
+    pub train: TrainConfig,
+}
+
+impl Config {
+    /// Reads a configuration from a TOML file; absent keys take their defaults.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("invalid configuration {}", path.display()))
+    }
+
+    /// The configuration as TOML (every key, so that the file alone reproduces the job).
+    pub fn to_toml(&self) -> Result<String> {
+        Ok(toml::to_string(self)?)
+    }
+
+    /// Writes the configuration as TOML to `path` (atomically).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        crate::fsutil::write_atomic_bytes(path, self.to_toml()?.as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))
+    }
+
+    /// Checks the values no training can run with.
+    pub fn validate(&self) -> Result<()> {
+        let (m, t) = (&self.model, &self.train);
+        if t.batch == 0 || m.hidden == 0 || m.layers == 0 {
+            bail!("--batch, --hidden and --layers must be positive");
+        }
+        if m.hidden > nemm_core::mlp::MAX_HIDDEN || m.layers > nemm_core::mlp::MAX_LAYERS {
+            bail!(
+                "--hidden must be <= {} and --layers <= {} (the capacity of nemm-core)",
+                nemm_core::mlp::MAX_HIDDEN,
+                nemm_core::mlp::MAX_LAYERS
+            );
+        }
+        if !(t.lambda_ph.is_finite() && t.lambda_ph >= 0.0) {
+            bail!("--lambda-ph must be a non-negative number");
+        }
+        if !(m.rate_hz.is_finite() && m.rate_hz > 0.0) {
+            bail!("--model-rate-hz must be a positive rate in Hz");
+        }
+        Ok(())
+    }
+
+    /// The training procedure's configuration.
+    pub fn pipeline_config(&self) -> PipelineConfig {
+        let (m, t) = (&self.model, &self.train);
+        PipelineConfig {
+            hidden: m.hidden,
+            layers: m.layers,
+            integrator: m.integrator,
+            fit: t.fit_config(m.variant.name()),
+            linear_epochs: t.linear_epochs,
+            linear_lr: t.linear_lr,
+            qs_steps: t.qs_steps,
+            b_fl_bounds: m.b_fl_bounds,
+            pr_bounds: m.pr_bounds,
+            model_rate_hz: m.rate_hz,
+            alpha_priors: m.alpha_priors,
+            branch_units: m.branch_units,
+            static_force: m.static_force,
+        }
+    }
+}
+
+/// A note for `lambda_ph` values that look like the paper's numbers: in this crate's
+/// normalisation they barely act (docs/training.md, "The scale of `lambda_ph`"). `None` when
+/// every value is 0 or at least 0.1.
+pub fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
+    let small: Vec<String> = values
+        .iter()
+        .filter(|&&l| l > 0.0 && l < PAPER_SCALE_LAMBDA_PH)
+        .map(|l| l.to_string())
+        .collect();
+    (!small.is_empty()).then(|| {
+        format!(
+            "note: --lambda-ph {} looks like the paper's scale; this crate's penalty takes 1000 \
+             times the paper's numbers (the paper's 0.005 is 5 here), and at this value the \
+             physics loss barely acts (docs/training.md, \"The scale of lambda_ph\")",
+            small.join(",")
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: ConfigArgs,
+    }
+
+    #[test]
+    fn the_library_defaults_are_the_command_line_defaults() {
+        let cli = Cli::parse_from(["nemm"]).args.base().expect("defaults");
+        assert_eq!(cli, Config::default());
+        assert_eq!(cli.pipeline_config(), PipelineConfig::default());
+        assert_eq!(cli.pipeline_config().fit, FitConfig::default());
+        assert_eq!(FitConfig::default().lambda_ph, 5.0);
+        // The trainer preprocesses as the library (and `nemm data prepare`) does.
+        assert_eq!(cli.data.prepare_config(), PrepareConfig::default());
+    }
+
+    #[test]
+    fn options_override_a_config_file_and_the_file_round_trips() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join(CONFIG_FILE);
+        let mut file = Config::default();
+        file.model.hidden = 8;
+        file.model.variant = ModelKind::NemmLight;
+        file.train.lambda_ph = 15.0;
+        file.train.max_batches = Some(3);
+        file.save(&path).expect("save");
+        let text = std::fs::read_to_string(&path).expect("read");
+        assert!(text.contains("variant = \"nemm-light\""), "{text}");
+        assert!(text.contains("integrator = \"rk4\""), "{text}");
+        assert_eq!(Config::load(&path).expect("load"), file);
+        let args = Cli::parse_from([
+            "nemm",
+            "--config",
+            path.to_str().expect("utf-8"),
+            "--data",
+            "bench",
+            "--layers",
+            "3",
+            "--integrator",
+            "rk3",
+            "--seed",
+            "7",
+        ])
+        .args;
+        let c = args.resolve().expect("resolve");
+        assert_eq!((c.model.hidden, c.model.layers), (8, 3));
+        assert_eq!(c.model.integrator, Integrator::Rk3);
+        assert_eq!((c.train.lambda_ph, c.train.max_batches), (15.0, Some(3)));
+        assert_eq!((c.data.seed, c.train.seed), (Some(7), 7));
+        assert_eq!(c.data.dir, PathBuf::from("bench"));
+        // A partial file takes the defaults for the rest; unknown keys are refused.
+        let partial: Config = toml::from_str("[train]\nepochs = 3\n").expect("partial");
+        assert_eq!(partial.train.epochs, 3);
+        assert_eq!(partial.model, ModelConfig::default());
+        assert!(toml::from_str::<Config>("[train]\nepoch = 3\n").is_err());
+    }
+
+    #[test]
+    fn a_job_needs_a_dataset_and_one_lambda() {
+        let err = Cli::parse_from(["nemm"]).args.resolve().unwrap_err();
+        assert!(err.to_string().contains("--data"), "{err}");
+        let err = Cli::parse_from(["nemm", "--data", "d", "--lambda-ph", "0,5"])
+            .args
+            .resolve()
+            .unwrap_err();
+        assert!(err.to_string().contains("one value"), "{err}");
+        assert!(Cli::try_parse_from(["nemm", "--integrator", "euler"]).is_err());
+    }
+
+    #[test]
+    fn paper_scale_lambda_ph_gets_a_note() {
+        let note = lambda_ph_scale_note(&[0.0, 0.005, 0.015, 0.025]).expect("a note");
+        assert!(note.contains("0.005,0.015,0.025"), "{note}");
+        assert!(note.contains("0.005 is 5 here"), "{note}");
+        assert_eq!(lambda_ph_scale_note(&[0.0, 5.0, 15.0, 25.0]), None);
+        assert_eq!(
+            lambda_ph_scale_note(&[TrainConfig::default().lambda_ph]),
+            None
+        );
+        assert_eq!(lambda_ph_scale_note(&[0.0]), None);
+    }
+
+    fn manifest(sample_rate_hz: f64, levels: &[f64]) -> Manifest {
+        Manifest {
+            name: "m".into(),
+            sample_rate_hz,
+            condition: None,
+            runs: levels
+                .iter()
+                .enumerate()
+                .map(|(i, &a)| dataset::RunEntry {
+                    file: PathBuf::from(format!("runs/r{i}.csv")),
+                    oil_loss: a,
+                    amplitude_m: None,
+                    target_velocity_m_s: None,
+                })
+                .collect(),
+        }
+    }
+
+    fn choice<'a>(r: &'a ResolvedData, key: &str) -> &'a (&'static str, String, OptionSource) {
+        r.choices
+            .iter()
+            .find(|c| c.0 == key)
+            .unwrap_or_else(|| panic!("no {key} in {:?}", r.choices))
+    }
+
+    #[test]
+    fn defaults_adapt_to_a_300_hz_dataset_with_other_levels() {
+        let given = DataConfig::default();
+        let r = resolve_with(&given, None, &manifest(300.0, &[0.0, 0.5, 0.5, 1.0]));
+        // The cut-off is below the 150 Hz Nyquist frequency: 0.4 x 300 Hz.
+        assert_eq!(r.config.cutoff_hz, Some(120.0));
+        assert!(matches!(choice(&r, "cutoff_hz").2, OptionSource::Data(_)));
+        // The test level exists: the interior one.
+        assert_eq!(r.config.test_alphas, Some(vec![0.5]));
+        assert_eq!(r.config.test_tail, None);
+        let block = r.block();
+        assert!(block.starts_with("data options:\n"), "{block}");
+        assert!(
+            block.contains(
+                "cutoff_hz    120 Hz  (chosen from the data: 0.4 x the 300 Hz sample rate, \
+                 below its Nyquist frequency 150 Hz)"
+            ),
+            "{block}"
+        );
+        assert!(
+            block.contains("test set     runs at alpha 0.5  (chosen from the data"),
+            "{block}"
+        );
+        // A resolved configuration prepares without error at 300 Hz, and saved as TOML it
+        // resolves to itself.
+        let c = r.config.prepare_config();
+        assert_eq!(c.signal.cutoff_hz, 120.0);
+        let text = toml::to_string(&r.config).expect("toml");
+        let back: DataConfig = toml::from_str(&text).expect("parse");
+        assert_eq!(back, r.config);
+        let again = resolve_with(&back, None, &manifest(300.0, &[0.0, 0.5, 1.0]));
+        assert_eq!(again.config, r.config);
+        assert!(again.choices.iter().all(|c| c.2 == OptionSource::Given));
+        // At 10 kHz the paper's settings: 150 Hz and the test level 0.15.
+        let r = resolve_with(&given, None, &manifest(10_000.0, &[0.0, 0.15, 0.3]));
+        assert_eq!(r.config.cutoff_hz, Some(150.0));
+        assert_eq!(r.config.test_alphas, Some(vec![0.15]));
+        assert_eq!(r.config.prepare_config(), PrepareConfig::default());
+    }
+
+    #[test]
+    fn the_test_set_chosen_from_the_levels() {
+        let t = |levels: &[f64]| {
+            let (a, tail, _) = adaptive_test_set(levels);
+            (a, tail)
+        };
+        assert_eq!(t(&[0.0, 0.15, 0.3]), (Some(0.15), None));
+        // The paper's level is taken when it is interior, else the middle one.
+        assert_eq!(t(&[0.0, 0.1, 0.15, 0.2, 0.6]), (Some(0.15), None));
+        assert_eq!(t(&[0.0, 0.1, 0.2, 0.3]), (Some(0.1), None));
+        assert_eq!(t(&[0.0, 0.2, 0.7, 1.0]), (Some(0.7), None));
+        // Fewer than three levels: the end of every run.
+        assert_eq!(t(&[0.15, 0.3]), (None, Some(DEFAULT_TEST_TAIL)));
+        assert_eq!(t(&[0.0]), (None, Some(DEFAULT_TEST_TAIL)));
+        let r = resolve_with(&DataConfig::default(), None, &manifest(1000.0, &[0.0, 0.0]));
+        assert_eq!(r.config.test_alphas, Some(vec![]));
+        assert_eq!(r.config.test_tail, Some(0.2));
+        assert!(
+            r.block().contains("the last 20 % of every other run"),
+            "{}",
+            r.block()
+        );
+    }
+
+    #[test]
+    fn flags_override_the_dataset_file_which_overrides_the_choices() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        assert_eq!(
+            DataConfig::load_options_file(dir.path()).expect("none"),
+            None
+        );
+        let file = DataConfig {
+            cutoff_hz: Some(40.0),
+            window_s: Some(1.0),
+            test_runs: Some(vec!["runs/r1*".into()]),
+            ..DataConfig::default()
+        };
+        let path = file.save_options_file(dir.path()).expect("save");
+        assert_eq!(path, dir.path().join(DATA_OPTIONS_FILE));
+        let loaded = DataConfig::load_options_file(dir.path())
+            .expect("load")
+            .expect("a file");
+        assert_eq!(loaded, file);
+        let m = manifest(300.0, &[0.0, 0.5, 1.0]);
+        let r = resolve_with(&DataConfig::default(), Some(&loaded), &m);
+        assert_eq!(r.config.cutoff_hz, Some(40.0));
+        assert_eq!(choice(&r, "cutoff_hz").2, OptionSource::DatasetFile);
+        assert_eq!(r.config.test_runs, Some(vec!["runs/r1*".to_string()]));
+        assert_eq!(
+            r.config.test_alphas,
+            Some(vec![]),
+            "the file's test set, whole"
+        );
+        // A flag wins; a test-set flag replaces the file's whole test set.
+        let given = DataConfig {
+            cutoff_hz: Some(100.0),
+            test_tail: Some(0.3),
+            ..DataConfig::default()
+        };
+        let r = resolve_with(&given, Some(&loaded), &m);
+        assert_eq!(r.config.cutoff_hz, Some(100.0));
+        assert_eq!(choice(&r, "cutoff_hz").2, OptionSource::Given);
+        assert_eq!(r.config.window_s, Some(1.0));
+        assert_eq!(
+            (r.config.test_tail, r.config.test_runs.clone()),
+            (Some(0.3), Some(vec![]))
+        );
+        // Errors name the file and the line; `dir` has no place there.
+        std::fs::write(&path, "cutoff_hz = 40.0\nwindow = 1\n").expect("write");
+        let err = format!(
+            "{:#}",
+            DataConfig::load_options_file(dir.path()).unwrap_err()
+        );
+        assert!(
+            err.contains(DATA_OPTIONS_FILE) && err.contains("line 2"),
+            "{err}"
+        );
+        std::fs::write(&path, "dir = \"x\"\n").expect("write");
+        let err = DataConfig::load_options_file(dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`dir` has no place"), "{err}");
+    }
+
+    #[test]
+    fn data_options_parse_on_every_command_line() {
+        let args = Cli::parse_from([
+            "nemm",
+            "--data",
+            "d",
+            "--cutoff-hz",
+            "60",
+            "--velocity",
+            "differentiated",
+            "--test-runs",
+            "a*",
+            "--test-runs",
+            "b{1,2}*",
+            "--exclude-runs",
+            "c*",
+            "--length-s",
+            "0.4",
+        ])
+        .args;
+        let c = args.resolve().expect("resolve");
+        assert_eq!(c.data.cutoff_hz, Some(60.0));
+        assert_eq!(c.data.velocity, Some(VelocitySource::Differentiated));
+        assert_eq!(
+            c.data.test_runs,
+            Some(vec!["a*".to_string(), "b{1,2}*".to_string()])
+        );
+        assert_eq!(c.data.exclude_runs, Some(vec!["c*".to_string()]));
+        assert_eq!(c.data.window_s, Some(0.4));
+    }
+}
