@@ -1,0 +1,324 @@
+//! The manifest (`manifest.toml`): its TOML, its validation with file, line and column, and the
+//! condition it declares.
+
+use super::*;
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawManifest {
+    name: String,
+    sample_rate_hz: Spanned<f64>,
+    #[serde(default)]
+    condition: Option<RawCondition>,
+    #[serde(default)]
+    runs: Vec<RawRun>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCondition {
+    name: Spanned<String>,
+    #[serde(default)]
+    unit: Option<Spanned<String>>,
+    #[serde(default)]
+    at_alpha_0: Option<Spanned<f64>>,
+    #[serde(default)]
+    at_alpha_1: Option<Spanned<f64>>,
+    #[serde(default)]
+    b_fl: Option<Spanned<String>>,
+    #[serde(default)]
+    b_pr: Option<Spanned<String>>,
+    #[serde(default)]
+    k_pr: Option<Spanned<String>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRun {
+    file: Spanned<PathBuf>,
+    #[serde(alias = "alpha")]
+    oil_loss: Spanned<f64>,
+    #[serde(default)]
+    amplitude_m: Option<Spanned<f64>>,
+    #[serde(default)]
+    target_velocity_m_s: Option<Spanned<f64>>,
+}
+
+/// Spans of the manifest values, for error lines (`None` for in-memory manifests).
+pub(super) struct ManifestLines {
+    sample_rate_hz: usize,
+    condition: Option<ConditionLines>,
+    pub(super) runs: Vec<RunLines>,
+}
+
+/// Lines of the `[condition]` values (the table's name line where a key is absent).
+#[derive(Clone, Copy)]
+pub(super) struct ConditionLines {
+    name: usize,
+    unit: usize,
+    at_alpha_0: usize,
+    at_alpha_1: usize,
+}
+
+pub(super) struct RunLines {
+    pub(super) file: usize,
+    oil_loss: usize,
+    amplitude_m: Option<usize>,
+    target_velocity_m_s: Option<usize>,
+}
+
+/// Checks the values of a manifest (ranges, file names, duplicates).
+pub(super) fn validate_manifest(
+    m: &Manifest,
+    path: &Path,
+    lines: Option<&ManifestLines>,
+) -> Result<(), DatasetError> {
+    let value_err =
+        |line: Option<usize>, key: String, message: String| DatasetError::ManifestValue {
+            path: path.to_path_buf(),
+            line,
+            key,
+            message,
+        };
+    if !(m.sample_rate_hz.is_finite() && m.sample_rate_hz > 0.0) {
+        return Err(value_err(
+            lines.map(|l| l.sample_rate_hz),
+            "sample_rate_hz".into(),
+            format!("{} is not a positive finite rate in Hz", m.sample_rate_hz),
+        ));
+    }
+    if let Some(c) = &m.condition {
+        let cl = lines.and_then(|l| l.condition.as_ref());
+        let limits = [
+            (
+                "condition.name",
+                c.name.len(),
+                1,
+                nemm_core::model::MAX_CONDITION_NAME,
+                cl.map(|l| l.name),
+            ),
+            (
+                "condition.unit",
+                c.unit.len(),
+                0,
+                nemm_core::model::MAX_CONDITION_UNIT,
+                cl.map(|l| l.unit),
+            ),
+        ];
+        for (key, len, lo, hi, line) in limits {
+            if !(lo..=hi).contains(&len) {
+                return Err(value_err(
+                    line,
+                    key.into(),
+                    format!("{len} bytes; must be {lo} to {hi} bytes"),
+                ));
+            }
+        }
+        for (key, v, line) in [
+            (
+                "condition.at_alpha_0",
+                c.at_alpha_0,
+                cl.map(|l| l.at_alpha_0),
+            ),
+            (
+                "condition.at_alpha_1",
+                c.at_alpha_1,
+                cl.map(|l| l.at_alpha_1),
+            ),
+        ] {
+            if !(v.is_finite() && (v as f32).is_finite()) {
+                return Err(value_err(
+                    line,
+                    key.into(),
+                    format!("{v} is not a finite number"),
+                ));
+            }
+        }
+        if c.at_alpha_0 as f32 == c.at_alpha_1 as f32 {
+            return Err(value_err(
+                cl.map(|l| l.at_alpha_1),
+                "condition.at_alpha_1".into(),
+                format!(
+                    "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
+                    c.at_alpha_1
+                ),
+            ));
+        }
+    }
+    if m.runs.is_empty() {
+        return Err(value_err(
+            None,
+            "runs".into(),
+            "no runs listed (add [[runs]] tables)".into(),
+        ));
+    }
+    let mut seen: HashMap<PathBuf, usize> = HashMap::new();
+    for (i, r) in m.runs.iter().enumerate() {
+        let rl = lines.and_then(|l| l.runs.get(i));
+        let file_line = rl.map(|l| l.file);
+        let key = |k: &str| format!("runs[{i}].{k}");
+        let normalised = normalise_relative(&r.file).map_err(|message| {
+            value_err(file_line, key("file"), format!("{:?}: {message}", r.file))
+        })?;
+        if let Some(&first) = seen.get(&normalised) {
+            return Err(DatasetError::DuplicateRunFile {
+                path: path.to_path_buf(),
+                line: file_line,
+                key: key("file"),
+                first_key: format!("runs[{first}].file"),
+                file: r.file.clone(),
+            });
+        }
+        seen.insert(normalised, i);
+        if !(r.oil_loss.is_finite() && (0.0..=1.0).contains(&r.oil_loss)) {
+            return Err(value_err(
+                rl.map(|l| l.oil_loss),
+                key("oil_loss"),
+                format!(
+                    "{} is outside [0, 1] (condition level alpha, e.g. the fraction of oil \
+                     volume lost)",
+                    r.oil_loss
+                ),
+            ));
+        }
+        let positive = |v: Option<f64>, k: &str, line: Option<usize>| match v {
+            Some(v) if !(v.is_finite() && v > 0.0) => Err(value_err(
+                line,
+                key(k),
+                format!("{v} is not a positive finite number"),
+            )),
+            _ => Ok(()),
+        };
+        positive(r.amplitude_m, "amplitude_m", rl.and_then(|l| l.amplitude_m))?;
+        positive(
+            r.target_velocity_m_s,
+            "target_velocity_m_s",
+            rl.and_then(|l| l.target_velocity_m_s),
+        )?;
+    }
+    Ok(())
+}
+
+/// The run file path without `.` components; refuses empty, absolute and `..` paths.
+fn normalise_relative(file: &Path) -> Result<PathBuf, &'static str> {
+    let mut out = PathBuf::new();
+    for c in file.components() {
+        match c {
+            Component::Normal(p) => out.push(p),
+            Component::CurDir => {}
+            Component::ParentDir => {
+                return Err("must stay inside the dataset folder (no `..`)");
+            }
+            Component::RootDir | Component::Prefix(_) => {
+                return Err("must be relative to the manifest, not absolute");
+            }
+        }
+    }
+    if out.as_os_str().is_empty() {
+        return Err("is not a file name");
+    }
+    Ok(out)
+}
+
+/// Reads and validates `DIR/manifest.toml` (without opening the run files).
+pub fn read_manifest(dir: &Path) -> Result<Manifest, DatasetError> {
+    Ok(read_manifest_with_lines(dir)?.0)
+}
+
+pub(super) fn read_manifest_with_lines(
+    dir: &Path,
+) -> Result<(Manifest, ManifestLines), DatasetError> {
+    let path = dir.join(MANIFEST_FILE);
+    let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
+    let raw: RawManifest = toml::from_str(&text).map_err(|e| {
+        let (line, column) = line_col(&text, e.span().map_or(0, |s| s.start));
+        DatasetError::ManifestSyntax {
+            path: path.clone(),
+            line,
+            column,
+            message: e.message().trim().to_string(),
+        }
+    })?;
+    let line_of = |span: std::ops::Range<usize>| line_col(&text, span.start).0;
+    let condition = raw
+        .condition
+        .map(|c| raw_condition(c, &text, &path))
+        .transpose()?;
+    let lines = ManifestLines {
+        sample_rate_hz: line_of(raw.sample_rate_hz.span()),
+        condition: condition.as_ref().map(|c| c.1),
+        runs: raw
+            .runs
+            .iter()
+            .map(|r| RunLines {
+                file: line_of(r.file.span()),
+                oil_loss: line_of(r.oil_loss.span()),
+                amplitude_m: r.amplitude_m.as_ref().map(|s| line_of(s.span())),
+                target_velocity_m_s: r.target_velocity_m_s.as_ref().map(|s| line_of(s.span())),
+            })
+            .collect(),
+    };
+    let manifest = Manifest {
+        name: raw.name,
+        sample_rate_hz: raw.sample_rate_hz.into_inner(),
+        condition: condition.map(|c| c.0),
+        runs: raw
+            .runs
+            .into_iter()
+            .map(|r| RunEntry {
+                file: r.file.into_inner(),
+                oil_loss: r.oil_loss.into_inner(),
+                amplitude_m: r.amplitude_m.map(Spanned::into_inner),
+                target_velocity_m_s: r.target_velocity_m_s.map(Spanned::into_inner),
+            })
+            .collect(),
+    };
+    validate_manifest(&manifest, &path, Some(&lines))?;
+    Ok((manifest, lines))
+}
+
+/// The `[condition]` table with its lines; a direction that is none of the accepted names
+/// is refused with its line.
+fn raw_condition(
+    c: RawCondition,
+    text: &str,
+    path: &Path,
+) -> Result<(ConditionSpec, ConditionLines), DatasetError> {
+    let line_of = |span: std::ops::Range<usize>| line_col(text, span.start).0;
+    let name_line = line_of(c.name.span());
+    let line = |s: &Option<Spanned<f64>>| s.as_ref().map_or(name_line, |s| line_of(s.span()));
+    let lines = ConditionLines {
+        name: name_line,
+        unit: c.unit.as_ref().map_or(name_line, |s| line_of(s.span())),
+        at_alpha_0: line(&c.at_alpha_0),
+        at_alpha_1: line(&c.at_alpha_1),
+    };
+    let direction = |s: Option<Spanned<String>>, key: &str| -> Result<Direction, DatasetError> {
+        match s {
+            None => Ok(Direction::default()),
+            Some(s) => {
+                let l = line_of(s.span());
+                s.into_inner()
+                    .parse::<Direction>()
+                    .map_err(|e| DatasetError::ManifestValue {
+                        path: path.to_path_buf(),
+                        line: Some(l),
+                        key: format!("condition.{key}"),
+                        message: format!("{e}"),
+                    })
+            }
+        }
+    };
+    let spec = ConditionSpec {
+        name: c.name.into_inner(),
+        unit: c
+            .unit
+            .map_or_else(ConditionSpec::default_unit, Spanned::into_inner),
+        at_alpha_0: c.at_alpha_0.map_or(0.0, Spanned::into_inner),
+        at_alpha_1: c.at_alpha_1.map_or(1.0, Spanned::into_inner),
+        b_fl: direction(c.b_fl, "b_fl")?,
+        b_pr: direction(c.b_pr, "b_pr")?,
+        k_pr: direction(c.k_pr, "k_pr")?,
+    };
+    Ok((spec, lines))
+}
