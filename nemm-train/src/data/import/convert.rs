@@ -1,0 +1,492 @@
+//! The conversion: raw files read and converted to SI units, split into runs and resampled
+//! onto the dataset's grid.
+
+use super::*;
+
+/// One raw file converted to SI units, with the source line of every sample.
+#[derive(Debug, Clone, PartialEq)]
+struct Converted {
+    time_s: Vec<f64>,
+    displacement_m: Vec<f64>,
+    force_n: Vec<f64>,
+    velocity_m_s: Option<Vec<f64>>,
+    alpha: Option<Vec<f64>>,
+    lines: Vec<usize>,
+}
+
+fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
+    let bytes = std::fs::read(path).map_err(|error| ImportError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
+    let o = &spec.csv;
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .delimiter(delimiter_byte(&o.delimiter)?)
+        .comment(o.comment.as_ref().and_then(|c| c.bytes().next()))
+        .from_reader(bytes);
+    let csv_err = |e: csv::Error, line: usize| ImportError::Csv {
+        path: path.to_path_buf(),
+        line: e
+            .position()
+            .map_or(line, |p| usize::try_from(p.line()).unwrap_or(usize::MAX)),
+        message: e.to_string(),
+    };
+    let mut header: Option<(usize, Vec<String>)> = None;
+    let mut idx: Vec<(&'static str, usize, f64, &ColumnSpec)> = Vec::new();
+    let mut out = Converted {
+        time_s: Vec::new(),
+        displacement_m: Vec::new(),
+        force_n: Vec::new(),
+        velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
+        alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
+        lines: Vec::new(),
+    };
+    let mut record = csv::StringRecord::new();
+    let mut last = 0;
+    loop {
+        match reader.read_record(&mut record) {
+            Ok(true) => {}
+            Ok(false) => break,
+            Err(e) => return Err(csv_err(e, last + 1)),
+        }
+        let line = record.position().map_or(last + 1, |p| {
+            usize::try_from(p.line()).unwrap_or(usize::MAX)
+        });
+        last = line;
+        let Some((hline, names)) = &header else {
+            if line < o.header_line {
+                continue;
+            }
+            let names: Vec<String> = record.iter().map(str::to_string).collect();
+            for (role, c) in spec.columns.roles() {
+                let Some(c) = c else { continue };
+                let found = match (&c.name, c.index) {
+                    (Some(n), _) => names.iter().position(|h| h == n),
+                    (None, Some(i)) => (i >= 1 && i <= names.len()).then(|| i - 1),
+                    (None, None) => None,
+                };
+                let i = found.ok_or_else(|| ImportError::MissingColumn {
+                    path: path.to_path_buf(),
+                    line,
+                    role: role.to_string(),
+                    column: c.label(),
+                    header: names.join(","),
+                })?;
+                let factor = unit_factor(role, &c.unit).unwrap_or(1.0);
+                idx.push((role, i, factor, c));
+            }
+            header = Some((line, names));
+            continue;
+        };
+        let _ = hline;
+        if record.iter().all(str::is_empty) {
+            continue;
+        }
+        let mut time = None;
+        for &(role, i, factor, c) in &idx {
+            let raw = record.get(i).unwrap_or("");
+            let text = if o.decimal_comma {
+                raw.replace(',', ".")
+            } else {
+                raw.to_string()
+            };
+            let v = match text.parse::<f64>() {
+                Ok(v) if v.is_finite() => v,
+                _ => {
+                    return Err(ImportError::BadCell {
+                        path: path.to_path_buf(),
+                        line,
+                        field: i + 1,
+                        column: names.get(i).cloned().unwrap_or_default(),
+                        value: raw.to_string(),
+                    })
+                }
+            };
+            let si = (v * c.gain + c.offset) * factor * if c.invert { -1.0 } else { 1.0 };
+            match role {
+                "time" => time = Some(si),
+                "displacement" => out.displacement_m.push(si),
+                "force" => out.force_n.push(si),
+                "alpha" => {
+                    if !(0.0..=1.0).contains(&si) {
+                        return Err(ImportError::LevelOutOfRange {
+                            path: path.to_path_buf(),
+                            line,
+                            field: i + 1,
+                            column: names.get(i).cloned().unwrap_or_default(),
+                            value: raw.to_string(),
+                            level: si,
+                        });
+                    }
+                    if let Some(a) = out.alpha.as_mut() {
+                        a.push(si);
+                    }
+                }
+                _ => {
+                    if let Some(vel) = out.velocity_m_s.as_mut() {
+                        vel.push(si);
+                    }
+                }
+            }
+        }
+        let t = match (time, spec.rate_hz) {
+            (Some(t), _) => t,
+            (None, Some(r)) => out.lines.len() as f64 / r,
+            (None, None) => 0.0,
+        };
+        if let Some(&prev) = out.time_s.last() {
+            if t.is_nan() || t <= prev {
+                return Err(ImportError::Time(DatasetError::NonMonotonicTime {
+                    path: path.to_path_buf(),
+                    line,
+                    time: t,
+                    previous: prev,
+                }));
+            }
+        }
+        out.time_s.push(t);
+        out.lines.push(line);
+    }
+    if header.is_none() {
+        return Err(ImportError::NoRuns {
+            path: path.to_path_buf(),
+            message: format!("no header at line {} (csv.header_line)", o.header_line),
+        });
+    }
+    if out.time_s.is_empty() {
+        return Err(ImportError::NoRuns {
+            path: path.to_path_buf(),
+            message: "no samples after the header".into(),
+        });
+    }
+    Ok(out)
+}
+
+/// Sample ranges `[start, end)` of the segments of a converted file: those kept and those
+/// shorter than `min_run_s`.
+type Segments = (Vec<(usize, usize)>, Vec<(usize, usize)>);
+
+fn segments(c: &Converted, split: &SplitSpec) -> Segments {
+    let n = c.time_s.len();
+    let cuts: Vec<(usize, usize)> = match split.method {
+        SplitMethod::None => vec![(0, n)],
+        SplitMethod::Gaps => {
+            let mut steps: Vec<f64> = c.time_s.windows(2).map(|w| w[1] - w[0]).collect();
+            if steps.is_empty() {
+                return (vec![(0, n)], Vec::new());
+            }
+            let mid = steps.len() / 2;
+            let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+            let mut out = Vec::new();
+            let mut start = 0;
+            for i in 1..n {
+                if c.time_s[i] - c.time_s[i - 1] > dataset::GAP_STEPS * median {
+                    out.push((start, i));
+                    start = i;
+                }
+            }
+            out.push((start, n));
+            out
+        }
+        SplitMethod::Pauses => {
+            let span = (c.time_s[n - 1] - c.time_s[0]).max(f64::MIN_POSITIVE);
+            let dt = span / (n.max(2) - 1) as f64;
+            // Blocks of a tenth of the shortest pause; a pause is ten quiet blocks in a row.
+            let block = ((0.1 * split.min_pause_s / dt).round() as usize).max(1);
+            let (lo, hi) = c
+                .displacement_m
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
+                    (l.min(x), h.max(x))
+                });
+            let band = split.pause_band * (hi - lo);
+            let quiet: Vec<bool> = c
+                .displacement_m
+                .chunks(block)
+                .map(|b| {
+                    let (l, h) = b
+                        .iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
+                            (l.min(x), h.max(x))
+                        });
+                    h - l <= band
+                })
+                .collect();
+            let mut pause = vec![false; quiet.len()];
+            let mut k = 0;
+            while k < quiet.len() {
+                if quiet[k] {
+                    let end = quiet[k..]
+                        .iter()
+                        .position(|q| !q)
+                        .map_or(quiet.len(), |e| k + e);
+                    if end - k >= 10 {
+                        pause[k..end].iter_mut().for_each(|p| *p = true);
+                    }
+                    k = end;
+                } else {
+                    k += 1;
+                }
+            }
+            let mut out = Vec::new();
+            let mut start = None;
+            for (b, p) in pause.iter().enumerate() {
+                match (start, p) {
+                    (None, false) => start = Some(b),
+                    (Some(s), true) => {
+                        out.push((s * block, b * block));
+                        start = None;
+                    }
+                    _ => {}
+                }
+            }
+            if let Some(s) = start {
+                out.push((s * block, n));
+            }
+            out
+        }
+    };
+    // A file that is not cut is one run, however short.
+    cuts.into_iter()
+        .filter(|&(a, b)| b > a)
+        .partition(|&(a, b)| {
+            split.method == SplitMethod::None || c.time_s[b - 1] - c.time_s[a] >= split.min_run_s
+        })
+}
+
+/// Linear interpolation of `y(t)` at `tq` (inside `t`'s range).
+fn interpolate(t: &[f64], y: &[f64], tq: &[f64]) -> Vec<f64> {
+    let mut j = 0;
+    tq.iter()
+        .map(|&q| {
+            while j + 2 < t.len() && t[j + 1] < q {
+                j += 1;
+            }
+            let (t0, t1) = (t[j], t[(j + 1).min(t.len() - 1)]);
+            let w = if t1 > t0 {
+                ((q - t0) / (t1 - t0)).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            y[j] + w * (y[(j + 1).min(t.len() - 1)] - y[j])
+        })
+        .collect()
+}
+
+/// What the import did, for the report.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportedRun {
+    /// The raw file.
+    pub source: PathBuf,
+    /// First and last source line of the run.
+    pub lines: (usize, usize),
+    /// Source time range \[s\].
+    pub time_s: (f64, f64),
+    /// The grid fitted to the source stamps.
+    pub grid: dataset::TimeGrid,
+    /// `true` if the run was resampled.
+    pub resampled: bool,
+}
+
+/// The imported dataset and a per-run account.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Imported {
+    /// The dataset (write it with [`dataset::write()`]).
+    pub dataset: Dataset,
+    /// One entry per run, in dataset order.
+    pub runs: Vec<ImportedRun>,
+    /// Segments dropped as shorter than `min_run_s`: `(file, start s, end s)`.
+    pub dropped: Vec<(PathBuf, f64, f64)>,
+}
+
+/// Reads, converts and cuts every file of `spec` into a dataset named `name`.
+pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
+    validate_spec(spec)?;
+    let mut pieces: Vec<(usize, Converted, Option<f64>)> = Vec::new();
+    let mut dropped = Vec::new();
+    for (fi, f) in spec.files.iter().enumerate() {
+        let c = read_file(spec, &f.path)?;
+        let mut ranges: Vec<(usize, usize, Option<f64>)> = Vec::new();
+        if f.runs.is_empty() {
+            let split = f.split.as_ref().unwrap_or(&spec.split);
+            let (segs, short) = segments(&c, split);
+            dropped.extend(
+                short
+                    .into_iter()
+                    .map(|(a, b)| (f.path.clone(), c.time_s[a], c.time_s[b - 1])),
+            );
+            if segs.is_empty() {
+                return Err(ImportError::NoRuns {
+                    path: f.path.clone(),
+                    message: format!(
+                        "no segment of at least min_run_s = {} s (split {:?})",
+                        split.min_run_s, split.method
+                    ),
+                });
+            }
+            ranges.extend(segs.into_iter().map(|(a, b)| (a, b, f.alpha)));
+        } else {
+            for (j, r) in f.runs.iter().enumerate() {
+                let a = c.time_s.partition_point(|t| *t < r.start_s);
+                let b = c.time_s.partition_point(|t| *t < r.end_s);
+                if b <= a {
+                    return Err(ImportError::NoRuns {
+                        path: f.path.clone(),
+                        message: format!(
+                            "files[{fi}].runs[{j}]: no samples in {} .. {} s (the file spans \
+                             {} .. {} s)",
+                            r.start_s,
+                            r.end_s,
+                            c.time_s[0],
+                            c.time_s[c.time_s.len() - 1]
+                        ),
+                    });
+                }
+                ranges.push((a, b, r.alpha.or(f.alpha)));
+            }
+        }
+        for (a, b, alpha) in ranges {
+            let mut piece = Converted {
+                time_s: c.time_s[a..b].to_vec(),
+                displacement_m: c.displacement_m[a..b].to_vec(),
+                force_n: c.force_n[a..b].to_vec(),
+                velocity_m_s: c.velocity_m_s.as_ref().map(|v| v[a..b].to_vec()),
+                alpha: c.alpha.as_ref().map(|v| v[a..b].to_vec()),
+                lines: c.lines[a..b].to_vec(),
+            };
+            if spec.columns.displacement.center {
+                center(&mut piece.displacement_m);
+            }
+            if spec.columns.force.center {
+                center(&mut piece.force_n);
+            }
+            if let (Some(v), Some(true)) = (
+                piece.velocity_m_s.as_mut(),
+                spec.columns.velocity.as_ref().map(|c| c.center),
+            ) {
+                center(v);
+            }
+            pieces.push((fi, piece, alpha));
+        }
+    }
+    let rate_hz = match (spec.resample_hz, spec.rate_hz) {
+        (Some(r), _) | (None, Some(r)) => r,
+        (None, None) => {
+            let first = &pieces
+                .first()
+                .map(|p| &p.1.time_s)
+                .cloned()
+                .unwrap_or_default();
+            let r = dataset::fit_time_grid(first, 1.0).rate_hz();
+            let rounded = r.round();
+            if rounded > 0.0 && (r / rounded - 1.0).abs() <= 1e-3 {
+                rounded
+            } else {
+                r
+            }
+        }
+    };
+    let mut runs = Vec::new();
+    let mut account = Vec::new();
+    let mut counters: Vec<usize> = vec![0; spec.files.len()];
+    let total_of = |fi: usize| pieces.iter().filter(|p| p.0 == fi).count();
+    for (fi, piece, alpha) in &pieces {
+        let f = &spec.files[*fi];
+        let grid = dataset::fit_time_grid(&piece.time_s, 1.0 / rate_hz);
+        let k = counters[*fi];
+        counters[*fi] += 1;
+        let stem = f
+            .path
+            .file_stem()
+            .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+        let file = if total_of(*fi) > 1 {
+            PathBuf::from(format!("runs/{stem}_{:02}.csv", k + 1))
+        } else {
+            PathBuf::from(format!("runs/{stem}.csv"))
+        };
+        // The label: the given level, else the mean of the run's levels (a level column).
+        let label = alpha.unwrap_or_else(|| {
+            piece
+                .alpha
+                .as_ref()
+                .map_or(0.0, |a| a.iter().sum::<f64>() / a.len().max(1) as f64)
+        });
+        let entry = RunEntry {
+            file,
+            oil_loss: label,
+            amplitude_m: None,
+            target_velocity_m_s: None,
+        };
+        let run = if let Some(r) = spec.resample_hz {
+            let t0 = piece.time_s[0];
+            let span = piece.time_s[piece.time_s.len() - 1] - t0;
+            let m = (span * r + 1e-9).floor() as usize + 1;
+            let tq: Vec<f64> = (0..m).map(|i| t0 + i as f64 / r).collect();
+            Run {
+                entry,
+                displacement_m: interpolate(&piece.time_s, &piece.displacement_m, &tq),
+                force_n: interpolate(&piece.time_s, &piece.force_n, &tq),
+                velocity_m_s: piece
+                    .velocity_m_s
+                    .as_ref()
+                    .map(|v| interpolate(&piece.time_s, v, &tq)),
+                alpha: piece
+                    .alpha
+                    .as_ref()
+                    .map(|a| interpolate(&piece.time_s, a, &tq)),
+                time_s: tq,
+            }
+        } else {
+            dataset::check_time_grid(&piece.time_s, rate_hz, &f.path, |i| {
+                piece.lines.get(i).copied().unwrap_or(0)
+            })?;
+            Run {
+                entry,
+                time_s: piece.time_s.clone(),
+                displacement_m: piece.displacement_m.clone(),
+                force_n: piece.force_n.clone(),
+                velocity_m_s: piece.velocity_m_s.clone(),
+                alpha: piece.alpha.clone(),
+            }
+        };
+        account.push(ImportedRun {
+            source: f.path.clone(),
+            lines: (
+                piece.lines.first().copied().unwrap_or(0),
+                piece.lines.last().copied().unwrap_or(0),
+            ),
+            time_s: (
+                piece.time_s.first().copied().unwrap_or(0.0),
+                piece.time_s.last().copied().unwrap_or(0.0),
+            ),
+            grid,
+            resampled: spec.resample_hz.is_some(),
+        });
+        runs.push(run);
+    }
+    Ok(Imported {
+        dataset: Dataset {
+            name: spec.name.clone().unwrap_or_else(|| name.to_string()),
+            sample_rate_hz: rate_hz,
+            condition: None,
+            runs,
+        },
+        runs: account,
+        dropped,
+    })
+}
+
+/// Subtracts the mid-range.
+fn center(x: &mut [f64]) {
+    let (lo, hi) = x
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    let mid = 0.5 * (lo + hi);
+    x.iter_mut().for_each(|v| *v -= mid);
+}
