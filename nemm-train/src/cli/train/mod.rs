@@ -1,0 +1,432 @@
+//! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
+//! Table 4 / Table 5 reports from the command line.
+
+use crate::config::{lambda_ph_scale_note, resolve_data, Config, CONFIG_FILE};
+use crate::data::dataset;
+use crate::data::preprocess::{self, PrepareConfig, Prepared};
+use crate::fsutil::write_atomic_bytes;
+use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
+use crate::report::inspect::describe;
+use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
+use crate::train::net::{EmmNet, NetFrame};
+use crate::train::params::to_core;
+use crate::train::pipeline::{
+    train_each, train_variants, AlphaPriors, Trained, TrainedVariant, VariantInfo,
+};
+use anyhow::{bail, Context, Result};
+use burn::module::Module;
+use nemm_core::ModelKind;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+mod compare;
+mod demo;
+mod sweep;
+
+pub use compare::*;
+pub use demo::*;
+pub use sweep::*;
+
+/// Loads and prepares a dataset, printing a one-line summary.
+pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {
+    load_dataset_prepared(dir, cfg).map(|(_, p)| p)
+}
+
+/// Loads and prepares a dataset; returns both (figures need the whole runs).
+pub fn load_dataset_prepared(
+    dir: &Path,
+    cfg: &PrepareConfig,
+) -> Result<(dataset::Dataset, Prepared)> {
+    let t = Instant::now();
+    let ds = dataset::load(dir)
+        .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
+    let prepared = preprocess::prepare(&ds, cfg)?;
+    eprintln!(
+        "dataset {:?}: {} runs; {} train / {} validation / {} test windows of {} + {} warm-up samples; force scale {:.0} N ({:.1} s)",
+        ds.name,
+        ds.runs.len(),
+        prepared.train.len(),
+        prepared.validation.len(),
+        prepared.test.len(),
+        prepared.scored_samples,
+        prepared.warmup_samples,
+        prepared.scales.force_n,
+        t.elapsed().as_secs_f64()
+    );
+    if prepared.test.is_empty() {
+        eprintln!(
+            "warning: no test windows ({}); test RMSE will be NaN",
+            cfg.split.describe()
+        );
+    }
+    Ok((ds, prepared))
+}
+
+/// `cfg` with its data options resolved for its dataset ([`resolve_data`], which prints
+/// them): what a job runs with and saves as `config.toml`.
+pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
+    let mut cfg = cfg.clone();
+    cfg.data = resolve_data(&cfg.data)?.config;
+    Ok(cfg)
+}
+
+/// Precomputed fast-path tables to store in an exported blob (the format's tables section,
+/// `nemm_core::stored_tables`): a firmware in table mode at one of these oil-loss levels, with
+/// the same segment count and bound, boots without building its tables.
+#[derive(Debug, Clone, PartialEq, clap::Args)]
+pub struct TablesArgs {
+    /// Oil-loss levels alpha (comma-separated, each in [0, 1]; at most 4) whose fast-path
+    /// tables the blob stores. A firmware in table mode at one of them reads its tables from
+    /// the blob instead of building them at boot. None by default.
+    #[arg(long, value_delimiter = ',')]
+    pub tables_alpha: Vec<f32>,
+    /// Segments per stored table: the `T` of the firmware's estimator (128, nemm-firmware's
+    /// TABLE_SEGMENTS, or 256, nemm-core's default).
+    #[arg(long, default_value_t = DEFAULT_STORED_TABLE_SEGMENTS)]
+    pub tables_segments: usize,
+    /// Relative error bound the stored tables are built and checked with (the firmware's
+    /// TABLE_MAX_REL_ERROR; it must be the same bit for bit for the firmware to use them).
+    #[arg(long, default_value_t = crate::train::table_check::DEFAULT_TABLE_BOUND)]
+    pub tables_bound: f32,
+}
+
+/// Segments of stored tables unless told otherwise: the example firmware's (128).
+pub const DEFAULT_STORED_TABLE_SEGMENTS: usize = 128;
+
+impl Default for TablesArgs {
+    fn default() -> Self {
+        Self {
+            tables_alpha: Vec::new(),
+            tables_segments: DEFAULT_STORED_TABLE_SEGMENTS,
+            tables_bound: crate::train::table_check::DEFAULT_TABLE_BOUND,
+        }
+    }
+}
+
+/// The blob of `model` with the tables of `tables` (none if it lists no levels).
+fn encode_with_tables(model: &nemm_core::Model, tables: &TablesArgs) -> Result<Vec<u8>> {
+    match tables.tables_segments {
+        _ if tables.tables_alpha.is_empty() => {
+            nemm_core::encode_to_vec(model).map_err(|e| anyhow::anyhow!("{e}"))
+        }
+        128 => encode_with_segments::<128>(model, tables),
+        256 => encode_with_segments::<256>(model, tables),
+        n => bail!("--tables-segments {n}: stored tables have 128 or 256 segments"),
+    }
+}
+
+/// [`encode_with_tables`] with `T` segments per table: builds the estimator at each level in
+/// table mode, as a firmware does at boot, and stores its tables.
+fn encode_with_segments<const T: usize>(
+    model: &nemm_core::Model,
+    tables: &TablesArgs,
+) -> Result<Vec<u8>> {
+    use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
+    if !matches!(model.kind(), ModelKind::NemmLight | ModelKind::Nemm) {
+        bail!(
+            "--tables-alpha: a {} model has no neural coefficients to tabulate",
+            model.kind().name()
+        );
+    }
+    let mut levels: Vec<Box<Estimator<{ nemm_core::DEFAULT_PARAM_CAPACITY }, T>>> = Vec::new();
+    for &alpha in &tables.tables_alpha {
+        let cfg = EstimatorConfig {
+            mode: EvalMode::Table(TableConfig::new(tables.tables_bound)),
+            ..EstimatorConfig::new(alpha)
+        };
+        let mut est = Box::new(Estimator::empty());
+        est.load(model, cfg)
+            .map_err(|e| anyhow::anyhow!("tables at alpha {alpha} ({T} segments): {e}"))?;
+        levels.push(est);
+    }
+    let refs: Vec<&Estimator<{ nemm_core::DEFAULT_PARAM_CAPACITY }, T>> =
+        levels.iter().map(|e| &**e).collect();
+    nemm_core::encode_to_vec_with_tables(model, &refs).map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// Encodes and writes a model blob atomically, with its provenance (this command line, the
+/// commit the trainer was built from, and `dataset`) and the fast-path tables of `tables` in
+/// the blob; returns its size and the model as written (as decoded from the blob).
+pub fn export_model(
+    model: &nemm_core::Model,
+    out: &Path,
+    dataset: &str,
+    tables: &TablesArgs,
+) -> Result<(usize, nemm_core::Model)> {
+    let mut model = model.clone();
+    model.ext.provenance = provenance(dataset);
+    let blob = encode_with_tables(&model, tables)?;
+    write_atomic_bytes(out, &blob).with_context(|| format!("cannot write {}", out.display()))?;
+    let written = nemm_core::decode(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok((blob.len(), written))
+}
+
+/// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run, the
+/// learned against the virtual bench's reference coefficients when the data are the bench's,
+/// then the whole-run error per level and run) into `dir`; with the report's identification,
+/// also `identify.md`, which `table4.md` links to.
+pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    write_atomic_bytes(
+        &dir.join("report.json"),
+        serde_json::to_string_pretty(report)?.as_bytes(),
+    )?;
+    let mut table = table4_markdown(report);
+    let runs = test_runs_markdown(report);
+    if !runs.is_empty() {
+        table = format!("{table}\n{runs}");
+    }
+    if let Some(c) = &report.bench_reference {
+        table = format!("{table}\n{}\n", c.markdown().trim_end());
+    }
+    if let Some(id) = &report.identify {
+        table = format!(
+            "{table}\n{}\nThe best-fit {} of every run per model (can the model read the level \
+             back?): [{IDENTIFY_MD}]({IDENTIFY_MD}).\n",
+            whole_run_markdown(id),
+            id.condition.column()
+        );
+        write_atomic_bytes(&dir.join(IDENTIFY_MD), identify_markdown(id).as_bytes())?;
+    }
+    write_atomic_bytes(&dir.join(table_name), table.as_bytes())?;
+    Ok(())
+}
+
+/// The identifiability tables' file in a report folder.
+pub const IDENTIFY_MD: &str = "identify.md";
+
+fn print_audit(t: &TrainedVariant, r: &Report) {
+    if let Some(v) = r.variants.get(t.variant.key()) {
+        if let Some(a) = &v.audit {
+            let mut parts = Vec::new();
+            for (name, s) in [("b_fl", a.b_fl), ("b_pr", a.b_pr), ("k_pr", a.k_pr)] {
+                if let Some(s) = s {
+                    let st = s.state.map_or(String::new(), |c| {
+                        format!(
+                            "state {}/{} (worst {:.2e}), ",
+                            c.violations, c.checked, c.worst
+                        )
+                    });
+                    parts.push(format!(
+                        "{name}: {st}alpha {}/{} (worst {:.2e})",
+                        s.alpha.violations, s.alpha.checked, s.alpha.worst
+                    ));
+                }
+            }
+            println!(
+                "monotonicity audit ({}): {}",
+                t.variant.name(),
+                parts.join("; ")
+            );
+        }
+    }
+}
+
+/// `nemm train`: trains `cfg.model.variant` on `cfg.data` and writes the blob `out`; with
+/// `report_dir`, also `report.json`, `table.md` and the effective `config.toml` there.
+pub fn train(
+    cfg: &Config,
+    out: &Path,
+    checkpoint: Option<&Path>,
+    resume: bool,
+    report_dir: Option<&Path>,
+    tables: &TablesArgs,
+) -> Result<()> {
+    let cfg = &with_resolved_data(cfg)?;
+    let variant = cfg.model.variant;
+    let (ds, prepared) =
+        load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
+    let pipeline = cfg.pipeline_config();
+    let t = Instant::now();
+    let trained = train_variants(&prepared, &[variant], &pipeline, checkpoint, resume)?;
+    let tv = trained
+        .iter()
+        .find(|t| t.variant == variant)
+        .context("training produced no model")?;
+    let (n, written) = export_model(
+        &tv.model,
+        out,
+        &dataset_provenance(&ds, &cfg.data.dir),
+        tables,
+    )?;
+    let report = evaluate(std::slice::from_ref(tv), &prepared)?;
+    let vr = report.variants.get(variant.key()).context("report")?;
+    println!(
+        "wrote {} ({n} bytes) in {:.0} s",
+        out.display(),
+        t.elapsed().as_secs_f64()
+    );
+    print!("{}", describe(&written, n));
+    println!(
+        "test RMSE ({}): {:.4} of the force scale ({:.1} N); validation {:.4}",
+        prepared.config.split.describe(),
+        vr.rmse,
+        vr.rmse_n,
+        vr.val_rmse
+    );
+    print_audit(tv, &report);
+    // The fast path's verdict at export time, as `nemm export` prints it.
+    print!(
+        "{}",
+        crate::train::table_check::report(
+            &tv.model,
+            crate::train::table_check::DEFAULT_TABLE_BOUND
+        )
+    );
+    if let Some(dir) = report_dir {
+        let mut report = report;
+        record_provenance(&mut report);
+        write_report(dir, &report, "table.md")?;
+        cfg.save(&dir.join(CONFIG_FILE))?;
+    }
+    Ok(())
+}
+
+/// The input of an estimator for run `idx`: the preprocessing's velocity (the trainer's
+/// input) in f32, and the run's oil-loss level.
+fn estimator_input(
+    ds: &dataset::Dataset,
+    prepared: &preprocess::Prepared,
+    idx: usize,
+) -> Result<(Vec<f32>, Vec<f32>, f32)> {
+    let signals = preprocess::process_run(
+        &ds.runs[idx],
+        idx,
+        ds.sample_rate_hz,
+        &prepared.config.signal,
+    )?;
+    let u = signals.velocity_m_s.iter().map(|&v| v as f32).collect();
+    // The position as the sensor measures it (unfiltered), as the firmware gets it.
+    let x = ds.runs[idx]
+        .displacement_m
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    Ok((u, x, ds.runs[idx].entry.oil_loss as f32))
+}
+
+/// The tabulated fast path against the exact estimator over every run with test data (a test
+/// run or a run with a test tail), whole and from rest: the largest force difference in units of the force scale,
+/// and the samples outside the table domain.
+fn table_vs_exact(
+    model: &nemm_core::Model,
+    ds: &dataset::Dataset,
+    prepared: &preprocess::Prepared,
+) -> Result<()> {
+    use nemm_core::{EstimatorConfig, EvalMode, Flags, TableConfig};
+    let t = Instant::now();
+    let bound = crate::train::table_check::DEFAULT_TABLE_BOUND;
+    let (mut worst, mut samples, mut outside, mut runs) = (0.0f64, 0usize, 0usize, 0usize);
+    for run in prepared.runs.iter().filter(|r| r.test_sequences > 0) {
+        let (u, x, alpha) = estimator_input(ds, prepared, run.summary.index)?;
+        let exact_cfg = EstimatorConfig::new(alpha);
+        let table_cfg = EstimatorConfig {
+            mode: EvalMode::Table(TableConfig::new(bound)),
+            ..exact_cfg
+        };
+        let mut exact = nemm_core::Estimator::new(model, exact_cfg)
+            .map_err(|e| anyhow::anyhow!("exact estimator: {e}"))?;
+        let mut table = match nemm_core::Estimator::new(model, table_cfg) {
+            Ok(e) => e,
+            Err(e) => {
+                println!("fast path at oil loss {alpha}: refused ({e}); use the exact mode");
+                return Ok(());
+            }
+        };
+        for (&v, &x) in u.iter().zip(&x) {
+            let (a, b) = (
+                exact.step_with_position(v, x),
+                table.step_with_position(v, x),
+            );
+            worst = worst.max(f64::from((a.force_n - b.force_n).abs()));
+            outside += usize::from(b.flags.contains(Flags::OUT_OF_TABLE_DOMAIN));
+        }
+        samples += u.len();
+        runs += 1;
+    }
+    println!(
+        "fast path (tables, bound {bound:.0e}) vs exact over {runs} runs with test data ({samples} samples, whole runs from rest): \
+         max |table - exact| = {:.2e} of the force scale, {outside} samples outside the table domain ({:.1} s)",
+        worst / prepared.scales.force_n,
+        t.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// `nemm export`: the best model of a checkpoint folder written by `nemm train --checkpoint`.
+/// Also reports whether the tabulated fast path meets `table_bound`
+/// ([`crate::train::table_check`]).
+pub fn export(checkpoint: &Path, out: &Path, table_bound: f32, tables: &TablesArgs) -> Result<()> {
+    let frame_path = checkpoint.join("frame.json");
+    let text = std::fs::read_to_string(&frame_path).with_context(|| {
+        format!(
+            "cannot read {} (is {} a variant folder written by `nemm train --checkpoint`? \
+             The SEM has no epochs and no checkpoint: `nemm train --variant sem --out FILE` \
+             fits and writes it directly)",
+            frame_path.display(),
+            checkpoint.display()
+        )
+    })?;
+    let saved: crate::train::pipeline::SavedFrame =
+        serde_json::from_str(&text).with_context(|| format!("corrupt {}", frame_path.display()))?;
+    let latest = std::fs::read_to_string(checkpoint.join("latest"))
+        .with_context(|| format!("no finished epoch in {}", checkpoint.display()))?;
+    let device = burn::tensor::Device::flex();
+    let (net, frame): (EmmNet, NetFrame) =
+        EmmNet::from_rollout(&saved.initial, saved.static_units, &device);
+    let net = net
+        .try_load_file(checkpoint.join(latest.trim()).join("best"))
+        .map_err(|e| anyhow::anyhow!("cannot load the best module: {e:?}"))?;
+    let model = to_core(&net.to_rollout(&frame), saved.meta)?;
+    let (n, model) = export_model(
+        &model,
+        out,
+        &format!("checkpoint {}", checkpoint.display()),
+        tables,
+    )?;
+    println!(
+        "wrote {} ({n} bytes) from {}",
+        out.display(),
+        checkpoint.join(latest.trim()).display()
+    );
+    print!("{}", describe(&model, n));
+    print!("{}", crate::train::table_check::report(&model, table_bound));
+    Ok(())
+}
+
+/// Records in `report.info` the command line that made it and the commit the trainer was
+/// built from (`+dirty`: with uncommitted changes).
+fn record_provenance(report: &mut Report) {
+    report.info.insert("command".into(), command_line());
+    report
+        .info
+        .insert("commit".into(), env!("NEMM_GIT_COMMIT").to_string());
+}
+
+/// This process's command line, the program by its file name (`nemm train ...`).
+fn command_line() -> String {
+    let mut args = std::env::args();
+    let program = args
+        .next()
+        .map(|p| {
+            Path::new(&p)
+                .file_name()
+                .map_or(p.clone(), |f| f.to_string_lossy().into_owned())
+        })
+        .unwrap_or_default();
+    std::iter::once(program)
+        .chain(args)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The provenance a blob exported by this process records: the command line, `dataset` and
+/// the commit the trainer was built from (each cut to its field's capacity).
+pub fn provenance(dataset: &str) -> nemm_core::Provenance {
+    nemm_core::Provenance::new(&command_line(), dataset, env!("NEMM_GIT_COMMIT"))
+}
+
+/// How a blob names its training data: the dataset's name and folder.
+pub fn dataset_provenance(ds: &dataset::Dataset, dir: &Path) -> String {
+    format!("{} ({})", ds.name, dir.display())
+}
