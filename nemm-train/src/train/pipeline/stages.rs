@@ -1,0 +1,430 @@
+//! The stages of the EMM family: the Linear EMM, the quasi-static `b_fl` regression (eq. 41)
+//! and the neural variants, with what they share.
+
+use super::*;
+
+/// Largest `s_max` of `k_pr` that passes nemm-core's stability check, capped at `cap`.
+fn stable_k_max(p: &RolloutParams<f32>, s_min_fl: f32, s_min_pr: f32, cap: f32) -> f32 {
+    let limit = STABILITY_MARGIN * p.integrator.stability_limit() * 0.95;
+    let den = p.b_pr0 * s_min_pr + p.b_fl0 * s_min_fl;
+    // dt <= limit * den / (k0 s)  =>  s <= limit den / (k0 dt)
+    (limit * den / (p.k0 * p.dt)).min(cap)
+}
+
+/// Regresses the `b_fl` scaler on quasi-static points (eq. 41): normalised MSE of
+/// `b_fl(v, alpha) v` against the quasi-static force, plus L2 and the physics penalty.
+fn qs_regression(
+    p: &RolloutParams<f32>,
+    scaler: ScalerWeights<f32>,
+    pts: &[QuasiStaticPoint],
+    force_scale: f64,
+    cfg: &PipelineConfig,
+    device: &Device,
+) -> Result<ScalerWeights<f32>> {
+    if pts.is_empty() {
+        return Ok(scaler);
+    }
+    let (mut net, frame) = EmmNet::from_rollout(
+        &RolloutParams {
+            b_fl: Some(scaler),
+            b_pr: None,
+            k_pr: None,
+            static_force: None,
+            ..p.clone()
+        },
+        None,
+        device,
+    );
+    let spec = frame.b_fl.context("b_fl scaler")?;
+    let n = pts.len();
+    let x: Vec<f32> = pts
+        .iter()
+        .flat_map(|q| {
+            [
+                (q.velocity_m_s as f32) / p.v_scale,
+                (q.alpha as f32) / p.alpha_scale,
+            ]
+        })
+        .collect();
+    let v: Vec<f32> = pts.iter().map(|q| q.velocity_m_s as f32).collect();
+    let f: Vec<f32> = pts
+        .iter()
+        .map(|q| (q.force_n / force_scale) as f32)
+        .collect();
+    let x = Tensor::<2>::from_data(TensorData::new(x, [n, 2]), device);
+    let v = Tensor::<1>::from_data(TensorData::new(v, [n]), device);
+    let f = Tensor::<1>::from_data(TensorData::new(f, [n]), device);
+    let b0 = p.b_fl0 / force_scale as f32;
+    let mut optim = AdamConfig::new().init();
+    let grid = PenaltyGrid::default();
+    for step in 0..cfg.qs_steps {
+        let b = net.b_fl.as_ref().context("b_fl scaler")?;
+        let s = b.forward_scale(x.clone(), &spec).reshape([n]);
+        let pred = s * v.clone().mul_scalar(b0);
+        let mse = (pred - f.clone()).powi_scalar(2).mean();
+        let loss = mse
+            + physics_loss(&net, &frame, &grid, device).mul_scalar(cfg.fit.lambda_ph)
+            + net.l2_norms(device).mul_scalar(cfg.fit.lambda_l2);
+        let mut gp = GradientsParams::from_grads(loss.backward(), &net);
+        // The constants stay those of the Linear EMM in this step.
+        let _ = gp.remove::<1>(net.log_c.id);
+        let progress = step as f64 / cfg.qs_steps.max(1) as f64;
+        let lr = cfg.fit.lr * (0.1 + 0.9 * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos()));
+        net = optim.step(lr, net, gp);
+    }
+    net.to_rollout(&frame).b_fl.context("b_fl scaler")
+}
+
+/// What every EMM-family stage of one [`train_each`] call shares: the data, the model grid,
+/// the static-force setup and where checkpoints go.
+pub(super) struct Stages<'a> {
+    prepared: &'a Prepared,
+    cfg: &'a PipelineConfig,
+    checkpoint_root: Option<&'a Path>,
+    resume: bool,
+    device: Device,
+    pub(super) meta: Meta,
+    grid: Grid,
+    train_windows: Vec<Window<'a>>,
+    static_setup: Option<StaticSetup>,
+    static_units: Option<[f32; STATIC_PARAMS]>,
+}
+
+/// The Linear EMM stage's outcome: the starting point of the neural stages (`p0`: the
+/// trained constants, the `x_pr` scale and the static force refitted to its residual), the
+/// trained Linear EMM itself and its fit.
+pub(super) struct LinearStage {
+    pub(super) p0: RolloutParams<f32>,
+    pub(super) trained: RolloutParams<f32>,
+    pub(super) fit: FitResult,
+    pub(super) seconds: f64,
+}
+
+impl<'a> Stages<'a> {
+    pub(super) fn new(
+        prepared: &'a Prepared,
+        cfg: &'a PipelineConfig,
+        checkpoint_root: Option<&'a Path>,
+        resume: bool,
+    ) -> Self {
+        let grid = Grid::new(1.0 / cfg.model_rate_hz, prepared.dt_s);
+        if grid != Grid::SAME {
+            eprintln!(
+                "[model] integrating at {} Hz, data at {} Hz: {:.2} model steps per sample \
+                 (velocity interpolated between samples, force scored at the samples)",
+                cfg.model_rate_hz,
+                prepared.sample_rate_hz,
+                grid.steps_per_sample()
+            );
+        }
+        let static_setup = cfg
+            .static_force
+            .then(|| StaticSetup::of(&prepared.train, prepared.scales.velocity_m_s));
+        if let Some(s) = &static_setup {
+            eprintln!(
+                "[static] static force on: x_ref {:.2} mm (mean training position), span \
+                 {:.2} mm, v_c {:.1} mm/s",
+                1e3 * s.x_ref,
+                1e3 * s.x_span,
+                1e3 * s.v_c
+            );
+        }
+        Stages {
+            prepared,
+            cfg,
+            checkpoint_root,
+            resume,
+            device: Device::flex().autodiff(),
+            meta: meta_of(prepared),
+            grid,
+            train_windows: windows(&prepared.train),
+            static_units: static_setup.map(|s| s.units(prepared.scales.force_n)),
+            static_setup,
+        }
+    }
+
+    fn data(&self) -> FitData<'a> {
+        FitData {
+            train: &self.prepared.train,
+            validation: &self.prepared.validation,
+            warmup: self.prepared.warmup_samples,
+            force_scale_n: self.prepared.scales.force_n,
+            grid: self.grid,
+        }
+    }
+
+    /// Step 1: the Linear EMM (every EMM-family variant starts from it), from constants
+    /// fitted to the quasi-static points `qs`.
+    pub(super) fn linear(&self, qs: &[QuasiStaticPoint]) -> Result<LinearStage> {
+        let (prepared, cfg) = (self.prepared, self.cfg);
+        let force_scale = prepared.scales.force_n;
+        let t_lin = Instant::now();
+        let (num, den) = qs.iter().fold((0.0f64, 0.0f64), |(n, d), p| {
+            (
+                n + p.force_n * p.velocity_m_s,
+                d + p.velocity_m_s * p.velocity_m_s,
+            )
+        });
+        let b_fl0 = if den > 0.0 && num > 0.0 {
+            (num / den) as f32
+        } else {
+            (force_scale / prepared.scales.velocity_m_s.max(1e-6)) as f32
+        };
+        let b_pr0 = b_fl0;
+        let k0 = (b_pr0 + b_fl0) * 2.0 * std::f32::consts::PI * 15.0;
+        let mut p0 = RolloutParams::<f32> {
+            integrator: cfg.integrator,
+            dt: (1.0 / cfg.model_rate_hz) as f32,
+            b_fl0,
+            b_pr0,
+            k0,
+            t_pr: 0.002,
+            v_scale: prepared.scales.velocity_m_s as f32,
+            x_scale: 1.0,
+            alpha_scale: prepared.scales.alpha as f32,
+            b_fl: None,
+            b_pr: None,
+            k_pr: None,
+            priors: prepared.condition.priors,
+            static_force: None,
+        };
+        let (train_w, grid) = (&self.train_windows, &self.grid);
+        if let Some(setup) = &self.static_setup {
+            // Least squares on the residual of the initial constants.
+            let sp = fit_residual(&p0, train_w, grid, prepared.warmup_samples, setup);
+            print_static("initial least-squares fit", &sp);
+            p0.static_force = Some(sp);
+        }
+        let lin_cfg = FitConfig {
+            label: "linear-emm".into(),
+            epochs: cfg.linear_epochs,
+            lr: cfg.linear_lr,
+            lambda_ph: 0.0,
+            ..cfg.fit.clone()
+        };
+        let (net, frame) = EmmNet::from_rollout(&p0, self.static_units, &self.device);
+        let lin_dir = self.checkpoint_root.map(|r| r.join("linear-emm"));
+        save_frame(lin_dir.as_deref(), &p0, self.meta, self.static_units)?;
+        let lin = fit(
+            net,
+            &frame,
+            self.data(),
+            &lin_cfg,
+            lin_dir.as_deref(),
+            self.resume,
+            &self.device,
+        )?;
+        SessionBudgetUsed::check(lin.stop, &lin_cfg.label)?;
+        let lin_p = lin.best.to_rollout(&frame);
+        p0.b_fl0 = lin_p.b_fl0;
+        p0.b_pr0 = lin_p.b_pr0;
+        p0.k0 = lin_p.k0;
+        p0.t_pr = lin_p.t_pr;
+        if let Some(setup) = &self.static_setup {
+            // The neural stages start from the least-squares static force of the trained
+            // Linear EMM's residual (the best one for its dynamics).
+            let sp = fit_residual(&lin_p, train_w, grid, prepared.warmup_samples, setup);
+            print_static("Linear EMM", lin_p.static_force.as_ref().unwrap_or(&sp));
+            print_static("least-squares refit for the neural stages", &sp);
+            p0.static_force = Some(sp);
+        }
+        // x_pr scale from the Linear EMM over the training windows.
+        let xs = simulate_x_pr(&lin_p, train_w, grid);
+        let x_scale = xs
+            .iter()
+            .flat_map(|w| w.iter().skip(prepared.warmup_samples))
+            .fold(0.0f64, |m, x| m.max(x.abs()));
+        p0.x_scale = if x_scale > 0.0 { x_scale as f32 } else { 1e-3 };
+        Ok(LinearStage {
+            p0,
+            trained: lin_p,
+            fit: lin,
+            seconds: t_lin.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// `s` with an alpha branch in its declared direction `dir` when the priors are held by
+    /// construction.
+    fn branched(
+        &self,
+        s: ScalerWeights<f32>,
+        dir: Direction,
+        state: usize,
+        seed: u64,
+    ) -> ScalerWeights<f32> {
+        if self.cfg.alpha_priors == AlphaPriors::Construction && dir != Direction::None {
+            with_branch(s, dir, state, self.cfg.branch_units, seed)
+        } else {
+            s
+        }
+    }
+
+    /// Step 2a: the `b_fl` scaler regressed on the quasi-static points (eq. 41), from `p0`.
+    pub(super) fn quasi_static_b_fl(
+        &self,
+        p0: &RolloutParams<f32>,
+        qs: &[QuasiStaticPoint],
+    ) -> Result<ScalerWeights<f32>> {
+        let cfg = self.cfg;
+        let b_fl_init = self.branched(
+            init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
+            self.prepared.condition.priors.b_fl,
+            1,
+            cfg.fit.seed + 10,
+        );
+        // With a static force, the quasi-static points lose its part at their position (the
+        // run's stroke centre, where they are taken) before the b_fl regression.
+        let qs_owned: Vec<QuasiStaticPoint>;
+        let qs = match &p0.static_force {
+            None => qs,
+            Some(sp) => {
+                qs_owned = without_static_force(qs, self.prepared, sp);
+                &qs_owned
+            }
+        };
+        let t_qs = Instant::now();
+        let b_fl = qs_regression(
+            p0,
+            b_fl_init,
+            qs,
+            self.prepared.scales.force_n,
+            cfg,
+            &self.device,
+        )?;
+        eprintln!(
+            "[nemm] quasi-static b_fl regression (eq. 41): {} points, {} steps, {:.1} s",
+            qs.len(),
+            cfg.qs_steps,
+            t_qs.elapsed().as_secs_f64()
+        );
+        Ok(b_fl)
+    }
+
+    /// Step 2b: the neural variant `v` (NEMM-Light or NEMM) trained from `p0` with the
+    /// quasi-static `b_fl`; `earlier_s` is the wall time of the stages it builds on.
+    pub(super) fn neural(
+        &self,
+        v: ModelKind,
+        p0: &RolloutParams<f32>,
+        b_fl: &ScalerWeights<f32>,
+        earlier_s: f64,
+    ) -> Result<TrainedVariant> {
+        let (prepared, cfg) = (self.prepared, self.cfg);
+        let condition = &prepared.condition;
+        let t = Instant::now();
+        let mut p = p0.clone();
+        p.b_fl = Some(b_fl.clone());
+        if v == ModelKind::Nemm {
+            let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
+            if k_max < 1.5 {
+                bail!(
+                    "the fitted EMM is too stiff for dt = {} s: k_pr may only grow {k_max:.2}x \
+                     before the explicit RK step becomes unstable; use a shorter step (higher \
+                     sample rate) or RK4",
+                    p.dt
+                );
+            }
+            p.b_pr = Some(self.branched(
+                init_scaler(1, cfg.hidden, cfg.layers, cfg.pr_bounds, cfg.fit.seed + 1),
+                condition.priors.b_pr,
+                0,
+                cfg.fit.seed + 11,
+            ));
+            p.k_pr = Some(self.branched(
+                init_scaler(
+                    2,
+                    cfg.hidden,
+                    cfg.layers,
+                    (cfg.pr_bounds.0, k_max),
+                    cfg.fit.seed + 2,
+                ),
+                condition.priors.k_pr,
+                1,
+                cfg.fit.seed + 12,
+            ));
+        }
+        let fit_cfg = FitConfig {
+            label: v.name().into(),
+            ..cfg.fit.clone()
+        };
+        let (net, frame) = EmmNet::from_rollout(&p, self.static_units, &self.device);
+        let dir = self.checkpoint_root.map(|root| root.join(v.name()));
+        save_frame(dir.as_deref(), &p, self.meta, self.static_units)?;
+        let r = fit(
+            net,
+            &frame,
+            self.data(),
+            &fit_cfg,
+            dir.as_deref(),
+            self.resume,
+            &self.device,
+        )?;
+        SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
+        let model = to_core_with(&r.best.to_rollout(&frame), self.meta, condition)?;
+        let val = rmse(
+            &r.best,
+            &frame,
+            &prepared.validation,
+            &self.grid,
+            prepared.warmup_samples,
+            prepared.scales.force_n,
+        );
+        Ok(TrainedVariant {
+            variant: v,
+            model,
+            history: r.history,
+            val_rmse: val,
+            stop: Some(r.stop),
+            kept_epoch: Some(r.best_epoch),
+            seconds: t.elapsed().as_secs_f64() + earlier_s,
+        })
+    }
+}
+
+/// Prints a static force's parameters.
+fn print_static(what: &str, s: &StaticParams<f32>) {
+    let t = s.theta;
+    eprintln!(
+        "[static] {what}: F_gas0 = {:.1} N {:+.1} N x alpha, k_gas = {:.0} N/m {:+.0} N/m x alpha, \
+         F_c = {:.1} N",
+        t[0], t[1], t[2], t[3], t[4]
+    );
+}
+
+/// Quasi-static points with the static force at their position (the stroke centre of their
+/// run, [`crate::data::preprocess::Excitation::offset_m`]) subtracted.
+fn without_static_force(
+    qs: &[QuasiStaticPoint],
+    prepared: &Prepared,
+    sp: &StaticParams<f32>,
+) -> Vec<QuasiStaticPoint> {
+    qs.iter()
+        .map(|q| {
+            let x = prepared
+                .runs
+                .get(q.run)
+                .map_or(f64::from(sp.x_ref), |r| r.summary.excitation.offset_m);
+            let phi = nemm_core::static_force::features(
+                f64::from(sp.x_ref),
+                f64::from(sp.v_c),
+                x,
+                q.velocity_m_s,
+                q.alpha,
+            );
+            let r: f64 = (0..STATIC_PARAMS)
+                .map(|i| f64::from(sp.theta[i]) * phi[i])
+                .sum();
+            QuasiStaticPoint {
+                force_n: q.force_n - r,
+                ..*q
+            }
+        })
+        .collect()
+}
+
+pub(super) fn lin_p_with_scale(p: &RolloutParams<f32>, x_scale: f32) -> RolloutParams<f32> {
+    RolloutParams {
+        x_scale,
+        ..p.clone()
+    }
+}
