@@ -14,10 +14,10 @@
 //! - [`config`]: the configuration of a job (data, model, training), its defaults and TOML;
 //! - [`cli`]: the `nemm` command line, a thin layer over the modules above.
 
+pub mod atomic_file;
 pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod data;
-pub mod fsutil;
 pub mod report;
 pub mod train;

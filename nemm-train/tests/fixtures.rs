@@ -4,7 +4,7 @@
 use nemm_train::bench::fixtures::{fixtures, write_fixtures};
 use nemm_train::data::dataset;
 use nemm_train::data::preprocess::{self, Direction, PrepareConfig, SignalConfig};
-use nemm_train::data::support::periodicity;
+use nemm_train::data::support_points::periodicity;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -298,7 +298,7 @@ fn random_runs_give_monotone_support_points_and_a_sem() {
 #[test]
 fn low_acceleration_rule_on_a_sine_stays_close_to_the_paper_rule() {
     use nemm_train::bench::{config::BenchConfig, program::run_spec, VirtualBench};
-    use nemm_train::data::support::low_acceleration_points;
+    use nemm_train::data::support_points::low_acceleration_points;
     let bench = VirtualBench::new(BenchConfig::default());
     for (amp, v) in [(0.03, 0.262), (0.01, 0.524)] {
         let spec = run_spec(&bench.config().program, 0.0, amp, v);

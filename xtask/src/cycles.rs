@@ -427,7 +427,7 @@ const TRACE_SKIP: u32 = 40;
 const TRACE_STEPS: u32 = 2;
 
 /// The instruction mix of `Estimator::step` (its body `step_at`) in the benchmark image `elf` (with the blob of
-/// `kind` in its slot, as [`crate::bench::run`] patches it), evaluation `mode`, integrator
+/// `kind` in its slot, as [`crate::target_bench::run`] patches it), evaluation `mode`, integrator
 /// `integrator`: [`TRACE_STEPS`] steps after [`TRACE_SKIP`], single-stepped through QEMU's
 /// gdb stub on `board`.
 pub fn trace_mix(
@@ -511,7 +511,7 @@ pub fn estimate(
     paths: &Paths,
     images: &Images,
     mode: Mode,
-    figures: &[crate::bench::StepFigures],
+    figures: &[crate::target_bench::StepFigures],
 ) -> Result<Vec<CycleFigures>, String> {
     let mut out = Vec::new();
     for f in figures {
@@ -519,7 +519,7 @@ pub fn estimate(
             .into_iter()
             .find(|k| k.name() == f.model)
             .ok_or_else(|| format!("unknown model kind {}", f.model))?;
-        let image = crate::bench::image_with_example(paths, images, kind)?;
+        let image = crate::target_bench::image_with_example(paths, images, kind)?;
         let mix = trace_mix(tc, images.board, &image, mode, &f.integrator)?;
         let chip = images.board.chip();
         out.push(CycleFigures {

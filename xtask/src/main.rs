@@ -18,13 +18,13 @@
 //!   written into `docs/results.md`; `--training DIR` copies a training report's tables
 //!   there ([`results`]).
 
-mod bench;
 mod board;
 mod checks;
 mod cycles;
 mod firmware;
 mod model;
 mod results;
+mod target_bench;
 use nemm_slot as slot;
 mod toolchain;
 
@@ -430,7 +430,7 @@ fn test(host_only: bool) -> Result<(), String> {
     if let Some((tc, paths, images, board_images)) = firmware {
         let t = Instant::now();
         for im in &images {
-            let steps = bench::run(&tc, &paths, im, Mode::Exact, 50, &Kind::ALL)?;
+            let steps = target_bench::run(&tc, &paths, im, Mode::Exact, 50, &Kind::ALL)?;
             for f in &steps {
                 eprintln!(
                     "xtask: (smoke, 50 steps, {}) {}",
@@ -502,7 +502,7 @@ fn bench_target(
     let (tc, paths) = setup()?;
     let images = firmware::build_all(&tc, &paths, boards_or_all(boards))?;
     for im in &images {
-        let figures = bench::run(&tc, &paths, im, mode, steps, kinds)?;
+        let figures = target_bench::run(&tc, &paths, im, mode, steps, kinds)?;
         if im.board == firmware::Board::An386 {
             for f in &figures {
                 println!("{}", f.line());
@@ -568,7 +568,7 @@ pub fn boot_figures(
     paths: &Paths,
     images: &firmware::Images,
 ) -> Result<Vec<(firmware::StackFigures, BootFigures)>, String> {
-    let nemm = bench::image_with_example(paths, images, Kind::Nemm)?;
+    let nemm = target_bench::image_with_example(paths, images, Kind::Nemm)?;
     let mix = cycles::trace_mix(tc, images.board, &nemm, Mode::Exact, "rk4")?;
     let cpi = mix.cycles_per_instruction(images.board.chip());
     let mut out = Vec::new();

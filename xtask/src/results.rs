@@ -13,9 +13,9 @@
 //!   Table 5, if present) of a finished `nemm compare` / `nemm demo` report directory, with
 //!   the facts its `report.json` records (the command that trained it, ...).
 
-use crate::bench::{self, StepFigures};
 use crate::cycles::CycleFigures;
 use crate::firmware;
+use crate::target_bench::{self, StepFigures};
 use crate::toolchain::Toolchain;
 use crate::BootFigures;
 use crate::{Kind, Mode, Paths};
@@ -379,8 +379,8 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
     let mut memory = Vec::new();
     let mut boot = Vec::new();
     for im in &images {
-        let e = bench::run(tc, paths, im, Mode::Exact, steps, &Kind::ALL)?;
-        let t = bench::run(tc, paths, im, Mode::Table, steps, &Kind::ALL)?;
+        let e = target_bench::run(tc, paths, im, Mode::Exact, steps, &Kind::ALL)?;
+        let t = target_bench::run(tc, paths, im, Mode::Table, steps, &Kind::ALL)?;
         for f in e.iter().chain(&t) {
             println!("{} board={}", f.line(), im.board.machine());
         }

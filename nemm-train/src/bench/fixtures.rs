@@ -168,7 +168,7 @@ pub fn write_fixtures(out: &Path) -> Result<Vec<PathBuf>> {
                 std::fs::create_dir_all(parent)
                     .with_context(|| format!("cannot create {}", parent.display()))?;
             }
-            crate::fsutil::write_atomic_bytes(&path, text.as_bytes())
+            crate::atomic_file::write_atomic_bytes(&path, text.as_bytes())
                 .with_context(|| format!("cannot write {}", path.display()))?;
             written.push(path);
         }

@@ -172,6 +172,6 @@ pub fn write_bench_config(cfg: &BenchConfig, dir: &Path) -> Result<()> {
          # (docs/virtual-bench.md, \"Equivalent EMM coefficients\").\n{}",
         cfg.to_toml()?
     );
-    crate::fsutil::write_atomic_bytes(&path, text.as_bytes())
+    crate::atomic_file::write_atomic_bytes(&path, text.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))
 }

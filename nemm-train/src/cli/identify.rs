@@ -1,10 +1,10 @@
 //! `nemm identify`: the best-fit level of every run of a dataset for a trained model, and
 //! the model's whole-run error per level and run ([`crate::report::identify`]).
 
+use crate::atomic_file::write_atomic_bytes;
 use crate::cli::train::{load_dataset_prepared, IDENTIFY_MD};
 use crate::config::{resolve_data, DataConfig};
 use crate::data::preprocess::Prepared;
-use crate::fsutil::write_atomic_bytes;
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use anyhow::{bail, Context, Result};
 use std::path::Path;

@@ -204,7 +204,7 @@ impl DataConfig {
              # command-line options override them (docs/preprocessing.md, \"Data options\").\n{}",
             toml::to_string(&c)?
         );
-        crate::fsutil::write_atomic_bytes(&path, text.as_bytes())
+        crate::atomic_file::write_atomic_bytes(&path, text.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(path)
     }

@@ -274,7 +274,7 @@ impl Config {
 
     /// Writes the configuration as TOML to `path` (atomically).
     pub fn save(&self, path: &Path) -> Result<()> {
-        crate::fsutil::write_atomic_bytes(path, self.to_toml()?.as_bytes())
+        crate::atomic_file::write_atomic_bytes(path, self.to_toml()?.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))
     }
 

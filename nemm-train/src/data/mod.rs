@@ -4,4 +4,4 @@ pub mod check;
 pub mod dataset;
 pub mod import;
 pub mod preprocess;
-pub mod support;
+pub mod support_points;

@@ -2,7 +2,7 @@
 //! against 0 % oil loss (like Fig. 5) and the quasi-static characteristic of any dataset in the
 //! interchange format (virtual or real bench).
 //!
-//! Periodic runs (the rule of [`crate::data::support::periodicity`]: manifest metadata or
+//! Periodic runs (the rule of [`crate::data::support_points::periodicity`]: manifest metadata or
 //! regular zero crossings) are reduced to one cycle-averaged loop each: the last full periods
 //! (at least one, up to 60 % of the run) are folded onto the phase of the displacement (a
 //! least-squares sine fit at the excitation frequency), and velocity and force are averaged in
@@ -22,7 +22,7 @@
 
 use crate::data::dataset::{self, Dataset, Run};
 use crate::data::preprocess::{run_signals, SignalConfig, Signals};
-use crate::data::support::periodicity;
+use crate::data::support_points::periodicity;
 use crate::report::plot::{palette, Figure, HeatmapPanel, LegendPosition, LinePanel, Series};
 use anyhow::{bail, Context, Result};
 use std::f64::consts::PI;

@@ -155,7 +155,7 @@ pub(crate) fn save(
 }
 
 fn write(path: &Path, bytes: &[u8]) -> Result<()> {
-    crate::fsutil::write_atomic_bytes(path, bytes)
+    crate::atomic_file::write_atomic_bytes(path, bytes)
         .with_context(|| format!("cannot write {}", path.display()))
 }
 

@@ -1,10 +1,10 @@
 //! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
 //! Table 4 / Table 5 reports from the command line.
 
+use crate::atomic_file::write_atomic_bytes;
 use crate::config::{lambda_ph_scale_note, resolve_data, Config, CONFIG_FILE};
 use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
-use crate::fsutil::write_atomic_bytes;
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use crate::report::inspect::describe;
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};

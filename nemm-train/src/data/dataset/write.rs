@@ -52,12 +52,12 @@ fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), Datas
     Ok(())
 }
 
-/// [`crate::fsutil::write_atomic`] with the dataset's error type (naming the file).
+/// [`crate::atomic_file::write_atomic`] with the dataset's error type (naming the file).
 fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
 ) -> Result<(), DatasetError> {
-    crate::fsutil::write_atomic(path, fill).map_err(|error| DatasetError::Io {
+    crate::atomic_file::write_atomic(path, fill).map_err(|error| DatasetError::Io {
         path: path.to_path_buf(),
         error,
     })

@@ -303,8 +303,9 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
                     .any(|st| st.part != Part::Train && (st.start..st.end).contains(&sample))
             };
             let periodic =
-                crate::data::support::periodicity(run, &signals.displacement_m, fs).is_some();
-            let mut points = crate::data::support::support_points(
+                crate::data::support_points::periodicity(run, &signals.displacement_m, fs)
+                    .is_some();
+            let mut points = crate::data::support_points::support_points(
                 i,
                 periodic,
                 &signals,
