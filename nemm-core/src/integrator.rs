@@ -290,14 +290,14 @@ pub fn step_backward<M: MulAdd, L: Lane, S: StageBackward<L>>(
 }
 
 impl core::str::FromStr for Integrator {
-    type Err = crate::model::UnknownName;
+    type Err = crate::error::UnknownName;
 
     /// Parses [`Integrator::name`]'s spelling (`rk4`, `rk3`).
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         [Integrator::Rk4, Integrator::Rk3]
             .into_iter()
             .find(|i| i.name() == s)
-            .ok_or(crate::model::UnknownName {
+            .ok_or(crate::error::UnknownName {
                 what: "integrator",
                 expected: "rk4 or rk3",
             })

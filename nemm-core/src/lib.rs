@@ -57,6 +57,7 @@
 )]
 
 pub mod emm;
+mod error;
 pub mod estimator;
 pub mod format;
 pub mod integrator;
@@ -73,6 +74,7 @@ pub mod testing;
 pub mod velocity;
 
 pub use emm::{Coefficients, EmmConstants, State};
+pub use error::UnknownName;
 pub use estimator::{
     Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, TableOrigin,
 };
@@ -84,7 +86,7 @@ pub use integrator::Integrator;
 pub use mlp::{AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
 pub use model::{
     AlphaBranches, Body, Condition, Extension, InputScales, Meta, Model, ModelError, ModelKind,
-    Priors, Provenance, UnknownName,
+    Priors, Provenance,
 };
 pub use sem::SemMap;
 pub use static_force::StaticForce;

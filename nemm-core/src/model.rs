@@ -24,6 +24,7 @@
 //! analysis does not see.
 
 use crate::emm::EmmConstants;
+use crate::error::UnknownName;
 use crate::integrator::Integrator;
 use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
 use crate::sem::{SemError, SemMap};
@@ -62,25 +63,6 @@ impl ModelKind {
         }
     }
 }
-
-/// A name that is none of the accepted spellings of a [`ModelKind`] or an
-/// [`Integrator`] (their `name()`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct UnknownName {
-    /// What was being parsed (`model kind`, `integrator`).
-    pub what: &'static str,
-    /// The accepted names.
-    pub expected: &'static str,
-}
-
-impl fmt::Display for UnknownName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "unknown {} (expected {})", self.what, self.expected)
-    }
-}
-
-#[cfg(feature = "std")]
-impl std::error::Error for UnknownName {}
 
 impl core::str::FromStr for ModelKind {
     type Err = UnknownName;

@@ -77,7 +77,7 @@ impl Direction {
 }
 
 impl core::str::FromStr for Direction {
-    type Err = crate::model::UnknownName;
+    type Err = crate::error::UnknownName;
 
     /// Parses [`Direction::name`]'s spelling.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
@@ -88,7 +88,7 @@ impl core::str::FromStr for Direction {
         ]
         .into_iter()
         .find(|d| d.name() == s)
-        .ok_or(crate::model::UnknownName {
+        .ok_or(crate::error::UnknownName {
             what: "monotonicity direction",
             expected: "decreasing, increasing or none",
         })
