@@ -65,7 +65,7 @@ fn prepared(ds: &Dataset) -> Prepared {
 
 fn prepared_with_test(ds: &Dataset, test_alphas: &[f64]) -> Prepared {
     let mut cfg = PrepareConfig::default();
-    cfg.sequences.length_s = 0.1;
+    cfg.sequences.window_s = 0.1;
     cfg.sequences.warmup_s = 0.01;
     cfg.split.test_alphas = test_alphas.to_vec();
     preprocess::prepare(ds, &cfg).expect("prepare")

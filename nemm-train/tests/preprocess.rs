@@ -514,7 +514,7 @@ fn windows_stay_inside_disjoint_stretches() {
     // Shorter windows: more of them, several per stretch, and a validation stretch per run.
     let mut cfg = PrepareConfig {
         sequences: SequenceConfig {
-            length_s: 0.1,
+            window_s: 0.1,
             warmup_s: 0.02,
         },
         ..Default::default()
@@ -573,7 +573,7 @@ fn split_is_deterministic_and_respects_the_test_alpha() {
     let ds = bench_dataset(10_000.0);
     let cfg = PrepareConfig {
         sequences: SequenceConfig {
-            length_s: 0.1,
+            window_s: 0.1,
             warmup_s: 0.02,
         },
         ..PrepareConfig::default()
@@ -763,7 +763,7 @@ fn invalid_configurations_are_refused() {
         bad(&|c| c.split.validation_fraction = 1.0),
         "validation_fraction"
     );
-    assert_eq!(bad(&|c| c.sequences.length_s = 0.0), "length_s");
+    assert_eq!(bad(&|c| c.sequences.window_s = 0.0), "window_s");
     assert_eq!(bad(&|c| c.sequences.warmup_s = -0.1), "warmup_s");
     assert_eq!(
         bad(&|c| c.quasi_static_window = Some(0.0)),
@@ -771,7 +771,7 @@ fn invalid_configurations_are_refused() {
     );
     // Sequences longer than every run: no training data, said so.
     let mut c = PrepareConfig::default();
-    c.sequences.length_s = 10.0;
+    c.sequences.window_s = 10.0;
     assert!(matches!(
         preprocess::prepare(&ds, &c),
         Err(PreprocessError::NoTrainingData(_))
@@ -949,7 +949,7 @@ fn split_by_time_tests_the_end_of_every_run_of_a_single_level() {
     let ds = make_dataset("one level", fs, runs);
     let mut cfg = PrepareConfig {
         sequences: SequenceConfig {
-            length_s: 0.2,
+            window_s: 0.2,
             warmup_s: 0.02,
         },
         ..Default::default()

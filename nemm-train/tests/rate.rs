@@ -325,7 +325,7 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
     let ds = dataset::load(tmp.path()).expect("load");
     assert!(ds.runs.iter().all(|r| r.alpha.is_some()));
     let mut pc = PrepareConfig::default();
-    pc.sequences.length_s = 0.3;
+    pc.sequences.window_s = 0.3;
     let prepared = preprocess::prepare(&ds, &pc).expect("prepare");
     assert!(prepared.train.iter().all(|s| s.alphas.is_some()));
     let mut pipeline = PipelineConfig {

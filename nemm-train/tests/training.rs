@@ -115,7 +115,7 @@ fn small_windows() -> (Vec<Sequence>, Vec<Sequence>) {
     let ds = dataset_from(&truth(), &[5.0, 15.0], &[0.0, 0.3], 1.2);
     let mut cfg = PrepareConfig::default();
     cfg.split.test_alphas.clear(); // training and validation only
-    cfg.sequences.length_s = 0.1;
+    cfg.sequences.window_s = 0.1;
     cfg.sequences.warmup_s = 0.02;
     let p = preprocess::prepare(&ds, &cfg).expect("prepare");
     (p.train, p.validation)

@@ -118,7 +118,7 @@ pub struct DataArgs {
     pub velocity: Option<VelocitySource>,
     /// Overrides [`DataConfig::window_s`].
     #[arg(long, alias = "length-s", value_name = "S", help = with_default(
-        "Scored length of a training window (s; section 5.3: 0.5 s)", DEFAULT_SEQUENCE_S))]
+        "Scored length of a training window (s; section 5.3: 0.5 s)", DEFAULT_WINDOW_S))]
     pub window_s: Option<f64>,
     /// Overrides [`DataConfig::warmup_s`].
     #[arg(long, value_name = "S", help = with_default(

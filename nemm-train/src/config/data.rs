@@ -144,7 +144,7 @@ impl DataConfig {
             c.signal.velocity_source = v;
         }
         if let Some(v) = self.window_s {
-            c.sequences.length_s = v;
+            c.sequences.window_s = v;
         }
         if let Some(v) = self.warmup_s {
             c.sequences.warmup_s = v;
@@ -325,7 +325,7 @@ pub fn resolve_with(
         velocity_text.to_string(),
         src(given.velocity.is_some(), file.velocity.is_some()),
     ));
-    let window = *c.window_s.get_or_insert(DEFAULT_SEQUENCE_S);
+    let window = *c.window_s.get_or_insert(DEFAULT_WINDOW_S);
     let warmup = *c.warmup_s.get_or_insert(DEFAULT_WARMUP_S);
     choices.push((
         "window_s",

@@ -13,8 +13,8 @@
 
 use crate::data::dataset::{self, Manifest};
 use crate::data::preprocess::{
-    self, PrepareConfig, VelocitySource, DEFAULT_CUTOFF_HZ, DEFAULT_SEQUENCE_S, DEFAULT_SPLIT_SEED,
-    DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
+    self, PrepareConfig, VelocitySource, DEFAULT_CUTOFF_HZ, DEFAULT_SPLIT_SEED,
+    DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S, DEFAULT_WINDOW_S,
 };
 use crate::train::fit::FitConfig;
 use crate::train::pipeline::{AlphaPriors, PipelineConfig};

@@ -36,7 +36,7 @@ use std::path::PathBuf;
 /// Default low-pass cut-off for differentiation \[Hz\]: 5 x the model's 30 Hz scope.
 pub const DEFAULT_CUTOFF_HZ: f64 = 150.0;
 /// Default scored length of a training sequence \[s\] (section 5.3: 0.5 s).
-pub const DEFAULT_SEQUENCE_S: f64 = 0.5;
+pub const DEFAULT_WINDOW_S: f64 = 0.5;
 /// Default warm-up prefix of a sequence, simulated but not scored \[s\].
 pub const DEFAULT_WARMUP_S: f64 = 0.05;
 /// Default half-width of the quasi-static window around `x = 0`, as a fraction of the

@@ -5,8 +5,8 @@ use super::*;
 /// Lengths of the training sequences.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SequenceConfig {
-    /// Scored length \[s\] (default [`DEFAULT_SEQUENCE_S`]).
-    pub length_s: f64,
+    /// Scored length \[s\] (default [`DEFAULT_WINDOW_S`]).
+    pub window_s: f64,
     /// Warm-up prefix \[s\], simulated but not scored (default [`DEFAULT_WARMUP_S`]).
     pub warmup_s: f64,
 }
@@ -14,7 +14,7 @@ pub struct SequenceConfig {
 impl Default for SequenceConfig {
     fn default() -> Self {
         SequenceConfig {
-            length_s: DEFAULT_SEQUENCE_S,
+            window_s: DEFAULT_WINDOW_S,
             warmup_s: DEFAULT_WARMUP_S,
         }
     }
@@ -23,10 +23,10 @@ impl Default for SequenceConfig {
 impl SequenceConfig {
     /// `(warm-up samples, scored samples)` at `sample_rate_hz` (rounded to whole samples).
     pub fn samples(&self, sample_rate_hz: f64) -> Result<(usize, usize), PreprocessError> {
-        if !(self.length_s.is_finite() && self.length_s > 0.0) {
+        if !(self.window_s.is_finite() && self.window_s > 0.0) {
             return Err(config_err(
-                "length_s",
-                format!("{} s is not a positive duration", self.length_s),
+                "window_s",
+                format!("{} s is not a positive duration", self.window_s),
             ));
         }
         if !(self.warmup_s.is_finite() && self.warmup_s >= 0.0) {
@@ -35,11 +35,11 @@ impl SequenceConfig {
                 format!("{} s is not a non-negative duration", self.warmup_s),
             ));
         }
-        let scored = (self.length_s * sample_rate_hz).round();
+        let scored = (self.window_s * sample_rate_hz).round();
         if scored < 1.0 {
             return Err(config_err(
-                "length_s",
-                format!("{} s is shorter than one sample", self.length_s),
+                "window_s",
+                format!("{} s is shorter than one sample", self.window_s),
             ));
         }
         Ok((
