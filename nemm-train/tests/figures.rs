@@ -96,7 +96,7 @@ fn trained(kinds: &[(ModelKind, ModelKind)]) -> Vec<TrainedVariant> {
             };
             TrainedVariant {
                 variant,
-                model,
+                model: Box::new(model),
                 val_rmse: history.last().map_or(0.05, |h| h.val_rmse),
                 history,
                 stop: None,

@@ -72,7 +72,7 @@ pub fn compare(
         .filter(|tv| report.variants.contains_key(tv.variant.key()))
         .collect();
     let models: Vec<(ModelKind, &nemm_core::Model)> =
-        trained.iter().map(|tv| (tv.variant, &tv.model)).collect();
+        trained.iter().map(|tv| (tv.variant, &*tv.model)).collect();
     match identify_report(
         &models,
         ds,

@@ -201,8 +201,9 @@ fn save_frame(
 pub struct TrainedVariant {
     /// Which.
     pub variant: ModelKind,
-    /// The exportable model.
-    pub model: Model,
+    /// The exportable model (boxed: a `Model` is about 110 KB by value, and variants are moved
+    /// around in vectors and results).
+    pub model: Box<Model>,
     /// Training history of its rollout stage (empty for the SEM).
     pub history: Vec<EpochStats>,
     /// Validation RMSE (normalised) of the kept model.
@@ -458,17 +459,8 @@ pub fn train_each(
         }
     };
     if emm_variants.contains(&ModelKind::LinearEmm) {
-        let scaled = lin_p_with_scale(&lin.trained, lin.p0.x_scale);
-        match to_core_with(&scaled, stages.meta, &prepared.condition) {
-            Ok(model) => out.push(TrainedVariant {
-                variant: ModelKind::LinearEmm,
-                model,
-                history: lin.fit.history.clone(),
-                val_rmse: lin.fit.best_val_rmse,
-                stop: Some(lin.fit.stop),
-                kept_epoch: Some(lin.fit.best_epoch),
-                seconds: lin.seconds,
-            }),
+        match stages.linear_variant(&lin) {
+            Ok(t) => out.push(t),
             Err(e) => record(&mut failed, ModelKind::LinearEmm, e)?,
         }
     }

@@ -171,7 +171,7 @@ pub(super) fn train_sem(
     );
     Ok(TrainedVariant {
         variant: ModelKind::Sem,
-        model,
+        model: Box::new(model),
         history: Vec::new(),
         val_rmse: val,
         stop: None,

@@ -100,6 +100,9 @@ pub(super) struct LinearStage {
     pub(super) seconds: f64,
 }
 
+// A `Model` is about 110 KB by value (scalers at their full capacity): each stage runs in its
+// own frame (`inline(never)`), so that `train_each` does not hold every stage's temporaries at
+// once (the debug tests run on 2 MiB threads).
 impl<'a> Stages<'a> {
     pub(super) fn new(
         prepared: &'a Prepared,
@@ -155,6 +158,7 @@ impl<'a> Stages<'a> {
 
     /// Step 1: the Linear EMM (every EMM-family variant starts from it), from constants
     /// fitted to the quasi-static points `qs`.
+    #[inline(never)]
     pub(super) fn linear(&self, qs: &[QuasiStaticPoint]) -> Result<LinearStage> {
         let (prepared, cfg) = (self.prepared, self.cfg);
         let force_scale = prepared.scales.force_n;
@@ -260,6 +264,7 @@ impl<'a> Stages<'a> {
     }
 
     /// Step 2a: the `b_fl` scaler regressed on the quasi-static points (eq. 41), from `p0`.
+    #[inline(never)]
     pub(super) fn quasi_static_b_fl(
         &self,
         p0: &RolloutParams<f32>,
@@ -302,6 +307,7 @@ impl<'a> Stages<'a> {
 
     /// Step 2b: the neural variant `v` (NEMM-Light or NEMM) trained from `p0` with the
     /// quasi-static `b_fl`; `earlier_s` is the wall time of the stages it builds on.
+    #[inline(never)]
     pub(super) fn neural(
         &self,
         v: ModelKind,
@@ -360,7 +366,6 @@ impl<'a> Stages<'a> {
             &self.device,
         )?;
         SessionBudgetUsed::check(r.stop, &fit_cfg.label)?;
-        let model = to_core_with(&r.best.to_rollout(&frame), self.meta, condition)?;
         let val = rmse(
             &r.best,
             &frame,
@@ -371,12 +376,31 @@ impl<'a> Stages<'a> {
         );
         Ok(TrainedVariant {
             variant: v,
-            model,
+            model: Box::new(to_core_with(
+                &r.best.to_rollout(&frame),
+                self.meta,
+                condition,
+            )?),
             history: r.history,
             val_rmse: val,
             stop: Some(r.stop),
             kept_epoch: Some(r.best_epoch),
             seconds: t.elapsed().as_secs_f64() + earlier_s,
+        })
+    }
+
+    /// The trained Linear EMM as a variant of its own (with the neural stages' `x_pr` scale).
+    #[inline(never)]
+    pub(super) fn linear_variant(&self, lin: &LinearStage) -> Result<TrainedVariant> {
+        let scaled = lin_p_with_scale(&lin.trained, lin.p0.x_scale);
+        Ok(TrainedVariant {
+            variant: ModelKind::LinearEmm,
+            model: Box::new(to_core_with(&scaled, self.meta, &self.prepared.condition)?),
+            history: lin.fit.history.clone(),
+            val_rmse: lin.fit.best_val_rmse,
+            stop: Some(lin.fit.stop),
+            kept_epoch: Some(lin.fit.best_epoch),
+            seconds: lin.seconds,
         })
     }
 }
