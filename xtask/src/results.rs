@@ -127,6 +127,13 @@ fn commit(root: &Path) -> String {
     }
 }
 
+/// The commit a sweep table's first line names (`... trained at commit `abc1234` ...`, as
+/// `nemm sweep` writes it).
+fn sweep_commit(table5: &str) -> Option<&str> {
+    let (_, rest) = table5.lines().next()?.split_once("at commit `")?;
+    rest.split_once('`').map(|(c, _)| c)
+}
+
 /// Refuses a block whose figures come from code with uncommitted changes (`commit` ends in
 /// `+dirty`): nobody could rebuild what produced them. `allow_dirty` writes it anyway (the
 /// block then names the `+dirty` commit).
@@ -466,14 +473,12 @@ pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), Stri
             allow_dirty,
         )?;
     }
-    if let Some(t5) = &table5 {
-        if t5.lines().next().is_some_and(|l| l.contains("+dirty`")) {
-            refuse_dirty(
-                &format!("{}/table5.md's sweep", dir.display()),
-                "+dirty",
-                allow_dirty,
-            )?;
-        }
+    if let Some(c) = table5.as_deref().and_then(sweep_commit) {
+        refuse_dirty(
+            &format!("{}/table5.md's sweep", dir.display()),
+            c,
+            allow_dirty,
+        )?;
     }
     let table4 = with_identify_summary(&table4, identify.as_deref());
     let md = training_markdown(
@@ -634,6 +639,13 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn a_sweep_table_names_its_commit() {
+        let t5 = "Sweep of the NEMM trained at commit `0b984fd+dirty` on `d`: ...\n\n| Job |\n";
+        assert_eq!(super::sweep_commit(t5), Some("0b984fd+dirty"));
+        assert_eq!(super::sweep_commit("| Job |\n"), None);
+    }
 
     #[test]
     fn figures_from_uncommitted_code_are_refused_unless_allowed() {

@@ -472,8 +472,7 @@ pub fn train_each(
     if neural.is_empty() {
         return Ok(done(out, failed));
     }
-    let t_qs = Instant::now();
-    let b_fl = match stages.quasi_static_b_fl(&lin.p0, qs) {
+    let (b_fl, qs_seconds) = match stages.quasi_static_b_fl(&lin.p0, qs) {
         Ok(b) => b,
         Err(e) => {
             for &v in &neural {
@@ -483,7 +482,7 @@ pub fn train_each(
             return Ok(done(out, failed));
         }
     };
-    let earlier_s = t_qs.elapsed().as_secs_f64() + lin.seconds;
+    let earlier_s = qs_seconds + lin.seconds;
     for v in neural {
         match stages.neural(v, &lin.p0, &b_fl, earlier_s) {
             Ok(t) => out.push(t),

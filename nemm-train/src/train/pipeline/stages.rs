@@ -263,13 +263,15 @@ impl<'a> Stages<'a> {
         }
     }
 
-    /// Step 2a: the `b_fl` scaler regressed on the quasi-static points (eq. 41), from `p0`.
+    /// Step 2a: the `b_fl` scaler regressed on the quasi-static points (eq. 41), from `p0`,
+    /// and the stage's wall time \[s\].
     #[inline(never)]
     pub(super) fn quasi_static_b_fl(
         &self,
         p0: &RolloutParams<f32>,
         qs: &[QuasiStaticPoint],
-    ) -> Result<ScalerWeights<f32>> {
+    ) -> Result<(ScalerWeights<f32>, f64)> {
+        let t_qs = Instant::now();
         let cfg = self.cfg;
         let b_fl_init = self.branched(
             init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
@@ -287,7 +289,6 @@ impl<'a> Stages<'a> {
                 &qs_owned
             }
         };
-        let t_qs = Instant::now();
         let b_fl = qs_regression(
             p0,
             b_fl_init,
@@ -296,13 +297,13 @@ impl<'a> Stages<'a> {
             cfg,
             &self.device,
         )?;
+        let seconds = t_qs.elapsed().as_secs_f64();
         eprintln!(
-            "[nemm] quasi-static b_fl regression (eq. 41): {} points, {} steps, {:.1} s",
+            "[nemm] quasi-static b_fl regression (eq. 41): {} points, {} steps, {seconds:.1} s",
             qs.len(),
             cfg.qs_steps,
-            t_qs.elapsed().as_secs_f64()
         );
-        Ok(b_fl)
+        Ok((b_fl, seconds))
     }
 
     /// Step 2b: the neural variant `v` (NEMM-Light or NEMM) trained from `p0` with the
