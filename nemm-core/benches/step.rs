@@ -44,7 +44,7 @@ fn velocities(dt: f32) -> Vec<f32> {
 }
 
 fn step<M: Measurement>(c: &mut Criterion<M>) {
-    let mut g = c.benchmark_group(format!("step/{}", nemm_core::math::BACKEND));
+    let mut g = c.benchmark_group(format!("step/{}", nemm_core::semantics::math::BACKEND));
     g.throughput(Throughput::Elements(1));
     for kind in KINDS {
         let m = model(kind);
@@ -69,7 +69,10 @@ fn step<M: Measurement>(c: &mut Criterion<M>) {
 
 /// The tabulated fast path (`EvalMode::Table`, 256 segments, bound 1e-4) of the neural kinds.
 fn step_table<M: Measurement>(c: &mut Criterion<M>) {
-    let mut g = c.benchmark_group(format!("step-table/{}", nemm_core::math::BACKEND));
+    let mut g = c.benchmark_group(format!(
+        "step-table/{}",
+        nemm_core::semantics::math::BACKEND
+    ));
     g.throughput(Throughput::Elements(1));
     for kind in [ModelKind::NemmLight, ModelKind::Nemm] {
         let m = model(kind);

@@ -42,7 +42,7 @@
 //!   [`TableConfig::max_rel_error`]. A state outside a table's domain is clamped and sets
 //!   [`Flags::OUT_OF_TABLE_DOMAIN`]. The SEM and the Linear EMM have nothing to tabulate and
 //!   run the same code in both modes. A blob can store the tables for declared alpha levels
-//!   (format version 4, [`crate::stored_tables`]): [`Estimator::load_with_tables`] then
+//!   (format version 4, [`crate::format::tables`]): [`Estimator::load_with_tables`] then
 //!   reads them from the blob instead of building them, bit for bit the same tables
 //!   ([`Estimator::table_origin`] says which happened, and why stored ones were not used).
 //!
@@ -60,14 +60,21 @@
 //! assert!(e.force_n.is_finite());
 //! ```
 
+mod export;
+
+#[cfg(feature = "std")]
+pub use export::encode_to_vec_with_tables;
+pub use export::encode_with_tables;
+pub use export::encoded_len_with_tables;
+
 use crate::emm::{self, Coefficients, State};
+use crate::format::tables::{StoredTable, StoredTables, StoredUnused, TableLevel};
 use crate::integrator::{self, Integrator, Stage, StepSize};
 use crate::math::{Fused, MulAdd, Unfused};
 use crate::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
 use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
 use crate::static_force::StaticForce;
-use crate::stored_tables::{StoredTable, StoredUnused};
 use crate::table::{self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 use core::fmt;
 
@@ -97,7 +104,7 @@ impl Flags {
     /// The estimator holds no model ([`Estimator::empty`], or a failed
     /// [`Estimator::load`]): the force is 0.
     pub const NO_MODEL: u8 = 1 << 7;
-    /// The model has a static force ([`crate::Extension::static_force`]) and this step had
+    /// The model has a static force ([`crate::Model::static_force`]) and this step had
     /// no usable stroke position ([`Estimator::step`] without one, or a non-finite
     /// position): its position term used the last good position (`x_ref` before the first).
     pub const POSITION_MISSING: u8 = 1 << 6;
@@ -286,7 +293,7 @@ impl<const P: usize, const T: usize> Coef<P, T> {
     /// In place: the constant `p_ini` without a scaler; otherwise the scaler compiled for
     /// `alpha` and, in table mode, its table over `[-m u_scale, m u_scale]` (`m` the
     /// configured domain margin): read from `stored` (a stored table of `T` segments, see
-    /// [`crate::stored_tables`]) if given and it reads back on that domain, else built.
+    /// [`crate::format::tables`]) if given and it reads back on that domain, else built.
     /// `name` names the coefficient in errors. Returns, in table mode, whether the table
     /// was read from `stored`.
     fn load(
@@ -659,9 +666,10 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         self.load_from(model, cfg, None)
     }
 
-    /// [`Estimator::load`] with the blob `model` was decoded from: in table mode, the
-    /// tables are read from the blob's tables section ([`crate::stored_tables`]) when it
-    /// holds a level that matches this estimator (its alpha, `T` segments and the table
+    /// [`Estimator::load`] with the blob `model` was decoded from and the index of its
+    /// tables section (`tables`, returned by [`crate::decode_into`] or
+    /// [`crate::decode_with_tables`]; see [`crate::format::tables`]): in table mode, the
+    /// tables are read from the blob when it holds a level that matches this estimator (its alpha, `T` segments and the table
     /// configuration, bit for bit), instead of being built; the result is bit for bit the
     /// same estimator. Otherwise they are built as by [`Estimator::load`], and
     /// [`Estimator::table_origin`] says why the stored ones were not used (a mismatch is
@@ -670,16 +678,17 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         &mut self,
         model: &Model<P>,
         cfg: EstimatorConfig,
+        tables: &StoredTables,
         blob: &[u8],
     ) -> Result<(), EstimatorError> {
-        self.load_from(model, cfg, Some(blob))
+        self.load_from(model, cfg, Some((tables, blob)))
     }
 
     fn load_from(
         &mut self,
         model: &Model<P>,
         cfg: EstimatorConfig,
-        blob: Option<&[u8]>,
+        stored: Option<(&StoredTables, &[u8])>,
     ) -> Result<(), EstimatorError> {
         self.rt.kind = RuntimeKind::Empty;
         self.static_force = None;
@@ -726,11 +735,12 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     } => (emm, Some(b_fl), Some(b_pr), Some(k_pr)),
                     Body::Sem(_) => return Err(EstimatorError::Compile),
                 };
-                let branches = &model.ext.alpha_branches;
-                let level = match blob {
-                    Some(b) => model.tables.find(&cfg, T, b),
-                    None => Err(StoredUnused::NotOffered),
+                let branches = &model.alpha_branches;
+                let level = match (stored, &cfg.mode) {
+                    (Some((tables, b)), EvalMode::Table(tc)) => tables.find(cfg.alpha, tc, T, b),
+                    _ => Err(StoredUnused::NotOffered),
                 };
+                let blob = stored.map(|(_, b)| b);
                 let bytes = |t: Option<StoredTable>| -> Option<&[u8]> {
                     blob?.get(usize::try_from(t?.offset).ok()?..)
                 };
@@ -786,7 +796,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         self.alpha = alpha;
         self.alpha_range = (model.meta.alpha_min, model.meta.alpha_max);
         self.velocity_limit = velocity_limit;
-        self.static_force = model.ext.static_force;
+        self.static_force = model.static_force;
         self.update_alpha_flags();
         self.reset();
         Ok(())
@@ -1043,9 +1053,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// Table mode: what the tables section of a blob stores for this estimator (its alpha,
     /// table configuration and the tables of `b_fl` and `k_pr`); `None` in exact mode or
     /// without neural coefficients.
-    pub(crate) fn stored_parts(
-        &self,
-    ) -> Option<(f32, TableConfig, Option<&Table1D<T>>, Option<&Table1D<T>>)> {
+    pub(crate) fn table_level(&self) -> Option<TableLevel<'_, T>> {
         let EvalMode::Table(tc) = self.mode else {
             return None;
         };
@@ -1054,7 +1062,12 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         }
         let rt = &self.rt.emm;
         let (b, k) = (rt.b_fl.table(), rt.k_pr.table());
-        (b.is_some() || k.is_some()).then_some((self.alpha, tc, b, k))
+        (b.is_some() || k.is_some()).then_some(TableLevel {
+            alpha: self.alpha,
+            config: tc,
+            b_fl: b,
+            k_pr: k,
+        })
     }
 
     /// Table mode: the worst accuracy of the tables in use, measured when they were built

@@ -8,7 +8,7 @@
 //! | body (body_len bytes): postcard-encoded [`Model`] (version-1 layout),   |
 //! | then, from version 3 on, the postcard-encoded [`Extension`], then, from |
 //! | version 4 on, `Option<StaticForce>` and the tables section              |
-//! | ([`crate::stored_tables`])                                              |
+//! | ([`tables`])                                              |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -18,17 +18,16 @@
 //! # Versions
 //!
 //! This build writes [`FORMAT_VERSION`] and reads every version from [`OLDEST_FORMAT_VERSION`]
-//! on. Version 2 appended an empty [`Extension`] to the body (zero bytes, so a version-2
-//! body is a version-1 body); version 3 fills it with the condition (name, unit, map to
-//! `alpha`, declared priors), the alpha branches of the scalers and the
-//! [`crate::model::Provenance`]; version 4 appends two sections after those fields, each
-//! encoded on its own (not part of the extension's own postcard encoding): first
-//! [`Extension::static_force`] (`Option<StaticForce>`), then the tables section:
-//! precomputed fast-path tables for declared oil-loss levels ([`crate::stored_tables`]; one
-//! byte, no levels, in a blob written by [`encode`]). A blob of an earlier version decodes
-//! with the fields it lacks at their defaults ([`Extension::default`], no tables), which
-//! reproduces what those versions meant (the paper's oil loss, no branches, no provenance,
-//! no static force).
+//! on. The body is the version-1 part of the [`Model`] (its fields up to
+//! [`Model::body`]); version 2 appended an empty extension (zero bytes, so a version-2 body
+//! is a version-1 body); version 3 appends [`Model::condition`] (name, unit, map to
+//! `alpha`, declared priors), [`Model::alpha_branches`] and [`Model::provenance`], in this
+//! order; version 4 appends two sections after those: first [`Model::static_force`]
+//! (`Option<StaticForce>`), then the tables section: precomputed fast-path tables for
+//! declared oil-loss levels ([`tables`]; one byte, no levels, in a blob written by
+//! [`encode`]). A blob of an earlier version decodes with the fields it lacks at their
+//! defaults ([`crate::Condition::default`], no branches, no provenance, no static force,
+//! no tables), which reproduces what those versions meant (the paper's oil loss).
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -39,13 +38,16 @@
 //! capacity, body, header/body agreement, then [`Model::validate`] (finite values, shapes,
 //! bounds, stability of the configured step).
 
-use crate::estimator::Estimator;
-use crate::model::{Extension, Model, ModelError, ModelKind};
+pub mod tables;
+
+use crate::limits::MAX_TABLE_LEVELS;
+use crate::model::{AlphaBranches, Condition, Model, ModelError, ModelKind, Provenance};
 use crate::static_force::StaticForce;
-use crate::stored_tables::{self, StoredTables, Writer};
 use crate::table::DEFAULT_TABLE_SEGMENTS;
+use crate::wire::Writer;
 use core::fmt;
 use serde::{Deserialize, Serialize};
+use tables::{StoredTables, TableLevel};
 
 // `Model::deserialize_in_place` comes from the derive with serde_derive's
 // `deserialize_in_place` feature.
@@ -171,8 +173,6 @@ impl fmt::Display for DecodeError {
 
 #[cfg(feature = "std")]
 impl std::error::Error for DecodeError {}
-#[cfg(feature = "std")]
-impl std::error::Error for ModelError {}
 
 /// Why a model could not be encoded.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -183,7 +183,7 @@ pub enum EncodeError {
     BufferTooSmall,
     /// An estimator given for the tables section is not in table mode, does not fit the
     /// model (its tables are not those of the model's neural coefficients on the model's
-    /// domain), or there are more than [`stored_tables::MAX_TABLE_LEVELS`].
+    /// domain), or there are more than [`MAX_TABLE_LEVELS`].
     Tables,
 }
 
@@ -198,7 +198,7 @@ impl fmt::Display for EncodeError {
                 f,
                 "the tables to store must come from table-mode estimators of this model \
                  (at most {} levels)",
-                stored_tables::MAX_TABLE_LEVELS
+                MAX_TABLE_LEVELS
             ),
         }
     }
@@ -217,24 +217,27 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
     }
 }
 
-/// Writes (or counts) the body of `model`: the version-1 part, the extension, then the
-/// version-4 sections: the static force and the tables section of `levels`.
+/// Writes (or counts) the body of `model`: the version-1 part, the version-3 fields
+/// (condition, alpha branches, provenance: postcard writes a tuple as it writes a struct of
+/// those fields), then the version-4 sections: the static force and the tables section of
+/// `levels`.
 fn write_body<const P: usize, const T: usize>(
     model: &Model<P>,
-    levels: &[&Estimator<P, T>],
+    levels: &[TableLevel<'_, T>],
     w: &mut Writer<'_>,
 ) -> Result<(), EncodeError> {
-    w.put(model).ok_or(EncodeError::BufferTooSmall)?;
-    w.put(&model.ext).ok_or(EncodeError::BufferTooSmall)?;
-    w.put(&model.ext.static_force)
-        .ok_or(EncodeError::BufferTooSmall)?;
-    stored_tables::write_section(model, levels, w)
+    let too_small = EncodeError::BufferTooSmall;
+    w.put(model).ok_or(too_small)?;
+    w.put(&(&model.condition, &model.alpha_branches, &model.provenance))
+        .ok_or(too_small)?;
+    w.put(&model.static_force).ok_or(too_small)?;
+    tables::write_section(model, levels, w)
 }
 
 /// Length in bytes of the body of `model` with the tables of `levels`.
 fn body_len<const P: usize, const T: usize>(
     model: &Model<P>,
-    levels: &[&Estimator<P, T>],
+    levels: &[TableLevel<'_, T>],
 ) -> Result<usize, EncodeError> {
     let mut w = Writer::counter();
     write_body(model, levels, &mut w)?;
@@ -243,14 +246,13 @@ fn body_len<const P: usize, const T: usize>(
 
 /// Length in bytes of the blob of `model` (header, body, CRC).
 pub fn encoded_len<const P: usize>(model: &Model<P>) -> Result<usize, EncodeError> {
-    encoded_len_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
+    encoded_len_with_levels::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
 }
 
-/// Length in bytes of the blob of `model` with the tables of `levels` (see
-/// [`encode_with_tables`]).
-pub fn encoded_len_with_tables<const P: usize, const T: usize>(
+/// Length in bytes of the blob of `model` with the tables of `levels`.
+pub(crate) fn encoded_len_with_levels<const P: usize, const T: usize>(
     model: &Model<P>,
-    levels: &[&Estimator<P, T>],
+    levels: &[TableLevel<'_, T>],
 ) -> Result<usize, EncodeError> {
     let body_len = body_len(model, levels)?;
     let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
@@ -259,24 +261,19 @@ pub fn encoded_len_with_tables<const P: usize, const T: usize>(
 }
 
 /// Encodes a validated model into `buf` (at least [`encoded_len`] bytes), with an empty
-/// tables section; returns the blob (a prefix of `buf`).
+/// tables section; returns the blob (a prefix of `buf`). A blob with precomputed tables:
+/// [`crate::encode_with_tables`].
 pub fn encode<'b, const P: usize>(
     model: &Model<P>,
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
-    encode_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[], buf)
+    encode_with_levels::<P, DEFAULT_TABLE_SEGMENTS>(model, &[], buf)
 }
 
-/// Encodes a validated model with precomputed fast-path tables: the tables of each
-/// estimator of `levels` (at most [`stored_tables::MAX_TABLE_LEVELS`], each loaded from
-/// `model` in [`crate::EvalMode::Table`]) at its alpha, bit for bit (see
-/// [`crate::stored_tables`]). `buf` needs at least [`encoded_len_with_tables`] bytes; returns
-/// the blob (a prefix of `buf`). An estimator that is not in table mode, or whose tables do
-/// not fit the model (another kind, another domain), is refused with
-/// [`EncodeError::Tables`].
-pub fn encode_with_tables<'b, const P: usize, const T: usize>(
+/// Encodes a validated model with the tables of `levels` (at most [`MAX_TABLE_LEVELS`]).
+pub(crate) fn encode_with_levels<'b, const P: usize, const T: usize>(
     model: &Model<P>,
-    levels: &[&Estimator<P, T>],
+    levels: &[TableLevel<'_, T>],
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
@@ -303,18 +300,18 @@ pub fn encode_with_tables<'b, const P: usize, const T: usize>(
 /// Encodes a validated model into a new vector.
 #[cfg(feature = "std")]
 pub fn encode_to_vec<const P: usize>(model: &Model<P>) -> Result<std::vec::Vec<u8>, EncodeError> {
-    encode_to_vec_with_tables::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
+    encode_to_vec_with_levels::<P, DEFAULT_TABLE_SEGMENTS>(model, &[])
 }
 
-/// [`encode_with_tables`] into a new vector.
+/// [`encode_with_levels`] into a new vector.
 #[cfg(feature = "std")]
-pub fn encode_to_vec_with_tables<const P: usize, const T: usize>(
+pub(crate) fn encode_to_vec_with_levels<const P: usize, const T: usize>(
     model: &Model<P>,
-    levels: &[&Estimator<P, T>],
+    levels: &[TableLevel<'_, T>],
 ) -> Result<std::vec::Vec<u8>, EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let mut out = std::vec![0u8; encoded_len_with_tables(model, levels)?];
-    let n = encode_with_tables(model, levels, &mut out)?.len();
+    let mut out = std::vec![0u8; encoded_len_with_levels(model, levels)?];
+    let n = encode_with_levels(model, levels, &mut out)?.len();
     out.truncate(n);
     Ok(out)
 }
@@ -355,13 +352,23 @@ fn parse_error(e: postcard::Error, len: usize, part: &'static str) -> DecodeErro
 }
 
 /// Decodes and validates a blob into a model with scaler capacity `P`, returned by value.
+/// The blob's tables section is checked but its index is not kept: a table-mode estimator
+/// that should read the stored tables needs [`decode_with_tables`] or [`decode_into`].
 ///
 /// Convenient on the host; on a microcontroller prefer [`decode_into`] with a `static`
 /// model, which does not build the model on the stack.
 pub fn decode<const P: usize>(blob: &[u8]) -> Result<Model<P>, DecodeError> {
+    decode_with_tables(blob).map(|(model, _)| model)
+}
+
+/// [`decode`], and beside the model the index of the blob's precomputed tables (empty for
+/// a blob without tables), for [`crate::Estimator::load_with_tables`].
+pub fn decode_with_tables<const P: usize>(
+    blob: &[u8],
+) -> Result<(Model<P>, StoredTables), DecodeError> {
     let mut model = Model::empty();
-    decode_into(blob, &mut model)?;
-    Ok(model)
+    let tables = decode_into(blob, &mut model)?;
+    Ok((model, tables))
 }
 
 /// Decodes and validates a blob **in place** into `model` (e.g. a `static`): the large
@@ -370,7 +377,14 @@ pub fn decode<const P: usize>(blob: &[u8]) -> Result<Model<P>, DecodeError> {
 ///
 /// On error `model` holds unspecified, possibly partial contents: it must not be used (an
 /// [`crate::Estimator`] built from it would refuse it anyway, since it re-validates).
-pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<(), DecodeError> {
+///
+/// Returns the index of the blob's precomputed tables (empty for a blob without tables), a
+/// few dozen bytes: the tables themselves stay in the blob, and
+/// [`crate::Estimator::load_with_tables`] reads them from there.
+pub fn decode_into<const P: usize>(
+    blob: &[u8],
+    model: &mut Model<P>,
+) -> Result<StoredTables, DecodeError> {
     let header = read_header(blob)?;
     let (_, after_header) = postcard::take_from_bytes::<Header>(blob)
         .map_err(|e| parse_error(e, blob.len(), "header"))?;
@@ -412,23 +426,29 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
     let rest = de
         .finalize()
         .map_err(|_| DecodeError::Malformed { part: "body" })?;
-    // Version 2's extension has no fields (zero bytes); version 3 holds its fields.
+    // Version 2 added no fields (zero bytes); version 3 the condition, the alpha branches
+    // and the provenance, one after another (as a struct of them). In place too: the
+    // branches hold parameter vectors.
     let rest = if header.version >= 3 {
-        // In place too: the extension holds the branches' parameter vectors.
+        let malformed = |_| DecodeError::Malformed { part: "extension" };
         let mut de = postcard::Deserializer::from_bytes(rest);
-        Extension::deserialize_in_place(&mut de, &mut model.ext)
-            .map_err(|_| DecodeError::Malformed { part: "extension" })?;
-        de.finalize()
-            .map_err(|_| DecodeError::Malformed { part: "extension" })?
+        Condition::deserialize_in_place(&mut de, &mut model.condition).map_err(malformed)?;
+        AlphaBranches::deserialize_in_place(&mut de, &mut model.alpha_branches)
+            .map_err(malformed)?;
+        Provenance::deserialize_in_place(&mut de, &mut model.provenance).map_err(malformed)?;
+        de.finalize().map_err(malformed)?
     } else {
-        model.ext = Extension::default();
+        model.condition = Condition::default();
+        model.alpha_branches = AlphaBranches::default();
+        model.provenance = Provenance::empty();
         rest
     };
     // Version 4's sections after the version-3 fields: the static force (in place), then
     // the tables section (an index of it; the tables stay in the blob).
+    let mut tables = StoredTables::EMPTY;
     let rest = if header.version >= 4 {
         let mut de = postcard::Deserializer::from_bytes(rest);
-        Option::<StaticForce>::deserialize_in_place(&mut de, &mut model.ext.static_force).map_err(
+        Option::<StaticForce>::deserialize_in_place(&mut de, &mut model.static_force).map_err(
             |_| DecodeError::Malformed {
                 part: "static_force",
             },
@@ -436,19 +456,17 @@ pub fn decode_into<const P: usize>(blob: &[u8], model: &mut Model<P>) -> Result<
         let rest = de.finalize().map_err(|_| DecodeError::Malformed {
             part: "static_force",
         })?;
-        let neural = stored_tables::neural(model);
-        model
-            .tables
+        let neural = tables::neural(model);
+        tables
             .read(rest, covered, stored, neural)
             .ok_or(DecodeError::Malformed { part: "tables" })?
     } else {
-        model.ext.static_force = None;
-        model.tables = StoredTables::EMPTY;
+        model.static_force = None;
         rest
     };
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {
         return Err(DecodeError::Malformed { part: "body" });
     }
     model.validate().map_err(DecodeError::Invalid)?;
-    Ok(())
+    Ok(tables)
 }

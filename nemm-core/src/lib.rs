@@ -3,19 +3,23 @@
 //! `no_std`, allocation-free runtime of the Neural Equivalent Mechanical Model (NEMM) of a
 //! degrading twin-tube suspension damper, and the definition of its weight format.
 //!
-//! - [`emm`]: the EMM right-hand side and force (eqs. 15-17 / 20-21) with their derivation.
-//! - [`mlp`]: the neural scalers (section 5.4) and their bounded positive output mapping.
-//! - [`integrator`]: fixed-step RK4 / RK3 with linear interpolation of the input.
-//! - [`model`]: the four variants (SEM, Linear EMM, NEMM-Light, NEMM) and their validation.
-//! - [`format`](mod@format): the postcard weight blob with magic, version and CRC-32.
-//! - [`estimator`]: the online estimator, one `step(velocity) -> force` per sample.
-//! - [`sem`]: the static force-velocity map.
-//! - [`static_force`]: the optional static force of eq. 17 (gas force, seal friction).
-//! - [`table`]: the tabulated fixed-alpha fast path (1-D cubic tables with a verified error
-//!   bound).
+//! What a firmware (or a C wrapper) uses is at the crate root:
+//!
+//! - the online [`Estimator`]: one `step(velocity) -> force` per sample, with its
+//!   [`EstimatorConfig`], the [`Estimate`] and its [`Flags`] (module [`estimator`]: what
+//!   happens per step, exact or tabulated evaluation);
+//! - the weight format: [`decode`] / [`decode_into`] (in place, for a `static`),
+//!   [`read_header`], [`encode`]; the layout and the tables section in [`format`](mod@format);
+//! - the [`Model`] and the types it is made of ([`ModelKind`], [`Body`], [`Condition`],
+//!   ...; module [`model`]: the four variants and the step-stability check);
+//! - the typed errors: [`DecodeError`], [`ModelError`], [`EstimatorError`], [`EncodeError`],
+//!   [`TableError`];
 //! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
-//!   low-pass) that feeds the estimator online.
-//! - [`math`]: `exp`, `sqrt` and `fma` backends (`libm` exact, `micromath` fast).
+//!   low-pass) that feeds the estimator online;
+//! - [`limits`]: the fixed capacities a firmware sizes its RAM by.
+//!
+//! The model's arithmetic (EMM, scalers, Runge-Kutta step, SEM map, tables, math backends)
+//! is in [`semantics`], public for the trainer and tests but outside the stability promise.
 //!
 //! Units are SI throughout: m, m/s, N, N s/m, N/m, s. `alpha` is the oil-loss fraction in
 //! `[0, 1]`. All arithmetic is `f32`.
@@ -56,42 +60,50 @@
     )
 )]
 
-pub mod emm;
 mod error;
 pub mod estimator;
 pub mod format;
-pub mod integrator;
-pub mod math;
-pub mod mlp;
+pub mod limits;
 pub mod model;
-pub mod sem;
-pub mod static_force;
-pub mod stored_tables;
-pub mod table;
+#[cfg(feature = "semantics")]
+#[cfg_attr(docsrs, doc(cfg(feature = "semantics")))]
+pub mod semantics;
+// Without the feature the arithmetic is the crate's own; what the root API does not reach
+// (the trainer's and the tools' entry points) is then unused.
+#[cfg(not(feature = "semantics"))]
+#[allow(dead_code, unused_imports)]
+mod semantics;
 #[cfg(any(test, feature = "testing"))]
 #[cfg_attr(docsrs, doc(cfg(feature = "testing")))]
 pub mod testing;
 pub mod velocity;
+mod wire;
 
-pub use emm::{Coefficients, EmmConstants, State};
-pub use error::UnknownName;
-pub use estimator::{
-    Diagnostics, Estimate, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, TableOrigin,
-};
-pub use format::{
-    decode, decode_into, encode, encode_with_tables, read_header, DecodeError, EncodeError, Header,
-    FORMAT_VERSION, OLDEST_FORMAT_VERSION,
-};
-pub use integrator::Integrator;
-pub use mlp::{AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY};
-pub use model::{
-    AlphaBranches, Body, Condition, Extension, InputScales, Meta, Model, ModelError, ModelKind,
-    Priors, Provenance,
-};
-pub use sem::SemMap;
-pub use static_force::StaticForce;
-pub use stored_tables::{StoredTables, StoredUnused};
-pub use table::{Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
+// The arithmetic modules by their short names inside the crate.
+use semantics::{emm, integrator, math, mlp, sem, static_force, table};
 
+pub use error::{BranchError, ModelError, SemError, ShapeError, UnknownName};
 #[cfg(feature = "std")]
-pub use format::{encode_to_vec, encode_to_vec_with_tables};
+pub use estimator::encode_to_vec_with_tables;
+pub use estimator::{
+    encode_with_tables, encoded_len_with_tables, Diagnostics, Estimate, Estimator, EstimatorConfig,
+    EstimatorError, EvalMode, Flags, TableOrigin,
+};
+#[cfg(feature = "std")]
+pub use format::encode_to_vec;
+pub use format::tables::{StoredTables, StoredUnused};
+pub use format::{
+    decode, decode_into, decode_with_tables, encode, encoded_len, read_header, DecodeError,
+    EncodeError, Header, FORMAT_VERSION, OLDEST_FORMAT_VERSION,
+};
+pub use model::{
+    AlphaBranches, Body, Condition, InputScales, Meta, Model, ModelKind, Priors, Provenance,
+};
+pub use semantics::emm::EmmConstants;
+pub use semantics::integrator::Integrator;
+pub use semantics::mlp::{
+    param_count, AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY,
+};
+pub use semantics::sem::SemMap;
+pub use semantics::static_force::StaticForce;
+pub use semantics::table::{TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};

@@ -24,17 +24,17 @@
 //! analysis does not see.
 
 use crate::emm::EmmConstants;
+pub use crate::error::ModelError;
 use crate::error::UnknownName;
 use crate::integrator::Integrator;
-use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, ShapeError, DEFAULT_PARAM_CAPACITY};
-use crate::sem::{SemError, SemMap};
+pub use crate::limits::{
+    MAX_CONDITION_NAME, MAX_CONDITION_UNIT, PROVENANCE_COMMAND_LEN, PROVENANCE_COMMIT_LEN,
+    PROVENANCE_DATASET_LEN, SCALE_RANGE,
+};
+use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, DEFAULT_PARAM_CAPACITY};
+use crate::sem::SemMap;
 use crate::static_force::StaticForce;
-use crate::stored_tables::StoredTables;
-use core::fmt;
 use serde::{Deserialize, Serialize};
-
-/// Accepted range of the normalisation scales and the force scale (SI units).
-pub const SCALE_RANGE: (f32, f32) = (1e-9, 1e9);
 
 /// Fraction of the integrator's real-axis stability limit a model may use (see module docs).
 pub const STABILITY_MARGIN: f32 = 0.8;
@@ -152,77 +152,24 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     pub meta: Meta,
     /// Variant-specific parameters.
     pub body: Body<P>,
-    /// Fields added after format version 1, encoded after the body (see
-    /// [`crate::format`]); a version-1 blob decodes with [`Extension::default`].
+    /// The degradation condition `alpha` stands for and its declared priors. Format
+    /// version 3 and later, encoded after the body (see [`crate::format`]); earlier blobs
+    /// decode with [`Condition::default`] (oil loss, the paper's priors).
     #[serde(skip)]
-    pub ext: Extension,
-    /// The index of the blob's precomputed fast-path tables (format version 4, see
-    /// [`crate::stored_tables`]): filled by [`crate::format::decode_into`], empty for a
-    /// model not decoded from a blob with tables. Not written by [`crate::format::encode`]
-    /// (the tables come from estimators: [`crate::format::encode_with_tables`]).
-    #[serde(skip)]
-    pub tables: StoredTables,
-}
-
-/// The part of a [`Model`] that format versions 2 and later added. It is encoded after the
-/// version-1 body, so every version-1 blob still decodes (with the default extension).
-///
-/// Every field has a default that reproduces what an earlier blob meant.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct Extension {
-    /// The degradation condition `alpha` stands for and its declared priors (version 3).
     pub condition: Condition,
-    /// The alpha branches that make the declared priors hold by construction (version 3).
+    /// The alpha branches that make the declared priors hold by construction (version 3;
+    /// none in earlier blobs).
+    #[serde(skip)]
     pub alpha_branches: AlphaBranches,
-    /// Where the weights came from (format version 3; empty in earlier blobs).
+    /// Where the weights came from (version 3; empty in earlier blobs).
+    #[serde(skip)]
     pub provenance: Provenance,
     /// The static force `r` of eq. 17 (gas force and seal friction, see
     /// [`crate::static_force`]) added to the EMM force; `None`: no static force (the
-    /// paper's model). Refused on the SEM. Format version 4's first section, encoded after
-    /// the version-3 fields (not part of this struct's own encoding, see
-    /// [`crate::format`]); `None` in earlier blobs.
+    /// paper's model). Refused on the SEM. Version 4; `None` in earlier blobs.
     #[serde(skip)]
     pub static_force: Option<StaticForce>,
 }
-
-impl Extension {
-    /// An extension with an unnamed condition, no branches and no provenance; `const`, for
-    /// [`Model::empty`].
-    pub const EMPTY: Extension = Extension {
-        condition: Condition {
-            name: heapless::String::new(),
-            unit: heapless::String::new(),
-            at_alpha_0: 0.0,
-            at_alpha_1: 1.0,
-            priors: Priors::PAPER,
-        },
-        alpha_branches: AlphaBranches {
-            b_fl: None,
-            b_pr: None,
-            k_pr: None,
-        },
-        provenance: Provenance::empty(),
-        static_force: None,
-    };
-
-    /// Checks the extension's own fields (the branches against the body:
-    /// [`AlphaBranches::validate`]).
-    pub fn validate(&self) -> Result<(), ModelError> {
-        self.condition.validate()?;
-        self.provenance.validate()?;
-        if let Some(s) = &self.static_force {
-            s.validate()?;
-        }
-        Ok(())
-    }
-}
-
-/// Longest [`Provenance::command`] in bytes.
-pub const PROVENANCE_COMMAND_LEN: usize = 192;
-/// Longest [`Provenance::dataset`] in bytes.
-pub const PROVENANCE_DATASET_LEN: usize = 96;
-/// Longest [`Provenance::commit`] in bytes.
-pub const PROVENANCE_COMMIT_LEN: usize = 48;
 
 /// Where a model came from, recorded by the exporter: free text for people and tools
 /// (`nemm inspect` prints it); the estimator never reads it. Each field is printable: no
@@ -286,11 +233,6 @@ impl Provenance {
         Ok(())
     }
 }
-
-/// Longest condition name in bytes.
-pub const MAX_CONDITION_NAME: usize = 32;
-/// Longest condition unit in bytes.
-pub const MAX_CONDITION_UNIT: usize = 16;
 
 /// The declared direction of each coefficient's monotonicity prior in `alpha` (the second
 /// conditions of eqs. 31, 37 and 38).
@@ -471,159 +413,6 @@ impl AlphaBranches {
     }
 }
 
-/// Why a model is not acceptable. Field names are those of the weight format.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ModelError {
-    /// A value that must be finite is NaN or infinite.
-    NonFinite {
-        /// Which field.
-        field: &'static str,
-    },
-    /// A value that must be positive is not.
-    NotPositive {
-        /// Which field.
-        field: &'static str,
-    },
-    /// A value that must not be negative is.
-    Negative {
-        /// Which field.
-        field: &'static str,
-    },
-    /// A static force ([`Extension::static_force`]) on the SEM, whose map already holds
-    /// every force of its data.
-    StaticForceOnSem,
-    /// A scale outside [`SCALE_RANGE`].
-    OutOfRange {
-        /// Which field.
-        field: &'static str,
-    },
-    /// A scaler's bounds are not `0 < s_min < s_max`.
-    BadScalerBounds {
-        /// Which scaler.
-        scaler: &'static str,
-    },
-    /// A scaler's MLP shape is invalid or over capacity.
-    Shape {
-        /// Which scaler.
-        scaler: &'static str,
-        /// What is wrong.
-        error: ShapeError,
-    },
-    /// A scaler's alpha branch is not acceptable.
-    Branch {
-        /// Which scaler.
-        scaler: &'static str,
-        /// What is wrong.
-        error: BranchError,
-    },
-    /// The condition's name is empty or too long, its unit too long, or its end points
-    /// coincide.
-    Condition {
-        /// Which field.
-        field: &'static str,
-    },
-    /// A scaler has the wrong number of inputs for its role.
-    WrongInputCount {
-        /// Which scaler.
-        scaler: &'static str,
-        /// Inputs its role needs.
-        expected: u8,
-        /// Inputs found.
-        found: u8,
-    },
-    /// The SEM map is invalid.
-    Sem(SemError),
-    /// The training alpha range is not `0 <= alpha_min <= alpha_max <= 1`.
-    AlphaRange,
-    /// A text field holds a control character.
-    ControlCharacter {
-        /// Which field.
-        field: &'static str,
-    },
-    /// The step is too long for the fastest time constant the model can reach.
-    UnstableStep {
-        /// Integration step \[s\].
-        dt_s: f32,
-        /// Fastest reachable time constant \[s\].
-        tau_min_s: f32,
-        /// Longest acceptable step \[s\].
-        max_dt_s: f32,
-        /// Scheme.
-        integrator: Integrator,
-    },
-}
-
-impl fmt::Display for ModelError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ModelError::NonFinite { field } => write!(f, "`{field}` holds a NaN or infinite value"),
-            ModelError::NotPositive { field } => write!(f, "`{field}` must be positive"),
-            ModelError::Negative { field } => write!(f, "`{field}` must not be negative"),
-            ModelError::StaticForceOnSem => write!(
-                f,
-                "the SEM takes no static force (its map already holds every force of its data)"
-            ),
-            ModelError::OutOfRange { field } => write!(
-                f,
-                "`{field}` must lie in [{:e}, {:e}] (SI units)",
-                SCALE_RANGE.0, SCALE_RANGE.1
-            ),
-            ModelError::BadScalerBounds { scaler } => {
-                write!(f, "scaler `{scaler}` needs bounds 0 < s_min < s_max")
-            }
-            ModelError::Shape { scaler, error } => match error {
-                ShapeError::DimensionOutOfRange => write!(
-                    f,
-                    "scaler `{scaler}`: inputs must be 1..=2, hidden width 1..=32, layers 1..=9"
-                ),
-                ShapeError::ParamCountMismatch { expected, found } => write!(
-                    f,
-                    "scaler `{scaler}`: its dimensions need {expected} parameters but it holds {found}"
-                ),
-                ShapeError::OverCapacity { needed, capacity } => write!(
-                    f,
-                    "scaler `{scaler}` needs {needed} parameters but this build holds at most {capacity} \
-                     (raise the capacity `P` of `Model<P>`/`Estimator<P>`)"
-                ),
-            },
-            ModelError::Branch { scaler, error } => {
-                write!(f, "alpha branch of `{scaler}`: {error}")
-            }
-            ModelError::Condition { field } => write!(
-                f,
-                "`{field}`: the condition needs a name of 1 to {MAX_CONDITION_NAME} bytes, a unit of \
-                 at most {MAX_CONDITION_UNIT} bytes and distinct values at alpha 0 and 1"
-            ),
-            ModelError::WrongInputCount {
-                scaler,
-                expected,
-                found,
-            } => write!(f, "scaler `{scaler}` must have {expected} input(s), has {found}"),
-            ModelError::Sem(e) => write!(f, "SEM map: {e:?}"),
-            ModelError::AlphaRange => {
-                write!(f, "training alpha range must satisfy 0 <= alpha_min <= alpha_max <= 1")
-            }
-            ModelError::ControlCharacter { field } => {
-                write!(f, "`{field}` holds a control character")
-            }
-            ModelError::UnstableStep {
-                dt_s,
-                tau_min_s,
-                max_dt_s,
-                integrator,
-            } => write!(
-                f,
-                "step {:.1} us is too long for {}: the model can reach a time constant of {:.2} us, \
-                 so the step must be at most {:.2} us (run faster, or retrain with tighter scaler bounds)",
-                dt_s * 1e6,
-                integrator.name(),
-                tau_min_s * 1e6,
-                max_dt_s * 1e6
-            ),
-        }
-    }
-}
-
 fn finite_positive(v: f32, field: &'static str) -> Result<(), ModelError> {
     if !v.is_finite() {
         Err(ModelError::NonFinite { field })
@@ -690,9 +479,44 @@ impl<const P: usize> Model<P> {
             alpha_max: 0.0,
         },
         body: Body::Sem(SemMap::empty()),
-        ext: Extension::EMPTY,
-        tables: StoredTables::EMPTY,
+        condition: Condition {
+            name: heapless::String::new(),
+            unit: heapless::String::new(),
+            at_alpha_0: 0.0,
+            at_alpha_1: 1.0,
+            priors: Priors::PAPER,
+        },
+        alpha_branches: AlphaBranches {
+            b_fl: None,
+            b_pr: None,
+            k_pr: None,
+        },
+        provenance: Provenance::empty(),
+        static_force: None,
     };
+
+    /// A model of the paper's kind: the oil-loss condition with the paper's priors
+    /// ([`Condition::default`]), no alpha branches, no provenance, no static force. Set
+    /// those fields to declare more.
+    pub fn new(
+        integrator: Integrator,
+        dt_s: f32,
+        scales: InputScales,
+        meta: Meta,
+        body: Body<P>,
+    ) -> Self {
+        Self {
+            integrator,
+            dt_s,
+            scales,
+            meta,
+            body,
+            condition: Condition::default(),
+            alpha_branches: AlphaBranches::default(),
+            provenance: Provenance::empty(),
+            static_force: None,
+        }
+    }
 
     /// The variant.
     pub fn kind(&self) -> ModelKind {
@@ -774,7 +598,7 @@ impl<const P: usize> Model<P> {
                     dt_s,
                     tau_min_s,
                     max_dt_s,
-                    integrator,
+                    integrator: integrator.name(),
                 });
             }
         }
@@ -818,11 +642,14 @@ impl<const P: usize> Model<P> {
                 check_scaler(k_pr, "k_pr", 2)?;
             }
         }
-        self.ext.validate()?;
-        self.ext
-            .alpha_branches
-            .validate(&self.body, &self.ext.condition.priors)?;
-        if self.ext.static_force.is_some() && matches!(self.body, Body::Sem(_)) {
+        self.condition.validate()?;
+        self.provenance.validate()?;
+        if let Some(s) = &self.static_force {
+            s.validate()?;
+        }
+        self.alpha_branches
+            .validate(&self.body, &self.condition.priors)?;
+        if self.static_force.is_some() && matches!(self.body, Body::Sem(_)) {
             return Err(ModelError::StaticForceOnSem);
         }
         self.check_step(self.integrator, self.dt_s)
@@ -838,10 +665,7 @@ impl<const P: usize> Model<P> {
                     v_st_m_s / self.scales.velocity_m_s,
                     alpha / self.scales.alpha,
                 ];
-                Some(
-                    emm.b_fl_ns_per_m
-                        * b_fl.scale_with(&x, self.ext.alpha_branches.b_fl.as_ref())?,
-                )
+                Some(emm.b_fl_ns_per_m * b_fl.scale_with(&x, self.alpha_branches.b_fl.as_ref())?)
             }
         }
     }
@@ -855,7 +679,7 @@ impl<const P: usize> Model<P> {
                 emm.b_pr_ns_per_m
                     * b_pr.scale_with(
                         &[alpha / self.scales.alpha],
-                        self.ext.alpha_branches.b_pr.as_ref(),
+                        self.alpha_branches.b_pr.as_ref(),
                     )?,
             ),
         }
@@ -868,10 +692,7 @@ impl<const P: usize> Model<P> {
             Body::LinearEmm(e) | Body::NemmLight { emm: e, .. } => Some(e.k_pr_n_per_m),
             Body::Nemm { emm, k_pr, .. } => {
                 let x = [x_pr_m / self.scales.x_pr_m, alpha / self.scales.alpha];
-                Some(
-                    emm.k_pr_n_per_m
-                        * k_pr.scale_with(&x, self.ext.alpha_branches.k_pr.as_ref())?,
-                )
+                Some(emm.k_pr_n_per_m * k_pr.scale_with(&x, self.alpha_branches.k_pr.as_ref())?)
             }
         }
     }

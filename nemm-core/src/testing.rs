@@ -7,9 +7,7 @@
 use crate::emm::EmmConstants;
 use crate::integrator::Integrator;
 use crate::mlp::{branch_param_count, param_count, AlphaBranch, Direction, MlpParams, Scaler};
-use crate::model::{
-    AlphaBranches, Body, Condition, Extension, InputScales, Meta, Model, ModelKind, Priors,
-};
+use crate::model::{AlphaBranches, Body, Condition, InputScales, Meta, Model, ModelKind, Priors};
 use crate::sem::SemMap;
 
 /// Constants of the examples: `b_fl` 2500 N s/m, `b_pr` 1500 N s/m, `k_pr` 4e5 N/m,
@@ -125,8 +123,10 @@ pub fn example_model<const P: usize>(kind: ModelKind, hidden: u8, layers: u8) ->
             alpha_max: 0.3,
         },
         body,
-        ext: Extension::default(),
-        tables: crate::stored_tables::StoredTables::EMPTY,
+        condition: Condition::default(),
+        alpha_branches: AlphaBranches::default(),
+        provenance: crate::Provenance::empty(),
+        static_force: None,
     })
 }
 
@@ -182,14 +182,11 @@ pub fn example_model_with_branches<const P: usize>(
             *slot = Some(example_branch(dir, state, units, seed)?);
         }
     }
-    m.ext = Extension {
-        condition: Condition {
-            priors,
-            ..Condition::default()
-        },
-        alpha_branches: branches,
-        ..Extension::default()
+    m.condition = Condition {
+        priors,
+        ..Condition::default()
     };
+    m.alpha_branches = branches;
     Some(m)
 }
 /// An example static force (gas offset -90 N at x_ref = 30 mm, gas spring 800 N/m, seal

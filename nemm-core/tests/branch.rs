@@ -5,8 +5,8 @@
 mod common;
 
 use common::blob_of;
-use nemm_core::mlp::{AlphaBranch, BranchError, CompiledScaler, Direction};
 use nemm_core::model::{ModelError, Priors};
+use nemm_core::semantics::mlp::{AlphaBranch, BranchError, CompiledScaler, Direction};
 use nemm_core::testing::{example_branch, example_model_with_branches};
 use nemm_core::{
     decode, encode, Body, Condition, DecodeError, Estimator, EstimatorConfig, EvalMode, Model,
@@ -47,7 +47,7 @@ proptest! {
         let mut m: Model<P> =
             example_model_with_branches(hidden, 3, units, priors(d_fl, d_pr, d_k)).unwrap();
         // Different weights per case: scramble the branches with the seed.
-        let br = &mut m.ext.alpha_branches;
+        let br = &mut m.alpha_branches;
         for (slot, dir, state, s) in [
             (&mut br.b_fl, d_fl, 1u8, 1u64),
             (&mut br.b_pr, d_pr, 0, 2),
@@ -96,7 +96,7 @@ fn compiled_branch_matches_the_reference() {
     let Body::Nemm { emm, b_fl, .. } = &m.body else {
         panic!("nemm")
     };
-    let branch = m.ext.alpha_branches.b_fl.as_ref();
+    let branch = m.alpha_branches.b_fl.as_ref();
     let sc = m.scales;
     let mut c = CompiledScaler::compile_with_branch(
         b_fl,
@@ -176,9 +176,8 @@ fn condition_and_branches_round_trip() {
         ),
     )
     .unwrap();
-    m.ext.condition =
-        Condition::new("gas charge", "psi", 150.0, 50.0, m.ext.condition.priors).unwrap();
-    assert!(m.ext.alpha_branches.b_pr.is_none());
+    m.condition = Condition::new("gas charge", "psi", 150.0, 50.0, m.condition.priors).unwrap();
+    assert!(m.alpha_branches.b_pr.is_none());
     let blob = blob_of(&m);
     assert_eq!(
         nemm_core::read_header(&blob).unwrap().version,
@@ -186,8 +185,8 @@ fn condition_and_branches_round_trip() {
     );
     let back: Model<P> = decode(&blob).unwrap();
     assert_eq!(back, m);
-    assert_eq!(back.ext.condition.name.as_str(), "gas charge");
-    assert_eq!(back.ext.condition.value_at(0.5), 100.0);
+    assert_eq!(back.condition.name.as_str(), "gas charge");
+    assert_eq!(back.condition.value_at(0.5), 100.0);
 }
 
 fn branched() -> Model<P> {
@@ -216,11 +215,11 @@ fn refused(m: &Model<P>) -> ModelError {
 fn corrupt_branches_are_refused() {
     let branch_err = |scaler, error| ModelError::Branch { scaler, error };
     let mut m = branched();
-    m.ext.alpha_branches.b_fl.as_mut().unwrap().params[3] = f32::NAN;
+    m.alpha_branches.b_fl.as_mut().unwrap().params[3] = f32::NAN;
     assert_eq!(refused(&m), branch_err("b_fl", BranchError::NonFinite));
 
     let mut m = branched();
-    m.ext.alpha_branches.k_pr.as_mut().unwrap().params.pop();
+    m.alpha_branches.k_pr.as_mut().unwrap().params.pop();
     assert!(matches!(
         refused(&m),
         ModelError::Branch {
@@ -230,18 +229,18 @@ fn corrupt_branches_are_refused() {
     ));
 
     let mut m = branched();
-    m.ext.alpha_branches.b_pr.as_mut().unwrap().direction = Direction::Increasing;
+    m.alpha_branches.b_pr.as_mut().unwrap().direction = Direction::Increasing;
     assert_eq!(
         refused(&m),
         branch_err("b_pr", BranchError::DirectionMismatch)
     );
 
     let mut m = branched();
-    m.ext.alpha_branches.b_pr.as_mut().unwrap().direction = Direction::None;
+    m.alpha_branches.b_pr.as_mut().unwrap().direction = Direction::None;
     assert_eq!(refused(&m), branch_err("b_pr", BranchError::NoDirection));
 
     let mut m = branched();
-    m.ext.alpha_branches.b_pr = m.ext.alpha_branches.b_fl.clone();
+    m.alpha_branches.b_pr = m.alpha_branches.b_fl.clone();
     assert_eq!(
         refused(&m),
         branch_err("b_pr", BranchError::WrongStateInputs { expected: 0 })
@@ -258,18 +257,18 @@ fn corrupt_branches_are_refused() {
 
     let mut m: Model<P> =
         nemm_core::testing::example_model(nemm_core::ModelKind::NemmLight, 8, 3).unwrap();
-    m.ext.alpha_branches.k_pr = Some(example_branch(Direction::Decreasing, 1, 4, 1).unwrap());
+    m.alpha_branches.k_pr = Some(example_branch(Direction::Decreasing, 1, 4, 1).unwrap());
     assert_eq!(refused(&m), branch_err("k_pr", BranchError::NoScaler));
 
     let mut m = branched();
-    m.ext.alpha_branches.b_fl.as_mut().unwrap().units = 40;
+    m.alpha_branches.b_fl.as_mut().unwrap().units = 40;
     assert_eq!(
         refused(&m),
         branch_err("b_fl", BranchError::DimensionOutOfRange)
     );
 
     let mut m = branched();
-    m.ext.condition.at_alpha_1 = m.ext.condition.at_alpha_0;
+    m.condition.at_alpha_1 = m.condition.at_alpha_0;
     assert!(matches!(refused(&m), ModelError::Condition { .. }));
 
     assert!(matches!(
@@ -293,7 +292,6 @@ fn decoder_refuses_a_blob_with_a_corrupt_branch() {
     let n = blob.len() - 4;
     let mut bad = blob.clone();
     let last = m
-        .ext
         .alpha_branches
         .k_pr
         .as_ref()

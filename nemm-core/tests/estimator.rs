@@ -5,9 +5,9 @@
 mod common;
 
 use common::{boxed, example, reference_run, stroke, table1_grid, KINDS, P};
-use nemm_core::emm::{Coefficients, State};
-use nemm_core::integrator::{self, StepSize};
 use nemm_core::model::{ModelError, STABILITY_MARGIN};
+use nemm_core::semantics::emm::{Coefficients, State};
+use nemm_core::semantics::integrator::{self, StepSize};
 use nemm_core::DEFAULT_TABLE_SEGMENTS;
 use nemm_core::{
     Body, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags, Integrator, Model, ModelKind,
@@ -171,7 +171,7 @@ proptest! {
         if dt <= max_dt {
             prop_assert!(r.is_ok(), "{:?}", r.err());
         } else {
-            let want = ModelError::UnstableStep { dt_s: dt, tau_min_s: tau, max_dt_s: max_dt, integrator };
+            let want = ModelError::UnstableStep { dt_s: dt, tau_min_s: tau, max_dt_s: max_dt, integrator: integrator.name() };
             prop_assert_eq!(r.err(), Some(EstimatorError::Model(want)));
             let mut bad = m.clone();
             bad.dt_s = dt;
@@ -289,7 +289,7 @@ fn short_time_constant_is_refused() {
         dt_s: m.dt_s,
         tau_min_s: tau,
         max_dt_s: STABILITY_MARGIN * 2.785 * tau,
-        integrator: Integrator::Rk4,
+        integrator: Integrator::Rk4.name(),
     };
     assert_eq!(m.validate(), Err(want));
     assert_eq!(
@@ -486,7 +486,7 @@ fn static_force_adds_r() {
         for mode in [EvalMode::Exact, EvalMode::Table(TableConfig::new(1e-4))] {
             let plain = example(kind);
             let mut with = plain.clone();
-            with.ext.static_force = Some(SF);
+            with.static_force = Some(SF);
             let cfg = EstimatorConfig {
                 mode,
                 ..EstimatorConfig::new(alpha)
@@ -533,7 +533,7 @@ fn static_force_adds_r() {
     }
     // A per-sample condition level with the position (exact mode).
     let mut with = example(ModelKind::Nemm);
-    with.ext.static_force = Some(SF);
+    with.static_force = Some(SF);
     let mut e = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, EstimatorConfig::new(0.0)).unwrap();
     let mut plain =
         boxed::<DEFAULT_TABLE_SEGMENTS>(&example(ModelKind::Nemm), EstimatorConfig::new(0.0))
@@ -560,7 +560,7 @@ proptest! {
     ) {
         let plain = example(ModelKind::LinearEmm);
         let mut with = plain.clone();
-        with.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+        with.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
         let mut e0 = boxed::<DEFAULT_TABLE_SEGMENTS>(&plain, EstimatorConfig::new(0.1)).unwrap();
         let mut e1 = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, EstimatorConfig::new(0.1)).unwrap();
         for (&x, &v) in xs.iter().zip(vs.iter().cycle()) {

@@ -7,8 +7,8 @@ mod common;
 
 use common::{blob_of, craft_blob, fix_crc, ModelSpec, KINDS, P};
 use nemm_core::format::{CRC_LEN, MAX_HEADER_LEN};
-use nemm_core::mlp::ShapeError;
 use nemm_core::model::ModelError;
+use nemm_core::semantics::mlp::ShapeError;
 use nemm_core::{
     decode, encode, read_header, Body, DecodeError, EncodeError, Estimator, EstimatorConfig, Model,
     ModelKind, FORMAT_VERSION,
@@ -346,7 +346,7 @@ fn invalid_contents_are_refused() {
                 dt_s: 1e-4,
                 tau_min_s: 1e-5,
                 max_dt_s: 0.8 * 2.785 * 1e-5,
-                integrator: nemm_core::Integrator::Rk4,
+                integrator: nemm_core::Integrator::Rk4.name(),
             },
         ),
     ];
@@ -528,8 +528,19 @@ fn check_old_blobs(dir: &std::path::Path, version: u16) {
         let model: Model<1400> = decode(&v1).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
         let expected: Model<1400> = nemm_core::testing::example_model(kind, 16, 5).unwrap();
         assert_eq!(model, expected, "{kind:?}");
-        assert_eq!(model.ext, nemm_core::Extension::default());
-        assert!(model.tables.levels.is_empty());
+        let paper = nemm_core::Model::<1400>::new(
+            model.integrator,
+            model.dt_s,
+            model.scales,
+            model.meta,
+            model.body.clone(),
+        );
+        assert_eq!(
+            model, paper,
+            "a version-1 blob reads as the paper's oil-loss model"
+        );
+        let (_, tables) = nemm_core::decode_with_tables::<1400>(&v1).unwrap();
+        assert!(tables.levels.is_empty());
         let again = blob_of(&model);
         assert_eq!(read_header(&again).unwrap().version, FORMAT_VERSION);
         assert_eq!(decode::<1400>(&again).unwrap(), model);
@@ -543,22 +554,23 @@ fn provenance_round_trips_and_is_validated() {
     use nemm_core::model::{Provenance, PROVENANCE_COMMIT_LEN};
     let mut model: Model<1400> = nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
     let long_commit = "0123456789abcdef".repeat(8);
-    model.ext.provenance = Provenance::new(
+    model.provenance = Provenance::new(
         "nemm train --data bench\nx --out m.nemm",
         "virtual bench, seed 1",
         &long_commit,
     );
-    assert_eq!(model.ext.provenance.commit.len(), PROVENANCE_COMMIT_LEN);
-    assert!(long_commit.starts_with(model.ext.provenance.commit.as_str()));
+    assert_eq!(model.provenance.commit.len(), PROVENANCE_COMMIT_LEN);
+    assert!(long_commit.starts_with(model.provenance.commit.as_str()));
     let blob = blob_of(&model);
     let back: Model<1400> = decode(&blob).unwrap();
-    assert_eq!(back.ext, model.ext);
-    assert!(!back.ext.provenance.is_empty());
+    assert_eq!(back.provenance, model.provenance);
+    assert_eq!(back.condition, model.condition);
+    assert!(!back.provenance.is_empty());
     // Control characters are replaced on construction...
     let p = Provenance::new("a\tb", "", "");
     assert_eq!(p.command.as_str(), "a b");
     // ... and refused in a blob.
-    model.ext.provenance.dataset = heapless::String::try_from("line\nbreak").unwrap();
+    model.provenance.dataset = heapless::String::try_from("line\nbreak").unwrap();
     assert_eq!(
         model.validate(),
         Err(ModelError::ControlCharacter {
@@ -574,7 +586,7 @@ fn static_force_round_trips_and_is_validated() {
     let sf = nemm_core::testing::EXAMPLE_STATIC_FORCE;
     for kind in KINDS {
         let mut m: Model<64> = nemm_core::testing::example_model(kind, 2, 1).unwrap();
-        m.ext.static_force = Some(sf);
+        m.static_force = Some(sf);
         if kind == ModelKind::Sem {
             assert_eq!(m.validate(), Err(ModelError::StaticForceOnSem));
             let blob = craft_blob(&m, |_| {});
@@ -586,7 +598,7 @@ fn static_force_round_trips_and_is_validated() {
         }
         let blob = blob_of(&m);
         let back = decode::<64>(&blob).unwrap();
-        assert_eq!(back.ext.static_force, Some(sf), "{kind:?}");
+        assert_eq!(back.static_force, Some(sf), "{kind:?}");
         assert_eq!(back, m);
     }
     let base: Model<64> = nemm_core::testing::example_model(ModelKind::LinearEmm, 2, 1).unwrap();
@@ -621,7 +633,7 @@ fn static_force_round_trips_and_is_validated() {
         let mut m = base.clone();
         let mut s = sf;
         edit(&mut s);
-        m.ext.static_force = Some(s);
+        m.static_force = Some(s);
         assert_eq!(encode(&m, &mut [0u8; 512]), Err(EncodeError::Invalid(err)));
         let blob = craft_blob(&m, |_| {});
         assert_eq!(decode::<64>(&blob), Err(DecodeError::Invalid(err)));
@@ -637,21 +649,21 @@ fn static_force_decodes_in_place_with_the_version_3_fields() {
     let sf = nemm_core::testing::EXAMPLE_STATIC_FORCE;
     let mut m: Model<1400> =
         nemm_core::testing::example_model_with_branches(16, 5, 4, Priors::PAPER).unwrap();
-    m.ext.provenance = Provenance::new("nemm train --static-force", "bench", "abc");
-    m.ext.static_force = Some(sf);
+    m.provenance = Provenance::new("nemm train --static-force", "bench", "abc");
+    m.static_force = Some(sf);
     let blob = blob_of(&m);
     let mut into: Box<Model<1400>> = Box::new(Model::empty());
-    into.ext.static_force = Some(sf.with_params([1.0, 2.0, 3.0, 4.0, 5.0]));
+    into.static_force = Some(sf.with_params([1.0, 2.0, 3.0, 4.0, 5.0]));
     nemm_core::decode_into(&blob, &mut into).unwrap();
     assert_eq!(*into, m);
-    assert!(into.ext.alpha_branches.b_fl.is_some());
+    assert!(into.alpha_branches.b_fl.is_some());
     let v3 = std::fs::read(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("tests/data/format-v3/example-nemm.nemm"),
     )
     .unwrap();
     nemm_core::decode_into(&v3, &mut into).unwrap();
-    assert_eq!(into.ext.static_force, None);
+    assert_eq!(into.static_force, None);
     assert_eq!(
         *into,
         nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap()

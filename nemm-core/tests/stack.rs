@@ -135,15 +135,15 @@ fn decoding_and_loading_in_place_use_bounded_stack() {
     // Made on a thread of the measuring size: an unoptimised build needs more than the
     // 2 MiB of a test thread to build the tables and encode them.
     let m = model.clone();
-    let (tables_blob, with_tables) = std::thread::Builder::new()
+    let (tables_blob, (with_tables, index)) = std::thread::Builder::new()
         .stack_size(STACK)
         .spawn(move || {
             let mut built: Box<Estimator<P>> = Box::new(Estimator::empty());
             built.load(&m, table_mode(0.15)).expect("loads");
             let blob = common::blob_with_tables(&m, &[&*built]).expect("encodes");
             let mut with_tables: Box<Model<P>> = Box::new(Model::empty());
-            decode_into(&blob, &mut with_tables).expect("decodes");
-            (blob, with_tables)
+            let index = decode_into(&blob, &mut with_tables).expect("decodes");
+            (blob, (with_tables, index))
         })
         .expect("thread")
         .join()
@@ -158,7 +158,7 @@ fn decoding_and_loading_in_place_use_bounded_stack() {
     assert!(in_place <= in_place_bound, "{in_place} > {in_place_bound}");
     let mut est: Box<Estimator<P>> = Box::new(Estimator::empty());
     let bytes = peak_stack(move || {
-        est.load_with_tables(&with_tables, table_mode(0.15), &tables_blob)
+        est.load_with_tables(&with_tables, table_mode(0.15), &index, &tables_blob)
             .expect("loads");
         assert_eq!(est.table_origin(), nemm_core::TableOrigin::Stored);
     });

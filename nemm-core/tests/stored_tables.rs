@@ -6,11 +6,12 @@
 mod common;
 
 use common::{blob_of, blob_with_tables, fix_crc};
+use nemm_core::format::tables::MAX_TABLE_LEVELS;
 use nemm_core::format::CRC_LEN;
-use nemm_core::stored_tables::MAX_TABLE_LEVELS;
 use nemm_core::{
-    decode, read_header, DecodeError, EncodeError, Estimator, EstimatorConfig, EvalMode, Model,
-    ModelKind, StoredUnused, TableConfig, TableOrigin, FORMAT_VERSION,
+    decode, decode_into, decode_with_tables, read_header, DecodeError, EncodeError, Estimator,
+    EstimatorConfig, EvalMode, Model, ModelKind, StoredUnused, TableConfig, TableOrigin,
+    FORMAT_VERSION,
 };
 
 const P: usize = 1400;
@@ -50,9 +51,10 @@ fn blob_with<const S: usize>(m: &Model<P>, alphas: &[f32]) -> Vec<u8> {
 
 /// Loads `blob` (decoded) into an estimator with `S` segments at `cfg`, with the blob.
 fn loaded<const S: usize>(blob: &[u8], cfg: EstimatorConfig) -> Box<Est<S>> {
-    let m: Box<Model<P>> = Box::new(decode(blob).expect("decodes"));
+    let mut m: Box<Model<P>> = Box::new(Model::empty());
+    let tables = decode_into(blob, &mut m).expect("decodes");
     let mut e: Box<Est<S>> = Box::new(Estimator::empty());
-    e.load_with_tables(&m, cfg, blob).expect("loads");
+    e.load_with_tables(&m, cfg, &tables, blob).expect("loads");
     e
 }
 
@@ -78,11 +80,13 @@ fn stored_tables_are_the_built_ones_bit_for_bit() {
         let m = model(kind);
         let blob = blob_with::<T>(&m, &[0.15, 0.3]);
         assert_eq!(read_header(&blob).unwrap().version, FORMAT_VERSION);
-        let back: Box<Model<P>> = Box::new(decode(&blob).unwrap());
-        assert_eq!(back.tables.levels.len(), 2);
-        assert_eq!(back.tables.blob_len as usize, blob.len());
+        let mut back: Box<Model<P>> = Box::new(Model::empty());
+        let tables = decode_into(&blob, &mut back).unwrap();
+        assert_eq!(tables.levels.len(), 2);
+        assert_eq!(tables.blob_len as usize, blob.len());
         for alpha in [0.15f32, 0.3] {
-            let level = back.tables.find(&table_cfg(alpha), T, &blob).unwrap();
+            let tc = TableConfig::new(1e-4);
+            let level = tables.find(alpha, &tc, T, &blob).unwrap();
             assert_eq!((level.segments as usize, level.alpha), (T, alpha));
             assert!(level.b_fl.is_some());
             assert_eq!(level.k_pr.is_some(), kind == ModelKind::Nemm);
@@ -101,7 +105,8 @@ fn stored_tables_are_the_built_ones_bit_for_bit() {
         // The model part is the model: the blob without tables decodes to the same model.
         let plain: Model<P> = decode(&blob_of(&*m)).unwrap();
         assert_eq!(plain.body, back.body);
-        assert!(plain.tables.levels.is_empty());
+        let (_, plain_tables) = decode_with_tables::<P>(&blob_of(&*m)).unwrap();
+        assert!(plain_tables.levels.is_empty());
     }
 }
 
@@ -139,9 +144,10 @@ fn other_configurations_build_their_tables_and_say_why() {
     assert_same_run(&mut e, &mut built::<256>(&m, table_cfg(0.15)));
     // A model decoded from another blob: the tables are not taken from it.
     let other = blob_with::<T>(&m, &[0.3]);
-    let decoded: Box<Model<P>> = Box::new(decode(&other).unwrap());
+    let mut decoded: Box<Model<P>> = Box::new(Model::empty());
+    let other_tables = decode_into(&other, &mut decoded).unwrap();
     let mut e: Box<Est<T>> = Box::new(Estimator::empty());
-    e.load_with_tables(&decoded, table_cfg(0.15), &blob)
+    e.load_with_tables(&decoded, table_cfg(0.15), &other_tables, &blob)
         .unwrap();
     assert_eq!(
         e.table_origin(),
@@ -212,7 +218,7 @@ fn a_damaged_section_is_refused_by_the_crc_and_never_panics() {
         // Past the CRC: a typed error, or a model whose estimator runs (reading its tables
         // or, if they do not read back, building them).
         fix_crc(&mut bad);
-        match decode::<P>(&bad) {
+        match decode_with_tables::<P>(&bad) {
             Err(e) => {
                 refused += 1;
                 assert!(
@@ -220,10 +226,12 @@ fn a_damaged_section_is_refused_by_the_crc_and_never_panics() {
                     "byte {i}: {e:?}"
                 );
             }
-            Ok(dm) => {
+            Ok((dm, tables)) => {
                 let dm = Box::new(dm);
                 let mut e: Box<Est<T>> = Box::new(Estimator::empty());
-                if e.load_with_tables(&dm, table_cfg(0.15), &bad).is_ok() {
+                if e.load_with_tables(&dm, table_cfg(0.15), &tables, &bad)
+                    .is_ok()
+                {
                     for k in 0..200 {
                         assert!(e.step(velocity(k)).force_n.is_finite());
                     }

@@ -71,7 +71,7 @@ pub fn stack_used() -> u32 {
 /// are built in place (`nemm_core::decode_into`, `nemm_core::Estimator::load`), so the boot
 /// stack does not grow with `P` (`cargo xtask build-target` prints it, `boot-stack bytes=`).
 /// A larger `P` costs 24 bytes of RAM per parameter.
-pub const PARAM_CAPACITY: usize = nemm_core::mlp::param_count(2, 16, 5);
+pub const PARAM_CAPACITY: usize = nemm_core::param_count(2, 16, 5);
 
 /// Bound of the tabulated fast path: each table's largest relative error against its exact
 /// scaler (measured at boot on a grid 128x finer than the table; a model whose tables miss it

@@ -27,7 +27,7 @@ mod app {
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m::peripheral::SYST;
     use heapless::spsc::{Consumer, Producer, Queue};
-    use nemm_core::{decode_into, DecodeError, EstimatorConfig, Model};
+    use nemm_core::{decode_into, DecodeError, EstimatorConfig, Model, StoredTables};
     use nemm_firmware::board::{self, Console, Sensor, FORCE_OUTPUT, PERIOD_TICKS};
     use nemm_firmware::options::Options;
     use nemm_firmware::pipeline::{self, ChunkDigest, SensorCounters, DIGEST_CHUNK_STEPS};
@@ -102,13 +102,16 @@ mod app {
     static CHUNK_DIGESTS: [AtomicU32; MAX_CHUNKS] = [const { AtomicU32::new(0) }; MAX_CHUNKS];
 
     /// Decodes and validates the weights into the model's static storage, in place: the one
-    /// place the blob is decoded.
-    fn load_model(blob: &[u8]) -> Result<&'static Model<PARAM_CAPACITY>, DecodeError> {
+    /// place the blob is decoded. Returns the model and the index of the blob's stored
+    /// tables.
+    fn load_model(
+        blob: &[u8],
+    ) -> Result<(&'static Model<PARAM_CAPACITY>, StoredTables), DecodeError> {
         let Some(model) = MODEL.init(Model::empty()) else {
             board::exit(report::EXIT_USAGE) // init runs once
         };
-        decode_into(blob, model)?;
-        Ok(model)
+        let tables = decode_into(blob, model)?;
+        Ok((model, tables))
     }
 
     #[init]
@@ -166,8 +169,8 @@ mod app {
                 return (Shared {}, no_estimator(console));
             }
         };
-        let model = match load_model(blob) {
-            Ok(m) => m,
+        let (model, tables) = match load_model(blob) {
+            Ok(loaded) => loaded,
             Err(e) => {
                 let mut l = Line::new();
                 report::decode_error(&mut l, &e);
@@ -190,7 +193,7 @@ mod app {
             board::exit(report::EXIT_USAGE) // init runs once
         };
         // The blob's stored tables at this alpha, if it has them (no table build at boot).
-        if let Err(e) = estimator.load_with_tables(model, cfg, blob) {
+        if let Err(e) = estimator.load_with_tables(model, cfg, &tables, blob) {
             let mut l = Line::new();
             report::estimator_error(&mut l, &e);
             console.write(l.finish());

@@ -254,10 +254,10 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         .ok();
     // The same model; each blob's provenance names the command that wrote it.
     let (mut from_ckpt, mut trained) = (decode_file(&exported), decode_file(&model));
-    assert!(from_ckpt.ext.provenance.command.starts_with("nemm export"));
-    assert!(trained.ext.provenance.command.starts_with("nemm train"));
-    from_ckpt.ext.provenance = Default::default();
-    trained.ext.provenance = Default::default();
+    assert!(from_ckpt.provenance.command.starts_with("nemm export"));
+    assert!(trained.provenance.command.starts_with("nemm train"));
+    from_ckpt.provenance = Default::default();
+    trained.provenance = Default::default();
     assert_eq!(
         from_ckpt, trained,
         "export from the checkpoint writes the trained model"
@@ -320,7 +320,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     // The same model (the provenance records each run's own command line).
     let without_provenance = |path: &Path| {
         let mut m = decode_file(path);
-        m.ext.provenance = Default::default();
+        m.provenance = Default::default();
         m
     };
     assert_eq!(
@@ -347,21 +347,17 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         .arg("256")
         .ok();
     let blob = std::fs::read(&with_tables).expect("the blob");
-    let tabled = decode_file(&with_tables);
+    let (tabled, index): (nemm_core::Model, _) =
+        nemm_core::decode_with_tables(&blob).expect("the blob decodes");
     assert_eq!(tabled.body, decode_file(&exported).body);
-    let levels: Vec<(f32, u32)> = tabled
-        .tables
-        .levels
-        .iter()
-        .map(|l| (l.alpha, l.segments))
-        .collect();
+    let levels: Vec<(f32, u32)> = index.levels.iter().map(|l| (l.alpha, l.segments)).collect();
     assert_eq!(levels, [(0.1, 256), (0.2, 256)]);
     let cfg = nemm_core::EstimatorConfig {
         mode: nemm_core::EvalMode::Table(nemm_core::TableConfig::new(1e-4)),
         ..nemm_core::EstimatorConfig::new(0.2)
     };
     let mut est: Box<nemm_core::Estimator> = Box::new(nemm_core::Estimator::empty());
-    est.load_with_tables(&tabled, cfg, &blob)
+    est.load_with_tables(&tabled, cfg, &index, &blob)
         .expect("the estimator loads");
     assert_eq!(est.table_origin(), nemm_core::TableOrigin::Stored);
     let inspect = Nemm::new(&["inspect"]).arg(&with_tables).ok();

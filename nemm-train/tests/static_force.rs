@@ -55,8 +55,8 @@ fn static_force_takes_the_gas_force_of_an_untared_load_cell() {
         |m: &Model| rmse_model(m, &p.test, p.dt_s, p.warmup_samples, fs).expect("evaluation") * fs;
     let without = linear_emm(&p, false);
     let with = linear_emm(&p, true);
-    assert!(without.ext.static_force.is_none());
-    let sf = with.ext.static_force.expect("a static force");
+    assert!(without.static_force.is_none());
+    let sf = with.static_force.expect("a static force");
     let (e0, e1) = (rmse(&without), rmse(&with));
     eprintln!(
         "offsets_300hz, Linear EMM, held-out RMSE: {e0:.1} N without, {e1:.1} N with the static \

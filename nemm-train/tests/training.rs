@@ -1,10 +1,8 @@
 //! End-to-end checks of the training pipeline on data whose truth is known.
 use burn::tensor::Device;
-use nemm_core::emm::EmmConstants;
+use nemm_core::semantics::emm::EmmConstants;
 use nemm_core::ModelKind;
-use nemm_core::{
-    Body, Estimator, EstimatorConfig, Extension, InputScales, Integrator, Meta, Model,
-};
+use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
 use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
 use nemm_train::train::adjoint::{Grid, RolloutParams};
@@ -37,8 +35,10 @@ fn truth() -> Model {
             k_pr_n_per_m: 1.5e5,
             t_pr_s: 0.002,
         }),
-        ext: Extension::default(),
-        tables: nemm_core::stored_tables::StoredTables::EMPTY,
+        condition: Default::default(),
+        alpha_branches: Default::default(),
+        provenance: Default::default(),
+        static_force: None,
     }
 }
 
@@ -381,7 +381,7 @@ fn alpha_branch_keeps_the_trained_model_clean_in_alpha_without_a_penalty() {
     let r = fit(net, &frame, data, &cfg, None, false, &device).expect("fit");
     let trained = r.best.to_rollout(&frame);
     let model = nemm_train::train::params::to_core(&trained, truth().meta).expect("valid model");
-    assert!(model.ext.alpha_branches.b_fl.is_some());
+    assert!(model.alpha_branches.b_fl.is_some());
     // The branch was trained (not left at its initial values).
     assert_ne!(
         trained.b_fl.as_ref().map(|s| s.branch_w().to_vec()),

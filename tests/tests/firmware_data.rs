@@ -49,7 +49,7 @@ fn the_trained_blob_decodes_and_records_its_provenance() {
     let blob = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let model: Model<PARAM_CAPACITY> = decode(&blob).expect("decodes at the firmware's P");
     assert_eq!(model.kind(), ModelKind::Nemm);
-    let p = &model.ext.provenance;
+    let p = &model.provenance;
     assert!(
         p.command.starts_with("nemm train ") && !p.dataset.is_empty() && !p.commit.is_empty(),
         "{p:?}"

@@ -34,7 +34,7 @@ const TOLERANCE: f64 = 0.025;
 #[ignore = "needs the firmware images: run by `cargo xtask test`"]
 fn the_embedded_model_is_what_its_recorded_command_trains() {
     let e = Embedded::from_env();
-    let p = &e.model.ext.provenance;
+    let p = &e.model.provenance;
     assert!(!p.is_empty(), "the embedded blob records no provenance");
     eprintln!(
         "qemu_model: embedded blob: command `{}`, dataset `{}`, commit {}",

@@ -218,11 +218,14 @@ mod app {
         let Some(model) = MODEL.init(Model::empty()) else {
             crate::stop() // init runs once
         };
-        if let Err(e) = decode_into(blob, model) {
-            let mut l = Line::new();
-            report::decode_error(&mut l, &e);
-            return stopped(console, leds, &mut l);
-        }
+        let tables = match decode_into(blob, model) {
+            Ok(tables) => tables,
+            Err(e) => {
+                let mut l = Line::new();
+                report::decode_error(&mut l, &e);
+                return stopped(console, leds, &mut l);
+            }
+        };
         let model = &*model;
         let mut l = Line::new();
         if !report::check_rate(&mut l, model.dt_s) {
@@ -238,7 +241,7 @@ mod app {
             crate::stop() // init runs once
         };
         // The blob's stored tables at this alpha, if it has them (no table build at boot).
-        if let Err(e) = estimator.load_with_tables(model, cfg, blob) {
+        if let Err(e) = estimator.load_with_tables(model, cfg, &tables, blob) {
             let mut l = Line::new();
             report::estimator_error(&mut l, &e);
             return stopped(console, leds, &mut l);

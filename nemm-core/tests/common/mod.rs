@@ -3,15 +3,15 @@
 //! weights), blob helpers, and a reference simulation of the EMM through the unfolded scalers.
 #![allow(dead_code)] // each test binary uses a different subset
 
-use nemm_core::emm::{self, Coefficients, EmmConstants, State};
 use nemm_core::format::{CRC, CRC_LEN, MAGIC};
-use nemm_core::integrator::{self, StepSize};
-use nemm_core::mlp::{param_count, MlpParams, Scaler};
 use nemm_core::model::STABILITY_MARGIN;
+use nemm_core::semantics::emm::{self, Coefficients, EmmConstants, State};
+use nemm_core::semantics::integrator::{self, StepSize};
+use nemm_core::semantics::mlp::{param_count, MlpParams, Scaler};
 use nemm_core::testing::hash_unit;
 use nemm_core::{
-    encode, Body, Estimator, EstimatorConfig, EstimatorError, Extension, Header, InputScales,
-    Integrator, Meta, Model, ModelKind, SemMap, FORMAT_VERSION,
+    encode, Body, Estimator, EstimatorConfig, EstimatorError, Header, InputScales, Integrator,
+    Meta, Model, ModelKind, SemMap, FORMAT_VERSION,
 };
 use proptest::prelude::*;
 
@@ -65,14 +65,14 @@ pub fn blob_with_tables<const Q: usize, const S: usize>(
     m: &Model<Q>,
     levels: &[&nemm_core::Estimator<Q, S>],
 ) -> Result<Vec<u8>, nemm_core::EncodeError> {
-    let mut buf = vec![0u8; nemm_core::format::encoded_len_with_tables(m, levels)?];
+    let mut buf = vec![0u8; nemm_core::encoded_len_with_tables(m, levels)?];
     let n = nemm_core::encode_with_tables(m, levels, &mut buf)?.len();
     buf.truncate(n);
     Ok(buf)
 }
 
 /// The blob layout of `nemm_core::format`, written independently of `encode` and without any
-/// validation: postcard header, postcard body (version-1 part, the extension, then the
+/// validation: postcard header, postcard body (version-1 part, the version-3 fields, then the
 /// version-4 static force), CRC-32 little-endian. Lets tests build
 /// well-formed blobs with contents `encode` refuses (NaN weights, unstable steps), or
 /// headers that disagree with the body.
@@ -82,9 +82,10 @@ pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) 
         .expect("body serialises")
         .to_vec();
     let mut ext = vec![0u8; 64 * 1024];
-    body.extend_from_slice(postcard::to_slice(&m.ext, &mut ext).expect("extension serialises"));
+    let v3 = (&m.condition, &m.alpha_branches, &m.provenance);
+    body.extend_from_slice(postcard::to_slice(&v3, &mut ext).expect("version-3 fields serialise"));
     body.extend_from_slice(
-        postcard::to_slice(&m.ext.static_force, &mut ext).expect("static force serialises"),
+        postcard::to_slice(&m.static_force, &mut ext).expect("static force serialises"),
     );
     // Version 4's tables section, without levels.
     body.push(0);
@@ -227,8 +228,10 @@ impl ModelSpec {
             scales: self.scales,
             meta: self.meta,
             body,
-            ext: Extension::default(),
-            tables: nemm_core::stored_tables::StoredTables::EMPTY,
+            condition: Default::default(),
+            alpha_branches: Default::default(),
+            provenance: Default::default(),
+            static_force: None,
         };
         if let Some(tau) = m.fastest_time_constant_s() {
             let max_dt = STABILITY_MARGIN * self.integrator.stability_limit() * tau;

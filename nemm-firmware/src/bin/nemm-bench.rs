@@ -54,7 +54,7 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::{entry, exception};
-use nemm_core::mlp::{CompiledScaler, Scaler};
+use nemm_core::semantics::mlp::{CompiledScaler, Scaler};
 use nemm_core::{decode, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind};
 use nemm_firmware::board::{self, Console};
 use nemm_firmware::report::{self, Line};
@@ -71,7 +71,7 @@ const SYST_RANGE: u32 = 1 << 24;
 const EXIT_CHECK_FAILED: u32 = 1;
 
 /// Evaluation modes of the scalers: the compiled MLPs, or the verified tables of
-/// `nemm_core::table` (256 segments, bound 1e-4 relative per coefficient).
+/// `nemm_core::semantics::table` (256 segments, bound 1e-4 relative per coefficient).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Mode {
     Exact,

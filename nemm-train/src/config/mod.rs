@@ -121,7 +121,7 @@ pub struct ModelConfig {
     /// Units `K` of each alpha branch.
     pub branch_units: usize,
     /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
-    /// position, `nemm_core::static_force`) to every EMM-family variant (docs/training.md,
+    /// position, `nemm_core::semantics::static_force`) to every EMM-family variant (docs/training.md,
     /// "The static force").
     pub static_force: bool,
 }
@@ -284,11 +284,13 @@ impl Config {
         if t.batch == 0 || m.hidden == 0 || m.layers == 0 {
             bail!("--batch, --hidden and --layers must be positive");
         }
-        if m.hidden > nemm_core::mlp::MAX_HIDDEN || m.layers > nemm_core::mlp::MAX_LAYERS {
+        if m.hidden > nemm_core::semantics::mlp::MAX_HIDDEN
+            || m.layers > nemm_core::semantics::mlp::MAX_LAYERS
+        {
             bail!(
                 "--hidden must be <= {} and --layers <= {} (the capacity of nemm-core)",
-                nemm_core::mlp::MAX_HIDDEN,
-                nemm_core::mlp::MAX_LAYERS
+                nemm_core::semantics::mlp::MAX_HIDDEN,
+                nemm_core::semantics::mlp::MAX_LAYERS
             );
         }
         if !(t.lambda_ph.is_finite() && t.lambda_ph >= 0.0) {

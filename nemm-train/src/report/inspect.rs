@@ -1,11 +1,14 @@
 //! `nemm inspect`: what is inside a weights blob.
 use anyhow::{Context, Result};
-use nemm_core::{decode, read_header, Body, Model, Scaler, DEFAULT_PARAM_CAPACITY};
+use nemm_core::{
+    decode_with_tables, read_header, Body, Model, Scaler, StoredTables, DEFAULT_PARAM_CAPACITY,
+};
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Describes a decoded model in a few lines (kind, integrator, constants, scalers, bounds).
-pub fn describe(model: &Model, blob_len: usize) -> String {
+/// Describes a decoded model and its blob's stored tables in a few lines (kind, integrator,
+/// constants, scalers, bounds, tables).
+pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "kind:            {}", model.kind().name());
     let _ = writeln!(s, "size:            {blob_len} bytes");
@@ -67,7 +70,7 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
             scaler(&mut s, "k_pr", k_pr);
         }
     }
-    let c = &model.ext.condition;
+    let c = &model.condition;
     let spec = crate::data::dataset::ConditionSpec::from_core(c);
     let _ = writeln!(
         s,
@@ -80,7 +83,7 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
         c.priors.k_pr.name(),
         u = c.unit
     );
-    let br = &model.ext.alpha_branches;
+    let br = &model.alpha_branches;
     for (name, b) in [("b_fl", &br.b_fl), ("b_pr", &br.b_pr), ("k_pr", &br.k_pr)] {
         if let Some(b) = b {
             let _ = writeln!(
@@ -91,7 +94,7 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
             );
         }
     }
-    match &model.ext.static_force {
+    match &model.static_force {
         None => {
             let _ = writeln!(s, "static force:    none");
         }
@@ -110,7 +113,7 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
             );
         }
     }
-    let p = &model.ext.provenance;
+    let p = &model.provenance;
     if p.is_empty() {
         let _ = writeln!(s, "provenance:      none recorded");
     } else {
@@ -125,13 +128,13 @@ pub fn describe(model: &Model, blob_len: usize) -> String {
         let _ = writeln!(s, "                 dataset {}", or_unknown(&p.dataset));
         let _ = writeln!(s, "                 commit  {}", or_unknown(&p.commit));
     }
-    if model.tables.levels.is_empty() {
+    if tables.levels.is_empty() {
         let _ = writeln!(
             s,
             "stored tables:   none (a table-mode estimator builds them)"
         );
     }
-    for level in &model.tables.levels {
+    for level in &tables.levels {
         let mut tables = Vec::new();
         for (name, t) in [("b_fl", &level.b_fl), ("k_pr", &level.k_pr)] {
             if let Some(t) = t {
@@ -169,8 +172,9 @@ pub fn run(path: &Path) -> Result<()> {
     let header = read_header(&blob).with_context(|| format!("{}", path.display()))?;
     println!("file:            {}", path.display());
     println!("format version:  {}", header.version);
-    let model: Model = decode(&blob).with_context(|| format!("{}", path.display()))?;
-    print!("{}", describe(&model, blob.len()));
+    let (model, tables): (Model, _) =
+        decode_with_tables(&blob).with_context(|| format!("{}", path.display()))?;
+    print!("{}", describe(&model, &tables, blob.len()));
     println!("CRC-32:          ok");
     Ok(())
 }
@@ -178,14 +182,15 @@ pub fn run(path: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::describe;
-    use nemm_core::{Model, ModelKind};
+    use nemm_core::{Model, ModelKind, StoredTables};
 
     #[test]
     fn the_static_force_is_described() {
         let mut m: Model = nemm_core::testing::example_model(ModelKind::Nemm, 4, 2).unwrap();
-        assert!(describe(&m, 0).contains("static force:    none"));
-        m.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
-        let text = describe(&m, 0);
+        let none = StoredTables::EMPTY;
+        assert!(describe(&m, &none, 0).contains("static force:    none"));
+        m.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+        let text = describe(&m, &none, 0);
         let f = nemm_core::testing::EXAMPLE_STATIC_FORCE;
         assert!(
             text.contains(&format!("gas force {} N", f.f_gas0_n))

@@ -25,7 +25,7 @@ fn example_16x5(kind: ModelKind, branches: bool, stat: bool) -> Model {
 
 /// The example model with the example static force.
 fn with_static(mut m: Model) -> Model {
-    m.ext.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+    m.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
     m
 }
 
@@ -235,7 +235,7 @@ fn branched(h: u8, l: u8, units: u8) -> Model {
 fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
     let mut m = m.clone();
     let integ = m.integrator;
-    let stat = m.ext.static_force.is_some();
+    let stat = m.static_force.is_some();
     // A longer step (still stable) so that 60 steps move the states well away from rest.
     m.dt_s = 5e-4;
     let p: RolloutParams<f64> = from_core(&m).expect("emm model");

@@ -4,11 +4,11 @@
 
 use super::adjoint::{BranchShape, Real, RolloutParams, ScalerWeights, StaticParams};
 use anyhow::{bail, Result};
-use nemm_core::emm::EmmConstants;
-use nemm_core::mlp::AlphaBranch;
+use nemm_core::semantics::emm::EmmConstants;
+use nemm_core::semantics::mlp::AlphaBranch;
 use nemm_core::{
-    AlphaBranches, Body, Condition, Extension, InputScales, Meta, MlpParams, Model, Scaler,
-    StaticForce, DEFAULT_PARAM_CAPACITY,
+    AlphaBranches, Body, Condition, InputScales, Meta, MlpParams, Model, Scaler, StaticForce,
+    DEFAULT_PARAM_CAPACITY,
 };
 
 fn scaler_from_core<T: Real>(
@@ -69,7 +69,7 @@ fn scaler_to_core<T: Real>(s: &ScalerWeights<T>) -> Result<CoreScaler> {
 pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
     let e = m.emm()?;
     let c = |v: f32| T::c(v as f64);
-    let br = &m.ext.alpha_branches;
+    let br = &m.alpha_branches;
     let (b_fl, b_pr, k_pr) = match &m.body {
         Body::Sem(_) => return None,
         Body::LinearEmm(_) => (None, None, None),
@@ -97,8 +97,8 @@ pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
         b_fl,
         b_pr,
         k_pr,
-        priors: m.ext.condition.priors,
-        static_force: m.ext.static_force.map(|s| StaticParams {
+        priors: m.condition.priors,
+        static_force: m.static_force.map(|s| StaticParams {
             theta: s.params().map(c),
             x_ref: c(s.x_ref_m),
             v_c: c(s.v_c_m_s),
@@ -168,21 +168,18 @@ pub fn to_core_with<T: Real>(
         meta,
         body,
         // The provenance is the exporter's (cli::train::export_model).
-        ext: Extension {
-            condition: condition.clone(),
-            alpha_branches: branches,
-            static_force: p.static_force.map(|s| StaticForce {
-                f_gas0_n: f(s.theta[0]),
-                f_gas0_per_alpha_n: f(s.theta[1]),
-                k_gas_n_per_m: f(s.theta[2]),
-                k_gas_per_alpha_n_per_m: f(s.theta[3]),
-                x_ref_m: f(s.x_ref),
-                f_c_n: f(s.theta[4]),
-                v_c_m_s: f(s.v_c),
-            }),
-            ..Extension::default()
-        },
-        tables: nemm_core::stored_tables::StoredTables::EMPTY,
+        condition: condition.clone(),
+        alpha_branches: branches,
+        provenance: Default::default(),
+        static_force: p.static_force.map(|s| StaticForce {
+            f_gas0_n: f(s.theta[0]),
+            f_gas0_per_alpha_n: f(s.theta[1]),
+            k_gas_n_per_m: f(s.theta[2]),
+            k_gas_per_alpha_n_per_m: f(s.theta[3]),
+            x_ref_m: f(s.x_ref),
+            f_c_n: f(s.theta[4]),
+            v_c_m_s: f(s.v_c),
+        }),
     };
     model
         .validate()

@@ -235,7 +235,7 @@ pub fn audit(model: &Model, n_state: usize, n_alpha: usize) -> Audit {
     let al = linspace(0.0, 1.0, n_alpha);
     let dx = (xs[1] - xs[0]) as f64;
     let da = (al[1] - al[0]) as f64;
-    let priors = model.ext.condition.priors;
+    let priors = model.condition.priors;
     let audit_2d = |eval: &dyn Fn(f32, f32) -> Option<f32>, scale: f32, p0: f32, dir: Direction| {
         let mut a = ScalerAudit {
             state: Some(ConditionAudit::default()),

@@ -73,7 +73,7 @@ enum Recorded {
 /// The training configuration of the `nemm train` command a blob's provenance records
 /// (dataset folder as recorded).
 pub fn recorded_config(model: &Model) -> Config {
-    let command = model.ext.provenance.command.as_str();
+    let command = model.provenance.command.as_str();
     let words: Vec<&str> = command.split_ascii_whitespace().collect();
     let Ok(Recorded::Train { args, variant, .. }) = Recorded::try_parse_from(&words) else {
         panic!("the blob's provenance is not a `nemm train` command: {command:?}")

@@ -71,7 +71,7 @@ pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
 }
 
 /// Precomputed fast-path tables to store in an exported blob (the format's tables section,
-/// `nemm_core::stored_tables`): a firmware in table mode at one of these oil-loss levels, with
+/// `nemm_core::format::tables`): a firmware in table mode at one of these oil-loss levels, with
 /// the same segment count and bound, boots without building its tables.
 #[derive(Debug, Clone, PartialEq, clap::Args)]
 pub struct TablesArgs {
@@ -152,13 +152,29 @@ pub fn export_model(
     out: &Path,
     dataset: &str,
     tables: &TablesArgs,
-) -> Result<(usize, nemm_core::Model)> {
+) -> Result<Written> {
     let mut model = model.clone();
-    model.ext.provenance = provenance(dataset);
+    model.provenance = provenance(dataset);
     let blob = encode_with_tables(&model, tables)?;
     write_atomic_bytes(out, &blob).with_context(|| format!("cannot write {}", out.display()))?;
-    let written = nemm_core::decode(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok((blob.len(), written))
+    let (model, tables) =
+        nemm_core::decode_with_tables(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(Written {
+        len: blob.len(),
+        model,
+        tables,
+    })
+}
+
+/// A model as [`export_model`] wrote it: the blob's length, and the model and the index of
+/// its stored tables decoded back from the blob.
+pub struct Written {
+    /// Bytes written.
+    pub len: usize,
+    /// The model the blob decodes to.
+    pub model: nemm_core::Model,
+    /// The index of the blob's precomputed tables.
+    pub tables: nemm_core::StoredTables,
 }
 
 /// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run, the
@@ -243,7 +259,7 @@ pub fn train(
         .iter()
         .find(|t| t.variant == variant)
         .context("training produced no model")?;
-    let (n, written) = export_model(
+    let written = export_model(
         &tv.model,
         out,
         &dataset_provenance(&ds, &cfg.data.dir),
@@ -252,11 +268,12 @@ pub fn train(
     let report = evaluate(std::slice::from_ref(tv), &prepared)?;
     let vr = report.variants.get(variant.key()).context("report")?;
     println!(
-        "wrote {} ({n} bytes) in {:.0} s",
+        "wrote {} ({} bytes) in {:.0} s",
         out.display(),
+        written.len,
         t.elapsed().as_secs_f64()
     );
-    print!("{}", describe(&written, n));
+    print!("{}", describe(&written.model, &written.tables, written.len));
     println!(
         "test RMSE ({}): {:.4} of the force scale ({:.1} N); validation {:.4}",
         prepared.config.split.describe(),
@@ -378,19 +395,21 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32, tables: &TablesAr
         .try_load_file(checkpoint.join(latest.trim()).join("best"))
         .map_err(|e| anyhow::anyhow!("cannot load the best module: {e:?}"))?;
     let model = to_core(&net.to_rollout(&frame), saved.meta)?;
-    let (n, model) = export_model(
+    let written = export_model(
         &model,
         out,
         &format!("checkpoint {}", checkpoint.display()),
         tables,
     )?;
     println!(
-        "wrote {} ({n} bytes) from {}",
+        "wrote {} ({} bytes) from {}",
         out.display(),
+        written.len,
         checkpoint.join(latest.trim()).display()
     );
-    print!("{}", describe(&model, n));
-    print!("{}", crate::train::table_check::report(&model, table_bound));
+    let model = &written.model;
+    print!("{}", describe(model, &written.tables, written.len));
+    print!("{}", crate::train::table_check::report(model, table_bound));
     Ok(())
 }
 

@@ -191,7 +191,7 @@ fn percent(p: f64) -> String {
 
 /// The alpha axis title, named by the model's condition.
 fn alpha_axis(m: &Model) -> String {
-    crate::data::dataset::ConditionSpec::from_core(&m.ext.condition).axis_label()
+    crate::data::dataset::ConditionSpec::from_core(&m.condition).axis_label()
 }
 
 fn vline(x: f64, y0: f64, y1: f64) -> Vec<(f64, f64)> {

@@ -419,7 +419,7 @@ struct PackData<T> {
     identity: bool,
     lane_w: WindowLanes<T>,
     /// With a static force: its features per model step
-    /// (`nemm_core::static_force::features` at the step's position, velocity and level).
+    /// (`nemm_core::semantics::static_force::features` at the step's position, velocity and level).
     phi: Option<Vec<[WindowLanes<T>; STATIC_PARAMS]>>,
 }
 

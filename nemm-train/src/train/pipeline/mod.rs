@@ -29,10 +29,10 @@ use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::mlp::{BranchLayout, Direction, ScalerLayout};
-use nemm_core::model::{Extension, STABILITY_MARGIN};
-use nemm_core::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
-use nemm_core::static_force::STATIC_PARAMS;
+use nemm_core::model::STABILITY_MARGIN;
+use nemm_core::semantics::mlp::{BranchLayout, Direction, ScalerLayout};
+use nemm_core::semantics::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
+use nemm_core::semantics::static_force::STATIC_PARAMS;
 use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -92,7 +92,7 @@ impl VariantInfo for ModelKind {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum AlphaPriors {
     /// An alpha branch per coefficient with a declared direction
-    /// (`nemm_core::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
+    /// (`nemm_core::semantics::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
     /// penalty keeps only the state conditions.
     Construction,
     /// The paper's physics penalty on a grid alone (section 5.2), checked by the audit.
@@ -316,7 +316,7 @@ pub fn with_branch(
     bw[ranges.theta_v].fill(0.3);
     let at_origin: f32 = bw[ranges.c]
         .iter()
-        .map(|&ci| 0.09 * nemm_core::mlp::leaky_relu(ci))
+        .map(|&ci| 0.09 * nemm_core::semantics::mlp::leaky_relu(ci))
         .sum();
     let (_, b_o) = layout.output().expect("an MLP with layers");
     s.w[b_o] -= at_origin;

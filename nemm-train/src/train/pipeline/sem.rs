@@ -142,11 +142,10 @@ pub(super) fn train_sem(
         },
         meta,
         body: Body::Sem(map),
-        ext: Extension {
-            condition: prepared.condition.clone(),
-            ..Extension::default()
-        },
-        tables: nemm_core::stored_tables::StoredTables::EMPTY,
+        condition: prepared.condition.clone(),
+        alpha_branches: Default::default(),
+        provenance: Default::default(),
+        static_force: None,
     };
     model
         .validate()

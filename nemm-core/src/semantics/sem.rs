@@ -6,14 +6,9 @@
 //! with linear extrapolation from the end segments, and piecewise linear in `alpha`, clamped
 //! to the grid's alpha range (a flag reports the clamp, see [`crate::estimator::Flags`]).
 
+pub use crate::error::SemError;
+pub use crate::limits::{MAX_SEM_ALPHAS, MAX_SEM_FORCES, MAX_SEM_VELOCITIES};
 use serde::{Deserialize, Serialize};
-
-/// Capacity of the velocity axis.
-pub const MAX_SEM_VELOCITIES: usize = 64;
-/// Capacity of the alpha axis.
-pub const MAX_SEM_ALPHAS: usize = 8;
-/// Capacity of the force table.
-pub const MAX_SEM_FORCES: usize = MAX_SEM_VELOCITIES * MAX_SEM_ALPHAS;
 
 /// A force-velocity map per oil-loss level.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -24,21 +19,6 @@ pub struct SemMap {
     pub alphas: heapless::Vec<f32, MAX_SEM_ALPHAS>,
     /// Forces \[N\], row per alpha: `forces_n[ia * n_v + iv]`.
     pub forces_n: heapless::Vec<f32, MAX_SEM_FORCES>,
-}
-
-/// Why a SEM map is not acceptable.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SemError {
-    /// Fewer than 2 velocities or no alpha.
-    TooFewPoints,
-    /// An axis is not strictly increasing (or holds a non-finite value).
-    NotIncreasing,
-    /// `forces_n.len() != velocities.len() * alphas.len()`.
-    CountMismatch,
-    /// A force is not finite.
-    NonFiniteForce,
-    /// An alpha is outside `[0, 1]`.
-    AlphaOutOfRange,
 }
 
 fn strictly_increasing(v: &[f32]) -> bool {

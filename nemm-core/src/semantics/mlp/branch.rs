@@ -34,12 +34,11 @@
 //! ```
 
 use super::{leaky_relu, BranchLayout};
+pub use crate::error::BranchError;
+pub use crate::limits::MAX_BRANCH_UNITS;
 use crate::math::{self, MulAdd};
-use core::fmt;
 use serde::{Deserialize, Serialize};
 
-/// Largest number of units `K` of an alpha branch.
-pub const MAX_BRANCH_UNITS: usize = 32;
 /// Parameter capacity of an alpha branch (`K = 32` with a state input).
 pub const BRANCH_CAPACITY: usize = 4 * MAX_BRANCH_UNITS;
 
@@ -92,68 +91,6 @@ impl core::str::FromStr for Direction {
             what: "monotonicity direction",
             expected: "decreasing, increasing or none",
         })
-    }
-}
-
-/// Why an alpha branch is not acceptable.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BranchError {
-    /// `units` is 0 or above [`MAX_BRANCH_UNITS`], or `state_inputs` above 1.
-    DimensionOutOfRange,
-    /// The parameter vector's length does not match the dimensions.
-    ParamCountMismatch {
-        /// Length the dimensions imply.
-        expected: usize,
-        /// Length found.
-        found: usize,
-    },
-    /// A parameter is NaN or infinite.
-    NonFinite,
-    /// The direction is [`Direction::None`] (a coefficient without a prior has no branch).
-    NoDirection,
-    /// The number of state inputs does not match the scaler's role (1 for `b_fl` and
-    /// `k_pr`, 0 for `b_pr`).
-    WrongStateInputs {
-        /// State inputs the role needs.
-        expected: u8,
-    },
-    /// The branch's direction differs from the condition's declared prior.
-    DirectionMismatch,
-    /// A branch for a coefficient the model does not learn.
-    NoScaler,
-    /// The scaler's MLP has a non-zero weight in its alpha input column, so it would
-    /// depend on `alpha` outside the branch.
-    AlphaColumnNotZero,
-}
-
-impl fmt::Display for BranchError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            BranchError::DimensionOutOfRange => write!(
-                f,
-                "units must be 1..={MAX_BRANCH_UNITS} and state inputs 0 or 1"
-            ),
-            BranchError::ParamCountMismatch { expected, found } => write!(
-                f,
-                "its dimensions need {expected} parameters but it holds {found}"
-            ),
-            BranchError::NonFinite => write!(f, "a parameter is NaN or infinite"),
-            BranchError::NoDirection => write!(f, "its direction must be increasing or decreasing"),
-            BranchError::WrongStateInputs { expected } => {
-                write!(f, "it must have {expected} state input(s)")
-            }
-            BranchError::DirectionMismatch => {
-                write!(
-                    f,
-                    "its direction differs from the condition's declared prior"
-                )
-            }
-            BranchError::NoScaler => write!(f, "the model has no scaler for this coefficient"),
-            BranchError::AlphaColumnNotZero => write!(
-                f,
-                "the scaler's MLP must have a zero alpha input column when it has an alpha branch"
-            ),
-        }
     }
 }
 

@@ -16,8 +16,8 @@
 //! EMM states. It is linear in its five trained parameters ([`StaticForce::params`]) with
 //! the features of [`features`], which the estimator and the trainer share.
 
+use crate::error::ModelError;
 use crate::math::Scalar;
-use crate::model::ModelError;
 use serde::{Deserialize, Serialize};
 
 /// Number of trained parameters of a [`StaticForce`] ([`StaticForce::params`]).

@@ -1,8 +1,8 @@
 //! The `tables` section of the weight format (version 4): fast-path tables precomputed by
-//! the exporter for declared oil-loss levels, so that a firmware in [`EvalMode::Table`]
+//! the exporter for declared oil-loss levels, so that a firmware in [`crate::EvalMode::Table`]
 //! boots without building them.
 //!
-//! # Layout (postcard, after the version-3 [`crate::model::Extension`])
+//! # Layout (postcard, after the version-3 fields and the static force)
 //!
 //! ```text
 //! levels: varint                         0 ..= MAX_TABLE_LEVELS
@@ -20,7 +20,7 @@
 //!   segments x [x0, 1/width, c0, c1, c2, c3]: 6 x f32
 //! ```
 //!
-//! The tables are written from estimators that built them ([`crate::format::encode_with_tables`]),
+//! The tables are written from estimators that built them ([`crate::encode_with_tables`]),
 //! so they are the estimator's tables bit for bit; the lookup cells are not stored but
 //! recomputed on loading by the same code. A blob without tables (every version up to 3, or
 //! a version-4 blob exported without levels) holds no levels.
@@ -29,12 +29,12 @@
 //!
 //! [`crate::format::decode_into`] parses and checks the whole section (every value finite,
 //! knots in order, alpha in `[0, 1]`, a valid [`TableConfig`], a table for exactly the neural
-//! coefficients of the model) and keeps only this index ([`StoredTables`] in
-//! [`crate::Model::tables`]: per level its alpha, segment count, configuration and where its
-//! tables lie in the blob), a few dozen bytes. The tables themselves stay in the blob (on a
+//! coefficients of the model) and returns only this index beside the model ([`StoredTables`]:
+//! per level its alpha, segment count, configuration and where its tables lie in the blob),
+//! a few hundred bytes. The tables themselves stay in the blob (on a
 //! microcontroller: in flash) and are read straight into the estimator's own tables by
-//! [`crate::Estimator::load_with_tables`], which therefore takes the blob as well as the
-//! model. A model's RAM does not grow with the tables.
+//! [`crate::Estimator::load_with_tables`], which therefore takes the index and the blob as
+//! well as the model. A model's RAM does not grow with the tables.
 //!
 //! # Matching
 //!
@@ -50,15 +50,12 @@
 //!
 //! [`crate::Estimator::set_alpha`] rebuilds the tables as without a section.
 
-use crate::estimator::{Estimator, EstimatorConfig, EvalMode};
-use crate::format::EncodeError;
+use super::{EncodeError, CRC_LEN};
+pub use crate::limits::MAX_TABLE_LEVELS;
 use crate::model::{Body, Model};
-use crate::table::{self, TableAccuracy, TableConfig, MIN_SEGMENTS};
+use crate::table::{self, Table1D, TableAccuracy, TableConfig, MIN_SEGMENTS};
+use crate::wire::Writer;
 use core::fmt;
-use serde::Serialize;
-
-/// Most oil-loss levels a blob's tables section holds.
-pub const MAX_TABLE_LEVELS: usize = 4;
 
 /// Where one stored table lies in its blob, and what it says of itself.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -86,8 +83,9 @@ pub struct StoredLevel {
     pub k_pr: Option<StoredTable>,
 }
 
-/// The index of a blob's tables section ([`crate::Model::tables`]): empty for a blob
-/// without tables and for a model not decoded from a blob.
+/// The index of a blob's tables section, returned beside the model by
+/// [`crate::decode_into`] and [`crate::decode_with_tables`]: empty for a blob without
+/// tables.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct StoredTables {
     /// The stored levels, in the blob's order.
@@ -169,17 +167,15 @@ impl StoredTables {
         blob_crc: 0,
     };
 
-    /// The level an estimator with `segments` segments and configuration `cfg` uses from
-    /// `blob`, or why there is none.
+    /// The level that a table-mode estimator at `alpha` with table configuration `tc` and
+    /// `segments` segments uses from `blob`, or why there is none.
     pub fn find(
         &self,
-        cfg: &EstimatorConfig,
+        alpha: f32,
+        tc: &TableConfig,
         segments: usize,
         blob: &[u8],
     ) -> Result<&StoredLevel, StoredUnused> {
-        let EvalMode::Table(tc) = &cfg.mode else {
-            return Err(StoredUnused::NotOffered);
-        };
         if self.levels.is_empty() {
             return Err(StoredUnused::NoLevels);
         }
@@ -190,7 +186,7 @@ impl StoredTables {
         }
         let mut why = StoredUnused::Alpha;
         for level in &self.levels {
-            if level.alpha.to_bits() != cfg.alpha.to_bits() {
+            if level.alpha.to_bits() != alpha.to_bits() {
                 continue;
             }
             if usize::try_from(level.segments).ok() != Some(segments) {
@@ -257,8 +253,7 @@ impl StoredTables {
                 .ok()?;
         }
         if n > 0 {
-            self.blob_len =
-                u32::try_from(covered.len().checked_add(crate::format::CRC_LEN)?).ok()?;
+            self.blob_len = u32::try_from(covered.len().checked_add(CRC_LEN)?).ok()?;
             self.blob_crc = crc;
         }
         Some(rest)
@@ -291,45 +286,9 @@ fn read_table<'a>(
 
 /// The CRC trailer of a blob.
 fn trailer(blob: &[u8]) -> Option<u32> {
-    let at = blob.len().checked_sub(crate::format::CRC_LEN)?;
+    let at = blob.len().checked_sub(CRC_LEN)?;
     let bytes: [u8; 4] = blob.get(at..)?.try_into().ok()?;
     Some(u32::from_le_bytes(bytes))
-}
-
-/// A postcard writer into a buffer, or (without one) a counter of the bytes it would write.
-pub(crate) struct Writer<'a> {
-    buf: Option<&'a mut [u8]>,
-    len: usize,
-}
-
-impl<'a> Writer<'a> {
-    /// Writes into `buf`.
-    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
-        Self {
-            buf: Some(buf),
-            len: 0,
-        }
-    }
-
-    /// Counts only.
-    pub(crate) fn counter() -> Self {
-        Self { buf: None, len: 0 }
-    }
-
-    /// Bytes written (or counted).
-    pub(crate) fn len(&self) -> usize {
-        self.len
-    }
-
-    /// Appends `v`; `None` if the buffer is too small.
-    pub(crate) fn put<T: Serialize + ?Sized>(&mut self, v: &T) -> Option<()> {
-        let n = match self.buf.as_deref_mut() {
-            Some(buf) => postcard::to_slice(v, buf.get_mut(self.len..)?).ok()?.len(),
-            None => postcard::experimental::serialized_size(v).ok()?,
-        };
-        self.len = self.len.checked_add(n)?;
-        Some(())
-    }
 }
 
 /// Which neural coefficients `model` has: `(b_fl, k_pr)`.
@@ -341,10 +300,24 @@ pub(crate) fn neural<const P: usize>(model: &Model<P>) -> (bool, bool) {
     }
 }
 
+/// What the tables section stores of one oil-loss level: the tables a table-mode estimator
+/// built at `alpha` with the configuration `config` (`crate::Estimator::table_level`).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct TableLevel<'a, const T: usize> {
+    /// The oil-loss level \[-\].
+    pub alpha: f32,
+    /// The configuration the tables were built and checked with.
+    pub config: TableConfig,
+    /// The table of `b_fl`, if the model has a `b_fl` scaler.
+    pub b_fl: Option<&'a Table1D<T>>,
+    /// The table of `k_pr`, if the model has a `k_pr` scaler.
+    pub k_pr: Option<&'a Table1D<T>>,
+}
+
 /// Writes (or counts) the tables section of `levels` for `model` (module docs).
 pub(crate) fn write_section<const P: usize, const T: usize>(
     model: &Model<P>,
-    levels: &[&Estimator<P, T>],
+    levels: &[TableLevel<'_, T>],
     w: &mut Writer<'_>,
 ) -> Result<(), EncodeError> {
     if levels.len() > MAX_TABLE_LEVELS {
@@ -355,8 +328,13 @@ pub(crate) fn write_section<const P: usize, const T: usize>(
     w.put(&n).ok_or(too_small)?;
     let (has_b_fl, has_k_pr) = neural(model);
     let sc = &model.scales;
-    for est in levels {
-        let (alpha, tc, b_fl, k_pr) = est.stored_parts().ok_or(EncodeError::Tables)?;
+    for &TableLevel {
+        alpha,
+        config: tc,
+        b_fl,
+        k_pr,
+    } in levels
+    {
         let segments = u32::try_from(T).map_err(|_| EncodeError::Tables)?;
         w.put(&(alpha, segments, tc.max_rel_error, tc.domain_margin))
             .ok_or(too_small)?;

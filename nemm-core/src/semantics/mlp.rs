@@ -53,6 +53,8 @@
 //! (the second input is folded first, as [`CompiledScaler::set_alpha`] and the trainer do,
 //! so that it is computed once per condition level).
 
+pub use crate::error::ShapeError;
+pub use crate::limits::{MAX_HIDDEN, MAX_INPUTS, MAX_LAYERS};
 use crate::math::{self, Lane};
 use serde::{Deserialize, Serialize};
 
@@ -80,12 +82,6 @@ pub use branch::{
 pub const LEAKY_RELU_SLOPE: f32 = 0.01;
 /// LayerNorm epsilon added to the variance (PyTorch and burn default).
 pub const LAYER_NORM_EPS: f32 = 1e-5;
-/// Largest hidden width `H` (Table 3 search space).
-pub const MAX_HIDDEN: usize = 32;
-/// Largest number of hidden layers `L` (Table 3 search space).
-pub const MAX_LAYERS: usize = 9;
-/// Largest number of scaler inputs (state and `alpha`).
-pub const MAX_INPUTS: usize = 2;
 
 /// Number of parameters of an MLP with `inputs` inputs, width `hidden` and `layers` hidden
 /// layers, in the layout described in the module docs. Saturates instead of overflowing.
@@ -109,27 +105,6 @@ pub const fn param_count(inputs: usize, hidden: usize, layers: usize) -> usize {
 /// Parameter capacity for the largest scaler of the Table 3 search space (`d = 2, H = 32,
 /// L = 9`): 9,153 `f32`, 36.6 KiB. Firmware for a smaller model picks a smaller capacity.
 pub const DEFAULT_PARAM_CAPACITY: usize = param_count(MAX_INPUTS, MAX_HIDDEN, MAX_LAYERS);
-
-/// Why an MLP's shape is not acceptable.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ShapeError {
-    /// `inputs`, `hidden` or `layers` is zero or above its maximum.
-    DimensionOutOfRange,
-    /// The parameter vector's length does not match the dimensions.
-    ParamCountMismatch {
-        /// Length the dimensions imply.
-        expected: usize,
-        /// Length found.
-        found: usize,
-    },
-    /// The dimensions need more parameters than the capacity `P` of this build.
-    OverCapacity {
-        /// Parameters needed.
-        needed: usize,
-        /// Capacity of this build.
-        capacity: usize,
-    },
-}
 
 /// Weights of one MLP, in the layout of the module docs.
 ///
@@ -1069,18 +1044,6 @@ impl<const P: usize> CompiledScaler<P> {
     /// Output bounds `(lo, hi)` of [`Self::eval`] in physical units.
     pub fn bounds(&self) -> (f32, f32) {
         (self.lo, self.lo + self.span)
-    }
-}
-
-/// Tables of a scaler ([`crate::table::Table1D::compile`]): the value through
-/// [`CompiledScaler::eval`] (the fast kernel where there is one), the pattern through
-/// [`CompiledScaler::pattern`] (portable, unfused).
-impl<const P: usize> crate::table::Tabulate for &CompiledScaler<P> {
-    fn value(&mut self, x: f32) -> f32 {
-        self.eval(x)
-    }
-    fn pattern(&mut self, x: f32) -> u64 {
-        CompiledScaler::pattern(self, x)
     }
 }
 

@@ -86,6 +86,8 @@
 //! value (finite and inside the scaler's bounds: the value at `lo` or `hi`, as if the input
 //! were clamped) and the estimator sets [`crate::Flags::OUT_OF_TABLE_DOMAIN`].
 
+use crate::mlp::CompiledScaler;
+use crate::wire::Writer;
 use core::fmt;
 
 /// Default number of segments of a table: 256 (7 KiB per table, 28 bytes per segment).
@@ -282,6 +284,18 @@ impl<F: FnMut(f32) -> (f32, u64)> Tabulate for F {
     }
     fn pattern(&mut self, x: f32) -> u64 {
         self(x).1
+    }
+}
+
+/// Tables of a scaler ([`Table1D::compile`]): the value through
+/// [`CompiledScaler::eval`] (the fast kernel where there is one), the pattern through
+/// [`CompiledScaler::pattern`] (portable, unfused).
+impl<const P: usize> Tabulate for &CompiledScaler<P> {
+    fn value(&mut self, x: f32) -> f32 {
+        self.eval(x)
+    }
+    fn pattern(&mut self, x: f32) -> u64 {
+        CompiledScaler::pattern(self, x)
     }
 }
 
@@ -698,7 +712,7 @@ impl<const N: usize> Table1D<N> {
     /// Writes the table as the format's stored table ([`crate::stored_tables`]): the domain,
     /// the lookup scalars, the accuracy, then the `N` segments (the lookup cells are not
     /// stored: [`Self::read_stored`] recomputes them).
-    pub(crate) fn write_stored(&self, w: &mut crate::stored_tables::Writer<'_>) -> Option<()> {
+    pub(crate) fn write_stored(&self, w: &mut Writer<'_>) -> Option<()> {
         w.put(&[self.lo, self.hi, self.cell_scale, self.cell_offset])?;
         w.put(&(self.accuracy.max_rel_error, self.accuracy.at))?;
         w.put(&(

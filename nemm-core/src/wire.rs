@@ -1,0 +1,40 @@
+//! The byte writer the encoder serialises with: postcard into a buffer, or a counter of the
+//! bytes it would write (to size the buffer first).
+
+use serde::Serialize;
+
+/// A postcard writer into a buffer, or (without one) a counter of the bytes it would write.
+pub(crate) struct Writer<'a> {
+    buf: Option<&'a mut [u8]>,
+    len: usize,
+}
+
+impl<'a> Writer<'a> {
+    /// Writes into `buf`.
+    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
+        Self {
+            buf: Some(buf),
+            len: 0,
+        }
+    }
+
+    /// Counts only.
+    pub(crate) fn counter() -> Self {
+        Self { buf: None, len: 0 }
+    }
+
+    /// Bytes written (or counted).
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Appends `v`; `None` if the buffer is too small.
+    pub(crate) fn put<T: Serialize + ?Sized>(&mut self, v: &T) -> Option<()> {
+        let n = match self.buf.as_deref_mut() {
+            Some(buf) => postcard::to_slice(v, buf.get_mut(self.len..)?).ok()?.len(),
+            None => postcard::experimental::serialized_size(v).ok()?,
+        };
+        self.len = self.len.checked_add(n)?;
+        Some(())
+    }
+}
