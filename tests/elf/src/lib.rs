@@ -443,7 +443,7 @@ mod tests {
         );
         assert_eq!(
             demangle("_ZN40_$LT$nemm_core..mlp..Scaler$LT$_$GT$$GT$5scale17h0123456789abcdefE"),
-            "<nemm_core::semantics::mlp::Scaler<_>>::scale"
+            "<nemm_core::mlp::Scaler<_>>::scale"
         );
         assert_eq!(
             demangle("_RNvNtCscoi5Cl9D7Ug_4core9panicking9panic_fmt"),
@@ -453,7 +453,7 @@ mod tests {
             demangle(
                 "_RNvMs0_NtCs2qvOz2mvwox_9nemm_core3mlpINtB5_14CompiledScalerKj521_E4evalCs5XXU9oMLyQy_13nemm_firmware"
             ),
-            "<nemm_core::semantics::mlp::CompiledScaler<1313>>::eval"
+            "<nemm_core::mlp::CompiledScaler<1313>>::eval"
         );
         assert_eq!(demangle("SysTick"), "SysTick");
         assert!(is_panic_symbol(
