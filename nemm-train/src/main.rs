@@ -134,40 +134,22 @@ enum Cmd {
         report: Option<PathBuf>,
         /// Data options.
         #[command(flatten)]
-        data_options: nemm_train::config::DataArgs,
+        data_options: nemm_train::config::DataConfig,
     },
     /// The main job: virtual bench (generated if absent), all four variants on a budget of a
     /// few minutes, Table 4, figures, model.nemm, and the exported model run through nemm-core.
+    /// The options are those of `nemm compare`, over the demo's defaults: --data out/bench
+    /// (the default virtual bench is generated there if it is empty) and the demo's budget
+    /// of epochs and batches (`nemm_train::config::Config::demo`; the flags override it).
     Demo {
-        /// Dataset folder (the default virtual bench is generated there if it is empty).
-        #[arg(long, default_value = "out/bench")]
-        data: PathBuf,
         /// Results folder.
         #[arg(long, default_value = "out/demo")]
         out: PathBuf,
-        /// Maximum epochs of the neural stages.
-        #[arg(long, default_value_t = 12)]
-        epochs: usize,
-        /// Batches per epoch (random subset).
-        #[arg(long, default_value_t = 8)]
-        max_batches: usize,
-        /// How the declared priors in alpha are imposed: construction (an alpha branch,
-        /// monotone for every weight; default) or penalty (the paper's physics penalty alone).
-        #[arg(long)]
-        alpha_priors: Option<nemm_train::train::pipeline::AlphaPriors>,
-        /// Adds the static force of eq. 17 (gas force, gas spring, seal friction) to every
-        /// EMM-family variant (docs/training.md, "The static force").
-        #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL",
-            default_value_t = nemm_train::config::DEFAULT_STATIC_FORCE)]
-        static_force: bool,
-        /// Data options.
+        /// The job's options (as `nemm compare`'s).
         #[command(flatten)]
-        data_options: nemm_train::config::DataArgs,
+        args: nemm_train::config::ConfigArgs,
     },
 }
-
-/// Epochs of the demo's Linear EMM stage (its budget of a few minutes).
-const DEMO_LINEAR_EPOCHS: usize = 6;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -234,35 +216,20 @@ fn main() -> ExitCode {
             data_options,
         } => nemm_train::cli::identify::identify(
             &model,
-            &data_options.with_dir(&data),
+            &data_options.in_dir(&data),
             &runs,
             step,
             report.as_deref(),
         ),
-        Cmd::Demo {
-            data,
-            out,
-            epochs,
-            max_batches,
-            alpha_priors,
-            static_force,
-            data_options,
-        } => {
-            let mut cfg = nemm_train::config::Config {
-                data: data_options.to_config(),
-                ..Default::default()
-            };
-            if let Some(seed) = data_options.seed {
-                cfg.train.seed = seed;
-            }
-            cfg.train.epochs = epochs;
-            cfg.train.max_batches = Some(max_batches);
-            cfg.train.linear_epochs = DEMO_LINEAR_EPOCHS;
-            if let Some(a) = alpha_priors {
-                cfg.model.alpha_priors = a;
-            }
-            cfg.model.static_force = static_force;
-            nemm_train::cli::train::demo(&nemm_train::cli::train::DemoPaths { data, out }, &cfg)
+        Cmd::Demo { out, args } => {
+            args.base_over(nemm_train::config::Config::demo())
+                .and_then(|cfg| {
+                    let paths = nemm_train::cli::train::DemoPaths {
+                        data: cfg.data.require_dir()?.to_path_buf(),
+                        out,
+                    };
+                    nemm_train::cli::train::demo(&paths, &cfg)
+                })
         }
     };
     match result {

@@ -243,21 +243,15 @@ fn an_exact_velocity_column_passes_at_any_frequency() {
         let mut run = sine(fs, a, f, 2.0 / f, 1e-5, 2.0);
         let w = 2.0 * PI * f;
         run.velocity_m_s = Some(run.time_s.iter().map(|t| a * w * (w * t).cos()).collect());
-        let m = preprocess::measured_velocity_mismatch(&run, fs, 0.3 * fs)
-            .expect("ok")
-            .expect("some");
+        let m = preprocess::measured_velocity_mismatch(&run, fs).expect("some");
         assert!(m < 0.02, "fs {fs} f {f}: mismatch {m}");
         // A sign error and a mm/s column are still caught.
         let v = run.velocity_m_s.take().expect("v");
         run.velocity_m_s = Some(v.iter().map(|x| -x).collect());
-        let m = preprocess::measured_velocity_mismatch(&run, fs, 0.3 * fs)
-            .expect("ok")
-            .expect("some");
+        let m = preprocess::measured_velocity_mismatch(&run, fs).expect("some");
         assert!(m > 1.5, "sign: {m}");
         run.velocity_m_s = Some(v.iter().map(|x| 1000.0 * x).collect());
-        let m = preprocess::measured_velocity_mismatch(&run, fs, 0.3 * fs)
-            .expect("ok")
-            .expect("some");
+        let m = preprocess::measured_velocity_mismatch(&run, fs).expect("some");
         assert!(m > 100.0, "mm/s: {m}");
     }
 }

@@ -305,7 +305,8 @@ fn low_acceleration_rule_on_a_sine_stays_close_to_the_paper_rule() {
         let run = bench.measure(&spec, 3);
         let fs = bench.config().program.sample_rate_hz;
         let (summary, sig) =
-            preprocess::summarize_run(&run, 0, fs, &SignalConfig::default()).unwrap();
+            preprocess::summarize_run(&run, 0, &SignalConfig::default().at_rate(fs).unwrap())
+                .unwrap();
         let paper = preprocess::quasi_static_points(0, &sig, &summary.excitation, 0.0, 0.05);
         let low = low_acceleration_points(0, &sig, 0.0, 0.05, &|_| false);
         for direction in [Direction::Rebound, Direction::Compression] {

@@ -97,7 +97,8 @@ fn clean_sinusoid_amplitude_frequency_and_peak_velocity_within_one_percent() {
             fs,
             None,
         );
-        let (s, _) = preprocess::summarize_run(&run, 0, fs, &cfg).expect("summary");
+        let (s, _) =
+            preprocess::summarize_run(&run, 0, &(&cfg).at_rate(fs).unwrap()).expect("summary");
         let e = s.excitation;
         let v = 2.0 * PI * f * a;
         let rel = |x: f64, y: f64| (x - y).abs() / y;
@@ -258,9 +259,7 @@ fn measured_velocity_column_is_used_when_present() {
         (peak / (0.01 * 2.0 * PI * 5.0) - 1.0).abs() < 0.005,
         "peak {peak}"
     );
-    let mismatch = preprocess::measured_velocity_mismatch(&run, fs, 150.0)
-        .expect("ok")
-        .expect("some");
+    let mismatch = preprocess::measured_velocity_mismatch(&run, fs).expect("some");
     assert!((mismatch - 0.02).abs() < 0.002, "mismatch {mismatch}");
     run.velocity_m_s = None;
     let measured_cfg = SignalConfig {
@@ -297,7 +296,8 @@ fn expected_window_force(a: f64, w: f64, alpha: f64, rebound: bool) -> f64 {
 
 fn qs_points_of(run: &Run, fs: f64) -> Vec<QuasiStaticPoint> {
     let cfg = SignalConfig::default();
-    let (s, signals) = preprocess::summarize_run(run, 0, fs, &cfg).expect("summary");
+    let (s, signals) =
+        preprocess::summarize_run(run, 0, &(&cfg).at_rate(fs).unwrap()).expect("summary");
     preprocess::quasi_static_points(0, &signals, &s.excitation, run.entry.oil_loss, 0.05)
 }
 
@@ -838,8 +838,9 @@ fn tiny_and_flat_runs_do_not_panic() {
     let fs = 10_000.0;
     for n in 1..12 {
         let mut run = sine_run("x.csv", 0.0, 0.01, 5.0, 0.3, n, fs, None);
-        let (s, sig) = preprocess::summarize_run(&run, 0, fs, &SignalConfig::default())
-            .expect("summary of a short run");
+        let (s, sig) =
+            preprocess::summarize_run(&run, 0, &SignalConfig::default().at_rate(fs).unwrap())
+                .expect("summary of a short run");
         assert_eq!(sig.velocity_m_s.len(), n);
         assert_eq!(sig.acceleration_m_s2.len(), n);
         assert!(sig.velocity_m_s.iter().all(|v| v.is_finite()), "n = {n}");
@@ -847,7 +848,8 @@ fn tiny_and_flat_runs_do_not_panic() {
         // A flat run: no excitation, no quasi-static point.
         run.displacement_m.iter_mut().for_each(|x| *x = 0.001);
         let (s, sig) =
-            preprocess::summarize_run(&run, 0, fs, &SignalConfig::default()).expect("flat");
+            preprocess::summarize_run(&run, 0, &SignalConfig::default().at_rate(fs).unwrap())
+                .expect("flat");
         assert_eq!(s.excitation.amplitude_m, 0.0);
         assert!(preprocess::quasi_static_points(0, &sig, &s.excitation, 0.0, 0.05).is_empty());
     }

@@ -41,7 +41,7 @@ pub enum BenchCmd {
         out: PathBuf,
         /// Data options (the plots use the cut-off and the velocity source).
         #[command(flatten)]
-        data: crate::config::DataArgs,
+        data: crate::config::DataConfig,
     },
     /// Print the built-in default configuration (a template for `--config`).
     Config,
@@ -76,7 +76,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             generate(&cfg, seed, &out)
         }
         BenchCmd::Plot { dir, out, data } => {
-            let resolved = crate::config::resolve_data(&data.with_dir(&dir))?;
+            let resolved = crate::config::resolve_data(&data.in_dir(&dir))?;
             let signal = resolved.config.prepare_config().signal;
             let ds = crate::data::dataset::load(&dir)
                 .with_context(|| format!("cannot load the dataset {}", dir.display()))?;

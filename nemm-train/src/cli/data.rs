@@ -1,6 +1,6 @@
 //! `nemm data check` and `nemm data prepare`: validate a bench dataset and show what the
 //! preprocessing of section 5.3 makes of it.
-use crate::config::{resolve_data, DataArgs};
+use crate::config::{resolve_data, DataConfig};
 use crate::data::check::{self, Finding};
 use crate::data::dataset::{self, Dataset};
 use crate::data::import::{self, ColumnSpec, ImportSpec, SplitMethod};
@@ -26,7 +26,7 @@ pub enum DataCmd {
         dir: PathBuf,
         /// Data options.
         #[command(flatten)]
-        data: DataArgs,
+        data: DataConfig,
     },
     /// Convert raw dyno CSV files (any column names and units, sign flips, offsets, long
     /// records cut into runs) into a dataset folder. Column flags take `NAME:UNIT` or
@@ -52,7 +52,7 @@ pub enum DataCmd {
         filter_force: bool,
         /// Data options.
         #[command(flatten)]
-        data: DataArgs,
+        data: DataConfig,
     },
 }
 
@@ -290,7 +290,7 @@ fn import_cmd(a: &ImportArgs) -> Result<()> {
 pub fn run(cmd: DataCmd) -> Result<()> {
     match cmd {
         DataCmd::Check { dir, data } => {
-            let resolved = resolve_data(&data.with_dir(&dir))?;
+            let resolved = resolve_data(&data.in_dir(&dir))?;
             let mut signal = resolved.config.prepare_config().signal;
             signal.filter_force = false;
             check(&dir, &signal)
@@ -304,7 +304,7 @@ pub fn run(cmd: DataCmd) -> Result<()> {
             filter_force,
             data,
         } => {
-            let resolved = resolve_data(&data.with_dir(&dir))?;
+            let resolved = resolve_data(&data.in_dir(&dir))?;
             let mut config = resolved.config.prepare_config();
             config.signal.filter_force = filter_force;
             config.quasi_static_window = Some(qs_window);

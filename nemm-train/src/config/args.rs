@@ -1,10 +1,10 @@
-//! The command line of a job ([`ConfigArgs`], [`DataArgs`]): `Option`s that override a
-//! [`Config`], with the defaults shown from the `Default` impls.
+//! The command line of a job ([`ConfigArgs`]): `Option`s that override a [`Config`], with
+//! the defaults shown from the `Default` impls. The data options are [`DataConfig`] itself.
 
 use super::*;
 
 /// `help` text of an option with its default (from the `Default` impls).
-fn with_default(text: &str, default: impl std::fmt::Display) -> String {
+pub(super) fn with_default(text: &str, default: impl std::fmt::Display) -> String {
     format!("{text} [default: {default}]")
 }
 
@@ -21,7 +21,7 @@ pub struct ConfigArgs {
     pub data: Option<PathBuf>,
     /// The data options (its `--seed` also sets [`TrainConfig::seed`]).
     #[command(flatten)]
-    pub data_options: DataArgs,
+    pub data_options: DataConfig,
     /// Overrides [`ModelConfig::hidden`].
     #[arg(long, help = with_default(
         "Hidden width H of the scalers (Table 3: 8, 16, 32)", ModelConfig::default().hidden))]
@@ -99,116 +99,20 @@ pub struct ConfigArgs {
     pub session_epochs: Option<usize>,
 }
 
-/// The data options on the command line, flattened into every command that reads a dataset;
-/// each overrides one key of [`DataConfig`] (over the `--config` file, the dataset's
-/// [`DATA_OPTIONS_FILE`] and the choices from the data).
-#[derive(Debug, Clone, Default, clap::Args)]
-#[command(next_help_heading = "Data options")]
-pub struct DataArgs {
-    /// Overrides [`DataConfig::cutoff_hz`].
-    #[arg(long, value_name = "HZ", help = with_default(
-        "Cut-off of the zero-phase low-pass before differentiation (Hz)",
-        format!("min({DEFAULT_CUTOFF_HZ}, {CUTOFF_FRACTION_OF_RATE} x sample rate)")))]
-    pub cutoff_hz: Option<f64>,
-    /// Overrides [`DataConfig::velocity`].
-    #[arg(long, value_enum, help = with_default(
-        "Velocity source: auto (the CSV's velocity_m_s column where present, else d/dt \
-         displacement), differentiated, measured, or causal (the firmware's online estimate: \
-         backward difference and 500 Hz first-order low-pass, with its lag)", "auto"))]
-    pub velocity: Option<VelocitySource>,
-    /// Overrides [`DataConfig::window_s`].
-    #[arg(long, alias = "length-s", value_name = "S", help = with_default(
-        "Scored length of a training window (s; section 5.3: 0.5 s)", DEFAULT_WINDOW_S))]
-    pub window_s: Option<f64>,
-    /// Overrides [`DataConfig::warmup_s`].
-    #[arg(long, value_name = "S", help = with_default(
-        "Warm-up prefix of a window, simulated but not scored (s)", DEFAULT_WARMUP_S))]
-    pub warmup_s: Option<f64>,
-    /// Overrides [`DataConfig::test_alphas`].
-    #[arg(long, value_delimiter = ',', value_name = "ALPHA", help = with_default(
-        "Level(s) whose runs are held out for testing, comma-separated",
-        "0.15 if an interior level (Table 2), else the interior level nearest the middle; \
-         with fewer than 3 levels --test-tail 0.2"))]
-    pub test_alpha: Option<Vec<f64>>,
-    /// Overrides [`DataConfig::test_runs`].
-    #[arg(
-        long,
-        value_name = "GLOB",
-        help = "Runs held out for testing: glob(s) on the run files' paths (relative to the \
-                manifest) or names, e.g. 'runs/*_a030_*' (repeatable)"
-    )]
-    pub test_runs: Option<Vec<String>>,
-    /// Overrides [`DataConfig::test_tail`].
-    #[arg(
-        long,
-        value_name = "FRACTION",
-        help = "Hold out the last FRACTION of every training run for testing (a split in time)"
-    )]
-    pub test_tail: Option<f64>,
-    /// Overrides [`DataConfig::train_alphas`].
-    #[arg(
-        long,
-        value_delimiter = ',',
-        value_name = "ALPHA",
-        help = "Level(s) for training and validation [default: every level not held out]"
-    )]
-    pub train_alpha: Option<Vec<f64>>,
-    /// Overrides [`DataConfig::exclude_runs`].
-    #[arg(
-        long,
-        value_name = "GLOB",
-        help = "Runs not used at all: glob(s) as for --test-runs (repeatable)"
-    )]
-    pub exclude_runs: Option<Vec<String>>,
-    /// Overrides [`DataConfig::validation_fraction`].
-    #[arg(long, value_name = "FRACTION", help = with_default(
-        "Fraction of each training run held out for validation as one contiguous stretch",
-        DEFAULT_VALIDATION_FRACTION))]
-    pub validation_fraction: Option<f64>,
-    /// Overrides [`DataConfig::seed`] (and, in training commands, [`TrainConfig::seed`]).
-    #[arg(long, help = with_default(
-        "Seed of the validation stretches' places (training: also of the initial weights \
-         and the data order)", DEFAULT_SPLIT_SEED))]
-    pub seed: Option<u64>,
-}
-
-impl DataArgs {
-    /// These options as a [`DataConfig`] layer (no `dir`).
-    pub fn to_config(&self) -> DataConfig {
-        DataConfig {
-            dir: PathBuf::new(),
-            cutoff_hz: self.cutoff_hz,
-            velocity: self.velocity,
-            window_s: self.window_s,
-            warmup_s: self.warmup_s,
-            test_alphas: self.test_alpha.clone(),
-            test_runs: self.test_runs.clone(),
-            test_tail: self.test_tail,
-            train_alphas: self.train_alpha.clone(),
-            exclude_runs: self.exclude_runs.clone(),
-            validation_fraction: self.validation_fraction,
-            seed: self.seed,
-        }
-    }
-
-    /// The options over a dataset folder `dir` (and nothing else): the layer of the commands
-    /// without `--config`.
-    pub fn with_dir(&self, dir: &Path) -> DataConfig {
-        DataConfig {
-            dir: dir.to_path_buf(),
-            ..self.to_config()
-        }
-    }
-}
-
 impl ConfigArgs {
     /// The `--config` file (or the defaults) with the given options applied. A
     /// `--lambda-ph` list is applied only when it has one value (`nemm sweep` reads the list
     /// itself, see [`ConfigArgs::lambda_ph_list`]).
     pub fn base(&self) -> Result<Config> {
+        self.base_over(Config::default())
+    }
+
+    /// [`ConfigArgs::base`] over `defaults` instead of [`Config::default`] when no
+    /// `--config` is given (`nemm demo`: [`Config::demo`]).
+    pub fn base_over(&self, defaults: Config) -> Result<Config> {
         let mut c = match &self.config {
             Some(path) => Config::load(path)?,
-            None => Config::default(),
+            None => defaults,
         };
         self.apply(&mut c);
         Ok(c)
@@ -244,10 +148,9 @@ impl ConfigArgs {
                 *field = v.clone();
             }
         }
-        let given = DataConfig {
-            dir: self.data.clone().unwrap_or_default(),
-            ..self.data_options.to_config()
-        };
+        let given = self
+            .data_options
+            .in_dir(self.data.as_deref().unwrap_or(Path::new("")));
         c.data = given.over(&c.data);
         let (m, t) = (&mut c.model, &mut c.train);
         set(&mut m.hidden, &self.hidden);

@@ -12,37 +12,90 @@ use super::*;
 /// test set from the levels present). A resolved configuration (as saved in `config.toml`)
 /// has every key set. The test set is one group: `test_alphas`, `test_runs` and `test_tail`
 /// given at one layer replace all three of a lower layer.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+///
+/// The one definition of the data options: the command line (`clap::Args`, flattened into
+/// every command that reads a dataset, each flag named after its field), the `[data]` table
+/// of a `--config` file and the dataset's options file (serde). The defaults are the
+/// constants of [`crate::data::preprocess`], applied once by [`resolve_data`].
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, clap::Args)]
 #[serde(default, deny_unknown_fields)]
+#[command(next_help_heading = "Data options")]
 pub struct DataConfig {
     /// Dataset folder (manifest.toml + CSV runs; see docs/data-format.md). Empty: none given.
+    /// On the command line: `--data` (or the command's folder argument).
+    #[arg(skip)]
     pub dir: PathBuf,
     /// Cut-off of the zero-phase low-pass before differentiation \[Hz\]; chosen from the
     /// data: `min(150 Hz, 0.4 x sample rate)`.
+    #[arg(long, value_name = "HZ", help = with_default(
+        "Cut-off of the zero-phase low-pass before differentiation (Hz)",
+        format!("min({DEFAULT_CUTOFF_HZ}, {CUTOFF_FRACTION_OF_RATE} x sample rate)")))]
     pub cutoff_hz: Option<f64>,
     /// Velocity source: `auto` (the CSV's `velocity_m_s` column where a run has one, else the
     /// differentiated displacement; default), `differentiated`, `measured` or `causal` (the
     /// firmware's online estimate, [`crate::data::preprocess::causal_velocity`]).
+    #[arg(long, value_enum, help = with_default(
+        "Velocity source: auto (the CSV's velocity_m_s column where present, else d/dt \
+         displacement), differentiated, measured, or causal (the firmware's online estimate: \
+         backward difference and 500 Hz first-order low-pass, with its lag)", "auto"))]
     pub velocity: Option<VelocitySource>,
     /// Scored length of a training window \[s\] (section 5.3: 0.5 s).
+    #[arg(long, alias = "length-s", value_name = "S", help = with_default(
+        "Scored length of a training window (s; section 5.3: 0.5 s)", DEFAULT_WINDOW_S))]
     pub window_s: Option<f64>,
-    /// Warm-up prefix of a window, simulated but not scored \[s\] (default 0.05 s).
+    /// Warm-up prefix of a window, simulated but not scored \[s\].
+    #[arg(long, value_name = "S", help = with_default(
+        "Warm-up prefix of a window, simulated but not scored (s)", DEFAULT_WARMUP_S))]
     pub warmup_s: Option<f64>,
     /// Oil-loss level(s) whose runs are held out for testing (Table 2: 0.15).
+    #[arg(long, visible_alias = "test-alpha", value_delimiter = ',', value_name = "ALPHA",
+        help = with_default(
+        "Level(s) whose runs are held out for testing, comma-separated",
+        "0.15 if an interior level (Table 2), else the interior level nearest the middle; \
+         with fewer than 3 levels --test-tail 0.2"))]
     pub test_alphas: Option<Vec<f64>>,
     /// Glob patterns on run files (path relative to the manifest, or file name) of runs held
     /// out for testing.
+    #[arg(
+        long,
+        value_name = "GLOB",
+        help = "Runs held out for testing: glob(s) on the run files' paths (relative to the \
+                manifest) or names, e.g. 'runs/*_a030_*' (repeatable)"
+    )]
     pub test_runs: Option<Vec<String>>,
     /// Fraction of every training run, at its end, held out for testing.
+    #[arg(
+        long,
+        value_name = "FRACTION",
+        help = "Hold out the last FRACTION of every training run for testing (a split in time)"
+    )]
     pub test_tail: Option<f64>,
     /// Levels used for training and validation (default: every level not held out).
+    #[arg(
+        long,
+        visible_alias = "train-alpha",
+        value_delimiter = ',',
+        value_name = "ALPHA",
+        help = "Level(s) for training and validation [default: every level not held out]"
+    )]
     pub train_alphas: Option<Vec<f64>>,
     /// Glob patterns of run files not used at all.
+    #[arg(
+        long,
+        value_name = "GLOB",
+        help = "Runs not used at all: glob(s) as for --test-runs (repeatable)"
+    )]
     pub exclude_runs: Option<Vec<String>>,
-    /// Fraction of each training run held out for validation, as one contiguous stretch
-    /// (default 0.2).
+    /// Fraction of each training run held out for validation, as one contiguous stretch.
+    #[arg(long, value_name = "FRACTION", help = with_default(
+        "Fraction of each training run held out for validation as one contiguous stretch",
+        DEFAULT_VALIDATION_FRACTION))]
     pub validation_fraction: Option<f64>,
-    /// Seed of the validation stretches' places (default 1).
+    /// Seed of the validation stretches' places (in training commands also
+    /// [`TrainConfig::seed`]).
+    #[arg(long, help = with_default(
+        "Seed of the validation stretches' places (training: also of the initial weights \
+         and the data order)", DEFAULT_SPLIT_SEED))]
     pub seed: Option<u64>,
 }
 
@@ -102,6 +155,14 @@ fn list<T: std::fmt::Display>(v: &[T]) -> String {
 }
 
 impl DataConfig {
+    /// These options over the dataset folder `dir`.
+    pub fn in_dir(&self, dir: &Path) -> DataConfig {
+        DataConfig {
+            dir: dir.to_path_buf(),
+            ..self.clone()
+        }
+    }
+
     /// `true` if any key of the test-set group is set.
     fn has_test_set(&self) -> bool {
         self.test_alphas.is_some() || self.test_runs.is_some() || self.test_tail.is_some()

@@ -247,6 +247,16 @@ impl TrainConfig {
     }
 }
 
+/// The demo's budget (`nemm demo`: the main job in a few minutes on two cores): epochs of
+/// the neural stages.
+pub const DEMO_EPOCHS: usize = 12;
+/// The demo's budget: batches per epoch (a random subset).
+pub const DEMO_MAX_BATCHES: usize = 8;
+/// The demo's budget: epochs of the Linear EMM stage.
+pub const DEMO_LINEAR_EPOCHS: usize = 6;
+/// The demo's dataset folder (the default virtual bench is generated there if it is empty).
+pub const DEMO_DATA_DIR: &str = "out/bench";
+
 /// Everything a training job reads: data, model, training.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -260,6 +270,17 @@ pub struct Config {
 }
 
 impl Config {
+    /// The demo's configuration: the defaults on the demo's budget ([`DEMO_EPOCHS`],
+    /// [`DEMO_MAX_BATCHES`], [`DEMO_LINEAR_EPOCHS`]) over [`DEMO_DATA_DIR`].
+    pub fn demo() -> Config {
+        let mut c = Config::default();
+        c.data.dir = PathBuf::from(DEMO_DATA_DIR);
+        c.train.epochs = DEMO_EPOCHS;
+        c.train.max_batches = Some(DEMO_MAX_BATCHES);
+        c.train.linear_epochs = DEMO_LINEAR_EPOCHS;
+        c
+    }
+
     /// Reads a configuration from a TOML file; absent keys take their defaults.
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
@@ -608,5 +629,33 @@ mod tests {
         );
         assert_eq!(c.data.exclude_runs, Some(vec!["c*".to_string()]));
         assert_eq!(c.data.window_s, Some(0.4));
+    }
+
+    /// Each data flag is named after its field (`--test-alphas` for `test_alphas`), the
+    /// singular spellings are aliases, and the demo's options go through the same
+    /// `ConfigArgs::apply` as every training command's: its budget is a base the flags
+    /// override, and `--seed` seeds the split and the training alike.
+    #[test]
+    fn flags_are_named_after_fields_and_the_demo_takes_the_same_path() {
+        let plural = Cli::parse_from(["nemm", "--test-alphas", "0.3", "--train-alphas", "0,0.15"]);
+        let singular = Cli::parse_from(["nemm", "--test-alpha", "0.3", "--train-alpha", "0,0.15"]);
+        assert_eq!(plural.args.data_options, singular.args.data_options);
+        assert_eq!(plural.args.data_options.test_alphas, Some(vec![0.3]));
+        assert_eq!(plural.args.data_options.train_alphas, Some(vec![0.0, 0.15]));
+
+        let demo = Cli::parse_from(["nemm", "--seed", "7", "--epochs", "3"])
+            .args
+            .base_over(Config::demo())
+            .expect("demo config");
+        assert_eq!((demo.data.seed, demo.train.seed), (Some(7), 7));
+        assert_eq!(demo.train.epochs, 3, "a flag overrides the demo's budget");
+        assert_eq!(demo.train.max_batches, Some(DEMO_MAX_BATCHES));
+        assert_eq!(demo.train.linear_epochs, DEMO_LINEAR_EPOCHS);
+        assert_eq!(demo.data.dir, PathBuf::from(DEMO_DATA_DIR));
+        let elsewhere = Cli::parse_from(["nemm", "--data", "mine"])
+            .args
+            .base_over(Config::demo())
+            .expect("demo config");
+        assert_eq!(elsewhere.data.dir, PathBuf::from("mine"));
     }
 }

@@ -468,12 +468,13 @@ pub fn check_dataset(
 ) -> Result<(Vec<preprocess::RunSummary>, Vec<Finding>), preprocess::PreprocessError> {
     use rayon::prelude::*;
     let fs = dataset.sample_rate_hz;
+    let path = cfg.at_rate(fs)?;
     let per_run: Vec<(preprocess::RunSummary, Vec<Finding>)> = dataset
         .runs
         .par_iter()
         .enumerate()
         .map(|(i, r)| {
-            let (summary, signals) = preprocess::summarize_run(r, i, fs, cfg)?;
+            let (summary, signals) = preprocess::summarize_run(r, i, &path)?;
             let findings = check_run(r, i, fs, &signals.velocity_m_s);
             Ok((summary, findings))
         })

@@ -158,10 +158,10 @@ pub struct PrepareSummary {
 pub fn summarize_run(
     run: &Run,
     index: usize,
-    sample_rate_hz: f64,
-    cfg: &SignalConfig,
+    path: &SignalPath,
 ) -> Result<(RunSummary, Signals), PreprocessError> {
-    let signals = process_run(run, index, sample_rate_hz, cfg)?;
+    let sample_rate_hz = path.sample_rate_hz;
+    let signals = path.process(run, index)?;
     let excitation = estimate_excitation(
         &signals.displacement_m,
         &signals.velocity_m_s,
@@ -183,7 +183,7 @@ pub fn summarize_run(
         force_max_n,
         excitation,
         measured_velocity: signals.measured_velocity,
-        measured_velocity_mismatch: measured_velocity_mismatch(run, sample_rate_hz, cfg.cutoff_hz)?,
+        measured_velocity_mismatch: measured_velocity_mismatch(run, sample_rate_hz),
         manifest_amplitude_m: run.entry.amplitude_m,
         manifest_target_velocity_m_s: run.entry.target_velocity_m_s,
     };
@@ -196,11 +196,12 @@ pub fn summarize(
     cfg: &SignalConfig,
 ) -> Result<Vec<RunSummary>, PreprocessError> {
     use rayon::prelude::*;
+    let path = cfg.at_rate(dataset.sample_rate_hz)?;
     dataset
         .runs
         .par_iter()
         .enumerate()
-        .map(|(i, r)| summarize_run(r, i, dataset.sample_rate_hz, cfg).map(|(s, _)| s))
+        .map(|(i, r)| summarize_run(r, i, &path).map(|(s, _)| s))
         .collect()
 }
 
@@ -256,7 +257,7 @@ fn no_training_runs(dataset: &Dataset, rules: &SplitRules<'_>) -> Result<(), Pre
 pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, PreprocessError> {
     use rayon::prelude::*;
     let fs = dataset.sample_rate_hz;
-    check_cutoff(fs, config.signal.cutoff_hz)?;
+    let signal_path = config.signal.at_rate(fs)?;
     config.split.validate()?;
     config.split.check_levels(dataset)?;
     let rules = config.split.rules()?;
@@ -287,7 +288,7 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         .map(|(i, run)| -> Result<PerRun, PreprocessError> {
             let alpha = run.entry.oil_loss;
             let role = rules.role(&run.entry.file, alpha);
-            let (summary, signals) = summarize_run(run, i, fs, &config.signal)?;
+            let (summary, signals) = summarize_run(run, i, &signal_path)?;
             let force = if config.signal.filter_force {
                 &signals.force_filtered_n
             } else {

@@ -44,8 +44,8 @@ impl Biquad {
     }
 }
 
-/// Checks a low-pass cut-off against the sample rate.
-pub(super) fn check_cutoff(sample_rate_hz: f64, cutoff_hz: f64) -> Result<(), PreprocessError> {
+/// Checks a low-pass cut-off against the sample rate (once per dataset: [`SignalConfig::at_rate`]).
+fn check_cutoff(sample_rate_hz: f64, cutoff_hz: f64) -> Result<(), PreprocessError> {
     if !(cutoff_hz.is_finite() && cutoff_hz > 0.0 && cutoff_hz < 0.5 * sample_rate_hz) {
         return Err(config_err(
             "cutoff_hz",
@@ -117,10 +117,19 @@ pub fn lowpass_zero_phase(
     sample_rate_hz: f64,
     cutoff_hz: f64,
 ) -> Result<Vec<f64>, PreprocessError> {
-    check_cutoff(sample_rate_hz, cutoff_hz)?;
+    let path = SignalConfig {
+        cutoff_hz,
+        ..SignalConfig::default()
+    }
+    .at_rate(sample_rate_hz)?;
+    Ok(path.lowpass(x))
+}
+
+/// [`lowpass_zero_phase`] with a checked cut-off.
+fn zero_phase(x: &[f64], sample_rate_hz: f64, cutoff_hz: f64) -> Vec<f64> {
     let n = x.len();
     if n < 2 {
-        return Ok(x.to_vec());
+        return x.to_vec();
     }
     let bq = Biquad::butterworth_lowpass(sample_rate_hz, cutoff_hz);
     let pad = ((3.0 * sample_rate_hz / cutoff_hz).ceil() as usize).min(n - 1);
@@ -141,7 +150,7 @@ pub fn lowpass_zero_phase(
     ext.reverse();
     ext.truncate(pad + n);
     ext.drain(..pad);
-    Ok(ext)
+    ext
 }
 
 /// Derivative of a signal sampled at step `dt`: central difference inside, second-order
@@ -244,7 +253,44 @@ pub struct Signals {
     pub alpha: Option<Vec<f64>>,
 }
 
-/// Derives filtered displacement, velocity, acceleration and filtered force of a run.
+/// A [`SignalConfig`] checked against a dataset's sample rate ([`SignalConfig::at_rate`]):
+/// what derives the signals of each of its runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SignalPath {
+    /// The configuration.
+    pub config: SignalConfig,
+    /// The sample rate of the runs \[Hz\].
+    pub sample_rate_hz: f64,
+}
+
+impl SignalConfig {
+    /// These settings at `sample_rate_hz`; refuses a cut-off that is not positive and below
+    /// half the sample rate (the one check of the cut-off).
+    pub fn at_rate(&self, sample_rate_hz: f64) -> Result<SignalPath, PreprocessError> {
+        check_cutoff(sample_rate_hz, self.cutoff_hz)?;
+        Ok(SignalPath {
+            config: *self,
+            sample_rate_hz,
+        })
+    }
+}
+
+impl SignalPath {
+    /// The zero-phase low-pass of `x` ([`lowpass_zero_phase`]).
+    pub fn lowpass(&self, x: &[f64]) -> Vec<f64> {
+        zero_phase(x, self.sample_rate_hz, self.config.cutoff_hz)
+    }
+
+    /// Derives filtered displacement, velocity, acceleration and filtered force of a run.
+    ///
+    /// `run_index` only labels errors.
+    pub fn process(&self, run: &Run, run_index: usize) -> Result<Signals, PreprocessError> {
+        process_checked(run, run_index, self)
+    }
+}
+
+/// Derives filtered displacement, velocity, acceleration and filtered force of a run
+/// ([`SignalPath::process`] at `sample_rate_hz`).
 ///
 /// `run_index` only labels errors.
 pub fn process_run(
@@ -253,6 +299,15 @@ pub fn process_run(
     sample_rate_hz: f64,
     cfg: &SignalConfig,
 ) -> Result<Signals, PreprocessError> {
+    cfg.at_rate(sample_rate_hz)?.process(run, run_index)
+}
+
+fn process_checked(
+    run: &Run,
+    run_index: usize,
+    path: &SignalPath,
+) -> Result<Signals, PreprocessError> {
+    let (sample_rate_hz, cfg) = (path.sample_rate_hz, &path.config);
     let n = run.displacement_m.len();
     if run.time_s.len() != n
         || run.force_n.len() != n
@@ -265,7 +320,7 @@ pub fn process_run(
         });
     }
     let dt = 1.0 / sample_rate_hz;
-    let displacement_m = lowpass_zero_phase(&run.displacement_m, sample_rate_hz, cfg.cutoff_hz)?;
+    let displacement_m = path.lowpass(&run.displacement_m);
     let measured = match (cfg.velocity_source, &run.velocity_m_s) {
         (VelocitySource::Differentiated | VelocitySource::Causal, _) => None,
         (VelocitySource::Auto, v) => v.as_ref(),
@@ -278,14 +333,14 @@ pub fn process_run(
         }
     };
     let velocity_m_s = match measured {
-        Some(v) => lowpass_zero_phase(v, sample_rate_hz, cfg.cutoff_hz)?,
+        Some(v) => path.lowpass(v),
         None if cfg.velocity_source == VelocitySource::Causal => {
             causal_velocity(&run.displacement_m, sample_rate_hz)
         }
         None => differentiate(&displacement_m, dt),
     };
     let acceleration_m_s2 = differentiate(&velocity_m_s, dt);
-    let force_filtered_n = lowpass_zero_phase(&run.force_n, sample_rate_hz, cfg.cutoff_hz)?;
+    let force_filtered_n = path.lowpass(&run.force_n);
     Ok(Signals {
         displacement_m,
         velocity_m_s,
@@ -299,11 +354,12 @@ pub fn process_run(
 /// [`process_run`] of every run of a dataset (in parallel), in dataset order.
 pub fn run_signals(dataset: &Dataset, cfg: &SignalConfig) -> Result<Vec<Signals>, PreprocessError> {
     use rayon::prelude::*;
+    let path = cfg.at_rate(dataset.sample_rate_hz)?;
     dataset
         .runs
         .par_iter()
         .enumerate()
-        .map(|(i, r)| process_run(r, i, dataset.sample_rate_hz, cfg))
+        .map(|(i, r)| path.process(r, i))
         .collect()
 }
 
@@ -317,16 +373,8 @@ pub fn run_signals(dataset: &Dataset, cfg: &SignalConfig) -> Result<Vec<Signals>
 /// Integration averages noise out, so an exact velocity column gives a small mismatch at any
 /// excitation frequency (differentiating a quantised displacement instead would amplify its
 /// noise on slow runs); a scale error `s` gives `|s - 1|`, a sign error about 2.
-/// `cutoff_hz` is validated like the filter's and otherwise unused.
-pub fn measured_velocity_mismatch(
-    run: &Run,
-    sample_rate_hz: f64,
-    cutoff_hz: f64,
-) -> Result<Option<f64>, PreprocessError> {
-    let Some(measured) = &run.velocity_m_s else {
-        return Ok(None);
-    };
-    check_cutoff(sample_rate_hz, cutoff_hz)?;
+pub fn measured_velocity_mismatch(run: &Run, sample_rate_hz: f64) -> Option<f64> {
+    let measured = run.velocity_m_s.as_ref()?;
     let dt = 1.0 / sample_rate_hz;
     let mut integral = 0.0;
     let mut diff = Vec::with_capacity(measured.len());
@@ -338,13 +386,13 @@ pub fn measured_velocity_mismatch(
     }
     let err = detrended_rms(&diff);
     let norm = detrended_rms(&run.displacement_m);
-    Ok(Some(if norm > 0.0 {
+    Some(if norm > 0.0 {
         err / norm
     } else if err > 0.0 {
         f64::INFINITY
     } else {
         0.0
-    }))
+    })
 }
 
 /// RMS of `y` after removing its least-squares line over the sample index.

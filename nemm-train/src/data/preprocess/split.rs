@@ -155,7 +155,7 @@ impl SplitConfig {
     }
 
     /// Every requested level must match a run of `dataset`, and every glob a run file: a
-    /// level or pattern that matches none (a typo in `--test-alpha`, say) would silently
+    /// level or pattern that matches none (a typo in `--test-alphas`, say) would silently
     /// leave the test set empty, or drop training data.
     pub(super) fn check_levels(&self, dataset: &Dataset) -> Result<(), PreprocessError> {
         let present = |a: f64| {
