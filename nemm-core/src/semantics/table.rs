@@ -90,6 +90,13 @@ use crate::mlp::CompiledScaler;
 use crate::wire::Writer;
 use core::fmt;
 
+mod kinks;
+mod stored;
+
+pub use kinks::REFINE_POINTS_PER_SEGMENT;
+use kinks::*;
+pub(crate) use stored::*;
+
 /// Default number of segments of a table: 256 (7 KiB per table, 28 bytes per segment).
 pub const DEFAULT_TABLE_SEGMENTS: usize = 256;
 /// Points of the error check per table segment (the check grid is this much finer than the
@@ -297,125 +304,6 @@ impl<const P: usize> Tabulate for &CompiledScaler<P> {
     fn pattern(&mut self, x: f32) -> u64 {
         CompiledScaler::pattern(self, x)
     }
-}
-
-/// Points of the fine scan per table segment, around check points over the bound (see
-/// [`Table1D::compile`]).
-pub const REFINE_POINTS_PER_SEGMENT: usize = 128;
-/// Most ranges rescanned per refinement round.
-const REFINE_RANGES: usize = 8;
-/// A check point whose error exceeds the bound divided by this is rescanned for missed kinks.
-const REFINE_FRACTION: f32 = 8.0;
-/// Most kinks separated between two neighbouring scan points.
-const MAX_KINKS_PER_INTERVAL: usize = 8;
-/// Most refinement rounds.
-const REFINE_ROUNDS: usize = 8;
-
-/// The kinks found so far: sorted, at most `N`, none closer to another than a millionth of
-/// the domain (a kink found again from another scan interval is the same kink).
-struct Kinks<const N: usize> {
-    x: [f64; N],
-    n: usize,
-    tol: f64,
-}
-
-impl<const N: usize> Kinks<N> {
-    fn new(span: f64) -> Self {
-        Self {
-            x: [0.0; N],
-            n: 0,
-            tol: span * 1e-6,
-        }
-    }
-
-    fn as_slice(&self) -> &[f64] {
-        self.x.get(..self.n).unwrap_or(&[])
-    }
-
-    /// Adds `x` in order; `Ok(false)` if it is a kink already known.
-    fn insert(&mut self, x: f64, scaler: &'static str) -> Result<bool, TableError> {
-        let known = self.as_slice();
-        let at = known.partition_point(|&k| k < x);
-        let near = |i: Option<usize>| {
-            i.and_then(|i| known.get(i))
-                .is_some_and(|&k| (k - x).abs() <= self.tol)
-        };
-        if near(Some(at)) || near(at.checked_sub(1)) {
-            return Ok(false);
-        }
-        if self.n == N {
-            return Err(TableError::TooManyKinks {
-                scaler,
-                segments: N,
-            });
-        }
-        // Shift the tail up by one and insert, by passing `x` along the slots (the last slot,
-        // index `n`, is unused). Not `rotate_right`: its length assertion is a panic path
-        // the compiler cannot remove.
-        let tail = self.x.get_mut(at..=self.n).ok_or(TableError::BadConfig)?;
-        let mut carry = x;
-        for slot in tail {
-            core::mem::swap(slot, &mut carry);
-        }
-        self.n += 1;
-        Ok(true)
-    }
-}
-
-/// Scans `[a, b]` (`range`) at `n` intervals for changes of the pattern, bisects each to
-/// adjacent floats and adds the kinks strictly inside the domain `(lo, hi)` (`domain`) to
-/// `kinks`; returns how many were new.
-fn scan_kinks<const N: usize>(
-    exact: &mut impl Tabulate,
-    (a, b): (f32, f32),
-    n: usize,
-    (lo, hi): (f32, f32),
-    kinks: &mut Kinks<N>,
-    scaler: &'static str,
-) -> Result<usize, TableError> {
-    let (a64, span) = (f64::from(a), f64::from(b) - f64::from(a));
-    let mut new = 0usize;
-    let mut prev_x = a;
-    let mut prev_p = exact.pattern(a);
-    for j in 1..=n {
-        let x = if j == n {
-            b
-        } else {
-            (a64 + span * j as f64 / n as f64) as f32
-        };
-        let p = exact.pattern(x);
-        // Every change between the two points: bisect to the first, and again from there
-        // while the pattern still differs from `x`'s (kinks of different neurons closer
-        // than the grid; the same neuron's two crossings are found by the finer rescans).
-        let (mut from_x, mut from_p) = (prev_x, prev_p);
-        for _ in 0..MAX_KINKS_PER_INTERVAL {
-            if from_p == p {
-                break;
-            }
-            let (mut l, mut r) = (from_x, x);
-            let mut r_p = p;
-            for _ in 0..BISECTION_STEPS {
-                let mid = l + 0.5 * (r - l);
-                if mid <= l || mid >= r {
-                    break;
-                }
-                let mid_p = exact.pattern(mid);
-                if mid_p == from_p {
-                    l = mid;
-                } else {
-                    (r, r_p) = (mid, mid_p);
-                }
-            }
-            // A kink on the domain's ends needs no knot.
-            if r > lo && r < hi && kinks.insert(f64::from(r), scaler)? {
-                new += 1;
-            }
-            (from_x, from_p) = (r, r_p);
-        }
-        prev_x = x;
-        prev_p = p;
-    }
-    Ok(new)
 }
 
 impl<const N: usize> Table1D<N> {
@@ -709,49 +597,6 @@ impl<const N: usize> Table1D<N> {
         most
     }
 
-    /// Writes the table as the format's stored table ([`crate::stored_tables`]): the domain,
-    /// the lookup scalars, the accuracy, then the `N` segments (the lookup cells are not
-    /// stored: [`Self::read_stored`] recomputes them).
-    pub(crate) fn write_stored(&self, w: &mut Writer<'_>) -> Option<()> {
-        w.put(&[self.lo, self.hi, self.cell_scale, self.cell_offset])?;
-        w.put(&(self.accuracy.max_rel_error, self.accuracy.at))?;
-        w.put(&(
-            u32::try_from(self.accuracy.kinks).ok()?,
-            u32::try_from(self.accuracy.max_knots_per_cell).ok()?,
-        ))?;
-        for s in &self.seg {
-            w.put(s)?;
-        }
-        Some(())
-    }
-
-    /// Reads a stored table of `N` segments (written by [`Self::write_stored`]) into `self`,
-    /// in place, and returns the bytes after it; the lookup cells are recomputed as
-    /// [`Self::compile`] computes them, so the table is bit-identical to the one written.
-    /// Refuses (`None`) a table that [`parse_stored`] refuses, whose domain is not
-    /// `[lo, hi]` (bit for bit) or whose lookup cells disagree with its accuracy record;
-    /// `self` then holds a partial table that must be rebuilt before use.
-    pub(crate) fn read_stored<'a>(
-        &mut self,
-        bytes: &'a [u8],
-        lo: f32,
-        hi: f32,
-    ) -> Option<&'a [u8]> {
-        let seg = &mut self.seg;
-        let (head, rest) = parse_stored(bytes, N, |i, s| {
-            if let Some(slot) = seg.get_mut(i) {
-                *slot = s;
-            }
-        })?;
-        if head.domain.0.to_bits() != lo.to_bits() || head.domain.1.to_bits() != hi.to_bits() {
-            return None;
-        }
-        (self.lo, self.hi) = head.domain;
-        (self.cell_scale, self.cell_offset) = head.cells;
-        self.accuracy = head.accuracy;
-        (self.fill_cells() == self.accuracy.max_knots_per_cell).then_some(rest)
-    }
-
     /// Measures the table against `exact` on the check grid (sets the accuracy) and returns
     /// how many ranges of `bad` it filled: the neighbourhoods (1.5 segment widths `seg_w`
     /// either side, overlapping ones merged) of the check points whose error exceeds
@@ -886,64 +731,6 @@ impl<const N: usize> Table1D<N> {
     pub const fn table_bytes() -> usize {
         N * TABLE_BYTES_PER_SEGMENT
     }
-}
-
-/// The scalars of a stored table (see [`parse_stored`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct StoredHead {
-    /// `[lo, hi]`.
-    pub domain: (f32, f32),
-    /// Lookup cells per unit input and the cell coordinate of `x = 0`.
-    pub cells: (f32, f32),
-    /// The accuracy measured when the table was built.
-    pub accuracy: TableAccuracy,
-}
-
-/// Parses a stored table of `segments` segments (the layout of [`Table1D::write_stored`]),
-/// handing each segment to `each` (index, `[x0, 1 / width, c0, c1, c2, c3]`); returns its
-/// scalars and the bytes after it. `None` if it does not parse, a value is not finite, the
-/// domain is empty or the knots are not in order.
-pub(crate) fn parse_stored(
-    bytes: &[u8],
-    segments: usize,
-    mut each: impl FnMut(usize, [f32; 6]),
-) -> Option<(StoredHead, &[u8])> {
-    let ([lo, hi, cell_scale, cell_offset], rest) =
-        postcard::take_from_bytes::<[f32; 4]>(bytes).ok()?;
-    let ((max_rel_error, at), rest) = postcard::take_from_bytes::<(f32, f32)>(rest).ok()?;
-    let ((kinks, max_knots), mut rest) = postcard::take_from_bytes::<(u32, u32)>(rest).ok()?;
-    let valid = lo.is_finite()
-        && hi.is_finite()
-        && hi > lo
-        && cell_scale.is_finite()
-        && cell_offset.is_finite()
-        && max_rel_error.is_finite()
-        && max_rel_error >= 0.0
-        && at.is_finite();
-    if !valid {
-        return None;
-    }
-    let mut prev_knot = f32::NEG_INFINITY;
-    for i in 0..segments {
-        let (s, r) = postcard::take_from_bytes::<[f32; 6]>(rest).ok()?;
-        if !s.iter().all(|v| v.is_finite()) || s[0] < prev_knot {
-            return None;
-        }
-        prev_knot = s[0];
-        each(i, s);
-        rest = r;
-    }
-    let head = StoredHead {
-        domain: (lo, hi),
-        cells: (cell_scale, cell_offset),
-        accuracy: TableAccuracy {
-            max_rel_error,
-            at,
-            kinks: usize::try_from(kinks).ok()?,
-            max_knots_per_cell: usize::try_from(max_knots).ok()?,
-        },
-    };
-    Some((head, rest))
 }
 
 /// Checks a configuration (used by the estimator).
