@@ -4,7 +4,11 @@
 //! ```text
 //! cargo run --release -p nemm-core --example table_error                  # example models
 //! cargo run --release -p nemm-core --example table_error -- model.nemm    # a trained blob
+//! cargo run --release -p nemm-core --example table_error -- --markdown [model.nemm ..]
 //! ```
+//!
+//! `--markdown` prints one table row per run, for the example models and each blob given
+//! (what `cargo xtask results --tables` writes into docs/results.md).
 //!
 //! The programme: the paper's Table 1 grid of sinusoidal strokes (amplitudes 50, 30, 10 mm x
 //! peak velocities 0.052 ... 1.048 m/s), three periods each from rest, at the model's step
@@ -35,7 +39,13 @@ fn stroke(amp: f64, v_peak: f64, dt: f64) -> Vec<f32> {
 
 /// Runs the programme in exact mode and in table mode with `T` segments (a bound of 1, so
 /// that every size is measured; the compile's measured error is printed).
-fn compare<const T: usize>(m: &Model, alpha: f32, integrator: Integrator, strokes: &[Vec<f32>]) {
+fn compare<const T: usize>(
+    (name, m): (&str, &Model),
+    alpha: f32,
+    integrator: Integrator,
+    strokes: &[Vec<f32>],
+    markdown: bool,
+) {
     let base = EstimatorConfig {
         integrator: Some(integrator),
         ..EstimatorConfig::new(alpha)
@@ -48,6 +58,13 @@ fn compare<const T: usize>(m: &Model, alpha: f32, integrator: Integrator, stroke
     let mut table: Estimator<{ nemm_core::DEFAULT_PARAM_CAPACITY }, T> =
         match Estimator::with_segments(m, cfg) {
             Ok(e) => e,
+            Err(e) if markdown => {
+                println!(
+                    "| {name} | {alpha} | {} | {T} | refused: {e} | - | - | - |",
+                    integrator.name()
+                );
+                return;
+            }
             Err(e) => {
                 println!("  T={T}: {e}");
                 return;
@@ -74,6 +91,15 @@ fn compare<const T: usize>(m: &Model, alpha: f32, integrator: Integrator, stroke
     let acc = table.table_accuracy().map_or(0.0, |a| a.max_rel_error);
     let kinks = table.table_accuracy().map_or(0, |a| a.kinks);
     let (tables, bytes) = table.table_bytes();
+    if markdown {
+        println!(
+            "| {name} | {alpha} | {} | {T} | {acc:.1e} ({kinks} kinks) | {:.1e} | {:.1e} | {outside} |",
+            integrator.name(),
+            worst / fs,
+            rms / fs,
+        );
+        return;
+    }
     println!(
         "  alpha={alpha:.3} {} T={T:4}: {tables} table(s) {bytes} B, coefficient max rel error {acc:.2e} ({kinks} kinks in the worst); \
          force max {worst:.4} N = {:.2e} of the force scale, RMS {rms:.4} N = {:.2e}; \
@@ -84,22 +110,39 @@ fn compare<const T: usize>(m: &Model, alpha: f32, integrator: Integrator, stroke
     );
 }
 
+fn example_models() -> Vec<(String, Model)> {
+    [ModelKind::NemmLight, ModelKind::Nemm]
+        .into_iter()
+        .map(|k| {
+            let m = nemm_core::testing::example_model(k, 16, 5).expect("example model");
+            (format!("example {}", k.name()), m)
+        })
+        .collect()
+}
+
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let models: Vec<(String, Model)> = match args.first() {
-        Some(path) => {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let markdown = args.first().is_some_and(|a| a == "--markdown");
+    if markdown {
+        args.remove(0);
+    }
+    let mut models: Vec<(String, Model)> = args
+        .iter()
+        .map(|path| {
             let blob = std::fs::read(path).unwrap_or_else(|e| panic!("{path}: {e}"));
             let m: Model = decode(&blob).unwrap_or_else(|e| panic!("{path}: {e}"));
-            vec![(path.clone(), m)]
-        }
-        None => [ModelKind::NemmLight, ModelKind::Nemm]
-            .into_iter()
-            .map(|k| {
-                let m = nemm_core::testing::example_model(k, 16, 5).expect("example model");
-                (format!("example {}", k.name()), m)
-            })
-            .collect(),
-    };
+            (format!("`{path}`"), m)
+        })
+        .collect();
+    if models.is_empty() || markdown {
+        models.extend(example_models());
+    }
+    if markdown {
+        println!(
+            "| model | alpha | integrator | segments | coefficient error (kinks) | max force difference / force scale | RMS / force scale | steps outside |"
+        );
+        println!("|---|---:|---|---:|---:|---:|---:|---:|");
+    }
     for (name, m) in &models {
         let strokes: Vec<Vec<f32>> = AMPLITUDES_M
             .iter()
@@ -107,18 +150,21 @@ fn main() {
             .map(|(a, v)| stroke(a, v, f64::from(m.dt_s)))
             .collect();
         let samples: usize = strokes.iter().map(Vec::len).sum();
-        println!(
-            "{name}: {}, force scale {} N, {samples} samples per run",
-            m.kind().name(),
-            m.meta.force_scale_n
-        );
+        if !markdown {
+            println!(
+                "{name}: {}, force scale {} N, {samples} samples per run",
+                m.kind().name(),
+                m.meta.force_scale_n
+            );
+        }
         let (a0, a1) = (m.meta.alpha_min, m.meta.alpha_max);
         let mid = 0.5 * (a0 + a1);
+        let named = (name.as_str(), m);
         for alpha in [a0, mid, a1] {
-            compare::<256>(m, alpha, Integrator::Rk4, &strokes);
+            compare::<256>(named, alpha, Integrator::Rk4, &strokes, markdown);
         }
-        compare::<256>(m, mid, Integrator::Rk3, &strokes);
-        compare::<64>(m, mid, Integrator::Rk4, &strokes);
-        compare::<128>(m, mid, Integrator::Rk4, &strokes);
+        compare::<256>(named, mid, Integrator::Rk3, &strokes, markdown);
+        compare::<64>(named, mid, Integrator::Rk4, &strokes, markdown);
+        compare::<128>(named, mid, Integrator::Rk4, &strokes, markdown);
     }
 }

@@ -122,11 +122,16 @@ enum Cmd {
     /// docs/results.md.
     ///
     /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm
-    /// demo` report directory instead (table4.md, table5.md if present, report.json).
+    /// demo` report directory instead (table4.md, table5.md if present, report.json). With
+    /// --tables, fill the tables block: the fast path's error against the exact one on the
+    /// firmware's trained model and the example models (host, minutes).
     Results {
         /// A report directory of `nemm compare` or `nemm demo`.
-        #[arg(long, value_name = "DIR")]
+        #[arg(long, value_name = "DIR", conflicts_with = "tables")]
         training: Option<PathBuf>,
+        /// Measure the tabulated fast path instead (the `tables` block).
+        #[arg(long)]
+        tables: bool,
         /// Measured steps of the bench trace.
         #[arg(long, default_value_t = 4000)]
         steps: u32,
@@ -273,10 +278,12 @@ fn main() -> ExitCode {
         Some(Cmd::RunTarget { options }) => run_target(&options),
         Some(Cmd::Results {
             training,
+            tables,
             steps,
             allow_dirty,
         }) => match training {
             Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty)),
+            None if tables => Paths::find().and_then(|p| results::tables(&p, allow_dirty)),
             None => {
                 setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty))
             }

@@ -44,6 +44,12 @@ the command named in its header, with the commit it measured. Do not edit inside
 Not generated yet: run `cargo xtask results`.
 <!-- END target -->
 
+## Tabulated fast path
+
+<!-- BEGIN tables -->
+Not generated yet: run `cargo xtask results --tables`.
+<!-- END tables -->
+
 ## Training (Tables 4 and 5)
 
 <!-- BEGIN training -->
@@ -442,6 +448,64 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
     )
 }
 
+/// The trained model the firmware embeds: what the `tables` block measures besides the
+/// example models.
+const TRAINED_BLOB: &str = "nemm-firmware/data/trained-nemm.nemm";
+
+/// `cargo xtask results --tables`: the `tables` block. Runs nemm-core's `table_error`
+/// example (exact against tabulated forces over the Table 1 programme) and nemm-train's
+/// `table_check` example (the export check) on the firmware's trained model.
+pub fn tables(paths: &Paths, allow_dirty: bool) -> Result<(), String> {
+    let commit = commit(&paths.root);
+    refuse_dirty("the work tree", &commit, allow_dirty)?;
+    let output = |package: &str, example: &str, args: &[&str]| -> Result<String, String> {
+        let mut c = crate::cargo();
+        c.args([
+            "run",
+            "-q",
+            "--release",
+            "-p",
+            package,
+            "--example",
+            example,
+            "--",
+        ])
+        .args(args)
+        .current_dir(&paths.root);
+        eprintln!("xtask: {package} example {example} {}", args.join(" "));
+        let out = c.output().map_err(|e| format!("cargo: {e}"))?;
+        if !out.status.success() {
+            return Err(format!(
+                "example {example} failed: {}",
+                String::from_utf8_lossy(&out.stderr)
+            ));
+        }
+        Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+    };
+    let errors = output("nemm-core", "table_error", &["--markdown", TRAINED_BLOB])?;
+    let check = output("nemm-train", "table_check", &[TRAINED_BLOB])?;
+    let md = tables_markdown(&command_line(), &commit, &errors, &check);
+    write_block(paths, "tables", &md)
+}
+
+/// The `tables` block: the force errors of the fast path, then the export check.
+fn tables_markdown(command: &str, commit: &str, errors: &str, check: &str) -> String {
+    format!(
+        "Measured by `{command}` at commit `{commit}`.\n\n\
+         **Force error of the tables** (`cargo run --release -p nemm-core --example table_error \
+         -- --markdown {TRAINED_BLOB}`): the paper's Table 1 programme (18 strokes of three \
+         periods from rest at the model's step), exact and table mode side by side; \
+         coefficient error: the largest relative error the table compile measured (bound 1 so \
+         that every size is measured); `{TRAINED_BLOB}` is the firmware's trained NEMM, the \
+         example models are `nemm_core::testing`'s (H = 16, L = 5, pseudo-random, untrained).\n\n\
+         {}\n\n\
+         **Export check** (`cargo run --release -p nemm-train --example table_check -- \
+         {TRAINED_BLOB}`, what `nemm export` prints):\n\n```text\n{}\n```\n",
+        errors.trim_end(),
+        check.trim_end()
+    )
+}
+
 /// `cargo xtask results --training DIR`: the `training` block from a report directory.
 pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), String> {
     let read = |name: &str| -> Result<Option<String>, String> {
@@ -639,6 +703,20 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn the_tables_block_names_its_commit_and_keeps_the_rows() {
+        let rows = "| model | alpha |\n|---|---:|\n| `x.nemm` | 0.15 |\n";
+        let md = tables_markdown(
+            "cargo xtask results --tables",
+            "abc1234",
+            rows,
+            "check: ok\n",
+        );
+        assert!(md.starts_with("Measured by `cargo xtask results --tables` at commit `abc1234`."));
+        assert!(md.contains("| `x.nemm` | 0.15 |\n\n**Export check**"));
+        assert!(md.contains("```text\ncheck: ok\n```"));
+    }
 
     #[test]
     fn a_sweep_table_names_its_commit() {
