@@ -336,42 +336,73 @@ pub fn resolve_with(
     manifest: &Manifest,
 ) -> ResolvedData {
     let empty = DataConfig::default();
-    let file = file.unwrap_or(&empty);
-    let merged = given.over(file);
-    let src = |in_given: bool, in_file: bool| {
-        if in_given {
+    let layers = Layers {
+        given,
+        file: file.unwrap_or(&empty),
+    };
+    let mut c = given.over(layers.file);
+    let choices = vec![
+        resolve_cutoff(&layers, &mut c, manifest.sample_rate_hz),
+        resolve_velocity(&layers, &mut c),
+        resolve_window(&layers, &mut c),
+        resolve_test_set(&layers, &mut c, manifest),
+        resolve_training(&layers, &mut c),
+        resolve_validation(&layers, &mut c),
+    ];
+    ResolvedData {
+        config: c,
+        choices,
+        options_file: None,
+    }
+}
+
+/// The two layers of data options above the choices from the data: the given ones (command
+/// line and `--config`) over the dataset's options file.
+struct Layers<'a> {
+    given: &'a DataConfig,
+    file: &'a DataConfig,
+}
+
+/// One printed choice: `(option, value, source)`.
+type Choice = (&'static str, String, OptionSource);
+
+impl Layers<'_> {
+    /// Where an option set by `is_set` (on a layer) came from: given, the options file, or
+    /// the built-in default.
+    fn source(&self, is_set: impl Fn(&DataConfig) -> bool) -> OptionSource {
+        if is_set(self.given) {
             OptionSource::Given
-        } else if in_file {
+        } else if is_set(self.file) {
             OptionSource::DatasetFile
         } else {
             OptionSource::Default
         }
-    };
-    let mut c = merged.clone();
-    let mut choices = Vec::new();
-    let fs = manifest.sample_rate_hz;
-    let cutoff_source = match (given.cutoff_hz, file.cutoff_hz) {
-        (None, None) => {
-            c.cutoff_hz = Some(adaptive_cutoff_hz(fs));
-            if DEFAULT_CUTOFF_HZ < CUTOFF_FRACTION_OF_RATE * fs {
-                OptionSource::Default
-            } else {
-                OptionSource::Data(format!(
-                    "{CUTOFF_FRACTION_OF_RATE} x the {fs} Hz sample rate, below its Nyquist \
-                     frequency {} Hz",
-                    fs / 2.0
-                ))
-            }
+    }
+}
+
+/// The cut-off: given, from the options file, or [`adaptive_cutoff_hz`] of the sample rate.
+fn resolve_cutoff(layers: &Layers<'_>, c: &mut DataConfig, fs: f64) -> Choice {
+    let source = if c.cutoff_hz.is_some() {
+        layers.source(|l| l.cutoff_hz.is_some())
+    } else {
+        c.cutoff_hz = Some(adaptive_cutoff_hz(fs));
+        if DEFAULT_CUTOFF_HZ < CUTOFF_FRACTION_OF_RATE * fs {
+            OptionSource::Default
+        } else {
+            OptionSource::Data(format!(
+                "{CUTOFF_FRACTION_OF_RATE} x the {fs} Hz sample rate, below its Nyquist \
+                 frequency {} Hz",
+                fs / 2.0
+            ))
         }
-        (g, _) => src(g.is_some(), true),
     };
-    choices.push((
-        "cutoff_hz",
-        format!("{} Hz", c.cutoff_hz.unwrap_or(DEFAULT_CUTOFF_HZ)),
-        cutoff_source,
-    ));
-    let velocity = c.velocity.get_or_insert(VelocitySource::Auto);
-    let velocity_text = match velocity {
+    let hz = c.cutoff_hz.unwrap_or(DEFAULT_CUTOFF_HZ);
+    ("cutoff_hz", format!("{hz} Hz"), source)
+}
+
+/// The velocity source (default `auto`).
+fn resolve_velocity(layers: &Layers<'_>, c: &mut DataConfig) -> Choice {
+    let text = match c.velocity.get_or_insert(VelocitySource::Auto) {
         VelocitySource::Auto => {
             "auto (the velocity_m_s column where a run has one, else d/dt displacement)"
         }
@@ -381,24 +412,30 @@ pub fn resolve_with(
             "causal (the firmware's backward difference and 500 Hz low-pass, lag included)"
         }
     };
-    choices.push((
+    (
         "velocity",
-        velocity_text.to_string(),
-        src(given.velocity.is_some(), file.velocity.is_some()),
-    ));
+        text.to_string(),
+        layers.source(|l| l.velocity.is_some()),
+    )
+}
+
+/// The scored window and its warm-up.
+fn resolve_window(layers: &Layers<'_>, c: &mut DataConfig) -> Choice {
     let window = *c.window_s.get_or_insert(DEFAULT_WINDOW_S);
     let warmup = *c.warmup_s.get_or_insert(DEFAULT_WARMUP_S);
-    choices.push((
+    (
         "window_s",
         format!("{window} s scored + {warmup} s warm-up"),
-        src(
-            given.window_s.is_some() || given.warmup_s.is_some(),
-            file.window_s.is_some() || file.warmup_s.is_some(),
-        ),
-    ));
-    let test_source = if given.has_test_set() {
+        layers.source(|l| l.window_s.is_some() || l.warmup_s.is_some()),
+    )
+}
+
+/// The test set: given or from the options file as one group, else chosen from the levels
+/// of the manifest ([`adaptive_test_set`]).
+fn resolve_test_set(layers: &Layers<'_>, c: &mut DataConfig, manifest: &Manifest) -> Choice {
+    let source = if layers.given.has_test_set() {
         OptionSource::Given
-    } else if file.has_test_set() {
+    } else if layers.file.has_test_set() {
         OptionSource::DatasetFile
     } else {
         let levels = preprocess::distinct_levels(manifest.runs.iter().map(|r| r.oil_loss));
@@ -422,45 +459,42 @@ pub fn resolve_with(
     if parts.is_empty() {
         parts.push("none".into());
     }
-    choices.push(("test set", parts.join(" + "), test_source));
+    ("test set", parts.join(" + "), source)
+}
+
+/// The training runs: the training levels, less the excluded runs.
+fn resolve_training(layers: &Layers<'_>, c: &mut DataConfig) -> Choice {
     let exclude = c.exclude_runs.get_or_insert_with(Vec::new).clone();
-    let train_text = match &c.train_alphas {
+    let levels = match &c.train_alphas {
         Some(a) => format!("runs at alpha {}", list(a)),
         None => "every other run".to_string(),
     };
-    let train_text = if exclude.is_empty() {
-        train_text
+    let text = if exclude.is_empty() {
+        levels
     } else {
-        format!("{train_text}, except runs matching {}", list(&exclude))
+        format!("{levels}, except runs matching {}", list(&exclude))
     };
-    choices.push((
+    (
         "training",
-        train_text,
-        src(
-            given.train_alphas.is_some() || given.exclude_runs.is_some(),
-            file.train_alphas.is_some() || file.exclude_runs.is_some(),
-        ),
-    ));
+        text,
+        layers.source(|l| l.train_alphas.is_some() || l.exclude_runs.is_some()),
+    )
+}
+
+/// The validation stretch of each training run and the seed that places it.
+fn resolve_validation(layers: &Layers<'_>, c: &mut DataConfig) -> Choice {
     let fraction = *c
         .validation_fraction
         .get_or_insert(DEFAULT_VALIDATION_FRACTION);
     let seed = *c.seed.get_or_insert(DEFAULT_SPLIT_SEED);
-    choices.push((
+    (
         "validation",
         format!(
             "{} % of each training run's windows as one contiguous stretch, placed by seed {seed}",
             100.0 * fraction
         ),
-        src(
-            given.validation_fraction.is_some() || given.seed.is_some(),
-            file.validation_fraction.is_some() || file.seed.is_some(),
-        ),
-    ));
-    ResolvedData {
-        config: c,
-        choices,
-        options_file: None,
-    }
+        layers.source(|l| l.validation_fraction.is_some() || l.seed.is_some()),
+    )
 }
 
 /// Resolves the data options of `given` for its dataset (`given.dir`): reads the manifest
