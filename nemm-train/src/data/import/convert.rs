@@ -2,6 +2,7 @@
 //! onto the dataset's grid.
 
 use super::*;
+use crate::data::csv::{CsvError, CsvReader, Dialect, Header, Row};
 
 /// One raw file converted to SI units, with the source line of every sample.
 #[derive(Debug, Clone, PartialEq)]
@@ -14,131 +15,72 @@ struct Converted {
     lines: Vec<usize>,
 }
 
-fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
-    let bytes = std::fs::read(path).map_err(|error| ImportError::Io {
-        path: path.to_path_buf(),
-        error,
-    })?;
-    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
-    let o = &spec.csv;
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(true)
-        .trim(csv::Trim::All)
-        .delimiter(delimiter_byte(&o.delimiter)?)
-        .comment(o.comment.as_ref().and_then(|c| c.bytes().next()))
-        .from_reader(bytes);
-    let csv_err = |e: csv::Error, line: usize| ImportError::Csv {
-        path: path.to_path_buf(),
-        line: e
-            .position()
-            .map_or(line, |p| usize::try_from(p.line()).unwrap_or(usize::MAX)),
-        message: e.to_string(),
-    };
-    let mut header: Option<(usize, Vec<String>)> = None;
-    let mut idx: Vec<(&'static str, usize, f64, &ColumnSpec)> = Vec::new();
-    let mut out = Converted {
-        time_s: Vec::new(),
-        displacement_m: Vec::new(),
-        force_n: Vec::new(),
-        velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
-        alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
-        lines: Vec::new(),
-    };
-    let mut record = csv::StringRecord::new();
-    let mut last = 0;
-    loop {
-        match reader.read_record(&mut record) {
-            Ok(true) => {}
-            Ok(false) => break,
-            Err(e) => return Err(csv_err(e, last + 1)),
+impl Converted {
+    /// No samples yet, with the optional columns `spec` maps.
+    fn empty(spec: &ImportSpec) -> Self {
+        Converted {
+            time_s: Vec::new(),
+            displacement_m: Vec::new(),
+            force_n: Vec::new(),
+            velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
+            alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
+            lines: Vec::new(),
         }
-        let line = record.position().map_or(last + 1, |p| {
-            usize::try_from(p.line()).unwrap_or(usize::MAX)
-        });
-        last = line;
-        let Some((hline, names)) = &header else {
-            if line < o.header_line {
-                continue;
-            }
-            let names: Vec<String> = record.iter().map(str::to_string).collect();
-            for (role, c) in spec.columns.roles() {
-                let Some(c) = c else { continue };
-                let found = match (&c.name, c.index) {
-                    (Some(n), _) => names.iter().position(|h| h == n),
-                    (None, Some(i)) => (i >= 1 && i <= names.len()).then(|| i - 1),
-                    (None, None) => None,
-                };
-                let i = found.ok_or_else(|| ImportError::MissingColumn {
-                    path: path.to_path_buf(),
-                    line,
-                    role: role.to_string(),
-                    column: c.label(),
-                    header: names.join(","),
-                })?;
-                let factor = unit_factor(role, &c.unit).unwrap_or(1.0);
-                idx.push((role, i, factor, c));
-            }
-            header = Some((line, names));
-            continue;
-        };
-        let _ = hline;
-        if record.iter().all(str::is_empty) {
-            continue;
-        }
+    }
+
+    /// Converts one row: every mapped column to SI units (`role`, field, unit factor,
+    /// spec), the time from the time column or `spec.rate_hz`. Refuses a cell that is not a
+    /// finite number, a level outside \[0, 1\] and a time that does not increase.
+    fn push_row(
+        &mut self,
+        row: &Row<'_, '_>,
+        columns: &[(&'static str, usize, f64, &ColumnSpec)],
+        rate_hz: Option<f64>,
+        path: &Path,
+    ) -> Result<(), ImportError> {
+        let line = row.line();
         let mut time = None;
-        for &(role, i, factor, c) in &idx {
-            let raw = record.get(i).unwrap_or("");
-            let text = if o.decimal_comma {
-                raw.replace(',', ".")
-            } else {
-                raw.to_string()
-            };
-            let v = match text.parse::<f64>() {
-                Ok(v) if v.is_finite() => v,
-                _ => {
-                    return Err(ImportError::BadCell {
-                        path: path.to_path_buf(),
-                        line,
-                        field: i + 1,
-                        column: names.get(i).cloned().unwrap_or_default(),
-                        value: raw.to_string(),
-                    })
-                }
-            };
+        for &(role, i, factor, c) in columns {
+            let v = row.number(i).map_err(|e| ImportError::BadCell {
+                path: e.path,
+                line: e.line,
+                field: e.field + 1,
+                column: e.column,
+                value: e.value,
+            })?;
             let si = (v * c.gain + c.offset) * factor * if c.invert { -1.0 } else { 1.0 };
             match role {
                 "time" => time = Some(si),
-                "displacement" => out.displacement_m.push(si),
-                "force" => out.force_n.push(si),
+                "displacement" => self.displacement_m.push(si),
+                "force" => self.force_n.push(si),
                 "alpha" => {
                     if !(0.0..=1.0).contains(&si) {
                         return Err(ImportError::LevelOutOfRange {
                             path: path.to_path_buf(),
                             line,
                             field: i + 1,
-                            column: names.get(i).cloned().unwrap_or_default(),
-                            value: raw.to_string(),
+                            column: row.column(i),
+                            value: row.text(i),
                             level: si,
                         });
                     }
-                    if let Some(a) = out.alpha.as_mut() {
+                    if let Some(a) = self.alpha.as_mut() {
                         a.push(si);
                     }
                 }
                 _ => {
-                    if let Some(vel) = out.velocity_m_s.as_mut() {
+                    if let Some(vel) = self.velocity_m_s.as_mut() {
                         vel.push(si);
                     }
                 }
             }
         }
-        let t = match (time, spec.rate_hz) {
+        let t = match (time, rate_hz) {
             (Some(t), _) => t,
-            (None, Some(r)) => out.lines.len() as f64 / r,
+            (None, Some(r)) => self.lines.len() as f64 / r,
             (None, None) => 0.0,
         };
-        if let Some(&prev) = out.time_s.last() {
+        if let Some(&prev) = self.time_s.last() {
             if t.is_nan() || t <= prev {
                 return Err(ImportError::Time(DatasetError::NonMonotonicTime {
                     path: path.to_path_buf(),
@@ -148,14 +90,99 @@ fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
                 }));
             }
         }
-        out.time_s.push(t);
-        out.lines.push(line);
+        self.time_s.push(t);
+        self.lines.push(line);
+        Ok(())
     }
-    if header.is_none() {
+}
+
+/// The reader's error as an [`ImportError`].
+fn csv_error(e: CsvError) -> ImportError {
+    match e {
+        CsvError::Malformed {
+            path,
+            line,
+            message,
+        } => ImportError::Csv {
+            path,
+            line,
+            message,
+        },
+        CsvError::FieldCount {
+            path,
+            line,
+            expected,
+            found,
+        } => ImportError::Csv {
+            path,
+            line,
+            message: format!("{found} fields, but the header has {expected}"),
+        },
+    }
+}
+
+/// The CSV dialect of the spec's raw files.
+fn dialect(o: &CsvOptions) -> Result<Dialect, ImportError> {
+    Ok(Dialect {
+        delimiter: delimiter_byte(&o.delimiter)?,
+        comment: o.comment.as_ref().and_then(|c| c.bytes().next()),
+        header_line: o.header_line,
+        same_field_count: false,
+        decimal_comma: o.decimal_comma,
+    })
+}
+
+/// The columns `spec` maps, found in `header`: `(role, field, unit factor, spec)` in
+/// reading order.
+fn find_columns<'s>(
+    spec: &'s ImportSpec,
+    path: &Path,
+    header: &Header,
+) -> Result<Vec<(&'static str, usize, f64, &'s ColumnSpec)>, ImportError> {
+    let names = &header.names;
+    let mut idx = Vec::new();
+    for (role, c) in spec.columns.roles() {
+        let Some(c) = c else { continue };
+        let found = match (&c.name, c.index) {
+            (Some(n), _) => names.iter().position(|h| h == n),
+            (None, Some(i)) => (i >= 1 && i <= names.len()).then(|| i - 1),
+            (None, None) => None,
+        };
+        let i = found.ok_or_else(|| ImportError::MissingColumn {
+            path: path.to_path_buf(),
+            line: header.line,
+            role: role.to_string(),
+            column: c.label(),
+            header: names.join(","),
+        })?;
+        let factor = unit_factor(role, &c.unit).unwrap_or(1.0);
+        idx.push((role, i, factor, c));
+    }
+    Ok(idx)
+}
+
+/// Reads one raw file and converts it to SI units.
+fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
+    let bytes = std::fs::read(path).map_err(|error| ImportError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    let mut reader = CsvReader::new(&bytes, path, dialect(&spec.csv)?);
+    let Some(header) = reader.read_header().map_err(csv_error)? else {
         return Err(ImportError::NoRuns {
             path: path.to_path_buf(),
-            message: format!("no header at line {} (csv.header_line)", o.header_line),
+            message: format!(
+                "no header at line {} (csv.header_line)",
+                spec.csv.header_line
+            ),
         });
+    };
+    let columns = find_columns(spec, path, &header)?;
+    let mut out = Converted::empty(spec);
+    while let Some(row) = reader.next_row().map_err(csv_error)? {
+        if !row.is_blank() {
+            out.push_row(&row, &columns, spec.rate_hz, path)?;
+        }
     }
     if out.time_s.is_empty() {
         return Err(ImportError::NoRuns {
