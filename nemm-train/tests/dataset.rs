@@ -282,6 +282,27 @@ fn non_numeric_cell_names_file_line_and_column() {
 }
 
 #[test]
+fn crlf_and_blank_lines_keep_the_lines_an_editor_shows() {
+    // Windows line ends: the bad cell is on line 4.
+    let csv = "time_s,displacement_m,force_n\r\n0,0,1\r\n0.0001,0,1\r\n0.0002,0,abc\r\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        e.to_string()
+            .ends_with("runs/x.csv:4: column \"force_n\": \"abc\" is not a number"),
+        "{e}"
+    );
+    // A blank line before the row: the row's own line, 5.
+    let csv = "time_s,displacement_m,force_n\r\n0,0,1\r\n0.0001,0,1\r\n\r\n0.0001,0,1\r\n";
+    let e = load_csv(csv).expect_err("refused");
+    assert!(
+        matches!(e, DatasetError::NonMonotonicTime { line: 5, .. }),
+        "{e:?}"
+    );
+    let csv = "time_s,displacement_m,force_n\r\n0,0,0\r\n0.0001,0,0\r\n";
+    assert_eq!(load_csv(csv).expect("CRLF loads").runs[0].len(), 2);
+}
+
+#[test]
 fn empty_cell_is_not_a_number() {
     let csv = "time_s,displacement_m,force_n\n0,,1\n";
     let e = load_csv(csv).expect_err("refused");

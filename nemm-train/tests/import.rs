@@ -217,6 +217,41 @@ fn errors_name_file_line_and_column() {
 }
 
 #[test]
+fn errors_name_the_lines_an_editor_shows_with_crlf_comments_and_blank_lines() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("w.csv");
+    // Windows line ends, a comment line and a blank line: "abc" is on line 7.
+    std::fs::write(
+        &raw,
+        "# logger v3\r\nt,x,F\r\n0,1,2\r\n# pause\r\n0.001,1,2\r\n\r\n0.002,abc,2\r\n",
+    )
+    .expect("raw");
+    let spec = spec_from(&simple_spec(&raw, "[csv]\ncomment = \"#\""), dir.path());
+    let e = import::import(&spec, "w").expect_err("bad cell");
+    assert!(
+        matches!(
+            &e,
+            ImportError::BadCell {
+                line: 7,
+                field: 2,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("w.csv:7:2: column \"x\""), "{e}");
+    // The header named by its line, after a CRLF preamble.
+    std::fs::write(
+        &raw,
+        "logger v3\r\nrate 1 kHz\r\nt,x,F\r\n0,1,2\r\n0.001,1,2\r\n",
+    )
+    .expect("raw");
+    let spec = spec_from(&simple_spec(&raw, "[csv]\nheader_line = 3"), dir.path());
+    let imported = import::import(&spec, "w").expect("imports");
+    assert_eq!(imported.runs[0].lines, (4, 5));
+}
+
+#[test]
 fn volts_with_a_gain_offset_and_no_time_column() {
     let dir = tempfile::tempdir().expect("dir");
     let raw = dir.path().join("v.csv");

@@ -395,7 +395,8 @@ impl BenchConfig {
         self.check_geometry()?;
         self.check_fluids()?;
         self.check_restrictions()?;
-        self.check_solver_and_program()?;
+        self.check_solver()?;
+        self.check_program()?;
         self.check_sensors()
     }
 
@@ -515,9 +516,9 @@ impl BenchConfig {
         Ok(())
     }
 
-    /// `[solver]` and `[program]`: steps against the sample rate, levels, strokes that fit the tube.
-    fn check_solver_and_program(&self) -> Result<(), Invalid> {
-        let g = &self.geometry;
+    /// `[solver]`: positive settings and an internal step that divides the sample period of
+    /// `[program]`.
+    fn check_solver(&self) -> Result<(), Invalid> {
         let s = &self.solver;
         positive("solver.internal_step_s", s.internal_step_s)?;
         positive("solver.pressure_tolerance_pa", s.pressure_tolerance_pa)?;
@@ -541,6 +542,21 @@ impl BenchConfig {
                 ),
             ));
         }
+        Ok(())
+    }
+
+    /// The longest stroke the chambers allow on either side (90 % of the shorter chamber).
+    fn stroke_limit_m(&self) -> f64 {
+        let g = &self.geometry;
+        0.9 * g
+            .rebound_chamber_length_m
+            .min(g.compression_chamber_length_m)
+    }
+
+    /// `[program]`: levels, amplitudes that fit the chambers, velocities, ramps and steady
+    /// periods, then `[program.random]` and `[program.alpha_schedule]`.
+    fn check_program(&self) -> Result<(), Invalid> {
+        let p = &self.program;
         for (key, list) in [
             ("program.oil_loss", &p.oil_loss),
             ("program.amplitudes_m", &p.amplitudes_m),
@@ -560,15 +576,12 @@ impl BenchConfig {
         }
         for &amp in &p.amplitudes_m {
             positive("program.amplitudes_m", amp)?;
-            let room = g
-                .rebound_chamber_length_m
-                .min(g.compression_chamber_length_m);
-            if amp >= 0.9 * room {
+            if amp >= self.stroke_limit_m() {
                 return Err(invalid(
                     "program.amplitudes_m",
                     format!(
                         "amplitude {amp} m does not fit the chambers (limit {:.4} m)",
-                        0.9 * room
+                        self.stroke_limit_m()
                     ),
                 ));
             }
@@ -586,44 +599,7 @@ impl BenchConfig {
         }
         non_negative("program.min_steady_s", p.min_steady_s)?;
         if let Some(r) = &p.random {
-            if r.velocity_rms_m_s.is_empty() {
-                return Err(invalid(
-                    "program.random.velocity_rms_m_s",
-                    "must not be empty".into(),
-                ));
-            }
-            for &v in &r.velocity_rms_m_s {
-                positive("program.random.velocity_rms_m_s", v)?;
-            }
-            positive("program.random.duration_s", r.duration_s)?;
-            non_negative("program.random.ramp_s", r.ramp_s)?;
-            positive("program.random.max_stroke_m", r.max_stroke_m)?;
-            let room = g
-                .rebound_chamber_length_m
-                .min(g.compression_chamber_length_m);
-            if r.max_stroke_m >= 0.9 * room {
-                return Err(invalid(
-                    "program.random.max_stroke_m",
-                    format!("does not fit the chambers (limit {:.4} m)", 0.9 * room),
-                ));
-            }
-            let [lo, hi] = r.band_hz;
-            if !(lo.is_finite() && lo > 0.0 && hi > lo && hi < 0.5 * p.sample_rate_hz) {
-                return Err(invalid(
-                    "program.random.band_hz",
-                    format!(
-                        "must be [low, high] with 0 < low < high < half the sample rate ({} Hz), \
-                         got [{lo}, {hi}]",
-                        0.5 * p.sample_rate_hz
-                    ),
-                ));
-            }
-            if (hi * r.duration_s).floor() < (lo * r.duration_s).ceil() {
-                return Err(invalid(
-                    "program.random.duration_s",
-                    "leaves no line k / duration_s inside band_hz".into(),
-                ));
-            }
+            self.check_random_program(r)?;
         }
         if let Some(a) = &p.alpha_schedule {
             positive("program.alpha_schedule.min_segment_s", a.min_segment_s)?;
@@ -639,6 +615,51 @@ impl BenchConfig {
                     "needs at least two levels for an alpha schedule".into(),
                 ));
             }
+        }
+        Ok(())
+    }
+
+    /// `[program.random]`: velocities, duration and ramp, a stroke that fits the chambers, a
+    /// band below half the sample rate with a line of the run's spectrum in it.
+    fn check_random_program(&self, r: &RandomProgram) -> Result<(), Invalid> {
+        if r.velocity_rms_m_s.is_empty() {
+            return Err(invalid(
+                "program.random.velocity_rms_m_s",
+                "must not be empty".into(),
+            ));
+        }
+        for &v in &r.velocity_rms_m_s {
+            positive("program.random.velocity_rms_m_s", v)?;
+        }
+        positive("program.random.duration_s", r.duration_s)?;
+        non_negative("program.random.ramp_s", r.ramp_s)?;
+        positive("program.random.max_stroke_m", r.max_stroke_m)?;
+        if r.max_stroke_m >= self.stroke_limit_m() {
+            return Err(invalid(
+                "program.random.max_stroke_m",
+                format!(
+                    "does not fit the chambers (limit {:.4} m)",
+                    self.stroke_limit_m()
+                ),
+            ));
+        }
+        let [lo, hi] = r.band_hz;
+        let fs = self.program.sample_rate_hz;
+        if !(lo.is_finite() && lo > 0.0 && hi > lo && hi < 0.5 * fs) {
+            return Err(invalid(
+                "program.random.band_hz",
+                format!(
+                    "must be [low, high] with 0 < low < high < half the sample rate ({} Hz), \
+                     got [{lo}, {hi}]",
+                    0.5 * fs
+                ),
+            ));
+        }
+        if (hi * r.duration_s).floor() < (lo * r.duration_s).ceil() {
+            return Err(invalid(
+                "program.random.duration_s",
+                "leaves no line k / duration_s inside band_hz".into(),
+            ));
         }
         Ok(())
     }

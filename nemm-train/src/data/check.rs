@@ -161,7 +161,6 @@ pub fn check_run(
     sample_rate_hz: f64,
     velocity_m_s: &[f64],
 ) -> Vec<Finding> {
-    let mut out = Vec::new();
     let finding = |kind: FindingKind, column: &str, sample: usize, count: usize, message| Finding {
         run: index,
         file: run.entry.file.clone(),
@@ -173,76 +172,12 @@ pub fn check_run(
         count,
         message,
     };
-    let mut columns: Vec<(&str, &[f64], f64, &str)> = vec![
-        (
-            COL_DISPLACEMENT,
-            &run.displacement_m,
-            MAX_ABS_DISPLACEMENT_M,
-            "m",
-        ),
-        (COL_FORCE, &run.force_n, MAX_ABS_FORCE_N, "N"),
-    ];
-    if let Some(v) = &run.velocity_m_s {
-        columns.push((COL_VELOCITY, v, MAX_ABS_VELOCITY_M_S, "m/s"));
-    }
-    for &(name, x, limit, unit) in &columns {
-        if let Some(first) = x.iter().position(|v| v.abs() > limit) {
-            let count = x.iter().filter(|v| v.abs() > limit).count();
-            let largest = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            out.push(finding(
-                FindingKind::Magnitude,
-                name,
-                first,
-                count,
-                format!(
-                    "{name} = {} {unit} exceeds +-{limit} {unit} in {count} sample(s) \
-                     (largest {largest:e} {unit}); wrong unit or a corrupt value?",
-                    x[first]
-                ),
-            ));
-        }
-        if let Some((first, count, value, residual)) = spikes(x) {
-            out.push(finding(
-                FindingKind::Spike,
-                name,
-                first,
-                count,
-                format!(
-                    "{count} spike(s) in {name}; the first is {value} {unit}, {residual:+e} {unit} \
-                     from the running median"
-                ),
-            ));
-        }
-        if let Some((first, len, count, value)) = flat(x, sample_rate_hz) {
-            out.push(finding(
-                FindingKind::Dropout,
-                name,
-                first,
-                count,
-                format!(
-                    "{name} frozen at {value} {unit} for {len} samples ({:.3} s; {count} such \
-                     stretch(es)): stuck sensor or logger dropout?",
-                    len as f64 / sample_rate_hz
-                ),
-            ));
-        }
-        for (at_max, extreme) in [(true, "largest"), (false, "smallest")] {
-            if let Some((first, len, count, value)) = clipped(x, at_max) {
-                out.push(finding(
-                    FindingKind::Clipping,
-                    name,
-                    first,
-                    count,
-                    format!(
-                        "{name} sits at its {extreme} value {value} {unit} for {len} samples \
-                         ({count} plateau(s)), entered and left by steep steps: clipped \
-                         sensor or amplifier range?"
-                    ),
-                ));
-            }
-        }
-    }
-    let data: Vec<&[f64]> = columns.iter().map(|c| c.1).collect();
+    let columns = data_columns(run);
+    let mut out: Vec<Finding> = columns
+        .iter()
+        .flat_map(|c| column_findings(c, sample_rate_hz, &finding))
+        .collect();
+    let data: Vec<&[f64]> = columns.iter().map(|c| c.values).collect();
     if let Some((first, len, count)) = repeated_rows(&data) {
         out.push(finding(
             FindingKind::Dropout,
@@ -271,6 +206,109 @@ pub fn check_run(
                 dataset::MAX_GRID_DEVIATION * grid.step_s * 1e6
             ),
         ));
+    }
+    out
+}
+
+/// A data column of a run with its plausible magnitude.
+struct DataColumn<'a> {
+    name: &'static str,
+    values: &'a [f64],
+    /// Largest plausible magnitude.
+    limit: f64,
+    unit: &'static str,
+}
+
+/// The data columns of a run: displacement, force and, when present, velocity.
+fn data_columns(run: &Run) -> Vec<DataColumn<'_>> {
+    let mut columns = vec![
+        DataColumn {
+            name: COL_DISPLACEMENT,
+            values: &run.displacement_m,
+            limit: MAX_ABS_DISPLACEMENT_M,
+            unit: "m",
+        },
+        DataColumn {
+            name: COL_FORCE,
+            values: &run.force_n,
+            limit: MAX_ABS_FORCE_N,
+            unit: "N",
+        },
+    ];
+    if let Some(v) = &run.velocity_m_s {
+        columns.push(DataColumn {
+            name: COL_VELOCITY,
+            values: v,
+            limit: MAX_ABS_VELOCITY_M_S,
+            unit: "m/s",
+        });
+    }
+    columns
+}
+
+/// The findings of one column: implausible magnitudes, spikes, a frozen stretch, clipping at
+/// its largest and at its smallest value.
+fn column_findings(
+    c: &DataColumn<'_>,
+    sample_rate_hz: f64,
+    finding: &impl Fn(FindingKind, &str, usize, usize, String) -> Finding,
+) -> Vec<Finding> {
+    let (name, x, limit, unit) = (c.name, c.values, c.limit, c.unit);
+    let mut out = Vec::new();
+    if let Some(first) = x.iter().position(|v| v.abs() > limit) {
+        let count = x.iter().filter(|v| v.abs() > limit).count();
+        let largest = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        out.push(finding(
+            FindingKind::Magnitude,
+            name,
+            first,
+            count,
+            format!(
+                "{name} = {} {unit} exceeds +-{limit} {unit} in {count} sample(s) \
+                 (largest {largest:e} {unit}); wrong unit or a corrupt value?",
+                x[first]
+            ),
+        ));
+    }
+    if let Some((first, count, value, residual)) = spikes(x) {
+        out.push(finding(
+            FindingKind::Spike,
+            name,
+            first,
+            count,
+            format!(
+                "{count} spike(s) in {name}; the first is {value} {unit}, {residual:+e} {unit} \
+                 from the running median"
+            ),
+        ));
+    }
+    if let Some((first, len, count, value)) = flat(x, sample_rate_hz) {
+        out.push(finding(
+            FindingKind::Dropout,
+            name,
+            first,
+            count,
+            format!(
+                "{name} frozen at {value} {unit} for {len} samples ({:.3} s; {count} such \
+                 stretch(es)): stuck sensor or logger dropout?",
+                len as f64 / sample_rate_hz
+            ),
+        ));
+    }
+    for (at_max, extreme) in [(true, "largest"), (false, "smallest")] {
+        if let Some((first, len, count, value)) = clipped(x, at_max) {
+            out.push(finding(
+                FindingKind::Clipping,
+                name,
+                first,
+                count,
+                format!(
+                    "{name} sits at its {extreme} value {value} {unit} for {len} samples \
+                     ({count} plateau(s)), entered and left by steep steps: clipped \
+                     sensor or amplifier range?"
+                ),
+            ));
+        }
     }
     out
 }

@@ -1,6 +1,7 @@
 //! Bench data: the dataset interchange format (manifest + CSV) and its preprocessing into
 //! training sequences (section 5.3).
 pub mod check;
+pub(crate) mod csv;
 pub mod dataset;
 pub mod import;
 pub mod preprocess;

@@ -168,83 +168,21 @@ pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
             run.len()
         );
     }
+    let w = 2.0 * PI * freq;
+    let Some(fit) = SineFit::of(t, x, w) else {
+        bail!("run {name}: cannot fit the excitation phase");
+    };
+    let per_period = t.len() as f64 / periods as f64;
     let v = &velocity_m_s[i0..];
     let f = &run.force_n[i0..];
-    // Least-squares fit x ~ a sin(wt) + b cos(wt) + c: phase reference.
-    let w = 2.0 * PI * freq;
-    let (mut sss, mut scc, mut ssc, mut sxs, mut sxc, mut ss, mut sc, mut sx) =
-        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for i in 0..t.len() {
-        let (s, c) = (w * t[i]).sin_cos();
-        sss += s * s;
-        scc += c * c;
-        ssc += s * c;
-        sxs += x[i] * s;
-        sxc += x[i] * c;
-        ss += s;
-        sc += c;
-        sx += x[i];
-    }
-    let n = t.len() as f64;
-    // Normal equations of the 3-parameter fit, solved by Cramer's rule.
-    let m = [[sss, ssc, ss], [ssc, scc, sc], [ss, sc, n]];
-    let rhs = [sxs, sxc, sx];
-    let det3 = |m: &[[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let det = det3(&m);
-    if det.abs() < 1e-300 {
-        bail!("run {name}: cannot fit the excitation phase");
-    }
-    let solve = |k: usize| {
-        let mut mk = m;
-        for r in 0..3 {
-            mk[r][k] = rhs[r];
-        }
-        det3(&mk) / det
-    };
-    let (a, b) = (solve(0), solve(1));
-    let theta = b.atan2(a); // x ~ R sin(w t + theta)
-    let amp_fit = a.hypot(b);
-    let centre = solve(2);
-    let per_period = t.len() as f64 / periods as f64;
-    let mut bins = MAX_PHASE_BINS;
-    while bins > MIN_PHASE_BINS && bins as f64 > per_period {
-        bins /= 2;
-    }
-    let (sum_x, sum_v, sum_f, count) = loop {
-        let mut sum_x = vec![0.0; bins];
-        let mut sum_v = vec![0.0; bins];
-        let mut sum_f = vec![0.0; bins];
-        let mut count = vec![0usize; bins];
-        for i in 0..t.len() {
-            let phase = (w * t[i] + theta).rem_euclid(2.0 * PI);
-            let k = ((phase / (2.0 * PI) * bins as f64) as usize).min(bins - 1);
-            sum_x[k] += x[i] - centre;
-            sum_v[k] += v[i];
-            sum_f[k] += f[i];
-            count[k] += 1;
-        }
-        if !count.contains(&0) {
-            break (sum_x, sum_v, sum_f, count);
-        }
-        if bins <= MIN_PHASE_BINS {
-            bail!(
-                "run {name}: {per_period:.0} samples per period are too few for \
-                 {MIN_PHASE_BINS} phase bins"
-            );
-        }
-        bins /= 2;
-    };
-    let avg = |s: Vec<f64>| {
-        s.iter()
-            .zip(&count)
-            .map(|(s, &c)| s / c as f64)
-            .collect::<Vec<f64>>()
+    let Some(bins) = PhaseBins::of(t, x, v, f, &fit, per_period) else {
+        bail!(
+            "run {name}: {per_period:.0} samples per period are too few for \
+             {MIN_PHASE_BINS} phase bins"
+        );
     };
     // Without metadata the fitted amplitude, rounded to 1 mm so that runs group into rows.
+    let amp_fit = fit.amplitude;
     let amplitude_m = run
         .entry
         .amplitude_m
@@ -254,11 +192,149 @@ pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
         amplitude_m,
         frequency_hz: freq,
         peak_velocity_m_s: run.entry.target_velocity_m_s.unwrap_or(w * amplitude_m),
-        displacement_m: avg(sum_x),
-        velocity_m_s: avg(sum_v),
-        force_n: avg(sum_f),
+        displacement_m: bins.displacement_m,
+        velocity_m_s: bins.velocity_m_s,
+        force_n: bins.force_n,
         periods,
     })
+}
+
+/// The least-squares fit `x ~ R sin(w t + theta) + centre` of the displacement at the
+/// excitation frequency: the phase reference of a loop.
+struct SineFit {
+    /// Angular frequency `w` \[rad/s\].
+    w: f64,
+    /// Phase `theta` \[rad\].
+    phase: f64,
+    /// Amplitude `R` \[m\].
+    amplitude: f64,
+    /// Stroke centre \[m\].
+    centre: f64,
+}
+
+impl SineFit {
+    /// The fit to `x(t)` at angular frequency `w`; `None` when the normal equations are
+    /// singular.
+    fn of(t: &[f64], x: &[f64], w: f64) -> Option<Self> {
+        // x ~ a sin(wt) + b cos(wt) + c.
+        let (mut sss, mut scc, mut ssc, mut sxs, mut sxc, mut ss, mut sc, mut sx) =
+            (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for i in 0..t.len() {
+            let (s, c) = (w * t[i]).sin_cos();
+            sss += s * s;
+            scc += c * c;
+            ssc += s * c;
+            sxs += x[i] * s;
+            sxc += x[i] * c;
+            ss += s;
+            sc += c;
+            sx += x[i];
+        }
+        let n = t.len() as f64;
+        // Normal equations of the 3-parameter fit, solved by Cramer's rule.
+        let m = [[sss, ssc, ss], [ssc, scc, sc], [ss, sc, n]];
+        let rhs = [sxs, sxc, sx];
+        let det3 = |m: &[[f64; 3]; 3]| {
+            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+                - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        };
+        let det = det3(&m);
+        if det.abs() < 1e-300 {
+            return None;
+        }
+        let solve = |k: usize| {
+            let mut mk = m;
+            for r in 0..3 {
+                mk[r][k] = rhs[r];
+            }
+            det3(&mk) / det
+        };
+        let (a, b) = (solve(0), solve(1));
+        Some(SineFit {
+            w,
+            phase: b.atan2(a), // x ~ R sin(w t + theta)
+            amplitude: a.hypot(b),
+            centre: solve(2),
+        })
+    }
+
+    /// The phase `w t + theta` at time `t`, in `[0, 2 pi)`.
+    fn phase_at(&self, t: f64) -> f64 {
+        (self.w * t + self.phase).rem_euclid(2.0 * PI)
+    }
+}
+
+/// Displacement (centred on the fit's centre), velocity and force averaged in phase bins.
+struct PhaseBins {
+    displacement_m: Vec<f64>,
+    velocity_m_s: Vec<f64>,
+    force_n: Vec<f64>,
+}
+
+impl PhaseBins {
+    /// Averages the samples `(t, x, v, f)` over the phase of `fit`, in [`MAX_PHASE_BINS`]
+    /// bins or the largest power of two not above `per_period` (samples per period), halved
+    /// until every bin holds a sample; `None` when [`MIN_PHASE_BINS`] still leave one empty.
+    fn of(
+        t: &[f64],
+        x: &[f64],
+        v: &[f64],
+        f: &[f64],
+        fit: &SineFit,
+        per_period: f64,
+    ) -> Option<Self> {
+        let mut bins = MAX_PHASE_BINS;
+        while bins > MIN_PHASE_BINS && bins as f64 > per_period {
+            bins /= 2;
+        }
+        loop {
+            if let Some(averaged) = Self::averaged(bins, t, x, v, f, fit) {
+                return Some(averaged);
+            }
+            if bins <= MIN_PHASE_BINS {
+                return None;
+            }
+            bins /= 2;
+        }
+    }
+
+    /// The averages in `bins` bins; `None` when a bin holds no sample.
+    fn averaged(
+        bins: usize,
+        t: &[f64],
+        x: &[f64],
+        v: &[f64],
+        f: &[f64],
+        fit: &SineFit,
+    ) -> Option<Self> {
+        let mut sum_x = vec![0.0; bins];
+        let mut sum_v = vec![0.0; bins];
+        let mut sum_f = vec![0.0; bins];
+        let mut count = vec![0usize; bins];
+        for i in 0..t.len() {
+            let phase = fit.phase_at(t[i]);
+            let k = ((phase / (2.0 * PI) * bins as f64) as usize).min(bins - 1);
+            sum_x[k] += x[i] - fit.centre;
+            sum_v[k] += v[i];
+            sum_f[k] += f[i];
+            count[k] += 1;
+        }
+        if count.contains(&0) {
+            return None;
+        }
+        let avg = |s: Vec<f64>| {
+            s.iter()
+                .zip(&count)
+                .map(|(s, &c)| s / c as f64)
+                .collect::<Vec<f64>>()
+        };
+        Some(PhaseBins {
+            displacement_m: avg(sum_x),
+            velocity_m_s: avg(sum_v),
+            force_n: avg(sum_f),
+        })
+    }
 }
 
 fn same(a: f64, b: f64) -> bool {
@@ -416,52 +492,107 @@ fn plot_random(ds: &Dataset, signals: &[Signals], which: &[usize], out: &Path) -
 
 /// Fig. 4, Fig. 5 and the quasi-static figure of the periodic runs' loops.
 fn plot_loops(ds: &Dataset, loops: &[CycleLoop], out: &Path) -> Result<Vec<PathBuf>> {
-    let f_max = loops
-        .iter()
-        .flat_map(|l| l.force_n.iter())
-        .fold(0.0f64, |m, f| m.max(f.abs()))
-        .max(1e-9);
-    let alphas = sorted_unique(loops.iter().map(|l| l.oil_loss).collect());
-    let mut amps = sorted_unique(loops.iter().map(|l| l.amplitude_m).collect());
-    amps.reverse(); // 50 mm first, as in the paper
-    let mut written = Vec::new();
+    let levels = LoopLevels::of(loops);
+    let mut written = vec![save(
+        fig4_loops(ds, loops, &levels),
+        out,
+        "force_velocity_loops.png",
+    )?];
+    if let Some(fig) = fig5_difference_loops(ds, loops, &levels) {
+        written.push(save(fig, out, "difference_loops.png")?);
+    }
+    written.push(save(
+        quasi_static_figure(ds, loops, &levels),
+        out,
+        "quasi_static.png",
+    )?);
+    Ok(written)
+}
 
-    // Fig. 4: rows = amplitude, columns = oil loss, one curve per frequency.
-    let mut fig = Figure::new(amps.len(), alphas.len())
+/// Writes `fig` as `out/name`; returns the path.
+fn save(fig: Figure, out: &Path, name: &str) -> Result<PathBuf> {
+    let path = out.join(name);
+    fig.save_png(&path)?;
+    Ok(path)
+}
+
+/// The grid of the loop figures and their common scales.
+struct LoopLevels {
+    /// Largest cycle-averaged |force| of the dataset \[N\]: the force normalisation.
+    f_max: f64,
+    /// Oil-loss levels, ascending (figure columns).
+    alphas: Vec<f64>,
+    /// Amplitudes, descending as in the paper (figure rows).
+    amps: Vec<f64>,
+    /// Half-width of the velocity axes \[m/s\].
+    v_lim: f64,
+}
+
+impl LoopLevels {
+    fn of(loops: &[CycleLoop]) -> Self {
+        let f_max = loops
+            .iter()
+            .flat_map(|l| l.force_n.iter())
+            .fold(0.0f64, |m, f| m.max(f.abs()))
+            .max(1e-9);
+        let alphas = sorted_unique(loops.iter().map(|l| l.oil_loss).collect());
+        let mut amps = sorted_unique(loops.iter().map(|l| l.amplitude_m).collect());
+        amps.reverse(); // 50 mm first, as in the paper
+        let v_lim = loops
+            .iter()
+            .flat_map(|l| l.velocity_m_s.iter())
+            .fold(0.0f64, |m, v| m.max(v.abs()))
+            * 1.05;
+        LoopLevels {
+            f_max,
+            alphas,
+            amps,
+            v_lim,
+        }
+    }
+}
+
+/// The loops at amplitude `amp` and oil loss `alpha`.
+fn loops_at(loops: &[CycleLoop], amp: f64, alpha: f64) -> Vec<&CycleLoop> {
+    loops
+        .iter()
+        .filter(|l| same(l.amplitude_m, amp) && same(l.oil_loss, alpha))
+        .collect()
+}
+
+/// An empty panel of the loops at oil loss `alpha` and amplitude `amp` over velocity, with
+/// zero lines.
+fn level_panel(alpha: f64, amp: f64, y_label: &str) -> LinePanel {
+    LinePanel::new(
+        format!(
+            "oil loss {:.0} %, amplitude {:.0} mm",
+            alpha * 100.0,
+            amp * 1000.0
+        ),
+        "velocity [m/s]",
+        y_label,
+    )
+    .with_zero_lines()
+    .with_legend(LegendPosition::UpperLeft)
+}
+
+/// Fig. 4: rows = amplitude, columns = oil loss, one normalised loop per frequency.
+fn fig4_loops(ds: &Dataset, loops: &[CycleLoop], levels: &LoopLevels) -> Figure {
+    let (f_max, v_lim, fn_lim) = (levels.f_max, levels.v_lim, 1.05);
+    let mut fig = Figure::new(levels.amps.len(), levels.alphas.len())
         .with_title(format!(
             "{}: normalised force-velocity loops (F / {:.0} N)",
             ds.name, f_max
         ))
         .with_panel_size(520, 400);
-    let (v_lim, fn_lim) = (
-        loops
-            .iter()
-            .flat_map(|l| l.velocity_m_s.iter())
-            .fold(0.0f64, |m, v| m.max(v.abs()))
-            * 1.05,
-        1.05,
-    );
-    for &amp in &amps {
-        for &alpha in &alphas {
-            let mut sel: Vec<&CycleLoop> = loops
-                .iter()
-                .filter(|l| same(l.amplitude_m, amp) && same(l.oil_loss, alpha))
-                .collect();
+    for &amp in &levels.amps {
+        for &alpha in &levels.alphas {
+            let mut sel = loops_at(loops, amp, alpha);
             sel.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
             let colors = palette::sequence(sel.len());
-            let mut panel = LinePanel::new(
-                format!(
-                    "oil loss {:.0} %, amplitude {:.0} mm",
-                    alpha * 100.0,
-                    amp * 1000.0
-                ),
-                "velocity [m/s]",
-                "normalised force [-]",
-            )
-            .with_x_range(-v_lim, v_lim)
-            .with_y_range(-fn_lim, fn_lim)
-            .with_zero_lines()
-            .with_legend(LegendPosition::UpperLeft);
+            let mut panel = level_panel(alpha, amp, "normalised force [-]")
+                .with_x_range(-v_lim, v_lim)
+                .with_y_range(-fn_lim, fn_lim);
             for (l, c) in sel.iter().zip(colors) {
                 let pts = l
                     .velocity_m_s
@@ -474,75 +605,67 @@ fn plot_loops(ds: &Dataset, loops: &[CycleLoop], out: &Path) -> Result<Vec<PathB
             fig = fig.with_panel(panel);
         }
     }
-    let path = out.join("force_velocity_loops.png");
-    fig.save_png(&path)?;
-    written.push(path);
+    fig
+}
 
-    // Fig. 5: F_norm,0% - F_norm,loss over the 0 % velocity, per amplitude and oil loss > 0.
-    let base = alphas.iter().copied().find(|a| *a == 0.0);
-    let lossy: Vec<f64> = alphas.iter().copied().filter(|a| *a > 0.0).collect();
-    if let (Some(a0), false) = (base, lossy.is_empty()) {
-        let mut fig = Figure::new(amps.len(), lossy.len())
-            .with_title(format!(
-                "{}: difference loops F_norm,0% - F_norm,loss",
-                ds.name
-            ))
-            .with_panel_size(520, 400);
-        let mut d_lim: f64 = 0.0;
-        let mut panels = Vec::new();
-        for &amp in &amps {
-            for &alpha in &lossy {
-                let mut sel: Vec<(&CycleLoop, &CycleLoop)> = loops
-                    .iter()
-                    .filter(|l| same(l.amplitude_m, amp) && same(l.oil_loss, alpha))
-                    .filter_map(|l| {
-                        loops
-                            .iter()
-                            .find(|b| {
-                                same(b.oil_loss, a0)
-                                    && same(b.amplitude_m, amp)
-                                    && same(b.peak_velocity_m_s, l.peak_velocity_m_s)
-                            })
-                            .map(|b| (b, l))
+/// Fig. 5: `F_norm,0% - F_norm,loss` over the 0 % velocity, per amplitude and oil loss above
+/// 0 (each lossy loop against the 0 % loop of the same amplitude and peak velocity); `None`
+/// without a 0 % level or a lossy one.
+fn fig5_difference_loops(ds: &Dataset, loops: &[CycleLoop], levels: &LoopLevels) -> Option<Figure> {
+    let a0 = levels.alphas.iter().copied().find(|a| *a == 0.0)?;
+    let lossy: Vec<f64> = levels.alphas.iter().copied().filter(|a| *a > 0.0).collect();
+    if lossy.is_empty() {
+        return None;
+    }
+    let mut fig = Figure::new(levels.amps.len(), lossy.len())
+        .with_title(format!(
+            "{}: difference loops F_norm,0% - F_norm,loss",
+            ds.name
+        ))
+        .with_panel_size(520, 400);
+    let mut d_lim: f64 = 0.0;
+    let mut panels = Vec::new();
+    for &amp in &levels.amps {
+        for &alpha in &lossy {
+            let mut sel: Vec<(&CycleLoop, &CycleLoop)> = loops_at(loops, amp, alpha)
+                .into_iter()
+                .filter_map(|l| {
+                    loops
+                        .iter()
+                        .find(|b| {
+                            same(b.oil_loss, a0)
+                                && same(b.amplitude_m, amp)
+                                && same(b.peak_velocity_m_s, l.peak_velocity_m_s)
+                        })
+                        .map(|b| (b, l))
+                })
+                .collect();
+            sel.sort_by(|a, b| a.1.frequency_hz.total_cmp(&b.1.frequency_hz));
+            let colors = palette::sequence(sel.len());
+            let mut panel = level_panel(alpha, amp, "F_norm,0% - F_norm,loss [-]");
+            for ((b, l), c) in sel.iter().zip(colors) {
+                let pts: Vec<(f64, f64)> = (0..b.bins())
+                    .map(|k| {
+                        let df = b.force_n[k] - l.force_at_phase(b.bin_phase(k));
+                        (b.velocity_m_s[k], df / levels.f_max)
                     })
                     .collect();
-                sel.sort_by(|a, b| a.1.frequency_hz.total_cmp(&b.1.frequency_hz));
-                let colors = palette::sequence(sel.len());
-                let mut panel = LinePanel::new(
-                    format!(
-                        "oil loss {:.0} %, amplitude {:.0} mm",
-                        alpha * 100.0,
-                        amp * 1000.0
-                    ),
-                    "velocity [m/s]",
-                    "F_norm,0% - F_norm,loss [-]",
-                )
-                .with_zero_lines()
-                .with_legend(LegendPosition::UpperLeft);
-                for ((b, l), c) in sel.iter().zip(colors) {
-                    let pts: Vec<(f64, f64)> = (0..b.bins())
-                        .map(|k| {
-                            let df = b.force_n[k] - l.force_at_phase(b.bin_phase(k));
-                            (b.velocity_m_s[k], df / f_max)
-                        })
-                        .collect();
-                    d_lim = pts.iter().fold(d_lim, |m, p| m.max(p.1.abs()));
-                    panel =
-                        panel.with_series(Series::closed(frequency_label(l.frequency_hz), pts, c));
-                }
-                panels.push(panel.with_x_range(-v_lim, v_lim));
+                d_lim = pts.iter().fold(d_lim, |m, p| m.max(p.1.abs()));
+                panel = panel.with_series(Series::closed(frequency_label(l.frequency_hz), pts, c));
             }
+            panels.push(panel.with_x_range(-levels.v_lim, levels.v_lim));
         }
-        let d_lim = (d_lim * 1.1).max(1e-3);
-        for p in panels {
-            fig = fig.with_panel(p.with_y_range(-d_lim, d_lim));
-        }
-        let path = out.join("difference_loops.png");
-        fig.save_png(&path)?;
-        written.push(path);
     }
+    let d_lim = (d_lim * 1.1).max(1e-3);
+    for p in panels {
+        fig = fig.with_panel(p.with_y_range(-d_lim, d_lim));
+    }
+    Some(fig)
+}
 
-    // Quasi-static characteristic (section 5.3 method), one line per oil loss and amplitude.
+/// The quasi-static characteristic (section 5.3 method), the energy dissipated per cycle and
+/// the hysteresis, one line per oil loss and amplitude.
+fn quasi_static_figure(ds: &Dataset, loops: &[CycleLoop], levels: &LoopLevels) -> Figure {
     let mut panel = LinePanel::new(
         "max |F| within |x| < 5 % of the amplitude",
         "peak velocity [m/s] (negative = compression)",
@@ -568,25 +691,14 @@ fn plot_loops(ds: &Dataset, loops: &[CycleLoop], out: &Path) -> Result<Vec<PathB
         .fold(0.0f64, f64::max)
         .max(1e-9);
     let mut idx = 0;
-    for &alpha in &alphas {
-        for &amp in &amps {
-            let mut sel: Vec<&CycleLoop> = loops
-                .iter()
-                .filter(|l| same(l.amplitude_m, amp) && same(l.oil_loss, alpha))
-                .collect();
+    for &alpha in &levels.alphas {
+        for &amp in &levels.amps {
+            let mut sel = loops_at(loops, amp, alpha);
             sel.sort_by(|a, b| a.peak_velocity_m_s.total_cmp(&b.peak_velocity_m_s));
-            let mut pts: Vec<(f64, f64)> = Vec::new();
-            for l in sel.iter().rev() {
-                pts.push((-l.peak_velocity_m_s, l.quasi_static_n().1));
-            }
-            pts.push((0.0, 0.0));
-            for l in &sel {
-                pts.push((l.peak_velocity_m_s, l.quasi_static_n().0));
-            }
             let label = format!("{:.0} %, {:.0} mm", alpha * 100.0, amp * 1000.0);
             let c = palette::categorical(idx);
             idx += 1;
-            panel = panel.with_series(Series::line(label.clone(), pts, c));
+            panel = panel.with_series(Series::line(label.clone(), quasi_static_curve(&sel), c));
             let e: Vec<(f64, f64)> = sel
                 .iter()
                 .map(|l| (l.peak_velocity_m_s, l.dissipated_energy_j()))
@@ -594,12 +706,17 @@ fn plot_loops(ds: &Dataset, loops: &[CycleLoop], out: &Path) -> Result<Vec<PathB
             panel_energy = panel_energy.with_series(Series::line(label.clone(), e, c));
             let a: Vec<(f64, f64)> = sel
                 .iter()
-                .map(|l| (l.peak_velocity_m_s, l.hysteresis_area() / (f_max * v_max)))
+                .map(|l| {
+                    (
+                        l.peak_velocity_m_s,
+                        l.hysteresis_area() / (levels.f_max * v_max),
+                    )
+                })
                 .collect();
             panel_area = panel_area.with_series(Series::line(label, a, c));
         }
     }
-    let fig = Figure::new(1, 3)
+    Figure::new(1, 3)
         .with_title(format!(
             "{}: quasi-static characteristic, dissipation, hysteresis",
             ds.name
@@ -607,9 +724,19 @@ fn plot_loops(ds: &Dataset, loops: &[CycleLoop], out: &Path) -> Result<Vec<PathB
         .with_panel_size(600, 480)
         .with_panel(panel)
         .with_panel(panel_energy)
-        .with_panel(panel_area);
-    let path = out.join("quasi_static.png");
-    fig.save_png(&path)?;
-    written.push(path);
-    Ok(written)
+        .with_panel(panel_area)
+}
+
+/// Quasi-static forces over peak velocity of loops sorted by peak velocity: compression at
+/// negative velocities, the origin, rebound at positive ones.
+fn quasi_static_curve(sel: &[&CycleLoop]) -> Vec<(f64, f64)> {
+    let mut pts: Vec<(f64, f64)> = Vec::new();
+    for l in sel.iter().rev() {
+        pts.push((-l.peak_velocity_m_s, l.quasi_static_n().1));
+    }
+    pts.push((0.0, 0.0));
+    for l in sel {
+        pts.push((l.peak_velocity_m_s, l.quasi_static_n().0));
+    }
+    pts
 }

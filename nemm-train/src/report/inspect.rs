@@ -10,6 +10,26 @@ use std::path::Path;
 /// constants, scalers, bounds, tables).
 pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String {
     let mut s = String::new();
+    describe_shape(&mut s, model, blob_len);
+    describe_body(&mut s, model);
+    describe_condition(&mut s, model);
+    describe_static_force(&mut s, model);
+    describe_provenance(&mut s, model);
+    describe_tables(&mut s, tables);
+    if let Some(tau) = model.fastest_time_constant_s() {
+        let _ = writeln!(
+            s,
+            "stability:       fastest reachable time constant {:.1} us; dt / tau = {:.3} (limit {:.3})",
+            tau * 1e6,
+            model.dt_s / tau,
+            nemm_core::model::STABILITY_MARGIN * model.integrator.stability_limit()
+        );
+    }
+    s
+}
+
+/// Kind, size, integrator, input scales, training data and the EMM constants.
+fn describe_shape(s: &mut String, model: &Model, blob_len: usize) {
     let _ = writeln!(s, "kind:            {}", model.kind().name());
     let _ = writeln!(s, "size:            {blob_len} bytes");
     let _ = writeln!(
@@ -36,18 +56,10 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
             e.b_fl_ns_per_m, e.b_pr_ns_per_m, e.k_pr_n_per_m, e.t_pr_s
         );
     }
-    let scaler = |s: &mut String, name: &str, sc: &Scaler<DEFAULT_PARAM_CAPACITY>| {
-        let _ = writeln!(
-            s,
-            "scaler {name:<6}  {} input(s), {} x {} hidden, {} parameters, scale in ({}, {})",
-            sc.mlp.inputs,
-            sc.mlp.layers,
-            sc.mlp.hidden,
-            sc.mlp.params.len(),
-            sc.s_min,
-            sc.s_max
-        );
-    };
+}
+
+/// What the kind adds: the SEM's map or the scalers of the neural variants.
+fn describe_body(s: &mut String, model: &Model) {
     match &model.body {
         Body::Sem(m) => {
             let _ = writeln!(
@@ -61,15 +73,33 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
             );
         }
         Body::LinearEmm(_) => {}
-        Body::NemmLight { b_fl, .. } => scaler(&mut s, "b_fl", b_fl),
+        Body::NemmLight { b_fl, .. } => describe_scaler(s, "b_fl", b_fl),
         Body::Nemm {
             b_fl, b_pr, k_pr, ..
         } => {
-            scaler(&mut s, "b_fl", b_fl);
-            scaler(&mut s, "b_pr", b_pr);
-            scaler(&mut s, "k_pr", k_pr);
+            describe_scaler(s, "b_fl", b_fl);
+            describe_scaler(s, "b_pr", b_pr);
+            describe_scaler(s, "k_pr", k_pr);
         }
     }
+}
+
+/// One scaler: inputs, shape, parameters and the range of its scale factor.
+fn describe_scaler(s: &mut String, name: &str, sc: &Scaler<DEFAULT_PARAM_CAPACITY>) {
+    let _ = writeln!(
+        s,
+        "scaler {name:<6}  {} input(s), {} x {} hidden, {} parameters, scale in ({}, {})",
+        sc.mlp.inputs,
+        sc.mlp.layers,
+        sc.mlp.hidden,
+        sc.mlp.params.len(),
+        sc.s_min,
+        sc.s_max
+    );
+}
+
+/// The condition alpha stands for, its priors and the alpha branches that impose them.
+fn describe_condition(s: &mut String, model: &Model) {
     let c = &model.condition;
     let spec = crate::data::dataset::ConditionSpec::from_core(c);
     let _ = writeln!(
@@ -94,6 +124,10 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
             );
         }
     }
+}
+
+/// The static force of eq. 17, if the model has one.
+fn describe_static_force(s: &mut String, model: &Model) {
     match &model.static_force {
         None => {
             let _ = writeln!(s, "static force:    none");
@@ -113,6 +147,10 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
             );
         }
     }
+}
+
+/// The command, dataset and commit that made the model.
+fn describe_provenance(s: &mut String, model: &Model) {
     let p = &model.provenance;
     if p.is_empty() {
         let _ = writeln!(s, "provenance:      none recorded");
@@ -128,13 +166,17 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
         let _ = writeln!(s, "                 dataset {}", or_unknown(&p.dataset));
         let _ = writeln!(s, "                 commit  {}", or_unknown(&p.commit));
     }
-    if tables.levels.is_empty() {
+}
+
+/// The precomputed fast-path tables stored in the blob, one line per level.
+fn describe_tables(s: &mut String, stored: &StoredTables) {
+    if stored.levels.is_empty() {
         let _ = writeln!(
             s,
             "stored tables:   none (a table-mode estimator builds them)"
         );
     }
-    for level in &tables.levels {
+    for level in &stored.levels {
         let mut tables = Vec::new();
         for (name, t) in [("b_fl", &level.b_fl), ("k_pr", &level.k_pr)] {
             if let Some(t) = t {
@@ -154,16 +196,6 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
             tables.join("; ")
         );
     }
-    if let Some(tau) = model.fastest_time_constant_s() {
-        let _ = writeln!(
-            s,
-            "stability:       fastest reachable time constant {:.1} us; dt / tau = {:.3} (limit {:.3})",
-            tau * 1e6,
-            model.dt_s / tau,
-            nemm_core::model::STABILITY_MARGIN * model.integrator.stability_limit()
-        );
-    }
-    s
 }
 
 /// Runs `nemm inspect FILE`.

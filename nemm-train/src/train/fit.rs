@@ -28,7 +28,7 @@ use crate::data::preprocess::Sequence;
 use crate::train::physics::AUDIT_GRID;
 use anyhow::{bail, Result};
 use burn::grad_clipping::GradientClippingConfig;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::Device;
 use nemm_core::Meta;
 use rand::seq::{IndexedRandom, SliceRandom};
@@ -258,67 +258,30 @@ pub fn fit(
     if data.train.is_empty() {
         bail!("no training sequences: the dataset or split leaves nothing to train on");
     }
-    let mut optim = AdamConfig::new()
+    let optim = AdamConfig::new()
         .with_epsilon(cfg.adam_eps)
         .with_grad_clipping(Some(GradientClippingConfig::Norm(cfg.grad_clip)))
         .init();
-    let mut net = net;
-    let mut best = net.clone();
-    let mut history = Vec::new();
-    // Physically consistent model selection: with a physics penalty and learned scalers, an
-    // epoch's model may only replace a kept model that passed the audit if it passes too.
-    let audited = cfg.lambda_ph > 0.0 && net.b_fl.is_some();
-    let violations_of = |n: &EmmNet| -> Result<Option<usize>> {
-        if !audited {
-            return Ok(None);
-        }
-        // The audit reads the scalers and input scales only; `meta` just completes the model.
-        let meta = Meta {
-            force_scale_n: data.force_scale_n as f32,
-            alpha_min: 0.0,
-            alpha_max: 1.0,
-        };
-        let model = to_core(&n.to_rollout(frame), meta)?;
-        Ok(Some(
-            audit(&model, AUDIT_GRID.0, AUDIT_GRID.1).total_violations(),
-        ))
-    };
-    let start_val = rmse(
-        &net,
+    let stage = Stage {
         frame,
-        data.validation,
-        &data.grid,
-        data.warmup,
-        data.force_scale_n,
-    );
-    let start_violations = violations_of(&net)?;
-    let mut sel = Selection::start(start_val, start_violations);
-    let mut start_epoch = 1;
+        data,
+        cfg,
+        checkpoint_dir,
+        device,
+        audited: cfg.lambda_ph > 0.0 && net.b_fl.is_some(),
+    };
+    let start_val = stage.validation_rmse(&net);
+    let start_violations = stage.violations(&net)?;
+    let mut progress = Progress::start(net, optim, start_val, start_violations);
     if let (true, Some(dir)) = (resume, checkpoint_dir) {
-        match checkpoint::latest(dir) {
-            Some(ep_dir) => {
-                let r = checkpoint::load(dir, &ep_dir, &cfg.label, net, optim)?;
-                (net, best, optim) = (r.net, r.best, r.optim);
-                sel = r.state.selection();
-                history = r.state.history;
-                start_epoch = r.state.epoch + 1;
-                eprintln!(
-                    "[{}] resuming after epoch {} (best validation RMSE {:.4} at epoch {})",
-                    cfg.label, r.state.epoch, sel.best_val, sel.best_epoch
-                );
-            }
-            None => eprintln!(
-                "[{}] no checkpoint in {}: starting fresh",
-                cfg.label,
-                dir.display()
-            ),
-        }
+        progress = progress.resume(dir, &cfg.label)?;
     }
     // `(epoch 0, validation RMSE, violations)` of the starting model, when evaluated here.
-    let start_audit = history
+    let start_audit = progress
+        .history
         .is_empty()
         .then_some((0, start_val, start_violations));
-    if history.is_empty() {
+    if progress.history.is_empty() {
         eprintln!(
             "[{}] start: validation RMSE {:.4} ({:.1} N){}",
             cfg.label,
@@ -327,66 +290,183 @@ pub fn fit(
             start_violations.map_or(String::new(), |n| format!("  violations {n}"))
         );
     }
-    let train_w = windows(data.train);
-    let n_batches_full = data.train.len().div_ceil(cfg.batch);
-    let n_batches = cfg
-        .max_batches_per_epoch
-        .map_or(n_batches_full, |m| m.min(n_batches_full));
-    let total_steps = (cfg.epochs * n_batches).max(1);
-    let grid = PenaltyGrid::default();
-    let session = SessionBudget {
-        start_epoch,
-        epochs: cfg.session_epochs,
-    };
-    let t_start = Instant::now();
-    let mut stop = StopReason::Epochs;
-    // Early stopping waits for the first half of the stage: the learning rate peaks after
-    // the warm-up, where a pre-trained model can be knocked off its start, and comes down
-    // only in the second half of the cosine schedule, where such a model recovers.
-    let min_epochs = cfg.epochs / 2;
-    let stopping = |sel: &Selection, epoch: usize| {
-        epoch > min_epochs + 1 && sel.patience_used(cfg.patience, audited)
-    };
-    // A resumed run may have used its patience already (then the loop does not run either).
-    if stopping(&sel, start_epoch) {
-        stop = StopReason::EarlyStopping;
-    }
-    for epoch in start_epoch..=cfg.epochs {
-        if stopping(&sel, epoch) {
-            stop = StopReason::EarlyStopping;
-            break;
-        }
-        if session.used_before(epoch) {
-            stop = StopReason::Session;
-            eprintln!("[{}] session budget of {} epoch(s) used: stopping after epoch {}; continue with --resume", cfg.label, epoch - start_epoch, epoch - 1);
-            break;
-        }
-        let t_epoch = Instant::now();
-        let train_mse;
-        let physics;
-        (net, train_mse, physics) = train_epoch(
+    let (progress, stop) = stage.train_epochs(progress)?;
+    Ok(stage.finish(progress, start_audit, stop))
+}
+
+/// What stays fixed during a stage: the model's frame, the data, the settings, the
+/// checkpoint folder and the device.
+struct Stage<'a> {
+    frame: &'a NetFrame,
+    data: FitData<'a>,
+    cfg: &'a FitConfig,
+    checkpoint_dir: Option<&'a Path>,
+    device: &'a Device,
+    /// Physically consistent model selection: with a physics penalty and learned scalers, an
+    /// epoch's model may only replace a kept model that passed the audit if it passes too.
+    audited: bool,
+}
+
+/// A stage between epochs: the current and the kept module, the optimizer, the model
+/// selection, the history and the first epoch this invocation trains.
+struct Progress {
+    net: EmmNet,
+    best: EmmNet,
+    optim: ModuleOptimizer,
+    sel: Selection,
+    history: Vec<EpochStats>,
+    start_epoch: usize,
+}
+
+impl Progress {
+    /// A fresh stage from `net`, whose validation RMSE is `val` and violations `violations`.
+    fn start(net: EmmNet, optim: ModuleOptimizer, val: f64, violations: Option<usize>) -> Self {
+        Progress {
+            best: net.clone(),
             net,
-            &mut optim,
-            frame,
-            data,
-            &train_w,
-            cfg,
-            EpochPlan {
-                epoch,
-                n_batches,
-                total_steps,
-            },
-            &grid,
-            device,
-        )?;
-        let val = rmse(
-            &net,
-            frame,
+            optim,
+            sel: Selection::start(val, violations),
+            history: Vec::new(),
+            start_epoch: 1,
+        }
+    }
+
+    /// Continues from the latest checkpoint of stage `label` in `dir`, or from the start
+    /// when there is none.
+    fn resume(self, dir: &Path, label: &str) -> Result<Self> {
+        let Some(ep_dir) = checkpoint::latest(dir) else {
+            eprintln!(
+                "[{label}] no checkpoint in {}: starting fresh",
+                dir.display()
+            );
+            return Ok(self);
+        };
+        let r = checkpoint::load(dir, &ep_dir, label, self.net, self.optim)?;
+        let sel = r.state.selection();
+        eprintln!(
+            "[{label}] resuming after epoch {} (best validation RMSE {:.4} at epoch {})",
+            r.state.epoch, sel.best_val, sel.best_epoch
+        );
+        Ok(Progress {
+            net: r.net,
+            best: r.best,
+            optim: r.optim,
+            sel,
+            start_epoch: r.state.epoch + 1,
+            history: r.state.history,
+        })
+    }
+}
+
+impl Stage<'_> {
+    /// Normalised validation RMSE of `net`.
+    fn validation_rmse(&self, net: &EmmNet) -> f64 {
+        let data = &self.data;
+        rmse(
+            net,
+            self.frame,
             data.validation,
             &data.grid,
             data.warmup,
             data.force_scale_n,
-        );
+        )
+    }
+
+    /// Monotonicity violations of `net` on the audit grid (`None` when the stage does not
+    /// audit).
+    fn violations(&self, net: &EmmNet) -> Result<Option<usize>> {
+        if !self.audited {
+            return Ok(None);
+        }
+        // The audit reads the scalers and input scales only; `meta` just completes the model.
+        let meta = Meta {
+            force_scale_n: self.data.force_scale_n as f32,
+            alpha_min: 0.0,
+            alpha_max: 1.0,
+        };
+        let model = to_core(&net.to_rollout(self.frame), meta)?;
+        Ok(Some(
+            audit(&model, AUDIT_GRID.0, AUDIT_GRID.1).total_violations(),
+        ))
+    }
+
+    /// The epoch loop from `p.start_epoch`: every epoch trains, validates, selects and
+    /// checkpoints, until the last epoch, early stopping or the end of the session's budget
+    /// (the reason returned).
+    fn train_epochs(&self, mut p: Progress) -> Result<(Progress, StopReason)> {
+        let cfg = self.cfg;
+        let train_w = windows(self.data.train);
+        let n_batches_full = self.data.train.len().div_ceil(cfg.batch);
+        let n_batches = cfg
+            .max_batches_per_epoch
+            .map_or(n_batches_full, |m| m.min(n_batches_full));
+        let total_steps = (cfg.epochs * n_batches).max(1);
+        let grid = PenaltyGrid::default();
+        let session = SessionBudget {
+            start_epoch: p.start_epoch,
+            epochs: cfg.session_epochs,
+        };
+        let t_start = Instant::now();
+        // Early stopping waits for the first half of the stage: the learning rate peaks after
+        // the warm-up, where a pre-trained model can be knocked off its start, and comes down
+        // only in the second half of the cosine schedule, where such a model recovers.
+        let min_epochs = cfg.epochs / 2;
+        let stopping = |sel: &Selection, epoch: usize| {
+            epoch > min_epochs + 1 && sel.patience_used(cfg.patience, self.audited)
+        };
+        // A resumed run may have used its patience already (then the loop does not run either).
+        let mut stop = if stopping(&p.sel, p.start_epoch) {
+            StopReason::EarlyStopping
+        } else {
+            StopReason::Epochs
+        };
+        for epoch in p.start_epoch..=cfg.epochs {
+            if stopping(&p.sel, epoch) {
+                stop = StopReason::EarlyStopping;
+                break;
+            }
+            if session.used_before(epoch) {
+                stop = StopReason::Session;
+                eprintln!("[{}] session budget of {} epoch(s) used: stopping after epoch {}; continue with --resume", cfg.label, epoch - p.start_epoch, epoch - 1);
+                break;
+            }
+            let plan = EpochPlan {
+                epoch,
+                n_batches,
+                total_steps,
+            };
+            p = self.epoch(p, &train_w, plan, &grid, t_start)?;
+        }
+        Ok((p, stop))
+    }
+
+    /// One epoch: Adam steps over the training windows, the validation RMSE, the audit, the
+    /// model selection, the progress line and the checkpoint. A non-finite validation RMSE
+    /// is an error.
+    fn epoch(
+        &self,
+        mut p: Progress,
+        train_w: &[Window<'_>],
+        plan: EpochPlan,
+        grid: &PenaltyGrid,
+        t_start: Instant,
+    ) -> Result<Progress> {
+        let (cfg, epoch) = (self.cfg, plan.epoch);
+        let t_epoch = Instant::now();
+        let train_mse;
+        let physics;
+        (p.net, train_mse, physics) = train_epoch(
+            p.net,
+            &mut p.optim,
+            self.frame,
+            self.data,
+            train_w,
+            cfg,
+            plan,
+            grid,
+            self.device,
+        )?;
+        let val = self.validation_rmse(&p.net);
         if !val.is_finite() {
             bail!("[{}] the validation RMSE became {val} in epoch {epoch}: stopping, last good checkpoint kept", cfg.label);
         }
@@ -396,14 +476,30 @@ pub fn fit(
             physics,
             val_rmse: val,
             seconds: t_epoch.elapsed().as_secs_f64(),
-            violations: violations_of(&net)?,
+            violations: self.violations(&p.net)?,
         };
-        history.push(stats);
-        if sel.observe(epoch, val, stats.violations) {
-            best = net.clone();
+        p.history.push(stats);
+        if p.sel.observe(epoch, val, stats.violations) {
+            p.best = p.net.clone();
         }
+        self.print_epoch(&p, &stats, t_start);
+        if let Some(dir) = self.checkpoint_dir {
+            checkpoint::save(
+                dir,
+                &p.net,
+                &p.best,
+                &p.optim,
+                &CheckpointState::new(&cfg.label, epoch, &p.history, &p.sel),
+            )?;
+        }
+        Ok(p)
+    }
+
+    /// The progress line of an epoch (`*` when its model is kept), with the time left.
+    fn print_epoch(&self, p: &Progress, stats: &EpochStats, t_start: Instant) {
+        let (cfg, epoch, val) = (self.cfg, stats.epoch, stats.val_rmse);
         let elapsed = t_start.elapsed().as_secs_f64();
-        let done = epoch + 1 - start_epoch;
+        let done = epoch + 1 - p.start_epoch;
         let eta = elapsed / done as f64 * (cfg.epochs - epoch) as f64;
         eprintln!(
             "\r[{}] epoch {epoch:>3}/{} train MSE {:.3e}  physics {:.2e}  val RMSE {:.4} ({:.1} N){}{}  {:.1} s/epoch  ETA {}",
@@ -412,53 +508,55 @@ pub fn fit(
             stats.train_mse,
             stats.physics,
             val,
-            val * data.force_scale_n,
+            val * self.data.force_scale_n,
             stats
                 .violations
                 .map_or(String::new(), |n| format!("  violations {n}")),
-            if sel.best_epoch == epoch { " *" } else { "  " },
+            if p.sel.best_epoch == epoch { " *" } else { "  " },
             stats.seconds,
             fmt_duration(eta)
         );
-        if let Some(dir) = checkpoint_dir {
-            checkpoint::save(
-                dir,
-                &net,
-                &best,
-                &optim,
-                &CheckpointState::new(&cfg.label, epoch, &history, &sel),
-            )?;
-        }
     }
-    // The starting model is a candidate only when this invocation evaluated it.
-    let gave_up = passed_over(
-        start_audit
-            .into_iter()
-            .chain(history.iter().map(|h| (h.epoch, h.val_rmse, h.violations))),
-        sel.best_val,
-    );
-    if stop != StopReason::Session {
-        eprintln!(
-            "[{}] {}",
-            cfg.label,
-            kept_model_summary(sel.best_epoch, sel.best_val, gave_up)
+
+    /// The stage's result from its final state; unless the session's budget ended it, prints
+    /// which model is kept (and a warning when it fails the audit). `start_audit` is the
+    /// starting model's `(0, validation RMSE, violations)` when this invocation evaluated it.
+    fn finish(
+        &self,
+        p: Progress,
+        start_audit: Option<(usize, f64, Option<usize>)>,
+        stop: StopReason,
+    ) -> FitResult {
+        let label = &self.cfg.label;
+        let gave_up = passed_over(
+            start_audit.into_iter().chain(
+                p.history
+                    .iter()
+                    .map(|h| (h.epoch, h.val_rmse, h.violations)),
+            ),
+            p.sel.best_val,
         );
-        if audited && !sel.best_consistent {
+        if stop != StopReason::Session {
             eprintln!(
-                "[{}] warning: no epoch passed the monotonicity audit; the kept model violates \
-                 eqs. 30-31/37-38 (train longer or with a larger --lambda-ph)",
-                cfg.label
+                "[{label}] {}",
+                kept_model_summary(p.sel.best_epoch, p.sel.best_val, gave_up)
             );
+            if self.audited && !p.sel.best_consistent {
+                eprintln!(
+                    "[{label}] warning: no epoch passed the monotonicity audit; the kept model violates \
+                     eqs. 30-31/37-38 (train longer or with a larger --lambda-ph)"
+                );
+            }
+        }
+        FitResult {
+            best: p.best,
+            history: p.history,
+            best_epoch: p.sel.best_epoch,
+            best_val_rmse: p.sel.best_val,
+            stop,
+            passed_over: gave_up,
         }
     }
-    Ok(FitResult {
-        best,
-        history,
-        best_epoch: sel.best_epoch,
-        best_val_rmse: sel.best_val,
-        stop,
-        passed_over: gave_up,
-    })
 }
 
 /// Where an epoch sits in the schedule.
@@ -477,7 +575,7 @@ struct EpochPlan {
 #[allow(clippy::too_many_arguments)]
 fn train_epoch(
     mut net: EmmNet,
-    optim: &mut burn::optim::ModuleOptimizer,
+    optim: &mut ModuleOptimizer,
     frame: &NetFrame,
     data: FitData<'_>,
     train_w: &[Window<'_>],

@@ -2,6 +2,7 @@
 //! fitted to the sample grid.
 
 use super::*;
+use crate::data::csv::{CellError, CellProblem, CsvError, CsvReader, Dialect, Row};
 
 /// Loads and validates a dataset folder (runs are parsed in parallel).
 pub fn load(dir: &Path) -> Result<Dataset, DatasetError> {
@@ -71,127 +72,181 @@ pub fn parse_run(
     entry: RunEntry,
     sample_rate_hz: f64,
 ) -> Result<Run, DatasetError> {
-    let csv_err = |e: csv::Error, fallback_line: usize| {
-        let line = e.position().map_or(fallback_line, |p| {
-            usize::try_from(p.line()).unwrap_or(usize::MAX)
-        });
-        match e.kind() {
-            csv::ErrorKind::UnequalLengths {
-                expected_len, len, ..
-            } => DatasetError::FieldCount {
+    let mut reader = CsvReader::new(bytes, path, Dialect::RUN_FILE);
+    let header = match reader.read_header().map_err(csv_error)? {
+        Some(h) if !(h.names.len() == 1 && h.names[0].is_empty()) => h,
+        _ => {
+            return Err(DatasetError::EmptyFile {
                 path: path.to_path_buf(),
-                line,
-                expected: usize::try_from(*expected_len).unwrap_or(usize::MAX),
-                found: usize::try_from(*len).unwrap_or(usize::MAX),
-            },
-            _ => DatasetError::Csv {
-                path: path.to_path_buf(),
-                line,
-                message: e.to_string(),
-            },
-        }
-    };
-    // Spreadsheet exports often start with a UTF-8 byte-order mark.
-    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .from_reader(bytes);
-    let header = reader.byte_headers().map_err(|e| csv_err(e, 1))?.clone();
-    if header.is_empty() || (header.len() == 1 && header[0].is_empty()) {
-        return Err(DatasetError::EmptyFile {
-            path: path.to_path_buf(),
-        });
-    }
-    let names: Vec<String> = header
-        .iter()
-        .map(|h| String::from_utf8_lossy(h).into_owned())
-        .collect();
-    let mut index: HashMap<&str, usize> = HashMap::new();
-    for (i, n) in names.iter().enumerate() {
-        if index.insert(n.as_str(), i).is_some() {
-            return Err(DatasetError::DuplicateColumn {
-                path: path.to_path_buf(),
-                column: n.clone(),
-            });
-        }
-    }
-    let required = |c: &str| {
-        index
-            .get(c)
-            .copied()
-            .ok_or_else(|| DatasetError::MissingColumn {
-                path: path.to_path_buf(),
-                column: c.to_string(),
-                header: names.join(","),
             })
+        }
     };
-    let (it, ix, iff) = (
-        required(COL_TIME)?,
-        required(COL_DISPLACEMENT)?,
-        required(COL_FORCE)?,
-    );
-    let iv = index.get(COL_VELOCITY).copied();
-    let ia = index.get(COL_ALPHA).copied();
-
+    let columns = RunColumns::find(&header.names, path)?;
     // Pre-size from the byte count (about 30-60 bytes per row).
-    let guess = bytes.len() / 32;
-    let mut time_s = Vec::with_capacity(guess);
-    let mut displacement_m = Vec::with_capacity(guess);
-    let mut force_n = Vec::with_capacity(guess);
-    let mut velocity_m_s = iv.map(|_| Vec::with_capacity(guess));
-    let mut alpha = ia.map(|_| Vec::with_capacity(guess));
-    let mut record = csv::ByteRecord::new();
-    let mut last_line = 1;
-    let mut lines: Vec<usize> = Vec::with_capacity(guess);
-    loop {
-        match reader.read_byte_record(&mut record) {
-            Ok(true) => {}
-            Ok(false) => break,
-            Err(e) => return Err(csv_err(e, last_line + 1)),
-        }
-        let line = record.position().map_or(last_line + 1, |p| {
-            usize::try_from(p.line()).unwrap_or(usize::MAX)
-        });
-        last_line = line;
-        let cell = |i: usize, column: &str| -> Result<f64, DatasetError> {
-            let raw = record.get(i).unwrap_or_default();
-            parse_cell(raw, path, line, column)
-        };
-        let t = cell(it, COL_TIME)?;
-        if let Some(&previous) = time_s.last() {
-            check_increasing(previous, t, path, line)?;
-        }
-        time_s.push(t);
-        lines.push(line);
-        displacement_m.push(cell(ix, COL_DISPLACEMENT)?);
-        force_n.push(cell(iff, COL_FORCE)?);
-        if let (Some(i), Some(v)) = (iv, velocity_m_s.as_mut()) {
-            v.push(cell(i, COL_VELOCITY)?);
-        }
-        if let (Some(i), Some(a)) = (ia, alpha.as_mut()) {
-            let value = cell(i, COL_ALPHA)?;
-            check_alpha(value, path, line)?;
-            a.push(value);
-        }
+    let mut samples = Samples::new(&columns, bytes.len() / 32);
+    while let Some(row) = reader.next_row().map_err(csv_error)? {
+        samples.push(&row, &columns, path)?;
     }
-    if time_s.is_empty() {
+    if samples.time_s.is_empty() {
         return Err(DatasetError::NoSamples {
             path: path.to_path_buf(),
-            line: last_line + 1,
+            line: header.line + 1,
         });
     }
-    check_time_grid(&time_s, sample_rate_hz, path, |i| {
+    let lines = &samples.lines;
+    check_time_grid(&samples.time_s, sample_rate_hz, path, |i| {
         lines.get(i).copied().unwrap_or(i + 2)
     })?;
     Ok(Run {
         entry,
-        time_s,
-        displacement_m,
-        force_n,
-        velocity_m_s,
-        alpha,
+        time_s: samples.time_s,
+        displacement_m: samples.displacement_m,
+        force_n: samples.force_n,
+        velocity_m_s: samples.velocity_m_s,
+        alpha: samples.alpha,
     })
+}
+
+/// The reader's error as a [`DatasetError`].
+fn csv_error(e: CsvError) -> DatasetError {
+    match e {
+        CsvError::Malformed {
+            path,
+            line,
+            message,
+        } => DatasetError::Csv {
+            path,
+            line,
+            message,
+        },
+        CsvError::FieldCount {
+            path,
+            line,
+            expected,
+            found,
+        } => DatasetError::FieldCount {
+            path,
+            line,
+            expected,
+            found,
+        },
+    }
+}
+
+/// A cell that is not a finite number as a [`DatasetError`].
+fn cell_error(e: CellError) -> DatasetError {
+    let CellError {
+        path,
+        line,
+        column,
+        value,
+        problem,
+        ..
+    } = e;
+    match problem {
+        CellProblem::NotANumber => DatasetError::NotANumber {
+            path,
+            line,
+            column,
+            value,
+        },
+        CellProblem::NonFinite => DatasetError::NonFinite {
+            path,
+            line,
+            column,
+            value,
+        },
+    }
+}
+
+/// Where the columns of a run file are (field indices).
+struct RunColumns {
+    time: usize,
+    displacement: usize,
+    force: usize,
+    velocity: Option<usize>,
+    alpha: Option<usize>,
+}
+
+impl RunColumns {
+    /// The columns in the header `names`; refuses a repeated name and a missing required
+    /// column.
+    fn find(names: &[String], path: &Path) -> Result<Self, DatasetError> {
+        let mut index: HashMap<&str, usize> = HashMap::new();
+        for (i, n) in names.iter().enumerate() {
+            if index.insert(n.as_str(), i).is_some() {
+                return Err(DatasetError::DuplicateColumn {
+                    path: path.to_path_buf(),
+                    column: n.clone(),
+                });
+            }
+        }
+        let required = |c: &str| {
+            index
+                .get(c)
+                .copied()
+                .ok_or_else(|| DatasetError::MissingColumn {
+                    path: path.to_path_buf(),
+                    column: c.to_string(),
+                    header: names.join(","),
+                })
+        };
+        Ok(RunColumns {
+            time: required(COL_TIME)?,
+            displacement: required(COL_DISPLACEMENT)?,
+            force: required(COL_FORCE)?,
+            velocity: index.get(COL_VELOCITY).copied(),
+            alpha: index.get(COL_ALPHA).copied(),
+        })
+    }
+}
+
+/// The samples of a run as read, with the line of each.
+struct Samples {
+    time_s: Vec<f64>,
+    displacement_m: Vec<f64>,
+    force_n: Vec<f64>,
+    velocity_m_s: Option<Vec<f64>>,
+    alpha: Option<Vec<f64>>,
+    lines: Vec<usize>,
+}
+
+impl Samples {
+    /// Empty columns for `columns`, with room for `capacity` samples.
+    fn new(columns: &RunColumns, capacity: usize) -> Self {
+        Samples {
+            time_s: Vec::with_capacity(capacity),
+            displacement_m: Vec::with_capacity(capacity),
+            force_n: Vec::with_capacity(capacity),
+            velocity_m_s: columns.velocity.map(|_| Vec::with_capacity(capacity)),
+            alpha: columns.alpha.map(|_| Vec::with_capacity(capacity)),
+            lines: Vec::with_capacity(capacity),
+        }
+    }
+
+    /// Parses one row; refuses a cell that is not a finite number, a time that does not
+    /// increase and a condition level outside \[0, 1\].
+    fn push(&mut self, row: &Row<'_, '_>, c: &RunColumns, path: &Path) -> Result<(), DatasetError> {
+        let line = row.line();
+        let cell = |i: usize| row.number(i).map_err(cell_error);
+        let t = cell(c.time)?;
+        if let Some(&previous) = self.time_s.last() {
+            check_increasing(previous, t, path, line)?;
+        }
+        self.time_s.push(t);
+        self.lines.push(line);
+        self.displacement_m.push(cell(c.displacement)?);
+        self.force_n.push(cell(c.force)?);
+        if let (Some(i), Some(v)) = (c.velocity, self.velocity_m_s.as_mut()) {
+            v.push(cell(i)?);
+        }
+        if let (Some(i), Some(a)) = (c.alpha, self.alpha.as_mut()) {
+            let value = cell(i)?;
+            check_alpha(value, path, line)?;
+            a.push(value);
+        }
+        Ok(())
+    }
 }
 
 /// Checks one per-sample condition level (in \[0, 1\]).
@@ -204,25 +259,6 @@ pub(super) fn check_alpha(value: f64, path: &Path, line: usize) -> Result<(), Da
             line,
             value,
         })
-    }
-}
-
-fn parse_cell(raw: &[u8], path: &Path, line: usize, column: &str) -> Result<f64, DatasetError> {
-    let text = std::str::from_utf8(raw).ok();
-    match text.and_then(|t| t.parse::<f64>().ok()) {
-        Some(v) if v.is_finite() => Ok(v),
-        Some(_) => Err(DatasetError::NonFinite {
-            path: path.to_path_buf(),
-            line,
-            column: column.to_string(),
-            value: String::from_utf8_lossy(raw).into_owned(),
-        }),
-        None => Err(DatasetError::NotANumber {
-            path: path.to_path_buf(),
-            line,
-            column: column.to_string(),
-            value: String::from_utf8_lossy(raw).into_owned(),
-        }),
     }
 }
 

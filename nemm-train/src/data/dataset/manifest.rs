@@ -73,82 +73,22 @@ pub(super) fn validate_manifest(
     path: &Path,
     lines: Option<&ManifestLines>,
 ) -> Result<(), DatasetError> {
-    let value_err =
-        |line: Option<usize>, key: String, message: String| DatasetError::ManifestValue {
-            path: path.to_path_buf(),
-            line,
-            key,
-            message,
-        };
     if !(m.sample_rate_hz.is_finite() && m.sample_rate_hz > 0.0) {
-        return Err(value_err(
+        return Err(value_error(
+            path,
             lines.map(|l| l.sample_rate_hz),
-            "sample_rate_hz".into(),
+            "sample_rate_hz",
             format!("{} is not a positive finite rate in Hz", m.sample_rate_hz),
         ));
     }
     if let Some(c) = &m.condition {
-        let cl = lines.and_then(|l| l.condition.as_ref());
-        let limits = [
-            (
-                "condition.name",
-                c.name.len(),
-                1,
-                nemm_core::model::MAX_CONDITION_NAME,
-                cl.map(|l| l.name),
-            ),
-            (
-                "condition.unit",
-                c.unit.len(),
-                0,
-                nemm_core::model::MAX_CONDITION_UNIT,
-                cl.map(|l| l.unit),
-            ),
-        ];
-        for (key, len, lo, hi, line) in limits {
-            if !(lo..=hi).contains(&len) {
-                return Err(value_err(
-                    line,
-                    key.into(),
-                    format!("{len} bytes; must be {lo} to {hi} bytes"),
-                ));
-            }
-        }
-        for (key, v, line) in [
-            (
-                "condition.at_alpha_0",
-                c.at_alpha_0,
-                cl.map(|l| l.at_alpha_0),
-            ),
-            (
-                "condition.at_alpha_1",
-                c.at_alpha_1,
-                cl.map(|l| l.at_alpha_1),
-            ),
-        ] {
-            if !(v.is_finite() && (v as f32).is_finite()) {
-                return Err(value_err(
-                    line,
-                    key.into(),
-                    format!("{v} is not a finite number"),
-                ));
-            }
-        }
-        if c.at_alpha_0 as f32 == c.at_alpha_1 as f32 {
-            return Err(value_err(
-                cl.map(|l| l.at_alpha_1),
-                "condition.at_alpha_1".into(),
-                format!(
-                    "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
-                    c.at_alpha_1
-                ),
-            ));
-        }
+        validate_condition(c, path, lines.and_then(|l| l.condition.as_ref()))?;
     }
     if m.runs.is_empty() {
-        return Err(value_err(
+        return Err(value_error(
+            path,
             None,
-            "runs".into(),
+            "runs",
             "no runs listed (add [[runs]] tables)".into(),
         ));
     }
@@ -156,47 +96,143 @@ pub(super) fn validate_manifest(
     for (i, r) in m.runs.iter().enumerate() {
         let rl = lines.and_then(|l| l.runs.get(i));
         let file_line = rl.map(|l| l.file);
-        let key = |k: &str| format!("runs[{i}].{k}");
+        let key = format!("runs[{i}].file");
         let normalised = normalise_relative(&r.file).map_err(|message| {
-            value_err(file_line, key("file"), format!("{:?}: {message}", r.file))
+            value_error(path, file_line, &key, format!("{:?}: {message}", r.file))
         })?;
         if let Some(&first) = seen.get(&normalised) {
             return Err(DatasetError::DuplicateRunFile {
                 path: path.to_path_buf(),
                 line: file_line,
-                key: key("file"),
+                key,
                 first_key: format!("runs[{first}].file"),
                 file: r.file.clone(),
             });
         }
         seen.insert(normalised, i);
-        if !(r.oil_loss.is_finite() && (0.0..=1.0).contains(&r.oil_loss)) {
-            return Err(value_err(
-                rl.map(|l| l.oil_loss),
-                key("oil_loss"),
-                format!(
-                    "{} is outside [0, 1] (condition level alpha, e.g. the fraction of oil \
-                     volume lost)",
-                    r.oil_loss
-                ),
-            ));
-        }
-        let positive = |v: Option<f64>, k: &str, line: Option<usize>| match v {
-            Some(v) if !(v.is_finite() && v > 0.0) => Err(value_err(
-                line,
-                key(k),
-                format!("{v} is not a positive finite number"),
-            )),
-            _ => Ok(()),
-        };
-        positive(r.amplitude_m, "amplitude_m", rl.and_then(|l| l.amplitude_m))?;
-        positive(
-            r.target_velocity_m_s,
-            "target_velocity_m_s",
-            rl.and_then(|l| l.target_velocity_m_s),
-        )?;
+        validate_run_values(r, i, path, rl)?;
     }
     Ok(())
+}
+
+/// A [`DatasetError::ManifestValue`] of the manifest at `path`.
+fn value_error(
+    path: &Path,
+    line: Option<usize>,
+    key: impl Into<String>,
+    message: String,
+) -> DatasetError {
+    DatasetError::ManifestValue {
+        path: path.to_path_buf(),
+        line,
+        key: key.into(),
+        message,
+    }
+}
+
+/// Checks the `[condition]` table: the lengths of name and unit (what the weights blob
+/// holds), finite and distinct values at alpha 0 and 1.
+fn validate_condition(
+    c: &ConditionSpec,
+    path: &Path,
+    cl: Option<&ConditionLines>,
+) -> Result<(), DatasetError> {
+    let limits = [
+        (
+            "condition.name",
+            c.name.len(),
+            1,
+            nemm_core::model::MAX_CONDITION_NAME,
+            cl.map(|l| l.name),
+        ),
+        (
+            "condition.unit",
+            c.unit.len(),
+            0,
+            nemm_core::model::MAX_CONDITION_UNIT,
+            cl.map(|l| l.unit),
+        ),
+    ];
+    for (key, len, lo, hi, line) in limits {
+        if !(lo..=hi).contains(&len) {
+            return Err(value_error(
+                path,
+                line,
+                key,
+                format!("{len} bytes; must be {lo} to {hi} bytes"),
+            ));
+        }
+    }
+    for (key, v, line) in [
+        (
+            "condition.at_alpha_0",
+            c.at_alpha_0,
+            cl.map(|l| l.at_alpha_0),
+        ),
+        (
+            "condition.at_alpha_1",
+            c.at_alpha_1,
+            cl.map(|l| l.at_alpha_1),
+        ),
+    ] {
+        if !(v.is_finite() && (v as f32).is_finite()) {
+            return Err(value_error(
+                path,
+                line,
+                key,
+                format!("{v} is not a finite number"),
+            ));
+        }
+    }
+    if c.at_alpha_0 as f32 == c.at_alpha_1 as f32 {
+        return Err(value_error(
+            path,
+            cl.map(|l| l.at_alpha_1),
+            "condition.at_alpha_1",
+            format!(
+                "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
+                c.at_alpha_1
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Checks the values of run `i` (its level and optional metadata; lines `rl`).
+fn validate_run_values(
+    r: &RunEntry,
+    i: usize,
+    path: &Path,
+    rl: Option<&RunLines>,
+) -> Result<(), DatasetError> {
+    let key = |k: &str| format!("runs[{i}].{k}");
+    if !(r.oil_loss.is_finite() && (0.0..=1.0).contains(&r.oil_loss)) {
+        return Err(value_error(
+            path,
+            rl.map(|l| l.oil_loss),
+            key("oil_loss"),
+            format!(
+                "{} is outside [0, 1] (condition level alpha, e.g. the fraction of oil \
+                 volume lost)",
+                r.oil_loss
+            ),
+        ));
+    }
+    let positive = |v: Option<f64>, k: &str, line: Option<usize>| match v {
+        Some(v) if !(v.is_finite() && v > 0.0) => Err(value_error(
+            path,
+            line,
+            key(k),
+            format!("{v} is not a positive finite number"),
+        )),
+        _ => Ok(()),
+    };
+    positive(r.amplitude_m, "amplitude_m", rl.and_then(|l| l.amplitude_m))?;
+    positive(
+        r.target_velocity_m_s,
+        "target_velocity_m_s",
+        rl.and_then(|l| l.target_velocity_m_s),
+    )
 }
 
 /// The run file path without `.` components; refuses empty, absolute and `..` paths.

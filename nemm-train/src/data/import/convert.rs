@@ -2,6 +2,7 @@
 //! onto the dataset's grid.
 
 use super::*;
+use crate::data::csv::{CsvError, CsvReader, Dialect, Header, Row};
 
 /// One raw file converted to SI units, with the source line of every sample.
 #[derive(Debug, Clone, PartialEq)]
@@ -14,131 +15,72 @@ struct Converted {
     lines: Vec<usize>,
 }
 
-fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
-    let bytes = std::fs::read(path).map_err(|error| ImportError::Io {
-        path: path.to_path_buf(),
-        error,
-    })?;
-    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
-    let o = &spec.csv;
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(true)
-        .trim(csv::Trim::All)
-        .delimiter(delimiter_byte(&o.delimiter)?)
-        .comment(o.comment.as_ref().and_then(|c| c.bytes().next()))
-        .from_reader(bytes);
-    let csv_err = |e: csv::Error, line: usize| ImportError::Csv {
-        path: path.to_path_buf(),
-        line: e
-            .position()
-            .map_or(line, |p| usize::try_from(p.line()).unwrap_or(usize::MAX)),
-        message: e.to_string(),
-    };
-    let mut header: Option<(usize, Vec<String>)> = None;
-    let mut idx: Vec<(&'static str, usize, f64, &ColumnSpec)> = Vec::new();
-    let mut out = Converted {
-        time_s: Vec::new(),
-        displacement_m: Vec::new(),
-        force_n: Vec::new(),
-        velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
-        alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
-        lines: Vec::new(),
-    };
-    let mut record = csv::StringRecord::new();
-    let mut last = 0;
-    loop {
-        match reader.read_record(&mut record) {
-            Ok(true) => {}
-            Ok(false) => break,
-            Err(e) => return Err(csv_err(e, last + 1)),
+impl Converted {
+    /// No samples yet, with the optional columns `spec` maps.
+    fn empty(spec: &ImportSpec) -> Self {
+        Converted {
+            time_s: Vec::new(),
+            displacement_m: Vec::new(),
+            force_n: Vec::new(),
+            velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
+            alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
+            lines: Vec::new(),
         }
-        let line = record.position().map_or(last + 1, |p| {
-            usize::try_from(p.line()).unwrap_or(usize::MAX)
-        });
-        last = line;
-        let Some((hline, names)) = &header else {
-            if line < o.header_line {
-                continue;
-            }
-            let names: Vec<String> = record.iter().map(str::to_string).collect();
-            for (role, c) in spec.columns.roles() {
-                let Some(c) = c else { continue };
-                let found = match (&c.name, c.index) {
-                    (Some(n), _) => names.iter().position(|h| h == n),
-                    (None, Some(i)) => (i >= 1 && i <= names.len()).then(|| i - 1),
-                    (None, None) => None,
-                };
-                let i = found.ok_or_else(|| ImportError::MissingColumn {
-                    path: path.to_path_buf(),
-                    line,
-                    role: role.to_string(),
-                    column: c.label(),
-                    header: names.join(","),
-                })?;
-                let factor = unit_factor(role, &c.unit).unwrap_or(1.0);
-                idx.push((role, i, factor, c));
-            }
-            header = Some((line, names));
-            continue;
-        };
-        let _ = hline;
-        if record.iter().all(str::is_empty) {
-            continue;
-        }
+    }
+
+    /// Converts one row: every mapped column to SI units (`role`, field, unit factor,
+    /// spec), the time from the time column or `spec.rate_hz`. Refuses a cell that is not a
+    /// finite number, a level outside \[0, 1\] and a time that does not increase.
+    fn push_row(
+        &mut self,
+        row: &Row<'_, '_>,
+        columns: &[(&'static str, usize, f64, &ColumnSpec)],
+        rate_hz: Option<f64>,
+        path: &Path,
+    ) -> Result<(), ImportError> {
+        let line = row.line();
         let mut time = None;
-        for &(role, i, factor, c) in &idx {
-            let raw = record.get(i).unwrap_or("");
-            let text = if o.decimal_comma {
-                raw.replace(',', ".")
-            } else {
-                raw.to_string()
-            };
-            let v = match text.parse::<f64>() {
-                Ok(v) if v.is_finite() => v,
-                _ => {
-                    return Err(ImportError::BadCell {
-                        path: path.to_path_buf(),
-                        line,
-                        field: i + 1,
-                        column: names.get(i).cloned().unwrap_or_default(),
-                        value: raw.to_string(),
-                    })
-                }
-            };
+        for &(role, i, factor, c) in columns {
+            let v = row.number(i).map_err(|e| ImportError::BadCell {
+                path: e.path,
+                line: e.line,
+                field: e.field + 1,
+                column: e.column,
+                value: e.value,
+            })?;
             let si = (v * c.gain + c.offset) * factor * if c.invert { -1.0 } else { 1.0 };
             match role {
                 "time" => time = Some(si),
-                "displacement" => out.displacement_m.push(si),
-                "force" => out.force_n.push(si),
+                "displacement" => self.displacement_m.push(si),
+                "force" => self.force_n.push(si),
                 "alpha" => {
                     if !(0.0..=1.0).contains(&si) {
                         return Err(ImportError::LevelOutOfRange {
                             path: path.to_path_buf(),
                             line,
                             field: i + 1,
-                            column: names.get(i).cloned().unwrap_or_default(),
-                            value: raw.to_string(),
+                            column: row.column(i),
+                            value: row.text(i),
                             level: si,
                         });
                     }
-                    if let Some(a) = out.alpha.as_mut() {
+                    if let Some(a) = self.alpha.as_mut() {
                         a.push(si);
                     }
                 }
                 _ => {
-                    if let Some(vel) = out.velocity_m_s.as_mut() {
+                    if let Some(vel) = self.velocity_m_s.as_mut() {
                         vel.push(si);
                     }
                 }
             }
         }
-        let t = match (time, spec.rate_hz) {
+        let t = match (time, rate_hz) {
             (Some(t), _) => t,
-            (None, Some(r)) => out.lines.len() as f64 / r,
+            (None, Some(r)) => self.lines.len() as f64 / r,
             (None, None) => 0.0,
         };
-        if let Some(&prev) = out.time_s.last() {
+        if let Some(&prev) = self.time_s.last() {
             if t.is_nan() || t <= prev {
                 return Err(ImportError::Time(DatasetError::NonMonotonicTime {
                     path: path.to_path_buf(),
@@ -148,14 +90,99 @@ fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
                 }));
             }
         }
-        out.time_s.push(t);
-        out.lines.push(line);
+        self.time_s.push(t);
+        self.lines.push(line);
+        Ok(())
     }
-    if header.is_none() {
+}
+
+/// The reader's error as an [`ImportError`].
+fn csv_error(e: CsvError) -> ImportError {
+    match e {
+        CsvError::Malformed {
+            path,
+            line,
+            message,
+        } => ImportError::Csv {
+            path,
+            line,
+            message,
+        },
+        CsvError::FieldCount {
+            path,
+            line,
+            expected,
+            found,
+        } => ImportError::Csv {
+            path,
+            line,
+            message: format!("{found} fields, but the header has {expected}"),
+        },
+    }
+}
+
+/// The CSV dialect of the spec's raw files.
+fn dialect(o: &CsvOptions) -> Result<Dialect, ImportError> {
+    Ok(Dialect {
+        delimiter: delimiter_byte(&o.delimiter)?,
+        comment: o.comment.as_ref().and_then(|c| c.bytes().next()),
+        header_line: o.header_line,
+        same_field_count: false,
+        decimal_comma: o.decimal_comma,
+    })
+}
+
+/// The columns `spec` maps, found in `header`: `(role, field, unit factor, spec)` in
+/// reading order.
+fn find_columns<'s>(
+    spec: &'s ImportSpec,
+    path: &Path,
+    header: &Header,
+) -> Result<Vec<(&'static str, usize, f64, &'s ColumnSpec)>, ImportError> {
+    let names = &header.names;
+    let mut idx = Vec::new();
+    for (role, c) in spec.columns.roles() {
+        let Some(c) = c else { continue };
+        let found = match (&c.name, c.index) {
+            (Some(n), _) => names.iter().position(|h| h == n),
+            (None, Some(i)) => (i >= 1 && i <= names.len()).then(|| i - 1),
+            (None, None) => None,
+        };
+        let i = found.ok_or_else(|| ImportError::MissingColumn {
+            path: path.to_path_buf(),
+            line: header.line,
+            role: role.to_string(),
+            column: c.label(),
+            header: names.join(","),
+        })?;
+        let factor = unit_factor(role, &c.unit).unwrap_or(1.0);
+        idx.push((role, i, factor, c));
+    }
+    Ok(idx)
+}
+
+/// Reads one raw file and converts it to SI units.
+fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
+    let bytes = std::fs::read(path).map_err(|error| ImportError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    let mut reader = CsvReader::new(&bytes, path, dialect(&spec.csv)?);
+    let Some(header) = reader.read_header().map_err(csv_error)? else {
         return Err(ImportError::NoRuns {
             path: path.to_path_buf(),
-            message: format!("no header at line {} (csv.header_line)", o.header_line),
+            message: format!(
+                "no header at line {} (csv.header_line)",
+                spec.csv.header_line
+            ),
         });
+    };
+    let columns = find_columns(spec, path, &header)?;
+    let mut out = Converted::empty(spec);
+    while let Some(row) = reader.next_row().map_err(csv_error)? {
+        if !row.is_blank() {
+            out.push_row(&row, &columns, spec.rate_hz, path)?;
+        }
     }
     if out.time_s.is_empty() {
         return Err(ImportError::NoRuns {
@@ -310,70 +337,118 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
     let mut dropped = Vec::new();
     for (fi, f) in spec.files.iter().enumerate() {
         let c = read_file(spec, &f.path)?;
-        let mut ranges: Vec<(usize, usize, Option<f64>)> = Vec::new();
-        if f.runs.is_empty() {
-            let split = f.split.as_ref().unwrap_or(&spec.split);
-            let (segs, short) = segments(&c, split);
-            dropped.extend(
-                short
-                    .into_iter()
-                    .map(|(a, b)| (f.path.clone(), c.time_s[a], c.time_s[b - 1])),
-            );
-            if segs.is_empty() {
-                return Err(ImportError::NoRuns {
-                    path: f.path.clone(),
-                    message: format!(
-                        "no segment of at least min_run_s = {} s (split {:?})",
-                        split.min_run_s, split.method
-                    ),
-                });
-            }
-            ranges.extend(segs.into_iter().map(|(a, b)| (a, b, f.alpha)));
+        let cuts = if f.runs.is_empty() {
+            split_cuts(spec, f, &c, &mut dropped)?
         } else {
-            for (j, r) in f.runs.iter().enumerate() {
-                let a = c.time_s.partition_point(|t| *t < r.start_s);
-                let b = c.time_s.partition_point(|t| *t < r.end_s);
-                if b <= a {
-                    return Err(ImportError::NoRuns {
-                        path: f.path.clone(),
-                        message: format!(
-                            "files[{fi}].runs[{j}]: no samples in {} .. {} s (the file spans \
-                             {} .. {} s)",
-                            r.start_s,
-                            r.end_s,
-                            c.time_s[0],
-                            c.time_s[c.time_s.len() - 1]
-                        ),
-                    });
-                }
-                ranges.push((a, b, r.alpha.or(f.alpha)));
-            }
-        }
-        for (a, b, alpha) in ranges {
-            let mut piece = Converted {
-                time_s: c.time_s[a..b].to_vec(),
-                displacement_m: c.displacement_m[a..b].to_vec(),
-                force_n: c.force_n[a..b].to_vec(),
-                velocity_m_s: c.velocity_m_s.as_ref().map(|v| v[a..b].to_vec()),
-                alpha: c.alpha.as_ref().map(|v| v[a..b].to_vec()),
-                lines: c.lines[a..b].to_vec(),
-            };
-            if spec.columns.displacement.center {
-                center(&mut piece.displacement_m);
-            }
-            if spec.columns.force.center {
-                center(&mut piece.force_n);
-            }
-            if let (Some(v), Some(true)) = (
-                piece.velocity_m_s.as_mut(),
-                spec.columns.velocity.as_ref().map(|c| c.center),
-            ) {
-                center(v);
-            }
-            pieces.push((fi, piece, alpha));
+            time_cuts(fi, f, &c)?
+        };
+        for (a, b, alpha) in cuts {
+            pieces.push((fi, c.piece(a, b, &spec.columns), alpha));
         }
     }
-    let rate_hz = match (spec.resample_hz, spec.rate_hz) {
+    let rate_hz = dataset_rate(spec, &pieces);
+    let mut runs = Vec::new();
+    let mut account = Vec::new();
+    let mut counters: Vec<usize> = vec![0; spec.files.len()];
+    for (fi, piece, alpha) in &pieces {
+        let f = &spec.files[*fi];
+        let k = counters[*fi];
+        counters[*fi] += 1;
+        let total = pieces.iter().filter(|p| p.0 == *fi).count();
+        let entry = RunEntry {
+            file: run_file(f, k, total),
+            oil_loss: piece.label(*alpha),
+            amplitude_m: None,
+            target_velocity_m_s: None,
+        };
+        runs.push(piece.run(entry, spec.resample_hz, rate_hz, &f.path)?);
+        account.push(ImportedRun {
+            source: f.path.clone(),
+            lines: (
+                piece.lines.first().copied().unwrap_or(0),
+                piece.lines.last().copied().unwrap_or(0),
+            ),
+            time_s: (
+                piece.time_s.first().copied().unwrap_or(0.0),
+                piece.time_s.last().copied().unwrap_or(0.0),
+            ),
+            grid: dataset::fit_time_grid(&piece.time_s, 1.0 / rate_hz),
+            resampled: spec.resample_hz.is_some(),
+        });
+    }
+    Ok(Imported {
+        dataset: Dataset {
+            name: spec.name.clone().unwrap_or_else(|| name.to_string()),
+            sample_rate_hz: rate_hz,
+            condition: None,
+            runs,
+        },
+        runs: account,
+        dropped,
+    })
+}
+
+/// Samples `[start, end)` of a converted file that make one run, and the run's level when
+/// the spec gives it.
+type Cut = (usize, usize, Option<f64>);
+
+/// The runs of file `f` cut by its `split` (else the spec's), with the file's level; the
+/// segments shorter than `min_run_s` go to `dropped` as `(file, start s, end s)`. A file
+/// without a segment long enough is an error.
+fn split_cuts(
+    spec: &ImportSpec,
+    f: &FileSpec,
+    c: &Converted,
+    dropped: &mut Vec<(PathBuf, f64, f64)>,
+) -> Result<Vec<Cut>, ImportError> {
+    let split = f.split.as_ref().unwrap_or(&spec.split);
+    let (segs, short) = segments(c, split);
+    dropped.extend(
+        short
+            .into_iter()
+            .map(|(a, b)| (f.path.clone(), c.time_s[a], c.time_s[b - 1])),
+    );
+    if segs.is_empty() {
+        return Err(ImportError::NoRuns {
+            path: f.path.clone(),
+            message: format!(
+                "no segment of at least min_run_s = {} s (split {:?})",
+                split.min_run_s, split.method
+            ),
+        });
+    }
+    Ok(segs.into_iter().map(|(a, b)| (a, b, f.alpha)).collect())
+}
+
+/// The runs of file `f` (number `fi` of the spec) given by time (`[[files.runs]]`), each with
+/// its level or the file's. A range without samples is an error.
+fn time_cuts(fi: usize, f: &FileSpec, c: &Converted) -> Result<Vec<Cut>, ImportError> {
+    let mut cuts = Vec::new();
+    for (j, r) in f.runs.iter().enumerate() {
+        let a = c.time_s.partition_point(|t| *t < r.start_s);
+        let b = c.time_s.partition_point(|t| *t < r.end_s);
+        if b <= a {
+            return Err(ImportError::NoRuns {
+                path: f.path.clone(),
+                message: format!(
+                    "files[{fi}].runs[{j}]: no samples in {} .. {} s (the file spans \
+                     {} .. {} s)",
+                    r.start_s,
+                    r.end_s,
+                    c.time_s[0],
+                    c.time_s[c.time_s.len() - 1]
+                ),
+            });
+        }
+        cuts.push((a, b, r.alpha.or(f.alpha)));
+    }
+    Ok(cuts)
+}
+
+/// The dataset's sample rate: `resample_hz`, else `rate_hz`, else the rate fitted to the
+/// first run's stamps, rounded to 1 Hz when that is within 0.1 %.
+fn dataset_rate(spec: &ImportSpec, pieces: &[(usize, Converted, Option<f64>)]) -> f64 {
+    match (spec.resample_hz, spec.rate_hz) {
         (Some(r), _) | (None, Some(r)) => r,
         (None, None) => {
             let first = &pieces
@@ -389,95 +464,100 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
                 r
             }
         }
-    };
-    let mut runs = Vec::new();
-    let mut account = Vec::new();
-    let mut counters: Vec<usize> = vec![0; spec.files.len()];
-    let total_of = |fi: usize| pieces.iter().filter(|p| p.0 == fi).count();
-    for (fi, piece, alpha) in &pieces {
-        let f = &spec.files[*fi];
-        let grid = dataset::fit_time_grid(&piece.time_s, 1.0 / rate_hz);
-        let k = counters[*fi];
-        counters[*fi] += 1;
-        let stem = f
-            .path
-            .file_stem()
-            .map_or("run".into(), |s| s.to_string_lossy().into_owned());
-        let file = if total_of(*fi) > 1 {
-            PathBuf::from(format!("runs/{stem}_{:02}.csv", k + 1))
-        } else {
-            PathBuf::from(format!("runs/{stem}.csv"))
+    }
+}
+
+/// The run file of the `k`-th of the `total` runs cut from `f`: `runs/<stem>.csv`, or
+/// `runs/<stem>_NN.csv` when there are several.
+fn run_file(f: &FileSpec, k: usize, total: usize) -> PathBuf {
+    let stem = f
+        .path
+        .file_stem()
+        .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+    if total > 1 {
+        PathBuf::from(format!("runs/{stem}_{:02}.csv", k + 1))
+    } else {
+        PathBuf::from(format!("runs/{stem}.csv"))
+    }
+}
+
+impl Converted {
+    /// Samples `[a, b)`, with the columns the spec asks to centre centred.
+    fn piece(&self, a: usize, b: usize, columns: &Columns) -> Converted {
+        let mut piece = Converted {
+            time_s: self.time_s[a..b].to_vec(),
+            displacement_m: self.displacement_m[a..b].to_vec(),
+            force_n: self.force_n[a..b].to_vec(),
+            velocity_m_s: self.velocity_m_s.as_ref().map(|v| v[a..b].to_vec()),
+            alpha: self.alpha.as_ref().map(|v| v[a..b].to_vec()),
+            lines: self.lines[a..b].to_vec(),
         };
-        // The label: the given level, else the mean of the run's levels (a level column).
-        let label = alpha.unwrap_or_else(|| {
-            piece
-                .alpha
+        if columns.displacement.center {
+            center(&mut piece.displacement_m);
+        }
+        if columns.force.center {
+            center(&mut piece.force_n);
+        }
+        if let (Some(v), Some(true)) = (
+            piece.velocity_m_s.as_mut(),
+            columns.velocity.as_ref().map(|c| c.center),
+        ) {
+            center(v);
+        }
+        piece
+    }
+
+    /// The run's label: the given level, else the mean of its levels (a level column), else 0.
+    fn label(&self, alpha: Option<f64>) -> f64 {
+        alpha.unwrap_or_else(|| {
+            self.alpha
                 .as_ref()
                 .map_or(0.0, |a| a.iter().sum::<f64>() / a.len().max(1) as f64)
-        });
-        let entry = RunEntry {
-            file,
-            oil_loss: label,
-            amplitude_m: None,
-            target_velocity_m_s: None,
-        };
-        let run = if let Some(r) = spec.resample_hz {
-            let t0 = piece.time_s[0];
-            let span = piece.time_s[piece.time_s.len() - 1] - t0;
+        })
+    }
+
+    /// The run of this piece: resampled at `resample_hz` when given (linear interpolation),
+    /// else its stamps as read, checked against `rate_hz` with the loader's rule (errors name
+    /// the lines of the raw file at `path`).
+    fn run(
+        &self,
+        entry: RunEntry,
+        resample_hz: Option<f64>,
+        rate_hz: f64,
+        path: &Path,
+    ) -> Result<Run, ImportError> {
+        if let Some(r) = resample_hz {
+            let t0 = self.time_s[0];
+            let span = self.time_s[self.time_s.len() - 1] - t0;
             let m = (span * r + 1e-9).floor() as usize + 1;
             let tq: Vec<f64> = (0..m).map(|i| t0 + i as f64 / r).collect();
-            Run {
+            return Ok(Run {
                 entry,
-                displacement_m: interpolate(&piece.time_s, &piece.displacement_m, &tq),
-                force_n: interpolate(&piece.time_s, &piece.force_n, &tq),
-                velocity_m_s: piece
+                displacement_m: interpolate(&self.time_s, &self.displacement_m, &tq),
+                force_n: interpolate(&self.time_s, &self.force_n, &tq),
+                velocity_m_s: self
                     .velocity_m_s
                     .as_ref()
-                    .map(|v| interpolate(&piece.time_s, v, &tq)),
-                alpha: piece
+                    .map(|v| interpolate(&self.time_s, v, &tq)),
+                alpha: self
                     .alpha
                     .as_ref()
-                    .map(|a| interpolate(&piece.time_s, a, &tq)),
+                    .map(|a| interpolate(&self.time_s, a, &tq)),
                 time_s: tq,
-            }
-        } else {
-            dataset::check_time_grid(&piece.time_s, rate_hz, &f.path, |i| {
-                piece.lines.get(i).copied().unwrap_or(0)
-            })?;
-            Run {
-                entry,
-                time_s: piece.time_s.clone(),
-                displacement_m: piece.displacement_m.clone(),
-                force_n: piece.force_n.clone(),
-                velocity_m_s: piece.velocity_m_s.clone(),
-                alpha: piece.alpha.clone(),
-            }
-        };
-        account.push(ImportedRun {
-            source: f.path.clone(),
-            lines: (
-                piece.lines.first().copied().unwrap_or(0),
-                piece.lines.last().copied().unwrap_or(0),
-            ),
-            time_s: (
-                piece.time_s.first().copied().unwrap_or(0.0),
-                piece.time_s.last().copied().unwrap_or(0.0),
-            ),
-            grid,
-            resampled: spec.resample_hz.is_some(),
-        });
-        runs.push(run);
+            });
+        }
+        dataset::check_time_grid(&self.time_s, rate_hz, path, |i| {
+            self.lines.get(i).copied().unwrap_or(0)
+        })?;
+        Ok(Run {
+            entry,
+            time_s: self.time_s.clone(),
+            displacement_m: self.displacement_m.clone(),
+            force_n: self.force_n.clone(),
+            velocity_m_s: self.velocity_m_s.clone(),
+            alpha: self.alpha.clone(),
+        })
     }
-    Ok(Imported {
-        dataset: Dataset {
-            name: spec.name.clone().unwrap_or_else(|| name.to_string()),
-            sample_rate_hz: rate_hz,
-            condition: None,
-            runs,
-        },
-        runs: account,
-        dropped,
-    })
 }
 
 /// Subtracts the mid-range.

@@ -52,7 +52,7 @@ pub enum ImportError {
         /// What is wrong with it.
         message: String,
     },
-    /// The CSV reader failed (malformed quoting, not UTF-8, ...).
+    /// The CSV reader failed.
     #[error("{}:{line}: {message}", path.display())]
     Csv {
         /// The raw file.

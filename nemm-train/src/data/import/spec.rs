@@ -64,41 +64,8 @@ pub fn unit_factor(role: &str, unit: &str) -> Option<f64> {
 /// Checks the spec's values (units, gains, levels, rates, cutting options).
 pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
     for (role, c) in spec.columns.roles() {
-        let Some(c) = c else { continue };
-        let key = |k: &str| format!("columns.{role}.{k}");
-        if c.name.is_some() == c.index.is_some() {
-            return Err(spec_err(
-                key("name"),
-                "give exactly one of `name` and `index`",
-            ));
-        }
-        if c.index == Some(0) {
-            return Err(spec_err(key("index"), "columns are counted from 1"));
-        }
-        if unit_factor(role, &c.unit).is_none() {
-            let accepted: Vec<&str> = ["s", "ms", "us", "min", "m", "cm", "mm", "um", "in"]
-                .into_iter()
-                .chain(["N", "kN", "lbf", "kgf", "m/s", "mm/s", "in/s", "1"])
-                .filter(|u| unit_factor(role, u).is_some())
-                .collect();
-            return Err(spec_err(
-                key("unit"),
-                format!(
-                    "\"{}\" is not a {role} unit (one of {}; for volts give the unit of \
-                     `gain` times volts, e.g. unit = \"mm\" with gain = mm per volt)",
-                    c.unit,
-                    accepted.join(", ")
-                ),
-            ));
-        }
-        if !(c.gain.is_finite() && c.gain != 0.0) {
-            return Err(spec_err(
-                key("gain"),
-                format!("{} is not a non-zero number", c.gain),
-            ));
-        }
-        if !c.offset.is_finite() {
-            return Err(spec_err(key("offset"), "is not finite"));
+        if let Some(c) = c {
+            validate_column(role, c)?;
         }
     }
     for (k, v) in [("rate_hz", spec.rate_hz), ("resample_hz", spec.resample_hz)] {
@@ -114,12 +81,65 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
             "needed when there is no time column (columns.time)",
         ));
     }
-    let csv = &spec.csv;
+    validate_csv(&spec.csv)?;
+    if spec.files.is_empty() {
+        return Err(spec_err("files", "no raw files given"));
+    }
+    validate_split("split", &spec.split)?;
+    for (i, f) in spec.files.iter().enumerate() {
+        validate_file(i, f, spec.columns.alpha.is_some())?;
+    }
+    Ok(())
+}
+
+/// Checks the column of `role` (`columns.<role>`): named or numbered, its unit, gain and
+/// offset.
+fn validate_column(role: &str, c: &ColumnSpec) -> Result<(), ImportError> {
+    let key = |k: &str| format!("columns.{role}.{k}");
+    if c.name.is_some() == c.index.is_some() {
+        return Err(spec_err(
+            key("name"),
+            "give exactly one of `name` and `index`",
+        ));
+    }
+    if c.index == Some(0) {
+        return Err(spec_err(key("index"), "columns are counted from 1"));
+    }
+    if unit_factor(role, &c.unit).is_none() {
+        let accepted: Vec<&str> = ["s", "ms", "us", "min", "m", "cm", "mm", "um", "in"]
+            .into_iter()
+            .chain(["N", "kN", "lbf", "kgf", "m/s", "mm/s", "in/s", "1"])
+            .filter(|u| unit_factor(role, u).is_some())
+            .collect();
+        return Err(spec_err(
+            key("unit"),
+            format!(
+                "\"{}\" is not a {role} unit (one of {}; for volts give the unit of \
+                 `gain` times volts, e.g. unit = \"mm\" with gain = mm per volt)",
+                c.unit,
+                accepted.join(", ")
+            ),
+        ));
+    }
+    if !(c.gain.is_finite() && c.gain != 0.0) {
+        return Err(spec_err(
+            key("gain"),
+            format!("{} is not a non-zero number", c.gain),
+        ));
+    }
+    if !c.offset.is_finite() {
+        return Err(spec_err(key("offset"), "is not finite"));
+    }
+    Ok(())
+}
+
+/// Checks the CSV dialect (`[csv]`).
+fn validate_csv(csv: &CsvOptions) -> Result<(), ImportError> {
     if csv.header_line == 0 {
         return Err(spec_err("csv.header_line", "lines are counted from 1"));
     }
-    delimiter_byte(&csv.delimiter)?;
-    if csv.decimal_comma && delimiter_byte(&csv.delimiter)? == b',' {
+    let delimiter = delimiter_byte(&csv.delimiter)?;
+    if csv.decimal_comma && delimiter == b',' {
         return Err(spec_err(
             "csv.decimal_comma",
             "needs a delimiter other than \",\"",
@@ -130,59 +150,61 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
             return Err(spec_err("csv.comment", "must be one ASCII character"));
         }
     }
-    if spec.files.is_empty() {
-        return Err(spec_err("files", "no raw files given"));
+    Ok(())
+}
+
+/// Checks cutting options at `key` (`split` or `files[i].split`).
+fn validate_split(key: &str, s: &SplitSpec) -> Result<(), ImportError> {
+    for (k, v) in [
+        ("min_pause_s", s.min_pause_s),
+        ("pause_band", s.pause_band),
+        ("min_run_s", s.min_run_s),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(spec_err(
+                format!("{key}.{k}"),
+                format!("{v} is not positive"),
+            ));
+        }
     }
-    let check_split = |key: String, s: &SplitSpec| {
-        for (k, v) in [
-            ("min_pause_s", s.min_pause_s),
-            ("pause_band", s.pause_band),
-            ("min_run_s", s.min_run_s),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(spec_err(
-                    format!("{key}.{k}"),
-                    format!("{v} is not positive"),
-                ));
-            }
+    Ok(())
+}
+
+/// Checks raw file `i` (`files[i]`): its level (required unless the spec maps a level
+/// column, `level_column`), its cutting and its time ranges.
+fn validate_file(i: usize, f: &FileSpec, level_column: bool) -> Result<(), ImportError> {
+    let level_ok = |a: f64| (0.0..=1.0).contains(&a);
+    match f.alpha {
+        Some(a) if !level_ok(a) => {
+            return Err(spec_err(
+                format!("files[{i}].alpha"),
+                format!("{a} is outside [0, 1]"),
+            ))
         }
-        Ok(())
-    };
-    check_split("split".into(), &spec.split)?;
-    for (i, f) in spec.files.iter().enumerate() {
-        let level_ok = |a: f64| (0.0..=1.0).contains(&a);
-        match f.alpha {
-            Some(a) if !level_ok(a) => {
-                return Err(spec_err(
-                    format!("files[{i}].alpha"),
-                    format!("{a} is outside [0, 1]"),
-                ))
-            }
-            None if spec.columns.alpha.is_none() => {
-                return Err(spec_err(
-                    format!("files[{i}].alpha"),
-                    "missing: give the file's condition level, or a level column \
-                     (columns.alpha)",
-                ))
-            }
-            _ => {}
+        None if !level_column => {
+            return Err(spec_err(
+                format!("files[{i}].alpha"),
+                "missing: give the file's condition level, or a level column \
+                 (columns.alpha)",
+            ))
         }
-        if let Some(s) = &f.split {
-            check_split(format!("files[{i}].split"), s)?;
+        _ => {}
+    }
+    if let Some(s) = &f.split {
+        validate_split(&format!("files[{i}].split"), s)?;
+    }
+    for (j, r) in f.runs.iter().enumerate() {
+        if !(r.start_s.is_finite() && r.end_s.is_finite() && r.start_s < r.end_s) {
+            return Err(spec_err(
+                format!("files[{i}].runs[{j}]"),
+                format!("start_s {} must be below end_s {}", r.start_s, r.end_s),
+            ));
         }
-        for (j, r) in f.runs.iter().enumerate() {
-            if !(r.start_s.is_finite() && r.end_s.is_finite() && r.start_s < r.end_s) {
-                return Err(spec_err(
-                    format!("files[{i}].runs[{j}]"),
-                    format!("start_s {} must be below end_s {}", r.start_s, r.end_s),
-                ));
-            }
-            if let Some(a) = r.alpha.filter(|a| !level_ok(*a)) {
-                return Err(spec_err(
-                    format!("files[{i}].runs[{j}].alpha"),
-                    format!("{a} is outside [0, 1]"),
-                ));
-            }
+        if let Some(a) = r.alpha.filter(|a| !level_ok(*a)) {
+            return Err(spec_err(
+                format!("files[{i}].runs[{j}].alpha"),
+                format!("{a} is outside [0, 1]"),
+            ));
         }
     }
     Ok(())

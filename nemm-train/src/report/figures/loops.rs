@@ -311,36 +311,58 @@ fn steady_window(
     None
 }
 
+/// The axes of the loop panels: velocity and force symmetric about zero over every shown loop.
+struct LoopFrame {
+    /// Velocity range \[m/s\].
+    x: (f64, f64),
+    /// Normalised force range.
+    y: (f64, f64),
+}
+
+impl LoopFrame {
+    /// The frame of `loops` (measured and model forces).
+    fn of<'a>(loops: impl Iterator<Item = &'a LoopData> + Clone) -> Self {
+        LoopFrame {
+            x: sym_range(loops.clone().flat_map(|d| d.velocity_m_s.iter())),
+            y: sym_range(loops.flat_map(|d| d.measured.iter().chain(d.models.iter().flatten()))),
+        }
+    }
+
+    /// An empty loop panel titled `title` in this frame.
+    fn panel(&self, title: String) -> LinePanel {
+        LinePanel::new(title, "damper velocity [m/s]", "force / force scale [-]")
+            .with_x_range(self.x.0, self.x.1)
+            .with_y_range(self.y.0, self.y.1)
+            .with_zero_lines()
+            .with_legend(LegendPosition::UpperLeft)
+    }
+}
+
+impl RunPick {
+    /// Legend label: frequency and amplitude.
+    fn label(&self) -> String {
+        format!(
+            "{:.1} Hz, A = {:.0} mm",
+            self.frequency_hz,
+            self.amplitude_m * 1e3
+        )
+    }
+}
+
+/// The loops of one Fig. 7 column (one oil-loss level), one per frequency.
+type Column = Vec<(RunPick, LoopData)>;
+
 pub(super) fn fig7_loops(ctx: &Ctx<'_>) -> Result<Drawn> {
     let Some(tv) = loop_model(ctx.trained) else {
         return Ok(Drawn::Skipped("no trained model".into()));
     };
     let model_name = tv.variant.title();
-    let (cols, picks) = (&ctx.picks.fig7_cols, &ctx.picks.fig7);
-    let just: Vec<RunPick> = picks.iter().map(|p| p.1).collect();
-    let mut data: Vec<Vec<(RunPick, LoopData)>> = cols.iter().map(|_| Vec::new()).collect();
-    let mut problems = Vec::new();
-    for ((c, pick), d) in picks.iter().zip(ctx.loops_of(&just, &[tv.variant])) {
-        match d {
-            Ok(d) => data[*c].push((*pick, d)),
-            Err(e) => problems.push(format!("{e:#}")),
-        }
-    }
-    if data.iter().all(|c| c.is_empty()) {
-        return Ok(Drawn::Skipped(if problems.is_empty() {
-            "no runs with a frequency estimate".into()
-        } else {
-            problems.join("; ")
-        }));
-    }
-    for p in &problems {
-        eprintln!("warning: fig7_loops.png: {p}");
-    }
-    let all = data.iter().flatten();
-    let xr = sym_range(all.clone().flat_map(|(_, d)| d.velocity_m_s.iter()));
-    let yr = sym_range(all.flat_map(|(_, d)| d.measured.iter().chain(d.models.iter().flatten())));
-    let ylabel = "force / force scale [-]";
-    let xlabel = "damper velocity [m/s]";
+    let cols = &ctx.picks.fig7_cols;
+    let data = match fig7_columns(ctx, tv.variant) {
+        Ok(data) => data,
+        Err(why) => return Ok(Drawn::Skipped(why)),
+    };
+    let frame = LoopFrame::of(data.iter().flatten().map(|(_, d)| d));
     let at_10mm = data
         .iter()
         .flatten()
@@ -356,84 +378,20 @@ pub(super) fn fig7_loops(ctx: &Ctx<'_>) -> Result<Drawn> {
             },
             ctx.force_scale()
         ));
-    let label_of = |p: &RunPick| {
-        format!(
-            "{:.1} Hz, A = {:.0} mm",
-            p.frequency_hz,
-            p.amplitude_m * 1e3
-        )
-    };
-    let base = |title: String| {
-        LinePanel::new(title, xlabel, ylabel)
-            .with_x_range(xr.0, xr.1)
-            .with_y_range(yr.0, yr.1)
-            .with_zero_lines()
-            .with_legend(LegendPosition::UpperLeft)
-    };
-    // Row 1: measured.
+    // Rows: measured, model, both.
     for (c, col) in cols.iter().zip(&data) {
-        let mut p = base(format!("measured: {}", level_name(c.0, c.1)));
-        // The higher frequency first: its loop encloses the lower one's.
-        for (k, (pick, d)) in col.iter().enumerate().rev() {
-            p = p.with_series(Series::line(
-                label_of(pick),
-                d.points(&d.measured),
-                frequency_color(k),
-            ));
-        }
-        fig = fig.with_panel(if col.is_empty() {
-            Panel::Note(format!("no run at {}", level_name(c.0, c.1)))
-        } else {
-            p.into()
-        });
+        let title = format!("measured: {}", level_name(c.0, c.1));
+        fig = fig.with_panel(column_panel(*c, col, || measured_loops(&frame, title, col)));
     }
-    // Row 2: model.
     for (c, col) in cols.iter().zip(&data) {
-        let mut p = base(format!("{model_name}: {}", level_name(c.0, c.1)));
-        for (k, (pick, d)) in col.iter().enumerate().rev() {
-            p = p.with_series(Series::line(
-                format!("{}: RMSE {:.3}", label_of(pick), d.rmse(0)),
-                d.points(&d.models[0]),
-                frequency_color(k),
-            ));
-        }
-        fig = fig.with_panel(if col.is_empty() {
-            Panel::Note(format!("no run at {}", level_name(c.0, c.1)))
-        } else {
-            p.into()
-        });
+        let title = format!("{model_name}: {}", level_name(c.0, c.1));
+        fig = fig.with_panel(column_panel(*c, col, || model_loops(&frame, title, col)));
     }
-    // Row 3: overlay.
     for (c, col) in cols.iter().zip(&data) {
-        let mut p = base(format!("overlay: {}", level_name(c.0, c.1)));
-        for (k, (_, d)) in col.iter().enumerate().rev() {
-            p = p.with_series(
-                Series::line(
-                    "measured (light)",
-                    d.points(&d.measured),
-                    palette::lighten(frequency_color(k), 0.55),
-                )
-                .with_width(5),
-            );
-        }
-        for (k, (_, d)) in col.iter().enumerate().rev() {
-            p = p.with_series(Series::line(
-                format!("{model_name} (dark)"),
-                d.points(&d.models[0]),
-                frequency_color(k),
-            ));
-        }
-        // One legend entry per kind.
-        for (i, s) in p.series.iter_mut().enumerate() {
-            if i != 0 && i != col.len() {
-                s.label = None;
-            }
-        }
-        fig = fig.with_panel(if col.is_empty() {
-            Panel::Note(format!("no run at {}", level_name(c.0, c.1)))
-        } else {
-            p.into()
-        });
+        let title = format!("overlay: {}", level_name(c.0, c.1));
+        fig = fig.with_panel(column_panel(*c, col, || {
+            overlay_loops(&frame, title, col, model_name)
+        }));
     }
     let fig = fig.with_footer(format!(
         "Top: measured (zero-phase low-passed force, {:.0} Hz); middle: {model_name} simulated over the whole run from rest on the \
@@ -447,6 +405,97 @@ pub(super) fn fig7_loops(ctx: &Ctx<'_>) -> Result<Drawn> {
     Ok(Drawn::Figure(Box::new(fig)))
 }
 
+/// The loops of the Fig. 7 runs, by column, with the prediction of `variant`. Runs that
+/// cannot be shown are warned about on stderr; when none can, the reason is the error.
+fn fig7_columns(ctx: &Ctx<'_>, variant: ModelKind) -> Result<Vec<Column>, String> {
+    let (cols, picks) = (&ctx.picks.fig7_cols, &ctx.picks.fig7);
+    let just: Vec<RunPick> = picks.iter().map(|p| p.1).collect();
+    let mut data: Vec<Column> = cols.iter().map(|_| Vec::new()).collect();
+    let mut problems = Vec::new();
+    for ((c, pick), d) in picks.iter().zip(ctx.loops_of(&just, &[variant])) {
+        match d {
+            Ok(d) => data[*c].push((*pick, d)),
+            Err(e) => problems.push(format!("{e:#}")),
+        }
+    }
+    if data.iter().all(|c| c.is_empty()) {
+        return Err(if problems.is_empty() {
+            "no runs with a frequency estimate".into()
+        } else {
+            problems.join("; ")
+        });
+    }
+    for p in &problems {
+        eprintln!("warning: fig7_loops.png: {p}");
+    }
+    Ok(data)
+}
+
+/// The panel of column `c` of Fig. 7, or a note when the column has no run.
+fn column_panel(c: (f64, RunRole), col: &Column, panel: impl FnOnce() -> LinePanel) -> Panel {
+    if col.is_empty() {
+        Panel::Note(format!("no run at {}", level_name(c.0, c.1)))
+    } else {
+        panel().into()
+    }
+}
+
+/// Fig. 7, top row: the measured loops of a column.
+fn measured_loops(frame: &LoopFrame, title: String, col: &Column) -> LinePanel {
+    let mut p = frame.panel(title);
+    // The higher frequency first: its loop encloses the lower one's.
+    for (k, (pick, d)) in col.iter().enumerate().rev() {
+        p = p.with_series(Series::line(
+            pick.label(),
+            d.points(&d.measured),
+            frequency_color(k),
+        ));
+    }
+    p
+}
+
+/// Fig. 7, middle row: the model's loops of a column, with their RMSE.
+fn model_loops(frame: &LoopFrame, title: String, col: &Column) -> LinePanel {
+    let mut p = frame.panel(title);
+    for (k, (pick, d)) in col.iter().enumerate().rev() {
+        p = p.with_series(Series::line(
+            format!("{}: RMSE {:.3}", pick.label(), d.rmse(0)),
+            d.points(&d.models[0]),
+            frequency_color(k),
+        ));
+    }
+    p
+}
+
+/// Fig. 7, bottom row: measured (light, wide) under model (dark) loops of a column, one
+/// legend entry per kind.
+fn overlay_loops(frame: &LoopFrame, title: String, col: &Column, model_name: &str) -> LinePanel {
+    let mut p = frame.panel(title);
+    for (k, (_, d)) in col.iter().enumerate().rev() {
+        p = p.with_series(
+            Series::line(
+                "measured (light)",
+                d.points(&d.measured),
+                palette::lighten(frequency_color(k), 0.55),
+            )
+            .with_width(5),
+        );
+    }
+    for (k, (_, d)) in col.iter().enumerate().rev() {
+        p = p.with_series(Series::line(
+            format!("{model_name} (dark)"),
+            d.points(&d.models[0]),
+            frequency_color(k),
+        ));
+    }
+    for (i, s) in p.series.iter_mut().enumerate() {
+        if i != 0 && i != col.len() {
+            s.label = None;
+        }
+    }
+    p
+}
+
 pub(super) fn loops_all_variants(ctx: &Ctx<'_>) -> Result<Drawn> {
     let Some((pick, role)) = ctx.picks.all_variants else {
         return Ok(Drawn::Skipped("no run with a frequency estimate".into()));
@@ -457,8 +506,7 @@ pub(super) fn loops_all_variants(ctx: &Ctx<'_>) -> Result<Drawn> {
         .collect();
     let shown: Vec<ModelKind> = variants.iter().map(|t| t.variant).collect();
     let d = ctx.loop_of(&pick, &shown)?;
-    let xr = sym_range(d.velocity_m_s.iter());
-    let yr = sym_range(d.measured.iter().chain(d.models.iter().flatten()));
+    let frame = LoopFrame::of(std::iter::once(&d));
     let n = variants.len();
     let cols = if n <= 2 { n } else { 2 };
     let mut fig = Figure::new(n.div_ceil(cols), cols)
@@ -476,25 +524,21 @@ pub(super) fn loops_all_variants(ctx: &Ctx<'_>) -> Result<Drawn> {
         ));
     for (k, tv) in variants.iter().enumerate() {
         let r = d.rmse(k);
-        let p = LinePanel::new(
-            format!(
+        let p = frame
+            .panel(format!(
                 "{}: RMSE {:.3} ({:.0} N)",
                 tv.variant.title(),
                 r,
                 r * ctx.force_scale()
-            ),
-            "damper velocity [m/s]",
-            "force / force scale [-]",
-        )
-        .with_x_range(xr.0, xr.1)
-        .with_y_range(yr.0, yr.1)
-        .with_zero_lines()
-        .with_series(Series::line("measured", d.points(&d.measured), MEASURED_GREY).with_width(5))
-        .with_series(Series::line(
-            tv.variant.title(),
-            d.points(&d.models[k]),
-            variant_color(tv.variant),
-        ));
+            ))
+            .with_series(
+                Series::line("measured", d.points(&d.measured), MEASURED_GREY).with_width(5),
+            )
+            .with_series(Series::line(
+                tv.variant.title(),
+                d.points(&d.models[k]),
+                variant_color(tv.variant),
+            ));
         fig = fig.with_panel(p);
     }
     let fig = fig.with_footer(format!(

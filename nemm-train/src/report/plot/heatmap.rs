@@ -159,7 +159,6 @@ pub(super) fn draw_heatmap<DB: DrawingBackend>(
 where
     DB::ErrorType: 'static,
 {
-    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot rendering failed: {e:?}");
     let (nx, ny) = (p.x.len(), p.y.len());
     if nx == 0 || ny == 0 || p.z.len() != ny || p.z.iter().any(|row| row.len() != nx) {
         return Err(anyhow!(
@@ -167,29 +166,8 @@ where
             p.title
         ));
     }
-    let edges = |c: &[f64]| -> Vec<f64> {
-        if c.len() == 1 {
-            return vec![c[0] - 0.5, c[0] + 0.5];
-        }
-        let mut e = Vec::with_capacity(c.len() + 1);
-        e.push(c[0] - 0.5 * (c[1] - c[0]));
-        for w in c.windows(2) {
-            e.push(0.5 * (w[0] + w[1]));
-        }
-        e.push(c[c.len() - 1] + 0.5 * (c[c.len() - 1] - c[c.len() - 2]));
-        e
-    };
-    let (xe, ye) = (edges(&p.x), edges(&p.y));
-    let (mut z0, mut z1) = p
-        .z_range
-        .unwrap_or_else(|| data_bounds(p.z.iter().flatten().copied()));
-    if p.diverging && p.z_range.is_none() {
-        let m = z0.abs().max(z1.abs());
-        (z0, z1) = (-m, m);
-    }
-    if z1.partial_cmp(&z0) != Some(std::cmp::Ordering::Greater) {
-        (z0, z1) = padded(z0, z1, 0.0);
-    }
+    let (xe, ye) = (cell_edges(&p.x), cell_edges(&p.y));
+    let scale = ColorScale::of(p);
     let (main, bar) = area.split_horizontally(area.dim_in_pixel().0.saturating_sub(90));
     let mut chart = ChartBuilder::on(&main)
         .caption(&p.title, (FAMILY, 17).into_font())
@@ -197,7 +175,7 @@ where
         .x_label_area_size(38)
         .y_label_area_size(58)
         .build_cartesian_2d(xe[0]..xe[nx], ye[0]..ye[ny])
-        .map_err(err)?;
+        .map_err(render_failed)?;
     chart
         .configure_mesh()
         .disable_mesh()
@@ -208,76 +186,176 @@ where
         .label_style((FAMILY, 13).into_font())
         .axis_desc_style((FAMILY, 14).into_font())
         .draw()
-        .map_err(err)?;
-    let map = p.colormap.unwrap_or(if p.diverging {
-        ColorMap::Diverging
-    } else {
-        ColorMap::Viridis
-    });
-    let color = |z: f64| {
-        if z.is_finite() {
-            map.color((z - z0) / (z1 - z0))
-        } else {
-            RGBColor(190, 190, 190)
-        }
-    };
-    let mark_color = p.mark_color.unwrap_or(palette::MARK);
-    chart
-        .draw_series(
-            (0..ny)
-                .flat_map(|iy| {
-                    let (xe, ye) = (&xe, &ye);
-                    (0..nx).map(move |ix| (ix, iy, xe, ye))
-                })
-                .map(|(ix, iy, xe, ye)| {
-                    let marked = p.mark.as_ref().is_some_and(|m| {
-                        m.get(iy).and_then(|r| r.get(ix)).copied().unwrap_or(false)
-                    });
-                    let c = if marked {
-                        mark_color
-                    } else {
-                        color(p.z[iy][ix])
-                    };
-                    Rectangle::new([(xe[ix], ye[iy]), (xe[ix + 1], ye[iy + 1])], c.filled())
-                }),
-        )
-        .map_err(err)?;
+        .map_err(render_failed)?;
+    draw_cells(&mut chart, p, (&xe, &ye), &scale)?;
     // Iso-lines (marching squares between cell centres).
-    let iso = RGBColor(0, 0, 0).mix(0.55).stroke_width(1);
     for &level in &p.contours {
         let segs = contour_segments(&p.x, &p.y, &p.z, level);
         chart
             .draw_series(
                 segs.into_iter()
-                    .map(|(a, b)| PathElement::new(vec![a, b], iso)),
+                    .map(|(a, b)| PathElement::new(vec![a, b], iso_line())),
             )
-            .map_err(err)?;
+            .map_err(render_failed)?;
     }
+    draw_overlay(&mut chart, p)?;
+    draw_color_bar(&bar, p, &scale)
+}
+
+/// The error of a failed plotters call.
+fn render_failed(e: impl std::fmt::Debug) -> anyhow::Error {
+    anyhow!("plot rendering failed: {e:?}")
+}
+
+/// The style of the iso-lines (on the map and the colour bar).
+fn iso_line() -> ShapeStyle {
+    RGBColor(0, 0, 0).mix(0.55).stroke_width(1)
+}
+
+/// Cell edges around cell centres `c` (half-way between centres, the outer ones mirrored).
+fn cell_edges(c: &[f64]) -> Vec<f64> {
+    if c.len() == 1 {
+        return vec![c[0] - 0.5, c[0] + 0.5];
+    }
+    let mut e = Vec::with_capacity(c.len() + 1);
+    e.push(c[0] - 0.5 * (c[1] - c[0]));
+    for w in c.windows(2) {
+        e.push(0.5 * (w[0] + w[1]));
+    }
+    e.push(c[c.len() - 1] + 0.5 * (c[c.len() - 1] - c[c.len() - 2]));
+    e
+}
+
+/// The colours of a heat map's values: its colour map over `[z0, z1]`.
+struct ColorScale {
+    map: ColorMap,
+    z0: f64,
+    z1: f64,
+}
+
+impl ColorScale {
+    /// The panel's colour map over its range: `z_range`, else the data's (centred on zero for
+    /// the diverging map), widened when it is empty.
+    fn of(p: &HeatmapPanel) -> Self {
+        let (mut z0, mut z1) = p
+            .z_range
+            .unwrap_or_else(|| data_bounds(p.z.iter().flatten().copied()));
+        if p.diverging && p.z_range.is_none() {
+            let m = z0.abs().max(z1.abs());
+            (z0, z1) = (-m, m);
+        }
+        if z1.partial_cmp(&z0) != Some(std::cmp::Ordering::Greater) {
+            (z0, z1) = padded(z0, z1, 0.0);
+        }
+        let map = p.colormap.unwrap_or(if p.diverging {
+            ColorMap::Diverging
+        } else {
+            ColorMap::Viridis
+        });
+        ColorScale { map, z0, z1 }
+    }
+
+    /// The colour of `z` (grey for a non-finite value).
+    fn color(&self, z: f64) -> RGBColor {
+        if z.is_finite() {
+            self.map.color((z - self.z0) / (self.z1 - self.z0))
+        } else {
+            RGBColor(190, 190, 190)
+        }
+    }
+}
+
+impl HeatmapPanel {
+    /// The colour of the marked cells.
+    fn mark_fill(&self) -> RGBColor {
+        self.mark_color.unwrap_or(palette::MARK)
+    }
+
+    /// `true` if cell `(ix, iy)` is marked.
+    fn is_marked(&self, ix: usize, iy: usize) -> bool {
+        self.mark
+            .as_ref()
+            .is_some_and(|m| m.get(iy).and_then(|r| r.get(ix)).copied().unwrap_or(false))
+    }
+}
+
+/// Fills the cells between the `edges` (x, y) with the colour of their value, marked cells
+/// with the mark colour.
+fn draw_cells<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart2d<'a, DB>,
+    p: &HeatmapPanel,
+    (xe, ye): (&[f64], &[f64]),
+    scale: &ColorScale,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let (nx, ny) = (p.x.len(), p.y.len());
+    let mark_color = p.mark_fill();
+    chart
+        .draw_series(
+            (0..ny)
+                .flat_map(|iy| (0..nx).map(move |ix| (ix, iy)))
+                .map(|(ix, iy)| {
+                    let c = if p.is_marked(ix, iy) {
+                        mark_color
+                    } else {
+                        scale.color(p.z[iy][ix])
+                    };
+                    Rectangle::new([(xe[ix], ye[iy]), (xe[ix + 1], ye[iy + 1])], c.filled())
+                }),
+        )
+        .map_err(render_failed)?;
+    Ok(())
+}
+
+/// Draws the overlay series and the legend entry of the marks, and the legend when any of
+/// them has a label.
+fn draw_overlay<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart2d<'a, DB>,
+    p: &HeatmapPanel,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
     let mut any_label = false;
     for s in &p.overlay {
-        any_label |= draw_series(&mut chart, s, s.points.clone())?;
+        any_label |= draw_series(chart, s, s.points.clone())?;
     }
     if let (Some(label), true) = (&p.mark_label, p.mark.is_some()) {
         any_label = true;
+        let mark_color = p.mark_fill();
         chart
             .draw_series(std::iter::empty::<Circle<(f64, f64), u32>>())
-            .map_err(err)?
+            .map_err(render_failed)?
             .label(label.as_str())
             .legend(move |(x, y)| {
                 Rectangle::new([(x, y - 6), (x + 18, y + 6)], mark_color.filled())
             });
     }
     if any_label {
-        draw_legend(&mut chart, p.legend)?;
+        draw_legend(chart, p.legend)?;
     }
-    // Colour bar.
-    let mut cb = ChartBuilder::on(&bar)
+    Ok(())
+}
+
+/// The colour bar in `bar`: the colour scale with its ticks, label and the iso-line levels.
+fn draw_color_bar<DB: DrawingBackend>(
+    bar: &DrawingArea<DB, Shift>,
+    p: &HeatmapPanel,
+    scale: &ColorScale,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let (z0, z1) = (scale.z0, scale.z1);
+    let mut cb = ChartBuilder::on(bar)
         .margin_top(34)
         .margin_bottom(46)
         .margin_right(8)
         .y_label_area_size(50)
         .build_cartesian_2d(0.0..1.0, z0..z1)
-        .map_err(err)?;
+        .map_err(render_failed)?;
     cb.configure_mesh()
         .disable_mesh()
         .disable_x_axis()
@@ -286,21 +364,21 @@ where
         .label_style((FAMILY, 12).into_font())
         .axis_desc_style((FAMILY, 13).into_font())
         .draw()
-        .map_err(err)?;
+        .map_err(render_failed)?;
     let steps = 64;
     cb.draw_series((0..steps).map(|i| {
         let a = z0 + (z1 - z0) * i as f64 / steps as f64;
         let b = z0 + (z1 - z0) * (i + 1) as f64 / steps as f64;
-        Rectangle::new([(0.0, a), (1.0, b)], color(0.5 * (a + b)).filled())
+        Rectangle::new([(0.0, a), (1.0, b)], scale.color(0.5 * (a + b)).filled())
     }))
-    .map_err(err)?;
+    .map_err(render_failed)?;
     cb.draw_series(
         p.contours
             .iter()
             .filter(|l| **l > z0 && **l < z1)
-            .map(|&l| PathElement::new(vec![(0.0, l), (1.0, l)], iso)),
+            .map(|&l| PathElement::new(vec![(0.0, l), (1.0, l)], iso_line())),
     )
-    .map_err(err)?;
+    .map_err(render_failed)?;
     Ok(())
 }
 

@@ -266,7 +266,8 @@ where
     Ok(())
 }
 
-type Chart2d<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+/// A chart in `f64` x `f64` coordinates.
+pub(super) type Chart2d<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
 pub(super) fn draw_legend<'a, DB: DrawingBackend + 'a>(
     chart: &mut Chart2d<'a, DB>,
