@@ -98,7 +98,7 @@ fn clean_sinusoid_amplitude_frequency_and_peak_velocity_within_one_percent() {
             None,
         );
         let (s, _) =
-            preprocess::summarize_run(&run, 0, &(&cfg).at_rate(fs).unwrap()).expect("summary");
+            preprocess::summarize_run(&run, 0, &cfg.at_rate(fs).unwrap()).expect("summary");
         let e = s.excitation;
         let v = 2.0 * PI * f * a;
         let rel = |x: f64, y: f64| (x - y).abs() / y;
@@ -297,7 +297,7 @@ fn expected_window_force(a: f64, w: f64, alpha: f64, rebound: bool) -> f64 {
 fn qs_points_of(run: &Run, fs: f64) -> Vec<QuasiStaticPoint> {
     let cfg = SignalConfig::default();
     let (s, signals) =
-        preprocess::summarize_run(run, 0, &(&cfg).at_rate(fs).unwrap()).expect("summary");
+        preprocess::summarize_run(run, 0, &cfg.at_rate(fs).unwrap()).expect("summary");
     preprocess::quasi_static_points(0, &signals, &s.excitation, run.entry.oil_loss, 0.05)
 }
 

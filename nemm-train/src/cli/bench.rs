@@ -41,7 +41,7 @@ pub enum BenchCmd {
         out: PathBuf,
         /// Data options (the plots use the cut-off and the velocity source).
         #[command(flatten)]
-        data: crate::config::DataConfig,
+        data: Box<crate::config::DataConfig>,
     },
     /// Print the built-in default configuration (a template for `--config`).
     Config,
