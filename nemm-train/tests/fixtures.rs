@@ -238,7 +238,9 @@ fn bench_plot_draws_loops_at_300_hz_with_offsets_and_density_for_random_runs() {
         };
         let signals = preprocess::run_signals(&ds, &cfg).unwrap();
         let out = tmp.path().join(name);
-        let files = nemm_train::report::bench_plots::plot_loaded(&ds, &signals, &out).unwrap();
+        let plotted = nemm_train::report::bench_plots::plot_loaded(&ds, &signals, &out).unwrap();
+        assert!(plotted.skipped.is_empty(), "{name}: {:?}", plotted.skipped);
+        let files = plotted.written;
         assert!(files.iter().any(|f| f.ends_with(expect)), "{files:?}");
         for f in &files {
             assert!(std::fs::metadata(f).unwrap().len() > 10_000);
@@ -473,4 +475,42 @@ fn a_force_offset_points_to_the_static_force() {
         text.contains("a gas force or an untared load cell; train with --static-force"),
         "{text}"
     );
+}
+
+/// A run shorter than its period (its metadata says 0.53 Hz, its samples last 1.3 s) does not
+/// abort `nemm bench plot`: the other runs are drawn, the run is listed with the reason, and
+/// the exit status says that something was skipped.
+#[test]
+fn bench_plot_skips_a_run_shorter_than_its_period_and_draws_the_rest() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    for (rel, text) in files(&fixture_dir("rate_300hz")) {
+        let path = data.join(&rel);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        let text = if rel.ends_with("oil00_a030_v0100.csv") {
+            text.lines().take(400).collect::<Vec<_>>().join("\n") + "\n"
+        } else {
+            text
+        };
+        std::fs::write(path, text).unwrap();
+    }
+    let out = tmp.path().join("plots");
+    let run = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["bench", "plot", "--cutoff-hz", "50", "--out"])
+        .arg(&out)
+        .arg(&data)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(!run.status.success(), "{text}");
+    assert!(
+        text.contains("skipped runs/oil00_a030_v0100.csv: run runs/oil00_a030_v0100.csv: shorter than one period")
+            && text.contains("1 of 4 runs skipped"),
+        "{text}"
+    );
+    assert!(out.join("force_velocity_loops.png").exists(), "{text}");
 }
