@@ -238,7 +238,9 @@ fn bench_plot_draws_loops_at_300_hz_with_offsets_and_density_for_random_runs() {
         };
         let signals = preprocess::run_signals(&ds, &cfg).unwrap();
         let out = tmp.path().join(name);
-        let files = nemm_train::report::bench_plots::plot_loaded(&ds, &signals, &out).unwrap();
+        let plotted = nemm_train::report::bench_plots::plot_loaded(&ds, &signals, &out).unwrap();
+        assert!(plotted.skipped.is_empty(), "{name}: {:?}", plotted.skipped);
+        let files = plotted.written;
         assert!(files.iter().any(|f| f.ends_with(expect)), "{files:?}");
         for f in &files {
             assert!(std::fs::metadata(f).unwrap().len() > 10_000);
@@ -396,4 +398,119 @@ fn sem_from_sine_points_reproduces_the_steady_support_points() {
         100.0 * worst
     );
     assert!(worst.is_finite());
+}
+
+/// `nemm ARGS` on a fixture (its folder last): success, and stdout and stderr.
+fn nemm_on(name: &str, args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(args)
+        .arg(fixture_dir(name))
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+/// A force logged compression positive assists the motion on every run: `data check` says
+/// so and names the flag that fixes it, and preparing the data for training refuses it
+/// unless `--accept-implausible` is given.
+#[test]
+fn an_inverted_force_is_found_and_refused_before_training() {
+    let text = data_check("inverted_force_300hz");
+    assert_eq!(
+        text.matches("force assists the motion").count(),
+        4,
+        "{text}"
+    );
+    assert!(
+        text.contains("--invert-force") && text.contains("plausibility problems"),
+        "{text}"
+    );
+    let (ok, text) = nemm_on("inverted_force_300hz", &["data", "prepare"]);
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("run 0 (runs/oil00_a030_v0100.csv): the force assists the motion")
+            && text.contains("--invert-force")
+            && text.contains("--accept-implausible"),
+        "{text}"
+    );
+    let (ok, text) = nemm_on(
+        "inverted_force_300hz",
+        &["data", "prepare", "--accept-implausible"],
+    );
+    assert!(ok, "{text}");
+    // The correctly signed data pass.
+    assert!(!data_check("rate_300hz").contains("force assists the motion"));
+}
+
+/// Slow strokes logged at 300 Hz by a noisy potentiometer: through the default cut-off
+/// (0.4 x the rate) the differentiated velocity is noise-dominated, which `data check`
+/// finds against the runs' own amplitude and frequency; at the cut-off it suggests the
+/// velocity agrees.
+#[test]
+fn a_noise_dominated_velocity_is_found_and_the_suggested_cut_off_clears_it() {
+    let (ok, text) = nemm_on("slow_pot_300hz", &["data", "check"]);
+    assert!(ok, "{text}");
+    assert_eq!(
+        text.matches("velocity inconsistent with the stroke")
+            .count(),
+        2,
+        "{text}"
+    );
+    assert!(text.contains("lower --cutoff-hz (to about 4 Hz"), "{text}");
+    let (ok, text) = nemm_on("slow_pot_300hz", &["data", "check", "--cutoff-hz", "4"]);
+    assert!(ok, "{text}");
+    assert!(!text.contains("velocity inconsistent"), "{text}");
+}
+
+/// An untared load cell's offset is reported with the option that models it.
+#[test]
+fn a_force_offset_points_to_the_static_force() {
+    let text = data_check("offsets_300hz");
+    assert!(
+        text.contains("a gas force or an untared load cell; train with --static-force"),
+        "{text}"
+    );
+}
+
+/// A run shorter than its period (its metadata says 0.53 Hz, its samples last 1.3 s) does not
+/// abort `nemm bench plot`: the other runs are drawn, the run is listed with the reason, and
+/// the exit status says that something was skipped.
+#[test]
+fn bench_plot_skips_a_run_shorter_than_its_period_and_draws_the_rest() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    for (rel, text) in files(&fixture_dir("rate_300hz")) {
+        let path = data.join(&rel);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        let text = if rel.ends_with("oil00_a030_v0100.csv") {
+            text.lines().take(400).collect::<Vec<_>>().join("\n") + "\n"
+        } else {
+            text
+        };
+        std::fs::write(path, text).unwrap();
+    }
+    let out = tmp.path().join("plots");
+    let run = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["bench", "plot", "--cutoff-hz", "50", "--out"])
+        .arg(&out)
+        .arg(&data)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(!run.status.success(), "{text}");
+    assert!(
+        text.contains("skipped runs/oil00_a030_v0100.csv: run runs/oil00_a030_v0100.csv: shorter than one period")
+            && text.contains("1 of 4 runs skipped"),
+        "{text}"
+    );
+    assert!(out.join("force_velocity_loops.png").exists(), "{text}");
 }

@@ -493,7 +493,9 @@ fn plots_are_written_for_a_generated_dataset() {
     let cfg = tiny_config("plot");
     let (data, out) = (temp_dir("plot-data"), temp_dir("plot-out"));
     dataset::write(&data, &VirtualBench::new(cfg).generate(3, |_, _| {})).unwrap();
-    let files = nemm_train::report::bench_plots::plot_dataset(&data, &out).unwrap();
+    let plotted = nemm_train::report::bench_plots::plot_dataset(&data, &out).unwrap();
+    assert!(plotted.skipped.is_empty(), "{:?}", plotted.skipped);
+    let files = plotted.written;
     let names: Vec<String> = files
         .iter()
         .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())

@@ -35,6 +35,9 @@ pub struct Fixture {
     pub config: BenchConfig,
     /// Written as a raw dyno export instead of the interchange format.
     pub raw: bool,
+    /// The force written with the wrong sign (compression positive), as a dyno logs it when
+    /// imported without `--invert-force`.
+    pub force_sign_inverted: bool,
 }
 
 /// A configuration for sample rate `fs` whose internal step (about 25 us) divides the sample
@@ -104,6 +107,18 @@ pub fn fixtures() -> Vec<Fixture> {
         max_segment_s: 0.4,
     });
 
+    let mut inverted = at_rate("fixture: 300 Hz, force sign inverted", 300.0);
+    slow_sines(&mut inverted, vec![0.0, 0.3]);
+
+    // A 0.21 Hz, 18.6 mm stroke (0.0245 m/s peak) logged at 300 Hz by a potentiometer with
+    // 20 um of noise: differentiated through a cut-off of 0.4 x the rate, the noise dominates
+    // the velocity.
+    let mut slow_pot = at_rate("fixture: 300 Hz, slow strokes, noisy potentiometer", 300.0);
+    slow_sines(&mut slow_pot, vec![0.0, 0.3]);
+    slow_pot.program.amplitudes_m = vec![0.0186];
+    slow_pot.program.peak_velocities_m_s = vec![0.0245];
+    slow_pot.sensors.displacement_noise_std_m = 20e-6;
+
     let mut raw = at_rate("fixture: raw dyno export", 300.0);
     slow_sines(&mut raw, vec![0.0, 0.3]);
     raw.sensors.tare_static_force = false;
@@ -115,30 +130,49 @@ pub fn fixtures() -> Vec<Fixture> {
             traits: "300 Hz sampling, slow sines (236 samples per period at 1.27 Hz)",
             config: rate,
             raw: false,
+            force_sign_inverted: false,
         },
         Fixture {
             name: "offsets_300hz",
             traits: "300 Hz; untared load cell (gas force) and a 30 mm displacement offset",
             config: offsets,
             raw: false,
+            force_sign_inverted: false,
         },
         Fixture {
             name: "random_3khz_rounded",
             traits: "3 kHz random excitation, time stamps rounded to 0.1 ms, one level only",
             config: rounded,
             raw: false,
+            force_sign_inverted: false,
         },
         Fixture {
             name: "alpha_schedule_1khz",
             traits: "1 kHz random excitation, oil loss changing within each run (alpha column)",
             config: schedule,
             raw: false,
+            force_sign_inverted: false,
+        },
+        Fixture {
+            name: "inverted_force_300hz",
+            traits: "300 Hz slow sines with the force logged compression positive",
+            config: inverted,
+            raw: false,
+            force_sign_inverted: true,
+        },
+        Fixture {
+            name: "slow_pot_300hz",
+            traits: "300 Hz, 0.21 Hz / 18.6 mm strokes, 20 um potentiometer noise",
+            config: slow_pot,
+            raw: false,
+            force_sign_inverted: false,
         },
         Fixture {
             name: "raw_dyno",
             traits: "raw dyno export: ms, mm, lbf, compression positive, one record per level",
             config: raw,
             raw: true,
+            force_sign_inverted: false,
         },
     ]
 }
@@ -151,7 +185,12 @@ pub fn write_fixtures(out: &Path) -> Result<Vec<PathBuf>> {
         f.config
             .validate()
             .map_err(|e| anyhow::anyhow!("fixture {}: `{}` {}", f.name, e.key, e.message))?;
-        let ds = VirtualBench::new(f.config.clone()).generate(FIXTURE_SEED, |_, _| {});
+        let mut ds = VirtualBench::new(f.config.clone()).generate(FIXTURE_SEED, |_, _| {});
+        if f.force_sign_inverted {
+            for run in &mut ds.runs {
+                run.force_n.iter_mut().for_each(|f| *f = -*f);
+            }
+        }
         let dir = out.join(f.name);
         if dir.exists() {
             std::fs::remove_dir_all(&dir)

@@ -3,7 +3,7 @@
 use crate::bench::config::{self, BenchConfig};
 use crate::bench::reference::{EmmReference, BENCH_CONFIG_FILE};
 use crate::bench::VirtualBench;
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -82,9 +82,19 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 .with_context(|| format!("cannot load the dataset {}", dir.display()))?;
             let signals = crate::data::preprocess::run_signals(&ds, &signal)
                 .context("cannot derive the velocity of the runs")?;
-            let files = crate::report::bench_plots::plot_loaded(&ds, &signals, &out)?;
-            for f in files {
+            let plotted = crate::report::bench_plots::plot_loaded(&ds, &signals, &out)?;
+            for f in &plotted.written {
                 println!("wrote {}", f.display());
+            }
+            for (file, why) in &plotted.skipped {
+                eprintln!("skipped {}: {why}", file.display());
+            }
+            if !plotted.skipped.is_empty() {
+                bail!(
+                    "{} of {} runs skipped (listed above); the figures show the others",
+                    plotted.skipped.len(),
+                    ds.runs.len()
+                );
             }
             Ok(())
         }

@@ -97,6 +97,13 @@ pub struct DataConfig {
         "Seed of the validation stretches' places (training: also of the initial weights \
          and the data order)", DEFAULT_SPLIT_SEED))]
     pub seed: Option<u64>,
+    /// Train on runs whose force assists the motion (an inverted sign, see
+    /// [`crate::data::preprocess::Dissipation`]) instead of refusing them (default: refuse).
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true",
+        value_name = "BOOL",
+        help = "Train on runs whose force assists the motion (an inverted force or \
+                displacement sign) instead of refusing them [default: refuse]")]
+    pub accept_implausible: Option<bool>,
 }
 
 /// Where a resolved data option came from.
@@ -190,6 +197,7 @@ impl DataConfig {
             exclude_runs: self.exclude_runs.clone().or(lower.exclude_runs.clone()),
             validation_fraction: self.validation_fraction.or(lower.validation_fraction),
             seed: self.seed.or(lower.seed),
+            accept_implausible: self.accept_implausible.or(lower.accept_implausible),
         }
     }
 
@@ -223,6 +231,7 @@ impl DataConfig {
         if let Some(v) = self.seed {
             c.split.seed = v;
         }
+        c.accept_implausible = self.accept_implausible.unwrap_or(false);
         c
     }
 

@@ -24,6 +24,17 @@
 //! * **time stamps** (information): rounded or jittered stamps that the loader accepted,
 //!   with their largest deviation from the fitted grid.
 //!
+//! [`damper_findings`] checks what a damper's data must show:
+//!
+//! * **dissipation**: a force that assists the motion (negative force-velocity correlation,
+//!   [`preprocess::Dissipation`]): an inverted force or displacement sign. Training commands
+//!   refuse such a run unless `--accept-implausible` is given;
+//! * **velocity**: on a periodic run, a peak velocity more than [`MAX_VELOCITY_MISMATCH`] off
+//!   `2 pi f A` from the run's own amplitude and frequency: displacement noise let through
+//!   by the cut-off (or a velocity column in other units);
+//! * **static force**: a force offset at zero velocity above [`STATIC_FORCE_FRACTION`] of the
+//!   force half-range, which the static force of eq. 17 models (`--static-force`).
+//!
 //! Lines are those of a run file with one header line and one row per line
 //! ([`dataset::sample_line`]), as [`dataset::write()`] and `nemm data import` write them.
 use crate::data::dataset::{self, Run, COL_DISPLACEMENT, COL_FORCE, COL_VELOCITY};
@@ -56,6 +67,11 @@ pub const OFFSET_FRACTION: f64 = 0.1;
 /// Velocities below this fraction of the largest `|v|` count as "zero velocity" for the
 /// force offset.
 pub const ZERO_VELOCITY_FRACTION: f64 = 0.05;
+/// A periodic run's peak velocity may differ from `2 pi f A` by this fraction.
+pub const MAX_VELOCITY_MISMATCH: f64 = 0.2;
+/// A force offset at zero velocity above this fraction of the force half-range asks for the
+/// static force (`--static-force`).
+pub const STATIC_FORCE_FRACTION: f64 = 0.1;
 
 /// What a finding is about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -73,6 +89,10 @@ pub enum FindingKind {
     Offset,
     /// Rounded or jittered time stamps, accepted (information).
     TimeStamps,
+    /// A force that assists the motion: an inverted sign.
+    Dissipation,
+    /// A periodic run's velocity inconsistent with its amplitude and frequency.
+    Velocity,
 }
 
 impl FindingKind {
@@ -90,6 +110,8 @@ impl FindingKind {
             FindingKind::Clipping => "clipping",
             FindingKind::Offset => "offset",
             FindingKind::TimeStamps => "time stamps",
+            FindingKind::Dissipation => "force assists the motion",
+            FindingKind::Velocity => "velocity inconsistent with the stroke",
         }
     }
 }
@@ -486,10 +508,15 @@ fn offsets(
                     format!(
                         "mean force at zero velocity (|v| <= {:.0} % of its peak, {} samples) \
                          is {mean:+.1} N, {:.0} % of the force half-range {f_half:.1} N: a gas \
-                         force or an untared load cell",
+                         force or an untared load cell{}",
                         ZERO_VELOCITY_FRACTION * 100.0,
                         slow.len(),
-                        100.0 * mean.abs() / f_half.max(f64::MIN_POSITIVE)
+                        100.0 * mean.abs() / f_half.max(f64::MIN_POSITIVE),
+                        if mean.abs() > STATIC_FORCE_FRACTION * f_half {
+                            "; train with --static-force (the static force of eq. 17 models it)"
+                        } else {
+                            ""
+                        }
                     ),
                 ));
             }
@@ -498,8 +525,61 @@ fn offsets(
     out
 }
 
-/// Summaries ([`preprocess::summarize`]) and findings ([`check_run`]) of every run of a
-/// dataset (in parallel), in dataset order.
+/// What a damper's data must show, from a run's summary ([`preprocess::summarize_run`]):
+/// a force that dissipates energy and, on a periodic run, a peak velocity consistent with
+/// the run's amplitude and frequency (module docs). `cutoff_hz` names the cut-off in the
+/// velocity finding.
+pub fn damper_findings(
+    run: &Run,
+    summary: &preprocess::RunSummary,
+    cutoff_hz: f64,
+) -> Vec<Finding> {
+    let finding = |kind: FindingKind, column: &str, message| Finding {
+        run: summary.index,
+        file: run.entry.file.clone(),
+        kind,
+        column: column.to_string(),
+        sample: 0,
+        time_s: run.time_s.first().copied().unwrap_or_default(),
+        line: dataset::sample_line(0),
+        count: 1,
+        message,
+    };
+    let mut out = Vec::new();
+    if summary.dissipation.force_assists_motion() {
+        out.push(finding(
+            FindingKind::Dissipation,
+            COL_FORCE,
+            summary.dissipation.explain(),
+        ));
+    }
+    let ex = &summary.excitation;
+    if let (Some(f), false) = (ex.frequency_hz, summary.measured_velocity) {
+        let expected = 2.0 * std::f64::consts::PI * f * ex.amplitude_m;
+        let ratio = ex.peak_velocity_m_s / expected;
+        if ex.half_cycles >= 2 && expected > 0.0 && (ratio - 1.0).abs() > MAX_VELOCITY_MISMATCH {
+            out.push(finding(
+                FindingKind::Velocity,
+                COL_DISPLACEMENT,
+                format!(
+                    "peak velocity {:.4} m/s is {:+.0} % off 2 pi f A = {expected:.4} m/s from \
+                     the run's own amplitude ({:.2} mm) and frequency ({f:.3} Hz): the \
+                     displacement's noise passes the {cutoff_hz} Hz cut-off into the \
+                     differentiated velocity; lower --cutoff-hz (to about {:.0} Hz, 20 times \
+                     the excitation)",
+                    ex.peak_velocity_m_s,
+                    100.0 * (ratio - 1.0),
+                    ex.amplitude_m * 1e3,
+                    (20.0 * f).max(1.0)
+                ),
+            ));
+        }
+    }
+    out
+}
+
+/// Summaries ([`preprocess::summarize`]) and findings ([`check_run`], [`damper_findings`])
+/// of every run of a dataset (in parallel), in dataset order.
 pub fn check_dataset(
     dataset: &crate::data::dataset::Dataset,
     cfg: &preprocess::SignalConfig,
@@ -513,7 +593,8 @@ pub fn check_dataset(
         .enumerate()
         .map(|(i, r)| {
             let (summary, signals) = preprocess::summarize_run(r, i, &path)?;
-            let findings = check_run(r, i, fs, &signals.velocity_m_s);
+            let mut findings = check_run(r, i, fs, &signals.velocity_m_s);
+            findings.extend(damper_findings(r, &summary, cfg.cutoff_hz));
             Ok((summary, findings))
         })
         .collect::<Result<_, preprocess::PreprocessError>>()?;

@@ -357,7 +357,7 @@ fn frequency_label(f: f64) -> String {
 
 /// Loads a dataset, derives the signals of its runs (default [`SignalConfig`]) and draws its
 /// figures into `out`; returns the written files.
-pub fn plot_dataset(dir: &Path, out: &Path) -> Result<Vec<PathBuf>> {
+pub fn plot_dataset(dir: &Path, out: &Path) -> Result<Plotted> {
     let ds =
         dataset::load(dir).with_context(|| format!("cannot load the dataset {}", dir.display()))?;
     let signals = run_signals(&ds, &SignalConfig::default())
@@ -365,9 +365,20 @@ pub fn plot_dataset(dir: &Path, out: &Path) -> Result<Vec<PathBuf>> {
     plot_loaded(&ds, &signals, out)
 }
 
+/// What [`plot_loaded`] drew: the written files, and the runs it could not draw with the
+/// reason (a run shorter than its period, say), which the figures leave out.
+#[derive(Debug, Clone, Default)]
+pub struct Plotted {
+    /// The figures written.
+    pub written: Vec<PathBuf>,
+    /// `(run file, reason)` of every run left out.
+    pub skipped: Vec<(PathBuf, String)>,
+}
+
 /// Draws the figures of a loaded dataset into `out` from its runs' `signals` (in dataset
-/// order); returns the written files.
-pub fn plot_loaded(ds: &Dataset, signals: &[Signals], out: &Path) -> Result<Vec<PathBuf>> {
+/// order). A periodic run that cannot be reduced to a loop is left out and listed in
+/// [`Plotted::skipped`]; the other runs are drawn.
+pub fn plot_loaded(ds: &Dataset, signals: &[Signals], out: &Path) -> Result<Plotted> {
     use rayon::prelude::*;
     if signals.len() != ds.runs.len() {
         bail!("{} signals for {} runs", signals.len(), ds.runs.len());
@@ -380,24 +391,33 @@ pub fn plot_loaded(ds: &Dataset, signals: &[Signals], out: &Path) -> Result<Vec<
         .iter()
         .map(|r| periodicity(r, &r.displacement_m, ds.sample_rate_hz).is_some())
         .collect();
-    let loops: Vec<CycleLoop> = ds
+    let reduced: Vec<(PathBuf, Result<CycleLoop>)> = ds
         .runs
         .par_iter()
         .zip(signals)
         .zip(&periodic)
         .filter(|(_, p)| **p)
-        .map(|((r, s), _)| cycle_loop(r, &s.velocity_m_s))
-        .collect::<Result<_>>()?;
+        .map(|((r, s), _)| (r.entry.file.clone(), cycle_loop(r, &s.velocity_m_s)))
+        .collect();
+    let mut loops = Vec::new();
+    let mut plotted = Plotted::default();
+    for (file, l) in reduced {
+        match l {
+            Ok(l) => loops.push(l),
+            Err(e) => plotted.skipped.push((file, format!("{e:#}"))),
+        }
+    }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let mut written = Vec::new();
     if !loops.is_empty() {
-        written.extend(plot_loops(ds, &loops, out)?);
+        plotted.written.extend(plot_loops(ds, &loops, out)?);
     }
     let others: Vec<usize> = (0..ds.runs.len()).filter(|&i| !periodic[i]).collect();
     if !others.is_empty() {
-        written.push(plot_random(ds, signals, &others, out)?);
+        plotted
+            .written
+            .push(plot_random(ds, signals, &others, out)?);
     }
-    Ok(written)
+    Ok(plotted)
 }
 
 /// The force-velocity density and time traces of the non-periodic runs `which` (at most

@@ -86,6 +86,17 @@ pub enum PreprocessError {
     /// training runs are too short); the text names the cause.
     #[error("no training data: {0}")]
     NoTrainingData(String),
+    /// A run's force assists the motion (an inverted sign); refused unless the data options
+    /// accept implausible runs (`--accept-implausible`).
+    #[error("run {run} ({}): the force assists the motion ({message}); or pass --accept-implausible to use it as it is", file.display())]
+    Implausible {
+        /// Run index in the dataset.
+        run: usize,
+        /// The run's file (relative to the manifest).
+        file: PathBuf,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
     /// A feature is zero over the whole training set, so it cannot be scaled.
     #[error("the training set's {feature} is zero everywhere; it cannot be abs-max scaled")]
     ZeroScale {
@@ -98,6 +109,7 @@ fn config_err(key: &'static str, message: String) -> PreprocessError {
     PreprocessError::InvalidConfig { key, message }
 }
 
+mod dissipation;
 mod excitation;
 mod prepare;
 mod quasi_static;
@@ -105,6 +117,7 @@ mod sequences;
 mod signal;
 mod split;
 
+pub use dissipation::*;
 pub use excitation::*;
 pub use prepare::*;
 pub use quasi_static::*;

@@ -14,6 +14,10 @@ pub struct PrepareConfig {
     /// Quasi-static window half-width as a fraction of the amplitude; `None` (the default)
     /// means [`DEFAULT_QS_WINDOW`].
     pub quasi_static_window: Option<f64>,
+    /// Prepare runs whose force assists the motion ([`Dissipation::force_assists_motion`])
+    /// instead of refusing them (default `false`).
+    #[serde(default)]
+    pub accept_implausible: bool,
 }
 
 /// Per-run facts for reports, plots and `nemm data check`.
@@ -39,6 +43,8 @@ pub struct RunSummary {
     pub measured_velocity: bool,
     /// Relative RMS difference of the measured velocity to the differentiated displacement.
     pub measured_velocity_mismatch: Option<f64>,
+    /// Whether the force dissipates energy (force-velocity correlation, mean power).
+    pub dissipation: Dissipation,
     /// Amplitude from the manifest \[m\], if given.
     pub manifest_amplitude_m: Option<f64>,
     /// Target velocity from the manifest \[m/s\], if given.
@@ -184,6 +190,7 @@ pub fn summarize_run(
         excitation,
         measured_velocity: signals.measured_velocity,
         measured_velocity_mismatch: measured_velocity_mismatch(run, sample_rate_hz),
+        dissipation: Dissipation::of(&signals.force_filtered_n, &signals.velocity_m_s),
         manifest_amplitude_m: run.entry.amplitude_m,
         manifest_target_velocity_m_s: run.entry.target_velocity_m_s,
     };
@@ -289,6 +296,16 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
             let alpha = run.entry.oil_loss;
             let role = rules.role(&run.entry.file, alpha);
             let (summary, signals) = summarize_run(run, i, &signal_path)?;
+            if role != RunRole::Unused
+                && summary.dissipation.force_assists_motion()
+                && !config.accept_implausible
+            {
+                return Err(PreprocessError::Implausible {
+                    run: i,
+                    file: run.entry.file.clone(),
+                    message: summary.dissipation.explain(),
+                });
+            }
             let force = if config.signal.filter_force {
                 &signals.force_filtered_n
             } else {
