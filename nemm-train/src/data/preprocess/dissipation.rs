@@ -9,14 +9,18 @@
 
 use super::*;
 
-/// A force-velocity correlation below this means the force assists the motion.
-pub const MIN_FORCE_VELOCITY_CORRELATION: f64 = 0.0;
+/// A force-velocity correlation below this means the force assists the motion (a damper's
+/// is near +1, an inverted sign's near -1; the margin keeps noise on a barely moving run from
+/// tipping it).
+pub const MIN_FORCE_VELOCITY_CORRELATION: f64 = -0.2;
+/// Fewest samples a run needs for its correlation to be judged.
+pub const MIN_DISSIPATION_SAMPLES: usize = 64;
 
 /// What a run says about the energy its damper dissipates.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Dissipation {
     /// Pearson correlation of the force with the velocity (filtered signals); `None` when
-    /// either is constant.
+    /// either is constant or the run has fewer than [`MIN_DISSIPATION_SAMPLES`].
     pub force_velocity_correlation: Option<f64>,
     /// Mean of `F v` over the run \[W\]: the power the damper absorbs on average (a static
     /// force cancels over whole strokes).
@@ -28,7 +32,7 @@ impl Dissipation {
     pub fn of(force_n: &[f64], velocity_m_s: &[f64]) -> Dissipation {
         let n = force_n.len().min(velocity_m_s.len());
         let (f, v) = (&force_n[..n], &velocity_m_s[..n]);
-        if n == 0 {
+        if n < MIN_DISSIPATION_SAMPLES {
             return Dissipation {
                 force_velocity_correlation: None,
                 mean_power_w: 0.0,
@@ -51,7 +55,8 @@ impl Dissipation {
         }
     }
 
-    /// `true` when the force assists the motion: a negative force-velocity correlation.
+    /// `true` when the force assists the motion: a force-velocity correlation below
+    /// [`MIN_FORCE_VELOCITY_CORRELATION`] (`None`, too short or constant runs, is not judged).
     pub fn force_assists_motion(&self) -> bool {
         self.force_velocity_correlation
             .is_some_and(|r| r < MIN_FORCE_VELOCITY_CORRELATION)
@@ -96,9 +101,14 @@ mod tests {
 
     #[test]
     fn a_constant_signal_has_no_correlation() {
-        let d = Dissipation::of(&[5.0; 10], &[0.1; 10]);
+        let d = Dissipation::of(&[5.0; 100], &[0.1; 100]);
         assert_eq!(d.force_velocity_correlation, None);
         assert!(!d.force_assists_motion());
         assert_eq!(Dissipation::of(&[], &[]).force_velocity_correlation, None);
+        // Too short to judge.
+        assert_eq!(
+            Dissipation::of(&[1.0, -1.0, 2.0], &[1.0, 2.0, 3.0]).force_velocity_correlation,
+            None
+        );
     }
 }
