@@ -725,3 +725,93 @@ fn bad_condition_values_are_refused_with_file_and_line() {
         .expect_err("refused");
     assert!(e.to_string().contains("manifest.toml:5"), "{e}");
 }
+
+/// The runs of `ds` as `(file, first force)`, to tell two datasets apart.
+fn fingerprint(ds: &Dataset) -> Vec<(PathBuf, f64)> {
+    ds.runs
+        .iter()
+        .map(|r| (r.entry.file.clone(), r.force_n[0]))
+        .collect()
+}
+
+#[test]
+fn a_write_that_fails_midway_leaves_the_old_dataset_or_the_new_one_whole() {
+    let root = tempfile::tempdir().expect("temp dir");
+    let dir = root.path().join("ds");
+    let mut old = sample_dataset(1000.0);
+    old.runs.truncate(1);
+    dataset::write(&dir, &old).expect("write old");
+    // The new dataset writes runs/oil00.csv (in place, before) and then runs/zz.csv, where a
+    // folder stands in the way; a write in place then left the old manifest over new data.
+    let mut new = sample_dataset(1000.0);
+    for r in &mut new.runs {
+        for f in &mut r.force_n {
+            *f += 1.0;
+        }
+    }
+    new.runs
+        .push(sine_run("runs/zz.csv", 0.5, 100, 1000.0, false));
+    std::fs::create_dir_all(dir.join("runs/zz.csv/inside")).expect("blocking folder");
+    let _ = dataset::write(&dir, &new);
+    let found = fingerprint(&dataset::load(&dir).expect("a complete dataset"));
+    assert!(
+        found == fingerprint(&old) || found == fingerprint(&new),
+        "a mix of the old and the new dataset: {found:?}"
+    );
+    // No temporary or old folder is left next to it.
+    let names: Vec<_> = std::fs::read_dir(root.path())
+        .expect("read")
+        .flatten()
+        .map(|e| e.file_name())
+        .collect();
+    assert_eq!(names, vec![std::ffi::OsString::from("ds")]);
+}
+
+#[test]
+fn a_rewrite_replaces_the_dataset_as_a_whole_and_keeps_other_files() {
+    let root = tempfile::tempdir().expect("temp dir");
+    let dir = root.path().join("ds");
+    dataset::write(&dir, &sample_dataset(1000.0)).expect("write 3 runs");
+    std::fs::write(dir.join("notes.txt"), "mine").expect("notes");
+    let mut one = sample_dataset(1000.0);
+    one.runs.truncate(1);
+    dataset::write(&dir, &one).expect("write 1 run");
+    assert_eq!(dataset::load(&dir).expect("load").runs.len(), 1);
+    assert!(!dir.join("runs/oil15.csv").exists(), "orphaned run file");
+    assert!(!dir.join("oil30.csv").exists(), "orphaned run file");
+    assert_eq!(
+        std::fs::read_to_string(dir.join("notes.txt")).expect("kept"),
+        "mine"
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn a_run_file_linked_out_of_the_folder_is_refused_unread() {
+    let outside = tempfile::tempdir().expect("temp dir");
+    let secret = outside.path().join("secret.csv");
+    std::fs::write(&secret, "top secret first line\n").expect("secret");
+    let dir = folder(
+        "name = \"x\"\nsample_rate_hz = 1000.0\n\n[[runs]]\nfile = \"runs/a.csv\"\noil_loss = 0.0\n",
+        &[],
+    );
+    std::fs::create_dir_all(dir.path().join("runs")).expect("runs");
+    std::os::unix::fs::symlink(&secret, dir.path().join("runs/a.csv")).expect("link");
+    let e = dataset::load(dir.path()).expect_err("outside");
+    assert!(
+        matches!(&e, DatasetError::RunFileOutside { line: 5, key, .. } if key == "runs[0].file"),
+        "{e:?}"
+    );
+    let text = e.to_string();
+    assert!(text.contains("outside the dataset folder"), "{text}");
+    assert!(!text.contains("top secret"), "{text}");
+    // A link that stays inside the folder is followed.
+    std::fs::write(
+        dir.path().join("runs/real.csv"),
+        "time_s,displacement_m,force_n\n0,0,0\n0.001,0,0\n",
+    )
+    .expect("real");
+    std::fs::remove_file(dir.path().join("runs/a.csv")).expect("unlink");
+    std::os::unix::fs::symlink("real.csv", dir.path().join("runs/a.csv")).expect("link");
+    assert_eq!(dataset::load(dir.path()).expect("inside").runs.len(), 1);
+}

@@ -373,6 +373,7 @@ fn the_cli_imports_with_flags_only() {
             "300",
             "--alpha",
             "0.5",
+            "--replace",
         ])
         .output()
         .expect("run nemm");
@@ -516,4 +517,232 @@ fn the_cli_takes_a_level_column_instead_of_file_levels() {
     let ds = dataset::load(&out).expect("load");
     let levels = ds.runs[0].alpha.as_ref().expect("levels");
     assert!(levels.contains(&0.0) && levels.contains(&0.5) && levels.contains(&1.0));
+}
+
+/// Runs `nemm data import` on `raw` into `out` with the simple columns (`t` in s, `x` in
+/// mm, `F` in N) and the `extra` flags.
+fn cli_import(raw: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["data", "import"])
+        .arg(raw)
+        .arg("--out")
+        .arg(out)
+        .args([
+            "--time",
+            "t:s",
+            "--displacement",
+            "x:mm",
+            "--force",
+            "F:N",
+            "--alpha",
+            "0.5",
+        ])
+        .args(extra)
+        .output()
+        .expect("run nemm")
+}
+
+/// A 1 kHz raw file of `seconds`, columns `t,x,F`, the force `scale` times the displacement.
+fn write_simple(path: &Path, seconds: f64, scale: f64) {
+    let mut s = String::from("t,x,F\n");
+    for i in 0..(1000.0 * seconds) as usize {
+        let t = i as f64 / 1000.0;
+        let x = (2.0 * PI * 2.0 * t).sin();
+        s.push_str(&format!("{t},{x:.6},{:.6}\n", scale * x));
+    }
+    std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+    std::fs::write(path, s).expect("raw");
+}
+
+#[test]
+fn an_existing_dataset_is_replaced_only_with_replace_and_as_a_whole() {
+    let dir = tempfile::tempdir().expect("dir");
+    let out = dir.path().join("ds");
+    // Four raw files inside the output folder: a 4-run dataset next to them.
+    let raws: Vec<PathBuf> = (0..4)
+        .map(|k| {
+            let p = out.join(format!("raw{k}.csv"));
+            write_simple(&p, 1.0, 1.0 + k as f64);
+            p
+        })
+        .collect();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_nemm"));
+    cmd.args(["data", "import"])
+        .args(&raws)
+        .arg("--out")
+        .arg(&out)
+        .args(["--time", "t:s", "--displacement", "x:mm", "--force", "F:N"])
+        .args(["--alpha", "0,0.25,0.5,1"]);
+    let o = cmd.output().expect("run nemm");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(dataset::load(&out).expect("4 runs").runs.len(), 4);
+
+    // A second import into the same folder is refused without --replace.
+    let o = cli_import(&raws[0], &out, &[]);
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("already holds a dataset") && stderr.contains("--replace"),
+        "{stderr}"
+    );
+    assert_eq!(dataset::load(&out).expect("untouched").runs.len(), 4);
+
+    // With --replace the dataset is replaced as a whole: one run, no orphaned run files, the
+    // raw files (no dataset's files) kept.
+    let o = cli_import(&raws[0], &out, &["--replace"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(dataset::load(&out).expect("1 run").runs.len(), 1);
+    let run_files: Vec<_> = std::fs::read_dir(out.join("runs"))
+        .expect("runs")
+        .flatten()
+        .map(|e| e.file_name())
+        .collect();
+    assert_eq!(run_files.len(), 1, "{run_files:?}");
+    for raw in &raws {
+        assert!(raw.is_file(), "{} lost", raw.display());
+    }
+}
+
+#[test]
+fn an_input_is_never_overwritten_even_with_replace() {
+    let dir = tempfile::tempdir().expect("dir");
+    let out = dir.path().join("ds");
+    // The raw file sits where the dataset writes its run file (runs/<stem>.csv).
+    let raw = out.join("runs").join("p.csv");
+    write_simple(&raw, 1.0, 1.0);
+    let before = std::fs::read(&raw).expect("read");
+    for extra in [&[][..], &["--replace"][..]] {
+        let o = cli_import(&raw, &out, extra);
+        assert!(!o.status.success());
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            stderr.contains("p.csv would be overwritten or removed")
+                && stderr.contains("even with --replace"),
+            "{stderr}"
+        );
+        assert_eq!(std::fs::read(&raw).expect("read"), before);
+    }
+    // An old run file given back as an input is not removed by --replace either.
+    let other = dir.path().join("q.csv");
+    write_simple(&other, 1.0, 2.0);
+    let ds2 = dir.path().join("ds2");
+    assert!(cli_import(&other, &ds2, &[]).status.success());
+    let old_run = ds2.join("runs/q.csv");
+    let o = cli_import(&old_run, &ds2, &["--replace"]);
+    assert!(!o.status.success());
+    assert!(old_run.is_file());
+}
+
+#[test]
+fn the_fitted_rate_is_written_as_fitted() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("r.csv");
+    let mut s = String::from("t,x,F\n");
+    for i in 0..6000 {
+        let t = i as f64 / 3004.8;
+        s.push_str(&format!("{t:.9},{:.6},1\n", (7.0 * t).sin()));
+    }
+    std::fs::write(&raw, s).expect("raw");
+    let out = dir.path().join("ds");
+    let o = cli_import(&raw, &out, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ds = dataset::load(&out).expect("load");
+    assert!(
+        (ds.sample_rate_hz - 3004.8).abs() < 1e-6,
+        "{}",
+        ds.sample_rate_hz
+    );
+}
+
+/// `HH:MM:SS.ffffff` of `micros` after midnight.
+fn clock(micros: u64) -> String {
+    let s = micros / 1_000_000;
+    format!(
+        "{:02}:{:02}:{:02}.{:06}",
+        s / 3600,
+        s / 60 % 60,
+        s % 60,
+        micros % 1_000_000
+    )
+}
+
+#[test]
+fn date_time_stamps_are_time_stamps() {
+    let dir = tempfile::tempdir().expect("dir");
+    let start = ((19 * 60 + 25) * 60 + 35) * 1_000_000 + 107_472;
+    for (form, suffix) in [(" ", ""), ("T", "Z"), ("T", "+01:00")] {
+        let raw = dir.path().join("stamps.csv");
+        let mut s = String::from("t,x,F\n");
+        for i in 0..2000u64 {
+            let stamp = format!("2025-11-14{form}{}{suffix}", clock(start + i * 1000));
+            s.push_str(&format!("{stamp},{:.6},1\n", (i as f64 * 0.01).sin()));
+        }
+        std::fs::write(&raw, &s).expect("raw");
+        let spec = spec_from(&simple_spec(&raw, ""), dir.path());
+        let imported = import::import(&spec, "d").expect("date-time stamps");
+        let ds = &imported.dataset;
+        assert_eq!(ds.sample_rate_hz, 1000.0, "{form}{suffix}");
+        let t = &ds.runs[0].time_s;
+        assert_eq!(t.len(), 2000);
+        assert!(t[0].abs() < 1e-9 && (t[1999] - 1.999).abs() < 1e-9, "{t:?}");
+    }
+    // A malformed stamp is named with its file, line and field.
+    let raw = dir.path().join("bad.csv");
+    std::fs::write(
+        &raw,
+        "t,x,F\n2025-11-14 19:25:35.1,0,0\n2025-11-14 19:25:35.2,0,0\n2025-11-14 19:61:35.3,0,0\n",
+    )
+    .expect("raw");
+    let spec = spec_from(&simple_spec(&raw, ""), dir.path());
+    let e = import::import(&spec, "d").expect_err("minute 61");
+    assert!(
+        matches!(
+            &e,
+            ImportError::BadTimeStamp {
+                line: 4,
+                field: 1,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    let text = e.to_string();
+    assert!(
+        text.contains("bad.csv:4:1: column \"t\"") && text.contains("minute 61"),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_ragged_row_and_a_duplicate_column_are_refused_with_their_line() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("r.csv");
+    std::fs::write(&raw, "t,x,F\n0,1,2\n0.001,1,9,2\n0.002,1,2\n").expect("raw");
+    let spec = spec_from(&simple_spec(&raw, ""), dir.path());
+    let e = import::import(&spec, "r").expect_err("ragged");
+    assert!(matches!(&e, ImportError::Csv { line: 3, .. }), "{e:?}");
+    assert!(
+        e.to_string()
+            .contains("r.csv:3: 4 fields, but the header has 3"),
+        "{e}"
+    );
+    std::fs::write(&raw, "t,x,F,x\n0,1,2,3\n0.001,1,2,3\n").expect("raw");
+    let e = import::import(&spec, "r").expect_err("duplicate");
+    assert!(matches!(&e, ImportError::Csv { line: 1, .. }), "{e:?}");
+    assert!(
+        e.to_string().contains(
+            "column \"x\" (columns.displacement) appears 2 times in the header (fields 2, 4)"
+        ),
+        "{e}"
+    );
+}
+
+#[test]
+fn an_error_in_a_cr_only_file_names_the_line_an_editor_shows() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("mac.csv");
+    std::fs::write(&raw, "t,x,F\r0,1,2\r0.001,1,2\r0.002,abc,2\r").expect("raw");
+    let spec = spec_from(&simple_spec(&raw, ""), dir.path());
+    let e = import::import(&spec, "m").expect_err("bad cell");
+    assert!(e.to_string().contains("mac.csv:4:2: column \"x\""), "{e}");
 }

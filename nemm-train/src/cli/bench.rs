@@ -124,7 +124,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
     }
 }
 
-/// Generates the programme of `cfg` into `out`, printing progress on stderr.
+/// Generates the programme of `cfg` into `out`, printing progress on stderr. The dataset
+/// `out` holds is replaced as a whole ([`crate::data::dataset::write()`]: built in a sibling
+/// folder and swapped in; other files in `out` are kept).
 pub fn generate(cfg: &BenchConfig, seed: u64, out: &Path) -> Result<()> {
     let bench = VirtualBench::new(cfg.clone());
     let total = bench.runs().len();

@@ -61,9 +61,15 @@ pub enum DataCmd {
 pub struct ImportArgs {
     /// Raw CSV files (not with a spec that lists `[[files]]`).
     pub files: Vec<PathBuf>,
-    /// Output dataset folder (created; run files and manifest written atomically).
+    /// Output dataset folder (created; the dataset is built in a sibling folder and swapped
+    /// in, so a kill leaves the old or the new dataset complete).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the dataset `--out` already holds, as a whole (its run files are removed;
+    /// `--force` names the force column). An input file is never overwritten, even with
+    /// `--replace`.
+    #[arg(long)]
+    pub replace: bool,
     /// Import spec (TOML): columns, units, gains, signs, per-file levels, cutting.
     #[arg(long)]
     pub spec: Option<PathBuf>,
@@ -279,7 +285,29 @@ fn import_cmd(a: &ImportArgs) -> Result<()> {
     let default_name = a.out.file_name().map_or("imported dyno data".into(), |n| {
         n.to_string_lossy().into_owned()
     });
+    let manifest = a.out.join(dataset::MANIFEST_FILE);
+    if manifest.exists() && !a.replace {
+        anyhow::bail!(
+            "{} already holds a dataset ({}); give --replace to replace it as a whole, or \
+             choose another --out folder",
+            a.out.display(),
+            manifest.display()
+        );
+    }
     let imported = import::import(&spec, &default_name)?;
+    let replaced = dataset::replaced_files(&a.out, &imported.dataset);
+    for input in spec.files.iter().map(|f| &f.path) {
+        if let Ok(canonical) = std::fs::canonicalize(input) {
+            if replaced.contains(&canonical) {
+                anyhow::bail!(
+                    "the input {} would be overwritten or removed by writing the dataset to {} \
+                     (even with --replace); choose another --out folder or move the input out of it",
+                    input.display(),
+                    a.out.display()
+                );
+            }
+        }
+    }
     dataset::write(&a.out, &imported.dataset)
         .with_context(|| format!("cannot write the dataset to {}", a.out.display()))?;
     print!("{}", import_report(&a.out, &imported));

@@ -233,6 +233,11 @@ impl Row<'_, '_> {
         self.reader.line
     }
 
+    /// The number of fields of the row.
+    pub(crate) fn field_count(&self) -> usize {
+        self.reader.record.len()
+    }
+
     /// `true` if every field is empty.
     pub(crate) fn is_blank(&self) -> bool {
         self.reader.record.iter().all(<[u8]>::is_empty)

@@ -19,7 +19,9 @@ pub fn load_with_progress(
     use rayon::prelude::*;
     let (manifest, lines) = read_manifest_with_lines(dir)?;
     let manifest_path = dir.join(MANIFEST_FILE);
-    // Every file must exist before any is parsed, so a typo is reported at once.
+    let root = std::fs::canonicalize(dir).map_err(io_err(dir))?;
+    // Every file must exist, and resolve inside the folder, before any is parsed, so a typo
+    // is reported at once and no file outside the dataset is ever read.
     for (i, (entry, rl)) in manifest.runs.iter().zip(&lines.runs).enumerate() {
         let file = dir.join(&entry.file);
         if !file.is_file() {
@@ -28,6 +30,16 @@ pub fn load_with_progress(
                 line: rl.file,
                 key: format!("runs[{i}].file"),
                 file,
+            });
+        }
+        let resolved = std::fs::canonicalize(&file).map_err(io_err(&file))?;
+        if !resolved.starts_with(&root) {
+            return Err(DatasetError::RunFileOutside {
+                manifest: manifest_path.clone(),
+                line: rl.file,
+                key: format!("runs[{i}].file"),
+                file,
+                resolved,
             });
         }
     }

@@ -392,6 +392,21 @@ pub enum DatasetError {
         /// The missing file as it would be opened.
         file: PathBuf,
     },
+    /// A run file resolves (through a symbolic link or `..`) to a file outside the dataset
+    /// folder; it is not read.
+    #[error("{}: {key}: run file {} resolves to {}, outside the dataset folder; copy the file into the folder (a dataset reads only its own files)", location(manifest, Some(*line)), file.display(), resolved.display())]
+    RunFileOutside {
+        /// The manifest.
+        manifest: PathBuf,
+        /// Line of the `file` value.
+        line: usize,
+        /// The key, e.g. `runs[3].file`.
+        key: String,
+        /// The run file as named (joined to the folder).
+        file: PathBuf,
+        /// Where it resolves to.
+        resolved: PathBuf,
+    },
     /// Two manifest entries name the same file.
     #[error("{}: {key}: {} is already listed as {first_key}", location(path, *line), file.display())]
     DuplicateRunFile {

@@ -95,10 +95,98 @@ fn write_run_csv(run: &Run, w: &mut dyn std::io::Write) -> std::io::Result<()> {
     Ok(())
 }
 
-/// Writes `dataset` to the folder `dir` (created if needed): every run CSV at its manifest
-/// path, then `manifest.toml`. Each file is written atomically; the dataset is validated
-/// first with the same rules as [`load`], so whatever `write` accepts, `load` reads back
-/// exactly. Existing files of the same names are replaced; other files are left alone.
+/// The files of the dataset in `dir` (its manifest and the run files it lists), as
+/// `dir`-relative paths; empty when `dir` holds no manifest. A manifest that does not parse
+/// counts as the manifest alone.
+fn old_dataset_files(dir: &Path) -> std::collections::HashSet<PathBuf> {
+    let mut files = std::collections::HashSet::new();
+    if !dir.join(MANIFEST_FILE).is_file() {
+        return files;
+    }
+    files.insert(PathBuf::from(MANIFEST_FILE));
+    if let Ok((manifest, _)) = read_manifest_with_lines(dir) {
+        files.extend(manifest.runs.iter().map(|r| r.file.clone()));
+    }
+    files
+}
+
+/// The existing files (resolved) that writing `dataset` to `dir` replaces or removes: the
+/// old dataset's manifest and run files and any file at a path of the new dataset. An input
+/// of the import must not be among them.
+pub fn replaced_files(dir: &Path, dataset: &Dataset) -> Vec<PathBuf> {
+    let mut rel = old_dataset_files(dir);
+    rel.insert(PathBuf::from(MANIFEST_FILE));
+    rel.extend(dataset.runs.iter().map(|r| r.entry.file.clone()));
+    let mut out: Vec<PathBuf> = rel
+        .iter()
+        .filter_map(|f| std::fs::canonicalize(dir.join(f)).ok())
+        .collect();
+    out.sort();
+    out
+}
+
+/// Copies the tree `from` into `to` (created) as hard links, leaving out the `dir`-relative
+/// paths in `skip`; symbolic links are recreated, files that cannot be linked are copied.
+fn carry_over(
+    from: &Path,
+    to: &Path,
+    rel: &Path,
+    skip: &std::collections::HashSet<PathBuf>,
+) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(from.join(rel))? {
+        let entry = entry?;
+        let r = rel.join(entry.file_name());
+        if skip.contains(&r) {
+            continue;
+        }
+        let kind = entry.file_type()?;
+        let (src, dst) = (from.join(&r), to.join(&r));
+        if kind.is_dir() {
+            std::fs::create_dir_all(&dst)?;
+            carry_over(from, to, &r, skip)?;
+        } else if kind.is_symlink() {
+            #[cfg(unix)]
+            std::os::unix::fs::symlink(std::fs::read_link(&src)?, &dst)?;
+            #[cfg(not(unix))]
+            std::fs::copy(&src, &dst).map(|_| ())?;
+        } else if std::fs::hard_link(&src, &dst).is_err() {
+            std::fs::copy(&src, &dst)?;
+        }
+    }
+    Ok(())
+}
+
+/// A sibling path of `dir` (same parent, so on the same file system) that does not exist:
+/// `.<name>.<tag>-<pid>-<n>`.
+fn sibling(dir: &Path, tag: &str) -> PathBuf {
+    let name = dir
+        .file_name()
+        .map_or("dataset".into(), |n| n.to_string_lossy().into_owned());
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    (0u32..)
+        .map(|n| parent.join(format!(".{name}.{tag}-{}-{n}", std::process::id())))
+        .find(|p| std::fs::symlink_metadata(p).is_err())
+        .expect("a free name")
+}
+
+/// Writes `dataset` to the folder `dir`, replacing the dataset `dir` holds as a whole.
+///
+/// The dataset is validated first with the same rules as [`load`], so whatever `write`
+/// accepts, `load` reads back exactly. The new dataset is built in a sibling temporary
+/// folder: every run CSV at its manifest path, then `manifest.toml`, each file written
+/// atomically, and the files of `dir` that belong to no dataset (neither the old manifest,
+/// nor a run file it lists, nor a path of the new dataset) hard-linked in. The folders are
+/// then swapped with renames: `dir` moves to a sibling `.<name>.old-*`, the new folder
+/// takes its place, and the old one is removed. A kill at any point leaves the old or the
+/// new dataset complete: in `dir`, or (between the two renames) in the sibling
+/// `.<name>.old-*` and `.<name>.new-*` folders. The old dataset's run files are removed
+/// with it, so no run file of an earlier dataset is left behind.
+///
+/// Callers that must not replace a dataset check for one first (`nemm data import` refuses
+/// without `--replace`); `nemm bench generate` replaces its own output folder.
 pub fn write(dir: &Path, dataset: &Dataset) -> Result<(), DatasetError> {
     use rayon::prelude::*;
     let manifest = dataset.manifest();
@@ -107,16 +195,42 @@ pub fn write(dir: &Path, dataset: &Dataset) -> Result<(), DatasetError> {
     for run in &dataset.runs {
         validate_run(run, &dir.join(&run.entry.file), dataset.sample_rate_hz)?;
     }
-    dataset
-        .runs
-        .par_iter()
-        .map(|run| write_atomic(&dir.join(&run.entry.file), |w| write_run_csv(run, w)))
-        .collect::<Result<Vec<()>, _>>()?;
     let text = toml::to_string(&manifest).map_err(|e| DatasetError::ManifestValue {
         path: manifest_path.clone(),
         line: None,
         key: "(manifest)".into(),
         message: format!("cannot be encoded as TOML: {e}"),
     })?;
-    write_atomic(&manifest_path, |w| w.write_all(text.as_bytes()))
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(io_err(parent))?;
+    }
+    let new = sibling(dir, "new");
+    let built = (|| {
+        std::fs::create_dir(&new).map_err(io_err(&new))?;
+        if dir.is_dir() {
+            let mut skip = old_dataset_files(dir);
+            skip.insert(PathBuf::from(MANIFEST_FILE));
+            skip.extend(dataset.runs.iter().map(|r| r.entry.file.clone()));
+            carry_over(dir, &new, Path::new(""), &skip).map_err(io_err(dir))?;
+        }
+        dataset
+            .runs
+            .par_iter()
+            .map(|run| write_atomic(&new.join(&run.entry.file), |w| write_run_csv(run, w)))
+            .collect::<Result<Vec<()>, _>>()?;
+        write_atomic(&new.join(MANIFEST_FILE), |w| w.write_all(text.as_bytes()))
+    })();
+    if let Err(e) = built {
+        let _ = std::fs::remove_dir_all(&new);
+        return Err(e);
+    }
+    if std::fs::symlink_metadata(dir).is_ok() {
+        let old = sibling(dir, "old");
+        std::fs::rename(dir, &old).map_err(io_err(dir))?;
+        std::fs::rename(&new, dir).map_err(io_err(dir))?;
+        std::fs::remove_dir_all(&old).map_err(io_err(&old))?;
+    } else {
+        std::fs::rename(&new, dir).map_err(io_err(dir))?;
+    }
+    Ok(())
 }

@@ -13,6 +13,9 @@ struct Converted {
     velocity_m_s: Option<Vec<f64>>,
     alpha: Option<Vec<f64>>,
     lines: Vec<usize>,
+    /// The first date-time stamp of the time column (times are seconds from it), when the
+    /// column holds date-time stamps.
+    origin: Option<stamp::Stamp>,
 }
 
 impl Converted {
@@ -25,6 +28,7 @@ impl Converted {
             velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
             alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
             lines: Vec::new(),
+            origin: None,
         }
     }
 
@@ -41,6 +45,12 @@ impl Converted {
         let line = row.line();
         let mut time = None;
         for &(role, i, factor, c) in columns {
+            if role == "time" {
+                if let Some(t) = self.date_time(row, i, path)? {
+                    time = Some(t);
+                    continue;
+                }
+            }
             let v = row.number(i).map_err(|e| ImportError::BadCell {
                 path: e.path,
                 line: e.line,
@@ -96,6 +106,47 @@ impl Converted {
     }
 }
 
+impl Converted {
+    /// The time of field `i` when it is a date-time stamp: seconds from the file's first
+    /// stamp (the time column's unit, gain and offset do not apply). `None` when the cell
+    /// is not written as a date (a number). Refuses a malformed stamp and a column that
+    /// mixes stamps and numbers.
+    fn date_time(
+        &mut self,
+        row: &Row<'_, '_>,
+        i: usize,
+        path: &Path,
+    ) -> Result<Option<f64>, ImportError> {
+        let text = row.text(i);
+        let bad = |message: String| ImportError::BadTimeStamp {
+            path: path.to_path_buf(),
+            line: row.line(),
+            field: i + 1,
+            column: row.column(i),
+            value: text.clone(),
+            message,
+        };
+        if !stamp::looks_like_date(&text) {
+            if self.origin.is_some() && row.number(i).is_ok() {
+                return Err(bad(format!(
+                    "the column holds date-time stamps above; write every time as a stamp ({})",
+                    stamp::FORMS
+                )));
+            }
+            return Ok(None);
+        }
+        if self.origin.is_none() && !self.time_s.is_empty() {
+            return Err(bad(
+                "the column holds numbers above; write every time as a number or every time as a date-time stamp"
+                    .into(),
+            ));
+        }
+        let s = stamp::parse(&text).map_err(|m| bad(format!("{m}; accepted: {}", stamp::FORMS)))?;
+        let origin = *self.origin.get_or_insert(s);
+        Ok(Some(s.since(&origin)))
+    }
+}
+
 /// The reader's error as an [`ImportError`].
 fn csv_error(e: CsvError) -> ImportError {
     match e {
@@ -116,7 +167,10 @@ fn csv_error(e: CsvError) -> ImportError {
         } => ImportError::Csv {
             path,
             line,
-            message: format!("{found} fields, but the header has {expected}"),
+            message: format!(
+                "{found} fields, but the header has {expected}: the row is ragged, so its cells \
+                 cannot be matched to columns; fix or delete the row"
+            ),
         },
     }
 }
@@ -127,6 +181,7 @@ fn dialect(o: &CsvOptions) -> Result<Dialect, ImportError> {
         delimiter: delimiter_byte(&o.delimiter)?,
         comment: o.comment.as_ref().and_then(|c| c.bytes().next()),
         header_line: o.header_line,
+        // Checked in `read_file`, where a line of spaces (a blank row) is skipped instead.
         same_field_count: false,
         decimal_comma: o.decimal_comma,
     })
@@ -155,6 +210,26 @@ fn find_columns<'s>(
             column: c.label(),
             header: names.join(","),
         })?;
+        if let Some(n) = &c.name {
+            let fields: Vec<String> = names
+                .iter()
+                .enumerate()
+                .filter(|(_, h)| *h == n)
+                .map(|(k, _)| (k + 1).to_string())
+                .collect();
+            if fields.len() > 1 {
+                return Err(ImportError::Csv {
+                    path: path.to_path_buf(),
+                    line: header.line,
+                    message: format!(
+                        "column \"{n}\" (columns.{role}) appears {} times in the header (fields {}); \
+                         rename the columns so each name is unique, or select one by its index",
+                        fields.len(),
+                        fields.join(", ")
+                    ),
+                });
+            }
+        }
         let factor = unit_factor(role, &c.unit).unwrap_or(1.0);
         idx.push((role, i, factor, c));
     }
@@ -181,6 +256,14 @@ fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
     let mut out = Converted::empty(spec);
     while let Some(row) = reader.next_row().map_err(csv_error)? {
         if !row.is_blank() {
+            if row.field_count() != header.names.len() {
+                return Err(csv_error(CsvError::FieldCount {
+                    path: path.to_path_buf(),
+                    line: row.line(),
+                    expected: header.names.len(),
+                    found: row.field_count(),
+                }));
+            }
             out.push_row(&row, &columns, spec.rate_hz, path)?;
         }
     }
@@ -446,7 +529,9 @@ fn time_cuts(fi: usize, f: &FileSpec, c: &Converted) -> Result<Vec<Cut>, ImportE
 }
 
 /// The dataset's sample rate: `resample_hz`, else `rate_hz`, else the rate fitted to the
-/// first run's stamps, rounded to 1 Hz when that is within 0.1 %.
+/// first run's stamps as fitted (a whole number of hertz only when the fit is within
+/// 1 ppm of one, the noise of stamps rounded to 0.1 ms: a 3004.8 Hz logger keeps its
+/// 3004.8 Hz).
 fn dataset_rate(spec: &ImportSpec, pieces: &[(usize, Converted, Option<f64>)]) -> f64 {
     match (spec.resample_hz, spec.rate_hz) {
         (Some(r), _) | (None, Some(r)) => r,
@@ -458,7 +543,7 @@ fn dataset_rate(spec: &ImportSpec, pieces: &[(usize, Converted, Option<f64>)]) -
                 .unwrap_or_default();
             let r = dataset::fit_time_grid(first, 1.0).rate_hz();
             let rounded = r.round();
-            if rounded > 0.0 && (r / rounded - 1.0).abs() <= 1e-3 {
+            if rounded > 0.0 && (r / rounded - 1.0).abs() <= 1e-6 {
                 rounded
             } else {
                 r
@@ -491,6 +576,7 @@ impl Converted {
             velocity_m_s: self.velocity_m_s.as_ref().map(|v| v[a..b].to_vec()),
             alpha: self.alpha.as_ref().map(|v| v[a..b].to_vec()),
             lines: self.lines[a..b].to_vec(),
+            origin: self.origin,
         };
         if columns.displacement.center {
             center(&mut piece.displacement_m);

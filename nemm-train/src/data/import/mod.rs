@@ -16,6 +16,7 @@ use std::path::{Path, PathBuf};
 
 mod convert;
 mod spec;
+mod stamp;
 
 pub use convert::*;
 pub use spec::*;
@@ -105,6 +106,23 @@ pub enum ImportError {
         value: String,
         /// The converted level.
         level: f64,
+    },
+    /// A time cell is a malformed date-time stamp, or the time column mixes date-time
+    /// stamps and numbers.
+    #[error("{}:{line}:{field}: column \"{column}\": \"{value}\" is not a time stamp: {message}", path.display())]
+    BadTimeStamp {
+        /// The raw file.
+        path: PathBuf,
+        /// The line.
+        line: usize,
+        /// The field number (1-based).
+        field: usize,
+        /// The column's header name.
+        column: String,
+        /// The cell as found.
+        value: String,
+        /// What is wrong and what is accepted.
+        message: String,
     },
     /// A file or a cut gives no run.
     #[error("{}: {message}", path.display())]
@@ -339,8 +357,8 @@ pub struct ImportSpec {
     /// Column mapping.
     pub columns: Columns,
     /// Sample rate \[Hz\]: required without a time column; with one, the manifest's rate
-    /// (default: the rate fitted to the first run's stamps, rounded to 1 Hz when that is
-    /// within 0.1 %).
+    /// (default: the rate fitted to the first run's stamps, as fitted; a whole number of hertz
+    /// only when the fit is within 1 ppm of one, the noise of rounded stamps).
     #[serde(default)]
     pub rate_hz: Option<f64>,
     /// Resample every run onto a uniform grid at this rate \[Hz\] by linear interpolation
