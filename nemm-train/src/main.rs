@@ -151,6 +151,21 @@ enum Cmd {
     },
 }
 
+/// `--session-epochs` stops a job so that `--resume` continues it from its checkpoint: without
+/// `--checkpoint` the epochs trained would be lost.
+fn session_needs_checkpoint(
+    cfg: &nemm_train::config::Config,
+    checkpoint: bool,
+) -> anyhow::Result<()> {
+    if let (Some(n), false) = (cfg.train.session_epochs, checkpoint) {
+        anyhow::bail!(
+            "--session-epochs {n} needs --checkpoint DIR: the session stops after {n} epoch(s) \
+             and only a checkpoint keeps them for --resume"
+        );
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
@@ -166,6 +181,7 @@ fn main() -> ExitCode {
             report,
             tables,
         } => args.resolve().and_then(|mut cfg| {
+            session_needs_checkpoint(&cfg, checkpoint.is_some())?;
             if let Some(v) = variant {
                 cfg.model.variant = v;
             }
@@ -190,6 +206,7 @@ fn main() -> ExitCode {
             checkpoint,
             resume,
         } => args.resolve().and_then(|cfg| {
+            session_needs_checkpoint(&cfg, checkpoint.is_some())?;
             nemm_train::cli::train::compare_command(&cfg, &report, checkpoint.as_deref(), resume)
                 .map(|_| ())
         }),
@@ -201,6 +218,7 @@ fn main() -> ExitCode {
             list,
             collect,
         } => args.base().and_then(|base| {
+            base.validate()?;
             let lambdas = args.lambda_ph_list().map_or_else(
                 || nemm_train::cli::train::TABLE5_LAMBDAS.to_vec(),
                 <[f64]>::to_vec,

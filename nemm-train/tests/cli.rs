@@ -620,3 +620,73 @@ fn identify_prints_and_writes_the_best_fit_level_of_each_run() {
         .fails();
     assert!(err.contains("no run to identify"), "{err}");
 }
+
+/// Bad sizes, option values and output paths are refused before any data is read or any
+/// model trained, each with an error naming the option (issue 25, "no input loses work").
+#[test]
+fn bad_inputs_are_refused_before_training() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path();
+    let out = dir.join("m.nemm");
+    let train = |extra: &[&str]| {
+        Nemm::new(&["train", "--data"])
+            .arg(dir.join("no-dataset"))
+            .arg("--out")
+            .arg(&out)
+            .arg("--epochs")
+            .arg("1")
+            .0
+            .args(extra)
+            .output()
+            .expect("run nemm")
+    };
+    let refused = |extra: &[&str], expected: &str| {
+        let o = train(extra);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{extra:?} was accepted");
+        assert!(err.contains(expected), "{extra:?}: {err}");
+        assert!(!err.contains("panicked"), "{extra:?}: {err}");
+    };
+    refused(
+        &["--model-rate-hz", "1e9"],
+        "--model-rate-hz 1000000000 is out of range",
+    );
+    refused(&["--lr", "nan"], "--lr NaN is out of range");
+    refused(&["--lr", "0"], "--lr 0 is out of range");
+    refused(&["--tables-alpha", "2"], "--tables-alpha 2 is out of range");
+    refused(&["--tables-segments", "7"], "--tables-segments 7");
+    refused(
+        &["--session-epochs", "1"],
+        "--session-epochs 1 needs --checkpoint",
+    );
+    for units in ["0", "1000000"] {
+        let cfg = dir.join(format!("units-{units}.toml"));
+        std::fs::write(&cfg, format!("[model]\nbranch_units = {units}\n")).expect("write");
+        let cfg = cfg.to_str().expect("utf-8").to_string();
+        refused(
+            &["--config", &cfg],
+            &format!("branch_units ([model] in --config) {units} is out of range"),
+        );
+    }
+    let o = Nemm::new(&["train", "--data", "d", "--out"])
+        .arg(dir.join("missing/m.nemm"))
+        .output();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("does not exist"),
+        "{err}"
+    );
+    let o = Nemm::new(&["train", "--data", "d", "--out", "/proc/m.nemm"]).output();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("cannot write into /proc"),
+        "{err}"
+    );
+    let file = dir.join("a-file");
+    std::fs::write(&file, "x").expect("write");
+    let err = Nemm::new(&["compare", "--data", "d", "--report"])
+        .arg(&file)
+        .fails();
+    assert!(err.contains("is a file, not a folder"), "{err}");
+    assert!(!out.exists(), "nothing was written");
+}

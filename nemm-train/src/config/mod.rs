@@ -146,6 +146,18 @@ impl Default for ModelConfig {
 /// Whether the EMM-family variants get the static force by default.
 pub const DEFAULT_STATIC_FORCE: bool = false;
 
+/// The model rates \[Hz\] training accepts: a step from 100 ms down to 1 us, which an `f32`
+/// step of the blob format holds to 7 digits (docs/training.md, "Limits of the options").
+pub const MODEL_RATE_RANGE_HZ: (f64, f64) = (10.0, 1_000_000.0);
+
+/// The most windows one batch may hold.
+pub const MAX_BATCH: usize = 1024;
+
+/// The most model steps one batch may roll out (windows x (window + warm-up) x model rate):
+/// the rollout keeps every step's state for the backward pass, so this bounds a batch's
+/// memory. The defaults roll out 88 000 (0.55 s x 10 kHz x 16).
+pub const MAX_BATCH_STEPS: usize = 4_000_000;
+
 /// The default model rate \[Hz\]: the firmware's 10 kHz step.
 pub const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
 
@@ -299,26 +311,85 @@ impl Config {
             .with_context(|| format!("cannot write {}", path.display()))
     }
 
-    /// Checks the values no training can run with.
+    /// Checks the values no training can run with, before anything is allocated: every size
+    /// within what the model and its blob format hold ([`nemm_core::limits`]), the model rate
+    /// within [`MODEL_RATE_RANGE_HZ`], the samples one batch rolls out within
+    /// [`MAX_BATCH_STEPS`], and every rate, weight and bound a finite number that lets
+    /// training change the model. Each error names the option and its accepted range.
     pub fn validate(&self) -> Result<()> {
         let (m, t) = (&self.model, &self.train);
-        if t.batch == 0 || m.hidden == 0 || m.layers == 0 {
-            bail!("--batch, --hidden and --layers must be positive");
-        }
-        if m.hidden > nemm_core::semantics::mlp::MAX_HIDDEN
-            || m.layers > nemm_core::semantics::mlp::MAX_LAYERS
-        {
+        let size = |name: &str, v: usize, max: usize| -> Result<()> {
+            if !(1..=max).contains(&v) {
+                bail!("{name} {v} is out of range: it must be in 1..={max}");
+            }
+            Ok(())
+        };
+        size("--hidden", m.hidden, nemm_core::limits::MAX_HIDDEN)?;
+        size("--layers", m.layers, nemm_core::limits::MAX_LAYERS)?;
+        size(
+            "branch_units ([model] in --config)",
+            m.branch_units,
+            nemm_core::limits::MAX_BRANCH_UNITS,
+        )?;
+        size("--batch", t.batch, MAX_BATCH)?;
+        let (lo, hi) = MODEL_RATE_RANGE_HZ;
+        if !(m.rate_hz.is_finite() && (lo..=hi).contains(&m.rate_hz)) {
             bail!(
-                "--hidden must be <= {} and --layers <= {} (the capacity of nemm-core)",
-                nemm_core::semantics::mlp::MAX_HIDDEN,
-                nemm_core::semantics::mlp::MAX_LAYERS
+                "--model-rate-hz {} is out of range: it must be in {lo}..={hi} Hz (a step of \
+                 {} us down to {} us)",
+                m.rate_hz,
+                1e6 / lo,
+                1e6 / hi
             );
         }
-        if !(t.lambda_ph.is_finite() && t.lambda_ph >= 0.0) {
-            bail!("--lambda-ph must be a non-negative number");
+        let window_s = self.data.window_s.unwrap_or(preprocess::DEFAULT_WINDOW_S);
+        let warmup_s = self.data.warmup_s.unwrap_or(preprocess::DEFAULT_WARMUP_S);
+        let steps = (window_s + warmup_s) * m.rate_hz * t.batch as f64;
+        if !(steps <= MAX_BATCH_STEPS as f64) {
+            bail!(
+                "a batch would roll out {steps:.0} model steps ((--window-s {window_s} + \
+                 --warmup-s {warmup_s}) x --model-rate-hz {} x --batch {}), more than the \
+                 {MAX_BATCH_STEPS} training holds in memory: lower one of them",
+                m.rate_hz,
+                t.batch
+            );
         }
-        if !(m.rate_hz.is_finite() && m.rate_hz > 0.0) {
-            bail!("--model-rate-hz must be a positive rate in Hz");
+        let positive = |name: &str, v: f64| -> Result<()> {
+            if !(v.is_finite() && v > 0.0) {
+                bail!("{name} {v} is out of range: it must be a finite number > 0");
+            }
+            Ok(())
+        };
+        positive("--lr", t.lr)?;
+        positive("linear_lr ([train] in --config)", t.linear_lr)?;
+        positive("grad_clip ([train] in --config)", f64::from(t.grad_clip))?;
+        positive("adam_eps ([train] in --config)", f64::from(t.adam_eps))?;
+        for (name, v) in [("--lambda-ph", t.lambda_ph), ("--lambda-l2", t.lambda_l2)] {
+            if !(v.is_finite() && v >= 0.0) {
+                bail!("{name} {v} is out of range: it must be a finite number >= 0");
+            }
+        }
+        for (name, (lo, hi)) in [
+            ("b_fl_bounds ([model] in --config)", m.b_fl_bounds),
+            ("pr_bounds ([model] in --config)", m.pr_bounds),
+        ] {
+            if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo < hi) {
+                bail!(
+                    "{name} ({lo}, {hi}) is out of range: it must be (s_min, s_max) with \
+                     0 < s_min < s_max, both finite"
+                );
+            }
+        }
+        if t.epochs == 0 {
+            bail!("--epochs 0 trains nothing: it must be at least 1");
+        }
+        if t.max_batches == Some(0) {
+            bail!(
+                "--max-batches 0 trains nothing: give at least 1, or leave it out for every batch"
+            );
+        }
+        if t.session_epochs == Some(0) {
+            bail!("--session-epochs 0 trains nothing: give at least 1, or leave it out");
         }
         Ok(())
     }
@@ -436,6 +507,59 @@ mod tests {
             .unwrap_err();
         assert!(err.to_string().contains("one value"), "{err}");
         assert!(Cli::try_parse_from(["nemm", "--integrator", "euler"]).is_err());
+    }
+
+    /// Every size and rate is bounded before anything is allocated, and the error names the
+    /// option and its range.
+    #[test]
+    fn validate_bounds_every_size_and_rate() {
+        let err = |edit: &dyn Fn(&mut Config)| {
+            let mut c = Config::default();
+            edit(&mut c);
+            c.validate().expect_err("refused").to_string()
+        };
+        assert!(Config::default().validate().is_ok());
+        let e = err(&|c| c.model.rate_hz = 1e9);
+        assert!(
+            e.contains("--model-rate-hz 1000000000 is out of range"),
+            "{e}"
+        );
+        let e = err(&|c| c.model.branch_units = 1_000_000);
+        assert!(e.contains("branch_units") && e.contains("1..=32"), "{e}");
+        let e = err(&|c| c.model.branch_units = 0);
+        assert!(
+            e.contains("branch_units ([model] in --config) 0 is out of range"),
+            "{e}"
+        );
+        let e = err(&|c| c.model.hidden = 33);
+        assert!(e.contains("--hidden 33") && e.contains("1..=32"), "{e}");
+        let e = err(&|c| c.model.layers = 0);
+        assert!(e.contains("--layers 0"), "{e}");
+        let e = err(&|c| c.train.batch = 5000);
+        assert!(e.contains("--batch 5000"), "{e}");
+        // Each within its range, but together too many steps in one batch.
+        let e = err(&|c| {
+            c.model.rate_hz = 1e6;
+            c.train.batch = 64;
+        });
+        assert!(e.contains("model steps") && e.contains("--batch 64"), "{e}");
+        let e = err(&|c| c.train.lr = f64::NAN);
+        assert!(e.contains("--lr NaN"), "{e}");
+        let e = err(&|c| c.train.lr = 0.0);
+        assert!(e.contains("--lr 0 is out of range"), "{e}");
+        let e = err(&|c| c.model.b_fl_bounds = (10.0, 0.1));
+        assert!(
+            e.contains("b_fl_bounds") && e.contains("(10, 0.1) is out of range"),
+            "{e}"
+        );
+        let e = err(&|c| c.model.pr_bounds = (0.0, 5.0));
+        assert!(e.contains("pr_bounds"), "{e}");
+        let e = err(&|c| c.train.lambda_l2 = -1.0);
+        assert!(e.contains("--lambda-l2 -1"), "{e}");
+        let e = err(&|c| c.train.epochs = 0);
+        assert!(e.contains("--epochs 0 trains nothing"), "{e}");
+        let e = err(&|c| c.train.max_batches = Some(0));
+        assert!(e.contains("--max-batches 0"), "{e}");
     }
 
     #[test]

@@ -9,6 +9,10 @@ pub fn compare_command(
     checkpoint: Option<&Path>,
     resume: bool,
 ) -> Result<Report> {
+    check_output_dir("--report", report_dir)?;
+    if let Some(dir) = checkpoint {
+        check_output_dir("--checkpoint", dir)?;
+    }
     let cfg = &with_resolved_data(cfg)?;
     let (ds, prepared) =
         load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;

@@ -31,6 +31,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let mut cfg = cfg.clone();
     cfg.data.dir = paths.data.clone();
     cfg.validate()?;
+    check_output_dir("--out", &paths.out)?;
     let cfg = with_resolved_data(&cfg)?;
     let (ds, prepared) = load_dataset_prepared(&cfg.data.dir, &cfg.data.prepare_config())?;
     let report = compare(&ds, &prepared, &cfg, &paths.out, None, false)?;

@@ -21,10 +21,12 @@ use std::time::Instant;
 
 mod compare;
 mod demo;
+mod paths;
 mod sweep;
 
 pub use compare::*;
 pub use demo::*;
+pub use paths::*;
 pub use sweep::*;
 
 /// Loads and prepares a dataset, printing a one-line summary.
@@ -92,6 +94,39 @@ pub struct TablesArgs {
 
 /// Segments of stored tables unless told otherwise: the example firmware's (128).
 pub const DEFAULT_STORED_TABLE_SEGMENTS: usize = 128;
+
+impl TablesArgs {
+    /// Checks the options before anything is trained: each level in [0, 1], at most
+    /// [`nemm_core::limits::MAX_TABLE_LEVELS`] of them, 128 or 256 segments, a finite
+    /// positive bound.
+    pub fn validate(&self) -> Result<()> {
+        for &a in &self.tables_alpha {
+            if !(0.0..=1.0).contains(&a) {
+                bail!("--tables-alpha {a} is out of range: each level must be in [0, 1]");
+            }
+        }
+        let max = nemm_core::limits::MAX_TABLE_LEVELS;
+        if self.tables_alpha.len() > max {
+            bail!(
+                "--tables-alpha lists {} levels: a blob stores at most {max}",
+                self.tables_alpha.len()
+            );
+        }
+        if !matches!(self.tables_segments, 128 | 256) {
+            bail!(
+                "--tables-segments {}: stored tables have 128 or 256 segments",
+                self.tables_segments
+            );
+        }
+        if !(self.tables_bound.is_finite() && self.tables_bound > 0.0) {
+            bail!(
+                "--tables-bound {} is out of range: it must be a finite number > 0",
+                self.tables_bound
+            );
+        }
+        Ok(())
+    }
+}
 
 impl Default for TablesArgs {
     fn default() -> Self {
@@ -248,6 +283,14 @@ pub fn train(
     report_dir: Option<&Path>,
     tables: &TablesArgs,
 ) -> Result<()> {
+    tables.validate()?;
+    check_output_file("--out", out)?;
+    if let Some(dir) = report_dir {
+        check_output_dir("--report", dir)?;
+    }
+    if let Some(dir) = checkpoint {
+        check_output_dir("--checkpoint", dir)?;
+    }
     let cfg = &with_resolved_data(cfg)?;
     let variant = cfg.model.variant;
     let (ds, prepared) =
@@ -374,6 +417,8 @@ fn table_vs_exact(
 /// Also reports whether the tabulated fast path meets `table_bound`
 /// ([`crate::train::table_check`]).
 pub fn export(checkpoint: &Path, out: &Path, table_bound: f32, tables: &TablesArgs) -> Result<()> {
+    tables.validate()?;
+    check_output_file("--out", out)?;
     let frame_path = checkpoint.join("frame.json");
     let text = std::fs::read_to_string(&frame_path).with_context(|| {
         format!(
