@@ -345,7 +345,8 @@ impl Config {
         let window_s = self.data.window_s.unwrap_or(preprocess::DEFAULT_WINDOW_S);
         let warmup_s = self.data.warmup_s.unwrap_or(preprocess::DEFAULT_WARMUP_S);
         let steps = (window_s + warmup_s) * m.rate_hz * t.batch as f64;
-        if !(steps <= MAX_BATCH_STEPS as f64) {
+        // NaN (a non-finite window) fails too.
+        if steps.is_nan() || steps > MAX_BATCH_STEPS as f64 {
             bail!(
                 "a batch would roll out {steps:.0} model steps ((--window-s {window_s} + \
                  --warmup-s {warmup_s}) x --model-rate-hz {} x --batch {}), more than the \
