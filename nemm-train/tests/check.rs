@@ -153,6 +153,20 @@ fn repeated_rows_and_a_frozen_column_are_dropouts() {
     assert!(flat.message.contains("401 samples"), "{}", flat.message);
 }
 
+/// A channel at one value over the whole run (a disconnected load cell logging zeros) is a
+/// dead channel: a problem, not a note.
+#[test]
+fn a_dead_channel_is_a_problem() {
+    let mut run = sine(1000.0, 0.01, 2.0, 2.0, 1e-6, 2.0);
+    let n = run.force_n.len();
+    run.force_n.iter_mut().for_each(|f| *f = 0.0);
+    let f = findings(&dataset(1000.0, run));
+    let dead = only(&f, FindingKind::Dropout, "force_n");
+    assert_eq!((dead.sample, dead.count), (0, n));
+    assert!(!dead.kind.is_info());
+    assert!(dead.message.contains("dead channel"), "{}", dead.message);
+}
+
 #[test]
 fn clipping_is_found_and_a_smooth_peak_is_not() {
     let mut run = sine(1000.0, 0.01, 2.0, 2.0, 1e-6, 2.0);

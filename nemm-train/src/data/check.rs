@@ -11,8 +11,9 @@
 //!   than [`SPIKE_SIGMAS`] robust noise deviations and [`SPIKE_MIN_FRACTION`] of the
 //!   column's robust range away;
 //! * **dropouts**: at least [`REPEAT_MIN_ROWS`] consecutive rows with every data column
-//!   repeated exactly (a held or zero-filled logger), or one column frozen at one value for
-//!   at least [`FLAT_MIN_S`] while it moves elsewhere in the run;
+//!   repeated exactly (a held or zero-filled logger), one column frozen at one value for
+//!   at least [`FLAT_MIN_S`] while it moves elsewhere in the run, or a column at one value
+//!   over the whole run (a dead channel);
 //! * **clipping**: at least [`CLIP_MIN_SAMPLES`] consecutive samples at the column's largest
 //!   or smallest value, entered and left by a step of more than [`CLIP_STEP_QUANTA`] times
 //!   the column's smallest non-zero step (a smooth, quantised turning point enters its
@@ -304,7 +305,19 @@ fn column_findings(
             ),
         ));
     }
-    if let Some((first, len, count, value)) = flat(x, sample_rate_hz) {
+    if let Some(value) = dead(x) {
+        out.push(finding(
+            FindingKind::Dropout,
+            name,
+            0,
+            x.len(),
+            format!(
+                "{name} is {value} {unit} in every one of the run's {} samples: a dead \
+                 channel (disconnected sensor, wrong column or a logger placeholder)",
+                x.len()
+            ),
+        ));
+    } else if let Some((first, len, count, value)) = flat(x, sample_rate_hz) {
         out.push(finding(
             FindingKind::Dropout,
             name,
@@ -333,6 +346,14 @@ fn column_findings(
         }
     }
     out
+}
+
+/// The value of a column that holds one value over the whole run (at least
+/// [`REPEAT_MIN_ROWS`] samples): a dead channel.
+fn dead(x: &[f64]) -> Option<f64> {
+    let &first = x.first()?;
+    (x.len() >= REPEAT_MIN_ROWS && x.iter().all(|v| v.to_bits() == first.to_bits()))
+        .then_some(first)
 }
 
 /// Spikes of one column: `(first sample, events, value, residual)`; the first sample is
