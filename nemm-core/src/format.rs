@@ -5,10 +5,9 @@
 //! | magic "NEMM" (4 raw bytes) | version (varint u16) | kind (varint)      |
 //! | max_scaler_params (varint u32) | body_len (varint u32)                 |
 //! +-------------------------------------------------------------------------+
-//! | body (body_len bytes): postcard-encoded [`Model`] (version-1 layout),   |
-//! | then, from version 3 on, the postcard-encoded [`Extension`], then, from |
-//! | version 4 on, `Option<StaticForce>` and the tables section              |
-//! | ([`tables`])                                              |
+//! | body (body_len bytes): postcard-encoded Model (version-1 fields), then, |
+//! | from version 3 on, its condition, alpha branches and provenance, then,  |
+//! | from version 4 on, Option<StaticForce> and the tables section           |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
