@@ -14,6 +14,9 @@ pub fn compare_command(
         check_output_dir("--checkpoint", dir)?;
     }
     let cfg = &with_resolved_data(cfg)?;
+    let _lock = checkpoint
+        .map(|dir| open_checkpoint(dir, cfg, resume))
+        .transpose()?;
     let (ds, prepared) =
         load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
     compare(&ds, &prepared, cfg, report_dir, checkpoint, resume)

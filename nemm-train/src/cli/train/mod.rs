@@ -21,11 +21,13 @@ use std::time::Instant;
 
 mod compare;
 mod demo;
+mod identity;
 mod paths;
 mod sweep;
 
 pub use compare::*;
 pub use demo::*;
+pub use identity::{open_checkpoint, CheckpointLock, IDENTITY_FILE, LOCK_FILE, SESSION_KEYS};
 pub use paths::*;
 pub use sweep::*;
 
@@ -292,6 +294,9 @@ pub fn train(
         check_output_dir("--checkpoint", dir)?;
     }
     let cfg = &with_resolved_data(cfg)?;
+    let _lock = checkpoint
+        .map(|dir| open_checkpoint(dir, cfg, resume))
+        .transpose()?;
     let variant = cfg.model.variant;
     let (ds, prepared) =
         load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
