@@ -622,7 +622,7 @@ fn identify_prints_and_writes_the_best_fit_level_of_each_run() {
 }
 
 /// Bad sizes, option values and output paths are refused before any data is read or any
-/// model trained, each with an error naming the option (issue 25, "no input loses work").
+/// model trained, each with an error naming the option.
 #[test]
 fn bad_inputs_are_refused_before_training() {
     let tmp = tempfile::tempdir().expect("temp dir");

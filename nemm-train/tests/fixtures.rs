@@ -101,13 +101,11 @@ fn committed_fixtures_equal_the_generated_ones() {
     }
 }
 
-/// `nemm data check DIR --cutoff-hz fs/6` (a cut-off every fixture's rate allows).
-fn data_check(name: &str) -> String {
-    let dir = fixture_dir(name);
-    let fs = dataset::read_manifest(&dir).unwrap().sample_rate_hz;
+/// `nemm ARGS DIR`: success, and stdout and stderr.
+fn nemm_in(dir: &Path, args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_nemm"))
-        .args(["data", "check", "--cutoff-hz", &format!("{}", fs / 6.0)])
-        .arg(&dir)
+        .args(args)
+        .arg(dir)
         .output()
         .unwrap();
     let text = format!(
@@ -115,7 +113,22 @@ fn data_check(name: &str) -> String {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(out.status.success(), "nemm data check {name}: {text}");
+    (out.status.success(), text)
+}
+
+/// `nemm ARGS` on a fixture (its folder last).
+fn nemm_on(name: &str, args: &[&str]) -> (bool, String) {
+    nemm_in(&fixture_dir(name), args)
+}
+
+/// `nemm data check DIR --cutoff-hz fs/6` (a cut-off every fixture's rate allows).
+fn data_check(name: &str) -> String {
+    let fs = dataset::read_manifest(&fixture_dir(name))
+        .unwrap()
+        .sample_rate_hz;
+    let cutoff = format!("{}", fs / 6.0);
+    let (ok, text) = nemm_on(name, &["data", "check", "--cutoff-hz", &cutoff]);
+    assert!(ok, "nemm data check {name}: {text}");
     text
 }
 
@@ -400,21 +413,6 @@ fn sem_from_sine_points_reproduces_the_steady_support_points() {
     assert!(worst.is_finite());
 }
 
-/// `nemm ARGS` on a fixture (its folder last): success, and stdout and stderr.
-fn nemm_on(name: &str, args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_nemm"))
-        .args(args)
-        .arg(fixture_dir(name))
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (out.status.success(), text)
-}
-
 /// A force logged compression positive assists the motion on every run: `data check` says
 /// so and names the flag that fixes it, and preparing the data for training refuses it
 /// unless `--accept-implausible` is given.
@@ -495,18 +493,12 @@ fn bench_plot_skips_a_run_shorter_than_its_period_and_draws_the_rest() {
         std::fs::write(path, text).unwrap();
     }
     let out = tmp.path().join("plots");
-    let run = Command::new(env!("CARGO_BIN_EXE_nemm"))
-        .args(["bench", "plot", "--cutoff-hz", "50", "--out"])
-        .arg(&out)
-        .arg(&data)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&run.stdout),
-        String::from_utf8_lossy(&run.stderr)
+    let out_arg = out.to_str().unwrap();
+    let (ok, text) = nemm_in(
+        &data,
+        &["bench", "plot", "--cutoff-hz", "50", "--out", out_arg],
     );
-    assert!(!run.status.success(), "{text}");
+    assert!(!ok, "{text}");
     assert!(
         text.contains("skipped runs/oil00_a030_v0100.csv: run runs/oil00_a030_v0100.csv: shorter than one period")
             && text.contains("1 of 4 runs skipped"),
