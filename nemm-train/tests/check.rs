@@ -58,7 +58,7 @@ fn dataset(fs: f64, run: Run) -> Dataset {
 /// Signal options with a cut-off below every test rate's Nyquist frequency.
 fn signal(ds: &Dataset) -> SignalConfig {
     SignalConfig {
-        cutoff_hz: 0.3 * ds.sample_rate_hz,
+        cutoff_hz: Some(0.3 * ds.sample_rate_hz),
         ..SignalConfig::default()
     }
 }

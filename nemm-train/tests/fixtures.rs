@@ -148,6 +148,8 @@ fn data_check_loads_offsets_300hz() {
 fn data_check_loads_alpha_schedule_1khz() {
     let text = data_check("alpha_schedule_1khz");
     assert!(text.contains("loaded 2 runs"), "{text}");
+    // Random excitation is not periodic: no 2 pi f A check.
+    assert!(!text.contains("velocity inconsistent"), "{text}");
     let ds = dataset::load(&fixture_dir("alpha_schedule_1khz")).unwrap();
     for run in &ds.runs {
         let a = run.alpha.as_ref().expect("alpha column");
@@ -246,7 +248,7 @@ fn bench_plot_draws_loops_at_300_hz_with_offsets_and_density_for_random_runs() {
     ] {
         let ds = dataset::load(&fixture_dir(name)).unwrap();
         let cfg = SignalConfig {
-            cutoff_hz: ds.sample_rate_hz / 6.0,
+            cutoff_hz: Some(ds.sample_rate_hz / 6.0),
             ..SignalConfig::default()
         };
         let signals = preprocess::run_signals(&ds, &cfg).unwrap();
@@ -263,7 +265,7 @@ fn bench_plot_draws_loops_at_300_hz_with_offsets_and_density_for_random_runs() {
     // force of the offset runs is found although the transducer's zero is 30 mm off centre.
     let ds = dataset::load(&fixture_dir("offsets_300hz")).unwrap();
     let cfg = SignalConfig {
-        cutoff_hz: 50.0,
+        cutoff_hz: Some(50.0),
         ..SignalConfig::default()
     };
     for (run, sig) in ds
@@ -283,7 +285,7 @@ fn random_runs_give_monotone_support_points_and_a_sem() {
     let ds = dataset::load(&fixture_dir("alpha_schedule_1khz")).unwrap();
     let mut cfg = PrepareConfig {
         signal: SignalConfig {
-            cutoff_hz: 100.0,
+            cutoff_hz: Some(100.0),
             ..SignalConfig::default()
         },
         ..PrepareConfig::default()
@@ -445,33 +447,123 @@ fn an_inverted_force_is_found_and_refused_before_training() {
     assert!(!data_check("rate_300hz").contains("force assists the motion"));
 }
 
-/// Slow strokes logged at 300 Hz by a noisy potentiometer: through the default cut-off
-/// (0.4 x the rate) the differentiated velocity is noise-dominated, which `data check`
-/// finds against the runs' own amplitude and frequency; at the cut-off it suggests the
-/// velocity agrees.
+/// The cut-off and rule of each run in `nemm data check`'s run table.
+fn run_cutoffs(text: &str) -> Vec<(f64, String)> {
+    text.lines()
+        .filter(|l| l.trim_end().ends_with(".csv") && l.contains(" runs/"))
+        .map(|l| {
+            let cells: Vec<&str> = l.split_whitespace().collect();
+            // ... v, fc Hz, fc rule (one or two words), file.
+            let file_at = cells.len() - 1;
+            let (hz_at, rule) = if cells[file_at - 1] == "limit" {
+                (file_at - 3, "rate limit".to_string())
+            } else {
+                (file_at - 2, cells[file_at - 1].to_string())
+            };
+            (cells[hz_at].parse().expect("fc Hz"), rule)
+        })
+        .collect()
+}
+
+/// Slow strokes logged at 300 Hz by a noisy potentiometer: through the rate's limit
+/// (0.4 x the rate, given) the differentiated velocity is noise-dominated, which `data check`
+/// finds from the displacement's noise and against the runs' own amplitude and frequency;
+/// the cut-off chosen per run by default clears both.
 #[test]
-fn a_noise_dominated_velocity_is_found_and_the_suggested_cut_off_clears_it() {
-    let (ok, text) = nemm_on("slow_pot_300hz", &["data", "check"]);
+fn a_noise_dominated_velocity_is_found_and_the_automatic_cut_off_clears_it() {
+    let (ok, text) = nemm_on("slow_pot_300hz", &["data", "check", "--cutoff-hz", "120"]);
     assert!(ok, "{text}");
+    assert_eq!(
+        text.matches("velocity dominated by noise").count(),
+        2,
+        "{text}"
+    );
     assert_eq!(
         text.matches("velocity inconsistent with the stroke")
             .count(),
         2,
         "{text}"
     );
-    assert!(text.contains("lower --cutoff-hz (to about 4 Hz"), "{text}");
-    let (ok, text) = nemm_on("slow_pot_300hz", &["data", "check", "--cutoff-hz", "4"]);
+    assert!(
+        text.contains("leave it out to have it chosen per run"),
+        "{text}"
+    );
+    let (ok, text) = nemm_on("slow_pot_300hz", &["data", "check"]);
     assert!(ok, "{text}");
+    assert!(!text.contains("velocity dominated"), "{text}");
     assert!(!text.contains("velocity inconsistent"), "{text}");
+    let cutoffs = run_cutoffs(&text);
+    assert_eq!(cutoffs.len(), 2, "{text}");
+    for (hz, rule) in cutoffs {
+        // 20 um of noise at 300 Hz against 0.0173 m/s RMS: about 16 Hz (module docs).
+        assert!((10.0..25.0).contains(&hz) && rule == "noise", "{text}");
+    }
+    // Clean records keep the rate's limit.
+    let (ok, text) = nemm_on("rate_300hz", &["data", "check"]);
+    assert!(ok, "{text}");
+    let cutoffs = run_cutoffs(&text);
+    assert_eq!(cutoffs.len(), 4, "{text}");
+    assert!(
+        cutoffs
+            .iter()
+            .all(|(hz, rule)| *hz == 120.0 && rule == "rate limit"),
+        "{text}"
+    );
 }
 
-/// An untared load cell's offset is reported with the option that models it.
+/// An untared load cell's offset is reported as what the static force models, and the
+/// training commands switch the static force on for it (and not for tared records).
 #[test]
-fn a_force_offset_points_to_the_static_force() {
+fn a_force_offset_switches_the_static_force_on() {
     let text = data_check("offsets_300hz");
     assert!(
-        text.contains("a gas force or an untared load cell; train with --static-force"),
+        text.contains(
+            "a gas force or an untared load cell; the static force of eq. 17 models it \
+             (switched on when the runs' median is 5 % or more)"
+        ),
         "{text}"
+    );
+    let prepared = |name: &str| {
+        let ds = dataset::load(&fixture_dir(name)).unwrap();
+        let mut cfg = PrepareConfig::default();
+        cfg.split.test_alphas.clear();
+        cfg.split.test_tail = Some(0.2);
+        preprocess::prepare(&ds, &cfg).unwrap()
+    };
+    let decided = |p: &preprocess::Prepared| {
+        let offsets: Vec<_> = p.runs.iter().map(|r| r.summary.force_offset).collect();
+        preprocess::static_force_from_data(&offsets).expect("zero-velocity samples")
+    };
+    let (untared, tared) = (prepared("offsets_300hz"), prepared("rate_300hz"));
+    let (on, why) = decided(&untared);
+    assert!(on, "{why}");
+    assert!(
+        why.starts_with("the median force at zero velocity is -9.7 %")
+            && why.contains("over 3 runs"),
+        "{why}"
+    );
+    let (on, why) = decided(&tared);
+    assert!(!on, "{why}");
+    // Not given, the data decide; given, the option does.
+    let mut cfg = nemm_train::config::Config::default();
+    assert_eq!(cfg.model.static_force, None);
+    assert_eq!(
+        cfg.with_static_force_from(&untared).model.static_force,
+        Some(true)
+    );
+    assert_eq!(
+        cfg.with_static_force_from(&tared).model.static_force,
+        Some(false)
+    );
+    assert!(
+        cfg.with_static_force_from(&untared)
+            .pipeline_config()
+            .static_force
+    );
+    cfg.model.static_force = Some(false);
+    assert_eq!(
+        cfg.with_static_force_from(&untared).model.static_force,
+        Some(false)
     );
 }
 

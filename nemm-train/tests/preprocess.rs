@@ -741,7 +741,7 @@ fn invalid_configurations_are_refused() {
             other => panic!("expected a config error, got {:?}", other.map(|_| ())),
         }
     };
-    assert_eq!(bad(&|c| c.signal.cutoff_hz = 1000.0), "cutoff_hz");
+    assert_eq!(bad(&|c| c.signal.cutoff_hz = Some(1000.0)), "cutoff_hz");
     // A level that matches no run (a typo) would leave the test set empty or drop training
     // data: refused, naming the levels there are.
     assert_eq!(bad(&|c| c.split.test_alphas = vec![0.2]), "test_alphas");

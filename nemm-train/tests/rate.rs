@@ -79,8 +79,8 @@ fn resample(ds: &Dataset, rate_hz: f64) -> Dataset {
 /// Nyquist, else 100 Hz (at 300 Hz).
 fn prepare(ds: &Dataset) -> Prepared {
     let mut cfg = PrepareConfig::default();
-    if ds.sample_rate_hz <= 2.0 * cfg.signal.cutoff_hz {
-        cfg.signal.cutoff_hz = 100.0;
+    if ds.sample_rate_hz <= 2.0 * preprocess::DEFAULT_CUTOFF_HZ {
+        cfg.signal.cutoff_hz = Some(100.0);
     }
     preprocess::prepare(ds, &cfg).expect("prepare")
 }

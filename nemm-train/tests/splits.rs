@@ -50,7 +50,10 @@ fn options_are_chosen_from_a_300_hz_dataset_printed_and_saved() {
     let stderr = text(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(
-        stderr.contains("cutoff_hz    120 Hz  (chosen from the data: 0.4 x the 300 Hz sample rate"),
+        stderr.contains(
+            "cutoff_hz    auto  (chosen from the data: per run: at most min(150 Hz, 0.4 x the \
+             300 Hz rate) = 120 Hz"
+        ),
         "{stderr}"
     );
     assert!(
@@ -63,7 +66,8 @@ fn options_are_chosen_from_a_300_hz_dataset_printed_and_saved() {
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
     let saved = std::fs::read_to_string(data.join(DATA_OPTIONS_FILE)).expect("options file");
-    assert!(saved.contains("cutoff_hz = 120.0"), "{saved}");
+    // An automatic cut-off is chosen per run again from the same data: not saved.
+    assert!(!saved.contains("cutoff_hz"), "{saved}");
     assert!(saved.contains("window_s = 1.0"), "{saved}");
     assert!(saved.contains("test_alphas = [0.5]"), "{saved}");
     // Read back by the next command, and overridden by a flag.
@@ -148,10 +152,11 @@ fn a_single_level_is_split_in_time_and_the_level_split_names_the_cause() {
     );
 }
 
-/// The SEM holds at most 8 levels (nemm-core's `MAX_SEM_ALPHAS`), so on nine training levels
-/// it fails deterministically, while the EMM-family variants train.
+/// The SEM's map holds at most 8 levels (nemm-core's `MAX_SEM_ALPHAS`): on nine training
+/// levels it bins them into 8 and interpolates between, so Table 4 keeps its reference row
+/// beside the EMM-family variants.
 #[test]
-fn a_failing_variant_gets_its_row_in_table_4_and_the_others_are_written() {
+fn nine_levels_are_binned_into_the_sem_and_table_4_keeps_its_reference() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let data = tmp.path().join("nine-levels");
     let levels: Vec<f64> = (0..9).map(|k| k as f64 * 0.1).collect();
@@ -187,22 +192,15 @@ fn a_failing_variant_gets_its_row_in_table_4_and_the_others_are_written() {
         .expect("run nemm");
     let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
     assert!(out.status.success(), "{stderr}");
-    assert!(
-        stderr.contains("[sem] failed: 9 oil-loss levels; the SEM holds at most 8"),
-        "{stderr}"
-    );
-    assert!(
-        stderr.contains("warning: 1 of 4 variants failed"),
-        "{stderr}"
-    );
+    assert!(stderr.contains("oil-loss levels (9 binned)"), "{stderr}");
     let table = std::fs::read_to_string(report.join("table4.md")).expect("table4.md");
+    assert!(table.contains("| SEM | 0."), "{table}");
     assert!(
-        table.contains(
-            "| SEM | failed: 9 oil-loss levels; the SEM holds at most 8 | - | - | - | - |"
-        ),
-        "{table}"
+        table.contains("| 100.0 |"),
+        "the SEM is its own reference: {table}"
     );
-    assert!(stdout.contains("| SEM | failed:"), "{stdout}");
+    assert!(!table.contains("failed"), "{table}");
+    assert!(stdout.contains("| SEM | 0."), "{stdout}");
     for v in ["Linear EMM", "NEMM-Light", "NEMM"] {
         assert!(table.contains(&format!("| {v} | 0.")), "{v}: {table}");
     }
@@ -210,20 +208,29 @@ fn a_failing_variant_gets_its_row_in_table_4_and_the_others_are_written() {
         table.contains("Split: test: the last 25 % of every training run"),
         "{table}"
     );
-    for blob in ["linear-emm", "nemm-light", "nemm"] {
+    for blob in ["sem", "linear-emm", "nemm-light", "nemm"] {
         assert!(report.join(format!("{blob}.nemm")).exists(), "{blob}");
     }
-    assert!(!report.join("sem.nemm").exists());
     let r: Report = serde_json::from_str(
         &std::fs::read_to_string(report.join("report.json")).expect("report.json"),
     )
     .expect("report");
-    assert_eq!(r.failed.keys().collect::<Vec<_>>(), ["sem"]);
-    assert_eq!(r.variants.len(), 3);
-    // config.toml records the resolved data options.
+    assert!(r.failed.is_empty(), "{:?}", r.failed);
+    assert_eq!(r.variants.len(), 4);
+    // The map: 8 levels, strictly increasing inside the trained range.
+    let sem: nemm_core::Model =
+        nemm_core::decode(&std::fs::read(report.join("sem.nemm")).expect("sem.nemm"))
+            .expect("decode");
+    let nemm_core::Body::Sem(map) = &sem.body else {
+        panic!("not a SEM")
+    };
+    assert_eq!(map.alphas.len(), 8);
+    assert!(map.alphas.windows(2).all(|w| w[0] < w[1]));
+    assert!(map.alphas[0] >= 0.0 && map.alphas[7] <= 0.8 + 1e-6);
+    // config.toml records the resolved data options (the cut-off is chosen per run).
     let cfg = Config::load(&report.join(CONFIG_FILE)).expect("config.toml");
     assert_eq!(cfg.data.test_tail, Some(0.25));
     assert_eq!(cfg.data.test_alphas, Some(vec![]));
-    assert_eq!(cfg.data.cutoff_hz, Some(150.0));
+    assert_eq!(cfg.data.cutoff_hz, None);
     assert_eq!(cfg.data.seed, Some(1));
 }

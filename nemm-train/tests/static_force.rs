@@ -27,7 +27,7 @@ fn fixture(name: &str) -> PathBuf {
 fn prepared(name: &str) -> Prepared {
     let ds = dataset::load(&fixture(name)).expect("fixture loads");
     let mut cfg = PrepareConfig::default();
-    cfg.signal.cutoff_hz = ds.sample_rate_hz / 6.0;
+    cfg.signal.cutoff_hz = Some(ds.sample_rate_hz / 6.0);
     preprocess::prepare(&ds, &cfg).expect("prepare")
 }
 

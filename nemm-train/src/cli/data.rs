@@ -404,7 +404,7 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
     let _ = writeln!(s, "{}", header_line(ds));
     let _ = writeln!(
         s,
-        "{:>4} {:>6} {:>8} {:>8} {:>10} {:>9} {:>8} {:>21} {:>6}  file",
+        "{:>4} {:>6} {:>8} {:>8} {:>10} {:>9} {:>8} {:>21} {:>6} {:>8} {:>10}  file",
         "#",
         "alpha",
         "ampl mm",
@@ -413,14 +413,16 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
         "samples",
         "dur s",
         "force min..max N",
-        "v"
+        "v",
+        "fc Hz",
+        "fc rule"
     );
     let mut notes = Vec::new();
     for r in runs {
         let e = &r.excitation;
         let _ = writeln!(
             s,
-            "{:>4} {:>6.3} {:>8.2} {} {:>10.4} {:>9} {:>8.3} {:>10.1}..{:<10.1} {:>6}  {}",
+            "{:>4} {:>6.3} {:>8.2} {} {:>10.4} {:>9} {:>8.3} {:>10.1}..{:<10.1} {:>6} {:>8} {:>10}  {}",
             r.index,
             r.alpha,
             e.amplitude_m * 1e3,
@@ -431,6 +433,8 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
             r.force_min_n,
             r.force_max_n,
             if r.measured_velocity { "meas" } else { "d/dt" },
+            r.cutoff.hz,
+            r.cutoff.rule.describe(),
             r.file.display()
         );
         let rel = |a: f64, b: f64| (a - b).abs() / b.abs();
@@ -529,11 +533,36 @@ fn write_findings(s: &mut String, findings: &[&Finding]) {
     }
 }
 
+/// `nemm data check`: every readable run is checked; runs that cannot be read are listed
+/// with their errors and make the command fail after the report of the rest.
 fn check(dir: &Path, cfg: &SignalConfig) -> Result<()> {
-    let ds = load_with_progress(dir)?;
+    let (ds, unreadable) = dataset::load_readable(dir)
+        .with_context(|| format!("dataset {} is not valid", dir.display()))?;
+    eprintln!(
+        "loaded {} runs, {} samples{}",
+        ds.runs.len(),
+        ds.total_samples(),
+        if unreadable.is_empty() {
+            String::new()
+        } else {
+            format!("; {} could not be read", unreadable.len())
+        }
+    );
     let (runs, findings) = check::check_dataset(&ds, cfg)?;
     print!("{}", check_report(&ds, &runs, &findings));
-    Ok(())
+    if unreadable.is_empty() {
+        return Ok(());
+    }
+    println!("runs that could not be read (skipped):");
+    for e in &unreadable {
+        println!("  {e}");
+    }
+    anyhow::bail!(
+        "{} of {} runs could not be read (listed above); the other {} were checked",
+        unreadable.len(),
+        unreadable.len() + ds.runs.len(),
+        ds.runs.len()
+    )
 }
 
 /// The report of `nemm data prepare`.

@@ -50,7 +50,7 @@ pub struct ConfigArgs {
         help = with_default(
         "Add the static force of eq. 17 (gas force and gas spring in the stroke position, \
          seal friction) to every EMM-family variant: --static-force or --static-force=false",
-        ModelConfig::default().static_force))]
+        "from the data: on when most runs hold a force offset at zero velocity"))]
     pub static_force: Option<bool>,
     /// Overrides [`TrainConfig::batch`].
     #[arg(long, help = with_default(
@@ -158,7 +158,9 @@ impl ConfigArgs {
         set(&mut m.integrator, &self.integrator);
         set(&mut m.rate_hz, &self.model_rate_hz);
         set(&mut m.alpha_priors, &self.alpha_priors);
-        set(&mut m.static_force, &self.static_force);
+        if self.static_force.is_some() {
+            m.static_force = self.static_force;
+        }
         set(&mut t.seed, &self.data_options.seed);
         set(&mut t.batch, &self.batch);
         set(&mut t.lr, &self.lr);

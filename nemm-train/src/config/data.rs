@@ -25,11 +25,13 @@ pub struct DataConfig {
     /// On the command line: `--data` (or the command's folder argument).
     #[arg(skip)]
     pub dir: PathBuf,
-    /// Cut-off of the zero-phase low-pass before differentiation \[Hz\]; chosen from the
-    /// data: `min(150 Hz, 0.4 x sample rate)`.
+    /// Cut-off of the zero-phase low-pass before differentiation \[Hz\], the same for every
+    /// run; not set: chosen per run from its displacement noise and excitation
+    /// ([`preprocess::Cutoff`]).
     #[arg(long, value_name = "HZ", help = with_default(
-        "Cut-off of the zero-phase low-pass before differentiation (Hz)",
-        format!("min({DEFAULT_CUTOFF_HZ}, {CUTOFF_FRACTION_OF_RATE} x sample rate)")))]
+        "Cut-off of the zero-phase low-pass before differentiation (Hz), the same for every run",
+        format!("per run: at most min({DEFAULT_CUTOFF_HZ}, {CUTOFF_FRACTION_OF_RATE} x sample \
+                 rate), lowered where the displacement noise would dominate the velocity")))]
     pub cutoff_hz: Option<f64>,
     /// Velocity source: `auto` (the CSV's `velocity_m_s` column where a run has one, else the
     /// differentiated displacement; default), `differentiated`, `measured` or `causal` (the
@@ -207,7 +209,7 @@ impl DataConfig {
     pub fn prepare_config(&self) -> PrepareConfig {
         let mut c = PrepareConfig::default();
         if let Some(v) = self.cutoff_hz {
-            c.signal.cutoff_hz = v;
+            c.signal.cutoff_hz = Some(v);
         }
         if let Some(v) = self.velocity {
             c.signal.velocity_source = v;
@@ -331,11 +333,6 @@ pub fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
     )
 }
 
-/// The cut-off chosen from the sample rate: `min(150 Hz, 0.4 fs)`.
-pub fn adaptive_cutoff_hz(sample_rate_hz: f64) -> f64 {
-    DEFAULT_CUTOFF_HZ.min(CUTOFF_FRACTION_OF_RATE * sample_rate_hz)
-}
-
 /// Resolves the data options `given` (command line over `--config`) over the dataset's
 /// options file `file` over the choices from the dataset `manifest`, recording where each
 /// came from.
@@ -389,24 +386,29 @@ impl Layers<'_> {
     }
 }
 
-/// The cut-off: given, from the options file, or [`adaptive_cutoff_hz`] of the sample rate.
+/// The cut-off: given or from the options file, the same for every run; else chosen per run
+/// from its displacement noise and excitation ([`preprocess::Cutoff`]).
 fn resolve_cutoff(layers: &Layers<'_>, c: &mut DataConfig, fs: f64) -> Choice {
-    let source = if c.cutoff_hz.is_some() {
-        layers.source(|l| l.cutoff_hz.is_some())
-    } else {
-        c.cutoff_hz = Some(adaptive_cutoff_hz(fs));
-        if DEFAULT_CUTOFF_HZ < CUTOFF_FRACTION_OF_RATE * fs {
-            OptionSource::Default
-        } else {
-            OptionSource::Data(format!(
-                "{CUTOFF_FRACTION_OF_RATE} x the {fs} Hz sample rate, below its Nyquist \
-                 frequency {} Hz",
-                fs / 2.0
-            ))
-        }
-    };
-    let hz = c.cutoff_hz.unwrap_or(DEFAULT_CUTOFF_HZ);
-    ("cutoff_hz", format!("{hz} Hz"), source)
+    if let Some(hz) = c.cutoff_hz {
+        return (
+            "cutoff_hz",
+            format!("{hz} Hz"),
+            layers.source(|l| l.cutoff_hz.is_some()),
+        );
+    }
+    let fc_max = DEFAULT_CUTOFF_HZ.min(CUTOFF_FRACTION_OF_RATE * fs);
+    (
+        "cutoff_hz",
+        "auto".to_string(),
+        OptionSource::Data(format!(
+            "per run: at most min({DEFAULT_CUTOFF_HZ} Hz, {CUTOFF_FRACTION_OF_RATE} x the {fs} \
+             Hz rate) = {fc_max} Hz, lowered until the displacement noise gives at most {:.0} \
+             % of the run's RMS velocity, not below {} x its excitation frequency; data check \
+             prints each run's value",
+            preprocess::AUTO_CUTOFF_NOISE_FRACTION * 100.0,
+            preprocess::AUTO_CUTOFF_EXCITATION_MULTIPLE
+        )),
+    )
 }
 
 /// The velocity source (default `auto`).

@@ -13,8 +13,9 @@
 
 use crate::data::dataset::{self, Manifest};
 use crate::data::preprocess::{
-    self, PrepareConfig, VelocitySource, DEFAULT_CUTOFF_HZ, DEFAULT_SPLIT_SEED,
-    DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S, DEFAULT_WINDOW_S,
+    self, PrepareConfig, VelocitySource, CUTOFF_FRACTION_OF_RATE, DEFAULT_CUTOFF_HZ,
+    DEFAULT_SPLIT_SEED, DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
+    DEFAULT_WINDOW_S,
 };
 use crate::train::fit::FitConfig;
 use crate::train::pipeline::{AlphaPriors, PipelineConfig};
@@ -34,11 +35,6 @@ pub const DATA_OPTIONS_FILE: &str = "nemm-data.toml";
 /// Nonzero `lambda_ph` values below this are most likely the paper's numbers (Table 5: 0.005
 /// to 0.025) rather than this crate's.
 const PAPER_SCALE_LAMBDA_PH: f64 = 0.1;
-
-/// The adaptive cut-off is at most this fraction of the sample rate (the Butterworth design
-/// needs `fc < fs / 2`; at `0.4 fs` the model's 30 Hz band still passes within 0.013 % at
-/// 300 Hz, and the zero-phase filter's zero at Nyquist still removes the noise there).
-pub const CUTOFF_FRACTION_OF_RATE: f64 = 0.4;
 
 /// Test fraction at the end of every run chosen when the dataset has fewer than three
 /// levels (no level can be held out and interpolated).
@@ -121,9 +117,11 @@ pub struct ModelConfig {
     /// Units `K` of each alpha branch.
     pub branch_units: usize,
     /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
-    /// position, `nemm_core::semantics::static_force`) to every EMM-family variant (docs/training.md,
-    /// "The static force").
-    pub static_force: bool,
+    /// position, `nemm_core::semantics::static_force`) to every EMM-family variant
+    /// (docs/training.md, "The static force"). `None` (the default): on when most runs hold a
+    /// force offset at zero velocity ([`Config::with_static_force_from`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub static_force: Option<bool>,
 }
 
 impl Default for ModelConfig {
@@ -138,12 +136,13 @@ impl Default for ModelConfig {
             rate_hz: DEFAULT_MODEL_RATE_HZ,
             alpha_priors: AlphaPriors::Construction,
             branch_units: 16,
-            static_force: DEFAULT_STATIC_FORCE,
+            static_force: None,
         }
     }
 }
 
-/// Whether the EMM-family variants get the static force by default.
+/// Whether the EMM-family variants get the static force when neither the options nor the
+/// data decide ([`Config::with_static_force_from`]).
 pub const DEFAULT_STATIC_FORCE: bool = false;
 
 /// The model rates \[Hz\] training accepts: a step from 100 ms down to 1 us, which an `f32`
@@ -395,6 +394,33 @@ impl Config {
         Ok(())
     }
 
+    /// This configuration with the static force decided: as given, else from the runs'
+    /// force offsets at zero velocity ([`preprocess::static_force_from_data`]). Prints a
+    /// choice made from the data, with its reason.
+    pub fn with_static_force_from(&self, prepared: &preprocess::Prepared) -> Config {
+        let mut c = self.clone();
+        if c.model.static_force.is_some() {
+            return c;
+        }
+        let offsets: Vec<_> = prepared
+            .runs
+            .iter()
+            .map(|r| r.summary.force_offset)
+            .collect();
+        let (on, why) = preprocess::static_force_from_data(&offsets).unwrap_or_else(|| {
+            (
+                DEFAULT_STATIC_FORCE,
+                "no run has samples at zero velocity".to_string(),
+            )
+        });
+        println!(
+            "static_force {}  (chosen from the data: {why})",
+            if on { "on" } else { "off" }
+        );
+        c.model.static_force = Some(on);
+        c
+    }
+
     /// The training procedure's configuration.
     pub fn pipeline_config(&self) -> PipelineConfig {
         let (m, t) = (&self.model, &self.train);
@@ -411,7 +437,7 @@ impl Config {
             model_rate_hz: m.rate_hz,
             alpha_priors: m.alpha_priors,
             branch_units: m.branch_units,
-            static_force: m.static_force,
+            static_force: m.static_force.unwrap_or(DEFAULT_STATIC_FORCE),
         }
     }
 }
@@ -605,8 +631,8 @@ mod tests {
     fn defaults_adapt_to_a_300_hz_dataset_with_other_levels() {
         let given = DataConfig::default();
         let r = resolve_with(&given, None, &manifest(300.0, &[0.0, 0.5, 0.5, 1.0]));
-        // The cut-off is below the 150 Hz Nyquist frequency: 0.4 x 300 Hz.
-        assert_eq!(r.config.cutoff_hz, Some(120.0));
+        // The cut-off is chosen per run, at most 0.4 x 300 Hz: below the Nyquist frequency.
+        assert_eq!(r.config.cutoff_hz, None);
         assert!(matches!(choice(&r, "cutoff_hz").2, OptionSource::Data(_)));
         // The test level exists: the interior one.
         assert_eq!(r.config.test_alphas, Some(vec![0.5]));
@@ -615,8 +641,8 @@ mod tests {
         assert!(block.starts_with("data options:\n"), "{block}");
         assert!(
             block.contains(
-                "cutoff_hz    120 Hz  (chosen from the data: 0.4 x the 300 Hz sample rate, \
-                 below its Nyquist frequency 150 Hz)"
+                "cutoff_hz    auto  (chosen from the data: per run: at most min(150 Hz, 0.4 x \
+                 the 300 Hz rate) = 120 Hz, lowered until"
             ),
             "{block}"
         );
@@ -627,16 +653,24 @@ mod tests {
         // A resolved configuration prepares without error at 300 Hz, and saved as TOML it
         // resolves to itself.
         let c = r.config.prepare_config();
-        assert_eq!(c.signal.cutoff_hz, 120.0);
+        assert_eq!(c.signal.cutoff_hz, None);
+        assert_eq!(
+            c.signal.at_rate(300.0).expect("rate").max_cutoff_hz(),
+            120.0
+        );
         let text = toml::to_string(&r.config).expect("toml");
         let back: DataConfig = toml::from_str(&text).expect("parse");
         assert_eq!(back, r.config);
         let again = resolve_with(&back, None, &manifest(300.0, &[0.0, 0.5, 1.0]));
         assert_eq!(again.config, r.config);
-        assert!(again.choices.iter().all(|c| c.2 == OptionSource::Given));
-        // At 10 kHz the paper's settings: 150 Hz and the test level 0.15.
+        // Saved, every option is given except the cut-off, chosen per run again.
+        assert!(again
+            .choices
+            .iter()
+            .all(|c| (c.2 == OptionSource::Given) != (c.0 == "cutoff_hz")));
+        // At 10 kHz the paper's settings: at most 150 Hz and the test level 0.15.
         let r = resolve_with(&given, None, &manifest(10_000.0, &[0.0, 0.15, 0.3]));
-        assert_eq!(r.config.cutoff_hz, Some(150.0));
+        assert_eq!(r.config.cutoff_hz, None);
         assert_eq!(r.config.test_alphas, Some(vec![0.15]));
         assert_eq!(r.config.prepare_config(), PrepareConfig::default());
     }

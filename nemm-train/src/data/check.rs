@@ -30,16 +30,20 @@
 //! * **dissipation**: a force that assists the motion (negative force-velocity correlation,
 //!   [`preprocess::Dissipation`]): an inverted force or displacement sign. Training commands
 //!   refuse such a run unless `--accept-implausible` is given;
-//! * **velocity**: on a periodic run, a peak velocity more than [`MAX_VELOCITY_MISMATCH`] off
-//!   `2 pi f A` from the run's own amplitude and frequency: displacement noise let through
-//!   by the cut-off (or a velocity column in other units);
-//! * **static force**: a force offset at zero velocity above [`STATIC_FORCE_FRACTION`] of the
-//!   force half-range, which the static force of eq. 17 models (`--static-force`).
+//! * **velocity**: a differentiated velocity whose noise (the displacement's noise through
+//!   the run's cut-off, [`preprocess::Cutoff`]) exceeds [`MAX_VELOCITY_NOISE`] of its RMS;
+//!   on a periodic run, a peak velocity more than [`MAX_VELOCITY_MISMATCH`] off `2 pi f A`
+//!   from the run's own amplitude and frequency: displacement noise let through by the
+//!   cut-off (or a velocity column in other units);
+//! * **static force**: the force offsets above say what the static force of eq. 17 models; the
+//!   training commands switch it on when the runs' median offset is at least
+//!   [`STATIC_FORCE_FRACTION`] of the force half-range ([`preprocess::static_force_from_data`]).
 //!
 //! Lines are those of a run file with one header line and one row per line
 //! ([`dataset::sample_line`]), as [`dataset::write()`] and `nemm data import` write them.
 use crate::data::dataset::{self, Run, COL_DISPLACEMENT, COL_FORCE, COL_VELOCITY};
-use crate::data::preprocess;
+use crate::data::preprocess::{self, percentile};
+pub use crate::data::preprocess::{STATIC_FORCE_FRACTION, ZERO_VELOCITY_FRACTION};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -65,14 +69,11 @@ pub const CLIP_MIN_SAMPLES: usize = 3;
 pub const CLIP_STEP_QUANTA: f64 = 3.0;
 /// Offsets above this fraction of the half-range are reported.
 pub const OFFSET_FRACTION: f64 = 0.1;
-/// Velocities below this fraction of the largest `|v|` count as "zero velocity" for the
-/// force offset.
-pub const ZERO_VELOCITY_FRACTION: f64 = 0.05;
 /// A periodic run's peak velocity may differ from `2 pi f A` by this fraction.
 pub const MAX_VELOCITY_MISMATCH: f64 = 0.2;
-/// A force offset at zero velocity above this fraction of the force half-range asks for the
-/// static force (`--static-force`).
-pub const STATIC_FORCE_FRACTION: f64 = 0.1;
+/// A differentiated velocity whose noise (from the displacement's, through the run's
+/// cut-off: [`preprocess::Cutoff`]) exceeds this fraction of its RMS is dominated by noise.
+pub const MAX_VELOCITY_NOISE: f64 = 0.1;
 
 /// What a finding is about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -94,6 +95,11 @@ pub enum FindingKind {
     Dissipation,
     /// A periodic run's velocity inconsistent with its amplitude and frequency.
     Velocity,
+    /// A differentiated velocity dominated by the displacement's noise.
+    VelocityNoise,
+    /// A run the preprocessing cannot derive signals from (the reason in the message): not
+    /// checked further.
+    Skipped,
 }
 
 impl FindingKind {
@@ -113,6 +119,8 @@ impl FindingKind {
             FindingKind::TimeStamps => "time stamps",
             FindingKind::Dissipation => "force assists the motion",
             FindingKind::Velocity => "velocity inconsistent with the stroke",
+            FindingKind::VelocityNoise => "velocity dominated by noise",
+            FindingKind::Skipped => "run skipped",
         }
     }
 }
@@ -156,16 +164,6 @@ impl std::fmt::Display for Finding {
         }
         f.write_str(&self.message)
     }
-}
-
-/// Percentile `p` (0..1) of a copy of `x` (nearest rank).
-fn percentile(x: &[f64], p: f64) -> f64 {
-    if x.is_empty() {
-        return 0.0;
-    }
-    let mut v = x.to_vec();
-    let k = ((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1);
-    *v.select_nth_unstable_by(k, f64::total_cmp).1
 }
 
 /// 0.5th and 99.5th percentile of a column.
@@ -511,50 +509,38 @@ fn offsets(
             ),
         ));
     }
-    if velocity_m_s.len() == run.force_n.len() && !velocity_m_s.is_empty() {
-        let v_max = velocity_m_s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let slow: Vec<usize> = (0..velocity_m_s.len())
-            .filter(|&i| velocity_m_s[i].abs() <= ZERO_VELOCITY_FRACTION * v_max)
-            .collect();
-        let (flo, fhi) = robust_bounds(&run.force_n);
-        let f_half = 0.5 * (fhi - flo);
-        if let Some(&first) = slow.first() {
-            let mean = slow.iter().map(|&i| run.force_n[i]).sum::<f64>() / slow.len() as f64;
-            if mean.abs() > OFFSET_FRACTION * f_half && mean.abs() > 1.0 {
-                out.push(finding(
-                    FindingKind::Offset,
-                    COL_FORCE,
-                    first,
-                    slow.len(),
-                    format!(
-                        "mean force at zero velocity (|v| <= {:.0} % of its peak, {} samples) \
-                         is {mean:+.1} N, {:.0} % of the force half-range {f_half:.1} N: a gas \
-                         force or an untared load cell{}",
-                        ZERO_VELOCITY_FRACTION * 100.0,
-                        slow.len(),
-                        100.0 * mean.abs() / f_half.max(f64::MIN_POSITIVE),
-                        if mean.abs() > STATIC_FORCE_FRACTION * f_half {
-                            "; train with --static-force (the static force of eq. 17 models it)"
-                        } else {
-                            ""
-                        }
-                    ),
-                ));
-            }
+    if let Some(o) = preprocess::ForceOffset::of(&run.force_n, velocity_m_s) {
+        if o.fraction() > OFFSET_FRACTION && o.mean_n.abs() > 1.0 {
+            out.push(finding(
+                FindingKind::Offset,
+                COL_FORCE,
+                o.first,
+                o.samples,
+                format!(
+                    "mean force at zero velocity (|v| <= {:.0} % of its peak, {} samples) is \
+                     {:+.1} N, {:.0} % of the force half-range {:.1} N: a gas force or an \
+                     untared load cell; the static force of eq. 17 models it (switched on \
+                     when the runs' median is {:.0} % or more)",
+                    ZERO_VELOCITY_FRACTION * 100.0,
+                    o.samples,
+                    o.mean_n,
+                    100.0 * o.fraction(),
+                    o.half_range_n,
+                    100.0 * STATIC_FORCE_FRACTION
+                ),
+            ));
         }
     }
     out
 }
 
 /// What a damper's data must show, from a run's summary ([`preprocess::summarize_run`]):
-/// a force that dissipates energy and, on a periodic run, a peak velocity consistent with
-/// the run's amplitude and frequency (module docs). `cutoff_hz` names the cut-off in the
-/// velocity finding.
-pub fn damper_findings(
-    run: &Run,
-    summary: &preprocess::RunSummary,
-    cutoff_hz: f64,
-) -> Vec<Finding> {
+/// a force that dissipates energy, a differentiated velocity not dominated by the
+/// displacement's noise and, on a periodic run, a peak velocity consistent with the run's
+/// amplitude and frequency (module docs).
+pub fn damper_findings(run: &Run, summary: &preprocess::RunSummary) -> Vec<Finding> {
+    let cutoff = &summary.cutoff;
+    let cutoff_hz = cutoff.hz;
     let finding = |kind: FindingKind, column: &str, message| Finding {
         run: summary.index,
         file: run.entry.file.clone(),
@@ -574,24 +560,54 @@ pub fn damper_findings(
             summary.dissipation.explain(),
         ));
     }
+    if let Some(q) = cutoff
+        .velocity_noise_fraction
+        .filter(|q| *q > MAX_VELOCITY_NOISE)
+    {
+        let remedy = match cutoff.rule {
+            preprocess::CutoffRule::Given => "lower --cutoff-hz, or leave it out to have it \
+                                              chosen per run"
+                .to_string(),
+            _ => format!(
+                "the cut-off stays at {} x the excitation frequency; record the velocity \
+                 (a velocity_m_s column) or a finer displacement",
+                preprocess::AUTO_CUTOFF_EXCITATION_MULTIPLE
+            ),
+        };
+        out.push(finding(
+            FindingKind::VelocityNoise,
+            COL_DISPLACEMENT,
+            format!(
+                "the displacement's noise ({:.1} um, from its \
+                 third differences) gives {:.0} % of the run's RMS velocity through the \
+                 {cutoff_hz} Hz cut-off; {remedy}",
+                cutoff.displacement_noise_m * 1e6,
+                100.0 * q
+            ),
+        ));
+    }
     let ex = &summary.excitation;
     if let (Some(f), false) = (ex.frequency_hz, summary.measured_velocity) {
         let expected = 2.0 * std::f64::consts::PI * f * ex.amplitude_m;
         let ratio = ex.peak_velocity_m_s / expected;
-        if ex.half_cycles >= 2 && expected > 0.0 && (ratio - 1.0).abs() > MAX_VELOCITY_MISMATCH {
+        if ex.periodic && expected > 0.0 && (ratio - 1.0).abs() > MAX_VELOCITY_MISMATCH {
             out.push(finding(
                 FindingKind::Velocity,
                 COL_DISPLACEMENT,
                 format!(
                     "peak velocity {:.4} m/s is {:+.0} % off 2 pi f A = {expected:.4} m/s from \
                      the run's own amplitude ({:.2} mm) and frequency ({f:.3} Hz): the \
-                     displacement's noise passes the {cutoff_hz} Hz cut-off into the \
-                     differentiated velocity; lower --cutoff-hz (to about {:.0} Hz, 20 times \
-                     the excitation)",
+                     displacement's noise passes the {cutoff_hz} Hz cut-off ({}) into the \
+                     differentiated velocity; {}",
                     ex.peak_velocity_m_s,
                     100.0 * (ratio - 1.0),
                     ex.amplitude_m * 1e3,
-                    (20.0 * f).max(1.0)
+                    cutoff.rule.describe(),
+                    if cutoff.rule == preprocess::CutoffRule::Given {
+                        "lower --cutoff-hz, or leave it out to have it chosen per run"
+                    } else {
+                        "record the velocity (a velocity_m_s column) or a finer displacement"
+                    }
                 ),
             ));
         }
@@ -600,7 +616,9 @@ pub fn damper_findings(
 }
 
 /// Summaries ([`preprocess::summarize`]) and findings ([`check_run`], [`damper_findings`])
-/// of every run of a dataset (in parallel), in dataset order.
+/// of every run of a dataset (in parallel), in dataset order. A run the preprocessing cannot
+/// take is a [`FindingKind::Skipped`] finding and has no summary; the dataset-wide error (a
+/// cut-off the rate refuses) is returned.
 pub fn check_dataset(
     dataset: &crate::data::dataset::Dataset,
     cfg: &preprocess::SignalConfig,
@@ -608,21 +626,36 @@ pub fn check_dataset(
     use rayon::prelude::*;
     let fs = dataset.sample_rate_hz;
     let path = cfg.at_rate(fs)?;
-    let per_run: Vec<(preprocess::RunSummary, Vec<Finding>)> = dataset
+    let per_run: Vec<(Option<preprocess::RunSummary>, Vec<Finding>)> = dataset
         .runs
         .par_iter()
         .enumerate()
-        .map(|(i, r)| {
-            let (summary, signals) = preprocess::summarize_run(r, i, &path)?;
-            let mut findings = check_run(r, i, fs, &signals.velocity_m_s);
-            findings.extend(damper_findings(r, &summary, cfg.cutoff_hz));
-            Ok((summary, findings))
+        .map(|(i, r)| match preprocess::summarize_run(r, i, &path) {
+            Ok((summary, signals)) => {
+                let mut findings = check_run(r, i, fs, &signals.velocity_m_s);
+                findings.extend(damper_findings(r, &summary));
+                (Some(summary), findings)
+            }
+            Err(e) => (
+                None,
+                vec![Finding {
+                    run: i,
+                    file: r.entry.file.clone(),
+                    kind: FindingKind::Skipped,
+                    column: String::new(),
+                    sample: 0,
+                    time_s: r.time_s.first().copied().unwrap_or_default(),
+                    line: dataset::sample_line(0),
+                    count: 1,
+                    message: format!("{e}; not checked"),
+                }],
+            ),
         })
-        .collect::<Result<_, preprocess::PreprocessError>>()?;
+        .collect();
     let mut summaries = Vec::with_capacity(per_run.len());
     let mut findings = Vec::new();
     for (s, f) in per_run {
-        summaries.push(s);
+        summaries.extend(s);
         findings.extend(f);
     }
     Ok((summaries, findings))

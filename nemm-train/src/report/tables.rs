@@ -204,7 +204,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
 }
 
 /// The per-run breakdown as Markdown: RMSE in newtons per variant, the NEMM relative to the
-/// SEM, and each run's share of the NEMM's squared error over the test set (which runs the
+/// reference of [`relative_reference`] (the SEM when it ran), and each run's share of the NEMM's squared error over the test set (which runs the
 /// headline number comes from). Empty when the report has no per-run data.
 pub fn test_runs_markdown(r: &Report) -> String {
     let mut s = String::new();
@@ -234,9 +234,15 @@ pub fn test_runs_markdown(r: &Report) -> String {
         head.push_str(&format!(" {} |", v.title()));
         rule.push_str("---:|");
     }
-    let has_pair = keys.contains(&ModelKind::Sem) && keys.contains(&ModelKind::Nemm);
-    if has_pair {
-        head.push_str(" NEMM / SEM | share of NEMM's squared error |");
+    let reference = relative_reference(r)
+        .map(|(v, _)| v)
+        .filter(|v| keys.contains(v) && *v != ModelKind::Nemm);
+    let has_pair = reference.is_some() && keys.contains(&ModelKind::Nemm);
+    if let (true, Some(v)) = (has_pair, reference) {
+        head.push_str(&format!(
+            " NEMM / {} | share of NEMM's squared error |",
+            v.title()
+        ));
         rule.push_str("---:|---:|");
     }
     let _ = writeln!(s, "{head}\n{rule}");
@@ -256,14 +262,11 @@ pub fn test_runs_markdown(r: &Report) -> String {
                 None => " - |".into(),
             });
         }
-        if has_pair {
-            match (
-                t.rmse.get(ModelKind::Sem.key()),
-                t.rmse.get(ModelKind::Nemm.key()),
-            ) {
-                (Some(sem), Some(nemm)) => row.push_str(&format!(
+        if let (true, Some(v)) = (has_pair, reference) {
+            match (t.rmse.get(v.key()), t.rmse.get(ModelKind::Nemm.key())) {
+                (Some(base), Some(nemm)) => row.push_str(&format!(
                     " {:.0} % | {:.1} % |",
-                    100.0 * nemm / sem,
+                    100.0 * nemm / base,
                     100.0 * nemm * nemm * t.samples as f64 / nemm_sse
                 )),
                 _ => row.push_str(" - | - |"),
@@ -274,7 +277,36 @@ pub fn test_runs_markdown(r: &Report) -> String {
     s
 }
 
-/// Table 4 as Markdown: RMSE (normalised and in N) and relative to the SEM.
+/// The reference of the relative errors: the SEM when it ran, else the baseline that ran
+/// (Linear EMM, NEMM-Light) with the lowest test RMSE; `None` when none of them ran.
+pub fn relative_reference(r: &Report) -> Option<(ModelKind, f64)> {
+    if let Some(sem) = r.variants.get(ModelKind::Sem.key()) {
+        return Some((ModelKind::Sem, sem.rmse));
+    }
+    [ModelKind::LinearEmm, ModelKind::NemmLight]
+        .into_iter()
+        .filter_map(|v| r.variants.get(v.key()).map(|x| (v, x.rmse)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+/// Why the relative errors are not relative to the SEM, for the note under a table; `None`
+/// when they are (or no reference ran).
+fn reference_note(r: &Report) -> Option<String> {
+    let (reference, _) = relative_reference(r)?;
+    (reference != ModelKind::Sem).then(|| {
+        let why = match r.failed.get(ModelKind::Sem.key()) {
+            Some(reason) => format!("the SEM failed: {}", reason.replace(['\n', '\r'], " ")),
+            None => "the SEM did not run".to_string(),
+        };
+        format!(
+            "Relative errors are relative to the {}, the best baseline that ran ({why}).",
+            reference.title()
+        )
+    })
+}
+
+/// Table 4 as Markdown: RMSE (normalised and in N) and relative to the SEM (or, when the SEM
+/// did not run, to the best baseline that did: [`relative_reference`], said under the table).
 pub fn table4_markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
@@ -282,14 +314,14 @@ pub fn table4_markdown(r: &Report) -> String {
         "| Model | Model error (RMSE) | RMSE [N] | Rel. model error (%) | Monotonicity violations | Training time |"
     );
     let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
-    let sem = r.variants.get("sem").map(|v| v.rmse);
+    let reference = relative_reference(r).map(|(_, rmse)| rmse);
     for v in ModelKind::ALL {
         if let Some(reason) = r.failed.get(v.key()) {
             // One table cell: no pipes or line breaks from the error text.
             let reason = reason.replace('|', "\\|").replace(['\n', '\r'], " ");
             let _ = writeln!(s, "| {} | failed: {reason} | - | - | - | - |", v.title());
         } else if let Some(x) = r.variants.get(v.key()) {
-            let rel = sem.map_or("-".to_string(), |b| format!("{:.1}", 100.0 * x.rmse / b));
+            let rel = reference.map_or("-".to_string(), |b| format!("{:.1}", 100.0 * x.rmse / b));
             let viol = match v {
                 ModelKind::NemmLight | ModelKind::Nemm => x.violations.to_string(),
                 _ => "-".to_string(),
@@ -316,5 +348,91 @@ pub fn table4_markdown(r: &Report) -> String {
         "\nSplit: {split} ({} test sequences); RMSE normalised by the training set's abs-max force {:.0} N.",
         r.test_sequences, r.force_scale_n
     );
+    if let Some(note) = reference_note(r) {
+        let _ = writeln!(s, "{note}");
+    }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn variant(rmse: f64) -> VariantReport {
+        VariantReport {
+            rmse,
+            rmse_n: 1000.0 * rmse,
+            val_rmse: rmse,
+            audit: None,
+            violations: 0,
+            train_seconds: 1.0,
+            epochs: 1,
+            blob_bytes: 100,
+            history: Vec::new(),
+        }
+    }
+
+    fn report(sem: Option<f64>) -> Report {
+        let mut variants = BTreeMap::new();
+        let mut failed = BTreeMap::new();
+        match sem {
+            Some(x) => {
+                variants.insert(ModelKind::Sem.key().to_string(), variant(x));
+            }
+            None => {
+                failed.insert(
+                    ModelKind::Sem.key().to_string(),
+                    "no quasi-static points in the training set".to_string(),
+                );
+            }
+        }
+        variants.insert(ModelKind::LinearEmm.key().to_string(), variant(0.08));
+        variants.insert(ModelKind::NemmLight.key().to_string(), variant(0.05));
+        variants.insert(ModelKind::Nemm.key().to_string(), variant(0.04));
+        Report {
+            test_alpha: 0.15,
+            force_scale_n: 1000.0,
+            variants,
+            failed,
+            test_set: String::new(),
+            test_sequences: 10,
+            test_runs: Vec::new(),
+            identify: None,
+            info: BTreeMap::new(),
+            condition: ConditionSpec::default(),
+            bench_reference: None,
+        }
+    }
+
+    #[test]
+    fn the_relative_column_falls_back_to_the_best_baseline_and_says_so() {
+        // With the SEM: relative to it, no note.
+        let with = report(Some(0.1));
+        assert_eq!(relative_reference(&with), Some((ModelKind::Sem, 0.1)));
+        let table = table4_markdown(&with);
+        assert!(table.contains("| NEMM | 0.0400 | 40.0 | 40.0 |"), "{table}");
+        assert!(
+            !table.contains("Relative errors are relative to"),
+            "{table}"
+        );
+        // Without: relative to NEMM-Light (0.05 < the Linear EMM's 0.08), said under the table.
+        let without = report(None);
+        assert_eq!(
+            relative_reference(&without),
+            Some((ModelKind::NemmLight, 0.05))
+        );
+        let table = table4_markdown(&without);
+        assert!(table.contains("| NEMM | 0.0400 | 40.0 | 80.0 |"), "{table}");
+        assert!(
+            table.contains("| NEMM-Light | 0.0500 | 50.0 | 100.0 |"),
+            "{table}"
+        );
+        assert!(
+            table.contains(
+                "Relative errors are relative to the NEMM-Light, the best baseline that ran \
+                 (the SEM failed: no quasi-static points in the training set)."
+            ),
+            "{table}"
+        );
+    }
 }

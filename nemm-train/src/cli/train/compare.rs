@@ -35,6 +35,7 @@ pub fn compare(
     checkpoint: Option<&Path>,
     resume: bool,
 ) -> Result<Report> {
+    let cfg = &cfg.with_static_force_from(prepared);
     let t = Instant::now();
     let Trained {
         trained,

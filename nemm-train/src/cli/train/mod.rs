@@ -300,6 +300,7 @@ pub fn train(
     let variant = cfg.model.variant;
     let (ds, prepared) =
         load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
+    let cfg = &cfg.with_static_force_from(&prepared);
     let pipeline = cfg.pipeline_config();
     let t = Instant::now();
     let trained = train_variants(&prepared, &[variant], &pipeline, checkpoint, resume)?;

@@ -11,47 +11,106 @@ pub fn load(dir: &Path) -> Result<Dataset, DatasetError> {
 
 /// [`load`], calling `progress` after each run is parsed (from worker threads).
 ///
-/// On several bad files the error of the first one in manifest order is returned.
+/// Every run file must exist and resolve inside the folder before any is parsed (a typo is
+/// reported at once, and no file outside the dataset is ever read). On several bad files
+/// the error of the first one in manifest order is returned.
 pub fn load_with_progress(
     dir: &Path,
     progress: impl Fn(LoadProgress) + Sync,
 ) -> Result<Dataset, DatasetError> {
-    use rayon::prelude::*;
+    let (manifest, files) = run_files(dir)?;
+    let files = files.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let runs = read_runs(&manifest, files.into_iter().map(Ok).collect(), &progress);
+    let runs = runs.into_iter().collect::<Result<Vec<_>, _>>()?;
+    Ok(Dataset {
+        name: manifest.name,
+        sample_rate_hz: manifest.sample_rate_hz,
+        condition: manifest.condition,
+        runs,
+    })
+}
+
+/// A dataset whose readable runs are loaded, with the errors of those that are not (a
+/// missing file, one outside the folder, a malformed row), in manifest order: what `nemm
+/// data check` reports on, so that one bad file does not hide the others' findings. Errors
+/// of the manifest itself are returned as such.
+pub fn load_readable(dir: &Path) -> Result<(Dataset, Vec<DatasetError>), DatasetError> {
+    let (manifest, files) = run_files(dir)?;
+    let mut runs = Vec::new();
+    let mut errors = Vec::new();
+    for r in read_runs(&manifest, files, &|_| {}) {
+        match r {
+            Ok(run) => runs.push(run),
+            Err(e) => errors.push(e),
+        }
+    }
+    Ok((
+        Dataset {
+            name: manifest.name,
+            sample_rate_hz: manifest.sample_rate_hz,
+            condition: manifest.condition,
+            runs,
+        },
+        errors,
+    ))
+}
+
+/// The manifest of `dir` and the path of each run file, checked to exist and to resolve
+/// inside the folder.
+#[allow(clippy::type_complexity)] // a manifest and one result per run
+fn run_files(dir: &Path) -> Result<(Manifest, Vec<Result<PathBuf, DatasetError>>), DatasetError> {
     let (manifest, lines) = read_manifest_with_lines(dir)?;
     let manifest_path = dir.join(MANIFEST_FILE);
     let root = std::fs::canonicalize(dir).map_err(io_err(dir))?;
-    // Every file must exist, and resolve inside the folder, before any is parsed, so a typo
-    // is reported at once and no file outside the dataset is ever read.
-    for (i, (entry, rl)) in manifest.runs.iter().zip(&lines.runs).enumerate() {
-        let file = dir.join(&entry.file);
-        if !file.is_file() {
-            return Err(DatasetError::MissingRunFile {
-                manifest: manifest_path.clone(),
-                line: rl.file,
-                key: format!("runs[{i}].file"),
-                file,
-            });
-        }
-        let resolved = std::fs::canonicalize(&file).map_err(io_err(&file))?;
-        if !resolved.starts_with(&root) {
-            return Err(DatasetError::RunFileOutside {
-                manifest: manifest_path.clone(),
-                line: rl.file,
-                key: format!("runs[{i}].file"),
-                file,
-                resolved,
-            });
-        }
-    }
+    let files = manifest
+        .runs
+        .iter()
+        .zip(&lines.runs)
+        .enumerate()
+        .map(|(i, (entry, rl))| {
+            let file = dir.join(&entry.file);
+            if !file.is_file() {
+                return Err(DatasetError::MissingRunFile {
+                    manifest: manifest_path.clone(),
+                    line: rl.file,
+                    key: format!("runs[{i}].file"),
+                    file,
+                });
+            }
+            let resolved = std::fs::canonicalize(&file).map_err(io_err(&file))?;
+            if !resolved.starts_with(&root) {
+                return Err(DatasetError::RunFileOutside {
+                    manifest: manifest_path.clone(),
+                    line: rl.file,
+                    key: format!("runs[{i}].file"),
+                    file,
+                    resolved,
+                });
+            }
+            Ok(file)
+        })
+        .collect();
+    Ok((manifest, files))
+}
+
+/// Parses the run files (in parallel; an error in `files` is passed through), in manifest
+/// order, calling `progress` after each run.
+fn read_runs(
+    manifest: &Manifest,
+    files: Vec<Result<PathBuf, DatasetError>>,
+    progress: &(impl Fn(LoadProgress) + Sync),
+) -> Vec<Result<Run, DatasetError>> {
+    use rayon::prelude::*;
     let runs_total = manifest.runs.len();
     let runs_done = AtomicUsize::new(0);
     let samples_done = AtomicUsize::new(0);
     let fs = manifest.sample_rate_hz;
-    let results: Vec<Result<Run, DatasetError>> = manifest
+    manifest
         .runs
         .par_iter()
-        .map(|entry| {
-            let run = read_run(&dir.join(&entry.file), entry.clone(), fs)?;
+        .zip(files)
+        .map(|(entry, file)| {
+            let run = read_run(&file?, entry.clone(), fs)?;
             let samples = samples_done.fetch_add(run.len(), Ordering::Relaxed) + run.len();
             let done = runs_done.fetch_add(1, Ordering::Relaxed) + 1;
             progress(LoadProgress {
@@ -61,14 +120,7 @@ pub fn load_with_progress(
             });
             Ok(run)
         })
-        .collect();
-    let runs = results.into_iter().collect::<Result<Vec<_>, _>>()?;
-    Ok(Dataset {
-        name: manifest.name,
-        sample_rate_hz: fs,
-        condition: manifest.condition,
-        runs,
-    })
+        .collect()
 }
 
 /// Reads and validates one run CSV file at `path` sampled at `sample_rate_hz`.

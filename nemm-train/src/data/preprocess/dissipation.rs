@@ -1,5 +1,6 @@
 //! Does the force of a run dissipate energy, as a damper's must? The correlation of the
-//! force with the velocity and the mean power the damper absorbs, from the filtered signals.
+//! force with the velocity and the mean power the damper absorbs, from the filtered signals;
+//! and the force the damper holds at rest ([`ForceOffset`]).
 //!
 //! Sign conventions (docs/data-format.md): velocity positive in extension, force positive in
 //! tension. A damper resists the motion: in extension it pulls (tension), in compression it
@@ -111,4 +112,109 @@ mod tests {
             None
         );
     }
+}
+
+/// Velocities at most this fraction of a run's largest `|v|` count as zero velocity for the
+/// force offset ([`ForceOffset`]).
+pub const ZERO_VELOCITY_FRACTION: f64 = 0.05;
+/// The training commands switch the static force of eq. 17 on when the median over the runs
+/// of the signed force offset at zero velocity, as a fraction of each run's force half-range
+/// ([`ForceOffset::signed_fraction`]), is at least this in magnitude
+/// ([`static_force_from_data`]): a consistent offset, where a tared damper's scatters about 0.
+pub const STATIC_FORCE_FRACTION: f64 = 0.05;
+
+/// The force a run holds at zero velocity: a gas force or an untared load cell.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ForceOffset {
+    /// Mean raw force over the zero-velocity samples (`|v| <=` [`ZERO_VELOCITY_FRACTION`] of
+    /// the largest `|v|`) \[N\].
+    pub mean_n: f64,
+    /// Half the force's robust range (0.5th to 99.5th percentile) \[N\].
+    pub half_range_n: f64,
+    /// Zero-velocity samples.
+    pub samples: usize,
+    /// Index of the first of them.
+    pub first: usize,
+}
+
+impl ForceOffset {
+    /// From a run's raw force and its velocity (equal lengths); `None` when they differ in
+    /// length or no sample is at zero velocity.
+    pub fn of(force_n: &[f64], velocity_m_s: &[f64]) -> Option<ForceOffset> {
+        if force_n.len() != velocity_m_s.len() || force_n.is_empty() {
+            return None;
+        }
+        let v_max = velocity_m_s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let slow: Vec<usize> = (0..velocity_m_s.len())
+            .filter(|&i| velocity_m_s[i].abs() <= ZERO_VELOCITY_FRACTION * v_max)
+            .collect();
+        let &first = slow.first()?;
+        let mean_n = slow.iter().map(|&i| force_n[i]).sum::<f64>() / slow.len() as f64;
+        let (lo, hi) = (percentile(force_n, 0.005), percentile(force_n, 0.995));
+        Some(ForceOffset {
+            mean_n,
+            half_range_n: 0.5 * (hi - lo),
+            samples: slow.len(),
+            first,
+        })
+    }
+
+    /// `mean / half range` (infinite for a constant force with an offset).
+    pub fn signed_fraction(&self) -> f64 {
+        if self.half_range_n > 0.0 {
+            self.mean_n / self.half_range_n
+        } else if self.mean_n != 0.0 {
+            f64::INFINITY.copysign(self.mean_n)
+        } else {
+            0.0
+        }
+    }
+
+    /// `|mean| / half range`.
+    pub fn fraction(&self) -> f64 {
+        self.signed_fraction().abs()
+    }
+}
+
+/// Percentile `p` (0..1) of a copy of `x` (nearest rank); 0 for no values.
+pub fn percentile(x: &[f64], p: f64) -> f64 {
+    if x.is_empty() {
+        return 0.0;
+    }
+    let mut v = x.to_vec();
+    let k = ((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1);
+    *v.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
+/// Whether the data ask for the static force: `Some((true, why))` when the median over the
+/// runs of the signed offset fraction ([`ForceOffset::signed_fraction`]) is at least
+/// [`STATIC_FORCE_FRACTION`] in magnitude, `Some((false, why))` when not, `None` for no run
+/// with zero-velocity samples. `why` gives the median, the count and the largest offset.
+pub fn static_force_from_data(offsets: &[Option<ForceOffset>]) -> Option<(bool, String)> {
+    let known: Vec<&ForceOffset> = offsets.iter().flatten().collect();
+    if known.is_empty() {
+        return None;
+    }
+    let median = median(known.iter().map(|o| o.signed_fraction()).collect()).unwrap_or(0.0);
+    let largest =
+        known
+            .iter()
+            .map(|o| o.mean_n)
+            .fold(0.0f64, |m, f| if f.abs() > m.abs() { f } else { m });
+    let on = median.abs() >= STATIC_FORCE_FRACTION;
+    Some((
+        on,
+        format!(
+            "the median force at zero velocity is {:+.1} % of the force half-range over {} \
+             runs (largest {largest:+.1} N); {} % or more switches it on{}",
+            median * 100.0,
+            known.len(),
+            STATIC_FORCE_FRACTION * 100.0,
+            if on {
+                ", --static-force=false turns it off"
+            } else {
+                ""
+            }
+        ),
+    ))
 }

@@ -105,6 +105,32 @@ pub struct Excitation {
     pub peak_velocity_m_s: f64,
     /// Complete half-cycles found (between two zero crossings).
     pub half_cycles: usize,
+    /// `true` for a periodic run: at least [`PERIODIC_MIN_HALF_PERIODS`] half-periods between
+    /// consecutive zero crossings, each within [`PERIODIC_TOLERANCE`] of their median (a sine
+    /// programme with ramps; random excitation is not).
+    #[serde(default)]
+    pub periodic: bool,
+}
+
+/// Fewest half-periods for [`Excitation::periodic`].
+pub const PERIODIC_MIN_HALF_PERIODS: usize = 3;
+/// Largest relative deviation of a half-period from the median half-period for
+/// [`Excitation::periodic`].
+pub const PERIODIC_TOLERANCE: f64 = 0.1;
+
+/// [`Excitation::periodic`] of the zero crossings.
+fn is_periodic(crossings: &[Crossing]) -> bool {
+    let halves: Vec<f64> = crossings.windows(2).map(|w| w[1].at - w[0].at).collect();
+    if halves.len() < PERIODIC_MIN_HALF_PERIODS {
+        return false;
+    }
+    let Some(m) = median(halves.clone()) else {
+        return false;
+    };
+    m > 0.0
+        && halves
+            .iter()
+            .all(|h| (h - m).abs() <= PERIODIC_TOLERANCE * m)
 }
 
 /// Estimates amplitude, frequency and peak velocity from filtered displacement and velocity.
@@ -130,6 +156,7 @@ pub fn estimate_excitation(
             frequency_hz: None,
             peak_velocity_m_s: max_abs_v,
             half_cycles: 0,
+            periodic: false,
         };
     }
     let offset_m = 0.5 * (lo + hi);
@@ -168,24 +195,49 @@ pub fn estimate_excitation(
                 .fold(0.0f64, |m, v| m.max(v.abs()))
         })
         .collect();
-    let rising: Vec<f64> = crossings
-        .iter()
-        .filter(|c| c.rising)
-        .map(|c| c.at)
-        .collect();
-    let frequency_hz = if rising.len() >= 2 {
-        Some(sample_rate_hz * (rising.len() - 1) as f64 / (rising[rising.len() - 1] - rising[0]))
-    } else if crossings.len() >= 2 {
-        let span = crossings[crossings.len() - 1].at - crossings[0].at;
-        Some(sample_rate_hz * (crossings.len() - 1) as f64 / (2.0 * span))
-    } else {
-        None
-    };
+    let frequency_hz = frequency_of(&crossings, sample_rate_hz);
     Excitation {
         offset_m,
         amplitude_m: steady_median(&amplitudes).unwrap_or(half_range),
         frequency_hz,
         peak_velocity_m_s: steady_median(&peaks).unwrap_or(max_abs_v),
         half_cycles: amplitudes.len(),
+        periodic: is_periodic(&crossings),
     }
+}
+
+/// Frequency \[Hz\] from the mean period between rising zero crossings (half periods when
+/// there is only one); `None` with fewer than two crossings.
+fn frequency_of(crossings: &[Crossing], sample_rate_hz: f64) -> Option<f64> {
+    let rising: Vec<f64> = crossings
+        .iter()
+        .filter(|c| c.rising)
+        .map(|c| c.at)
+        .collect();
+    if rising.len() >= 2 {
+        Some(sample_rate_hz * (rising.len() - 1) as f64 / (rising[rising.len() - 1] - rising[0]))
+    } else if crossings.len() >= 2 {
+        let span = crossings[crossings.len() - 1].at - crossings[0].at;
+        Some(sample_rate_hz * (crossings.len() - 1) as f64 / (2.0 * span))
+    } else {
+        None
+    }
+}
+
+/// The excitation frequency \[Hz\] of a displacement record, as [`estimate_excitation`]
+/// finds it (zero crossings about the mid-range with a hysteresis of 10 % of the
+/// half-range); `None` with fewer than two crossings.
+pub fn excitation_frequency_hz(displacement_m: &[f64], sample_rate_hz: f64) -> Option<f64> {
+    let (lo, hi) = displacement_m
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        });
+    let half_range = 0.5 * (hi - lo);
+    if half_range.is_nan() || half_range < MIN_STROKE_M {
+        return None;
+    }
+    let offset = 0.5 * (lo + hi);
+    let y: Vec<f64> = displacement_m.iter().map(|x| x - offset).collect();
+    frequency_of(&zero_crossings(&y, 0.1 * half_range), sample_rate_hz)
 }

@@ -49,6 +49,10 @@ pub struct RunSummary {
     pub manifest_amplitude_m: Option<f64>,
     /// Target velocity from the manifest \[m/s\], if given.
     pub manifest_target_velocity_m_s: Option<f64>,
+    /// The low-pass cut-off of the run's signals, and why ([`Cutoff`]).
+    pub cutoff: Cutoff,
+    /// The force at zero velocity ([`ForceOffset`]); `None` without zero-velocity samples.
+    pub force_offset: Option<ForceOffset>,
 }
 
 /// The summary of one run in a [`Prepared`] set: role and counts.
@@ -193,6 +197,8 @@ pub fn summarize_run(
         dissipation: Dissipation::of(&signals.force_filtered_n, &signals.velocity_m_s),
         manifest_amplitude_m: run.entry.amplitude_m,
         manifest_target_velocity_m_s: run.entry.target_velocity_m_s,
+        cutoff: signals.cutoff,
+        force_offset: ForceOffset::of(&run.force_n, &signals.velocity_m_s),
     };
     Ok((summary, signals))
 }

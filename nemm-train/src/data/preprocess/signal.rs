@@ -117,12 +117,8 @@ pub fn lowpass_zero_phase(
     sample_rate_hz: f64,
     cutoff_hz: f64,
 ) -> Result<Vec<f64>, PreprocessError> {
-    let path = SignalConfig {
-        cutoff_hz,
-        ..SignalConfig::default()
-    }
-    .at_rate(sample_rate_hz)?;
-    Ok(path.lowpass(x))
+    check_cutoff(sample_rate_hz, cutoff_hz)?;
+    Ok(zero_phase(x, sample_rate_hz, cutoff_hz))
 }
 
 /// [`lowpass_zero_phase`] with a checked cut-off.
@@ -218,8 +214,9 @@ pub enum VelocitySource {
 /// How signals are derived from a run.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SignalConfig {
-    /// Cut-off of the zero-phase low-pass \[Hz\] (default [`DEFAULT_CUTOFF_HZ`]).
-    pub cutoff_hz: f64,
+    /// Cut-off of the zero-phase low-pass \[Hz\], one for every run; `None` (the default):
+    /// chosen per run from its displacement noise and excitation ([`Cutoff`]).
+    pub cutoff_hz: Option<f64>,
     /// Velocity source (default [`VelocitySource::Auto`]).
     pub velocity_source: VelocitySource,
     /// Low-pass the force of the training sequences too (default `false`: raw force).
@@ -229,7 +226,7 @@ pub struct SignalConfig {
 impl Default for SignalConfig {
     fn default() -> Self {
         SignalConfig {
-            cutoff_hz: DEFAULT_CUTOFF_HZ,
+            cutoff_hz: None,
             velocity_source: VelocitySource::Auto,
             filter_force: false,
         }
@@ -251,6 +248,110 @@ pub struct Signals {
     pub measured_velocity: bool,
     /// Condition level per sample (the run's `alpha` column, unfiltered), if it has one.
     pub alpha: Option<Vec<f64>>,
+    /// The cut-off these signals were filtered with, and why.
+    pub cutoff: Cutoff,
+}
+
+/// The automatic cut-off lets through displacement noise worth at most this fraction of the
+/// run's RMS velocity ([`Cutoff`]).
+pub const AUTO_CUTOFF_NOISE_FRACTION: f64 = 0.02;
+/// The automatic cut-off stays at least this many times the run's excitation frequency (the
+/// zero-phase filter's gain there is `1 / (1 + 1e-4)`: -0.01 %).
+pub const AUTO_CUTOFF_EXCITATION_MULTIPLE: f64 = 10.0;
+
+/// `integral_0^inf u^2 / (1 + u^4)^2 du = pi / (8 sqrt 2)`: the noise bandwidth of the
+/// differentiated zero-phase low-pass, `|H(f)|^4 = 1 / (1 + (f / fc)^4)^2`, in units of
+/// `fc^3`.
+const DIFFERENTIATED_NOISE_BANDWIDTH: f64 = std::f64::consts::PI / (8.0 * std::f64::consts::SQRT_2);
+
+/// Why a run's cut-off has its value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CutoffRule {
+    /// Given (`--cutoff-hz` or the options file), the same for every run.
+    Given,
+    /// The rate's limit `min(150 Hz, 0.4 fs)`: the noise allows it, or the velocity is
+    /// measured (no differentiation).
+    #[default]
+    RateLimit,
+    /// Lowered until the displacement noise gives at most [`AUTO_CUTOFF_NOISE_FRACTION`] of
+    /// the run's RMS velocity.
+    Noise,
+    /// The noise asks for less, but the cut-off stays [`AUTO_CUTOFF_EXCITATION_MULTIPLE`]
+    /// times the excitation frequency: the velocity keeps more noise than the target.
+    Excitation,
+}
+
+impl CutoffRule {
+    /// The rule in words, for `data check`.
+    pub fn describe(self) -> &'static str {
+        match self {
+            CutoffRule::Given => "given",
+            CutoffRule::RateLimit => "rate limit",
+            CutoffRule::Noise => "noise",
+            CutoffRule::Excitation => "excitation",
+        }
+    }
+}
+
+/// A run's low-pass cut-off.
+///
+/// Chosen per run when no cut-off is given. The displacement noise is taken as white with
+/// the standard deviation [`displacement_noise_std_m`] estimates from the raw samples; through
+/// the zero-phase low-pass at `fc` and differentiation it gives a velocity noise of RMS
+/// `sigma_v(fc) = 2 pi sigma_x sqrt(2 / fs * pi / (8 sqrt 2) * fc^3)`
+/// ([`velocity_noise_rms`]). The run's RMS velocity without noise, `v_s`, is the RMS of the
+/// velocity at the rate's limit `fc_max = min(150 Hz, 0.4 fs)` with `sigma_v(fc_max)` removed
+/// in quadrature. The cut-off is then the largest `fc <= fc_max` with
+/// `sigma_v(fc) <= AUTO_CUTOFF_NOISE_FRACTION * v_s` (rounded to three significant digits),
+/// but at least [`AUTO_CUTOFF_EXCITATION_MULTIPLE`] times the excitation frequency (from the
+/// displacement's zero crossings). Clean data keep `fc_max`; a 20 um potentiometer at 300 Hz
+/// on a 0.21 Hz, 18.6 mm stroke gets about 16 Hz.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Cutoff {
+    /// The cut-off \[Hz\].
+    pub hz: f64,
+    /// Why it has this value.
+    pub rule: CutoffRule,
+    /// Standard deviation of the displacement noise \[m\] ([`displacement_noise_std_m`]).
+    pub displacement_noise_m: f64,
+    /// RMS of the velocity noise this cut-off lets through, as a fraction of the run's RMS
+    /// velocity; `None` for a measured velocity.
+    pub velocity_noise_fraction: Option<f64>,
+}
+
+/// Standard deviation \[m\] of white noise on a displacement record, from its third
+/// differences: `1.4826 median |x[i+3] - 3 x[i+2] + 3 x[i+1] - x[i]| / sqrt(20)` (the third
+/// difference of white noise has 20 times its variance; the median ignores spikes, and the
+/// stroke itself adds `(2 pi f / fs)^3 A`, negligible below a tenth of the rate). 0 for fewer
+/// than 8 samples or a record that rarely changes (a slow, quantised stroke).
+pub fn displacement_noise_std_m(displacement_m: &[f64]) -> f64 {
+    if displacement_m.len() < 8 {
+        return 0.0;
+    }
+    let d3: Vec<f64> = displacement_m
+        .windows(4)
+        .map(|w| (w[3] - 3.0 * w[2] + 3.0 * w[1] - w[0]).abs())
+        .filter(|d| d.is_finite())
+        .collect();
+    1.4826 * median(d3).unwrap_or(0.0) / 20f64.sqrt()
+}
+
+/// RMS \[m/s\] of the velocity that white displacement noise of standard deviation
+/// `noise_m` gives through the zero-phase low-pass at `cutoff_hz` and differentiation, at
+/// `sample_rate_hz` ([`Cutoff`]).
+pub fn velocity_noise_rms(noise_m: f64, sample_rate_hz: f64, cutoff_hz: f64) -> f64 {
+    let psd = 2.0 * noise_m * noise_m / sample_rate_hz;
+    2.0 * std::f64::consts::PI * (psd * DIFFERENTIATED_NOISE_BANDWIDTH * cutoff_hz.powi(3)).sqrt()
+}
+
+/// `x` rounded to three significant digits.
+fn three_digits(x: f64) -> f64 {
+    if !(x.is_finite() && x > 0.0) {
+        return x;
+    }
+    let scale = 10f64.powi(2 - x.log10().floor() as i32);
+    (x * scale).round() / scale
 }
 
 /// A [`SignalConfig`] checked against a dataset's sample rate ([`SignalConfig::at_rate`]):
@@ -264,10 +365,12 @@ pub struct SignalPath {
 }
 
 impl SignalConfig {
-    /// These settings at `sample_rate_hz`; refuses a cut-off that is not positive and below
-    /// half the sample rate (the one check of the cut-off).
+    /// These settings at `sample_rate_hz`; refuses a given cut-off that is not positive and
+    /// below half the sample rate (the one check of the cut-off).
     pub fn at_rate(&self, sample_rate_hz: f64) -> Result<SignalPath, PreprocessError> {
-        check_cutoff(sample_rate_hz, self.cutoff_hz)?;
+        if let Some(hz) = self.cutoff_hz {
+            check_cutoff(sample_rate_hz, hz)?;
+        }
         Ok(SignalPath {
             config: *self,
             sample_rate_hz,
@@ -276,16 +379,101 @@ impl SignalConfig {
 }
 
 impl SignalPath {
-    /// The zero-phase low-pass of `x` ([`lowpass_zero_phase`]).
-    pub fn lowpass(&self, x: &[f64]) -> Vec<f64> {
-        zero_phase(x, self.sample_rate_hz, self.config.cutoff_hz)
+    /// The highest cut-off a run gets: the given one, else the rate's limit
+    /// `min(DEFAULT_CUTOFF_HZ, 0.4 fs)` ([`Cutoff`]).
+    pub fn max_cutoff_hz(&self) -> f64 {
+        self.config
+            .cutoff_hz
+            .unwrap_or_else(|| DEFAULT_CUTOFF_HZ.min(CUTOFF_FRACTION_OF_RATE * self.sample_rate_hz))
     }
 
-    /// Derives filtered displacement, velocity, acceleration and filtered force of a run.
+    /// Derives filtered displacement, velocity, acceleration and filtered force of a run,
+    /// at the given cut-off or the one chosen for the run ([`Cutoff`]).
     ///
     /// `run_index` only labels errors.
     pub fn process(&self, run: &Run, run_index: usize) -> Result<Signals, PreprocessError> {
-        process_checked(run, run_index, self)
+        check_lengths(run, run_index)?;
+        let fc_max = self.max_cutoff_hz();
+        let first = derive(run, run_index, self, fc_max)?;
+        let cutoff = self.cutoff_of(run, &first, fc_max);
+        if cutoff.hz == fc_max {
+            return Ok(Signals { cutoff, ..first });
+        }
+        Ok(Signals {
+            cutoff,
+            ..derive(run, run_index, self, cutoff.hz)?
+        })
+    }
+
+    /// The cut-off of `run`, from its signals at `fc_max` ([`Cutoff`]).
+    fn cutoff_of(&self, run: &Run, at_max: &Signals, fc_max: f64) -> Cutoff {
+        let fs = self.sample_rate_hz;
+        let noise_m = displacement_noise_std_m(&run.displacement_m);
+        let given = self.config.cutoff_hz.is_some();
+        if at_max.measured_velocity {
+            return Cutoff {
+                hz: fc_max,
+                rule: if given {
+                    CutoffRule::Given
+                } else {
+                    CutoffRule::RateLimit
+                },
+                displacement_noise_m: noise_m,
+                velocity_noise_fraction: None,
+            };
+        }
+        let v = &at_max.velocity_m_s;
+        let total = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        let noise_at_max = velocity_noise_rms(noise_m, fs, fc_max);
+        // The noise-free RMS velocity; a record that is nearly all noise keeps a tenth of it.
+        let signal = (total * total - noise_at_max * noise_at_max)
+            .max(0.01 * total * total)
+            .sqrt();
+        let fraction =
+            |hz: f64| (signal > 0.0).then(|| velocity_noise_rms(noise_m, fs, hz) / signal);
+        let (hz, rule) = if given {
+            (fc_max, CutoffRule::Given)
+        } else {
+            auto_cutoff_hz(&at_max.displacement_m, fs, noise_m, signal, fc_max)
+        };
+        Cutoff {
+            hz,
+            rule,
+            displacement_noise_m: noise_m,
+            velocity_noise_fraction: fraction(hz).or(Some(0.0)),
+        }
+    }
+}
+
+/// The automatic cut-off ([`Cutoff`]) for a run with displacement noise `noise_m` and
+/// noise-free RMS velocity `signal_m_s`, not above `fc_max`; `displacement_m` (filtered at
+/// `fc_max`) gives the excitation frequency.
+fn auto_cutoff_hz(
+    displacement_m: &[f64],
+    sample_rate_hz: f64,
+    noise_m: f64,
+    signal_m_s: f64,
+    fc_max: f64,
+) -> (f64, CutoffRule) {
+    // sigma_v(fc) = eps v_s  <=>  fc^3 = (eps v_s)^2 / (psd (2 pi)^2 bandwidth).
+    let psd = 2.0 * noise_m * noise_m / sample_rate_hz;
+    let target = AUTO_CUTOFF_NOISE_FRACTION * signal_m_s;
+    let by_noise = if psd > 0.0 {
+        (target * target
+            / (psd * (2.0 * std::f64::consts::PI).powi(2) * DIFFERENTIATED_NOISE_BANDWIDTH))
+            .cbrt()
+    } else {
+        f64::INFINITY
+    };
+    if by_noise >= fc_max {
+        return (fc_max, CutoffRule::RateLimit);
+    }
+    let floor = excitation_frequency_hz(displacement_m, sample_rate_hz)
+        .map_or(0.0, |f| AUTO_CUTOFF_EXCITATION_MULTIPLE * f);
+    if by_noise >= floor {
+        (three_digits(by_noise).min(fc_max), CutoffRule::Noise)
+    } else {
+        (three_digits(floor).min(fc_max), CutoffRule::Excitation)
     }
 }
 
@@ -302,12 +490,8 @@ pub fn process_run(
     cfg.at_rate(sample_rate_hz)?.process(run, run_index)
 }
 
-fn process_checked(
-    run: &Run,
-    run_index: usize,
-    path: &SignalPath,
-) -> Result<Signals, PreprocessError> {
-    let (sample_rate_hz, cfg) = (path.sample_rate_hz, &path.config);
+/// Refuses a run whose columns differ in length.
+fn check_lengths(run: &Run, run_index: usize) -> Result<(), PreprocessError> {
     let n = run.displacement_m.len();
     if run.time_s.len() != n
         || run.force_n.len() != n
@@ -319,8 +503,21 @@ fn process_checked(
             file: run.entry.file.clone(),
         });
     }
+    Ok(())
+}
+
+/// The signals of `run` filtered at `cutoff_hz` (checked against the rate by the caller);
+/// their [`Signals::cutoff`] says only the value.
+fn derive(
+    run: &Run,
+    run_index: usize,
+    path: &SignalPath,
+    cutoff_hz: f64,
+) -> Result<Signals, PreprocessError> {
+    let (sample_rate_hz, cfg) = (path.sample_rate_hz, &path.config);
+    let lowpass = |x: &[f64]| zero_phase(x, sample_rate_hz, cutoff_hz);
     let dt = 1.0 / sample_rate_hz;
-    let displacement_m = path.lowpass(&run.displacement_m);
+    let displacement_m = lowpass(&run.displacement_m);
     let measured = match (cfg.velocity_source, &run.velocity_m_s) {
         (VelocitySource::Differentiated | VelocitySource::Causal, _) => None,
         (VelocitySource::Auto, v) => v.as_ref(),
@@ -333,14 +530,14 @@ fn process_checked(
         }
     };
     let velocity_m_s = match measured {
-        Some(v) => path.lowpass(v),
+        Some(v) => lowpass(v),
         None if cfg.velocity_source == VelocitySource::Causal => {
             causal_velocity(&run.displacement_m, sample_rate_hz)
         }
         None => differentiate(&displacement_m, dt),
     };
     let acceleration_m_s2 = differentiate(&velocity_m_s, dt);
-    let force_filtered_n = path.lowpass(&run.force_n);
+    let force_filtered_n = lowpass(&run.force_n);
     Ok(Signals {
         displacement_m,
         velocity_m_s,
@@ -348,6 +545,10 @@ fn process_checked(
         force_filtered_n,
         measured_velocity: measured.is_some(),
         alpha: run.alpha.clone(),
+        cutoff: Cutoff {
+            hz: cutoff_hz,
+            ..Cutoff::default()
+        },
     })
 }
 

@@ -394,11 +394,11 @@ pub(super) fn fig7_loops(ctx: &Ctx<'_>) -> Result<Drawn> {
         }));
     }
     let fig = fig.with_footer(format!(
-        "Top: measured (zero-phase low-passed force, {:.0} Hz); middle: {model_name} simulated over the whole run from rest on the \
+        "Top: measured (zero-phase low-passed force, {}); middle: {model_name} simulated over the whole run from rest on the \
          preprocessed velocity; bottom: both. Blue: the run nearest {} Hz, red: nearest {} Hz.\n\
          Shown: the last {LOOP_PERIODS} full-amplitude periods (after the ramp-in). RMSE: against the raw force over these periods, \
          divided by the force scale as in Table 4. The test level was not used in training.",
-        ctx.prepared.config.signal.cutoff_hz,
+        cutoff_words(&ctx.prepared.runs),
         LOOP_FREQUENCIES_HZ[0],
         LOOP_FREQUENCIES_HZ[1]
     ));
@@ -544,12 +544,26 @@ pub(super) fn loops_all_variants(ctx: &Ctx<'_>) -> Result<Drawn> {
     let fig = fig.with_footer(format!(
         "Forces divided by the training set's abs-max force ({:.0} N). Each variant simulated over the whole run from rest \
          on the preprocessed velocity; shown: the last {LOOP_PERIODS} full-amplitude periods.\n\
-         Measured: zero-phase low-passed force ({:.0} Hz). RMSE: against the raw force over the shown periods, normalised \
+         Measured: zero-phase low-passed force ({}). RMSE: against the raw force over the shown periods, normalised \
          like Table 4 (the report's RMSE averages all test windows).",
         ctx.force_scale(),
-        ctx.prepared.config.signal.cutoff_hz
+        cutoff_words(&ctx.prepared.runs)
     ));
     Ok(Drawn::Figure(Box::new(fig)))
+}
+
+/// The low-pass cut-offs of the runs in words: `150 Hz`, or `16-150 Hz, per run`.
+fn cutoff_words(runs: &[crate::data::preprocess::PreparedRun]) -> String {
+    let (lo, hi) = runs.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), r| {
+        (lo.min(r.summary.cutoff.hz), hi.max(r.summary.cutoff.hz))
+    });
+    if runs.is_empty() {
+        String::from("no run")
+    } else if lo == hi {
+        format!("{lo} Hz")
+    } else {
+        format!("{lo}-{hi} Hz, per run")
+    }
 }
 
 #[cfg(test)]

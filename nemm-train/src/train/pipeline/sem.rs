@@ -37,20 +37,75 @@ fn velocity_knots(sorted: &[f64], gap: f64) -> Vec<f64> {
     knots
 }
 
-/// SEM map from quasi-static points (see the module docs).
+/// The map's levels for the points' levels: every distinct level (within 1e-9) when there
+/// are at most [`MAX_SEM_ALPHAS`]; else [`MAX_SEM_ALPHAS`] bins of consecutive distinct levels
+/// holding about equal numbers of points (a level is never split), each at the mean level of
+/// its points. Returns the map's levels (strictly increasing) and each point's bin.
+pub fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
+    let mut distinct: Vec<(f64, usize)> = Vec::new();
+    let mut sorted: Vec<f64> = points.iter().map(|p| p.alpha).collect();
+    sorted.sort_by(f64::total_cmp);
+    for a in sorted {
+        match distinct.last_mut() {
+            Some((level, count)) if (a - *level).abs() < 1e-9 => *count += 1,
+            _ => distinct.push((a, 1)),
+        }
+    }
+    // The bin of each distinct level: its own when they fit, else by the middle of its
+    // points in the cumulative count (equal counts per bin), bins left empty dropped.
+    let bin_of_level: Vec<usize> = if distinct.len() <= MAX_SEM_ALPHAS {
+        (0..distinct.len()).collect()
+    } else {
+        let total = points.len() as f64;
+        let mut seen = 0usize;
+        let raw: Vec<usize> = distinct
+            .iter()
+            .map(|&(_, count)| {
+                let mid = seen as f64 + 0.5 * count as f64;
+                seen += count;
+                ((mid * MAX_SEM_ALPHAS as f64 / total) as usize).min(MAX_SEM_ALPHAS - 1)
+            })
+            .collect();
+        let mut renumbered = Vec::with_capacity(raw.len());
+        for (k, &b) in raw.iter().enumerate() {
+            let prev = renumbered.last().copied();
+            renumbered.push(match prev {
+                Some(p) if raw[k - 1] == b => p,
+                Some(p) => p + 1,
+                None => 0,
+            });
+        }
+        renumbered
+    };
+    let bins = bin_of_level.last().map_or(0, |b| b + 1);
+    let mut sum = vec![0.0f64; bins];
+    let mut cnt = vec![0usize; bins];
+    let level_index = |a: f64| distinct.partition_point(|&(l, _)| l < a - 1e-9);
+    let point_bins: Vec<usize> = points
+        .iter()
+        .map(|p| {
+            let b = bin_of_level[level_index(p.alpha).min(bin_of_level.len() - 1)];
+            sum[b] += p.alpha;
+            cnt[b] += 1;
+            b
+        })
+        .collect();
+    let levels = sum
+        .iter()
+        .zip(&cnt)
+        .map(|(s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
+        .collect();
+    (levels, point_bins)
+}
+
+/// SEM map from quasi-static points (see the module docs): a force-velocity curve per level,
+/// with more levels than the map holds binned ([`sem_levels`]) and interpolated in alpha
+/// between the bins by the map.
 pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
     if points.is_empty() {
         bail!("no quasi-static points in the training set: cannot build the SEM");
     }
-    let mut alphas: Vec<f64> = points.iter().map(|p| p.alpha).collect();
-    alphas.sort_by(f64::total_cmp);
-    alphas.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    if alphas.len() > MAX_SEM_ALPHAS {
-        bail!(
-            "{} oil-loss levels; the SEM holds at most {MAX_SEM_ALPHAS}",
-            alphas.len()
-        );
-    }
+    let (alphas, bin_of_point) = sem_levels(points);
     // Velocity clusters over all levels: 5 % gaps, widened until the knots fit the map.
     let mut vs: Vec<f64> = points.iter().map(|p| p.velocity_m_s).collect();
     vs.sort_by(f64::total_cmp);
@@ -67,11 +122,16 @@ pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
         );
     }
     let mut forces = Vec::new();
-    for &a in &alphas {
+    for level in 0..alphas.len() {
         // This level's points, averaged per knot (nearest knot), plus the origin.
         let mut sum = vec![0.0f64; knots.len()];
         let mut cnt = vec![0usize; knots.len()];
-        for p in points.iter().filter(|p| (p.alpha - a).abs() < 1e-9) {
+        let own_points = points
+            .iter()
+            .zip(&bin_of_point)
+            .filter(|(_, &b)| b == level)
+            .map(|(p, _)| p);
+        for p in own_points {
             let (i, _) = knots
                 .iter()
                 .enumerate()
@@ -157,15 +217,28 @@ pub(super) fn train_sem(
         prepared.warmup_samples,
         prepared.scales.force_n,
     )?;
+    let (velocities, levels) = match &model.body {
+        Body::Sem(m) => (m.velocities_m_s.len(), m.alphas.len()),
+        _ => (0, 0),
+    };
+    let distinct = {
+        let mut a: Vec<f64> = prepared
+            .quasi_static
+            .train
+            .iter()
+            .map(|p| p.alpha)
+            .collect();
+        a.sort_by(f64::total_cmp);
+        a.dedup_by(|x, y| (*x - *y).abs() < 1e-9);
+        a.len()
+    };
     eprintln!(
-        "[sem] {} support velocities x {} oil-loss levels, validation RMSE {val:.4}",
-        match &model.body {
-            Body::Sem(m) => m.velocities_m_s.len(),
-            _ => 0,
-        },
-        match &model.body {
-            Body::Sem(m) => m.alphas.len(),
-            _ => 0,
+        "[sem] {velocities} support velocities x {levels} oil-loss levels{}, validation RMSE \
+         {val:.4}",
+        if distinct > levels {
+            format!(" ({distinct} binned)")
+        } else {
+            String::new()
         }
     );
     Ok(TrainedVariant {
