@@ -598,3 +598,39 @@ fn bench_plot_skips_a_run_shorter_than_its_period_and_draws_the_rest() {
     );
     assert!(out.join("force_velocity_loops.png").exists(), "{text}");
 }
+
+/// One unreadable run does not hide the others' findings: `nemm data check` lists it with its
+/// file, line and column, checks the rest, and fails.
+#[test]
+fn data_check_reports_an_unreadable_run_and_checks_the_rest() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    for (rel, text) in files(&fixture_dir("rate_300hz")) {
+        let path = data.join(&rel);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        let text = if rel.ends_with("oil00_a030_v0100.csv") {
+            // Line 11: the displacement cell is not a number.
+            let mut lines: Vec<String> = text.lines().map(String::from).collect();
+            let cells: Vec<&str> = lines[10].split(',').collect();
+            lines[10] = format!("{},x,{}", cells[0], cells[2..].join(","));
+            lines.join("\n") + "\n"
+        } else {
+            text
+        };
+        std::fs::write(path, text).unwrap();
+    }
+    let (ok, text) = nemm_in(&data, &["data", "check"]);
+    assert!(!ok, "{text}");
+    assert!(text.contains("loaded 3 runs"), "{text}");
+    assert!(
+        text.contains("runs that could not be read (skipped):"),
+        "{text}"
+    );
+    assert!(text.contains("oil00_a030_v0100.csv:11"), "{text}");
+    assert!(
+        text.contains("1 of 4 runs could not be read (listed above); the other 3 were checked"),
+        "{text}"
+    );
+    // The other runs' table rows are there.
+    assert_eq!(run_cutoffs(&text).len(), 3, "{text}");
+}
