@@ -304,7 +304,7 @@ fn random_runs_give_monotone_support_points_and_a_sem() {
             "{own:?}"
         );
     }
-    let sem = nemm_train::train::pipeline::fit_sem(&p.quasi_static.train).unwrap();
+    let sem = nemm_train::train::pipeline::fit_sem(&p.quasi_static.train, "oil loss").unwrap();
     assert!(sem.velocities_m_s.len() >= 6, "{:?}", sem.velocities_m_s);
 }
 
@@ -373,7 +373,7 @@ fn sem_from_sine_points_reproduces_the_steady_support_points() {
     prep.split.validation_fraction = 0.0;
     let p = preprocess::prepare(&ds, &prep).unwrap();
     let pts = &p.quasi_static.train;
-    let sem = nemm_train::train::pipeline::fit_sem(pts).unwrap();
+    let sem = nemm_train::train::pipeline::fit_sem(pts, "oil loss").unwrap();
     let mut worst: f64 = 0.0;
     for &alpha in &sem.alphas {
         let curve = sem.curve_at(alpha).0;

@@ -188,7 +188,7 @@ fn a_failing_variant_gets_its_row_in_table_4_and_the_others_are_written() {
     let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
     assert!(out.status.success(), "{stderr}");
     assert!(
-        stderr.contains("[sem] failed: 9 oil-loss levels; the SEM holds at most 8"),
+        stderr.contains("[sem] failed: 9 oil loss levels; the SEM holds at most 8"),
         "{stderr}"
     );
     assert!(
@@ -198,7 +198,7 @@ fn a_failing_variant_gets_its_row_in_table_4_and_the_others_are_written() {
     let table = std::fs::read_to_string(report.join("table4.md")).expect("table4.md");
     assert!(
         table.contains(
-            "| SEM | failed: 9 oil-loss levels; the SEM holds at most 8 | - | - | - | - |"
+            "| SEM | failed: 9 oil loss levels; the SEM holds at most 8 | - | - | - | - |"
         ),
         "{table}"
     );

@@ -20,8 +20,9 @@ const METADATA_TOLERANCE: f64 = 0.05;
 /// `nemm data ...`
 #[derive(Debug, Clone, clap::Subcommand)]
 pub enum DataCmd {
-    /// Load and validate a dataset folder; print a per-run table (oil loss, amplitude,
-    /// frequency, peak velocity, samples, duration, force range).
+    /// Load and validate a dataset folder; print a per-run table (condition level alpha,
+    /// amplitude, frequency, peak velocity, samples, duration, force range) and the levels
+    /// by the condition's name and unit.
     Check {
         /// Dataset folder (with manifest.toml).
         dir: PathBuf,
@@ -567,9 +568,9 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
         let e = &r.excitation;
         let _ = writeln!(
             s,
-            "{:>4} {:>6.3} {:>8.2} {} {:>10.4} {:>9} {:>8.3} {:>10.1}..{:<10.1} {:>6}  {}",
+            "{:>4} {:>6} {:>8.2} {} {:>10.4} {:>9} {:>8.3} {:>10.1}..{:<10.1} {:>6}  {}",
             r.index,
-            r.alpha,
+            dataset::alpha_text(r.alpha),
             e.amplitude_m * 1e3,
             fmt_opt(e.frequency_hz, 8, 3),
             e.peak_velocity_m_s,
@@ -616,7 +617,8 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
             ));
         }
     }
-    let _ = writeln!(s, "oil-loss levels:");
+    let condition = ds.condition.clone().unwrap_or_default();
+    let _ = writeln!(s, "{} levels:", condition.name);
     for a in preprocess::distinct_levels(runs.iter().map(|r| r.alpha)) {
         let at: Vec<&RunSummary> = runs
             .iter()
@@ -624,7 +626,8 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
             .collect();
         let _ = writeln!(
             s,
-            "  alpha {a:.3}: {} runs, {:.1} s",
+            "  {}: {} runs, {:.1} s",
+            condition.level(a),
             at.len(),
             at.iter().map(|r| r.duration_s).sum::<f64>()
         );
@@ -742,7 +745,9 @@ pub fn prepare_report(ds: &Dataset, p: &preprocess::Prepared) -> String {
     let _ = writeln!(
         s,
         "scales (training set, abs-max): velocity {:.4} m/s, force {:.1} N, alpha {}",
-        p.scales.velocity_m_s, p.scales.force_n, p.scales.alpha
+        p.scales.velocity_m_s,
+        p.scales.force_n,
+        dataset::alpha_text(p.scales.alpha)
     );
     s
 }

@@ -37,8 +37,9 @@ fn velocity_knots(sorted: &[f64], gap: f64) -> Vec<f64> {
     knots
 }
 
-/// SEM map from quasi-static points (see the module docs).
-pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
+/// SEM map from quasi-static points (see the module docs); `condition` names the levels in
+/// errors (e.g. `oil loss`).
+pub fn fit_sem(points: &[QuasiStaticPoint], condition: &str) -> Result<SemMap> {
     if points.is_empty() {
         bail!("no quasi-static points in the training set: cannot build the SEM");
     }
@@ -47,7 +48,7 @@ pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
     alphas.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
     if alphas.len() > MAX_SEM_ALPHAS {
         bail!(
-            "{} oil-loss levels; the SEM holds at most {MAX_SEM_ALPHAS}",
+            "{} {condition} levels; the SEM holds at most {MAX_SEM_ALPHAS}",
             alphas.len()
         );
     }
@@ -131,7 +132,10 @@ pub(super) fn train_sem(
     meta: Meta,
 ) -> Result<TrainedVariant> {
     let t = Instant::now();
-    let map = fit_sem(&prepared.quasi_static.train)?;
+    let map = fit_sem(
+        &prepared.quasi_static.train,
+        prepared.condition.name.as_str(),
+    )?;
     let model = Model {
         integrator: cfg.integrator,
         dt_s: (1.0 / cfg.model_rate_hz) as f32,
@@ -158,7 +162,7 @@ pub(super) fn train_sem(
         prepared.scales.force_n,
     )?;
     eprintln!(
-        "[sem] {} support velocities x {} oil-loss levels, validation RMSE {val:.4}",
+        "[sem] {} support velocities x {} {} levels, validation RMSE {val:.4}",
         match &model.body {
             Body::Sem(m) => m.velocities_m_s.len(),
             _ => 0,
@@ -166,7 +170,8 @@ pub(super) fn train_sem(
         match &model.body {
             Body::Sem(m) => m.alphas.len(),
             _ => 0,
-        }
+        },
+        prepared.condition.name.as_str()
     );
     Ok(TrainedVariant {
         variant: ModelKind::Sem,
