@@ -667,6 +667,19 @@ fn condition_table_names_the_condition_and_its_priors() {
     );
     let spec = d.condition.clone().expect("declared");
     assert_eq!(spec.level(0.5), "gas charge 100 psi (alpha 0.5)");
+    // Levels print rounded to what they mean: four decimals of alpha, and of the span for a
+    // condition value (100 psi: two decimals).
+    assert_eq!(
+        spec.level(0.4503572053013052),
+        "gas charge 104.96 psi (alpha 0.4504)"
+    );
+    assert_eq!(spec.levels(&[0.0, 0.5, 1.0]), "gas charge 150, 100, 50 psi");
+    let oil = dataset::ConditionSpec::default();
+    assert_eq!(oil.level(0.4503572053013052), "oil loss 0.4504");
+    assert_eq!(oil.level(0.15), "oil loss 0.15");
+    assert_eq!(oil.cell(1.0), "1");
+    assert_eq!(dataset::alpha_text(0.30000000000000004), "0.3");
+    assert_eq!(dataset::alpha_text(-1e-9), "0");
     // Omitted keys take the paper's defaults; a dataset without the table is the oil loss.
     let d = load_manifest(&condition_manifest("name = \"voltage\"")).expect("loads");
     assert_eq!(d.condition().priors, nemm_core::Priors::PAPER);

@@ -746,3 +746,367 @@ fn an_error_in_a_cr_only_file_names_the_line_an_editor_shows() {
     let e = import::import(&spec, "m").expect_err("bad cell");
     assert!(e.to_string().contains("mac.csv:4:2: column \"x\""), "{e}");
 }
+
+/// [`MR_SPEC`] with the level column `U_ctrl_V` in volts mapped by `mapping` (e.g.
+/// `range = [0.0, 5.0]`, or nothing to take the range from the data) and the spec's tail
+/// `tail` (a `[condition]` table) before the files.
+fn mr_volts_spec(mapping: &str, tail: &str, files: &[&str]) -> String {
+    let files: String = files
+        .iter()
+        .map(|f| format!("[[files]]\npath = \"{f}\"\n"))
+        .collect();
+    MR_SPEC
+        .replace(
+            "unit = \"1\"\ngain = 0.2\n",
+            &format!("unit = \"V\"\n{mapping}\n"),
+        )
+        .replace(
+            "[[files]]\npath = \"mr.csv\"\n",
+            &format!("{tail}\n{files}"),
+        )
+}
+
+const MR_CONDITION: &str = "[condition]\nname = \"control voltage\"\nb_fl = \"increasing\"\n\
+                            b_pr = \"increasing\"\nk_pr = \"none\"\n";
+
+#[test]
+fn a_spec_condition_with_a_level_range_is_written_to_the_manifest() {
+    let dir = tempfile::tempdir().expect("dir");
+    write_mr(dir.path(), "mr.csv", None, 1.0);
+    let text = mr_volts_spec("range = [0.0, 5.0]", MR_CONDITION, &["mr.csv"]);
+    let imported = import::import(&spec_from(&text, dir.path()), "mr").expect("import");
+    let ds = &imported.dataset;
+    // Raw 0, 2.5 and 5 V are alpha 0, 0.5 and 1, exactly.
+    let levels = ds.runs[0].alpha.as_ref().expect("per-sample levels");
+    for a in [0.0, 0.5, 1.0] {
+        assert!(levels.contains(&a), "level {a}");
+    }
+    assert!(levels.iter().all(|a| [0.0, 0.5, 1.0].contains(a)));
+    // The condition takes the column's unit and range; the priors are the spec's.
+    let expected = dataset::ConditionSpec {
+        name: "control voltage".into(),
+        unit: "V".into(),
+        at_alpha_0: 0.0,
+        at_alpha_1: 5.0,
+        b_fl: nemm_core::Direction::Increasing,
+        b_pr: nemm_core::Direction::Increasing,
+        k_pr: nemm_core::Direction::None,
+    };
+    assert_eq!(ds.condition.as_ref(), Some(&expected));
+    let out = dir.path().join("ds");
+    dataset::write(&out, ds).expect("write");
+    let manifest = dataset::read_manifest(&out).expect("manifest");
+    assert_eq!(manifest.condition, Some(expected.clone()));
+    assert_eq!(
+        dataset::load(&out).expect("load").condition(),
+        expected.to_core().expect("core condition")
+    );
+
+    // A reversed range maps the other way; the spec's own values and unit win over the
+    // column's.
+    let text = mr_volts_spec(
+        "range = [5.0, 0.0]",
+        &format!("{MR_CONDITION}unit = \"mA\"\nat_alpha_0 = 20.0\nat_alpha_1 = 4.0\n"),
+        &["mr.csv"],
+    );
+    let imported = import::import(&spec_from(&text, dir.path()), "mr").expect("import");
+    let c = imported.dataset.condition.expect("condition");
+    assert_eq!(
+        (c.unit.as_str(), c.at_alpha_0, c.at_alpha_1),
+        ("mA", 20.0, 4.0)
+    );
+    let reversed = imported.dataset.runs[0].alpha.as_ref().expect("levels");
+    assert!(levels.iter().zip(reversed).all(|(a, b)| a + b == 1.0));
+}
+
+#[test]
+fn without_gain_or_range_the_level_range_comes_from_the_data_of_every_file() {
+    let dir = tempfile::tempdir().expect("dir");
+    write_mr(dir.path(), "mr5.csv", None, 1.0); // 0, 2.5, 5 V
+    write_mr(dir.path(), "mr10.csv", None, 2.0); // 0, 5, 10 V
+    let text = mr_volts_spec("", MR_CONDITION, &["mr5.csv", "mr10.csv"]);
+    let imported = import::import(&spec_from(&text, dir.path()), "mr").expect("import");
+    assert_eq!(
+        imported.level,
+        Some(import::LevelMap::Range {
+            at_0: 0.0,
+            at_1: 10.0,
+            unit: "V".into(),
+            from_data: true
+        })
+    );
+    let ds = &imported.dataset;
+    let c = ds.condition.as_ref().expect("condition");
+    assert_eq!(
+        (c.at_alpha_0, c.at_alpha_1, c.unit.as_str()),
+        (0.0, 10.0, "V")
+    );
+    // 5 V is alpha 0.5 in both files; the first file reaches only alpha 0.5.
+    let first = ds.runs[0].alpha.as_ref().expect("levels");
+    let second = ds.runs[1].alpha.as_ref().expect("levels");
+    assert!(first.iter().all(|a| [0.0, 0.25, 0.5].contains(a)));
+    assert!(first.contains(&0.25) && first.contains(&0.5));
+    assert!(second.iter().all(|a| [0.0, 0.5, 1.0].contains(a)));
+    assert!(second.contains(&1.0));
+
+    // A constant column has no range to take.
+    let flat = dir.path().join("flat.csv");
+    write_simple(&flat, 2.0, 1.0);
+    let text = std::fs::read_to_string(&flat).expect("flat");
+    let with_level: String = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| format!("{l},{}\n", if i == 0 { "U" } else { "2.5" }))
+        .collect();
+    std::fs::write(&flat, with_level).expect("write");
+    let spec = format!(
+        "{}[condition]\nname = \"v\"\nb_fl = \"none\"\nb_pr = \"none\"\nk_pr = \"none\"\n",
+        simple_spec(&flat, "").replace(
+            "[[files]]",
+            "[columns.alpha]\nname = \"U\"\nunit = \"V\"\n[[files]]"
+        )
+    );
+    let e = import::import(&spec_from(&spec, dir.path()), "flat").expect_err("constant");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("columns.alpha.range") && msg.contains("holds only 2.5"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_raw_level_outside_the_range_is_refused_with_file_line_and_column() {
+    let dir = tempfile::tempdir().expect("dir");
+    write_mr(dir.path(), "mr.csv", Some(4321), 1.0); // 6 V at line 4321
+    let text = mr_volts_spec("range = [0.0, 5.0]", MR_CONDITION, &["mr.csv"]);
+    let e = import::import(&spec_from(&text, dir.path()), "mr").expect_err("6 V is beyond 5 V");
+    assert!(
+        matches!(
+            e,
+            ImportError::LevelOutOfRange {
+                line: 4321,
+                field: 4,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    let msg = e.to_string();
+    assert!(
+        msg.contains("mr.csv:4321:4: column \"U_ctrl_V\": 6 converts to the condition level 1.2")
+            && msg.contains("range 0 .. 5 V"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_condition_without_name_or_priors_and_bad_level_mappings_are_refused_before_reading() {
+    let dir = tempfile::tempdir().expect("dir");
+    // No raw file exists: every error here comes from the spec alone.
+    let refused = |text: &str| {
+        import::validate_spec(&spec_from(text, dir.path()))
+            .expect_err("refused")
+            .to_string()
+    };
+    let no_name = refused(&mr_volts_spec("", "", &["mr.csv"]));
+    assert!(
+        no_name.contains("condition.name: missing") && no_name.contains("--condition-name"),
+        "{no_name}"
+    );
+    let no_prior = refused(&mr_volts_spec(
+        "",
+        &MR_CONDITION.replace("k_pr = \"none\"\n", ""),
+        &["mr.csv"],
+    ));
+    assert!(no_prior.contains("condition.k_pr: missing"), "{no_prior}");
+    let long = refused(&mr_volts_spec(
+        "",
+        &MR_CONDITION.replace("control voltage", &"x".repeat(33)),
+        &["mr.csv"],
+    ));
+    assert!(
+        long.contains("condition.name") && long.contains("33 bytes"),
+        "{long}"
+    );
+    let same = refused(&mr_volts_spec(
+        "range = [1.0, 1.0]",
+        MR_CONDITION,
+        &["mr.csv"],
+    ));
+    assert!(same.contains("columns.alpha.range"), "{same}");
+    let same = refused(&mr_volts_spec(
+        "range = [0.0, 5.0]",
+        &format!("{MR_CONDITION}at_alpha_0 = 5.0\n"),
+        &["mr.csv"],
+    ));
+    assert!(same.contains("condition.at_alpha_1"), "{same}");
+    let both = refused(&mr_volts_spec(
+        "range = [0.0, 5.0]\ngain = 0.2",
+        MR_CONDITION,
+        &["mr.csv"],
+    ));
+    assert!(both.contains("either `range` or `gain`"), "{both}");
+    let volts_gain = refused(&mr_volts_spec("gain = 0.2", MR_CONDITION, &["mr.csv"]));
+    assert!(
+        volts_gain.contains("columns.alpha.unit") && volts_gain.contains("range"),
+        "{volts_gain}"
+    );
+    std::fs::write(
+        dir.path().join("bad.toml"),
+        mr_volts_spec(
+            "",
+            &MR_CONDITION.replace("\"none\"", "\"down\""),
+            &["mr.csv"],
+        ),
+    )
+    .expect("write");
+    let e = import::read_spec(&dir.path().join("bad.toml")).expect_err("direction");
+    assert!(matches!(e, ImportError::SpecSyntax { .. }), "{e:?}");
+}
+
+/// Runs `nemm` with `args`; its stdout, or a panic with its output.
+fn nemm_ok(args: &[&std::ffi::OsStr]) -> String {
+    let o = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(args)
+        .output()
+        .expect("run nemm");
+    assert!(
+        o.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+#[test]
+fn the_cli_names_the_condition_with_flags_and_check_prints_rounded_levels() {
+    let dir = tempfile::tempdir().expect("dir");
+    let raw = dir.path().join("r.csv");
+    write_simple(&raw, 3.0, 100.0);
+    let out = dir.path().join("ds");
+    let flags = [
+        "--condition-name",
+        "control voltage",
+        "--condition-unit",
+        "V",
+        "--condition-range",
+        "0,5",
+        "--prior",
+        "b_fl=increasing,b_pr=increasing",
+        "--prior",
+        "k_pr=none",
+    ];
+    // Without every prior, nothing is written.
+    let o = Command::new(env!("CARGO_BIN_EXE_nemm"))
+        .args(["data", "import"])
+        .arg(&raw)
+        .arg("--out")
+        .arg(&out)
+        .args(["--time", "t:s", "--displacement", "x:mm", "--force", "F:N"])
+        .args(["--alpha", "0.5"])
+        .args(&flags[..8])
+        .output()
+        .expect("run nemm");
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("condition.k_pr: missing"), "{stderr}");
+    assert!(!out.exists());
+
+    let mut args: Vec<&std::ffi::OsStr> = ["data", "import"].map(std::ffi::OsStr::new).to_vec();
+    args.extend([raw.as_os_str(), "--out".as_ref(), out.as_os_str()]);
+    args.extend(
+        [
+            "--time",
+            "t:s",
+            "--displacement",
+            "x:mm",
+            "--force",
+            "F:N",
+            "--alpha",
+            "0.4503572053013052",
+        ]
+        .map(std::ffi::OsStr::new),
+    );
+    args.extend(flags.map(std::ffi::OsStr::new));
+    let report = nemm_ok(&args);
+    assert!(
+        report.contains(
+            "condition: control voltage (alpha 0 = 0 V, alpha 1 = 5 V); priors in alpha: \
+             b_fl increasing, b_pr increasing, k_pr none"
+        ),
+        "{report}"
+    );
+    assert!(
+        report.contains("runs/r.csv: control voltage 2.2518 V (alpha 0.4504), 3000 samples"),
+        "{report}"
+    );
+    let manifest = dataset::read_manifest(&out).expect("manifest");
+    let c = manifest.condition.expect("condition");
+    assert_eq!(
+        (c.name.as_str(), c.unit.as_str(), c.at_alpha_0, c.at_alpha_1),
+        ("control voltage", "V", 0.0, 5.0)
+    );
+    assert_eq!(
+        (c.b_fl, c.b_pr, c.k_pr),
+        (
+            nemm_core::Direction::Increasing,
+            nemm_core::Direction::Increasing,
+            nemm_core::Direction::None
+        )
+    );
+    // The manifest keeps the exact level; `data check` prints it rounded, by the name.
+    assert_eq!(manifest.runs[0].oil_loss, 0.4503572053013052);
+    let check = nemm_ok(&["data".as_ref(), "check".as_ref(), out.as_os_str()]);
+    assert!(check.contains("control voltage levels:"), "{check}");
+    assert!(
+        check.contains("  control voltage 2.2518 V (alpha 0.4504): 1 runs, 3.0 s"),
+        "{check}"
+    );
+    assert!(!check.contains("oil"), "{check}");
+    assert!(!check.contains("0.45035"), "{check}");
+
+    // A level column in volts from flags alone: its range comes from the data and is printed.
+    let mr = write_mr(dir.path(), "mr.csv", None, 1.0);
+    let out = dir.path().join("mr");
+    let mut args: Vec<&std::ffi::OsStr> = ["data", "import"].map(std::ffi::OsStr::new).to_vec();
+    args.extend([mr.as_os_str(), "--out".as_ref(), out.as_os_str()]);
+    args.extend(
+        [
+            "--time",
+            "time_s:s",
+            "--displacement",
+            "stroke_mm:mm",
+            "--force",
+            "force_kN:kN",
+            "--alpha-column",
+            "U_ctrl_V:V",
+        ]
+        .map(std::ffi::OsStr::new),
+    );
+    args.extend(
+        [flags[0], flags[1], flags[6], flags[7], flags[8], flags[9]].map(std::ffi::OsStr::new),
+    );
+    let report = nemm_ok(&args);
+    assert!(
+        report.contains("level column: range 0 .. 5 V (the smallest and largest raw value"),
+        "{report}"
+    );
+    let ds = dataset::load(&out).expect("load");
+    let c = ds.condition.as_ref().expect("condition");
+    assert_eq!(
+        (c.unit.as_str(), c.at_alpha_0, c.at_alpha_1),
+        ("V", 0.0, 5.0)
+    );
+    let levels = ds.runs[0].alpha.as_ref().expect("levels");
+    assert!(levels.contains(&0.5) && levels.contains(&1.0));
+    // --alpha-range fixes the range instead: 0-10 V puts 5 V at alpha 0.5.
+    let mut fixed = args.clone();
+    fixed.extend(["--alpha-range", "0,10", "--replace"].map(std::ffi::OsStr::new));
+    let report = nemm_ok(&fixed);
+    assert!(!report.contains("level column:"), "{report}");
+    let ds = dataset::load(&out).expect("load");
+    assert_eq!(ds.condition.as_ref().map(|c| c.at_alpha_1), Some(10.0));
+    let levels = ds.runs[0].alpha.as_ref().expect("levels");
+    assert!(levels.iter().all(|a| [0.0, 0.25, 0.5].contains(a)));
+}

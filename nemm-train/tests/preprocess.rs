@@ -757,7 +757,7 @@ fn invalid_configurations_are_refused() {
         .to_string();
     assert_eq!(
         msg,
-        "test_alphas: oil-loss level 0.2 matches no run; the dataset's levels are 0, 0.15, 0.3"
+        "test_alphas: alpha 0.2 matches no run; the dataset's oil loss levels are alpha 0, 0.15, 0.3"
     );
     assert_eq!(
         bad(&|c| c.split.validation_fraction = 1.0),

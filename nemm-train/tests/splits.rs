@@ -192,7 +192,7 @@ fn nine_levels_are_binned_into_the_sem_and_table_4_keeps_its_reference() {
         .expect("run nemm");
     let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("oil-loss levels (9 binned)"), "{stderr}");
+    assert!(stderr.contains("oil loss levels (9 binned)"), "{stderr}");
     let table = std::fs::read_to_string(report.join("table4.md")).expect("table4.md");
     assert!(table.contains("| SEM | 0."), "{table}");
     assert!(

@@ -8,6 +8,7 @@ use crate::data::preprocess::{
     self, PrepareConfig, RunRole, RunSummary, SignalConfig, SplitCounts,
 };
 use anyhow::{Context, Result};
+use nemm_core::Direction;
 use std::fmt::Write as _;
 use std::io::{IsTerminal, Write as _};
 use std::path::{Path, PathBuf};
@@ -19,8 +20,9 @@ const METADATA_TOLERANCE: f64 = 0.05;
 /// `nemm data ...`
 #[derive(Debug, Clone, clap::Subcommand)]
 pub enum DataCmd {
-    /// Load and validate a dataset folder; print a per-run table (oil loss, amplitude,
-    /// frequency, peak velocity, samples, duration, force range).
+    /// Load and validate a dataset folder; print a per-run table (condition level alpha,
+    /// amplitude, frequency, peak velocity, samples, duration, force range) and the levels
+    /// by the condition's name and unit.
     Check {
         /// Dataset folder (with manifest.toml).
         dir: PathBuf,
@@ -92,10 +94,32 @@ pub struct ImportArgs {
     /// Optional with `--alpha-column` (each run is then labelled with its mean level).
     #[arg(long, value_delimiter = ',')]
     pub alpha: Vec<f64>,
-    /// Condition level per sample: column and unit `1` (the value must lie in [0, 1]; a
-    /// gain or offset, e.g. for a control voltage, goes in the spec's `columns.alpha`).
+    /// Condition level per sample: column and unit, e.g. `U_ctrl:V`. Unit `1`: the values
+    /// are alpha in [0, 1]. Any other unit: mapped to alpha by `--alpha-range`, else by the
+    /// smallest and largest value over all files (printed); the condition then defaults to
+    /// that unit and range.
     #[arg(long, value_parser = ColumnSpec::parse_flag)]
     pub alpha_column: Option<ColumnSpec>,
+    /// Raw values of the level column at alpha 0 and at alpha 1, e.g. `0,5` for a 0-5 V
+    /// control voltage (`5,0` when the level falls as the value rises).
+    #[arg(long, value_name = "AT0,AT1", value_parser = parse_pair, allow_hyphen_values = true)]
+    pub alpha_range: Option<[f64; 2]>,
+    /// Name of the condition alpha stands for, e.g. `control voltage` (written to the
+    /// manifest's `[condition]`; default: oil loss, without a level column range).
+    #[arg(long)]
+    pub condition_name: Option<String>,
+    /// Unit of the condition value, e.g. `V` (default: the level column's unit).
+    #[arg(long)]
+    pub condition_unit: Option<String>,
+    /// Condition values at alpha 0 and at alpha 1, e.g. `0,5` (default: the level column's
+    /// range).
+    #[arg(long, value_name = "AT0,AT1", value_parser = parse_pair, allow_hyphen_values = true)]
+    pub condition_range: Option<[f64; 2]>,
+    /// Prior of a coefficient in alpha, `COEF=DIRECTION` with COEF one of b_fl, b_pr, k_pr and
+    /// DIRECTION one of decreasing, increasing, none; comma-separated or repeated, e.g.
+    /// `b_fl=increasing,b_pr=increasing,k_pr=none`. A named condition needs all three.
+    #[arg(long, value_name = "COEF=DIRECTION", value_delimiter = ',', value_parser = parse_prior)]
+    pub prior: Vec<(Coefficient, Direction)>,
     /// Negate the displacement (stroke positive in compression).
     #[arg(long)]
     pub invert_displacement: bool,
@@ -128,6 +152,76 @@ pub struct ImportArgs {
     pub min_run_s: Option<f64>,
 }
 
+/// A coefficient with a prior in alpha (`--prior`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Coefficient {
+    /// Flow damping.
+    BFl,
+    /// Pressure-force damping.
+    BPr,
+    /// Pressure-force stiffness.
+    KPr,
+}
+
+/// Parses `LO,HI` (two finite numbers).
+fn parse_pair(text: &str) -> Result<[f64; 2], String> {
+    let (a, b) = text
+        .split_once(',')
+        .ok_or_else(|| format!("\"{text}\": expected two numbers AT0,AT1, e.g. 0,5"))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("\"{v}\" is not a finite number"))
+    };
+    Ok([num(a)?, num(b)?])
+}
+
+/// Parses `COEF=DIRECTION` of `--prior`.
+fn parse_prior(text: &str) -> Result<(Coefficient, Direction), String> {
+    let (c, d) = text
+        .split_once('=')
+        .ok_or_else(|| format!("\"{text}\": expected COEF=DIRECTION, e.g. b_fl=increasing"))?;
+    let coefficient = match c.trim() {
+        "b_fl" => Coefficient::BFl,
+        "b_pr" => Coefficient::BPr,
+        "k_pr" => Coefficient::KPr,
+        other => return Err(format!("\"{other}\" is not b_fl, b_pr or k_pr")),
+    };
+    let direction = d.trim().parse::<Direction>().map_err(|e| e.to_string())?;
+    Ok((coefficient, direction))
+}
+
+/// Sets the condition flags of `a` on the spec's `[condition]`.
+fn apply_condition_flags(a: &ImportArgs, spec: &mut ImportSpec) {
+    let given = a.condition_name.is_some()
+        || a.condition_unit.is_some()
+        || a.condition_range.is_some()
+        || !a.prior.is_empty();
+    if !given {
+        return;
+    }
+    let c = spec.condition.get_or_insert_with(Default::default);
+    if a.condition_name.is_some() {
+        c.name.clone_from(&a.condition_name);
+    }
+    if a.condition_unit.is_some() {
+        c.unit.clone_from(&a.condition_unit);
+    }
+    if let Some([lo, hi]) = a.condition_range {
+        c.at_alpha_0 = Some(lo);
+        c.at_alpha_1 = Some(hi);
+    }
+    for &(coefficient, direction) in &a.prior {
+        *match coefficient {
+            Coefficient::BFl => &mut c.b_fl,
+            Coefficient::BPr => &mut c.b_pr,
+            Coefficient::KPr => &mut c.k_pr,
+        } = Some(direction);
+    }
+}
+
 /// The import spec from `--spec` and the flags.
 pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
     let mut spec = match &a.spec {
@@ -150,6 +244,7 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
                 rate_hz: None,
                 resample_hz: None,
                 split: import::SplitSpec::default(),
+                condition: None,
                 files: Vec::new(),
             }
         }
@@ -170,6 +265,15 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
     if let Some(l) = &a.alpha_column {
         c.alpha = Some(l.clone());
     }
+    if let Some(r) = a.alpha_range {
+        match c.alpha.as_mut() {
+            Some(l) => l.range = Some(r),
+            None => anyhow::bail!(
+                "--alpha-range maps a level column: give it with --alpha-column (or the spec's \
+                 columns.alpha)"
+            ),
+        }
+    }
     c.displacement.invert |= a.invert_displacement;
     c.force.invert |= a.invert_force;
     c.displacement.center |= a.center_displacement;
@@ -182,6 +286,7 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
     if let Some(h) = a.header_line {
         spec.csv.header_line = h;
     }
+    apply_condition_flags(a, &mut spec);
     spec.rate_hz = a.rate_hz.or(spec.rate_hz);
     spec.resample_hz = a.resample_hz.or(spec.resample_hz);
     if let Some(m) = a.split {
@@ -239,6 +344,30 @@ pub fn import_report(out: &Path, imported: &import::Imported) -> String {
         ds.sample_rate_hz,
         out.display()
     );
+    let condition = ds.condition.clone().unwrap_or_default();
+    if let Some(c) = &ds.condition {
+        let _ = writeln!(
+            s,
+            "condition: {} ({}); priors in alpha: b_fl {}, b_pr {}, k_pr {}",
+            c.name,
+            condition_map(c),
+            c.b_fl.name(),
+            c.b_pr.name(),
+            c.k_pr.name()
+        );
+    }
+    if let Some(
+        map @ import::LevelMap::Range {
+            from_data: true, ..
+        },
+    ) = &imported.level
+    {
+        let _ = writeln!(
+            s,
+            "level column: {}; give columns.alpha.range (--alpha-range) to fix it otherwise",
+            map.describe()
+        );
+    }
     for (run, acc) in ds.runs.iter().zip(&imported.runs) {
         let stamps = if acc.resampled {
             format!(
@@ -258,9 +387,14 @@ pub fn import_report(out: &Path, imported: &import::Imported) -> String {
         };
         let _ = writeln!(
             s,
-            "  {}: alpha {}, {} samples from {}:{}..{} (t = {}..{} s); {stamps}",
+            "  {}: {}{}, {} samples from {}:{}..{} (t = {}..{} s); {stamps}",
             run.entry.file.display(),
-            run.entry.oil_loss,
+            condition.level(run.entry.oil_loss),
+            if run.alpha.is_some() {
+                " on average"
+            } else {
+                ""
+            },
             run.len(),
             acc.source.display(),
             acc.lines.0,
@@ -278,6 +412,20 @@ pub fn import_report(out: &Path, imported: &import::Imported) -> String {
     }
     let _ = writeln!(s, "next: nemm data check {}", out.display());
     s
+}
+
+/// The map from alpha to the condition value: `alpha 0 = 0 V, alpha 1 = 5 V`.
+pub fn condition_map(c: &dataset::ConditionSpec) -> String {
+    let u = if c.unit == "-" {
+        String::new()
+    } else {
+        format!(" {}", c.unit)
+    };
+    format!(
+        "alpha 0 = {}{u}, alpha 1 = {}{u}",
+        c.value_text(c.at_alpha_0),
+        c.value_text(c.at_alpha_1)
+    )
 }
 
 fn import_cmd(a: &ImportArgs) -> Result<()> {
@@ -422,9 +570,9 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
         let e = &r.excitation;
         let _ = writeln!(
             s,
-            "{:>4} {:>6.3} {:>8.2} {} {:>10.4} {:>9} {:>8.3} {:>10.1}..{:<10.1} {:>6} {:>8} {:>10}  {}",
+            "{:>4} {:>6} {:>8.2} {} {:>10.4} {:>9} {:>8.3} {:>10.1}..{:<10.1} {:>6} {:>8} {:>10}  {}",
             r.index,
-            r.alpha,
+            dataset::alpha_text(r.alpha),
             e.amplitude_m * 1e3,
             fmt_opt(e.frequency_hz, 8, 3),
             e.peak_velocity_m_s,
@@ -473,7 +621,8 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
             ));
         }
     }
-    let _ = writeln!(s, "oil-loss levels:");
+    let condition = ds.condition.clone().unwrap_or_default();
+    let _ = writeln!(s, "{} levels:", condition.name);
     for a in preprocess::distinct_levels(runs.iter().map(|r| r.alpha)) {
         let at: Vec<&RunSummary> = runs
             .iter()
@@ -481,7 +630,8 @@ pub fn check_report(ds: &Dataset, runs: &[RunSummary], findings: &[Finding]) -> 
             .collect();
         let _ = writeln!(
             s,
-            "  alpha {a:.3}: {} runs, {:.1} s",
+            "  {}: {} runs, {:.1} s",
+            condition.level(a),
             at.len(),
             at.iter().map(|r| r.duration_s).sum::<f64>()
         );
@@ -624,7 +774,9 @@ pub fn prepare_report(ds: &Dataset, p: &preprocess::Prepared) -> String {
     let _ = writeln!(
         s,
         "scales (training set, abs-max): velocity {:.4} m/s, force {:.1} N, alpha {}",
-        p.scales.velocity_m_s, p.scales.force_n, p.scales.alpha
+        p.scales.velocity_m_s,
+        p.scales.force_n,
+        dataset::alpha_text(p.scales.alpha)
     );
     s
 }

@@ -163,6 +163,14 @@ fn list<T: std::fmt::Display>(v: &[T]) -> String {
     v.iter().map(T::to_string).collect::<Vec<_>>().join(", ")
 }
 
+/// Condition levels as printed ([`crate::data::dataset::alpha_text`]), comma-separated.
+fn alpha_list(v: &[f64]) -> String {
+    v.iter()
+        .map(|&a| crate::data::dataset::alpha_text(a))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 impl DataConfig {
     /// These options over the dataset folder `dir`.
     pub fn in_dir(&self, dir: &Path) -> DataConfig {
@@ -459,7 +467,7 @@ fn resolve_test_set(layers: &Layers<'_>, c: &mut DataConfig, manifest: &Manifest
     let test_runs = c.test_runs.get_or_insert_with(Vec::new).clone();
     let mut parts = Vec::new();
     if !test_alphas.is_empty() {
-        parts.push(format!("runs at alpha {}", list(&test_alphas)));
+        parts.push(format!("runs at alpha {}", alpha_list(&test_alphas)));
     }
     if !test_runs.is_empty() {
         parts.push(format!("runs matching {}", list(&test_runs)));
@@ -477,7 +485,7 @@ fn resolve_test_set(layers: &Layers<'_>, c: &mut DataConfig, manifest: &Manifest
 fn resolve_training(layers: &Layers<'_>, c: &mut DataConfig) -> Choice {
     let exclude = c.exclude_runs.get_or_insert_with(Vec::new).clone();
     let levels = match &c.train_alphas {
-        Some(a) => format!("runs at alpha {}", list(a)),
+        Some(a) => format!("runs at alpha {}", alpha_list(a)),
         None => "every other run".to_string(),
     };
     let text = if exclude.is_empty() {

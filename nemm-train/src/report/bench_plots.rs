@@ -20,7 +20,7 @@
 //! force-velocity density (a 2-D histogram of the samples) and time traces of force and
 //! velocity.
 
-use crate::data::dataset::{self, Dataset, Run};
+use crate::data::dataset::{self, alpha_text, ConditionSpec, Dataset, Run};
 use crate::data::preprocess::{run_signals, SignalConfig, Signals};
 use crate::data::support_points::periodicity;
 use crate::report::plot::{palette, Figure, HeatmapPanel, LegendPosition, LinePanel, Series};
@@ -467,9 +467,17 @@ fn plot_random(ds: &Dataset, signals: &[Signals], which: &[usize], out: &Path) -
         let levels = match &run.alpha {
             Some(a) => {
                 let (lo, hi) = range(a);
-                format!("alpha {:.2}-{:.2} (column)", lo, hi.min(1.0))
+                format!(
+                    "alpha {}-{} (column)",
+                    alpha_text(lo),
+                    alpha_text(hi.min(1.0))
+                )
             }
-            None => format!("alpha {:.2}", run.entry.oil_loss),
+            None => ds
+                .condition
+                .clone()
+                .unwrap_or_default()
+                .level(run.entry.oil_loss),
         };
         fig = fig.with_panel(
             HeatmapPanel::new(
@@ -580,15 +588,17 @@ fn loops_at(loops: &[CycleLoop], amp: f64, alpha: f64) -> Vec<&CycleLoop> {
         .collect()
 }
 
-/// An empty panel of the loops at oil loss `alpha` and amplitude `amp` over velocity, with
-/// zero lines.
-fn level_panel(alpha: f64, amp: f64, y_label: &str) -> LinePanel {
+/// An empty panel of the loops at level `alpha` of the dataset's condition and amplitude
+/// `amp` over velocity, with zero lines; the paper's oil loss is titled in percent.
+fn level_panel(ds: &Dataset, alpha: f64, amp: f64, y_label: &str) -> LinePanel {
+    let condition = ds.condition.clone().unwrap_or_default();
+    let level = if condition == ConditionSpec::default() {
+        format!("oil loss {:.0} %", alpha * 100.0)
+    } else {
+        condition.level(alpha)
+    };
     LinePanel::new(
-        format!(
-            "oil loss {:.0} %, amplitude {:.0} mm",
-            alpha * 100.0,
-            amp * 1000.0
-        ),
+        format!("{level}, amplitude {:.0} mm", amp * 1000.0),
         "velocity [m/s]",
         y_label,
     )
@@ -610,7 +620,7 @@ fn fig4_loops(ds: &Dataset, loops: &[CycleLoop], levels: &LoopLevels) -> Figure 
             let mut sel = loops_at(loops, amp, alpha);
             sel.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
             let colors = palette::sequence(sel.len());
-            let mut panel = level_panel(alpha, amp, "normalised force [-]")
+            let mut panel = level_panel(ds, alpha, amp, "normalised force [-]")
                 .with_x_range(-v_lim, v_lim)
                 .with_y_range(-fn_lim, fn_lim);
             for (l, c) in sel.iter().zip(colors) {
@@ -662,7 +672,7 @@ fn fig5_difference_loops(ds: &Dataset, loops: &[CycleLoop], levels: &LoopLevels)
                 .collect();
             sel.sort_by(|a, b| a.1.frequency_hz.total_cmp(&b.1.frequency_hz));
             let colors = palette::sequence(sel.len());
-            let mut panel = level_panel(alpha, amp, "F_norm,0% - F_norm,loss [-]");
+            let mut panel = level_panel(ds, alpha, amp, "F_norm,0% - F_norm,loss [-]");
             for ((b, l), c) in sel.iter().zip(colors) {
                 let pts: Vec<(f64, f64)> = (0..b.bins())
                     .map(|k| {

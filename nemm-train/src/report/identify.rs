@@ -3,7 +3,7 @@
 //! against the label, a summary per level, and the whole-run force error per level and per
 //! excitation condition (amplitude, frequency), training levels included.
 
-use crate::data::dataset::{ConditionSpec, Dataset};
+use crate::data::dataset::{alpha_text, ConditionSpec, Dataset};
 use crate::data::preprocess::{distinct_levels, Prepared, RunRole, ALPHA_TOLERANCE};
 use crate::train::identify::{identify_runs, AlphaGrid, Fit, Run, FLAT_TOLERANCE};
 use crate::train::pipeline::VariantInfo;
@@ -363,7 +363,12 @@ pub fn identify_markdown(r: &IdentifyReport) -> String {
     );
     for (v, f) in variants_of(r) {
         let grid = match (f.grid.first(), f.grid.last()) {
-            (Some(a), Some(b)) => format!("{a} to {b}, {} levels", f.grid.len()),
+            (Some(&a), Some(&b)) => format!(
+                "{} to {}, {} levels",
+                alpha_text(a),
+                alpha_text(b),
+                f.grid.len()
+            ),
             _ => "empty".into(),
         };
         let _ = writeln!(s, "### {} (grid {grid}; {:.1} s)\n", v.title(), f.seconds);

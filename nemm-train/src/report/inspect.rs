@@ -42,12 +42,16 @@ fn describe_shape(s: &mut String, model: &Model, blob_len: usize) {
     let _ = writeln!(
         s,
         "input scales:    |v| <= {} m/s, |x_pr| <= {} m, alpha <= {}",
-        model.scales.velocity_m_s, model.scales.x_pr_m, model.scales.alpha
+        model.scales.velocity_m_s,
+        model.scales.x_pr_m,
+        level(model.scales.alpha)
     );
     let _ = writeln!(
         s,
         "training data:   force scale {} N, alpha in [{}, {}]",
-        model.meta.force_scale_n, model.meta.alpha_min, model.meta.alpha_max
+        model.meta.force_scale_n,
+        level(model.meta.alpha_min),
+        level(model.meta.alpha_max)
     );
     if let Some(e) = model.emm() {
         let _ = writeln!(
@@ -64,12 +68,16 @@ fn describe_body(s: &mut String, model: &Model) {
         Body::Sem(m) => {
             let _ = writeln!(
                 s,
-                "SEM map:         {} velocities in [{}, {}] m/s x {} condition levels (alpha) {:?}",
+                "SEM map:         {} velocities in [{}, {}] m/s x {} condition levels (alpha) [{}]",
                 m.velocities_m_s.len(),
                 m.velocities_m_s.first().copied().unwrap_or(0.0),
                 m.velocities_m_s.last().copied().unwrap_or(0.0),
                 m.alphas.len(),
-                m.alphas.as_slice()
+                m.alphas
+                    .iter()
+                    .map(|&a| level(a))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             );
         }
         Body::LinearEmm(_) => {}
@@ -96,6 +104,11 @@ fn describe_scaler(s: &mut String, name: &str, sc: &Scaler<DEFAULT_PARAM_CAPACIT
         sc.s_min,
         sc.s_max
     );
+}
+
+/// A condition level of the blob (f32) as printed ([`crate::data::dataset::alpha_text`]).
+fn level(alpha: f32) -> String {
+    crate::data::dataset::alpha_text(f64::from(alpha))
 }
 
 /// The condition alpha stands for, its priors and the alpha branches that impose them.
@@ -189,7 +202,7 @@ fn describe_tables(s: &mut String, stored: &StoredTables) {
         let _ = writeln!(
             s,
             "stored tables:   alpha {}, {} segments, bound {:.0e}, domain margin {}: {}",
-            level.alpha,
+            self::level(level.alpha),
             level.segments,
             level.config.max_rel_error,
             level.config.domain_margin,

@@ -4,6 +4,7 @@
 //! `nemm compare` when the dataset came from the virtual bench.
 
 use crate::bench::reference::{Coefficient, EmmReference};
+use crate::data::dataset::alpha_text;
 use nemm_core::Model;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -133,8 +134,8 @@ impl ReferenceComparison {
              |---|---|---:|---:|---:|\n",
             self.run,
             // Levels come from the blob's f32 (0.3 would print as 0.30000001192092896).
-            self.alpha_from as f32,
-            self.alpha_to as f32
+            alpha_text(self.alpha_from),
+            alpha_text(self.alpha_to)
         );
         for r in &self.rows {
             let _ = writeln!(

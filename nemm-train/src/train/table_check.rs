@@ -12,6 +12,7 @@
 //! quasi-static force by at most `e |F| <= e` times the force scale (docs/core.md, "Tabulated
 //! fast path", which also has the measured force differences over whole bench programmes).
 
+use crate::data::dataset::{alpha_text, ConditionSpec};
 use nemm_core::{
     Estimator, EstimatorConfig, EstimatorError, EvalMode, Model, TableConfig, TableError,
 };
@@ -77,11 +78,11 @@ fn check_size<const T: usize>(model: &Model, alphas: &[f32], bound: f32) -> Size
                 record(max_rel_error, None);
             }
             Err(EstimatorError::Table(e)) => {
-                c.failure = Some(format!("alpha {alpha:.3}: {e}"));
+                c.failure = Some(format!("alpha {}: {e}", alpha_text(f64::from(alpha))));
                 break;
             }
             Err(e) => {
-                c.failure = Some(format!("alpha {alpha:.3}: {e}"));
+                c.failure = Some(format!("alpha {}: {e}", alpha_text(f64::from(alpha))));
                 break;
             }
         }
@@ -117,9 +118,12 @@ pub fn report(model: &Model, bound: f32) -> String {
             model.kind().name()
         );
     }
+    let condition = ConditionSpec::from_core(&model.condition);
     let mut s = format!(
-        "table check (fast path, bound {bound:.1e} relative per coefficient, {ALPHA_LEVELS} oil-loss levels in [{:.3}, {:.3}]):\n",
-        model.meta.alpha_min, model.meta.alpha_max
+        "table check (fast path, bound {bound:.1e} relative per coefficient, {ALPHA_LEVELS} {} levels, alpha {} to {}):\n",
+        condition.name,
+        alpha_text(f64::from(model.meta.alpha_min)),
+        alpha_text(f64::from(model.meta.alpha_max))
     );
     for c in &checks {
         let verdict = if c.passes(bound) {
@@ -137,10 +141,10 @@ pub fn report(model: &Model, bound: f32) -> String {
                     String::new()
                 };
                 s += &format!(
-                    "  {} segments ({} B per table): worst measured error {w:.2e} at alpha {:.3}{kinks}; {verdict}\n",
+                    "  {} segments ({} B per table): worst measured error {w:.2e} at alpha {}{kinks}; {verdict}\n",
                     c.segments,
                     nemm_core::semantics::table::TABLE_BYTES_PER_SEGMENT * c.segments,
-                    c.worst_alpha,
+                    alpha_text(f64::from(c.worst_alpha)),
                 )
             }
             (None, None) => s += &format!("  {} segments: no table built\n", c.segments),

@@ -108,9 +108,13 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         .fold(0.0f64, |m, (&a, &b)| m.max((a - b).abs()))
         / fs;
     println!(
-        "most dynamic {what} {} (oil loss {alpha}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
+        "most dynamic {what} {} ({}, {:.0} mm, {:.1} Hz), whole run from rest: nemm-core estimator RMSE {:.4} ({:.1} N) over {} samples, {:.0} ns/step on this host; \
          max |nemm-core - trainer| = {:.2e} of the force scale",
         ds.runs[idx].entry.file.display(),
+        ds.condition
+            .clone()
+            .unwrap_or_default()
+            .level(f64::from(alpha)),
         run.summary.excitation.amplitude_m * 1e3,
         run.summary.excitation.frequency_hz.unwrap_or(f64::NAN),
         rmse,

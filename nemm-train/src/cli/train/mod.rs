@@ -395,7 +395,13 @@ fn table_vs_exact(
         let mut table = match nemm_core::Estimator::new(model, table_cfg) {
             Ok(e) => e,
             Err(e) => {
-                println!("fast path at oil loss {alpha}: refused ({e}); use the exact mode");
+                println!(
+                    "fast path at {}: refused ({e}); use the exact mode",
+                    ds.condition
+                        .clone()
+                        .unwrap_or_default()
+                        .level(f64::from(alpha))
+                );
                 return Ok(());
             }
         };

@@ -170,29 +170,52 @@ impl ConditionSpec {
         }
     }
 
-    /// A value in a table column ([`Self::column`]): alpha itself, or the condition value.
+    /// A value in a table column ([`Self::column`]): alpha itself, or the condition value,
+    /// rounded to what it means ([`Self::value_text`]).
     pub fn cell(&self, alpha: f64) -> String {
         if self.is_alpha_itself() {
-            alpha.to_string()
+            alpha_text(alpha)
         } else {
-            format!("{:.4}", self.value_at(alpha))
-                .trim_end_matches('0')
-                .trim_end_matches('.')
-                .to_string()
+            self.value_text(self.value_at(alpha))
         }
     }
 
-    /// A level in words: `oil loss 0.15`, `gas charge 100 psi (alpha 0.5)`.
+    /// A condition value rounded to the resolution of [`alpha_text`] on this condition's
+    /// scale (four decimals of its span `at_alpha_1 - at_alpha_0`), trailing zeros trimmed:
+    /// `2.252` V of a 0-5 V span, `100.25` psi of a 100 psi span.
+    pub fn value_text(&self, value: f64) -> String {
+        let span = (self.at_alpha_1 - self.at_alpha_0).abs();
+        let decimals = if span.is_finite() && span > 0.0 {
+            (LEVEL_DECIMALS as f64 - span.log10().floor()).clamp(0.0, 15.0) as usize
+        } else {
+            LEVEL_DECIMALS
+        };
+        rounded_text(value, decimals)
+    }
+
+    /// A level in words: `oil loss 0.15`, `gas charge 100 psi (alpha 0.5)`, rounded
+    /// ([`Self::cell`], [`alpha_text`]).
     pub fn level(&self, alpha: f64) -> String {
         if self.is_alpha_itself() {
-            format!("{} {alpha}", self.name)
+            format!("{} {}", self.name, alpha_text(alpha))
         } else {
             format!(
-                "{} {} {} (alpha {alpha})",
+                "{} {} {} (alpha {})",
                 self.name,
                 self.cell(alpha),
-                self.unit
+                self.unit,
+                alpha_text(alpha)
             )
+        }
+    }
+
+    /// Levels in words, for a list: `oil loss 0, 0.15, 0.3`, `gas charge 150, 100 psi`.
+    pub fn levels(&self, alphas: &[f64]) -> String {
+        let cells: Vec<String> = alphas.iter().map(|&a| self.cell(a)).collect();
+        if self.is_alpha_itself() {
+            format!("{} {}", self.name, cells.join(", "))
+        } else {
+            format!("{} {} {}", self.name, cells.join(", "), self.unit)
         }
     }
 
@@ -234,6 +257,35 @@ impl ConditionSpec {
             },
         )
         .ok()
+    }
+}
+
+/// Decimals of a printed condition level `alpha` (and of a condition value, relative to its
+/// span): a level is set to about 1e-4 of its range.
+pub const LEVEL_DECIMALS: usize = 4;
+
+/// A condition level `alpha` as printed: at most [`LEVEL_DECIMALS`] decimals, trailing zeros
+/// trimmed (`0.4504`, `0.15`, `1`). JSON outputs keep the exact number.
+pub fn alpha_text(alpha: f64) -> String {
+    rounded_text(alpha, LEVEL_DECIMALS)
+}
+
+/// `value` with at most `decimals` decimals, trailing zeros (and a bare point) trimmed;
+/// a value rounding to zero prints `0`, not `-0`.
+pub fn rounded_text(value: f64, decimals: usize) -> String {
+    if !value.is_finite() {
+        return value.to_string();
+    }
+    let s = format!("{value:.decimals$}");
+    let s = if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.')
+    } else {
+        &s
+    };
+    if s == "-0" {
+        "0".into()
+    } else {
+        s.to_string()
     }
 }
 

@@ -11,7 +11,10 @@ struct Converted {
     displacement_m: Vec<f64>,
     force_n: Vec<f64>,
     velocity_m_s: Option<Vec<f64>>,
+    /// The level column: its raw numbers as read, alpha once mapped ([`Converted::map_levels`]).
     alpha: Option<Vec<f64>>,
+    /// Field (0-based) and header name of the level column.
+    alpha_field: (usize, String),
     lines: Vec<usize>,
     /// The first date-time stamp of the time column (times are seconds from it), when the
     /// column holds date-time stamps.
@@ -27,14 +30,16 @@ impl Converted {
             force_n: Vec::new(),
             velocity_m_s: spec.columns.velocity.as_ref().map(|_| Vec::new()),
             alpha: spec.columns.alpha.as_ref().map(|_| Vec::new()),
+            alpha_field: (0, String::new()),
             lines: Vec::new(),
             origin: None,
         }
     }
 
     /// Converts one row: every mapped column to SI units (`role`, field, unit factor,
-    /// spec), the time from the time column or `spec.rate_hz`. Refuses a cell that is not a
-    /// finite number, a level outside \[0, 1\] and a time that does not increase.
+    /// spec), the time from the time column or `spec.rate_hz`; the level column's raw
+    /// number is kept as read. Refuses a cell that is not a finite number and a time that
+    /// does not increase.
     fn push_row(
         &mut self,
         row: &Row<'_, '_>,
@@ -58,24 +63,17 @@ impl Converted {
                 column: e.column,
                 value: e.value,
             })?;
-            let si = (v * c.gain + c.offset) * factor * if c.invert { -1.0 } else { 1.0 };
+            let si = (v * c.gain() + c.offset()) * factor * if c.invert { -1.0 } else { 1.0 };
             match role {
                 "time" => time = Some(si),
                 "displacement" => self.displacement_m.push(si),
                 "force" => self.force_n.push(si),
                 "alpha" => {
-                    if !(0.0..=1.0).contains(&si) {
-                        return Err(ImportError::LevelOutOfRange {
-                            path: path.to_path_buf(),
-                            line,
-                            field: i + 1,
-                            column: row.column(i),
-                            value: row.text(i),
-                            level: si,
-                        });
-                    }
                     if let Some(a) = self.alpha.as_mut() {
-                        a.push(si);
+                        if a.is_empty() {
+                            self.alpha_field = (i, row.column(i));
+                        }
+                        a.push(v);
                     }
                 }
                 _ => {
@@ -107,6 +105,40 @@ impl Converted {
 }
 
 impl Converted {
+    /// Smallest and largest raw number of the level column (`None` without one).
+    fn raw_level_range(&self) -> Option<(f64, f64)> {
+        self.alpha.as_ref().map(|a| {
+            a.iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+                    (l.min(v), h.max(v))
+                })
+        })
+    }
+
+    /// Maps the level column's raw numbers to alpha with `map`; refuses a level outside
+    /// \[0, 1\] with the file `path`, its line and column.
+    fn map_levels(&mut self, map: &LevelMap, path: &Path) -> Result<(), ImportError> {
+        let Some(levels) = self.alpha.as_mut() else {
+            return Ok(());
+        };
+        for (k, v) in levels.iter_mut().enumerate() {
+            let level = map.alpha(*v);
+            if !(0.0..=1.0).contains(&level) {
+                return Err(ImportError::LevelOutOfRange {
+                    path: path.to_path_buf(),
+                    line: self.lines[k],
+                    field: self.alpha_field.0 + 1,
+                    column: self.alpha_field.1.clone(),
+                    value: v.to_string(),
+                    level,
+                    mapping: map.describe(),
+                });
+            }
+            *v = level;
+        }
+        Ok(())
+    }
+
     /// The time of field `i` when it is a date-time stamp: seconds from the file's first
     /// stamp (the time column's unit, gain and offset do not apply). `None` when the cell
     /// is not written as a date (a number). Refuses a malformed stamp and a column that
@@ -409,6 +441,8 @@ pub struct Imported {
     pub dataset: Dataset,
     /// One entry per run, in dataset order.
     pub runs: Vec<ImportedRun>,
+    /// How the level column became alpha (`None` without a level column).
+    pub level: Option<LevelMap>,
     /// Segments dropped as shorter than `min_run_s`: `(file, start s, end s)`.
     pub dropped: Vec<(PathBuf, f64, f64)>,
 }
@@ -416,10 +450,21 @@ pub struct Imported {
 /// Reads, converts and cuts every file of `spec` into a dataset named `name`.
 pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
     validate_spec(spec)?;
+    let mut files = spec
+        .files
+        .iter()
+        .map(|f| read_file(spec, &f.path))
+        .collect::<Result<Vec<Converted>, ImportError>>()?;
+    let level = level_map(spec, &files)?;
+    if let Some(map) = &level {
+        for (c, f) in files.iter_mut().zip(&spec.files) {
+            c.map_levels(map, &f.path)?;
+        }
+    }
+    let condition = condition_spec(spec, level.as_ref())?;
     let mut pieces: Vec<(usize, Converted, Option<f64>)> = Vec::new();
     let mut dropped = Vec::new();
-    for (fi, f) in spec.files.iter().enumerate() {
-        let c = read_file(spec, &f.path)?;
+    for ((fi, f), c) in spec.files.iter().enumerate().zip(files) {
         let cuts = if f.runs.is_empty() {
             split_cuts(spec, f, &c, &mut dropped)?
         } else {
@@ -463,12 +508,48 @@ pub fn import(spec: &ImportSpec, name: &str) -> Result<Imported, ImportError> {
         dataset: Dataset {
             name: spec.name.clone().unwrap_or_else(|| name.to_string()),
             sample_rate_hz: rate_hz,
-            condition: None,
+            condition,
             runs,
         },
         runs: account,
+        level,
         dropped,
     })
+}
+
+/// The mapping of the spec's level column, with the range of the raw numbers over all
+/// `files` when the spec takes it from the data (refused when the column is constant).
+fn level_map(spec: &ImportSpec, files: &[Converted]) -> Result<Option<LevelMap>, ImportError> {
+    let Some(c) = &spec.columns.alpha else {
+        return Ok(None);
+    };
+    let data = files
+        .iter()
+        .filter_map(Converted::raw_level_range)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), (a, b)| {
+            (l.min(a), h.max(b))
+        });
+    let map = LevelMap::new(c, data);
+    if let LevelMap::Range {
+        at_0,
+        at_1,
+        from_data: true,
+        ..
+    } = map
+    {
+        if at_0 == at_1 {
+            return Err(spec_err(
+                "columns.alpha.range",
+                format!(
+                    "missing, and the level column {} holds only {at_0} over all files, so \
+                     its range cannot be taken from the data: give the raw values at alpha 0 \
+                     and 1, e.g. range = [0.0, 5.0] (--alpha-range 0,5)",
+                    c.label()
+                ),
+            ));
+        }
+    }
+    Ok(Some(map))
 }
 
 /// Samples `[start, end)` of a converted file that make one run, and the run's level when
@@ -575,6 +656,7 @@ impl Converted {
             force_n: self.force_n[a..b].to_vec(),
             velocity_m_s: self.velocity_m_s.as_ref().map(|v| v[a..b].to_vec()),
             alpha: self.alpha.as_ref().map(|v| v[a..b].to_vec()),
+            alpha_field: self.alpha_field.clone(),
             lines: self.lines[a..b].to_vec(),
             origin: self.origin,
         };

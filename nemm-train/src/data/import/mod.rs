@@ -11,6 +11,7 @@
 //!
 //! Every error names the raw file, its line and its column (or the spec key).
 use crate::data::dataset::{self, Dataset, DatasetError, Run, RunEntry};
+use nemm_core::Direction;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -92,7 +93,7 @@ pub enum ImportError {
         value: String,
     },
     /// A condition-level cell converts to a level outside \[0, 1\].
-    #[error("{}:{line}:{field}: column \"{column}\": {value} converts to the condition level {level}, outside [0, 1] (columns.alpha: raw * gain + offset)", path.display())]
+    #[error("{}:{line}:{field}: column \"{column}\": {value} converts to the condition level {level}, outside [0, 1] (columns.alpha: {mapping})", path.display())]
     LevelOutOfRange {
         /// The raw file.
         path: PathBuf,
@@ -106,6 +107,8 @@ pub enum ImportError {
         value: String,
         /// The converted level.
         level: f64,
+        /// The mapping, e.g. `range 0 .. 5 V` or `raw * gain + offset`.
+        mapping: String,
     },
     /// A time cell is a malformed date-time stamp, or the time column mixes date-time
     /// stamps and numbers.
@@ -180,14 +183,23 @@ pub struct ColumnSpec {
     /// 1-based column number (for files without a usable header).
     #[serde(default)]
     pub index: Option<usize>,
-    /// Unit of `raw * gain + offset`: see [`unit_factor`].
+    /// Unit of `raw * gain + offset`: see [`unit_factor`]. For the level column
+    /// (`columns.alpha`) mapped by `range` (given or taken from the data), the unit of the raw
+    /// numbers themselves, e.g. `V`: the condition's unit.
     pub unit: String,
     /// Multiplier of the raw number (e.g. mm per volt for a voltage channel; default 1).
-    #[serde(default = "one")]
-    pub gain: f64,
+    #[serde(default)]
+    pub gain: Option<f64>,
     /// Added after the gain, in `unit` (e.g. a potentiometer's zero; default 0).
     #[serde(default)]
-    pub offset: f64,
+    pub offset: Option<f64>,
+    /// Level column only: the raw values at alpha 0 and at alpha 1, e.g. `[0.0, 5.0]` for a
+    /// 0-5 V control voltage (`[5.0, 0.0]` when the level falls as the raw value rises);
+    /// instead of `gain` and `offset`. Without `range`, `gain` and `offset`, a level column in
+    /// a unit other than `1` takes the range from the data: the smallest and largest raw
+    /// value over all imported files.
+    #[serde(default)]
+    pub range: Option<[f64; 2]>,
     /// Negate the converted value (compression-positive stroke or force; default false).
     #[serde(default)]
     pub invert: bool,
@@ -197,11 +209,17 @@ pub struct ColumnSpec {
     pub center: bool,
 }
 
-fn one() -> f64 {
-    1.0
-}
-
 impl ColumnSpec {
+    /// The multiplier of the raw number (`gain`, default 1).
+    pub fn gain(&self) -> f64 {
+        self.gain.unwrap_or(1.0)
+    }
+
+    /// The offset added after the gain (`offset`, default 0).
+    pub fn offset(&self) -> f64 {
+        self.offset.unwrap_or(0.0)
+    }
+
     /// Parses the command-line form `NAME:UNIT` or `#INDEX:UNIT` (the last `:` separates the
     /// unit, so names may contain colons).
     pub fn parse_flag(text: &str) -> Result<ColumnSpec, String> {
@@ -222,8 +240,9 @@ impl ColumnSpec {
             name,
             index,
             unit: unit.to_string(),
-            gain: 1.0,
-            offset: 0.0,
+            gain: None,
+            offset: None,
+            range: None,
             invert: false,
             center: false,
         })
@@ -252,9 +271,11 @@ pub struct Columns {
     /// Measured velocity (units `m/s`, `mm/s`, `in/s`), optional.
     #[serde(default)]
     pub velocity: Option<ColumnSpec>,
-    /// Condition level per sample (unit `1`), optional: `raw * gain + offset` must lie in
-    /// \[0, 1\] (e.g. an MR damper's 0-5 V control voltage with `gain = 0.2`). The runs then
-    /// carry the level per sample (the run file's `alpha` column).
+    /// Condition level per sample, optional. Mapped to alpha in \[0, 1\] by `range` (the raw
+    /// values at alpha 0 and 1, in the column's unit, e.g. `V`), by the range of the data
+    /// when neither `range` nor `gain` is given and the unit is not `1`, or as
+    /// `raw * gain + offset` in unit `1`. The runs then carry the level per sample (the run
+    /// file's `alpha` column).
     #[serde(default)]
     pub alpha: Option<ColumnSpec>,
 }
@@ -368,7 +389,46 @@ pub struct ImportSpec {
     /// Default cutting of every file.
     #[serde(default)]
     pub split: SplitSpec,
+    /// What alpha stands for, written to the manifest's `[condition]` (default: none, the
+    /// paper's oil loss).
+    #[serde(default)]
+    pub condition: Option<ImportCondition>,
     /// The raw files.
     #[serde(default)]
     pub files: Vec<FileSpec>,
+}
+
+/// The import spec's `[condition]` table (and the `--condition-*` and `--prior` flags): the
+/// manifest's `[condition]` ([`dataset::ConditionSpec`]) with defaults from a level column.
+///
+/// A condition is written when this table is given or the level column is mapped by a range
+/// (given or taken from the data); it then needs `name` and the prior of every coefficient
+/// (the defaults of a manifest, all `decreasing`, are oil loss's and are not assumed).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImportCondition {
+    /// Name, e.g. `control voltage` (1 to [`nemm_core::model::MAX_CONDITION_NAME`] bytes).
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Unit of the condition value (at most [`nemm_core::model::MAX_CONDITION_UNIT`] bytes;
+    /// default: the level column's unit when it is mapped by a range, else `-`).
+    #[serde(default)]
+    pub unit: Option<String>,
+    /// Condition value at alpha 0 (default: the level column's raw value at alpha 0 when it
+    /// is mapped by a range, else 0).
+    #[serde(default)]
+    pub at_alpha_0: Option<f64>,
+    /// Condition value at alpha 1 (default: the level column's raw value at alpha 1 when it
+    /// is mapped by a range, else 1).
+    #[serde(default)]
+    pub at_alpha_1: Option<f64>,
+    /// Prior of `b_fl` in alpha: `decreasing`, `increasing` or `none` (required).
+    #[serde(default)]
+    pub b_fl: Option<Direction>,
+    /// Prior of `b_pr` in alpha (required).
+    #[serde(default)]
+    pub b_pr: Option<Direction>,
+    /// Prior of `k_pr` in alpha (required).
+    #[serde(default)]
+    pub k_pr: Option<Direction>,
 }

@@ -86,6 +86,21 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
         return Err(spec_err("files", "no raw files given"));
     }
     validate_split("split", &spec.split)?;
+    // The condition with what is known before reading: values from a range taken from the
+    // data are checked once read.
+    let level = spec
+        .columns
+        .alpha
+        .as_ref()
+        .map(|c| LevelMap::new(c, (0.0, 1.0)));
+    let from_data = matches!(
+        level,
+        Some(LevelMap::Range {
+            from_data: true,
+            ..
+        })
+    );
+    resolve_condition(spec, level.as_ref(), !from_data)?;
     for (i, f) in spec.files.iter().enumerate() {
         validate_file(i, f, spec.columns.alpha.is_some())?;
     }
@@ -105,6 +120,15 @@ fn validate_column(role: &str, c: &ColumnSpec) -> Result<(), ImportError> {
     if c.index == Some(0) {
         return Err(spec_err(key("index"), "columns are counted from 1"));
     }
+    if role == "alpha" {
+        return validate_level_column(c);
+    }
+    if c.range.is_some() {
+        return Err(spec_err(
+            key("range"),
+            "only the level column (columns.alpha) takes a range",
+        ));
+    }
     if unit_factor(role, &c.unit).is_none() {
         let accepted: Vec<&str> = ["s", "ms", "us", "min", "m", "cm", "mm", "um", "in"]
             .into_iter()
@@ -121,16 +145,304 @@ fn validate_column(role: &str, c: &ColumnSpec) -> Result<(), ImportError> {
             ),
         ));
     }
-    if !(c.gain.is_finite() && c.gain != 0.0) {
+    validate_gain_offset(role, c)
+}
+
+/// Checks `gain` (finite, non-zero) and `offset` (finite) of the column of `role`.
+fn validate_gain_offset(role: &str, c: &ColumnSpec) -> Result<(), ImportError> {
+    let key = |k: &str| format!("columns.{role}.{k}");
+    if !(c.gain().is_finite() && c.gain() != 0.0) {
         return Err(spec_err(
             key("gain"),
-            format!("{} is not a non-zero number", c.gain),
+            format!("{} is not a non-zero number", c.gain()),
         ));
     }
-    if !c.offset.is_finite() {
+    if !c.offset().is_finite() {
         return Err(spec_err(key("offset"), "is not finite"));
     }
     Ok(())
+}
+
+/// Checks the level column (`columns.alpha`): `range` or `gain`/`offset` (not both), a
+/// `range` of finite distinct ends, the unit `1` for `gain`/`offset` and a condition unit
+/// otherwise, no `invert` with a range (swap its ends instead) and no `center`.
+fn validate_level_column(c: &ColumnSpec) -> Result<(), ImportError> {
+    if c.center {
+        return Err(spec_err(
+            "columns.alpha.center",
+            "a condition level is not centred",
+        ));
+    }
+    match LevelKind::of(c) {
+        LevelKind::Linear => {
+            if c.range.is_some() {
+                return Err(spec_err(
+                    "columns.alpha.range",
+                    "give either `range` or `gain`/`offset`, not both",
+                ));
+            }
+            if c.unit != "1" {
+                return Err(spec_err(
+                    "columns.alpha.unit",
+                    format!(
+                        "\"{}\": with `gain`/`offset` the unit is \"1\" (raw * gain + offset is \
+                         alpha); to map raw values in {} give `range = [at alpha 0, at alpha 1]` \
+                         instead, or neither to take the range from the data",
+                        c.unit, c.unit
+                    ),
+                ));
+            }
+            validate_gain_offset("alpha", c)
+        }
+        LevelKind::Range(range) => {
+            if let Some([a, b]) = range {
+                if !(a.is_finite() && b.is_finite() && a != b) {
+                    return Err(spec_err(
+                        "columns.alpha.range",
+                        format!(
+                            "[{a}, {b}] needs two finite, distinct raw values (at alpha 0 and 1)"
+                        ),
+                    ));
+                }
+            }
+            if c.invert {
+                return Err(spec_err(
+                    "columns.alpha.invert",
+                    "not with a range: swap its ends (the raw value at alpha 0 comes first)",
+                ));
+            }
+            let max = nemm_core::model::MAX_CONDITION_UNIT;
+            if c.unit.is_empty() || c.unit.len() > max {
+                return Err(spec_err(
+                    "columns.alpha.unit",
+                    format!(
+                        "\"{}\" is {} bytes; the level column's unit is the condition's \
+                         and must be 1 to {max} bytes",
+                        c.unit,
+                        c.unit.len()
+                    ),
+                ));
+            }
+            Ok(())
+        }
+    }
+}
+
+/// How the level column maps raw numbers to alpha, as the spec says it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LevelKind {
+    /// `alpha = raw * gain + offset` (unit `1`; `gain` or `offset` given, or neither with
+    /// unit `1` and no `range`).
+    Linear,
+    /// By the raw values at alpha 0 and 1: given (`range`), or `None` to take them from the
+    /// data.
+    Range(Option<[f64; 2]>),
+}
+
+impl LevelKind {
+    /// The mapping of level column `c`.
+    pub fn of(c: &ColumnSpec) -> LevelKind {
+        match (c.range, c.gain.is_some() || c.offset.is_some()) {
+            (Some(r), false) => LevelKind::Range(Some(r)),
+            (None, false) if c.unit != "1" => LevelKind::Range(None),
+            _ => LevelKind::Linear,
+        }
+    }
+}
+
+/// How the level column's raw numbers became alpha in an import.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LevelMap {
+    /// `alpha = sign (raw * gain + offset)`.
+    Linear {
+        /// Multiplier of the raw number.
+        gain: f64,
+        /// Added after the gain.
+        offset: f64,
+        /// Negated after.
+        invert: bool,
+    },
+    /// `alpha = (raw - at_0) / (at_1 - at_0)`.
+    Range {
+        /// Raw value at alpha 0.
+        at_0: f64,
+        /// Raw value at alpha 1.
+        at_1: f64,
+        /// Unit of the raw values (the column's).
+        unit: String,
+        /// `true` if the range is the smallest and largest raw value of the data.
+        from_data: bool,
+    },
+}
+
+impl LevelMap {
+    /// The mapping of level column `c` with the range of the data `data` (smallest and
+    /// largest raw value; used when the spec gives no range).
+    pub fn new(c: &ColumnSpec, data: (f64, f64)) -> LevelMap {
+        match LevelKind::of(c) {
+            LevelKind::Linear => LevelMap::Linear {
+                gain: c.gain(),
+                offset: c.offset(),
+                invert: c.invert,
+            },
+            LevelKind::Range(r) => LevelMap::Range {
+                at_0: r.map_or(data.0, |r| r[0]),
+                at_1: r.map_or(data.1, |r| r[1]),
+                unit: c.unit.clone(),
+                from_data: r.is_none(),
+            },
+        }
+    }
+
+    /// The level of raw value `raw`.
+    pub fn alpha(&self, raw: f64) -> f64 {
+        match self {
+            LevelMap::Linear {
+                gain,
+                offset,
+                invert,
+            } => (raw * gain + offset) * if *invert { -1.0 } else { 1.0 },
+            LevelMap::Range { at_0, at_1, .. } => (raw - at_0) / (at_1 - at_0),
+        }
+    }
+
+    /// The mapping in words: `range 0 .. 5 V (the data's)`, `raw * 0.2 + 0`.
+    pub fn describe(&self) -> String {
+        match self {
+            LevelMap::Linear {
+                gain,
+                offset,
+                invert,
+            } => format!("{}raw * {gain} + {offset}", if *invert { "-" } else { "" }),
+            LevelMap::Range {
+                at_0,
+                at_1,
+                unit,
+                from_data,
+            } => format!(
+                "range {at_0} .. {at_1} {unit}{}",
+                if *from_data {
+                    " (the smallest and largest raw value of the imported files)"
+                } else {
+                    ""
+                }
+            ),
+        }
+    }
+}
+
+/// The manifest's `[condition]` of an import: the spec's `[condition]` with the defaults of
+/// a level column mapped by a range (`level`): its unit and its raw values at alpha 0 and 1.
+/// `None` without both (alpha is then the paper's oil loss). Refuses a missing name or prior,
+/// a name or unit too long for the weights blob, and values at alpha 0 and 1 that are not
+/// finite and distinct.
+pub fn condition_spec(
+    spec: &ImportSpec,
+    level: Option<&LevelMap>,
+) -> Result<Option<dataset::ConditionSpec>, ImportError> {
+    resolve_condition(spec, level, true)
+}
+
+/// [`condition_spec`]; `check_values: false` skips the check of the values at alpha 0 and
+/// 1 (a range still to be taken from the data).
+fn resolve_condition(
+    spec: &ImportSpec,
+    level: Option<&LevelMap>,
+    check_values: bool,
+) -> Result<Option<dataset::ConditionSpec>, ImportError> {
+    let range = match level {
+        Some(LevelMap::Range {
+            at_0, at_1, unit, ..
+        }) => Some((*at_0, *at_1, unit.as_str())),
+        _ => None,
+    };
+    let c = match (&spec.condition, range) {
+        (None, None) => return Ok(None),
+        (Some(c), _) => c.clone(),
+        (None, Some(_)) => ImportCondition::default(),
+    };
+    let why = match (&spec.condition, range) {
+        (None, Some((_, _, unit))) => format!(
+            " (the level column in {unit} makes alpha a condition: name it in [condition] or \
+             with --condition-name)"
+        ),
+        _ => String::new(),
+    };
+    let name = c.name.clone().ok_or_else(|| {
+        spec_err(
+            "condition.name",
+            format!("missing: name what alpha stands for, e.g. \"control voltage\"{why}"),
+        )
+    })?;
+    let prior = |d: Option<Direction>, coefficient: &str| {
+        d.ok_or_else(|| {
+            spec_err(
+                format!("condition.{coefficient}"),
+                format!(
+                    "missing: the prior of {coefficient} in alpha, \"decreasing\", \
+                     \"increasing\" or \"none\" (--prior {coefficient}=...); it is not assumed, \
+                     since oil loss's \"decreasing\" is wrong for a condition that raises damping"
+                ),
+            )
+        })
+    };
+    let out = dataset::ConditionSpec {
+        unit: c.unit.clone().unwrap_or_else(|| match range {
+            Some((_, _, u)) if u != "1" => u.to_string(),
+            _ => "-".into(),
+        }),
+        at_alpha_0: c.at_alpha_0.or(range.map(|r| r.0)).unwrap_or(0.0),
+        at_alpha_1: c.at_alpha_1.or(range.map(|r| r.1)).unwrap_or(1.0),
+        b_fl: prior(c.b_fl, "b_fl")?,
+        b_pr: prior(c.b_pr, "b_pr")?,
+        k_pr: prior(c.k_pr, "k_pr")?,
+        name,
+    };
+    let (name_max, unit_max) = (
+        nemm_core::model::MAX_CONDITION_NAME,
+        nemm_core::model::MAX_CONDITION_UNIT,
+    );
+    if out.name.is_empty() || out.name.len() > name_max {
+        return Err(spec_err(
+            "condition.name",
+            format!(
+                "\"{}\" is {} bytes; must be 1 to {name_max} bytes",
+                out.name,
+                out.name.len()
+            ),
+        ));
+    }
+    if out.unit.len() > unit_max {
+        return Err(spec_err(
+            "condition.unit",
+            format!(
+                "\"{}\" is {} bytes; must be at most {unit_max} bytes",
+                out.unit,
+                out.unit.len()
+            ),
+        ));
+    }
+    if !check_values {
+        return Ok(Some(out));
+    }
+    for (key, v) in [
+        ("condition.at_alpha_0", out.at_alpha_0),
+        ("condition.at_alpha_1", out.at_alpha_1),
+    ] {
+        if !(v.is_finite() && (v as f32).is_finite()) {
+            return Err(spec_err(key, format!("{v} is not a finite number")));
+        }
+    }
+    if out.at_alpha_0 as f32 == out.at_alpha_1 as f32 {
+        return Err(spec_err(
+            "condition.at_alpha_1",
+            format!(
+                "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
+                out.at_alpha_1
+            ),
+        ));
+    }
+    Ok(Some(out))
 }
 
 /// Checks the CSV dialect (`[csv]`).

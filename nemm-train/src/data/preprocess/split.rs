@@ -138,7 +138,7 @@ impl SplitConfig {
             if !(a.is_finite() && (0.0..=1.0).contains(&a)) {
                 return Err(config_err(
                     "test_alphas / train_alphas",
-                    format!("{a} is not an oil-loss level in [0, 1]"),
+                    format!("{a} is not a condition level alpha in [0, 1]"),
                 ));
             }
         }
@@ -170,16 +170,24 @@ impl SplitConfig {
         ];
         for (key, set) in sets {
             if let Some(&a) = set.iter().find(|&&a| !present(a)) {
-                let levels: Vec<String> =
-                    distinct_levels(dataset.runs.iter().map(|r| r.entry.oil_loss))
-                        .iter()
-                        .map(f64::to_string)
-                        .collect();
+                let levels = distinct_levels(dataset.runs.iter().map(|r| r.entry.oil_loss));
+                let alphas: Vec<String> = levels
+                    .iter()
+                    .map(|&l| crate::data::dataset::alpha_text(l))
+                    .collect();
+                let condition = dataset.condition.clone().unwrap_or_default();
+                let values = if condition.is_alpha_itself() {
+                    String::new()
+                } else {
+                    format!(" ({})", condition.levels(&levels))
+                };
                 return Err(config_err(
                     key,
                     format!(
-                        "oil-loss level {a} matches no run; the dataset's levels are {}",
-                        levels.join(", ")
+                        "alpha {} matches no run; the dataset's {} levels are alpha {}{values}",
+                        crate::data::dataset::alpha_text(a),
+                        condition.name,
+                        alphas.join(", ")
                     ),
                 ));
             }

@@ -363,6 +363,7 @@ pub(super) fn fig7_loops(ctx: &Ctx<'_>) -> Result<Drawn> {
         Err(why) => return Ok(Drawn::Skipped(why)),
     };
     let frame = LoopFrame::of(data.iter().flatten().map(|(_, d)| d));
+    let condition = ctx.condition();
     let at_10mm = data
         .iter()
         .flatten()
@@ -380,16 +381,20 @@ pub(super) fn fig7_loops(ctx: &Ctx<'_>) -> Result<Drawn> {
         ));
     // Rows: measured, model, both.
     for (c, col) in cols.iter().zip(&data) {
-        let title = format!("measured: {}", level_name(c.0, c.1));
-        fig = fig.with_panel(column_panel(*c, col, || measured_loops(&frame, title, col)));
+        let title = format!("measured: {}", level_name(&condition, c.0, c.1));
+        fig = fig.with_panel(column_panel(&level_name(&condition, c.0, c.1), col, || {
+            measured_loops(&frame, title, col)
+        }));
     }
     for (c, col) in cols.iter().zip(&data) {
-        let title = format!("{model_name}: {}", level_name(c.0, c.1));
-        fig = fig.with_panel(column_panel(*c, col, || model_loops(&frame, title, col)));
+        let title = format!("{model_name}: {}", level_name(&condition, c.0, c.1));
+        fig = fig.with_panel(column_panel(&level_name(&condition, c.0, c.1), col, || {
+            model_loops(&frame, title, col)
+        }));
     }
     for (c, col) in cols.iter().zip(&data) {
-        let title = format!("overlay: {}", level_name(c.0, c.1));
-        fig = fig.with_panel(column_panel(*c, col, || {
+        let title = format!("overlay: {}", level_name(&condition, c.0, c.1));
+        fig = fig.with_panel(column_panel(&level_name(&condition, c.0, c.1), col, || {
             overlay_loops(&frame, title, col, model_name)
         }));
     }
@@ -431,10 +436,11 @@ fn fig7_columns(ctx: &Ctx<'_>, variant: ModelKind) -> Result<Vec<Column>, String
     Ok(data)
 }
 
-/// The panel of column `c` of Fig. 7, or a note when the column has no run.
-fn column_panel(c: (f64, RunRole), col: &Column, panel: impl FnOnce() -> LinePanel) -> Panel {
+/// The panel of a column of Fig. 7 (its level in words `level`), or a note when the column
+/// has no run.
+fn column_panel(level: &str, col: &Column, panel: impl FnOnce() -> LinePanel) -> Panel {
     if col.is_empty() {
-        Panel::Note(format!("no run at {}", level_name(c.0, c.1)))
+        Panel::Note(format!("no run at {level}"))
     } else {
         panel().into()
     }
@@ -518,7 +524,7 @@ pub(super) fn loops_all_variants(ctx: &Ctx<'_>) -> Result<Drawn> {
             } else {
                 "training"
             },
-            level_name(pick.alpha, role),
+            level_name(&ctx.condition(), pick.alpha, role),
             pick.amplitude_m * 1e3,
             pick.frequency_hz
         ));

@@ -41,7 +41,7 @@ pub mod training;
 pub use loops::loop_requests;
 
 use crate::bench::reference::EmmReference;
-use crate::data::dataset::Dataset;
+use crate::data::dataset::{ConditionSpec, Dataset};
 use crate::data::preprocess::{Prepared, RunRole};
 use crate::report::plot::{self, palette, Figure};
 use crate::report::predictions::RunPredictions;
@@ -210,6 +210,11 @@ impl Ctx<'_> {
     fn force_scale(&self) -> f64 {
         self.prepared.scales.force_n
     }
+
+    /// The dataset's condition (the paper's oil loss without a `[condition]`).
+    fn condition(&self) -> ConditionSpec {
+        ConditionSpec::from_core(&self.prepared.condition)
+    }
 }
 
 fn variant_color(v: ModelKind) -> RGBColor {
@@ -242,10 +247,17 @@ fn pct(a: f64) -> String {
     format!("{:.0} %", 100.0 * a)
 }
 
-fn level_name(a: f64, role: RunRole) -> String {
-    match role {
-        RunRole::Test => format!("{} oil loss (test)", pct(a)),
-        _ => format!("{} oil loss (training)", pct(a)),
+/// A level and its role in a panel title: `15 % oil loss (test)` for the paper's oil loss,
+/// else the condition's level in words, e.g. `control voltage 2.5 V (alpha 0.5) (training)`.
+fn level_name(condition: &ConditionSpec, a: f64, role: RunRole) -> String {
+    let role = match role {
+        RunRole::Test => "test",
+        _ => "training",
+    };
+    if *condition == ConditionSpec::default() {
+        format!("{} oil loss ({role})", pct(a))
+    } else {
+        format!("{} ({role})", condition.level(a))
     }
 }
 

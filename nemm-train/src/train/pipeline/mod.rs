@@ -385,10 +385,11 @@ fn check_trainable(
 ) -> Result<()> {
     if prepared.validation.is_empty() && variants.iter().any(|v| *v != ModelKind::Sem) {
         bail!(
-            "no validation windows: the runs at the training oil-loss levels are too short for \
+            "no validation windows: the runs at the training {} levels are too short for \
              the {:.0} % validation split of their {:.2} s windows ({} training windows in all); \
              early stopping and model selection need them. Use longer or more runs, or \
              shorter windows (--window-s)",
+            prepared.condition.name.as_str(),
             100.0 * prepared.config.split.validation_fraction,
             prepared.scored_samples as f64 * prepared.dt_s,
             prepared.train.len()

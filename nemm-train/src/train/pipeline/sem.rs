@@ -233,8 +233,9 @@ pub(super) fn train_sem(
         a.len()
     };
     eprintln!(
-        "[sem] {velocities} support velocities x {levels} oil-loss levels{}, validation RMSE \
+        "[sem] {velocities} support velocities x {levels} {} levels{}, validation RMSE \
          {val:.4}",
+        prepared.condition.name.as_str(),
         if distinct > levels {
             format!(" ({distinct} binned)")
         } else {
