@@ -401,18 +401,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     #[inline]
     fn step_at(&mut self, velocity_m_s: f32, position_m: Option<f32>) -> Estimate {
         let mut flags = self.sticky.0;
-        let u = if !velocity_m_s.is_finite() {
-            flags |= Flags::INPUT_NON_FINITE | Flags::INPUT_HELD;
-            self.last_u
-        } else if velocity_m_s.abs() > self.velocity_limit {
-            flags |= Flags::INPUT_OUT_OF_RANGE | Flags::INPUT_HELD;
-            self.last_u
-        } else {
-            velocity_m_s
-        };
-        if flags & Flags::INPUT_HELD != 0 {
-            self.diag.held_samples = self.diag.held_samples.wrapping_add(1);
-        }
+        let u = self.guard_input(velocity_m_s, &mut flags);
         self.diag.steps = self.diag.steps.wrapping_add(1);
         let force_n = match self.rt.kind {
             RuntimeKind::Empty => {
@@ -420,106 +409,86 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 0.0
             }
             RuntimeKind::Sem => self.rt.sem_map.force_on_curve(&self.rt.sem_curve, u),
-            RuntimeKind::Emm => {
-                let rt = &self.rt.emm;
-                // The domain flag reports the new state (the output evaluation); the RK
-                // stages in between are clamped alike, unflagged (their states lie between
-                // the old and the new one up to the local error).
-                // Table mode dispatches once per step, not per coefficient evaluation.
-                let mut out = false;
-                let (x0, c0, u0, b_pr) = (&self.state, &self.coeffs, self.last_u, rt.b_pr);
-                let (x1, c1, f) = match (rt.b_fl.kind, rt.k_pr.kind) {
-                    (CoefKind::Table, CoefKind::Table) => {
-                        let (tb, tk) = (&rt.b_fl.table, &rt.k_pr.table);
-                        let mut stage = CoefStage {
-                            b_fl: tb,
-                            k_pr: tk,
-                            b_pr,
-                        };
-                        let r = rt.run::<Unfused, _>(&mut stage, x0, c0, u0, u);
-                        out = !(tb.contains(r.0.v_st_m_s) && tk.contains(r.0.x_pr_m));
-                        r
-                    }
-                    (CoefKind::Table, CoefKind::Const) => {
-                        let tb = &rt.b_fl.table;
-                        let mut stage = CoefStage {
-                            b_fl: tb,
-                            k_pr: rt.k_pr.value,
-                            b_pr,
-                        };
-                        let r = rt.run::<Unfused, _>(&mut stage, x0, c0, u0, u);
-                        out = !tb.contains(r.0.v_st_m_s);
-                        r
-                    }
-                    // Exact mode: the reference (fused) arithmetic; the scalers out of line.
-                    (CoefKind::Neural, CoefKind::Neural) => {
-                        let mut stage = CoefStage {
-                            b_fl: &rt.b_fl.exact,
-                            k_pr: &rt.k_pr.exact,
-                            b_pr,
-                        };
-                        rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
-                    }
-                    (CoefKind::Neural, CoefKind::Const) => {
-                        let mut stage = CoefStage {
-                            b_fl: &rt.b_fl.exact,
-                            k_pr: rt.k_pr.value,
-                            b_pr,
-                        };
-                        rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
-                    }
-                    // The Linear EMM: constants, the reference (fused) arithmetic.
-                    (CoefKind::Const, CoefKind::Const) => {
-                        let mut stage = CoefStage {
-                            b_fl: rt.b_fl.value,
-                            k_pr: rt.k_pr.value,
-                            b_pr,
-                        };
-                        rt.run::<Fused, _>(&mut stage, x0, c0, u0, u)
-                    }
-                    // No model kind builds these mixes; any coefficient through `coeffs`.
-                    _ => {
-                        let r = rt.run::<Fused, _>(&mut RuntimeStage(rt), x0, c0, u0, u);
-                        rt.coeffs(&r.0, &mut out);
-                        r
-                    }
-                };
-                if out {
-                    flags |= Flags::OUT_OF_TABLE_DOMAIN;
-                }
-                if f.is_finite() && x1.x_pr_m.abs() <= rt.x_limit && x1.v_st_m_s.abs() <= rt.v_limit
-                {
-                    self.state = x1;
-                    self.coeffs = c1;
-                    f
-                } else {
-                    flags |= Flags::STATE_RESET;
-                    self.diag.resets = self.diag.resets.wrapping_add(1);
-                    self.state = State::default();
-                    self.coeffs = rt.coeffs(&self.state, &mut false);
-                    let f0 = emm::force(&self.coeffs, &self.state, u);
-                    if f0.is_finite() {
-                        f0
-                    } else {
-                        0.0
-                    }
-                }
-            }
+            RuntimeKind::Emm => self.emm_step(u, &mut flags),
         };
         self.last_u = u;
-        let force_n = match &self.static_force {
+        let force_n = self.add_static_force(force_n, position_m, u, &mut flags);
+        Estimate {
+            force_n: if force_n.is_finite() { force_n } else { 0.0 },
+            flags: Flags(flags),
+        }
+    }
+
+    /// The input guard: the velocity, or the last good one (flagged, and counted as held)
+    /// for a non-finite or implausible sample.
+    #[inline(always)]
+    fn guard_input(&mut self, velocity_m_s: f32, flags: &mut u8) -> f32 {
+        let u = if !velocity_m_s.is_finite() {
+            *flags |= Flags::INPUT_NON_FINITE | Flags::INPUT_HELD;
+            self.last_u
+        } else if velocity_m_s.abs() > self.velocity_limit {
+            *flags |= Flags::INPUT_OUT_OF_RANGE | Flags::INPUT_HELD;
+            self.last_u
+        } else {
+            velocity_m_s
+        };
+        if *flags & Flags::INPUT_HELD != 0 {
+            self.diag.held_samples = self.diag.held_samples.wrapping_add(1);
+        }
+        u
+    }
+
+    /// One RK step of an EMM from the last input to `u` and the force at the new state,
+    /// behind the divergence guard: a non-finite force or a state beyond its limits resets
+    /// the state to rest (flagged) and gives the force there.
+    #[inline(always)]
+    fn emm_step(&mut self, u: f32, flags: &mut u8) -> f32 {
+        let rt = &self.rt.emm;
+        // The domain flag reports the new state (the output evaluation); the RK stages in
+        // between are clamped alike, unflagged (their states lie between the old and the
+        // new one up to the local error).
+        let mut out = false;
+        let (x1, c1, f) = rt.advance(&self.state, &self.coeffs, self.last_u, u, &mut out);
+        if out {
+            *flags |= Flags::OUT_OF_TABLE_DOMAIN;
+        }
+        if f.is_finite() && x1.x_pr_m.abs() <= rt.x_limit && x1.v_st_m_s.abs() <= rt.v_limit {
+            self.state = x1;
+            self.coeffs = c1;
+            f
+        } else {
+            *flags |= Flags::STATE_RESET;
+            self.diag.resets = self.diag.resets.wrapping_add(1);
+            self.state = State::default();
+            self.coeffs = rt.coeffs(&self.state, &mut false);
+            let f0 = emm::force(&self.coeffs, &self.state, u);
+            if f0.is_finite() {
+                f0
+            } else {
+                0.0
+            }
+        }
+    }
+
+    /// `force_n` plus the static force at the stroke position (the last good one when
+    /// `position_m` is missing or non-finite, flagged); `force_n` for a model without one.
+    #[inline(always)]
+    fn add_static_force(
+        &mut self,
+        force_n: f32,
+        position_m: Option<f32>,
+        u: f32,
+        flags: &mut u8,
+    ) -> f32 {
+        match &self.static_force {
             None => force_n,
             Some(s) => {
                 match position_m {
                     Some(x) if x.is_finite() => self.last_x = x,
-                    _ => flags |= Flags::POSITION_MISSING,
+                    _ => *flags |= Flags::POSITION_MISSING,
                 }
                 force_n + s.force(self.last_x, u, self.alpha)
             }
-        };
-        Estimate {
-            force_n: if force_n.is_finite() { force_n } else { 0.0 },
-            flags: Flags(flags),
         }
     }
 

@@ -125,115 +125,28 @@ mod app {
             .ks("board", board::NAME)
             .kv("capacity", PARAM_CAPACITY as u32);
         console.write(line.finish());
-
-        // Options (QEMU command line, see `nemm_firmware::options`).
-        let mut args = [0u8; board::ARGS_CAPACITY];
-        let options = match Options::parse(board::args(&mut args).unwrap_or("")) {
-            Ok(o) => o,
-            Err(bad) => {
-                let mut l = Line::new();
-                l.str("error").ks("kind", "bad-option").ks("option", bad);
-                fail(&mut console, &mut l, report::EXIT_USAGE)
-            }
-        };
+        let options = parse_options(&mut console);
         let period_ticks = options.period_ticks.unwrap_or(PERIOD_TICKS);
-
-        let trace = match Trace::parse(board::trace_bytes()) {
-            Ok(t) if t.sample_rate_hz == SAMPLE_RATE_HZ as f32 => match options.samples {
-                Some(n) => t.prefix(n as usize),
-                None => t,
-            },
-            _ => {
-                let mut l = Line::new();
-                l.str("error").ks("kind", "trace");
-                fail(&mut console, &mut l, report::EXIT_USAGE)
-            }
-        };
+        let trace = open_trace(&mut console, &options);
         let mut sensor = board::sensor(trace);
         for w in &options.faults {
             // Both hold `MAX_FAULT_WINDOWS`.
             let _ = sensor.spi_mut().inject(*w);
         }
-
-        let no_estimator = |console: Console| Local {
-            sample_loop: None,
-            logger: None,
-            console,
+        let Some(estimator) = build_estimator(&mut console, &options, trace.oil_loss) else {
+            let local = Local {
+                sample_loop: None,
+                logger: None,
+                console,
+            };
+            return (Shared {}, local);
         };
-        let blob = match slot::blob(board::weights_slot()) {
-            Ok(b) => b,
-            Err(e) => {
-                let mut l = Line::new();
-                report::slot_error(&mut l, &e);
-                console.write(l.finish());
-                return (Shared {}, no_estimator(console));
-            }
-        };
-        let (model, tables) = match load_model(blob) {
-            Ok(loaded) => loaded,
-            Err(e) => {
-                let mut l = Line::new();
-                report::decode_error(&mut l, &e);
-                console.write(l.finish());
-                return (Shared {}, no_estimator(console));
-            }
-        };
-        let mut l = Line::new();
-        if !report::check_rate(&mut l, model.dt_s) {
-            console.write(l.finish());
-            return (Shared {}, no_estimator(console));
-        }
-        let table = options.table.unwrap_or(nemm_firmware::TABLE_MODE_DEFAULT);
-        let cfg = EstimatorConfig {
-            mode: nemm_firmware::eval_mode(table),
-            ..EstimatorConfig::new(trace.oil_loss)
-        };
-        // Built in place in its static: nothing of the estimator's size is on the stack.
-        let Some(estimator) = ESTIMATOR.init(nemm_firmware::FwEstimator::empty()) else {
-            board::exit(report::EXIT_USAGE) // init runs once
-        };
-        // The blob's stored tables at this alpha, if it has them (no table build at boot).
-        if let Err(e) = estimator.load_with_tables(model, cfg, &tables, blob) {
-            let mut l = Line::new();
-            report::estimator_error(&mut l, &e);
-            console.write(l.finish());
-            return (Shared {}, no_estimator(console));
-        }
-        let mut l = Line::new();
-        report::weights_ok(&mut l, model, blob.len(), estimator);
-        console.write(l.finish());
-
         let Some(queue) = LOG.init(Queue::new()) else {
             board::exit(report::EXIT_USAGE)
         };
         let (log, logger) = queue.split();
-        // Reset to here: the estimator is ready; the first step runs one period after the
-        // SysTick set-up below.
-        let boot_ticks = board::boot_ticks();
-        let mut l = Line::new();
-        l.str("start")
-            .kv("period_ticks", period_ticks)
-            .kv("core_hz", board::SYSTICK_HZ)
-            .kv("samples", trace.len() as u32)
-            .kx("alpha", trace.oil_loss.to_bits())
-            .kv("faults", options.faults.len() as u32)
-            .kv("stalls", options.stalls.len() as u32)
-            .kv("boot_stack", board::stack_used());
-        match boot_ticks {
-            Some(t) => l.kv("boot_ticks", t),
-            None => l.ks("boot_ticks", "wrapped"),
-        };
-        console.write(l.finish());
-
-        // SAFETY: init runs once with interrupts disabled; the SysTick registers are owned by
-        // this application (RTIC's `peripherals = false` leaves them to us).
-        let mut syst = unsafe { cortex_m::Peripherals::steal() }.SYST;
-        syst.set_clock_source(SystClkSource::Core);
-        syst.set_reload(period_ticks - 1);
-        syst.clear_current();
-        syst.enable_interrupt();
-        syst.enable_counter();
-
+        start_line(&mut console, &options, period_ticks, &trace);
+        let syst = start_systick(period_ticks);
         (
             Shared {},
             Local {
@@ -253,6 +166,124 @@ mod app {
                 console,
             },
         )
+    }
+
+    /// The options from the command line (QEMU's, see `nemm_firmware::options`); an invalid
+    /// one is reported and ends the run.
+    fn parse_options(console: &mut Console) -> Options {
+        let mut args = [0u8; board::ARGS_CAPACITY];
+        match Options::parse(board::args(&mut args).unwrap_or("")) {
+            Ok(o) => o,
+            Err(bad) => {
+                let mut l = Line::new();
+                l.str("error").ks("kind", "bad-option").ks("option", bad);
+                fail(console, &mut l, report::EXIT_USAGE)
+            }
+        }
+    }
+
+    /// The recorded trace the replay sensor serves (its first `samples=` only, if given);
+    /// one at another sample rate, or none, is reported and ends the run.
+    fn open_trace(console: &mut Console, options: &Options) -> Trace<'static> {
+        match Trace::parse(board::trace_bytes()) {
+            Ok(t) if t.sample_rate_hz == SAMPLE_RATE_HZ as f32 => match options.samples {
+                Some(n) => t.prefix(n as usize),
+                None => t,
+            },
+            _ => {
+                let mut l = Line::new();
+                l.str("error").ks("kind", "trace");
+                fail(console, &mut l, report::EXIT_USAGE)
+            }
+        }
+    }
+
+    /// The estimator at level `alpha`, built in place in its static from the weights slot's
+    /// blob (with the blob's stored tables at this level, if it has them: no table build at
+    /// boot), and the `weights` line. A missing or bad blob, a model of another rate or an
+    /// estimator error is reported and gives `None`: the run goes on without an estimator.
+    fn build_estimator(
+        console: &mut Console,
+        options: &Options,
+        alpha: f32,
+    ) -> Option<&'static mut nemm_firmware::FwEstimator> {
+        let blob = match slot::blob(board::weights_slot()) {
+            Ok(b) => b,
+            Err(e) => {
+                let mut l = Line::new();
+                report::slot_error(&mut l, &e);
+                console.write(l.finish());
+                return None;
+            }
+        };
+        let (model, tables) = match load_model(blob) {
+            Ok(loaded) => loaded,
+            Err(e) => {
+                let mut l = Line::new();
+                report::decode_error(&mut l, &e);
+                console.write(l.finish());
+                return None;
+            }
+        };
+        let mut l = Line::new();
+        if !report::check_rate(&mut l, model.dt_s) {
+            console.write(l.finish());
+            return None;
+        }
+        let table = options.table.unwrap_or(nemm_firmware::TABLE_MODE_DEFAULT);
+        let cfg = EstimatorConfig {
+            mode: nemm_firmware::eval_mode(table),
+            ..EstimatorConfig::new(alpha)
+        };
+        // Built in place in its static: nothing of the estimator's size is on the stack.
+        let Some(estimator) = ESTIMATOR.init(nemm_firmware::FwEstimator::empty()) else {
+            board::exit(report::EXIT_USAGE) // init runs once
+        };
+        if let Err(e) = estimator.load_with_tables(model, cfg, &tables, blob) {
+            let mut l = Line::new();
+            report::estimator_error(&mut l, &e);
+            console.write(l.finish());
+            return None;
+        }
+        let mut l = Line::new();
+        report::weights_ok(&mut l, model, blob.len(), estimator);
+        console.write(l.finish());
+        Some(estimator)
+    }
+
+    /// The `start` line: the period, the trace, the injected faults and stalls, and the boot
+    /// figures from reset to here (the estimator is ready; the first step runs one period
+    /// after the SysTick set-up).
+    fn start_line(console: &mut Console, options: &Options, period_ticks: u32, trace: &Trace<'_>) {
+        let boot_ticks = board::boot_ticks();
+        let mut l = Line::new();
+        l.str("start")
+            .kv("period_ticks", period_ticks)
+            .kv("core_hz", board::SYSTICK_HZ)
+            .kv("samples", trace.len() as u32)
+            .kx("alpha", trace.oil_loss.to_bits())
+            .kv("faults", options.faults.len() as u32)
+            .kv("stalls", options.stalls.len() as u32)
+            .kv("boot_stack", board::stack_used());
+        match boot_ticks {
+            Some(t) => l.kv("boot_ticks", t),
+            None => l.ks("boot_ticks", "wrapped"),
+        };
+        console.write(l.finish());
+    }
+
+    /// SysTick at `period_ticks` core-clock ticks per period, its interrupt (the 10 kHz task)
+    /// enabled.
+    fn start_systick(period_ticks: u32) -> SYST {
+        // SAFETY: init runs once with interrupts disabled; the SysTick registers are owned by
+        // this application (RTIC's `peripherals = false` leaves them to us).
+        let mut syst = unsafe { cortex_m::Peripherals::steal() }.SYST;
+        syst.set_clock_source(SystClkSource::Core);
+        syst.set_reload(period_ticks - 1);
+        syst.clear_current();
+        syst.enable_interrupt();
+        syst.enable_counter();
+        syst
     }
 
     /// The 10 kHz task.

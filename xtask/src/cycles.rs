@@ -200,82 +200,70 @@ pub fn is_wide(hw1: u16) -> bool {
 /// The class of the Thumb instruction whose first halfword is `hw1` (and second `hw2`, for
 /// a 32-bit one; ignored otherwise).
 pub fn classify(hw1: u16, hw2: u16) -> Class {
-    use Class::*;
-    let words = |bits: u32| bits.count_ones();
-    if !is_wide(hw1) {
-        let hw = hw1;
-        return match hw {
-            _ if hw & 0xFF00 == 0xBF00 => {
-                if hw & 0xF != 0 {
-                    It
-                } else {
-                    Other
-                }
-            }
-            _ if hw & 0xF000 == 0xD000 => {
-                if (hw >> 9) & 0x7 == 0x7 {
-                    Other // UDF, SVC
-                } else {
-                    Branch
-                }
-            }
-            _ if hw & 0xF800 == 0xE000 => Branch,
-            _ if hw & 0xFF00 == 0x4700 => Branch,
-            _ if hw & 0xF500 == 0xB100 => Branch,
-            _ if hw & 0xFE00 == 0xB400 => StoreMultiple(words(u32::from(hw & 0x1FF))),
-            _ if hw & 0xFE00 == 0xBC00 => LoadMultiple(words(u32::from(hw & 0x1FF))),
-            _ if hw & 0xF800 == 0xC000 => StoreMultiple(words(u32::from(hw & 0xFF))),
-            _ if hw & 0xF800 == 0xC800 => LoadMultiple(words(u32::from(hw & 0xFF))),
-            _ if hw & 0xF800 == 0x4800 => Load,
-            _ if hw & 0xF000 == 0x5000 => {
-                if (hw >> 9) & 0x7 <= 2 {
-                    Store
-                } else {
-                    Load
-                }
-            }
-            _ if hw & 0xE000 == 0x6000 || hw & 0xE000 == 0x8000 => {
-                if hw & 0x0800 == 0 {
-                    Store
-                } else {
-                    Load
-                }
-            }
-            _ if hw & 0xFFC0 == 0x4340 => Mul,
-            _ => Alu,
-        };
+    if is_wide(hw1) {
+        classify_wide(hw1, hw2)
+    } else {
+        classify_narrow(hw1)
     }
+}
+
+/// The number of registers in a register-list field.
+fn words(bits: u32) -> u32 {
+    bits.count_ones()
+}
+
+/// The class of a 16-bit Thumb instruction.
+fn classify_narrow(hw: u16) -> Class {
+    use Class::*;
+    match hw {
+        _ if hw & 0xFF00 == 0xBF00 => {
+            if hw & 0xF != 0 {
+                It
+            } else {
+                Other
+            }
+        }
+        _ if hw & 0xF000 == 0xD000 => {
+            if (hw >> 9) & 0x7 == 0x7 {
+                Other // UDF, SVC
+            } else {
+                Branch
+            }
+        }
+        _ if hw & 0xF800 == 0xE000 => Branch,
+        _ if hw & 0xFF00 == 0x4700 => Branch,
+        _ if hw & 0xF500 == 0xB100 => Branch,
+        _ if hw & 0xFE00 == 0xB400 => StoreMultiple(words(u32::from(hw & 0x1FF))),
+        _ if hw & 0xFE00 == 0xBC00 => LoadMultiple(words(u32::from(hw & 0x1FF))),
+        _ if hw & 0xF800 == 0xC000 => StoreMultiple(words(u32::from(hw & 0xFF))),
+        _ if hw & 0xF800 == 0xC800 => LoadMultiple(words(u32::from(hw & 0xFF))),
+        _ if hw & 0xF800 == 0x4800 => Load,
+        _ if hw & 0xF000 == 0x5000 => {
+            if (hw >> 9) & 0x7 <= 2 {
+                Store
+            } else {
+                Load
+            }
+        }
+        _ if hw & 0xE000 == 0x6000 || hw & 0xE000 == 0x8000 => {
+            if hw & 0x0800 == 0 {
+                Store
+            } else {
+                Load
+            }
+        }
+        _ if hw & 0xFFC0 == 0x4340 => Mul,
+        _ => Alu,
+    }
+}
+
+/// The class of a 32-bit Thumb-2 instruction (first halfword `hw1`, second `hw2`).
+fn classify_wide(hw1: u16, hw2: u16) -> Class {
+    use Class::*;
     let coproc_fp = (hw2 >> 9) & 0x7 == 0b101; // cp10 / cp11
     match hw1 {
-        _ if hw1 & 0xFE00 == 0xEC00 && coproc_fp => {
-            if hw1 & 0xFFE0 == 0xEC40 {
-                FpMovPair
-            } else if hw1 & 0xFF20 == 0xED00 {
-                if hw1 & 0x10 != 0 {
-                    FpLoad
-                } else {
-                    FpStore
-                }
-            } else {
-                let n = u32::from(hw2 & 0xFF);
-                if hw1 & 0x10 != 0 {
-                    FpLoadMultiple(n)
-                } else {
-                    FpStoreMultiple(n)
-                }
-            }
-        }
-        _ if hw1 & 0xFF00 == 0xEE00 && coproc_fp => {
-            if hw2 & 0x10 != 0 {
-                return FpAlu; // VMOV core <-> FP, VMRS, VMSR
-            }
-            match (hw1 >> 4) & 0xB {
-                0b0000 | 0b0001 | 0b1001 | 0b1010 => FpMac,
-                0b1000 => FpDivSqrt,
-                0b1011 if hw1 & 0xF == 0b0001 && (hw2 >> 6) & 0x3 == 0b11 => FpDivSqrt,
-                _ => FpAlu,
-            }
-        }
+        _ if hw1 & 0xFE00 == 0xEC00 && coproc_fp => fp_transfer(hw1, hw2),
+        _ if hw1 & 0xFF00 == 0xEE00 && coproc_fp => fp_data(hw1, hw2),
         _ if hw1 & 0xFE40 == 0xE800 => {
             let n = words(u32::from(hw2 & 0xDFFF));
             if hw1 & 0x10 != 0 {
@@ -321,6 +309,43 @@ pub fn classify(hw1: u16, hw2: u16) -> Class {
             }
         }
         _ => Other,
+    }
+}
+
+/// The class of an FP load, store or core-register-pair move (a cp10 / cp11 transfer,
+/// `hw1` 0xEC00-0xEDFF).
+fn fp_transfer(hw1: u16, hw2: u16) -> Class {
+    use Class::*;
+    if hw1 & 0xFFE0 == 0xEC40 {
+        FpMovPair
+    } else if hw1 & 0xFF20 == 0xED00 {
+        if hw1 & 0x10 != 0 {
+            FpLoad
+        } else {
+            FpStore
+        }
+    } else {
+        let n = u32::from(hw2 & 0xFF);
+        if hw1 & 0x10 != 0 {
+            FpLoadMultiple(n)
+        } else {
+            FpStoreMultiple(n)
+        }
+    }
+}
+
+/// The class of an FP data-processing instruction or a core <-> FP move (cp10 / cp11,
+/// `hw1` 0xEExx).
+fn fp_data(hw1: u16, hw2: u16) -> Class {
+    use Class::*;
+    if hw2 & 0x10 != 0 {
+        return FpAlu; // VMOV core <-> FP, VMRS, VMSR
+    }
+    match (hw1 >> 4) & 0xB {
+        0b0000 | 0b0001 | 0b1001 | 0b1010 => FpMac,
+        0b1000 => FpDivSqrt,
+        0b1011 if hw1 & 0xF == 0b0001 && (hw2 >> 6) & 0x3 == 0b11 => FpDivSqrt,
+        _ => FpAlu,
     }
 }
 

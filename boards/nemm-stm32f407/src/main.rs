@@ -126,7 +126,7 @@ mod app {
     use nemm_firmware::report::{self, Line};
     use nemm_firmware::sensor::StrokeSensor;
     use nemm_firmware::{slot, FwEstimator, StaticSlot, PARAM_CAPACITY, SAMPLE_RATE_HZ};
-    use stm32f4::stm32f407::TIM2;
+    use stm32f4::stm32f407::{FLASH, RCC, TIM2};
 
     /// The stroke sensor: `nemm_firmware`'s driver on SPI2 with chip select PB12.
     type Sensor = StrokeSensor<ExclusiveDevice<Spi2, ChipSelect, CycleDelay>>;
@@ -182,94 +182,23 @@ mod app {
             .ks("board", "stm32f407")
             .kv("capacity", PARAM_CAPACITY as u32);
         console.write(line.finish());
-
-        if let Err(e) = clock::configure(&dp.RCC, &dp.FLASH) {
-            let mut l = Line::new();
-            l.str("clock-error").ks("kind", e.name());
-            return stopped(console, leds, &mut l);
+        let mut error = Line::new();
+        if !start_clock(&mut console, &dp.RCC, &dp.FLASH, &mut error) {
+            return stopped(console, leds, &mut error);
         }
-        let mut l = Line::new();
-        l.str("clock")
-            .kv("sysclk_hz", clock::SYSCLK_HZ)
-            .kv("hse_hz", clock::HSE_HZ)
-            .kv("tim2_hz", TIMER_CLOCK_HZ)
-            .ks(
-                "ready_waits",
-                if cfg!(feature = "qemu") {
-                    "skipped"
-                } else {
-                    "done"
-                },
-            );
-        console.write(l.finish());
         cp.DCB.enable_trace();
         cp.DWT.set_cycle_count(0);
         cp.DWT.enable_cycle_counter();
-
-        // The weights slot, decoded once into its static, in place.
-        let blob = match slot::blob(slot::flashed()) {
-            Ok(b) => b,
-            Err(e) => {
-                let mut l = Line::new();
-                report::slot_error(&mut l, &e);
-                return stopped(console, leds, &mut l);
-            }
+        let Some(estimator) = build_estimator(&mut console, &mut error) else {
+            return stopped(console, leds, &mut error);
         };
-        let Some(model) = MODEL.init(Model::empty()) else {
-            crate::stop() // init runs once
-        };
-        let tables = match decode_into(blob, model) {
-            Ok(tables) => tables,
-            Err(e) => {
-                let mut l = Line::new();
-                report::decode_error(&mut l, &e);
-                return stopped(console, leds, &mut l);
-            }
-        };
-        let model = &*model;
-        let mut l = Line::new();
-        if !report::check_rate(&mut l, model.dt_s) {
-            return stopped(console, leds, &mut l);
-        }
-        let boot_cycles = DWT::cycle_count();
-        let cfg = EstimatorConfig {
-            mode: nemm_firmware::eval_mode(!cfg!(feature = "exact")),
-            ..EstimatorConfig::new(OIL_LOSS)
-        };
-        // Loaded in place into its static: nothing of the estimator's size is on the stack.
-        let Some(estimator) = ESTIMATOR.init(FwEstimator::empty()) else {
-            crate::stop() // init runs once
-        };
-        // The blob's stored tables at this alpha, if it has them (no table build at boot).
-        if let Err(e) = estimator.load_with_tables(model, cfg, &tables, blob) {
-            let mut l = Line::new();
-            report::estimator_error(&mut l, &e);
-            return stopped(console, leds, &mut l);
-        }
-        let build_cycles = DWT::cycle_count().wrapping_sub(boot_cycles);
-        let mut l = Line::new();
-        report::weights_ok(&mut l, model, blob.len(), estimator);
-        l.kv("build_cycles", build_cycles);
-        console.write(l.finish());
-
         let cal = nemm_firmware::stroke_calibration();
         let bus = Spi2::new(dp.SPI2, &dp.RCC, &dp.GPIOB);
         let cs = ChipSelect::new(&dp.RCC, &dp.GPIOB);
         let Ok(device) = ExclusiveDevice::new(bus, cs, CycleDelay);
         let sensor = StrokeSensor::new(device, cal);
         let dac = ForceDac::new(dp.DAC, &dp.RCC, &dp.GPIOA);
-
-        // TIM2: up-counting, update event every 1 / SAMPLE_RATE_HZ.
-        let timer = dp.TIM2;
-        dp.RCC.apb1enr().modify(|_, w| w.tim2en().set_bit());
-        timer.psc().write(|w| w.psc().set(0));
-        timer
-            .arr()
-            .write(|w| w.arr().set(TIMER_CLOCK_HZ / SAMPLE_RATE_HZ - 1));
-        timer.egr().write(|w| w.ug().update());
-        timer.sr().write(|w| w.uif().clear());
-        timer.dier().write(|w| w.uie().enabled());
-
+        let timer = sample_timer(dp.TIM2, &dp.RCC);
         let mut l = Line::new();
         l.str("start")
             .kv("rate_hz", SAMPLE_RATE_HZ)
@@ -294,6 +223,95 @@ mod app {
                 console,
             },
         )
+    }
+
+    /// The clock tree at 168 MHz from the crystal, and the `clock` line; `false`, with the
+    /// error line in `error`, if the set-up failed.
+    fn start_clock(console: &mut Console, rcc: &RCC, flash: &FLASH, error: &mut Line) -> bool {
+        if let Err(e) = clock::configure(rcc, flash) {
+            error.str("clock-error").ks("kind", e.name());
+            return false;
+        }
+        let mut l = Line::new();
+        l.str("clock")
+            .kv("sysclk_hz", clock::SYSCLK_HZ)
+            .kv("hse_hz", clock::HSE_HZ)
+            .kv("tim2_hz", TIMER_CLOCK_HZ)
+            .ks(
+                "ready_waits",
+                if cfg!(feature = "qemu") {
+                    "skipped"
+                } else {
+                    "done"
+                },
+            );
+        console.write(l.finish());
+        true
+    }
+
+    /// The estimator at [`OIL_LOSS`], from the flashed weights slot decoded once into its
+    /// static, in place, and built in place in its own (with the blob's stored tables at
+    /// this level, if it has them: no table build at boot); writes the `weights` line with
+    /// the build's cycles. `None`, with the error line in `error`, for a missing or bad blob,
+    /// a model of another rate or an estimator error.
+    fn build_estimator(
+        console: &mut Console,
+        error: &mut Line,
+    ) -> Option<&'static mut FwEstimator> {
+        let blob = match slot::blob(slot::flashed()) {
+            Ok(b) => b,
+            Err(e) => {
+                report::slot_error(error, &e);
+                return None;
+            }
+        };
+        let Some(model) = MODEL.init(Model::empty()) else {
+            crate::stop() // init runs once
+        };
+        let tables = match decode_into(blob, model) {
+            Ok(tables) => tables,
+            Err(e) => {
+                report::decode_error(error, &e);
+                return None;
+            }
+        };
+        let model = &*model;
+        if !report::check_rate(error, model.dt_s) {
+            return None;
+        }
+        let boot_cycles = DWT::cycle_count();
+        let cfg = EstimatorConfig {
+            mode: nemm_firmware::eval_mode(!cfg!(feature = "exact")),
+            ..EstimatorConfig::new(OIL_LOSS)
+        };
+        // Loaded in place into its static: nothing of the estimator's size is on the stack.
+        let Some(estimator) = ESTIMATOR.init(FwEstimator::empty()) else {
+            crate::stop() // init runs once
+        };
+        if let Err(e) = estimator.load_with_tables(model, cfg, &tables, blob) {
+            report::estimator_error(error, &e);
+            return None;
+        }
+        let build_cycles = DWT::cycle_count().wrapping_sub(boot_cycles);
+        let mut l = Line::new();
+        report::weights_ok(&mut l, model, blob.len(), estimator);
+        l.kv("build_cycles", build_cycles);
+        console.write(l.finish());
+        Some(estimator)
+    }
+
+    /// TIM2 up-counting with an update event (and its interrupt) every
+    /// `1 / SAMPLE_RATE_HZ`, not yet started.
+    fn sample_timer(timer: TIM2, rcc: &RCC) -> TIM2 {
+        rcc.apb1enr().modify(|_, w| w.tim2en().set_bit());
+        timer.psc().write(|w| w.psc().set(0));
+        timer
+            .arr()
+            .write(|w| w.arr().set(TIMER_CLOCK_HZ / SAMPLE_RATE_HZ - 1));
+        timer.egr().write(|w| w.ug().update());
+        timer.sr().write(|w| w.uif().clear());
+        timer.dier().write(|w| w.uie().enabled());
+        timer
     }
 
     /// The 10 kHz step.

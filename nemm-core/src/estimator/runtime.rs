@@ -286,6 +286,79 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         (x1, c1, emm::force_with::<M, f32>(&c1, &x1, u1))
     }
 
+    /// One RK step from `x0` (coefficients `c0`) with inputs `u0` -> `u1`, then the
+    /// coefficients and the force at the new state, with the stage coefficients of this
+    /// runtime's kinds (dispatched once per step, not per coefficient evaluation): tables
+    /// [`Unfused`], compiled scalers and constants [`Fused`] (the reference arithmetic).
+    /// Sets `out` when the new state lies outside a table's domain.
+    #[inline(always)]
+    pub(super) fn advance(
+        &self,
+        x0: &State,
+        c0: &Coefficients,
+        u0: f32,
+        u1: f32,
+        out: &mut bool,
+    ) -> (State, Coefficients, f32) {
+        let b_pr = self.b_pr;
+        match (self.b_fl.kind, self.k_pr.kind) {
+            (CoefKind::Table, CoefKind::Table) => {
+                let (tb, tk) = (&self.b_fl.table, &self.k_pr.table);
+                let mut stage = CoefStage {
+                    b_fl: tb,
+                    k_pr: tk,
+                    b_pr,
+                };
+                let r = self.run::<Unfused, _>(&mut stage, x0, c0, u0, u1);
+                *out = !(tb.contains(r.0.v_st_m_s) && tk.contains(r.0.x_pr_m));
+                r
+            }
+            (CoefKind::Table, CoefKind::Const) => {
+                let tb = &self.b_fl.table;
+                let mut stage = CoefStage {
+                    b_fl: tb,
+                    k_pr: self.k_pr.value,
+                    b_pr,
+                };
+                let r = self.run::<Unfused, _>(&mut stage, x0, c0, u0, u1);
+                *out = !tb.contains(r.0.v_st_m_s);
+                r
+            }
+            // Exact mode: the reference (fused) arithmetic; the scalers out of line.
+            (CoefKind::Neural, CoefKind::Neural) => {
+                let mut stage = CoefStage {
+                    b_fl: &self.b_fl.exact,
+                    k_pr: &self.k_pr.exact,
+                    b_pr,
+                };
+                self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+            }
+            (CoefKind::Neural, CoefKind::Const) => {
+                let mut stage = CoefStage {
+                    b_fl: &self.b_fl.exact,
+                    k_pr: self.k_pr.value,
+                    b_pr,
+                };
+                self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+            }
+            // The Linear EMM: constants, the reference (fused) arithmetic.
+            (CoefKind::Const, CoefKind::Const) => {
+                let mut stage = CoefStage {
+                    b_fl: self.b_fl.value,
+                    k_pr: self.k_pr.value,
+                    b_pr,
+                };
+                self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+            }
+            // No model kind builds these mixes; any coefficient through `coeffs`.
+            _ => {
+                let r = self.run::<Fused, _>(&mut RuntimeStage(self), x0, c0, u0, u1);
+                self.coeffs(&r.0, out);
+                r
+            }
+        }
+    }
+
     /// Re-folds `alpha` into the neural coefficients and `b_pr`; in table mode rebuilds and
     /// checks the tables first and changes nothing if one misses the bound.
     pub(super) fn set_alpha(&mut self, alpha: f32, old_alpha: f32) -> Result<(), EstimatorError> {

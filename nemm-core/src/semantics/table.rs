@@ -263,6 +263,33 @@ pub struct Table1D<const N: usize> {
     accuracy: TableAccuracy,
 }
 
+/// The pieces of a table's domain between its breakpoints: `lo`, the kinks (sorted, inside
+/// the domain) and `hi`.
+#[derive(Debug, Clone, Copy)]
+struct Pieces<'k> {
+    lo: f64,
+    hi: f64,
+    kinks: &'k [f64],
+}
+
+impl Pieces<'_> {
+    /// The number of pieces.
+    fn len(&self) -> usize {
+        self.kinks.len() + 1
+    }
+
+    /// The ends of piece `k`.
+    fn get(&self, k: usize) -> (f64, f64) {
+        let a = if k == 0 {
+            self.lo
+        } else {
+            self.kinks.get(k - 1).copied().unwrap_or(self.hi)
+        };
+        let b = self.kinks.get(k).copied().unwrap_or(self.hi);
+        (a, b)
+    }
+}
+
 /// Hermite cubic in `s in [0, 1]` through values `p0`, `p1` with slopes (per unit `s`)
 /// `m0`, `m1`, as monomial coefficients.
 fn hermite(p0: f64, m0: f64, p1: f64, m1: f64) -> [f64; 4] {
@@ -423,53 +450,57 @@ impl<const N: usize> Table1D<N> {
         kinks: &[f64],
         scaler: &'static str,
     ) -> Result<(), TableError> {
-        let (lo64, hi64) = (f64::from(lo), f64::from(hi));
-        let span = hi64 - lo64;
-        // Segments inside the domain, and the lookup cells' width.
-        let real = N - 2;
-        let cell_w = span / (2 * N - 2) as f64;
+        let pieces = Pieces {
+            lo: f64::from(lo),
+            hi: f64::from(hi),
+            kinks,
+        };
+        // The lookup cells' width.
+        let cell_w = (pieces.hi - pieces.lo) / (2 * N - 2) as f64;
         let cell_scale = (1.0 / cell_w) as f32;
         if !(cell_scale.is_finite() && cell_scale > 0.0) {
             return Err(TableError::BadConfig);
         }
-        let n_kinks = kinks.len();
-        if n_kinks + 1 > real {
+        // Segments inside the domain: N - 2.
+        if kinks.len() + 1 > N - 2 {
             return Err(TableError::TooManyKinks {
                 scaler,
                 segments: N,
             });
         }
-        let mut value = |x: f64| -> Result<f64, TableError> {
-            let v = f64::from(exact.value(x as f32));
-            if v.is_finite() {
-                Ok(v)
-            } else {
-                Err(TableError::NonFinite {
-                    scaler,
-                    at: x as f32,
-                })
-            }
+        let counts = Self::segment_counts(pieces, scaler)?;
+        self.lo = lo;
+        self.hi = hi;
+        self.cell_scale = cell_scale;
+        self.cell_offset = (-(pieces.lo - cell_w) / cell_w) as f32;
+        self.first.fill([0; 2]);
+        self.seg.fill([0.0; 6]);
+        self.accuracy = TableAccuracy {
+            max_rel_error: 0.0,
+            at: lo,
+            kinks: kinks.len(),
+            max_knots_per_cell: 0,
         };
-        // Pieces between breakpoints.
-        let piece = |k: usize| -> (f64, f64) {
-            let a = if k == 0 {
-                lo64
-            } else {
-                kinks.get(k - 1).copied().unwrap_or(hi64)
-            };
-            let b = kinks.get(k).copied().unwrap_or(hi64);
-            (a, b)
-        };
-        let pieces = n_kinks + 1;
-        // 2. Segments per piece: about uniform width, at least one per piece, N - 2 in all.
+        self.fill_segments(exact, pieces, &counts, scaler)?;
+        self.close_ends();
+        // 5. Lookup cells.
+        self.accuracy.max_knots_per_cell = self.fill_cells();
+        Ok(())
+    }
+
+    /// Step 2 of [`Self::compile`]: the number of segments of each piece, of about uniform
+    /// width, at least one per piece, all `N - 2` segments inside the domain in all (the
+    /// evaluation then needs no count).
+    fn segment_counts(pieces: Pieces<'_>, scaler: &'static str) -> Result<[usize; N], TableError> {
+        let real = N - 2;
         let count = |h: f64, k: usize| -> usize {
-            let (a, b) = piece(k);
+            let (a, b) = pieces.get(k);
             libm::ceil((b - a) / h - 1e-9).max(1.0) as usize
         };
-        let mut h = span / real as f64;
+        let mut h = (pieces.hi - pieces.lo) / real as f64;
         let mut fits = false;
         for _ in 0..4000 {
-            if (0..pieces).map(|k| count(h, k)).sum::<usize>() <= real {
+            if (0..pieces.len()).map(|k| count(h, k)).sum::<usize>() <= real {
                 fits = true;
                 break;
             }
@@ -481,17 +512,16 @@ impl<const N: usize> Table1D<N> {
                 segments: N,
             });
         }
-        // Use all N - 2 segments (the evaluation then needs no count): the spare ones go, one
-        // at a time, to the piece with the widest segments.
+        // The spare segments go, one at a time, to the piece with the widest segments.
         let mut counts = [0usize; N];
-        for (k, c) in counts.iter_mut().enumerate().take(pieces) {
+        for (k, c) in counts.iter_mut().enumerate().take(pieces.len()) {
             *c = count(h, k);
         }
         let mut total: usize = counts.iter().sum();
         while total < real {
             let mut widest = (0usize, 0.0f64);
-            for (k, &c) in counts.iter().enumerate().take(pieces) {
-                let (a, b) = piece(k);
+            for (k, &c) in counts.iter().enumerate().take(pieces.len()) {
+                let (a, b) = pieces.get(k);
                 let w = (b - a) / c.max(1) as f64;
                 if w > widest.1 {
                     widest = (k, w);
@@ -503,25 +533,34 @@ impl<const N: usize> Table1D<N> {
             }
             total += 1;
         }
-        // 3. Hermite segments; slopes by central differences inside a piece, one-sided
-        //    second-order differences at its ends (never across a kink).
-        let t = self;
-        t.lo = lo;
-        t.hi = hi;
-        t.cell_scale = cell_scale;
-        t.cell_offset = (-(lo64 - cell_w) / cell_w) as f32;
-        t.first.fill([0; 2]);
-        t.seg.fill([0.0; 6]);
-        t.accuracy = TableAccuracy {
-            max_rel_error: 0.0,
-            at: lo,
-            kinks: n_kinks,
-            max_knots_per_cell: 0,
+        Ok(counts)
+    }
+
+    /// Step 3 of [`Self::compile`]: the Hermite segments of every piece, `counts[k]` of
+    /// equal width in piece `k`, from segment 1 on (segment 0 is the boundary value below
+    /// `lo`); slopes by central differences inside a piece, one-sided second-order
+    /// differences at its ends (never across a kink).
+    fn fill_segments(
+        &mut self,
+        exact: &mut impl Tabulate,
+        pieces: Pieces<'_>,
+        counts: &[usize; N],
+        scaler: &'static str,
+    ) -> Result<(), TableError> {
+        let mut value = |x: f64| -> Result<f64, TableError> {
+            let v = f64::from(exact.value(x as f32));
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(TableError::NonFinite {
+                    scaler,
+                    at: x as f32,
+                })
+            }
         };
-        // Segment 0 is the boundary value below `lo`; the domain's start at 1.
         let mut used = 1usize;
-        for k in 0..pieces {
-            let (a, b) = piece(k);
+        for k in 0..pieces.len() {
+            let (a, b) = pieces.get(k);
             let n = counts.get(k).copied().unwrap_or(1);
             let w = (b - a) / n as f64;
             let d = w / 8.0;
@@ -542,7 +581,7 @@ impl<const N: usize> Table1D<N> {
                 let (p1, m1) = knot(i + 1)?;
                 let c = hermite(p0, m0, p1, m1);
                 let x0 = a + w * i as f64;
-                let Some(slot) = t.seg.get_mut(used) else {
+                let Some(slot) = self.seg.get_mut(used) else {
                     return Err(TableError::BadConfig);
                 };
                 *slot = [
@@ -560,19 +599,22 @@ impl<const N: usize> Table1D<N> {
         if used != N - 1 {
             return Err(TableError::BadConfig);
         }
-        // 4. The boundary segments: constant, the value at `lo` (the first segment's `c0`)
-        //    and the table's own value at `hi`, so that clamping is continuous.
-        let first_c0 = t.seg.get(1).map_or(0.0, |s| s[2]);
-        let at_hi = t.segment_value(N - 2, hi);
-        if let Some(s) = t.seg.first_mut() {
+        Ok(())
+    }
+
+    /// Step 4 of [`Self::compile`]: the boundary segments, constant, the value at `lo` (the
+    /// first segment's `c0`) and the table's own value at `hi`, so that clamping is
+    /// continuous.
+    fn close_ends(&mut self) {
+        let (lo, hi) = (self.lo, self.hi);
+        let first_c0 = self.seg.get(1).map_or(0.0, |s| s[2]);
+        let at_hi = self.segment_value(N - 2, hi);
+        if let Some(s) = self.seg.first_mut() {
             *s = [lo, 0.0, first_c0, 0.0, 0.0, 0.0];
         }
-        if let Some(s) = t.seg.last_mut() {
+        if let Some(s) = self.seg.last_mut() {
             *s = [hi, 0.0, at_hi, 0.0, 0.0, 0.0];
         }
-        // 5. Lookup cells.
-        t.accuracy.max_knots_per_cell = t.fill_cells();
-        Ok(())
     }
 
     /// Step 5 of [`Self::compile`]: the lookup cells from the domain and the segments' knots

@@ -373,30 +373,7 @@ fn build_estimator<'a>(
 fn main() -> ! {
     board::init();
     let mut console = Console::open();
-    let mut opt = Options {
-        mode: Mode::Exact,
-        steps: 2000,
-        warmup: MAX_WARMUP_STEPS,
-        integrators: &[Integrator::Rk4, Integrator::Rk3],
-        example: None,
-        hidden: 16,
-        layers: 5,
-        check: 0,
-        parity: 0,
-        calibrate: true,
-    };
-    let mut args = [0u8; board::ARGS_CAPACITY];
-    for arg in board::args(&mut args)
-        .unwrap_or("")
-        .split_ascii_whitespace()
-    {
-        if !opt.apply(arg) {
-            let mut l = Line::new();
-            l.str("error").ks("kind", "bad-option").ks("option", arg);
-            fail(&mut console, &mut l, report::EXIT_USAGE)
-        }
-    }
-
+    let opt = parse_options(&mut console);
     let model = load_model(&mut console, &opt);
     let Ok(trace) = Trace::parse(board::trace_bytes()) else {
         let mut l = Line::new();
@@ -404,56 +381,10 @@ fn main() -> ! {
         fail(&mut console, &mut l, report::EXIT_USAGE)
     };
     let (hidden, layers) = scaler_shape(model);
-
     if opt.check > 0 {
-        let Some(slot) = COMPILED.init(None) else {
-            board::exit(report::EXIT_USAGE)
-        };
-        let (sc, alpha) = (&model.scales, trace.oil_loss);
-        let mut bad = 0;
-        if let Body::NemmLight { emm, b_fl } | Body::Nemm { emm, b_fl, .. } = &model.body {
-            bad += check_scaler(
-                &mut console,
-                slot,
-                "b_fl",
-                b_fl,
-                emm.b_fl_ns_per_m,
-                sc.velocity_m_s,
-                alpha,
-                sc.alpha,
-                opt.check,
-            );
-        }
-        if let Body::Nemm { emm, k_pr, .. } = &model.body {
-            bad += check_scaler(
-                &mut console,
-                slot,
-                "k_pr",
-                k_pr,
-                emm.k_pr_n_per_m,
-                sc.x_pr_m,
-                alpha,
-                sc.alpha,
-                opt.check,
-            );
-        }
-        if bad > 0 {
-            board::exit(EXIT_CHECK_FAILED)
-        }
+        check_scalers(&mut console, model, trace.oil_loss, opt.check);
     }
-
-    // Velocities through the real sensor path (a sample without one holds the previous).
-    let Some(velocities) = VELOCITIES.init([0.0; MAX_STEPS + MAX_WARMUP_STEPS]) else {
-        board::exit(report::EXIT_USAGE)
-    };
-    let mut sensor = board::sensor(trace);
-    let mut last = 0.0f32;
-    for v in velocities.iter_mut() {
-        if let Ok(x) = sensor.read_velocity() {
-            last = x;
-        }
-        *v = last;
-    }
+    let velocities = sensor_velocities(trace);
     // Parity runs start from a fresh estimator, so that the host replays exactly the
     // printed velocities.
     let warmup_steps = if opt.parity > 0 { 0 } else { opt.warmup };
@@ -464,21 +395,13 @@ fn main() -> ! {
         opt.steps
     };
     let measured = rest.get(..n_measured).unwrap_or(rest);
-
-    // SAFETY: this program is the only user of SysTick.
-    let mut syst = unsafe { cortex_m::Peripherals::steal() }.SYST;
-    syst.set_clock_source(SystClkSource::Core);
-    syst.set_reload(SYST_RANGE - 1);
-    syst.clear_current();
-    syst.enable_counter();
-
+    let mut syst = start_systick();
     let int_loop_ticks = if opt.calibrate && opt.parity == 0 {
         calibrate(&mut console)
     } else {
         // The factor QEMU's `-icount shift=0` gives on mps2-an386 (25 MHz SysTick).
         2 * CALIBRATION_ITERATIONS / 40
     };
-
     let Some(est_slot) = ESTIMATOR.init(None) else {
         board::exit(report::EXIT_USAGE)
     };
@@ -502,65 +425,23 @@ fn main() -> ! {
         for &v in warmup {
             black_box(est.step(black_box(v)));
         }
-
+        let run = RunName {
+            kind: model.kind().name(),
+            integrator: integrator.name(),
+            mode: opt.mode,
+            hidden,
+            layers,
+        };
         if opt.parity > 0 {
-            let mut l = Line::new();
-            l.str("parity")
-                .ks("kind", model.kind().name())
-                .ks("integrator", integrator.name())
-                .ks("mode", opt.mode.name())
-                .kv("hidden", hidden)
-                .kv("layers", layers)
-                .kv("warmup", warmup.len() as u32)
-                .kv("steps", measured.len() as u32);
-            console.write(l.finish());
-            let mut fnv = 0x811c_9dc5u32;
-            for (k, &v) in measured.iter().enumerate() {
-                let e = est.step(v);
-                let bits = e.force_n.to_bits();
-                for byte in bits.to_le_bytes() {
-                    fnv = (fnv ^ u32::from(byte)).wrapping_mul(0x0100_0193);
-                }
-                let mut l = Line::new();
-                l.str("p ")
-                    .dec(k as u32)
-                    .str(" ")
-                    .hex_bare(v.to_bits(), 8)
-                    .str(" ")
-                    .hex_bare(bits, 8)
-                    .str(" ")
-                    .hex_bare(u32::from(e.flags.0), 2);
-                console.write(l.finish());
-            }
-            let mut l = Line::new();
-            l.str("parity-end")
-                .ks("integrator", integrator.name())
-                .kv("steps", measured.len() as u32)
-                .kx("fnv", fnv);
-            console.write(l.finish());
+            parity_run(&mut console, est, &run, warmup.len(), measured);
             continue;
         }
-
-        // Each step is timed on its own: the 24-bit counter wraps after 16.7 M ticks
-        // (671 M instructions), far less than a whole run of slow steps.
-        let mut baseline = 0u32;
-        for &v in measured {
-            let start = SYST::get_current();
-            black_box(black_box(v));
-            baseline = baseline.wrapping_add(ticks_since(start));
-        }
-        let mut ticks = 0u32;
-        for &v in measured {
-            let start = SYST::get_current();
-            black_box(est.step(black_box(v)));
-            ticks = ticks.wrapping_add(ticks_since(start));
-        }
-
+        let (ticks, baseline) = time_steps(est, measured);
         let mut l = Line::new();
         l.str("bench")
-            .ks("kind", model.kind().name())
-            .ks("integrator", integrator.name())
-            .ks("mode", opt.mode.name())
+            .ks("kind", run.kind)
+            .ks("integrator", run.integrator)
+            .ks("mode", run.mode.name())
             .kv("hidden", hidden)
             .kv("layers", layers)
             .kv("steps", measured.len() as u32)
@@ -578,23 +459,204 @@ fn main() -> ! {
             .kv("resets", est.diagnostics().resets);
         console.write(l.finish());
         if opt.mode == Mode::Table {
-            let (tables, bytes) = est.table_bytes();
-            let acc = est.table_accuracy();
-            let mut l = Line::new();
-            l.str("table")
-                .ks("kind", model.kind().name())
-                .ks("integrator", integrator.name())
-                .kv("segments", nemm_firmware::TABLE_SEGMENTS as u32)
-                .kv("tables", tables as u32)
-                .kv("table_bytes", bytes as u32)
-                .kv(
-                    "max_rel_error_ppb",
-                    report::ppb(acc.map_or(0.0, |a| a.max_rel_error)),
-                )
-                .kv("kinks", acc.map_or(0, |a| a.kinks as u32))
-                .kv("build_ticks", build_ticks);
-            console.write(l.finish());
+            table_line(&mut console, est, &run, build_ticks);
         }
     }
     board::exit(report::EXIT_DONE)
+}
+
+/// The options from the command line; an invalid one is reported and ends the program.
+fn parse_options(console: &mut Console) -> Options {
+    let mut opt = Options {
+        mode: Mode::Exact,
+        steps: 2000,
+        warmup: MAX_WARMUP_STEPS,
+        integrators: &[Integrator::Rk4, Integrator::Rk3],
+        example: None,
+        hidden: 16,
+        layers: 5,
+        check: 0,
+        parity: 0,
+        calibrate: true,
+    };
+    let mut args = [0u8; board::ARGS_CAPACITY];
+    for arg in board::args(&mut args)
+        .unwrap_or("")
+        .split_ascii_whitespace()
+    {
+        if !opt.apply(arg) {
+            let mut l = Line::new();
+            l.str("error").ks("kind", "bad-option").ks("option", arg);
+            fail(console, &mut l, report::EXIT_USAGE)
+        }
+    }
+    opt
+}
+
+/// The `check=N` option: the kernel check of every neural state scaler of `model` at `n`
+/// inputs and the level `alpha`; ends the program if any mismatch.
+fn check_scalers(console: &mut Console, model: &Model<PARAM_CAPACITY>, alpha: f32, n: u32) {
+    let Some(slot) = COMPILED.init(None) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    let sc = &model.scales;
+    let mut bad = 0;
+    if let Body::NemmLight { emm, b_fl } | Body::Nemm { emm, b_fl, .. } = &model.body {
+        bad += check_scaler(
+            console,
+            slot,
+            "b_fl",
+            b_fl,
+            emm.b_fl_ns_per_m,
+            sc.velocity_m_s,
+            alpha,
+            sc.alpha,
+            n,
+        );
+    }
+    if let Body::Nemm { emm, k_pr, .. } = &model.body {
+        bad += check_scaler(
+            console,
+            slot,
+            "k_pr",
+            k_pr,
+            emm.k_pr_n_per_m,
+            sc.x_pr_m,
+            alpha,
+            sc.alpha,
+            n,
+        );
+    }
+    if bad > 0 {
+        board::exit(EXIT_CHECK_FAILED)
+    }
+}
+
+/// The trace's velocities through the real sensor path, warm-up and measured steps (a
+/// sample without one holds the previous).
+fn sensor_velocities(trace: Trace<'static>) -> &'static [f32] {
+    let Some(velocities) = VELOCITIES.init([0.0; MAX_STEPS + MAX_WARMUP_STEPS]) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    let mut sensor = board::sensor(trace);
+    let mut last = 0.0f32;
+    for v in velocities.iter_mut() {
+        if let Ok(x) = sensor.read_velocity() {
+            last = x;
+        }
+        *v = last;
+    }
+    velocities
+}
+
+/// SysTick free running on the core clock over its full range.
+fn start_systick() -> SYST {
+    // SAFETY: this program is the only user of SysTick.
+    let mut syst = unsafe { cortex_m::Peripherals::steal() }.SYST;
+    syst.set_clock_source(SystClkSource::Core);
+    syst.set_reload(SYST_RANGE - 1);
+    syst.clear_current();
+    syst.enable_counter();
+    syst
+}
+
+/// What the lines of one integrator's run name: the model kind, the integrator, the
+/// evaluation mode and the scalers' width and depth.
+struct RunName {
+    kind: &'static str,
+    integrator: &'static str,
+    mode: Mode,
+    hidden: u32,
+    layers: u32,
+}
+
+/// The `parity=N` run of one integrator: every measured step's velocity, force and flag
+/// bits, framed by a header and the FNV-1a of the force bits.
+fn parity_run(
+    console: &mut Console,
+    est: &mut nemm_firmware::FwEstimator,
+    run: &RunName,
+    warmup: usize,
+    measured: &[f32],
+) {
+    let mut l = Line::new();
+    l.str("parity")
+        .ks("kind", run.kind)
+        .ks("integrator", run.integrator)
+        .ks("mode", run.mode.name())
+        .kv("hidden", run.hidden)
+        .kv("layers", run.layers)
+        .kv("warmup", warmup as u32)
+        .kv("steps", measured.len() as u32);
+    console.write(l.finish());
+    let mut fnv = 0x811c_9dc5u32;
+    for (k, &v) in measured.iter().enumerate() {
+        let e = est.step(v);
+        let bits = e.force_n.to_bits();
+        for byte in bits.to_le_bytes() {
+            fnv = (fnv ^ u32::from(byte)).wrapping_mul(0x0100_0193);
+        }
+        let mut l = Line::new();
+        l.str("p ")
+            .dec(k as u32)
+            .str(" ")
+            .hex_bare(v.to_bits(), 8)
+            .str(" ")
+            .hex_bare(bits, 8)
+            .str(" ")
+            .hex_bare(u32::from(e.flags.0), 2);
+        console.write(l.finish());
+    }
+    let mut l = Line::new();
+    l.str("parity-end")
+        .ks("integrator", run.integrator)
+        .kv("steps", measured.len() as u32)
+        .kx("fnv", fnv);
+    console.write(l.finish());
+}
+
+/// SysTick ticks of the `measured` steps and of the same loop around an empty body:
+/// `(ticks, baseline)`. Each step is timed on its own: the 24-bit counter wraps after
+/// 16.7 M ticks (671 M instructions), far less than a whole run of slow steps.
+#[inline(always)]
+fn time_steps(est: &mut nemm_firmware::FwEstimator, measured: &[f32]) -> (u32, u32) {
+    let mut baseline = 0u32;
+    for &v in measured {
+        let start = SYST::get_current();
+        black_box(black_box(v));
+        baseline = baseline.wrapping_add(ticks_since(start));
+    }
+    let mut ticks = 0u32;
+    for &v in measured {
+        let start = SYST::get_current();
+        black_box(est.step(black_box(v)));
+        ticks = ticks.wrapping_add(ticks_since(start));
+    }
+    (ticks, baseline)
+}
+
+/// The `table` line of a table-mode run: the tables' count, bytes, worst relative error
+/// and kinks, and the ticks of building the estimator.
+fn table_line(
+    console: &mut Console,
+    est: &nemm_firmware::FwEstimator,
+    run: &RunName,
+    build_ticks: u32,
+) {
+    let (tables, bytes) = est.table_bytes();
+    let acc = est.table_accuracy();
+    let mut l = Line::new();
+    l.str("table")
+        .ks("kind", run.kind)
+        .ks("integrator", run.integrator)
+        .kv("segments", nemm_firmware::TABLE_SEGMENTS as u32)
+        .kv("tables", tables as u32)
+        .kv("table_bytes", bytes as u32)
+        .kv(
+            "max_rel_error_ppb",
+            report::ppb(acc.map_or(0.0, |a| a.max_rel_error)),
+        )
+        .kv("kinks", acc.map_or(0, |a| a.kinks as u32))
+        .kv("build_ticks", build_ticks);
+    console.write(l.finish());
 }

@@ -35,7 +35,7 @@
 use super::LEAKY_RELU_SLOPE;
 use super::{centre, leaky_relu, norm_act};
 #[cfg(feature = "reverse")]
-use super::{centre_backward, norm_act_backward};
+use super::{centre_backward, norm_act_backward, BranchRanges, LayerRanges};
 use super::{BranchLayout, Direction, ScalerLayout, MAX_BRANCH_UNITS, MAX_HIDDEN};
 use crate::math::{Lane, MulAdd, Scalar};
 
@@ -283,113 +283,209 @@ impl<'a, S: Scalar> ScalerView<'a, S> {
         if h == 0 || h > MAX_HIDDEN || layers == 0 {
             return None;
         }
-        let w = self.mlp;
         let inv_h = S::from_f32(1.0) / S::from_f32(h as f32);
-        let layer_span = |l: usize| Some(l.checked_mul(h)?..l.checked_add(1)?.checked_mul(h)?);
-        // Output layer.
+        let mut abar = [L::default(); MAX_HIDDEN];
+        self.output_backward(tape, zbar, g_mlp, &mut abar)?;
+        let mut xbar = L::default();
+        let mut hbar = [L::default(); MAX_HIDDEN];
+        for l in (0..layers).rev() {
+            let r = layout.layer(l)?;
+            let hb = hbar.get_mut(..h)?;
+            self.norm_backward(tape, l, &r, inv_h, abar.get(..h)?, hb, g_mlp)?;
+            if l == 0 {
+                self.input_layer_backward(&r, hb, x, second, g_mlp, &mut xbar)?;
+            } else {
+                self.hidden_layer_backward(tape, l, &r, hb, abar.get_mut(..h)?, g_mlp)?;
+            }
+        }
+        if let Some(br) = layout.branch.and_then(|b| b.ranges()) {
+            self.branch_backward(&br, tape.branch_t, x, alpha_n, zbar, g_branch, &mut xbar)?;
+        }
+        Some(xbar)
+    }
+
+    /// The output layer `z = b_o + sum_i w_o,i a_i` in reverse: adds the gradients of `b_o`
+    /// and `w_o` to `g_mlp` and writes `dL/da` of the last layer into `abar`.
+    #[cfg(feature = "reverse")]
+    #[inline(always)]
+    fn output_backward<L: Lane<Scalar = S>>(
+        &self,
+        tape: &Tape<'_, L>,
+        zbar: L,
+        g_mlp: &mut [S],
+        abar: &mut [L; MAX_HIDDEN],
+    ) -> Option<()> {
+        let layout = &self.layout;
         let (w_o, b_o) = layout.output()?;
         add(g_mlp.get_mut(b_o), L::sum(zbar));
-        let mut abar = [L::default(); MAX_HIDDEN];
-        let a_last = tape.a.get(layer_span(layers - 1)?)?;
+        let a_last = tape.a.get(layer_span(layout.hidden, layout.layers - 1)?)?;
         for (((ab, &ai), &wo), gi) in abar
             .iter_mut()
             .zip(a_last)
-            .zip(w.get(w_o.clone())?)
+            .zip(self.mlp.get(w_o.clone())?)
             .zip(g_mlp.get_mut(w_o)?)
         {
             *gi = *gi + L::sum(zbar * ai);
             *ab = L::splat(wo) * zbar;
         }
-        let mut xbar = L::default();
-        let mut hbar = [L::default(); MAX_HIDDEN];
-        for l in (0..layers).rev() {
-            let r = layout.layer(l)?;
-            let span = layer_span(l)?;
-            let hb = hbar.get_mut(..h)?;
-            // Through LeakyReLU, the affine, the normalisation and the centring.
-            let (gg, gb) = g_mlp
-                .get_mut(r.gamma.start..r.beta.end)?
-                .split_at_mut_checked(h)?;
-            norm_act_backward(
-                abar.get(..h)?,
-                tape.n.get(span.clone())?,
-                tape.a.get(span)?,
-                *tape.r.get(l)?,
-                w.get(r.gamma)?,
-                inv_h,
-                hb,
-                gg,
-                gb,
-            );
-            centre_backward(hb, inv_h);
-            // Linear map.
-            let fan_in = r.fan_in.max(1);
-            let (gw, gbias) = g_mlp
-                .get_mut(r.w.start..r.b.end)?
-                .split_at_mut_checked(r.w.len())?;
-            if l == 0 {
-                let wl = w.get(r.w)?;
-                for (((&hbi, gbi), grow), row) in hb
-                    .iter()
-                    .zip(gbias)
-                    .zip(gw.chunks_exact_mut(fan_in))
-                    .zip(wl.chunks_exact(fan_in))
-                {
-                    *gbi = *gbi + L::sum(hbi);
-                    let s0 = L::sum(hbi * x);
-                    let s1 = L::sum(hbi * second);
-                    add(grow.first_mut(), s0);
-                    add(grow.get_mut(1), s1);
-                    xbar = xbar + L::splat(*row.first()?) * hbi;
-                }
-            } else {
-                let a_prev = tape.a.get(layer_span(l - 1)?)?;
-                for ((&hbi, gbi), grow) in hb.iter().zip(gbias).zip(gw.chunks_exact_mut(h)) {
-                    *gbi = *gbi + L::sum(hbi);
-                    for (gij, &aj) in grow.iter_mut().zip(a_prev) {
-                        *gij = *gij + L::sum(hbi * aj);
-                    }
-                }
-                // abar_{l-1, j} = sum_i W_ij hbar_i
-                let ab = abar.get_mut(..h)?;
-                ab.fill(L::default());
-                for (&hbi, row) in hb.iter().zip(w.get(r.w)?.chunks_exact(h)) {
-                    for (abj, &wij) in ab.iter_mut().zip(row) {
-                        *abj = *abj + L::splat(wij) * hbi;
-                    }
-                }
-            }
-        }
-        // The branch.
-        if let Some(br) = layout.branch.and_then(|b| b.ranges()) {
-            let d = S::from_f32(self.direction.sign());
-            let two = S::from_f32(2.0);
-            let one = L::constant(1.0);
-            let slope = L::constant(LEAKY_RELU_SLOPE);
-            let (r, tu, tv) = (
-                self.branch.get(br.r.clone())?,
-                self.branch.get(br.theta_u.clone())?,
-                self.branch.get(br.theta_v.clone())?,
-            );
-            for (k, ((&t, &tu), &tv)) in tape.branch_t.iter().zip(tu).zip(tv).enumerate() {
-                let act = leaky_relu(t);
-                let da = L::select_nonneg(t, one, slope);
-                let s_act = L::sum(zbar * act);
-                let tbar = zbar * L::splat(tv * tv) * da;
-                if let Some(&rk) = r.get(k) {
-                    add(g_branch.get_mut(br.r.start + k), L::sum(tbar * x));
-                    xbar = xbar + L::splat(rk) * tbar;
-                }
-                add(
-                    g_branch.get_mut(br.theta_u.start + k),
-                    L::sum(tbar * alpha_n) * d * two * tu,
-                );
-                add(g_branch.get_mut(br.c.start + k), L::sum(tbar));
-                add(g_branch.get_mut(br.theta_v.start + k), s_act * two * tv);
-            }
-        }
-        Some(xbar)
+        Some(())
     }
+
+    /// Layer `l`'s LeakyReLU, LayerNorm affine, normalisation and centring in reverse: from
+    /// `abar = dL/da` to `hb = dL/dt` (the pre-activations), adding the gradients of the gain
+    /// and offset to `g_mlp`.
+    #[allow(clippy::too_many_arguments)] // the record, the layer, two adjoints, the gradient
+    #[cfg(feature = "reverse")]
+    #[inline(always)]
+    fn norm_backward<L: Lane<Scalar = S>>(
+        &self,
+        tape: &Tape<'_, L>,
+        l: usize,
+        r: &LayerRanges,
+        inv_h: S,
+        abar: &[L],
+        hb: &mut [L],
+        g_mlp: &mut [S],
+    ) -> Option<()> {
+        let h = self.layout.hidden;
+        let span = layer_span(h, l)?;
+        let (gg, gb) = g_mlp
+            .get_mut(r.gamma.start..r.beta.end)?
+            .split_at_mut_checked(h)?;
+        norm_act_backward(
+            abar,
+            tape.n.get(span.clone())?,
+            tape.a.get(span)?,
+            *tape.r.get(l)?,
+            self.mlp.get(r.gamma.clone())?,
+            inv_h,
+            hb,
+            gg,
+            gb,
+        );
+        centre_backward(hb, inv_h);
+        Some(())
+    }
+
+    /// The first layer's linear map `t_i = W1_i0 x + W1_i1 second + b1_i` in reverse from
+    /// `hb = dL/dt`: adds the gradients of `W1` and `b1` to `g_mlp` and `dL/dx` to `xbar`.
+    #[cfg(feature = "reverse")]
+    #[inline(always)]
+    fn input_layer_backward<L: Lane<Scalar = S>>(
+        &self,
+        r: &LayerRanges,
+        hb: &[L],
+        x: L,
+        second: L,
+        g_mlp: &mut [S],
+        xbar: &mut L,
+    ) -> Option<()> {
+        let fan_in = r.fan_in.max(1);
+        let (gw, gbias) = g_mlp
+            .get_mut(r.w.start..r.b.end)?
+            .split_at_mut_checked(r.w.len())?;
+        let wl = self.mlp.get(r.w.clone())?;
+        for (((&hbi, gbi), grow), row) in hb
+            .iter()
+            .zip(gbias)
+            .zip(gw.chunks_exact_mut(fan_in))
+            .zip(wl.chunks_exact(fan_in))
+        {
+            *gbi = *gbi + L::sum(hbi);
+            let s0 = L::sum(hbi * x);
+            let s1 = L::sum(hbi * second);
+            add(grow.first_mut(), s0);
+            add(grow.get_mut(1), s1);
+            *xbar = *xbar + L::splat(*row.first()?) * hbi;
+        }
+        Some(())
+    }
+
+    /// Hidden layer `l`'s linear map `t_i = sum_j Wl_ij a_j + bl_i` in reverse from
+    /// `hb = dL/dt`: adds the gradients of `Wl` and `bl` to `g_mlp` and writes `dL/da` of
+    /// layer `l - 1` into `abar`.
+    #[cfg(feature = "reverse")]
+    #[inline(always)]
+    fn hidden_layer_backward<L: Lane<Scalar = S>>(
+        &self,
+        tape: &Tape<'_, L>,
+        l: usize,
+        r: &LayerRanges,
+        hb: &[L],
+        abar: &mut [L],
+        g_mlp: &mut [S],
+    ) -> Option<()> {
+        let h = self.layout.hidden;
+        let (gw, gbias) = g_mlp
+            .get_mut(r.w.start..r.b.end)?
+            .split_at_mut_checked(r.w.len())?;
+        let a_prev = tape.a.get(layer_span(h, l - 1)?)?;
+        for ((&hbi, gbi), grow) in hb.iter().zip(gbias).zip(gw.chunks_exact_mut(h)) {
+            *gbi = *gbi + L::sum(hbi);
+            for (gij, &aj) in grow.iter_mut().zip(a_prev) {
+                *gij = *gij + L::sum(hbi * aj);
+            }
+        }
+        // abar_{l-1, j} = sum_i W_ij hbar_i
+        abar.fill(L::default());
+        for (&hbi, row) in hb.iter().zip(self.mlp.get(r.w.clone())?.chunks_exact(h)) {
+            for (abj, &wij) in abar.iter_mut().zip(row) {
+                *abj = *abj + L::splat(wij) * hbi;
+            }
+        }
+        Some(())
+    }
+
+    /// The alpha branch `zb = sum_k theta_v,k^2 leaky_relu(t_k)`,
+    /// `t_k = r_k x + d theta_u,k^2 alpha_n + c_k`, in reverse from `zbar` at the recorded
+    /// `branch_t`: adds its gradients to `g_branch` (relative ranges `br`) and `dL/dx` to `xbar`.
+    #[allow(clippy::too_many_arguments)] // the ranges, the record, two inputs, two adjoints
+    #[cfg(feature = "reverse")]
+    #[inline(always)]
+    fn branch_backward<L: Lane<Scalar = S>>(
+        &self,
+        br: &BranchRanges,
+        branch_t: &[L],
+        x: L,
+        alpha_n: L,
+        zbar: L,
+        g_branch: &mut [S],
+        xbar: &mut L,
+    ) -> Option<()> {
+        let d = S::from_f32(self.direction.sign());
+        let two = S::from_f32(2.0);
+        let one = L::constant(1.0);
+        let slope = L::constant(LEAKY_RELU_SLOPE);
+        let (r, tu, tv) = (
+            self.branch.get(br.r.clone())?,
+            self.branch.get(br.theta_u.clone())?,
+            self.branch.get(br.theta_v.clone())?,
+        );
+        for (k, ((&t, &tu), &tv)) in branch_t.iter().zip(tu).zip(tv).enumerate() {
+            let act = leaky_relu(t);
+            let da = L::select_nonneg(t, one, slope);
+            let s_act = L::sum(zbar * act);
+            let tbar = zbar * L::splat(tv * tv) * da;
+            if let Some(&rk) = r.get(k) {
+                add(g_branch.get_mut(br.r.start + k), L::sum(tbar * x));
+                *xbar = *xbar + L::splat(rk) * tbar;
+            }
+            add(
+                g_branch.get_mut(br.theta_u.start + k),
+                L::sum(tbar * alpha_n) * d * two * tu,
+            );
+            add(g_branch.get_mut(br.c.start + k), L::sum(tbar));
+            add(g_branch.get_mut(br.theta_v.start + k), s_act * two * tv);
+        }
+        Some(())
+    }
+}
+
+/// The records of layer `l` in a tape of `h` units per layer: `l h .. (l + 1) h`.
+#[cfg(feature = "reverse")]
+#[inline(always)]
+fn layer_span(h: usize, l: usize) -> Option<core::ops::Range<usize>> {
+    Some(l.checked_mul(h)?..l.checked_add(1)?.checked_mul(h)?)
 }
 
 /// The branch's unit biases `bias_k = mul_add(d theta_u,k^2, alpha_n, c_k)` of `branch`

@@ -57,6 +57,23 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         "{}",
         crate::train::table_check::report(&model, crate::train::table_check::DEFAULT_TABLE_BOUND)
     );
+    estimator_on_held_out_run(&model, &ds, &prepared)?;
+    table_vs_exact(&model, &ds, &prepared)?;
+    let rmse = |kind: &str| report.variants.get(kind).map_or(f64::NAN, |v| v.rmse);
+    let (nemm, sem) = (rmse("nemm"), rmse("sem"));
+    println!(
+        "demo done in {:.1} min: NEMM test RMSE {:.4} = {:.0} % of the SEM's; weights in {}",
+        t0.elapsed().as_secs_f64() / 60.0,
+        nemm,
+        100.0 * nemm / sem,
+        model_path.display()
+    );
+    Ok(())
+}
+
+/// The most dynamic run with test sequences: the highest frequency among those of small
+/// amplitude (below 20 mm), else the first.
+fn most_dynamic_test_run(prepared: &Prepared) -> Result<&preprocess::PreparedRun> {
     let test_runs: Vec<_> = prepared
         .runs
         .iter()
@@ -74,14 +91,26 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         })
         .or(test_runs.first())
         .context("no held-out test run")?;
+    Ok(run)
+}
+
+/// Runs `model` through nemm-core's estimator over the whole of the most dynamic test run
+/// from rest and prints its RMSE, its time per step on this host and its largest
+/// difference to the trainer's simulation.
+fn estimator_on_held_out_run(
+    model: &nemm_core::Model,
+    ds: &dataset::Dataset,
+    prepared: &Prepared,
+) -> Result<()> {
+    let run = most_dynamic_test_run(prepared)?;
     let idx = run.summary.index;
     let what = if run.role == preprocess::RunRole::Test {
         "held-out run"
     } else {
         "run with a test tail (its training part included)"
     };
-    let (u, x, alpha) = estimator_input(&ds, &prepared, idx)?;
-    let mut est = nemm_core::Estimator::new(&model, nemm_core::EstimatorConfig::new(alpha))
+    let (u, x, alpha) = estimator_input(ds, prepared, idx)?;
+    let mut est = nemm_core::Estimator::new(model, nemm_core::EstimatorConfig::new(alpha))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let input = crate::train::eval::Input {
         velocity_m_s: &u,
@@ -101,7 +130,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         .map(|(&y, &m)| ((y - m) / fs).powi(2))
         .sum();
     let rmse = (se / (forces.len() - skip).max(1) as f64).sqrt();
-    let trainer = crate::train::eval::predict(&model, &[input], prepared.dt_s)?;
+    let trainer = crate::train::eval::predict(model, &[input], prepared.dt_s)?;
     let parity = forces
         .iter()
         .zip(&trainer[0])
@@ -122,24 +151,6 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
         forces.len(),
         ns_per_step,
         parity
-    );
-    table_vs_exact(&model, &ds, &prepared)?;
-    let nemm = report
-        .variants
-        .get("nemm")
-        .map(|v| v.rmse)
-        .unwrap_or(f64::NAN);
-    let sem = report
-        .variants
-        .get("sem")
-        .map(|v| v.rmse)
-        .unwrap_or(f64::NAN);
-    println!(
-        "demo done in {:.1} min: NEMM test RMSE {:.4} = {:.0} % of the SEM's; weights in {}",
-        t0.elapsed().as_secs_f64() / 60.0,
-        nemm,
-        100.0 * nemm / sem,
-        model_path.display()
     );
     Ok(())
 }

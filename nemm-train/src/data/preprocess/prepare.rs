@@ -283,145 +283,21 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         ));
     }
     let (warmup, scored) = config.sequences.samples(fs)?;
-
-    struct PerRun {
-        prepared: PreparedRun,
-        train: Vec<Sequence>,
-        validation: Vec<Sequence>,
-        test: Vec<Sequence>,
-        qs: QuasiStaticSplit,
-        /// Abs-max of velocity, force and alpha over the training sequences, in f64.
-        train_absmax: [f64; 3],
-        signals: Signals,
-    }
+    let ctx = RunContext {
+        config,
+        rules: &rules,
+        signal_path: &signal_path,
+        fs,
+        window,
+        warmup,
+        scored,
+    };
     let per_run: Vec<PerRun> = dataset
         .runs
         .par_iter()
         .enumerate()
-        .map(|(i, run)| -> Result<PerRun, PreprocessError> {
-            let alpha = run.entry.oil_loss;
-            let role = rules.role(&run.entry.file, alpha);
-            let (summary, signals) = summarize_run(run, i, &signal_path)?;
-            if role != RunRole::Unused
-                && summary.dissipation.force_assists_motion()
-                && !config.accept_implausible
-            {
-                return Err(PreprocessError::Implausible {
-                    run: i,
-                    file: run.entry.file.clone(),
-                    message: summary.dissipation.explain(),
-                });
-            }
-            let force = if config.signal.filter_force {
-                &signals.force_filtered_n
-            } else {
-                &run.force_n
-            };
-            let n = run.len().min(signals.velocity_m_s.len()).min(force.len());
-            let stretches = run_stretches(n, role, warmup, scored, &config.split, i);
-            // Samples outside the training stretches are binned apart from training samples
-            // (the low-acceleration rule of non-periodic runs).
-            let outside_training = |sample: usize| {
-                stretches
-                    .iter()
-                    .any(|st| st.part != Part::Train && (st.start..st.end).contains(&sample))
-            };
-            let periodic =
-                crate::data::support_points::periodicity(run, &signals.displacement_m, fs)
-                    .is_some();
-            let mut points = crate::data::support_points::support_points(
-                i,
-                periodic,
-                &signals,
-                &summary.excitation,
-                alpha,
-                window,
-                &outside_training,
-            );
-            if let Some(a) = &run.alpha {
-                for p in &mut points {
-                    p.alpha = a[p.sample];
-                }
-            }
-            let mut out = PerRun {
-                prepared: PreparedRun {
-                    role,
-                    train_sequences: 0,
-                    validation_sequences: 0,
-                    test_sequences: 0,
-                    unscored_samples: 0,
-                    quasi_static_points: points.len(),
-                    stretches: stretches.clone(),
-                    summary,
-                },
-                train: Vec::new(),
-                validation: Vec::new(),
-                test: Vec::new(),
-                qs: QuasiStaticSplit::default(),
-                train_absmax: [0.0; 3],
-                signals: Signals::default(),
-            };
-            let absmax = |x: &[f64]| x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let mut scored_total = 0;
-            for st in &stretches {
-                let (a, b) = (st.start, st.end);
-                let mut seqs = cut_sequences(
-                    i,
-                    alpha,
-                    &signals.velocity_m_s[a..b],
-                    &force[a..b],
-                    &signals.displacement_m[a..b],
-                    run.alpha.as_deref().map(|x| &x[a..b]),
-                    warmup,
-                    scored,
-                );
-                for s in &mut seqs {
-                    s.start += a;
-                }
-                scored_total += seqs.len() * scored;
-                match st.part {
-                    Part::Test => out.test.extend(seqs),
-                    Part::Validation => out.validation.extend(seqs),
-                    Part::Train => {
-                        for s in &seqs {
-                            let range = s.start..s.start + warmup + scored;
-                            let m = &mut out.train_absmax;
-                            m[0] = m[0].max(absmax(&signals.velocity_m_s[range.clone()]));
-                            m[1] = m[1].max(absmax(&force[range.clone()]));
-                            m[2] = m[2].max(match &run.alpha {
-                                Some(a) => absmax(&a[range]),
-                                None => alpha.abs(),
-                            });
-                        }
-                        out.train.extend(seqs);
-                    }
-                }
-            }
-            out.prepared.unscored_samples = if role == RunRole::Unused {
-                0
-            } else {
-                n - scored_total
-            };
-            // A quasi-static point belongs to the stretch its sample lies in.
-            for p in points {
-                match stretches
-                    .iter()
-                    .find(|st| (st.start..st.end).contains(&p.sample))
-                {
-                    Some(st) if st.part == Part::Test => out.qs.test.push(p),
-                    Some(st) if st.part == Part::Validation => out.qs.validation.push(p),
-                    Some(_) => out.qs.train.push(p),
-                    None => {}
-                }
-            }
-            out.prepared.train_sequences = out.train.len();
-            out.prepared.validation_sequences = out.validation.len();
-            out.prepared.test_sequences = out.test.len();
-            out.signals = signals;
-            Ok(out)
-        })
+        .map(|(i, run)| prepare_run(&ctx, run, i))
         .collect::<Result<_, _>>()?;
-
     let mut prepared = Prepared {
         config: config.clone(),
         sample_rate_hz: fs,
@@ -441,51 +317,256 @@ pub fn prepare(dataset: &Dataset, config: &PrepareConfig) -> Result<Prepared, Pr
         signals: Vec::with_capacity(per_run.len()),
         condition: dataset.condition(),
     };
-    let mut train_absmax = [0.0f64; 3];
-    for r in per_run {
-        for (m, v) in train_absmax.iter_mut().zip(r.train_absmax) {
-            *m = m.max(v);
-        }
-        prepared.train.extend(r.train);
-        prepared.validation.extend(r.validation);
-        prepared.test.extend(r.test);
-        prepared.quasi_static.train.extend(r.qs.train);
-        prepared.quasi_static.validation.extend(r.qs.validation);
-        prepared.quasi_static.test.extend(r.qs.test);
-        prepared.runs.push(r.prepared);
-        prepared.signals.push(r.signals);
-    }
+    let [v, f, a] = prepared.gather(per_run);
     if prepared.train.is_empty() {
-        let longest = prepared
-            .runs
-            .iter()
-            .flat_map(|r| &r.stretches)
-            .filter(|st| st.part == Part::Train)
-            .map(|st| st.end - st.start)
-            .max()
-            .unwrap_or(0);
-        let train_runs = prepared
-            .runs
-            .iter()
-            .filter(|r| r.role == RunRole::TrainValidation)
-            .count();
-        return Err(PreprocessError::NoTrainingData(format!(
-            "{train_runs} training run(s), whose longest training stretch has {longest} samples \
-             ({:.3} s), fewer than one window needs (warm-up {warmup} + window {scored} = {} \
-             samples, {:.3} s); use a shorter --window-s or --warmup-s{}",
-            longest as f64 / fs,
-            warmup + scored,
-            (warmup + scored) as f64 / fs,
-            if config.split.test_tail.is_some() {
-                ", or a smaller --test-tail"
-            } else {
-                ""
-            }
-        )));
+        return Err(no_training_window(&prepared, config));
     }
-    let [v, f, a] = train_absmax;
     prepared.scales = Scales::from_absmax(v, f, a)?;
     Ok(prepared)
+}
+
+/// What [`prepare`] fixes for every run: the configuration and what it derived from it at
+/// the dataset's sample rate.
+struct RunContext<'a> {
+    config: &'a PrepareConfig,
+    rules: &'a SplitRules<'a>,
+    signal_path: &'a SignalPath,
+    /// Sample rate \[Hz\].
+    fs: f64,
+    /// Quasi-static window half-width as a fraction of the amplitude.
+    window: f64,
+    /// Warm-up samples per sequence.
+    warmup: usize,
+    /// Scored samples per sequence.
+    scored: usize,
+}
+
+/// One run prepared: its summary, sequences, quasi-static points and signals.
+struct PerRun {
+    prepared: PreparedRun,
+    train: Vec<Sequence>,
+    validation: Vec<Sequence>,
+    test: Vec<Sequence>,
+    qs: QuasiStaticSplit,
+    /// Abs-max of velocity, force and alpha over the training sequences, in f64.
+    train_absmax: [f64; 3],
+    signals: Signals,
+}
+
+/// Prepares run `i`: its signals and summary (refusing a run whose force assists the
+/// motion unless configured otherwise), its stretches, the sequences cut from them and its
+/// quasi-static points, each to the part of the stretch it lies in.
+fn prepare_run(ctx: &RunContext<'_>, run: &Run, i: usize) -> Result<PerRun, PreprocessError> {
+    let config = ctx.config;
+    let alpha = run.entry.oil_loss;
+    let role = ctx.rules.role(&run.entry.file, alpha);
+    let (summary, signals) = summarize_run(run, i, ctx.signal_path)?;
+    if role != RunRole::Unused
+        && summary.dissipation.force_assists_motion()
+        && !config.accept_implausible
+    {
+        return Err(PreprocessError::Implausible {
+            run: i,
+            file: run.entry.file.clone(),
+            message: summary.dissipation.explain(),
+        });
+    }
+    let force = if config.signal.filter_force {
+        &signals.force_filtered_n
+    } else {
+        &run.force_n
+    };
+    let n = run.len().min(signals.velocity_m_s.len()).min(force.len());
+    let stretches = run_stretches(n, role, ctx.warmup, ctx.scored, &config.split, i);
+    let points = run_support_points(ctx, run, i, &signals, &summary.excitation, &stretches);
+    let mut out = PerRun {
+        prepared: PreparedRun {
+            role,
+            train_sequences: 0,
+            validation_sequences: 0,
+            test_sequences: 0,
+            unscored_samples: 0,
+            quasi_static_points: points.len(),
+            stretches: stretches.clone(),
+            summary,
+        },
+        train: Vec::new(),
+        validation: Vec::new(),
+        test: Vec::new(),
+        qs: QuasiStaticSplit::default(),
+        train_absmax: [0.0; 3],
+        signals: Signals::default(),
+    };
+    let scored_total = out.cut_stretches(ctx, run, i, &signals, force, &stretches);
+    out.prepared.unscored_samples = if role == RunRole::Unused {
+        0
+    } else {
+        n - scored_total
+    };
+    // A quasi-static point belongs to the stretch its sample lies in.
+    for p in points {
+        match stretches
+            .iter()
+            .find(|st| (st.start..st.end).contains(&p.sample))
+        {
+            Some(st) if st.part == Part::Test => out.qs.test.push(p),
+            Some(st) if st.part == Part::Validation => out.qs.validation.push(p),
+            Some(_) => out.qs.train.push(p),
+            None => {}
+        }
+    }
+    out.prepared.train_sequences = out.train.len();
+    out.prepared.validation_sequences = out.validation.len();
+    out.prepared.test_sequences = out.test.len();
+    out.signals = signals;
+    Ok(out)
+}
+
+/// The quasi-static points of run `i` (at the run's level per sample when it varies).
+/// Samples outside the training stretches are binned apart from training samples (the
+/// low-acceleration rule of non-periodic runs).
+fn run_support_points(
+    ctx: &RunContext<'_>,
+    run: &Run,
+    i: usize,
+    signals: &Signals,
+    excitation: &Excitation,
+    stretches: &[Stretch],
+) -> Vec<QuasiStaticPoint> {
+    let outside_training = |sample: usize| {
+        stretches
+            .iter()
+            .any(|st| st.part != Part::Train && (st.start..st.end).contains(&sample))
+    };
+    let periodic =
+        crate::data::support_points::periodicity(run, &signals.displacement_m, ctx.fs).is_some();
+    let mut points = crate::data::support_points::support_points(
+        i,
+        periodic,
+        signals,
+        excitation,
+        run.entry.oil_loss,
+        ctx.window,
+        &outside_training,
+    );
+    if let Some(a) = &run.alpha {
+        for p in &mut points {
+            p.alpha = a[p.sample];
+        }
+    }
+    points
+}
+
+impl PerRun {
+    /// Cuts the sequences of every stretch of run `i` into its part, and the training
+    /// sequences' abs-max of velocity, force and alpha into `train_absmax`. Returns the
+    /// scored samples.
+    fn cut_stretches(
+        &mut self,
+        ctx: &RunContext<'_>,
+        run: &Run,
+        i: usize,
+        signals: &Signals,
+        force: &[f64],
+        stretches: &[Stretch],
+    ) -> usize {
+        let (alpha, warmup, scored) = (run.entry.oil_loss, ctx.warmup, ctx.scored);
+        let absmax = |x: &[f64]| x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let mut scored_total = 0;
+        for st in stretches {
+            let (a, b) = (st.start, st.end);
+            let mut seqs = cut_sequences(
+                i,
+                alpha,
+                &signals.velocity_m_s[a..b],
+                &force[a..b],
+                &signals.displacement_m[a..b],
+                run.alpha.as_deref().map(|x| &x[a..b]),
+                warmup,
+                scored,
+            );
+            for s in &mut seqs {
+                s.start += a;
+            }
+            scored_total += seqs.len() * scored;
+            match st.part {
+                Part::Test => self.test.extend(seqs),
+                Part::Validation => self.validation.extend(seqs),
+                Part::Train => {
+                    for s in &seqs {
+                        let range = s.start..s.start + warmup + scored;
+                        let m = &mut self.train_absmax;
+                        m[0] = m[0].max(absmax(&signals.velocity_m_s[range.clone()]));
+                        m[1] = m[1].max(absmax(&force[range.clone()]));
+                        m[2] = m[2].max(match &run.alpha {
+                            Some(a) => absmax(&a[range]),
+                            None => alpha.abs(),
+                        });
+                    }
+                    self.train.extend(seqs);
+                }
+            }
+        }
+        scored_total
+    }
+}
+
+impl Prepared {
+    /// Appends the prepared runs in order; returns the abs-max of velocity, force and alpha
+    /// over all training sequences.
+    fn gather(&mut self, per_run: Vec<PerRun>) -> [f64; 3] {
+        let mut train_absmax = [0.0f64; 3];
+        for r in per_run {
+            for (m, v) in train_absmax.iter_mut().zip(r.train_absmax) {
+                *m = m.max(v);
+            }
+            self.train.extend(r.train);
+            self.validation.extend(r.validation);
+            self.test.extend(r.test);
+            self.quasi_static.train.extend(r.qs.train);
+            self.quasi_static.validation.extend(r.qs.validation);
+            self.quasi_static.test.extend(r.qs.test);
+            self.runs.push(r.prepared);
+            self.signals.push(r.signals);
+        }
+        train_absmax
+    }
+}
+
+/// The error of a preparation that gives no training window: the longest training stretch
+/// is shorter than a sequence.
+fn no_training_window(prepared: &Prepared, config: &PrepareConfig) -> PreprocessError {
+    let (warmup, scored, fs) = (
+        prepared.warmup_samples,
+        prepared.scored_samples,
+        prepared.sample_rate_hz,
+    );
+    let longest = prepared
+        .runs
+        .iter()
+        .flat_map(|r| &r.stretches)
+        .filter(|st| st.part == Part::Train)
+        .map(|st| st.end - st.start)
+        .max()
+        .unwrap_or(0);
+    let train_runs = prepared
+        .runs
+        .iter()
+        .filter(|r| r.role == RunRole::TrainValidation)
+        .count();
+    PreprocessError::NoTrainingData(format!(
+        "{train_runs} training run(s), whose longest training stretch has {longest} samples \
+         ({:.3} s), fewer than one window needs (warm-up {warmup} + window {scored} = {} \
+         samples, {:.3} s); use a shorter --window-s or --warmup-s{}",
+        longest as f64 / fs,
+        warmup + scored,
+        (warmup + scored) as f64 / fs,
+        if config.split.test_tail.is_some() {
+            ", or a smaller --test-tail"
+        } else {
+            ""
+        }
+    ))
 }
 
 impl Prepared {

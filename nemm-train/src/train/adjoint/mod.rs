@@ -26,7 +26,7 @@
 //!   nemm-core's own generic definitions, run here over [`Lanes`] of [`LANES`] windows with
 //!   unfused multiply-adds; their reverse modes (`rhs_backward`, `force_backward`,
 //!   `step_backward`, `ScalerView::raw_backward`, `bounded_backward`) sit next to them in
-//!   nemm-core, as does the weight layout (`mlp::ScalerLayout`). This file keeps the
+//!   nemm-core, as does the weight layout (`mlp::ScalerLayout`). This module keeps the
 //!   packing, the activation records, the loss and the sweeps. The parity test bounds the
 //!   difference to the estimator's fused arithmetic.
 //!
