@@ -505,7 +505,7 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         self.warmup_left = self.cfg.warmup;
         self.holdoff_left = 0;
         self.interval = n.saturating_sub(1) / 2;
-        self.t = if n % 2 == 0 { 0.5 } else { 0.0 };
+        self.t = if n.is_multiple_of(2) { 0.5 } else { 0.0 };
         let flags = if self.loaded {
             ObserverFlags::NOT_EXCITED
         } else {
