@@ -5,6 +5,9 @@
 //! cargo bench -p nemm-core --bench step --no-default-features --features micromath
 //! ```
 //!
+//! `observer/*`: one step of the alpha observer (`AlphaObserver`, 7 levels) on the same
+//! input, with the force of the model at alpha 0.15.
+//!
 //! `step-table/*`: the same step in the tabulated mode (`EvalMode::Table`, 256 segments per
 //! table, bound 1e-4) for the neural kinds.
 //!
@@ -21,8 +24,8 @@
 use criterion::measurement::Measurement;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use nemm_core::{
-    decode, encode, Estimator, EstimatorConfig, EvalMode, Integrator, Model, ModelKind,
-    TableConfig, DEFAULT_PARAM_CAPACITY,
+    decode, encode, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Integrator, Model,
+    ModelKind, ObserverConfig, TableConfig, DEFAULT_PARAM_CAPACITY,
 };
 use std::hint::black_box;
 
@@ -93,6 +96,27 @@ fn step_table<M: Measurement>(c: &mut Criterion<M>) {
             });
         }
     }
+    g.finish();
+}
+
+/// One `AlphaObserver::step` (7 levels over the trained range, exact mode, RK4) of the NEMM
+/// example model: the velocity as in `step`, the force that of the model at alpha 0.15.
+fn observer<M: Measurement>(c: &mut Criterion<M>) {
+    let mut g = c.benchmark_group(format!("observer/{}", nemm_core::semantics::math::BACKEND));
+    g.throughput(Throughput::Elements(1));
+    let m = model(ModelKind::Nemm);
+    let vs = velocities(m.dt_s);
+    let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("valid model");
+    let fs: Vec<f32> = vs.iter().map(|&v| est.step(v).force_n).collect();
+    let mut obs: Box<AlphaObserver> = Box::new(AlphaObserver::empty());
+    obs.load(&m, ObserverConfig::new()).expect("valid model");
+    let mut k = 0usize;
+    g.bench_function(BenchmarkId::new("nemm", obs.points()), |b| {
+        b.iter(|| {
+            k = if k + 1 == vs.len() { 0 } else { k + 1 };
+            black_box(obs.step(black_box(vs[k]), black_box(fs[k])))
+        })
+    });
     g.finish();
 }
 
@@ -179,8 +203,8 @@ mod cpu_time {
 criterion_group! {
     name = benches;
     config = Criterion::default().with_measurement(cpu_time::ThreadCpuTime);
-    targets = step, step_table, decode_blob
+    targets = step, step_table, observer, decode_blob
 }
 #[cfg(not(target_os = "linux"))]
-criterion_group!(benches, step, step_table, decode_blob);
+criterion_group!(benches, step, step_table, observer, decode_blob);
 criterion_main!(benches);

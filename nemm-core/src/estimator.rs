@@ -584,6 +584,101 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     }
 }
 
+/// One member of a bank of levels ([`crate::observer`]): what an exact-mode estimator holds
+/// that depends on its own `alpha` (the level, `b_pr(alpha)`, the state, the coefficients at
+/// the state, the last inputs). A bank of them is stepped through one shared estimator, so
+/// the weights are held once.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct BankMember {
+    pub(crate) alpha: f32,
+    b_pr: f32,
+    state: State,
+    coeffs: Coefficients,
+    last_u: f32,
+    last_x: f32,
+}
+
+impl BankMember {
+    /// A member at `alpha` that [`Estimator::step_member`] has not stepped (zeros).
+    pub(crate) const EMPTY: Self = Self {
+        alpha: 0.0,
+        b_pr: 0.0,
+        state: State {
+            x_pr_m: 0.0,
+            v_st_m_s: 0.0,
+        },
+        coeffs: Coefficients {
+            b_fl: 0.0,
+            b_pr: 0.0,
+            k_pr: 0.0,
+        },
+        last_u: 0.0,
+        last_x: 0.0,
+    };
+}
+
+/// Banks of levels through one estimator (exact mode).
+impl<const P: usize, const T: usize> Estimator<P, T> {
+    /// A bank member at `alpha`, at rest. Leaves this estimator at `alpha`, at rest.
+    /// Refused in table mode (a level would need its own tables).
+    pub(crate) fn bank_member(&mut self, alpha: f32) -> Result<BankMember, EstimatorError> {
+        if matches!(self.mode, EvalMode::Table(_)) {
+            return Err(EstimatorError::AlphaPerSampleInTableMode);
+        }
+        self.set_alpha(alpha)?;
+        self.reset();
+        Ok(BankMember {
+            alpha,
+            b_pr: self.rt.emm.b_pr,
+            state: self.state,
+            coeffs: self.coeffs,
+            last_u: self.last_u,
+            last_x: self.last_x,
+        })
+    }
+
+    /// One step of member `m` (made by [`Estimator::bank_member`] of this estimator): its
+    /// level is folded into the shared scalers if another member stepped last (the
+    /// first-layer biases and the alpha branch: about `2 H + K` operations per scaler;
+    /// `b_pr` and the coefficients at the state are the member's), then
+    /// [`Estimator::step_with_position`] (or [`Estimator::step`] without a position) from the
+    /// member's state, which is written back.
+    pub(crate) fn step_member(
+        &mut self,
+        m: &mut BankMember,
+        velocity_m_s: f32,
+        position_m: Option<f32>,
+    ) -> Estimate {
+        if m.alpha.to_bits() != self.alpha.to_bits() {
+            match self.rt.kind {
+                RuntimeKind::Empty => {}
+                RuntimeKind::Sem => self.rt.sem_curve = self.rt.sem_map.curve_at(m.alpha).0,
+                RuntimeKind::Emm => {
+                    let rt = &mut self.rt.emm;
+                    for c in [&mut rt.b_fl, &mut rt.k_pr] {
+                        if c.kind == CoefKind::Neural {
+                            c.exact.set_alpha(m.alpha);
+                        }
+                    }
+                    rt.b_pr = m.b_pr;
+                }
+            }
+            self.alpha = m.alpha;
+            self.update_alpha_flags();
+        }
+        self.state = m.state;
+        self.coeffs = m.coeffs;
+        self.last_u = m.last_u;
+        self.last_x = m.last_x;
+        let e = self.step_at(velocity_m_s, position_m);
+        m.state = self.state;
+        m.coeffs = self.coeffs;
+        m.last_u = self.last_u;
+        m.last_x = self.last_x;
+        e
+    }
+}
+
 /// A condition level per sample.
 impl<const P: usize, const T: usize> Estimator<P, T> {
     /// One sample with that sample's condition level `alpha` (a condition changing within a

@@ -14,6 +14,10 @@
 //!   ...; module [`model`]: the four variants and the step-stability check);
 //! - the typed errors: [`DecodeError`], [`ModelError`], [`EstimatorError`], [`EncodeError`],
 //!   [`TableError`];
+//! - the [`AlphaObserver`]: the oil-loss level `alpha` online from the measured velocity and
+//!   force, with an uncertainty band and flags (excitation, range, sensor faults), its
+//!   [`ObserverConfig`], [`AlphaEstimate`], [`ObserverFlags`] and [`ObserverError`] (module
+//!   [`observer`]: the method, its cost);
 //! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
 //!   low-pass) that feeds the estimator online;
 //! - [`limits`]: the fixed capacities a firmware sizes its RAM by.
@@ -65,6 +69,7 @@ pub mod estimator;
 pub mod format;
 pub mod limits;
 pub mod model;
+pub mod observer;
 #[cfg(feature = "semantics")]
 #[cfg_attr(docsrs, doc(cfg(feature = "semantics")))]
 pub mod semantics;
@@ -99,6 +104,7 @@ pub use format::{
 pub use model::{
     AlphaBranches, Body, Condition, InputScales, Meta, Model, ModelKind, Priors, Provenance,
 };
+pub use observer::{AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags};
 pub use semantics::emm::EmmConstants;
 pub use semantics::integrator::Integrator;
 pub use semantics::mlp::{
