@@ -310,6 +310,30 @@ fn non_uniform_stamps_are_resampled_only_on_request() {
     for (t, x) in r.time_s.iter().zip(&r.displacement_m) {
         assert!((x - 2e-3 * t).abs() < 1e-12, "{t} {x}");
     }
+    // Sizes are bounded before anything is allocated: a rate above the highest model rate,
+    // and a run that would hold more samples than a run may.
+    spec.resample_hz = Some(1e9);
+    let e = import::import(&spec, "n").expect_err("1 GHz");
+    assert!(
+        e.to_string()
+            .contains("resample_hz: 1000000000 Hz is above the highest model rate, 1000000 Hz"),
+        "{e}"
+    );
+    let slow = dir.path().join("slow.csv");
+    std::fs::write(&slow, "t,x,F\n0,0,0\n30,1,1\n60,2,2\n").expect("raw");
+    let mut spec = spec_from(&simple_spec(&slow, ""), dir.path());
+    spec.resample_hz = Some(1e6);
+    match import::import(&spec, "slow") {
+        Err(e @ ImportError::TooManySamples { .. }) => assert!(
+            e.to_string().contains(
+                "resampling 60 s at 1000000 Hz gives 60000001 samples; a run holds at most \
+                 50000000"
+            ),
+            "{e}"
+        ),
+        Err(e) => panic!("expected TooManySamples, got {e}"),
+        Ok(_) => panic!("a 60 s run at 1 MHz accepted"),
+    }
 }
 
 #[test]

@@ -826,11 +826,17 @@ fn cli_check_and_prepare() {
         .output()
         .expect("run nemm");
     assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        stderr.contains("oil00_a010_v0262.csv:2: column \"force_n\": \"x\" is not a number"),
-        "{stderr}"
+    // The unreadable run is listed in the report, the others are checked.
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
     );
+    assert!(
+        text.contains("oil00_a010_v0262.csv:2: column \"force_n\": \"x\" is not a number"),
+        "{text}"
+    );
+    assert!(text.contains("1 of 12 runs could not be read"), "{text}");
 }
 
 #[test]

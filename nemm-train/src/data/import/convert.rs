@@ -697,7 +697,16 @@ impl Converted {
         if let Some(r) = resample_hz {
             let t0 = self.time_s[0];
             let span = self.time_s[self.time_s.len() - 1] - t0;
-            let m = (span * r + 1e-9).floor() as usize + 1;
+            let samples = (span * r + 1e-9).floor() + 1.0;
+            if !(samples <= MAX_RESAMPLED_RUN_SAMPLES as f64) {
+                return Err(ImportError::TooManySamples {
+                    path: path.to_path_buf(),
+                    span_s: span,
+                    rate_hz: r,
+                    samples,
+                });
+            }
+            let m = samples as usize;
             let tq: Vec<f64> = (0..m).map(|i| t0 + i as f64 / r).collect();
             return Ok(Run {
                 entry,

@@ -135,10 +135,29 @@ pub enum ImportError {
         /// Why.
         message: String,
     },
+    /// Resampling a run would give more samples than a run may hold.
+    #[error("{}: resampling {span_s} s at {rate_hz} Hz gives {samples} samples; a run holds at most {MAX_RESAMPLED_RUN_SAMPLES}: cut the record into runs (--split or [[files.runs]]) or lower --resample-hz", path.display())]
+    TooManySamples {
+        /// The raw file.
+        path: PathBuf,
+        /// The run's span \[s\].
+        span_s: f64,
+        /// The resampling rate \[Hz\].
+        rate_hz: f64,
+        /// The samples it would give.
+        samples: f64,
+    },
     /// The time stamps of a run break the loader's rule (named with the raw file's lines).
     #[error(transparent)]
     Time(#[from] DatasetError),
 }
+
+/// Highest resampling rate \[Hz\] (`--resample-hz`, `resample_hz`): the highest model rate
+/// training accepts.
+pub const MAX_RESAMPLE_HZ: f64 = crate::config::MODEL_RATE_RANGE_HZ.1;
+/// Most samples a resampled run may hold (five `f64` columns: 2 GB), checked before the run
+/// is allocated.
+pub const MAX_RESAMPLED_RUN_SAMPLES: usize = 50_000_000;
 
 fn spec_err(key: impl Into<String>, message: impl Into<String>) -> ImportError {
     ImportError::SpecValue {

@@ -75,6 +75,12 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
             }
         }
     }
+    if let Some(v) = spec.resample_hz.filter(|v| *v > MAX_RESAMPLE_HZ) {
+        return Err(spec_err(
+            "resample_hz",
+            format!("{v} Hz is above the highest model rate, {MAX_RESAMPLE_HZ} Hz"),
+        ));
+    }
     if spec.columns.time.is_none() && spec.rate_hz.is_none() {
         return Err(spec_err(
             "rate_hz",

@@ -38,9 +38,8 @@ fn velocity_knots(sorted: &[f64], gap: f64) -> Vec<f64> {
 }
 
 /// The map's levels for the points' levels: every distinct level (within 1e-9) when there
-/// are at most [`MAX_SEM_ALPHAS`]; else [`MAX_SEM_ALPHAS`] bins of consecutive distinct levels
-/// holding about equal numbers of points (a level is never split), each at the mean level of
-/// its points. Returns the map's levels (strictly increasing) and each point's bin.
+/// are at most [`MAX_SEM_ALPHAS`]; else [`MAX_SEM_ALPHAS`] bins of equally many consecutive
+/// distinct levels (a level is never split), each at the mean level of its points. Returns the map's levels (strictly increasing) and each point's bin.
 pub fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
     let mut distinct: Vec<(f64, usize)> = Vec::new();
     let mut sorted: Vec<f64> = points.iter().map(|p| p.alpha).collect();
@@ -51,32 +50,11 @@ pub fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
             _ => distinct.push((a, 1)),
         }
     }
-    // The bin of each distinct level: its own when they fit, else by the middle of its
-    // points in the cumulative count (equal counts per bin), bins left empty dropped.
-    let bin_of_level: Vec<usize> = if distinct.len() <= MAX_SEM_ALPHAS {
-        (0..distinct.len()).collect()
-    } else {
-        let total = points.len() as f64;
-        let mut seen = 0usize;
-        let raw: Vec<usize> = distinct
-            .iter()
-            .map(|&(_, count)| {
-                let mid = seen as f64 + 0.5 * count as f64;
-                seen += count;
-                ((mid * MAX_SEM_ALPHAS as f64 / total) as usize).min(MAX_SEM_ALPHAS - 1)
-            })
-            .collect();
-        let mut renumbered = Vec::with_capacity(raw.len());
-        for (k, &b) in raw.iter().enumerate() {
-            let prev = renumbered.last().copied();
-            renumbered.push(match prev {
-                Some(p) if raw[k - 1] == b => p,
-                Some(p) => p + 1,
-                None => 0,
-            });
-        }
-        renumbered
-    };
+    // The bin of each distinct level: its own when they fit, else consecutive levels in
+    // equal numbers (every bin holds at least one level).
+    let bin_of_level: Vec<usize> = (0..distinct.len())
+        .map(|k| k * MAX_SEM_ALPHAS.min(distinct.len()) / distinct.len().max(1))
+        .collect();
     let bins = bin_of_level.last().map_or(0, |b| b + 1);
     let mut sum = vec![0.0f64; bins];
     let mut cnt = vec![0usize; bins];
