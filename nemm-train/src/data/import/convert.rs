@@ -698,7 +698,7 @@ impl Converted {
             let t0 = self.time_s[0];
             let span = self.time_s[self.time_s.len() - 1] - t0;
             let samples = (span * r + 1e-9).floor() + 1.0;
-            if !(samples <= MAX_RESAMPLED_RUN_SAMPLES as f64) {
+            if samples.is_nan() || samples > MAX_RESAMPLED_RUN_SAMPLES as f64 {
                 return Err(ImportError::TooManySamples {
                     path: path.to_path_buf(),
                     span_s: span,
