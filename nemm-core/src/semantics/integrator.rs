@@ -123,10 +123,10 @@ pub fn step_tableau<C: FnMut(&State) -> Coefficients>(
 ) -> State {
     let mut k = [State::default(); MAX_TABLEAU_STAGES];
     let stages = tableau.b.len().min(tableau.c.len()).min(MAX_TABLEAU_STAGES);
-    for i in 0..stages {
+    for (i, &ci) in tableau.c.iter().enumerate().take(stages) {
         let row = tableau.a.get(i).copied().unwrap_or(&[]);
         let (mut sx, mut sv) = (0.0f32, 0.0f32);
-        for (a, kj) in row.iter().zip(&k[..i]) {
+        for (a, kj) in row.iter().zip(k.iter().take(i)) {
             sx = crate::math::fma(*a, kj.x_pr_m, sx);
             sv = crate::math::fma(*a, kj.v_st_m_s, sv);
         }
@@ -134,11 +134,13 @@ pub fn step_tableau<C: FnMut(&State) -> Coefficients>(
             x_pr_m: crate::math::fma(dt, sx, x.x_pr_m),
             v_st_m_s: crate::math::fma(dt, sv, x.v_st_m_s),
         };
-        let u = crate::math::fma(tableau.c[i], u1 - u0, u0);
-        k[i] = emm::rhs(&coeffs(&s), inv_t_pr, &s, u);
+        let u = crate::math::fma(ci, u1 - u0, u0);
+        if let Some(ki) = k.get_mut(i) {
+            *ki = emm::rhs(&coeffs(&s), inv_t_pr, &s, u);
+        }
     }
     let (mut sx, mut sv) = (0.0f32, 0.0f32);
-    for (b, ki) in tableau.b.iter().zip(&k[..stages]) {
+    for (b, ki) in tableau.b.iter().zip(k.iter().take(stages)) {
         sx = crate::math::fma(*b, ki.x_pr_m, sx);
         sv = crate::math::fma(*b, ki.v_st_m_s, sv);
     }
