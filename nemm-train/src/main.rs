@@ -151,7 +151,7 @@ enum Cmd {
         /// names, e.g. 'runs/oil15_*' (repeatable) [default: every run].
         #[arg(long, value_name = "GLOB")]
         runs: Vec<String>,
-        /// Report folder: diagnose.json and alpha_<run>.png.
+        /// Report folder: diagnose.json and one figure alpha_RUN.png per run.
         #[arg(long)]
         report: PathBuf,
     },

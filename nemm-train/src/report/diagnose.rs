@@ -287,8 +287,9 @@ pub fn figure_file(file: &str) -> String {
 }
 
 /// The alpha(t) figure of one run: the observer's estimate with its band shaded (from its
-/// first update on), the label and the offline fit as horizontal lines; the levels axis
-/// spans the model's trained range `range` and the label and fit.
+/// first update on), the label and the offline fit as horizontal lines, and a vertical line
+/// at the settling time; the levels axis spans the model's trained range `range`, the label
+/// and the fit (the band is cut at 0.05 beyond them), with room above for the legend.
 pub fn alpha_figure(d: &RunDiagnosis, trace: &Trace, range: (f64, f64)) -> Figure {
     let n = trace.alpha.len();
     let end = n as f64 * trace.dt_s;
@@ -300,6 +301,8 @@ pub fn alpha_figure(d: &RunDiagnosis, trace: &Trace, range: (f64, f64)) -> Figur
         .into_iter()
         .fold(f64::NEG_INFINITY, f64::max)
         + 0.05;
+    // Headroom above the levels for the legend.
+    let top = hi + 0.12;
     let every = n.div_ceil(FIGURE_POINTS).max(1);
     let from = trace.first_update.unwrap_or(n);
     let pts: Vec<(f64, f64, f64)> = (from..n)
@@ -317,7 +320,7 @@ pub fn alpha_figure(d: &RunDiagnosis, trace: &Trace, range: (f64, f64)) -> Figur
         "alpha [-]",
     )
     .with_x_range(0.0, end.max(trace.dt_s))
-    .with_y_range(lo, hi)
+    .with_y_range(lo, top)
     .with_legend(LegendPosition::UpperRight);
     if !pts.is_empty() {
         let band: Vec<(f64, f64, f64)> = pts
