@@ -418,7 +418,9 @@ pub fn markdown(stamp: &Stamp, estimates: &[Estimate], kinds: &[&str]) -> String
         RUNS[2].command()
     );
     for th in &threads {
-        let _ = write!(md, " {} |", th.replace("-thread", " thread"));
+        let n = th.trim_end_matches("-thread");
+        let plural = if n == "1" { "" } else { "s" };
+        let _ = write!(md, " {n} thread{plural} |");
     }
     let _ = writeln!(md, "\n|---|{}", "---:|".repeat(threads.len()));
     for kind in t.functions(GRADIENT, kinds) {
@@ -593,7 +595,7 @@ mod tests {
         assert!(md.contains(
             "| `nemm` | 15791 | default | 69.3 us |\n| `nemm` | 15791 | 1313 | 48.8 us |\n"
         ));
-        assert!(md.contains("| kind | 1 thread | 2 thread |\n|---|---:|---:|\n"));
+        assert!(md.contains("| kind | 1 thread | 2 threads |\n|---|---:|---:|\n"));
         assert!(md.contains("| `nemm` | 960 ms | 540 ms |\n"), "{md}");
         assert!(md.contains(
             "`cargo bench -p nemm-core --bench step --no-default-features --features \
