@@ -9,7 +9,8 @@
 //! input, with the force of the model at alpha 0.15.
 //!
 //! `step-table/*`: the same step in the tabulated mode (`EvalMode::Table`, 256 segments per
-//! table, bound 1e-4) for the neural kinds.
+//! table, bound 1e-4) for the neural kinds. A kind whose tables miss the bound is skipped with
+//! a message (with `micromath` the approximated scalers of the example models do).
 //!
 //! Models: `nemm_core::testing::example_model(kind, 16, 5)` (the paper's best Table 3 size,
 //! H = 16, L = 5), alpha 0.15, default step 1e-4 s. Each iteration is one step on a
@@ -86,7 +87,18 @@ fn step_table<M: Measurement>(c: &mut Criterion<M>) {
                 mode: EvalMode::Table(TableConfig::new(1e-4)),
                 ..EstimatorConfig::new(0.15)
             };
-            let mut est: Estimator = Estimator::new(&m, cfg).expect("tables within the bound");
+            let mut est: Estimator = match Estimator::new(&m, cfg) {
+                Ok(est) => est,
+                Err(e) => {
+                    eprintln!(
+                        "step-table/{}/{}/{}: skipped, the tables miss the bound: {e:?}",
+                        nemm_core::semantics::math::BACKEND,
+                        kind.name(),
+                        integrator.name()
+                    );
+                    continue;
+                }
+            };
             let mut k = 0usize;
             g.bench_function(BenchmarkId::new(kind.name(), integrator.name()), |b| {
                 b.iter(|| {

@@ -136,6 +136,25 @@ enum Cmd {
         #[command(flatten)]
         data_options: nemm_train::config::DataConfig,
     },
+    /// The online alpha observer (nemm-core's AlphaObserver) over recorded runs, driven as on
+    /// target, against the offline best fit of the same model: per run the final estimate,
+    /// its band, excitation and settling time; writes diagnose.json and one alpha(t) figure
+    /// per run (docs/observer.md, "nemm diagnose").
+    Diagnose {
+        /// The weights blob.
+        #[arg(long)]
+        model: PathBuf,
+        /// Dataset folder (manifest.toml + CSV runs), sampled at the model's rate.
+        #[arg(long)]
+        data: PathBuf,
+        /// Runs to diagnose: glob(s) on the run files' paths (relative to the manifest) or
+        /// names, e.g. 'runs/oil15_*' (repeatable) [default: every run].
+        #[arg(long, value_name = "GLOB")]
+        runs: Vec<String>,
+        /// Report folder: diagnose.json and one figure alpha_RUN.png per run.
+        #[arg(long)]
+        report: PathBuf,
+    },
     /// The main job: virtual bench (generated if absent), all four variants on a budget of a
     /// few minutes, Table 4, figures, model.nemm, and the exported model run through nemm-core.
     /// The options are those of `nemm compare`, over the demo's defaults: --data out/bench
@@ -239,6 +258,12 @@ fn main() -> ExitCode {
             step,
             report.as_deref(),
         ),
+        Cmd::Diagnose {
+            model,
+            data,
+            runs,
+            report,
+        } => nemm_train::cli::diagnose::diagnose(&model, &data, &runs, &report),
         Cmd::Demo { out, args } => {
             args.base_over(nemm_train::config::Config::demo())
                 .and_then(|cfg| {

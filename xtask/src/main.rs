@@ -16,12 +16,14 @@
 //!   the trainer's ([`model`]).
 //! - `cargo xtask results`: the target figures (instructions per step, flash, RAM, stack)
 //!   written into `docs/results.md`; `--training DIR` copies a training report's tables
-//!   there ([`results`]).
+//!   there, `--host` writes the host criterion benches' figures ([`results`],
+//!   [`host_bench`]).
 
 mod board;
 mod checks;
 mod cycles;
 mod firmware;
+mod host_bench;
 mod model;
 mod results;
 mod target_bench;
@@ -124,14 +126,23 @@ enum Cmd {
     /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm
     /// demo` report directory instead (table4.md, table5.md if present, report.json). With
     /// --tables, fill the tables block: the fast path's error against the exact one on the
-    /// firmware's trained model and the example models (host, minutes).
+    /// firmware's trained model and the example models (host, minutes). With --host, run the
+    /// host criterion benches (nemm-core's `step` with libm and micromath, nemm-train's
+    /// `gradient`; minutes) and fill the host block.
     Results {
         /// A report directory of `nemm compare` or `nemm demo`.
-        #[arg(long, value_name = "DIR", conflicts_with = "tables")]
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host"])]
         training: Option<PathBuf>,
         /// Measure the tabulated fast path instead (the `tables` block).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "host")]
         tables: bool,
+        /// Run the host criterion benches instead (the `host` block).
+        #[arg(long)]
+        host: bool,
+        /// With --host: do not run the benches, write the block from the results of the last
+        /// complete --host run (in `<target>/criterion-host`).
+        #[arg(long, requires = "host")]
+        no_run: bool,
         /// Measured steps of the bench trace.
         #[arg(long, default_value_t = 4000)]
         steps: u32,
@@ -279,11 +290,14 @@ fn main() -> ExitCode {
         Some(Cmd::Results {
             training,
             tables,
+            host,
+            no_run,
             steps,
             allow_dirty,
         }) => match training {
             Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty)),
             None if tables => Paths::find().and_then(|p| results::tables(&p, allow_dirty)),
+            None if host => Paths::find().and_then(|p| results::host(&p, no_run, allow_dirty)),
             None => {
                 setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty))
             }
@@ -720,6 +734,18 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+        match parse(&["results", "--host", "--no-run"]) {
+            Ok(Some(Cmd::Results {
+                host: true,
+                no_run: true,
+                tables: false,
+                training: None,
+                ..
+            })) => {}
+            other => panic!("{other:?}"),
+        }
+        assert!(parse(&["results", "--no-run"]).is_err());
+        assert!(parse(&["results", "--host", "--tables"]).is_err());
         match parse(&["build-target"]) {
             Ok(Some(Cmd::BuildTarget { boards })) => assert!(boards.is_empty()),
             other => panic!("{other:?}"),

@@ -70,6 +70,86 @@ impl Integrator {
     }
 }
 
+/// A scheme's Butcher tableau: stage `i` evaluates the right-hand side at
+/// `x + dt sum_j a[i][j] k_j` with the input at `t + c[i] dt` (linear between the samples,
+/// module docs), and the step is `x + dt sum_i b[i] k_i`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tableau {
+    /// Stage coefficients, row `i` of length `i` (explicit).
+    pub a: &'static [&'static [f32]],
+    /// Weights of the stages.
+    pub b: &'static [f32],
+    /// Stage times as fractions of the step.
+    pub c: &'static [f32],
+}
+
+impl Integrator {
+    /// The scheme's Butcher tableau: its definition, which [`step_tableau`] runs as written.
+    /// [`step_with`] is each scheme's own kernel (fewer operations, and the rounding the
+    /// trainer's reverse mode reproduces); `tests/integrator.rs` checks that the two agree
+    /// to within one unit of rounding of the state's scale.
+    pub const fn tableau(self) -> Tableau {
+        match self {
+            Integrator::Rk4 => Tableau {
+                a: &[&[], &[0.5], &[0.0, 0.5], &[0.0, 0.0, 1.0]],
+                b: &[1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0],
+                c: &[0.0, 0.5, 0.5, 1.0],
+            },
+            Integrator::Rk3 => Tableau {
+                a: &[&[], &[0.5], &[-1.0, 2.0]],
+                b: &[1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0],
+                c: &[0.0, 0.5, 1.0],
+            },
+        }
+    }
+}
+
+/// Most stages [`step_tableau`] runs.
+pub const MAX_TABLEAU_STAGES: usize = 8;
+
+/// One explicit Runge-Kutta step of any `tableau` (at most [`MAX_TABLEAU_STAGES`] stages;
+/// further stages are ignored) from `x` with input `u0` at the start and `u1` at the end,
+/// `dt` \[s\], `inv_t_pr = 1 / T_pr` \[1/s\], the coefficients at each stage's state from
+/// `coeffs`; sums in stage order with fused multiply-adds. The reference a new scheme needs
+/// nothing but its tableau for; the estimator runs [`step`].
+pub fn step_tableau<C: FnMut(&State) -> Coefficients>(
+    tableau: &Tableau,
+    mut coeffs: C,
+    inv_t_pr: f32,
+    x: &State,
+    u0: f32,
+    u1: f32,
+    dt: f32,
+) -> State {
+    let mut k = [State::default(); MAX_TABLEAU_STAGES];
+    let stages = tableau.b.len().min(tableau.c.len()).min(MAX_TABLEAU_STAGES);
+    for (i, &ci) in tableau.c.iter().enumerate().take(stages) {
+        let row = tableau.a.get(i).copied().unwrap_or(&[]);
+        let (mut sx, mut sv) = (0.0f32, 0.0f32);
+        for (a, kj) in row.iter().zip(k.iter().take(i)) {
+            sx = crate::math::fma(*a, kj.x_pr_m, sx);
+            sv = crate::math::fma(*a, kj.v_st_m_s, sv);
+        }
+        let s = State {
+            x_pr_m: crate::math::fma(dt, sx, x.x_pr_m),
+            v_st_m_s: crate::math::fma(dt, sv, x.v_st_m_s),
+        };
+        let u = crate::math::fma(ci, u1 - u0, u0);
+        if let Some(ki) = k.get_mut(i) {
+            *ki = emm::rhs(&coeffs(&s), inv_t_pr, &s, u);
+        }
+    }
+    let (mut sx, mut sv) = (0.0f32, 0.0f32);
+    for (b, ki) in tableau.b.iter().zip(k.iter().take(stages)) {
+        sx = crate::math::fma(*b, ki.x_pr_m, sx);
+        sv = crate::math::fma(*b, ki.v_st_m_s, sv);
+    }
+    State {
+        x_pr_m: crate::math::fma(dt, sx, x.x_pr_m),
+        v_st_m_s: crate::math::fma(dt, sv, x.v_st_m_s),
+    }
+}
+
 /// Precomputed step constants (per lane: the same in every lane).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepSize<L = f32> {

@@ -4,7 +4,7 @@
 use crate::atomic_file::write_atomic_bytes;
 use crate::cli::train::{load_dataset_prepared, IDENTIFY_MD};
 use crate::config::{resolve_data, DataConfig};
-use crate::data::preprocess::Prepared;
+use crate::data::preprocess::{file_matches, Prepared};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use anyhow::{bail, Context, Result};
 use std::path::Path;
@@ -13,30 +13,40 @@ use std::time::Instant;
 /// The identification's file in a `nemm identify --report` folder.
 pub const IDENTIFY_JSON: &str = "identify.json";
 
+/// The positions in `files` (run files, paths relative to the manifest) of those matched by
+/// one of the glob `patterns` on the path or the file name
+/// ([`crate::data::preprocess::file_matches`]); a pattern that is not a glob is an error
+/// naming it.
+pub fn runs_matching<'a>(
+    files: impl IntoIterator<Item = &'a Path>,
+    patterns: &[String],
+) -> Result<Vec<usize>> {
+    let globs = patterns
+        .iter()
+        .map(|p| glob::Pattern::new(p).with_context(|| format!("--runs {p:?}: not a glob")))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(files
+        .into_iter()
+        .enumerate()
+        .filter(|(_, f)| file_matches(&globs, f))
+        .map(|(i, _)| i)
+        .collect())
+}
+
 /// The dataset indices of the runs of `prepared` whose file (path relative to the manifest,
 /// or file name) matches one of `patterns`; without patterns, every run the split uses.
 pub fn select_runs(prepared: &Prepared, patterns: &[String]) -> Result<Vec<usize>> {
     if patterns.is_empty() {
         return Ok(used_runs(prepared));
     }
-    let globs = patterns
-        .iter()
-        .map(|p| glob::Pattern::new(p).with_context(|| format!("--runs {p:?}: not a glob")))
-        .collect::<Result<Vec<_>>>()?;
-    Ok(prepared
+    let files: Vec<&Path> = prepared
         .runs
         .iter()
-        .filter(|r| {
-            let path = r.summary.file.to_string_lossy().replace('\\', "/");
-            let name = r
-                .summary
-                .file
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            globs.iter().any(|g| g.matches(&path) || g.matches(&name))
-        })
-        .map(|r| r.summary.index)
+        .map(|r| r.summary.file.as_path())
+        .collect();
+    Ok(runs_matching(files, patterns)?
+        .into_iter()
+        .map(|k| prepared.runs[k].summary.index)
         .collect())
 }
 

@@ -5,6 +5,7 @@
 //! [`bench_plots`]) drawn with the plotting helpers ([`plot`]), and the description of a
 //! weights blob ([`inspect`]).
 pub mod bench_plots;
+pub mod diagnose;
 pub mod figures;
 pub mod identify;
 pub mod inspect;

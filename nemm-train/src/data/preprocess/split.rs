@@ -61,7 +61,7 @@ pub enum RunRole {
 
 /// `true` if one of `patterns` matches the run file `file`: its path relative to the manifest
 /// (with `/` separators) or its file name.
-fn file_matches(patterns: &[glob::Pattern], file: &std::path::Path) -> bool {
+pub fn file_matches(patterns: &[glob::Pattern], file: &std::path::Path) -> bool {
     let path = file.to_string_lossy().replace('\\', "/");
     let name = file
         .file_name()

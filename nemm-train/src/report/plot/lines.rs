@@ -13,6 +13,9 @@ pub enum SeriesStyle {
     Points,
     /// Dashed polyline (references, model estimates over measurements).
     Dashed,
+    /// Filled polygon through the points in a light shade of the colour (a band: the
+    /// upper edge left to right, then the lower edge right to left).
+    Area,
 }
 
 /// One data series of a line panel.
@@ -72,6 +75,23 @@ impl Series {
             color,
             width: 2,
             style: SeriesStyle::Dashed,
+        }
+    }
+
+    /// A labelled band between `lower` and `upper` (one `(x, lower, upper)` per point, `x`
+    /// ascending), filled in a light shade of `color`.
+    pub fn band(label: impl Into<String>, points: &[(f64, f64, f64)], color: RGBColor) -> Self {
+        let outline = points
+            .iter()
+            .map(|&(x, _, hi)| (x, hi))
+            .chain(points.iter().rev().map(|&(x, lo, _)| (x, lo)))
+            .collect();
+        Series {
+            label: Some(label.into()),
+            points: outline,
+            color,
+            width: 1,
+            style: SeriesStyle::Area,
         }
     }
 
@@ -305,7 +325,16 @@ where
 {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("plot rendering failed: {e:?}");
     let style = s.color.stroke_width(s.width);
+    let shade = palette::lighten(s.color, 0.7);
     let anno = match s.style {
+        SeriesStyle::Area => chart
+            .draw_series(std::iter::once(Polygon::new(
+                pts.into_iter()
+                    .filter(|q| q.0.is_finite() && q.1.is_finite())
+                    .collect::<Vec<_>>(),
+                shade.filled(),
+            )))
+            .map_err(err)?,
         SeriesStyle::Points => chart
             .draw_series(
                 pts.iter()
@@ -365,6 +394,11 @@ where
     anno.label(label.as_str()).legend(move |(x, y)| {
         let e = EmptyElement::at((x, y));
         match st {
+            SeriesStyle::Area => {
+                e + Circle::new((0, 0), 0, c.filled())
+                    + PathElement::new([(0, 0), (18, 0)], shade.stroke_width(10))
+                    + PathElement::new([(0, 0), (0, 0)], c.stroke_width(1))
+            }
             SeriesStyle::Points => {
                 e + Circle::new((9, 0), w.max(3), c.filled())
                     + PathElement::new([(0, 0), (0, 0)], c.stroke_width(1))

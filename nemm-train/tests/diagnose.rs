@@ -1,0 +1,236 @@
+//! `nemm diagnose` through the binary: the committed trained NEMM on the committed held-out
+//! 15 % runs (`nemm-firmware/data`), the shape of `diagnose.json`, its numbers against
+//! nemm-core's observer and the identifiability search run here, the figures, and the
+//! refusal of bad inputs with nothing written.
+use nemm_core::{AlphaObserver, ObserverConfig};
+use nemm_train::data::dataset;
+use nemm_train::data::preprocess::causal_velocity;
+use nemm_train::train::identify::{identify, AlphaGrid, Run, DEFAULT_STEP};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("workspace")
+        .to_path_buf()
+}
+
+fn model_path() -> PathBuf {
+    workspace().join("nemm-firmware/data/trained-nemm.nemm")
+}
+
+fn e2e() -> PathBuf {
+    workspace().join("nemm-firmware/data/e2e")
+}
+
+fn nemm(args: &[&Path], runs: &[&str]) -> Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nemm"));
+    c.arg("diagnose");
+    for (flag, value) in ["--model", "--data", "--report"].iter().zip(args) {
+        c.arg(flag).arg(value);
+    }
+    for r in runs {
+        c.arg("--runs").arg(r);
+    }
+    c.output().expect("run nemm")
+}
+
+const KEYS: [&str; 7] = [
+    "alpha_hat",
+    "alpha_offline",
+    "band",
+    "excited",
+    "file",
+    "label",
+    "settle_s",
+];
+
+#[test]
+fn diagnoses_the_committed_runs_as_the_observer_and_the_search_do() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let report = tmp.path().join("a/diag");
+    let out = nemm(&[&model_path(), &e2e(), &report], &[]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: Value =
+        serde_json::from_slice(&std::fs::read(report.join("diagnose.json")).expect("json"))
+            .expect("parse");
+    let top: Vec<&String> = json.as_object().expect("object").keys().collect();
+    assert_eq!(top, ["runs"]);
+    let runs = json["runs"].as_array().expect("runs");
+    let files: Vec<&str> = runs
+        .iter()
+        .map(|r| r["file"].as_str().expect("file"))
+        .collect();
+    assert_eq!(
+        files,
+        [
+            "runs/oil15_a050_v1048.csv",
+            "runs/oil15_a010_v1048.csv",
+            "runs/oil15_a010_v0262.csv",
+            "runs/oil15_a030_v0524.csv",
+            "runs/oil15_a050_v0262.csv",
+        ],
+        "every run, in manifest order"
+    );
+    let num = |r: &Value, k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k}: {r}"));
+    let mut excited = 0;
+    for r in runs {
+        let mut keys: Vec<&String> = r.as_object().expect("run").keys().collect();
+        keys.sort();
+        assert_eq!(keys, KEYS, "{r}");
+        assert_eq!(num(r, "label"), 0.15);
+        let (a, band) = (num(r, "alpha_hat"), num(r, "band"));
+        assert!(
+            (0.0..=0.3).contains(&a) && (0.0..=0.3).contains(&band),
+            "{r}"
+        );
+        // Every run here has an offline fit (the model tells the levels apart on each).
+        let offline = num(r, "alpha_offline");
+        let settle = num(r, "settle_s");
+        assert!((0.0..=1.1).contains(&settle), "{r}");
+        if r["excited"].as_bool().expect("excited") {
+            excited += 1;
+            assert!(band <= 0.05, "excited means a band of at most 0.05: {r}");
+            assert!((a - offline).abs() <= 0.02, "{r}");
+        } else {
+            assert!(band > 0.05, "{r}");
+        }
+        let figure = report.join(format!(
+            "alpha_{}.png",
+            r["file"]
+                .as_str()
+                .expect("file")
+                .trim_end_matches(".csv")
+                .replace('/', "_")
+        ));
+        let png = std::fs::read(&figure).unwrap_or_else(|e| panic!("{}: {e}", figure.display()));
+        assert!(
+            png.len() > 1000 && png.starts_with(b"\x89PNG"),
+            "{}",
+            figure.display()
+        );
+    }
+    // Measured: the 50 mm and 10 mm runs at 1.048 m/s are excited, the others are not; the
+    // 50 mm, 1.048 m/s run fits best at 0.150 offline and ends at 0.150 online.
+    assert_eq!(excited, 2, "{json}");
+    assert!(
+        (num(&runs[0], "alpha_offline") - 0.15).abs() <= 0.003,
+        "{}",
+        runs[0]
+    );
+    assert!(runs[0]["excited"].as_bool().expect("excited"));
+    assert!(
+        stdout.contains("2 of 2 excited runs within 0.02 of the offline fit"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("| runs/oil15_a010_v1048.csv | 0.150 | "),
+        "{stdout}"
+    );
+
+    // The same numbers from nemm-core's observer and the identifiability search, run here on
+    // the firmware's velocity path.
+    let model: nemm_core::Model =
+        nemm_core::decode(&std::fs::read(model_path()).expect("blob")).expect("model");
+    let ds = dataset::load(&e2e()).expect("dataset");
+    let fs = ds.sample_rate_hz;
+    for (k, r) in runs.iter().enumerate().take(2) {
+        let run = &ds.runs[k];
+        let v: Vec<f32> = causal_velocity(&run.displacement_m, fs)
+            .iter()
+            .map(|&v| v as f32)
+            .collect();
+        let x: Vec<f32> = run.displacement_m.iter().map(|&x| x as f32).collect();
+        let mut obs: Box<AlphaObserver> = Box::new(AlphaObserver::empty());
+        obs.load(&model, ObserverConfig::new()).expect("observer");
+        for ((&v, &x), &f) in v.iter().zip(&x).zip(&run.force_n) {
+            obs.step_with_position(v, x, f as f32);
+        }
+        let end = obs.estimate();
+        assert!(
+            (f64::from(end.alpha) - num(r, "alpha_hat")).abs() <= 6e-5,
+            "{r}"
+        );
+        assert!((f64::from(end.band) - num(r, "band")).abs() <= 6e-5, "{r}");
+        assert_eq!(
+            end.flags.excited(),
+            r["excited"].as_bool().expect("excited")
+        );
+        let grid = AlphaGrid::for_model(&model, DEFAULT_STEP).expect("grid");
+        let fit = identify(
+            &model,
+            &Run {
+                velocity_m_s: &v,
+                position_m: Some(&x),
+                force_n: &run.force_n,
+                label: 0.15,
+                label_alphas: None,
+            },
+            &grid,
+            1.0 / fs,
+            (0.01 * fs) as usize,
+        )
+        .expect("identify");
+        let best = fit.best.expect("a best fit");
+        assert!(
+            (best - num(r, "alpha_offline")).abs() <= DEFAULT_STEP,
+            "{best}: {r}"
+        );
+    }
+}
+
+#[test]
+fn bad_inputs_are_refused_with_a_clear_error_and_nothing_written() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let report = tmp.path().join("report");
+    let refused = |args: &[&Path], runs: &[&str], expect: &str| {
+        let out = nemm(args, runs);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} {runs:?} succeeded");
+        assert!(stderr.contains(expect), "{args:?} {runs:?}: {stderr}");
+        assert!(
+            !report.exists(),
+            "{args:?} {runs:?} wrote {}",
+            report.display()
+        );
+    };
+    let missing = tmp.path().join("missing.nemm");
+    refused(&[&missing, &e2e(), &report], &[], "--model: cannot read");
+    let not_a_model = tmp.path().join("not-a-model.nemm");
+    std::fs::write(&not_a_model, b"this is not a weights blob").expect("write");
+    refused(
+        &[&not_a_model, &e2e(), &report],
+        &[],
+        "not a NEMM model blob",
+    );
+    refused(
+        &[&model_path(), &e2e(), &report],
+        &["runs/oil30_*"],
+        "--runs runs/oil30_* matches none of the 5 runs",
+    );
+    let rate = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/offsets_300hz");
+    refused(&[&model_path(), &rate, &report], &[], "sampled at 300 Hz");
+    // A report path that is a file: refused before any work, the file left as it was.
+    let file = tmp.path().join("report-file");
+    std::fs::write(&file, b"keep").expect("write");
+    let out = nemm(&[&model_path(), &e2e(), &file], &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("--report") && stderr.contains("is a file, not a folder"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(&file).expect("read"), b"keep");
+    let names: Vec<_> = std::fs::read_dir(tmp.path())
+        .expect("read")
+        .map(|e| e.expect("entry").file_name())
+        .collect();
+    assert_eq!(names.len(), 2, "nothing else written: {names:?}");
+}
