@@ -653,15 +653,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             match self.rt.kind {
                 RuntimeKind::Empty => {}
                 RuntimeKind::Sem => self.rt.sem_curve = self.rt.sem_map.curve_at(m.alpha).0,
-                RuntimeKind::Emm => {
-                    let rt = &mut self.rt.emm;
-                    for c in [&mut rt.b_fl, &mut rt.k_pr] {
-                        if c.kind == CoefKind::Neural {
-                            c.exact.set_alpha(m.alpha);
-                        }
-                    }
-                    rt.b_pr = m.b_pr;
-                }
+                RuntimeKind::Emm => self.rt.emm.fold_exact_alpha(m.alpha, m.b_pr),
             }
             self.alpha = m.alpha;
             self.update_alpha_flags();

@@ -33,6 +33,28 @@ fn files(dir: &Path) -> BTreeMap<PathBuf, String> {
     out
 }
 
+/// A copy of fixture `name` in a temporary folder (`data/` inside it), the file whose path
+/// ends with `edited` passed through `edit`.
+fn fixture_copy(
+    name: &str,
+    edited: &str,
+    edit: impl Fn(String) -> String,
+) -> (tempfile::TempDir, PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    for (rel, text) in files(&fixture_dir(name)) {
+        let path = data.join(&rel);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        let text = if rel.ends_with(edited) {
+            edit(text)
+        } else {
+            text
+        };
+        std::fs::write(path, text).unwrap();
+    }
+    (tmp, data)
+}
+
 /// Decimals printed in a cell (`-12.34` -> 2).
 fn decimals(cell: &str) -> i32 {
     cell.split_once('.').map_or(0, |(_, d)| d.len() as i32)
@@ -572,18 +594,9 @@ fn a_force_offset_switches_the_static_force_on() {
 /// the exit status says that something was skipped.
 #[test]
 fn bench_plot_skips_a_run_shorter_than_its_period_and_draws_the_rest() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    for (rel, text) in files(&fixture_dir("rate_300hz")) {
-        let path = data.join(&rel);
-        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        let text = if rel.ends_with("oil00_a030_v0100.csv") {
-            text.lines().take(400).collect::<Vec<_>>().join("\n") + "\n"
-        } else {
-            text
-        };
-        std::fs::write(path, text).unwrap();
-    }
+    let (tmp, data) = fixture_copy("rate_300hz", "oil00_a030_v0100.csv", |text| {
+        text.lines().take(400).collect::<Vec<_>>().join("\n") + "\n"
+    });
     let out = tmp.path().join("plots");
     let out_arg = out.to_str().unwrap();
     let (ok, text) = nemm_in(
@@ -603,22 +616,13 @@ fn bench_plot_skips_a_run_shorter_than_its_period_and_draws_the_rest() {
 /// file, line and column, checks the rest, and fails.
 #[test]
 fn data_check_reports_an_unreadable_run_and_checks_the_rest() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    for (rel, text) in files(&fixture_dir("rate_300hz")) {
-        let path = data.join(&rel);
-        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        let text = if rel.ends_with("oil00_a030_v0100.csv") {
-            // Line 11: the displacement cell is not a number.
-            let mut lines: Vec<String> = text.lines().map(String::from).collect();
-            let cells: Vec<&str> = lines[10].split(',').collect();
-            lines[10] = format!("{},x,{}", cells[0], cells[2..].join(","));
-            lines.join("\n") + "\n"
-        } else {
-            text
-        };
-        std::fs::write(path, text).unwrap();
-    }
+    let (_tmp, data) = fixture_copy("rate_300hz", "oil00_a030_v0100.csv", |text| {
+        // Line 11: the displacement cell is not a number.
+        let mut lines: Vec<String> = text.lines().map(String::from).collect();
+        let cells: Vec<&str> = lines[10].split(',').collect();
+        lines[10] = format!("{},x,{}", cells[0], cells[2..].join(","));
+        lines.join("\n") + "\n"
+    });
     let (ok, text) = nemm_in(&data, &["data", "check"]);
     assert!(!ok, "{text}");
     assert!(text.contains("loaded 3 runs"), "{text}");

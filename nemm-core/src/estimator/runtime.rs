@@ -359,6 +359,18 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         }
     }
 
+    /// An exact-mode level change whose `b_pr` at `alpha` is known (an observer's bank
+    /// member): folds `alpha` into the neural coefficients' scalers (first-layer biases and
+    /// alpha branch) and takes `b_pr`, without evaluating `b_pr(alpha)` again.
+    pub(super) fn fold_exact_alpha(&mut self, alpha: f32, b_pr: f32) {
+        for c in [&mut self.b_fl, &mut self.k_pr] {
+            if c.kind == CoefKind::Neural {
+                c.exact.set_alpha(alpha);
+            }
+        }
+        self.b_pr = b_pr;
+    }
+
     /// Re-folds `alpha` into the neural coefficients and `b_pr`; in table mode rebuilds and
     /// checks the tables first and changes nothing if one misses the bound.
     pub(super) fn set_alpha(&mut self, alpha: f32, old_alpha: f32) -> Result<(), EstimatorError> {

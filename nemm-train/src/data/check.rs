@@ -173,14 +173,13 @@ fn robust_bounds(x: &[f64]) -> (f64, f64) {
 
 /// Runs the checks of the module docs on one run.
 ///
-/// `velocity_m_s` is the run's velocity as used by the preprocessing (measured or
-/// differentiated, see [`crate::data::preprocess::process_run`]); it only selects the
-/// zero-velocity samples for the force offset.
+/// `force_offset` is the run's force at zero velocity as its summary holds it
+/// ([`preprocess::RunSummary::force_offset`], from the velocity the preprocessing uses).
 pub fn check_run(
     run: &Run,
     index: usize,
     sample_rate_hz: f64,
-    velocity_m_s: &[f64],
+    force_offset: Option<&preprocess::ForceOffset>,
 ) -> Vec<Finding> {
     let finding = |kind: FindingKind, column: &str, sample: usize, count: usize, message| Finding {
         run: index,
@@ -211,7 +210,7 @@ pub fn check_run(
             ),
         ));
     }
-    out.extend(offsets(run, velocity_m_s, &finding));
+    out.extend(offsets(run, force_offset, &finding));
     let grid = dataset::fit_time_grid(&run.time_s, 1.0 / sample_rate_hz);
     if !grid.is_exact() {
         out.push(finding(
@@ -488,7 +487,7 @@ fn repeated_rows(columns: &[&[f64]]) -> Option<(usize, usize, usize)> {
 /// The displacement centre and the force at zero velocity (information).
 fn offsets(
     run: &Run,
-    velocity_m_s: &[f64],
+    force_offset: Option<&preprocess::ForceOffset>,
     finding: &impl Fn(FindingKind, &str, usize, usize, String) -> Finding,
 ) -> Vec<Finding> {
     let mut out = Vec::new();
@@ -509,7 +508,7 @@ fn offsets(
             ),
         ));
     }
-    if let Some(o) = preprocess::ForceOffset::of(&run.force_n, velocity_m_s) {
+    if let Some(o) = force_offset {
         if o.fraction() > OFFSET_FRACTION && o.mean_n.abs() > 1.0 {
             out.push(finding(
                 FindingKind::Offset,
@@ -631,8 +630,8 @@ pub fn check_dataset(
         .par_iter()
         .enumerate()
         .map(|(i, r)| match preprocess::summarize_run(r, i, &path) {
-            Ok((summary, signals)) => {
-                let mut findings = check_run(r, i, fs, &signals.velocity_m_s);
+            Ok((summary, _)) => {
+                let mut findings = check_run(r, i, fs, summary.force_offset.as_ref());
                 findings.extend(damper_findings(r, &summary));
                 (Some(summary), findings)
             }

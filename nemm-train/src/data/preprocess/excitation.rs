@@ -159,18 +159,12 @@ pub fn estimate_excitation(
             periodic: false,
         };
     }
-    let offset_m = 0.5 * (lo + hi);
-    // A stroke below 1 nm is rounding noise of a flat signal, not an excitation.
-    let half_range = match 0.5 * (hi - lo) {
-        r if r < MIN_STROKE_M => 0.0,
-        r => r,
-    };
-    let y: Vec<f64> = displacement_m.iter().map(|x| x - offset_m).collect();
-    let crossings = if half_range > 0.0 {
-        zero_crossings(&y, 0.1 * half_range)
-    } else {
-        Vec::new()
-    };
+    let Centred {
+        offset_m,
+        half_range,
+        y,
+        crossings,
+    } = centred(displacement_m, lo, hi);
 
     // Half-cycles between consecutive crossings: amplitude and turning point.
     let mut amplitudes = Vec::new();
@@ -233,11 +227,40 @@ pub fn excitation_frequency_hz(displacement_m: &[f64], sample_rate_hz: f64) -> O
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
             (lo.min(x), hi.max(x))
         });
-    let half_range = 0.5 * (hi - lo);
-    if half_range.is_nan() || half_range < MIN_STROKE_M {
-        return None;
+    frequency_of(&centred(displacement_m, lo, hi).crossings, sample_rate_hz)
+}
+
+/// A displacement record about its mid-range, and its zero crossings.
+struct Centred {
+    /// Mid-range \[m\].
+    offset_m: f64,
+    /// Half the range \[m\]; 0 below [`MIN_STROKE_M`] (rounding noise of a flat signal, not
+    /// an excitation).
+    half_range: f64,
+    /// The record minus `offset_m`.
+    y: Vec<f64>,
+    /// Zero crossings of `y` with a hysteresis of 10 % of the half-range (none for a flat
+    /// record).
+    crossings: Vec<Crossing>,
+}
+
+/// [`Centred`] of `displacement_m`, whose smallest and largest values are `lo` and `hi`.
+fn centred(displacement_m: &[f64], lo: f64, hi: f64) -> Centred {
+    let offset_m = 0.5 * (lo + hi);
+    let half_range = match 0.5 * (hi - lo) {
+        r if r < MIN_STROKE_M => 0.0,
+        r => r,
+    };
+    let y: Vec<f64> = displacement_m.iter().map(|x| x - offset_m).collect();
+    let crossings = if half_range > 0.0 {
+        zero_crossings(&y, 0.1 * half_range)
+    } else {
+        Vec::new()
+    };
+    Centred {
+        offset_m,
+        half_range,
+        y,
+        crossings,
     }
-    let offset = 0.5 * (lo + hi);
-    let y: Vec<f64> = displacement_m.iter().map(|x| x - offset).collect();
-    frequency_of(&zero_crossings(&y, 0.1 * half_range), sample_rate_hz)
 }

@@ -37,19 +37,20 @@ fn velocity_knots(sorted: &[f64], gap: f64) -> Vec<f64> {
     knots
 }
 
-/// The map's levels for the points' levels: every distinct level (within 1e-9) when there
-/// are at most [`MAX_SEM_ALPHAS`]; else [`MAX_SEM_ALPHAS`] bins of equally many consecutive
-/// distinct levels (a level is never split), each at the mean level of its points. Returns the map's levels (strictly increasing) and each point's bin.
+/// The distinct levels of the points (within 1e-9), increasing.
+pub fn point_levels(points: &[QuasiStaticPoint]) -> Vec<f64> {
+    let mut levels: Vec<f64> = points.iter().map(|p| p.alpha).collect();
+    levels.sort_by(f64::total_cmp);
+    levels.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    levels
+}
+
+/// The map's levels for the points' levels: every distinct level ([`point_levels`]) when
+/// there are at most [`MAX_SEM_ALPHAS`]; else [`MAX_SEM_ALPHAS`] bins of equally many
+/// consecutive distinct levels (a level is never split), each at the mean level of its
+/// points. Returns the map's levels (strictly increasing) and each point's bin.
 pub fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
-    let mut distinct: Vec<(f64, usize)> = Vec::new();
-    let mut sorted: Vec<f64> = points.iter().map(|p| p.alpha).collect();
-    sorted.sort_by(f64::total_cmp);
-    for a in sorted {
-        match distinct.last_mut() {
-            Some((level, count)) if (a - *level).abs() < 1e-9 => *count += 1,
-            _ => distinct.push((a, 1)),
-        }
-    }
+    let distinct = point_levels(points);
     // The bin of each distinct level: its own when they fit, else consecutive levels in
     // equal numbers (every bin holds at least one level).
     let bin_of_level: Vec<usize> = (0..distinct.len())
@@ -58,7 +59,7 @@ pub fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
     let bins = bin_of_level.last().map_or(0, |b| b + 1);
     let mut sum = vec![0.0f64; bins];
     let mut cnt = vec![0usize; bins];
-    let level_index = |a: f64| distinct.partition_point(|&(l, _)| l < a - 1e-9);
+    let level_index = |a: f64| distinct.partition_point(|&l| l < a - 1e-9);
     let point_bins: Vec<usize> = points
         .iter()
         .map(|p| {
@@ -199,17 +200,7 @@ pub(super) fn train_sem(
         Body::Sem(m) => (m.velocities_m_s.len(), m.alphas.len()),
         _ => (0, 0),
     };
-    let distinct = {
-        let mut a: Vec<f64> = prepared
-            .quasi_static
-            .train
-            .iter()
-            .map(|p| p.alpha)
-            .collect();
-        a.sort_by(f64::total_cmp);
-        a.dedup_by(|x, y| (*x - *y).abs() < 1e-9);
-        a.len()
-    };
+    let distinct = point_levels(&prepared.quasi_static.train).len();
     eprintln!(
         "[sem] {velocities} support velocities x {levels} {} levels{}, validation RMSE \
          {val:.4}",
