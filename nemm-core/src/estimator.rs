@@ -46,6 +46,20 @@
 //!   reads them from the blob instead of building them, bit for bit the same tables
 //!   ([`Estimator::table_origin`] says which happened, and why stored ones were not used).
 //!
+//! # Every level at table cost
+//!
+//! A level per sample ([`Estimator::step_with_alpha`]) and the observer's bank of levels
+//! would rebuild tables every sample in table mode. A blob can store the tables of several
+//! levels instead (`nemm export --tables-levels 7`); a [`LevelTables`] holds them (in RAM,
+//! loaded once from the model, the tables index and the blob) and drives
+//! [`Estimator::step_on_levels`] (a level per sample: each coefficient the blend of its two
+//! neighbouring levels' tables, ordered in the declared direction so that it is monotone
+//! in `alpha` between levels by construction; at a stored level the table-mode step at
+//! that level, bit for bit) and [`crate::AlphaObserver::load_on_levels`] (the bank on the
+//! stored levels). The blend's error against the exact model is first order in the level
+//! spacing and measured by [`LevelTables::check`] (docs/core.md, "Every level at table
+//! cost").
+//!
 //! ```
 //! use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
 //! # let model: nemm_core::Model = nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 16, 5).unwrap();

@@ -61,6 +61,13 @@
 //! model's step, each with its scalers), `n` re-foldings of the level into the state
 //! scalers (about `2 H + K_branch` operations each) and `O(n)` scalar work for the costs and
 //! the estimate. [`AlphaObserver::evaluations_per_step`] returns `n`.
+//!
+//! **On level tables.** [`AlphaObserver::load_on_levels`] takes the levels of a
+//! [`LevelTables`] (stored in the blob, [`crate::estimator`], "Every level at table cost") as
+//! the grid, and
+//! [`AlphaObserver::step_on_levels`] steps each level on its own tables: `n` table-mode
+//! steps, no re-folding, a tenth or less of the exact cost, the same estimate up to the
+//! tables' error.
 
 use crate::estimator::{
     BankMember, Estimator, EstimatorConfig, EstimatorError, LevelTables, LevelsError,
