@@ -76,6 +76,23 @@ pub enum LevelsError {
     Mismatch,
 }
 
+impl LevelsError {
+    /// A short name for report lines: `no-neural-coefficient`, `other-blob`,
+    /// `too-few-levels`, `too-many-levels`, `order`, `table`, `compile`, `mismatch`.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            LevelsError::NoNeuralCoefficient => "no-neural-coefficient",
+            LevelsError::OtherBlob => "other-blob",
+            LevelsError::TooFewLevels { .. } => "too-few-levels",
+            LevelsError::TooManyLevels { .. } => "too-many-levels",
+            LevelsError::Order => "order",
+            LevelsError::Table => "table",
+            LevelsError::Compile => "compile",
+            LevelsError::Mismatch => "mismatch",
+        }
+    }
+}
+
 impl fmt::Display for LevelsError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
