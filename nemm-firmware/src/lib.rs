@@ -157,6 +157,12 @@ pub fn observer_config() -> nemm_core::ObserverConfig {
 /// `observer=on|off`.
 pub const OBSERVER_DEFAULT: bool = cfg!(feature = "observer");
 
+/// Whether the application holds the observer and the load-cell path at all: with the
+/// `observer` feature, or under QEMU (`qemu` feature), where `observer=on` can ask for it. A
+/// board build without the feature never runs it, so its code and its RAM (the observer's
+/// static) are left out.
+pub const OBSERVER_BUILT: bool = cfg!(any(feature = "observer", feature = "qemu"));
+
 /// A `static` that is filled once at run time and then lent out as `&'static mut T`: the
 /// storage for large objects (the model, the estimator) that must not live on the stack.
 /// It starts as zero bytes in `.bss` (an `Option<T>` would go to `.data` and cost its size

@@ -168,7 +168,7 @@ mod app {
             };
             return (Shared {}, local);
         };
-        let bench = if options.observer_on() {
+        let bench = if nemm_firmware::OBSERVER_BUILT && options.observer_on() {
             build_observer(&mut console, model).map(|observer| {
                 let mut load_cell = board::load_cell(trace);
                 for w in &options.load_cell_faults {
@@ -449,7 +449,13 @@ mod app {
                 pipeline::run_period(&mut self.sensor, self.estimator, &mut self.counters.sensor);
             FORCE_OUTPUT.publish(out.estimate.force_n);
             self.digest.push(&out);
-            let observed = self.bench.as_mut().map(|b| {
+            // `OBSERVER_BUILT` false: `bench` is always `None`, and saying so leaves the
+            // observer out of the image.
+            let bench = self
+                .bench
+                .as_mut()
+                .filter(|_| nemm_firmware::OBSERVER_BUILT);
+            let observed = bench.map(|b| {
                 let o = pipeline::observe_period(
                     &mut b.load_cell,
                     b.observer,
