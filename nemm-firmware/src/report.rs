@@ -288,6 +288,7 @@ fn estimator_error_fields(line: &mut Line, e: &EstimatorError) {
         EstimatorError::AlphaPerSampleInTableMode => {
             line.ks("kind", "alpha-per-sample-in-table-mode")
         }
+        EstimatorError::Levels(l) => line.ks("kind", "levels").ks("levels", l.name()),
     };
 }
 
