@@ -28,6 +28,7 @@
 #![cfg_attr(not(test), no_std)]
 
 pub mod loadcell;
+pub mod observer;
 pub mod options;
 pub mod pipeline;
 pub mod replay;
@@ -137,14 +138,9 @@ pub fn load_cell_calibration() -> loadcell::Calibration {
 pub const OBSERVER_LEVELS: usize = nemm_core::limits::DEFAULT_OBSERVER_POINTS;
 
 /// The alpha observer of the bench-controller build: the one place its type is chosen (the
-/// application, the step benchmark and the host tests' reference all use this).
-///
-/// Exact mode: it steps the model at each of its [`OBSERVER_LEVELS`] levels every sample
-/// (about 7 exact NEMM steps, `cargo xtask bench-target` prints its instructions per step),
-/// which does not fit the 100 us period of a 168 MHz Cortex-M4F; QEMU replays do not run
-/// in real time, a board overruns (counted, flagged). RAM: one exact-mode estimator plus
-/// about 48 bytes per level (the `observer ok` line prints `bytes=`).
-pub type FwObserver = nemm_core::AlphaObserver<PARAM_CAPACITY, OBSERVER_LEVELS>;
+/// application, the step benchmark and the host tests' reference all use this): nemm-core's
+/// observer on the blob's level tables ([`observer`]).
+pub use observer::{FwLevels, FwObserver};
 
 /// The alpha observer's settings: nemm-core's defaults (the grid over the model's trained
 /// range, 2 s horizon), those `nemm diagnose` runs on the host.

@@ -159,7 +159,8 @@ mod app {
             // Both hold `MAX_FAULT_WINDOWS`.
             let _ = sensor.spi_mut().inject(*w);
         }
-        let Some((estimator, model)) = build_estimator(&mut console, &options, trace.oil_loss)
+        let Some((estimator, model, stored)) =
+            build_estimator(&mut console, &options, trace.oil_loss)
         else {
             let local = Local {
                 sample_loop: None,
@@ -169,7 +170,7 @@ mod app {
             return (Shared {}, local);
         };
         let bench = if nemm_firmware::OBSERVER_BUILT && options.observer_on() {
-            build_observer(&mut console, model).map(|observer| {
+            build_observer(&mut console, model, &stored).map(|observer| {
                 let mut load_cell = board::load_cell(trace);
                 for w in &options.load_cell_faults {
                     // Both hold `MAX_FAULT_WINDOWS`.
@@ -257,6 +258,7 @@ mod app {
     ) -> Option<(
         &'static mut nemm_firmware::FwEstimator,
         &'static Model<PARAM_CAPACITY>,
+        (StoredTables, &'static [u8]),
     )> {
         let blob = match slot::blob(board::weights_slot()) {
             Ok(b) => b,
@@ -299,7 +301,7 @@ mod app {
         let mut l = Line::new();
         report::weights_ok(&mut l, model, blob.len(), estimator);
         console.write(l.finish());
-        Some((estimator, model))
+        Some((estimator, model, (tables, blob)))
     }
 
     /// The alpha observer of `model`, built in place in its static, and the `observer ok`
@@ -308,6 +310,7 @@ mod app {
     fn build_observer(
         console: &mut Console,
         model: &Model<PARAM_CAPACITY>,
+        (tables, blob): &(StoredTables, &[u8]),
     ) -> Option<&'static mut FwObserver> {
         // Built in place in its static: nothing of the observer's size is on the stack.
         // The empty observer as one constant: copied from flash into the static, not built
@@ -317,7 +320,7 @@ mod app {
             board::exit(report::EXIT_USAGE) // init runs once
         };
         let mut l = Line::new();
-        match observer.load(model, nemm_firmware::observer_config()) {
+        match observer.load(model, tables, blob) {
             Ok(()) => {
                 report::observer_ok(&mut l, observer);
                 console.write(l.finish());

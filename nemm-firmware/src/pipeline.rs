@@ -19,7 +19,7 @@ use crate::loadcell::{LoadCell, LoadCellError};
 use crate::report::{FW_PRIMING, FW_SAMPLE_INVALID, FW_SENSOR_ERROR};
 use crate::sensor::{SensorError, StrokeSensor};
 use embedded_hal::spi::SpiDevice;
-use nemm_core::{AlphaEstimate, AlphaObserver, Estimate, Estimator};
+use nemm_core::{AlphaEstimate, Estimate, Estimator};
 
 /// Sensor-path fault counters.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -102,9 +102,9 @@ pub struct ObservedOutput {
 /// the sample's stroke position and the measured force. Call after [`run_period`] of the
 /// same period, with `position_m` the stroke sensor's position of that sample.
 #[inline(always)]
-pub fn observe_period<SPI: SpiDevice, const P: usize, const K: usize>(
+pub fn observe_period<SPI: SpiDevice>(
     load_cell: &mut LoadCell<SPI>,
-    observer: &mut AlphaObserver<P, K>,
+    observer: &mut crate::FwObserver,
     period: &PeriodOutput,
     position_m: f32,
     counters: &mut LoadCellCounters,

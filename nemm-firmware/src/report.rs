@@ -50,8 +50,8 @@
 //! a model rejected by its checks adds the [`ModelError`] as `reason=` plus its fields.
 
 use nemm_core::{
-    AlphaObserver, DecodeError, Estimator, EstimatorError, Model, ModelError, ObserverError,
-    TableError, TableOrigin,
+    DecodeError, Estimator, EstimatorError, Model, ModelError, ObserverError, TableError,
+    TableOrigin,
 };
 
 use crate::slot::SlotError;
@@ -331,10 +331,8 @@ pub fn observer_error(line: &mut Line, e: &ObserverError) {
 
 /// The `observer ok` line: the grid's levels, its lowest and highest level (`f32` bits), the
 /// observer's RAM and the model steps it takes per sample.
-pub fn observer_ok<const P: usize, const K: usize>(
-    line: &mut Line,
-    observer: &AlphaObserver<P, K>,
-) {
+pub fn observer_ok(line: &mut Line, fw: &crate::FwObserver) {
+    let observer = fw.observer();
     let mut grid = observer.grid();
     let lo = grid.next().unwrap_or(f32::NAN);
     let hi = grid.last().unwrap_or(lo);
@@ -342,8 +340,10 @@ pub fn observer_ok<const P: usize, const K: usize>(
         .kv("levels", sat(observer.points()))
         .kx("alpha_lo", lo.to_bits())
         .kx("alpha_hi", hi.to_bits())
-        .kv("bytes", sat(core::mem::size_of::<AlphaObserver<P, K>>()))
-        .kv("model_steps", sat(observer.evaluations_per_step()));
+        .kv("bytes", sat(core::mem::size_of::<crate::FwObserver>()))
+        .kv("model_steps", sat(observer.evaluations_per_step()))
+        .ks("levels_from", if fw.on_levels() { "blob" } else { "exact" })
+        .kv("level_table_bytes", sat(fw.levels().table_bytes().1));
 }
 
 /// Whether a model stepping `dt_s` seconds runs at [`crate::SAMPLE_RATE_HZ`] (within

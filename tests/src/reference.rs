@@ -6,7 +6,7 @@
 //! (`nemm_firmware::pipeline::observe_period`: the `LoadCell` driver on the replay load
 //! cell, then `nemm_core::AlphaObserver`, the firmware's `FwObserver`).
 
-use nemm_core::{decode, Diagnostics, EstimatorConfig, Model};
+use nemm_core::{Diagnostics, EstimatorConfig, Model};
 use nemm_firmware::loadcell::LoadCell;
 use nemm_firmware::options::Options;
 use nemm_firmware::pipeline::{
@@ -16,8 +16,8 @@ use nemm_firmware::replay::{ReplayAdc, ReplayLoadCell};
 use nemm_firmware::sensor::StrokeSensor;
 use nemm_firmware::trace::Trace;
 use nemm_firmware::{
-    eval_mode, load_cell_calibration, observer_config, stroke_calibration, FwEstimator, FwObserver,
-    PARAM_CAPACITY, TABLE_MODE_DEFAULT,
+    eval_mode, load_cell_calibration, stroke_calibration, FwEstimator, FwObserver, PARAM_CAPACITY,
+    TABLE_MODE_DEFAULT,
 };
 
 /// What the host computed.
@@ -48,7 +48,8 @@ pub fn run(trace: &[u8], blob: &[u8], options: &Options) -> Reference {
         Some(n) => trace.prefix(n as usize),
         None => trace,
     };
-    let model: Model<PARAM_CAPACITY> = decode(blob).expect("the weights decode on the host");
+    let (model, tables): (Model<PARAM_CAPACITY>, _) =
+        nemm_core::decode_with_tables(blob).expect("the weights decode on the host");
     // The firmware's estimator type and evaluation mode (`mode=`, else the build's default).
     let config = EstimatorConfig {
         mode: eval_mode(options.table.unwrap_or(TABLE_MODE_DEFAULT)),
@@ -68,7 +69,7 @@ pub fn run(trace: &[u8], blob: &[u8], options: &Options) -> Reference {
     let mut bench = options.observer_on().then(|| {
         let mut observer = Box::new(FwObserver::empty());
         observer
-            .load(&model, observer_config())
+            .load(&model, &tables, blob)
             .expect("the observer builds on the host");
         let lc_cal = load_cell_calibration();
         let mut device = ReplayLoadCell::new(trace, lc_cal);

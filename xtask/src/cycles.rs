@@ -623,15 +623,19 @@ pub fn estimate_observer(
     images: &Images,
     figures: &crate::target_bench::ObserverFigures,
 ) -> Result<CycleFigures, String> {
-    let image = crate::target_bench::image_with_example(paths, images, Kind::Nemm)?;
-    let mix = observer_mix(tc, images.board, &image)?;
+    let _ = paths;
+    let mix = observer_mix(tc, images.board, &images.bench)?;
     let chip = images.board.chip();
     Ok(CycleFigures {
         chip,
         board: images.board,
         model: observer_row_name(figures),
         integrator: figures.integrator.clone(),
-        mode: "exact".into(),
+        mode: if figures.levels_from == "blob" {
+            "table".into()
+        } else {
+            "exact".into()
+        },
         instructions_per_step: figures.instructions_per_step,
         cycles_per_instruction: mix.cycles_per_instruction(chip),
         fp_mac_per_step: mix.per_step(|c| c == Class::FpMac),

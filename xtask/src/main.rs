@@ -472,7 +472,7 @@ fn test(host_only: bool) -> Result<(), String> {
                     f.line()
                 );
             }
-            let observer = target_bench::observer(&tc, &paths, im, 50)?;
+            let observer = target_bench::observer(&tc, im, 50)?;
             eprintln!(
                 "xtask: (smoke, 50 steps, {}) {}",
                 im.board.machine(),
@@ -545,7 +545,7 @@ fn bench_target(
         let figures = target_bench::run(&tc, &paths, im, mode, steps, kinds)?;
         // The alpha observer (exact mode whatever `mode`), on the example NEMM.
         let observer = if kinds.contains(&Kind::Nemm) {
-            Some(target_bench::observer(&tc, &paths, im, steps)?)
+            Some(target_bench::observer(&tc, im, steps)?)
         } else {
             None
         };

@@ -437,7 +437,7 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
     for im in &images {
         let e = target_bench::run(tc, paths, im, Mode::Exact, steps, &Kind::ALL)?;
         let t = target_bench::run(tc, paths, im, Mode::Table, steps, &Kind::ALL)?;
-        let o = target_bench::observer(tc, paths, im, steps)?;
+        let o = target_bench::observer(tc, im, steps)?;
         for f in e.iter().chain(&t) {
             println!("{} board={}", f.line(), im.board.machine());
         }
@@ -1051,6 +1051,7 @@ mod tests {
                     model: "nemm".into(),
                     integrator: "rk4".into(),
                     levels: 7,
+                    levels_from: "blob".into(),
                     model_steps: 7,
                     bytes: 21572,
                     instructions_per_step: 116_558,

@@ -147,6 +147,9 @@ pub struct ObserverFigures {
     pub levels: u32,
     /// Model steps per observer step.
     pub model_steps: u32,
+    /// Where the levels' coefficients come from: `blob` (the blob's level tables, table
+    /// cost) or `exact` (the scalers).
+    pub levels_from: String,
     /// `size_of` the firmware's observer \[bytes\] (RAM, in a static).
     pub bytes: u64,
     /// Instructions per observer step.
@@ -154,15 +157,16 @@ pub struct ObserverFigures {
 }
 
 impl ObserverFigures {
-    /// `target-observer model=<kind> integrator=<rk4|rk3> levels=<n> model_steps=<n>
-    /// instructions_per_step=<N> ram_bytes=<B>`.
+    /// `target-observer model=<kind> integrator=<rk4|rk3> levels=<n> levels_from=<blob|exact>
+    /// model_steps=<n> instructions_per_step=<N> ram_bytes=<B>`.
     pub fn line(&self) -> String {
         format!(
-            "target-observer model={} integrator={} levels={} model_steps={} \
+            "target-observer model={} integrator={} levels={} levels_from={} model_steps={} \
              instructions_per_step={} ram_bytes={}",
             self.model,
             self.integrator,
             self.levels,
+            self.levels_from,
             self.model_steps,
             self.instructions_per_step,
             self.bytes
@@ -207,23 +211,19 @@ fn parse_observer(out: &str) -> Result<ObserverFigures, String> {
         model: get("kind")?.to_string(),
         integrator: get("integrator")?.to_string(),
         levels: u32::try_from(num("levels")?).map_err(|e| e.to_string())?,
+        levels_from: get("levels_from")?.to_string(),
         model_steps: u32::try_from(num("model_steps")?).map_err(|e| e.to_string())?,
         bytes: num("bytes")?,
         instructions_per_step: own,
     })
 }
 
-/// Runs the benchmark image with the example NEMM in its slot in its `observer=1` mode:
-/// the instructions of `steps` observer steps after 200 warm-up steps.
-pub fn observer(
-    tc: &Toolchain,
-    paths: &Paths,
-    images: &Images,
-    steps: u32,
-) -> Result<ObserverFigures, String> {
-    let image = image_with_example(paths, images, Kind::Nemm)?;
+/// Runs the benchmark image with its built-in weights (the firmware's trained NEMM, whose
+/// blob stores the level tables the observer steps on) in its `observer=1` mode: the
+/// instructions of `steps` observer steps after 200 warm-up steps.
+pub fn observer(tc: &Toolchain, images: &Images, steps: u32) -> Result<ObserverFigures, String> {
     let args = ["observer=1".to_string(), format!("steps={steps}")];
-    let (code, out) = firmware::run_qemu(tc, images.board, &image, &args)?;
+    let (code, out) = firmware::run_qemu(tc, images.board, &images.bench, &args)?;
     if code != 0 {
         return Err(format!(
             "the observer benchmark failed with exit code {code}:\n{out}"
@@ -321,12 +321,12 @@ bench kind=nemm integrator=rk4 mode=table steps=4000 ticks=49300 baseline_ticks=
     fn reads_the_observer_line() {
         let out = "\
 calibration iterations=1000000 int_loop_ticks=50000 fp_loop_ticks=75000
-observer kind=nemm integrator=rk4 levels=7 model_steps=7 bytes=21572 hidden=16 layers=5 steps=4000 ticks=14060122 baseline_ticks=800 instructions_per_step=140593 held=0
+observer kind=nemm integrator=rk4 levels=7 levels_from=blob model_steps=7 bytes=21572 hidden=16 layers=5 steps=4000 ticks=14060122 baseline_ticks=800 instructions_per_step=140593 held=0
 ";
         let f = parse_observer(out).expect("parse");
         assert_eq!(
             f.line(),
-            "target-observer model=nemm integrator=rk4 levels=7 model_steps=7 \
+            "target-observer model=nemm integrator=rk4 levels=7 levels_from=blob model_steps=7 \
              instructions_per_step=140593 ram_bytes=21572"
         );
         assert!(parse_observer(&out.replace("held=0", "held=3")).is_err());

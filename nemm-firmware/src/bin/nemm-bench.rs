@@ -66,8 +66,8 @@ use cortex_m::peripheral::SYST;
 use cortex_m_rt::{entry, exception};
 use nemm_core::semantics::mlp::{CompiledScaler, Scaler};
 use nemm_core::{
-    decode, AlphaEstimate, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind,
-    ObserverFlags,
+    decode_into, AlphaEstimate, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind,
+    ObserverFlags, StoredTables,
 };
 use nemm_firmware::board::{self, Console};
 use nemm_firmware::report::{self, Line};
@@ -344,12 +344,25 @@ fn check_scaler(
 /// The model (example or weights slot) into its static, in a frame of its own (`decode`
 /// and the example builder take a large one; see [`build_estimator`]).
 #[inline(never)]
-fn load_model(console: &mut Console, opt: &Options) -> &'static Model<PARAM_CAPACITY> {
-    let loaded = match opt.example {
+fn load_model(
+    console: &mut Console,
+    opt: &Options,
+) -> (
+    &'static Model<PARAM_CAPACITY>,
+    (StoredTables, &'static [u8]),
+) {
+    // The model's static, filled in place (a decoded model by value would take its size on
+    // the stack, which the observer's statics leave short).
+    const EMPTY: Model<PARAM_CAPACITY> = Model::empty();
+    let Some(model) = MODEL.init_with(|| EMPTY) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    let mut stored = (StoredTables::EMPTY, &[][..]);
+    match opt.example {
         Some(kind) => {
             match nemm_core::testing::example_model::<PARAM_CAPACITY>(kind, opt.hidden, opt.layers)
             {
-                Some(m) => m,
+                Some(m) => *model = m,
                 None => {
                     let mut l = Line::new();
                     l.str("error")
@@ -367,8 +380,8 @@ fn load_model(console: &mut Console, opt: &Options) -> &'static Model<PARAM_CAPA
                 report::slot_error(&mut l, &e);
                 fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
             }
-            Ok(blob) => match decode(blob) {
-                Ok(m) => m,
+            Ok(blob) => match decode_into(blob, model) {
+                Ok(tables) => stored = (tables, blob),
                 Err(e) => {
                     let mut l = Line::new();
                     report::decode_error(&mut l, &e);
@@ -376,11 +389,8 @@ fn load_model(console: &mut Console, opt: &Options) -> &'static Model<PARAM_CAPA
                 }
             },
         },
-    };
-    let Some(model) = MODEL.init(loaded) else {
-        board::exit(report::EXIT_USAGE)
-    };
-    model
+    }
+    (model, stored)
 }
 
 /// `Estimator::new` into `slot`, in a frame of its own: inlined into `main`, its temporaries
@@ -392,8 +402,13 @@ fn build_estimator<'a>(
     model: &Model<PARAM_CAPACITY>,
     cfg: EstimatorConfig,
 ) -> Result<&'a mut nemm_firmware::FwEstimator, nemm_core::EstimatorError> {
+    // The empty estimator as one constant, loaded in place: no estimator-sized temporary on
+    // the stack (the observer's statics leave it short).
+    const EMPTY: nemm_firmware::FwEstimator = nemm_firmware::FwEstimator::empty();
     *slot = None;
-    Ok(slot.insert(nemm_firmware::FwEstimator::with_segments(model, cfg)?))
+    let est = slot.insert(EMPTY);
+    est.load(model, cfg)?;
+    Ok(est)
 }
 
 #[entry]
@@ -401,7 +416,7 @@ fn main() -> ! {
     board::init();
     let mut console = Console::open();
     let opt = parse_options(&mut console);
-    let model = load_model(&mut console, &opt);
+    let (model, stored) = load_model(&mut console, &opt);
     let Ok(trace) = Trace::parse(board::trace_bytes()) else {
         let mut l = Line::new();
         l.str("error").ks("kind", "trace");
@@ -444,7 +459,7 @@ fn main() -> ! {
         };
         observer_run(
             &mut console,
-            model,
+            (model, &stored),
             &run,
             (warmup, fw),
             (measured, fm.get(..measured.len()).unwrap_or(fm)),
@@ -721,7 +736,7 @@ fn observer_step(observer: &mut FwObserver, velocity_m_s: f32, force_n: f32) -> 
 /// the `observer` line.
 fn observer_run(
     console: &mut Console,
-    model: &Model<PARAM_CAPACITY>,
+    (model, (tables, blob)): (&Model<PARAM_CAPACITY>, &(StoredTables, &[u8])),
     run: &RunName,
     warmup: (&[f32], &[f32]),
     measured: (&[f32], &[f32]),
@@ -732,7 +747,7 @@ fn observer_run(
     let Some(observer) = OBSERVER.init_with(|| EMPTY) else {
         board::exit(report::EXIT_USAGE)
     };
-    if let Err(e) = observer.load(model, nemm_firmware::observer_config()) {
+    if let Err(e) = observer.load(model, tables, blob) {
         let mut l = Line::new();
         report::observer_error(&mut l, &e);
         fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
@@ -762,6 +777,14 @@ fn observer_run(
         .ks("kind", run.kind)
         .ks("integrator", run.integrator)
         .kv("levels", observer.points() as u32)
+        .ks(
+            "levels_from",
+            if observer.on_levels() {
+                "blob"
+            } else {
+                "exact"
+            },
+        )
         .kv("model_steps", observer.evaluations_per_step() as u32)
         .kv("bytes", core::mem::size_of::<FwObserver>() as u32)
         .kv("hidden", run.hidden)
