@@ -14,7 +14,8 @@
 //!
 //! Everything else in the firmware is board-independent.
 
-use crate::replay::ReplayAdc;
+use crate::loadcell::LoadCell;
+use crate::replay::{ReplayAdc, ReplayLoadCell};
 use crate::sensor::StrokeSensor;
 use crate::trace::Trace;
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -124,6 +125,16 @@ pub fn sensor(trace: Trace<'static>) -> Sensor {
     StrokeSensor::new(ReplayAdc::new(trace, cal), cal)
 }
 
+/// The load cell as wired on this board (bench-controller mode): the load-cell driver on the
+/// replay device serving the recorded force.
+pub type LoadCellSensor = LoadCell<ReplayLoadCell<'static>>;
+
+/// The load cell on the replay device of `trace`.
+pub fn load_cell(trace: Trace<'static>) -> LoadCellSensor {
+    let cal = crate::load_cell_calibration();
+    LoadCell::new(ReplayLoadCell::new(trace, cal), cal)
+}
+
 /// Where the force estimate goes each period: on this board a word other tasks (or a
 /// debugger) read; on an ECU a CAN mailbox, a DAC or shared memory.
 pub struct ForceOutput {
@@ -149,6 +160,46 @@ impl ForceOutput {
 /// The force output of this board.
 pub static FORCE_OUTPUT: ForceOutput = ForceOutput {
     bits: AtomicU32::new(0),
+    seq: AtomicU32::new(0),
+};
+
+/// Where the alpha observer's estimate goes each period (bench-controller mode), beside the
+/// force: on this board words other tasks (or a debugger) read; on a bench controller a
+/// status register of its host interface.
+pub struct AlphaOutput {
+    alpha: AtomicU32,
+    band: AtomicU32,
+    flags: AtomicU32,
+    seq: AtomicU32,
+}
+
+impl AlphaOutput {
+    /// Publishes an estimate.
+    #[inline(always)]
+    pub fn publish(&self, e: &nemm_core::AlphaEstimate) {
+        self.alpha.store(e.alpha.to_bits(), Ordering::Relaxed);
+        self.band.store(e.band.to_bits(), Ordering::Relaxed);
+        self.flags.store(u32::from(e.flags.0), Ordering::Relaxed);
+        self.seq.fetch_add(1, Ordering::Release);
+    }
+
+    /// The last published estimate (alpha, band, flags) and how many were published.
+    pub fn latest(&self) -> (f32, f32, u8, u32) {
+        let seq = self.seq.load(Ordering::Acquire);
+        (
+            f32::from_bits(self.alpha.load(Ordering::Relaxed)),
+            f32::from_bits(self.band.load(Ordering::Relaxed)),
+            self.flags.load(Ordering::Relaxed) as u8,
+            seq,
+        )
+    }
+}
+
+/// The alpha output of this board.
+pub static ALPHA_OUTPUT: AlphaOutput = AlphaOutput {
+    alpha: AtomicU32::new(0),
+    band: AtomicU32::new(0),
+    flags: AtomicU32::new(0),
     seq: AtomicU32::new(0),
 };
 

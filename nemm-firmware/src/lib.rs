@@ -14,15 +14,21 @@
 //! STM32F407 image in `boards/nemm-stm32f407`).
 //!
 //! - [`sensor`]: ADC frame, calibration, differentiation filter, the driver.
-//! - [`pipeline`]: one sample period (sensor, estimator, fault classification) and the
-//!   digests of the results; shared with the host tests' reference run.
-//! - [`replay`]: the replay `SpiDevice` serving a recorded trace, with fault injection.
+//! - [`loadcell`]: the load-cell channel (bridge ADC frame, calibration, saturation), the
+//!   measured force of the bench-controller build's alpha observer.
+//! - [`pipeline`]: one sample period (sensor, estimator, fault classification; with the
+//!   observer, the load cell and the alpha estimate) and the digests of the results; shared
+//!   with the host tests' reference run.
+//! - [`replay`]: the replay `SpiDevice`s serving a recorded trace (stroke and force), with
+//!   fault injection.
 //! - [`options`]: the run options of the QEMU build (fault injection, sample clock).
 //! - [`trace`]: the trace format in flash.
 //! - [`slot`]: the weights slot in flash.
 //! - [`report`]: the output lines the host tests parse.
 #![cfg_attr(not(test), no_std)]
 
+pub mod loadcell;
+pub mod observer;
 pub mod options;
 pub mod pipeline;
 pub mod replay;
@@ -115,6 +121,44 @@ pub fn stroke_calibration() -> sensor::Calibration {
     sensor::Calibration::new(STROKE_FULL_SCALE_M, SAMPLE_RATE_HZ as f32)
 }
 
+/// Full scale of the load-cell channel: `±10 kN` over the ADC's 24 bits (1.19 mN per count),
+/// a bench load cell for passenger-car dampers (the recorded forces reach about 2 kN).
+pub const LOAD_CELL_FULL_SCALE_N: f32 = 10_000.0;
+
+/// The load-cell channel's reading at zero load \[counts\] (2.6 N): the bench amplifier's
+/// offset, from its tare. A board enters its own.
+pub const LOAD_CELL_OFFSET_COUNTS: i32 = 2150;
+
+/// Calibration of the load-cell channel.
+pub fn load_cell_calibration() -> loadcell::Calibration {
+    loadcell::Calibration::new(LOAD_CELL_FULL_SCALE_N, LOAD_CELL_OFFSET_COUNTS)
+}
+
+/// Levels of the alpha observer's grid: nemm-core's default (7).
+pub const OBSERVER_LEVELS: usize = nemm_core::limits::DEFAULT_OBSERVER_POINTS;
+
+/// The alpha observer of the bench-controller build: the one place its type is chosen (the
+/// application, the step benchmark and the host tests' reference all use this): nemm-core's
+/// observer on the blob's level tables ([`observer`]).
+pub use observer::{FwLevels, FwObserver};
+
+/// The alpha observer's settings: nemm-core's defaults (the grid over the model's trained
+/// range, 2 s horizon), those `nemm diagnose` runs on the host.
+pub fn observer_config() -> nemm_core::ObserverConfig {
+    nemm_core::ObserverConfig::new()
+}
+
+/// Whether the application runs the alpha observer unless told otherwise: the `observer`
+/// cargo feature (the one setting for a board build); QEMU runs override it with
+/// `observer=on|off`.
+pub const OBSERVER_DEFAULT: bool = cfg!(feature = "observer");
+
+/// Whether the application holds the observer and the load-cell path at all: with the
+/// `observer` feature, or under QEMU (`qemu` feature), where `observer=on` can ask for it. A
+/// board build without the feature never runs it, so its code and its RAM (the observer's
+/// static) are left out.
+pub const OBSERVER_BUILT: bool = cfg!(any(feature = "observer", feature = "qemu"));
+
 /// A `static` that is filled once at run time and then lent out as `&'static mut T`: the
 /// storage for large objects (the model, the estimator) that must not live on the stack.
 /// It starts as zero bytes in `.bss` (an `Option<T>` would go to `.data` and cost its size
@@ -147,6 +191,23 @@ impl<T> StaticSlot<T> {
         // SAFETY: the swap above succeeds once, so this is the only reference ever made.
         let slot = unsafe { &mut *self.cell.get() };
         Some(slot.write(value))
+    }
+
+    /// Fills the slot with the value `make` returns and returns it; `None` (and `make` not
+    /// called) if the slot was already filled. Unlike [`StaticSlot::init`], whose argument
+    /// is evaluated before the slot is known to be free, `make` runs after: its result can
+    /// be written straight into the slot, without a temporary of `T`'s size on the stack
+    /// (what a large value the compiler does not build in place needs).
+    // See `init`.
+    #[allow(clippy::mut_from_ref)]
+    #[inline(always)]
+    pub fn init_with(&'static self, make: impl FnOnce() -> T) -> Option<&'static mut T> {
+        if self.taken.swap(true, core::sync::atomic::Ordering::AcqRel) {
+            return None;
+        }
+        // SAFETY: as in `init`: the swap above succeeds once.
+        let slot = unsafe { &mut *self.cell.get() };
+        Some(slot.write(make()))
     }
 }
 

@@ -3,7 +3,7 @@
 //! | context | priority | job |
 //! |---------|----------|-----|
 //! | `init` | - | boot report, options, weights validation, estimator construction, SysTick at 10 kHz |
-//! | `sample` (SysTick) | 2 | read the stroke sensor, step the estimator, publish the force, digest the result, queue a log record, detect overruns |
+//! | `sample` (SysTick) | 2 | read the stroke sensor, step the estimator, publish the force (bench-controller mode: read the load cell, step the alpha observer, publish its estimate), digest the result, queue a log record, detect overruns |
 //! | `idle` | 0 | drain the log queue to the console; in QEMU, end the run after the recording |
 //!
 //! The only link between the two tasks is a lock-free single-producer single-consumer queue
@@ -16,6 +16,16 @@
 //! estimator is fed NaN, on which it holds its last good input (and flags that too); a
 //! period overrun (the next SysTick already pending when the step ends) is counted and flagged.
 //! Bad weights are reported with their typed error and the estimator is not started.
+//!
+//! **Bench-controller mode** (`observer=on`, or the `observer` feature): each period also
+//! reads the load cell (`nemm_firmware::loadcell`, a second SPI device) and steps the alpha
+//! observer ([`nemm_firmware::FwObserver`], in a static) with the same velocity and position
+//! as the estimator and the measured force; the estimate is published beside the force and
+//! logged in the `s` line. A load-cell fault gives the observer NaN, which it skips. The
+//! observer is built from the same decoded model; if it cannot be, the `observer-error` line
+//! says why and the estimator runs alone. In exact mode the observer takes about seven model
+//! steps per sample: more than the 100 us period of a 168 MHz Cortex-M4F (each period then
+//! overruns, counted and flagged); under QEMU a slow `period_ticks=` replays without.
 #![no_std]
 #![no_main]
 
@@ -28,12 +38,16 @@ mod app {
     use cortex_m::peripheral::SYST;
     use heapless::spsc::{Consumer, Producer, Queue};
     use nemm_core::{decode_into, DecodeError, EstimatorConfig, Model, StoredTables};
-    use nemm_firmware::board::{self, Console, Sensor, FORCE_OUTPUT, PERIOD_TICKS};
+    use nemm_firmware::board::{
+        self, Console, LoadCellSensor, Sensor, ALPHA_OUTPUT, FORCE_OUTPUT, PERIOD_TICKS,
+    };
     use nemm_firmware::options::Options;
-    use nemm_firmware::pipeline::{self, ChunkDigest, SensorCounters, DIGEST_CHUNK_STEPS};
-    use nemm_firmware::report::{self, Line, StepRecord};
+    use nemm_firmware::pipeline::{
+        self, ChunkDigest, LoadCellCounters, SensorCounters, DIGEST_CHUNK_STEPS,
+    };
+    use nemm_firmware::report::{self, Line, ObserverRecord, StepRecord};
     use nemm_firmware::trace::Trace;
-    use nemm_firmware::{slot, StaticSlot, PARAM_CAPACITY, SAMPLE_RATE_HZ};
+    use nemm_firmware::{slot, FwObserver, StaticSlot, PARAM_CAPACITY, SAMPLE_RATE_HZ};
 
     /// Log queue length (one slot stays free): 25.5 ms of records at 10 kHz.
     const LOG_QUEUE: usize = 256;
@@ -59,12 +73,22 @@ mod app {
         dropped: u32,
         max_step_ticks: u32,
         chunks: u32,
+        /// Whether the observer ran (bench-controller mode).
+        observer: bool,
+        load_cell: LoadCellCounters,
+    }
+
+    /// The bench-controller mode's part of the 10 kHz task: the load cell and the observer.
+    pub struct Bench {
+        load_cell: LoadCellSensor,
+        observer: &'static mut FwObserver,
     }
 
     /// Everything the 10 kHz task owns.
     pub struct SampleLoop {
         sensor: Sensor,
         estimator: &'static mut nemm_firmware::FwEstimator,
+        bench: Option<Bench>,
         log: Producer<'static, LogItem>,
         syst: SYST,
         period_ticks: u32,
@@ -95,6 +119,8 @@ mod app {
     static MODEL: StaticSlot<Model<PARAM_CAPACITY>> = StaticSlot::new();
     /// The estimator, lent to the 10 kHz task.
     static ESTIMATOR: StaticSlot<nemm_firmware::FwEstimator> = StaticSlot::new();
+    /// The alpha observer (bench-controller mode), lent to the 10 kHz task.
+    static OBSERVER: StaticSlot<FwObserver> = StaticSlot::new();
     /// The log queue between the 10 kHz task and the logger.
     static LOG: StaticSlot<Queue<LogItem, LOG_QUEUE>> = StaticSlot::new();
     /// CRC-32 of each chunk of [`DIGEST_CHUNK_STEPS`] periods, written by the 10 kHz task;
@@ -133,7 +159,9 @@ mod app {
             // Both hold `MAX_FAULT_WINDOWS`.
             let _ = sensor.spi_mut().inject(*w);
         }
-        let Some(estimator) = build_estimator(&mut console, &options, trace.oil_loss) else {
+        let Some((estimator, model, stored)) =
+            build_estimator(&mut console, &options, trace.oil_loss)
+        else {
             let local = Local {
                 sample_loop: None,
                 logger: None,
@@ -141,11 +169,27 @@ mod app {
             };
             return (Shared {}, local);
         };
+        let bench = if nemm_firmware::OBSERVER_BUILT && options.observer_on() {
+            build_observer(&mut console, model, &stored).map(|observer| {
+                let mut load_cell = board::load_cell(trace);
+                for w in &options.load_cell_faults {
+                    // Both hold `MAX_FAULT_WINDOWS`.
+                    let _ = load_cell.spi_mut().inject(*w);
+                }
+                Bench {
+                    load_cell,
+                    observer,
+                }
+            })
+        } else {
+            None
+        };
         let Some(queue) = LOG.init(Queue::new()) else {
             board::exit(report::EXIT_USAGE)
         };
         let (log, logger) = queue.split();
-        start_line(&mut console, &options, period_ticks, &trace);
+        let bench_on = bench.is_some();
+        start_line(&mut console, &options, period_ticks, &trace, bench_on);
         let syst = start_systick(period_ticks);
         (
             Shared {},
@@ -153,12 +197,16 @@ mod app {
                 sample_loop: Some(SampleLoop {
                     sensor,
                     estimator,
+                    bench,
                     log,
                     syst,
                     period_ticks,
                     options,
                     digest: ChunkDigest::new(),
-                    counters: Summary::default(),
+                    counters: Summary {
+                        observer: bench_on,
+                        ..Summary::default()
+                    },
                     log_gap: false,
                     done: false,
                 }),
@@ -200,13 +248,18 @@ mod app {
 
     /// The estimator at level `alpha`, built in place in its static from the weights slot's
     /// blob (with the blob's stored tables at this level, if it has them: no table build at
-    /// boot), and the `weights` line. A missing or bad blob, a model of another rate or an
-    /// estimator error is reported and gives `None`: the run goes on without an estimator.
+    /// boot), and the `weights` line; with the decoded model. A missing or bad blob, a model
+    /// of another rate or an estimator error is reported and gives `None`: the run goes on
+    /// without an estimator.
     fn build_estimator(
         console: &mut Console,
         options: &Options,
         alpha: f32,
-    ) -> Option<&'static mut nemm_firmware::FwEstimator> {
+    ) -> Option<(
+        &'static mut nemm_firmware::FwEstimator,
+        &'static Model<PARAM_CAPACITY>,
+        (StoredTables, &'static [u8]),
+    )> {
         let blob = match slot::blob(board::weights_slot()) {
             Ok(b) => b,
             Err(e) => {
@@ -248,13 +301,49 @@ mod app {
         let mut l = Line::new();
         report::weights_ok(&mut l, model, blob.len(), estimator);
         console.write(l.finish());
-        Some(estimator)
+        Some((estimator, model, (tables, blob)))
     }
 
-    /// The `start` line: the period, the trace, the injected faults and stalls, and the boot
-    /// figures from reset to here (the estimator is ready; the first step runs one period
-    /// after the SysTick set-up).
-    fn start_line(console: &mut Console, options: &Options, period_ticks: u32, trace: &Trace<'_>) {
+    /// The alpha observer of `model`, built in place in its static, and the `observer ok`
+    /// line; an observer error is reported (`observer-error`) and gives `None`: the
+    /// estimator runs without it.
+    fn build_observer(
+        console: &mut Console,
+        model: &Model<PARAM_CAPACITY>,
+        (tables, blob): &(StoredTables, &[u8]),
+    ) -> Option<&'static mut FwObserver> {
+        // Built in place in its static: nothing of the observer's size is on the stack.
+        // The empty observer as one constant: copied from flash into the static, not built
+        // on the stack first.
+        const EMPTY: FwObserver = FwObserver::empty();
+        let Some(observer) = OBSERVER.init_with(|| EMPTY) else {
+            board::exit(report::EXIT_USAGE) // init runs once
+        };
+        let mut l = Line::new();
+        match observer.load(model, tables, blob) {
+            Ok(()) => {
+                report::observer_ok(&mut l, observer);
+                console.write(l.finish());
+                Some(observer)
+            }
+            Err(e) => {
+                report::observer_error(&mut l, &e);
+                console.write(l.finish());
+                None
+            }
+        }
+    }
+
+    /// The `start` line: the period, the trace, the injected faults and stalls, whether the
+    /// observer runs, and the boot figures from reset to here (the estimator is ready; the
+    /// first step runs one period after the SysTick set-up).
+    fn start_line(
+        console: &mut Console,
+        options: &Options,
+        period_ticks: u32,
+        trace: &Trace<'_>,
+        observer: bool,
+    ) {
         let boot_ticks = board::boot_ticks();
         let mut l = Line::new();
         l.str("start")
@@ -264,6 +353,7 @@ mod app {
             .kx("alpha", trace.oil_loss.to_bits())
             .kv("faults", options.faults.len() as u32)
             .kv("stalls", options.stalls.len() as u32)
+            .ks("observer", if observer { "on" } else { "off" })
             .kv("boot_stack", board::stack_used());
         match boot_ticks {
             Some(t) => l.kv("boot_ticks", t),
@@ -361,8 +451,26 @@ mod app {
             let out =
                 pipeline::run_period(&mut self.sensor, self.estimator, &mut self.counters.sensor);
             FORCE_OUTPUT.publish(out.estimate.force_n);
-            self.counters.steps += 1;
             self.digest.push(&out);
+            // `OBSERVER_BUILT` false: `bench` is always `None`, and saying so leaves the
+            // observer out of the image.
+            let bench = self
+                .bench
+                .as_mut()
+                .filter(|_| nemm_firmware::OBSERVER_BUILT);
+            let observed = bench.map(|b| {
+                let o = pipeline::observe_period(
+                    &mut b.load_cell,
+                    b.observer,
+                    &out,
+                    self.sensor.position_m(),
+                    &mut self.counters.load_cell,
+                );
+                ALPHA_OUTPUT.publish(&o.estimate);
+                self.digest.push_observed(&o);
+                o
+            });
+            self.counters.steps += 1;
             if self.digest.steps() >= DIGEST_CHUNK_STEPS {
                 self.close_chunk();
             }
@@ -389,6 +497,7 @@ mod app {
                 estimator_flags: out.estimate.flags.0,
                 firmware_flags: fw,
                 ticks: ticks.min(u32::from(u16::MAX)) as u16,
+                observer: observed.as_ref().map(ObserverRecord::from),
             };
             self.log_gap = !self.log(LogItem::Step(rec));
             if self.log_gap {
@@ -427,12 +536,29 @@ mod app {
             .kx("digest", pipeline::run_digest((0..kept).map(crc)))
             .kv("stack_used", board::stack_used());
         console.write(l.finish());
+        if s.observer {
+            let mut l = Line::new();
+            l.str("load-cell")
+                .kv("errors", s.load_cell.errors)
+                .kv("invalid", s.load_cell.invalid)
+                .kv("saturated", s.load_cell.saturated);
+            console.write(l.finish());
+        }
         let (force, published) = FORCE_OUTPUT.latest();
         let mut l = Line::new();
         l.str("exit")
             .kv("code", report::EXIT_DONE)
             .kv("published", published)
             .kx("last_force", force.to_bits());
+        if s.observer {
+            let (alpha, band, flags, n) = ALPHA_OUTPUT.latest();
+            l.kv("alpha_published", n)
+                .kx("last_alpha", alpha.to_bits())
+                .kx("last_band", band.to_bits())
+                .key("last_alpha_flags")
+                .str("0x")
+                .hex_bare(u32::from(flags), 2);
+        }
         console.write(l.finish());
         board::exit(report::EXIT_DONE)
     }

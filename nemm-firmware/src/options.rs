@@ -7,6 +7,9 @@
 //! | `mode=exact\|table` | evaluation of the neural coefficients (default: exact, or table with the `table` feature; see [`crate::eval_mode`]) |
 //! | `fault=bus@START+LEN` | the SPI transaction of samples `START .. START+LEN` fails ([`crate::replay`]) |
 //! | `fault=nan@START+LEN` | the recorded displacement of those samples is NaN (an invalid conversion) |
+//! | `fault=sat@START+LEN` | the stroke ADC reads over-range for those samples (an invalid conversion) |
+//! | `observer=on\|off` | the bench-controller mode: read the load cell and run the alpha observer beside the estimator (default: off, or on with the `observer` feature; see [`crate::OBSERVER_DEFAULT`]) |
+//! | `lcfault=bus\|nan\|sat@START+LEN` | the load cell's SPI transaction fails, its conversion is invalid, or it reads full scale (saturated) for those samples (with the observer) |
 //! | `period_ticks=N` | sample period in SysTick ticks (default: 10 kHz); a slower sample clock for tests |
 //! | `samples=N` | replay only the first `N` samples of the recording |
 //! | `stall=START+LEN` | in the periods of samples `START .. START+LEN` the task busy-waits one whole period before its step: a deterministic overrun |
@@ -61,6 +64,11 @@ pub struct Options {
     /// `mode=table` (`Some(true)`) or `mode=exact` (`Some(false)`); `None`: the build's
     /// default ([`crate::TABLE_MODE_DEFAULT`]).
     pub table: Option<bool>,
+    /// `observer=on` (`Some(true)`) or `observer=off` (`Some(false)`); `None`: the build's
+    /// default ([`crate::OBSERVER_DEFAULT`]).
+    pub observer: Option<bool>,
+    /// Injected load-cell faults.
+    pub load_cell_faults: heapless::Vec<FaultWindow, MAX_FAULT_WINDOWS>,
 }
 
 impl Options {
@@ -87,6 +95,15 @@ impl Options {
                     _ => return Err(arg),
                 }
                 true
+            } else if let Some(m) = arg.strip_prefix("observer=") {
+                match m {
+                    "on" => o.observer = Some(true),
+                    "off" => o.observer = Some(false),
+                    _ => return Err(arg),
+                }
+                true
+            } else if let Some(w) = arg.strip_prefix("lcfault=") {
+                FaultWindow::parse(w).is_some_and(|w| o.load_cell_faults.push(w).is_ok())
             } else if let Some(w) = arg.strip_prefix("stall=") {
                 Window::parse(w).is_some_and(|w| o.stalls.push(w).is_ok())
             } else {
@@ -97,6 +114,11 @@ impl Options {
             }
         }
         Ok(o)
+    }
+
+    /// Whether the observer runs: `observer=`, else the build's default.
+    pub fn observer_on(&self) -> bool {
+        self.observer.unwrap_or(crate::OBSERVER_DEFAULT)
     }
 
     /// True if the period of sample `i` is to overrun on purpose.
@@ -125,6 +147,20 @@ mod tests {
         assert_eq!(Options::parse("fw mode=table").unwrap().table, Some(true));
         assert_eq!(Options::parse("fw mode=exact").unwrap().table, Some(false));
         assert_eq!(Options::parse("").unwrap(), Options::default());
+        let o = Options::parse("fw observer=on lcfault=sat@5+2 lcfault=bus@9+1").unwrap();
+        assert_eq!(o.observer, Some(true));
+        assert!(o.observer_on());
+        assert_eq!(o.load_cell_faults.len(), 2);
+        assert_eq!(o.load_cell_faults[0].kind, FaultKind::Saturate);
+        assert!(o.faults.is_empty());
+        assert_eq!(
+            Options::parse("fw observer=off").unwrap().observer,
+            Some(false)
+        );
+        assert_eq!(
+            Options::parse("fw").unwrap().observer_on(),
+            crate::OBSERVER_DEFAULT
+        );
         for bad in [
             "period_ticks=99",
             "period_ticks=16777216",
@@ -133,6 +169,8 @@ mod tests {
             "fault=dust@1+1",
             "verbose=1",
             "mode=fast",
+            "observer=1",
+            "lcfault=dust@1+1",
         ] {
             assert_eq!(Options::parse(&format!("fw {bad}")), Err(bad), "{bad}");
         }

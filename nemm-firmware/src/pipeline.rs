@@ -3,6 +3,10 @@
 //! calls [`run_period`]; the host tests call the same function over the same recording to
 //! get the reference the target's output must match bit for bit.
 //!
+//! In the bench-controller mode ([`observe_period`], after [`run_period`] in the same
+//! period) the load cell is read too, and the alpha observer gets the same velocity and
+//! position as the estimator and the measured force.
+//!
 //! Faults never stop the loop: a failed or invalid sensor read is counted and flagged, and the
 //! estimator is fed NaN, on which it holds its last good input (and flags that too).
 //!
@@ -11,10 +15,11 @@
 //! can check every estimate even when the logger had to drop records (its queue full because
 //! the step left it no time).
 
+use crate::loadcell::{LoadCell, LoadCellError};
 use crate::report::{FW_PRIMING, FW_SAMPLE_INVALID, FW_SENSOR_ERROR};
 use crate::sensor::{SensorError, StrokeSensor};
 use embedded_hal::spi::SpiDevice;
-use nemm_core::{Estimate, Estimator};
+use nemm_core::{AlphaEstimate, Estimate, Estimator};
 
 /// Sensor-path fault counters.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -71,6 +76,61 @@ pub fn run_period<SPI: SpiDevice, const P: usize, const T: usize>(
     }
 }
 
+/// Load-cell fault counters (bench-controller mode).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LoadCellCounters {
+    /// Failed SPI transactions and "no new conversion" answers.
+    pub errors: u32,
+    /// Conversions the ADC flagged invalid.
+    pub invalid: u32,
+    /// Conversions at full scale (the force beyond the channel's range).
+    pub saturated: u32,
+}
+
+/// What the observer part of one period produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObservedOutput {
+    /// The load cell's force handed to the observer \[N\]; NaN when the channel had none
+    /// (the observer skips the sample, flag `FORCE_FAULT`).
+    pub measured_force_n: f32,
+    /// The observer's output.
+    pub estimate: AlphaEstimate,
+}
+
+/// Reads the load cell and steps the observer with the period's velocity (NaN when the
+/// stroke sensor had none: the observer's levels hold their input, flag `VELOCITY_FAULT`),
+/// the sample's stroke position and the measured force. Call after [`run_period`] of the
+/// same period, with `position_m` the stroke sensor's position of that sample.
+#[inline(always)]
+pub fn observe_period<SPI: SpiDevice>(
+    load_cell: &mut LoadCell<SPI>,
+    observer: &mut crate::FwObserver,
+    period: &PeriodOutput,
+    position_m: f32,
+    counters: &mut LoadCellCounters,
+) -> ObservedOutput {
+    let measured_force_n = match load_cell.read_force() {
+        Ok(f) => f,
+        Err(LoadCellError::Bus(_) | LoadCellError::NotReady) => {
+            counters.errors = counters.errors.wrapping_add(1);
+            f32::NAN
+        }
+        Err(LoadCellError::Invalid) => {
+            counters.invalid = counters.invalid.wrapping_add(1);
+            f32::NAN
+        }
+        Err(LoadCellError::Saturated) => {
+            counters.saturated = counters.saturated.wrapping_add(1);
+            f32::NAN
+        }
+    };
+    let estimate = observer.step_with_position(period.velocity_m_s, position_m, measured_force_n);
+    ObservedOutput {
+        measured_force_n,
+        estimate,
+    }
+}
+
 /// Periods per digest chunk.
 pub const DIGEST_CHUNK_STEPS: u32 = 1000;
 
@@ -83,7 +143,8 @@ static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Running CRC-32 over the periods of one chunk. Each period adds 10 bytes: the velocity's
 /// and the force's `f32` bits (little-endian), the estimator flags and the deterministic
-/// firmware flags ([`DETERMINISTIC_FLAGS`]).
+/// firmware flags ([`DETERMINISTIC_FLAGS`]); with the observer 13 more
+/// ([`ChunkDigest::push_observed`]).
 #[derive(Clone)]
 pub struct ChunkDigest {
     digest: crc::Digest<'static, u32>,
@@ -119,6 +180,31 @@ impl ChunkDigest {
             out.firmware_flags & DETERMINISTIC_FLAGS,
         ]);
         self.steps += 1;
+    }
+
+    /// Adds the observer part of the period last [`pushed`](ChunkDigest::push): the
+    /// measured force's, the estimate's and the band's `f32` bits (little-endian) and the
+    /// observer's flags.
+    #[inline(always)]
+    pub fn push_observed(&mut self, out: &ObservedOutput) {
+        let [m0, m1, m2, m3] = out.measured_force_n.to_bits().to_le_bytes();
+        let [a0, a1, a2, a3] = out.estimate.alpha.to_bits().to_le_bytes();
+        let [b0, b1, b2, b3] = out.estimate.band.to_bits().to_le_bytes();
+        self.digest.update(&[
+            m0,
+            m1,
+            m2,
+            m3,
+            a0,
+            a1,
+            a2,
+            a3,
+            b0,
+            b1,
+            b2,
+            b3,
+            out.estimate.flags.0,
+        ]);
     }
 
     /// Periods added since the last [`ChunkDigest::finish`].
@@ -190,5 +276,31 @@ mod tests {
         all.extend_from_slice(&7u32.to_le_bytes());
         all.extend_from_slice(&9u32.to_le_bytes());
         assert_eq!(run_digest([7, 9]), nemm_core::format::CRC.checksum(&all));
+    }
+
+    #[test]
+    fn the_observer_part_extends_the_period() {
+        let mut d = ChunkDigest::new();
+        d.push(&out(1.0, -2.0, 0, 0));
+        d.push_observed(&ObservedOutput {
+            measured_force_n: 3.0,
+            estimate: AlphaEstimate {
+                alpha: 0.25,
+                band: 0.5,
+                force_n: 99.0,
+                flags: nemm_core::ObserverFlags(0x21),
+            },
+        });
+        assert_eq!(d.steps(), 1, "one period");
+        let mut bytes = std::vec::Vec::new();
+        for v in [1.0f32, -2.0] {
+            bytes.extend_from_slice(&v.to_bits().to_le_bytes());
+        }
+        bytes.extend_from_slice(&[0, 0]);
+        for v in [3.0f32, 0.25, 0.5] {
+            bytes.extend_from_slice(&v.to_bits().to_le_bytes());
+        }
+        bytes.push(0x21);
+        assert_eq!(d.finish(), nemm_core::format::CRC.checksum(&bytes));
     }
 }

@@ -1,18 +1,23 @@
-//! A replay device: an [`SpiDevice`] that behaves like the stroke channel's ADC (see
-//! [`crate::sensor`]) but serves a recorded bench trace from flash, so that in QEMU the
-//! firmware runs the same driver code path a real board runs.
+//! Replay devices: [`SpiDevice`]s that behave like the firmware's ADCs but serve a recorded
+//! bench trace from flash, so that in QEMU the firmware runs the same driver code path a
+//! real board runs. [`ReplayAdc`] is the stroke channel's ADC (see [`crate::sensor`]),
+//! [`ReplayLoadCell`] the load-cell channel's (see [`crate::loadcell`]); each keeps its own
+//! position in the recording, and the firmware reads each once per period.
 //!
 //! Every read transaction returns the next recorded sample (the converter is triggered by the
 //! read, as a SAR ADC with its convert-start tied to chip select), quantised to the ADC's
 //! 24-bit code with the channel's calibration. A NaN or out-of-range displacement is served
-//! as an invalid conversion (status bit 6), as a real converter reports it. After the last
-//! sample the device answers "no new conversion" (status bit 7) and [`ReplayAdc::finished`]
-//! turns true.
+//! as an invalid conversion (status bit 6), as a real converter reports it; a NaN force too,
+//! and a force beyond the load cell's range as the code at the end of the range (the bridge
+//! converter saturates without flagging it). After the last sample the devices answer "no
+//! new conversion" (status bit 7) and [`ReplayAdc::finished`] turns true.
 //!
 //! Faults can be injected for tests ([`FaultWindow`]): bus errors (the transaction fails, the
-//! sample of that period is lost) and NaN bursts (the recording's samples are replaced by
-//! NaN). Windows are given in sample indices, e.g. `bus@1200+25` or `nan@3000+40`.
+//! sample of that period is lost), NaN bursts (the recording's samples are replaced by
+//! NaN) and saturation (the samples read full scale). Windows are given in sample indices,
+//! e.g. `bus@1200+25`, `nan@3000+40` or `sat@500+10`.
 
+use crate::loadcell;
 use crate::sensor::{Calibration, Frame, READ_DATA_COMMAND, STATUS_ADC_ERROR, STATUS_NOT_READY};
 use crate::trace::Trace;
 use embedded_hal::spi::{self, ErrorKind, ErrorType, Operation, SpiDevice};
@@ -25,8 +30,12 @@ pub const MAX_FAULT_WINDOWS: usize = 8;
 pub enum FaultKind {
     /// The SPI transaction fails.
     Bus,
-    /// The recorded displacement is replaced by NaN (served as an invalid conversion).
+    /// The recorded sample is replaced by NaN (served as an invalid conversion).
     Nan,
+    /// The input drives the converter beyond full scale: the stroke ADC flags the
+    /// conversion invalid (status bit 6), the load cell's reads the positive end of its
+    /// range.
+    Saturate,
 }
 
 /// Samples `start .. start + len` are affected by `kind`.
@@ -41,12 +50,13 @@ pub struct FaultWindow {
 }
 
 impl FaultWindow {
-    /// Parses `bus@START+LEN` or `nan@START+LEN`.
+    /// Parses `bus@START+LEN`, `nan@START+LEN` or `sat@START+LEN`.
     pub fn parse(s: &str) -> Option<Self> {
         let (kind, rest) = s.split_once('@')?;
         let kind = match kind {
             "bus" => FaultKind::Bus,
             "nan" => FaultKind::Nan,
+            "sat" => FaultKind::Saturate,
             _ => return None,
         };
         let (start, len) = rest.split_once('+')?;
@@ -67,7 +77,7 @@ impl FaultWindow {
 pub enum ReplayError {
     /// An injected bus fault.
     InjectedBusFault,
-    /// The transaction is not the ADC's read command (`0x44`, then 4 bytes).
+    /// The transaction is not the ADC's read command (its command byte, then 4 bytes).
     Protocol,
 }
 
@@ -134,6 +144,7 @@ impl<'a> ReplayAdc<'a> {
                 }
             }
             Some(_) if self.fault_at(i, FaultKind::Nan) => f32::NAN,
+            Some(_) if self.fault_at(i, FaultKind::Saturate) => f32::INFINITY,
             Some(x) => x,
         };
         match self.cal.code_of(x) {
@@ -156,6 +167,99 @@ impl SpiDevice for ReplayAdc<'_> {
             return Err(ReplayError::Protocol);
         };
         if *cmd != [READ_DATA_COMMAND] || rx.len() != 4 {
+            return Err(ReplayError::Protocol);
+        }
+        let i = self.next;
+        if !self.finished() {
+            self.next += 1;
+        }
+        if self.fault_at(i, FaultKind::Bus) {
+            return Err(ReplayError::InjectedBusFault);
+        }
+        rx.copy_from_slice(&self.frame(i).encode());
+        Ok(())
+    }
+}
+
+/// The replaying load-cell ADC: serves the recorded force of each sample, quantised with
+/// the load-cell channel's calibration (the one its driver uses).
+#[derive(Debug)]
+pub struct ReplayLoadCell<'a> {
+    trace: Trace<'a>,
+    cal: loadcell::Calibration,
+    next: u32,
+    faults: heapless::Vec<FaultWindow, MAX_FAULT_WINDOWS>,
+}
+
+impl<'a> ReplayLoadCell<'a> {
+    /// Serves the forces of `trace` quantised with `cal`.
+    pub fn new(trace: Trace<'a>, cal: loadcell::Calibration) -> Self {
+        Self {
+            trace,
+            cal,
+            next: 0,
+            faults: heapless::Vec::new(),
+        }
+    }
+
+    /// Adds a fault window; `false` if [`MAX_FAULT_WINDOWS`] are already set.
+    pub fn inject(&mut self, w: FaultWindow) -> bool {
+        self.faults.push(w).is_ok()
+    }
+
+    /// Index of the next sample to serve.
+    pub fn position(&self) -> u32 {
+        self.next
+    }
+
+    /// True once every recorded sample was served.
+    pub fn finished(&self) -> bool {
+        self.next as usize >= self.trace.len()
+    }
+
+    fn fault_at(&self, i: u32, kind: FaultKind) -> bool {
+        self.faults.iter().any(|w| w.kind == kind && w.covers(i))
+    }
+
+    /// The frame of sample `i` as the ADC would send it.
+    fn frame(&self, i: u32) -> loadcell::Frame {
+        let invalid = loadcell::Frame {
+            code: 0,
+            status: loadcell::STATUS_ADC_ERROR,
+        };
+        let f = match self.trace.force_n(i as usize) {
+            None => {
+                return loadcell::Frame {
+                    code: 0,
+                    status: loadcell::STATUS_NOT_READY,
+                }
+            }
+            Some(_) if self.fault_at(i, FaultKind::Nan) => return invalid,
+            Some(_) if self.fault_at(i, FaultKind::Saturate) => {
+                return loadcell::Frame {
+                    code: loadcell::MAX_CODE,
+                    status: 0,
+                }
+            }
+            Some(f) => f,
+        };
+        match self.cal.code_of(f) {
+            Some(code) => loadcell::Frame { code, status: 0 },
+            None => invalid,
+        }
+    }
+}
+
+impl ErrorType for ReplayLoadCell<'_> {
+    type Error = ReplayError;
+}
+
+impl SpiDevice for ReplayLoadCell<'_> {
+    fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), ReplayError> {
+        let [Operation::Write(cmd), Operation::Read(rx)] = operations else {
+            return Err(ReplayError::Protocol);
+        };
+        if *cmd != [loadcell::READ_DATA_COMMAND] || rx.len() != 4 {
             return Err(ReplayError::Protocol);
         }
         let i = self.next;
@@ -196,6 +300,10 @@ mod tests {
         assert_eq!(
             FaultWindow::parse("nan@7+1").map(|w| w.kind),
             Some(FaultKind::Nan)
+        );
+        assert_eq!(
+            FaultWindow::parse("sat@3+4").map(|w| w.kind),
+            Some(FaultKind::Saturate)
         );
         for bad in ["bus1200+25", "dust@1+1", "nan@x+1", "nan@1", "nan@1+-2"] {
             assert_eq!(FaultWindow::parse(bad), None, "{bad}");
@@ -248,5 +356,67 @@ mod tests {
         );
         let f = s.read_frame().unwrap();
         assert_eq!((f.code, f.status), (0, STATUS_ADC_ERROR));
+    }
+
+    #[test]
+    fn saturation_of_the_stroke_adc_is_an_invalid_conversion() {
+        let b = trace_bytes(&[0.0, 0.01, 0.02]);
+        let cal = Calibration::new(0.1, 10_000.0);
+        let mut adc = ReplayAdc::new(Trace::parse(&b).unwrap(), cal);
+        assert!(adc.inject(FaultWindow::parse("sat@1+1").unwrap()));
+        let mut s = StrokeSensor::new(adc, cal);
+        assert_eq!(s.read_frame().unwrap().status, 0);
+        let f = s.read_frame().unwrap();
+        assert_eq!(
+            (f.code, f.status),
+            (crate::sensor::MAX_CODE, STATUS_ADC_ERROR)
+        );
+        assert_eq!(s.read_frame().unwrap().status, 0);
+    }
+
+    #[test]
+    fn the_load_cell_reads_the_recorded_force_with_faults() {
+        use crate::loadcell::{Calibration as LcCal, LoadCell, LoadCellError};
+        let forces = [100.0f32, -2000.5, f32::NAN, 25_000.0, 7.0, 8.0, 9.0, 10.0];
+        let samples: Vec<_> = forces.iter().map(|&f| (0.0, f32::NAN, f)).collect();
+        let mut b = vec![0; crate::trace::encoded_len(samples.len()).unwrap()];
+        crate::trace::encode(10_000.0, 0.15, &samples, &mut b).unwrap();
+        let cal = LcCal::new(10_000.0, 2150);
+        let mut dev = ReplayLoadCell::new(Trace::parse(&b).unwrap(), cal);
+        for w in ["bus@4+1", "nan@5+1", "sat@6+1"] {
+            assert!(dev.inject(FaultWindow::parse(w).unwrap()));
+        }
+        let mut rx = [0u8; 4];
+        assert_eq!(
+            dev.transaction(&mut [
+                Operation::Write(&[READ_DATA_COMMAND]),
+                Operation::Read(&mut rx)
+            ]),
+            Err(ReplayError::Protocol),
+            "the stroke ADC's command"
+        );
+        let mut lc = LoadCell::new(dev, cal);
+        let mut got = Vec::new();
+        while !lc.spi().finished() {
+            got.push(lc.read_force());
+        }
+        assert_eq!(got.len(), forces.len());
+        let step = cal.newtons_per_count;
+        assert!((got[0].unwrap() - 100.0).abs() <= step);
+        assert!((got[1].unwrap() + 2000.5).abs() <= step);
+        assert_eq!(got[2], Err(LoadCellError::Invalid), "NaN recorded");
+        assert_eq!(got[3], Err(LoadCellError::Saturated), "beyond full scale");
+        assert_eq!(
+            got[4],
+            Err(LoadCellError::Bus(ReplayError::InjectedBusFault))
+        );
+        assert_eq!(got[5], Err(LoadCellError::Invalid));
+        assert_eq!(got[6], Err(LoadCellError::Saturated));
+        assert!((got[7].unwrap() - 10.0).abs() <= step);
+        assert_eq!(
+            lc.read_force(),
+            Err(LoadCellError::NotReady),
+            "past the end"
+        );
     }
 }

@@ -9,11 +9,16 @@
 //! weights ok kind=nemm bytes=30231 integrator=rk4 dt_ns=100000 mode=table table_bytes=7168 table_max_rel_error_ppb=2792 tables=stored
 //! weights-error source=decode kind=crc-mismatch stored=0x1234abcd computed=0x89abcdef
 //! weights-error source=decode kind=invalid reason=non-finite field=b_fl.params
-//! start period_ticks=2500 core_hz=25000000 samples=10500 alpha=0x3e19999a faults=0 stalls=0 boot_stack=8208 boot_ticks=18000
+//! observer ok levels=7 alpha_lo=0x00000000 alpha_hi=0x3e99999a bytes=21696 model_steps=7
+//! observer-error kind=estimator reason=table
+//! start period_ticks=2500 core_hz=25000000 samples=10500 alpha=0x3e19999a faults=0 stalls=0 observer=off boot_stack=8208 boot_ticks=18000
 //! s <k> <velocity f32 bits> <force f32 bits> <estimator flags> <firmware flags> <ticks>
+//! s <k> <velocity> <force> <estimator flags> <firmware flags> <ticks> measured=0x44fe2666 alpha=0x3e19db23 band=0x3d1c28f6 flags=0x00
 //! digest chunk=0 first=0 steps=1000 crc=0x1c2b3a49
 //! summary steps=10500 sensor_errors=0 invalid_samples=0 priming=1 held=1 resets=0 overruns=0 dropped=0 max_step_ticks=412 chunks=11 digest=0x0badf00d stack_used=1864
+//! load-cell errors=0 invalid=0 saturated=0
 //! exit code=0 published=10500 last_force=0xc3a1a970
+//! exit code=0 published=10500 last_force=0xc3a1a970 alpha_published=10500 last_alpha=0x3e19db23 last_band=0x3d1c28f6 last_alpha_flags=0x00
 //! ```
 //!
 //! In `s` lines `k` and `ticks` are decimal, the rest hex; `velocity` is the value handed to
@@ -26,6 +31,14 @@
 //! them after the run, and `summary`'s `digest` is the CRC over those
 //! ([`crate::pipeline::run_digest`]).
 //!
+//! With the alpha observer (`observer=on`, the bench-controller mode), `observer ok` (or
+//! `observer-error`: the estimator runs on without the observer) follows `weights ok`, each
+//! `s` line carries the observer's part as `key=value` fields ([`ObserverRecord`]): the load
+//! cell's force handed to the observer, the estimate of alpha, its band (half-width) as `f32`
+//! bits, and the observer's flags ([`nemm_core::ObserverFlags`]); a `load-cell` line after
+//! the `summary` counts the load cell's faults (failed reads and "no new conversion",
+//! invalid conversions, saturated ones) and `exit` adds the last published estimate.
+//!
 //! In table mode `weights ok` says where the tables came from: `tables=stored` (read from
 //! the blob's tables section) or `tables=built stored_unused=<reason>` (built at boot; the
 //! reason is [`nemm_core::StoredUnused::name`]). `boot_ticks` of `start` are the SysTick
@@ -37,7 +50,8 @@
 //! a model rejected by its checks adds the [`ModelError`] as `reason=` plus its fields.
 
 use nemm_core::{
-    DecodeError, Estimator, EstimatorError, Model, ModelError, TableError, TableOrigin,
+    DecodeError, Estimator, EstimatorError, Model, ModelError, ObserverError, TableError,
+    TableOrigin,
 };
 
 use crate::slot::SlotError;
@@ -252,6 +266,11 @@ pub fn decode_error(line: &mut Line, e: &DecodeError) {
 /// `weights-error source=estimator ...`.
 pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
     line.str("weights-error").ks("source", "estimator");
+    estimator_error_fields(line, e);
+}
+
+/// ` kind=<name>` of an estimator error and its fields.
+fn estimator_error_fields(line: &mut Line, e: &EstimatorError) {
     match e {
         EstimatorError::AlphaOutOfRange => line.ks("kind", "alpha-out-of-range"),
         EstimatorError::BadVelocityLimit => line.ks("kind", "bad-velocity-limit"),
@@ -271,6 +290,60 @@ pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
         }
         EstimatorError::Levels(l) => line.ks("kind", "levels").ks("levels", l.name()),
     };
+}
+
+/// `observer-error kind=...`: why the observer could not be built (the estimator runs
+/// without it). `kind=estimator` carries the estimator's error as `reason=` (its `kind`
+/// name) and fields.
+pub fn observer_error(line: &mut Line, e: &ObserverError) {
+    line.str("observer-error");
+    match e {
+        ObserverError::Estimator(inner) => {
+            line.ks("kind", "estimator");
+            let mut fields = Line::new();
+            estimator_error_fields(&mut fields, inner);
+            // ` kind=x ...` of the estimator as ` reason=x ...`.
+            let bytes = fields.as_bytes();
+            let rest = bytes.strip_prefix(b" kind=").unwrap_or(bytes);
+            line.str(" reason=");
+            for &b in rest {
+                if line.buf.push(b).is_err() {
+                    break;
+                }
+            }
+        }
+        ObserverError::Grid => {
+            line.ks("kind", "grid");
+        }
+        ObserverError::Points {
+            requested,
+            capacity,
+        } => {
+            line.ks("kind", "points")
+                .kv("requested", sat(*requested))
+                .kv("capacity", sat(*capacity));
+        }
+        ObserverError::Setting(name) => {
+            line.ks("kind", "setting").ks("setting", name);
+        }
+    }
+}
+
+/// The `observer ok` line: the grid's levels, its lowest and highest level (`f32` bits), the
+/// observer's RAM and the model steps it takes per sample.
+pub fn observer_ok(line: &mut Line, fw: &crate::FwObserver) {
+    let observer = fw.observer();
+    let mut grid = observer.grid();
+    let lo = grid.next().unwrap_or(f32::NAN);
+    let hi = grid.last().unwrap_or(lo);
+    line.str("observer ok")
+        .kv("levels", sat(observer.points()))
+        .kx("alpha_lo", lo.to_bits())
+        .kx("alpha_hi", hi.to_bits())
+        .kv("bytes", sat(core::mem::size_of::<crate::FwObserver>()))
+        .kv("model_steps", sat(observer.evaluations_per_step()))
+        .ks("levels_from", if fw.on_levels() { "blob" } else { "exact" })
+        .kv("level_table_bytes", sat(fw.levels().table_bytes().1));
 }
 
 /// Whether a model stepping `dt_s` seconds runs at [`crate::SAMPLE_RATE_HZ`] (within
@@ -380,6 +453,32 @@ pub struct StepRecord {
     pub firmware_flags: u8,
     /// SysTick ticks from the period start to the end of the step (0 on overrun).
     pub ticks: u16,
+    /// The observer's part (bench-controller mode).
+    pub observer: Option<ObserverRecord>,
+}
+
+/// The observer's part of a step record.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObserverRecord {
+    /// The load cell's force handed to the observer \[N\] (NaN on a load-cell fault).
+    pub measured_force_n: f32,
+    /// The estimate of alpha.
+    pub alpha: f32,
+    /// Its band (half-width).
+    pub band: f32,
+    /// [`nemm_core::ObserverFlags`] bits.
+    pub flags: u8,
+}
+
+impl From<&crate::pipeline::ObservedOutput> for ObserverRecord {
+    fn from(o: &crate::pipeline::ObservedOutput) -> Self {
+        Self {
+            measured_force_n: o.measured_force_n,
+            alpha: o.estimate.alpha,
+            band: o.estimate.band,
+            flags: o.estimate.flags.0,
+        }
+    }
 }
 
 impl StepRecord {
@@ -397,6 +496,14 @@ impl StepRecord {
             .hex_bare(u32::from(self.firmware_flags), 2)
             .str(" ")
             .dec(u32::from(self.ticks));
+        if let Some(o) = &self.observer {
+            line.kx("measured", o.measured_force_n.to_bits())
+                .kx("alpha", o.alpha.to_bits())
+                .kx("band", o.band.to_bits())
+                .key("flags")
+                .str("0x")
+                .hex_bare(u32::from(o.flags), 2);
+        }
     }
 }
 
@@ -420,9 +527,31 @@ mod tests {
             estimator_flags: 0x05,
             firmware_flags: FW_PRIMING,
             ticks: 321,
+            observer: None,
         }
         .write(&mut l);
         assert_eq!(l.as_bytes(), b"s 12 3f800000 c0000000 05 04 321");
+        let mut l = Line::new();
+        StepRecord {
+            k: 10492,
+            velocity_m_s: 1.0,
+            force_n: -2.0,
+            estimator_flags: 0,
+            firmware_flags: 0,
+            ticks: 0,
+            observer: Some(ObserverRecord {
+                measured_force_n: 2.0,
+                alpha: 0.25,
+                band: 0.5,
+                flags: 0x21,
+            }),
+        }
+        .write(&mut l);
+        assert_eq!(
+            l.as_bytes(),
+            &b"s 10492 3f800000 c0000000 00 00 0 measured=0x40000000 alpha=0x3e800000 \
+               band=0x3f000000 flags=0x21"[..]
+        );
     }
 
     #[test]
@@ -457,6 +586,21 @@ mod tests {
         let mut l = Line::new();
         slot_error(&mut l, &SlotError::Empty);
         assert_eq!(l.as_bytes(), b"weights-error source=slot kind=empty");
+        let mut l = Line::new();
+        observer_error(
+            &mut l,
+            &ObserverError::Estimator(EstimatorError::AlphaPerSampleInTableMode),
+        );
+        assert_eq!(
+            l.as_bytes(),
+            b"observer-error kind=estimator reason=alpha-per-sample-in-table-mode"
+        );
+        let mut l = Line::new();
+        observer_error(&mut l, &ObserverError::Setting("horizon_s"));
+        assert_eq!(
+            l.as_bytes(),
+            b"observer-error kind=setting setting=horizon_s"
+        );
     }
 
     #[test]

@@ -262,12 +262,40 @@ pub struct StepLine {
     pub firmware_flags: u8,
     /// SysTick ticks of the step (0 on overrun).
     pub ticks: u32,
+    /// The observer's part (bench-controller mode: `measured=`, `alpha=`, `band=`,
+    /// `flags=`).
+    pub observer: Option<ObserverPart>,
 }
 
 impl StepLine {
     /// The force estimate.
     pub fn force(&self) -> f32 {
         f32::from_bits(self.force_bits)
+    }
+}
+
+/// The observer's fields of an `s` line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ObserverPart {
+    /// Bits of the load cell's force handed to the observer.
+    pub measured_bits: u32,
+    /// Bits of the estimate of alpha.
+    pub alpha_bits: u32,
+    /// Bits of its band.
+    pub band_bits: u32,
+    /// The observer's flags.
+    pub flags: u8,
+}
+
+impl ObserverPart {
+    /// The estimate of alpha.
+    pub fn alpha(&self) -> f32 {
+        f32::from_bits(self.alpha_bits)
+    }
+
+    /// Its band.
+    pub fn band(&self) -> f32 {
+        f32::from_bits(self.band_bits)
     }
 }
 
@@ -315,7 +343,26 @@ impl Output {
                         .and_then(|v| v.parse::<u32>().ok())
                         .unwrap_or_else(|| panic!("bad step line {line:?}"))
                 };
-                assert_eq!(f.len(), 6, "bad step line {line:?}");
+                let observer = match f.len() {
+                    6 => None,
+                    10 => {
+                        let mut kv = Fields::default();
+                        for w in &f[6..] {
+                            let (k, v) = w
+                                .split_once('=')
+                                .unwrap_or_else(|| panic!("bad step line {line:?}"));
+                            kv.0.insert(k.to_string(), v.to_string());
+                        }
+                        Some(ObserverPart {
+                            measured_bits: kv.num("measured"),
+                            alpha_bits: kv.num("alpha"),
+                            band_bits: kv.num("band"),
+                            flags: u8::try_from(kv.num("flags"))
+                                .unwrap_or_else(|_| panic!("bad step line {line:?}")),
+                        })
+                    }
+                    _ => panic!("bad step line {line:?}"),
+                };
                 o.steps.push(StepLine {
                     k: dec(0),
                     velocity_bits: hex(1),
@@ -323,6 +370,7 @@ impl Output {
                     estimator_flags: hex(3) as u8,
                     firmware_flags: hex(4) as u8,
                     ticks: dec(5),
+                    observer,
                 });
                 continue;
             }
@@ -443,4 +491,32 @@ pub fn scratch_dir() -> PathBuf {
     let dir = base.join(format!("nemm-qemu-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("create the scratch directory");
     dir
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_step_lines_with_and_without_the_observer() {
+        let o = Output::parse(
+            "s 7 3f800000 c0000000 05 04 321\n\
+             s 8 3f800000 c0000000 00 00 0 measured=0x40000000 alpha=0x3e800000 \
+             band=0x3f000000 flags=0x21\n\
+             exit code=0 last_alpha=0x3e800000\n",
+        );
+        assert_eq!(o.steps.len(), 2);
+        assert_eq!((o.steps[0].k, o.steps[0].ticks), (7, 321));
+        assert_eq!(o.steps[0].observer, None);
+        let p = o.steps[1].observer.expect("observer fields");
+        assert_eq!((p.alpha(), p.band(), p.flags), (0.25, 0.5, 0x21));
+        assert_eq!(f32::from_bits(p.measured_bits), 2.0);
+        assert_eq!(o.expect("exit").num("last_alpha"), 0.25f32.to_bits());
+    }
+
+    #[test]
+    #[should_panic(expected = "bad step line")]
+    fn a_partial_observer_part_is_refused() {
+        Output::parse("s 8 3f800000 c0000000 00 00 0 measured=0x40000000 alpha=0x3e800000\n");
+    }
 }

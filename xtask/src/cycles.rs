@@ -2,7 +2,8 @@
 //! Cortex-M7, from the dynamic instruction mix of the step traced in QEMU.
 //!
 //! QEMU counts instructions, not cycles. [`trace_mix`] runs the benchmark image under QEMU's
-//! gdb stub, stops at `Estimator::step`, single-steps whole steps and classifies every
+//! gdb stub, stops at `Estimator::step` (or, [`observer_mix`], at the benchmark's
+//! `observer_step`, one step of the alpha observer), single-steps whole steps and classifies every
 //! executed instruction by its Thumb-2 encoding ([`classify`]), noting each control
 //! transfer (the next PC is not the following instruction). [`Chip::cycles`] then prices the
 //! mix with per-class costs. Both models assume zero-wait-state memory (the M4F's SRAM with
@@ -451,6 +452,10 @@ const TRACE_SKIP: u32 = 40;
 /// Steps traced.
 const TRACE_STEPS: u32 = 2;
 
+/// Steps of the observer benchmark before the traced one (beyond the observer's own
+/// warm-up of 100 samples, so that the traced step updates the estimate).
+const OBSERVER_TRACE_SKIP: u32 = 120;
+
 /// The instruction mix of `Estimator::step` (its body `step_at`) in the benchmark image `elf` (with the blob of
 /// `kind` in its slot, as [`crate::target_bench::run`] patches it), evaluation `mode`, integrator
 /// `integrator`: [`TRACE_STEPS`] steps after [`TRACE_SKIP`], single-stepped through QEMU's
@@ -462,18 +467,6 @@ pub fn trace_mix(
     mode: Mode,
     integrator: &str,
 ) -> Result<Mix, String> {
-    let elf = Elf::read(elf_path)?;
-    let step = elf
-        .functions()
-        .into_values()
-        .find(|s| {
-            let d = nemm_elf::demangle(&s.name);
-            d.contains("nemm_core::estimator::Estimator<")
-                && (d.ends_with(">>::step") || d.ends_with(">>::step_at"))
-        })
-        .ok_or_else(|| format!("{}: no Estimator::step function", elf_path.display()))?
-        .start();
-    let code = Code::of(&elf);
     let args = [
         format!("mode={}", mode.name()),
         format!("integrator={integrator}"),
@@ -481,8 +474,65 @@ pub fn trace_mix(
         format!("steps={}", TRACE_STEPS + 2),
         "calibrate=0".to_string(),
     ];
+    let is_step = |d: &str| {
+        d.contains("nemm_core::estimator::Estimator<")
+            && (d.ends_with(">>::step") || d.ends_with(">>::step_at"))
+    };
+    trace(
+        tc,
+        board,
+        elf_path,
+        ("Estimator::step", &is_step),
+        &args,
+        TRACE_SKIP,
+        TRACE_STEPS,
+    )
+}
+
+/// The instruction mix of one step of the alpha observer (the benchmark's `observer_step`,
+/// `observer=1`) in the benchmark image `elf`: one step after [`OBSERVER_TRACE_SKIP`].
+pub fn observer_mix(tc: &Toolchain, board: Board, elf_path: &Path) -> Result<Mix, String> {
+    let args = [
+        "observer=1".to_string(),
+        format!("warmup={OBSERVER_TRACE_SKIP}"),
+        "steps=3".to_string(),
+        "calibrate=0".to_string(),
+    ];
+    let is_step = |d: &str| d.ends_with("::observer_step");
+    trace(
+        tc,
+        board,
+        elf_path,
+        ("observer_step", &is_step),
+        &args,
+        OBSERVER_TRACE_SKIP,
+        1,
+    )
+}
+
+/// Runs the benchmark image `elf_path` with `args` under QEMU's gdb stub on `board`, lets the
+/// function `func` (its name and a test of its demangled symbol) run `skip` times, then
+/// single-steps `steps` whole calls of it and returns their instruction mix.
+fn trace(
+    tc: &Toolchain,
+    board: Board,
+    elf_path: &Path,
+    func: (&str, &dyn Fn(&str) -> bool),
+    args: &[String],
+    skip: u32,
+    steps: u32,
+) -> Result<Mix, String> {
+    let (name, matches) = func;
+    let elf = Elf::read(elf_path)?;
+    let step = elf
+        .functions()
+        .into_values()
+        .find(|s| matches(&nemm_elf::demangle(&s.name)))
+        .ok_or_else(|| format!("{}: no {name} function", elf_path.display()))?
+        .start();
+    let code = Code::of(&elf);
     let port = free_port()?;
-    let mut qemu = firmware::qemu_command(tc, board, elf_path, &args);
+    let mut qemu = firmware::qemu_command(tc, board, elf_path, args);
     qemu.args(["-gdb", &format!("tcp:127.0.0.1:{port}"), "-S"])
         .stdout(Stdio::null())
         .stderr(Stdio::null());
@@ -492,21 +542,19 @@ pub fn trace_mix(
     let mut guard = KillOnDrop(child);
     let mut gdb = Gdb::connect(port)?;
     gdb.command(&format!("Z0,{step:x},2"))?;
-    for _ in 0..TRACE_SKIP {
+    for _ in 0..skip {
         gdb.resume("c")?;
     }
     gdb.command(&format!("z0,{step:x},2"))?;
     let mut mix = Mix::default();
-    for _ in 0..TRACE_STEPS {
+    for _ in 0..steps {
         gdb.command(&format!("Z0,{step:x},2"))?;
         gdb.resume("c")?;
         gdb.command(&format!("z0,{step:x},2"))?;
         let ret = gdb.register(14)? & !1;
         let mut pc = gdb.register(15)?;
         if pc != step {
-            return Err(format!(
-                "stopped at {pc:#x}, not at Estimator::step ({step:#x})"
-            ));
+            return Err(format!("stopped at {pc:#x}, not at {name} ({step:#x})"));
         }
         let mut n = 0u64;
         while pc != ret {
@@ -520,7 +568,7 @@ pub fn trace_mix(
             pc = next;
             n += 1;
             if n > 10_000_000 {
-                return Err("Estimator::step did not return within 10^7 instructions".into());
+                return Err(format!("{name} did not return within 10^7 instructions"));
             }
         }
         mix.steps += 1;
@@ -559,6 +607,39 @@ pub fn estimate(
         });
     }
     Ok(out)
+}
+
+/// The model name of the observer's rows: `<kind>-observer` (a word: it is a field of the
+/// `target-cycles` line).
+pub fn observer_row_name(f: &crate::target_bench::ObserverFigures) -> String {
+    format!("{}-observer", f.model)
+}
+
+/// Estimates the cycles of the alpha observer's step (`figures`, the benchmark's output for
+/// `images`) from the traced mix of one observer step.
+pub fn estimate_observer(
+    tc: &Toolchain,
+    paths: &Paths,
+    images: &Images,
+    figures: &crate::target_bench::ObserverFigures,
+) -> Result<CycleFigures, String> {
+    let _ = paths;
+    let mix = observer_mix(tc, images.board, &images.bench)?;
+    let chip = images.board.chip();
+    Ok(CycleFigures {
+        chip,
+        board: images.board,
+        model: observer_row_name(figures),
+        integrator: figures.integrator.clone(),
+        mode: if figures.levels_from == "blob" {
+            "table".into()
+        } else {
+            "exact".into()
+        },
+        instructions_per_step: figures.instructions_per_step,
+        cycles_per_instruction: mix.cycles_per_instruction(chip),
+        fp_mac_per_step: mix.per_step(|c| c == Class::FpMac),
+    })
 }
 
 /// The executable sections of an image, for classifying the instruction at an address.

@@ -56,7 +56,7 @@ enum Cmd {
         host_only: bool,
     },
     /// Instructions and estimated cycles per estimator step in QEMU, per board, model kind
-    /// and integrator.
+    /// and integrator; and per step of the alpha observer.
     ///
     /// QEMU counts instructions (-icount shift=0); N steps of the bench trace after 200
     /// warm-up steps. Each line reads
@@ -73,6 +73,16 @@ enum Cmd {
     ///
     /// from the instruction mix of two traced steps priced by the cycle model
     /// (nemm-firmware/README.md, "Cycle model").
+    ///
+    /// With the NEMM among the models, the firmware's alpha observer (the bench-controller
+    /// mode; exact mode whatever --mode, the example NEMM, the model's own force as the
+    /// measurement):
+    ///
+    /// `target-observer model=nemm integrator=<rk4|rk3> levels=<n> model_steps=<n>
+    /// instructions_per_step=<N> ram_bytes=<B>`
+    ///
+    /// and its `target-cycles` line per chip (model `nemm-observer`, from one traced observer
+    /// step).
     BenchTarget {
         /// The estimator's evaluation: the exact scalers or the tabulated fast path.
         #[arg(long, value_enum, default_value_t = Mode::Exact)]
@@ -367,24 +377,27 @@ fn setup() -> Result<(Toolchain, Paths), String> {
 
 /// The integration tests that run the firmware in QEMU (`tests/tests/qemu_*.rs`), ignored by
 /// a plain `cargo test`: all of them on the mps2-an386 images.
-const QEMU_TESTS: [&str; 7] = [
+const QEMU_TESTS: [&str; 8] = [
     "qemu_board",
     "qemu_e2e",
     "qemu_faults",
     "qemu_model",
     "qemu_no_panic",
+    "qemu_observer",
     "qemu_parity",
     "qemu_weights",
 ];
 
 /// The QEMU tests run on the mps2-an500 (Cortex-M7) images too: bit-identity with the host,
-/// end-to-end accuracy, faults, no panic path and the weights errors (about half a minute).
+/// end-to-end accuracy, faults, no panic path, the weights errors and the alpha observer
+/// (about two minutes).
 /// Not `qemu_board` (the STM32F407 image) nor `qemu_model` (it trains a model to check the
 /// embedded blob, which does not depend on the core).
-const QEMU_TESTS_AN500: [&str; 5] = [
+const QEMU_TESTS_AN500: [&str; 6] = [
     "qemu_e2e",
     "qemu_faults",
     "qemu_no_panic",
+    "qemu_observer",
     "qemu_parity",
     "qemu_weights",
 ];
@@ -459,6 +472,12 @@ fn test(host_only: bool) -> Result<(), String> {
                     f.line()
                 );
             }
+            let observer = target_bench::observer(&tc, im, 50)?;
+            eprintln!(
+                "xtask: (smoke, 50 steps, {}) {}",
+                im.board.machine(),
+                observer.line()
+            );
             // The cycle model's trace, on the smallest model.
             let sem: Vec<_> = steps.into_iter().filter(|f| f.model == "sem").collect();
             for c in cycles::estimate(&tc, &paths, im, Mode::Exact, &sem)? {
@@ -524,14 +543,26 @@ fn bench_target(
     let images = firmware::build_all(&tc, &paths, boards_or_all(boards))?;
     for im in &images {
         let figures = target_bench::run(&tc, &paths, im, mode, steps, kinds)?;
+        // The alpha observer (exact mode whatever `mode`), on the example NEMM.
+        let observer = if kinds.contains(&Kind::Nemm) {
+            Some(target_bench::observer(&tc, im, steps)?)
+        } else {
+            None
+        };
         if im.board == firmware::Board::An386 {
             for f in &figures {
                 println!("{}", f.line());
+            }
+            if let Some(o) = &observer {
+                println!("{}", o.line());
             }
         }
         if with_cycles {
             for c in cycles::estimate(&tc, &paths, im, mode, &figures)? {
                 println!("{}", c.line());
+            }
+            if let Some(o) = &observer {
+                println!("{}", cycles::estimate_observer(&tc, &paths, im, o)?.line());
             }
         }
         eprintln!(

@@ -6,9 +6,10 @@
 //! other than `docs/results.md` differ from it) and the command that wrote it.
 //!
 //! - `target` ([`target`], `cargo xtask results`): instructions per estimator step per model
-//!   kind, integrator and mode (exact, table) in QEMU; the estimated cycles per chip
-//!   (Cortex-M4F, Cortex-M7) and which combinations fit 10 kHz (also the README's `fit`
-//!   block); the boot time; flash and RAM of each image; the stack of the application.
+//!   kind, integrator and mode (exact, table) in QEMU, and per step of the alpha observer;
+//!   the estimated cycles per chip (Cortex-M4F, Cortex-M7) and which combinations fit 10 kHz
+//!   (also the README's `fit` block, the NEMM's rows); the boot time; flash and RAM of each
+//!   image; the stack of the application.
 //! - `training` ([`training`], `cargo xtask results --training DIR`): the Table 4 (and
 //!   Table 5, if present) of a finished `nemm compare` / `nemm demo` report directory, with
 //!   the facts its `report.json` records (the command that trained it, ...).
@@ -20,7 +21,7 @@
 use crate::cycles::CycleFigures;
 use crate::firmware;
 use crate::host_bench::{self, Stamp};
-use crate::target_bench::{self, StepFigures};
+use crate::target_bench::{self, ObserverFigures, StepFigures};
 use crate::toolchain::Toolchain;
 use crate::BootFigures;
 use crate::{Kind, Mode, Paths};
@@ -191,6 +192,8 @@ pub struct TargetFigures<'a> {
     pub exact: &'a [StepFigures],
     /// The same in table mode.
     pub table: &'a [StepFigures],
+    /// The alpha observer's step on the mps2-an386.
+    pub observer: Option<&'a ObserverFigures>,
     /// Estimated cycles per chip, model kind, integrator and mode.
     pub cycles: &'a [CycleFigures],
     /// Flash and RAM per image.
@@ -237,6 +240,34 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
             field("max_rel_error_ppb"),
             field("kinks"),
             field("build_instructions"),
+        );
+    }
+    if let Some(o) = f.observer {
+        let _ = writeln!(
+            md,
+            "\n**Alpha observer** (the bench-controller mode, `observer=on`; `cargo xtask \
+             bench-target`, `target-observer` line): one `AlphaObserver::step` of the \
+             firmware's observer (`nemm_firmware::FwObserver`) on the example NEMM, {steps} \
+             steps after 200 warm-up steps, the model's own force at alpha 0.15 as the \
+             measurement; its levels step the exact model whatever the estimator's mode. Its \
+             rows in the fit table below are `{}`.\n\n\
+             | model | integrator | levels | model steps per sample | instructions per step \
+             | over one exact step | RAM (B) |\n|---|---|---:|---:|---:|---:|---:|",
+            crate::cycles::observer_row_name(o)
+        );
+        let one = exact
+            .iter()
+            .find(|e| e.model == o.model && e.integrator == o.integrator)
+            .map_or("-".to_string(), |e| {
+                format!(
+                    "{:.1}",
+                    o.instructions_per_step as f64 / e.instructions_per_step.max(1) as f64
+                )
+            });
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {one} | {} |",
+            o.model, o.integrator, o.levels, o.model_steps, o.instructions_per_step, o.bytes
         );
     }
     md += &fit_markdown(f.cycles, true);
@@ -402,20 +433,27 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
     let mut cycles = Vec::new();
     let mut memory = Vec::new();
     let mut boot = Vec::new();
+    let mut observer = None;
     for im in &images {
         let e = target_bench::run(tc, paths, im, Mode::Exact, steps, &Kind::ALL)?;
         let t = target_bench::run(tc, paths, im, Mode::Table, steps, &Kind::ALL)?;
+        let o = target_bench::observer(tc, im, steps)?;
         for f in e.iter().chain(&t) {
             println!("{} board={}", f.line(), im.board.machine());
         }
+        println!("{} board={}", o.line(), im.board.machine());
         for (mode, figs) in [(Mode::Exact, &e), (Mode::Table, &t)] {
             for c in crate::cycles::estimate(tc, paths, im, mode, figs)? {
                 println!("{}", c.line());
                 cycles.push(c);
             }
         }
+        let c = crate::cycles::estimate_observer(tc, paths, im, &o)?;
+        println!("{}", c.line());
+        cycles.push(c);
         if im.board == firmware::Board::An386 {
             (exact, table) = (e, t);
+            observer = Some(o);
         }
         for (name, path) in im.named() {
             let elf = Elf::read(path)?;
@@ -428,9 +466,12 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
             boot.push((s, b));
         }
     }
-    // Chip by chip, then model kind, integrator, mode.
+    // Chip by chip, then model kind (the observer's rows last), integrator, mode.
     cycles.sort_by_key(|c| {
-        let kind = Kind::ALL.iter().position(|k| k.name() == c.model);
+        let kind = Kind::ALL
+            .iter()
+            .position(|k| k.name() == c.model)
+            .unwrap_or(Kind::ALL.len());
         (
             c.chip.name() != "m4f",
             kind,
@@ -445,6 +486,7 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
             steps,
             exact: &exact,
             table: &table,
+            observer: observer.as_ref(),
             cycles: &cycles,
             memory: &memory,
             boot: &boot,
@@ -1005,6 +1047,15 @@ mod tests {
                 steps: 4000,
                 exact: &[fig("exact", 15541, vec![])],
                 table: &[fig("table", 492, t)],
+                observer: Some(&ObserverFigures {
+                    model: "nemm".into(),
+                    integrator: "rk4".into(),
+                    levels: 7,
+                    levels_from: "blob".into(),
+                    model_steps: 7,
+                    bytes: 21572,
+                    instructions_per_step: 116_558,
+                }),
                 cycles: &cycles,
                 memory: &[("board build".into(), memory)],
                 boot: &[(stack, boot)],
@@ -1012,6 +1063,12 @@ mod tests {
         );
         assert!(md.starts_with("Measured by `cargo xtask results` at commit `abc1234+dirty`"));
         assert!(md.contains("| nemm | rk4 | 15541 | 492 | 7168 | 2792 | 73 | 156316320 |\n"));
+        // 116,558 instructions: 7.5 exact steps.
+        assert!(
+            md.contains("| nemm | rk4 | 7 | 7 | 116558 | 7.5 | 21572 |\n"),
+            "{md}"
+        );
+        assert!(md.contains("rows in the fit table below are `nemm-observer`"));
         assert!(md.contains("| board build | 300 | 108 | 0 | 0 | 0 | 0 | 40 | 40 | 0 |\n"));
         assert!(md.contains("| mps2-an386 | exact | 1200 | 1864 | 140000 |\n"));
         // 31,082 cycles: 0.65 of the period at 480 MHz, 1.44 at 216 MHz.

@@ -1,5 +1,6 @@
 //! The step benchmark (`nemm-bench`) in QEMU: instructions per estimator step, per model
-//! kind and integrator.
+//! kind and integrator; and per step of the firmware's alpha observer (the bench-controller
+//! mode), on the example NEMM.
 
 use crate::firmware::{self, Images};
 use crate::toolchain::Toolchain;
@@ -135,6 +136,102 @@ fn parse(out: &str, kind: Kind) -> Result<Vec<StepFigures>, String> {
     Ok(figures)
 }
 
+/// The figures of the alpha observer's step (`nemm-bench observer=1`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ObserverFigures {
+    /// Model kind.
+    pub model: String,
+    /// The model's integrator (`rk4` or `rk3`), which the observer's levels step with.
+    pub integrator: String,
+    /// Levels of the observer's grid.
+    pub levels: u32,
+    /// Model steps per observer step.
+    pub model_steps: u32,
+    /// Where the levels' coefficients come from: `blob` (the blob's level tables, table
+    /// cost) or `exact` (the scalers).
+    pub levels_from: String,
+    /// `size_of` the firmware's observer \[bytes\] (RAM, in a static).
+    pub bytes: u64,
+    /// Instructions per observer step.
+    pub instructions_per_step: u64,
+}
+
+impl ObserverFigures {
+    /// `target-observer model=<kind> integrator=<rk4|rk3> levels=<n> levels_from=<blob|exact>
+    /// model_steps=<n> instructions_per_step=<N> ram_bytes=<B>`.
+    pub fn line(&self) -> String {
+        format!(
+            "target-observer model={} integrator={} levels={} levels_from={} model_steps={} \
+             instructions_per_step={} ram_bytes={}",
+            self.model,
+            self.integrator,
+            self.levels,
+            self.levels_from,
+            self.model_steps,
+            self.instructions_per_step,
+            self.bytes
+        )
+    }
+}
+
+/// The `observer` line of a benchmark run's output.
+fn parse_observer(out: &str) -> Result<ObserverFigures, String> {
+    let line = out
+        .lines()
+        .find(|l| l.starts_with("observer "))
+        .ok_or_else(|| format!("no `observer` line in the benchmark output:\n{out}"))?;
+    let f = fields(line);
+    let get = |k: &str| -> Result<&str, String> {
+        f.iter()
+            .find(|(key, _)| *key == k)
+            .map(|(_, v)| *v)
+            .ok_or_else(|| format!("no `{k}` in the benchmark's observer line:\n{line}"))
+    };
+    let num = |k: &str| -> Result<u64, String> {
+        get(k)?
+            .parse()
+            .map_err(|e| format!("`{k}` in the benchmark's observer line: {e}"))
+    };
+    let n = num("steps")?.max(1);
+    let ticks = num("ticks")?.saturating_sub(num("baseline_ticks")?);
+    let from_ticks = (ticks * INSTRUCTIONS_PER_TICK + n / 2) / n;
+    let own = num("instructions_per_step")?;
+    if own.abs_diff(from_ticks) * 100 > from_ticks.max(100) {
+        return Err(format!(
+            "the benchmark says {own} instructions per observer step, its ticks say \
+             {from_ticks}:\n{line}"
+        ));
+    }
+    if num("held")? > 0 {
+        return Err(format!(
+            "measured observer steps that updated nothing (the cheaper path):\n{line}"
+        ));
+    }
+    Ok(ObserverFigures {
+        model: get("kind")?.to_string(),
+        integrator: get("integrator")?.to_string(),
+        levels: u32::try_from(num("levels")?).map_err(|e| e.to_string())?,
+        levels_from: get("levels_from")?.to_string(),
+        model_steps: u32::try_from(num("model_steps")?).map_err(|e| e.to_string())?,
+        bytes: num("bytes")?,
+        instructions_per_step: own,
+    })
+}
+
+/// Runs the benchmark image with its built-in weights (the firmware's trained NEMM, whose
+/// blob stores the level tables the observer steps on) in its `observer=1` mode: the
+/// instructions of `steps` observer steps after 200 warm-up steps.
+pub fn observer(tc: &Toolchain, images: &Images, steps: u32) -> Result<ObserverFigures, String> {
+    let args = ["observer=1".to_string(), format!("steps={steps}")];
+    let (code, out) = firmware::run_qemu(tc, images.board, &images.bench, &args)?;
+    if code != 0 {
+        return Err(format!(
+            "the observer benchmark failed with exit code {code}:\n{out}"
+        ));
+    }
+    parse_observer(&out)
+}
+
 /// The benchmark image of `images` with the example blob of `kind`
 /// (`nemm-firmware/data/example-<kind>.nemm`) in its weights slot, written under the
 /// firmware target directory.
@@ -218,5 +315,22 @@ bench kind=nemm integrator=rk4 mode=table steps=4000 ticks=49300 baseline_ticks=
         )
         .is_err());
         assert!(parse("boot\n", Kind::Nemm).is_err());
+    }
+
+    #[test]
+    fn reads_the_observer_line() {
+        let out = "\
+calibration iterations=1000000 int_loop_ticks=50000 fp_loop_ticks=75000
+observer kind=nemm integrator=rk4 levels=7 levels_from=blob model_steps=7 bytes=21572 hidden=16 layers=5 steps=4000 ticks=14060122 baseline_ticks=800 instructions_per_step=140593 held=0
+";
+        let f = parse_observer(out).expect("parse");
+        assert_eq!(
+            f.line(),
+            "target-observer model=nemm integrator=rk4 levels=7 levels_from=blob model_steps=7 \
+             instructions_per_step=140593 ram_bytes=21572"
+        );
+        assert!(parse_observer(&out.replace("held=0", "held=3")).is_err());
+        assert!(parse_observer(&out.replace("=140593", "=99999")).is_err());
+        assert!(parse_observer("calibration\n").is_err());
     }
 }

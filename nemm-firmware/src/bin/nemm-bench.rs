@@ -46,6 +46,16 @@
 //!   `parity-end integrator=... steps=N fnv=<FNV-1a of the force bits>`: the host runs the
 //!   same velocities through `nemm-core` and compares the bits.
 //! - `calibrate=0` skips the calibration loops.
+//! - `observer=1`: instead of the estimator, times one step of the firmware's alpha observer
+//!   ([`nemm_firmware::FwObserver`], its settings [`nemm_firmware::observer_config`]: a bank of
+//!   exact-mode model steps, one per level, whatever `mode=`) per sample, on the velocities
+//!   and the model's own force at the trace's alpha (an exact-mode estimator's, computed
+//!   before): after `warmup=` steps (the observer's own 10 ms warm-up is 100), `steps=`
+//!   steps timed each on its own through `observer_step` (not inlined: the cycle model's
+//!   trace stops there), one line:
+//!   `observer kind=nemm integrator=rk4 levels=7 model_steps=7 bytes=<size_of> steps=N
+//!   ticks=<t> baseline_ticks=<b> instructions_per_step=<n> held=<h>` (`held`: measured steps
+//!   that did not update the estimate; `integrator`: the model's).
 #![no_std]
 #![no_main]
 
@@ -55,11 +65,14 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::{entry, exception};
 use nemm_core::semantics::mlp::{CompiledScaler, Scaler};
-use nemm_core::{decode, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind};
+use nemm_core::{
+    decode_into, AlphaEstimate, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind,
+    ObserverFlags, StoredTables,
+};
 use nemm_firmware::board::{self, Console};
 use nemm_firmware::report::{self, Line};
 use nemm_firmware::trace::Trace;
-use nemm_firmware::{slot, StaticSlot, PARAM_CAPACITY};
+use nemm_firmware::{slot, FwObserver, StaticSlot, PARAM_CAPACITY};
 
 /// Most steps per measurement.
 const MAX_STEPS: usize = 4000;
@@ -113,6 +126,7 @@ struct Options {
     check: u32,
     parity: usize,
     calibrate: bool,
+    observer: bool,
 }
 
 impl Options {
@@ -140,6 +154,17 @@ impl Options {
             "layers" => num(1, 9).map(|n| self.layers = n as u8).is_some(),
             "check" => num(0, 1_000_000).map(|n| self.check = n as u32).is_some(),
             "parity" => num(1, MAX_STEPS).map(|n| self.parity = n).is_some(),
+            "observer" => match v {
+                "0" => {
+                    self.observer = false;
+                    true
+                }
+                "1" => {
+                    self.observer = true;
+                    true
+                }
+                _ => false,
+            },
             "calibrate" => match v {
                 "0" => {
                     self.calibrate = false;
@@ -195,6 +220,8 @@ static MODEL: StaticSlot<Model<PARAM_CAPACITY>> = StaticSlot::new();
 static ESTIMATOR: StaticSlot<Option<nemm_firmware::FwEstimator>> = StaticSlot::new();
 static VELOCITIES: StaticSlot<[f32; MAX_STEPS + MAX_WARMUP_STEPS]> = StaticSlot::new();
 static COMPILED: StaticSlot<Option<CompiledScaler<PARAM_CAPACITY>>> = StaticSlot::new();
+static OBSERVER: StaticSlot<FwObserver> = StaticSlot::new();
+static FORCES: StaticSlot<[f32; MAX_STEPS + MAX_WARMUP_STEPS]> = StaticSlot::new();
 
 /// Iterations of the calibration loops.
 const CALIBRATION_ITERATIONS: u32 = 1_000_000;
@@ -317,12 +344,25 @@ fn check_scaler(
 /// The model (example or weights slot) into its static, in a frame of its own (`decode`
 /// and the example builder take a large one; see [`build_estimator`]).
 #[inline(never)]
-fn load_model(console: &mut Console, opt: &Options) -> &'static Model<PARAM_CAPACITY> {
-    let loaded = match opt.example {
+fn load_model(
+    console: &mut Console,
+    opt: &Options,
+) -> (
+    &'static Model<PARAM_CAPACITY>,
+    (StoredTables, &'static [u8]),
+) {
+    // The model's static, filled in place (a decoded model by value would take its size on
+    // the stack, which the observer's statics leave short).
+    const EMPTY: Model<PARAM_CAPACITY> = Model::empty();
+    let Some(model) = MODEL.init_with(|| EMPTY) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    let mut stored = (StoredTables::EMPTY, &[][..]);
+    match opt.example {
         Some(kind) => {
             match nemm_core::testing::example_model::<PARAM_CAPACITY>(kind, opt.hidden, opt.layers)
             {
-                Some(m) => m,
+                Some(m) => *model = m,
                 None => {
                     let mut l = Line::new();
                     l.str("error")
@@ -340,8 +380,8 @@ fn load_model(console: &mut Console, opt: &Options) -> &'static Model<PARAM_CAPA
                 report::slot_error(&mut l, &e);
                 fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
             }
-            Ok(blob) => match decode(blob) {
-                Ok(m) => m,
+            Ok(blob) => match decode_into(blob, model) {
+                Ok(tables) => stored = (tables, blob),
                 Err(e) => {
                     let mut l = Line::new();
                     report::decode_error(&mut l, &e);
@@ -349,11 +389,8 @@ fn load_model(console: &mut Console, opt: &Options) -> &'static Model<PARAM_CAPA
                 }
             },
         },
-    };
-    let Some(model) = MODEL.init(loaded) else {
-        board::exit(report::EXIT_USAGE)
-    };
-    model
+    }
+    (model, stored)
 }
 
 /// `Estimator::new` into `slot`, in a frame of its own: inlined into `main`, its temporaries
@@ -365,8 +402,13 @@ fn build_estimator<'a>(
     model: &Model<PARAM_CAPACITY>,
     cfg: EstimatorConfig,
 ) -> Result<&'a mut nemm_firmware::FwEstimator, nemm_core::EstimatorError> {
+    // The empty estimator as one constant, loaded in place: no estimator-sized temporary on
+    // the stack (the observer's statics leave it short).
+    const EMPTY: nemm_firmware::FwEstimator = nemm_firmware::FwEstimator::empty();
     *slot = None;
-    Ok(slot.insert(nemm_firmware::FwEstimator::with_segments(model, cfg)?))
+    let est = slot.insert(EMPTY);
+    est.load(model, cfg)?;
+    Ok(est)
 }
 
 #[entry]
@@ -374,7 +416,7 @@ fn main() -> ! {
     board::init();
     let mut console = Console::open();
     let opt = parse_options(&mut console);
-    let model = load_model(&mut console, &opt);
+    let (model, stored) = load_model(&mut console, &opt);
     let Ok(trace) = Trace::parse(board::trace_bytes()) else {
         let mut l = Line::new();
         l.str("error").ks("kind", "trace");
@@ -405,6 +447,26 @@ fn main() -> ! {
     let Some(est_slot) = ESTIMATOR.init(None) else {
         board::exit(report::EXIT_USAGE)
     };
+    if opt.observer {
+        let forces = model_forces(&mut console, est_slot, model, trace.oil_loss, velocities);
+        let (fw, fm) = forces.split_at(warmup.len());
+        let run = RunName {
+            kind: model.kind().name(),
+            integrator: model.integrator.name(),
+            mode: Mode::Exact,
+            hidden,
+            layers,
+        };
+        observer_run(
+            &mut console,
+            (model, &stored),
+            &run,
+            (warmup, fw),
+            (measured, fm.get(..measured.len()).unwrap_or(fm)),
+            int_loop_ticks,
+        );
+        board::exit(report::EXIT_DONE)
+    }
     for &integrator in opt.integrators {
         let cfg = EstimatorConfig {
             integrator: Some(integrator),
@@ -478,6 +540,7 @@ fn parse_options(console: &mut Console) -> Options {
         check: 0,
         parity: 0,
         calibrate: true,
+        observer: false,
     };
     let mut args = [0u8; board::ARGS_CAPACITY];
     for arg in board::args(&mut args)
@@ -633,6 +696,108 @@ fn time_steps(est: &mut nemm_firmware::FwEstimator, measured: &[f32]) -> (u32, u
         ticks = ticks.wrapping_add(ticks_since(start));
     }
     (ticks, baseline)
+}
+
+/// The model's force at level `alpha` for each of `velocities` (exact mode, from rest): the
+/// measured force the observer benchmark feeds.
+fn model_forces(
+    console: &mut Console,
+    slot: &mut Option<nemm_firmware::FwEstimator>,
+    model: &Model<PARAM_CAPACITY>,
+    alpha: f32,
+    velocities: &[f32],
+) -> &'static [f32] {
+    let Some(forces) = FORCES.init([0.0; MAX_STEPS + MAX_WARMUP_STEPS]) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    let est = match build_estimator(slot, model, EstimatorConfig::new(alpha)) {
+        Ok(e) => e,
+        Err(e) => {
+            let mut l = Line::new();
+            report::estimator_error(&mut l, &e);
+            fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
+        }
+    };
+    for (f, &v) in forces.iter_mut().zip(velocities) {
+        *f = est.step(v).force_n;
+    }
+    forces
+}
+
+/// One observer step, not inlined: what the `observer` run times and the cycle model's trace
+/// (`xtask/src/cycles.rs`) stops at.
+#[inline(never)]
+fn observer_step(observer: &mut FwObserver, velocity_m_s: f32, force_n: f32) -> AlphaEstimate {
+    observer.step(velocity_m_s, force_n)
+}
+
+/// The `observer=1` run: the firmware's observer built in its static from `model`, stepped
+/// over the `warmup` (velocity, force) samples, then each `measured` step timed on its own;
+/// the `observer` line.
+fn observer_run(
+    console: &mut Console,
+    (model, (tables, blob)): (&Model<PARAM_CAPACITY>, &(StoredTables, &[u8])),
+    run: &RunName,
+    warmup: (&[f32], &[f32]),
+    measured: (&[f32], &[f32]),
+    int_loop_ticks: u32,
+) {
+    // The empty observer as one constant, copied into the static (no stack temporary).
+    const EMPTY: FwObserver = FwObserver::empty();
+    let Some(observer) = OBSERVER.init_with(|| EMPTY) else {
+        board::exit(report::EXIT_USAGE)
+    };
+    if let Err(e) = observer.load(model, tables, blob) {
+        let mut l = Line::new();
+        report::observer_error(&mut l, &e);
+        fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
+    }
+    for (&v, &f) in warmup.0.iter().zip(warmup.1) {
+        black_box(observer_step(observer, black_box(v), black_box(f)));
+    }
+    let (velocities, forces) = measured;
+    let n = velocities.len().min(forces.len());
+    let mut baseline = 0u32;
+    for (&v, &f) in velocities.iter().zip(forces) {
+        let start = SYST::get_current();
+        black_box((black_box(v), black_box(f)));
+        baseline = baseline.wrapping_add(ticks_since(start));
+    }
+    let (mut ticks, mut held) = (0u32, 0u32);
+    for (&v, &f) in velocities.iter().zip(forces) {
+        let start = SYST::get_current();
+        let e = black_box(observer_step(observer, black_box(v), black_box(f)));
+        ticks = ticks.wrapping_add(ticks_since(start));
+        if e.flags.contains(ObserverFlags::HELD) {
+            held += 1;
+        }
+    }
+    let mut l = Line::new();
+    l.str("observer")
+        .ks("kind", run.kind)
+        .ks("integrator", run.integrator)
+        .kv("levels", observer.points() as u32)
+        .ks(
+            "levels_from",
+            if observer.on_levels() {
+                "blob"
+            } else {
+                "exact"
+            },
+        )
+        .kv("model_steps", observer.evaluations_per_step() as u32)
+        .kv("bytes", core::mem::size_of::<FwObserver>() as u32)
+        .kv("hidden", run.hidden)
+        .kv("layers", run.layers)
+        .kv("steps", n as u32)
+        .kv("ticks", ticks)
+        .kv("baseline_ticks", baseline)
+        .kv(
+            "instructions_per_step",
+            instructions_per_step(ticks.saturating_sub(baseline), int_loop_ticks, n),
+        )
+        .kv("held", held);
+    console.write(l.finish());
 }
 
 /// The `table` line of a table-mode run: the tables' count, bytes, worst relative error
