@@ -246,13 +246,17 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
         let _ = writeln!(
             md,
             "\n**Alpha observer** (the bench-controller mode, `observer=on`; `cargo xtask \
-             bench-target`, `target-observer` line): one `AlphaObserver::step` of the \
-             firmware's observer (`nemm_firmware::FwObserver`) on the example NEMM, {steps} \
-             steps after 200 warm-up steps, the model's own force at alpha 0.15 as the \
-             measurement; its levels step the exact model whatever the estimator's mode. Its \
-             rows in the fit table below are `{}`.\n\n\
-             | model | integrator | levels | model steps per sample | instructions per step \
-             | over one exact step | RAM (B) |\n|---|---|---:|---:|---:|---:|---:|",
+             bench-target`, `target-observer` line): one step of the firmware's observer \
+             (`nemm_firmware::FwObserver`) with the benchmark's built-in weights (the \
+             firmware's trained NEMM, whose blob stores 7 levels of tables), {steps} steps \
+             after 200 warm-up steps, the model's own force at the trace's alpha as the \
+             measurement; levels from `blob`: each level steps on its stored tables, `exact`: \
+             on the scalers. Beside it, one step of the estimator with a level per sample on \
+             the same level tables (`Estimator::step_on_levels`, the level changing every \
+             sample). Its rows in the fit table below are `{}`.\n\n\
+             | model | integrator | levels | levels from | model steps per sample | instructions per step \
+             | over one exact step | RAM (B) | estimator with a level per sample (instructions) \
+             |\n|---|---|---:|---|---:|---:|---:|---:|---:|",
             crate::cycles::observer_row_name(o)
         );
         let one = exact
@@ -266,8 +270,16 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
             });
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {one} | {} |",
-            o.model, o.integrator, o.levels, o.model_steps, o.instructions_per_step, o.bytes
+            "| {} | {} | {} | {} | {} | {} | {one} | {} | {} |",
+            o.model,
+            o.integrator,
+            o.levels,
+            o.levels_from,
+            o.model_steps,
+            o.instructions_per_step,
+            o.bytes,
+            o.level_step_instructions
+                .map_or("-".to_string(), |n| n.to_string())
         );
     }
     md += &fit_markdown(f.cycles, true);
@@ -1055,6 +1067,7 @@ mod tests {
                     model_steps: 7,
                     bytes: 21572,
                     instructions_per_step: 116_558,
+                    level_step_instructions: Some(1514),
                 }),
                 cycles: &cycles,
                 memory: &[("board build".into(), memory)],
@@ -1065,7 +1078,7 @@ mod tests {
         assert!(md.contains("| nemm | rk4 | 15541 | 492 | 7168 | 2792 | 73 | 156316320 |\n"));
         // 116,558 instructions: 7.5 exact steps.
         assert!(
-            md.contains("| nemm | rk4 | 7 | 7 | 116558 | 7.5 | 21572 |\n"),
+            md.contains("| nemm | rk4 | 7 | blob | 7 | 116558 | 7.5 | 21572 | 1514 |\n"),
             "{md}"
         );
         assert!(md.contains("rows in the fit table below are `nemm-observer`"));

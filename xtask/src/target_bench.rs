@@ -154,6 +154,10 @@ pub struct ObserverFigures {
     pub bytes: u64,
     /// Instructions per observer step.
     pub instructions_per_step: u64,
+    /// Instructions per step of the estimator with a level per sample on the same level
+    /// tables (`Estimator::step_on_levels`, the `level-step` line; `None` without level
+    /// tables).
+    pub level_step_instructions: Option<u64>,
 }
 
 impl ObserverFigures {
@@ -170,7 +174,9 @@ impl ObserverFigures {
             self.model_steps,
             self.instructions_per_step,
             self.bytes
-        )
+        ) + &self
+            .level_step_instructions
+            .map_or(String::new(), |n| format!(" level_step_instructions={n}"))
     }
 }
 
@@ -215,7 +221,33 @@ fn parse_observer(out: &str) -> Result<ObserverFigures, String> {
         model_steps: u32::try_from(num("model_steps")?).map_err(|e| e.to_string())?,
         bytes: num("bytes")?,
         instructions_per_step: own,
+        level_step_instructions: parse_level_step(out)?,
     })
+}
+
+/// The instructions per step of the `level-step` line, if the output has one; checked
+/// against its ticks like the observer's.
+fn parse_level_step(out: &str) -> Result<Option<u64>, String> {
+    let Some(line) = out.lines().find(|l| l.starts_with("level-step ")) else {
+        return Ok(None);
+    };
+    let f = fields(line);
+    let num = |k: &str| -> Result<u64, String> {
+        f.iter()
+            .find(|(key, _)| *key == k)
+            .ok_or_else(|| format!("no `{k}` in the benchmark's level-step line:\n{line}"))?
+            .1
+            .parse()
+            .map_err(|e| format!("`{k}` in the benchmark's level-step line: {e}"))
+    };
+    let n = num("steps")?.max(1);
+    let ticks = num("ticks")?.saturating_sub(num("baseline_ticks")?);
+    let from_ticks = (ticks * INSTRUCTIONS_PER_TICK + n / 2) / n;
+    let own = num("instructions_per_step")?;
+    if own.abs_diff(from_ticks) * 100 > from_ticks.max(100) || num("failed")? > 0 {
+        return Err(format!("the level-step line does not add up:\n{line}"));
+    }
+    Ok(Some(own))
 }
 
 /// Runs the benchmark image with its built-in weights (the firmware's trained NEMM, whose

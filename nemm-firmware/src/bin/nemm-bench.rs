@@ -457,7 +457,7 @@ fn main() -> ! {
             hidden,
             layers,
         };
-        observer_run(
+        let observer = observer_run(
             &mut console,
             (model, &stored),
             &run,
@@ -465,6 +465,16 @@ fn main() -> ! {
             (measured, fm.get(..measured.len()).unwrap_or(fm)),
             int_loop_ticks,
         );
+        if let Some(est) = est_slot.as_mut() {
+            level_step_run(
+                &mut console,
+                est,
+                observer.levels(),
+                &run,
+                measured,
+                int_loop_ticks,
+            );
+        }
         board::exit(report::EXIT_DONE)
     }
     for &integrator in opt.integrators {
@@ -741,7 +751,7 @@ fn observer_run(
     warmup: (&[f32], &[f32]),
     measured: (&[f32], &[f32]),
     int_loop_ticks: u32,
-) {
+) -> &'static FwObserver {
     // The empty observer as one constant, copied into the static (no stack temporary).
     const EMPTY: FwObserver = FwObserver::empty();
     let Some(observer) = OBSERVER.init_with(|| EMPTY) else {
@@ -797,6 +807,71 @@ fn observer_run(
             instructions_per_step(ticks.saturating_sub(baseline), int_loop_ticks, n),
         )
         .kv("held", held);
+    console.write(l.finish());
+    observer
+}
+
+/// One estimator step at a level per sample on the level tables, not inlined: what the
+/// `level-step` line times.
+#[inline(never)]
+fn level_step(
+    est: &mut nemm_firmware::FwEstimator,
+    levels: &nemm_firmware::FwLevels,
+    velocity_m_s: f32,
+    alpha: f32,
+) -> f32 {
+    est.step_on_levels(levels, velocity_m_s, alpha)
+        .map_or(f32::NAN, |e| e.force_n)
+}
+
+/// The estimator with a level per sample on the observer's level tables
+/// (`Estimator::step_on_levels`), the level changing every sample (a sweep over the
+/// levels' range, the worst case: the coefficients at the state are re-read each step):
+/// each `measured` step timed on its own; the `level-step` line. Nothing without level
+/// tables.
+fn level_step_run(
+    console: &mut Console,
+    est: &mut nemm_firmware::FwEstimator,
+    levels: &nemm_firmware::FwLevels,
+    run: &RunName,
+    measured: &[f32],
+    int_loop_ticks: u32,
+) {
+    let (Some(&lo), Some(&hi)) = (levels.alphas().first(), levels.alphas().last()) else {
+        return;
+    };
+    est.reset();
+    let alpha = |k: usize| lo + (hi - lo) * (k % 97) as f32 / 96.0;
+    let mut baseline = 0u32;
+    for (k, &v) in measured.iter().enumerate() {
+        let start = SYST::get_current();
+        black_box((black_box(v), black_box(alpha(k))));
+        baseline = baseline.wrapping_add(ticks_since(start));
+    }
+    let (mut ticks, mut failed) = (0u32, 0u32);
+    for (k, &v) in measured.iter().enumerate() {
+        let a = alpha(k);
+        let start = SYST::get_current();
+        let f = black_box(level_step(est, levels, black_box(v), black_box(a)));
+        ticks = ticks.wrapping_add(ticks_since(start));
+        if !f.is_finite() {
+            failed += 1;
+        }
+    }
+    let n = measured.len();
+    let mut l = Line::new();
+    l.str("level-step")
+        .ks("kind", run.kind)
+        .ks("integrator", run.integrator)
+        .kv("levels", levels.len() as u32)
+        .kv("steps", n as u32)
+        .kv("ticks", ticks)
+        .kv("baseline_ticks", baseline)
+        .kv(
+            "instructions_per_step",
+            instructions_per_step(ticks.saturating_sub(baseline), int_loop_ticks, n),
+        )
+        .kv("failed", failed);
     console.write(l.finish());
 }
 
