@@ -39,6 +39,10 @@ pub(crate) struct ObserverCell {
     pub(crate) obs: CObserver,
 }
 
+/// An empty observer, evaluated at compile time: copied into the storage rather than built
+/// in a stack frame of its size.
+const EMPTY_OBSERVER: CObserver = CObserver::empty();
+
 /// The mark of an initialised estimator.
 const ESTIMATOR_MAGIC: u32 = u32::from_le_bytes(*b"NEMe");
 /// The mark of an initialised observer.
@@ -218,7 +222,7 @@ impl ObserverCell {
     pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut Self {
         // SAFETY: as in `EstimatorCell::fill`.
         unsafe {
-            core::ptr::addr_of_mut!((*cell).obs).write(CObserver::empty());
+            core::ptr::addr_of_mut!((*cell).obs).write(EMPTY_OBSERVER);
             &mut *cell
         }
     }
