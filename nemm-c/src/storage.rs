@@ -7,7 +7,8 @@
 //! `thumbv7em-none-eabihf`) and 64-bit (checked on the x86-64 and AArch64 hosts). A build
 //! for a target whose layout differs fails here with both numbers in the message
 //! (`expected an array with a size of <constant>, found one with a size of <size_of>`):
-//! put the second into the constant and regenerate the header (`cargo xtask c-header`).
+//! put the second into the constant, regenerate the header (`cargo xtask c-header`) and
+//! update the storage table of `docs/c-interface.md` (checked by `tests/header.rs`).
 
 use crate::status::nemm_status_t::{self, *};
 use crate::{NEMM_OBSERVER_MAX_POINTS, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS};
