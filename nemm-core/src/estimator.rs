@@ -46,6 +46,20 @@
 //!   reads them from the blob instead of building them, bit for bit the same tables
 //!   ([`Estimator::table_origin`] says which happened, and why stored ones were not used).
 //!
+//! # Every level at table cost
+//!
+//! A level per sample ([`Estimator::step_with_alpha`]) and the observer's bank of levels
+//! would rebuild tables every sample in table mode. A blob can store the tables of several
+//! levels instead (`nemm export --tables-levels 7`); a [`LevelTables`] holds them (in RAM,
+//! loaded once from the model, the tables index and the blob) and drives
+//! [`Estimator::step_on_levels`] (a level per sample: each coefficient the blend of its two
+//! neighbouring levels' tables, ordered in the declared direction so that it is monotone
+//! in `alpha` between levels by construction; at a stored level the table-mode step at
+//! that level, bit for bit) and [`crate::AlphaObserver::load_on_levels`] (the bank on the
+//! stored levels). The blend's error against the exact model is first order in the level
+//! spacing and measured by [`LevelTables::check`] (docs/core.md, "Every level at table
+//! cost").
+//!
 //! ```
 //! use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
 //! # let model: nemm_core::Model = nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 16, 5).unwrap();
@@ -62,6 +76,7 @@
 
 mod config;
 mod export;
+mod levels;
 mod runtime;
 
 pub use config::*;
@@ -71,6 +86,7 @@ use runtime::*;
 pub use export::encode_to_vec_with_tables;
 pub use export::encode_with_tables;
 pub use export::encoded_len_with_tables;
+pub use levels::{BlendCheck, LevelTables, LevelsError};
 
 use crate::emm::{self, Coefficients, State};
 use crate::format::tables::{StoredTable, StoredTables, StoredUnused, TableLevel};
@@ -109,6 +125,9 @@ pub struct Estimator<
     last_x: f32,
     mode: EvalMode,
     origin: TableOrigin,
+    /// The level of the last [`Estimator::step_on_levels`] (`None` after a load or reset:
+    /// the next one re-reads the coefficients at the state).
+    levels_alpha: Option<f32>,
     rt: Runtime<P, T>,
 }
 
@@ -165,6 +184,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         last_x: 0.0,
         mode: EvalMode::Exact,
         origin: TableOrigin::None,
+        levels_alpha: None,
         rt: Runtime {
             kind: RuntimeKind::Empty,
             emm: EmmRuntime::empty(),
@@ -337,6 +357,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     pub fn reset(&mut self) {
         self.state = State::default();
         self.last_u = 0.0;
+        self.levels_alpha = None;
         self.last_x = self.static_force.map_or(0.0, |s| s.x_ref_m);
         if self.rt.kind == RuntimeKind::Emm {
             self.coeffs = self.rt.emm.coeffs(&self.state, &mut false);
@@ -412,7 +433,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             RuntimeKind::Emm => self.emm_step(u, &mut flags),
         };
         self.last_u = u;
-        let force_n = self.add_static_force(force_n, position_m, u, &mut flags);
+        let force_n = self.add_static_force(force_n, position_m, u, self.alpha, &mut flags);
         Estimate {
             force_n: if force_n.is_finite() { force_n } else { 0.0 },
             flags: Flags(flags),
@@ -448,11 +469,27 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         // between are clamped alike, unflagged (their states lie between the old and the
         // new one up to the local error).
         let mut out = false;
-        let (x1, c1, f) = rt.advance(&self.state, &self.coeffs, self.last_u, u, &mut out);
+        let r = rt.advance(&self.state, &self.coeffs, self.last_u, u, &mut out);
         if out {
             *flags |= Flags::OUT_OF_TABLE_DOMAIN;
         }
-        if f.is_finite() && x1.x_pr_m.abs() <= rt.x_limit && x1.v_st_m_s.abs() <= rt.v_limit {
+        self.accept_step(r, u, flags, |rt, s| rt.coeffs(s, &mut false))
+    }
+
+    /// The divergence guard of a step's result `(state, coefficients, force)`: kept if the
+    /// force is finite and the state within its limits; otherwise the state is reset to
+    /// rest (flagged, counted) with the coefficients `at_rest` gives there, and the force
+    /// at rest for input `u` is returned.
+    #[inline(always)]
+    fn accept_step(
+        &mut self,
+        (x1, c1, f): (State, Coefficients, f32),
+        u: f32,
+        flags: &mut u8,
+        at_rest: impl FnOnce(&EmmRuntime<P, T>, &State) -> Coefficients,
+    ) -> f32 {
+        let (x_limit, v_limit) = (self.rt.emm.x_limit, self.rt.emm.v_limit);
+        if f.is_finite() && x1.x_pr_m.abs() <= x_limit && x1.v_st_m_s.abs() <= v_limit {
             self.state = x1;
             self.coeffs = c1;
             f
@@ -460,7 +497,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             *flags |= Flags::STATE_RESET;
             self.diag.resets = self.diag.resets.wrapping_add(1);
             self.state = State::default();
-            self.coeffs = rt.coeffs(&self.state, &mut false);
+            self.coeffs = at_rest(&self.rt.emm, &self.state);
             let f0 = emm::force(&self.coeffs, &self.state, u);
             if f0.is_finite() {
                 f0
@@ -470,14 +507,16 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         }
     }
 
-    /// `force_n` plus the static force at the stroke position (the last good one when
-    /// `position_m` is missing or non-finite, flagged); `force_n` for a model without one.
+    /// `force_n` plus the static force at level `alpha` and the stroke position (the last
+    /// good one when `position_m` is missing or non-finite, flagged); `force_n` for a model
+    /// without one.
     #[inline(always)]
     fn add_static_force(
         &mut self,
         force_n: f32,
         position_m: Option<f32>,
         u: f32,
+        alpha: f32,
         flags: &mut u8,
     ) -> f32 {
         match &self.static_force {
@@ -487,7 +526,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                     Some(x) if x.is_finite() => self.last_x = x,
                     _ => *flags |= Flags::POSITION_MISSING,
                 }
-                force_n + s.force(self.last_x, u, self.alpha)
+                force_n + s.force(self.last_x, u, alpha)
             }
         }
     }
@@ -658,16 +697,26 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             self.alpha = m.alpha;
             self.update_alpha_flags();
         }
+        self.load_member(m);
+        let e = self.step_at(velocity_m_s, position_m);
+        self.store_member(m);
+        e
+    }
+
+    /// Takes member `m`'s state, coefficients at the state and last inputs.
+    pub(crate) fn load_member(&mut self, m: &BankMember) {
         self.state = m.state;
         self.coeffs = m.coeffs;
         self.last_u = m.last_u;
         self.last_x = m.last_x;
-        let e = self.step_at(velocity_m_s, position_m);
+    }
+
+    /// Gives member `m` this estimator's state, coefficients at the state and last inputs.
+    pub(crate) fn store_member(&self, m: &mut BankMember) {
         m.state = self.state;
         m.coeffs = self.coeffs;
         m.last_u = self.last_u;
         m.last_x = self.last_x;
-        e
     }
 }
 

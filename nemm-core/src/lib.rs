@@ -18,6 +18,9 @@
 //!   force, with an uncertainty band and flags (excitation, range, sensor faults), its
 //!   [`ObserverConfig`], [`AlphaEstimate`], [`ObserverFlags`] and [`ObserverError`] (module
 //!   [`observer`]: the method, its cost);
+//! - [`LevelTables`]: the stored tables of several oil-loss levels, for a level per sample
+//!   ([`Estimator::step_on_levels`]) and a table-cost observer
+//!   ([`AlphaObserver::load_on_levels`]) (module `estimator`, section "Every level");
 //! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
 //!   low-pass) that feeds the estimator online;
 //! - [`limits`]: the fixed capacities a firmware sizes its RAM by.
@@ -92,7 +95,7 @@ pub use error::{BranchError, ModelError, SemError, ShapeError, UnknownName};
 pub use estimator::encode_to_vec_with_tables;
 pub use estimator::{
     encode_with_tables, encoded_len_with_tables, Diagnostics, Estimate, Estimator, EstimatorConfig,
-    EstimatorError, EvalMode, Flags, TableOrigin,
+    EstimatorError, EvalMode, Flags, LevelTables, LevelsError, TableOrigin,
 };
 #[cfg(feature = "std")]
 pub use format::encode_to_vec;

@@ -20,7 +20,7 @@ pub const MAX_SEM_ALPHAS: usize = 8;
 pub const MAX_SEM_FORCES: usize = MAX_SEM_VELOCITIES * MAX_SEM_ALPHAS;
 
 /// Most oil-loss levels a blob's tables section holds.
-pub const MAX_TABLE_LEVELS: usize = 4;
+pub const MAX_TABLE_LEVELS: usize = 16;
 
 /// Longest condition name in bytes.
 pub const MAX_CONDITION_NAME: usize = 32;

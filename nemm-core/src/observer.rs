@@ -61,8 +61,17 @@
 //! model's step, each with its scalers), `n` re-foldings of the level into the state
 //! scalers (about `2 H + K_branch` operations each) and `O(n)` scalar work for the costs and
 //! the estimate. [`AlphaObserver::evaluations_per_step`] returns `n`.
+//!
+//! **On level tables.** [`AlphaObserver::load_on_levels`] takes the levels of a
+//! [`LevelTables`] (stored in the blob, [`crate::estimator`], "Every level at table cost") as
+//! the grid, and
+//! [`AlphaObserver::step_on_levels`] steps each level on its own tables: `n` table-mode
+//! steps, no re-folding, a tenth or less of the exact cost, the same estimate up to the
+//! tables' error.
 
-use crate::estimator::{BankMember, Estimator, EstimatorConfig, EstimatorError};
+use crate::estimator::{
+    BankMember, Estimator, EstimatorConfig, EstimatorError, LevelTables, LevelsError,
+};
 use crate::limits::DEFAULT_OBSERVER_POINTS;
 use crate::math;
 use crate::mlp::DEFAULT_PARAM_CAPACITY;
@@ -270,6 +279,7 @@ struct Resolved {
     band_sigmas: f32,
     max_band: f32,
     lo: f32,
+    /// Spacing of a uniform grid; 0 for the levels of a [`LevelTables`] that are not.
     spacing: f32,
     span: f32,
     trained: (f32, f32),
@@ -294,6 +304,68 @@ impl Resolved {
         span: 0.0,
         trained: (0.0, 0.0),
     };
+}
+
+/// The grid's number of levels and its ends: the levels of `levels` if given (then
+/// `cfg.grid` must be `None` and `cfg.points` `None` or their number), else `cfg`'s or the
+/// model's trained range with `cfg.points` (default `capacity`) levels.
+fn grid_of<const P: usize>(
+    model: &Model<P>,
+    cfg: &ObserverConfig,
+    levels: Option<&[f32]>,
+    capacity: usize,
+) -> Result<(usize, f32, f32), ObserverError> {
+    if let Some(a) = levels {
+        if cfg.grid.is_some() {
+            return Err(ObserverError::Grid);
+        }
+        let points = a.len();
+        if cfg.points.is_some_and(|p| p != points) || !(2..=capacity).contains(&points) {
+            return Err(ObserverError::Points {
+                requested: points,
+                capacity,
+            });
+        }
+        let (&lo, &hi) = (
+            a.first().ok_or(ObserverError::Grid)?,
+            a.last().ok_or(ObserverError::Grid)?,
+        );
+        return Ok((points, lo, hi));
+    }
+    let points = cfg.points.unwrap_or(capacity);
+    if !(2..=capacity).contains(&points) {
+        return Err(ObserverError::Points {
+            requested: points,
+            capacity,
+        });
+    }
+    let meta = model.meta;
+    let (lo, hi) = cfg.grid.unwrap_or(if meta.alpha_max > meta.alpha_min {
+        (meta.alpha_min, meta.alpha_max)
+    } else {
+        (0.0, 1.0)
+    });
+    let in_unit = |a: f32| a.is_finite() && (0.0..=1.0).contains(&a);
+    if !(in_unit(lo) && in_unit(hi) && lo < hi) {
+        return Err(ObserverError::Grid);
+    }
+    Ok((points, lo, hi))
+}
+
+/// True if `levels` are, bit for bit, the uniform grid of `spacing` from the first to the
+/// last (as [`AlphaObserver::load`] builds it).
+fn uniform_grid(levels: &[f32], spacing: f32) -> bool {
+    let (Some(&lo), Some(&hi)) = (levels.first(), levels.last()) else {
+        return false;
+    };
+    levels.iter().enumerate().all(|(k, &a)| {
+        let u = if k + 1 == levels.len() {
+            hi
+        } else {
+            math::fma(k as f32, spacing, lo)
+        };
+        u.to_bits() == a.to_bits()
+    })
 }
 
 /// Running sums of one grid level and of the interval above it (the last level's interval
@@ -345,6 +417,9 @@ pub struct AlphaObserver<
     t: f32,
     last: AlphaEstimate,
     loaded: bool,
+    /// Loaded by [`AlphaObserver::load_on_levels`]: the levels are those of a
+    /// [`LevelTables`].
+    on_levels: bool,
     shared: Estimator<P, 1>,
 }
 
@@ -379,6 +454,7 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
                 flags: ObserverFlags(ObserverFlags::NO_MODEL | ObserverFlags::NOT_EXCITED),
             },
             loaded: false,
+            on_levels: false,
             shared: Estimator::empty(),
         }
     }
@@ -386,9 +462,34 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
     /// Loads `model` in place (the shared estimator is written where it lives), checks the
     /// configuration and starts from rest with no data. On error the observer is empty.
     pub fn load(&mut self, model: &Model<P>, cfg: ObserverConfig) -> Result<(), ObserverError> {
+        self.load_with(model, &cfg, None::<&LevelTables<3, 2>>)
+    }
+
+    /// Loads `model` with the levels of `levels` (loaded from the same model's blob) as the
+    /// grid, so that [`AlphaObserver::step_on_levels`] steps each level on its stored
+    /// tables (table cost, module docs "Cost") instead of the exact scalers. The grid is
+    /// the levels' (at most `K`, ascending, not necessarily uniform): `cfg.grid` must be
+    /// `None` and `cfg.points` `None` or the number of levels. On error the observer is
+    /// empty.
+    pub fn load_on_levels<const T: usize, const L: usize>(
+        &mut self,
+        model: &Model<P>,
+        levels: &LevelTables<T, L>,
+        cfg: ObserverConfig,
+    ) -> Result<(), ObserverError> {
+        self.load_with(model, &cfg, Some(levels))
+    }
+
+    fn load_with<const T: usize, const L: usize>(
+        &mut self,
+        model: &Model<P>,
+        cfg: &ObserverConfig,
+        levels: Option<&LevelTables<T, L>>,
+    ) -> Result<(), ObserverError> {
         self.loaded = false;
+        self.on_levels = false;
         self.points = 0;
-        let r = self.load_inner(model, &cfg);
+        let r = self.load_inner(model, cfg, levels);
         if r.is_err() {
             self.points = 0;
             self.last = Self::empty().last;
@@ -396,7 +497,12 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         r
     }
 
-    fn load_inner(&mut self, model: &Model<P>, cfg: &ObserverConfig) -> Result<(), ObserverError> {
+    fn load_inner<const T: usize, const L: usize>(
+        &mut self,
+        model: &Model<P>,
+        cfg: &ObserverConfig,
+        levels: Option<&LevelTables<T, L>>,
+    ) -> Result<(), ObserverError> {
         let setting = |ok: bool, name: &'static str| {
             if ok {
                 Ok(())
@@ -420,23 +526,8 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         )?;
         setting(positive(cfg.band_sigmas), "band_sigmas")?;
         setting(positive(cfg.max_band), "max_band")?;
-        let points = cfg.points.unwrap_or(K);
-        if !(2..=K).contains(&points) {
-            return Err(ObserverError::Points {
-                requested: points,
-                capacity: K,
-            });
-        }
+        let (points, lo, hi) = grid_of(model, cfg, levels.map(LevelTables::alphas), K)?;
         let meta = model.meta;
-        let (lo, hi) = cfg.grid.unwrap_or(if meta.alpha_max > meta.alpha_min {
-            (meta.alpha_min, meta.alpha_max)
-        } else {
-            (0.0, 1.0)
-        });
-        let in_unit = |a: f32| a.is_finite() && (0.0..=1.0).contains(&a);
-        if !(in_unit(lo) && in_unit(hi) && lo < hi) {
-            return Err(ObserverError::Grid);
-        }
         let force_scale = meta.force_scale_n;
         let noise = cfg.force_noise_n.unwrap_or(1e-3 * force_scale);
         setting(positive(noise), "force_noise_n")?;
@@ -450,13 +541,21 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         let dt = model.dt_s;
         let spacing = (hi - lo) / (points - 1) as f32;
         for (k, m) in self.members.iter_mut().enumerate().take(points) {
-            let a = if k + 1 == points {
-                hi
-            } else {
-                math::fma(k as f32, spacing, lo)
+            let a = match levels.and_then(|l| l.alphas().get(k)) {
+                Some(&a) => a,
+                None if k + 1 == points => hi,
+                None => math::fma(k as f32, spacing, lo),
             };
             *m = self.shared.bank_member(a)?;
         }
+        if let Some(l) = levels {
+            if !self.shared.accepts_levels(l) {
+                return Err(ObserverError::Estimator(EstimatorError::Levels(
+                    LevelsError::Mismatch,
+                )));
+            }
+        }
+        let uniform = levels.is_none_or(|l| uniform_grid(l.alphas(), spacing));
         let samples = |s: f32| {
             let n = s / dt;
             if n >= u32::MAX as f32 {
@@ -479,12 +578,13 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
             band_sigmas: cfg.band_sigmas,
             max_band: cfg.max_band,
             lo,
-            spacing,
+            spacing: if uniform { spacing } else { 0.0 },
             span: hi - lo,
             trained: (meta.alpha_min, meta.alpha_max),
         };
         self.points = points;
         self.loaded = true;
+        self.on_levels = levels.is_some();
         self.reset();
         Ok(())
     }
@@ -521,14 +621,30 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
 
     fn alpha_at(&self, interval: usize, t: f32) -> f32 {
         let c = &self.cfg;
-        math::fma(interval as f32 + t, c.spacing, c.lo)
+        if c.spacing > 0.0 {
+            return math::fma(interval as f32 + t, c.spacing, c.lo);
+        }
+        math::fma(t, self.width(interval), self.level(interval))
+    }
+
+    /// Level `k` of the grid \[-\].
+    fn level(&self, k: usize) -> f32 {
+        self.members.get(k).map_or(self.cfg.lo, |m| m.alpha)
+    }
+
+    /// Width of grid interval `s` \[-\].
+    fn width(&self, s: usize) -> f32 {
+        if self.cfg.spacing > 0.0 {
+            return self.cfg.spacing;
+        }
+        self.level(s + 1) - self.level(s)
     }
 
     /// One sample: the stroke velocity \[m/s\] (positive = extension, as for
     /// [`Estimator::step`]) and the measured force \[N\] (positive in tension) of the same
     /// instant; returns the estimate after it.
     pub fn step(&mut self, velocity_m_s: f32, force_n: f32) -> AlphaEstimate {
-        self.step_at(velocity_m_s, None, force_n)
+        self.step_at(None::<&LevelTables<3, 2>>, velocity_m_s, None, force_n)
     }
 
     /// [`AlphaObserver::step`] with the stroke position \[m\] for a model with a static
@@ -539,17 +655,62 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         position_m: f32,
         force_n: f32,
     ) -> AlphaEstimate {
-        self.step_at(velocity_m_s, Some(position_m), force_n)
+        self.step_at(
+            None::<&LevelTables<3, 2>>,
+            velocity_m_s,
+            Some(position_m),
+            force_n,
+        )
     }
 
-    fn step_at(&mut self, velocity_m_s: f32, position_m: Option<f32>, y: f32) -> AlphaEstimate {
+    /// [`AlphaObserver::step`] for an observer loaded by [`AlphaObserver::load_on_levels`]:
+    /// each level steps on its stored tables in `levels` (the tables it was loaded with).
+    /// A level that `levels` does not hold (other tables, or an observer loaded by
+    /// [`AlphaObserver::load`]) steps on the exact scalers, as [`AlphaObserver::step`].
+    pub fn step_on_levels<const T: usize, const L: usize>(
+        &mut self,
+        levels: &LevelTables<T, L>,
+        velocity_m_s: f32,
+        force_n: f32,
+    ) -> AlphaEstimate {
+        self.step_at(Some(levels), velocity_m_s, None, force_n)
+    }
+
+    /// [`AlphaObserver::step_on_levels`] with the stroke position of
+    /// [`AlphaObserver::step_with_position`].
+    pub fn step_on_levels_with_position<const T: usize, const L: usize>(
+        &mut self,
+        levels: &LevelTables<T, L>,
+        velocity_m_s: f32,
+        position_m: f32,
+        force_n: f32,
+    ) -> AlphaEstimate {
+        self.step_at(Some(levels), velocity_m_s, Some(position_m), force_n)
+    }
+
+    fn step_at<const T: usize, const L: usize>(
+        &mut self,
+        levels: Option<&LevelTables<T, L>>,
+        velocity_m_s: f32,
+        position_m: Option<f32>,
+        y: f32,
+    ) -> AlphaEstimate {
         if !self.loaded {
             return self.last;
         }
         let n = self.points;
+        let levels = levels.filter(|_| self.on_levels);
         let mut velocity_fault = false;
-        for (m, f) in self.members.iter_mut().zip(self.forces.iter_mut()).take(n) {
-            let e = self.shared.step_member(m, velocity_m_s, position_m);
+        let members = self.members.iter_mut().zip(self.forces.iter_mut());
+        for (k, (m, f)) in members.enumerate().take(n) {
+            let on_level = levels.and_then(|l| {
+                self.shared
+                    .step_member_on_level(l, k, m, velocity_m_s, position_m)
+            });
+            let e = match on_level {
+                Some(e) => e,
+                None => self.shared.step_member(m, velocity_m_s, position_m),
+            };
             velocity_fault |= e.flags.0 & crate::Flags::INPUT_HELD != 0;
             *f = e.force_n;
         }
@@ -643,7 +804,8 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         } else {
             c.noise2
         };
-        let curvature = dd / (c.spacing * c.spacing);
+        let h = self.width(s);
+        let curvature = dd / (h * h);
         // Uncapped (infinite without curvature): the margin of the range test.
         let raw_band = c.band_sigmas * math::sqrt(sigma2 * c.correlation_samples / curvature);
         let raw_band = if raw_band.is_nan() {

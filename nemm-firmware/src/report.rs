@@ -269,6 +269,7 @@ pub fn estimator_error(line: &mut Line, e: &EstimatorError) {
         EstimatorError::AlphaPerSampleInTableMode => {
             line.ks("kind", "alpha-per-sample-in-table-mode")
         }
+        EstimatorError::Levels(l) => line.ks("kind", "levels").ks("levels", l.name()),
     };
 }
 

@@ -71,6 +71,20 @@ enum Cmd {
         #[command(flatten)]
         tables: nemm_train::cli::train::TablesArgs,
     },
+    /// Store fast-path tables in an existing weights blob: the model (weights, condition,
+    /// provenance) unchanged bit for bit, its tables section replaced by the levels of
+    /// --tables-alpha and --tables-levels (e.g. `--tables-levels 7` for the level tables of a
+    /// per-sample level and the alpha observer on a firmware).
+    Tables {
+        /// The weights blob.
+        model: PathBuf,
+        /// Output weights blob (may be the input).
+        #[arg(long)]
+        out: PathBuf,
+        /// The tables to store.
+        #[command(flatten)]
+        tables: nemm_train::cli::train::TablesArgs,
+    },
     /// Train all four variants and write Table 4 (table4.md, report.json), the best-fit level
     /// of every run (identify.md), models and figures.
     Compare {
@@ -219,6 +233,9 @@ fn main() -> ExitCode {
             table_bound,
             tables,
         } => nemm_train::cli::train::export(&checkpoint, &out, table_bound, &tables),
+        Cmd::Tables { model, out, tables } => {
+            nemm_train::cli::train::store_tables(&model, &out, &tables)
+        }
         Cmd::Compare {
             args,
             report,

@@ -47,6 +47,11 @@ impl Nemm {
         self
     }
 
+    fn args(mut self, a: &[&str]) -> Self {
+        self.0.args(a);
+        self
+    }
+
     /// Adds the seconds-long training budget.
     fn budget(mut self) -> Self {
         self.0.args(BUDGET);
@@ -689,4 +694,42 @@ fn bad_inputs_are_refused_before_training() {
         .fails();
     assert!(err.contains("is a file, not a folder"), "{err}");
     assert!(!out.exists(), "nothing was written");
+}
+
+#[test]
+fn tables_restores_the_level_tables_of_an_existing_blob() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let input = root.join("nemm-firmware/data/trained-nemm.nemm");
+    let out = dir.path().join("levels.nemm");
+    let text = Nemm::new(&["tables"])
+        .arg(&input)
+        .args(&["--tables-levels", "4", "--out"])
+        .arg(&out)
+        .ok();
+    // The model is the input's, bit for bit; the levels are 4 evenly over the trained range.
+    let (a, b) = (decode_file(&input), decode_file(&out));
+    assert_eq!(a, b);
+    let blob = std::fs::read(&out).unwrap();
+    let (_, stored) = nemm_core::decode_with_tables::<{ nemm_core::DEFAULT_PARAM_CAPACITY }>(&blob)
+        .expect("decodes");
+    let alphas: Vec<f32> = stored.levels.iter().map(|l| l.alpha).collect();
+    assert_eq!(alphas, [0.0, 0.1, 0.2, 0.3]);
+    assert!(
+        text.contains("level tables:    4 levels of 128 segments, 28672 B in RAM"),
+        "{text}"
+    );
+    assert!(text.contains("out of the declared order at 0 of"), "{text}");
+    no_temp_files(dir.path());
+    // Too many levels, or one: refused before anything is written.
+    let bad = dir.path().join("bad.nemm");
+    for n in ["17", "1"] {
+        let err = Nemm::new(&["tables"])
+            .arg(&input)
+            .args(&["--tables-levels", n, "--out"])
+            .arg(&bad)
+            .fails();
+        assert!(err.contains("--tables-levels"), "{err}");
+        assert!(!bad.exists());
+    }
 }

@@ -25,11 +25,16 @@ pub const BENCH_SEED: &str = "1";
 /// stores: the bench trace's (nemm-firmware's `trace`) and the board's `ALPHA`, 15 %.
 pub const FIRMWARE_ALPHA: &str = "0.15";
 
+/// Levels evenly over the trained range whose tables the embedded blob stores as well: the
+/// level tables of the alpha observer and of a level per sample (nemm-core's `LevelTables`).
+pub const FIRMWARE_LEVELS: usize = 7;
+
 /// The `nemm train` arguments of the firmware's model: the demo's NEMM budget (12 epochs of
 /// 8 batches, 6 Linear EMM epochs), the default data options (15 % oil loss held out),
 /// `velocity` the velocity source (`None`: the default zero-phase preprocessing); the blob
 /// stores the fast-path tables at [`FIRMWARE_ALPHA`] with the firmware's segment count and
-/// bound (the trainer's defaults), so that the images boot without building them.
+/// bound (the trainer's defaults), so that the images boot without building them, and at
+/// [`FIRMWARE_LEVELS`] levels over the trained range.
 pub fn train_args(out: &str, velocity: Option<&str>) -> Vec<String> {
     let mut a: Vec<String> = [
         "train",
@@ -51,6 +56,7 @@ pub fn train_args(out: &str, velocity: Option<&str>) -> Vec<String> {
         a.extend(["--velocity".to_string(), v.to_string()]);
     }
     a.extend(["--tables-alpha".to_string(), FIRMWARE_ALPHA.to_string()]);
+    a.extend(["--tables-levels".to_string(), FIRMWARE_LEVELS.to_string()]);
     a.extend(["--out".to_string(), out.to_string()]);
     a
 }

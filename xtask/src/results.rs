@@ -495,12 +495,14 @@ pub fn tables(paths: &Paths, allow_dirty: bool) -> Result<(), String> {
     };
     let errors = output("nemm-core", "table_error", &["--markdown", TRAINED_BLOB])?;
     let check = output("nemm-train", "table_check", &[TRAINED_BLOB])?;
-    let md = tables_markdown(&command_line(), &commit, &errors, &check);
+    let levels = output("nemm-core", "levels_error", &["--markdown", TRAINED_BLOB])?;
+    let md = tables_markdown(&command_line(), &commit, &errors, &check, &levels);
     write_block(paths, "tables", &md)
 }
 
-/// The `tables` block: the force errors of the fast path, then the export check.
-fn tables_markdown(command: &str, commit: &str, errors: &str, check: &str) -> String {
+/// The `tables` block: the force errors of the fast path, the export check, then the level
+/// tables.
+fn tables_markdown(command: &str, commit: &str, errors: &str, check: &str, levels: &str) -> String {
     format!(
         "Measured by `{command}` at commit `{commit}`.\n\n\
          **Force error of the tables** (`cargo run --release -p nemm-core --example table_error \
@@ -511,9 +513,19 @@ fn tables_markdown(command: &str, commit: &str, errors: &str, check: &str) -> St
          example models are `nemm_core::testing`'s (H = 16, L = 5, pseudo-random, untrained).\n\n\
          {}\n\n\
          **Export check** (`cargo run --release -p nemm-train --example table_check -- \
-         {TRAINED_BLOB}`, what `nemm export` prints):\n\n```text\n{}\n```\n",
+         {TRAINED_BLOB}`, what `nemm export` prints):\n\n```text\n{}\n```\n\n\
+         **Every level at table cost** (`cargo run --release -p nemm-core --example levels_error \
+         -- --markdown {TRAINED_BLOB}`): `LevelTables` of 4, 7 and 13 levels evenly over the \
+         trained range (128 segments, bound 1e-4): the blob's growth (flash) and the tables' RAM; \
+         the worst relative error of each blended coefficient against the exact scalers (7 \
+         levels inside each interval, 16 states per segment); points where neighbouring levels \
+         are out of the declared order (tables / exact model); the force of a level per sample \
+         (`step_on_levels`) against the exact `step_with_alpha`, over the Table 1 programme at \
+         the middle of every interval and with alpha ramping over the trained range within \
+         each stroke, as a fraction of the force scale.\n\n{}\n",
         errors.trim_end(),
-        check.trim_end()
+        check.trim_end(),
+        levels.trim_end()
     )
 }
 
@@ -803,10 +815,12 @@ mod tests {
             "abc1234",
             rows,
             "check: ok\n",
+            "| levels |\n|---:|\n| 7 |\n",
         );
         assert!(md.starts_with("Measured by `cargo xtask results --tables` at commit `abc1234`."));
         assert!(md.contains("| `x.nemm` | 0.15 |\n\n**Export check**"));
         assert!(md.contains("```text\ncheck: ok\n```"));
+        assert!(md.ends_with("| 7 |\n"));
     }
 
     #[test]

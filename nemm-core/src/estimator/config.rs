@@ -143,6 +143,8 @@ pub enum EstimatorError {
     /// Table mode: [`Estimator::step_with_alpha`] was given a changed `alpha` (a per-sample
     /// condition level needs [`EvalMode::Exact`]).
     AlphaPerSampleInTableMode,
+    /// [`Estimator::step_on_levels`]: the level tables cannot drive this estimator.
+    Levels(LevelsError),
 }
 
 impl fmt::Display for EstimatorError {
@@ -159,6 +161,7 @@ impl fmt::Display for EstimatorError {
                 f,
                 "a per-sample alpha needs exact mode (table mode would rebuild its tables every sample)"
             ),
+            EstimatorError::Levels(e) => write!(f, "level tables: {e}"),
         }
     }
 }

@@ -244,10 +244,14 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         if !self.b_pr_neural {
             return Ok(self.b_pr_ini);
         }
-        self.b_pr_scaler
-            .scale_with(&[alpha / self.alpha_scale], self.b_pr_branch.as_ref())
-            .map(|s| self.b_pr_ini * s)
-            .ok_or(EstimatorError::Compile)
+        b_pr_of(
+            &self.b_pr_scaler,
+            self.b_pr_branch.as_ref(),
+            self.b_pr_ini,
+            self.alpha_scale,
+            alpha,
+        )
+        .ok_or(EstimatorError::Compile)
     }
 
     #[inline(always)]
@@ -390,6 +394,20 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
     pub(super) fn tables(&self) -> impl Iterator<Item = &Table1D<T>> {
         [&self.b_fl, &self.k_pr].into_iter().filter_map(Coef::table)
     }
+}
+
+/// `b_pr = b_pr_ini * scaler(alpha / alpha_scale)` with the scaler's alpha branch; `None`
+/// for an inconsistent shape.
+pub(super) fn b_pr_of<const P: usize>(
+    scaler: &Scaler<P>,
+    branch: Option<&AlphaBranch>,
+    b_pr_ini: f32,
+    alpha_scale: f32,
+    alpha: f32,
+) -> Option<f32> {
+    scaler
+        .scale_with(&[alpha / alpha_scale], branch)
+        .map(|s| b_pr_ini * s)
 }
 
 /// Which model an estimator runs.

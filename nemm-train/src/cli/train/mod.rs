@@ -79,11 +79,19 @@ pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
 /// the same segment count and bound, boots without building its tables.
 #[derive(Debug, Clone, PartialEq, clap::Args)]
 pub struct TablesArgs {
-    /// Oil-loss levels alpha (comma-separated, each in [0, 1]; at most 4) whose fast-path
+    /// Oil-loss levels alpha (comma-separated, each in [0, 1]; at most 16) whose fast-path
     /// tables the blob stores. A firmware in table mode at one of them reads its tables from
     /// the blob instead of building them at boot. None by default.
     #[arg(long, value_delimiter = ',')]
     pub tables_alpha: Vec<f32>,
+    /// Also store this many levels evenly over the model's trained range of alpha (2 to
+    /// 16, together with --tables-alpha at most 16): the level tables of
+    /// `nemm_core::LevelTables`, with which a firmware runs a level per sample
+    /// (`Estimator::step_on_levels`) and the alpha observer (`AlphaObserver::load_on_levels`)
+    /// at table cost. 7 levels take about 37 KB more in the blob at 128 segments (docs/core.md,
+    /// "Every level at table cost").
+    #[arg(long)]
+    pub tables_levels: Option<usize>,
     /// Segments per stored table: the `T` of the firmware's estimator (128, nemm-firmware's
     /// TABLE_SEGMENTS, or 256, nemm-core's default).
     #[arg(long, default_value_t = DEFAULT_STORED_TABLE_SEGMENTS)]
@@ -114,6 +122,11 @@ impl TablesArgs {
                 self.tables_alpha.len()
             );
         }
+        if let Some(n) = self.tables_levels {
+            if !(2..=max).contains(&n) {
+                bail!("--tables-levels {n}: between 2 and {max} levels");
+            }
+        }
         if !matches!(self.tables_segments, 128 | 256) {
             bail!(
                 "--tables-segments {}: stored tables have 128 or 256 segments",
@@ -128,12 +141,44 @@ impl TablesArgs {
         }
         Ok(())
     }
+
+    /// The levels to store for `model`: those of --tables-alpha and the --tables-levels
+    /// levels evenly over the trained range (computed in f64, each rounded once to f32, so
+    /// that a level such as 0.15 is the f32 of 0.15), ascending, without repeats.
+    pub fn levels(&self, model: &nemm_core::Model) -> Result<Vec<f32>> {
+        let mut levels = self.tables_alpha.clone();
+        if let Some(n) = self.tables_levels {
+            let (lo, hi) = (
+                f64::from(model.meta.alpha_min),
+                f64::from(model.meta.alpha_max),
+            );
+            if hi <= lo {
+                bail!(
+                    "--tables-levels: the model was trained at one level ({lo}); list levels with --tables-alpha"
+                );
+            }
+            // Rounded to 6 decimals first, so that 0.3 * 3 / 6 is stored as 0.15.
+            let at = |k: usize| (lo + (hi - lo) * k as f64 / (n - 1) as f64) * 1e6;
+            levels.extend((0..n).map(|k| (at(k).round() / 1e6) as f32));
+        }
+        levels.sort_by(f32::total_cmp);
+        levels.dedup_by(|a, b| a.to_bits() == b.to_bits());
+        let max = nemm_core::limits::MAX_TABLE_LEVELS;
+        if levels.len() > max {
+            bail!(
+                "--tables-alpha and --tables-levels give {} levels: a blob stores at most {max}",
+                levels.len()
+            );
+        }
+        Ok(levels)
+    }
 }
 
 impl Default for TablesArgs {
     fn default() -> Self {
         Self {
             tables_alpha: Vec::new(),
+            tables_levels: None,
             tables_segments: DEFAULT_STORED_TABLE_SEGMENTS,
             tables_bound: crate::train::table_check::DEFAULT_TABLE_BOUND,
         }
@@ -143,7 +188,7 @@ impl Default for TablesArgs {
 /// The blob of `model` with the tables of `tables` (none if it lists no levels).
 fn encode_with_tables(model: &nemm_core::Model, tables: &TablesArgs) -> Result<Vec<u8>> {
     match tables.tables_segments {
-        _ if tables.tables_alpha.is_empty() => {
+        _ if tables.tables_alpha.is_empty() && tables.tables_levels.is_none() => {
             nemm_core::encode_to_vec(model).map_err(|e| anyhow::anyhow!("{e}"))
         }
         128 => encode_with_segments::<128>(model, tables),
@@ -166,7 +211,7 @@ fn encode_with_segments<const T: usize>(
         );
     }
     let mut levels: Vec<Box<Estimator<{ nemm_core::DEFAULT_PARAM_CAPACITY }, T>>> = Vec::new();
-    for &alpha in &tables.tables_alpha {
+    for alpha in tables.levels(model)? {
         let cfg = EstimatorConfig {
             mode: EvalMode::Table(TableConfig::new(tables.tables_bound)),
             ..EstimatorConfig::new(alpha)
@@ -194,13 +239,86 @@ pub fn export_model(
     model.provenance = provenance(dataset);
     let blob = encode_with_tables(&model, tables)?;
     write_atomic_bytes(out, &blob).with_context(|| format!("cannot write {}", out.display()))?;
-    let (model, tables) =
+    let (model, stored) =
         nemm_core::decode_with_tables(&blob).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let levels = match tables.tables_segments {
+        128 => levels_check::<128>(&model, &stored, &blob)?,
+        _ => levels_check::<256>(&model, &stored, &blob)?,
+    };
     Ok(Written {
         len: blob.len(),
         model,
-        tables,
+        tables: stored,
+        levels,
     })
+}
+
+/// `nemm tables MODEL --out OUT`: re-encodes the model of `model` (bit for bit, provenance
+/// included) with the tables of `tables`, writes it atomically and describes it.
+pub fn store_tables(model: &Path, out: &Path, tables: &TablesArgs) -> Result<()> {
+    tables.validate()?;
+    let blob = std::fs::read(model).with_context(|| format!("cannot read {}", model.display()))?;
+    let m: nemm_core::Model =
+        nemm_core::decode(&blob).with_context(|| format!("{}", model.display()))?;
+    let new = encode_with_tables(&m, tables)?;
+    write_atomic_bytes(out, &new).with_context(|| format!("cannot write {}", out.display()))?;
+    let (decoded, stored) =
+        nemm_core::decode_with_tables(&new).map_err(|e| anyhow::anyhow!("{e}"))?;
+    if decoded != m {
+        bail!(
+            "{}: the re-encoded model differs from the input",
+            out.display()
+        );
+    }
+    let levels = match tables.tables_segments {
+        128 => levels_check::<128>(&decoded, &stored, &new)?,
+        _ => levels_check::<256>(&decoded, &stored, &new)?,
+    };
+    println!("wrote {} ({} bytes)", out.display(), new.len());
+    print!("{}", describe(&decoded, &stored, new.len()));
+    print!("{}", levels.as_deref().unwrap_or(""));
+    Ok(())
+}
+
+/// With two or more stored levels of `T` segments: the line that says what the level
+/// tables take and how far their blend between levels lies from the exact model
+/// (`nemm_core::LevelTables::check`, 3 levels inside each interval, 4 states per segment).
+fn levels_check<const T: usize>(
+    model: &nemm_core::Model,
+    stored: &nemm_core::StoredTables,
+    blob: &[u8],
+) -> Result<Option<String>> {
+    use nemm_core::{Estimator, EstimatorConfig, LevelTables, LevelsError};
+    const MAX: usize = nemm_core::limits::MAX_TABLE_LEVELS;
+    let mut levels: Box<LevelTables<T, MAX>> = Box::new(LevelTables::empty());
+    match levels.load(model, stored, blob) {
+        Ok(()) => {}
+        Err(LevelsError::TooFewLevels { .. } | LevelsError::NoNeuralCoefficient) => {
+            return Ok(None)
+        }
+        Err(e) => bail!("level tables: {e}"),
+    }
+    let mut exact: Box<Estimator<{ nemm_core::DEFAULT_PARAM_CAPACITY }, 3>> =
+        Box::new(Estimator::empty());
+    exact
+        .load(model, EstimatorConfig::new(model.meta.alpha_min))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let c = levels
+        .check(&mut exact, 3, 4)
+        .map_err(|e| anyhow::anyhow!("level tables: {e}"))?;
+    let [b_fl, b_pr, k_pr] = c.max_rel_error;
+    Ok(Some(format!(
+        "level tables:    {} levels of {T} segments, {} B in RAM; blend between levels within \
+         {b_fl:.1e} (b_fl), {b_pr:.1e} (b_pr), {k_pr:.1e} (k_pr) relative of the exact model \
+         (worst at alpha {:.3}); levels out of the declared order at {} of {} points (exact \
+         model: {})\n",
+        levels.len(),
+        levels.table_bytes().1,
+        c.at_alpha,
+        c.table_order_violations,
+        c.points / 3,
+        c.exact_order_violations
+    )))
 }
 
 /// A model as [`export_model`] wrote it: the blob's length, and the model and the index of
@@ -212,6 +330,9 @@ pub struct Written {
     pub model: nemm_core::Model,
     /// The index of the blob's precomputed tables.
     pub tables: nemm_core::StoredTables,
+    /// With level tables (two or more stored levels): what they take and their measured
+    /// blend error, one line.
+    pub levels: Option<String>,
 }
 
 /// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run, the
@@ -323,6 +444,7 @@ pub fn train(
         t.elapsed().as_secs_f64()
     );
     print!("{}", describe(&written.model, &written.tables, written.len));
+    print!("{}", written.levels.as_deref().unwrap_or(""));
     println!(
         "test RMSE ({}): {:.4} of the force scale ({:.1} N); validation {:.4}",
         prepared.config.split.describe(),
@@ -466,6 +588,7 @@ pub fn export(checkpoint: &Path, out: &Path, table_bound: f32, tables: &TablesAr
     );
     let model = &written.model;
     print!("{}", describe(model, &written.tables, written.len));
+    print!("{}", written.levels.as_deref().unwrap_or(""));
     print!("{}", crate::train::table_check::report(model, table_bound));
     Ok(())
 }

@@ -1,0 +1,288 @@
+//! Every level at table cost: the stored tables of several levels drive an estimator with a
+//! level per sample and the observer's bank. At a stored level the step is the table-mode
+//! estimator's at that level, bit for bit; between levels the blend is monotone in alpha
+//! and close to the exact model; a wrong blob, too few levels or another model's tables are
+//! refused with typed errors.
+
+mod common;
+
+use common::blob_with_tables;
+use nemm_core::semantics::emm::State;
+use nemm_core::testing::example_model_with_branches;
+use nemm_core::{
+    decode_into, AlphaObserver, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags,
+    LevelTables, LevelsError, Model, ModelKind, ObserverConfig, Priors, TableConfig,
+};
+
+const P: usize = 1400;
+const T: usize = 128;
+const LEVELS: [f32; 7] = [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3];
+
+type Levels = LevelTables<T, 8>;
+
+fn model() -> Box<Model<P>> {
+    let mut m = Box::new(example_model_with_branches::<P>(16, 5, 8, Priors::PAPER).unwrap());
+    m.meta.alpha_min = 0.0;
+    m.meta.alpha_max = 0.3;
+    m
+}
+
+fn table_cfg(alpha: f32) -> EstimatorConfig {
+    EstimatorConfig {
+        mode: EvalMode::Table(TableConfig::new(1e-4)),
+        ..EstimatorConfig::new(alpha)
+    }
+}
+
+/// The blob of `m` with tables of `T` segments at `alphas`.
+fn blob_with(m: &Model<P>, alphas: &[f32]) -> Vec<u8> {
+    let ests: Vec<Box<Estimator<P, T>>> = alphas
+        .iter()
+        .map(|&a| {
+            let mut e = Box::new(Estimator::empty());
+            e.load(m, table_cfg(a)).expect("tables within the bound");
+            e
+        })
+        .collect();
+    let refs: Vec<&Estimator<P, T>> = ests.iter().map(|e| &**e).collect();
+    blob_with_tables(m, &refs).expect("encodes")
+}
+
+/// The decoded model, its level tables and the blob.
+fn loaded(alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, Vec<u8>) {
+    let blob = blob_with(&model(), alphas);
+    let mut m: Box<Model<P>> = Box::new(Model::empty());
+    let tables = decode_into(&blob, &mut m).expect("decodes");
+    let mut levels: Box<Levels> = Box::new(LevelTables::empty());
+    levels.load(&m, &tables, &blob).expect("levels load");
+    (m, levels, blob)
+}
+
+fn exact(m: &Model<P>, alpha: f32) -> Box<Estimator<P, 3>> {
+    let mut e = Box::new(Estimator::empty());
+    e.load(m, EstimatorConfig::new(alpha)).expect("loads");
+    e
+}
+
+/// A 5 Hz sinusoid of `amp` m/s at sample `k` (10 kHz).
+fn velocity(k: usize, amp: f32) -> f32 {
+    amp * (2.0 * core::f32::consts::PI * 5.0 * k as f32 * 1e-4).sin()
+}
+
+#[test]
+fn at_a_stored_level_the_step_is_the_table_mode_estimators() {
+    let (m, levels, blob) = loaded(&LEVELS);
+    assert_eq!(levels.alphas(), &LEVELS);
+    assert_eq!(levels.table_bytes(), (14, 14 * 28 * T));
+    for k in [0, 3, 6] {
+        let alpha = LEVELS[k];
+        let mut mm: Box<Model<P>> = Box::new(Model::empty());
+        let tables = decode_into(&blob, &mut mm).unwrap();
+        let mut reference: Box<Estimator<P, T>> = Box::new(Estimator::empty());
+        reference
+            .load_with_tables(&mm, table_cfg(alpha), &tables, &blob)
+            .unwrap();
+        let mut est = exact(&m, 0.15);
+        for i in 0..3000 {
+            let v = velocity(i, 0.6);
+            let a = reference.step(v);
+            let b = est.step_on_levels(&levels, v, alpha).unwrap();
+            assert_eq!(
+                a.force_n.to_bits(),
+                b.force_n.to_bits(),
+                "level {alpha}, step {i}"
+            );
+            assert_eq!(a.flags, b.flags);
+        }
+    }
+}
+
+#[test]
+fn the_blend_is_monotone_in_alpha_between_levels_and_across_ordered_levels() {
+    let (m, levels, _) = loaded(&LEVELS);
+    let mut ex = exact(&m, 0.0);
+    let check = levels.check(&mut ex, 3, 2).unwrap();
+    let sweep: Vec<f32> = (0..=600).map(|j| 0.3 * j as f32 / 600.0).collect();
+    let mut inside = 0;
+    let mut across = 0;
+    for k in 0..=400 {
+        let f = k as f32 / 400.0;
+        let s = State {
+            x_pr_m: (2.0 * f - 1.0) * m.scales.x_pr_m,
+            v_st_m_s: (2.0 * f - 1.0) * m.scales.velocity_m_s,
+        };
+        let c: Vec<_> = sweep
+            .iter()
+            .map(|&a| levels.coefficients(&s, a).unwrap())
+            .collect();
+        for (j, w) in c.windows(2).enumerate() {
+            let up = w[1].b_fl > w[0].b_fl || w[1].k_pr > w[0].k_pr || w[1].b_pr > w[0].b_pr;
+            if up {
+                // A rise can only sit on a stored level (the blend within an interval is
+                // monotone by construction).
+                let at_level = LEVELS.iter().any(|&l| sweep[j] <= l && l <= sweep[j + 1]);
+                if at_level {
+                    across += 1;
+                } else {
+                    inside += 1;
+                }
+            }
+        }
+    }
+    assert_eq!(inside, 0, "the blend rose in alpha inside an interval");
+    if check.table_order_violations == 0 {
+        assert_eq!(across, 0, "ordered levels, yet the blend rose at a level");
+    }
+    // The example model's priors hold by construction (alpha branches): exact and tables
+    // both ordered.
+    assert_eq!(check.exact_order_violations, 0, "{check:?}");
+}
+
+#[test]
+fn the_blend_error_is_measured_and_shrinks_with_more_levels() {
+    let (m, seven, _) = loaded(&LEVELS);
+    let (_, four, _) = loaded(&[0.0, 0.1, 0.2, 0.3]);
+    let mut ex = exact(&m, 0.0);
+    let c7 = seven.check(&mut ex, 3, 4).unwrap();
+    let c4 = four.check(&mut ex, 3, 4).unwrap();
+    assert!(c7.points > 0 && c4.points > 0);
+    // b_fl and b_pr depend on alpha; the blend errs between the levels, less with more.
+    assert!(
+        c7.max_rel_error[0] > 0.0 && c7.max_rel_error[1] > 0.0,
+        "{c7:?}"
+    );
+    for k in 0..3 {
+        assert!(
+            c7.max_rel_error[k] <= c4.max_rel_error[k],
+            "coefficient {k}: 7 levels {c7:?}, 4 levels {c4:?}"
+        );
+    }
+    assert!(
+        c7.max_rel_error.iter().all(|e| e.is_finite() && *e < 0.1),
+        "{c7:?}"
+    );
+}
+
+#[test]
+fn a_level_per_sample_follows_the_exact_model() {
+    let (m, levels, _) = loaded(&LEVELS);
+    let mut tab = exact(&m, 0.0);
+    let mut ex = exact(&m, 0.0);
+    let n = 20_000;
+    let mut worst = 0.0f32;
+    for i in 0..n {
+        let alpha = 0.3 * i as f32 / n as f32;
+        let v = velocity(i, 0.8);
+        let a = ex.step_with_alpha(v, alpha).unwrap().force_n;
+        let b = tab.step_on_levels(&levels, v, alpha).unwrap();
+        assert!(b.flags.is_empty(), "step {i}: {:?}", b.flags);
+        worst = worst.max((a - b.force_n).abs());
+    }
+    let rel = worst / m.meta.force_scale_n;
+    eprintln!("per-sample alpha on 7 levels: max |force difference| / force scale = {rel:.2e}");
+    assert!(rel < 1e-2, "{rel}");
+}
+
+#[test]
+fn bad_levels_and_bad_inputs_are_refused_or_held() {
+    let (m, levels, blob) = loaded(&LEVELS);
+    let mut est = exact(&m, 0.0);
+    // alpha outside [0, 1] or NaN: refused, nothing changes.
+    for a in [f32::NAN, -0.1, 1.5] {
+        assert_eq!(
+            est.step_on_levels(&levels, 0.1, a),
+            Err(EstimatorError::AlphaOutOfRange)
+        );
+    }
+    assert_eq!(est.diagnostics().steps, 0);
+    // alpha beyond the levels: nearest level, flagged.
+    let e = est.step_on_levels(&levels, 0.1, 0.5).unwrap();
+    assert!(e.flags.contains(Flags::ALPHA_EXTRAPOLATED));
+    // A NaN velocity is held, the state stays finite.
+    let e = est.step_on_levels(&levels, f32::NAN, 0.1).unwrap();
+    assert!(e.flags.contains(Flags::INPUT_HELD) && e.force_n.is_finite());
+    // Empty tables, or another model's: refused.
+    let empty: Box<Levels> = Box::new(LevelTables::empty());
+    assert_eq!(
+        est.step_on_levels(&empty, 0.1, 0.1),
+        Err(EstimatorError::Levels(LevelsError::Mismatch))
+    );
+    let light = nemm_core::testing::example_model::<P>(ModelKind::NemmLight, 16, 5).unwrap();
+    let mut other = exact(&light, 0.1);
+    assert_eq!(
+        other.step_on_levels(&levels, 0.1, 0.1),
+        Err(EstimatorError::Levels(LevelsError::Mismatch))
+    );
+    // Loading: one level is too few; another blob is refused; the index and the blob of
+    // one export belong together.
+    let one = blob_with(&m, &[0.1]);
+    let mut mm: Box<Model<P>> = Box::new(Model::empty());
+    let tables = decode_into(&one, &mut mm).unwrap();
+    let mut l: Box<Levels> = Box::new(LevelTables::empty());
+    assert_eq!(
+        l.load(&mm, &tables, &one),
+        Err(LevelsError::TooFewLevels {
+            found: 1,
+            segments: T
+        })
+    );
+    let tables = decode_into(&blob, &mut mm).unwrap();
+    assert_eq!(l.load(&mm, &tables, &one), Err(LevelsError::OtherBlob));
+    assert!(l.is_empty());
+    let mut small: Box<LevelTables<T, 4>> = Box::new(LevelTables::empty());
+    assert_eq!(
+        small.load(&mm, &tables, &blob),
+        Err(LevelsError::TooManyLevels {
+            found: 7,
+            capacity: 4
+        })
+    );
+    let sem = nemm_core::testing::example_model::<P>(ModelKind::Sem, 16, 5).unwrap();
+    assert_eq!(
+        l.load(&sem, &tables, &blob),
+        Err(LevelsError::NoNeuralCoefficient)
+    );
+}
+
+#[test]
+fn the_observer_on_levels_agrees_with_the_exact_observer() {
+    let (m, levels, _) = loaded(&LEVELS);
+    let truth = 0.12;
+    let mut plant = exact(&m, truth);
+    let mut on_levels: Box<AlphaObserver<P, 8>> = Box::new(AlphaObserver::empty());
+    on_levels
+        .load_on_levels(&m, &levels, ObserverConfig::new())
+        .unwrap();
+    let mut reference: Box<AlphaObserver<P, 8>> = Box::new(AlphaObserver::empty());
+    let cfg = ObserverConfig {
+        points: Some(7),
+        grid: Some((0.0, 0.3)),
+        ..ObserverConfig::new()
+    };
+    reference.load(&m, cfg).unwrap();
+    assert_eq!(on_levels.grid().collect::<Vec<_>>(), LEVELS);
+    assert_eq!(reference.grid().collect::<Vec<_>>(), LEVELS);
+    let (mut a, mut b) = (on_levels.estimate(), reference.estimate());
+    for i in 0..20_000 {
+        let v = velocity(i, 0.6);
+        let f = plant.step(v).force_n;
+        a = on_levels.step_on_levels(&levels, v, f);
+        b = reference.step(v, f);
+    }
+    assert!(
+        !a.flags.contains(nemm_core::ObserverFlags::NOT_EXCITED),
+        "{a:?}"
+    );
+    assert!(
+        (a.alpha - b.alpha).abs() < 2e-3,
+        "levels {a:?}, exact {b:?}"
+    );
+    assert!((a.alpha - truth).abs() < 0.01, "{a:?}");
+    // The grid is the levels': another grid is refused.
+    let mut o: Box<AlphaObserver<P, 8>> = Box::new(AlphaObserver::empty());
+    let bad = ObserverConfig {
+        grid: Some((0.0, 0.2)),
+        ..ObserverConfig::new()
+    };
+    assert!(o.load_on_levels(&m, &levels, bad).is_err());
+}
