@@ -61,14 +61,14 @@
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46072
+#define NEMM_ESTIMATOR_SIZE 46080
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46272
+#define NEMM_ESTIMATOR_SIZE 46280
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -89,14 +89,14 @@
 /**
  * Bytes of a `nemm_observer_t` (32-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21576
+#define NEMM_OBSERVER_SIZE 21584
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_observer_t` (64-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21704
+#define NEMM_OBSERVER_SIZE 21712
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -248,7 +248,8 @@
  *
  * Codes 1-9 are argument and storage errors, 10-19 blob errors (the weights file itself),
  * 20-39 model errors (the blob decodes but its model is not acceptable), 40-49 estimator
- * errors, 50-59 table errors (table mode), 60-69 observer errors. Values are stable.
+ * errors, 50-59 table errors (table mode), 60-69 observer errors, 70-79 level tables
+ * errors. Values are stable.
  */
 enum nemm_status_t
 #if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
@@ -421,6 +422,44 @@ enum nemm_status_t
    * Observer: a setting is not finite, or not in its range.
    */
   NEMM_E_OBSERVER_SETTING = 62,
+  /**
+   * Level tables: the model has no neural coefficient to tabulate (SEM, Linear EMM).
+   */
+  NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT = 70,
+  /**
+   * Level tables: the blob is not the one the estimator was built from (its length or
+   * CRC differs from the tables index decoded at the estimator's init).
+   */
+  NEMM_E_LEVELS_OTHER_BLOB = 71,
+  /**
+   * Level tables: the blob stores fewer than two levels of `NEMM_TABLE_SEGMENTS`-segment
+   * tables (export it with `--tables-levels`).
+   */
+  NEMM_E_LEVELS_TOO_FEW = 72,
+  /**
+   * Level tables: the blob stores more levels of `NEMM_TABLE_SEGMENTS`-segment tables
+   * than the level tables hold.
+   */
+  NEMM_E_LEVELS_TOO_MANY = 73,
+  /**
+   * Level tables: the stored levels are not in strictly ascending alpha with one table
+   * configuration.
+   */
+  NEMM_E_LEVELS_ORDER = 74,
+  /**
+   * Level tables: a stored table does not read back on the model's domain.
+   */
+  NEMM_E_LEVELS_TABLE = 75,
+  /**
+   * Level tables: `b_pr` could not be evaluated at a level (cannot happen for a blob
+   * that decodes).
+   */
+  NEMM_E_LEVELS_COMPILE = 76,
+  /**
+   * Level tables: the tables are empty or belong to another model than the estimator's;
+   * nothing stepped.
+   */
+  NEMM_E_LEVELS_MISMATCH = 77,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

@@ -1,10 +1,10 @@
 //! The status codes every function returns, and the mapping of nemm-core's typed errors to
 //! them: one code per variant of [`DecodeError`], [`ModelError`], [`EstimatorError`],
-//! [`TableError`] and [`ObserverError`] (the variants that only carry another error take
-//! that error's code).
+//! [`TableError`], [`LevelsError`] and [`ObserverError`] (the variants that only carry
+//! another error take that error's code).
 
 use core::ffi::c_char;
-use nemm_core::{DecodeError, EstimatorError, ModelError, ObserverError, TableError};
+use nemm_core::{DecodeError, EstimatorError, LevelsError, ModelError, ObserverError, TableError};
 
 /// What a call did. `NEMM_OK` (0) is success; every other value is an error, after which
 /// nothing was written unless the function says otherwise. `nemm_status_str` gives a
@@ -12,7 +12,8 @@ use nemm_core::{DecodeError, EstimatorError, ModelError, ObserverError, TableErr
 ///
 /// Codes 1-9 are argument and storage errors, 10-19 blob errors (the weights file itself),
 /// 20-39 model errors (the blob decodes but its model is not acceptable), 40-49 estimator
-/// errors, 50-59 table errors (table mode), 60-69 observer errors. Values are stable.
+/// errors, 50-59 table errors (table mode), 60-69 observer errors, 70-79 level tables
+/// errors. Values are stable.
 #[allow(non_camel_case_types)]
 #[repr(i32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -110,12 +111,35 @@ pub enum nemm_status_t {
     NEMM_E_OBSERVER_POINTS = 61,
     /// Observer: a setting is not finite, or not in its range.
     NEMM_E_OBSERVER_SETTING = 62,
+
+    /// Level tables: the model has no neural coefficient to tabulate (SEM, Linear EMM).
+    NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT = 70,
+    /// Level tables: the blob is not the one the estimator was built from (its length or
+    /// CRC differs from the tables index decoded at the estimator's init).
+    NEMM_E_LEVELS_OTHER_BLOB = 71,
+    /// Level tables: the blob stores fewer than two levels of `NEMM_TABLE_SEGMENTS`-segment
+    /// tables (export it with `--tables-levels`).
+    NEMM_E_LEVELS_TOO_FEW = 72,
+    /// Level tables: the blob stores more levels of `NEMM_TABLE_SEGMENTS`-segment tables
+    /// than the level tables hold.
+    NEMM_E_LEVELS_TOO_MANY = 73,
+    /// Level tables: the stored levels are not in strictly ascending alpha with one table
+    /// configuration.
+    NEMM_E_LEVELS_ORDER = 74,
+    /// Level tables: a stored table does not read back on the model's domain.
+    NEMM_E_LEVELS_TABLE = 75,
+    /// Level tables: `b_pr` could not be evaluated at a level (cannot happen for a blob
+    /// that decodes).
+    NEMM_E_LEVELS_COMPILE = 76,
+    /// Level tables: the tables are empty or belong to another model than the estimator's;
+    /// nothing stepped.
+    NEMM_E_LEVELS_MISMATCH = 77,
 }
 
 use nemm_status_t::*;
 
 /// Every status, in the order of their values.
-pub(crate) const ALL: [nemm_status_t; 39] = [
+pub(crate) const ALL: [nemm_status_t; 47] = [
     NEMM_OK,
     NEMM_E_NULL,
     NEMM_E_STORAGE_SIZE,
@@ -155,6 +179,14 @@ pub(crate) const ALL: [nemm_status_t; 39] = [
     NEMM_E_OBSERVER_GRID,
     NEMM_E_OBSERVER_POINTS,
     NEMM_E_OBSERVER_SETTING,
+    NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT,
+    NEMM_E_LEVELS_OTHER_BLOB,
+    NEMM_E_LEVELS_TOO_FEW,
+    NEMM_E_LEVELS_TOO_MANY,
+    NEMM_E_LEVELS_ORDER,
+    NEMM_E_LEVELS_TABLE,
+    NEMM_E_LEVELS_COMPILE,
+    NEMM_E_LEVELS_MISMATCH,
 ];
 
 impl nemm_status_t {
@@ -270,6 +302,30 @@ impl nemm_status_t {
             NEMM_E_OBSERVER_SETTING => {
                 c"NEMM_E_OBSERVER_SETTING: an observer setting is not finite or out of its range"
             }
+            NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT => {
+                c"NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT: the model has no neural coefficient to tabulate"
+            }
+            NEMM_E_LEVELS_OTHER_BLOB => {
+                c"NEMM_E_LEVELS_OTHER_BLOB: the blob is not the one the estimator was built from"
+            }
+            NEMM_E_LEVELS_TOO_FEW => {
+                c"NEMM_E_LEVELS_TOO_FEW: the blob stores fewer than 2 levels of tables (export with --tables-levels)"
+            }
+            NEMM_E_LEVELS_TOO_MANY => {
+                c"NEMM_E_LEVELS_TOO_MANY: the blob stores more levels than the level tables hold"
+            }
+            NEMM_E_LEVELS_ORDER => {
+                c"NEMM_E_LEVELS_ORDER: the stored levels are not ascending with one table configuration"
+            }
+            NEMM_E_LEVELS_TABLE => {
+                c"NEMM_E_LEVELS_TABLE: a stored level table does not match the model's domain"
+            }
+            NEMM_E_LEVELS_COMPILE => {
+                c"NEMM_E_LEVELS_COMPILE: b_pr could not be evaluated at a level"
+            }
+            NEMM_E_LEVELS_MISMATCH => {
+                c"NEMM_E_LEVELS_MISMATCH: the level tables are empty or belong to another model"
+            }
         }
     }
 }
@@ -330,6 +386,22 @@ impl From<EstimatorError> for nemm_status_t {
             EstimatorError::Compile => NEMM_E_COMPILE,
             EstimatorError::Table(t) => t.into(),
             EstimatorError::AlphaPerSampleInTableMode => NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE,
+            EstimatorError::Levels(l) => l.into(),
+        }
+    }
+}
+
+impl From<LevelsError> for nemm_status_t {
+    fn from(e: LevelsError) -> Self {
+        match e {
+            LevelsError::NoNeuralCoefficient => NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT,
+            LevelsError::OtherBlob => NEMM_E_LEVELS_OTHER_BLOB,
+            LevelsError::TooFewLevels { .. } => NEMM_E_LEVELS_TOO_FEW,
+            LevelsError::TooManyLevels { .. } => NEMM_E_LEVELS_TOO_MANY,
+            LevelsError::Order => NEMM_E_LEVELS_ORDER,
+            LevelsError::Table => NEMM_E_LEVELS_TABLE,
+            LevelsError::Compile => NEMM_E_LEVELS_COMPILE,
+            LevelsError::Mismatch => NEMM_E_LEVELS_MISMATCH,
         }
     }
 }

@@ -51,26 +51,26 @@ const OBSERVER_MAGIC: u32 = u32::from_le_bytes(*b"NEMo");
 
 /// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46072;
+pub const NEMM_ESTIMATOR_SIZE: usize = 46080;
 /// Alignment of a `nemm_estimator_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 4;
 /// Bytes of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_OBSERVER_SIZE: usize = 21576;
+pub const NEMM_OBSERVER_SIZE: usize = 21584;
 /// Alignment of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_OBSERVER_ALIGN: usize = 4;
 
 /// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46272;
+pub const NEMM_ESTIMATOR_SIZE: usize = 46280;
 /// Alignment of a `nemm_estimator_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
 /// Bytes of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_OBSERVER_SIZE: usize = 21704;
+pub const NEMM_OBSERVER_SIZE: usize = 21712;
 /// Alignment of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_OBSERVER_ALIGN: usize = 8;

@@ -21,7 +21,7 @@ use std::time::Instant;
 const CRATE: &str = "nemm-c";
 /// The C example's sources, relative to the workspace root.
 const EXAMPLE: &str = "examples/c";
-/// The blob the host C unit test loads (it stores tables at alpha 0.15).
+/// The blob the host C unit test loads (it stores tables at 7 levels, 0.15 among them).
 const HOST_TEST_BLOB: &str = "nemm-firmware/data/trained-nemm.nemm";
 /// The C compiler of the target and its Debian package.
 const ARM_GCC: (&str, &str) = ("arm-none-eabi-gcc", "gcc-arm-none-eabi");
