@@ -5,8 +5,8 @@
  *
  * Every function returns a nemm_status_t (NEMM_OK = 0, an error otherwise; see
  * nemm_status_str). Nothing allocates, nothing panics, no global state: each object lives
- * in storage the caller provides (nemm_estimator_t, nemm_observer_t) and is used by one
- * context at a time.
+ * in storage the caller provides (nemm_estimator_t, nemm_observer_t, nemm_levels_t) and is
+ * used by one context at a time.
  */
 
 #ifndef NEMM_H
@@ -57,18 +57,26 @@
  */
 #define NEMM_OBSERVER_MAX_POINTS 7
 
+/**
+ * Most levels a `nemm_levels_t` holds (each two tables of `NEMM_TABLE_SEGMENTS` segments,
+ * 28 bytes of RAM per segment). A blob storing more levels of `NEMM_TABLE_SEGMENTS`-segment
+ * tables is refused with `NEMM_E_LEVELS_TOO_MANY`; an observer on level tables needs at
+ * most `NEMM_OBSERVER_MAX_POINTS` levels (`NEMM_E_OBSERVER_POINTS` otherwise).
+ */
+#define NEMM_LEVELS_CAPACITY 8
+
 #if defined(NEMM_TARGET_32)
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46080
+#define NEMM_ESTIMATOR_SIZE 46088
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46280
+#define NEMM_ESTIMATOR_SIZE 46296
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -89,7 +97,7 @@
 /**
  * Bytes of a `nemm_observer_t` (32-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21584
+#define NEMM_OBSERVER_SIZE 21588
 #endif
 
 #if defined(NEMM_TARGET_64)
@@ -111,6 +119,36 @@
  * Alignment of a `nemm_observer_t` (64-bit targets).
  */
 #define NEMM_OBSERVER_ALIGN 8
+#endif
+
+#if defined(NEMM_TARGET_32)
+/**
+ * Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (32-bit
+ * targets).
+ */
+#define NEMM_LEVELS_SIZE 57956
+#endif
+
+#if defined(NEMM_TARGET_64)
+/**
+ * Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (64-bit
+ * targets).
+ */
+#define NEMM_LEVELS_SIZE 58096
+#endif
+
+#if defined(NEMM_TARGET_32)
+/**
+ * Alignment of a `nemm_levels_t` (32-bit targets).
+ */
+#define NEMM_LEVELS_ALIGN 4
+#endif
+
+#if defined(NEMM_TARGET_64)
+/**
+ * Alignment of a `nemm_levels_t` (64-bit targets).
+ */
+#define NEMM_LEVELS_ALIGN 8
 #endif
 
 /**
@@ -438,7 +476,7 @@ enum nemm_status_t
   NEMM_E_LEVELS_TOO_FEW = 72,
   /**
    * Level tables: the blob stores more levels of `NEMM_TABLE_SEGMENTS`-segment tables
-   * than the level tables hold.
+   * than `NEMM_LEVELS_CAPACITY`.
    */
   NEMM_E_LEVELS_TOO_MANY = 73,
   /**
@@ -456,8 +494,9 @@ enum nemm_status_t
    */
   NEMM_E_LEVELS_COMPILE = 76,
   /**
-   * Level tables: the tables are empty or belong to another model than the estimator's;
-   * nothing stepped.
+   * Level tables: the tables belong to another model than the estimator's or observer's,
+   * or an observer step got level tables other than those the observer was built on (or
+   * the observer was not built on level tables); nothing stepped.
    */
   NEMM_E_LEVELS_MISMATCH = 77,
 };
@@ -545,6 +584,19 @@ typedef struct {
 } nemm_estimate_t;
 
 /**
+ * Storage of one set of level tables (the stored tables of several oil-loss levels, read
+ * from a blob by `nemm_levels_init`): `NEMM_LEVELS_SIZE` bytes aligned to
+ * `NEMM_LEVELS_ALIGN`, opaque to the caller (as `nemm_estimator_t`).
+ */
+typedef struct {
+  NEMM_ALIGNAS(NEMM_LEVELS_ALIGN)
+  /**
+   * The level tables' bytes (opaque).
+   */
+  uint8_t opaque[NEMM_LEVELS_SIZE];
+} nemm_levels_t;
+
+/**
  * What an initialised estimator holds: its model, settings and counters.
  */
 typedef struct {
@@ -602,6 +654,31 @@ typedef struct {
    */
   uint32_t resets;
 } nemm_estimator_info_t;
+
+/**
+ * What loaded level tables hold (`nemm_levels_info`).
+ */
+typedef struct {
+  /**
+   * Number of levels loaded (2 to `NEMM_LEVELS_CAPACITY`).
+   */
+  uint32_t levels;
+  /**
+   * Bytes of RAM the loaded tables take (`28 x NEMM_TABLE_SEGMENTS` per table, two tables
+   * per level for the NEMM, one for NEMM-Light); the storage is `NEMM_LEVELS_SIZE` bytes
+   * whatever the number of levels.
+   */
+  uint32_t table_bytes;
+  /**
+   * The error bound every level's tables were built and checked with (relative, against
+   * the exact network at that level).
+   */
+  float table_max_rel_error;
+  /**
+   * The levels, ascending; the entries from `levels` on are 0.
+   */
+  float alpha[NEMM_LEVELS_CAPACITY];
+} nemm_levels_info_t;
 
 /**
  * Settings of an alpha observer. Start from `nemm_observer_config_default`; the fields
@@ -831,6 +908,52 @@ nemm_status_t nemm_estimator_step_with_alpha_and_position(nemm_estimator_t *est,
                                                           nemm_estimate_t *out_estimate);
 
 /**
+ * One sample at that sample's oil-loss level `alpha` at table cost: the coefficients are
+ * read from the level tables `levels` (loaded by `nemm_levels_init` from this estimator's
+ * blob), each the blend of its two neighbouring stored levels (at a stored level: that
+ * level's tables, the table-mode step at that level bit for bit). The counterpart of
+ * `nemm_estimator_step_with_alpha` for a condition that changes every sample, in either
+ * mode of the estimator (its own scalers or tables are not read). The state carries over
+ * between levels. An `alpha` outside the stored levels takes the nearest level's tables,
+ * flagged `NEMM_FLAG_ALPHA_EXTRAPOLATED` (as is one outside the trained range).
+ *
+ * The estimator's own level (`nemm_estimator_info_t.alpha`) is not changed: before
+ * switching between these steps and the other step functions, call
+ * `nemm_estimator_reset`.
+ *
+ * Refused with nothing changed and nothing written: an `alpha` that is not a finite value
+ * in `[0, 1]` (`NEMM_E_ALPHA_OUT_OF_RANGE`), level tables of another model
+ * (`NEMM_E_LEVELS_MISMATCH`).
+ *
+ * Errors: those of `nemm_estimator_step`, `NEMM_E_NOT_INITIALISED` (levels),
+ * `NEMM_E_OVERLAP` (the two storages), `NEMM_E_ALPHA_OUT_OF_RANGE`,
+ * `NEMM_E_LEVELS_MISMATCH`.
+ *
+ * # Safety
+ * As `nemm_estimator_step`, and `levels` must be level tables' storage (see
+ * `nemm_levels_t`) that no other context writes during the call.
+ */
+nemm_status_t nemm_estimator_step_on_levels(nemm_estimator_t *est,
+                                            const nemm_levels_t *levels,
+                                            float velocity_m_s,
+                                            float alpha,
+                                            nemm_estimate_t *out_estimate);
+
+/**
+ * `nemm_estimator_step_on_levels` with the stroke position of
+ * `nemm_estimator_step_with_position`.
+ *
+ * # Safety
+ * As `nemm_estimator_step_on_levels`.
+ */
+nemm_status_t nemm_estimator_step_on_levels_with_position(nemm_estimator_t *est,
+                                                          const nemm_levels_t *levels,
+                                                          float velocity_m_s,
+                                                          float alpha,
+                                                          float position_m,
+                                                          nemm_estimate_t *out_estimate);
+
+/**
  * Changes the oil-loss level (e.g. from a bench controller or the alpha observer), keeping
  * the state. In exact mode this costs about one network evaluation; in table mode it
  * rebuilds and re-checks the tables (about `128 * NEMM_TABLE_SEGMENTS` network evaluations
@@ -865,6 +988,52 @@ nemm_status_t nemm_estimator_reset(nemm_estimator_t *est);
  * `info` must point to a writable `nemm_estimator_info_t`.
  */
 nemm_status_t nemm_estimator_info(const nemm_estimator_t *est, nemm_estimator_info_t *info);
+
+/**
+ * Loads level tables into `storage` (`size` bytes, at least `NEMM_LEVELS_SIZE`, aligned to
+ * `NEMM_LEVELS_ALIGN`) from the weights blob `blob` (`blob_len` bytes) that the initialised
+ * estimator `est` was built from: every stored level whose tables have
+ * `NEMM_TABLE_SEGMENTS` segments (at least 2, at most `NEMM_LEVELS_CAPACITY`, ascending in
+ * alpha, one table configuration), its tables copied into the storage (`2 x 28 x
+ * NEMM_TABLE_SEGMENTS` bytes per level). A blob exported with `--tables-levels N` stores
+ * them.
+ *
+ * The blob must be the estimator's, byte for byte (its length and CRC-32 are compared with
+ * those the estimator was built from; `NEMM_E_LEVELS_OTHER_BLOB` otherwise): the model is
+ * taken from the estimator, and the blob is decoded and checked again (in the storage, not
+ * on the stack) for the index of its tables. Neither the blob nor `est` is read after this
+ * call returns; the level tables may drive any estimator or observer of the same model.
+ * Nothing is allocated. This is init work (a CRC and a decode of the blob, and a copy of
+ * the tables), not for the sample loop.
+ *
+ * On error the storage holds no level tables until an init succeeds.
+ *
+ * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_SIZE`, `NEMM_E_STORAGE_ALIGN`,
+ * `NEMM_E_NOT_INITIALISED` (est), `NEMM_E_INVALID_ARGUMENT` (blob_len), `NEMM_E_OVERLAP`
+ * (the storage overlaps the blob or the estimator), `NEMM_E_LEVELS_*`, and the errors of a
+ * blob that no longer decodes (`NEMM_E_BLOB_*`, `NEMM_E_MODEL_*`).
+ *
+ * # Safety
+ * `size` bytes at `storage` must be writable, `blob_len` bytes at `blob` readable, and `est`
+ * must be an estimator's storage that no other context writes during the call; no other
+ * context may access the level tables' storage during the call.
+ */
+nemm_status_t nemm_levels_init(nemm_levels_t *storage,
+                               size_t size,
+                               const nemm_estimator_t *est,
+                               const uint8_t *blob,
+                               size_t blob_len);
+
+/**
+ * Fills `info` with the levels the level tables hold and their RAM.
+ *
+ * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED`.
+ *
+ * # Safety
+ * `levels` must be level tables' storage that no other context writes during the call, and
+ * `info` must point to a writable `nemm_levels_info_t`.
+ */
+nemm_status_t nemm_levels_info(const nemm_levels_t *levels, nemm_levels_info_t *info);
 
 /**
  * Fills `config` with the default observer settings (a grid of
@@ -903,9 +1072,39 @@ nemm_status_t nemm_observer_init(nemm_observer_t *storage,
                                  const nemm_observer_config_t *config);
 
 /**
+ * Builds an alpha observer as `nemm_observer_init` whose grid is the levels of the level
+ * tables `levels` (loaded from the blob of `est`'s model), so that
+ * `nemm_observer_step_on_levels` steps each level on its stored tables: `points` table-mode
+ * steps per sample instead of exact ones (about a tenth or less of the cost; the estimate
+ * agrees with the exact observer's up to the tables' error). The grid need not be uniform.
+ * In `config` (NULL: the defaults) `grid_lo` and `grid_hi` must be 0 and `points` 0 or the
+ * number of levels, which must be at most `NEMM_OBSERVER_MAX_POINTS`.
+ *
+ * The observer keeps no pointer to `levels`: pass the same level tables to every
+ * `nemm_observer_step_on_levels`.
+ *
+ * Errors: those of `nemm_observer_init`, `NEMM_E_NOT_INITIALISED` (levels),
+ * `NEMM_E_OVERLAP` (the observer's storage overlaps the estimator's or the levels'),
+ * `NEMM_E_OBSERVER_GRID` (a grid set), `NEMM_E_OBSERVER_POINTS` (`points` not the number
+ * of levels, or more than `NEMM_OBSERVER_MAX_POINTS` levels), `NEMM_E_LEVELS_MISMATCH`
+ * (level tables of another model).
+ *
+ * # Safety
+ * As `nemm_observer_init`, and `levels` must be level tables' storage that no other
+ * context writes during the call.
+ */
+nemm_status_t nemm_observer_init_on_levels(nemm_observer_t *storage,
+                                           size_t size,
+                                           const nemm_estimator_t *est,
+                                           const nemm_levels_t *levels,
+                                           const nemm_observer_config_t *config);
+
+/**
  * One sample: the stroke velocity (m/s) (as given to the estimator) and the measured
  * force (N) (positive in tension) of the same instant; `out` gets the estimate after it.
- * Costs `points` model steps (7 by default): about seven estimator steps.
+ * Costs `points` model steps in exact mode (7 by default): about seven exact estimator
+ * steps. An observer built by `nemm_observer_init_on_levels` is stepped here on the exact
+ * scalers too; `nemm_observer_step_on_levels` steps it at table cost.
  *
  * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing stepped).
  *
@@ -929,6 +1128,42 @@ nemm_status_t nemm_observer_step_with_position(nemm_observer_t *obs,
                                                float position_m,
                                                float force_n,
                                                nemm_alpha_estimate_t *out_estimate);
+
+/**
+ * One sample of an observer built by `nemm_observer_init_on_levels`, as
+ * `nemm_observer_step`: each level steps on its stored tables in `levels` (the level tables
+ * the observer was built on). Costs `points` table-mode steps (7 for the firmware's
+ * trained blob) and the fit's scalar work, instead of `points` exact steps.
+ *
+ * Refused with nothing stepped: an observer not built on level tables, or `levels` that
+ * hold other levels than the observer's grid (`NEMM_E_LEVELS_MISMATCH`).
+ *
+ * Errors: those of `nemm_observer_step`, `NEMM_E_NOT_INITIALISED` (levels),
+ * `NEMM_E_OVERLAP` (the two storages), `NEMM_E_LEVELS_MISMATCH`.
+ *
+ * # Safety
+ * As `nemm_observer_step`, and `levels` must be level tables' storage that no other
+ * context writes during the call.
+ */
+nemm_status_t nemm_observer_step_on_levels(nemm_observer_t *obs,
+                                           const nemm_levels_t *levels,
+                                           float velocity_m_s,
+                                           float force_n,
+                                           nemm_alpha_estimate_t *out_estimate);
+
+/**
+ * `nemm_observer_step_on_levels` with the stroke position (m), for a model with a static
+ * force.
+ *
+ * # Safety
+ * As `nemm_observer_step_on_levels`.
+ */
+nemm_status_t nemm_observer_step_on_levels_with_position(nemm_observer_t *obs,
+                                                         const nemm_levels_t *levels,
+                                                         float velocity_m_s,
+                                                         float position_m,
+                                                         float force_n,
+                                                         nemm_alpha_estimate_t *out_estimate);
 
 /**
  * The current estimate (the last step's; after init or reset: the middle of the grid,

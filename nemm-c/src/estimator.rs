@@ -2,7 +2,10 @@
 
 use crate::blob::slice;
 use crate::status::nemm_status_t::{self, *};
-use crate::storage::{nemm_estimator_t, out, overlap, EstimatorCell, NEMM_ESTIMATOR_SIZE};
+use crate::storage::{
+    nemm_estimator_t, nemm_levels_t, out, overlap, EstimatorCell, LevelsCell, NEMM_ESTIMATOR_SIZE,
+    NEMM_LEVELS_SIZE,
+};
 use crate::types::{
     kind_value, mode_value, nemm_estimate_t, nemm_estimator_config_t, nemm_estimator_info_t,
     origin_value, NEMM_MODE_EXACT, NEMM_MODE_TABLE,
@@ -89,7 +92,7 @@ pub unsafe extern "C" fn nemm_estimator_init(
         let tables = decode_into(bytes, &mut cell.model)?;
         cell.est
             .load_with_tables(&cell.model, cfg, &tables, bytes)?;
-        cell.seal();
+        cell.seal(bytes);
         Ok(())
     })())
 }
@@ -209,6 +212,108 @@ pub unsafe extern "C" fn nemm_estimator_step_with_alpha_and_position(
             cell.est
                 .step_with_alpha_and_position(velocity_m_s, alpha, position_m)?,
         );
+        Ok(())
+    })())
+}
+
+/// One sample at that sample's oil-loss level `alpha` at table cost: the coefficients are
+/// read from the level tables `levels` (loaded by `nemm_levels_init` from this estimator's
+/// blob), each the blend of its two neighbouring stored levels (at a stored level: that
+/// level's tables, the table-mode step at that level bit for bit). The counterpart of
+/// `nemm_estimator_step_with_alpha` for a condition that changes every sample, in either
+/// mode of the estimator (its own scalers or tables are not read). The state carries over
+/// between levels. An `alpha` outside the stored levels takes the nearest level's tables,
+/// flagged `NEMM_FLAG_ALPHA_EXTRAPOLATED` (as is one outside the trained range).
+///
+/// The estimator's own level (`nemm_estimator_info_t.alpha`) is not changed: before
+/// switching between these steps and the other step functions, call
+/// `nemm_estimator_reset`.
+///
+/// Refused with nothing changed and nothing written: an `alpha` that is not a finite value
+/// in `[0, 1]` (`NEMM_E_ALPHA_OUT_OF_RANGE`), level tables of another model
+/// (`NEMM_E_LEVELS_MISMATCH`).
+///
+/// Errors: those of `nemm_estimator_step`, `NEMM_E_NOT_INITIALISED` (levels),
+/// `NEMM_E_OVERLAP` (the two storages), `NEMM_E_ALPHA_OUT_OF_RANGE`,
+/// `NEMM_E_LEVELS_MISMATCH`.
+///
+/// # Safety
+/// As `nemm_estimator_step`, and `levels` must be level tables' storage (see
+/// `nemm_levels_t`) that no other context writes during the call.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_estimator_step_on_levels(
+    est: *mut nemm_estimator_t,
+    levels: *const nemm_levels_t,
+    velocity_m_s: f32,
+    alpha: f32,
+    out_estimate: *mut nemm_estimate_t,
+) -> nemm_status_t {
+    // SAFETY: the caller's guarantees.
+    unsafe { step_on_levels(est, levels, velocity_m_s, alpha, None, out_estimate) }
+}
+
+/// `nemm_estimator_step_on_levels` with the stroke position of
+/// `nemm_estimator_step_with_position`.
+///
+/// # Safety
+/// As `nemm_estimator_step_on_levels`.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_estimator_step_on_levels_with_position(
+    est: *mut nemm_estimator_t,
+    levels: *const nemm_levels_t,
+    velocity_m_s: f32,
+    alpha: f32,
+    position_m: f32,
+    out_estimate: *mut nemm_estimate_t,
+) -> nemm_status_t {
+    // SAFETY: the caller's guarantees.
+    unsafe {
+        step_on_levels(
+            est,
+            levels,
+            velocity_m_s,
+            alpha,
+            Some(position_m),
+            out_estimate,
+        )
+    }
+}
+
+/// The two steps on level tables.
+///
+/// # Safety
+/// As `nemm_estimator_step_on_levels`.
+unsafe fn step_on_levels(
+    est: *mut nemm_estimator_t,
+    levels: *const nemm_levels_t,
+    velocity_m_s: f32,
+    alpha: f32,
+    position_m: Option<f32>,
+    out_estimate: *mut nemm_estimate_t,
+) -> nemm_status_t {
+    status((|| {
+        let o = out(out_estimate)?;
+        if !levels.is_null()
+            && overlap(
+                est.cast(),
+                NEMM_ESTIMATOR_SIZE,
+                levels.cast(),
+                NEMM_LEVELS_SIZE,
+            )
+        {
+            return Err(NEMM_E_OVERLAP);
+        }
+        // SAFETY: the caller's guarantee on `levels`.
+        let tables = unsafe { LevelsCell::get(levels) }?;
+        // SAFETY: the caller's guarantee on `est`; it does not overlap `levels` (checked).
+        let cell = unsafe { EstimatorCell::get_mut(est) }?;
+        let e = match position_m {
+            None => cell.est.step_on_levels(tables, velocity_m_s, alpha)?,
+            Some(x) => cell
+                .est
+                .step_on_levels_with_position(tables, velocity_m_s, alpha, x)?,
+        };
+        put(o, e);
         Ok(())
     })())
 }

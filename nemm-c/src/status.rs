@@ -121,7 +121,7 @@ pub enum nemm_status_t {
     /// tables (export it with `--tables-levels`).
     NEMM_E_LEVELS_TOO_FEW = 72,
     /// Level tables: the blob stores more levels of `NEMM_TABLE_SEGMENTS`-segment tables
-    /// than the level tables hold.
+    /// than `NEMM_LEVELS_CAPACITY`.
     NEMM_E_LEVELS_TOO_MANY = 73,
     /// Level tables: the stored levels are not in strictly ascending alpha with one table
     /// configuration.
@@ -131,8 +131,9 @@ pub enum nemm_status_t {
     /// Level tables: `b_pr` could not be evaluated at a level (cannot happen for a blob
     /// that decodes).
     NEMM_E_LEVELS_COMPILE = 76,
-    /// Level tables: the tables are empty or belong to another model than the estimator's;
-    /// nothing stepped.
+    /// Level tables: the tables belong to another model than the estimator's or observer's,
+    /// or an observer step got level tables other than those the observer was built on (or
+    /// the observer was not built on level tables); nothing stepped.
     NEMM_E_LEVELS_MISMATCH = 77,
 }
 
@@ -312,7 +313,7 @@ impl nemm_status_t {
                 c"NEMM_E_LEVELS_TOO_FEW: the blob stores fewer than 2 levels of tables (export with --tables-levels)"
             }
             NEMM_E_LEVELS_TOO_MANY => {
-                c"NEMM_E_LEVELS_TOO_MANY: the blob stores more levels than the level tables hold"
+                c"NEMM_E_LEVELS_TOO_MANY: the blob stores more levels than NEMM_LEVELS_CAPACITY"
             }
             NEMM_E_LEVELS_ORDER => {
                 c"NEMM_E_LEVELS_ORDER: the stored levels are not ascending with one table configuration"
@@ -324,7 +325,7 @@ impl nemm_status_t {
                 c"NEMM_E_LEVELS_COMPILE: b_pr could not be evaluated at a level"
             }
             NEMM_E_LEVELS_MISMATCH => {
-                c"NEMM_E_LEVELS_MISMATCH: the level tables are empty or belong to another model"
+                c"NEMM_E_LEVELS_MISMATCH: the level tables belong to another model, or are not the observer's"
             }
         }
     }

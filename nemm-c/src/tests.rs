@@ -124,7 +124,7 @@ fn statuses_are_distinct_and_described() {
         assert_eq!(c, s.text());
     }
     assert_eq!(NEMM_OK as i32, 0);
-    for bad in [-1, 7, 9, 63, 1000] {
+    for bad in [-1, 7, 9, 63, 78, 1000] {
         // SAFETY: a static C string.
         let c = unsafe { CStr::from_ptr(nemm_status_str(bad)) };
         assert_eq!(c.to_str().unwrap(), "unknown status");
@@ -553,4 +553,422 @@ fn the_observer_follows_nemm_core_and_checks_its_settings() {
         NEMM_OK,
         "the estimator is untouched"
     );
+}
+
+type Levels = nemm_core::LevelTables<NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
+type O = AlphaObserver<NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>;
+
+/// The levels of the trained blob.
+const TRAINED_LEVELS: [f32; 7] = [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3];
+
+fn levels_storage() -> Box<Aligned<nemm_levels_t>> {
+    // SAFETY: all-zero bytes are a valid `u8` array.
+    unsafe { Box::new_zeroed().assume_init() }
+}
+
+fn levels_init(lv: &mut nemm_levels_t, est: &nemm_estimator_t, blob: &[u8]) -> nemm_status_t {
+    // SAFETY: valid storages and blob.
+    unsafe {
+        nemm_levels_init(
+            lv,
+            core::mem::size_of::<nemm_levels_t>(),
+            est,
+            blob.as_ptr(),
+            blob.len(),
+        )
+    }
+}
+
+fn levels_info(lv: &nemm_levels_t) -> nemm_levels_info_t {
+    let mut i = nemm_levels_info_t::default();
+    // SAFETY: valid storage and output.
+    assert_eq!(unsafe { nemm_levels_info(lv, &mut i) }, NEMM_OK);
+    i
+}
+
+/// nemm-core's level tables of `blob` as the library loads them.
+fn reference_levels(blob: &[u8]) -> (Box<P>, Box<Levels>) {
+    let mut model = Box::new(P::empty());
+    let tables = decode_into(blob, &mut model).expect("decodes");
+    let mut levels = Box::new(Levels::empty());
+    levels.load(&model, &tables, blob).expect("levels load");
+    (model, levels)
+}
+
+/// An estimator of `blob` (exact mode) in C storage.
+fn c_estimator(blob: &[u8], alpha: f32) -> Box<Aligned<nemm_estimator_t>> {
+    let mut st = estimator_storage();
+    assert_eq!(init(&mut st.0, blob, &cfg(alpha, NEMM_MODE_EXACT)), NEMM_OK);
+    st
+}
+
+/// The blob of the example NEMM with 128-segment tables at `alphas`.
+fn example_blob_with_levels(alphas: &[f32]) -> Vec<u8> {
+    let model: Box<P> =
+        Box::new(nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap());
+    let ests: Vec<Box<E>> = alphas
+        .iter()
+        .map(|&a| {
+            let mut e = Box::new(E::empty());
+            e.load(
+                &model,
+                EstimatorConfig {
+                    mode: table(NEMM_TABLE_MAX_REL_ERROR),
+                    ..EstimatorConfig::new(a)
+                },
+            )
+            .expect("tables within the bound");
+            e
+        })
+        .collect();
+    let refs: Vec<&E> = ests.iter().map(|e| &**e).collect();
+    let mut buf = std::vec![0u8; 400_000];
+    nemm_core::encode_with_tables(&model, &refs, &mut buf)
+        .expect("encodes")
+        .to_vec()
+}
+
+#[test]
+fn level_tables_load_from_the_estimators_blob_and_step_as_nemm_core() {
+    let mut st = estimator_storage();
+    assert_eq!(
+        init(&mut st.0, TRAINED, &cfg(0.15, NEMM_MODE_TABLE)),
+        NEMM_OK
+    );
+    let mut lv = levels_storage();
+    assert_eq!(levels_init(&mut lv.0, &st.0, TRAINED), NEMM_OK);
+    let i = levels_info(&lv.0);
+    assert_eq!(i.levels, 7);
+    assert_eq!(&i.alpha[..7], &TRAINED_LEVELS);
+    assert_eq!(i.alpha[7], 0.0);
+    assert_eq!(i.table_bytes as usize, 14 * 28 * NEMM_TABLE_SEGMENTS);
+    assert_eq!(i.table_max_rel_error, NEMM_TABLE_MAX_REL_ERROR);
+    let (model, levels) = reference_levels(TRAINED);
+    let mut want = Box::new(E::empty());
+    want.load(&model, EstimatorConfig::new(0.15)).unwrap();
+    // SAFETY: valid storage.
+    assert_eq!(unsafe { nemm_estimator_reset(&mut st.0) }, NEMM_OK);
+    let p: *mut nemm_estimator_t = &mut st.0;
+    for (k, &v) in velocities(3000).iter().enumerate() {
+        // A level per sample, across and beyond the stored levels.
+        let alpha = 0.35 * (k as f32 * 0.003).sin().abs();
+        let x = 0.01 * (k as f32 * 0.002).sin();
+        let mut e = nemm_estimate_t::default();
+        // SAFETY: valid storages and output.
+        let s = unsafe {
+            if k % 2 == 0 {
+                nemm_estimator_step_on_levels(p, &lv.0, v, alpha, &mut e)
+            } else {
+                nemm_estimator_step_on_levels_with_position(p, &lv.0, v, alpha, x, &mut e)
+            }
+        };
+        let w = if k % 2 == 0 {
+            want.step_on_levels(&levels, v, alpha)
+        } else {
+            want.step_on_levels_with_position(&levels, v, alpha, x)
+        }
+        .unwrap();
+        assert_eq!(s, NEMM_OK);
+        assert_eq!(
+            (e.force_n.to_bits(), e.flags),
+            (w.force_n.to_bits(), w.flags.0),
+            "sample {k}"
+        );
+    }
+    // Refused with nothing written: alpha outside [0, 1], uninitialised level tables.
+    let mut e = nemm_estimate_t {
+        force_n: 7.0,
+        flags: 9,
+    };
+    let fresh = levels_storage();
+    // SAFETY: valid storages and output; NULLs are refused before use.
+    unsafe {
+        for a in [f32::NAN, -0.1, 1.5] {
+            assert_eq!(
+                nemm_estimator_step_on_levels(p, &lv.0, 0.1, a, &mut e),
+                NEMM_E_ALPHA_OUT_OF_RANGE
+            );
+        }
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, &fresh.0, 0.1, 0.1, &mut e),
+            NEMM_E_NOT_INITIALISED
+        );
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, core::ptr::null(), 0.1, 0.1, &mut e),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, &lv.0, 0.1, 0.1, core::ptr::null_mut()),
+            NEMM_E_NULL
+        );
+        // The level tables inside the estimator's storage.
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, p.cast::<u8>().add(64).cast(), 0.1, 0.1, &mut e),
+            NEMM_E_OVERLAP
+        );
+    }
+    assert_eq!((e.force_n, e.flags), (7.0, 9), "nothing written");
+    // Level tables of another model: refused.
+    let mut light = c_estimator(EXAMPLES[2].0, 0.15);
+    // SAFETY: valid storages and output.
+    let s = unsafe { nemm_estimator_step_on_levels(&mut light.0, &lv.0, 0.1, 0.1, &mut e) };
+    assert_eq!(s, NEMM_E_LEVELS_MISMATCH);
+}
+
+#[test]
+fn level_tables_refuse_other_blobs_and_bad_storage() {
+    let trained = c_estimator(TRAINED, 0.15);
+    let mut lv = levels_storage();
+    // A blob without level tables, a model without neural coefficients.
+    let example = c_estimator(EXAMPLES[3].0, 0.15);
+    assert_eq!(
+        levels_init(&mut lv.0, &example.0, EXAMPLES[3].0),
+        NEMM_E_LEVELS_TOO_FEW
+    );
+    let sem = c_estimator(EXAMPLES[0].0, 0.15);
+    assert_eq!(
+        levels_init(&mut lv.0, &sem.0, EXAMPLES[0].0),
+        NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT
+    );
+    // Not the estimator's blob, either way round.
+    assert_eq!(
+        levels_init(&mut lv.0, &trained.0, EXAMPLES[3].0),
+        NEMM_E_LEVELS_OTHER_BLOB
+    );
+    assert_eq!(
+        levels_init(&mut lv.0, &example.0, TRAINED),
+        NEMM_E_LEVELS_OTHER_BLOB
+    );
+    // A good init, then a failed one: no level tables any more.
+    assert_eq!(levels_init(&mut lv.0, &trained.0, TRAINED), NEMM_OK);
+    let mut corrupt = TRAINED.to_vec();
+    corrupt[1000] ^= 1;
+    assert_eq!(
+        levels_init(&mut lv.0, &trained.0, &corrupt),
+        NEMM_E_BLOB_CRC_MISMATCH
+    );
+    let mut i = nemm_levels_info_t::default();
+    // SAFETY: valid storage and output.
+    let s = unsafe { nemm_levels_info(&lv.0, &mut i) };
+    assert_eq!(s, NEMM_E_NOT_INITIALISED);
+    // More levels than the capacity.
+    let nine: Vec<f32> = (0..9).map(|k| 0.05 * k as f32).collect();
+    let blob = example_blob_with_levels(&nine);
+    let many = c_estimator(&blob, 0.15);
+    assert_eq!(
+        levels_init(&mut lv.0, &many.0, &blob),
+        NEMM_E_LEVELS_TOO_MANY
+    );
+    // Storage, pointers, an uninitialised estimator.
+    let size = core::mem::size_of::<nemm_levels_t>();
+    let p: *mut nemm_levels_t = &mut lv.0;
+    let (b, n) = (TRAINED.as_ptr(), TRAINED.len());
+    // SAFETY: valid or NULL pointers, true sizes; refused before anything is read beyond
+    // them.
+    unsafe {
+        assert_eq!(
+            nemm_levels_init(core::ptr::null_mut(), size, &trained.0, b, n),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_levels_init(p, size, core::ptr::null(), b, n),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_levels_init(p, size, &trained.0, core::ptr::null(), n),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_levels_init(p, size - 1, &trained.0, b, n),
+            NEMM_E_STORAGE_SIZE
+        );
+        assert_eq!(
+            nemm_levels_init(p.cast::<u8>().add(1).cast(), size - 1, &trained.0, b, n),
+            NEMM_E_STORAGE_ALIGN
+        );
+        assert_eq!(
+            nemm_levels_init(p, size, &trained.0, b, usize::MAX),
+            NEMM_E_INVALID_ARGUMENT
+        );
+        let fresh = estimator_storage();
+        assert_eq!(
+            nemm_levels_init(p, size, &fresh.0, b, n),
+            NEMM_E_NOT_INITIALISED
+        );
+        // The blob inside the storage; the estimator inside the storage.
+        let inner = p.cast::<u8>().add(64);
+        let part = n.min(size - 64);
+        core::ptr::copy_nonoverlapping(b, inner, part);
+        assert_eq!(
+            nemm_levels_init(p, size, &trained.0, inner, part),
+            NEMM_E_OVERLAP
+        );
+        let est_inside = p.cast::<u8>().add(64).cast::<nemm_estimator_t>();
+        assert_eq!(
+            nemm_levels_init(p, size, est_inside, b, n),
+            NEMM_E_NOT_INITIALISED,
+            "no estimator there"
+        );
+        assert_eq!(nemm_levels_info(p, core::ptr::null_mut()), NEMM_E_NULL);
+    }
+}
+
+fn observer_init_on_levels(
+    obs: &mut nemm_observer_t,
+    est: &nemm_estimator_t,
+    lv: &nemm_levels_t,
+    c: Option<&nemm_observer_config_t>,
+) -> nemm_status_t {
+    // SAFETY: valid storages and configuration (or NULL).
+    unsafe {
+        nemm_observer_init_on_levels(
+            obs,
+            core::mem::size_of::<nemm_observer_t>(),
+            est,
+            lv,
+            c.map_or(core::ptr::null(), |c| c as *const _),
+        )
+    }
+}
+
+#[test]
+fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
+    let mut st = estimator_storage();
+    assert_eq!(
+        init(&mut st.0, TRAINED, &cfg(0.12, NEMM_MODE_EXACT)),
+        NEMM_OK
+    );
+    let mut lv = levels_storage();
+    assert_eq!(levels_init(&mut lv.0, &st.0, TRAINED), NEMM_OK);
+    let mut obs = observer_storage();
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, None),
+        NEMM_OK
+    );
+    let (model, levels) = reference_levels(TRAINED);
+    let mut want: Box<O> = Box::new(O::empty());
+    want.load_on_levels(&model, &levels, ObserverConfig::new())
+        .unwrap();
+    assert_eq!(want.grid().collect::<Vec<_>>(), TRAINED_LEVELS);
+    // The measured force: the exact estimator's at alpha 0.12 (between two levels), a
+    // 0.5 m/s 5 Hz sinusoid for 3 s.
+    let mut last = nemm_alpha_estimate_t::default();
+    for k in 0..30_000 {
+        let v = 0.5 * (2.0 * core::f32::consts::PI * 5.0 * k as f32 * 1e-4).sin();
+        let (_, f) = step(&mut st.0, v);
+        let mut a = nemm_alpha_estimate_t::default();
+        // SAFETY: valid storages and output.
+        let s = unsafe {
+            if k % 2 == 0 {
+                nemm_observer_step_on_levels(&mut obs.0, &lv.0, v, f.force_n, &mut a)
+            } else {
+                nemm_observer_step_on_levels_with_position(
+                    &mut obs.0, &lv.0, v, 0.0, f.force_n, &mut a,
+                )
+            }
+        };
+        let w = if k % 2 == 0 {
+            want.step_on_levels(&levels, v, f.force_n)
+        } else {
+            want.step_on_levels_with_position(&levels, v, 0.0, f.force_n)
+        };
+        assert_eq!(s, NEMM_OK);
+        assert_eq!(a, nemm_alpha_estimate_t::from(w), "sample {k}");
+        last = a;
+    }
+    assert_eq!(last.flags & NEMM_OBSERVER_NOT_EXCITED, 0, "{last:?}");
+    assert!((last.alpha - 0.12).abs() < 0.02, "{last:?}");
+    // Settings that contradict the levels.
+    let mut c = nemm_observer_config_t::default_values();
+    c.points = 7;
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, Some(&c)),
+        NEMM_OK
+    );
+    c.points = 5;
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, Some(&c)),
+        NEMM_E_OBSERVER_POINTS
+    );
+    c.points = 0;
+    c.grid_hi = 0.2;
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, Some(&c)),
+        NEMM_E_OBSERVER_GRID
+    );
+    let mut a = nemm_alpha_estimate_t::default();
+    // SAFETY: valid storages and output.
+    let s = unsafe { nemm_observer_step_on_levels(&mut obs.0, &lv.0, 0.1, 1.0, &mut a) };
+    assert_eq!(
+        s, NEMM_E_NOT_INITIALISED,
+        "a failed init leaves no observer"
+    );
+    // Another model's estimator with these level tables.
+    let light = c_estimator(EXAMPLES[2].0, 0.15);
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &light.0, &lv.0, None),
+        NEMM_E_LEVELS_MISMATCH
+    );
+    // Uninitialised level tables, NULL, overlapping storages.
+    let fresh = levels_storage();
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &fresh.0, None),
+        NEMM_E_NOT_INITIALISED
+    );
+    // SAFETY: NULL and overlapping arguments are refused before use.
+    unsafe {
+        let size = core::mem::size_of::<nemm_observer_t>();
+        assert_eq!(
+            nemm_observer_init_on_levels(
+                &mut obs.0,
+                size,
+                &st.0,
+                core::ptr::null(),
+                core::ptr::null()
+            ),
+            NEMM_E_NULL
+        );
+        let inside = (&raw mut lv.0)
+            .cast::<u8>()
+            .add(64)
+            .cast::<nemm_observer_t>();
+        assert_eq!(
+            nemm_observer_init_on_levels(inside, size, &st.0, &lv.0, core::ptr::null()),
+            NEMM_E_OVERLAP
+        );
+    }
+    // An observer not built on level tables, or stepped with other level tables.
+    assert_eq!(observer_init(&mut obs.0, &st.0, None), NEMM_OK);
+    // SAFETY: valid storages and output.
+    let s = unsafe { nemm_observer_step_on_levels(&mut obs.0, &lv.0, 0.1, 1.0, &mut a) };
+    assert_eq!(s, NEMM_E_LEVELS_MISMATCH);
+    let blob = example_blob_with_levels(&[0.1, 0.2]);
+    let other = c_estimator(&blob, 0.15);
+    let mut lv2 = levels_storage();
+    assert_eq!(levels_init(&mut lv2.0, &other.0, &blob), NEMM_OK);
+    assert_eq!(levels_info(&lv2.0).levels, 2);
+    let mut obs2 = observer_storage();
+    assert_eq!(
+        observer_init_on_levels(&mut obs2.0, &other.0, &lv2.0, None),
+        NEMM_OK
+    );
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, None),
+        NEMM_OK
+    );
+    // SAFETY: valid storages and output.
+    unsafe {
+        assert_eq!(
+            nemm_observer_step_on_levels(&mut obs.0, &lv2.0, 0.1, 1.0, &mut a),
+            NEMM_E_LEVELS_MISMATCH
+        );
+        assert_eq!(
+            nemm_observer_step_on_levels(&mut obs2.0, &lv.0, 0.1, 1.0, &mut a),
+            NEMM_E_LEVELS_MISMATCH
+        );
+        assert_eq!(
+            nemm_observer_step_on_levels(&mut obs2.0, &lv2.0, 0.1, 1.0, &mut a),
+            NEMM_OK
+        );
+    }
 }

@@ -1,6 +1,7 @@
 //! The plain C structs and constants the functions take and fill: configurations, results,
 //! information, flag bits and the values of the `uint32_t` selector fields.
 
+use crate::NEMM_LEVELS_CAPACITY;
 use nemm_core::{
     AlphaEstimate, Estimate, EvalMode, Flags, ModelKind, ObserverConfig, ObserverFlags, TableOrigin,
 };
@@ -196,6 +197,24 @@ pub(crate) fn origin_value(origin: TableOrigin) -> u32 {
         TableOrigin::Built(_) => NEMM_TABLES_BUILT,
         TableOrigin::Stored => NEMM_TABLES_STORED,
     }
+}
+
+/// What loaded level tables hold (`nemm_levels_info`).
+#[allow(non_camel_case_types)]
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct nemm_levels_info_t {
+    /// Number of levels loaded (2 to `NEMM_LEVELS_CAPACITY`).
+    pub levels: u32,
+    /// Bytes of RAM the loaded tables take (`28 x NEMM_TABLE_SEGMENTS` per table, two tables
+    /// per level for the NEMM, one for NEMM-Light); the storage is `NEMM_LEVELS_SIZE` bytes
+    /// whatever the number of levels.
+    pub table_bytes: u32,
+    /// The error bound every level's tables were built and checked with (relative, against
+    /// the exact network at that level).
+    pub table_max_rel_error: f32,
+    /// The levels, ascending; the entries from `levels` on are 0.
+    pub alpha: [f32; NEMM_LEVELS_CAPACITY],
 }
 
 /// Settings of an alpha observer. Start from `nemm_observer_config_default`; the fields
