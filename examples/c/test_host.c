@@ -5,10 +5,13 @@
  *
  *   cc -std=c11 -Wall -Wextra -Werror -pedantic -I nemm-c/include examples/c/test_host.c \
  *      <target>/release/libnemm_c.a -lpthread -ldl -lm -o test_host
- *   ./test_host nemm-firmware/data/trained-nemm.nemm
+ *   ./test_host nemm-firmware/data/trained-nemm.nemm nemm-firmware/data/example-nemm.nemm
  *
- * Checks the status codes of bad blobs, bad storage, NULL arguments and bad settings, and
- * a few hundred steps of the estimator and the observer. Ends with `N passed, M failed`.
+ * The first blob stores level tables (7 levels), the second stores none. Checks the status
+ * codes of bad blobs, bad storage, NULL arguments and bad settings, a few hundred steps of
+ * the estimator and the observer, and the level tables: a level per sample, and the
+ * observer on level tables finding the alpha of a synthetic trace. Ends with `N passed, M
+ * failed`.
  */
 #include "nemm.h"
 
@@ -21,6 +24,8 @@ _Static_assert(sizeof(nemm_estimator_t) == NEMM_ESTIMATOR_SIZE, "estimator stora
 _Static_assert(_Alignof(nemm_estimator_t) == NEMM_ESTIMATOR_ALIGN, "estimator alignment");
 _Static_assert(sizeof(nemm_observer_t) == NEMM_OBSERVER_SIZE, "observer storage size");
 _Static_assert(_Alignof(nemm_observer_t) == NEMM_OBSERVER_ALIGN, "observer alignment");
+_Static_assert(sizeof(nemm_levels_t) == NEMM_LEVELS_SIZE, "level tables storage size");
+_Static_assert(_Alignof(nemm_levels_t) == NEMM_LEVELS_ALIGN, "level tables alignment");
 _Static_assert(sizeof(nemm_status_t) == 4, "status width");
 
 static int passed, failed;
@@ -51,6 +56,7 @@ static int passed, failed;
 static nemm_estimator_t est;
 static nemm_estimator_t est_table;
 static nemm_observer_t obs;
+static nemm_levels_t levels;
 /* Storage for the misalignment check: one byte off an aligned object. */
 static struct {
     NEMM_ALIGNAS(NEMM_ESTIMATOR_ALIGN) unsigned char bytes[NEMM_ESTIMATOR_SIZE + 16];
@@ -72,7 +78,7 @@ static void statuses(void) {
     static const nemm_status_t all[] = {
         NEMM_OK, NEMM_E_NULL, NEMM_E_STORAGE_SIZE, NEMM_E_BLOB_CRC_MISMATCH,
         NEMM_E_MODEL_UNSTABLE_STEP, NEMM_E_ALPHA_OUT_OF_RANGE, NEMM_E_TABLE_EXCEEDS_BOUND,
-        NEMM_E_OBSERVER_SETTING};
+        NEMM_E_OBSERVER_SETTING, NEMM_E_LEVELS_TOO_FEW, NEMM_E_LEVELS_MISMATCH};
     for (size_t i = 0; i < sizeof all / sizeof all[0]; i++) {
         const char *s = nemm_status_str(all[i]);
         CHECK(s != NULL && strncmp(s, "NEMM_", 5) == 0);
@@ -220,15 +226,85 @@ static void observer(void) {
     CHECK_STATUS(nemm_observer_init(&obs, sizeof obs, &est, NULL), NEMM_OK);
 }
 
+/* `blob` stores level tables, `plain` (another model) none. */
+static void level_tables(const unsigned char *blob, size_t len, const unsigned char *plain,
+                         size_t plain_len) {
+    /* The "measured" force: the exact estimator's at alpha 0.12, between two levels. */
+    nemm_estimator_config_t cfg = {.alpha = 0.12f};
+    CHECK_STATUS(nemm_estimator_init(&est, sizeof est, blob, len, &cfg), NEMM_OK);
+    CHECK_STATUS(nemm_estimator_init(&est_table, sizeof est_table, plain, plain_len, &cfg), NEMM_OK);
+    /* Refused: a blob without level tables, a blob that is not the estimator's. */
+    CHECK_STATUS(nemm_levels_init(&levels, sizeof levels, &est_table, plain, plain_len),
+                 NEMM_E_LEVELS_TOO_FEW);
+    CHECK_STATUS(nemm_levels_init(&levels, sizeof levels, &est, plain, plain_len),
+                 NEMM_E_LEVELS_OTHER_BLOB);
+    CHECK_STATUS(nemm_levels_init(&levels, sizeof levels, &est_table, blob, len),
+                 NEMM_E_LEVELS_OTHER_BLOB);
+    CHECK_STATUS(nemm_levels_init(&levels, sizeof levels - 1, &est, blob, len), NEMM_E_STORAGE_SIZE);
+    nemm_levels_info_t li;
+    CHECK_STATUS(nemm_levels_info(&levels, &li), NEMM_E_NOT_INITIALISED);
+    CHECK_STATUS(nemm_levels_init(&levels, sizeof levels, &est, blob, len), NEMM_OK);
+    CHECK_STATUS(nemm_levels_info(&levels, &li), NEMM_OK);
+    CHECK(li.levels == 7 && li.alpha[0] == 0.0f && li.alpha[6] == 0.3f && li.alpha[7] == 0.0f);
+    CHECK(li.table_bytes == 14u * 28u * NEMM_TABLE_SEGMENTS && li.table_max_rel_error > 0.0f);
+
+    /* A level per sample at table cost, on a second estimator (est keeps its own level). */
+    nemm_estimator_config_t tab = {.alpha = 0.15f, .mode = NEMM_MODE_TABLE};
+    CHECK_STATUS(nemm_estimator_init(&est_table, sizeof est_table, blob, len, &tab), NEMM_OK);
+    nemm_estimator_info_t info;
+    CHECK_STATUS(nemm_estimator_info(&est, &info), NEMM_OK);
+    nemm_estimate_t e;
+    int ok = 1, finite = 1, clean = 1;
+    for (int k = 0; k < 2000; k++) {
+        float t = (float)k * info.dt_s;
+        float v = 0.5f * sinf(2.0f * 3.14159265f * 5.0f * t);
+        float alpha = 0.15f + 0.15f * sinf(2.0f * 3.14159265f * 2.0f * t); /* 0 to 0.3 */
+        ok &= nemm_estimator_step_on_levels(&est_table, &levels, v, alpha, &e) == NEMM_OK;
+        finite &= isfinite(e.force_n) != 0;
+        clean &= (e.flags & ~NEMM_FLAG_ALPHA_EXTRAPOLATED) == 0;
+    }
+    CHECK(ok && finite && clean);
+    CHECK_STATUS(nemm_estimator_step_on_levels_with_position(&est_table, &levels, 0.1f, 0.12f, 0.0f, &e),
+                 NEMM_OK);
+    CHECK_STATUS(nemm_estimator_step_on_levels(&est_table, &levels, 0.1f, 1.5f, &e),
+                 NEMM_E_ALPHA_OUT_OF_RANGE);
+    CHECK_STATUS(nemm_estimator_step_on_levels(&est_table, NULL, 0.1f, 0.1f, &e), NEMM_E_NULL);
+
+    /* The observer on level tables: 3 s of a 0.5 m/s, 5 Hz sinusoid at alpha 0.12. */
+    CHECK_STATUS(nemm_observer_init_on_levels(&obs, sizeof obs, &est, &levels, NULL), NEMM_OK);
+    nemm_alpha_estimate_t a = {0};
+    ok = 1;
+    int n = (int)(3.0f / info.dt_s);
+    for (int k = 0; k < n; k++) {
+        float v = 0.5f * sinf(2.0f * 3.14159265f * 5.0f * (float)k * info.dt_s);
+        ok &= nemm_estimator_step(&est, v, &e) == NEMM_OK;
+        ok &= nemm_observer_step_on_levels(&obs, &levels, v, e.force_n, &a) == NEMM_OK;
+    }
+    CHECK(ok);
+    CHECK(fabsf(a.alpha - 0.12f) < 0.02f && !(a.flags & NEMM_OBSERVER_NOT_EXCITED));
+    printf("observer on level tables: alpha %.4f +- %.4f (true 0.12), flags 0x%02x\n", a.alpha,
+           a.band, a.flags);
+    /* The grid is the levels': another one is refused. */
+    nemm_observer_config_t oc;
+    CHECK_STATUS(nemm_observer_config_default(&oc), NEMM_OK);
+    oc.points = 5;
+    CHECK_STATUS(nemm_observer_init_on_levels(&obs, sizeof obs, &est, &levels, &oc),
+                 NEMM_E_OBSERVER_POINTS);
+    /* An observer not built on level tables is not stepped on them. */
+    CHECK_STATUS(nemm_observer_init(&obs, sizeof obs, &est, NULL), NEMM_OK);
+    CHECK_STATUS(nemm_observer_step_on_levels(&obs, &levels, 0.1f, 1.0f, &a), NEMM_E_LEVELS_MISMATCH);
+}
+
 int main(int argc, char **argv) {
-    if (argc != 2) {
-        fprintf(stderr, "usage: %s <blob.nemm>\n", argv[0]);
+    if (argc != 3) {
+        fprintf(stderr, "usage: %s <blob with level tables.nemm> <blob without.nemm>\n", argv[0]);
         return 2;
     }
-    size_t len = 0;
+    size_t len = 0, plain_len = 0;
     unsigned char *blob = read_file(argv[1], &len);
-    if (!blob || len == 0) {
-        fprintf(stderr, "cannot read %s\n", argv[1]);
+    unsigned char *plain = read_file(argv[2], &plain_len);
+    if (!blob || len == 0 || !plain || plain_len == 0) {
+        fprintf(stderr, "cannot read %s or %s\n", argv[1], argv[2]);
         return 2;
     }
     statuses();
@@ -236,8 +312,11 @@ int main(int argc, char **argv) {
     storage_and_settings(blob, len);
     estimator(blob, len);
     observer();
+    level_tables(blob, len, plain, plain_len);
     free(blob);
-    printf("nemm-c host test: %zu-byte estimator, %zu-byte observer\n", sizeof est, sizeof obs);
+    free(plain);
+    printf("nemm-c host test: %zu-byte estimator, %zu-byte observer, %zu-byte level tables\n",
+           sizeof est, sizeof obs, sizeof levels);
     printf("%d passed, %d failed\n", passed, failed);
     return failed == 0 ? 0 : 1;
 }

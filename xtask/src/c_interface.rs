@@ -21,8 +21,12 @@ use std::time::Instant;
 const CRATE: &str = "nemm-c";
 /// The C example's sources, relative to the workspace root.
 const EXAMPLE: &str = "examples/c";
-/// The blob the host C unit test loads (it stores tables at 7 levels, 0.15 among them).
-const HOST_TEST_BLOB: &str = "nemm-firmware/data/trained-nemm.nemm";
+/// The blobs the host C unit test loads: one with level tables (7 levels, 0.15 among them),
+/// one without.
+const HOST_TEST_BLOBS: [&str; 2] = [
+    "nemm-firmware/data/trained-nemm.nemm",
+    "nemm-firmware/data/example-nemm.nemm",
+];
 /// The C compiler of the target and its Debian package.
 const ARM_GCC: (&str, &str) = ("arm-none-eabi-gcc", "gcc-arm-none-eabi");
 /// Code generation flags of the C example: Cortex-M4 with its single-precision FPU, the
@@ -116,7 +120,8 @@ pub fn libs(paths: &Paths, tc: Option<&Toolchain>) -> Result<(), String> {
 }
 
 /// The host C unit test: `examples/c/test_host.c` compiled by the host's `cc` against the
-/// host library and run on the firmware's trained blob; and the header compiled as C++.
+/// host library and run on the firmware's trained blob and an example blob without level
+/// tables; and the header compiled as C++.
 pub fn host_test(paths: &Paths) -> Result<(), String> {
     let lib = host_lib(paths)?;
     let dir = out_dir(paths).join("host");
@@ -133,7 +138,7 @@ pub fn host_test(paths: &Paths) -> Result<(), String> {
         .args(["-lpthread", "-ldl", "-lm", "-o"])
         .arg(&exe))?;
     let out = Command::new(&exe)
-        .arg(paths.root.join(HOST_TEST_BLOB))
+        .args(HOST_TEST_BLOBS.map(|b| paths.root.join(b)))
         .output()
         .map_err(|e| format!("cannot run {}: {e}", exe.display()))?;
     let stdout = String::from_utf8_lossy(&out.stdout);
