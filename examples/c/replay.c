@@ -18,10 +18,15 @@
  *   s <k> <velocity bits> <force bits> <flags>
  *
  * (k decimal, the rest hex: the float's bits and the NEMM_FLAG_* bits, the first fields of
- * the Rust firmware's `s` lines), and steps the observer with the velocity and the measured
- * force. Around them a `c-example boot` line (what was built), and a `c-example summary`
- * line (counters, the observer's estimate, instructions per step, stack). Exit code 0, or 2
- * after an error (`c-example error call=<function> status=<code> <text>`).
+ * the Rust firmware's `s` lines), and steps two alpha observers with the velocity, the
+ * position and the measured force: one on the exact model, one on the blob's level tables
+ * (if it stores them), at a tenth of the cost. Around them a `c-example boot` line (what was
+ * built), a `c-example summary` line (counters, the exact observer's estimate, instructions
+ * per step, stack) and a `c-example levels` line (the level tables, the estimate and
+ * instructions per step of the observer on them, and the instructions per step of the
+ * estimator on them, run again over the velocities with a level ramping across the stored
+ * levels). Exit code 0, or 2 after an error
+ * (`c-example error call=<function> status=<code> <text>`).
  *
  * Freestanding C11: no C library, no allocation. Board support: mps2/board.h.
  */
@@ -31,9 +36,12 @@
 extern const uint8_t nemm_example_blob[], nemm_example_blob_end[];
 extern const uint8_t nemm_example_inputs[], nemm_example_inputs_end[];
 
-/* The objects' storage: statics, as on an ECU (together about 67 KiB on Cortex-M). */
+/* The objects' storage: statics, as on an ECU (together about 146 KiB on Cortex-M; an ECU
+ * would keep one of the two observers, usually the one on level tables). */
 static nemm_estimator_t estimator;
 static nemm_observer_t observer;
+static nemm_levels_t levels;
+static nemm_observer_t levels_observer;
 
 /* --- output: one line at a time, integers in decimal or hex ------------------------------ */
 
@@ -136,6 +144,26 @@ int main(void) {
     if (s != NEMM_OK) {
         return fail("nemm_observer_init", s);
     }
+    /* The blob's level tables (from the same blob, into RAM), and an observer on them. A
+     * blob without them is no error here: that observer is left out. */
+    nemm_levels_info_t levels_info = {0};
+    nemm_status_t levels_status = nemm_levels_init(&levels, sizeof levels, &estimator, blob, blob_len);
+    int on_levels = levels_status == NEMM_OK;
+    if (!on_levels && !(levels_status >= NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT &&
+                        levels_status <= NEMM_E_LEVELS_MISMATCH)) {
+        return fail("nemm_levels_init", levels_status);
+    }
+    if (on_levels) {
+        s = nemm_levels_info(&levels, &levels_info);
+        if (s != NEMM_OK) {
+            return fail("nemm_levels_info", s);
+        }
+        s = nemm_observer_init_on_levels(&levels_observer, sizeof levels_observer, &estimator,
+                                         &levels, NULL);
+        if (s != NEMM_OK) {
+            return fail("nemm_observer_init_on_levels", s);
+        }
+    }
     nemm_estimator_info_t info;
     s = nemm_estimator_info(&estimator, &info);
     if (s != NEMM_OK) {
@@ -164,8 +192,8 @@ int main(void) {
     end_line();
 
     /* The sample loop: on an ECU, the body of the 10 kHz task. */
-    uint32_t step_ticks = 0, observer_ticks = 0;
-    nemm_alpha_estimate_t alpha = {0};
+    uint32_t step_ticks = 0, observer_ticks = 0, levels_observer_ticks = 0;
+    nemm_alpha_estimate_t alpha = {0}, levels_alpha = {0};
     for (uint32_t k = 0; k < n; k++) {
         const uint8_t *sample = in + 16 + 12 * (size_t)k;
         float velocity = float_at(sample), position = float_at(sample + 4);
@@ -182,6 +210,15 @@ int main(void) {
         observer_ticks += ticks_since(t0);
         if (s != NEMM_OK) {
             return fail("nemm_observer_step_with_position", s);
+        }
+        if (on_levels) {
+            t0 = board_ticks();
+            s = nemm_observer_step_on_levels_with_position(&levels_observer, &levels, velocity,
+                                                           position, measured, &levels_alpha);
+            levels_observer_ticks += ticks_since(t0);
+            if (s != NEMM_OK) {
+                return fail("nemm_observer_step_on_levels_with_position", s);
+            }
         }
         put("s ");
         put_dec(k);
@@ -216,6 +253,51 @@ int main(void) {
     put_dec(n ? (uint32_t)((uint64_t)observer_ticks * BOARD_INSTRUCTIONS_PER_TICK / n) : 0);
     put(" stack_used=");
     put_dec(board_stack_used());
+    end_line();
+
+    /* A level per sample at table cost: the estimator once more over the velocities (after
+     * the records above, so from rest), its level ramping across the stored levels. */
+    uint32_t levels_step_ticks = 0;
+    if (on_levels) {
+        s = nemm_estimator_reset(&estimator);
+        if (s != NEMM_OK) {
+            return fail("nemm_estimator_reset", s);
+        }
+        float lo = levels_info.alpha[0], hi = levels_info.alpha[levels_info.levels - 1];
+        for (uint32_t k = 0; k < n; k++) {
+            const uint8_t *sample = in + 16 + 12 * (size_t)k;
+            float level = lo + (hi - lo) * (float)k / (float)n;
+            nemm_estimate_t e;
+            uint32_t t0 = board_ticks();
+            s = nemm_estimator_step_on_levels_with_position(&estimator, &levels, float_at(sample),
+                                                            level, float_at(sample + 4), &e);
+            levels_step_ticks += ticks_since(t0);
+            if (s != NEMM_OK) {
+                return fail("nemm_estimator_step_on_levels_with_position", s);
+            }
+        }
+    }
+
+    put("c-example levels status=");
+    put_dec((uint32_t)levels_status);
+    put(" levels=");
+    put_dec(levels_info.levels);
+    put(" levels_bytes=");
+    put_dec((uint32_t)sizeof levels);
+    put(" table_bytes=");
+    put_dec(levels_info.table_bytes);
+    if (on_levels) {
+        put(" observer_alpha_e4=");
+        put_dec((uint32_t)(levels_alpha.alpha * 10000.0f + 0.5f));
+        put(" observer_band_e4=");
+        put_dec((uint32_t)(levels_alpha.band * 10000.0f + 0.5f));
+        put(" observer_flags=");
+        put_hex(levels_alpha.flags, 2);
+        put(" observer_step_instructions=");
+        put_dec(n ? (uint32_t)((uint64_t)levels_observer_ticks * BOARD_INSTRUCTIONS_PER_TICK / n) : 0);
+        put(" step_instructions=");
+        put_dec(n ? (uint32_t)((uint64_t)levels_step_ticks * BOARD_INSTRUCTIONS_PER_TICK / n) : 0);
+    }
     end_line();
     return 0;
 }

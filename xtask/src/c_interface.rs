@@ -369,6 +369,7 @@ pub fn target_example(tc: &Toolchain, paths: &Paths, images: &Images) -> Result<
         );
         eprintln!("xtask: {}", line("c-example boot "));
         eprintln!("xtask: {}", line("c-example summary "));
+        eprintln!("xtask: {}", line("c-example levels "));
         eprintln!(
             "xtask: c-example image: .text {} B, .rodata {} B (blob {} B, inputs {} B), .bss {} B",
             m.size_of(".text"),
