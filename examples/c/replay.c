@@ -36,7 +36,7 @@
 extern const uint8_t nemm_example_blob[], nemm_example_blob_end[];
 extern const uint8_t nemm_example_inputs[], nemm_example_inputs_end[];
 
-/* The objects' storage: statics, as on an ECU (together about 146 KiB on Cortex-M; an ECU
+/* The objects' storage: statics, as on an ECU (together about 144 KiB on Cortex-M; an ECU
  * would keep one of the two observers, usually the one on level tables). */
 static nemm_estimator_t estimator;
 static nemm_observer_t observer;
