@@ -5,7 +5,8 @@
 //!   (release, then the default debug profile), the QEMU tests (`tests/tests/qemu_*.rs`,
 //!   ignored by a plain `cargo test`) pointed at the images, the firmware library's host unit
 //!   tests, nemm-core's feature sets on the host and the target (`features`), the
-//!   `rust-version` check (`msrv`), and a short `bench-target`.
+//!   `rust-version` check (`msrv`), a short `bench-target`, and the C interface: the host C
+//!   unit test and the C example on the Cortex-M4F against the firmware ([`c_interface`]).
 //! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
 //!   for QEMU's netduinoplus2 ([`board`]).
 //! - `cargo xtask bench-target`: instructions per estimator step on the emulated Cortex-M4
@@ -18,8 +19,11 @@
 //!   written into `docs/results.md`; `--training DIR` copies a training report's tables
 //!   there, `--host` writes the host criterion benches' figures ([`results`],
 //!   [`host_bench`]).
+//! - `cargo xtask c-lib`, `c-test`, `c-header`: the C interface (`nemm-c`): its static
+//!   libraries, its tests, its generated header ([`c_interface`]).
 
 mod board;
+mod c_interface;
 mod checks;
 mod cycles;
 mod firmware;
@@ -49,7 +53,7 @@ struct Cli {
 enum Cmd {
     /// Every test: the firmware (target build, lint), the host workspace (release and the
     /// default debug profile), the QEMU tests, nemm-core's feature sets (`features`), the
-    /// rust-version check (`msrv`), a short bench-target.
+    /// rust-version check (`msrv`), a short bench-target, the C interface (`c-test`).
     Test {
         /// Skip everything that needs the embedded toolchain (no firmware, no QEMU tests).
         #[arg(long)]
@@ -163,6 +167,23 @@ enum Cmd {
     },
     /// Say which toolchain route builds the firmware (install it if root).
     Toolchain,
+    /// Build the C interface's static libraries (`libnemm_c.a`) for the host and the
+    /// Cortex-M4F, and print their paths and the header's.
+    CLib {
+        /// The host library only (no embedded toolchain needed).
+        #[arg(long)]
+        host_only: bool,
+    },
+    /// Test the C interface: the host C unit test (`examples/c/test_host.c`), then the C
+    /// example (`examples/c/replay.c`, arm-none-eabi-gcc) in QEMU, whose forces must be
+    /// bit-identical to the Rust firmware's on the same trace, blob, alpha and mode.
+    CTest {
+        /// The host C unit test only.
+        #[arg(long)]
+        host_only: bool,
+    },
+    /// Regenerate the C header `nemm-c/include/nemm.h` from nemm-c (cbindgen).
+    CHeader,
     /// nemm-core's tests with every valid feature set on the host, and its library built for
     /// the target with every `no_std` set.
     Features,
@@ -313,6 +334,14 @@ fn main() -> ExitCode {
             }
         },
         Some(Cmd::Toolchain) => setup().map(|(tc, _)| println!("{}", tc.describe())),
+        Some(Cmd::CLib { host_only: true }) => {
+            Paths::find().and_then(|p| c_interface::libs(&p, None))
+        }
+        Some(Cmd::CLib { host_only: false }) => {
+            setup().and_then(|(tc, p)| c_interface::libs(&p, Some(&tc)))
+        }
+        Some(Cmd::CTest { host_only }) => c_test(host_only),
+        Some(Cmd::CHeader) => Paths::find().and_then(|p| c_interface::header(&p)),
         Some(Cmd::FirmwareModel { velocity, out }) => {
             Paths::find().and_then(|p| model::firmware_model(&p, velocity.as_deref(), &out))
         }
@@ -419,6 +448,7 @@ fn test(host_only: bool) -> Result<(), String> {
             None => {
                 firmware::clippy(&tc, &paths)?;
                 board::clippy(&tc, &paths)?;
+                c_interface::target_clippy(&tc, &paths)?;
             }
             Some(what) => eprintln!("xtask: firmware lint skipped: no {what}"),
         }
@@ -428,6 +458,7 @@ fn test(host_only: bool) -> Result<(), String> {
     run(cargo()
         .args(["test", "--workspace", "--release", "--no-fail-fast"])
         .current_dir(&paths.root))?;
+    c_interface::host_test(&paths)?;
     if let Some((tc, _, images, board_images)) = &firmware {
         // The QEMU tests, with the images; `--workspace` keeps the features (and so the
         // build) of the run above.
@@ -447,6 +478,10 @@ fn test(host_only: bool) -> Result<(), String> {
                 .env("NEMM_BOARD_ELF", &board_images.board)
                 .env("NEMM_BOARD_QEMU_ELF", &board_images.qemu)
                 .current_dir(&paths.root))?;
+        }
+        // The C example against the firmware, on the Cortex-M4F image.
+        if let Some(an386) = images.iter().find(|im| im.board == firmware::Board::An386) {
+            c_interface::target_example(tc, &paths, an386)?;
         }
     }
     // The firmware library's own unit tests, on the host.
@@ -680,6 +715,19 @@ fn build_board() -> Result<(), String> {
     Ok(())
 }
 
+/// `cargo xtask c-test`: the host C unit test, then (unless `host_only`) the C example on
+/// the Cortex-M4F against the firmware's mps2-an386 build.
+fn c_test(host_only: bool) -> Result<(), String> {
+    let paths = Paths::find()?;
+    c_interface::host_test(&paths)?;
+    if !host_only {
+        let (tc, paths) = setup()?;
+        let images = firmware::build(&tc, &paths, firmware::Board::An386)?;
+        c_interface::target_example(&tc, &paths, &images)?;
+    }
+    Ok(())
+}
+
 fn run_target(options: &[String]) -> Result<(), String> {
     let (tc, paths) = setup()?;
     let images = firmware::build(&tc, &paths, firmware::Board::An386)?;
@@ -788,6 +836,15 @@ mod tests {
         assert!(parse(&["build-target", "--board", "an999"]).is_err());
         assert!(matches!(parse(&["build-board"]), Ok(Some(Cmd::BuildBoard))));
         assert!(matches!(parse(&["toolchain"]), Ok(Some(Cmd::Toolchain))));
+        assert!(matches!(
+            parse(&["c-lib", "--host-only"]),
+            Ok(Some(Cmd::CLib { host_only: true }))
+        ));
+        assert!(matches!(
+            parse(&["c-test"]),
+            Ok(Some(Cmd::CTest { host_only: false }))
+        ));
+        assert!(matches!(parse(&["c-header"]), Ok(Some(Cmd::CHeader))));
         match parse(&["firmware-model", "--velocity", "causal", "--out", "m.nemm"]) {
             Ok(Some(Cmd::FirmwareModel { velocity, out })) => {
                 assert_eq!(

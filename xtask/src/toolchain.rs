@@ -140,12 +140,13 @@ fn debian_gaps() -> Vec<(String, &'static str)> {
     gaps
 }
 
-fn is_root() -> bool {
+/// Whether xtask runs as root.
+pub fn is_root() -> bool {
     output(Command::new("id").arg("-u")).is_some_and(|s| s.trim() == "0")
 }
 
 /// Installs the Debian route's packages with apt-get (xtask runs as root).
-fn apt_install(packages: &[&str]) -> Result<(), String> {
+pub fn apt_install(packages: &[&str]) -> Result<(), String> {
     eprintln!(
         "xtask: installing the firmware toolchain with apt-get: {}",
         packages.join(" ")

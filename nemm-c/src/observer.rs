@@ -1,0 +1,350 @@
+//! The alpha observer: the oil-loss level online from the measured velocity and force.
+
+use crate::estimator::status;
+use crate::status::nemm_status_t::{self, *};
+use crate::storage::{
+    nemm_estimator_t, nemm_levels_t, nemm_observer_t, out, overlap, CLevels, EstimatorCell,
+    LevelsCell, ObserverCell, NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE, NEMM_OBSERVER_SIZE,
+};
+use crate::types::{nemm_alpha_estimate_t, nemm_observer_config_t};
+use nemm_core::AlphaEstimate;
+
+/// Fills `config` with the default observer settings (a grid of
+/// `NEMM_OBSERVER_MAX_POINTS` levels over the model's trained range, 2 s horizon; the
+/// fields that default to the model's values are 0).
+///
+/// Errors: `NEMM_E_NULL`.
+///
+/// # Safety
+/// `config` must point to a writable `nemm_observer_config_t`.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_config_default(
+    config: *mut nemm_observer_config_t,
+) -> nemm_status_t {
+    status((|| {
+        let o = out(config)?;
+        // SAFETY: non-null (checked) and writable (the caller); unaligned write.
+        unsafe { o.write_unaligned(nemm_observer_config_t::default_values()) };
+        Ok(())
+    })())
+}
+
+/// Builds an alpha observer in `storage` (`size` bytes, at least `NEMM_OBSERVER_SIZE`,
+/// aligned to `NEMM_OBSERVER_ALIGN`) for the model of the initialised estimator `est`, with
+/// the settings `config` (NULL: the defaults). The observer runs the model at
+/// `points` levels of alpha beside the estimator and fits the measured force; it owns its
+/// copy of what it needs, so `est` is only read during this call (and may be used, reset or
+/// re-initialised afterwards) and the two objects are independent.
+///
+/// On error the storage holds no observer until an init succeeds.
+///
+/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_SIZE`, `NEMM_E_STORAGE_ALIGN`,
+/// `NEMM_E_NOT_INITIALISED` (est), `NEMM_E_OVERLAP`, `NEMM_E_OBSERVER_*`, and the estimator
+/// errors of its levels (`NEMM_E_BAD_VELOCITY_LIMIT`, `NEMM_E_MODEL_*`).
+///
+/// # Safety
+/// `size` bytes at `storage` must be writable, `est` must be an estimator's storage that no
+/// other context writes during the call, `config` (if not NULL) must point to a readable
+/// `nemm_observer_config_t`, and no other context may access the observer's storage.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_init(
+    storage: *mut nemm_observer_t,
+    size: usize,
+    est: *const nemm_estimator_t,
+    config: *const nemm_observer_config_t,
+) -> nemm_status_t {
+    // SAFETY: the caller's guarantees; no level tables.
+    unsafe { init(storage, size, est, core::ptr::null(), config) }
+}
+
+/// Builds an alpha observer as `nemm_observer_init` whose grid is the levels of the level
+/// tables `levels` (loaded from the blob of `est`'s model), so that
+/// `nemm_observer_step_on_levels` steps each level on its stored tables: `points` table-mode
+/// steps per sample instead of exact ones (about a tenth or less of the cost; the estimate
+/// agrees with the exact observer's up to the tables' error). The grid need not be uniform.
+/// In `config` (NULL: the defaults) `grid_lo` and `grid_hi` must be 0 and `points` 0 or the
+/// number of levels, which must be at most `NEMM_OBSERVER_MAX_POINTS`.
+///
+/// The observer keeps no pointer to `levels`: pass the same level tables to every
+/// `nemm_observer_step_on_levels`.
+///
+/// Errors: those of `nemm_observer_init`, `NEMM_E_NOT_INITIALISED` (levels),
+/// `NEMM_E_OVERLAP` (the observer's storage overlaps the estimator's or the levels'),
+/// `NEMM_E_OBSERVER_GRID` (a grid set), `NEMM_E_OBSERVER_POINTS` (`points` not the number
+/// of levels, or more than `NEMM_OBSERVER_MAX_POINTS` levels), `NEMM_E_LEVELS_MISMATCH`
+/// (level tables of another model).
+///
+/// # Safety
+/// As `nemm_observer_init`, and `levels` must be level tables' storage that no other
+/// context writes during the call.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_init_on_levels(
+    storage: *mut nemm_observer_t,
+    size: usize,
+    est: *const nemm_estimator_t,
+    levels: *const nemm_levels_t,
+    config: *const nemm_observer_config_t,
+) -> nemm_status_t {
+    if levels.is_null() {
+        return NEMM_E_NULL;
+    }
+    // SAFETY: the caller's guarantees.
+    unsafe { init(storage, size, est, levels, config) }
+}
+
+/// The two inits: on the level tables `levels`, or (NULL) on the exact scalers.
+///
+/// # Safety
+/// As `nemm_observer_init_on_levels`, `levels` may be NULL.
+unsafe fn init(
+    storage: *mut nemm_observer_t,
+    size: usize,
+    est: *const nemm_estimator_t,
+    levels: *const nemm_levels_t,
+    config: *const nemm_observer_config_t,
+) -> nemm_status_t {
+    status((|| {
+        let c = if config.is_null() {
+            nemm_observer_config_t::default_values()
+        } else {
+            // SAFETY: non-null and readable (the caller); copied before anything is written.
+            unsafe { config.read_unaligned() }
+        };
+        // SAFETY: the caller's guarantee on `est`.
+        let estimator = unsafe { EstimatorCell::get(est) }?;
+        let tables = if levels.is_null() {
+            None
+        } else {
+            // SAFETY: the caller's guarantee on `levels`.
+            Some(unsafe { LevelsCell::get(levels) }?)
+        };
+        if storage.is_null() {
+            return Err(NEMM_E_NULL);
+        }
+        let overlaps =
+            |p: *const u8, len: usize| overlap(storage.cast(), NEMM_OBSERVER_SIZE, p, len);
+        if overlaps(est.cast(), NEMM_ESTIMATOR_SIZE)
+            || (tables.is_some() && overlaps(levels.cast(), NEMM_LEVELS_SIZE))
+        {
+            return Err(NEMM_E_OVERLAP);
+        }
+        // SAFETY: the caller's guarantee on `storage` and `size`.
+        let cell = unsafe { ObserverCell::claim(storage, size) }?;
+        // SAFETY: claimed above, in this call.
+        let cell = unsafe { ObserverCell::fill(cell) };
+        match tables {
+            None => cell.obs.load(&estimator.model, c.to_core())?,
+            Some(t) => {
+                cell.obs.load_on_levels(&estimator.model, t, c.to_core())?;
+                cell.on_levels = true;
+            }
+        }
+        cell.seal();
+        Ok(())
+    })())
+}
+
+/// Writes `a` to `out_ptr`.
+fn put(out_ptr: *mut nemm_alpha_estimate_t, a: AlphaEstimate) {
+    // SAFETY: every caller checked `out_ptr` with `out` (non-null); the C caller promises a
+    // writable `nemm_alpha_estimate_t` there. Unaligned write.
+    unsafe { out_ptr.write_unaligned(a.into()) }
+}
+
+/// One sample: the stroke velocity (m/s) (as given to the estimator) and the measured
+/// force (N) (positive in tension) of the same instant; `out` gets the estimate after it.
+/// Costs `points` model steps in exact mode (7 by default): about seven exact estimator
+/// steps. An observer built by `nemm_observer_init_on_levels` is stepped here on the exact
+/// scalers too; `nemm_observer_step_on_levels` steps it at table cost.
+///
+/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing stepped).
+///
+/// # Safety
+/// `obs` must be an observer's storage that no other context accesses during the call, and
+/// `out` must point to a writable `nemm_alpha_estimate_t`.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_step(
+    obs: *mut nemm_observer_t,
+    velocity_m_s: f32,
+    force_n: f32,
+    out_estimate: *mut nemm_alpha_estimate_t,
+) -> nemm_status_t {
+    status((|| {
+        let o = out(out_estimate)?;
+        // SAFETY: the caller's guarantee on `obs`.
+        let cell = unsafe { ObserverCell::get_mut(obs) }?;
+        put(o, cell.obs.step(velocity_m_s, force_n));
+        Ok(())
+    })())
+}
+
+/// `nemm_observer_step` with the stroke position (m), for a model with a static force.
+///
+/// # Safety
+/// As `nemm_observer_step`.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_step_with_position(
+    obs: *mut nemm_observer_t,
+    velocity_m_s: f32,
+    position_m: f32,
+    force_n: f32,
+    out_estimate: *mut nemm_alpha_estimate_t,
+) -> nemm_status_t {
+    status((|| {
+        let o = out(out_estimate)?;
+        // SAFETY: the caller's guarantee on `obs`.
+        let cell = unsafe { ObserverCell::get_mut(obs) }?;
+        put(
+            o,
+            cell.obs
+                .step_with_position(velocity_m_s, position_m, force_n),
+        );
+        Ok(())
+    })())
+}
+
+/// One sample of an observer built by `nemm_observer_init_on_levels`, as
+/// `nemm_observer_step`: each level steps on its stored tables in `levels` (the level tables
+/// the observer was built on). Costs `points` table-mode steps (7 for the firmware's
+/// trained blob) and the fit's scalar work, instead of `points` exact steps.
+///
+/// Refused with nothing stepped: an observer not built on level tables, or `levels` that
+/// hold other levels than the observer's grid (`NEMM_E_LEVELS_MISMATCH`).
+///
+/// Errors: those of `nemm_observer_step`, `NEMM_E_NOT_INITIALISED` (levels),
+/// `NEMM_E_OVERLAP` (the two storages), `NEMM_E_LEVELS_MISMATCH`.
+///
+/// # Safety
+/// As `nemm_observer_step`, and `levels` must be level tables' storage that no other
+/// context writes during the call.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_step_on_levels(
+    obs: *mut nemm_observer_t,
+    levels: *const nemm_levels_t,
+    velocity_m_s: f32,
+    force_n: f32,
+    out_estimate: *mut nemm_alpha_estimate_t,
+) -> nemm_status_t {
+    // SAFETY: the caller's guarantees.
+    unsafe { step_on_levels(obs, levels, velocity_m_s, None, force_n, out_estimate) }
+}
+
+/// `nemm_observer_step_on_levels` with the stroke position (m), for a model with a static
+/// force.
+///
+/// # Safety
+/// As `nemm_observer_step_on_levels`.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_step_on_levels_with_position(
+    obs: *mut nemm_observer_t,
+    levels: *const nemm_levels_t,
+    velocity_m_s: f32,
+    position_m: f32,
+    force_n: f32,
+    out_estimate: *mut nemm_alpha_estimate_t,
+) -> nemm_status_t {
+    // SAFETY: the caller's guarantees.
+    unsafe {
+        step_on_levels(
+            obs,
+            levels,
+            velocity_m_s,
+            Some(position_m),
+            force_n,
+            out_estimate,
+        )
+    }
+}
+
+/// True if `cell` was built on level tables holding the levels of `tables`.
+fn on_these_levels(cell: &ObserverCell, tables: &CLevels) -> bool {
+    cell.on_levels
+        && tables
+            .alphas()
+            .iter()
+            .map(|a| a.to_bits())
+            .eq(cell.obs.grid().map(f32::to_bits))
+}
+
+/// The two steps on level tables.
+///
+/// # Safety
+/// As `nemm_observer_step_on_levels`.
+unsafe fn step_on_levels(
+    obs: *mut nemm_observer_t,
+    levels: *const nemm_levels_t,
+    velocity_m_s: f32,
+    position_m: Option<f32>,
+    force_n: f32,
+    out_estimate: *mut nemm_alpha_estimate_t,
+) -> nemm_status_t {
+    status((|| {
+        let o = out(out_estimate)?;
+        if !levels.is_null()
+            && overlap(
+                obs.cast(),
+                NEMM_OBSERVER_SIZE,
+                levels.cast(),
+                NEMM_LEVELS_SIZE,
+            )
+        {
+            return Err(NEMM_E_OVERLAP);
+        }
+        // SAFETY: the caller's guarantee on `levels`.
+        let tables = unsafe { LevelsCell::get(levels) }?;
+        // SAFETY: the caller's guarantee on `obs`; it does not overlap `levels` (checked).
+        let cell = unsafe { ObserverCell::get_mut(obs) }?;
+        if !on_these_levels(cell, tables) {
+            return Err(NEMM_E_LEVELS_MISMATCH);
+        }
+        put(
+            o,
+            match position_m {
+                None => cell.obs.step_on_levels(tables, velocity_m_s, force_n),
+                Some(x) => cell
+                    .obs
+                    .step_on_levels_with_position(tables, velocity_m_s, x, force_n),
+            },
+        );
+        Ok(())
+    })())
+}
+
+/// The current estimate (the last step's; after init or reset: the middle of the grid,
+/// flagged `NEMM_OBSERVER_NOT_EXCITED`).
+///
+/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED`.
+///
+/// # Safety
+/// `obs` must be an observer's storage that no other context writes during the call, and
+/// `out` must point to a writable `nemm_alpha_estimate_t`.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_estimate(
+    obs: *const nemm_observer_t,
+    out_estimate: *mut nemm_alpha_estimate_t,
+) -> nemm_status_t {
+    status((|| {
+        let o = out(out_estimate)?;
+        // SAFETY: the caller's guarantee on `obs`.
+        let cell = unsafe { ObserverCell::get(obs) }?;
+        put(o, cell.obs.estimate());
+        Ok(())
+    })())
+}
+
+/// Returns the observer to rest with no data (the levels' states at rest, the fit cleared,
+/// the warm-up restarted); the settings are kept.
+///
+/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED`.
+///
+/// # Safety
+/// `obs` must be an observer's storage that no other context accesses during the call.
+#[no_mangle]
+pub unsafe extern "C" fn nemm_observer_reset(obs: *mut nemm_observer_t) -> nemm_status_t {
+    status((|| {
+        // SAFETY: the caller's guarantee on `obs`.
+        let cell = unsafe { ObserverCell::get_mut(obs) }?;
+        cell.obs.reset();
+        Ok(())
+    })())
+}

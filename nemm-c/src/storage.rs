@@ -1,0 +1,430 @@
+//! The opaque storage types of the header and what they hold, their sizes and alignments
+//! (compile-time constants of the header, checked here against the Rust objects on every
+//! target the crate is built for), and the checked conversions of the caller's pointers.
+//!
+//! The sizes depend on the target's pointer width (the model's vectors hold their lengths
+//! as `usize`), so the header has one set per width: 32-bit (checked on
+//! `thumbv7em-none-eabihf`) and 64-bit (checked on the x86-64 and AArch64 hosts). A build
+//! for a target whose layout differs fails here with both numbers in the message
+//! (`expected an array with a size of <constant>, found one with a size of <size_of>`):
+//! put the second into the constant, regenerate the header (`cargo xtask c-header`) and
+//! update the storage table of `docs/c-interface.md` (checked by `tests/header.rs`).
+
+use crate::status::nemm_status_t::{self, *};
+use crate::{
+    NEMM_LEVELS_CAPACITY, NEMM_OBSERVER_MAX_POINTS, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS,
+};
+use core::mem::{align_of, size_of, ManuallyDrop};
+use nemm_core::{AlphaObserver, Estimator, LevelTables, Model};
+
+/// The model, as the library decodes it.
+pub(crate) type CModel = Model<NEMM_PARAM_CAPACITY>;
+/// The estimator, as the firmware instantiates it.
+pub(crate) type CEstimator = Estimator<NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>;
+/// The alpha observer.
+pub(crate) type CObserver = AlphaObserver<NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>;
+/// The level tables: the estimator's segment count, `NEMM_LEVELS_CAPACITY` levels.
+pub(crate) type CLevels = LevelTables<NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
+
+/// What a `nemm_estimator_t` holds: the decoded model (kept, so that observers and level
+/// tables can be built from it), the estimator built from it, and which blob it came from.
+#[repr(C)]
+pub(crate) struct EstimatorCell {
+    /// [`ESTIMATOR_MAGIC`] once `nemm_estimator_init` succeeded, anything else before.
+    magic: u32,
+    /// Length and CRC-32 trailer of the blob the model was decoded from.
+    blob: (usize, u32),
+    pub(crate) model: CModel,
+    pub(crate) est: CEstimator,
+}
+
+/// What a `nemm_observer_t` holds.
+#[repr(C)]
+pub(crate) struct ObserverCell {
+    /// [`OBSERVER_MAGIC`] once `nemm_observer_init` succeeded.
+    magic: u32,
+    /// True if initialised on level tables (`nemm_observer_init_on_levels`).
+    pub(crate) on_levels: bool,
+    pub(crate) obs: CObserver,
+}
+
+/// What a `nemm_levels_t` holds.
+#[repr(C)]
+pub(crate) struct LevelsCell {
+    /// [`LEVELS_MAGIC`] once `nemm_levels_init` succeeded.
+    magic: u32,
+    body: LevelsBody,
+}
+
+/// The level tables once loaded; during `nemm_levels_init`, before them, the model decoded
+/// again from the blob for its tables index (the storage is the scratch space, so that no
+/// model is on the stack).
+#[repr(C)]
+union LevelsBody {
+    levels: ManuallyDrop<CLevels>,
+    scratch: ManuallyDrop<CModel>,
+}
+
+/// An empty observer, evaluated at compile time: copied into the storage rather than built
+/// in a stack frame of its size.
+const EMPTY_OBSERVER: CObserver = CObserver::empty();
+
+/// An empty model: one image in flash for the estimator's model and the scratch model of
+/// `nemm_levels_init`, copied into the storage.
+static EMPTY_MODEL: CModel = CModel::empty();
+
+/// The mark of an initialised estimator.
+const ESTIMATOR_MAGIC: u32 = u32::from_le_bytes(*b"NEMe");
+/// The mark of an initialised observer.
+const OBSERVER_MAGIC: u32 = u32::from_le_bytes(*b"NEMo");
+/// The mark of loaded level tables.
+const LEVELS_MAGIC: u32 = u32::from_le_bytes(*b"NEMl");
+
+/// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
+#[cfg(target_pointer_width = "32")]
+pub const NEMM_ESTIMATOR_SIZE: usize = 46088;
+/// Alignment of a `nemm_estimator_t` (32-bit targets).
+#[cfg(target_pointer_width = "32")]
+pub const NEMM_ESTIMATOR_ALIGN: usize = 4;
+/// Bytes of a `nemm_observer_t` (32-bit targets).
+#[cfg(target_pointer_width = "32")]
+pub const NEMM_OBSERVER_SIZE: usize = 21588;
+/// Alignment of a `nemm_observer_t` (32-bit targets).
+#[cfg(target_pointer_width = "32")]
+pub const NEMM_OBSERVER_ALIGN: usize = 4;
+/// Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (32-bit
+/// targets).
+#[cfg(target_pointer_width = "32")]
+pub const NEMM_LEVELS_SIZE: usize = 57956;
+/// Alignment of a `nemm_levels_t` (32-bit targets).
+#[cfg(target_pointer_width = "32")]
+pub const NEMM_LEVELS_ALIGN: usize = 4;
+
+/// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
+#[cfg(target_pointer_width = "64")]
+pub const NEMM_ESTIMATOR_SIZE: usize = 46296;
+/// Alignment of a `nemm_estimator_t` (64-bit targets).
+#[cfg(target_pointer_width = "64")]
+pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
+/// Bytes of a `nemm_observer_t` (64-bit targets).
+#[cfg(target_pointer_width = "64")]
+pub const NEMM_OBSERVER_SIZE: usize = 21712;
+/// Alignment of a `nemm_observer_t` (64-bit targets).
+#[cfg(target_pointer_width = "64")]
+pub const NEMM_OBSERVER_ALIGN: usize = 8;
+/// Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (64-bit
+/// targets).
+#[cfg(target_pointer_width = "64")]
+pub const NEMM_LEVELS_SIZE: usize = 58096;
+/// Alignment of a `nemm_levels_t` (64-bit targets).
+#[cfg(target_pointer_width = "64")]
+pub const NEMM_LEVELS_ALIGN: usize = 8;
+
+// The header's constants are the objects' sizes and alignments, exactly (a mismatch names
+// both numbers: the constant first).
+const _: [(); NEMM_ESTIMATOR_SIZE] = [(); size_of::<EstimatorCell>()];
+const _: [(); NEMM_ESTIMATOR_ALIGN] = [(); align_of::<EstimatorCell>()];
+const _: [(); NEMM_OBSERVER_SIZE] = [(); size_of::<ObserverCell>()];
+const _: [(); NEMM_OBSERVER_ALIGN] = [(); align_of::<ObserverCell>()];
+const _: [(); NEMM_LEVELS_SIZE] = [(); size_of::<LevelsCell>()];
+const _: [(); NEMM_LEVELS_ALIGN] = [(); align_of::<LevelsCell>()];
+// The level tables are the storage's size (the scratch model fits in them).
+const _: () = assert!(size_of::<CModel>() <= size_of::<CLevels>());
+
+/// Storage of one estimator: `NEMM_ESTIMATOR_SIZE` bytes aligned to `NEMM_ESTIMATOR_ALIGN`,
+/// opaque to the caller. Declare it (a `static` is usual: it is large) and pass its address
+/// and `sizeof` to `nemm_estimator_init`; then pass its address to the other
+/// `nemm_estimator_*` functions. Never copy it (it may be moved only before init).
+#[allow(non_camel_case_types)]
+#[repr(C)]
+pub struct nemm_estimator_t {
+    /// The estimator's bytes (opaque).
+    pub opaque: [u8; NEMM_ESTIMATOR_SIZE],
+}
+
+/// Storage of one alpha observer: `NEMM_OBSERVER_SIZE` bytes aligned to
+/// `NEMM_OBSERVER_ALIGN`, opaque to the caller (as `nemm_estimator_t`).
+#[allow(non_camel_case_types)]
+#[repr(C)]
+pub struct nemm_observer_t {
+    /// The observer's bytes (opaque).
+    pub opaque: [u8; NEMM_OBSERVER_SIZE],
+}
+
+/// Storage of one set of level tables (the stored tables of several oil-loss levels, read
+/// from a blob by `nemm_levels_init`): `NEMM_LEVELS_SIZE` bytes aligned to
+/// `NEMM_LEVELS_ALIGN`, opaque to the caller (as `nemm_estimator_t`).
+#[allow(non_camel_case_types)]
+#[repr(C)]
+pub struct nemm_levels_t {
+    /// The level tables' bytes (opaque).
+    pub opaque: [u8; NEMM_LEVELS_SIZE],
+}
+
+/// A non-null, aligned pointer, or the status that says why not.
+fn checked<T>(p: *const T) -> Result<(), nemm_status_t> {
+    if p.is_null() {
+        Err(NEMM_E_NULL)
+    } else if !p.is_aligned() {
+        Err(NEMM_E_STORAGE_ALIGN)
+    } else {
+        Ok(())
+    }
+}
+
+/// Whether the byte ranges `[a, a + a_len)` and `[b, b + b_len)` overlap.
+pub(crate) fn overlap(a: *const u8, a_len: usize, b: *const u8, b_len: usize) -> bool {
+    let (a, b) = (a as usize, b as usize);
+    a < b.saturating_add(b_len) && b < a.saturating_add(a_len)
+}
+
+/// Storage given to an init function: `size` bytes at `p`, to be filled.
+fn fresh<C>(p: *mut u8, size: usize) -> Result<*mut C, nemm_status_t> {
+    let cell = p.cast::<C>();
+    checked(cell)?;
+    if size < size_of::<C>() {
+        return Err(NEMM_E_STORAGE_SIZE);
+    }
+    Ok(cell)
+}
+
+impl EstimatorCell {
+    /// Checks the storage for `nemm_estimator_init` and marks it uninitialised; the fields
+    /// are still to be written.
+    ///
+    /// # Safety
+    /// If `p` is non-null, `size` bytes at `p` must be writable and not accessed otherwise
+    /// during the call.
+    pub(crate) unsafe fn claim(
+        p: *mut nemm_estimator_t,
+        size: usize,
+    ) -> Result<*mut Self, nemm_status_t> {
+        let cell = fresh::<Self>(p.cast(), size)?;
+        // SAFETY: `cell` is non-null, aligned and the storage holds a whole `EstimatorCell`
+        // (checked above); the caller lends it to this call. A `u32` is written raw.
+        unsafe { core::ptr::addr_of_mut!((*cell).magic).write(0) };
+        Ok(cell)
+    }
+
+    /// Fills a claimed cell with an empty model and estimator (all bytes valid, so that the
+    /// cell can be referenced) and returns it.
+    ///
+    /// # Safety
+    /// `cell` must come from [`EstimatorCell::claim`] in the same call.
+    pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut Self {
+        // SAFETY: the fields of a claimed cell are writable; `write` and the copy do not read
+        // or drop the old bytes. A model owns nothing (no `Drop`, no pointers), so a bitwise
+        // copy of `EMPTY_MODEL` is a valid model. After the writes every field holds a valid
+        // value.
+        unsafe {
+            core::ptr::addr_of_mut!((*cell).blob).write((0, 0));
+            core::ptr::addr_of_mut!((*cell).model).copy_from_nonoverlapping(&EMPTY_MODEL, 1);
+            core::ptr::addr_of_mut!((*cell).est).write(CEstimator::empty());
+            &mut *cell
+        }
+    }
+
+    /// Marks the cell initialised (the model and the estimator loaded from `blob`).
+    pub(crate) fn seal(&mut self, blob: &[u8]) {
+        self.blob = (blob.len(), trailer(blob));
+        self.magic = ESTIMATOR_MAGIC;
+    }
+
+    /// True if `blob` has the length and CRC-32 trailer of the blob the model was decoded
+    /// from.
+    pub(crate) fn built_from(&self, blob: &[u8]) -> bool {
+        self.blob == (blob.len(), trailer(blob))
+    }
+
+    /// The cell of an initialised estimator, shared.
+    ///
+    /// # Safety
+    /// If `p` is non-null and aligned, it must point to `NEMM_ESTIMATOR_SIZE` readable
+    /// bytes (an estimator's storage) that no other context writes during the borrow.
+    pub(crate) unsafe fn get<'a>(p: *const nemm_estimator_t) -> Result<&'a Self, nemm_status_t> {
+        let cell = p.cast::<Self>();
+        checked(cell)?;
+        // SAFETY: `cell` is non-null and aligned and the storage holds at least the `u32`
+        // mark at offset 0 (`repr(C)`); every bit pattern is a valid `u32`.
+        let magic = unsafe { core::ptr::addr_of!((*cell).magic).read() };
+        if magic != ESTIMATOR_MAGIC {
+            return Err(NEMM_E_NOT_INITIALISED);
+        }
+        // SAFETY: the mark is written only by a successful init, after which the cell holds
+        // a valid model and estimator; the caller gives shared access for the borrow.
+        Ok(unsafe { &*cell })
+    }
+
+    /// The cell of an initialised estimator, exclusive.
+    ///
+    /// # Safety
+    /// As [`EstimatorCell::get`], and no other context accesses the storage during the
+    /// borrow.
+    pub(crate) unsafe fn get_mut<'a>(
+        p: *mut nemm_estimator_t,
+    ) -> Result<&'a mut Self, nemm_status_t> {
+        // SAFETY: the caller's guarantees are those `get` needs.
+        unsafe { Self::get(p) }?;
+        // SAFETY: `get` checked pointer and mark; the caller gives exclusive access.
+        Ok(unsafe { &mut *p.cast::<Self>() })
+    }
+}
+
+impl ObserverCell {
+    /// As [`EstimatorCell::claim`], for `nemm_observer_init`.
+    ///
+    /// # Safety
+    /// As [`EstimatorCell::claim`].
+    pub(crate) unsafe fn claim(
+        p: *mut nemm_observer_t,
+        size: usize,
+    ) -> Result<*mut Self, nemm_status_t> {
+        let cell = fresh::<Self>(p.cast(), size)?;
+        // SAFETY: as in `EstimatorCell::claim`.
+        unsafe { core::ptr::addr_of_mut!((*cell).magic).write(0) };
+        Ok(cell)
+    }
+
+    /// As [`EstimatorCell::fill`]: an empty observer, not on level tables.
+    ///
+    /// # Safety
+    /// `cell` must come from [`ObserverCell::claim`] in the same call.
+    pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut Self {
+        // SAFETY: as in `EstimatorCell::fill`.
+        unsafe {
+            core::ptr::addr_of_mut!((*cell).on_levels).write(false);
+            core::ptr::addr_of_mut!((*cell).obs).write(EMPTY_OBSERVER);
+            &mut *cell
+        }
+    }
+
+    /// Marks the cell initialised.
+    pub(crate) fn seal(&mut self) {
+        self.magic = OBSERVER_MAGIC;
+    }
+
+    /// The cell of an initialised observer, shared.
+    ///
+    /// # Safety
+    /// As [`EstimatorCell::get`], for an observer's storage.
+    pub(crate) unsafe fn get<'a>(p: *const nemm_observer_t) -> Result<&'a Self, nemm_status_t> {
+        let cell = p.cast::<Self>();
+        checked(cell)?;
+        // SAFETY: as in `EstimatorCell::get`.
+        let magic = unsafe { core::ptr::addr_of!((*cell).magic).read() };
+        if magic != OBSERVER_MAGIC {
+            return Err(NEMM_E_NOT_INITIALISED);
+        }
+        // SAFETY: as in `EstimatorCell::get`.
+        Ok(unsafe { &*cell })
+    }
+
+    /// The cell of an initialised observer, exclusive.
+    ///
+    /// # Safety
+    /// As [`EstimatorCell::get_mut`], for an observer's storage.
+    pub(crate) unsafe fn get_mut<'a>(
+        p: *mut nemm_observer_t,
+    ) -> Result<&'a mut Self, nemm_status_t> {
+        // SAFETY: the caller's guarantees are those `get` needs.
+        unsafe { Self::get(p) }?;
+        // SAFETY: `get` checked pointer and mark; the caller gives exclusive access.
+        Ok(unsafe { &mut *p.cast::<Self>() })
+    }
+}
+
+impl LevelsCell {
+    /// As [`EstimatorCell::claim`], for `nemm_levels_init`.
+    ///
+    /// # Safety
+    /// As [`EstimatorCell::claim`].
+    pub(crate) unsafe fn claim(
+        p: *mut nemm_levels_t,
+        size: usize,
+    ) -> Result<*mut Self, nemm_status_t> {
+        let cell = fresh::<Self>(p.cast(), size)?;
+        // SAFETY: as in `EstimatorCell::claim`.
+        unsafe { core::ptr::addr_of_mut!((*cell).magic).write(0) };
+        Ok(cell)
+    }
+
+    /// Fills a claimed cell's body with an empty model, the scratch space of a decode, and
+    /// returns it.
+    ///
+    /// # Safety
+    /// `cell` must come from [`LevelsCell::claim`] in the same call; the model must not be
+    /// used after [`LevelsCell::fill`].
+    pub(crate) unsafe fn scratch<'a>(cell: *mut Self) -> &'a mut CModel {
+        // SAFETY: the body of a claimed cell is writable and large enough for either union
+        // field; after the copy (valid, as in `EstimatorCell::fill`) the `scratch` field holds
+        // a valid model.
+        unsafe {
+            let body = core::ptr::addr_of_mut!((*cell).body.scratch).cast::<CModel>();
+            body.copy_from_nonoverlapping(&EMPTY_MODEL, 1);
+            &mut *body
+        }
+    }
+
+    /// Fills a claimed cell's body with empty level tables (replacing the scratch model)
+    /// and returns them.
+    ///
+    /// # Safety
+    /// `cell` must come from [`LevelsCell::claim`] in the same call, and no reference to
+    /// the scratch model may be alive.
+    pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut CLevels {
+        // SAFETY: as in `scratch`; after the write the `levels` field holds valid tables.
+        unsafe {
+            let body = core::ptr::addr_of_mut!((*cell).body.levels).cast::<CLevels>();
+            body.write(CLevels::empty());
+            &mut *body
+        }
+    }
+
+    /// Marks the cell initialised (the level tables loaded, by [`LevelsCell::fill`]'s
+    /// reference).
+    ///
+    /// # Safety
+    /// `cell` must come from [`LevelsCell::claim`] in the same call, its tables filled and
+    /// loaded, and no reference into the cell alive.
+    pub(crate) unsafe fn seal(cell: *mut Self) {
+        // SAFETY: the caller's guarantees; a `u32` is written raw.
+        unsafe { core::ptr::addr_of_mut!((*cell).magic).write(LEVELS_MAGIC) };
+    }
+
+    /// The tables of loaded level tables, shared.
+    ///
+    /// # Safety
+    /// If `p` is non-null and aligned, it must point to `NEMM_LEVELS_SIZE` readable bytes
+    /// (a `nemm_levels_t`) that no other context writes during the borrow.
+    pub(crate) unsafe fn get<'a>(p: *const nemm_levels_t) -> Result<&'a CLevels, nemm_status_t> {
+        let cell = p.cast::<Self>();
+        checked(cell)?;
+        // SAFETY: as in `EstimatorCell::get`.
+        let magic = unsafe { core::ptr::addr_of!((*cell).magic).read() };
+        if magic != LEVELS_MAGIC {
+            return Err(NEMM_E_NOT_INITIALISED);
+        }
+        // SAFETY: the mark is written only by a successful init, after the `levels` field
+        // of the body was written and loaded; the caller gives shared access.
+        Ok(unsafe { &*core::ptr::addr_of!((*cell).body.levels).cast::<CLevels>() })
+    }
+}
+
+/// The CRC-32 trailer of a blob (its last four bytes, little-endian; 0 if shorter).
+fn trailer(blob: &[u8]) -> u32 {
+    blob.len()
+        .checked_sub(4)
+        .and_then(|at| blob.get(at..))
+        .and_then(|b| <[u8; 4]>::try_from(b).ok())
+        .map_or(0, u32::from_le_bytes)
+}
+
+/// A pointer to an out-parameter, checked for null (any alignment is accepted for the
+/// plain structs: they are written unaligned).
+pub(crate) fn out<T>(p: *mut T) -> Result<*mut T, nemm_status_t> {
+    if p.is_null() {
+        Err(NEMM_E_NULL)
+    } else {
+        Ok(p)
+    }
+}

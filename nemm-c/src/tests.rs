@@ -1,0 +1,974 @@
+//! The C functions called from Rust: every status path, and bit-identity with nemm-core
+//! used directly (the firmware's instantiation) over the project's blobs.
+
+use crate::status::{nemm_status_t::*, ALL};
+use crate::*;
+use nemm_core::{
+    decode_into, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model, ModelKind,
+    ObserverConfig, TableConfig,
+};
+use std::boxed::Box;
+use std::ffi::CStr;
+use std::vec::Vec;
+
+type P = Model<NEMM_PARAM_CAPACITY>;
+type E = Estimator<NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>;
+
+/// The firmware's trained NEMM (its blob stores 128-segment tables at 7 levels, 0 to 0.3).
+const TRAINED: &[u8] = include_bytes!("../../nemm-firmware/data/trained-nemm.nemm");
+/// The example blobs of each kind.
+const EXAMPLES: [(&[u8], u32); 4] = [
+    (
+        include_bytes!("../../nemm-firmware/data/example-sem.nemm"),
+        NEMM_KIND_SEM,
+    ),
+    (
+        include_bytes!("../../nemm-firmware/data/example-linear-emm.nemm"),
+        NEMM_KIND_LINEAR_EMM,
+    ),
+    (
+        include_bytes!("../../nemm-firmware/data/example-nemm-light.nemm"),
+        NEMM_KIND_NEMM_LIGHT,
+    ),
+    (
+        include_bytes!("../../nemm-firmware/data/example-nemm.nemm"),
+        NEMM_KIND_NEMM,
+    ),
+];
+
+/// Storage at the alignment of the largest target's objects.
+#[repr(C, align(16))]
+struct Aligned<T>(T);
+
+fn estimator_storage() -> Box<Aligned<nemm_estimator_t>> {
+    // SAFETY: all-zero bytes are a valid `u8` array.
+    unsafe { Box::new_zeroed().assume_init() }
+}
+
+fn observer_storage() -> Box<Aligned<nemm_observer_t>> {
+    // SAFETY: as above.
+    unsafe { Box::new_zeroed().assume_init() }
+}
+
+fn init(st: &mut nemm_estimator_t, blob: &[u8], cfg: &nemm_estimator_config_t) -> nemm_status_t {
+    // SAFETY: valid storage, blob and configuration.
+    unsafe {
+        nemm_estimator_init(
+            st,
+            core::mem::size_of::<nemm_estimator_t>(),
+            blob.as_ptr(),
+            blob.len(),
+            cfg,
+        )
+    }
+}
+
+fn step(st: &mut nemm_estimator_t, v: f32) -> (nemm_status_t, nemm_estimate_t) {
+    let mut e = nemm_estimate_t::default();
+    // SAFETY: valid storage and output.
+    let s = unsafe { nemm_estimator_step(st, v, &mut e) };
+    (s, e)
+}
+
+fn info(st: &nemm_estimator_t) -> nemm_estimator_info_t {
+    let mut i = nemm_estimator_info_t::default();
+    // SAFETY: valid storage and output.
+    assert_eq!(unsafe { nemm_estimator_info(st, &mut i) }, NEMM_OK);
+    i
+}
+
+fn cfg(alpha: f32, mode: u32) -> nemm_estimator_config_t {
+    nemm_estimator_config_t {
+        alpha,
+        mode,
+        ..Default::default()
+    }
+}
+
+/// A velocity sequence over the model's range with a NaN and an implausible sample.
+fn velocities(n: usize) -> Vec<f32> {
+    (0..n)
+        .map(|k| match k {
+            100 => f32::NAN,
+            200 => 1e6,
+            _ => 0.8 * (k as f32 * 0.0021).sin() + 0.3 * (k as f32 * 0.013).sin(),
+        })
+        .collect()
+}
+
+/// nemm-core's estimator for `blob` as the library builds it (in place, stored tables).
+fn reference(blob: &[u8], c: EstimatorConfig) -> (Box<P>, Box<E>) {
+    let mut model = Box::new(P::empty());
+    let tables = decode_into(blob, &mut model).expect("decodes");
+    let mut est = Box::new(E::empty());
+    est.load_with_tables(&model, c, &tables, blob)
+        .expect("loads");
+    (model, est)
+}
+
+fn table(bound: f32) -> EvalMode {
+    EvalMode::Table(TableConfig::new(bound))
+}
+
+#[test]
+fn statuses_are_distinct_and_described() {
+    for (i, s) in ALL.iter().enumerate() {
+        assert!(ALL[..i].iter().all(|o| *o as i32 != *s as i32));
+        let text = s.text().to_str().unwrap();
+        assert!(
+            text.starts_with(&std::format!("{s:?}: ")),
+            "{s:?} is described as {text}"
+        );
+        // SAFETY: a static C string.
+        let c = unsafe { CStr::from_ptr(nemm_status_str(*s as i32)) };
+        assert_eq!(c, s.text());
+    }
+    assert_eq!(NEMM_OK as i32, 0);
+    for bad in [-1, 7, 9, 63, 78, 1000] {
+        // SAFETY: a static C string.
+        let c = unsafe { CStr::from_ptr(nemm_status_str(bad)) };
+        assert_eq!(c.to_str().unwrap(), "unknown status");
+    }
+}
+
+#[test]
+fn blob_validate_checks_what_decode_checks_in_its_order() {
+    let mut i = nemm_blob_info_t::default();
+    // SAFETY: valid blob and output.
+    let validate =
+        |b: &[u8], i: &mut nemm_blob_info_t| unsafe { nemm_blob_validate(b.as_ptr(), b.len(), i) };
+    assert_eq!(validate(TRAINED, &mut i), NEMM_OK);
+    assert_eq!(
+        (i.format_version, i.kind, i.blob_len),
+        (4, NEMM_KIND_NEMM, TRAINED.len() as u32)
+    );
+    assert!(i.max_scaler_params as usize <= NEMM_PARAM_CAPACITY);
+    // SAFETY: a NULL info is allowed.
+    let s = unsafe { nemm_blob_validate(TRAINED.as_ptr(), TRAINED.len(), core::ptr::null_mut()) };
+    assert_eq!(s, NEMM_OK);
+    // SAFETY: a NULL blob is refused before it is read.
+    let s = unsafe { nemm_blob_validate(core::ptr::null(), 10, &mut i) };
+    assert_eq!(s, NEMM_E_NULL);
+    let decode_status = |b: &[u8]| match decode_into(b, &mut Box::new(P::empty())) {
+        Ok(_) => NEMM_OK,
+        Err(e) => e.into(),
+    };
+    let mut cases: Vec<(Vec<u8>, nemm_status_t)> = std::vec![
+        (TRAINED[..TRAINED.len() - 1].to_vec(), NEMM_E_BLOB_TRUNCATED),
+        (TRAINED[..3].to_vec(), NEMM_E_BLOB_TRUNCATED),
+        ([TRAINED, &[0]].concat(), NEMM_E_BLOB_TRAILING_BYTES),
+    ];
+    let mut bad_magic = TRAINED.to_vec();
+    bad_magic[0] = b'X';
+    cases.push((bad_magic, NEMM_E_BLOB_BAD_MAGIC));
+    let mut version = TRAINED.to_vec();
+    version[4] = 9;
+    cases.push((version, NEMM_E_BLOB_UNSUPPORTED_VERSION));
+    let mut crc = TRAINED.to_vec();
+    crc[100] ^= 1;
+    cases.push((crc, NEMM_E_BLOB_CRC_MISMATCH));
+    // A model wider than the capacity: H = 32, L = 3.
+    let wide: Model<4096> = nemm_core::testing::example_model(ModelKind::Nemm, 32, 3).unwrap();
+    let mut buf = std::vec![0u8; 100_000];
+    let wide = nemm_core::encode(&wide, &mut buf).unwrap().to_vec();
+    cases.push((wide, NEMM_E_BLOB_OVER_CAPACITY));
+    for (b, want) in &cases {
+        assert_eq!(validate(b, &mut i), *want);
+        assert_eq!(decode_status(b), *want, "decode agrees");
+        let mut st = estimator_storage();
+        assert_eq!(init(&mut st.0, b, &cfg(0.15, NEMM_MODE_EXACT)), *want);
+    }
+}
+
+#[test]
+fn init_refuses_bad_storage_and_settings_and_leaves_nothing_usable() {
+    let mut st = estimator_storage();
+    let size = core::mem::size_of::<nemm_estimator_t>();
+    let c = cfg(0.15, NEMM_MODE_EXACT);
+    let p: *mut nemm_estimator_t = &mut st.0;
+    // SAFETY: every call below gets valid or NULL pointers and true sizes.
+    unsafe {
+        let blob = TRAINED.as_ptr();
+        let n = TRAINED.len();
+        assert_eq!(
+            nemm_estimator_init(core::ptr::null_mut(), size, blob, n, &c),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_estimator_init(p, size, core::ptr::null(), n, &c),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_estimator_init(p, size, blob, n, core::ptr::null()),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_estimator_init(p, size - 1, blob, n, &c),
+            NEMM_E_STORAGE_SIZE
+        );
+        let misaligned = p.cast::<u8>().add(1).cast::<nemm_estimator_t>();
+        assert_eq!(
+            nemm_estimator_init(misaligned, size - 1, blob, n, &c),
+            NEMM_E_STORAGE_ALIGN
+        );
+        assert_eq!(
+            nemm_estimator_init(p, size, blob, usize::MAX, &c),
+            NEMM_E_INVALID_ARGUMENT
+        );
+        // (The first bytes of) the blob inside the storage.
+        let inner = p.cast::<u8>().add(64);
+        let part = n.min(size - 64);
+        core::ptr::copy_nonoverlapping(blob, inner, part);
+        assert_eq!(
+            nemm_estimator_init(p, size, inner, part, &c),
+            NEMM_E_OVERLAP
+        );
+    }
+    // Never initialised.
+    assert_eq!(step(&mut st.0, 0.1).0, NEMM_E_NOT_INITIALISED);
+    let mut bad = c;
+    bad.mode = 2;
+    assert_eq!(init(&mut st.0, TRAINED, &bad), NEMM_E_INVALID_ARGUMENT);
+    for (alpha, want) in [
+        (1.5, NEMM_E_ALPHA_OUT_OF_RANGE),
+        (-0.1, NEMM_E_ALPHA_OUT_OF_RANGE),
+        (f32::NAN, NEMM_E_ALPHA_OUT_OF_RANGE),
+    ] {
+        assert_eq!(init(&mut st.0, TRAINED, &cfg(alpha, NEMM_MODE_EXACT)), want);
+    }
+    let mut limit = c;
+    limit.velocity_limit_m_s = -1.0;
+    assert_eq!(init(&mut st.0, TRAINED, &limit), NEMM_E_BAD_VELOCITY_LIMIT);
+    let mut bound = cfg(0.15, NEMM_MODE_TABLE);
+    bound.table_max_rel_error = f32::NAN;
+    assert_eq!(init(&mut st.0, TRAINED, &bound), NEMM_E_TABLE_BAD_CONFIG);
+    bound.table_max_rel_error = 1e-12;
+    assert_eq!(init(&mut st.0, TRAINED, &bound), NEMM_E_TABLE_EXCEEDS_BOUND);
+    // A good init, then a failed one: the storage is no estimator any more.
+    assert_eq!(init(&mut st.0, TRAINED, &c), NEMM_OK);
+    assert_eq!(step(&mut st.0, 0.1).0, NEMM_OK);
+    assert_eq!(init(&mut st.0, &TRAINED[..50], &c), NEMM_E_BLOB_TRUNCATED);
+    assert_eq!(step(&mut st.0, 0.1).0, NEMM_E_NOT_INITIALISED);
+    // SAFETY: NULL arguments are refused before use.
+    unsafe {
+        let mut e = nemm_estimate_t::default();
+        assert_eq!(
+            nemm_estimator_step(core::ptr::null_mut(), 0.0, &mut e),
+            NEMM_E_NULL
+        );
+        assert_eq!(init(&mut st.0, TRAINED, &c), NEMM_OK);
+        assert_eq!(
+            nemm_estimator_step(&mut st.0, 0.0, core::ptr::null_mut()),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_estimator_info(&st.0, core::ptr::null_mut()),
+            NEMM_E_NULL
+        );
+        assert_eq!(nemm_estimator_reset(core::ptr::null_mut()), NEMM_E_NULL);
+        assert_eq!(
+            nemm_estimator_set_alpha(core::ptr::null_mut(), 0.1),
+            NEMM_E_NULL
+        );
+    }
+}
+
+#[test]
+fn forces_are_bit_identical_to_nemm_core() {
+    let vs = velocities(3000);
+    let mut runs: Vec<(&[u8], u32, EvalMode, u32)> = Vec::new();
+    for (blob, kind) in EXAMPLES {
+        runs.push((blob, kind, EvalMode::Exact, NEMM_MODE_EXACT));
+    }
+    runs.push((TRAINED, NEMM_KIND_NEMM, EvalMode::Exact, NEMM_MODE_EXACT));
+    runs.push((
+        TRAINED,
+        NEMM_KIND_NEMM,
+        table(NEMM_TABLE_MAX_REL_ERROR),
+        NEMM_MODE_TABLE,
+    ));
+    for (blob, kind, mode, c_mode) in runs {
+        let (_, mut want) = reference(
+            blob,
+            EstimatorConfig {
+                mode,
+                ..EstimatorConfig::new(0.15)
+            },
+        );
+        let mut st = estimator_storage();
+        assert_eq!(init(&mut st.0, blob, &cfg(0.15, c_mode)), NEMM_OK);
+        let i = info(&st.0);
+        assert_eq!((i.kind, i.mode, i.alpha), (kind, c_mode, 0.15));
+        assert_eq!(i.needs_position, 0);
+        if c_mode == NEMM_MODE_TABLE {
+            assert_eq!(
+                i.table_origin, NEMM_TABLES_STORED,
+                "the trained blob stores tables"
+            );
+            assert!(i.table_bytes > 0);
+        }
+        for &v in &vs {
+            let (s, e) = step(&mut st.0, v);
+            let w = want.step(v);
+            assert_eq!(s, NEMM_OK);
+            assert_eq!(
+                (e.force_n.to_bits(), e.flags),
+                (w.force_n.to_bits(), w.flags.0)
+            );
+        }
+        let i = info(&st.0);
+        let d = want.diagnostics();
+        assert_eq!(
+            (i.steps, i.held_samples, i.resets),
+            (d.steps, d.held_samples, d.resets)
+        );
+        assert_eq!(i.held_samples, 2, "the NaN and the implausible sample");
+    }
+}
+
+#[test]
+fn alpha_changes_and_reset_follow_nemm_core() {
+    let (_, mut want) = reference(TRAINED, EstimatorConfig::new(0.1));
+    let mut st = estimator_storage();
+    assert_eq!(
+        init(&mut st.0, TRAINED, &cfg(0.1, NEMM_MODE_EXACT)),
+        NEMM_OK
+    );
+    let p: *mut nemm_estimator_t = &mut st.0;
+    for (k, &v) in velocities(600).iter().enumerate() {
+        let alpha = 0.1 + 0.0005 * k as f32;
+        let mut e = nemm_estimate_t::default();
+        // SAFETY: valid storage and output.
+        let s = unsafe {
+            match k % 3 {
+                0 => nemm_estimator_step_with_alpha(p, v, alpha, &mut e),
+                1 => nemm_estimator_step_with_alpha_and_position(p, v, alpha, 0.01, &mut e),
+                _ => nemm_estimator_step_with_position(p, v, 0.01, &mut e),
+            }
+        };
+        let w = match k % 3 {
+            0 => want.step_with_alpha(v, alpha).unwrap(),
+            1 => want.step_with_alpha_and_position(v, alpha, 0.01).unwrap(),
+            _ => want.step_with_position(v, 0.01),
+        };
+        assert_eq!(s, NEMM_OK);
+        assert_eq!(
+            (e.force_n.to_bits(), e.flags),
+            (w.force_n.to_bits(), w.flags.0)
+        );
+        if k == 300 {
+            // SAFETY: valid storage.
+            assert_eq!(unsafe { nemm_estimator_reset(p) }, NEMM_OK);
+            want.reset();
+            // SAFETY: valid storage.
+            assert_eq!(unsafe { nemm_estimator_set_alpha(p, 0.2) }, NEMM_OK);
+            want.set_alpha(0.2).unwrap();
+        }
+    }
+    let mut e = nemm_estimate_t {
+        force_n: 7.0,
+        flags: 9,
+    };
+    // SAFETY: valid storage and output.
+    unsafe {
+        assert_eq!(nemm_estimator_set_alpha(p, 2.0), NEMM_E_ALPHA_OUT_OF_RANGE);
+        assert_eq!(
+            nemm_estimator_step_with_alpha(p, 0.1, f32::NAN, &mut e),
+            NEMM_E_ALPHA_OUT_OF_RANGE
+        );
+    }
+    assert_eq!(
+        (e.force_n, e.flags),
+        (7.0, 9),
+        "nothing written after an error"
+    );
+    // Table mode refuses a changing per-sample alpha, steps an unchanged one.
+    let mut tab = estimator_storage();
+    assert_eq!(
+        init(&mut tab.0, TRAINED, &cfg(0.15, NEMM_MODE_TABLE)),
+        NEMM_OK
+    );
+    // SAFETY: valid storage and output.
+    unsafe {
+        assert_eq!(
+            nemm_estimator_step_with_alpha(&mut tab.0, 0.1, 0.2, &mut e),
+            NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE
+        );
+        assert_eq!(
+            nemm_estimator_step_with_alpha(&mut tab.0, 0.1, 0.15, &mut e),
+            NEMM_OK
+        );
+    }
+}
+
+#[test]
+fn a_static_force_needs_the_position() {
+    let mut model: Model<NEMM_PARAM_CAPACITY> =
+        nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
+    model.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+    let mut buf = std::vec![0u8; 100_000];
+    let blob = nemm_core::encode(&model, &mut buf).unwrap().to_vec();
+    let mut want = Box::new(E::empty());
+    want.load(&model, EstimatorConfig::new(0.15)).unwrap();
+    let mut st = estimator_storage();
+    assert_eq!(init(&mut st.0, &blob, &cfg(0.15, NEMM_MODE_EXACT)), NEMM_OK);
+    assert_eq!(info(&st.0).needs_position, 1);
+    let (s, e) = step(&mut st.0, 0.1);
+    assert_eq!(
+        (s, e.flags & NEMM_FLAG_POSITION_MISSING),
+        (NEMM_OK, NEMM_FLAG_POSITION_MISSING)
+    );
+    want.step(0.1);
+    for (k, &v) in velocities(300).iter().enumerate() {
+        let x = 0.03 + 0.01 * (k as f32 * 0.01).sin();
+        let mut e = nemm_estimate_t::default();
+        // SAFETY: valid storage and output.
+        let s = unsafe { nemm_estimator_step_with_position(&mut st.0, v, x, &mut e) };
+        let w = want.step_with_position(v, x);
+        assert_eq!(s, NEMM_OK);
+        assert_eq!(
+            (e.force_n.to_bits(), e.flags),
+            (w.force_n.to_bits(), w.flags.0)
+        );
+    }
+}
+
+fn observer_init(
+    obs: &mut nemm_observer_t,
+    est: &nemm_estimator_t,
+    c: Option<&nemm_observer_config_t>,
+) -> nemm_status_t {
+    // SAFETY: valid storages and configuration (or NULL).
+    unsafe {
+        nemm_observer_init(
+            obs,
+            core::mem::size_of::<nemm_observer_t>(),
+            est,
+            c.map_or(core::ptr::null(), |c| c as *const _),
+        )
+    }
+}
+
+#[test]
+fn the_observer_follows_nemm_core_and_checks_its_settings() {
+    let mut st = estimator_storage();
+    assert_eq!(
+        init(&mut st.0, TRAINED, &cfg(0.15, NEMM_MODE_TABLE)),
+        NEMM_OK
+    );
+    let mut obs = observer_storage();
+    let mut c = nemm_observer_config_t::default_values();
+    // SAFETY: valid output.
+    assert_eq!(unsafe { nemm_observer_config_default(&mut c) }, NEMM_OK);
+    assert_eq!(c.to_core(), ObserverConfig::new());
+    assert_eq!(observer_init(&mut obs.0, &st.0, Some(&c)), NEMM_OK);
+    let mut model = Box::new(P::empty());
+    decode_into(TRAINED, &mut model).unwrap();
+    let mut want: Box<AlphaObserver<NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>> =
+        Box::new(AlphaObserver::empty());
+    want.load(&model, ObserverConfig::new()).unwrap();
+    // The measured force: the estimator's own at alpha 0.15.
+    let mut last = nemm_alpha_estimate_t::default();
+    for &v in &velocities(4000) {
+        let (_, f) = step(&mut st.0, v);
+        let mut a = nemm_alpha_estimate_t::default();
+        // SAFETY: valid storage and output.
+        let s = unsafe { nemm_observer_step(&mut obs.0, v, f.force_n, &mut a) };
+        let w = want.step(v, f.force_n);
+        assert_eq!(s, NEMM_OK);
+        assert_eq!(
+            (
+                a.alpha.to_bits(),
+                a.band.to_bits(),
+                a.force_n.to_bits(),
+                a.flags
+            ),
+            (
+                w.alpha.to_bits(),
+                w.band.to_bits(),
+                w.force_n.to_bits(),
+                w.flags.0
+            )
+        );
+        last = a;
+    }
+    assert!((last.alpha - 0.15).abs() < 0.01, "alpha {}", last.alpha);
+    let mut now = nemm_alpha_estimate_t::default();
+    // SAFETY: valid storage and output.
+    unsafe {
+        assert_eq!(nemm_observer_estimate(&obs.0, &mut now), NEMM_OK);
+        assert_eq!(now, last);
+        assert_eq!(nemm_observer_reset(&mut obs.0), NEMM_OK);
+        assert_eq!(nemm_observer_estimate(&obs.0, &mut now), NEMM_OK);
+    }
+    assert_ne!(now.flags & NEMM_OBSERVER_NOT_EXCITED, 0);
+    // Defaults with a NULL configuration.
+    assert_eq!(observer_init(&mut obs.0, &st.0, None), NEMM_OK);
+    for (edit, want) in [
+        (
+            (|c: &mut nemm_observer_config_t| c.points = 1) as fn(&mut nemm_observer_config_t),
+            NEMM_E_OBSERVER_POINTS,
+        ),
+        (|c| c.points = 8, NEMM_E_OBSERVER_POINTS),
+        (
+            |c| {
+                c.grid_lo = 0.3;
+                c.grid_hi = 0.1;
+            },
+            NEMM_E_OBSERVER_GRID,
+        ),
+        (|c| c.horizon_s = -1.0, NEMM_E_OBSERVER_SETTING),
+        (|c| c.velocity_limit_m_s = -1.0, NEMM_E_BAD_VELOCITY_LIMIT),
+    ] {
+        let mut bad = c;
+        edit(&mut bad);
+        assert_eq!(observer_init(&mut obs.0, &st.0, Some(&bad)), want);
+        let mut a = nemm_alpha_estimate_t::default();
+        // SAFETY: valid storage and output.
+        let s = unsafe { nemm_observer_step(&mut obs.0, 0.1, 10.0, &mut a) };
+        assert_eq!(
+            s, NEMM_E_NOT_INITIALISED,
+            "a failed init leaves no observer"
+        );
+    }
+    // An uninitialised estimator, overlapping storages.
+    let fresh = estimator_storage();
+    assert_eq!(
+        observer_init(&mut obs.0, &fresh.0, None),
+        NEMM_E_NOT_INITIALISED
+    );
+    let est: *mut nemm_estimator_t = &mut st.0;
+    // SAFETY: the observer's storage would lie inside the estimator's: refused before use.
+    let s = unsafe {
+        nemm_observer_init(
+            est.cast::<u8>().add(16).cast(),
+            NEMM_OBSERVER_SIZE,
+            est,
+            core::ptr::null(),
+        )
+    };
+    assert_eq!(s, NEMM_E_OVERLAP);
+    assert_eq!(
+        step(&mut st.0, 0.1).0,
+        NEMM_OK,
+        "the estimator is untouched"
+    );
+}
+
+type Levels = nemm_core::LevelTables<NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
+type O = AlphaObserver<NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>;
+
+/// The levels of the trained blob.
+const TRAINED_LEVELS: [f32; 7] = [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3];
+
+fn levels_storage() -> Box<Aligned<nemm_levels_t>> {
+    // SAFETY: all-zero bytes are a valid `u8` array.
+    unsafe { Box::new_zeroed().assume_init() }
+}
+
+fn levels_init(lv: &mut nemm_levels_t, est: &nemm_estimator_t, blob: &[u8]) -> nemm_status_t {
+    // SAFETY: valid storages and blob.
+    unsafe {
+        nemm_levels_init(
+            lv,
+            core::mem::size_of::<nemm_levels_t>(),
+            est,
+            blob.as_ptr(),
+            blob.len(),
+        )
+    }
+}
+
+fn levels_info(lv: &nemm_levels_t) -> nemm_levels_info_t {
+    let mut i = nemm_levels_info_t::default();
+    // SAFETY: valid storage and output.
+    assert_eq!(unsafe { nemm_levels_info(lv, &mut i) }, NEMM_OK);
+    i
+}
+
+/// nemm-core's level tables of `blob` as the library loads them.
+fn reference_levels(blob: &[u8]) -> (Box<P>, Box<Levels>) {
+    let mut model = Box::new(P::empty());
+    let tables = decode_into(blob, &mut model).expect("decodes");
+    let mut levels = Box::new(Levels::empty());
+    levels.load(&model, &tables, blob).expect("levels load");
+    (model, levels)
+}
+
+/// An estimator of `blob` (exact mode) in C storage.
+fn c_estimator(blob: &[u8], alpha: f32) -> Box<Aligned<nemm_estimator_t>> {
+    let mut st = estimator_storage();
+    assert_eq!(init(&mut st.0, blob, &cfg(alpha, NEMM_MODE_EXACT)), NEMM_OK);
+    st
+}
+
+/// The blob of the example NEMM with 128-segment tables at `alphas`.
+fn example_blob_with_levels(alphas: &[f32]) -> Vec<u8> {
+    let model: Box<P> =
+        Box::new(nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap());
+    let ests: Vec<Box<E>> = alphas
+        .iter()
+        .map(|&a| {
+            let mut e = Box::new(E::empty());
+            e.load(
+                &model,
+                EstimatorConfig {
+                    mode: table(NEMM_TABLE_MAX_REL_ERROR),
+                    ..EstimatorConfig::new(a)
+                },
+            )
+            .expect("tables within the bound");
+            e
+        })
+        .collect();
+    let refs: Vec<&E> = ests.iter().map(|e| &**e).collect();
+    let mut buf = std::vec![0u8; 400_000];
+    nemm_core::encode_with_tables(&model, &refs, &mut buf)
+        .expect("encodes")
+        .to_vec()
+}
+
+#[test]
+fn level_tables_load_from_the_estimators_blob_and_step_as_nemm_core() {
+    let mut st = estimator_storage();
+    assert_eq!(
+        init(&mut st.0, TRAINED, &cfg(0.15, NEMM_MODE_TABLE)),
+        NEMM_OK
+    );
+    let mut lv = levels_storage();
+    assert_eq!(levels_init(&mut lv.0, &st.0, TRAINED), NEMM_OK);
+    let i = levels_info(&lv.0);
+    assert_eq!(i.levels, 7);
+    assert_eq!(&i.alpha[..7], &TRAINED_LEVELS);
+    assert_eq!(i.alpha[7], 0.0);
+    assert_eq!(i.table_bytes as usize, 14 * 28 * NEMM_TABLE_SEGMENTS);
+    assert_eq!(i.table_max_rel_error, NEMM_TABLE_MAX_REL_ERROR);
+    let (model, levels) = reference_levels(TRAINED);
+    let mut want = Box::new(E::empty());
+    want.load(&model, EstimatorConfig::new(0.15)).unwrap();
+    // SAFETY: valid storage.
+    assert_eq!(unsafe { nemm_estimator_reset(&mut st.0) }, NEMM_OK);
+    let p: *mut nemm_estimator_t = &mut st.0;
+    for (k, &v) in velocities(3000).iter().enumerate() {
+        // A level per sample, across and beyond the stored levels.
+        let alpha = 0.35 * (k as f32 * 0.003).sin().abs();
+        let x = 0.01 * (k as f32 * 0.002).sin();
+        let mut e = nemm_estimate_t::default();
+        // SAFETY: valid storages and output.
+        let s = unsafe {
+            if k % 2 == 0 {
+                nemm_estimator_step_on_levels(p, &lv.0, v, alpha, &mut e)
+            } else {
+                nemm_estimator_step_on_levels_with_position(p, &lv.0, v, alpha, x, &mut e)
+            }
+        };
+        let w = if k % 2 == 0 {
+            want.step_on_levels(&levels, v, alpha)
+        } else {
+            want.step_on_levels_with_position(&levels, v, alpha, x)
+        }
+        .unwrap();
+        assert_eq!(s, NEMM_OK);
+        assert_eq!(
+            (e.force_n.to_bits(), e.flags),
+            (w.force_n.to_bits(), w.flags.0),
+            "sample {k}"
+        );
+    }
+    // Refused with nothing written: alpha outside [0, 1], uninitialised level tables.
+    let mut e = nemm_estimate_t {
+        force_n: 7.0,
+        flags: 9,
+    };
+    let fresh = levels_storage();
+    // SAFETY: valid storages and output; NULLs are refused before use.
+    unsafe {
+        for a in [f32::NAN, -0.1, 1.5] {
+            assert_eq!(
+                nemm_estimator_step_on_levels(p, &lv.0, 0.1, a, &mut e),
+                NEMM_E_ALPHA_OUT_OF_RANGE
+            );
+        }
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, &fresh.0, 0.1, 0.1, &mut e),
+            NEMM_E_NOT_INITIALISED
+        );
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, core::ptr::null(), 0.1, 0.1, &mut e),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, &lv.0, 0.1, 0.1, core::ptr::null_mut()),
+            NEMM_E_NULL
+        );
+        // The level tables inside the estimator's storage.
+        assert_eq!(
+            nemm_estimator_step_on_levels(p, p.cast::<u8>().add(64).cast(), 0.1, 0.1, &mut e),
+            NEMM_E_OVERLAP
+        );
+    }
+    assert_eq!((e.force_n, e.flags), (7.0, 9), "nothing written");
+    // Level tables of another model: refused.
+    let mut light = c_estimator(EXAMPLES[2].0, 0.15);
+    // SAFETY: valid storages and output.
+    let s = unsafe { nemm_estimator_step_on_levels(&mut light.0, &lv.0, 0.1, 0.1, &mut e) };
+    assert_eq!(s, NEMM_E_LEVELS_MISMATCH);
+}
+
+#[test]
+fn level_tables_refuse_other_blobs_and_bad_storage() {
+    let trained = c_estimator(TRAINED, 0.15);
+    let mut lv = levels_storage();
+    // A blob without level tables, a model without neural coefficients.
+    let example = c_estimator(EXAMPLES[3].0, 0.15);
+    assert_eq!(
+        levels_init(&mut lv.0, &example.0, EXAMPLES[3].0),
+        NEMM_E_LEVELS_TOO_FEW
+    );
+    let sem = c_estimator(EXAMPLES[0].0, 0.15);
+    assert_eq!(
+        levels_init(&mut lv.0, &sem.0, EXAMPLES[0].0),
+        NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT
+    );
+    // Not the estimator's blob, either way round.
+    assert_eq!(
+        levels_init(&mut lv.0, &trained.0, EXAMPLES[3].0),
+        NEMM_E_LEVELS_OTHER_BLOB
+    );
+    assert_eq!(
+        levels_init(&mut lv.0, &example.0, TRAINED),
+        NEMM_E_LEVELS_OTHER_BLOB
+    );
+    // A good init, then a failed one: no level tables any more.
+    assert_eq!(levels_init(&mut lv.0, &trained.0, TRAINED), NEMM_OK);
+    let mut corrupt = TRAINED.to_vec();
+    corrupt[1000] ^= 1;
+    assert_eq!(
+        levels_init(&mut lv.0, &trained.0, &corrupt),
+        NEMM_E_BLOB_CRC_MISMATCH
+    );
+    let mut i = nemm_levels_info_t::default();
+    // SAFETY: valid storage and output.
+    let s = unsafe { nemm_levels_info(&lv.0, &mut i) };
+    assert_eq!(s, NEMM_E_NOT_INITIALISED);
+    // More levels than the capacity.
+    let nine: Vec<f32> = (0..9).map(|k| 0.05 * k as f32).collect();
+    let blob = example_blob_with_levels(&nine);
+    let many = c_estimator(&blob, 0.15);
+    assert_eq!(
+        levels_init(&mut lv.0, &many.0, &blob),
+        NEMM_E_LEVELS_TOO_MANY
+    );
+    // Storage, pointers, an uninitialised estimator.
+    let size = core::mem::size_of::<nemm_levels_t>();
+    let p: *mut nemm_levels_t = &mut lv.0;
+    let (b, n) = (TRAINED.as_ptr(), TRAINED.len());
+    // SAFETY: valid or NULL pointers, true sizes; refused before anything is read beyond
+    // them.
+    unsafe {
+        assert_eq!(
+            nemm_levels_init(core::ptr::null_mut(), size, &trained.0, b, n),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_levels_init(p, size, core::ptr::null(), b, n),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_levels_init(p, size, &trained.0, core::ptr::null(), n),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_levels_init(p, size - 1, &trained.0, b, n),
+            NEMM_E_STORAGE_SIZE
+        );
+        assert_eq!(
+            nemm_levels_init(p.cast::<u8>().add(1).cast(), size - 1, &trained.0, b, n),
+            NEMM_E_STORAGE_ALIGN
+        );
+        assert_eq!(
+            nemm_levels_init(p, size, &trained.0, b, usize::MAX),
+            NEMM_E_INVALID_ARGUMENT
+        );
+        let fresh = estimator_storage();
+        assert_eq!(
+            nemm_levels_init(p, size, &fresh.0, b, n),
+            NEMM_E_NOT_INITIALISED
+        );
+        // The blob inside the storage; the estimator inside the storage.
+        let inner = p.cast::<u8>().add(64);
+        let part = n.min(size - 64);
+        core::ptr::copy_nonoverlapping(b, inner, part);
+        assert_eq!(
+            nemm_levels_init(p, size, &trained.0, inner, part),
+            NEMM_E_OVERLAP
+        );
+        let est_inside = p.cast::<u8>().add(64).cast::<nemm_estimator_t>();
+        assert_eq!(
+            nemm_levels_init(p, size, est_inside, b, n),
+            NEMM_E_NOT_INITIALISED,
+            "no estimator there"
+        );
+        assert_eq!(nemm_levels_info(p, core::ptr::null_mut()), NEMM_E_NULL);
+    }
+}
+
+fn observer_init_on_levels(
+    obs: &mut nemm_observer_t,
+    est: &nemm_estimator_t,
+    lv: &nemm_levels_t,
+    c: Option<&nemm_observer_config_t>,
+) -> nemm_status_t {
+    // SAFETY: valid storages and configuration (or NULL).
+    unsafe {
+        nemm_observer_init_on_levels(
+            obs,
+            core::mem::size_of::<nemm_observer_t>(),
+            est,
+            lv,
+            c.map_or(core::ptr::null(), |c| c as *const _),
+        )
+    }
+}
+
+#[test]
+fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
+    let mut st = estimator_storage();
+    assert_eq!(
+        init(&mut st.0, TRAINED, &cfg(0.12, NEMM_MODE_EXACT)),
+        NEMM_OK
+    );
+    let mut lv = levels_storage();
+    assert_eq!(levels_init(&mut lv.0, &st.0, TRAINED), NEMM_OK);
+    let mut obs = observer_storage();
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, None),
+        NEMM_OK
+    );
+    let (model, levels) = reference_levels(TRAINED);
+    let mut want: Box<O> = Box::new(O::empty());
+    want.load_on_levels(&model, &levels, ObserverConfig::new())
+        .unwrap();
+    assert_eq!(want.grid().collect::<Vec<_>>(), TRAINED_LEVELS);
+    // The measured force: the exact estimator's at alpha 0.12 (between two levels), a
+    // 0.5 m/s 5 Hz sinusoid for 3 s.
+    let mut last = nemm_alpha_estimate_t::default();
+    for k in 0..30_000 {
+        let v = 0.5 * (2.0 * core::f32::consts::PI * 5.0 * k as f32 * 1e-4).sin();
+        let (_, f) = step(&mut st.0, v);
+        let mut a = nemm_alpha_estimate_t::default();
+        // SAFETY: valid storages and output.
+        let s = unsafe {
+            if k % 2 == 0 {
+                nemm_observer_step_on_levels(&mut obs.0, &lv.0, v, f.force_n, &mut a)
+            } else {
+                nemm_observer_step_on_levels_with_position(
+                    &mut obs.0, &lv.0, v, 0.0, f.force_n, &mut a,
+                )
+            }
+        };
+        let w = if k % 2 == 0 {
+            want.step_on_levels(&levels, v, f.force_n)
+        } else {
+            want.step_on_levels_with_position(&levels, v, 0.0, f.force_n)
+        };
+        assert_eq!(s, NEMM_OK);
+        assert_eq!(a, nemm_alpha_estimate_t::from(w), "sample {k}");
+        last = a;
+    }
+    assert_eq!(last.flags & NEMM_OBSERVER_NOT_EXCITED, 0, "{last:?}");
+    assert!((last.alpha - 0.12).abs() < 0.02, "{last:?}");
+    // Settings that contradict the levels.
+    let mut c = nemm_observer_config_t::default_values();
+    c.points = 7;
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, Some(&c)),
+        NEMM_OK
+    );
+    c.points = 5;
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, Some(&c)),
+        NEMM_E_OBSERVER_POINTS
+    );
+    c.points = 0;
+    c.grid_hi = 0.2;
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, Some(&c)),
+        NEMM_E_OBSERVER_GRID
+    );
+    let mut a = nemm_alpha_estimate_t::default();
+    // SAFETY: valid storages and output.
+    let s = unsafe { nemm_observer_step_on_levels(&mut obs.0, &lv.0, 0.1, 1.0, &mut a) };
+    assert_eq!(
+        s, NEMM_E_NOT_INITIALISED,
+        "a failed init leaves no observer"
+    );
+    // Another model's estimator with these level tables.
+    let light = c_estimator(EXAMPLES[2].0, 0.15);
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &light.0, &lv.0, None),
+        NEMM_E_LEVELS_MISMATCH
+    );
+    // Uninitialised level tables, NULL, overlapping storages.
+    let fresh = levels_storage();
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &fresh.0, None),
+        NEMM_E_NOT_INITIALISED
+    );
+    // SAFETY: NULL and overlapping arguments are refused before use.
+    unsafe {
+        let size = core::mem::size_of::<nemm_observer_t>();
+        assert_eq!(
+            nemm_observer_init_on_levels(
+                &mut obs.0,
+                size,
+                &st.0,
+                core::ptr::null(),
+                core::ptr::null()
+            ),
+            NEMM_E_NULL
+        );
+        let inside = (&raw mut lv.0)
+            .cast::<u8>()
+            .add(64)
+            .cast::<nemm_observer_t>();
+        assert_eq!(
+            nemm_observer_init_on_levels(inside, size, &st.0, &lv.0, core::ptr::null()),
+            NEMM_E_OVERLAP
+        );
+    }
+    // An observer not built on level tables, or stepped with other level tables.
+    assert_eq!(observer_init(&mut obs.0, &st.0, None), NEMM_OK);
+    // SAFETY: valid storages and output.
+    let s = unsafe { nemm_observer_step_on_levels(&mut obs.0, &lv.0, 0.1, 1.0, &mut a) };
+    assert_eq!(s, NEMM_E_LEVELS_MISMATCH);
+    let blob = example_blob_with_levels(&[0.1, 0.2]);
+    let other = c_estimator(&blob, 0.15);
+    let mut lv2 = levels_storage();
+    assert_eq!(levels_init(&mut lv2.0, &other.0, &blob), NEMM_OK);
+    assert_eq!(levels_info(&lv2.0).levels, 2);
+    let mut obs2 = observer_storage();
+    assert_eq!(
+        observer_init_on_levels(&mut obs2.0, &other.0, &lv2.0, None),
+        NEMM_OK
+    );
+    assert_eq!(
+        observer_init_on_levels(&mut obs.0, &st.0, &lv.0, None),
+        NEMM_OK
+    );
+    // SAFETY: valid storages and output.
+    unsafe {
+        assert_eq!(
+            nemm_observer_step_on_levels(&mut obs.0, &lv2.0, 0.1, 1.0, &mut a),
+            NEMM_E_LEVELS_MISMATCH
+        );
+        assert_eq!(
+            nemm_observer_step_on_levels(&mut obs2.0, &lv.0, 0.1, 1.0, &mut a),
+            NEMM_E_LEVELS_MISMATCH
+        );
+        assert_eq!(
+            nemm_observer_step_on_levels(&mut obs2.0, &lv2.0, 0.1, 1.0, &mut a),
+            NEMM_OK
+        );
+    }
+}
