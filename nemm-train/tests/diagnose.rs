@@ -211,7 +211,14 @@ fn accuracy_of_the_committed_runs(report: &Path, runs: &[Value]) {
     keys.sort();
     assert_eq!(
         keys,
-        ["from_s", "resolution", "runs", "summary", "tolerance"]
+        [
+            "detail",
+            "from_s",
+            "resolution",
+            "runs",
+            "summary",
+            "tolerance"
+        ]
     );
     assert_eq!(acc["from_s"], 2.0);
     let errors = acc["runs"].as_array().expect("runs");
@@ -232,6 +239,11 @@ fn accuracy_of_the_committed_runs(report: &Path, runs: &[Value]) {
         acc["summary"],
         "2 of 2 excited runs within 0.02 of the offline fit from 2 s on (5 runs, 3 not \
          excited, 5 no longer than 2 s, judged by their final estimate)"
+    );
+    assert_eq!(
+        acc["detail"],
+        "At 2 s (the end of a shorter run): 2 of 2 excited runs within 0.02. Excited at 2 s \
+         as well as at the end: 2 of 2 within from 2 s on."
     );
     // One level only: one column, every condition a row, no ordering check.
     let res = &acc["resolution"];

@@ -8,7 +8,7 @@ use crate::cli::identify::runs_matching;
 use crate::cli::train::check_output_dir;
 use crate::data::dataset::{self, Dataset};
 use crate::report::accuracy::{
-    accuracy_markdown, error_summary, resolution, run_error, AccuracyReport, FROM_S,
+    accuracy_markdown, error_detail, error_summary, resolution, run_error, AccuracyReport, FROM_S,
 };
 use crate::report::diagnose::{
     alpha_figure, diagnose_run, figure_file, observe, observer_inputs, run_file, summary_line,
@@ -83,7 +83,7 @@ pub fn diagnose(args: &DiagnoseArgs) -> Result<()> {
     print!("{}", table_markdown(&out.runs));
     println!("{}", summary_line(&out.runs));
     let accuracy = accuracy_report(&ds, &selected, &results);
-    println!("{}", accuracy.summary);
+    println!("{}\n{}", accuracy.summary, accuracy.detail);
     for line in accuracy.resolution.count_lines() {
         println!("{line}");
     }
@@ -198,6 +198,7 @@ fn accuracy_report(
         from_s: FROM_S,
         tolerance: AGREEMENT,
         summary: error_summary(&runs),
+        detail: error_detail(&runs),
         runs,
         resolution: resolution(&pairs),
     }

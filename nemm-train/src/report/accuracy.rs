@@ -33,6 +33,8 @@ pub struct AccuracyReport {
     pub runs: Vec<RunError>,
     /// The summary line of the observer's error ([`error_summary`]).
     pub summary: String,
+    /// Its detail line ([`error_detail`]).
+    pub detail: String,
     /// The model's resolution per condition.
     pub resolution: Resolution,
 }
@@ -163,6 +165,29 @@ pub fn error_summary(runs: &[RunError]) -> String {
          ({})",
         excited.len(),
         notes.join(", ")
+    )
+}
+
+/// The detail line: how many excited runs are within [`AGREEMENT`] at [`FROM_S`] (at the end
+/// of a shorter run), and how many of those the observer calls excited at [`FROM_S`] as well
+/// as at the end stay within from [`FROM_S`] on.
+pub fn error_detail(runs: &[RunError]) -> String {
+    let excited: Vec<&RunError> = runs.iter().filter(|r| r.excited).collect();
+    let at_from = excited
+        .iter()
+        .filter(|r| {
+            r.alpha_offline
+                .is_some_and(|a| (r.alpha_at_from - a).abs() <= AGREEMENT + 1e-9)
+        })
+        .count();
+    let both: Vec<&&RunError> = excited.iter().filter(|r| r.excited_at_from).collect();
+    format!(
+        "At {FROM_S} s (the end of a shorter run): {at_from} of {} excited runs within \
+         {AGREEMENT}. Excited at {FROM_S} s as well as at the end: {} of {} within from {FROM_S} \
+         s on.",
+        excited.len(),
+        both.iter().filter(|r| r.within()).count(),
+        both.len()
     )
 }
 
@@ -466,13 +491,14 @@ pub fn accuracy_markdown(report: &AccuracyReport) -> String {
          distance of the estimate from the run's offline best fit from {FROM_S} s to the end \
          (a run no longer than {FROM_S} s: its final estimate); the criterion is that every \
          run the observer calls excited (its flag after the last sample) stays within \
-         {AGREEMENT}.\n\n{}\n{}\n\n\
+         {AGREEMENT}.\n\n{}\n{}\n\n{}\n\n\
          **The model's resolution in alpha.** Per test condition (rows) and labelled level \
          (columns): the offline best fit and the observer's final estimate of the run \
          ({NOT_EXCITED}: not excited at the end); the order of each against the labels. A \
          condition is excited when all its runs are.\n\n{}",
         error_table(&report.runs),
         report.summary,
+        report.detail,
         resolution_markdown(&report.resolution)
     )
 }
@@ -529,7 +555,13 @@ mod tests {
         assert_eq!((e.alpha_at_from, e.worst_error), (0.11, Some(0.01)));
         let no_fit = run_error(&diagnosis("runs/b.csv", 0.15, None, 0.1, true), &short);
         let not_excited = run_error(&diagnosis("runs/c.csv", 0.15, Some(0.3), 0.1, false), &long);
-        let summary = error_summary(&[e, no_fit, not_excited]);
+        let runs = [e, no_fit, not_excited];
+        assert_eq!(
+            error_detail(&runs),
+            "At 2 s (the end of a shorter run): 1 of 2 excited runs within 0.02. Excited at \
+             2 s as well as at the end: 1 of 2 within from 2 s on."
+        );
+        let summary = error_summary(&runs);
         assert_eq!(
             summary,
             "1 of 2 excited runs within 0.02 of the offline fit from 2 s on (3 runs, 1 not \
