@@ -57,7 +57,7 @@ pub struct DiagnoseArgs {
 /// prints the table, the summary lines and the ordering counts of the resolution table, and,
 /// with a level step, joins
 /// its two runs and runs the observer over the record. Writes one `alpha_<run>.png` per run,
-/// [`ACCURACY_MD`], [`ACCURACY_JSON`], the level step's files and then [`DIAGNOSE_JSON`] into
+/// the level step's files, [`ACCURACY_MD`], [`ACCURACY_JSON`] and then [`DIAGNOSE_JSON`] into
 /// the report folder. Nothing is written when an input is bad.
 pub fn diagnose(args: &DiagnoseArgs) -> Result<()> {
     check_output_dir("--report", &args.report)?;
