@@ -95,7 +95,7 @@ fn observer_markdown(command: &str, commit: &str, accuracy: &str, step: &str) ->
     format!(
         "Measured by `{command}` at commit `{commit}`: `nemm {}` (the firmware's trained NEMM, \
          trained at 0 and 30 %, on the virtual bench `{BENCH}` as `nemm bench generate` \
-         writes it by default: the 54 runs of Table 1 at 10 kHz, seed 1).\n\n{}\n\n{}\n\
+         writes it by default: the 54 runs of Table 1 at 10 kHz, seed 1).\n\n{}\n\n{}\n\n\
          ![The level step: the online estimate with its band]({figure})\n\n\
          `{FIGURE}`, written by the same command.\n",
         diagnose_args().join(" "),
@@ -122,7 +122,10 @@ mod tests {
              out/observer --level-step runs/oil00_a050_v1048.csv,runs/oil30_a050_v1048.csv \
              --step-repeat 4`"
         ));
-        assert!(md.contains("| a |\n\n**Level step**: x\n"), "{md}");
+        assert!(
+            md.contains("| a |\n\n**Level step**: x\n\n![The level step"),
+            "{md}"
+        );
         assert!(md.contains("](img/level_step.png)"), "{md}");
     }
 }
