@@ -138,8 +138,10 @@ enum Cmd {
     },
     /// The online alpha observer (nemm-core's AlphaObserver) over recorded runs, driven as on
     /// target, against the offline best fit of the same model: per run the final estimate,
-    /// its band, excitation and settling time; writes diagnose.json and one alpha(t) figure
-    /// per run (docs/observer.md, "nemm diagnose").
+    /// its band, excitation and settling time; writes diagnose.json, one alpha(t) figure per
+    /// run, the accuracy tables (the observer's error from 2 s on, the model's resolution per
+    /// condition) and, with --level-step, a record whose level steps (docs/observer.md,
+    /// "nemm diagnose").
     Diagnose {
         /// The weights blob.
         #[arg(long)]
