@@ -152,8 +152,10 @@ enum Cmd {
     },
     /// The online alpha observer (nemm-core's AlphaObserver) over recorded runs, driven as on
     /// target, against the offline best fit of the same model: per run the final estimate,
-    /// its band, excitation and settling time; writes diagnose.json and one alpha(t) figure
-    /// per run (docs/observer.md, "nemm diagnose").
+    /// its band, excitation and settling time; writes diagnose.json, one alpha(t) figure per
+    /// run, the accuracy tables (the observer's error from 2 s on, the model's resolution per
+    /// condition) and, with --level-step, a record whose level steps (docs/observer.md,
+    /// "nemm diagnose").
     Diagnose {
         /// The weights blob.
         #[arg(long)]
@@ -165,9 +167,20 @@ enum Cmd {
         /// names, e.g. 'runs/oil15_*' (repeatable) [default: every run].
         #[arg(long, value_name = "GLOB")]
         runs: Vec<String>,
-        /// Report folder: diagnose.json and one figure alpha_RUN.png per run.
+        /// Report folder: diagnose.json, one figure alpha_RUN.png per run, accuracy.md and
+        /// accuracy.json (the observer's error from 2 s on, the resolution per condition).
         #[arg(long)]
         report: PathBuf,
+        /// A level step: two runs of one periodic condition (files as for --runs, each
+        /// matching one run), joined at a rising crossing of the displacement into one record
+        /// whose level steps where the second begins; writes level-step.json, level-step.md
+        /// and level-step.png.
+        #[arg(long, value_name = "A,B", value_delimiter = ',', num_args = 1)]
+        level_step: Vec<String>,
+        /// With --level-step: times each run's steady part (its trailing full periods) is
+        /// played, for a longer record of the same periodic state.
+        #[arg(long, value_name = "N", default_value_t = 1, requires = "level_step")]
+        step_repeat: usize,
     },
     /// The main job: virtual bench (generated if absent), all four variants on a budget of a
     /// few minutes, Table 4, figures, model.nemm, and the exported model run through nemm-core.
@@ -182,6 +195,15 @@ enum Cmd {
         #[command(flatten)]
         args: nemm_train::config::ConfigArgs,
     },
+}
+
+/// The two runs of `nemm diagnose --level-step A,B` (`None` without the option).
+fn level_step_pair(files: Vec<String>) -> anyhow::Result<Option<[String; 2]>> {
+    match <[String; 2]>::try_from(files) {
+        Ok(pair) => Ok(Some(pair)),
+        Err(v) if v.is_empty() => Ok(None),
+        Err(v) => anyhow::bail!("--level-step takes two runs, A,B (got {})", v.len()),
+    }
 }
 
 /// `--session-epochs` stops a job so that `--resume` continues it from its checkpoint: without
@@ -280,7 +302,18 @@ fn main() -> ExitCode {
             data,
             runs,
             report,
-        } => nemm_train::cli::diagnose::diagnose(&model, &data, &runs, &report),
+            level_step,
+            step_repeat,
+        } => level_step_pair(level_step).and_then(|level_step| {
+            nemm_train::cli::diagnose::diagnose(&nemm_train::cli::diagnose::DiagnoseArgs {
+                model,
+                data,
+                runs,
+                report,
+                level_step,
+                step_repeat,
+            })
+        }),
         Cmd::Demo { out, args } => {
             args.base_over(nemm_train::config::Config::demo())
                 .and_then(|cfg| {

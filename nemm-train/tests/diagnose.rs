@@ -1,8 +1,11 @@
 //! `nemm diagnose` through the binary: the committed trained NEMM on the committed held-out
 //! 15 % runs (`nemm-firmware/data`), the shape of `diagnose.json`, its numbers against
-//! nemm-core's observer and the identifiability search run here, the figures, and the
-//! refusal of bad inputs with nothing written.
+//! nemm-core's observer and the identifiability search run here, the figures, the accuracy
+//! files, a level step on two runs of the virtual bench, and the refusal of bad inputs with
+//! nothing written.
 use nemm_core::{AlphaObserver, ObserverConfig};
+use nemm_train::bench::config::BenchConfig;
+use nemm_train::bench::VirtualBench;
 use nemm_train::data::dataset;
 use nemm_train::data::preprocess::causal_velocity;
 use nemm_train::train::identify::{identify, AlphaGrid, Run, DEFAULT_STEP};
@@ -26,6 +29,11 @@ fn e2e() -> PathBuf {
 }
 
 fn nemm(args: &[&Path], runs: &[&str]) -> Output {
+    nemm_with(args, runs, &[])
+}
+
+/// `nemm diagnose --model --data --report` (`args`), `--runs` each of `runs`, then `extra`.
+fn nemm_with(args: &[&Path], runs: &[&str], extra: &[&str]) -> Output {
     let mut c = Command::new(env!("CARGO_BIN_EXE_nemm"));
     c.arg("diagnose");
     for (flag, value) in ["--model", "--data", "--report"].iter().zip(args) {
@@ -34,7 +42,14 @@ fn nemm(args: &[&Path], runs: &[&str]) -> Output {
     for r in runs {
         c.arg("--runs").arg(r);
     }
-    c.output().expect("run nemm")
+    c.args(extra).output().expect("run nemm")
+}
+
+fn read_json(path: &Path) -> Value {
+    serde_json::from_slice(
+        &std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())),
+    )
+    .expect("parse")
 }
 
 const KEYS: [&str; 7] = [
@@ -135,6 +150,8 @@ fn diagnoses_the_committed_runs_as_the_observer_and_the_search_do() {
         "{stdout}"
     );
 
+    accuracy_of_the_committed_runs(&report, runs);
+
     // The same numbers from nemm-core's observer and the identifiability search, run here on
     // the firmware's velocity path.
     let model: nemm_core::Model =
@@ -186,6 +203,155 @@ fn diagnoses_the_committed_runs_as_the_observer_and_the_search_do() {
     }
 }
 
+/// `accuracy.json` and `accuracy.md` of the committed runs (all shorter than 2 s, one level)
+/// against `diagnose.json`'s `runs`.
+fn accuracy_of_the_committed_runs(report: &Path, runs: &[Value]) {
+    let acc = read_json(&report.join("accuracy.json"));
+    let mut keys: Vec<&String> = acc.as_object().expect("object").keys().collect();
+    keys.sort();
+    assert_eq!(
+        keys,
+        [
+            "detail",
+            "from_s",
+            "resolution",
+            "runs",
+            "summary",
+            "tolerance"
+        ]
+    );
+    assert_eq!(acc["from_s"], 2.0);
+    let errors = acc["runs"].as_array().expect("runs");
+    assert_eq!(errors.len(), runs.len());
+    for (e, r) in errors.iter().zip(runs) {
+        assert_eq!(e["file"], r["file"]);
+        // Every committed run is shorter than 2 s: judged by its final estimate.
+        assert_eq!(e["short"], true, "{e}");
+        assert!(e["duration_s"].as_f64().expect("duration") < 2.0, "{e}");
+        assert_eq!(e["alpha_at_from"], r["alpha_hat"], "{e}");
+        let worst = e["worst_error"].as_f64().expect("worst");
+        let end = (r["alpha_hat"].as_f64().expect("hat")
+            - r["alpha_offline"].as_f64().expect("fit"))
+        .abs();
+        assert!((worst - end).abs() <= 2e-4, "{e} {r}");
+    }
+    assert_eq!(
+        acc["summary"],
+        "2 of 2 excited runs within 0.02 of the offline fit from 2 s on (5 runs, 3 not \
+         excited, 5 no longer than 2 s, judged by their final estimate)"
+    );
+    assert_eq!(
+        acc["detail"],
+        "At 2 s (the end of a shorter run): 2 of 2 excited runs within 0.02. Excited at 2 s \
+         as well as at the end: 2 of 2 within from 2 s on."
+    );
+    // One level only: one column, every condition a row, no ordering check.
+    let res = &acc["resolution"];
+    assert_eq!(res["levels"], serde_json::json!([0.15]));
+    assert_eq!(res["rows"].as_array().expect("rows").len(), 5);
+    let md = std::fs::read_to_string(report.join("accuracy.md")).expect("accuracy.md");
+    assert!(
+        md.contains("No ordering check: 1 labelled level(s), 5 condition(s)."),
+        "{md}"
+    );
+    assert!(
+        md.contains(
+            "| runs/oil15_a050_v1048.csv | 1.05 | yes | yes | 0.150 | 0.150 (end: run shorter) |"
+        ),
+        "{md}"
+    );
+    assert!(
+        md.contains("| 50 | 1.048 | 0.150 | 0.150 | yes | - | - |"),
+        "{md}"
+    );
+    assert!(!report.join("level-step.json").exists());
+}
+
+/// The 50 mm, 1.048 m/s runs at 0 and 30 % of the default virtual bench (seed 1, as
+/// `nemm bench generate` writes them), in `dir`.
+fn bench_condition(dir: &Path) {
+    let mut cfg = BenchConfig::default();
+    cfg.program.oil_loss = vec![0.0, 0.3];
+    cfg.program.amplitudes_m = vec![0.05];
+    cfg.program.peak_velocities_m_s = vec![1.048];
+    dataset::write(dir, &VirtualBench::new(cfg).generate(1, |_, _| {})).expect("write");
+}
+
+#[test]
+fn a_level_step_is_followed_from_the_first_runs_fit_to_the_seconds() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let data = tmp.path().join("bench");
+    bench_condition(&data);
+    let report = tmp.path().join("report");
+    let out = nemm_with(
+        &[&model_path(), &data, &report],
+        &[],
+        &[
+            "--level-step",
+            "runs/oil00_a050_v1048.csv,oil30_a050_v1048.csv",
+            "--step-repeat",
+            "4",
+        ],
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s = read_json(&report.join("level-step.json"));
+    let num = |v: &Value| v.as_f64().unwrap_or_else(|| panic!("{v}: {s}"));
+    let (a, b) = (
+        num(&s["first"]["alpha_offline"]),
+        num(&s["second"]["alpha_offline"]),
+    );
+    // The two levels fit apart (measured: 0.061 and 0.273).
+    assert!(b - a > 0.15, "{s}");
+    // 3 s runs: the ramp-in's three 0.3 s periods left out, six full periods each; the first
+    // run to the end of its steady part and it three more times, the second's four times.
+    assert_eq!(s["first"]["periods"], 6);
+    assert_eq!(s["second"]["periods"], 6);
+    let steady = num(&s["second"]["steady_s"][1]) - num(&s["second"]["steady_s"][0]);
+    assert!((steady - 1.8).abs() < 0.01, "{s}");
+    let step = num(&s["step_s"]);
+    assert!(
+        (step - (num(&s["first"]["steady_s"][1]) + 3.0 * steady)).abs() < 1e-3,
+        "{s}"
+    );
+    assert!(
+        (num(&s["duration_s"]) - (step + 4.0 * steady)).abs() < 1e-3,
+        "{s}"
+    );
+    // Continuous up to one sample's travel at 1.048 m/s (105 um).
+    assert!(num(&s["jump_m"]) < 1.1e-4, "{s}");
+    // Before the step the estimate sits on the first run's fit, at the end on the second's;
+    // it follows within the second run's part of the record.
+    assert!((num(&s["before"]["alpha"]) - a).abs() <= 0.02, "{s}");
+    assert_eq!(s["before"]["excited"], true);
+    assert!((num(&s["end"]["alpha"]) - b).abs() <= 0.02, "{s}");
+    let (reach, settle) = (num(&s["reach_s"]), num(&s["settle_s"]));
+    assert!(
+        0.5 < reach && reach <= settle && settle < 4.0 * steady,
+        "{s}"
+    );
+    let md = std::fs::read_to_string(report.join("level-step.md")).expect("level-step.md");
+    assert!(
+        md.contains(&format!("after the step, and from {settle:.2} s")),
+        "{md}"
+    );
+    assert!(stdout.contains("**Level step**"), "{stdout}");
+    let png = std::fs::read(report.join("level-step.png")).expect("png");
+    assert!(png.len() > 1000 && png.starts_with(b"\x89PNG"));
+    // The two diagnosed runs: two levels of one condition, in order offline.
+    let acc = read_json(&report.join("accuracy.json"));
+    assert_eq!(acc["resolution"]["levels"], serde_json::json!([0.0, 0.3]));
+    assert_eq!(acc["resolution"]["rows"].as_array().expect("rows").len(), 1);
+    assert!(
+        stdout.contains("Offline fit: 0 % below 30 % on 1 of 1 excited conditions"),
+        "{stdout}"
+    );
+}
+
 #[test]
 fn bad_inputs_are_refused_with_a_clear_error_and_nothing_written() {
     let tmp = tempfile::tempdir().expect("tempdir");
@@ -214,6 +380,23 @@ fn bad_inputs_are_refused_with_a_clear_error_and_nothing_written() {
         &[&model_path(), &e2e(), &report],
         &["runs/oil30_*"],
         "--runs runs/oil30_* matches none of the 5 runs",
+    );
+    let step = |pair: &str, expect: &str| {
+        let out = nemm_with(
+            &[&model_path(), &e2e(), &report],
+            &[],
+            &["--level-step", pair],
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{pair} succeeded");
+        assert!(stderr.contains(expect), "{pair}: {stderr}");
+        assert!(!report.exists(), "{pair} wrote {}", report.display());
+    };
+    step("runs/oil15_a050_v1048.csv", "--level-step takes two runs");
+    step("runs/*,oil15_a010_v1048.csv", "matches 5 runs, not one");
+    step(
+        "oil15_a010_v1048.csv,oil15_a010_v0262.csv",
+        "are not one condition",
     );
     let rate = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/offsets_300hz");
     refused(&[&model_path(), &rate, &report], &[], "sampled at 300 Hz");

@@ -18,7 +18,7 @@
 //! - `cargo xtask results`: the target figures (instructions per step, flash, RAM, stack)
 //!   written into `docs/results.md`; `--training DIR` copies a training report's tables
 //!   there, `--host` writes the host criterion benches' figures ([`results`],
-//!   [`host_bench`]).
+//!   [`host_bench`]), `--observer` the alpha observer's accuracy on the virtual bench.
 //! - `cargo xtask c-lib`, `c-test`, `c-header`: the C interface (`nemm-c`): its static
 //!   libraries, its tests, its generated header ([`c_interface`]).
 
@@ -142,17 +142,24 @@ enum Cmd {
     /// --tables, fill the tables block: the fast path's error against the exact one on the
     /// firmware's trained model and the example models (host, minutes). With --host, run the
     /// host criterion benches (nemm-core's `step` with libm and micromath, nemm-train's
-    /// `gradient`; minutes) and fill the host block.
+    /// `gradient`; minutes) and fill the host block. With --observer, run `nemm diagnose` on
+    /// out/bench (generate it first with `nemm bench generate --out out/bench`) with the
+    /// firmware's trained model and fill the observer block and docs/img/level_step.png
+    /// (minutes).
     Results {
         /// A report directory of `nemm compare` or `nemm demo`.
-        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host"])]
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer"])]
         training: Option<PathBuf>,
         /// Measure the tabulated fast path instead (the `tables` block).
-        #[arg(long, conflicts_with = "host")]
+        #[arg(long, conflicts_with_all = ["host", "observer"])]
         tables: bool,
         /// Run the host criterion benches instead (the `host` block).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "observer")]
         host: bool,
+        /// Run `nemm diagnose` on out/bench with the firmware's trained model instead (the
+        /// `observer` block and docs/img/level_step.png).
+        #[arg(long)]
+        observer: bool,
         /// With --host: do not run the benches, write the block from the results of the last
         /// complete --host run (in `<target>/criterion-host`).
         #[arg(long, requires = "host")]
@@ -322,6 +329,7 @@ fn main() -> ExitCode {
             training,
             tables,
             host,
+            observer,
             no_run,
             steps,
             allow_dirty,
@@ -329,6 +337,7 @@ fn main() -> ExitCode {
             Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty)),
             None if tables => Paths::find().and_then(|p| results::tables(&p, allow_dirty)),
             None if host => Paths::find().and_then(|p| results::host(&p, no_run, allow_dirty)),
+            None if observer => Paths::find().and_then(|p| results::observer(&p, allow_dirty)),
             None => {
                 setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty))
             }
@@ -825,6 +834,17 @@ mod tests {
         }
         assert!(parse(&["results", "--no-run"]).is_err());
         assert!(parse(&["results", "--host", "--tables"]).is_err());
+        assert!(parse(&["results", "--observer", "--host"]).is_err());
+        match parse(&["results", "--observer"]) {
+            Ok(Some(Cmd::Results {
+                observer: true,
+                host: false,
+                tables: false,
+                training: None,
+                ..
+            })) => {}
+            other => panic!("{other:?}"),
+        }
         match parse(&["build-target"]) {
             Ok(Some(Cmd::BuildTarget { boards })) => assert!(boards.is_empty()),
             other => panic!("{other:?}"),

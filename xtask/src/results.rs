@@ -17,6 +17,13 @@
 //!   (estimator step per model kind, integrator, mode and math backend; the alpha observer's
 //!   step; decoding) and nemm-train (a batch gradient), with the machine they ran on
 //!   ([`crate::host_bench`]).
+//! - `observer` ([`observer()`], `cargo xtask results --observer`): the alpha observer's
+//!   accuracy on the virtual bench and a level step, from `nemm diagnose`
+//!   ([`observer`](mod@observer)).
+
+mod observer;
+
+pub use observer::observer;
 
 use crate::cycles::CycleFigures;
 use crate::firmware;
@@ -61,6 +68,12 @@ Not generated yet: run `cargo xtask results --tables`.
 <!-- BEGIN host -->
 Not generated yet: run `cargo xtask results --host`.
 <!-- END host -->
+
+## Alpha observer: accuracy
+
+<!-- BEGIN observer -->
+Not generated yet: run `cargo xtask results --observer`.
+<!-- END observer -->
 
 ## Training (Tables 4 and 5)
 
@@ -116,7 +129,8 @@ fn command_line() -> String {
 }
 
 /// The commit of the work tree: `git rev-parse --short HEAD`, plus `+dirty` if tracked
-/// files other than the results file differ from it; `unknown` outside a git checkout.
+/// files other than the results file and the figure it links ([`observer::FIGURE`]) differ
+/// from it; `unknown` outside a git checkout.
 fn commit(root: &Path) -> String {
     let git = |args: &[&str]| -> Option<String> {
         let out = Command::new("git")
@@ -132,6 +146,7 @@ fn commit(root: &Path) -> String {
         return "unknown".into();
     };
     let exclude = format!(":(exclude){FILE}");
+    let figure = format!(":(exclude){}", observer::FIGURE);
     match git(&[
         "status",
         "--porcelain",
@@ -139,6 +154,7 @@ fn commit(root: &Path) -> String {
         "--",
         ".",
         &exclude,
+        &figure,
     ]) {
         Some(changes) if changes.is_empty() => head,
         _ => format!("{head}+dirty"),

@@ -39,8 +39,8 @@ pub const AGREEMENT: f64 = 0.02;
 /// ([`DEFAULT_STEP`]) grid.
 pub const FINE_STEP: f64 = 0.001;
 
-/// Points of the alpha(t) figure's curves at most (the trace is decimated to them).
-const FIGURE_POINTS: usize = 2000;
+/// Points of the alpha(t) figures' curves at most (the trace is decimated to them).
+pub const FIGURE_POINTS: usize = 2000;
 
 /// `diagnose.json`: one entry per run, in manifest order.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -88,6 +88,8 @@ pub struct Trace {
     pub alpha: Vec<f32>,
     /// Band per sample.
     pub band: Vec<f32>,
+    /// [`ObserverFlags::excited`] per sample.
+    pub excited: Vec<bool>,
     /// Index of the first sample that updated the estimate (`None`: none did, the run
     /// ended within the observer's warm-up or every sample was held).
     pub first_update: Option<usize>,
@@ -130,6 +132,7 @@ pub fn observe(model: &Model, velocity: &[f32], position: &[f32], force: &[f64])
         .map_err(|e| anyhow::anyhow!("the observer cannot run this model: {e}"))?;
     let n = velocity.len().min(position.len()).min(force.len());
     let (mut alpha, mut band) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut excited = Vec::with_capacity(n);
     let mut first_update = None;
     let mut last_flags = obs.estimate().flags;
     for k in 0..n {
@@ -139,12 +142,14 @@ pub fn observe(model: &Model, velocity: &[f32], position: &[f32], force: &[f64])
         }
         alpha.push(e.alpha);
         band.push(e.band);
+        excited.push(e.flags.excited());
         last_flags = e.flags;
     }
     Ok(Trace {
         dt_s: f64::from(model.dt_s),
         alpha,
         band,
+        excited,
         first_update,
         last_flags,
     })
@@ -181,6 +186,22 @@ pub fn offline_fit(model: &Model, run: &Run<'_>, dt_s: f64, warmup: usize) -> Re
     Ok(best.or(Some(coarse)))
 }
 
+/// The run's file, path relative to the manifest with `/` as the separator.
+pub fn run_file(run: &dataset::Run) -> String {
+    run.entry.file.to_string_lossy().replace('\\', "/")
+}
+
+/// The observer's velocity and position of a displacement record sampled at `fs` \[Hz\]:
+/// the causal velocity ([`causal_velocity`]) and the displacement, as `f32`.
+pub fn observer_inputs(displacement_m: &[f64], fs: f64) -> (Vec<f32>, Vec<f32>) {
+    let velocity = causal_velocity(displacement_m, fs)
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    let position = displacement_m.iter().map(|&x| x as f32).collect();
+    (velocity, position)
+}
+
 /// Diagnoses run `index` of `ds` with `model`: the observer's trace and the summary.
 pub fn diagnose_run(
     model: &Model,
@@ -189,12 +210,8 @@ pub fn diagnose_run(
 ) -> Result<(RunDiagnosis, Trace)> {
     let run = &ds.runs[index];
     let fs = ds.sample_rate_hz;
-    let file = run.entry.file.to_string_lossy().replace('\\', "/");
-    let velocity: Vec<f32> = causal_velocity(&run.displacement_m, fs)
-        .iter()
-        .map(|&v| v as f32)
-        .collect();
-    let position: Vec<f32> = run.displacement_m.iter().map(|&x| x as f32).collect();
+    let file = run_file(run);
+    let (velocity, position) = observer_inputs(&run.displacement_m, fs);
     let label_alphas: Option<Vec<f32>> = run
         .alpha
         .as_ref()
@@ -286,6 +303,41 @@ pub fn figure_file(file: &str) -> String {
     format!("alpha_{}.png", stem.replace(['/', '\\'], "_"))
 }
 
+/// The observer's estimate over `trace` as figure series (from its first update on, at most
+/// [`FIGURE_POINTS`] points): the band shaded, clipped to `clip`, and the estimate as a line
+/// named `label`. Empty when the observer never updated.
+pub fn estimate_series(trace: &Trace, label: String, clip: (f64, f64)) -> Vec<Series> {
+    let n = trace.alpha.len();
+    let every = n.div_ceil(FIGURE_POINTS).max(1);
+    let from = trace.first_update.unwrap_or(n);
+    let pts: Vec<(f64, f64, f64)> = (from..n)
+        .step_by(every)
+        .chain((from < n).then_some(n - 1))
+        .map(|k| {
+            let (a, b) = (f64::from(trace.alpha[k]), f64::from(trace.band[k]));
+            (k as f64 * trace.dt_s, a, b)
+        })
+        .collect();
+    if pts.is_empty() {
+        return Vec::new();
+    }
+    let blue = palette::categorical(0);
+    let band: Vec<(f64, f64, f64)> = pts
+        .iter()
+        .map(|&(t, a, b)| {
+            (
+                t,
+                (a - b).clamp(clip.0, clip.1),
+                (a + b).clamp(clip.0, clip.1),
+            )
+        })
+        .collect();
+    vec![
+        Series::band("band", &band, blue),
+        Series::line(label, pts.iter().map(|&(t, a, _)| (t, a)).collect(), blue),
+    ]
+}
+
 /// The alpha(t) figure of one run: the observer's estimate with its band shaded (from its
 /// first update on), the label and the offline fit as horizontal lines, and a vertical line
 /// at the settling time; the levels axis spans the model's trained range `range`, the label
@@ -303,17 +355,6 @@ pub fn alpha_figure(d: &RunDiagnosis, trace: &Trace, range: (f64, f64)) -> Figur
         + 0.05;
     // Headroom above the levels for the legend.
     let top = hi + 0.12;
-    let every = n.div_ceil(FIGURE_POINTS).max(1);
-    let from = trace.first_update.unwrap_or(n);
-    let pts: Vec<(f64, f64, f64)> = (from..n)
-        .step_by(every)
-        .chain((from < n).then_some(n - 1))
-        .map(|k| {
-            let (a, b) = (f64::from(trace.alpha[k]), f64::from(trace.band[k]));
-            (k as f64 * trace.dt_s, a, b)
-        })
-        .collect();
-    let blue = palette::categorical(0);
     let mut panel = LinePanel::new(
         "online estimate with its band; label, offline fit; | settled",
         "time [s]",
@@ -322,18 +363,9 @@ pub fn alpha_figure(d: &RunDiagnosis, trace: &Trace, range: (f64, f64)) -> Figur
     .with_x_range(0.0, end.max(trace.dt_s))
     .with_y_range(lo, top)
     .with_legend(LegendPosition::UpperRight);
-    if !pts.is_empty() {
-        let band: Vec<(f64, f64, f64)> = pts
-            .iter()
-            .map(|&(t, a, b)| (t, (a - b).clamp(lo, hi), (a + b).clamp(lo, hi)))
-            .collect();
-        panel = panel
-            .with_series(Series::band("band", &band, blue))
-            .with_series(Series::line(
-                format!("online: {:.3} ± {:.3}", d.alpha_hat, d.band),
-                pts.iter().map(|&(t, a, _)| (t, a)).collect(),
-                blue,
-            ));
+    let label = format!("online: {:.3} ± {:.3}", d.alpha_hat, d.band);
+    for s in estimate_series(trace, label, (lo, hi)) {
+        panel = panel.with_series(s);
     }
     panel = panel.with_series(Series::dashed(
         format!("label {:.3}", d.label),

@@ -222,26 +222,31 @@ fn frequency_of(crossings: &[Crossing], sample_rate_hz: f64) -> Option<f64> {
 /// finds it (zero crossings about the mid-range with a hysteresis of 10 % of the
 /// half-range); `None` with fewer than two crossings.
 pub fn excitation_frequency_hz(displacement_m: &[f64], sample_rate_hz: f64) -> Option<f64> {
+    frequency_of(&centred_record(displacement_m).crossings, sample_rate_hz)
+}
+
+/// A displacement record about its mid-range, and its zero crossings.
+pub(crate) struct Centred {
+    /// Mid-range \[m\].
+    pub(crate) offset_m: f64,
+    /// Half the range \[m\]; 0 below [`MIN_STROKE_M`] (rounding noise of a flat signal, not
+    /// an excitation).
+    pub(crate) half_range: f64,
+    /// The record minus `offset_m`.
+    pub(crate) y: Vec<f64>,
+    /// Zero crossings of `y` with a hysteresis of 10 % of the half-range (none for a flat
+    /// record).
+    pub(crate) crossings: Vec<Crossing>,
+}
+
+/// [`Centred`] of `displacement_m` about the mid-point of its smallest and largest values.
+pub(crate) fn centred_record(displacement_m: &[f64]) -> Centred {
     let (lo, hi) = displacement_m
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
             (lo.min(x), hi.max(x))
         });
-    frequency_of(&centred(displacement_m, lo, hi).crossings, sample_rate_hz)
-}
-
-/// A displacement record about its mid-range, and its zero crossings.
-struct Centred {
-    /// Mid-range \[m\].
-    offset_m: f64,
-    /// Half the range \[m\]; 0 below [`MIN_STROKE_M`] (rounding noise of a flat signal, not
-    /// an excitation).
-    half_range: f64,
-    /// The record minus `offset_m`.
-    y: Vec<f64>,
-    /// Zero crossings of `y` with a hysteresis of 10 % of the half-range (none for a flat
-    /// record).
-    crossings: Vec<Crossing>,
+    centred(displacement_m, lo, hi)
 }
 
 /// [`Centred`] of `displacement_m`, whose smallest and largest values are `lo` and `hi`.
