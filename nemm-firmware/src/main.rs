@@ -115,6 +115,14 @@ mod app {
         console: Console,
     }
 
+    /// What `build_estimator` gives: the estimator, the model, and the blob's tables index
+    /// with the blob (the observer reads its level tables from them).
+    type Built = (
+        &'static mut nemm_firmware::FwEstimator,
+        &'static Model<PARAM_CAPACITY>,
+        (StoredTables, &'static [u8]),
+    );
+
     /// The decoded model (kept: the estimator is built from it).
     static MODEL: StaticSlot<Model<PARAM_CAPACITY>> = StaticSlot::new();
     /// The estimator, lent to the 10 kHz task.
@@ -251,15 +259,7 @@ mod app {
     /// boot), and the `weights` line; with the decoded model. A missing or bad blob, a model
     /// of another rate or an estimator error is reported and gives `None`: the run goes on
     /// without an estimator.
-    fn build_estimator(
-        console: &mut Console,
-        options: &Options,
-        alpha: f32,
-    ) -> Option<(
-        &'static mut nemm_firmware::FwEstimator,
-        &'static Model<PARAM_CAPACITY>,
-        (StoredTables, &'static [u8]),
-    )> {
+    fn build_estimator(console: &mut Console, options: &Options, alpha: f32) -> Option<Built> {
         let blob = match slot::blob(board::weights_slot()) {
             Ok(b) => b,
             Err(e) => {
