@@ -88,7 +88,7 @@ pub struct TablesArgs {
     /// 16, together with --tables-alpha at most 16): the level tables of
     /// `nemm_core::LevelTables`, with which a firmware runs a level per sample
     /// (`Estimator::step_on_levels`) and the alpha observer (`AlphaObserver::load_on_levels`)
-    /// at table cost. 7 levels take about 37 KB more in the blob at 128 segments (docs/core.md,
+    /// at table cost. 7 levels take about 43 KB of the blob at 128 segments (docs/core.md,
     /// "Every level at table cost").
     #[arg(long)]
     pub tables_levels: Option<usize>,
