@@ -4,8 +4,7 @@ use crate::status::nemm_status_t::{self, *};
 use crate::storage::out;
 use crate::types::{kind_value, nemm_blob_info_t};
 use crate::NEMM_PARAM_CAPACITY;
-use nemm_core::format::{CRC, CRC_LEN};
-use nemm_core::{read_header, DecodeError, Header};
+use nemm_core::{DecodeError, Header};
 
 /// The blob as a slice: non-null and within the address space.
 ///
@@ -24,42 +23,10 @@ pub(crate) unsafe fn slice<'a>(blob: *const u8, len: usize) -> Result<&'a [u8], 
     Ok(unsafe { core::slice::from_raw_parts(blob, len) })
 }
 
-/// The checks of `nemm_core::decode` that need no model, in its order: length, magic,
-/// version, header, length against the header, CRC, capacity.
+/// The checks of `nemm_core::decode` that need no model, in its order
+/// (`nemm_core::format::check_frame` at this library's capacity).
 fn check(blob: &[u8]) -> Result<Header, DecodeError> {
-    let header = read_header(blob)?;
-    let (_, after) = postcard::take_from_bytes::<Header>(blob).map_err(|_| {
-        DecodeError::Malformed { part: "header" } // `read_header` parsed it already
-    })?;
-    let header_len = blob.len() - after.len();
-    let total = header_len
-        .saturating_add(header.body_len as usize)
-        .saturating_add(CRC_LEN);
-    if blob.len() < total {
-        return Err(DecodeError::Truncated {
-            needed: total,
-            found: blob.len(),
-        });
-    }
-    if blob.len() > total {
-        return Err(DecodeError::TrailingBytes {
-            extra: blob.len() - total,
-        });
-    }
-    let (covered, trailer) = blob.split_at(total - CRC_LEN);
-    let mut stored = [0u8; CRC_LEN];
-    stored.copy_from_slice(trailer);
-    let (stored, computed) = (u32::from_le_bytes(stored), CRC.checksum(covered));
-    if stored != computed {
-        return Err(DecodeError::CrcMismatch { stored, computed });
-    }
-    if header.max_scaler_params as usize > NEMM_PARAM_CAPACITY {
-        return Err(DecodeError::OverCapacity {
-            needed: header.max_scaler_params as usize,
-            capacity: NEMM_PARAM_CAPACITY,
-        });
-    }
-    Ok(header)
+    nemm_core::format::check_frame(blob, NEMM_PARAM_CAPACITY).map(|f| f.header)
 }
 
 /// Checks a weights blob (a `.nemm` file, `len` bytes at `blob`) without decoding its

@@ -370,20 +370,24 @@ pub fn decode_with_tables<const P: usize>(
     Ok((model, tables))
 }
 
-/// Decodes and validates a blob **in place** into `model` (e.g. a `static`): the large
-/// parameter vectors are written where they live, so the stack holds at most one scaler's
-/// parameter vector at a time instead of several copies of the whole model.
-///
-/// On error `model` holds unspecified, possibly partial contents: it must not be used (an
-/// [`crate::Estimator`] built from it would refuse it anyway, since it re-validates).
-///
-/// Returns the index of the blob's precomputed tables (empty for a blob without tables), a
-/// few dozen bytes: the tables themselves stay in the blob, and
-/// [`crate::Estimator::load_with_tables`] reads them from there.
-pub fn decode_into<const P: usize>(
-    blob: &[u8],
-    model: &mut Model<P>,
-) -> Result<StoredTables, DecodeError> {
+/// A blob's frame as [`check_frame`] found it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Frame<'a> {
+    /// The header.
+    pub header: Header,
+    /// Bytes of the header.
+    pub header_len: usize,
+    /// The CRC-covered part of the blob (header and body).
+    pub covered: &'a [u8],
+    /// The CRC-32 trailer (checked).
+    pub crc: u32,
+}
+
+/// The checks of [`decode_into`] that need no model, in its order: length, magic, version,
+/// header, length against the header ([`DecodeError::Truncated`],
+/// [`DecodeError::TrailingBytes`]), CRC, and the largest scaler against the capacity
+/// `capacity` ([`DecodeError::OverCapacity`]).
+pub fn check_frame(blob: &[u8], capacity: usize) -> Result<Frame<'_>, DecodeError> {
     let header = read_header(blob)?;
     let (_, after_header) = postcard::take_from_bytes::<Header>(blob)
         .map_err(|e| parse_error(e, blob.len(), "header"))?;
@@ -410,12 +414,38 @@ pub fn decode_into<const P: usize>(
         return Err(DecodeError::CrcMismatch { stored, computed });
     }
     let needed = header.max_scaler_params as usize;
-    if needed > P {
-        return Err(DecodeError::OverCapacity {
-            needed,
-            capacity: P,
-        });
+    if needed > capacity {
+        return Err(DecodeError::OverCapacity { needed, capacity });
     }
+    Ok(Frame {
+        header,
+        header_len,
+        covered,
+        crc: stored,
+    })
+}
+
+/// Decodes and validates a blob **in place** into `model` (e.g. a `static`): the large
+/// parameter vectors are written where they live, so the stack holds at most one scaler's
+/// parameter vector at a time instead of several copies of the whole model.
+///
+/// On error `model` holds unspecified, possibly partial contents: it must not be used (an
+/// [`crate::Estimator`] built from it would refuse it anyway, since it re-validates).
+///
+/// Returns the index of the blob's precomputed tables (empty for a blob without tables), a
+/// few dozen bytes: the tables themselves stay in the blob, and
+/// [`crate::Estimator::load_with_tables`] reads them from there.
+pub fn decode_into<const P: usize>(
+    blob: &[u8],
+    model: &mut Model<P>,
+) -> Result<StoredTables, DecodeError> {
+    let Frame {
+        header,
+        header_len,
+        covered,
+        crc: stored,
+    } = check_frame(blob, P)?;
+    let needed = header.max_scaler_params as usize;
     let body = covered
         .get(header_len..)
         .ok_or(DecodeError::Malformed { part: "body" })?;
