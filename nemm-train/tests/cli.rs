@@ -125,6 +125,56 @@ fn small_bench(dir: &Path) -> PathBuf {
 }
 
 #[test]
+fn bench_generate_runs_the_programme_at_the_given_levels() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let dir = tmp.path();
+    let config = Nemm::new(&["bench", "config"]).ok();
+    let small: String = config
+        .lines()
+        .map(|line| match line.split('=').next().unwrap_or("").trim() {
+            "amplitudes_m" => "amplitudes_m = [0.01]".to_string(),
+            "peak_velocities_m_s" => "peak_velocities_m_s = [0.262]".to_string(),
+            "max_ramp_s" => "max_ramp_s = 0.1".to_string(),
+            "min_steady_s" => "min_steady_s = 0.5".to_string(),
+            _ => line.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let toml = dir.join("small.toml");
+    std::fs::write(&toml, small).expect("write config");
+    let data = dir.join("levels");
+    Nemm::new(&["bench", "generate", "--levels", "0,0.075,0.3", "--config"])
+        .arg(&toml)
+        .arg("--out")
+        .arg(&data)
+        .ok();
+    let ds = dataset::load(&data).expect("load the generated bench");
+    let mut levels: Vec<(String, f64)> = ds
+        .runs
+        .iter()
+        .map(|r| (r.entry.file.display().to_string(), r.entry.oil_loss))
+        .collect();
+    levels.sort_by(|a, b| a.1.total_cmp(&b.1));
+    assert_eq!(
+        levels,
+        [
+            ("runs/oil00_a010_v0262.csv".to_string(), 0.0),
+            ("runs/oil08_a010_v0262.csv".to_string(), 0.075),
+            ("runs/oil30_a010_v0262.csv".to_string(), 0.3),
+        ]
+    );
+    // Two levels that would write the same files are refused before any simulation.
+    let stderr = Nemm::new(&["bench", "generate", "--levels", "0,0.15,0.152", "--out"])
+        .arg(dir.join("refused"))
+        .fails();
+    assert!(
+        stderr.contains("--levels") && stderr.contains("oil15_"),
+        "{stderr}"
+    );
+    assert!(!dir.join("refused").exists());
+}
+
+#[test]
 fn the_cli_trains_evaluates_exports_and_sweeps() {
     let tmp = tempfile::tempdir().expect("temp dir");
     let dir = tmp.path();
@@ -230,7 +280,35 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     ] {
         assert_eq!(decode_file(&report_dir.join(file)).kind(), kind, "{file}");
     }
-    for fig in ["fig7_loops.png", "fig8_b_fl.png", "training_curves.png"] {
+    // The degradation signature: each model's difference loop against the measured one, per
+    // condition at both lossy levels (2 conditions x 2 levels), in table4.md, signature.md,
+    // report.json and a figure.
+    let sig = report.signature.as_ref().expect("report.json: signature");
+    assert_eq!(sig.rows.len(), 4, "{sig:?}");
+    for row in &sig.rows {
+        assert!(row.alpha > 0.0 && row.measured_rms_n > 0.0, "{row:?}");
+        assert!((0.0..=1.0).contains(&row.compression_share), "{row:?}");
+        for key in ["sem", "linear_emm", "nemm_light", "nemm"] {
+            let e = row.rel_error[key];
+            assert!(e.is_finite() && e >= 0.0, "{key}: {row:?}");
+        }
+        // The Linear EMM does not depend on the level: its difference loop is zero, so its
+        // error is exactly that of predicting no change.
+        assert!((row.rel_error["linear_emm"] - 1.0).abs() < 1e-9, "{row:?}");
+    }
+    let signature_md =
+        std::fs::read_to_string(report_dir.join("signature.md")).expect("signature.md");
+    assert!(
+        signature_md.contains("| 0.3 | 10 | 1.048 |"),
+        "{signature_md}"
+    );
+    assert!(table.contains("Degradation signature"), "{table}");
+    for fig in [
+        "fig7_loops.png",
+        "fig8_b_fl.png",
+        "training_curves.png",
+        "difference_loops_models.png",
+    ] {
         assert!(report_dir.join(fig).is_file(), "{fig}");
     }
     no_temp_files(&report_dir);

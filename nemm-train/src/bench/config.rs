@@ -566,11 +566,26 @@ impl BenchConfig {
                 return Err(invalid(key, "must not be empty".into()));
             }
         }
-        for &alpha in &p.oil_loss {
+        for (i, &alpha) in p.oil_loss.iter().enumerate() {
             if !(0.0..0.9).contains(&alpha) {
                 return Err(invalid(
                     "program.oil_loss",
                     format!("entries must be in [0, 0.9), got {alpha}"),
+                ));
+            }
+            // The run files are named by the level in whole percent (`oil15_...`).
+            let percent = |a: f64| (a * 100.0).round();
+            if let Some(other) = p.oil_loss[..i]
+                .iter()
+                .find(|&&b| percent(b) == percent(alpha))
+            {
+                return Err(invalid(
+                    "program.oil_loss",
+                    format!(
+                        "{other} and {alpha} name the same run files (oil{:02}_...): levels \
+                         must differ by at least 1 % after rounding",
+                        percent(alpha)
+                    ),
                 ));
             }
         }
@@ -734,6 +749,17 @@ mod tests {
             vec![0.052, 0.131, 0.262, 0.393, 0.524, 1.048]
         );
         assert_eq!(cfg.program.sample_rate_hz, 10_000.0);
+    }
+
+    #[test]
+    fn levels_that_name_the_same_run_files_are_refused() {
+        let mut cfg = BenchConfig::default();
+        cfg.program.oil_loss = vec![0.0, 0.075, 0.15, 0.225, 0.3];
+        assert!(cfg.validate().is_ok());
+        cfg.program.oil_loss = vec![0.0, 0.15, 0.152];
+        let e = cfg.validate().unwrap_err();
+        assert_eq!(e.key, "program.oil_loss");
+        assert!(e.message.contains("oil15_"), "{}", e.message);
     }
 
     #[test]

@@ -31,6 +31,10 @@ pub enum BenchCmd {
         /// Seed of the measurement noise.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Oil-loss levels to run the programme at, comma-separated (for example
+        /// `0,0.075,0.15,0.225,0.3`); replaces the configuration's `program.oil_loss`.
+        #[arg(long, value_delimiter = ',', num_args = 1..)]
+        levels: Option<Vec<f64>>,
     },
     /// Draw force-velocity loops (Fig. 4 style) and difference loops (Fig. 5 style) of a dataset.
     Plot {
@@ -68,11 +72,22 @@ pub enum BenchCmd {
 /// Runs a `nemm bench` subcommand.
 pub fn run(args: BenchArgs) -> Result<()> {
     match args.cmd {
-        BenchCmd::Generate { out, config, seed } => {
-            let cfg = match &config {
+        BenchCmd::Generate {
+            out,
+            config,
+            seed,
+            levels,
+        } => {
+            let mut cfg = match &config {
                 Some(path) => config::load(path)?,
                 None => BenchConfig::default(),
             };
+            if let Some(levels) = levels {
+                cfg.program.oil_loss = levels;
+                if let Err(v) = cfg.validate() {
+                    bail!("--levels: `{}` {}", v.key, v.message);
+                }
+            }
             generate(&cfg, seed, &out)
         }
         BenchCmd::Plot { dir, out, data } => {

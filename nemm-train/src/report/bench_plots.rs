@@ -143,7 +143,21 @@ impl CycleLoop {
 /// Reduces a run to its cycle-averaged loop, with the run's preprocessed `velocity_m_s`
 /// ([`Signals::velocity_m_s`]).
 pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
+    cycle_loop_of_force(run, velocity_m_s, &run.force_n)
+}
+
+/// [`cycle_loop`] of another force over the run's samples (a model's prediction): the
+/// periods, phase fit and bins are the run's own, so the loop lines up with the measured
+/// one bin for bin.
+pub fn cycle_loop_of_force(run: &Run, velocity_m_s: &[f64], force_n: &[f64]) -> Result<CycleLoop> {
     let name = run.entry.file.display();
+    if force_n.len() != run.len() {
+        bail!(
+            "run {name}: {} force samples for {} samples",
+            force_n.len(),
+            run.len()
+        );
+    }
     if run.len() < 16 {
         bail!("run {name}: too short for a loop ({} samples)", run.len());
     }
@@ -174,7 +188,7 @@ pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
     };
     let per_period = t.len() as f64 / periods as f64;
     let v = &velocity_m_s[i0..];
-    let f = &run.force_n[i0..];
+    let f = &force_n[i0..];
     let Some(bins) = PhaseBins::of(t, x, v, f, &fit, per_period) else {
         bail!(
             "run {name}: {per_period:.0} samples per period are too few for \
@@ -337,17 +351,17 @@ impl PhaseBins {
     }
 }
 
-fn same(a: f64, b: f64) -> bool {
+pub(crate) fn same(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1e-12)
 }
 
-fn sorted_unique(mut v: Vec<f64>) -> Vec<f64> {
+pub(crate) fn sorted_unique(mut v: Vec<f64>) -> Vec<f64> {
     v.sort_by(f64::total_cmp);
     v.dedup_by(|a, b| same(*a, *b));
     v
 }
 
-fn frequency_label(f: f64) -> String {
+pub(crate) fn frequency_label(f: f64) -> String {
     if f < 1.0 {
         format!("{f:.2} Hz")
     } else {

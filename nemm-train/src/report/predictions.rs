@@ -5,6 +5,7 @@ use crate::data::preprocess::Prepared;
 use crate::train::eval::{predict, Input};
 use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::{Context, Result};
+use nemm_core::Model;
 use nemm_core::ModelKind;
 
 /// Forces of whole runs simulated from rest by a variant at the model's own step, on the
@@ -25,15 +26,27 @@ impl RunPredictions {
         prepared: &Prepared,
         requests: &[(ModelKind, usize)],
     ) -> Result<Self> {
+        let models: Vec<(ModelKind, &Model)> =
+            trained.iter().map(|tv| (tv.variant, &*tv.model)).collect();
+        Self::simulate_models(&models, prepared, requests)
+    }
+
+    /// [`RunPredictions::simulate`] of models given by kind (an exported or loaded model
+    /// needs no training history).
+    pub fn simulate_models(
+        models: &[(ModelKind, &Model)],
+        prepared: &Prepared,
+        requests: &[(ModelKind, usize)],
+    ) -> Result<Self> {
         use rayon::prelude::*;
-        let mut batches: Vec<(&TrainedVariant, Vec<usize>)> = Vec::new();
+        let mut batches: Vec<(ModelKind, &Model, Vec<usize>)> = Vec::new();
         for &(v, run) in requests {
-            let Some(tv) = trained.iter().find(|t| t.variant == v) else {
+            let Some(&(_, model)) = models.iter().find(|(k, _)| *k == v) else {
                 continue;
             };
-            match batches.iter_mut().find(|(t, _)| t.variant == v) {
-                Some((_, runs)) => runs.push(run),
-                None => batches.push((tv, vec![run])),
+            match batches.iter_mut().find(|(k, _, _)| *k == v) {
+                Some((_, _, runs)) => runs.push(run),
+                None => batches.push((v, model, vec![run])),
             }
         }
         let velocity: Vec<Vec<f32>> = prepared
@@ -57,7 +70,7 @@ impl RunPredictions {
             .collect();
         let simulated: Vec<Vec<(ModelKind, usize, Vec<f64>)>> = batches
             .par_iter()
-            .map(|(tv, runs)| {
+            .map(|(variant, model, runs)| {
                 let inputs = runs
                     .iter()
                     .map(|&i| {
@@ -70,12 +83,12 @@ impl RunPredictions {
                         })
                     })
                     .collect::<Result<Vec<Input<'_>>>>()?;
-                let ys = predict(&tv.model, &inputs, prepared.dt_s)
-                    .with_context(|| format!("cannot simulate the {}", tv.variant.title()))?;
+                let ys = predict(model, &inputs, prepared.dt_s)
+                    .with_context(|| format!("cannot simulate the {}", variant.title()))?;
                 Ok(runs
                     .iter()
                     .zip(ys)
-                    .map(|(&i, y)| (tv.variant, i, y))
+                    .map(|(&i, y)| (*variant, i, y))
                     .collect())
             })
             .collect::<Result<_>>()?;

@@ -84,6 +84,11 @@ pub struct Report {
     /// (datasets written by `nemm bench generate`; absent for other data).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bench_reference: Option<crate::report::reference::ReferenceComparison>,
+    /// The degradation signature: each model's difference loops `F(0) - F(alpha)` against
+    /// the measured ones per condition ([`crate::report::signature`]); absent where not
+    /// computed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signature: Option<crate::report::signature::SignatureReport>,
 }
 
 /// The test error of every variant on one held-out run (its scored test sequences).
@@ -163,6 +168,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
     let condition = ConditionSpec::from_core(&prepared.condition);
     Ok(Report {
         bench_reference: None,
+        signature: None,
         condition: condition.clone(),
         test_alpha: prepared
             .config
@@ -401,6 +407,7 @@ mod tests {
             info: BTreeMap::new(),
             condition: ConditionSpec::default(),
             bench_reference: None,
+            signature: None,
         }
     }
 

@@ -7,6 +7,7 @@ use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use crate::report::inspect::describe;
+use crate::report::signature::{signature_markdown, signature_report, SIGNATURE_FIGURE};
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
@@ -353,6 +354,11 @@ pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()>
     if let Some(c) = &report.bench_reference {
         table = format!("{table}\n{}\n", c.markdown().trim_end());
     }
+    if let Some(sig) = &report.signature {
+        let md = signature_markdown(sig);
+        table = format!("{table}\n{}\n", md.trim_end());
+        write_atomic_bytes(&dir.join(SIGNATURE_MD), md.as_bytes())?;
+    }
     if let Some(id) = &report.identify {
         table = format!(
             "{table}\n{}\nThe best-fit {} of every run per model (can the model read the level \
@@ -368,6 +374,8 @@ pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()>
 
 /// The identifiability tables' file in a report folder.
 pub const IDENTIFY_MD: &str = "identify.md";
+/// The degradation signature in a report folder ([`crate::report::signature`]).
+pub const SIGNATURE_MD: &str = "signature.md";
 
 fn print_audit(t: &TrainedVariant, r: &Report) {
     if let Some(v) = r.variants.get(t.variant.key()) {
