@@ -5,11 +5,14 @@ use std::path::Path;
 /// Writes a file atomically: the content goes to a [`tempfile::NamedTempFile`] in the same
 /// folder (created if missing; with a plain file's permissions), which is flushed to disk and then persisted (renamed) over
 /// `path`. A crash leaves either the old file or the new one, never a partial file; on error
-/// the temporary file is removed.
+/// the temporary file is removed. A symbolic link at `path` is written through: the link
+/// stays and its target gets the content ([`crate::output_guard::resolve_link`]).
 pub fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> std::io::Result<()> {
+    let target = crate::output_guard::resolve_link(path);
+    let path = target.as_path();
     let parent = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -60,6 +63,15 @@ mod tests {
             use std::os::unix::fs::PermissionsExt;
             let mode = std::fs::metadata(&p).unwrap().permissions().mode();
             assert_eq!(mode & 0o044, 0o044, "readable like a plain file: {mode:o}");
+            // A symbolic link is written through: the link stays, its target changes.
+            let link = dir.join("link.bin");
+            std::os::unix::fs::symlink("a.bin", &link).unwrap();
+            write_atomic_bytes(&link, b"three").unwrap();
+            assert!(std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink());
+            assert_eq!(std::fs::read(&p).unwrap(), b"three");
         }
     }
 }

@@ -12,12 +12,14 @@
 //!   variants, evaluation and export checks;
 //! - [`report`]: Table 4 / 5, figures and plotting, blob descriptions;
 //! - [`config`]: the configuration of a job (data, model, training), its defaults and TOML;
-//! - [`cli`]: the `nemm` command line, a thin layer over the modules above.
+//! - [`cli`]: the `nemm` command line, a thin layer over the modules above;
+//! - [`output_guard`]: the output rule every command checks before any work.
 
 pub mod atomic_file;
 pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod data;
+pub mod output_guard;
 pub mod report;
 pub mod train;

@@ -54,6 +54,9 @@ enum Cmd {
         /// Precomputed fast-path tables in the blob.
         #[command(flatten)]
         tables: nemm_train::cli::train::TablesArgs,
+        /// Replace an existing --out file that is not a weights blob.
+        #[arg(long)]
+        replace: bool,
     },
     /// Export the best model of a checkpoint folder (`--checkpoint DIR/<variant>` of `nemm train`).
     Export {
@@ -70,6 +73,9 @@ enum Cmd {
         /// Precomputed fast-path tables in the blob.
         #[command(flatten)]
         tables: nemm_train::cli::train::TablesArgs,
+        /// Replace an existing --out file that is not a weights blob.
+        #[arg(long)]
+        replace: bool,
     },
     /// Store fast-path tables in an existing weights blob: the model (weights, condition,
     /// provenance) unchanged bit for bit, its tables section replaced by the levels of
@@ -84,6 +90,13 @@ enum Cmd {
         /// The tables to store.
         #[command(flatten)]
         tables: nemm_train::cli::train::TablesArgs,
+        /// Replace an existing --out file that is not a weights blob.
+        #[arg(long)]
+        replace: bool,
+        /// With --out the input: drop the stored tables of levels the table options do not
+        /// list (refused without it, naming them).
+        #[arg(long)]
+        drop_tables: bool,
     },
     /// Train all four variants and write Table 4 (table4.md, report.json), the best-fit level
     /// of every run (identify.md), models and figures.
@@ -235,6 +248,7 @@ fn main() -> ExitCode {
             resume,
             report,
             tables,
+            replace,
         } => args.resolve().and_then(|mut cfg| {
             session_needs_checkpoint(&cfg, checkpoint.is_some())?;
             if let Some(v) = variant {
@@ -247,6 +261,7 @@ fn main() -> ExitCode {
                 resume,
                 report.as_deref(),
                 &tables,
+                replace,
             )
         }),
         Cmd::Export {
@@ -254,10 +269,15 @@ fn main() -> ExitCode {
             out,
             table_bound,
             tables,
-        } => nemm_train::cli::train::export(&checkpoint, &out, table_bound, &tables),
-        Cmd::Tables { model, out, tables } => {
-            nemm_train::cli::train::store_tables(&model, &out, &tables)
-        }
+            replace,
+        } => nemm_train::cli::train::export(&checkpoint, &out, table_bound, &tables, replace),
+        Cmd::Tables {
+            model,
+            out,
+            tables,
+            replace,
+            drop_tables,
+        } => nemm_train::cli::train::store_tables(&model, &out, &tables, replace, drop_tables),
         Cmd::Compare {
             args,
             report,

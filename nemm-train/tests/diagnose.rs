@@ -379,7 +379,7 @@ fn bad_inputs_are_refused_with_a_clear_error_and_nothing_written() {
     refused(
         &[&model_path(), &e2e(), &report],
         &["runs/oil30_*"],
-        "--runs runs/oil30_* matches none of the 5 runs",
+        "--runs \"runs/oil30_*\" matches none of the 5 runs",
     );
     let step = |pair: &str, expect: &str| {
         let out = nemm_with(

@@ -582,10 +582,13 @@ fn write_simple(path: &Path, seconds: f64, scale: f64) {
 fn an_existing_dataset_is_replaced_only_with_replace_and_as_a_whole() {
     let dir = tempfile::tempdir().expect("dir");
     let out = dir.path().join("ds");
-    // Four raw files inside the output folder: a 4-run dataset next to them.
+    // Four raw files beside the output folder (an output never contains its inputs) and a
+    // note of the user's in it: a 4-run dataset.
+    std::fs::create_dir_all(&out).expect("mkdir");
+    std::fs::write(out.join("notes.txt"), "mine").expect("note");
     let raws: Vec<PathBuf> = (0..4)
         .map(|k| {
-            let p = out.join(format!("raw{k}.csv"));
+            let p = dir.path().join("raw").join(format!("raw{k}.csv"));
             write_simple(&p, 1.0, 1.0 + k as f64);
             p
         })
@@ -612,7 +615,7 @@ fn an_existing_dataset_is_replaced_only_with_replace_and_as_a_whole() {
     assert_eq!(dataset::load(&out).expect("untouched").runs.len(), 4);
 
     // With --replace the dataset is replaced as a whole: one run, no orphaned run files, the
-    // raw files (no dataset's files) kept.
+    // raw files and the note (no dataset's files) kept.
     let o = cli_import(&raws[0], &out, &["--replace"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(dataset::load(&out).expect("1 run").runs.len(), 1);
@@ -625,6 +628,7 @@ fn an_existing_dataset_is_replaced_only_with_replace_and_as_a_whole() {
     for raw in &raws {
         assert!(raw.is_file(), "{} lost", raw.display());
     }
+    assert_eq!(std::fs::read(out.join("notes.txt")).expect("kept"), b"mine");
 }
 
 #[test]
@@ -640,8 +644,7 @@ fn an_input_is_never_overwritten_even_with_replace() {
         assert!(!o.status.success());
         let stderr = String::from_utf8_lossy(&o.stderr);
         assert!(
-            stderr.contains("p.csv would be overwritten or removed")
-                && stderr.contains("even with --replace"),
+            stderr.contains("contains the input") && stderr.contains("p.csv"),
             "{stderr}"
         );
         assert_eq!(std::fs::read(&raw).expect("read"), before);

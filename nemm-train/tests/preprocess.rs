@@ -797,7 +797,9 @@ fn cli_check_and_prepare() {
     assert!(stdout.contains("12 runs at 10000 Hz"), "{stdout}");
     assert!(stdout.contains("runs/oil15_a010_v0524.csv"), "{stdout}");
     assert!(stdout.contains("no anomalies found"), "{stdout}");
-    let json = dir.path().join("summary.json");
+    // The summary goes outside the dataset folder: a command never writes into its inputs.
+    let elsewhere = tempfile::tempdir().expect("tempdir");
+    let json = elsewhere.path().join("summary.json");
     let out = std::process::Command::new(exe)
         .args(["data", "prepare", "--seed", "3", "--out"])
         .arg(&json)

@@ -54,8 +54,16 @@ fn the_embedded_model_is_what_its_recorded_command_trains() {
             .expect("generate the virtual bench");
             cfg.data.dir = bench;
             let out = dir.join("fresh.nemm");
-            nemm_train::cli::train::train(&cfg, &out, None, false, None, &Default::default())
-                .expect("training");
+            nemm_train::cli::train::train(
+                &cfg,
+                &out,
+                None,
+                false,
+                None,
+                &Default::default(),
+                false,
+            )
+            .expect("training");
             out
         }
     };

@@ -17,7 +17,7 @@ use super::VirtualBench;
 use crate::data::dataset::{
     Dataset, Run, COL_ALPHA, COL_DISPLACEMENT, COL_FORCE, COL_TIME, COL_VELOCITY, MANIFEST_FILE,
 };
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -177,10 +177,11 @@ pub fn fixtures() -> Vec<Fixture> {
     ]
 }
 
-/// Writes every fixture into `out` (created), replacing the fixture folders; returns the
-/// written files.
+/// Writes every fixture into `out` (created), replacing the fixtures' files; returns the
+/// written files. A fixture folder that holds any other file is refused before anything is
+/// written.
 pub fn write_fixtures(out: &Path) -> Result<Vec<PathBuf>> {
-    let mut written = Vec::new();
+    let mut all = Vec::new();
     for f in fixtures() {
         f.config
             .validate()
@@ -191,16 +192,17 @@ pub fn write_fixtures(out: &Path) -> Result<Vec<PathBuf>> {
                 run.force_n.iter_mut().for_each(|f| *f = -*f);
             }
         }
-        let dir = out.join(f.name);
-        if dir.exists() {
-            std::fs::remove_dir_all(&dir)
-                .with_context(|| format!("cannot replace {}", dir.display()))?;
-        }
         let files = if f.raw {
             raw_files(&ds)
         } else {
             interchange_files(&ds)?
         };
+        let dir = out.join(f.name);
+        check_own_files(&dir, &files)?;
+        all.push((dir, files));
+    }
+    let mut written = Vec::new();
+    for (dir, files) in all {
         for (rel, text) in files {
             let path = dir.join(rel);
             if let Some(parent) = path.parent() {
@@ -213,6 +215,38 @@ pub fn write_fixtures(out: &Path) -> Result<Vec<PathBuf>> {
         }
     }
     Ok(written)
+}
+
+/// Refuses a fixture folder `dir` that holds a file the fixture does not write (`files`,
+/// paths relative to `dir`): the fixtures replace their own files and nothing else.
+fn check_own_files(dir: &Path, files: &[(PathBuf, String)]) -> Result<()> {
+    fn walk(dir: &Path, rel: &Path, found: &mut Vec<PathBuf>) -> std::io::Result<()> {
+        for e in std::fs::read_dir(dir.join(rel))? {
+            let e = e?;
+            let r = rel.join(e.file_name());
+            if e.file_type()?.is_dir() {
+                walk(dir, &r, found)?;
+            } else {
+                found.push(r);
+            }
+        }
+        Ok(())
+    }
+    if !dir.exists() {
+        return Ok(());
+    }
+    let mut found = Vec::new();
+    walk(dir, Path::new(""), &mut found)
+        .with_context(|| format!("cannot read {}", dir.display()))?;
+    if let Some(other) = found.iter().find(|f| !files.iter().any(|(r, _)| r == *f)) {
+        bail!(
+            "--out: {} holds {}, which is not a file of the fixture; the fixtures replace \
+             only their own files: move it away or choose another --out folder",
+            dir.display(),
+            dir.join(other).display()
+        );
+    }
+    Ok(())
 }
 
 /// The files of an interchange folder: `manifest.toml` and one CSV per run.

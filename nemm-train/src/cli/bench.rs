@@ -3,6 +3,7 @@
 use crate::bench::config::{self, BenchConfig};
 use crate::bench::reference::{EmmReference, BENCH_CONFIG_FILE};
 use crate::bench::VirtualBench;
+use crate::output_guard::{self, Inputs, Output};
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use std::io::Write as _;
@@ -22,7 +23,8 @@ pub struct BenchArgs {
 pub enum BenchCmd {
     /// Simulate the test programme on the virtual damper and write a dataset folder.
     Generate {
-        /// Output dataset folder (created; existing run files of the same names are replaced).
+        /// Output dataset folder (created; a dataset the virtual bench generated there is
+        /// replaced as a whole, another only with --replace).
         #[arg(long)]
         out: PathBuf,
         /// Bench configuration (TOML, every key; default: the built-in `bench.toml`).
@@ -35,6 +37,10 @@ pub enum BenchCmd {
         /// `0,0.075,0.15,0.225,0.3`); replaces the configuration's `program.oil_loss`.
         #[arg(long, value_delimiter = ',', num_args = 1..)]
         levels: Option<Vec<f64>>,
+        /// Replace a dataset in `--out` that the virtual bench did not generate (one without
+        /// its `bench.toml`), e.g. imported dyno data.
+        #[arg(long)]
+        replace: bool,
     },
     /// Draw force-velocity loops (Fig. 4 style) and difference loops (Fig. 5 style) of a dataset.
     Plot {
@@ -77,7 +83,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
             config,
             seed,
             levels,
+            replace,
         } => {
+            let inputs = Inputs::new().paths("--config", config.as_deref());
+            output_guard::check(&[Output::dataset("--out", &out)], &inputs, false, "")?;
+            let manifest = out.join(crate::data::dataset::MANIFEST_FILE);
+            if manifest.exists() && !out.join(BENCH_CONFIG_FILE).exists() && !replace {
+                bail!(
+                    "--out {}: holds a dataset the virtual bench did not generate ({} without \
+                     {BENCH_CONFIG_FILE}); give --replace to replace it as a whole, or choose \
+                     another --out folder",
+                    out.display(),
+                    manifest.display()
+                );
+            }
             let mut cfg = match &config {
                 Some(path) => config::load(path)?,
                 None => BenchConfig::default(),
@@ -91,6 +110,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
             generate(&cfg, seed, &out)
         }
         BenchCmd::Plot { dir, out, data } => {
+            let inputs = Inputs::new().dataset("the dataset", &dir);
+            output_guard::check(&[Output::folder("--out", &out)], &inputs, false, "")?;
             let resolved = crate::config::resolve_data(&data.in_dir(&dir))?;
             let signal = resolved.config.prepare_config().signal;
             let ds = crate::data::dataset::load(&dir)
@@ -131,6 +152,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Ok(())
         }
         BenchCmd::Fixtures { out } => {
+            output_guard::check(&[Output::folder("--out", &out)], &Inputs::new(), false, "")?;
             for f in crate::bench::fixtures::write_fixtures(&out)? {
                 println!("wrote {}", f.display());
             }

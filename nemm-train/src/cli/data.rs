@@ -7,6 +7,7 @@ use crate::data::import::{self, ColumnSpec, ImportSpec, SplitMethod};
 use crate::data::preprocess::{
     self, PrepareConfig, RunRole, RunSummary, SignalConfig, SplitCounts,
 };
+use crate::output_guard::{self, Inputs, Output};
 use anyhow::{Context, Result};
 use nemm_core::Direction;
 use std::fmt::Write as _;
@@ -163,6 +164,17 @@ pub enum Coefficient {
     KPr,
 }
 
+impl Coefficient {
+    /// The coefficient's name in `--prior` and the manifest.
+    pub fn name(self) -> &'static str {
+        match self {
+            Coefficient::BFl => "b_fl",
+            Coefficient::BPr => "b_pr",
+            Coefficient::KPr => "k_pr",
+        }
+    }
+}
+
 /// Parses `LO,HI` (two finite numbers).
 fn parse_pair(text: &str) -> Result<[f64; 2], String> {
     let (a, b) = text
@@ -193,14 +205,28 @@ fn parse_prior(text: &str) -> Result<(Coefficient, Direction), String> {
     Ok((coefficient, direction))
 }
 
-/// Sets the condition flags of `a` on the spec's `[condition]`.
-fn apply_condition_flags(a: &ImportArgs, spec: &mut ImportSpec) {
+/// Sets the condition flags of `a` on the spec's `[condition]`; a coefficient given two
+/// directions in `--prior` is refused.
+fn apply_condition_flags(a: &ImportArgs, spec: &mut ImportSpec) -> Result<()> {
+    for (k, &(coefficient, direction)) in a.prior.iter().enumerate() {
+        if let Some(&(_, other)) = a.prior[..k]
+            .iter()
+            .find(|(c, d)| *c == coefficient && *d != direction)
+        {
+            anyhow::bail!(
+                "--prior gives {} two directions, {} and {}: give one",
+                coefficient.name(),
+                other.name(),
+                direction.name()
+            );
+        }
+    }
     let given = a.condition_name.is_some()
         || a.condition_unit.is_some()
         || a.condition_range.is_some()
         || !a.prior.is_empty();
     if !given {
-        return;
+        return Ok(());
     }
     let c = spec.condition.get_or_insert_with(Default::default);
     if a.condition_name.is_some() {
@@ -220,6 +246,7 @@ fn apply_condition_flags(a: &ImportArgs, spec: &mut ImportSpec) {
             Coefficient::KPr => &mut c.k_pr,
         } = Some(direction);
     }
+    Ok(())
 }
 
 /// The import spec from `--spec` and the flags.
@@ -286,7 +313,7 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
     if let Some(h) = a.header_line {
         spec.csv.header_line = h;
     }
-    apply_condition_flags(a, &mut spec);
+    apply_condition_flags(a, &mut spec)?;
     spec.rate_hz = a.rate_hz.or(spec.rate_hz);
     spec.resample_hz = a.resample_hz.or(spec.resample_hz);
     if let Some(m) = a.split {
@@ -430,9 +457,15 @@ pub fn condition_map(c: &dataset::ConditionSpec) -> String {
 
 fn import_cmd(a: &ImportArgs) -> Result<()> {
     let spec = import_spec(a)?;
-    let default_name = a.out.file_name().map_or("imported dyno data".into(), |n| {
-        n.to_string_lossy().into_owned()
-    });
+    let inputs = Inputs::new()
+        .paths("a raw file", spec.files.iter().map(|f| f.path.as_path()))
+        .paths("--spec", a.spec.as_deref());
+    output_guard::check(&[Output::dataset("--out", &a.out)], &inputs, false, "")?;
+    let default_name = output_guard::resolve(&a.out)?
+        .file_name()
+        .map_or("imported dyno data".into(), |n| {
+            n.to_string_lossy().into_owned()
+        });
     let manifest = a.out.join(dataset::MANIFEST_FILE);
     if manifest.exists() && !a.replace {
         anyhow::bail!(
@@ -443,22 +476,17 @@ fn import_cmd(a: &ImportArgs) -> Result<()> {
         );
     }
     let imported = import::import(&spec, &default_name)?;
-    let replaced = dataset::replaced_files(&a.out, &imported.dataset);
-    for input in spec.files.iter().map(|f| &f.path) {
-        if let Ok(canonical) = std::fs::canonicalize(input) {
-            if replaced.contains(&canonical) {
-                anyhow::bail!(
-                    "the input {} would be overwritten or removed by writing the dataset to {} \
-                     (even with --replace); choose another --out folder or move the input out of it",
-                    input.display(),
-                    a.out.display()
-                );
-            }
-        }
-    }
+    let stale_options = a.out.join(crate::config::DATA_OPTIONS_FILE);
+    let stale_options = (manifest.exists() && stale_options.exists()).then_some(stale_options);
     dataset::write(&a.out, &imported.dataset)
         .with_context(|| format!("cannot write the dataset to {}", a.out.display()))?;
     print!("{}", import_report(&a.out, &imported));
+    if let Some(p) = stale_options {
+        println!(
+            "removed {}: the data options saved for the replaced dataset",
+            p.display()
+        );
+    }
     Ok(())
 }
 
@@ -480,6 +508,10 @@ pub fn run(cmd: DataCmd) -> Result<()> {
             filter_force,
             data,
         } => {
+            if let Some(out) = &out {
+                let inputs = Inputs::new().dataset("the dataset", &dir);
+                output_guard::check(&[Output::file("--out", out)], &inputs, false, "")?;
+            }
             let resolved = resolve_data(&data.in_dir(&dir))?;
             let mut config = resolved.config.prepare_config();
             config.signal.filter_force = filter_force;

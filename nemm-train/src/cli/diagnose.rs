@@ -5,8 +5,10 @@
 
 use crate::atomic_file::write_atomic_bytes;
 use crate::cli::identify::runs_matching;
-use crate::cli::train::check_output_dir;
+use crate::data::against_model::check_runs_against_model;
 use crate::data::dataset::{self, Dataset};
+use crate::data::preprocess::causal_velocity;
+use crate::output_guard::{self, Inputs, Output};
 use crate::report::accuracy::{
     accuracy_markdown, error_detail, error_summary, resolution, run_error, AccuracyReport, FROM_S,
 };
@@ -35,6 +37,9 @@ pub const ACCURACY_JSON: &str = "accuracy.json";
 /// `level-step.png`.
 pub const LEVEL_STEP_JSON: &str = "level-step.json";
 
+/// The longest level-step record `--step-repeat` may make (samples): 1000 s at 10 kHz.
+pub const MAX_STEP_SAMPLES: usize = 10_000_000;
+
 /// What `nemm diagnose` is asked.
 #[derive(Debug, Clone)]
 pub struct DiagnoseArgs {
@@ -60,7 +65,15 @@ pub struct DiagnoseArgs {
 /// the level step's files, [`ACCURACY_MD`], [`ACCURACY_JSON`] and then [`DIAGNOSE_JSON`] into
 /// the report folder. Nothing is written when an input is bad.
 pub fn diagnose(args: &DiagnoseArgs) -> Result<()> {
-    check_output_dir("--report", &args.report)?;
+    let inputs = Inputs::new()
+        .path("--model", &args.model)
+        .dataset("--data", &args.data);
+    output_guard::check(
+        &[Output::folder("--report", &args.report)],
+        &inputs,
+        false,
+        "",
+    )?;
     let model = load_model(&args.model)?;
     let ds = load_dataset(&args.data, &model)?;
     let selected = select_runs(&ds, &args.runs, &args.data)?;
@@ -69,6 +82,17 @@ pub fn diagnose(args: &DiagnoseArgs) -> Result<()> {
         .as_ref()
         .map(|files| step_pair(&ds, files, args.step_repeat))
         .transpose()?;
+    let mut checked = selected.clone();
+    checked.extend(step_runs.iter().flatten());
+    checked.sort_unstable();
+    checked.dedup();
+    check_runs_against_model(
+        &model,
+        &ds,
+        &checked,
+        |i| causal_velocity(&ds.runs[i].displacement_m, ds.sample_rate_hz),
+        false,
+    )?;
     let t = Instant::now();
     let results = {
         use rayon::prelude::*;
@@ -162,6 +186,20 @@ fn select_runs(ds: &Dataset, runs: &[String], data: &Path) -> Result<Vec<usize>>
 /// can be joined.
 fn step_pair(ds: &Dataset, files: &[String; 2], repeat: usize) -> Result<[usize; 2]> {
     let pair = [find_run(ds, &files[0])?, find_run(ds, &files[1])?];
+    // Each run's steady part is at most the run: the record's length is bounded before it is
+    // built.
+    let most = (ds.runs[pair[0]].len() + ds.runs[pair[1]].len()).checked_mul(repeat);
+    if most.is_none_or(|n| n > MAX_STEP_SAMPLES) {
+        bail!(
+            "--step-repeat {repeat}: the level step's record could take up to {} samples ({} \
+             and {} samples per play); at most {MAX_STEP_SAMPLES}: give a --step-repeat of at \
+             most {}",
+            most.map_or("more than 2^64".to_string(), |n| n.to_string()),
+            ds.runs[pair[0]].len(),
+            ds.runs[pair[1]].len(),
+            MAX_STEP_SAMPLES / (ds.runs[pair[0]].len() + ds.runs[pair[1]].len()).max(1)
+        );
+    }
     join(&ds.runs[pair[0]], &ds.runs[pair[1]], repeat).context("--level-step")?;
     Ok(pair)
 }

@@ -9,10 +9,7 @@ pub fn compare_command(
     checkpoint: Option<&Path>,
     resume: bool,
 ) -> Result<Report> {
-    check_output_dir("--report", report_dir)?;
-    if let Some(dir) = checkpoint {
-        check_output_dir("--checkpoint", dir)?;
-    }
+    check_job_outputs(cfg, None, Some(report_dir), checkpoint, false)?;
     let cfg = &with_resolved_data(cfg)?;
     let _lock = checkpoint
         .map(|dir| open_checkpoint(dir, cfg, resume))

@@ -17,6 +17,8 @@ pub struct DemoPaths {
 /// prepared once, for the comparison and the estimator check.
 pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let t0 = Instant::now();
+    let inputs = Inputs::new().dataset("--data", &paths.data);
+    output_guard::check(&[Output::folder("--out", &paths.out)], &inputs, false, "")?;
     if !paths.data.join(dataset::MANIFEST_FILE).exists() {
         eprintln!(
             "no dataset in {}: generating the default virtual bench",
@@ -31,7 +33,6 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
     let mut cfg = cfg.clone();
     cfg.data.dir = paths.data.clone();
     cfg.validate()?;
-    check_output_dir("--out", &paths.out)?;
     let cfg = with_resolved_data(&cfg)?;
     let (ds, prepared) = load_dataset_prepared(&cfg.data.dir, &cfg.data.prepare_config())?;
     let report = compare(&ds, &prepared, &cfg, &paths.out, None, false)?;

@@ -1,8 +1,8 @@
 //! What a checkpoint folder was trained on, and who writes it.
 //!
 //! `identity.json` holds the resolved configuration (data options, model, training; every
-//! key but the per-invocation budget [`SESSION_KEYS`]) and a fingerprint of the dataset's
-//! manifest. Training afresh writes it; `--resume` compares it with the job's and refuses any
+//! key but the per-invocation budget [`SESSION_KEYS`]) and fingerprints of the dataset's
+//! manifest and of its run files' contents. Training afresh writes it; `--resume` compares it with the job's and refuses any
 //! difference, naming each key with both values, so a checkpoint of another dataset, rate,
 //! seed or learning rate is never continued. `lock` holds the pid of the process writing the
 //! folder for as long as it runs: a second job on the same folder is refused; a lock left by
@@ -87,7 +87,8 @@ fn differences(recorded: &BTreeMap<String, String>, now: &BTreeMap<String, Strin
 }
 
 /// The identity of a job: its configuration as dotted keys, less [`SESSION_KEYS`], and the
-/// FNV-1a fingerprint of its dataset's manifest (`dataset.manifest`).
+/// FNV-1a fingerprints of its dataset's manifest (`dataset.manifest`) and of the contents
+/// of every run file it lists (`dataset.runs`).
 fn identity(cfg: &Config) -> Result<BTreeMap<String, String>> {
     fn flatten(prefix: &str, v: &toml::Value, out: &mut BTreeMap<String, String>) {
         match v {
@@ -111,12 +112,36 @@ fn identity(cfg: &Config) -> Result<BTreeMap<String, String>> {
     for k in SESSION_KEYS {
         out.remove(k);
     }
-    let manifest = cfg.data.require_dir()?.join(dataset::MANIFEST_FILE);
+    let dir = cfg.data.require_dir()?;
+    let manifest = dir.join(dataset::MANIFEST_FILE);
     let bytes =
         std::fs::read(&manifest).with_context(|| format!("cannot read {}", manifest.display()))?;
     let mut h = fnv::FnvHasher::default();
     h.write(&bytes);
     out.insert("dataset.manifest".into(), format!("{:016x}", h.finish()));
+    // The runs' contents: a run file edited in place changes the data as much as the manifest.
+    let runs = dataset::read_manifest(dir)
+        .map(|m| m.runs)
+        .unwrap_or_default();
+    let mut h = fnv::FnvHasher::default();
+    for run in &runs {
+        let path = dir.join(&run.file);
+        h.write(run.file.to_string_lossy().as_bytes());
+        let mut f = std::fs::File::open(&path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let mut buf = vec![0u8; 1 << 16];
+        loop {
+            use std::io::Read as _;
+            let n = f
+                .read(&mut buf)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            if n == 0 {
+                break;
+            }
+            h.write(&buf[..n]);
+        }
+    }
+    out.insert("dataset.runs".into(), format!("{:016x}", h.finish()));
     Ok(out)
 }
 
@@ -212,5 +237,40 @@ mod tests {
         // A lock left by a process that no longer exists is taken over.
         std::fs::write(ck.join(LOCK_FILE), "4294967\n").unwrap();
         drop(open_checkpoint(&ck, &cfg, false).unwrap());
+    }
+}
+
+#[cfg(test)]
+mod run_content_tests {
+    use super::*;
+
+    #[test]
+    fn resume_refuses_a_run_file_edited_in_place() {
+        let tmp = tempfile::tempdir().unwrap();
+        let e2e = Path::new(env!("CARGO_MANIFEST_DIR")).join("../nemm-firmware/data/e2e");
+        let data = tmp.path().join("data");
+        std::fs::create_dir_all(data.join("runs")).unwrap();
+        std::fs::copy(
+            e2e.join(dataset::MANIFEST_FILE),
+            data.join(dataset::MANIFEST_FILE),
+        )
+        .unwrap();
+        let manifest = dataset::read_manifest(&data).unwrap();
+        for r in &manifest.runs {
+            std::fs::copy(e2e.join(&r.file), data.join(&r.file)).unwrap();
+        }
+        let mut cfg = Config::default();
+        cfg.data.dir = data.clone();
+        let ck = tmp.path().join("ck");
+        drop(open_checkpoint(&ck, &cfg, false).unwrap());
+        drop(open_checkpoint(&ck, &cfg, true).unwrap());
+        let run = data.join(&manifest.runs[0].file);
+        let text = std::fs::read_to_string(&run).unwrap();
+        std::fs::write(&run, text.replacen(',', ",1", 2)).unwrap();
+        let e = open_checkpoint(&ck, &cfg, true).unwrap_err().to_string();
+        assert!(
+            e.contains("dataset.runs") && !e.contains("dataset.manifest"),
+            "{e}"
+        );
     }
 }

@@ -5,6 +5,7 @@ use crate::atomic_file::write_atomic_bytes;
 use crate::config::{lambda_ph_scale_note, resolve_data, Config, CONFIG_FILE};
 use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
+use crate::output_guard::{self, Inputs, Output};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use crate::report::inspect::describe;
 use crate::report::signature::{signature_markdown, signature_report, SIGNATURE_FIGURE};
@@ -23,13 +24,12 @@ use std::time::Instant;
 mod compare;
 mod demo;
 mod identity;
-mod paths;
 mod sweep;
 
+pub use crate::output_guard::{check_output_dir, check_output_file};
 pub use compare::*;
 pub use demo::*;
 pub use identity::{open_checkpoint, CheckpointLock, IDENTITY_FILE, LOCK_FILE, SESSION_KEYS};
-pub use paths::*;
 pub use sweep::*;
 
 /// Loads and prepares a dataset, printing a one-line summary.
@@ -143,10 +143,30 @@ impl TablesArgs {
         Ok(())
     }
 
-    /// The levels to store for `model`: those of --tables-alpha and the --tables-levels
+    /// Refuses a --tables-alpha level outside the trained range of `meta` (a model's, or
+    /// [`crate::train::pipeline::meta_of`] the prepared data before training): its tables
+    /// would hold an extrapolated model.
+    pub fn check_range(&self, meta: &nemm_core::model::Meta) -> Result<()> {
+        let (min, max) = (meta.alpha_min, meta.alpha_max);
+        if let Some(a) = self
+            .tables_alpha
+            .iter()
+            .find(|&&a| a < min - 1e-6 || a > max + 1e-6)
+        {
+            bail!(
+                "--tables-alpha {a} is outside the model's trained range of alpha ({min} to \
+                 {max}): its tables would hold an extrapolated model; give levels in that range"
+            );
+        }
+        Ok(())
+    }
+
+    /// The levels to store for `model` (each of --tables-alpha in the model's trained range,
+    /// else an error): those of --tables-alpha and the --tables-levels
     /// levels evenly over the trained range (computed in f64, each rounded once to f32, so
     /// that a level such as 0.15 is the f32 of 0.15), ascending, without repeats.
     pub fn levels(&self, model: &nemm_core::Model) -> Result<Vec<f32>> {
+        self.check_range(&model.meta)?;
         let mut levels = self.tables_alpha.clone();
         if let Some(n) = self.tables_levels {
             let (lo, hi) = (
@@ -256,11 +276,60 @@ pub fn export_model(
 
 /// `nemm tables MODEL --out OUT`: re-encodes the model of `model` (bit for bit, provenance
 /// included) with the tables of `tables`, writes it atomically and describes it.
-pub fn store_tables(model: &Path, out: &Path, tables: &TablesArgs) -> Result<()> {
+///
+/// `out` may be `model` (rewritten in place); it may not be another input's path. Rewriting
+/// in place drops the stored tables of levels `tables` does not list only with `drop_tables`;
+/// `replace` lets `out` replace an existing file that is not a weights blob.
+pub fn store_tables(
+    model: &Path,
+    out: &Path,
+    tables: &TablesArgs,
+    replace: bool,
+    drop_tables: bool,
+) -> Result<()> {
     tables.validate()?;
+    let in_place = output_guard::resolve(model)? == output_guard::resolve(out)?;
+    let inputs = if in_place {
+        Inputs::new()
+    } else {
+        Inputs::new().path("the model", model)
+    };
+    output_guard::check(&[Output::blob("--out", out)], &inputs, replace, "--replace")?;
     let blob = std::fs::read(model).with_context(|| format!("cannot read {}", model.display()))?;
-    let m: nemm_core::Model =
-        nemm_core::decode(&blob).with_context(|| format!("{}", model.display()))?;
+    let (m, old): (nemm_core::Model, _) =
+        nemm_core::decode_with_tables(&blob).with_context(|| format!("{}", model.display()))?;
+    let kept = if tables.tables_alpha.is_empty() && tables.tables_levels.is_none() {
+        Vec::new()
+    } else {
+        tables.levels(&m)?
+    };
+    let dropped: Vec<&nemm_core::format::tables::StoredLevel> = old
+        .levels
+        .iter()
+        .filter(|l| {
+            l.segments as usize != tables.tables_segments
+                || !kept.iter().any(|a| a.to_bits() == l.alpha.to_bits())
+        })
+        .collect();
+    if in_place && !dropped.is_empty() && !drop_tables {
+        let count: usize = dropped
+            .iter()
+            .map(|l| usize::from(l.b_fl.is_some()) + usize::from(l.k_pr.is_some()))
+            .sum();
+        let levels: Vec<String> = dropped
+            .iter()
+            .map(|l| format!("{} ({} segments)", l.alpha, l.segments))
+            .collect();
+        bail!(
+            "--out {}: rewriting the model in place would drop {count} stored table(s) of {} \
+             of its {} level(s): alpha {}; list them with --tables-alpha (and --tables-segments), \
+             or give --drop-tables to drop them",
+            out.display(),
+            dropped.len(),
+            old.levels.len(),
+            levels.join(", ")
+        );
+    }
     let new = encode_with_tables(&m, tables)?;
     write_atomic_bytes(out, &new).with_context(|| format!("cannot write {}", out.display()))?;
     let (decoded, stored) =
@@ -311,12 +380,13 @@ fn levels_check<const T: usize>(
     Ok(Some(format!(
         "level tables:    {} levels of {T} segments, {} B in RAM; blend between levels within \
          {b_fl:.1e} (b_fl), {b_pr:.1e} (b_pr), {k_pr:.1e} (k_pr) relative of the exact model \
-         (worst at alpha {:.3}); levels out of the declared order at {} of {} points (exact \
-         model: {})\n",
+         (worst at alpha {:.3}); neighbouring levels out of the declared order in {} of {} \
+         checks (b_fl and k_pr at {} states between each pair of levels; exact model: {})\n",
         levels.len(),
         levels.table_bytes().1,
         c.at_alpha,
         c.table_order_violations,
+        2 * (c.points / 3),
         c.points / 3,
         c.exact_order_violations
     )))
@@ -404,8 +474,29 @@ fn print_audit(t: &TrainedVariant, r: &Report) {
     }
 }
 
+/// The output rule ([`output_guard::check`]) for a job on `cfg`'s dataset: the blob `out`,
+/// the report and checkpoint folders against the dataset folder and its files; `replace`
+/// lets `out` replace an existing file that is not a weights blob.
+pub fn check_job_outputs(
+    cfg: &Config,
+    out: Option<&Path>,
+    report_dir: Option<&Path>,
+    checkpoint: Option<&Path>,
+    replace: bool,
+) -> Result<()> {
+    let inputs = Inputs::new().dataset("--data", cfg.data.require_dir()?);
+    let outputs: Vec<Output<'_>> = out
+        .map(|p| Output::blob("--out", p))
+        .into_iter()
+        .chain(report_dir.map(|p| Output::folder("--report", p)))
+        .chain(checkpoint.map(|p| Output::folder("--checkpoint", p)))
+        .collect();
+    output_guard::check(&outputs, &inputs, replace, "--replace")
+}
+
 /// `nemm train`: trains `cfg.model.variant` on `cfg.data` and writes the blob `out`; with
 /// `report_dir`, also `report.json`, `table.md` and the effective `config.toml` there.
+/// `replace`: `out` may replace an existing file that is not a weights blob.
 pub fn train(
     cfg: &Config,
     out: &Path,
@@ -413,15 +504,10 @@ pub fn train(
     resume: bool,
     report_dir: Option<&Path>,
     tables: &TablesArgs,
+    replace: bool,
 ) -> Result<()> {
     tables.validate()?;
-    check_output_file("--out", out)?;
-    if let Some(dir) = report_dir {
-        check_output_dir("--report", dir)?;
-    }
-    if let Some(dir) = checkpoint {
-        check_output_dir("--checkpoint", dir)?;
-    }
+    check_job_outputs(cfg, Some(out), report_dir, checkpoint, replace)?;
     let cfg = &with_resolved_data(cfg)?;
     let _lock = checkpoint
         .map(|dir| open_checkpoint(dir, cfg, resume))
@@ -429,6 +515,7 @@ pub fn train(
     let variant = cfg.model.variant;
     let (ds, prepared) =
         load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
+    tables.check_range(&crate::train::pipeline::meta_of(&prepared))?;
     let cfg = &cfg.with_static_force_from(&prepared);
     let pipeline = cfg.pipeline_config();
     let t = Instant::now();
@@ -558,9 +645,17 @@ fn table_vs_exact(
 /// `nemm export`: the best model of a checkpoint folder written by `nemm train --checkpoint`.
 /// Also reports whether the tabulated fast path meets `table_bound`
 /// ([`crate::train::table_check`]).
-pub fn export(checkpoint: &Path, out: &Path, table_bound: f32, tables: &TablesArgs) -> Result<()> {
+/// `replace`: `out` may replace an existing file that is not a weights blob.
+pub fn export(
+    checkpoint: &Path,
+    out: &Path,
+    table_bound: f32,
+    tables: &TablesArgs,
+    replace: bool,
+) -> Result<()> {
     tables.validate()?;
-    check_output_file("--out", out)?;
+    let inputs = Inputs::new().path("--checkpoint", checkpoint);
+    output_guard::check(&[Output::blob("--out", out)], &inputs, replace, "--replace")?;
     let frame_path = checkpoint.join("frame.json");
     let text = std::fs::read_to_string(&frame_path).with_context(|| {
         format!(

@@ -119,7 +119,8 @@ pub fn job_args(job: &SweepJob, report: &Path) -> Result<Vec<String>> {
 }
 
 /// Reads every job's `report.json` under `<report>/jobs/` and writes `sweep.json` and
-/// `table5.md` (one row per job: hyperparameters, validation and test RMSE, violations).
+/// `table5.md` (one row per job: hyperparameters, validation and test RMSE, violations). A
+/// job whose report is missing or cannot be read is left out with a warning.
 pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
     use std::fmt::Write as _;
     struct Row {
@@ -134,10 +135,14 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
     let mut rows: Vec<Row> = Vec::new();
     for j in jobs {
         let p = report.join("jobs").join(&j.id).join("report.json");
-        match std::fs::read_to_string(&p) {
-            Ok(t) => {
-                let r: Report =
-                    serde_json::from_str(&t).with_context(|| format!("corrupt {}", p.display()))?;
+        let read = std::fs::read_to_string(&p)
+            .map_err(|e| format!("no report ({}: {e}): not finished or failed", p.display()))
+            .and_then(|t| {
+                serde_json::from_str::<Report>(&t)
+                    .map_err(|e| format!("a corrupt report ({}: {e}): left out", p.display()))
+            });
+        match read {
+            Ok(r) => {
                 if let Some(v) = r.variants.get("nemm") {
                     rows.push(Row {
                         job: j.clone(),
@@ -150,11 +155,7 @@ pub fn collect_sweep(jobs: &[SweepJob], report: &Path) -> Result<String> {
                     });
                 }
             }
-            Err(_) => eprintln!(
-                "warning: job {} has no report ({}): not finished or failed",
-                j.id,
-                p.display()
-            ),
+            Err(why) => eprintln!("warning: job {} has {why}", j.id),
         }
     }
     let base = rows
@@ -245,6 +246,9 @@ pub fn sweep(
     collect_only: bool,
 ) -> Result<()> {
     base.data.require_dir()?;
+    if !collect_only {
+        check_job_outputs(base, None, Some(report), None, false)?;
+    }
     // Every job runs with the data options resolved once, as this run prints them.
     let resolved;
     let base = if collect_only {
@@ -342,4 +346,23 @@ pub fn sweep(
         report.join("sweep.json").display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn collect_leaves_out_a_corrupt_report_as_a_missing_one() {
+        let tmp = tempfile::tempdir().unwrap();
+        let jobs = sweep_jobs(&Config::default(), SweepGrid::Lambda, &[0.0, 5.0]);
+        assert_eq!(jobs.len(), 2);
+        // One job's report cut short, the other's missing: both left out, the table written.
+        let dir = job_dir(tmp.path(), &jobs[0]);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("report.json"), "{\"variants\": {").unwrap();
+        let md = collect_sweep(&jobs, tmp.path()).unwrap();
+        assert!(!md.contains(&jobs[0].id), "{md}");
+        assert!(tmp.path().join("table5.md").is_file());
+    }
 }

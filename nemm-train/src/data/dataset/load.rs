@@ -421,12 +421,32 @@ pub fn fit_time_grid(time_s: &[f64], nominal_step_s: f64) -> TimeGrid {
     }
 }
 
+/// The median of the steps of `time_s` (NaN with fewer than two stamps).
+pub fn median_step(time_s: &[f64]) -> f64 {
+    let mut steps: Vec<f64> = time_s.windows(2).map(|w| w[1] - w[0]).collect();
+    if steps.is_empty() {
+        return f64::NAN;
+    }
+    let mid = steps.len() / 2;
+    *steps.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The leading part of `time_s` before its first gap (a step longer than [`GAP_STEPS`]
+/// median steps): the stretch a rate is fitted on.
+pub fn before_first_gap(time_s: &[f64]) -> &[f64] {
+    let limit = GAP_STEPS * median_step(time_s);
+    match time_s.windows(2).position(|w| w[1] - w[0] > limit) {
+        Some(i) => &time_s[..=i],
+        None => time_s,
+    }
+}
+
 /// Checks that increasing time stamps lie on a uniform grid at `sample_rate_hz`, as
 /// rounded or jittered logger stamps do, and returns the fitted grid.
 ///
 /// The rule, in order (`h = 1 / sample_rate_hz`; `line_of(i)` is the line of sample `i`):
 /// 1. a step longer than [`GAP_STEPS`]` h` is a gap: [`DatasetError::Gap`] at its line,
-///    unless the fitted step (below) is more than 50 % off `h`, which is a wrong
+///    unless the median step is more than 50 % off `h`, which is a wrong
 ///    `sample_rate_hz`: [`DatasetError::RateMismatch`];
 /// 2. the least-squares grid `t = t0 + i dt` is fitted over the whole run; its rate
 ///    `1 / dt` must be within [`MAX_RATE_MISMATCH`] of `sample_rate_hz`
@@ -452,10 +472,13 @@ pub fn check_time_grid(
         fitted_hz,
         manifest_hz: sample_rate_hz,
     };
-    // A grid more than 50 % off is a wrong rate, not a run full of gaps or bursts.
-    let coarse_off = (grid.step_s * sample_rate_hz - 1.0).abs();
+    // A typical step more than 50 % off is a wrong rate, not a run full of gaps or bursts.
+    // The median step, not the fitted one: a single long gap (a logger paused for an hour)
+    // moves the fitted grid far off, and is then reported as a gap at its line.
+    let typical = median_step(time_s);
+    let coarse_off = (typical * sample_rate_hz - 1.0).abs();
     if coarse_off.is_nan() || coarse_off > 0.5 {
-        return Err(rate_err(grid.rate_hz()));
+        return Err(rate_err(1.0 / typical));
     }
     for (i, w) in time_s.windows(2).enumerate() {
         let step = w[1] - w[0];

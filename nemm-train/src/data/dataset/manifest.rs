@@ -163,39 +163,80 @@ fn validate_condition(
             ));
         }
     }
-    for (key, v, line) in [
-        (
-            "condition.at_alpha_0",
-            c.at_alpha_0,
-            cl.map(|l| l.at_alpha_0),
-        ),
-        (
-            "condition.at_alpha_1",
-            c.at_alpha_1,
-            cl.map(|l| l.at_alpha_1),
-        ),
+    for (key, text, line) in [
+        ("condition.name", &c.name, cl.map(|l| l.name)),
+        ("condition.unit", &c.unit, cl.map(|l| l.unit)),
     ] {
+        if let Some(message) = control_character(text) {
+            return Err(value_error(path, line, key, message));
+        }
+    }
+    if let Some((key, message)) = condition_values_error(c.at_alpha_0, c.at_alpha_1) {
+        let line = cl.map(|l| {
+            if key.ends_with('0') {
+                l.at_alpha_0
+            } else {
+                l.at_alpha_1
+            }
+        });
+        return Err(value_error(path, line, key, message));
+    }
+    Ok(())
+}
+
+/// What is wrong with a condition name or unit `text` that holds a control character (a
+/// line break, an escape): names travel into the blob and onto terminals.
+pub(crate) fn control_character(text: &str) -> Option<String> {
+    text.chars().find(|ch| ch.is_control()).map(|ch| {
+        format!("{text:?} holds the control character {ch:?}; give a name of printable characters")
+    })
+}
+
+/// What is wrong with a condition's values at alpha 0 (`a0`) and 1 (`a1`), as the key and
+/// the message: each finite in the blob's single precision, and distinct there.
+pub(crate) fn condition_values_error(a0: f64, a1: f64) -> Option<(&'static str, String)> {
+    for (key, v) in [("condition.at_alpha_0", a0), ("condition.at_alpha_1", a1)] {
         if !(v.is_finite() && (v as f32).is_finite()) {
-            return Err(value_error(
-                path,
-                line,
+            return Some((
                 key,
-                format!("{v} is not a finite number"),
+                format!(
+                    "{} is not a finite number in the blob's single precision (at most {:e} \
+                     in magnitude)",
+                    short_number(v),
+                    f32::MAX
+                ),
             ));
         }
     }
-    if c.at_alpha_0 as f32 == c.at_alpha_1 as f32 {
-        return Err(value_error(
-            path,
-            cl.map(|l| l.at_alpha_1),
-            "condition.at_alpha_1",
-            format!(
-                "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
-                c.at_alpha_1
-            ),
-        ));
+    if a0 as f32 != a1 as f32 {
+        return None;
     }
-    Ok(())
+    let message = if a0 == a1 {
+        format!(
+            "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
+            short_number(a1)
+        )
+    } else {
+        format!(
+            "{} and at_alpha_0 {} are one number in the blob's single precision ({}): the \
+             condition needs values at alpha 0 and 1 that differ there; give them in another \
+             unit",
+            short_number(a1),
+            short_number(a0),
+            short_number(f64::from(a1 as f32))
+        )
+    };
+    Some(("condition.at_alpha_1", message))
+}
+
+/// `v` as text of a readable length: plain between 1e-4 and 1e9 in magnitude (and 0), else
+/// in scientific notation (`1e300`, not 301 digits).
+pub(crate) fn short_number(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e9).contains(&v.abs()) || !v.is_finite() {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
 }
 
 /// Checks the values of run `i` (its level and optional metadata; lines `rl`).

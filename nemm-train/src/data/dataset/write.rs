@@ -95,8 +95,8 @@ fn write_run_csv(run: &Run, w: &mut dyn std::io::Write) -> std::io::Result<()> {
     Ok(())
 }
 
-/// The files of the dataset in `dir` (its manifest and the run files it lists), as
-/// `dir`-relative paths; empty when `dir` holds no manifest. A manifest that does not parse
+/// The files of the dataset in `dir` (its manifest, the run files it lists and its saved data
+/// options), as `dir`-relative paths; empty when `dir` holds no manifest. A manifest that does not parse
 /// counts as the manifest alone.
 fn old_dataset_files(dir: &Path) -> std::collections::HashSet<PathBuf> {
     let mut files = std::collections::HashSet::new();
@@ -104,25 +104,12 @@ fn old_dataset_files(dir: &Path) -> std::collections::HashSet<PathBuf> {
         return files;
     }
     files.insert(PathBuf::from(MANIFEST_FILE));
+    // The data options saved for the old dataset do not belong to the new one.
+    files.insert(PathBuf::from(crate::config::DATA_OPTIONS_FILE));
     if let Ok((manifest, _)) = read_manifest_with_lines(dir) {
         files.extend(manifest.runs.iter().map(|r| r.file.clone()));
     }
     files
-}
-
-/// The existing files (resolved) that writing `dataset` to `dir` replaces or removes: the
-/// old dataset's manifest and run files and any file at a path of the new dataset. An input
-/// of the import must not be among them.
-pub fn replaced_files(dir: &Path, dataset: &Dataset) -> Vec<PathBuf> {
-    let mut rel = old_dataset_files(dir);
-    rel.insert(PathBuf::from(MANIFEST_FILE));
-    rel.extend(dataset.runs.iter().map(|r| r.entry.file.clone()));
-    let mut out: Vec<PathBuf> = rel
-        .iter()
-        .filter_map(|f| std::fs::canonicalize(dir.join(f)).ok())
-        .collect();
-    out.sort();
-    out
 }
 
 /// Copies the tree `from` into `to` (created) as hard links, leaving out the `dir`-relative
@@ -172,6 +159,57 @@ fn sibling(dir: &Path, tag: &str) -> PathBuf {
         .expect("a free name")
 }
 
+/// The sibling folders `.<name>.new-*` and `.<name>.old-*` of `dir` left by a write that was
+/// killed (their process no longer runs). When `dir` holds a dataset they are removed, each
+/// with a message; otherwise they are named in a message only, as one of them may hold the
+/// only complete copy.
+fn clean_leftovers(dir: &Path) {
+    let Some(name) = dir.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return;
+    };
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let Ok(entries) = std::fs::read_dir(parent) else {
+        return;
+    };
+    let complete = dir.join(MANIFEST_FILE).is_file();
+    for e in entries.flatten() {
+        let file = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = ["new", "old"]
+            .iter()
+            .find_map(|tag| file.strip_prefix(&format!(".{name}.{tag}-")))
+        else {
+            continue;
+        };
+        let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
+        let running = pid.is_some_and(|p| {
+            p == std::process::id()
+                || !Path::new("/proc").is_dir()
+                || Path::new(&format!("/proc/{p}")).exists()
+        });
+        if pid.is_none() || running {
+            continue;
+        }
+        let path = e.path();
+        if complete && std::fs::remove_dir_all(&path).is_ok() {
+            eprintln!(
+                "removed {}, left by an interrupted write of {}",
+                path.display(),
+                dir.display()
+            );
+        } else if !complete {
+            eprintln!(
+                "note: {} was left by an interrupted write of {}; it may hold a complete \
+                 dataset (look for its manifest.toml) and is kept",
+                path.display(),
+                dir.display()
+            );
+        }
+    }
+}
+
 /// Writes `dataset` to the folder `dir`, replacing the dataset `dir` holds as a whole.
 ///
 /// The dataset is validated first with the same rules as [`load`], so whatever `write`
@@ -182,13 +220,24 @@ fn sibling(dir: &Path, tag: &str) -> PathBuf {
 /// then swapped with renames: `dir` moves to a sibling `.<name>.old-*`, the new folder
 /// takes its place, and the old one is removed. A kill at any point leaves the old or the
 /// new dataset complete: in `dir`, or (between the two renames) in the sibling
-/// `.<name>.old-*` and `.<name>.new-*` folders. The old dataset's run files are removed
+/// `.<name>.old-*` and `.<name>.new-*` folders, which the next write into `dir` removes (when
+/// `dir` holds a dataset) or names (when not). A symbolic link `dir` is written through (its
+/// target folder is replaced, the link stays); an existing `dir` that is not a folder is
+/// refused. The old dataset's run files are removed
 /// with it, so no run file of an earlier dataset is left behind.
 ///
 /// Callers that must not replace a dataset check for one first (`nemm data import` refuses
 /// without `--replace`); `nemm bench generate` replaces its own output folder.
 pub fn write(dir: &Path, dataset: &Dataset) -> Result<(), DatasetError> {
     use rayon::prelude::*;
+    // A symbolic link to a folder is written through: the link stays.
+    let dir = &crate::output_guard::resolve(dir).unwrap_or_else(|_| dir.to_path_buf());
+    if std::fs::symlink_metadata(dir).is_ok_and(|m| !m.is_dir()) {
+        return Err(DatasetError::Io {
+            path: dir.clone(),
+            error: std::io::Error::other("exists and is not a folder; the dataset was not written"),
+        });
+    }
     let manifest = dataset.manifest();
     let manifest_path = dir.join(MANIFEST_FILE);
     validate_manifest(&manifest, &manifest_path, None)?;
@@ -204,6 +253,7 @@ pub fn write(dir: &Path, dataset: &Dataset) -> Result<(), DatasetError> {
     if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(io_err(parent))?;
     }
+    clean_leftovers(dir);
     let new = sibling(dir, "new");
     let built = (|| {
         std::fs::create_dir(&new).map_err(io_err(&new))?;

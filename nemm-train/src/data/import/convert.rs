@@ -57,6 +57,13 @@ impl Converted {
                 }
             }
             let v = row.number(i).map_err(|e| ImportError::BadCell {
+                hint: if e.value.contains(',') && e.value.replace(',', ".").parse::<f64>().is_ok() {
+                    "; it is written with a decimal comma: give decimal_comma = true under \
+                     [csv] in the --spec file"
+                        .into()
+                } else {
+                    String::new()
+                },
                 path: e.path,
                 line: e.line,
                 field: e.field + 1,
@@ -302,7 +309,10 @@ fn read_file(spec: &ImportSpec, path: &Path) -> Result<Converted, ImportError> {
     if out.time_s.is_empty() {
         return Err(ImportError::NoRuns {
             path: path.to_path_buf(),
-            message: "no samples after the header".into(),
+            message: format!(
+                "no samples after the header (line {}): the file holds no data rows",
+                header.line
+            ),
         });
     }
     Ok(out)
@@ -622,7 +632,8 @@ fn dataset_rate(spec: &ImportSpec, pieces: &[(usize, Converted, Option<f64>)]) -
                 .map(|p| &p.1.time_s)
                 .cloned()
                 .unwrap_or_default();
-            let r = dataset::fit_time_grid(first, 1.0).rate_hz();
+            // Fitted before the first gap, which the run check then reports at its line.
+            let r = dataset::fit_time_grid(dataset::before_first_gap(first), 1.0).rate_hz();
             let rounded = r.round();
             if rounded > 0.0 && (r / rounded - 1.0).abs() <= 1e-6 {
                 rounded

@@ -79,7 +79,7 @@ pub enum ImportError {
         header: String,
     },
     /// A cell is not a finite number.
-    #[error("{}:{line}:{field}: column \"{column}\": \"{value}\" is not a finite number", path.display())]
+    #[error("{}:{line}:{field}: column \"{column}\": \"{value}\" is not a finite number{hint}", path.display())]
     BadCell {
         /// The raw file.
         path: PathBuf,
@@ -91,6 +91,8 @@ pub enum ImportError {
         column: String,
         /// The cell as found.
         value: String,
+        /// What probably fixes it (empty when nothing is known), e.g. `decimal_comma`.
+        hint: String,
     },
     /// A condition-level cell converts to a level outside \[0, 1\].
     #[error("{}:{line}:{field}: column \"{column}\": {value} converts to the condition level {level}, outside [0, 1] (columns.alpha: {mapping})", path.display())]
@@ -155,6 +157,10 @@ pub enum ImportError {
 /// Highest resampling rate \[Hz\] (`--resample-hz`, `resample_hz`): the highest model rate
 /// training accepts.
 pub const MAX_RESAMPLE_HZ: f64 = crate::config::MODEL_RATE_RANGE_HZ.1;
+
+/// Lowest resampling rate \[Hz\] (`--resample-hz`, `resample_hz`): the lowest model rate
+/// (a slower grid leaves too few samples of a stroke to train or check on).
+pub const MIN_RESAMPLE_HZ: f64 = crate::config::MODEL_RATE_RANGE_HZ.0;
 /// Most samples a resampled run may hold (five `f64` columns: 2 GB), checked before the run
 /// is allocated.
 pub const MAX_RESAMPLED_RUN_SAMPLES: usize = 50_000_000;

@@ -68,6 +68,24 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
             validate_column(role, c)?;
         }
     }
+    // Each file's runs are named after its file stem (runs/STEM.csv, runs/STEM_01.csv ...).
+    for (i, f) in spec.files.iter().enumerate() {
+        if let Some(g) = spec.files[..i]
+            .iter()
+            .find(|g| g.path.file_stem() == f.path.file_stem())
+        {
+            return Err(spec_err(
+                format!("files[{i}]"),
+                format!(
+                    "{} and {} have one file name stem, {:?}, and each file's runs are named \
+                     after it (runs/STEM.csv): rename or copy one of them under another name",
+                    g.path.display(),
+                    f.path.display(),
+                    f.path.file_stem().unwrap_or_default()
+                ),
+            ));
+        }
+    }
     for (k, v) in [("rate_hz", spec.rate_hz), ("resample_hz", spec.resample_hz)] {
         if let Some(v) = v {
             if !(v.is_finite() && v > 0.0) {
@@ -79,6 +97,12 @@ pub fn validate_spec(spec: &ImportSpec) -> Result<(), ImportError> {
         return Err(spec_err(
             "resample_hz",
             format!("{v} Hz is above the highest model rate, {MAX_RESAMPLE_HZ} Hz"),
+        ));
+    }
+    if let Some(v) = spec.resample_hz.filter(|v| *v < MIN_RESAMPLE_HZ) {
+        return Err(spec_err(
+            "resample_hz",
+            format!("{v} Hz is below the lowest model rate, {MIN_RESAMPLE_HZ} Hz"),
         ));
     }
     if spec.columns.time.is_none() && spec.rate_hz.is_none() {
@@ -418,6 +442,11 @@ fn resolve_condition(
             ),
         ));
     }
+    for (key, text) in [("condition.name", &out.name), ("condition.unit", &out.unit)] {
+        if let Some(message) = dataset::control_character(text) {
+            return Err(spec_err(key, message));
+        }
+    }
     if out.unit.len() > unit_max {
         return Err(spec_err(
             "condition.unit",
@@ -431,22 +460,8 @@ fn resolve_condition(
     if !check_values {
         return Ok(Some(out));
     }
-    for (key, v) in [
-        ("condition.at_alpha_0", out.at_alpha_0),
-        ("condition.at_alpha_1", out.at_alpha_1),
-    ] {
-        if !(v.is_finite() && (v as f32).is_finite()) {
-            return Err(spec_err(key, format!("{v} is not a finite number")));
-        }
-    }
-    if out.at_alpha_0 as f32 == out.at_alpha_1 as f32 {
-        return Err(spec_err(
-            "condition.at_alpha_1",
-            format!(
-                "{} equals at_alpha_0: the condition needs distinct values at alpha 0 and 1",
-                out.at_alpha_1
-            ),
-        ));
+    if let Some((key, message)) = dataset::condition_values_error(out.at_alpha_0, out.at_alpha_1) {
+        return Err(spec_err(key, message));
     }
     Ok(Some(out))
 }
