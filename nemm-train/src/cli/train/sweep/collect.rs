@@ -156,6 +156,17 @@ pub fn collect(report: &Path) -> Result<()> {
     let manifest = SweepManifest::load(report)?;
     let c = collect_sweep(&manifest, report)?;
     c.print(report, manifest.grid);
+    let queued: Vec<&str> = slurm::queued_jobs(&manifest)
+        .into_iter()
+        .map(|i| manifest.jobs[i].id.as_str())
+        .filter(|id| c.missing.iter().any(|m| m == id))
+        .collect();
+    if !queued.is_empty() {
+        eprintln!(
+            "[sweep] of those, still queued or running in Slurm: {}",
+            queued.join(", ")
+        );
+    }
     Ok(())
 }
 

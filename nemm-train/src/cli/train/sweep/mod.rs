@@ -1,6 +1,6 @@
 //! `nemm sweep`: the `lambda_ph` sweep (Table 5, also with the priors by the penalty alone) and the Table 3
 //! search space, one `nemm train` process per job, run on this machine ([`Engine::Local`]) or
-//! as a Slurm job array ([`Engine::Slurm`], [`slurm`]), collected into one table ([`collect`]).
+//! as a Slurm job array ([`Engine::Slurm`], [`slurm`]), collected into one table ([`collect()`]).
 //!
 //! A sweep lives in its report folder: the job list ([`SweepManifest`], `sweep-jobs.json`),
 //! one folder per job (`jobs/ID/`: `config.toml`, `train.log`, `report.json` when it

@@ -278,6 +278,34 @@ pub fn cost_estimate(
     Ok(s)
 }
 
+/// The jobs of `manifest` (indices into its job list) that Slurm still has queued or running
+/// under one of the sweep's submissions, by `squeue`; none where `squeue` cannot say.
+pub fn queued_jobs(manifest: &SweepManifest) -> Vec<usize> {
+    if manifest.submissions.is_empty() {
+        return Vec::new();
+    }
+    let ids: Vec<&str> = manifest
+        .submissions
+        .iter()
+        .map(|s| s.job_id.as_str())
+        .collect();
+    let Ok(out) = std::process::Command::new("squeue")
+        .args(["--noheader", "--array", "--format=%i", "--jobs"])
+        .arg(ids.join(","))
+        .output()
+    else {
+        return Vec::new();
+    };
+    let mut queued: Vec<usize> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.trim().rsplit_once('_')?.1.parse().ok())
+        .filter(|&i| i < manifest.jobs.len())
+        .collect();
+    queued.sort_unstable();
+    queued.dedup();
+    queued
+}
+
 /// The Slurm engine: writes the job script, prints the cost, and (unless `--dry-run`)
 /// submits the `pending` jobs (indices into the job list) as one job array, records the
 /// submission in the job list and returns.
@@ -287,11 +315,32 @@ pub(super) fn submit_sweep(
     report: &Path,
     options: &SweepOptions,
 ) -> Result<()> {
+    let pending_given = pending.len();
     let settings = SlurmSettings::resolve(&options.slurm, options.jobs, manifest.slurm.as_ref())?;
+    // Tasks still queued or running (with no result yet) are not submitted twice.
+    let queued = queued_jobs(&manifest);
+    let pending: Vec<usize> = pending
+        .iter()
+        .copied()
+        .filter(|i| {
+            !queued.contains(i)
+                || !matches!(
+                    job_state(report, &manifest.jobs[*i].id),
+                    Ok(JobState::Missing)
+                )
+        })
+        .collect();
+    if pending.len() < pending_given {
+        eprintln!(
+            "[sweep] {} job(s) still queued or running in Slurm: not submitted again",
+            pending_given - pending.len()
+        );
+    }
+    let pending = &pending[..];
     manifest.slurm = Some(settings.clone());
     manifest.save(report)?;
     if pending.is_empty() {
-        eprintln!("[sweep] every job is done: nothing to submit");
+        eprintln!("[sweep] nothing to submit");
         let c = collect_sweep(&manifest, report)?;
         c.print(report, manifest.grid);
         return Ok(());
@@ -367,4 +416,109 @@ pub(super) fn submit_sweep(
         report.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_slurm_time_limits() {
+        for (s, secs) in [
+            ("5", 300),
+            ("5:30", 330),
+            ("1:00:00", 3600),
+            ("2-3", 2 * 86400 + 3 * 3600),
+            ("1-0:30", 86400 + 1800),
+            ("1-00:00:10", 86410),
+        ] {
+            assert_eq!(parse_time(s).unwrap(), secs, "{s}");
+        }
+        for s in [
+            "",
+            "0",
+            "UNLIMITED",
+            "1:2:3:4",
+            "-5",
+            "1-",
+            "a:b",
+            "1-2:3:4:5",
+        ] {
+            assert!(parse_time(s).is_err(), "{s}");
+        }
+    }
+
+    #[test]
+    fn arrays_are_ranges_with_the_throttle() {
+        assert_eq!(array_spec(&[0, 1, 2, 3], 8), "0-3%8");
+        assert_eq!(array_spec(&[0, 1, 2, 5, 7, 8], 2), "0-2,5,7-8%2");
+        assert_eq!(array_spec(&[4], 1), "4%1");
+    }
+
+    #[test]
+    fn the_script_names_every_job_and_the_requests() {
+        let s = SlurmSettings::resolve(
+            &SlurmArgs {
+                partition: Some("compute".into()),
+                account: Some("dyno".into()),
+                time: Some("0:15:00".into()),
+                cpus_per_task: Some(4),
+            },
+            Some(16),
+            None,
+        )
+        .unwrap();
+        let ids = ["a_lph0".to_string(), "b_lph0".to_string()];
+        let script = job_script(
+            &s,
+            Path::new("/shared/t3"),
+            Path::new("/shared"),
+            Path::new("/shared/bin/nemm"),
+            &ids,
+        )
+        .unwrap();
+        for line in [
+            "#SBATCH --array=0-1%16\n",
+            "#SBATCH --cpus-per-task=4\n",
+            "#SBATCH --time=0:15:00\n",
+            "#SBATCH --partition=compute\n",
+            "#SBATCH --account=dyno\n",
+            "#SBATCH --chdir=/shared\n",
+            "ids=('a_lph0' 'b_lph0')\n",
+            "'/shared/bin/nemm' \"train\" \"--config\" \"$dir/config.toml\"",
+        ] {
+            assert!(script.contains(line), "{line} missing:\n{script}");
+        }
+        // On --resume, what is not given again is the sweep's.
+        let again = SlurmSettings::resolve(&SlurmArgs::default(), None, Some(&s)).unwrap();
+        assert_eq!(again, s);
+        let cost = cost_estimate(108, &s, None).unwrap();
+        assert!(
+            cost.starts_with("cost: 108 task(s) x 4 CPU(s) x at most 0:15:00 = at most 108.0 CPU-hours; 16 at a time: at most 1 h 45 min"),
+            "{cost}"
+        );
+        assert!(job_script(
+            &s,
+            Path::new("/my report"),
+            Path::new("/"),
+            Path::new("/n"),
+            &ids
+        )
+        .is_err());
+    }
+
+    #[test]
+    fn the_table3_grid_is_the_papers() {
+        let jobs = sweep_jobs(
+            &Config::default(),
+            SweepGrid::Table3,
+            &Table3Args::default(),
+            &[15.0],
+        );
+        assert_eq!(jobs.len(), 108);
+        assert!(jobs
+            .iter()
+            .any(|j| Table3Point::of(&j.config) == TABLE3_PAPER_BEST
+                && j.id == "b16_h16_l5_lr0.005_lph15"));
+    }
 }
