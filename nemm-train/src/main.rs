@@ -116,7 +116,9 @@ enum Cmd {
     },
     /// Hyperparameter / lambda_ph sweep (Tables 3 and 5): one `nemm train --config
     /// REPORT/jobs/ID/config.toml` process per configuration (`--lambda-ph 0,5,15,25` by
-    /// default: Table 5's values x1000), collected into table5.md and sweep.json.
+    /// default: Table 5's values x1000), on this machine or as a Slurm job array
+    /// (`--engine slurm`), collected into table5.md (table3.md for `--grid table3`) and
+    /// sweep.json.
     Sweep {
         /// Training options (the base of every job).
         #[command(flatten)]
@@ -125,19 +127,39 @@ enum Cmd {
         /// alone) or table3 (Table 3 search space x lambda list).
         #[arg(long, value_enum, default_value_t = nemm_train::cli::train::SweepGrid::Lambda)]
         grid: nemm_train::cli::train::SweepGrid,
+        /// The Table 3 grid's values.
+        #[command(flatten)]
+        table3: nemm_train::cli::train::Table3Args,
         /// Report folder (jobs in REPORT/jobs/ID/).
         #[arg(long, default_value = "sweep")]
         report: PathBuf,
-        /// Jobs run at the same time on this machine.
-        #[arg(long, default_value_t = 1)]
-        jobs: usize,
+        /// Where the jobs run: local (processes on this machine, returns when they have
+        /// finished) or slurm (a job array submitted with sbatch, returns at once)
+        /// [default: local; on --resume the sweep's].
+        #[arg(long, value_enum)]
+        engine: Option<nemm_train::cli::train::Engine>,
+        /// Jobs at a time: local processes, or the Slurm array's %N throttle [default: 1
+        /// locally, 8 on Slurm; on --resume the sweep's].
+        #[arg(long)]
+        jobs: Option<usize>,
+        /// The Slurm engine's options.
+        #[command(flatten)]
+        slurm: nemm_train::cli::train::SlurmArgs,
         /// Only write the jobs' config.toml files and print one `nemm train` command line per
-        /// job (for a cluster scheduler).
+        /// job.
         #[arg(long)]
         list: bool,
-        /// Only collect finished jobs' reports into the table.
+        /// Slurm: write the job script and print the cost estimate, do not submit.
         #[arg(long)]
-        collect: bool,
+        dry_run: bool,
+        /// Only collect the finished jobs of the sweep in REPORT (default: --report) into
+        /// the table, and list those that failed or have no result.
+        #[arg(long, value_name = "REPORT", num_args = 0..=1, conflicts_with = "resume")]
+        collect: Option<Option<PathBuf>>,
+        /// Run the jobs of the sweep in REPORT (default: --report) that failed or have no
+        /// result again (each from its config.toml as it is now).
+        #[arg(long, value_name = "REPORT", num_args = 0..=1)]
+        resume: Option<Option<PathBuf>>,
     },
     /// The best-fit condition level of every run of a dataset for a trained model (the level
     /// of least whole-run force RMSE on a grid), against the run's label, and the model's
@@ -291,18 +313,38 @@ fn main() -> ExitCode {
         Cmd::Sweep {
             args,
             grid,
+            table3,
             report,
+            engine,
             jobs,
+            slurm,
             list,
+            dry_run,
             collect,
-        } => args.base().and_then(|base| {
-            base.validate()?;
-            let lambdas = args.lambda_ph_list().map_or_else(
-                || nemm_train::cli::train::TABLE5_LAMBDAS.to_vec(),
-                <[f64]>::to_vec,
-            );
-            nemm_train::cli::train::sweep(&base, grid, &lambdas, &report, jobs, list, collect)
-        }),
+            resume,
+        } => {
+            use nemm_train::cli::train as t;
+            let options = t::SweepOptions {
+                jobs,
+                engine,
+                slurm,
+                list,
+                dry_run,
+            };
+            if let Some(dir) = collect {
+                t::collect(&dir.unwrap_or(report))
+            } else if let Some(dir) = resume {
+                t::resume(&dir.unwrap_or(report), &options)
+            } else {
+                args.base().and_then(|base| {
+                    base.validate()?;
+                    let lambdas = args
+                        .lambda_ph_list()
+                        .map_or_else(|| t::TABLE5_LAMBDAS.to_vec(), <[f64]>::to_vec);
+                    t::sweep(&base, grid, &table3, &lambdas, &report, &options)
+                })
+            }
+        }
         Cmd::Identify {
             model,
             data,

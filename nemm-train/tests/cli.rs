@@ -9,8 +9,11 @@ use nemm_train::data::dataset;
 use nemm_train::data::preprocess;
 use nemm_train::report::tables::Report;
 use std::ffi::OsStr;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
+
+mod support;
+use support::small_bench;
 
 /// A budget of seconds: short windows, two epochs of two batches per stage, small scalers.
 const BUDGET: &[&str] = &[
@@ -92,36 +95,6 @@ fn no_temp_files(dir: &Path) {
         let name = e.file_name().to_string_lossy().into_owned();
         assert!(!name.ends_with(".tmp"), "temporary file left: {name}");
     }
-}
-
-/// A virtual bench of 6 runs (10 mm at 0.262 and 1.048 m/s, three oil-loss levels) with
-/// short ramps and 2.6 s steady (five of the demo's 0.5 s windows, one of them for
-/// validation): generated from the default configuration with a smaller programme.
-fn small_bench(dir: &Path) -> PathBuf {
-    let config = Nemm::new(&["bench", "config"]).ok();
-    let mut small = String::new();
-    for line in config.lines() {
-        let key = line.split('=').next().unwrap_or("").trim();
-        small.push_str(match key {
-            "amplitudes_m" => "amplitudes_m = [0.01]",
-            "peak_velocities_m_s" => "peak_velocities_m_s = [0.262, 1.048]",
-            "max_ramp_s" => "max_ramp_s = 0.1",
-            "min_steady_s" => "min_steady_s = 2.6",
-            _ => line,
-        });
-        small.push('\n');
-    }
-    let toml = dir.join("small-bench.toml");
-    std::fs::write(&toml, small).expect("write config");
-    let data = dir.join("bench");
-    Nemm::new(&["bench", "generate", "--config"])
-        .arg(&toml)
-        .arg("--out")
-        .arg(&data)
-        .ok();
-    let ds = dataset::load(&data).expect("load the generated bench");
-    assert_eq!(ds.runs.len(), 6);
-    data
 }
 
 #[test]

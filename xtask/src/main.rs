@@ -4,7 +4,7 @@
 //!   (found or installed toolchain, see [`toolchain`]), their lint, the host workspace tests
 //!   (release, then the default debug profile), the QEMU tests (`tests/tests/qemu_*.rs`,
 //!   ignored by a plain `cargo test`) pointed at the images, the firmware library's host unit
-//!   tests, nemm-core's feature sets on the host and the target (`features`), the
+//!   tests, `nemm sweep` through a one-node Slurm ([`slurm`]), nemm-core's feature sets on the host and the target (`features`), the
 //!   `rust-version` check (`msrv`), a short `bench-target`, and the C interface: the host C
 //!   unit test and the C example on the Cortex-M4F against the firmware ([`c_interface`]).
 //! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
@@ -19,6 +19,8 @@
 //!   written into `docs/results.md`; `--training DIR` copies a training report's tables
 //!   there, `--host` writes the host criterion benches' figures ([`results`],
 //!   [`host_bench`]), `--observer` the alpha observer's accuracy on the virtual bench.
+//! - `cargo xtask bench-slurm`: the overhead of `nemm sweep`'s Slurm engine against the local
+//!   one on a one-node cluster ([`slurm`]).
 //! - `cargo xtask c-lib`, `c-test`, `c-header`: the C interface (`nemm-c`): its static
 //!   libraries, its tests, its generated header ([`c_interface`]).
 
@@ -30,6 +32,7 @@ mod firmware;
 mod host_bench;
 mod model;
 mod results;
+mod slurm;
 mod target_bench;
 use nemm_slot as slot;
 mod toolchain;
@@ -53,7 +56,9 @@ struct Cli {
 enum Cmd {
     /// Every test: the firmware (target build, lint), the host workspace (release and the
     /// default debug profile), the QEMU tests, nemm-core's feature sets (`features`), the
-    /// rust-version check (`msrv`), a short bench-target, the C interface (`c-test`).
+    /// rust-version check (`msrv`), a short bench-target, the C interface (`c-test`),
+    /// `nemm sweep` through a one-node Slurm (skipped with a message without root or
+    /// slurm-wlm and munge).
     Test {
         /// Skip everything that needs the embedded toolchain (no firmware, no QEMU tests).
         #[arg(long)]
@@ -171,6 +176,14 @@ enum Cmd {
         /// the report) has uncommitted changes; the block then names the commit `+dirty`.
         #[arg(long)]
         allow_dirty: bool,
+    },
+    /// The overhead of `nemm sweep --engine slurm` against the local engine on a one-node
+    /// Slurm cluster (started as root; Debian's slurm-wlm and munge): submission, time from
+    /// submission to each task's start, wall time, collection. One `slurm-overhead` line.
+    BenchSlurm {
+        /// Tiny configurations of the sweep (two at a time).
+        #[arg(long, default_value_t = 4)]
+        tasks: usize,
     },
     /// Say which toolchain route builds the firmware (install it if root).
     Toolchain,
@@ -342,6 +355,7 @@ fn main() -> ExitCode {
                 setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty))
             }
         },
+        Some(Cmd::BenchSlurm { tasks }) => Paths::find().and_then(|p| slurm::bench(&p, tasks)),
         Some(Cmd::Toolchain) => setup().map(|(tc, _)| println!("{}", tc.describe())),
         Some(Cmd::CLib { host_only: true }) => {
             Paths::find().and_then(|p| c_interface::libs(&p, None))
@@ -468,6 +482,7 @@ fn test(host_only: bool) -> Result<(), String> {
         .args(["test", "--workspace", "--release", "--no-fail-fast"])
         .current_dir(&paths.root))?;
     c_interface::host_test(&paths)?;
+    slurm::test(&paths)?;
     if let Some((tc, _, images, board_images)) = &firmware {
         // The QEMU tests, with the images; `--workspace` keeps the features (and so the
         // build) of the run above.
@@ -771,6 +786,10 @@ mod tests {
         assert!(matches!(
             parse(&["test"]),
             Ok(Some(Cmd::Test { host_only: false }))
+        ));
+        assert!(matches!(
+            parse(&["bench-slurm", "--tasks", "6"]),
+            Ok(Some(Cmd::BenchSlurm { tasks: 6 }))
         ));
         match parse(&["bench-target"]) {
             Ok(Some(Cmd::BenchTarget {

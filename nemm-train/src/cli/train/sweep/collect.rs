@@ -1,0 +1,401 @@
+//! A sweep's state on disk and its collection: the job list (`sweep-jobs.json`), each job's
+//! state from the files it leaves (`report.json`, `exit`), and the table (`table5.md` or
+//! `table3.md`) with `sweep.json`, whichever engine ran the jobs.
+
+use super::*;
+use std::fmt::Write as _;
+
+/// The sweep's job list in its report folder.
+pub const SWEEP_MANIFEST_FILE: &str = "sweep-jobs.json";
+/// A job's output (standard output and error of its `nemm train`) in its folder.
+pub const TRAIN_LOG: &str = "train.log";
+/// A job's exit status in its folder: the exit code or `signal N`, written atomically when
+/// the job's process ends (absent while it runs, and after a kill that took the task's shell
+/// with it).
+pub const EXIT_FILE: &str = "exit";
+
+/// A sweep as its report folder records it: what `--collect` and `--resume` read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SweepManifest {
+    /// The grid (names the table file).
+    pub grid: SweepGrid,
+    /// The engine the jobs were last run on.
+    pub engine: Engine,
+    /// Every job, in the order of the Slurm array's task indices.
+    pub jobs: Vec<SweepJob>,
+    /// The Slurm job script's settings, once one was written.
+    #[serde(default)]
+    pub slurm: Option<SlurmSettings>,
+    /// Every Slurm submission of the sweep, oldest first.
+    #[serde(default)]
+    pub submissions: Vec<slurm::Submission>,
+}
+
+impl SweepManifest {
+    /// Reads `<report>/sweep-jobs.json`.
+    pub fn load(report: &Path) -> Result<Self> {
+        let p = report.join(SWEEP_MANIFEST_FILE);
+        let text = std::fs::read_to_string(&p).with_context(|| {
+            format!(
+                "cannot read {}: is {} a sweep's report folder (nemm sweep --report)?",
+                p.display(),
+                report.display()
+            )
+        })?;
+        serde_json::from_str(&text).with_context(|| format!("corrupt {}", p.display()))
+    }
+
+    /// Writes `<report>/sweep-jobs.json` (atomically).
+    pub fn save(&self, report: &Path) -> Result<()> {
+        let p = report.join(SWEEP_MANIFEST_FILE);
+        write_atomic_bytes(&p, serde_json::to_string_pretty(self)?.as_bytes())
+            .with_context(|| format!("cannot write {}", p.display()))
+    }
+}
+
+/// A job's state, from the files in its folder.
+#[derive(Debug, Clone)]
+pub enum JobState {
+    /// Finished: its `report.json`.
+    Done(Box<Report>),
+    /// Ended without a report: its exit status and the last line of its log.
+    Failed(String),
+    /// No result and no exit status: waiting, running, killed with its task, or never run.
+    Missing,
+}
+
+/// The state of job `id` of the sweep in `report`.
+pub fn job_state(report: &Path, id: &str) -> Result<JobState> {
+    let dir = job_dir(report, id);
+    let p = dir.join("report.json");
+    if let Ok(t) = std::fs::read_to_string(&p) {
+        // A report that cannot be read is the job's failure, not the collection's.
+        return Ok(match serde_json::from_str::<Report>(&t) {
+            Ok(r) => JobState::Done(Box::new(r)),
+            Err(e) => JobState::Failed(format!("a corrupt report ({}: {e})", p.display())),
+        });
+    }
+    let Ok(exit) = std::fs::read_to_string(dir.join(EXIT_FILE)) else {
+        return Ok(JobState::Missing);
+    };
+    let log = std::fs::read_to_string(dir.join(TRAIN_LOG)).unwrap_or_default();
+    let last = log
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("")
+        .trim();
+    let mut short: String = last.chars().take(200).collect();
+    if short.len() < last.len() {
+        short.push_str("...");
+    }
+    Ok(JobState::Failed(format!("exit {}: {short}", exit.trim())))
+}
+
+/// Writes a job's `exit` file (atomically).
+pub fn write_exit(dir: &Path, status: &str) -> Result<()> {
+    write_atomic_bytes(&dir.join(EXIT_FILE), format!("{status}\n").as_bytes())
+        .with_context(|| format!("cannot write {}", dir.join(EXIT_FILE).display()))
+}
+
+/// Removes a job's `exit` file (before it runs again).
+pub fn clear_exit(dir: &Path) -> Result<()> {
+    match std::fs::remove_file(dir.join(EXIT_FILE)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("cannot remove {}", dir.join(EXIT_FILE).display()))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// What [`collect_sweep`] found and wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Collected {
+    /// The table as written (`table5.md` or `table3.md`).
+    pub markdown: String,
+    /// Jobs in the table.
+    pub done: usize,
+    /// Failed jobs: id and why (exit status, the last line of the log).
+    pub failed: Vec<(String, String)>,
+    /// Jobs without a result or an exit status.
+    pub missing: Vec<String>,
+}
+
+impl Collected {
+    /// Prints the table, where it was written, and the jobs not in it.
+    pub fn print(&self, report: &Path, grid: SweepGrid) {
+        println!("{}", self.markdown);
+        println!(
+            "sweep table in {} and {}",
+            report.join(grid.table_file()).display(),
+            report.join("sweep.json").display()
+        );
+        for (id, why) in &self.failed {
+            eprintln!(
+                "[sweep] FAILED {id} ({why}); see {}",
+                job_dir(report, id).join(TRAIN_LOG).display()
+            );
+        }
+        if !self.missing.is_empty() {
+            eprintln!(
+                "[sweep] {} job(s) without a result (waiting, running, killed or never run): {}",
+                self.missing.len(),
+                self.missing.join(", ")
+            );
+        }
+        if !self.failed.is_empty() || !self.missing.is_empty() {
+            eprintln!(
+                "[sweep] `nemm sweep --resume {}` runs the failed and missing jobs again",
+                report.display()
+            );
+        }
+    }
+}
+
+/// `nemm sweep --collect REPORT`: the table of whatever finished in the sweep in `report`,
+/// and the jobs that failed or have no result.
+pub fn collect(report: &Path) -> Result<()> {
+    let manifest = SweepManifest::load(report)?;
+    let c = collect_sweep(&manifest, report)?;
+    c.print(report, manifest.grid);
+    let queued: Vec<&str> = slurm::queued_jobs(&manifest)
+        .into_iter()
+        .map(|i| manifest.jobs[i].id.as_str())
+        .filter(|id| c.missing.iter().any(|m| m == id))
+        .collect();
+    if !queued.is_empty() {
+        eprintln!(
+            "[sweep] of those, still queued or running in Slurm: {}",
+            queued.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// One finished job's figures.
+struct Row<'a> {
+    job: &'a SweepJob,
+    val: f64,
+    test: f64,
+    test_n: f64,
+    violations: usize,
+    seconds: f64,
+    info: std::collections::BTreeMap<String, String>,
+}
+
+/// Reads every job's state under `<report>/jobs/` and writes `sweep.json` (every job with its
+/// status, the figures of those that finished) and the grid's table (`table5.md`, or
+/// `table3.md` with the Table 3 hyperparameters and the paper's best configuration against
+/// the best found): one row per finished job (hyperparameters, validation and test RMSE,
+/// violations, training time), then the jobs that failed or have no result.
+pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collected> {
+    let mut rows: Vec<Row> = Vec::new();
+    let (mut failed, mut missing) = (Vec::new(), Vec::new());
+    let mut status = std::collections::BTreeMap::new();
+    for j in &manifest.jobs {
+        let s = job_state(report, &j.id)?;
+        let name = match &s {
+            JobState::Done(_) => "done",
+            JobState::Failed(_) => "failed",
+            JobState::Missing => "missing",
+        };
+        status.insert(j.id.as_str(), name);
+        match s {
+            JobState::Done(r) => match r.variants.get("nemm") {
+                Some(v) => rows.push(Row {
+                    job: j,
+                    val: v.val_rmse,
+                    test: v.rmse,
+                    test_n: v.rmse_n,
+                    violations: v.violations,
+                    seconds: v.train_seconds,
+                    info: r.info.clone(),
+                }),
+                None => failed.push((j.id.clone(), "its report has no NEMM".to_string())),
+            },
+            JobState::Failed(why) => failed.push((j.id.clone(), why)),
+            JobState::Missing => missing.push(j.id.clone()),
+        }
+    }
+    let table3 = manifest.grid == SweepGrid::Table3;
+    let base = rows
+        .iter()
+        .find(|r| r.job.config.train.lambda_ph == 0.0)
+        .or(rows.first());
+    let mut md = String::new();
+    if let Some(r) = rows.first() {
+        md += &sweep_provenance(&r.job.config, &r.info);
+    }
+    if let Some(b) = base {
+        let _ = writeln!(
+            md,
+            "Rel. test error: the job's test RMSE against `{}`'s.\n",
+            b.job.id
+        );
+    }
+    let (head, rule) = if table3 {
+        (
+            "| Job | Batch | Hidden | Layers | Learning rate |",
+            "|---|---:|---:|---:|---:|",
+        )
+    } else {
+        ("| Job | Alpha priors |", "|---|---|")
+    };
+    let _ = writeln!(md, "{head} lambda_ph | Validation RMSE | Test RMSE | Test RMSE [N] | Rel. test error (%) | Violations | Time |");
+    let _ = writeln!(md, "{rule}---:|---:|---:|---:|---:|---:|---:|");
+    for r in &rows {
+        let (j, val, test, test_n, viol, secs) =
+            (&r.job, r.val, r.test, r.test_n, r.violations, r.seconds);
+        let lam = j.config.train.lambda_ph;
+        let rel = base.map_or("-".into(), |b| format!("{:.1}", 100.0 * test / b.test));
+        let cols = if table3 {
+            let p = Table3Point::of(&j.config);
+            format!("{} | {} | {} | {}", p.batch, p.hidden, p.layers, p.lr)
+        } else {
+            j.config.model.alpha_priors.name().to_string()
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {cols} | {lam} | {val:.4} | {test:.4} | {test_n:.1} | {rel} | {viol} | {secs:.0} s |",
+            j.id
+        );
+    }
+    let mut ranked: Vec<&Row> = rows.iter().collect();
+    ranked.sort_by(|a, b| a.val.total_cmp(&b.val));
+    if let Some(best) = ranked.first() {
+        let _ = writeln!(
+            md,
+            "\nBest by validation RMSE: `{}` (test RMSE {:.4}).",
+            best.job.id, best.test
+        );
+    }
+    if table3 {
+        md += &paper_best_line(manifest, &ranked);
+        if !rows.is_empty() {
+            let secs: Vec<f64> = rows.iter().map(|r| r.seconds).collect();
+            let _ = writeln!(
+                md,
+                "\nTraining time per configuration: mean {:.0} s, longest {:.0} s ({} configurations).",
+                secs.iter().sum::<f64>() / secs.len() as f64,
+                secs.iter().copied().fold(0.0, f64::max),
+                secs.len()
+            );
+        }
+    }
+    if !failed.is_empty() || !missing.is_empty() {
+        let _ = writeln!(md, "\nNot in the table:");
+        for (id, why) in &failed {
+            let _ = writeln!(md, "- `{id}`: failed ({why})");
+        }
+        for id in &missing {
+            let _ = writeln!(
+                md,
+                "- `{id}`: no result (waiting, running, killed or never run)"
+            );
+        }
+    }
+    let by_id: std::collections::BTreeMap<&str, &Row> =
+        rows.iter().map(|r| (r.job.id.as_str(), r)).collect();
+    let json: Vec<serde_json::Value> = manifest
+        .jobs
+        .iter()
+        .map(|j| {
+            let overrides: std::collections::BTreeMap<_, _> = j.overrides.iter().cloned().collect();
+            match by_id.get(j.id.as_str()) {
+                Some(r) => serde_json::json!({
+                    "id": j.id, "status": "done", "overrides": overrides,
+                    "val_rmse": r.val, "rmse": r.test, "rmse_n": r.test_n, "violations": r.violations, "train_seconds": r.seconds,
+                }),
+                None => serde_json::json!({
+                    "id": j.id, "status": status.get(j.id.as_str()).copied().unwrap_or("failed"), "overrides": overrides,
+                }),
+            }
+        })
+        .collect();
+    write_atomic_bytes(
+        &report.join("sweep.json"),
+        serde_json::to_string_pretty(&json)?.as_bytes(),
+    )?;
+    write_atomic_bytes(&report.join(manifest.grid.table_file()), md.as_bytes())?;
+    Ok(Collected {
+        markdown: md,
+        done: rows.len(),
+        failed,
+        missing,
+    })
+}
+
+/// The Table 3 summary's line on the paper's best configuration ([`TABLE3_PAPER_BEST`]):
+/// its rank by validation RMSE among the finished jobs and its errors, or why it has none.
+fn paper_best_line(manifest: &SweepManifest, ranked: &[&Row]) -> String {
+    let p = TABLE3_PAPER_BEST;
+    let head = format!(
+        "The paper's best (Table 3: batch {}, hidden {}, {} layers, learning rate {}): ",
+        p.batch, p.hidden, p.layers, p.lr
+    );
+    let is_paper = |c: &Config| Table3Point::of(c) == p;
+    if let Some((k, r)) = ranked
+        .iter()
+        .enumerate()
+        .find(|(_, r)| is_paper(&r.job.config))
+    {
+        let best = ranked[0];
+        format!(
+            "{head}`{}`, validation RMSE {:.4}, rank {} of {} by validation RMSE, test RMSE {:.4} \
+             (the best here: validation RMSE {:.4}, test RMSE {:.4}).\n",
+            r.job.id,
+            r.val,
+            k + 1,
+            ranked.len(),
+            r.test,
+            best.val,
+            best.test
+        )
+    } else if manifest.jobs.iter().any(|j| is_paper(&j.config)) {
+        format!("{head}in the grid, not finished.\n")
+    } else {
+        format!("{head}not in this grid.\n")
+    }
+}
+
+/// The sweep table's first lines: the commit the jobs were trained at (from the first job's
+/// report) and the budget they share.
+fn sweep_provenance(config: &Config, info: &std::collections::BTreeMap<String, String>) -> String {
+    let t = &config.train;
+    let batches = t.max_batches.map_or("all batches".to_string(), |b| {
+        format!("at most {b} batches")
+    });
+    format!(
+        "Sweep of the NEMM trained at commit `{}` on `{}`: at most {} epochs of {batches} \
+         (patience {}), {} Linear EMM epochs, seed {}, batch {}, lr {}.\n\n",
+        info.get("commit").map_or("unrecorded", String::as_str),
+        config.data.dir.display(),
+        t.epochs,
+        t.patience,
+        t.linear_epochs,
+        t.seed,
+        t.batch,
+        t.lr,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_corrupt_report_is_the_jobs_failure_not_the_collections() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = job_dir(tmp.path(), "lph5");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("report.json"), "{\"variants\": {").unwrap();
+        match job_state(tmp.path(), "lph5").unwrap() {
+            JobState::Failed(why) => assert!(why.contains("corrupt"), "{why}"),
+            other => panic!("expected a failure, got {other:?}"),
+        }
+        assert!(matches!(
+            job_state(tmp.path(), "other").unwrap(),
+            JobState::Missing
+        ));
+    }
+}
