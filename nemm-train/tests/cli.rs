@@ -265,9 +265,14 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
             let e = row.rel_error[key];
             assert!(e.is_finite() && e >= 0.0, "{key}: {row:?}");
         }
-        // The Linear EMM does not depend on the level: its difference loop is zero, so its
-        // error is exactly that of predicting no change.
-        assert!((row.rel_error["linear_emm"] - 1.0).abs() < 1e-9, "{row:?}");
+        // The Linear EMM does not depend on the level: its difference loop is only that of
+        // the two runs' slightly different measured velocities, so its error is that of
+        // predicting no change.
+        assert!(
+            row.model_rms_n["linear_emm"] < 1e-3 * row.measured_rms_n,
+            "{row:?}"
+        );
+        assert!((row.rel_error["linear_emm"] - 1.0).abs() < 1e-3, "{row:?}");
     }
     let signature_md =
         std::fs::read_to_string(report_dir.join("signature.md")).expect("signature.md");
