@@ -94,14 +94,57 @@ struct RunLoops {
     models: BTreeMap<&'static str, CycleLoop>,
 }
 
-/// The measured and modelled loops of the used periodic runs of `ds` at a constant level.
-fn run_loops(
+/// The measured and modelled loops of a dataset's runs, computed once for the report
+/// ([`signature_report`]) and the figure ([`signature_figure`]).
+pub struct SignatureLoops {
+    runs: Vec<RunLoops>,
+    variants: Vec<ModelKind>,
+    dataset: String,
+    skipped: Vec<String>,
+}
+
+impl SignatureLoops {
+    /// `(reference, lossy)` pairs of the same condition: every lossy run at level `alpha`
+    /// (and amplitude `amp`, where given) with its run at the reference level 0.
+    fn pairs(&self, alpha: f64, amp: Option<f64>) -> Vec<(&RunLoops, &RunLoops)> {
+        self.runs
+            .iter()
+            .filter(|l| same(l.measured.oil_loss, alpha))
+            .filter(|l| amp.is_none_or(|a| same(l.measured.amplitude_m, a)))
+            .filter_map(|l| {
+                self.runs
+                    .iter()
+                    .find(|r| {
+                        same(r.measured.oil_loss, 0.0)
+                            && same(r.measured.amplitude_m, l.measured.amplitude_m)
+                            && same(r.measured.peak_velocity_m_s, l.measured.peak_velocity_m_s)
+                    })
+                    .map(|r| (r, l))
+            })
+            .collect()
+    }
+
+    /// The lossy levels, ascending.
+    fn lossy_levels(&self) -> Vec<f64> {
+        sorted_unique(
+            self.runs
+                .iter()
+                .map(|l| l.measured.oil_loss)
+                .filter(|a| *a > 0.0)
+                .collect(),
+        )
+    }
+}
+
+/// The measured and modelled loops of the used periodic runs `runs` (dataset indices) of
+/// `ds` at a constant level, each model simulated whole on the preprocessed velocity of
+/// `prepared` (module docs).
+pub fn signature_loops(
     models: &[(ModelKind, &Model)],
     ds: &Dataset,
     prepared: &Prepared,
     runs: &[usize],
-    skipped: &mut Vec<String>,
-) -> Result<Vec<RunLoops>> {
+) -> Result<SignatureLoops> {
     let candidates: Vec<usize> = runs
         .iter()
         .copied()
@@ -119,6 +162,7 @@ fn run_loops(
         .collect();
     let predictions = RunPredictions::simulate_models(models, prepared, &requests)?;
     let mut out = Vec::new();
+    let mut skipped = Vec::new();
     for &i in &candidates {
         let (run, sig) = (&ds.runs[i], &prepared.signals[i]);
         let file = run.entry.file.display().to_string();
@@ -146,7 +190,12 @@ fn run_loops(
             models: loops,
         });
     }
-    Ok(out)
+    Ok(SignatureLoops {
+        runs: out,
+        variants: models.iter().map(|(k, _)| *k).collect(),
+        dataset: ds.name.clone(),
+        skipped,
+    })
 }
 
 /// `F_ref(phi) - F_loss(phi)` at the bins of `reference`.
@@ -165,65 +214,50 @@ fn rms(v: impl Iterator<Item = f64>) -> f64 {
     }
 }
 
-/// The degradation signature of `models` on the runs `runs` (dataset indices) of `ds`, on
-/// the preprocessed velocity of `prepared` (module docs). Levels without a reference run
-/// of the same condition give no row.
-pub fn signature_report(
-    models: &[(ModelKind, &Model)],
-    ds: &Dataset,
-    prepared: &Prepared,
-    runs: &[usize],
-) -> Result<SignatureReport> {
-    let mut skipped = Vec::new();
-    let loops = run_loops(models, ds, prepared, runs, &mut skipped)?;
+/// The degradation signature of the loops `l` (module docs). Levels without a reference
+/// run of the same condition give no row.
+pub fn signature_report(l: &SignatureLoops) -> SignatureReport {
     let reference_alpha = 0.0;
     let mut rows = Vec::new();
-    for l in loops
-        .iter()
-        .filter(|l| l.measured.oil_loss > reference_alpha)
-    {
-        let Some(r) = loops.iter().find(|r| {
-            same(r.measured.oil_loss, reference_alpha)
-                && same(r.measured.amplitude_m, l.measured.amplitude_m)
-                && same(r.measured.peak_velocity_m_s, l.measured.peak_velocity_m_s)
-        }) else {
-            continue;
-        };
-        let d_meas = difference(&r.measured, &l.measured);
-        let measured_rms_n = rms(d_meas.iter().copied());
-        let total: f64 = d_meas.iter().map(|d| d * d).sum();
-        let compression: f64 = d_meas
-            .iter()
-            .zip(&r.measured.velocity_m_s)
-            .filter(|(_, v)| **v < 0.0)
-            .map(|(d, _)| d * d)
-            .sum();
-        let mut rel_error = BTreeMap::new();
-        let mut model_rms_n = BTreeMap::new();
-        for (k, _) in models {
-            let (Some(mr), Some(ml)) = (r.models.get(k.key()), l.models.get(k.key())) else {
-                continue;
-            };
-            let d_model = difference(mr, ml);
-            let err = rms(d_model.iter().zip(&d_meas).map(|(m, d)| m - d));
-            rel_error.insert(k.key().to_string(), err / measured_rms_n);
-            model_rms_n.insert(k.key().to_string(), rms(d_model.into_iter()));
+    for a in l.lossy_levels() {
+        for (r, lossy) in l.pairs(a, None) {
+            let d_meas = difference(&r.measured, &lossy.measured);
+            let measured_rms_n = rms(d_meas.iter().copied());
+            let total: f64 = d_meas.iter().map(|d| d * d).sum();
+            let compression: f64 = d_meas
+                .iter()
+                .zip(&r.measured.velocity_m_s)
+                .filter(|(_, v)| **v < 0.0)
+                .map(|(d, _)| d * d)
+                .sum();
+            let mut rel_error = BTreeMap::new();
+            let mut model_rms_n = BTreeMap::new();
+            for k in &l.variants {
+                let (Some(mr), Some(ml)) = (r.models.get(k.key()), lossy.models.get(k.key()))
+                else {
+                    continue;
+                };
+                let d_model = difference(mr, ml);
+                let err = rms(d_model.iter().zip(&d_meas).map(|(m, d)| m - d));
+                rel_error.insert(k.key().to_string(), err / measured_rms_n);
+                model_rms_n.insert(k.key().to_string(), rms(d_model.into_iter()));
+            }
+            rows.push(SignatureRow {
+                amplitude_m: lossy.measured.amplitude_m,
+                peak_velocity_m_s: lossy.measured.peak_velocity_m_s,
+                frequency_hz: lossy.measured.frequency_hz,
+                alpha: lossy.measured.oil_loss,
+                file: lossy.file.clone(),
+                measured_rms_n,
+                compression_share: if total > 0.0 {
+                    compression / total
+                } else {
+                    f64::NAN
+                },
+                rel_error,
+                model_rms_n,
+            });
         }
-        rows.push(SignatureRow {
-            amplitude_m: l.measured.amplitude_m,
-            peak_velocity_m_s: l.measured.peak_velocity_m_s,
-            frequency_hz: l.measured.frequency_hz,
-            alpha: l.measured.oil_loss,
-            file: l.file.clone(),
-            measured_rms_n,
-            compression_share: if total > 0.0 {
-                compression / total
-            } else {
-                f64::NAN
-            },
-            rel_error,
-            model_rms_n,
-        });
     }
     rows.sort_by(|a, b| {
         a.alpha
@@ -231,11 +265,11 @@ pub fn signature_report(
             .then(b.amplitude_m.total_cmp(&a.amplitude_m))
             .then(a.peak_velocity_m_s.total_cmp(&b.peak_velocity_m_s))
     });
-    Ok(SignatureReport {
+    SignatureReport {
         reference_alpha,
         rows,
-        skipped,
-    })
+        skipped: l.skipped.clone(),
+    }
 }
 
 /// Median of the finite values; NaN without one.
@@ -360,64 +394,38 @@ pub fn signature_markdown(r: &SignatureReport) -> String {
 
 /// Fig. 5 measured and modelled: rows = (amplitude, lossy level) for the smallest and largest
 /// amplitude, columns = measured and each model, one curve per frequency, normalised by
-/// `force_scale_n`. The models' loops are recomputed here from `models`.
-pub fn signature_figure(
-    models: &[(ModelKind, &Model)],
-    ds: &Dataset,
-    prepared: &Prepared,
-    runs: &[usize],
-    force_scale_n: f64,
-) -> Result<Option<Figure>> {
-    let mut skipped = Vec::new();
-    let loops = run_loops(models, ds, prepared, runs, &mut skipped)?;
-    let levels = sorted_unique(
-        loops
-            .iter()
-            .map(|l| l.measured.oil_loss)
-            .filter(|a| *a > 0.0)
-            .collect(),
-    );
-    let amps = sorted_unique(loops.iter().map(|l| l.measured.amplitude_m).collect());
+/// `force_scale_n`; `None` without a lossy level or a loop.
+pub fn signature_figure(l: &SignatureLoops, force_scale_n: f64) -> Option<Figure> {
+    let levels = l.lossy_levels();
+    let amps = sorted_unique(l.runs.iter().map(|r| r.measured.amplitude_m).collect());
     let shown_amps: Vec<f64> = match (amps.first(), amps.last()) {
         (Some(&a), Some(&b)) if !same(a, b) => vec![a, b],
         (Some(&a), _) => vec![a],
-        _ => return Ok(None),
+        _ => return None,
     };
     if levels.is_empty() {
-        return Ok(None);
+        return None;
     }
     let columns: Vec<Option<ModelKind>> = std::iter::once(None)
-        .chain(models.iter().map(|(k, _)| Some(*k)))
+        .chain(l.variants.iter().map(|k| Some(*k)))
         .collect();
     let mut fig = Figure::new(shown_amps.len() * levels.len(), columns.len())
         .with_title(format!(
             "{}: difference loops (F(0) - F(alpha)) / {force_scale_n:.0} N, measured and modelled",
-            ds.name
+            l.dataset
         ))
         .with_panel_size(420, 340);
-    let v_lim = loops
+    let v_lim = l
+        .runs
         .iter()
-        .flat_map(|l| l.measured.velocity_m_s.iter())
+        .flat_map(|r| r.measured.velocity_m_s.iter())
         .fold(0.0f64, |m, v| m.max(v.abs()))
         * 1.05;
     let mut panels = Vec::new();
     let mut d_lim: f64 = 0.0;
     for &amp in &shown_amps {
         for &a in &levels {
-            let mut pairs: Vec<(&RunLoops, &RunLoops)> = loops
-                .iter()
-                .filter(|l| same(l.measured.oil_loss, a) && same(l.measured.amplitude_m, amp))
-                .filter_map(|l| {
-                    loops
-                        .iter()
-                        .find(|r| {
-                            same(r.measured.oil_loss, 0.0)
-                                && same(r.measured.amplitude_m, amp)
-                                && same(r.measured.peak_velocity_m_s, l.measured.peak_velocity_m_s)
-                        })
-                        .map(|r| (r, l))
-                })
-                .collect();
+            let mut pairs = l.pairs(a, Some(amp));
             pairs.sort_by(|x, y| {
                 x.1.measured
                     .frequency_hz
@@ -434,10 +442,10 @@ pub fn signature_figure(
                 .with_zero_lines()
                 .with_legend(LegendPosition::UpperLeft)
                 .with_x_range(-v_lim, v_lim);
-                for ((r, l), c) in pairs.iter().zip(&colors) {
+                for ((r, lossy), c) in pairs.iter().zip(&colors) {
                     let (lr, ll) = match col {
-                        None => (Some(&r.measured), Some(&l.measured)),
-                        Some(k) => (r.models.get(k.key()), l.models.get(k.key())),
+                        None => (Some(&r.measured), Some(&lossy.measured)),
+                        Some(k) => (r.models.get(k.key()), lossy.models.get(k.key())),
                     };
                     let (Some(lr), Some(ll)) = (lr, ll) else {
                         continue;
@@ -452,7 +460,7 @@ pub fn signature_figure(
                         .collect();
                     d_lim = pts.iter().fold(d_lim, |m, p| m.max(p.1.abs()));
                     panel = panel.with_series(Series::closed(
-                        frequency_label(l.measured.frequency_hz),
+                        frequency_label(lossy.measured.frequency_hz),
                         pts,
                         *c,
                     ));
@@ -465,7 +473,7 @@ pub fn signature_figure(
     for p in panels {
         fig = fig.with_panel(p.with_y_range(-d_lim, d_lim));
     }
-    Ok(Some(fig))
+    Some(fig)
 }
 
 #[cfg(test)]

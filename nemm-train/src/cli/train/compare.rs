@@ -89,10 +89,16 @@ pub fn compare(
         Ok(id) => report.identify = Some(id),
         Err(e) => eprintln!("warning: no identifiability tables: {e:#}"),
     }
-    match signature_report(&models, ds, prepared, &used_runs(prepared)) {
-        Ok(sig) => report.signature = Some(sig),
-        Err(e) => eprintln!("warning: no degradation signature: {e:#}"),
-    }
+    let signature = match signature_loops(&models, ds, prepared, &used_runs(prepared)) {
+        Ok(loops) => {
+            report.signature = Some(signature_report(&loops));
+            Some(loops)
+        }
+        Err(e) => {
+            eprintln!("warning: no degradation signature: {e:#}");
+            None
+        }
+    };
     record_provenance(&mut report);
     report
         .info
@@ -126,7 +132,9 @@ pub fn compare(
         reference.as_ref(),
         report_dir,
     )?;
-    write_signature_figure(&models, ds, prepared, report_dir, report.force_scale_n);
+    if let Some(loops) = &signature {
+        write_signature_figure(loops, report_dir, report.force_scale_n);
+    }
     println!("report, models and figures in {}", report_dir.display());
     if !report.failed.is_empty() {
         eprintln!(
@@ -154,22 +162,14 @@ fn bench_reference(dir: &Path) -> Option<crate::bench::reference::EmmReference> 
 /// The degradation signature's figure ([`crate::report::signature::signature_figure`]) in
 /// `report_dir`; a failure is a warning (the tables are written already).
 fn write_signature_figure(
-    models: &[(ModelKind, &nemm_core::Model)],
-    ds: &dataset::Dataset,
-    prepared: &Prepared,
+    loops: &crate::report::signature::SignatureLoops,
     report_dir: &Path,
     force_scale_n: f64,
 ) {
     let path = report_dir.join(SIGNATURE_FIGURE);
-    let drawn = crate::report::signature::signature_figure(
-        models,
-        ds,
-        prepared,
-        &used_runs(prepared),
-        force_scale_n,
-    )
-    .and_then(|fig| fig.map(|f| f.save_png(&path)).transpose());
-    if let Err(e) = drawn {
-        eprintln!("warning: no {}: {e:#}", path.display());
+    if let Some(fig) = crate::report::signature::signature_figure(loops, force_scale_n) {
+        if let Err(e) = fig.save_png(&path) {
+            eprintln!("warning: no {}: {e:#}", path.display());
+        }
     }
 }

@@ -8,7 +8,9 @@ use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::output_guard::{self, Inputs, Output};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use crate::report::inspect::describe;
-use crate::report::signature::{signature_markdown, signature_report, SIGNATURE_FIGURE};
+use crate::report::signature::{
+    signature_loops, signature_markdown, signature_report, SIGNATURE_FIGURE,
+};
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
