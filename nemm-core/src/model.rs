@@ -45,6 +45,14 @@ pub use provenance::Provenance;
 /// Fraction of the integrator's real-axis stability limit a model may use (see module docs).
 pub const STABILITY_MARGIN: f32 = 0.8;
 
+/// The shortest time constant \[s\] a model may reach to run with `integrator` at step
+/// `dt_s`: `dt / (STABILITY_MARGIN * limit)` (module docs). [`Model::check_step`] accepts a
+/// model whose [`Model::fastest_time_constant_s`] is at least this; the trainer holds its
+/// constants there during training.
+pub fn shortest_stable_time_constant_s(integrator: Integrator, dt_s: f32) -> f32 {
+    dt_s / (STABILITY_MARGIN * integrator.stability_limit())
+}
+
 /// Which of the paper's four model variants (section 6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ModelKind {

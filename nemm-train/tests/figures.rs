@@ -80,6 +80,7 @@ fn history(n: usize, start: f64) -> Vec<EpochStats> {
             val_rmse: (start / e as f64).sqrt(),
             seconds: 0.1,
             violations: None,
+            held: 0,
         })
         .collect()
 }

@@ -19,10 +19,10 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
     if let Some(tau) = model.fastest_time_constant_s() {
         let _ = writeln!(
             s,
-            "stability:       fastest reachable time constant {:.1} us; dt / tau = {:.3} (limit {:.3})",
+            "stability:       fastest reachable time constant {:.1} us; the step of {:.1} us needs at least {:.1} us",
             tau * 1e6,
-            model.dt_s / tau,
-            nemm_core::model::STABILITY_MARGIN * model.integrator.stability_limit()
+            model.dt_s * 1e6,
+            nemm_core::model::shortest_stable_time_constant_s(model.integrator, model.dt_s) * 1e6
         );
     }
     s

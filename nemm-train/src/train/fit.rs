@@ -23,6 +23,7 @@ use super::params::to_core;
 use super::physics::{audit, physics_loss, PenaltyGrid};
 use super::selection::{kept_model_summary, passed_over, PassedOver, Selection};
 use super::session::SessionBudget;
+use super::stability::StabilityHold;
 use crate::config::Balance;
 use crate::data::preprocess::Sequence;
 use crate::train::physics::AUDIT_GRID;
@@ -113,6 +114,10 @@ pub struct EpochStats {
     /// scalers; see [`fit`]).
     #[serde(default)]
     pub violations: Option<usize>,
+    /// Optimizer steps of the epoch after which the stability hold moved the constants
+    /// ([`super::stability`]): the data pull the model faster than its step allows.
+    #[serde(default)]
+    pub held: usize,
 }
 
 /// Why training ended.
@@ -270,6 +275,7 @@ pub fn fit(
         device,
         audited: cfg.lambda_ph > 0.0 && net.b_fl.is_some(),
     };
+    let (net, _) = net.hold_stable(&StabilityHold::new(frame));
     let start_val = stage.validation_rmse(&net);
     let start_violations = stage.violations(&net)?;
     let mut progress = Progress::start(net, optim, start_val, start_violations);
@@ -455,7 +461,8 @@ impl Stage<'_> {
         let t_epoch = Instant::now();
         let train_mse;
         let physics;
-        (p.net, train_mse, physics) = train_epoch(
+        let held;
+        (p.net, train_mse, physics, held) = train_epoch(
             p.net,
             &mut p.optim,
             self.frame,
@@ -477,6 +484,7 @@ impl Stage<'_> {
             val_rmse: val,
             seconds: t_epoch.elapsed().as_secs_f64(),
             violations: self.violations(&p.net)?,
+            held,
         };
         p.history.push(stats);
         if p.sel.observe(epoch, val, stats.violations) {
@@ -502,7 +510,7 @@ impl Stage<'_> {
         let done = epoch + 1 - p.start_epoch;
         let eta = elapsed / done as f64 * (cfg.epochs - epoch) as f64;
         eprintln!(
-            "\r[{}] epoch {epoch:>3}/{} train MSE {:.3e}  physics {:.2e}  val RMSE {:.4} ({:.1} N){}{}  {:.1} s/epoch  ETA {}",
+            "\r[{}] epoch {epoch:>3}/{} train MSE {:.3e}  physics {:.2e}  val RMSE {:.4} ({:.1} N){}{}{}  {:.1} s/epoch  ETA {}",
             cfg.label,
             cfg.epochs,
             stats.train_mse,
@@ -512,6 +520,11 @@ impl Stage<'_> {
             stats
                 .violations
                 .map_or(String::new(), |n| format!("  violations {n}")),
+            if stats.held > 0 {
+                format!("  held at the step's stability bound {}x", stats.held)
+            } else {
+                String::new()
+            },
             if p.sel.best_epoch == epoch { " *" } else { "  " },
             stats.seconds,
             fmt_duration(eta)
@@ -570,8 +583,9 @@ struct EpochPlan {
     total_steps: usize,
 }
 
-/// One epoch of Adam steps over the shuffled training windows; returns the module, the mean
-/// training MSE and the mean physics loss of its batches.
+/// One epoch of Adam steps over the shuffled training windows, each followed by the
+/// stability hold; returns the module, the mean training MSE and the mean physics loss of
+/// its batches, and how many steps the hold moved the constants.
 #[allow(clippy::too_many_arguments)]
 fn train_epoch(
     mut net: EmmNet,
@@ -583,7 +597,9 @@ fn train_epoch(
     plan: EpochPlan,
     grid: &PenaltyGrid,
     device: &Device,
-) -> Result<(EmmNet, f64, f64)> {
+) -> Result<(EmmNet, f64, f64, usize)> {
+    let hold = StabilityHold::new(frame);
+    let mut held = 0;
     let EpochPlan {
         epoch,
         n_batches,
@@ -620,7 +636,9 @@ fn train_epoch(
         net.add_rollout_grads(frame, &g, [true; 4], &mut gp, device);
         let step = (epoch - 1) * n_batches + b;
         let lr = learning_rate(cfg.lr, step, total_steps);
-        net = optim.step(lr, net, gp);
+        let moved;
+        (net, moved) = optim.step(lr, net, gp).hold_stable(&hold);
+        held += usize::from(moved);
         mse_sum += mse;
         phys_sum += phys_v;
         if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
@@ -634,7 +652,12 @@ fn train_epoch(
             );
         }
     }
-    Ok((net, mse_sum / n_batches as f64, phys_sum / n_batches as f64))
+    Ok((
+        net,
+        mse_sum / n_batches as f64,
+        phys_sum / n_batches as f64,
+        held,
+    ))
 }
 
 #[cfg(test)]

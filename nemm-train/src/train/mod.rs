@@ -14,6 +14,7 @@ pub mod physics;
 pub mod pipeline;
 pub mod selection;
 pub mod session;
+pub mod stability;
 pub mod static_fit;
 pub mod table_check;
 

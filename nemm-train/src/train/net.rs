@@ -433,6 +433,21 @@ impl EmmNet {
         [g(0), g(1), g(2), g(3)]
     }
 
+    /// The module with its constants moved onto `hold`'s stable set
+    /// ([`super::stability`]), and whether they moved. The parameter keeps its id, so the
+    /// optimizer's moments stay attached to it.
+    pub fn hold_stable(self, hold: &super::stability::StabilityHold) -> (Self, bool) {
+        let Some(c) = hold.hold(self.constants()) else {
+            return (self, false);
+        };
+        let stored: Vec<f32> = c.iter().map(|v| v.ln() / LOG_CONSTANT_SCALE).collect();
+        let log_c = self.log_c.map(|t| {
+            let grad = t.is_require_grad();
+            Tensor::<1>::from_data(TensorData::new(stored, [4]), &t.device()).set_require_grad(grad)
+        });
+        (Self { log_c, ..self }, true)
+    }
+
     /// Flat rollout parameters.
     pub fn to_rollout(&self, f: &NetFrame) -> RolloutParams<f32> {
         let [b_fl0, b_pr0, k0, t_pr] = self.constants();

@@ -24,12 +24,12 @@ use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, FitResult, 
 use super::net::EmmNet;
 use super::params::to_core_with;
 use super::physics::{physics_loss, PenaltyGrid};
+use super::stability::StabilityHold;
 use super::static_fit::{fit_residual, StaticSetup};
 use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::model::STABILITY_MARGIN;
 use nemm_core::semantics::mlp::{BranchLayout, Direction, ScalerLayout};
 use nemm_core::semantics::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
 use nemm_core::semantics::static_force::STATIC_PARAMS;
@@ -142,8 +142,8 @@ pub struct PipelineConfig {
     pub qs_steps: usize,
     /// Bounds `(s_min, s_max)` of the `b_fl` scale factor.
     pub b_fl_bounds: (f32, f32),
-    /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered if the
-    /// explicit-RK stability check needs it).
+    /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered to what
+    /// the stable set at the model's step allows, [`crate::train::stability`]).
     pub pr_bounds: (f32, f32),
     /// Integration rate of the model \[Hz\] (the exported step is `1 / model_rate_hz`),
     /// independent of the data's sample rate.

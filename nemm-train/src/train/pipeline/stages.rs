@@ -3,12 +3,24 @@
 
 use super::*;
 
-/// Largest `s_max` of `k_pr` that passes nemm-core's stability check, capped at `cap`.
+/// The least growth over `k_pr,ini` the NEMM's `k_pr` scaler is given (its `s_max`, unless
+/// the configured bound is lower). Where the stable set at the model's step allows less,
+/// the stability hold lowers `k_pr,ini` instead ([`crate::train::stability`]).
+const MIN_K_PR_HEADROOM: f32 = 1.5;
+
+/// `s_max` of the NEMM's `k_pr` scaler: the largest growth of `k_pr` that keeps `p`'s
+/// constants on the stable set with the dampings' scalers at their lower bounds
+/// `s_min_fl`, `s_min_pr`, between [`MIN_K_PR_HEADROOM`] and `cap`.
 fn stable_k_max(p: &RolloutParams<f32>, s_min_fl: f32, s_min_pr: f32, cap: f32) -> f32 {
-    let limit = STABILITY_MARGIN * p.integrator.stability_limit() * 0.95;
-    let den = p.b_pr0 * s_min_pr + p.b_fl0 * s_min_fl;
-    // dt <= limit * den / (k0 s)  =>  s <= limit den / (k0 dt)
-    (limit * den / (p.k0 * p.dt)).min(cap)
+    let free = StabilityHold {
+        s_min_fl,
+        s_min_pr,
+        s_max_k: 1.0,
+        ..StabilityHold::of_rollout(p)
+    };
+    (free.k_pr_cap(p.b_fl0, p.b_pr0) / p.k0)
+        .min(cap)
+        .max(MIN_K_PR_HEADROOM.min(cap))
 }
 
 /// Regresses the `b_fl` scaler on quasi-static points (eq. 41): normalised MSE of
@@ -220,6 +232,20 @@ impl<'a> Stages<'a> {
         )?;
         SessionBudgetUsed::check(lin.stop, &lin_cfg.label)?;
         let lin_p = lin.best.to_rollout(&frame);
+        if let Some(last) = lin.history.last().filter(|h| h.held > 0) {
+            let hold = StabilityHold::of_rollout(&lin_p);
+            eprintln!(
+                "[linear-emm] stability: the data pull the EMM's dynamics faster than its step \
+                 of {:.1} us allows: the hold kept its time constant at {:.1} us in {} of the \
+                 last epoch's steps (the kept model: {:.1} us). A higher --model-rate-hz lets \
+                 the model follow; the neural variants are held at the same bound.",
+                lin_p.dt * 1e6,
+                hold.tau_s * 1e6,
+                last.held,
+                hold.fastest_time_constant_s([lin_p.b_fl0, lin_p.b_pr0, lin_p.k0, lin_p.t_pr])
+                    * 1e6,
+            );
+        }
         p0.b_fl0 = lin_p.b_fl0;
         p0.b_pr0 = lin_p.b_pr0;
         p0.k0 = lin_p.k0;
@@ -323,14 +349,6 @@ impl<'a> Stages<'a> {
         p.b_fl = Some(b_fl.clone());
         if v == ModelKind::Nemm {
             let k_max = stable_k_max(&p, cfg.b_fl_bounds.0, cfg.pr_bounds.0, cfg.pr_bounds.1);
-            if k_max < 1.5 {
-                bail!(
-                    "the fitted EMM is too stiff for dt = {} s: k_pr may only grow {k_max:.2}x \
-                     before the explicit RK step becomes unstable; use a shorter step (higher \
-                     sample rate) or RK4",
-                    p.dt
-                );
-            }
             p.b_pr = Some(self.branched(
                 init_scaler(1, cfg.hidden, cfg.layers, cfg.pr_bounds, cfg.fit.seed + 1),
                 condition.priors.b_pr,
@@ -349,6 +367,9 @@ impl<'a> Stages<'a> {
                 1,
                 cfg.fit.seed + 12,
             ));
+        }
+        if let Some(msg) = StabilityHold::of_rollout(&p).announce(v.name(), &p) {
+            eprintln!("{msg}");
         }
         let fit_cfg = FitConfig {
             label: v.name().into(),
