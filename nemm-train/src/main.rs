@@ -162,8 +162,8 @@ enum Cmd {
         resume: Option<Option<PathBuf>>,
     },
     /// The best-fit condition level of every run of a dataset for a trained model (the level
-    /// of least whole-run force RMSE on a grid), against the run's label, and the model's
-    /// whole-run error per level and run.
+    /// of least whole-run force RMSE on a grid, searched coarse to fine), against the run's
+    /// label, and the model's whole-run error per level and run.
     Identify {
         /// The weights blob.
         #[arg(long)]

@@ -10,22 +10,22 @@
 //!
 //! [`Search`] says which levels are simulated:
 //!
-//! - [`Search::CoarseToFine`] (the default, [`coarse_to_fine`]): first at most [`LANES`]
-//!   levels spread evenly over the grid, ends included (one pack of lanes, the label's
-//!   simulation among them); then, in rounds, the unsimulated levels between each
-//!   candidate and its simulated neighbours, [`LANES`] per candidate and round, until every
-//!   candidate's neighbours on the grid are simulated. The candidates are the local minima
-//!   of the simulated curve within [`MINIMA_MARGIN`] of its range above its least value, so
-//!   a second valley of the curve is followed as far as the deepest one. A curve flat at the
-//!   first round's levels stops there. On the default bench's 31 levels this is two packs
-//!   of lanes per run instead of four; on a 101-level grid three or four instead of
-//!   thirteen.
+//! - [`Search::CoarseToFine`] (the default, [`coarse_to_fine`]): first `LANES - 1` levels
+//!   spread evenly over the grid, ends included, and the label's simulation (one pack of
+//!   lanes); then, in rounds, the unsimulated levels between each candidate and its
+//!   simulated neighbours, up to [`LANES`] per candidate and round, until every candidate's
+//!   neighbours on the grid are simulated. The candidates are the local minima of the
+//!   simulated curve within [`MINIMA_MARGIN`] of its range above its least value, so a
+//!   second valley is refined as well as the deepest one. A curve flat at the first round's
+//!   levels stops there. On the default bench's 31 levels this is two packs of lanes per run
+//!   instead of four; on a 101-level grid mostly three instead of thirteen.
 //! - [`Search::Full`]: every grid level, the whole RMSE curve.
 //!
-//! The two agree wherever the RMSE curve over the grid has one valley, or its other valleys
-//! are no deeper than the sampled one suggests; `nemm-train/benches/identify_time.rs`
-//! compares them on a dataset. The label's simulation is shared with the grid level equal
-//! to it (a constant label on the grid), so it costs no lane of its own.
+//! The coarse-to-fine best fit is the full grid's wherever the RMSE curve has one valley
+//! over the grid, and where another valley is deeper only if its sampled levels come within
+//! the margin; `nemm-train/benches/identify_time.rs` compares the two searches on a
+//! dataset. The label's simulation is the grid level's when the label is constant and on
+//! the grid, so it costs no lane of its own.
 //!
 //! The grid bounds the resolution: a run is identified to the nearest grid level, and only
 //! where the model's force depends on `alpha` at that run's excitation.
