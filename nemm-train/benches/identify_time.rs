@@ -11,9 +11,9 @@
 //! Without `NEMM_BENCH_MODEL` the NEMM is trained here with the default settings of
 //! `nemm train --variant nemm` and its training is timed. With it, the training time is the
 //! NEMM's `train_seconds` in the `report.json` beside the blob (as `nemm compare` writes it),
-//! or absent. Every run the split uses is identified, on the grid of step 0.01 up to the
-//! model's largest training level, once per search; the runs whose best fits differ by more
-//! than 0.01 are listed.
+//! or absent. Every run the split uses is identified, on the grid of step 0.01 (or
+//! `NEMM_BENCH_STEP`) up to the model's largest training level, once per search; the runs
+//! whose best fits differ by more than 0.01 are listed.
 use nemm_core::ModelKind;
 use nemm_train::config::{resolve_data, Config};
 use nemm_train::report::identify::{identify_report, used_runs, IdentifyReport};
@@ -84,6 +84,9 @@ fn main() {
             ((*nemm.model).clone(), Some(seconds), "trained here".into())
         }
     };
+    let step: f64 = std::env::var("NEMM_BENCH_STEP")
+        .map(|s| s.parse().expect("NEMM_BENCH_STEP: a number"))
+        .unwrap_or(DEFAULT_STEP);
     let runs = used_runs(&prepared);
     let force_scale = f64::from(model.meta.force_scale_n);
     let identify = |search: Search| {
@@ -93,7 +96,7 @@ fn main() {
             &ds,
             &prepared,
             &runs,
-            DEFAULT_STEP,
+            step,
             search,
             force_scale,
         )
@@ -106,8 +109,8 @@ fn main() {
     let training = training_seconds.map_or("-".into(), |s| format!("{s:.1}"));
     let share = |s: f64| training_seconds.map_or("-".into(), |t| format!("{:.1}", 100.0 * s / t));
     println!(
-        "identify-time model={source} data={} threads={} runs={} grid_levels={grid} \
-         training_seconds={training}",
+        "identify-time model={source} data={} threads={} runs={} step={step} \
+         grid_levels={grid} training_seconds={training}",
         data.display(),
         rayon::current_num_threads(),
         runs.len(),
@@ -144,7 +147,7 @@ fn main() {
         fits.iter().filter(|f| f.best.is_none()).count()
     };
     println!(
-        "identify-time agreement runs={} identical={} within_step={} max_difference={max_difference:.3} \
+        "identify-time agreement runs={} identical={} within_0.01={} max_difference={max_difference:.3} \
          flat_full={} flat_coarse_to_fine={} speedup={:.2}",
         full_fits.len(),
         full_fits

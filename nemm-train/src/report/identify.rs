@@ -362,22 +362,23 @@ pub fn identify_markdown(r: &IdentifyReport) -> String {
         cond.column()
     );
     let levels = match r.search {
-        Search::Full => "at every level of a grid".to_string(),
+        Search::Full => format!("at every level of a grid (step {})", r.step),
         Search::CoarseToFine => format!(
-            "at the levels of a grid that a coarse-to-fine search visits ({} levels spread \
-             over the grid, then the levels around each minimum within {} of the curve's \
-             range, down to the step)",
+            "at the levels of a grid (step {}) that a coarse-to-fine search visits ({} levels \
+             spread over the grid, then those around each minimum within {} of the RMSE's \
+             range above the least, down to the step)",
+            r.step,
             crate::train::identify::LANES - 1,
             crate::train::identify::MINIMA_MARGIN
         ),
     };
     let _ = writeln!(
         s,
-        "Each run is simulated whole, from rest, {levels} (step {}) and at its label; the best \
-         fit is the level of least force RMSE (after {} warm-up samples). `flat`: the RMSE \
-         varies over the simulated levels by at most {} of its largest value (the model does \
-         not tell the levels apart on that run).\n",
-        r.step, r.warmup_samples, r.flat_tolerance
+        "Each run is simulated whole, from rest, {levels} and at its label; the best fit is the \
+         level of least force RMSE (after {} warm-up samples). `flat`: the RMSE varies over the \
+         simulated levels by at most {} of its largest value (the model does not tell the \
+         levels apart on that run).\n",
+        r.warmup_samples, r.flat_tolerance
     );
     for (v, f) in variants_of(r) {
         let grid = match (f.grid.first(), f.grid.last()) {
