@@ -162,8 +162,8 @@ enum Cmd {
         resume: Option<Option<PathBuf>>,
     },
     /// The best-fit condition level of every run of a dataset for a trained model (the level
-    /// of least whole-run force RMSE on a grid), against the run's label, and the model's
-    /// whole-run error per level and run.
+    /// of least whole-run force RMSE on a grid, searched coarse to fine), against the run's
+    /// label, and the model's whole-run error per level and run.
     Identify {
         /// The weights blob.
         #[arg(long)]
@@ -178,6 +178,10 @@ enum Cmd {
         /// Step of the grid of levels (0 up to the model's largest training level).
         #[arg(long, default_value_t = nemm_train::train::identify::DEFAULT_STEP)]
         step: f64,
+        /// Simulate every level of the grid (the whole RMSE curve in identify.json) instead
+        /// of the coarse-to-fine search.
+        #[arg(long)]
+        full_grid: bool,
         /// Also write identify.json and identify.md into this folder.
         #[arg(long)]
         report: Option<PathBuf>,
@@ -350,6 +354,7 @@ fn main() -> ExitCode {
             data,
             runs,
             step,
+            full_grid,
             report,
             data_options,
         } => nemm_train::cli::identify::identify(
@@ -357,6 +362,11 @@ fn main() -> ExitCode {
             &data_options.in_dir(&data),
             &runs,
             step,
+            if full_grid {
+                nemm_train::train::identify::Search::Full
+            } else {
+                nemm_train::train::identify::Search::CoarseToFine
+            },
             report.as_deref(),
         ),
         Cmd::Diagnose {

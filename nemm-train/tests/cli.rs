@@ -587,6 +587,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
 #[test]
 fn identify_prints_and_writes_the_best_fit_level_of_each_run() {
     use nemm_train::report::identify::IdentifyReport;
+    use nemm_train::train::identify::Search;
     let tmp = tempfile::tempdir().expect("temp dir");
     let dir = tmp.path();
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/offsets_300hz");
@@ -625,12 +626,15 @@ fn identify_prints_and_writes_the_best_fit_level_of_each_run() {
     let id = read(&report);
     assert_eq!(id.runs.len(), 3);
     assert_eq!(id.step, 0.01);
+    assert_eq!(id.search, Search::CoarseToFine);
     let nemm = &id.variants["nemm"];
     assert_eq!(nemm.grid.len(), 31);
     assert_eq!(nemm.fits.len(), 3);
     for (run, fit) in id.runs.iter().zip(&nemm.fits) {
         assert_eq!(fit.label, run.alpha);
-        assert_eq!(fit.curve_n.len(), 31);
+        assert_eq!(fit.curve_n.len(), fit.levels.len());
+        assert!(fit.levels.len() < 31, "{fit:?}");
+        assert!(fit.levels.iter().all(|a| nemm.grid.contains(a)), "{fit:?}");
         assert!(
             fit.rmse_label_n.is_finite() && fit.rmse_label_n > 0.0,
             "{fit:?}"
@@ -640,6 +644,23 @@ fn identify_prints_and_writes_the_best_fit_level_of_each_run() {
         if let Some(b) = fit.best {
             assert!(nemm.grid.contains(&b));
         }
+    }
+    // --full-grid: the whole curve, and the same fits.
+    let full_report = dir.join("nemm-id-full");
+    Nemm::new(&["identify", "--full-grid", "--model"])
+        .arg(blob(ModelKind::Nemm))
+        .arg("--data")
+        .arg(&data)
+        .arg("--report")
+        .arg(&full_report)
+        .ok();
+    let full = read(&full_report);
+    assert_eq!(full.search, Search::Full);
+    for (fast, full) in nemm.fits.iter().zip(&full.variants["nemm"].fits) {
+        assert_eq!((full.levels.len(), full.curve_n.len()), (31, 31));
+        assert_eq!(fast.best, full.best);
+        assert_eq!(fast.rmse_best_n, full.rmse_best_n);
+        assert_eq!(fast.rmse_label_n, full.rmse_label_n);
     }
     let levels: Vec<(f64, &str, usize)> = nemm
         .levels

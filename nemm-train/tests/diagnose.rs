@@ -8,7 +8,7 @@ use nemm_train::bench::config::BenchConfig;
 use nemm_train::bench::VirtualBench;
 use nemm_train::data::dataset;
 use nemm_train::data::preprocess::causal_velocity;
-use nemm_train::train::identify::{identify, AlphaGrid, Run, DEFAULT_STEP};
+use nemm_train::train::identify::{identify, AlphaGrid, Run, Search, DEFAULT_STEP};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -193,6 +193,7 @@ fn diagnoses_the_committed_runs_as_the_observer_and_the_search_do() {
             &grid,
             1.0 / fs,
             (0.01 * fs) as usize,
+            Search::CoarseToFine,
         )
         .expect("identify");
         let best = fit.best.expect("a best fit");

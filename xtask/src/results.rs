@@ -794,8 +794,8 @@ fn with_identify_summary(table4: &str, identify: Option<&str>) -> String {
             match identify {
                 Some(id) => {
                     out += "Identifiability of the level (the report's `identify.md`: each run \
-                            simulated whole at every level of the grid; the best fit is the \
-                            level of least force RMSE):\n\n";
+                            simulated whole at the levels of the grid its search visits; the \
+                            best fit is the level of least force RMSE):\n\n";
                     for l in id.lines() {
                         if let Some(h) = l.strip_prefix("### ") {
                             let _ = writeln!(out, "- **{h}**");

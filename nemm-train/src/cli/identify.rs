@@ -9,6 +9,7 @@ use crate::data::dataset::short_number;
 use crate::data::preprocess::{file_matches, Prepared, ALPHA_TOLERANCE};
 use crate::output_guard::{self, Inputs, Output};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
+use crate::train::identify::Search;
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 use std::time::Instant;
@@ -117,14 +118,15 @@ pub fn check_grid(
 
 /// `nemm identify`: loads the blob `model_path` and the dataset of `data` (its data options
 /// resolved as every command does), identifies the runs matched by `runs` (every run the
-/// split uses without patterns) on a grid of step `step`, prints the tables and, with
-/// `report`, writes [`IDENTIFY_JSON`] and `identify.md` there. The normalised RMSE divides
-/// by the model's training force scale.
+/// split uses without patterns) on a grid of step `step` searched by `search`, prints the
+/// tables and, with `report`, writes [`IDENTIFY_JSON`] and `identify.md` there. The
+/// normalised RMSE divides by the model's training force scale.
 pub fn identify(
     model_path: &Path,
     data: &DataConfig,
     runs: &[String],
     step: f64,
+    search: Search,
     report: Option<&Path>,
 ) -> Result<()> {
     if let Some(dir) = report {
@@ -176,6 +178,7 @@ pub fn identify(
         &prepared,
         &selected,
         step,
+        search,
         force_scale,
     )?;
     let md = format!("{}\n{}", identify_markdown(&id), whole_run_markdown(&id));

@@ -22,7 +22,7 @@
 use crate::data::dataset;
 use crate::data::preprocess::causal_velocity;
 use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Series};
-use crate::train::identify::{identify, AlphaGrid, Run, DEFAULT_STEP};
+use crate::train::identify::{identify, AlphaGrid, Run, Search, DEFAULT_STEP};
 use anyhow::{bail, Context, Result};
 use nemm_core::{AlphaObserver, Model, ObserverConfig, ObserverFlags};
 use plotters::style::RGBColor;
@@ -157,12 +157,14 @@ pub fn observe(model: &Model, velocity: &[f32], position: &[f32], force: &[f64])
 
 /// The offline best fit of `run` (samples `dt_s` apart) by [`identify`]: the level of least
 /// whole-run RMSE (after `warmup` samples) on the [`DEFAULT_STEP`] grid over the model's
-/// range, then on a [`FINE_STEP`] grid within one coarse step of it. `None` when the coarse
+/// range (searched coarse to fine, [`Search::CoarseToFine`]), then at every level of a
+/// [`FINE_STEP`] grid within one grid step of it. `None` when the coarse
 /// curve is flat (no best fit).
 pub fn offline_fit(model: &Model, run: &Run<'_>, dt_s: f64, warmup: usize) -> Result<Option<f64>> {
     let coarse_grid = AlphaGrid::for_model(model, DEFAULT_STEP)?;
     let max = coarse_grid.alphas.last().copied().unwrap_or(0.0);
-    let Some(coarse) = identify(model, run, &coarse_grid, dt_s, warmup)?.best else {
+    let Some(coarse) = identify(model, run, &coarse_grid, dt_s, warmup, Search::CoarseToFine)?.best
+    else {
         return Ok(None);
     };
     let steps = (DEFAULT_STEP / FINE_STEP).round() as i64;
@@ -174,12 +176,12 @@ pub fn offline_fit(model: &Model, run: &Run<'_>, dt_s: f64, warmup: usize) -> Re
             .map(|a| (a * 1e9).round() / 1e9)
             .collect(),
     };
-    let fit = identify(model, run, &fine, dt_s, warmup)?;
+    let fit = identify(model, run, &fine, dt_s, warmup, Search::Full)?;
     // Near the minimum the curve is nearly flat by nature: take its least point as is.
     let best = fit
         .curve_n
         .iter()
-        .zip(&fine.alphas)
+        .zip(&fit.levels)
         .filter(|(e, _)| e.is_finite())
         .min_by(|a, b| a.0.total_cmp(b.0))
         .map(|(_, &a)| a);

@@ -5,7 +5,7 @@
 
 use crate::data::dataset::{alpha_text, ConditionSpec, Dataset};
 use crate::data::preprocess::{distinct_levels, Prepared, RunRole, ALPHA_TOLERANCE};
-use crate::train::identify::{identify_runs, AlphaGrid, Fit, Run, FLAT_TOLERANCE};
+use crate::train::identify::{identify_runs, AlphaGrid, Fit, Run, Search, FLAT_TOLERANCE};
 use crate::train::pipeline::VariantInfo;
 use anyhow::{Context, Result};
 use nemm_core::ModelKind;
@@ -101,6 +101,9 @@ pub struct VariantFits {
 pub struct IdentifyReport {
     /// Grid step in alpha.
     pub step: f64,
+    /// Which grid levels were simulated ([`Search::unnamed`] when absent).
+    #[serde(default = "Search::unnamed")]
+    pub search: Search,
     /// [`FLAT_TOLERANCE`].
     pub flat_tolerance: f64,
     /// [`WITHIN`].
@@ -146,13 +149,14 @@ pub fn used_runs(prepared: &Prepared) -> Vec<usize> {
 /// Identifies runs `runs` (dataset indices) of `ds` with each model of `models`, on the
 /// preprocessed velocity and position of `prepared` and the force the trainer scores (raw,
 /// or low-passed with `filter_force`), each model on its [`AlphaGrid::for_model`] grid of
-/// step `step`; normalises by `force_scale_n`.
+/// step `step` searched by `search`; normalises by `force_scale_n`.
 pub fn identify_report(
     models: &[(ModelKind, &nemm_core::Model)],
     ds: &Dataset,
     prepared: &Prepared,
     runs: &[usize],
     step: f64,
+    search: Search,
     force_scale_n: f64,
 ) -> Result<IdentifyReport> {
     let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
@@ -212,14 +216,17 @@ pub fn identify_report(
             &grid,
             prepared.dt_s,
             prepared.warmup_samples,
+            search,
         )
         .with_context(|| format!("cannot identify with the {}", v.title()))?;
         let seconds = t.elapsed().as_secs_f64();
         eprintln!(
-            "identify ({}): {} runs x {} levels in {seconds:.1} s",
+            "identify ({}): {} runs, grid of {} levels ({}, {} simulated) in {seconds:.1} s",
             v.title(),
             fits.len(),
-            grid.alphas.len()
+            grid.alphas.len(),
+            search.name(),
+            fits.iter().map(|f| f.levels.len()).sum::<usize>()
         );
         let levels = level_summaries(&infos, &fits, force_scale_n);
         let order = order_check(&infos, &fits);
@@ -236,6 +243,7 @@ pub fn identify_report(
     }
     Ok(IdentifyReport {
         step,
+        search,
         flat_tolerance: FLAT_TOLERANCE,
         within: WITHIN,
         force_scale_n,
@@ -353,13 +361,24 @@ pub fn identify_markdown(r: &IdentifyReport) -> String {
         "## Identifiability: the best-fit {} per run\n",
         cond.column()
     );
+    let levels = match r.search {
+        Search::Full => format!("at every level of a grid (step {})", r.step),
+        Search::CoarseToFine => format!(
+            "at the levels of a grid (step {}) that a coarse-to-fine search visits ({} levels \
+             spread over the grid, then those around each minimum within {} of the RMSE's \
+             range above the least, down to the step)",
+            r.step,
+            crate::train::identify::LANES - 1,
+            crate::train::identify::MINIMA_MARGIN
+        ),
+    };
     let _ = writeln!(
         s,
-        "Each run is simulated whole, from rest, at every level of a grid (step {}) and at its \
-         label; the best fit is the level of least force RMSE (after {} warm-up samples). \
-         `flat`: the RMSE varies over the grid by at most {} of its largest value (the model \
-         does not tell the levels apart on that run).\n",
-        r.step, r.warmup_samples, r.flat_tolerance
+        "Each run is simulated whole, from rest, {levels} and at its label; the best fit is the \
+         level of least force RMSE (after {} warm-up samples). `flat`: the RMSE varies over the \
+         simulated levels by at most {} of its largest value (the model does not tell the \
+         levels apart on that run).\n",
+        r.warmup_samples, r.flat_tolerance
     );
     for (v, f) in variants_of(r) {
         let grid = match (f.grid.first(), f.grid.last()) {
@@ -371,7 +390,14 @@ pub fn identify_markdown(r: &IdentifyReport) -> String {
             ),
             _ => "empty".into(),
         };
-        let _ = writeln!(s, "### {} (grid {grid}; {:.1} s)\n", v.title(), f.seconds);
+        let simulated = f.fits.iter().map(|f| f.curve_n.len()).sum::<usize>() as f64
+            / f.fits.len().max(1) as f64;
+        let _ = writeln!(
+            s,
+            "### {} (grid {grid}, {simulated:.1} simulated per run; {:.1} s)\n",
+            v.title(),
+            f.seconds
+        );
         let _ = writeln!(
             s,
             "| run | role | {} | best fit | RMSE at label [N] | RMSE at best [N] |",

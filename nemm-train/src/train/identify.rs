@@ -1,27 +1,83 @@
 //! Identifiability: the condition level `alpha` that best explains a measured run.
 //!
-//! A trained model is simulated over a whole run at every level of a grid ([`AlphaGrid`]:
+//! A trained model is simulated over a whole run at levels of a grid ([`AlphaGrid`]:
 //! `0, step, 2 step, ...` up to the model's largest training level) and, once more, at the
-//! run's own label; the level of least force RMSE is the best fit ([`identify`]). The
-//! simulation is [`predict`]: one input per grid level, so the trainer's batched rollout
-//! advances 8 levels in lock step (the SEM runs through nemm-core's estimator). A model whose
-//! RMSE varies over the grid by no more than [`FLAT_TOLERANCE`] of its largest value (the
-//! Linear EMM, or a network that ignores `alpha`) has no best fit: [`Fit::best`] is `None`.
+//! run's own label; the grid level of least force RMSE is the best fit ([`identify`]). The
+//! simulation is [`predict`]: one input per level, so the trainer's batched rollout advances
+//! [`LANES`] levels in lock step (the SEM runs through nemm-core's estimator). A model whose
+//! RMSE varies by no more than [`FLAT_TOLERANCE`] of its largest value (the Linear EMM, or a
+//! network that ignores `alpha`) has no best fit: [`Fit::best`] is `None`.
+//!
+//! [`Search`] says which levels are simulated:
+//!
+//! - [`Search::CoarseToFine`] (the default, [`coarse_to_fine`]): first `LANES - 1` levels
+//!   spread evenly over the grid, ends included, and the label's simulation (one pack of
+//!   lanes); then, in rounds, the unsimulated levels between each candidate and its
+//!   simulated neighbours, up to [`LANES`] per candidate and round, until every candidate's
+//!   neighbours on the grid are simulated. The candidates are the local minima of the
+//!   simulated curve within [`MINIMA_MARGIN`] of its range above its least value, so a
+//!   second valley is refined as well as the deepest one. A curve flat at the first round's
+//!   levels stops there. On the default bench's 31 levels this is two packs of lanes per run
+//!   instead of four; on a 101-level grid mostly three instead of thirteen.
+//! - [`Search::Full`]: every grid level, the whole RMSE curve.
+//!
+//! The coarse-to-fine best fit is the full grid's wherever the RMSE curve has one valley
+//! over the grid, and where another valley is deeper only if its sampled levels come within
+//! the margin; `nemm-train/benches/identify_time.rs` compares the two searches on a
+//! dataset. The label's simulation is the grid level's when the label is constant and on
+//! the grid, so it costs no lane of its own.
 //!
 //! The grid bounds the resolution: a run is identified to the nearest grid level, and only
 //! where the model's force depends on `alpha` at that run's excitation.
 
 use super::eval::{predict, Input};
-use anyhow::{bail, Result};
+use anyhow::{bail, ensure, Result};
 use nemm_core::Model;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// Default grid step in `alpha`.
 pub const DEFAULT_STEP: f64 = 0.01;
 
-/// Relative RMSE variation over the grid, `(max - min) / max`, at or below which a run's
-/// RMSE curve counts as flat (the model does not tell the levels apart on that run).
+/// Relative RMSE variation over the simulated levels, `(max - min) / max`, at or below which
+/// a run's RMSE curve counts as flat (the model does not tell the levels apart on that run).
 pub const FLAT_TOLERANCE: f64 = 1e-3;
+
+/// Levels simulated in lock step by one pack of the batched rollout: the coarse round's
+/// size and each candidate's share of a refining round.
+pub const LANES: usize = super::adjoint::LANES;
+
+/// A local minimum of the simulated RMSE curve whose value lies within this fraction of the
+/// curve's range (largest minus least value) above the least value is refined by
+/// [`coarse_to_fine`] as well as the least one.
+pub const MINIMA_MARGIN: f64 = 0.25;
+
+/// Which grid levels [`identify`] simulates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Search {
+    /// A coarse round over the grid, then rounds that refine the candidate minima down to
+    /// the grid step ([`coarse_to_fine`]).
+    #[default]
+    CoarseToFine,
+    /// Every grid level.
+    Full,
+}
+
+impl Search {
+    /// The name in reports: `coarse-to-fine` or `full`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Search::CoarseToFine => "coarse-to-fine",
+            Search::Full => "full",
+        }
+    }
+
+    /// The search of a report that does not name one: [`Search::Full`].
+    pub fn unnamed() -> Self {
+        Search::Full
+    }
+}
 
 /// The levels a run is simulated at: `0, step, 2 step, ...` up to `max` (included when it
 /// is a multiple of the step; each level rounded to 1e-9).
@@ -84,16 +140,21 @@ fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> 
 pub struct Fit {
     /// The run's labelled level.
     pub label: f64,
-    /// The grid level of least RMSE (the first on a tie); `None` when the curve is flat
-    /// ([`FLAT_TOLERANCE`]) or a simulation is not finite.
+    /// The simulated level of least RMSE (the lowest on a tie); `None` when the curve is
+    /// flat ([`FLAT_TOLERANCE`]) or a simulation is not finite.
     pub best: Option<f64>,
-    /// RMSE at the grid's least-error level \[N\] (defined when the curve is flat too).
+    /// RMSE at the least-error simulated level \[N\] (defined when the curve is flat too).
     #[serde(deserialize_with = "nan_if_null")]
     pub rmse_best_n: f64,
     /// RMSE at the label (per sample where the run has a level column) \[N\].
     #[serde(deserialize_with = "nan_if_null")]
     pub rmse_label_n: f64,
-    /// RMSE at every grid level \[N\], in grid order.
+    /// The grid levels simulated, ascending: every grid level for [`Search::Full`], the
+    /// coarse and the refined levels for [`Search::CoarseToFine`] (absent in a report:
+    /// every level of its grid).
+    #[serde(default)]
+    pub levels: Vec<f64>,
+    /// RMSE at each level of [`Fit::levels`] \[N\], in that order.
     pub curve_n: Vec<f64>,
     /// Scored samples.
     pub samples: usize,
@@ -119,14 +180,104 @@ pub fn is_flat(curve: &[f64]) -> bool {
     hi - lo <= FLAT_TOLERANCE * hi
 }
 
-/// Simulates `run` (samples `sample_dt_s` apart, from rest) with `model` at every level of
-/// `grid` and at its label, and scores the force after `warmup` samples.
+/// At most `count` of the sorted indices `open`, spread evenly over them (all of them when
+/// there are no more than `count`).
+fn spread(open: &[usize], count: usize) -> Vec<usize> {
+    if open.len() <= count {
+        return open.to_vec();
+    }
+    (0..count)
+        .map(|j| open[(2 * j + 1) * open.len() / (2 * count)])
+        .collect()
+}
+
+/// The first round of [`coarse_to_fine`] over `n` indices: every index when `n <= count`,
+/// else `count` indices spread evenly from `0` to `n - 1`, both ends included.
+fn coarse_indices(n: usize, count: usize) -> Vec<usize> {
+    if n <= count || count < 2 {
+        return (0..n).collect();
+    }
+    let mut ks: Vec<usize> = (0..count)
+        .map(|j| ((j * (n - 1)) as f64 / (count - 1) as f64).round() as usize)
+        .collect();
+    ks.dedup();
+    ks
+}
+
+/// Coarse-to-fine search for the least value of a curve over the indices `0..n` (a grid's
+/// levels), the values computed in rounds by `eval` (one value per index, in order; a NaN
+/// counts as not finite). Returns every index evaluated with its value.
+///
+/// Round one evaluates `extra` (indices wanted anyway, such as a run's label) and
+/// `LANES - 1` indices spread evenly from `0` to `n - 1`. Each further round takes the
+/// candidates: the local minima of the evaluated curve (no greater than their evaluated
+/// neighbours; an end counts when no greater than its one neighbour) whose value is within
+/// [`MINIMA_MARGIN`] of the curve's range above its least value. For each it evaluates up
+/// to [`LANES`] of the unevaluated indices between its evaluated neighbours, spread evenly.
+/// The search ends when no candidate has an unevaluated index next to it, when the
+/// evaluated curve is flat ([`is_flat`]) or when a value is not finite. The least value is
+/// then the least over `0..n` if the curve has one valley, and if its other valleys are
+/// within the margin where they are sampled.
+pub fn coarse_to_fine(
+    n: usize,
+    extra: &[usize],
+    mut eval: impl FnMut(&[usize]) -> Result<Vec<f64>>,
+) -> Result<BTreeMap<usize, f64>> {
+    let mut seen = BTreeMap::new();
+    let mut round: Vec<usize> = coarse_indices(n, LANES - 1);
+    round.extend(extra.iter().copied().filter(|&k| k < n));
+    round.sort_unstable();
+    round.dedup();
+    while !round.is_empty() {
+        let values = eval(&round)?;
+        ensure!(
+            values.len() == round.len(),
+            "{} values for {} levels",
+            values.len(),
+            round.len()
+        );
+        seen.extend(round.iter().copied().zip(values));
+        let pts: Vec<(usize, f64)> = seen.iter().map(|(&k, &v)| (k, v)).collect();
+        if pts.iter().any(|p| !p.1.is_finite()) {
+            break;
+        }
+        let curve: Vec<f64> = pts.iter().map(|p| p.1).collect();
+        if is_flat(&curve) {
+            break;
+        }
+        let least = curve.iter().copied().fold(f64::INFINITY, f64::min);
+        let most = curve.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let bar = least + MINIMA_MARGIN * (most - least);
+        round = Vec::new();
+        for (j, &(k, v)) in pts.iter().enumerate() {
+            let left = j.checked_sub(1).map(|j| pts[j]);
+            let right = pts.get(j + 1).copied();
+            let minimum = left.is_none_or(|l| v <= l.1) && right.is_none_or(|r| v <= r.1);
+            if !minimum || v > bar {
+                continue;
+            }
+            let lo = left.map_or(0, |l| l.0 + 1);
+            let hi = right.map_or(n, |r| r.0);
+            let open: Vec<usize> = (lo..hi).filter(|&i| i != k).collect();
+            round.extend(spread(&open, LANES));
+        }
+        round.sort_unstable();
+        round.dedup();
+    }
+    Ok(seen)
+}
+
+/// Simulates `run` (samples `sample_dt_s` apart, from rest) with `model` at the levels of
+/// `grid` that `search` visits and at its label, and scores the force after `warmup`
+/// samples. The label's simulation is the grid level's when the label is constant and on
+/// the grid (as `f32`), else a simulation of its own in the first round.
 pub fn identify(
     model: &Model,
     run: &Run<'_>,
     grid: &AlphaGrid,
     sample_dt_s: f64,
     warmup: usize,
+    search: Search,
 ) -> Result<Fit> {
     let input = |alpha: f64| Input {
         velocity_m_s: run.velocity_m_s,
@@ -134,12 +285,6 @@ pub fn identify(
         alphas: None,
         position_m: run.position_m,
     };
-    let mut inputs: Vec<Input<'_>> = grid.alphas.iter().map(|&a| input(a)).collect();
-    inputs.push(Input {
-        alphas: run.label_alphas,
-        ..input(run.label)
-    });
-    let ys = predict(model, &inputs, sample_dt_s)?;
     let n = run.velocity_m_s.len().min(run.force_n.len());
     let samples = n.saturating_sub(warmup);
     let rmse = |y: &[f64]| {
@@ -150,8 +295,48 @@ pub fn identify(
             .sum();
         super::eval::rmse_of(se, samples)
     };
-    let mut curve_n: Vec<f64> = ys.iter().map(|y| rmse(y)).collect();
-    let rmse_label_n = curve_n.pop().unwrap_or(f64::NAN);
+    let label_level = match run.label_alphas {
+        None => grid
+            .alphas
+            .iter()
+            .position(|&a| a as f32 == run.label as f32),
+        Some(_) => None,
+    };
+    let mut rmse_label_n = f64::NAN;
+    let mut label_pending = label_level.is_none();
+    let eval = |ks: &[usize]| -> Result<Vec<f64>> {
+        let mut inputs: Vec<Input<'_>> = ks.iter().map(|&k| input(grid.alphas[k])).collect();
+        let with_label = std::mem::take(&mut label_pending);
+        if with_label {
+            inputs.push(Input {
+                alphas: run.label_alphas,
+                ..input(run.label)
+            });
+        }
+        let mut errors: Vec<f64> = predict(model, &inputs, sample_dt_s)?
+            .iter()
+            .map(|y| rmse(y))
+            .collect();
+        if with_label {
+            rmse_label_n = errors.pop().unwrap_or(f64::NAN);
+        }
+        Ok(errors)
+    };
+    let extra: Vec<usize> = label_level.into_iter().collect();
+    let seen = match search {
+        Search::CoarseToFine => coarse_to_fine(grid.alphas.len(), &extra, eval)?,
+        Search::Full => {
+            let all: Vec<usize> = (0..grid.alphas.len()).collect();
+            let mut eval = eval;
+            let values = eval(&all)?;
+            all.into_iter().zip(values).collect()
+        }
+    };
+    if let Some(k) = label_level {
+        rmse_label_n = seen.get(&k).copied().unwrap_or(f64::NAN);
+    }
+    let levels: Vec<f64> = seen.keys().map(|&k| grid.alphas[k]).collect();
+    let curve_n: Vec<f64> = seen.into_values().collect();
     let (k, rmse_best_n) = curve_n.iter().enumerate().fold(
         (0, f64::INFINITY),
         |(bk, be), (k, &e)| {
@@ -163,7 +348,7 @@ pub fn identify(
         },
     );
     let finite = curve_n.iter().all(|e| e.is_finite());
-    let best = (finite && !curve_n.is_empty() && !is_flat(&curve_n)).then(|| grid.alphas[k]);
+    let best = (finite && !curve_n.is_empty() && !is_flat(&curve_n)).then(|| levels[k]);
     Ok(Fit {
         label: run.label,
         best,
@@ -173,6 +358,7 @@ pub fn identify(
             rmse_best_n
         },
         rmse_label_n,
+        levels,
         curve_n,
         samples,
     })
@@ -185,10 +371,11 @@ pub fn identify_runs(
     grid: &AlphaGrid,
     sample_dt_s: f64,
     warmup: usize,
+    search: Search,
 ) -> Result<Vec<Fit>> {
     use rayon::prelude::*;
     runs.par_iter()
-        .map(|r| identify(model, r, grid, sample_dt_s, warmup))
+        .map(|r| identify(model, r, grid, sample_dt_s, warmup, search))
         .collect()
 }
 
@@ -257,7 +444,8 @@ mod tests {
                     label,
                     label_alphas: None,
                 };
-                let fit = identify(&m, &run(grid.alphas[k]), &grid, 1e-4, 100).expect("fit");
+                let fit = identify(&m, &run(grid.alphas[k]), &grid, 1e-4, 100, Search::Full)
+                    .expect("fit");
                 let what = format!("{} at {truth}", kind.name());
                 assert_eq!(fit.best, Some(grid.alphas[k]), "{what}: {:?}", fit.curve_n);
                 // The force runs to about 2 kN: nothing but last-bit differences.
@@ -276,7 +464,7 @@ mod tests {
                     fit.curve_n
                 );
                 // Labelled 0.15: the fit is still the truth, the label's error is not 0.
-                let other = identify(&m, &run(0.15), &grid, 1e-4, 100).expect("fit");
+                let other = identify(&m, &run(0.15), &grid, 1e-4, 100, Search::Full).expect("fit");
                 assert_eq!(other.best, fit.best, "{what}");
                 assert!(other.rmse_label_n > 0.0, "{what}");
                 assert_eq!(other.within(0.03), (f64::from(truth) - 0.15).abs() <= 0.03);
@@ -310,15 +498,222 @@ mod tests {
             })
             .collect();
         for m in [model(ModelKind::LinearEmm), constant] {
-            let fits = identify_runs(&m, &runs, &grid, 1e-4, 100).expect("fits");
-            for fit in &fits {
-                assert_eq!(fit.best, None, "{}: {:?}", m.kind().name(), fit.curve_n);
-                assert!(is_flat(&fit.curve_n) && fit.rmse_best_n > 0.0);
-                assert!(!fit.within(1.0));
+            for search in [Search::Full, Search::CoarseToFine] {
+                let fits = identify_runs(&m, &runs, &grid, 1e-4, 100, search).expect("fits");
+                for fit in &fits {
+                    assert_eq!(fit.best, None, "{}: {:?}", m.kind().name(), fit.curve_n);
+                    assert!(is_flat(&fit.curve_n) && fit.rmse_best_n > 0.0);
+                    assert!(!fit.within(1.0));
+                }
+                assert_eq!(fits[0], fits[2], "runs in parallel give the same fits");
+                // A curve flat at the coarse levels is not refined.
+                let simulated = if search == Search::Full { 31 } else { 7 };
+                assert_eq!(fits[0].levels.len(), simulated, "{search:?}");
             }
-            assert_eq!(fits[0], fits[2], "runs in parallel give the same fits");
         }
         assert!(is_flat(&[2.0, 2.0 * (1.0 - 0.9 * FLAT_TOLERANCE)]));
         assert!(!is_flat(&[2.0, 2.0 * (1.0 - 1.1 * FLAT_TOLERANCE)]));
+    }
+
+    /// [`coarse_to_fine`] over `curve`: the evaluated indices and the rounds taken.
+    fn search(curve: &[f64], extra: &[usize]) -> (BTreeMap<usize, f64>, usize) {
+        let mut rounds = 0;
+        let seen = coarse_to_fine(curve.len(), extra, |ks| {
+            rounds += 1;
+            Ok(ks.iter().map(|&k| curve[k]).collect())
+        })
+        .expect("search");
+        for (&k, &v) in &seen {
+            assert_eq!(v.to_bits(), curve[k].to_bits(), "index {k}");
+        }
+        (seen, rounds)
+    }
+
+    /// The index of the least value of `values` (the first on a tie).
+    fn least_index<'a>(values: impl IntoIterator<Item = (usize, &'a f64)>) -> usize {
+        values
+            .into_iter()
+            .fold(
+                (0, f64::INFINITY),
+                |(bk, be), (k, &e)| {
+                    if e < be {
+                        (k, e)
+                    } else {
+                        (bk, be)
+                    }
+                },
+            )
+            .0
+    }
+
+    #[test]
+    fn the_search_finds_the_least_level_of_one_valley_anywhere_in_two_packs() {
+        for n in [2usize, 5, 8, 9, 16, 31, 61, 101] {
+            for truth in 0..n {
+                // A V with a slight tilt, and a parabola.
+                let v: Vec<f64> = (0..n)
+                    .map(|i| 10.0 + (i as f64 - truth as f64).abs() + 0.01 * i as f64)
+                    .collect();
+                let p: Vec<f64> = (0..n)
+                    .map(|i| 1.0 + ((i as f64 - truth as f64) / n as f64).powi(2))
+                    .collect();
+                for curve in [&v, &p] {
+                    let (seen, rounds) = search(curve, &[]);
+                    let found = least_index(seen.iter().map(|(&k, v)| (k, v)));
+                    assert_eq!(found, truth, "n {n}: {seen:?}");
+                    assert!(seen.contains_key(&0) && seen.contains_key(&(n - 1)));
+                    if n <= 31 {
+                        // A coarse pack and one refining pack.
+                        assert!(seen.len() < 2 * LANES, "n {n}, {truth}: {seen:?}");
+                        assert!(rounds <= 2, "n {n}, {truth}: {rounds} rounds");
+                    } else {
+                        assert!(seen.len() <= n / 2, "n {n}, {truth}: {} levels", seen.len());
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_search_finds_the_grid_ends() {
+        // Boundaries: the least level at 0 and at the grid's top (alpha_max).
+        for n in [31usize, 101] {
+            let rising: Vec<f64> = (0..n).map(|i| 5.0 + i as f64).collect();
+            let falling: Vec<f64> = rising.iter().rev().copied().collect();
+            let (seen, _) = search(&rising, &[]);
+            assert_eq!(least_index(seen.iter().map(|(&k, v)| (k, v))), 0);
+            assert!(
+                seen.contains_key(&1),
+                "the neighbour of the end is simulated"
+            );
+            let (seen, _) = search(&falling, &[]);
+            assert_eq!(least_index(seen.iter().map(|(&k, v)| (k, v))), n - 1);
+            assert!(seen.contains_key(&(n - 2)));
+        }
+    }
+
+    #[test]
+    fn the_search_follows_a_second_valley_within_the_margin() {
+        // A broad valley around 6 (least 1.0, sampled at 5 as 1.1) and a narrow, deeper one
+        // at 22 (least 0.5) that the coarse levels 20 and 25 see only as 1.3 and 1.7: the
+        // narrow one lies within the margin of the curve's range and is refined.
+        let curve: Vec<f64> = (0..31)
+            .map(|i| {
+                let x = i as f64;
+                (1.0 + 0.1 * (x - 6.0).powi(2)).min(0.5 + 0.4 * (x - 22.0).abs())
+            })
+            .collect();
+        let (seen, _) = search(&curve, &[]);
+        let full = least_index(curve.iter().enumerate());
+        assert_eq!(full, 22);
+        assert_eq!(
+            least_index(seen.iter().map(|(&k, v)| (k, v))),
+            full,
+            "{seen:?}"
+        );
+        // Both valleys were refined to their neighbours.
+        for k in [5, 6, 7, 21, 22, 23] {
+            assert!(seen.contains_key(&k), "{k}: {seen:?}");
+        }
+        // A second valley far above the first (least 4.0, sampled at 20 as 5.0, beyond the
+        // margin) is not refined.
+        let curve: Vec<f64> = (0..31)
+            .map(|i| {
+                let x = i as f64;
+                (1.0 + 0.1 * (x - 6.0).powi(2)).min(4.0 + 0.5 * (x - 22.0).abs())
+            })
+            .collect();
+        let (seen, _) = search(&curve, &[]);
+        assert_eq!(least_index(seen.iter().map(|(&k, v)| (k, v))), 6);
+        assert!(
+            !seen.contains_key(&22) && !seen.contains_key(&21),
+            "{seen:?}"
+        );
+    }
+
+    #[test]
+    fn the_search_stops_on_a_flat_or_unfinite_curve_and_takes_the_wanted_levels() {
+        let flat: Vec<f64> = (0..101)
+            .map(|i| 2.0 * (1.0 - 0.4 * FLAT_TOLERANCE * (i % 3) as f64))
+            .collect();
+        let (seen, rounds) = search(&flat, &[]);
+        assert_eq!((seen.len(), rounds), (LANES - 1, 1));
+        assert!(is_flat(&seen.values().copied().collect::<Vec<_>>()));
+        let mut broken: Vec<f64> = (0..31).map(|i| 1.0 + (i as f64 - 12.0).abs()).collect();
+        broken[30] = f64::NAN;
+        let (seen, rounds) = search(&broken, &[]);
+        assert_eq!((seen.len(), rounds), (LANES - 1, 1));
+        // The wanted levels join the first round.
+        let v: Vec<f64> = (0..31).map(|i| 1.0 + (i as f64 - 12.0).abs()).collect();
+        let (seen, _) = search(&v, &[3, 17]);
+        assert!(seen.contains_key(&3) && seen.contains_key(&17));
+        assert_eq!(least_index(seen.iter().map(|(&k, v)| (k, v))), 12);
+        assert_eq!(coarse_indices(31, 7), [0, 5, 10, 15, 20, 25, 30]);
+        assert_eq!(coarse_indices(5, 7), [0, 1, 2, 3, 4]);
+        assert_eq!(spread(&[1, 2, 3, 4], 8), [1, 2, 3, 4]);
+        assert_eq!(spread(&(0..16).collect::<Vec<_>>(), 4), [2, 6, 10, 14]);
+    }
+
+    #[test]
+    fn the_coarse_to_fine_search_agrees_with_the_full_grid_on_the_fixture_models() {
+        // Runs of several amplitudes and frequencies, simulated at levels on and off the
+        // grid and labelled on it, off it and per sample.
+        let grid = AlphaGrid::new(0.01, 0.3).expect("grid");
+        let excitations: Vec<(Vec<f32>, Vec<f32>)> =
+            [(0.01f64, 5.0f64), (0.02, 2.0), (0.004, 12.0)]
+                .iter()
+                .map(|&(a, hz)| {
+                    let (w, dt) = (2.0 * std::f64::consts::PI * hz, 1e-4);
+                    (0..3000)
+                        .map(|k| {
+                            let t = k as f64 * dt;
+                            ((a * w * (w * t).cos()) as f32, (a * (w * t).sin()) as f32)
+                        })
+                        .unzip()
+                })
+                .collect();
+        let column = vec![0.12f32; 3000];
+        for kind in [ModelKind::Nemm, ModelKind::NemmLight, ModelKind::Sem] {
+            let m = model(kind);
+            let (mut full_levels, mut fast_levels) = (0, 0);
+            for (v, x) in &excitations {
+                for truth in [0.0f32, 0.043, 0.12, 0.3] {
+                    let f = force_at(&m, v, x, truth);
+                    for (label, alphas) in [(0.15, None), (0.123, None), (0.12, Some(&column))] {
+                        let run = Run {
+                            velocity_m_s: v,
+                            position_m: Some(x),
+                            force_n: &f,
+                            label,
+                            label_alphas: alphas.map(|a| a.as_slice()),
+                        };
+                        let full =
+                            identify(&m, &run, &grid, 1e-4, 100, Search::Full).expect("full");
+                        let fast = identify(&m, &run, &grid, 1e-4, 100, Search::CoarseToFine)
+                            .expect("fast");
+                        let what = format!("{} at {truth}, label {label}", kind.name());
+                        assert!(fast.best.is_some(), "{what}");
+                        assert_eq!(fast.best, full.best, "{what}: {:?}", full.curve_n);
+                        assert!((fast.best.unwrap() - f64::from(truth)).abs() <= 0.005);
+                        assert_eq!(fast.rmse_best_n, full.rmse_best_n, "{what}");
+                        assert_eq!(fast.rmse_label_n, full.rmse_label_n, "{what}");
+                        assert_eq!(fast.samples, full.samples);
+                        assert_eq!(full.levels, grid.alphas);
+                        // The fast curve is the full one at the levels it simulated.
+                        for (a, e) in fast.levels.iter().zip(&fast.curve_n) {
+                            let k = grid.alphas.iter().position(|g| g == a).expect("on grid");
+                            assert_eq!(*e, full.curve_n[k], "{what} at {a}");
+                        }
+                        full_levels += full.levels.len();
+                        fast_levels += fast.levels.len();
+                    }
+                }
+            }
+            assert!(
+                2 * fast_levels <= full_levels,
+                "{}: {fast_levels} levels simulated against {full_levels}",
+                kind.name()
+            );
+        }
     }
 }

@@ -84,6 +84,7 @@ pub fn compare(
         prepared,
         &used_runs(prepared),
         crate::train::identify::DEFAULT_STEP,
+        crate::train::identify::Search::CoarseToFine,
         prepared.scales.force_n,
     ) {
         Ok(id) => report.identify = Some(id),
