@@ -76,10 +76,9 @@ pub mod observer;
 #[cfg(feature = "semantics")]
 #[cfg_attr(docsrs, doc(cfg(feature = "semantics")))]
 pub mod semantics;
-// Without the feature the arithmetic is the crate's own; what the root API does not reach
-// (the trainer's and the tools' entry points) is then unused.
+// Without the feature the arithmetic is the crate's own: the items only the trainer and the
+// tools call are compiled with the feature (or for tests) alone.
 #[cfg(not(feature = "semantics"))]
-#[allow(dead_code, unused_imports)]
 mod semantics;
 #[cfg(any(test, feature = "testing"))]
 #[cfg_attr(docsrs, doc(cfg(feature = "testing")))]

@@ -132,6 +132,7 @@ pub struct Coefficients<L = f32> {
     pub k_pr: L,
 }
 
+#[cfg(any(test, feature = "semantics"))]
 /// Velocity across the flow element, `q = (k_pr x_pr + b_pr u) / (b_pr + b_fl)` \[m/s\].
 #[inline(always)]
 pub fn flow_velocity(c: &Coefficients, x_pr: f32, u: f32) -> f32 {
@@ -166,6 +167,7 @@ pub fn flow_velocity_backward<L: Lane>(
     numbar * c.k_pr
 }
 
+#[cfg(any(test, feature = "semantics"))]
 /// State derivative `[xdot_pr, vdot_st]` (eq. 16 with the parameters of `c`; `inv_t_pr` is
 /// `1 / T_pr` in 1/s).
 #[inline(always)]

@@ -39,6 +39,7 @@ compile_error!(
     "nemm-core needs a math backend: enable the `libm` (default) or `micromath` feature"
 );
 
+#[cfg(any(test, feature = "semantics"))]
 /// Name of the math backend this build uses (`"libm"` or `"micromath"`), for reports.
 pub const BACKEND: &str = if cfg!(feature = "micromath") {
     "micromath"
@@ -72,6 +73,7 @@ pub fn rsqrt(x: f32) -> f32 {
     }
 }
 
+#[cfg(any(test, feature = "semantics"))]
 /// Logistic sigmoid `1 / (1 + e^-z)`; `0` for `z -> -inf`, `1` for `z -> +inf`, never NaN
 /// for non-NaN `z`.
 #[inline(always)]

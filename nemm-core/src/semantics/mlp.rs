@@ -77,13 +77,16 @@ pub use compiled::*;
 pub use layers::*;
 pub use params::*;
 
-pub use layout::{BranchLayout, BranchRanges, LayerRanges, ScalerLayout};
-pub use pass::{Folded, ScalerView, Tape, TapeMut};
-
-pub use branch::{
-    branch_param_count, AlphaBranch, BranchError, BranchView, CompiledBranch, Direction,
-    BRANCH_CAPACITY, MAX_BRANCH_UNITS,
-};
+pub use branch::{AlphaBranch, BranchError, CompiledBranch, Direction, MAX_BRANCH_UNITS};
+pub use layout::{BranchLayout, ScalerLayout};
+pub use pass::ScalerView;
+// The trainer's and the tools' entry points (the `semantics` feature).
+#[cfg(any(test, feature = "semantics"))]
+pub use branch::{branch_param_count, BranchView, BRANCH_CAPACITY};
+#[cfg(any(test, feature = "semantics"))]
+pub use layout::{BranchRanges, LayerRanges};
+#[cfg(any(test, feature = "semantics"))]
+pub use pass::{Folded, Tape, TapeMut};
 
 /// Negative-side slope of the LeakyReLU activation (PyTorch and burn default).
 pub const LEAKY_RELU_SLOPE: f32 = 0.01;

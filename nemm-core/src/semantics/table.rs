@@ -334,6 +334,7 @@ impl<const P: usize> Tabulate for &CompiledScaler<P> {
 }
 
 impl<const N: usize> Table1D<N> {
+    #[cfg(any(test, feature = "semantics"))]
     /// Tabulates `exact` over `[lo, hi]`, measures the error on the check grid and refuses
     /// the table if it exceeds `max_rel_error` (`scaler` names the coefficient in errors).
     ///
@@ -763,6 +764,7 @@ impl<const N: usize> Table1D<N> {
         self.accuracy
     }
 
+    #[cfg(any(test, feature = "semantics"))]
     /// Cubic segments inside the domain (`N - 2`; the other two hold the boundary values).
     pub fn segments_used(&self) -> usize {
         N - 2

@@ -298,6 +298,7 @@ impl CompiledBranch {
         z
     }
 
+    #[cfg(any(test, feature = "semantics"))]
     /// Units `K`.
     pub fn units(&self) -> usize {
         self.units

@@ -4,15 +4,8 @@
 
 use super::*;
 
-/// `acc = init; acc = fma(w_j, x_j, acc)` over `j`.
-#[inline(always)]
-pub fn dot_acc(w: &[f32], x: &[f32], init: f32) -> f32 {
-    w.iter()
-        .zip(x)
-        .fold(init, |acc, (&wj, &xj)| math::fma(wj, xj, acc))
-}
-
-/// [`dot_acc`] with the multiply-add `M`.
+/// `acc = init; acc = M::mul_add(w_j, x_j, acc)` over `j` (with [`math::Fused`]: the fused
+/// dot product).
 #[inline(always)]
 pub(super) fn dot_acc_with<M: math::MulAdd>(w: &[f32], x: &[f32], init: f32) -> f32 {
     w.iter()
@@ -143,6 +136,7 @@ pub fn bounded_backward<L: Lane>(sig: L, span: L, pbar: L) -> L {
     pbar * span * sig * (L::constant(1.0) - sig)
 }
 
+#[cfg(any(test, feature = "semantics"))]
 /// In place: LayerNorm over `h` (mean and biased variance), affine `gamma`, `beta`, then
 /// LeakyReLU ([`centre`] then [`norm_act`], fused multiply-adds).
 pub fn layer_norm_leaky(h: &mut [f32], gamma: &[f32], beta: &[f32]) {
