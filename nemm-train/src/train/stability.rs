@@ -140,6 +140,47 @@ mod tests {
         }
     }
 
+    /// Rollout parameters of a Linear EMM with constants `c` at step `dt`.
+    fn linear(c: [f32; 4], dt: f32) -> RolloutParams<f32> {
+        RolloutParams {
+            integrator: Integrator::Rk4,
+            dt,
+            b_fl0: c[0],
+            b_pr0: c[1],
+            k0: c[2],
+            t_pr: c[3],
+            v_scale: 1.0,
+            x_scale: 1e-3,
+            alpha_scale: 0.3,
+            b_fl: None,
+            b_pr: None,
+            k_pr: None,
+            priors: Default::default(),
+            static_force: None,
+        }
+    }
+
+    #[test]
+    fn the_announcement_names_the_bound_and_the_rate_that_frees_the_model() {
+        // T_pr = 2 ms at a 4 ms step (RK4 needs 1.795 ms): free.
+        let p = linear([1500.0, 1000.0, 1e5, 2e-3], 4e-3);
+        assert_eq!(
+            StabilityHold::of_rollout(&p).announce("linear-emm", &p),
+            None
+        );
+        // At a 5 ms step (2.244 ms needed, held at 1.01 x: 2.267 ms) T_pr is held; a model
+        // rate of ceil(200 Hz x 2.2666 / 2) = 227 Hz would leave it free.
+        let p = linear([1500.0, 1000.0, 1e5, 2e-3], 5e-3);
+        let hold = StabilityHold::of_rollout(&p);
+        let msg = hold.announce("linear-emm", &p).expect("held");
+        assert!(msg.starts_with("[linear-emm] stability:"), "{msg}");
+        assert!(
+            msg.contains("2000.0 us") && msg.contains("2266.6 us"),
+            "{msg}"
+        );
+        assert!(msg.contains("at least 227 Hz"), "{msg}");
+    }
+
     #[test]
     fn constants_on_the_set_are_left_alone() {
         let h = hold(0.1, 0.1, 5.0);

@@ -218,6 +218,9 @@ impl<'a> Stages<'a> {
             lambda_ph: 0.0,
             ..cfg.fit.clone()
         };
+        if let Some(msg) = StabilityHold::of_rollout(&p0).announce("linear-emm", &p0) {
+            eprintln!("{msg}");
+        }
         let (net, frame) = EmmNet::from_rollout(&p0, self.static_units, &self.device);
         let lin_dir = self.checkpoint_root.map(|r| r.join("linear-emm"));
         save_frame(lin_dir.as_deref(), &p0, self.meta, self.static_units)?;
