@@ -10,29 +10,41 @@
 //!
 //! [`Search`] says which levels are simulated:
 //!
-//! - [`Search::CoarseToFine`] (the default, [`coarse_to_fine`]): first `LANES - 1` levels
-//!   spread evenly over the grid, ends included, and the label's simulation (one pack of
-//!   lanes); then, in rounds, the unsimulated levels between each candidate and its
-//!   simulated neighbours, up to [`LANES`] per candidate and round, until every candidate's
-//!   neighbours on the grid are simulated. The candidates are the local minima of the
-//!   simulated curve within [`MINIMA_MARGIN`] of its range above its least value, so a
-//!   second valley is refined as well as the deepest one. A curve flat at the first round's
-//!   levels stops there. On the default bench's 31 levels this is two packs of lanes per run
-//!   instead of four; on a 101-level grid mostly three instead of thirteen.
+//! - [`Search::CoarseToFine`] (the default): first a search on nemm-core's tables, then an
+//!   exact search from its best level ([`identify_with_tables`]). The table search is
+//!   [`coarse_to_fine`] with each level simulated by a table-mode estimator built at that
+//!   level (nemm-core's `EvalMode::Table`, whose step costs a fraction of an exact one); it
+//!   only picks where to look. The exact search starts from the table search's best level,
+//!   [`TABLE_WINDOW`] levels on each side and the label (one pack of lanes), and refines
+//!   the candidate minima of the exact curve as [`coarse_to_fine`] does ([`refine`]): a
+//!   window whose least level is at its edge is extended towards the grid's end. So the
+//!   best fit, the curve and the label's RMSE are exact simulations only. When no table can
+//!   be built (an error from nemm-core), when the table curve is flat or not finite, or for
+//!   a model without neural coefficients or batched rollout (the SEM, the Linear EMM), the
+//!   exact search starts from [`coarse_to_fine`]'s first round; an exact window that is flat
+//!   gets that round's levels too.
+//!
+//!   [`coarse_to_fine`] alone: first `LANES - 1` levels spread evenly over the grid, ends
+//!   included, and the label's simulation (one pack of lanes); then, in rounds, the
+//!   unsimulated levels between each candidate and its simulated neighbours, up to
+//!   [`LANES`] per candidate and round, until every candidate's neighbours on the grid are
+//!   simulated. The candidates are the local minima of the simulated curve within
+//!   [`MINIMA_MARGIN`] of its range above its least value, so a second valley is refined as
+//!   well as the deepest one. A curve flat at the first round's levels stops there.
 //! - [`Search::Full`]: every grid level, the whole RMSE curve.
 //!
-//! The coarse-to-fine best fit is the full grid's wherever the RMSE curve has one valley
-//! over the grid, and where another valley is deeper only if its sampled levels come within
-//! the margin; `nemm-train/benches/identify_time.rs` compares the two searches on a
-//! dataset. The label's simulation is the grid level's when the label is constant and on
-//! the grid, so it costs no lane of its own.
+//! The coarse-to-fine best fit is the full grid's wherever the exact RMSE curve has one
+//! valley and the table search lands in it, and where another valley is deeper only if its
+//! sampled levels come within the margin; `nemm-train/benches/identify_time.rs` compares
+//! the two searches on a dataset. The label's simulation is the grid level's when the label
+//! is constant and on the grid and that level is simulated, so it costs no lane of its own.
 //!
 //! The grid bounds the resolution: a run is identified to the nearest grid level, and only
 //! where the model's force depends on `alpha` at that run's excitation.
 
-use super::eval::{predict, Input};
-use anyhow::{bail, ensure, Result};
-use nemm_core::Model;
+use super::eval::{predict, run_estimator, Input};
+use anyhow::{anyhow, bail, ensure, Result};
+use nemm_core::{Estimator, EstimatorConfig, EvalMode, Model, ModelKind, TableConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -221,11 +233,27 @@ fn coarse_indices(n: usize, count: usize) -> Vec<usize> {
 pub fn coarse_to_fine(
     n: usize,
     extra: &[usize],
+    eval: impl FnMut(&[usize]) -> Result<Vec<f64>>,
+) -> Result<BTreeMap<usize, f64>> {
+    let mut round: Vec<usize> = coarse_indices(n, LANES - 1);
+    round.extend(extra.iter().copied());
+    refine(n, BTreeMap::new(), round, eval)
+}
+
+/// The rounds of [`coarse_to_fine`] from the values already evaluated (`seen`) and a first
+/// round of indices (those below `n` and not in `seen` are evaluated): after each round the
+/// candidate minima of everything evaluated so far are refined as there. Returns every
+/// index evaluated with its value, `seen` included.
+pub fn refine(
+    n: usize,
+    mut seen: BTreeMap<usize, f64>,
+    first: Vec<usize>,
     mut eval: impl FnMut(&[usize]) -> Result<Vec<f64>>,
 ) -> Result<BTreeMap<usize, f64>> {
-    let mut seen = BTreeMap::new();
-    let mut round: Vec<usize> = coarse_indices(n, LANES - 1);
-    round.extend(extra.iter().copied().filter(|&k| k < n));
+    let mut round: Vec<usize> = first
+        .into_iter()
+        .filter(|&k| k < n && !seen.contains_key(&k))
+        .collect();
     round.sort_unstable();
     round.dedup();
     while !round.is_empty() {
@@ -270,7 +298,9 @@ pub fn coarse_to_fine(
 /// Simulates `run` (samples `sample_dt_s` apart, from rest) with `model` at the levels of
 /// `grid` that `search` visits and at its label, and scores the force after `warmup`
 /// samples. The label's simulation is the grid level's when the label is constant and on
-/// the grid (as `f32`), else a simulation of its own in the first round.
+/// the grid (as `f32`), else a simulation of its own in the first exact round.
+/// [`Search::CoarseToFine`] first searches on nemm-core's tables ([`TableConfig::default`];
+/// [`identify_with_tables`]).
 pub fn identify(
     model: &Model,
     run: &Run<'_>,
@@ -278,6 +308,131 @@ pub fn identify(
     sample_dt_s: f64,
     warmup: usize,
     search: Search,
+) -> Result<Fit> {
+    identify_with_tables(
+        model,
+        run,
+        grid,
+        sample_dt_s,
+        warmup,
+        search,
+        Some(&TableEstimators::new(grid, TableConfig::default())),
+    )
+}
+
+/// Levels on each side of the table search's best level that the first exact round of
+/// [`Search::CoarseToFine`] simulates (with that level: `LANES - 1`, and the label's lane).
+pub const TABLE_WINDOW: usize = (LANES - 2) / 2;
+
+/// `true` if [`identify`] runs `model`'s table search: a NEMM or a NEMM-Light (the models
+/// with neural coefficients and a batched exact rollout).
+pub fn has_table_search(model: &Model) -> bool {
+    matches!(model.kind(), ModelKind::Nemm | ModelKind::NemmLight)
+}
+
+/// The table-mode estimators of the table search, one per grid level, built on first use
+/// (at that level, with one [`TableConfig`]) and shared by the runs of [`identify_runs`]:
+/// each simulation starts from a copy at rest. A level whose estimator cannot be built
+/// holds `None`.
+#[derive(Debug)]
+pub struct TableEstimators {
+    config: TableConfig,
+    levels: Vec<std::sync::OnceLock<Option<Box<Estimator>>>>,
+}
+
+impl TableEstimators {
+    /// No estimator built yet, for the levels of `grid`.
+    pub fn new(grid: &AlphaGrid, config: TableConfig) -> Self {
+        Self {
+            config,
+            levels: (0..grid.alphas.len())
+                .map(|_| std::sync::OnceLock::new())
+                .collect(),
+        }
+    }
+
+    /// A copy at rest of level `k`'s estimator (alpha `alpha`), built on first use; `None`
+    /// if it cannot be built.
+    fn at(&self, model: &Model, k: usize, alpha: f64) -> Option<Box<Estimator>> {
+        let cell = self.levels.get(k)?;
+        let est = cell.get_or_init(|| {
+            let cfg = EstimatorConfig {
+                mode: EvalMode::Table(self.config),
+                ..EstimatorConfig::new(alpha as f32)
+            };
+            Estimator::new(model, cfg).ok().map(Box::new)
+        });
+        est.clone().map(|mut e| {
+            e.reset();
+            e
+        })
+    }
+}
+
+/// The table search of [`identify_with_tables`]: [`coarse_to_fine`] over the grid with each
+/// level simulated by a table-mode estimator at that level ([`run_estimator`]). Returns the
+/// index of the least table RMSE, or `None` when a table-mode estimator cannot be built
+/// (an error from nemm-core) or the table curve is flat or not finite.
+fn table_search(
+    model: &Model,
+    run: &Run<'_>,
+    grid: &AlphaGrid,
+    sample_dt_s: f64,
+    tables: &TableEstimators,
+    rmse: &dyn Fn(&[f64]) -> f64,
+) -> Option<usize> {
+    let n = run.velocity_m_s.len().min(run.force_n.len());
+    let input = |alpha: f64| Input {
+        velocity_m_s: &run.velocity_m_s[..n],
+        alpha: alpha as f32,
+        alphas: None,
+        position_m: run.position_m.map(|x| &x[..n.min(x.len())]),
+    };
+    let eval = |ks: &[usize]| -> Result<Vec<f64>> {
+        ks.iter()
+            .map(|&k| {
+                let alpha = grid.alphas[k];
+                let mut est = tables
+                    .at(model, k, alpha)
+                    .ok_or_else(|| anyhow!("no table at level {alpha}"))?;
+                let (y, _) =
+                    run_estimator(&mut est, f64::from(model.dt_s), &input(alpha), sample_dt_s)?;
+                Ok(rmse(&y))
+            })
+            .collect()
+    };
+    let seen = coarse_to_fine(grid.alphas.len(), &[], eval).ok()?;
+    let curve: Vec<f64> = seen.values().copied().collect();
+    if curve.iter().any(|e| !e.is_finite()) || is_flat(&curve) {
+        return None;
+    }
+    seen.iter()
+        .fold(None, |b: Option<(usize, f64)>, (&k, &e)| match b {
+            Some((_, be)) if be <= e => b,
+            _ => Some((k, e)),
+        })
+        .map(|b| b.0)
+}
+
+/// [`identify`] with the table search's settings: `None` runs [`Search::CoarseToFine`]
+/// exactly from its first round.
+///
+/// With tables (and a model with [`has_table_search`]), [`Search::CoarseToFine`] first
+/// runs [`coarse_to_fine`] on table simulations (one table-mode estimator per level, built
+/// at that level); its best level and [`TABLE_WINDOW`] levels on each side, and the label,
+/// are the first exact round, and [`refine`] continues from there exactly, so the best fit
+/// is decided by exact simulations. When a table cannot be built (an error from
+/// nemm-core), or the table curve is flat or not finite, the exact search starts from its
+/// coarse round; when the exact window is flat or not finite, the coarse round's levels
+/// are added.
+pub fn identify_with_tables(
+    model: &Model,
+    run: &Run<'_>,
+    grid: &AlphaGrid,
+    sample_dt_s: f64,
+    warmup: usize,
+    search: Search,
+    tables: Option<&TableEstimators>,
 ) -> Result<Fit> {
     let input = |alpha: f64| Input {
         velocity_m_s: run.velocity_m_s,
@@ -323,9 +478,34 @@ pub fn identify(
         Ok(errors)
     };
     let extra: Vec<usize> = label_level.into_iter().collect();
-    let seen = match search {
-        Search::CoarseToFine => coarse_to_fine(grid.alphas.len(), &extra, eval)?,
-        Search::Full => {
+    let levels_n = grid.alphas.len();
+    let table_best = match (search, tables) {
+        (Search::CoarseToFine, Some(t)) if has_table_search(model) => {
+            table_search(model, run, grid, sample_dt_s, t, &rmse)
+        }
+        _ => None,
+    };
+    let seen = match (search, table_best) {
+        (Search::CoarseToFine, Some(k)) => {
+            let mut eval = eval;
+            let window: Vec<usize> = (k.saturating_sub(TABLE_WINDOW)..=k + TABLE_WINDOW)
+                .chain(extra.iter().copied())
+                .collect();
+            let seen = refine(levels_n, BTreeMap::new(), window, &mut eval)?;
+            let curve: Vec<f64> = seen.values().copied().collect();
+            if curve.iter().any(|e| !e.is_finite()) || is_flat(&curve) {
+                refine(
+                    levels_n,
+                    seen,
+                    coarse_indices(levels_n, LANES - 1),
+                    &mut eval,
+                )?
+            } else {
+                seen
+            }
+        }
+        (Search::CoarseToFine, None) => coarse_to_fine(levels_n, &extra, eval)?,
+        (Search::Full, _) => {
             let all: Vec<usize> = (0..grid.alphas.len()).collect();
             let mut eval = eval;
             let values = eval(&all)?;
@@ -374,8 +554,9 @@ pub fn identify_runs(
     search: Search,
 ) -> Result<Vec<Fit>> {
     use rayon::prelude::*;
+    let tables = TableEstimators::new(grid, TableConfig::default());
     runs.par_iter()
-        .map(|r| identify(model, r, grid, sample_dt_s, warmup, search))
+        .map(|r| identify_with_tables(model, r, grid, sample_dt_s, warmup, search, Some(&tables)))
         .collect()
 }
 
@@ -692,6 +873,55 @@ mod tests {
                         let fast = identify(&m, &run, &grid, 1e-4, 100, Search::CoarseToFine)
                             .expect("fast");
                         let what = format!("{} at {truth}, label {label}", kind.name());
+                        // The table search finds a level near the truth on the models that
+                        // have one; without tables, or when no table can be built, the
+                        // exact coarse round is the first: the same fit.
+                        let sampled = run.force_n.len().saturating_sub(100);
+                        let score = |y: &[f64]| {
+                            let se: f64 = y[100..]
+                                .iter()
+                                .zip(&run.force_n[100..])
+                                .map(|(&y, &f)| (y - f) * (y - f))
+                                .sum();
+                            super::super::eval::rmse_of(se, sampled)
+                        };
+                        let unbuildable = TableEstimators::new(
+                            &grid,
+                            TableConfig {
+                                max_rel_error: -1.0,
+                                ..TableConfig::default()
+                            },
+                        );
+                        let tables = TableEstimators::new(&grid, TableConfig::default());
+                        if has_table_search(&m) {
+                            assert_eq!(
+                                table_search(&m, &run, &grid, 1e-4, &unbuildable, &score),
+                                None,
+                                "{what}"
+                            );
+                            let k = table_search(&m, &run, &grid, 1e-4, &tables, &score)
+                                .expect("a table fit");
+                            assert!(
+                                (grid.alphas[k] - f64::from(truth)).abs() <= 0.015,
+                                "{what}: tables at {}",
+                                grid.alphas[k]
+                            );
+                        }
+                        for tables in [None, Some(&unbuildable)] {
+                            let exact = identify_with_tables(
+                                &m,
+                                &run,
+                                &grid,
+                                1e-4,
+                                100,
+                                Search::CoarseToFine,
+                                tables,
+                            )
+                            .expect("exact coarse round");
+                            assert_eq!(exact.best, full.best, "{what}, {:?}", tables.is_some());
+                            assert_eq!(exact.rmse_label_n, full.rmse_label_n, "{what}");
+                            assert!(exact.levels.contains(&0.0) && exact.levels.contains(&0.3));
+                        }
                         assert!(fast.best.is_some(), "{what}");
                         assert_eq!(fast.best, full.best, "{what}: {:?}", full.curve_n);
                         assert!((fast.best.unwrap() - f64::from(truth)).abs() <= 0.005);
