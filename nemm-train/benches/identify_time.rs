@@ -14,6 +14,8 @@
 //! or absent. Every run the split uses is identified, on the grid of step 0.01 (or
 //! `NEMM_BENCH_STEP`) up to the model's largest training level, once per search; the runs
 //! whose best fits differ by more than 0.01 are listed.
+mod common;
+
 use nemm_core::ModelKind;
 use nemm_train::config::{resolve_data, Config};
 use nemm_train::report::identify::{identify_report, used_runs, IdentifyReport};
@@ -40,17 +42,7 @@ fn simulated(r: &IdentifyReport) -> usize {
 
 fn main() {
     // `cargo bench` passes `--bench`; nothing else is accepted.
-    let data = std::env::var_os("NEMM_BENCH_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| std::env::temp_dir().join("nemm-train-time-bench"));
-    if !data.join("manifest.toml").exists() {
-        nemm_train::cli::bench::generate(
-            &nemm_train::bench::config::BenchConfig::default(),
-            1,
-            &data,
-        )
-        .expect("generate the default virtual bench");
-    }
+    let data = common::bench_data();
     let config = Config::default();
     let data_config = resolve_data(&config.data.in_dir(&data))
         .expect("data options")

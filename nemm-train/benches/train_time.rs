@@ -9,25 +9,16 @@
 //! Default settings of `nemm train --variant nemm` (section 5.4: batch 16, H 16, L 5, lr 5e-3,
 //! RK4 at 10 kHz, lambda_ph 5), all epochs up to early stopping. Target: <= 10 minutes on
 //! 2 cores.
+mod common;
+
 use nemm_core::ModelKind;
 use nemm_train::config::Config;
 use nemm_train::train::pipeline::{train_variants, PipelineConfig};
-use std::path::PathBuf;
 use std::time::Instant;
 
 fn main() {
     // `cargo bench` passes `--bench`; nothing else is accepted.
-    let data = std::env::var_os("NEMM_BENCH_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| std::env::temp_dir().join("nemm-train-time-bench"));
-    if !data.join("manifest.toml").exists() {
-        nemm_train::cli::bench::generate(
-            &nemm_train::bench::config::BenchConfig::default(),
-            1,
-            &data,
-        )
-        .expect("generate the default virtual bench");
-    }
+    let data = common::bench_data();
     let config = Config::default();
     let prepared = nemm_train::cli::train::load_prepared(&data, &config.data.prepare_config())
         .expect("dataset");

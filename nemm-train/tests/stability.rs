@@ -6,12 +6,11 @@
 mod support;
 
 use nemm_core::ModelKind;
-use nemm_train::data::dataset::{Run, RunEntry};
+use nemm_train::data::dataset::Run;
 use nemm_train::data::preprocess::{self, PrepareConfig};
 use nemm_train::train::fit::FitConfig;
 use nemm_train::train::pipeline::{train_variants, PipelineConfig};
 use std::f64::consts::PI;
-use std::path::PathBuf;
 
 /// Sample rate of the friction damper's logger \[Hz\].
 const FS: f64 = 1000.0;
@@ -40,19 +39,15 @@ fn friction_run(alpha: f64, amplitude_m: f64, freq_hz: f64, seconds: f64) -> Run
             f += h * sigma * v * (1.0 - f / f_c * v.signum());
         }
     }
-    Run {
-        entry: RunEntry {
-            file: PathBuf::from(format!("runs/a{alpha}_x{amplitude_m}_f{freq_hz}.csv")),
-            oil_loss: alpha,
-            amplitude_m: Some(amplitude_m),
-            target_velocity_m_s: Some(amplitude_m * w),
-        },
+    support::sine_record(
+        format!("runs/a{alpha}_x{amplitude_m}_f{freq_hz}.csv"),
+        alpha,
+        amplitude_m,
+        amplitude_m * w,
         time_s,
         displacement_m,
         force_n,
-        velocity_m_s: None,
-        alpha: None,
-    }
+    )
 }
 
 /// Sines of 0.4 m/s peak through a Linear EMM with `b_fl = 1500`, `b_pr = 1000` N s/m,
@@ -82,19 +77,15 @@ fn fast_damper_run(alpha: f64, freq_hz: f64, seconds: f64) -> Run {
             x_pr = x_ss + (x_pr - x_ss) * (-h * k / (b_pr + b_fl)).exp();
         }
     }
-    Run {
-        entry: RunEntry {
-            file: PathBuf::from(format!("runs/a{alpha}_f{freq_hz}.csv")),
-            oil_loss: alpha,
-            amplitude_m: Some(amp),
-            target_velocity_m_s: Some(0.4),
-        },
+    support::sine_record(
+        format!("runs/a{alpha}_f{freq_hz}.csv"),
+        alpha,
+        amp,
+        0.4,
         time_s,
         displacement_m,
         force_n,
-        velocity_m_s: None,
-        alpha: None,
-    }
+    )
 }
 
 /// Trains `kinds` on `runs` at `fs` (level `test_alpha` held out) and model rate

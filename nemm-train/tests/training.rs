@@ -1,16 +1,17 @@
 //! End-to-end checks of the training pipeline on data whose truth is known.
+mod support;
+
 use burn::tensor::Device;
 use nemm_core::semantics::emm::EmmConstants;
 use nemm_core::ModelKind;
 use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
-use nemm_train::data::dataset::{Dataset, Run, RunEntry};
+use nemm_train::data::dataset::{Dataset, Run};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
 use nemm_train::train::adjoint::{Grid, RolloutParams};
 use nemm_train::train::fit::{fit, FitConfig, FitData};
 use nemm_train::train::net::EmmNet;
 use nemm_train::train::params::from_core;
 use nemm_train::train::pipeline::{init_scaler, train_variants, PipelineConfig};
-use std::path::PathBuf;
 
 const FS: f64 = 10_000.0;
 
@@ -61,17 +62,16 @@ fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> D
                 .map(|&v| est.step(v as f32).force_n as f64)
                 .collect();
             runs.push(Run {
-                entry: RunEntry {
-                    file: PathBuf::from(format!("runs/a{alpha}_f{f}.csv")),
-                    oil_loss: alpha,
-                    amplitude_m: Some(amp),
-                    target_velocity_m_s: Some(0.4),
-                },
-                time_s,
-                displacement_m,
-                force_n,
                 velocity_m_s: Some(velocity),
-                alpha: None,
+                ..support::sine_record(
+                    format!("runs/a{alpha}_f{f}.csv"),
+                    alpha,
+                    amp,
+                    0.4,
+                    time_s,
+                    displacement_m,
+                    force_n,
+                )
             });
         }
     }

@@ -773,17 +773,23 @@ mod tests {
         }
     }
 
+    /// A 31-level curve with a broad valley at 6 (least 1.0) and a narrow one at 22 (least
+    /// `least`, rising by `slope` per level).
+    fn two_valleys(least: f64, slope: f64) -> Vec<f64> {
+        (0..31)
+            .map(|i| {
+                let x = i as f64;
+                (1.0 + 0.1 * (x - 6.0).powi(2)).min(least + slope * (x - 22.0).abs())
+            })
+            .collect()
+    }
+
     #[test]
     fn the_search_follows_a_second_valley_within_the_margin() {
         // A broad valley around 6 (least 1.0, sampled at 5 as 1.1) and a narrow, deeper one
         // at 22 (least 0.5) that the coarse levels 20 and 25 see only as 1.3 and 1.7: the
         // narrow one lies within the margin of the curve's range and is refined.
-        let curve: Vec<f64> = (0..31)
-            .map(|i| {
-                let x = i as f64;
-                (1.0 + 0.1 * (x - 6.0).powi(2)).min(0.5 + 0.4 * (x - 22.0).abs())
-            })
-            .collect();
+        let curve = two_valleys(0.5, 0.4);
         let (seen, _) = search(&curve, &[]);
         let full = least_index(curve.iter().enumerate());
         assert_eq!(full, 22);
@@ -798,12 +804,7 @@ mod tests {
         }
         // A second valley far above the first (least 4.0, sampled at 20 as 5.0, beyond the
         // margin) is not refined.
-        let curve: Vec<f64> = (0..31)
-            .map(|i| {
-                let x = i as f64;
-                (1.0 + 0.1 * (x - 6.0).powi(2)).min(4.0 + 0.5 * (x - 22.0).abs())
-            })
-            .collect();
+        let curve = two_valleys(4.0, 0.5);
         let (seen, _) = search(&curve, &[]);
         assert_eq!(least_index(seen.iter().map(|(&k, v)| (k, v))), 6);
         assert!(

@@ -178,6 +178,33 @@ impl SineRun {
     }
 }
 
+/// A recorded sine run `file` at level `alpha`: amplitude `amplitude_m` \[m\], peak velocity
+/// `peak_velocity_m_s` \[m/s\] in the manifest entry, the samples as given, no velocity or
+/// alpha column.
+pub fn sine_record(
+    file: String,
+    alpha: f64,
+    amplitude_m: f64,
+    peak_velocity_m_s: f64,
+    time_s: Vec<f64>,
+    displacement_m: Vec<f64>,
+    force_n: Vec<f64>,
+) -> Run {
+    Run {
+        entry: RunEntry {
+            file: PathBuf::from(file),
+            oil_loss: alpha,
+            amplitude_m: Some(amplitude_m),
+            target_velocity_m_s: Some(peak_velocity_m_s),
+        },
+        time_s,
+        displacement_m,
+        force_n,
+        velocity_m_s: None,
+        alpha: None,
+    }
+}
+
 /// A dataset of `runs` at `fs`, without a named condition.
 pub fn dataset(name: &str, fs: f64, runs: Vec<Run>) -> Dataset {
     Dataset {
