@@ -69,14 +69,14 @@
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46088
+#define NEMM_ESTIMATOR_SIZE 46148
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46296
+#define NEMM_ESTIMATOR_SIZE 46360
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -97,14 +97,14 @@
 /**
  * Bytes of a `nemm_observer_t` (32-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21588
+#define NEMM_OBSERVER_SIZE 21624
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_observer_t` (64-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21712
+#define NEMM_OBSERVER_SIZE 21752
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -126,7 +126,7 @@
  * Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (32-bit
  * targets).
  */
-#define NEMM_LEVELS_SIZE 57956
+#define NEMM_LEVELS_SIZE 57980
 #endif
 
 #if defined(NEMM_TARGET_64)
@@ -134,7 +134,7 @@
  * Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (64-bit
  * targets).
  */
-#define NEMM_LEVELS_SIZE 58096
+#define NEMM_LEVELS_SIZE 58120
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -414,6 +414,10 @@ enum nemm_status_t
    * faster, or retrain with tighter scaler bounds).
    */
   NEMM_E_MODEL_UNSTABLE_STEP = 33,
+  /**
+   * Model: a lost-motion element on a SEM (which has no pressure stiffness).
+   */
+  NEMM_E_MODEL_LOST_MOTION_ON_SEM = 34,
   /**
    * `alpha` is not a finite value in `[0, 1]`.
    */

@@ -84,6 +84,8 @@ pub enum nemm_status_t {
     /// Model: the step is too long for the fastest time constant the model can reach (run
     /// faster, or retrain with tighter scaler bounds).
     NEMM_E_MODEL_UNSTABLE_STEP = 33,
+    /// Model: a lost-motion element on a SEM (which has no pressure stiffness).
+    NEMM_E_MODEL_LOST_MOTION_ON_SEM = 34,
 
     /// `alpha` is not a finite value in `[0, 1]`.
     NEMM_E_ALPHA_OUT_OF_RANGE = 40,
@@ -140,7 +142,7 @@ pub enum nemm_status_t {
 use nemm_status_t::*;
 
 /// Every status, in the order of their values.
-pub(crate) const ALL: [nemm_status_t; 47] = [
+pub(crate) const ALL: [nemm_status_t; 48] = [
     NEMM_OK,
     NEMM_E_NULL,
     NEMM_E_STORAGE_SIZE,
@@ -169,6 +171,7 @@ pub(crate) const ALL: [nemm_status_t; 47] = [
     NEMM_E_MODEL_ALPHA_RANGE,
     NEMM_E_MODEL_CONTROL_CHARACTER,
     NEMM_E_MODEL_UNSTABLE_STEP,
+    NEMM_E_MODEL_LOST_MOTION_ON_SEM,
     NEMM_E_ALPHA_OUT_OF_RANGE,
     NEMM_E_BAD_VELOCITY_LIMIT,
     NEMM_E_COMPILE,
@@ -272,6 +275,9 @@ impl nemm_status_t {
             NEMM_E_MODEL_UNSTABLE_STEP => {
                 c"NEMM_E_MODEL_UNSTABLE_STEP: the step is too long for the model's fastest time constant"
             }
+            NEMM_E_MODEL_LOST_MOTION_ON_SEM => {
+                c"NEMM_E_MODEL_LOST_MOTION_ON_SEM: the SEM takes no lost-motion element"
+            }
             NEMM_E_ALPHA_OUT_OF_RANGE => {
                 c"NEMM_E_ALPHA_OUT_OF_RANGE: alpha must be a finite value in [0, 1]"
             }
@@ -338,6 +344,7 @@ impl From<ModelError> for nemm_status_t {
             ModelError::NotPositive { .. } => NEMM_E_MODEL_NOT_POSITIVE,
             ModelError::Negative { .. } => NEMM_E_MODEL_NEGATIVE,
             ModelError::StaticForceOnSem => NEMM_E_MODEL_STATIC_FORCE_ON_SEM,
+            ModelError::LostMotionOnSem => NEMM_E_MODEL_LOST_MOTION_ON_SEM,
             ModelError::OutOfRange { .. } => NEMM_E_MODEL_OUT_OF_RANGE,
             ModelError::BadScalerBounds { .. } => NEMM_E_MODEL_BAD_SCALER_BOUNDS,
             ModelError::Shape { .. } => NEMM_E_MODEL_SHAPE,

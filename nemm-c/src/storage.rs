@@ -82,40 +82,40 @@ const LEVELS_MAGIC: u32 = u32::from_le_bytes(*b"NEMl");
 
 /// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46088;
+pub const NEMM_ESTIMATOR_SIZE: usize = 46148;
 /// Alignment of a `nemm_estimator_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 4;
 /// Bytes of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_OBSERVER_SIZE: usize = 21588;
+pub const NEMM_OBSERVER_SIZE: usize = 21624;
 /// Alignment of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_OBSERVER_ALIGN: usize = 4;
 /// Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (32-bit
 /// targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_LEVELS_SIZE: usize = 57956;
+pub const NEMM_LEVELS_SIZE: usize = 57980;
 /// Alignment of a `nemm_levels_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_LEVELS_ALIGN: usize = 4;
 
 /// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46296;
+pub const NEMM_ESTIMATOR_SIZE: usize = 46360;
 /// Alignment of a `nemm_estimator_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
 /// Bytes of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_OBSERVER_SIZE: usize = 21712;
+pub const NEMM_OBSERVER_SIZE: usize = 21752;
 /// Alignment of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_OBSERVER_ALIGN: usize = 8;
 /// Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (64-bit
 /// targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_LEVELS_SIZE: usize = 58096;
+pub const NEMM_LEVELS_SIZE: usize = 58120;
 /// Alignment of a `nemm_levels_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_LEVELS_ALIGN: usize = 8;

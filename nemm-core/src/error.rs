@@ -150,6 +150,9 @@ pub enum ModelError {
     /// A static force ([`crate::Model::static_force`]) on the SEM, whose map already holds
     /// every force of its data.
     StaticForceOnSem,
+    /// A lost-motion element ([`crate::Model::lost_motion`]) on the SEM, which has no
+    /// pressure stiffness.
+    LostMotionOnSem,
     /// A scale outside [`SCALE_RANGE`].
     OutOfRange {
         /// Which field.
@@ -220,6 +223,10 @@ impl fmt::Display for ModelError {
             ModelError::StaticForceOnSem => write!(
                 f,
                 "the SEM takes no static force (its map already holds every force of its data)"
+            ),
+            ModelError::LostMotionOnSem => write!(
+                f,
+                "the SEM takes no lost-motion element (it has no pressure stiffness)"
             ),
             ModelError::OutOfRange { field } => write!(
                 f,

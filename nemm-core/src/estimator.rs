@@ -91,6 +91,7 @@ pub use levels::{BlendCheck, LevelTables, LevelsError};
 use crate::emm::{self, Coefficients, State};
 use crate::format::tables::{StoredTable, StoredTables, StoredUnused, TableLevel};
 use crate::integrator::{self, Integrator, Stage, StepSize};
+use crate::lost_motion::{LostMotion, LostMotionAt};
 use crate::math::{Fused, MulAdd, Unfused};
 use crate::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
@@ -318,6 +319,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
                 }
                 rt.b_pr_branch.clone_from(&branches.b_pr);
                 rt.b_pr_ini = emm.b_pr_ns_per_m;
+                rt.lost_motion = model.lost_motion.map(|l| (l, l.at(alpha)));
                 rt.alpha_scale = sc.alpha;
                 rt.b_pr = rt.b_pr_at(alpha)?;
                 rt.inv_t_pr = 1.0 / emm.t_pr_s;

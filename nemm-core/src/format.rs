@@ -7,7 +7,8 @@
 //! +-------------------------------------------------------------------------+
 //! | body (body_len bytes): postcard-encoded Model (version-1 fields), then, |
 //! | from version 3 on, its condition, alpha branches and provenance, then,  |
-//! | from version 4 on, Option<StaticForce> and the tables section           |
+//! | from version 4 on, Option<StaticForce>, (from version 5 on)             |
+//! | Option<LostMotion>, and the tables section                              |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -24,9 +25,11 @@
 //! order; version 4 appends two sections after those: first [`Model::static_force`]
 //! (`Option<StaticForce>`), then the tables section: precomputed fast-path tables for
 //! declared oil-loss levels ([`tables`]; one byte, no levels, in a blob written by
-//! [`encode`]). A blob of an earlier version decodes with the fields it lacks at their
+//! [`encode`]); version 5 inserts [`Model::lost_motion`] (`Option<LostMotion>`) between
+//! those two. A blob of an earlier version decodes with the fields it lacks at their
 //! defaults ([`crate::Condition::default`], no branches, no provenance, no static force,
-//! no tables), which reproduces what those versions meant (the paper's oil loss).
+//! no lost motion, no tables), which reproduces what those versions meant (the paper's
+//! oil loss).
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -40,6 +43,7 @@
 pub mod tables;
 
 use crate::limits::MAX_TABLE_LEVELS;
+use crate::lost_motion::LostMotion;
 use crate::model::{AlphaBranches, Condition, Model, ModelError, ModelKind, Provenance};
 use crate::static_force::StaticForce;
 use crate::table::DEFAULT_TABLE_SEGMENTS;
@@ -54,7 +58,7 @@ use tables::{StoredTables, TableLevel};
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 4;
+pub const FORMAT_VERSION: u16 = 5;
 /// Oldest format version this build reads.
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
@@ -218,8 +222,8 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
 
 /// Writes (or counts) the body of `model`: the version-1 part, the version-3 fields
 /// (condition, alpha branches, provenance: postcard writes a tuple as it writes a struct of
-/// those fields), then the version-4 sections: the static force and the tables section of
-/// `levels`.
+/// those fields), then the version-4 sections: the static force, the lost-motion element
+/// (version 5) and the tables section of `levels`.
 fn write_body<const P: usize, const T: usize>(
     model: &Model<P>,
     levels: &[TableLevel<'_, T>],
@@ -230,6 +234,7 @@ fn write_body<const P: usize, const T: usize>(
     w.put(&(&model.condition, &model.alpha_branches, &model.provenance))
         .ok_or(too_small)?;
     w.put(&model.static_force).ok_or(too_small)?;
+    w.put(&model.lost_motion).ok_or(too_small)?;
     tables::write_section(model, levels, w)
 }
 
@@ -485,12 +490,25 @@ pub fn decode_into<const P: usize>(
         let rest = de.finalize().map_err(|_| DecodeError::Malformed {
             part: "static_force",
         })?;
+        // Version 5: the lost-motion element between the static force and the tables.
+        let rest = if header.version >= 5 {
+            let malformed = |_| DecodeError::Malformed {
+                part: "lost_motion",
+            };
+            let mut de = postcard::Deserializer::from_bytes(rest);
+            model.lost_motion = Option::<LostMotion>::deserialize(&mut de).map_err(malformed)?;
+            de.finalize().map_err(malformed)?
+        } else {
+            model.lost_motion = None;
+            rest
+        };
         let neural = tables::neural(model);
         tables
             .read(rest, covered, stored, neural)
             .ok_or(DecodeError::Malformed { part: "tables" })?
     } else {
         model.static_force = None;
+        model.lost_motion = None;
         rest
     };
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {

@@ -87,7 +87,7 @@ pub mod velocity;
 mod wire;
 
 // The arithmetic modules by their short names inside the crate.
-use semantics::{emm, integrator, math, mlp, sem, static_force, table};
+use semantics::{emm, integrator, lost_motion, math, mlp, sem, static_force, table};
 
 pub use error::{BranchError, ModelError, SemError, ShapeError, UnknownName};
 #[cfg(feature = "std")]
@@ -109,6 +109,7 @@ pub use model::{
 pub use observer::{AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags};
 pub use semantics::emm::EmmConstants;
 pub use semantics::integrator::Integrator;
+pub use semantics::lost_motion::LostMotion;
 pub use semantics::mlp::{
     param_count, AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY,
 };

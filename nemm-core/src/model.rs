@@ -31,6 +31,7 @@ pub use crate::limits::{
     MAX_CONDITION_NAME, MAX_CONDITION_UNIT, PROVENANCE_COMMAND_LEN, PROVENANCE_COMMIT_LEN,
     PROVENANCE_DATASET_LEN, SCALE_RANGE,
 };
+use crate::lost_motion::LostMotion;
 use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::sem::SemMap;
 use crate::static_force::StaticForce;
@@ -183,6 +184,11 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     /// paper's model). Refused on the SEM. Version 4; `None` in earlier blobs.
     #[serde(skip)]
     pub static_force: Option<StaticForce>,
+    /// The lost-motion element ([`crate::semantics::lost_motion`]): free gas in series with
+    /// `k_pr`, whose travel grows with `alpha`; `None`: the paper's `k_pr`. Refused on the
+    /// SEM. Version 5; `None` in earlier blobs.
+    #[serde(skip)]
+    pub lost_motion: Option<LostMotion>,
 }
 
 fn finite_positive(v: f32, field: &'static str) -> Result<(), ModelError> {
@@ -265,6 +271,7 @@ impl<const P: usize> Model<P> {
         },
         provenance: Provenance::empty(),
         static_force: None,
+        lost_motion: None,
     };
 
     /// A model of the paper's kind: the oil-loss condition with the paper's priors
@@ -287,6 +294,7 @@ impl<const P: usize> Model<P> {
             alpha_branches: AlphaBranches::default(),
             provenance: Provenance::empty(),
             static_force: None,
+            lost_motion: None,
         }
     }
 
@@ -424,6 +432,12 @@ impl<const P: usize> Model<P> {
         if self.static_force.is_some() && matches!(self.body, Body::Sem(_)) {
             return Err(ModelError::StaticForceOnSem);
         }
+        if let Some(l) = &self.lost_motion {
+            l.validate()?;
+            if matches!(self.body, Body::Sem(_)) {
+                return Err(ModelError::LostMotionOnSem);
+            }
+        }
         self.check_step(self.integrator, self.dt_s)
     }
 
@@ -457,7 +471,19 @@ impl<const P: usize> Model<P> {
         }
     }
 
-    /// `k_pr` \[N/m\] at `x_pr` \[m\] and `alpha` by the reference path.
+    /// The pressure pair's stiffness \[N/m\] at `x_pr` \[m\] and `alpha` by the reference
+    /// path: [`Model::k_pr`], through the lost-motion element's secant stiffness if the
+    /// model has one.
+    pub fn k_pr_eff(&self, x_pr_m: f32, alpha: f32) -> Option<f32> {
+        let k = self.k_pr(x_pr_m, alpha)?;
+        Some(match &self.lost_motion {
+            None => k,
+            Some(l) => l.at(alpha).k_eff(k, x_pr_m),
+        })
+    }
+
+    /// `k_pr` \[N/m\] at `x_pr` \[m\] and `alpha` by the reference path (the liquid
+    /// stiffness `k_l` of a model with a lost-motion element).
     pub fn k_pr(&self, x_pr_m: f32, alpha: f32) -> Option<f32> {
         match &self.body {
             Body::Sem(_) => None,

@@ -9,13 +9,14 @@
 //! model types.
 //!
 //! Layering (each module uses only those before it): [`math`] -> [`emm`], [`mlp`],
-//! [`integrator`], [`sem`], [`static_force`] -> [`table`] (tables of [`mlp`]'s compiled
+//! [`integrator`], [`sem`], [`static_force`], [`lost_motion`] -> [`table`] (tables of [`mlp`]'s compiled
 //! scalers). Above them, outside this module: [`crate::Model`], then the weight format
 //! ([`crate::format`]), then the [`crate::Estimator`]. The errors they share are in the
 //! lowest layer ([`crate::ModelError`] and the errors it carries).
 
 pub mod emm;
 pub mod integrator;
+pub mod lost_motion;
 pub mod math;
 pub mod mlp;
 pub mod sem;

@@ -127,7 +127,32 @@ pub fn example_model<const P: usize>(kind: ModelKind, hidden: u8, layers: u8) ->
         alpha_branches: AlphaBranches::default(),
         provenance: crate::Provenance::empty(),
         static_force: None,
+        lost_motion: None,
     })
+}
+
+/// An example lost-motion element: `f0` 1.5 kN, compression travel 3.4 mm growing by
+/// 30 mm per unit `alpha`, rebound travel 1.3 mm growing by 7.7 mm.
+pub const EXAMPLE_LOST_MOTION: crate::LostMotion = crate::LostMotion {
+    f0_n: 1500.0,
+    travel_c_m: 3.4e-3,
+    travel_c_per_alpha_m: 30e-3,
+    travel_r_m: 1.3e-3,
+    travel_r_per_alpha_m: 7.7e-3,
+};
+
+/// [`example_model`] with [`EXAMPLE_LOST_MOTION`] (`None` for the SEM, which refuses it).
+pub fn example_model_with_lost_motion<const P: usize>(
+    kind: ModelKind,
+    hidden: u8,
+    layers: u8,
+) -> Option<Model<P>> {
+    if kind == ModelKind::Sem {
+        return None;
+    }
+    let mut m = example_model(kind, hidden, layers)?;
+    m.lost_motion = Some(EXAMPLE_LOST_MOTION);
+    Some(m)
 }
 
 /// An example alpha branch: `units` units, `state_inputs` state inputs, pseudo-random

@@ -462,6 +462,85 @@ fn hot_path_matches_reference_model() {
     }
 }
 
+/// With the lost-motion element every EMM kind runs the reference semantics (exact mode, as
+/// [`hot_path_matches_reference_model`]); table mode stays within its error bound of exact
+/// mode; `set_alpha` moves the element's travel; the element deflects `x_pr` further on the
+/// compression side (the longer travel) and changes the force more at the higher level.
+#[cfg_attr(
+    debug_assertions,
+    ignore = "a minute in a debug build; runs with --release"
+)]
+#[test]
+fn lost_motion_runs_the_reference_semantics() {
+    use nemm_core::testing::example_model_with_lost_motion;
+    for kind in [ModelKind::LinearEmm, ModelKind::NemmLight, ModelKind::Nemm] {
+        let m: Model<P> = example_model_with_lost_motion(kind, 16, 5).unwrap();
+        let plain = example(kind);
+        let inputs = stroke(0.01, 0.524, 1.0, f64::from(m.dt_s));
+        let mut change = [0.0f32; 2];
+        for (i, alpha) in [0.0f32, 0.3].into_iter().enumerate() {
+            let cfg = EstimatorConfig::new(alpha);
+            let mut est = Estimator::new(&m, cfg).unwrap();
+            let got: Vec<f32> = run(&mut est, &inputs).iter().map(|e| e.force_n).collect();
+            let want = reference_run(&m, m.integrator, m.dt_s, alpha, &inputs);
+            let worst = got
+                .iter()
+                .zip(&want)
+                .fold(0.0f32, |w, (g, r)| w.max((g - r).abs()));
+            assert!(
+                worst <= 1e-5 * m.meta.force_scale_n,
+                "{kind:?} alpha {alpha}: {worst} N"
+            );
+            // set_alpha on an estimator loaded at another level: the same run.
+            let mut moved = Estimator::new(&m, EstimatorConfig::new(0.15)).unwrap();
+            moved.set_alpha(alpha).unwrap();
+            let again: Vec<f32> = run(&mut moved, &inputs).iter().map(|e| e.force_n).collect();
+            assert_eq!(again, got, "{kind:?} alpha {alpha}: set_alpha");
+            // Table mode within its bound (1e-3 of the coefficients) of exact mode.
+            if kind != ModelKind::LinearEmm {
+                let tcfg = EstimatorConfig {
+                    mode: nemm_core::EvalMode::Table(nemm_core::TableConfig::new(1e-4)),
+                    ..cfg
+                };
+                let mut table = Estimator::new(&m, tcfg).unwrap();
+                let tab: Vec<f32> = run(&mut table, &inputs).iter().map(|e| e.force_n).collect();
+                let worst = tab
+                    .iter()
+                    .zip(&got)
+                    .fold(0.0f32, |w, (g, r)| w.max((g - r).abs()));
+                assert!(
+                    worst <= 5e-3 * m.meta.force_scale_n,
+                    "{kind:?} alpha {alpha}: table {worst} N"
+                );
+            }
+            // Against the same model without the element: the force changes, and the
+            // deflection x_pr grows more on the compression side (the longer travel).
+            let mut base = Estimator::new(&plain, cfg).unwrap();
+            let mut with = Estimator::new(&m, cfg).unwrap();
+            let (mut lo, mut hi) = ([0.0f32; 2], [0.0f32; 2]);
+            let mut sq = 0.0f32;
+            let n = inputs.len();
+            for (k, &u) in inputs.iter().enumerate() {
+                let (a, b) = (with.step(u), base.step(u));
+                if k >= n / 2 {
+                    sq += (a.force_n - b.force_n).powi(2);
+                    for (j, e) in [&with, &base].into_iter().enumerate() {
+                        let x = e.state().x_pr_m;
+                        lo[j] = lo[j].min(x);
+                        hi[j] = hi[j].max(x);
+                    }
+                }
+            }
+            assert!(
+                lo[1] - lo[0] > hi[0] - hi[1],
+                "{kind:?} alpha {alpha}: x_pr {lo:?} {hi:?}"
+            );
+            change[i] = sq.sqrt();
+        }
+        assert!(change[1] > change[0], "{kind:?}: {change:?}");
+    }
+}
+
 /// The static force adds `r(x, u, alpha)` to the force of the same model without it, in
 /// exact and table mode, and leaves the states alone; `step` without a position and a
 /// non-finite position are flagged and hold the last good position; per-sample alpha works

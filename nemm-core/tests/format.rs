@@ -500,15 +500,15 @@ fn generator_covers_kinds_and_sizes() {
     assert!(largest > 5000, "{largest}");
 }
 
-/// Every earlier format version still loads: the version-1, -2 and -3 blobs in
-/// `tests/data/format-v1`, `format-v2` and `format-v3` (the example models of every kind as
+/// Every earlier format version still loads: the version-1 to -4 blobs in
+/// `tests/data/format-v1` ... `format-v4` (the example models of every kind as
 /// those encoders wrote them; a version-2 body is the version-1 body with an empty
 /// extension, the examples' version-3 extension is the default one) decode to the current
 /// example models with the default extension (the paper's oil loss, no alpha branches) and
 /// no stored tables, and re-encode as the current version.
 #[test]
-fn version_1_2_and_3_blobs_still_load() {
-    for version in [1u16, 2, 3] {
+fn version_1_to_4_blobs_still_load() {
+    for version in [1u16, 2, 3, 4] {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join(format!("tests/data/format-v{version}"));
         check_old_blobs(&dir, version);
@@ -664,6 +664,76 @@ fn static_force_decodes_in_place_with_the_version_3_fields() {
     .unwrap();
     nemm_core::decode_into(&v3, &mut into).unwrap();
     assert_eq!(into.static_force, None);
+    assert_eq!(
+        *into,
+        nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap()
+    );
+}
+
+/// The lost-motion element round-trips on every EMM kind, is refused on the SEM and with a
+/// bad value (field named), and a version-4 blob decoded in place into a model that held
+/// one leaves none.
+#[test]
+fn lost_motion_round_trips_and_is_validated() {
+    let lm = nemm_core::testing::EXAMPLE_LOST_MOTION;
+    for kind in KINDS {
+        let mut m: Model<64> = nemm_core::testing::example_model(kind, 2, 1).unwrap();
+        m.lost_motion = Some(lm);
+        if kind == ModelKind::Sem {
+            assert_eq!(m.validate(), Err(ModelError::LostMotionOnSem));
+            let blob = craft_blob(&m, |_| {});
+            assert_eq!(
+                decode::<64>(&blob),
+                Err(DecodeError::Invalid(ModelError::LostMotionOnSem))
+            );
+            continue;
+        }
+        m.static_force = Some(nemm_core::testing::EXAMPLE_STATIC_FORCE);
+        let blob = blob_of(&m);
+        let back = decode::<64>(&blob).unwrap();
+        assert_eq!(back.lost_motion, Some(lm), "{kind:?}");
+        assert_eq!(back, m);
+    }
+    let base: Model<64> = nemm_core::testing::example_model(ModelKind::Nemm, 2, 1).unwrap();
+    type Edit = fn(&mut nemm_core::LostMotion);
+    let cases: [(Edit, ModelError); 3] = [
+        (
+            |l| l.travel_c_m = f32::NAN,
+            ModelError::NonFinite {
+                field: "lost_motion",
+            },
+        ),
+        (
+            |l| l.f0_n = 0.0,
+            ModelError::NotPositive {
+                field: "lost_motion.f0_n",
+            },
+        ),
+        (
+            |l| l.travel_r_per_alpha_m = -1e-4,
+            ModelError::Negative {
+                field: "lost_motion",
+            },
+        ),
+    ];
+    for (edit, err) in cases {
+        let mut m = base.clone();
+        let mut l = lm;
+        edit(&mut l);
+        m.lost_motion = Some(l);
+        assert_eq!(encode(&m, &mut [0u8; 2048]), Err(EncodeError::Invalid(err)));
+        let blob = craft_blob(&m, |_| {});
+        assert_eq!(decode::<64>(&blob), Err(DecodeError::Invalid(err)));
+    }
+    let v4 = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/format-v4/example-nemm.nemm"),
+    )
+    .unwrap();
+    let mut into: Box<Model<1400>> = Box::new(Model::empty());
+    into.lost_motion = Some(lm);
+    nemm_core::decode_into(&v4, &mut into).unwrap();
+    assert_eq!(into.lost_motion, None);
     assert_eq!(
         *into,
         nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap()

@@ -50,7 +50,12 @@ fn blob_with(m: &Model<P>, alphas: &[f32]) -> Vec<u8> {
 
 /// The decoded model, its level tables and the blob.
 fn loaded(alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, Vec<u8>) {
-    let blob = blob_with(&model(), alphas);
+    loaded_of(&model(), alphas)
+}
+
+/// [`loaded`] for the model `of`.
+fn loaded_of(of: &Model<P>, alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, Vec<u8>) {
+    let blob = blob_with(of, alphas);
     let mut m: Box<Model<P>> = Box::new(Model::empty());
     let tables = decode_into(&blob, &mut m).expect("decodes");
     let mut levels: Box<Levels> = Box::new(LevelTables::empty());
@@ -74,19 +79,36 @@ fn at_a_stored_level_the_step_is_the_table_mode_estimators() {
     let (m, levels, blob) = loaded(&LEVELS);
     assert_eq!(levels.alphas(), &LEVELS);
     assert_eq!(levels.table_bytes(), (14, 14 * 28 * T));
+    stored_levels_step_as_table_mode(&m, &levels, &blob);
+}
+
+/// With the lost-motion element too: the level tables apply it at the level in use, as the
+/// table-mode estimator does.
+#[test]
+fn with_lost_motion_a_stored_level_step_is_the_table_mode_estimators() {
+    let mut m = model();
+    m.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
+    let (m, levels, blob) = loaded_of(&m, &LEVELS);
+    assert!(m.lost_motion.is_some());
+    stored_levels_step_as_table_mode(&m, &levels, &blob);
+}
+
+/// At levels 0, 3 and 6 of [`LEVELS`] a level-per-sample step is bit for bit the
+/// table-mode estimator's at that level.
+fn stored_levels_step_as_table_mode(m: &Model<P>, levels: &Levels, blob: &[u8]) {
     for k in [0, 3, 6] {
         let alpha = LEVELS[k];
         let mut mm: Box<Model<P>> = Box::new(Model::empty());
-        let tables = decode_into(&blob, &mut mm).unwrap();
+        let tables = decode_into(blob, &mut mm).unwrap();
         let mut reference: Box<Estimator<P, T>> = Box::new(Estimator::empty());
         reference
-            .load_with_tables(&mm, table_cfg(alpha), &tables, &blob)
+            .load_with_tables(&mm, table_cfg(alpha), &tables, blob)
             .unwrap();
-        let mut est = exact(&m, 0.15);
+        let mut est = exact(m, 0.15);
         for i in 0..3000 {
             let v = velocity(i, 0.6);
             let a = reference.step(v);
-            let b = est.step_on_levels(&levels, v, alpha).unwrap();
+            let b = est.step_on_levels(levels, v, alpha).unwrap();
             assert_eq!(
                 a.force_n.to_bits(),
                 b.force_n.to_bits(),

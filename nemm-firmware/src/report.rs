@@ -190,6 +190,7 @@ pub fn model_error(line: &mut Line, e: &ModelError) {
         ModelError::NotPositive { field } => line.ks("reason", "not-positive").ks("field", field),
         ModelError::Negative { field } => line.ks("reason", "negative").ks("field", field),
         ModelError::StaticForceOnSem => line.ks("reason", "static-force-on-sem"),
+        ModelError::LostMotionOnSem => line.ks("reason", "lost-motion-on-sem"),
         ModelError::OutOfRange { field } => line.ks("reason", "out-of-range").ks("field", field),
         ModelError::BadScalerBounds { scaler } => {
             line.ks("reason", "bad-scaler-bounds").ks("scaler", scaler)

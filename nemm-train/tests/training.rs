@@ -40,6 +40,7 @@ fn truth() -> Model {
         alpha_branches: Default::default(),
         provenance: Default::default(),
         static_force: None,
+        lost_motion: None,
     }
 }
 

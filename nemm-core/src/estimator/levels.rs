@@ -145,6 +145,8 @@ pub struct LevelTables<const T: usize, const L: usize> {
     fingerprint: (u32, u32),
     /// The constant `k_pr` of a model without a `k_pr` scaler (NEMM-Light) \[N/m\].
     k_pr_ini: f32,
+    /// The model's lost-motion element, evaluated at the level in use.
+    lost_motion: Option<LostMotion>,
     b_fl: [Table1D<T>; L],
     k_pr: [Table1D<T>; L],
 }
@@ -164,6 +166,7 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
             },
             fingerprint: (0, 0),
             k_pr_ini: 0.0,
+            lost_motion: None,
             b_fl: [const { Table1D::empty() }; L],
             k_pr: [const { Table1D::empty() }; L],
         }
@@ -265,6 +268,7 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
         self.config = config;
         self.fingerprint = (emm.b_pr_ns_per_m.to_bits(), (1.0 / emm.t_pr_s).to_bits());
         self.k_pr_ini = emm.k_pr_n_per_m;
+        self.lost_motion = model.lost_motion;
         self.count = found;
         Ok(())
     }
@@ -331,23 +335,32 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
         Some((above - 1, w, false))
     }
 
+    /// The lost-motion element (if the model has one) at level `alpha`.
+    fn lost_motion_at(&self, alpha: f32) -> Option<LostMotionAt> {
+        self.lost_motion.map(|l| l.at(alpha))
+    }
+
     /// The coefficients at state `s` at level `alpha` (the blend of the module docs;
     /// `alpha` outside the levels takes the nearest). `None` when empty.
     pub fn coefficients(&self, s: &State, alpha: f32) -> Option<Coefficients> {
         let (i, w, _) = self.bracket(alpha)?;
         let b_fl = self.blend(&self.b_fl, 0, i, w)?;
         let b_pr = self.blend_b_pr(i, w)?;
+        let lm = self.lost_motion_at(alpha);
+        let lost_motion = lm.as_ref();
         Some(match self.neural.1 {
             true => CoefStage {
                 b_fl,
                 k_pr: self.blend(&self.k_pr, 2, i, w)?,
                 b_pr,
+                lost_motion,
             }
             .coeffs(s),
             false => CoefStage {
                 b_fl,
                 k_pr: self.k_pr_ini,
                 b_pr,
+                lost_motion,
             }
             .coeffs(s),
         })
@@ -360,17 +373,21 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
             return None;
         }
         let (b_fl, b_pr) = (self.b_fl.get(k)?, *self.b_pr.get(k)?);
+        let lm = self.lost_motion_at(*self.alpha.get(k)?);
+        let lost_motion = lm.as_ref();
         Some(match self.neural.1 {
             true => CoefStage {
                 b_fl,
                 k_pr: self.k_pr.get(k)?,
                 b_pr,
+                lost_motion,
             }
             .coeffs(s),
             false => CoefStage {
                 b_fl,
                 k_pr: self.k_pr_ini,
                 b_pr,
+                lost_motion,
             }
             .coeffs(s),
         })
@@ -530,13 +547,25 @@ impl<const P: usize, const T0: usize> Estimator<P, T0> {
         self.levels_alpha = Some(alpha);
         let b_fl = levels.blend(&levels.b_fl, 0, i, w).ok_or(mismatch)?;
         let at = (position_m, alpha, extrapolated, fresh);
+        let lm = levels.lost_motion_at(alpha);
+        let lost_motion = lm.as_ref();
         Ok(if levels.neural.1 {
             let k_pr = levels.blend(&levels.k_pr, 2, i, w).ok_or(mismatch)?;
-            let mut stage = CoefStage { b_fl, k_pr, b_pr };
+            let mut stage = CoefStage {
+                b_fl,
+                k_pr,
+                b_pr,
+                lost_motion,
+            };
             self.stage_step(&mut stage, levels, velocity_m_s, at)
         } else {
             let k_pr = levels.k_pr_ini;
-            let mut stage = CoefStage { b_fl, k_pr, b_pr };
+            let mut stage = CoefStage {
+                b_fl,
+                k_pr,
+                b_pr,
+                lost_motion,
+            };
             self.stage_step(&mut stage, levels, velocity_m_s, at)
         })
     }
@@ -561,13 +590,25 @@ impl<const P: usize, const T0: usize> Estimator<P, T0> {
         let (lo, hi) = self.alpha_range;
         let at = (position_m, m.alpha, !(lo..=hi).contains(&m.alpha), false);
         self.load_member(m);
+        let lm = levels.lost_motion_at(m.alpha);
+        let lost_motion = lm.as_ref();
         let e = if levels.neural.1 {
             let k_pr = levels.k_pr.get(k)?;
-            let mut stage = CoefStage { b_fl, k_pr, b_pr };
+            let mut stage = CoefStage {
+                b_fl,
+                k_pr,
+                b_pr,
+                lost_motion,
+            };
             self.stage_step(&mut stage, levels, velocity_m_s, at)
         } else {
             let k_pr = levels.k_pr_ini;
-            let mut stage = CoefStage { b_fl, k_pr, b_pr };
+            let mut stage = CoefStage {
+                b_fl,
+                k_pr,
+                b_pr,
+                lost_motion,
+            };
             self.stage_step(&mut stage, levels, velocity_m_s, at)
         };
         self.store_member(m);

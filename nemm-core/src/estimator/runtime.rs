@@ -160,20 +160,31 @@ impl<const P: usize> StateCoef for &CompiledScaler<P> {
 
 /// The coefficients at an RK stage from `b_fl(v_st)`, `k_pr(x_pr)` and the constant `b_pr`,
 /// monomorphised per source so that every stage is inlined (the domain flag of table mode
-/// is raised for the new state only, by the caller).
-pub(super) struct CoefStage<B, K> {
+/// is raised for the new state only, by the caller); `k_pr` passes through the lost-motion
+/// element at the current level if the model has one.
+pub(super) struct CoefStage<'l, B, K> {
     pub(super) b_fl: B,
     pub(super) k_pr: K,
     pub(super) b_pr: f32,
+    pub(super) lost_motion: Option<&'l LostMotionAt>,
 }
 
-impl<B: StateCoef, K: StateCoef> Stage for CoefStage<B, K> {
+/// `k_pr` at `x_pr` through the lost-motion element `lm`, if any.
+#[inline(always)]
+pub(super) fn k_pr_eff(k_pr: f32, x_pr: f32, lm: Option<&LostMotionAt>) -> f32 {
+    match lm {
+        None => k_pr,
+        Some(a) => a.k_eff(k_pr, x_pr),
+    }
+}
+
+impl<B: StateCoef, K: StateCoef> Stage for CoefStage<'_, B, K> {
     #[inline(always)]
     fn coeffs(&mut self, s: &State) -> Coefficients {
         Coefficients {
             b_fl: self.b_fl.at(s.v_st_m_s),
             b_pr: self.b_pr,
-            k_pr: self.k_pr.at(s.x_pr_m),
+            k_pr: k_pr_eff(self.k_pr.at(s.x_pr_m), s.x_pr_m, self.lost_motion),
         }
     }
 }
@@ -213,6 +224,8 @@ pub(super) struct EmmRuntime<const P: usize, const T: usize> {
     /// The `b_pr(alpha)` scaler and its alpha branch, kept for `set_alpha`.
     pub(super) b_pr_scaler: Scaler<P>,
     pub(super) b_pr_branch: Option<AlphaBranch>,
+    /// The model's lost-motion element and its value at the current level.
+    pub(super) lost_motion: Option<(LostMotion, LostMotionAt)>,
 }
 
 impl<const P: usize, const T: usize> EmmRuntime<P, T> {
@@ -236,6 +249,20 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             alpha_scale: 0.0,
             b_pr_scaler: Scaler::empty(),
             b_pr_branch: None,
+            lost_motion: None,
+        }
+    }
+
+    /// The lost-motion element at the current level, if the model has one.
+    #[inline(always)]
+    pub(super) fn lost_motion_at(&self) -> Option<&LostMotionAt> {
+        self.lost_motion.as_ref().map(|(_, a)| a)
+    }
+
+    /// Moves the lost-motion element (if any) to level `alpha`.
+    fn lost_motion_to(&mut self, alpha: f32) {
+        if let Some((l, a)) = &mut self.lost_motion {
+            *a = l.at(alpha);
         }
     }
 
@@ -259,7 +286,11 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         Coefficients {
             b_fl: self.b_fl.eval(s.v_st_m_s, out),
             b_pr: self.b_pr,
-            k_pr: self.k_pr.eval(s.x_pr_m, out),
+            k_pr: k_pr_eff(
+                self.k_pr.eval(s.x_pr_m, out),
+                s.x_pr_m,
+                self.lost_motion_at(),
+            ),
         }
     }
 
@@ -305,6 +336,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         out: &mut bool,
     ) -> (State, Coefficients, f32) {
         let b_pr = self.b_pr;
+        let lost_motion = self.lost_motion_at();
         match (self.b_fl.kind, self.k_pr.kind) {
             (CoefKind::Table, CoefKind::Table) => {
                 let (tb, tk) = (&self.b_fl.table, &self.k_pr.table);
@@ -312,6 +344,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
                     b_fl: tb,
                     k_pr: tk,
                     b_pr,
+                    lost_motion,
                 };
                 let r = self.run::<Unfused, _>(&mut stage, x0, c0, u0, u1);
                 *out = !(tb.contains(r.0.v_st_m_s) && tk.contains(r.0.x_pr_m));
@@ -323,6 +356,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
                     b_fl: tb,
                     k_pr: self.k_pr.value,
                     b_pr,
+                    lost_motion,
                 };
                 let r = self.run::<Unfused, _>(&mut stage, x0, c0, u0, u1);
                 *out = !tb.contains(r.0.v_st_m_s);
@@ -334,6 +368,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
                     b_fl: &self.b_fl.exact,
                     k_pr: &self.k_pr.exact,
                     b_pr,
+                    lost_motion,
                 };
                 self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
             }
@@ -342,6 +377,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
                     b_fl: &self.b_fl.exact,
                     k_pr: self.k_pr.value,
                     b_pr,
+                    lost_motion,
                 };
                 self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
             }
@@ -351,6 +387,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
                     b_fl: self.b_fl.value,
                     k_pr: self.k_pr.value,
                     b_pr,
+                    lost_motion,
                 };
                 self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
             }
@@ -373,6 +410,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             }
         }
         self.b_pr = b_pr;
+        self.lost_motion_to(alpha);
     }
 
     /// Re-folds `alpha` into the neural coefficients and `b_pr`; in table mode rebuilds and
@@ -388,6 +426,7 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
             return Err(e);
         }
         self.b_pr = b_pr;
+        self.lost_motion_to(alpha);
         Ok(())
     }
 

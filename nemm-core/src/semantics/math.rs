@@ -287,6 +287,44 @@ impl Lane for f32 {
     }
 }
 
+/// `f64` as one lane: the reference arithmetic of tests and tools.
+#[cfg(any(test, feature = "semantics"))]
+impl Lane for f64 {
+    type Scalar = f64;
+    #[inline(always)]
+    fn splat(v: f64) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn fma(a: Self, b: Self, c: Self) -> Self {
+        libm::fma(a, b, c)
+    }
+    #[inline(always)]
+    fn exp(x: Self) -> Self {
+        libm::exp(x)
+    }
+    #[inline(always)]
+    fn sqrt(x: Self) -> Self {
+        libm::sqrt(x)
+    }
+    #[inline(always)]
+    fn rsqrt(x: Self) -> Self {
+        1.0 / libm::sqrt(x)
+    }
+    #[inline(always)]
+    fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {
+        if test >= 0.0 {
+            if_nonneg
+        } else {
+            otherwise
+        }
+    }
+    #[inline(always)]
+    fn sum(x: Self) -> f64 {
+        x
+    }
+}
+
 #[cfg(feature = "reverse")]
 mod lanes;
 #[cfg(feature = "reverse")]

@@ -87,6 +87,10 @@ pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) 
     body.extend_from_slice(
         postcard::to_slice(&m.static_force, &mut ext).expect("static force serialises"),
     );
+    // Version 5's lost-motion element.
+    body.extend_from_slice(
+        postcard::to_slice(&m.lost_motion, &mut ext).expect("lost motion serialises"),
+    );
     // Version 4's tables section, without levels.
     body.push(0);
     let mut header = Header {
@@ -232,6 +236,7 @@ impl ModelSpec {
             alpha_branches: Default::default(),
             provenance: Default::default(),
             static_force: None,
+            lost_motion: None,
         };
         if let Some(tau) = m.fastest_time_constant_s() {
             let max_dt = STABILITY_MARGIN * self.integrator.stability_limit() * tau;
@@ -366,12 +371,13 @@ pub fn example(kind: ModelKind) -> Model<P> {
     nemm_core::testing::example_model(kind, 16, 5).expect("example model")
 }
 
-/// Coefficients by the reference (unfolded) path of [`Model`].
+/// Coefficients by the reference (unfolded) path of [`Model`] (`k_pr` through the
+/// lost-motion element if the model has one).
 pub fn reference_coeffs<const Q: usize>(m: &Model<Q>, s: &State, alpha: f32) -> Coefficients {
     Coefficients {
         b_fl: m.b_fl(s.v_st_m_s, alpha).unwrap(),
         b_pr: m.b_pr(alpha).unwrap(),
-        k_pr: m.k_pr(s.x_pr_m, alpha).unwrap(),
+        k_pr: m.k_pr_eff(s.x_pr_m, alpha).unwrap(),
     }
 }
 

@@ -52,6 +52,20 @@ pub struct ConfigArgs {
          seal friction) to every EMM-family variant: --static-force or --static-force=false",
         "from the data: on when most runs hold a force offset at zero velocity"))]
     pub static_force: Option<bool>,
+    /// Overrides [`ModelConfig::lost_motion`].
+    #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL",
+        help = with_default(
+        "Add the lost-motion element (gas in series with k_pr; its travel per stroke side \
+         grows with alpha) to every EMM-family variant: --lost-motion or --lost-motion=false",
+        false))]
+    pub lost_motion: Option<bool>,
+    /// Overrides [`ModelConfig::b_fl_alpha`].
+    #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL",
+        help = with_default(
+        "Whether the flow damping b_fl depends on alpha (the paper's b_fl(v_st, alpha)); \
+         --b-fl-alpha=false: one b_fl(v_st) for every level",
+        true))]
+    pub b_fl_alpha: Option<bool>,
     /// Overrides [`TrainConfig::batch`].
     #[arg(long, help = with_default(
         "Windows per batch (Table 3: 4, 8, 16)", TrainConfig::default().batch))]
@@ -161,6 +175,8 @@ impl ConfigArgs {
         if self.static_force.is_some() {
             m.static_force = self.static_force;
         }
+        set(&mut m.lost_motion, &self.lost_motion);
+        set(&mut m.b_fl_alpha, &self.b_fl_alpha);
         set(&mut t.seed, &self.data_options.seed);
         set(&mut t.batch, &self.batch);
         set(&mut t.lr, &self.lr);

@@ -122,6 +122,21 @@ pub struct ModelConfig {
     /// force offset at zero velocity ([`Config::with_static_force_from`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub static_force: Option<bool>,
+    /// Adds the lost-motion element (free gas in series with `k_pr`, whose travel per
+    /// stroke side grows with alpha, `nemm_core::semantics::lost_motion`) to every
+    /// EMM-family variant (docs/training.md, "The lost-motion element"). Off by default:
+    /// the paper's model.
+    #[serde(default)]
+    pub lost_motion: bool,
+    /// Whether the flow damping depends on alpha (the paper's `b_fl(v_st, alpha)`, the
+    /// default); `false`: one `b_fl(v_st)` for every level, so that the pressure elements
+    /// must form the degradation (docs/training.md, "The lost-motion element").
+    #[serde(default = "default_true")]
+    pub b_fl_alpha: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 impl Default for ModelConfig {
@@ -137,6 +152,8 @@ impl Default for ModelConfig {
             alpha_priors: AlphaPriors::Construction,
             branch_units: 16,
             static_force: None,
+            lost_motion: false,
+            b_fl_alpha: true,
         }
     }
 }
@@ -438,6 +455,8 @@ impl Config {
             alpha_priors: m.alpha_priors,
             branch_units: m.branch_units,
             static_force: m.static_force.unwrap_or(DEFAULT_STATIC_FORCE),
+            lost_motion: m.lost_motion,
+            b_fl_alpha: m.b_fl_alpha,
         }
     }
 }

@@ -14,6 +14,7 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
     describe_body(&mut s, model);
     describe_condition(&mut s, model);
     describe_static_force(&mut s, model);
+    describe_lost_motion(&mut s, model);
     describe_provenance(&mut s, model);
     describe_tables(&mut s, tables);
     if let Some(tau) = model.fastest_time_constant_s() {
@@ -139,6 +140,34 @@ fn describe_condition(s: &mut String, model: &Model) {
     }
 }
 
+/// The lost-motion element, if the model has one: its parameters and the travels at the
+/// training levels.
+fn describe_lost_motion(s: &mut String, model: &Model) {
+    let Some(l) = &model.lost_motion else {
+        let _ = writeln!(s, "lost motion:     none");
+        return;
+    };
+    let _ = writeln!(
+        s,
+        "lost motion:     f0 {} N; compression travel {} mm + {} mm x alpha, rebound travel {} \
+         mm + {} mm x alpha",
+        l.f0_n,
+        1e3 * l.travel_c_m,
+        1e3 * l.travel_c_per_alpha_m,
+        1e3 * l.travel_r_m,
+        1e3 * l.travel_r_per_alpha_m
+    );
+    for a in [model.meta.alpha_min, model.meta.alpha_max] {
+        let at = l.at(a);
+        let _ = writeln!(
+            s,
+            "                 at alpha {a}: compression {:.2} mm, rebound {:.2} mm",
+            1e3 * at.travel_c_m,
+            1e3 * at.travel_r_m
+        );
+    }
+}
+
 /// The static force of eq. 17, if the model has one.
 fn describe_static_force(s: &mut String, model: &Model) {
     match &model.static_force {
@@ -228,6 +257,22 @@ pub fn run(path: &Path) -> Result<()> {
 mod tests {
     use super::describe;
     use nemm_core::{Model, ModelKind, StoredTables};
+
+    #[test]
+    fn the_lost_motion_is_described() {
+        let mut m: Model = nemm_core::testing::example_model(ModelKind::Nemm, 4, 2).unwrap();
+        let none = StoredTables::EMPTY;
+        assert!(describe(&m, &none, 0).contains("lost motion:     none"));
+        m.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
+        let text = describe(&m, &none, 0);
+        let l = nemm_core::testing::EXAMPLE_LOST_MOTION;
+        assert!(text.contains(&format!("f0 {} N", l.f0_n)), "{text}");
+        let top = l.at(m.meta.alpha_max);
+        assert!(
+            text.contains(&format!("compression {:.2} mm", 1e3 * top.travel_c_m)),
+            "{text}"
+        );
+    }
 
     #[test]
     fn the_static_force_is_described() {

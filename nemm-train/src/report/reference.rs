@@ -52,7 +52,9 @@ pub struct ReferenceComparison {
 /// Compares the NEMM `model` with `reference` between alpha = 0 and the model's largest
 /// training level (clamped to the reference's range): `k_pr(x_pr = 0)` with the compression,
 /// rebound and combined chamber stiffness and the describing-function `k_pr`, `b_pr` with the
-/// describing-function `b_pr`, `b_fl(v)` with the quasi-static `b_fl(v)` at
+/// describing-function `b_pr` (with a lost-motion element also the stiffness through it at
+/// the start of the compression and the rebound side against those chambers' stiffness),
+/// `b_fl(v)` with the quasi-static `b_fl(v)` at
 /// [`COMPARED_VELOCITIES_M_S`]. Rows whose learned coefficient the model does not have are
 /// left out.
 pub fn compare(model: &Model, reference: &EmmReference) -> ReferenceComparison {
@@ -87,6 +89,25 @@ pub fn compare(model: &Model, reference: &EmmReference) -> ReferenceComparison {
         Coefficient::KPrDescribing,
     ] {
         push("k_pr(x_pr = 0)".into(), &|a| model.k_pr(0.0, a), c);
+    }
+    if model.lost_motion.is_some() {
+        // The pressure pair's stiffness through the lost-motion element at the start of
+        // each side (the secant at x_pr -> 0: k_l f0 / (f0 + d k_l)).
+        let side = 1e-9f32;
+        for (learned, x, c) in [
+            (
+                "k_pr,eff(x_pr -> 0-), lost motion",
+                -side,
+                Coefficient::KPrCompression,
+            ),
+            (
+                "k_pr,eff(x_pr -> 0+), lost motion",
+                side,
+                Coefficient::KPrRebound,
+            ),
+        ] {
+            push(learned.into(), &|a| model.k_pr_eff(x, a), c);
+        }
     }
     push(
         "b_pr".into(),

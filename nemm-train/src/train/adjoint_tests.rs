@@ -108,6 +108,7 @@ fn flat(g: &RolloutGrads<f64>) -> Vec<(String, f64)> {
         ("b_pr", &g.b_pr),
         ("k_pr", &g.k_pr),
         ("static", &g.static_force),
+        ("lost_motion", &g.lost_motion),
     ] {
         v.extend(
             w.iter()
@@ -147,8 +148,16 @@ fn perturb(p: &RolloutParams<f64>, idx: usize, delta: f64) -> (RolloutParams<f64
         return (q, delta);
     }
     if let Some(sf) = q.static_force.as_mut() {
-        let h = delta * sf.theta[i].abs().max(1.0);
-        sf.theta[i] += h;
+        if i < sf.theta.len() {
+            let h = delta * sf.theta[i].abs().max(1.0);
+            sf.theta[i] += h;
+            return (q, h);
+        }
+        i -= sf.theta.len();
+    }
+    if let Some(l) = q.lost_motion.as_mut() {
+        let h = delta * l[i].abs();
+        l[i] += h;
         return (q, h);
     }
     (q, delta)
@@ -335,6 +344,76 @@ fn adjoint_is_exact_with_alpha_branches() {
     check_fd_model(&with_static(m), "branched NEMM", 2.5, true);
 }
 
+/// The example model of `kind` (H = 4, L = 2) with the example lost-motion element.
+fn with_lost_motion(kind: ModelKind) -> Model {
+    nemm_core::testing::example_model_with_lost_motion(kind, 4, 2).expect("example model")
+}
+
+/// The lost-motion element's five parameters and every other parameter through it get their
+/// exact gradients: each EMM kind, a level changing within the windows (the travels follow
+/// the level), a coarser data grid, a static force.
+#[test]
+fn adjoint_is_exact_with_lost_motion() {
+    check_fd_model(
+        &with_lost_motion(ModelKind::LinearEmm),
+        "Linear EMM + lost motion",
+        1.0,
+        false,
+    );
+    check_fd_model(
+        &with_lost_motion(ModelKind::NemmLight),
+        "NEMM-Light + lost motion",
+        1.0,
+        true,
+    );
+    check_fd_model(
+        &with_lost_motion(ModelKind::Nemm),
+        "NEMM + lost motion",
+        3.3,
+        true,
+    );
+    let mut m = with_static(with_lost_motion(ModelKind::Nemm));
+    m.integrator = Integrator::Rk3;
+    check_fd_model(&m, "NEMM + lost motion + static", 2.5, true);
+}
+
+/// With the lost-motion element the trainer's rollout is nemm-core's estimator (parity as
+/// [`rollout_matches_core_estimator`]), at two levels.
+#[test]
+fn rollout_matches_core_estimator_with_lost_motion() {
+    for kind in [ModelKind::LinearEmm, ModelKind::NemmLight, ModelKind::Nemm] {
+        let m = nemm_core::testing::example_model_with_lost_motion(kind, 16, 5).expect("model");
+        let p: RolloutParams<f32> = from_core(&m).expect("emm model");
+        let n = 20_000;
+        let u = signal(n, 1e-4, 0.8, 8.3, 0.3);
+        let f = vec![0.0f32; n];
+        for alpha in [0.0f32, 0.3] {
+            let ys = simulate(
+                &p,
+                &[Window {
+                    u: &u,
+                    f: &f,
+                    alpha,
+                    alphas: None,
+                    x: None,
+                }],
+                &Grid::SAME,
+            );
+            let mut est = Estimator::new(&m, EstimatorConfig::new(alpha)).expect("estimator");
+            let mut worst = 0.0f64;
+            for (i, &ui) in u.iter().enumerate() {
+                let e = est.step(ui);
+                worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
+            }
+            let rel = worst / m.meta.force_scale_n as f64;
+            assert!(
+                rel < 1e-5,
+                "{kind:?} alpha {alpha}: max |diff| = {worst} N ({rel:e})"
+            );
+        }
+    }
+}
+
 #[test]
 fn grid_maps_samples_and_steps() {
     let same = Grid::new(1e-4, 1e-4);
@@ -494,5 +573,6 @@ fn convert_grads(g: &RolloutGrads<f32>) -> RolloutGrads<f64> {
         b_pr: v(&g.b_pr),
         k_pr: v(&g.k_pr),
         static_force: v(&g.static_force),
+        lost_motion: v(&g.lost_motion),
     }
 }

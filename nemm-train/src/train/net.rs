@@ -19,6 +19,7 @@ use burn::nn::{LayerNorm, LayerNormConfig, LeakyRelu, Linear};
 use burn::optim::GradientsParams;
 use burn::tensor::activation::{leaky_relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
+use nemm_core::semantics::lost_motion::LOST_MOTION_PARAMS;
 use nemm_core::semantics::mlp::LEAKY_RELU_SLOPE;
 use nemm_core::semantics::static_force::STATIC_PARAMS;
 use nemm_core::Priors;
@@ -324,6 +325,10 @@ pub struct EmmNet {
     /// each divided by its unit ([`StaticFrame::units`]); the last, `F_c`, enters as its
     /// absolute value, so that `F_c >= 0`.
     pub static_force: Option<Param<Tensor<1>>>,
+    /// The lost-motion element's parameters (order of `nemm_core::LostMotion::params`),
+    /// stored as `ln(v) / LOG_CONSTANT_SCALE` (SI units inside the log) like the constants:
+    /// every value stays positive, so the travels grow with alpha by construction.
+    pub lost_motion: Option<Param<Tensor<1>>>,
 }
 
 /// What is fixed during training: integration, normalisation, scaler shapes and bounds.
@@ -404,6 +409,10 @@ impl EmmNet {
             k_pr: p.k_pr.as_ref().map(|s| ScalerNet::from_flat(s, device)),
             static_force: p.static_force.as_ref().map(|s| {
                 let t: Vec<f32> = (0..STATIC_PARAMS).map(|q| s.theta[q] / units[q]).collect();
+                Param::from_tensor(tensor1(&t, device))
+            }),
+            lost_motion: p.lost_motion.as_ref().map(|l| {
+                let t: Vec<f32> = l.iter().map(|v| v.ln() / LOG_CONSTANT_SCALE).collect();
                 Param::from_tensor(tensor1(&t, device))
             }),
         };
@@ -497,7 +506,18 @@ impl EmmNet {
                         v_c: sf.v_c,
                     }
                 }),
+            lost_motion: self.lost_motion_params(),
         }
+    }
+
+    /// The lost-motion element's parameters in SI units, if the model has one.
+    pub fn lost_motion_params(&self) -> Option<[f32; LOST_MOTION_PARAMS]> {
+        self.lost_motion.as_ref().map(|t| {
+            let v = to_vec(t.val());
+            std::array::from_fn(|q| {
+                (v.get(q).copied().unwrap_or(f32::NAN) * LOG_CONSTANT_SCALE).exp()
+            })
+        })
     }
 
     /// Adds the rollout gradient (`dL/dc` for the constants, chain-ruled to the stored
@@ -552,6 +572,22 @@ impl EmmNet {
                     let sign = if negative { -1.0 } else { 1.0 };
                     sf[q] * fr.units[q] * sign
                 })
+                .collect();
+            let d = tensor1(&d, &dev);
+            let d = match gp.remove::<1>(t.id) {
+                Some(old) => old + d,
+                None => d,
+            };
+            gp.register(t.id, d);
+        }
+        if let (Some(t), Some(v), Some(gl)) = (
+            &self.lost_motion,
+            self.lost_motion_params(),
+            g.lost_motion.get(..LOST_MOTION_PARAMS),
+        ) {
+            // v = exp(LOG_CONSTANT_SCALE raw): dL/draw = LOG_CONSTANT_SCALE v dL/dv.
+            let d: Vec<f32> = (0..LOST_MOTION_PARAMS)
+                .map(|q| LOG_CONSTANT_SCALE * v[q] * gl[q])
                 .collect();
             let d = tensor1(&d, &dev);
             let d = match gp.remove::<1>(t.id) {

@@ -187,6 +187,7 @@ fn flat_grads(net: &EmmNet, gp: &GradientsParams) -> RolloutGrads<f32> {
         b_pr: scaler(&net.b_pr),
         k_pr: scaler(&net.k_pr),
         static_force: Vec::new(),
+        lost_motion: Vec::new(),
     }
 }
 

@@ -7,8 +7,8 @@ use anyhow::{bail, Result};
 use nemm_core::semantics::emm::EmmConstants;
 use nemm_core::semantics::mlp::AlphaBranch;
 use nemm_core::{
-    AlphaBranches, Body, Condition, InputScales, Meta, MlpParams, Model, Scaler, StaticForce,
-    DEFAULT_PARAM_CAPACITY,
+    AlphaBranches, Body, Condition, InputScales, LostMotion, Meta, MlpParams, Model, Scaler,
+    StaticForce, DEFAULT_PARAM_CAPACITY,
 };
 
 fn scaler_from_core<T: Real>(
@@ -103,6 +103,7 @@ pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
             x_ref: c(s.x_ref_m),
             v_c: c(s.v_c_m_s),
         }),
+        lost_motion: m.lost_motion.map(|l| l.params().map(c)),
     })
 }
 
@@ -180,6 +181,7 @@ pub fn to_core_with<T: Real>(
             f_c_n: f(s.theta[4]),
             v_c_m_s: f(s.v_c),
         }),
+        lost_motion: p.lost_motion.map(|l| LostMotion::from_params(l.map(f))),
     };
     model
         .validate()
@@ -220,5 +222,6 @@ pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
             x_ref: c(s.x_ref),
             v_c: c(s.v_c),
         }),
+        lost_motion: p.lost_motion.map(|l| l.map(c)),
     }
 }

@@ -157,6 +157,7 @@ mod tests {
             k_pr: None,
             priors: Default::default(),
             static_force: None,
+            lost_motion: None,
         }
     }
 

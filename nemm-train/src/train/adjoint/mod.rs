@@ -50,6 +50,7 @@
 
 use nemm_core::semantics::emm::{self, Coefficients, State};
 use nemm_core::semantics::integrator::{self, Stage, StageBackward, StepSize};
+use nemm_core::semantics::lost_motion::{LostMotionAt, LOST_MOTION_PARAMS};
 use nemm_core::semantics::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
 use nemm_core::semantics::mlp::{self, Direction};
 use nemm_core::semantics::static_force::{self, STATIC_PARAMS};

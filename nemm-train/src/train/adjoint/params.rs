@@ -118,6 +118,11 @@ pub struct RolloutParams<T> {
     /// The static force `r` of eq. 17 (`nemm_core::semantics::static_force`), if the model has one.
     #[serde(default)]
     pub static_force: Option<StaticParams<T>>,
+    /// The lost-motion element (`nemm_core::semantics::lost_motion`), if the model has one:
+    /// `[f0, d_c,0, d_c,alpha, d_r,0, d_r,alpha]` (N, m, m, m, m), the order of
+    /// `nemm_core::LostMotion::params`.
+    #[serde(default)]
+    pub lost_motion: Option<[T; LOST_MOTION_PARAMS]>,
 }
 
 /// The static force of a rollout: `r = theta . features(x_ref, v_c, x, u, alpha)`
@@ -152,6 +157,8 @@ pub struct RolloutGrads<T> {
     pub k_pr: Vec<T>,
     /// dL / d [`StaticParams::theta`], empty without a static force.
     pub static_force: Vec<T>,
+    /// dL / d [`RolloutParams::lost_motion`], empty without the element.
+    pub lost_motion: Vec<T>,
 }
 
 impl<T: Real> RolloutGrads<T> {
@@ -171,6 +178,9 @@ impl<T: Real> RolloutGrads<T> {
             static_force: p
                 .static_force
                 .map_or(Vec::new(), |_| vec![T::zero(); STATIC_PARAMS]),
+            lost_motion: p
+                .lost_motion
+                .map_or(Vec::new(), |_| vec![T::zero(); LOST_MOTION_PARAMS]),
         }
     }
 
@@ -184,6 +194,7 @@ impl<T: Real> RolloutGrads<T> {
             (&mut self.b_pr, &o.b_pr),
             (&mut self.k_pr, &o.k_pr),
             (&mut self.static_force, &o.static_force),
+            (&mut self.lost_motion, &o.lost_motion),
         ] {
             for (x, &y) in a.iter_mut().zip(b) {
                 *x += y;
@@ -202,6 +213,7 @@ impl<T: Real> RolloutGrads<T> {
             &mut self.b_pr,
             &mut self.k_pr,
             &mut self.static_force,
+            &mut self.lost_motion,
         ] {
             for x in v.iter_mut() {
                 *x = *x * f;

@@ -154,6 +154,18 @@ pub struct PipelineConfig {
     pub branch_units: usize,
     /// Adds the static force of eq. 17 to every EMM-family variant.
     pub static_force: bool,
+    /// Adds the lost-motion element to every EMM-family variant.
+    #[serde(default)]
+    pub lost_motion: bool,
+    /// Whether `b_fl` depends on alpha (the paper's `b_fl(v_st, alpha)`); `false`: the
+    /// flow damping is the same at every level, so the pressure elements must form the
+    /// degradation.
+    #[serde(default = "yes")]
+    pub b_fl_alpha: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// The defaults are [`crate::config::Config`]'s.

@@ -185,6 +185,7 @@ pub(super) fn train_sem(
         alpha_branches: Default::default(),
         provenance: Default::default(),
         static_force: None,
+        lost_motion: None,
     };
     model
         .validate()

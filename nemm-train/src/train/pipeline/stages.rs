@@ -42,6 +42,7 @@ fn qs_regression(
             b_pr: None,
             k_pr: None,
             static_force: None,
+            lost_motion: None,
             ..p.clone()
         },
         None,
@@ -203,6 +204,9 @@ impl<'a> Stages<'a> {
             k_pr: None,
             priors: prepared.condition.priors,
             static_force: None,
+            lost_motion: cfg
+                .lost_motion
+                .then(|| initial_lost_motion(force_scale as f32, k0)),
         };
         let (train_w, grid) = (&self.train_windows, &self.grid);
         if let Some(setup) = &self.static_setup {
@@ -253,6 +257,18 @@ impl<'a> Stages<'a> {
         p0.b_pr0 = lin_p.b_pr0;
         p0.k0 = lin_p.k0;
         p0.t_pr = lin_p.t_pr;
+        p0.lost_motion = lin_p.lost_motion;
+        if let Some(lm) = lin_p.lost_motion {
+            eprintln!(
+                "[linear-emm] lost motion: f0 {:.0} N, compression travel {:.2} mm + {:.2} mm \
+                 per unit alpha, rebound travel {:.2} mm + {:.2} mm per unit alpha",
+                lm[0],
+                1e3 * lm[1],
+                1e3 * lm[2],
+                1e3 * lm[3],
+                1e3 * lm[4]
+            );
+        }
         if let Some(setup) = &self.static_setup {
             // The neural stages start from the least-squares static force of the trained
             // Linear EMM's residual (the best one for its dynamics).
@@ -302,12 +318,22 @@ impl<'a> Stages<'a> {
     ) -> Result<(ScalerWeights<f32>, f64)> {
         let t_qs = Instant::now();
         let cfg = self.cfg;
-        let b_fl_init = self.branched(
-            init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
-            self.prepared.condition.priors.b_fl,
-            1,
-            cfg.fit.seed + 10,
-        );
+        let b_fl_init = if cfg.b_fl_alpha {
+            self.branched(
+                init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
+                self.prepared.condition.priors.b_fl,
+                1,
+                cfg.fit.seed + 10,
+            )
+        } else {
+            without_alpha(with_branch(
+                init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
+                self.prepared.condition.priors.b_fl,
+                1,
+                cfg.branch_units,
+                cfg.fit.seed + 10,
+            ))
+        };
         // With a static force, the quasi-static points lose its part at their position (the
         // run's stroke centre, where they are taken) before the b_fl regression.
         let qs_owned: Vec<QuasiStaticPoint>;
@@ -476,4 +502,26 @@ pub(super) fn lin_p_with_scale(p: &RolloutParams<f32>, x_scale: f32) -> RolloutP
         x_scale,
         ..p.clone()
     }
+}
+
+/// Initial lost-motion element (order of `nemm_core::LostMotion::params`) for force scale
+/// `force_scale` \[N\] and initial `k_pr` `k0` \[N/m\]: `f0` a quarter of the force
+/// scale, a travel of a tenth of the liquid spring's deflection under the force scale at
+/// `alpha = 0` on each side, growing by that deflection per unit alpha. Training moves
+/// every value by factors (they are trained in log space).
+pub(super) fn initial_lost_motion(force_scale: f32, k0: f32) -> [f32; 5] {
+    let x = force_scale / k0;
+    [0.25 * force_scale, 0.1 * x, x, 0.1 * x, x]
+}
+
+/// `s` (a scaler with an alpha branch) made independent of alpha for good: the branch's
+/// output weights `v_k = theta_v,k^2` start at 0, where their gradient `2 theta_v,k dL/dv_k`
+/// is 0, so no optimizer step moves them, and the MLP does not see alpha (its alpha column
+/// is zero by [`with_branch`] and the branch feeds it none).
+pub(super) fn without_alpha(mut s: ScalerWeights<f32>) -> ScalerWeights<f32> {
+    let layout = s.layout();
+    if let Some(v) = layout.branch_ranges().and_then(|r| s.w.get_mut(r.theta_v)) {
+        v.fill(0.0);
+    }
+    s
 }

@@ -122,14 +122,15 @@ impl<T: Real> ReverseSweep<T> {
             bar: PackAdjoint {
                 g: RolloutGrads::zeros(p),
                 b_pr: WindowLanes::splat(T::zero()),
+                lost_motion: LostMotionAt::default(),
             },
             it_bar: WindowLanes::<T>::splat(T::zero()),
             sbar: LaneState::<T>::default(),
             cbar_n: LaneCoefficients::<T>::default(),
-            rec_n: (pk.b_fl.act(), pk.k_pr.act()),
+            rec_n: (pk.b_fl.act(), pk.k_pr.act(), LostMotionRec::default()),
             have_rec_n: false,
-            rec1: (pk.b_fl.act(), pk.k_pr.act()),
-            recs: std::array::from_fn(|_| (pk.b_fl.act(), pk.k_pr.act())),
+            rec1: (pk.b_fl.act(), pk.k_pr.act(), LostMotionRec::default()),
+            recs: std::array::from_fn(|_| (pk.b_fl.act(), pk.k_pr.act(), LostMotionRec::default())),
         }
     }
 
@@ -147,11 +148,11 @@ impl<T: Real> ReverseSweep<T> {
         ybar_i: Option<WindowLanes<T>>,
     ) {
         // Coefficients at s_n with activations (carried from the previous iteration's stage 1).
-        let (rb_n, rk_n) = &mut self.rec_n;
         let c_n = if self.have_rec_n {
-            pk.coeffs_from_rec(rb_n, rk_n)
+            pk.coeffs_from_rec(&self.rec_n)
         } else {
-            pk.coeffs(s_n, Some((rb_n, rk_n)))
+            let (rb_n, rk_n, rl_n) = &mut self.rec_n;
+            pk.coeffs(s_n, Some((rb_n, rk_n, rl_n)))
         };
         if let (Some(yb), Some(phi)) = (&ybar_i, &d.phi) {
             static_force_backward(yb, &phi[i], &mut self.bar.g.static_force);
@@ -166,8 +167,7 @@ impl<T: Real> ReverseSweep<T> {
                 &mut self.cbar_n,
             );
         }
-        let (rb_n, rk_n) = &self.rec_n;
-        pk.coef_backward(rb_n, rk_n, &self.cbar_n, &mut self.sbar, &mut self.bar);
+        pk.coef_backward(&self.rec_n, &self.cbar_n, &mut self.sbar, &mut self.bar);
     }
 
     /// Back-propagates the RK step from `s_p` (inputs `u0` -> `u1`) to `s_n`, its stages
@@ -180,8 +180,8 @@ impl<T: Real> ReverseSweep<T> {
         u0: WindowLanes<T>,
         u1: WindowLanes<T>,
     ) {
-        let (rb1, rk1) = &mut self.rec1;
-        let c1 = pk.coeffs(s_p, Some((rb1, rk1)));
+        let (rb1, rk1, rl1) = &mut self.rec1;
+        let c1 = pk.coeffs(s_p, Some((rb1, rk1, rl1)));
         let mut sbar_p = LaneState::<T>::default();
         let mut cbar1 = LaneCoefficients::<T>::default();
         integrator::step_backward::<Unfused, WindowLanes<T>, _>(
@@ -213,10 +213,10 @@ impl<T: Real> ReverseSweep<T> {
     /// at another: its stage-1 coefficients at `s_p` go back through `pk`'s scalers, and so
     /// does `b_pr`'s adjoint so far. The caller continues with the earlier level's pack.
     fn leave_level(&mut self, p: &RolloutParams<T>, pk: &Pack<'_, T>) {
-        let (rb_n, rk_n) = &self.rec_n;
-        pk.coef_backward(rb_n, rk_n, &self.cbar_n, &mut self.sbar, &mut self.bar);
+        pk.coef_backward(&self.rec_n, &self.cbar_n, &mut self.sbar, &mut self.bar);
         self.cbar_n = LaneCoefficients::<T>::default();
         bpr_backward(p, pk, &mut self.bar);
+        pk.lost_motion_backward(&mut self.bar);
         self.have_rec_n = false;
     }
 
@@ -226,10 +226,11 @@ impl<T: Real> ReverseSweep<T> {
         // s_{-1} is the fixed rest state: its adjoint is dropped, but the coefficients there
         // depend on the weights.
         let mut sdummy = LaneState::default();
-        let (rb_n, rk_n) = &self.rec_n;
-        pk.coef_backward(rb_n, rk_n, &self.cbar_n, &mut sdummy, &mut self.bar);
-        // b_pr: constant over the window (or since its last change).
+        pk.coef_backward(&self.rec_n, &self.cbar_n, &mut sdummy, &mut self.bar);
+        // b_pr and the lost-motion element: constant over the window (or since the level's
+        // last change).
         bpr_backward(p, pk, &mut self.bar);
+        pk.lost_motion_backward(&mut self.bar);
         // T_pr from 1/T_pr.
         self.bar.g.t_pr = -WindowLanes::sum(self.it_bar) * pk.inv_t_pr * pk.inv_t_pr;
         self.bar.g
