@@ -2,9 +2,10 @@
 //!
 //! - `cargo xtask test`: everything: the firmware and the STM32F407 image for the target
 //!   (found or installed toolchain, see [`toolchain`]), their lint, the host workspace tests
-//!   (release, then the default debug profile), the QEMU tests (`tests/tests/qemu_*.rs`,
-//!   ignored by a plain `cargo test`) pointed at the images, the firmware library's host unit
-//!   tests, `nemm sweep` through a one-node Slurm ([`slurm`]), nemm-core's feature sets on the host and the target (`features`), the
+//!   (release, then the default debug profile: all but nemm-train's integration tests), the
+//!   QEMU tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`) pointed at the
+//!   images, the firmware library's host unit tests, `nemm sweep` through a one-node Slurm
+//!   ([`slurm`]), nemm-core's feature sets on the host and the target (`features`), the
 //!   `rust-version` check (`msrv`), a short `bench-target`, and the C interface: the host C
 //!   unit test and the C example on the Cortex-M4F against the firmware ([`c_interface`]).
 //! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
@@ -54,11 +55,11 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Cmd {
-    /// Every test: the firmware (target build, lint), the host workspace (release and the
-    /// default debug profile), the QEMU tests, nemm-core's feature sets (`features`), the
-    /// rust-version check (`msrv`), a short bench-target, the C interface (`c-test`),
-    /// `nemm sweep` through a one-node Slurm (skipped with a message without root or
-    /// slurm-wlm and munge).
+    /// Every test: the firmware (target build, lint), the host workspace (release, and the
+    /// default debug profile without nemm-train's integration tests), the QEMU tests,
+    /// nemm-core's feature sets (`features`), the rust-version check (`msrv`), a short
+    /// bench-target, the C interface (`c-test`), `nemm sweep` through a one-node Slurm
+    /// (skipped with a message without root or slurm-wlm and munge).
     Test {
         /// Skip everything that needs the embedded toolchain (no firmware, no QEMU tests).
         #[arg(long)]
@@ -512,10 +513,28 @@ fn test(host_only: bool) -> Result<(), String> {
     run(cargo()
         .args(["test", "--release", "-p", "nemm-firmware", "--lib"])
         .current_dir(&paths.root))?;
-    // The default (debug) profile: nemm-core at opt-level 0, the rest as the dev profile of
-    // Cargo.toml sets it; every test on the default 2 MiB test threads.
+    // The default (debug) profile: debug assertions and overflow checks on, nemm-core at
+    // opt-level 0 (as its users' debug builds have it), the rest as the dev profile of
+    // Cargo.toml sets it; the tests on the default 2 MiB test threads. Every crate's tests
+    // (nemm-tests' included, on the trainer's library) but nemm-train's, then every crate's
+    // unit tests, the trainer's among them. Not nemm-train's integration tests: they are
+    // training runs, the longest tests of the workspace, and the release run above runs them
+    // (and the trainer's doc tests). The second command selects the whole workspace, not
+    // `-p nemm-train`: alone, the trainer resolves its dependencies' features differently
+    // (serde_json without xtask's `unbounded_depth`, object without the `std` and `write` of
+    // the other members, both under burn) and would build burn a second time in this
+    // profile; the other crates' unit tests (nemm-c's take a minute) run twice.
     run(cargo()
-        .args(["test", "--workspace", "--no-fail-fast"])
+        .args([
+            "test",
+            "--workspace",
+            "--exclude",
+            "nemm-train",
+            "--no-fail-fast",
+        ])
+        .current_dir(&paths.root))?;
+    run(cargo()
+        .args(["test", "--workspace", "--lib", "--no-fail-fast"])
         .current_dir(&paths.root))?;
     checks::example(&paths)?;
     checks::features(firmware.as_ref().map(|f| &f.0), &paths)?;
