@@ -2,7 +2,8 @@
 //!
 //! - `cargo xtask test`: everything: the firmware and the STM32F407 image for the target
 //!   (found or installed toolchain, see [`toolchain`]), their lint, the host workspace tests
-//!   (release, then the default debug profile: all but nemm-train's integration tests), the
+//!   (release, then the default debug profile for the crates that do not depend on the
+//!   trainer), the
 //!   QEMU tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`) pointed at the
 //!   images, the firmware library's host unit tests, `nemm sweep` through a one-node Slurm
 //!   ([`slurm`]), nemm-core's feature sets on the host and the target (`features`), the
@@ -56,7 +57,7 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Cmd {
     /// Every test: the firmware (target build, lint), the host workspace (release, and the
-    /// default debug profile without nemm-train's integration tests), the QEMU tests,
+    /// default debug profile for the crates that do not depend on the trainer), the QEMU tests,
     /// nemm-core's feature sets (`features`), the rust-version check (`msrv`), a short
     /// bench-target, the C interface (`c-test`), `nemm sweep` through a one-node Slurm
     /// (skipped with a message without root or slurm-wlm and munge).
@@ -455,6 +456,10 @@ const QEMU_TESTS_AN500: [&str; 6] = [
     "qemu_weights",
 ];
 
+/// The crates whose tests `cargo xtask test` also runs in the default (debug) profile: those
+/// that do not depend on nemm-train (and so on burn).
+const DEBUG_PROFILE_CRATES: [&str; 5] = ["nemm-core", "nemm-c", "nemm-slot", "nemm-elf", "xtask"];
+
 fn test(host_only: bool) -> Result<(), String> {
     let started = Instant::now();
     let paths = Paths::find()?;
@@ -515,26 +520,15 @@ fn test(host_only: bool) -> Result<(), String> {
         .current_dir(&paths.root))?;
     // The default (debug) profile: debug assertions and overflow checks on, nemm-core at
     // opt-level 0 (as its users' debug builds have it), the rest as the dev profile of
-    // Cargo.toml sets it; the tests on the default 2 MiB test threads. Every crate's tests
-    // (nemm-tests' included, on the trainer's library) but nemm-train's, then every crate's
-    // unit tests, the trainer's among them. Not nemm-train's integration tests: they are
-    // training runs, the longest tests of the workspace, and the release run above runs them
-    // (and the trainer's doc tests). The second command selects the whole workspace, not
-    // `-p nemm-train`: alone, the trainer resolves its dependencies' features differently
-    // (serde_json without xtask's `unbounded_depth`, object without the `std` and `write` of
-    // the other members, both under burn) and would build burn a second time in this
-    // profile; the other crates' unit tests (nemm-c's take a minute) run twice.
+    // Cargo.toml sets it; the tests on the default 2 MiB test threads. The crates that do
+    // not depend on the trainer: nemm-core (the no_std runtime, the one whose debug build
+    // users ship in debug firmware), the C interface, the slot and ELF helpers, xtask.
+    // nemm-train and nemm-tests (built on it) run in release above: in this profile they
+    // would build burn a second time and repeat the training runs, the longest tests of
+    // the workspace.
     run(cargo()
-        .args([
-            "test",
-            "--workspace",
-            "--exclude",
-            "nemm-train",
-            "--no-fail-fast",
-        ])
-        .current_dir(&paths.root))?;
-    run(cargo()
-        .args(["test", "--workspace", "--lib", "--no-fail-fast"])
+        .args(["test", "--no-fail-fast"])
+        .args(DEBUG_PROFILE_CRATES.iter().flat_map(|c| ["-p", c]))
         .current_dir(&paths.root))?;
     checks::example(&paths)?;
     checks::features(firmware.as_ref().map(|f| &f.0), &paths)?;
