@@ -2,9 +2,11 @@
 //!
 //! - `cargo xtask test`: everything: the firmware and the STM32F407 image for the target
 //!   (found or installed toolchain, see [`toolchain`]), their lint, the host workspace tests
-//!   (release, then the default debug profile), the QEMU tests (`tests/tests/qemu_*.rs`,
-//!   ignored by a plain `cargo test`) pointed at the images, the firmware library's host unit
-//!   tests, `nemm sweep` through a one-node Slurm ([`slurm`]), nemm-core's feature sets on the host and the target (`features`), the
+//!   (release, then the default debug profile for the crates that do not depend on the
+//!   trainer), the
+//!   QEMU tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`) pointed at the
+//!   images, the firmware library's host unit tests, `nemm sweep` through a one-node Slurm
+//!   ([`slurm`]), nemm-core's feature sets on the host and the target (`features`), the
 //!   `rust-version` check (`msrv`), a short `bench-target`, and the C interface: the host C
 //!   unit test and the C example on the Cortex-M4F against the firmware ([`c_interface`]).
 //! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
@@ -54,11 +56,11 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Cmd {
-    /// Every test: the firmware (target build, lint), the host workspace (release and the
-    /// default debug profile), the QEMU tests, nemm-core's feature sets (`features`), the
-    /// rust-version check (`msrv`), a short bench-target, the C interface (`c-test`),
-    /// `nemm sweep` through a one-node Slurm (skipped with a message without root or
-    /// slurm-wlm and munge).
+    /// Every test: the firmware (target build, lint), the host workspace (release, and the
+    /// default debug profile for the crates that do not depend on the trainer), the QEMU tests,
+    /// nemm-core's feature sets (`features`), the rust-version check (`msrv`), a short
+    /// bench-target, the C interface (`c-test`), `nemm sweep` through a one-node Slurm
+    /// (skipped with a message without root or slurm-wlm and munge).
     Test {
         /// Skip everything that needs the embedded toolchain (no firmware, no QEMU tests).
         #[arg(long)]
@@ -454,6 +456,10 @@ const QEMU_TESTS_AN500: [&str; 6] = [
     "qemu_weights",
 ];
 
+/// The crates whose tests `cargo xtask test` also runs in the default (debug) profile: those
+/// that do not depend on nemm-train (and so on burn).
+const DEBUG_PROFILE_CRATES: [&str; 5] = ["nemm-core", "nemm-c", "nemm-slot", "nemm-elf", "xtask"];
+
 fn test(host_only: bool) -> Result<(), String> {
     let started = Instant::now();
     let paths = Paths::find()?;
@@ -512,10 +518,17 @@ fn test(host_only: bool) -> Result<(), String> {
     run(cargo()
         .args(["test", "--release", "-p", "nemm-firmware", "--lib"])
         .current_dir(&paths.root))?;
-    // The default (debug) profile: nemm-core at opt-level 0, the rest as the dev profile of
-    // Cargo.toml sets it; every test on the default 2 MiB test threads.
+    // The default (debug) profile: debug assertions and overflow checks on, nemm-core at
+    // opt-level 0 (as its users' debug builds have it), the rest as the dev profile of
+    // Cargo.toml sets it; the tests on the default 2 MiB test threads. The crates that do
+    // not depend on the trainer: nemm-core (the no_std runtime, the one whose debug build
+    // users ship in debug firmware), the C interface, the slot and ELF helpers, xtask.
+    // nemm-train and nemm-tests (built on it) run in release above: in this profile they
+    // would build burn a second time and repeat the training runs, the longest tests of
+    // the workspace.
     run(cargo()
-        .args(["test", "--workspace", "--no-fail-fast"])
+        .args(["test", "--no-fail-fast"])
+        .args(DEBUG_PROFILE_CRATES.iter().flat_map(|c| ["-p", c]))
         .current_dir(&paths.root))?;
     checks::example(&paths)?;
     checks::features(firmware.as_ref().map(|f| &f.0), &paths)?;
