@@ -309,6 +309,12 @@ impl ScalerNet {
 /// weights, which need small steps, while the constants must be able to travel by factors.
 pub const LOG_CONSTANT_SCALE: f32 = 10.0;
 
+/// The lost-motion element's parameters are stored as `ln(v) / LOG_LOST_MOTION_SCALE`: the
+/// travels must grow by factors of ten from their start (a tenth of the liquid spring's
+/// deflection) within the few hundred steps of the Linear EMM stage, so they move three
+/// times faster than the constants (15 % per step at lr 5e-3).
+pub const LOG_LOST_MOTION_SCALE: f32 = 30.0;
+
 /// All trainable parameters of an EMM-family model.
 #[derive(Module, Debug)]
 pub struct EmmNet {
@@ -326,7 +332,7 @@ pub struct EmmNet {
     /// absolute value, so that `F_c >= 0`.
     pub static_force: Option<Param<Tensor<1>>>,
     /// The lost-motion element's parameters (order of `nemm_core::LostMotion::params`),
-    /// stored as `ln(v) / LOG_CONSTANT_SCALE` (SI units inside the log) like the constants:
+    /// stored as `ln(v) / LOG_LOST_MOTION_SCALE` (SI units inside the log):
     /// every value stays positive, so the travels grow with alpha by construction.
     pub lost_motion: Option<Param<Tensor<1>>>,
 }
@@ -412,7 +418,7 @@ impl EmmNet {
                 Param::from_tensor(tensor1(&t, device))
             }),
             lost_motion: p.lost_motion.as_ref().map(|l| {
-                let t: Vec<f32> = l.iter().map(|v| v.ln() / LOG_CONSTANT_SCALE).collect();
+                let t: Vec<f32> = l.iter().map(|v| v.ln() / LOG_LOST_MOTION_SCALE).collect();
                 Param::from_tensor(tensor1(&t, device))
             }),
         };
@@ -515,7 +521,7 @@ impl EmmNet {
         self.lost_motion.as_ref().map(|t| {
             let v = to_vec(t.val());
             std::array::from_fn(|q| {
-                (v.get(q).copied().unwrap_or(f32::NAN) * LOG_CONSTANT_SCALE).exp()
+                (v.get(q).copied().unwrap_or(f32::NAN) * LOG_LOST_MOTION_SCALE).exp()
             })
         })
     }
@@ -585,9 +591,9 @@ impl EmmNet {
             self.lost_motion_params(),
             g.lost_motion.get(..LOST_MOTION_PARAMS),
         ) {
-            // v = exp(LOG_CONSTANT_SCALE raw): dL/draw = LOG_CONSTANT_SCALE v dL/dv.
+            // v = exp(LOG_LOST_MOTION_SCALE raw): dL/draw = LOG_LOST_MOTION_SCALE v dL/dv.
             let d: Vec<f32> = (0..LOST_MOTION_PARAMS)
-                .map(|q| LOG_CONSTANT_SCALE * v[q] * gl[q])
+                .map(|q| LOG_LOST_MOTION_SCALE * v[q] * gl[q])
                 .collect();
             let d = tensor1(&d, &dev);
             let d = match gp.remove::<1>(t.id) {

@@ -18,7 +18,8 @@
 //! All variants share the split, the normalisation and the force scale.
 
 use super::adjoint::{
-    simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights, StaticParams, Window,
+    loss_and_grad, simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights, StaticParams,
+    Window,
 };
 use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, FitResult, StopReason};
 use super::net::EmmNet;

@@ -215,6 +215,22 @@ impl<'a> Stages<'a> {
             print_static("initial least-squares fit", &sp);
             p0.static_force = Some(sp);
         }
+        if p0.lost_motion.is_some() {
+            let t = Instant::now();
+            let (best, loss, tried) = self.search_lost_motion(&p0, force_scale as f32);
+            eprintln!(
+                "[linear-emm] lost motion: start from f0 {:.0} N, travels {:.2} / {:.2} mm + \
+                 {:.2} / {:.2} mm per unit alpha (compression / rebound; the least training \
+                 loss {loss:.3e} of {tried} candidates, {:.1} s)",
+                best[0],
+                1e3 * best[1],
+                1e3 * best[3],
+                1e3 * best[2],
+                1e3 * best[4],
+                t.elapsed().as_secs_f64()
+            );
+            p0.lost_motion = Some(best);
+        }
         let lin_cfg = FitConfig {
             label: "linear-emm".into(),
             epochs: cfg.linear_epochs,
@@ -258,6 +274,26 @@ impl<'a> Stages<'a> {
         p0.k0 = lin_p.k0;
         p0.t_pr = lin_p.t_pr;
         p0.lost_motion = lin_p.lost_motion;
+        if let Some(trained) = lin_p.lost_motion {
+            // Again around the trained element, with the trained constants: the neural
+            // stages start from the best.
+            let t = Instant::now();
+            let (best, loss, tried) =
+                self.search_lost_motion_in(&lin_p, &lost_motion_candidates(trained, &AROUND));
+            eprintln!(
+                "[linear-emm] lost motion for the neural stages: f0 {:.0} N, travels {:.2} / \
+                 {:.2} mm + {:.2} / {:.2} mm per unit alpha (compression / rebound; training \
+                 loss {loss:.3e}, the least of {tried} candidates around the trained element, \
+                 {:.1} s)",
+                best[0],
+                1e3 * best[1],
+                1e3 * best[3],
+                1e3 * best[2],
+                1e3 * best[4],
+                t.elapsed().as_secs_f64()
+            );
+            p0.lost_motion = Some(best);
+        }
         if let Some(lm) = lin_p.lost_motion {
             eprintln!(
                 "[linear-emm] lost motion: f0 {:.0} N, compression travel {:.2} mm + {:.2} mm \
@@ -290,6 +326,50 @@ impl<'a> Stages<'a> {
             fit: lin,
             seconds: t_lin.elapsed().as_secs_f64(),
         })
+    }
+
+    /// The lost-motion element to start the Linear EMM from: the candidates of
+    /// [`lost_motion_candidates`] around [`initial_lost_motion`] for `p`'s constants, each
+    /// scored by the training loss of `p` with it (every training window, the Linear EMM's
+    /// rollout); returns the best, its loss and the number of candidates. Adam then moves
+    /// each value by a few per cent per step: this puts it within a factor of about 1.4 of
+    /// where the data want it first.
+    fn search_lost_motion(
+        &self,
+        p: &RolloutParams<f32>,
+        force_scale: f32,
+    ) -> ([f32; 5], f64, usize) {
+        let base = initial_lost_motion(force_scale, p.k0);
+        self.search_lost_motion_in(p, &lost_motion_candidates(base, &FROM_START))
+    }
+
+    /// The candidate of least training loss of `p` with it, its loss and the number of
+    /// candidates.
+    fn search_lost_motion_in(
+        &self,
+        p: &RolloutParams<f32>,
+        candidates: &[[f32; 5]],
+    ) -> ([f32; 5], f64, usize) {
+        let force_scale = self.prepared.scales.force_n as f32;
+        let warmup = self.prepared.warmup_samples;
+        let mut best = (candidates[0], f64::INFINITY);
+        for c in candidates {
+            let q = RolloutParams {
+                lost_motion: Some(*c),
+                ..p.clone()
+            };
+            let (loss, _) = loss_and_grad(
+                &q,
+                &self.train_windows,
+                &self.grid,
+                warmup,
+                f64::from(force_scale),
+            );
+            if loss < best.1 {
+                best = (*c, loss);
+            }
+        }
+        (best.0, best.1, candidates.len())
     }
 
     /// `s` with an alpha branch in its declared direction `dir` when the priors are held by
@@ -524,4 +604,83 @@ pub(super) fn without_alpha(mut s: ScalerWeights<f32>) -> ScalerWeights<f32> {
         v.fill(0.0);
     }
     s
+}
+
+/// Factors of a lost-motion search: `f0`, the travels at `alpha = 0`, their growth per
+/// unit alpha, and the compression side's growth over the rebound side's.
+pub(super) struct SearchFactors {
+    f0: [f32; 3],
+    travel: [f32; 2],
+    growth: [f32; 4],
+    split: [f32; 2],
+}
+
+/// From [`initial_lost_motion`]: wide.
+pub(super) const FROM_START: SearchFactors = SearchFactors {
+    f0: [0.5, 1.0, 2.0],
+    travel: [1.0, 10.0],
+    growth: [0.5, 2.0, 8.0, 32.0],
+    split: [1.0, 2.0],
+};
+
+/// Around a trained element: near (the trained element itself is a candidate).
+pub(super) const AROUND: SearchFactors = SearchFactors {
+    f0: [0.7, 1.0, 1.4],
+    travel: [1.0, 3.0],
+    growth: [1.0, 1.5, 2.5, 4.0],
+    split: [1.0, 1.5],
+};
+
+/// The candidates around `base` ([`initial_lost_motion`]'s order): every combination of
+/// `factors` (the compression side's growth times `split`; the candidate with every factor
+/// 1 first, when there is one). The bench's foam gives the compression chamber the larger
+/// loss, hence the split.
+pub(super) fn lost_motion_candidates(base: [f32; 5], factors: &SearchFactors) -> Vec<[f32; 5]> {
+    let mut out = vec![base];
+    for &f in &factors.f0 {
+        for &d0 in &factors.travel {
+            for &g in &factors.growth {
+                for &split in &factors.split {
+                    let c = [
+                        base[0] * f,
+                        base[1] * d0,
+                        base[2] * g * split,
+                        base[3] * d0,
+                        base[4] * g,
+                    ];
+                    if c != base {
+                        out.push(c);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod lost_motion_tests {
+    use super::*;
+
+    /// The search's candidates: the base first, every combination of the factors once, every
+    /// value positive, the compression side's growth never below the rebound side's.
+    #[test]
+    fn candidates_start_at_the_base_and_cover_the_factors() {
+        let base = initial_lost_motion(2000.0, 1.0e6);
+        let want = [500.0, 2e-4, 2e-3, 2e-4, 2e-3];
+        assert!(base
+            .iter()
+            .zip(want)
+            .all(|(a, b)| (a - b).abs() <= 1e-6 * b));
+        for (factors, n) in [(&FROM_START, 1 + 3 * 2 * 4 * 2), (&AROUND, 3 * 2 * 4 * 2)] {
+            let c = lost_motion_candidates(base, factors);
+            assert_eq!(c[0], base);
+            assert_eq!(c.len(), n, "every combination once (the base once)");
+            for (i, x) in c.iter().enumerate() {
+                assert!(x.iter().all(|v| *v > 0.0 && v.is_finite()));
+                assert!(x[2] >= x[4]);
+                assert!(c[..i].iter().all(|y| y != x), "duplicate {x:?}");
+            }
+        }
+    }
 }
