@@ -40,7 +40,7 @@
 
 use crate::firmware::{self, Board, Images};
 use crate::toolchain::Toolchain;
-use crate::{Kind, Mode, Paths};
+use crate::{Mode, Paths, Variant};
 use nemm_elf::Elf;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -457,25 +457,29 @@ const TRACE_STEPS: u32 = 2;
 const OBSERVER_TRACE_SKIP: u32 = 120;
 
 /// The instruction mix of `Estimator::step` (its body `step_at`) in the benchmark image `elf` (with the blob of
-/// `kind` in its slot, as [`crate::target_bench::run`] patches it), evaluation `mode`, integrator
-/// `integrator`: [`TRACE_STEPS`] steps after [`TRACE_SKIP`], single-stepped through QEMU's
-/// gdb stub on `board`.
+/// `kind` in its slot, as [`crate::target_bench::run`] patches it), the model `variant` of
+/// that kind, evaluation `mode`, integrator `integrator`: [`TRACE_STEPS`] steps after
+/// [`TRACE_SKIP`], single-stepped through QEMU's gdb stub on `board`.
 pub fn trace_mix(
     tc: &Toolchain,
     board: Board,
-    elf_path: &Path,
+    (elf_path, variant): (&Path, Variant),
     mode: Mode,
     integrator: &str,
 ) -> Result<Mix, String> {
-    let args = [
+    let mut args = vec![
         format!("mode={}", mode.name()),
         format!("integrator={integrator}"),
         format!("warmup={TRACE_SKIP}"),
         format!("steps={}", TRACE_STEPS + 2),
         "calibrate=0".to_string(),
     ];
+    args.extend(variant.bench_args());
+    // The benchmarked estimator's, not the alpha observer's members' (`Estimator<P, 1>`: no
+    // tables), whose `step_at` the image may hold outlined as well, never called here.
     let is_step = |d: &str| {
         d.contains("nemm_core::estimator::Estimator<")
+            && !d.contains(", 1>>::")
             && (d.ends_with(">>::step") || d.ends_with(">>::step_at"))
     };
     trace(
@@ -588,12 +592,9 @@ pub fn estimate(
 ) -> Result<Vec<CycleFigures>, String> {
     let mut out = Vec::new();
     for f in figures {
-        let kind = Kind::ALL
-            .into_iter()
-            .find(|k| k.name() == f.model)
-            .ok_or_else(|| format!("unknown model kind {}", f.model))?;
-        let image = crate::target_bench::image_with_example(paths, images, kind)?;
-        let mix = trace_mix(tc, images.board, &image, mode, &f.integrator)?;
+        let variant = Variant::parse(&f.model)?;
+        let image = crate::target_bench::image_with_example(paths, images, variant.kind)?;
+        let mix = trace_mix(tc, images.board, (&image, variant), mode, &f.integrator)?;
         let chip = images.board.chip();
         out.push(CycleFigures {
             chip,

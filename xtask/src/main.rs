@@ -101,9 +101,11 @@ enum Cmd {
         /// Measured steps of the bench trace.
         #[arg(long, default_value_t = 4000)]
         steps: u32,
-        /// Model kind to benchmark (repeatable; default: all).
-        #[arg(long = "model", value_enum, value_name = "KIND")]
-        models: Vec<Kind>,
+        /// Model to benchmark (repeatable; default: every kind without the element): a kind
+        /// (sem, linear-emm, nemm-light, nemm), or an EMM-family kind with the example
+        /// lost-motion element, `<kind>+lm` (e.g. nemm+lm).
+        #[arg(long = "model", value_parser = Variant::parse, value_name = "KIND[+lm]")]
+        models: Vec<Variant>,
         /// Board to benchmark (repeatable; default: both).
         #[arg(long = "board", value_enum, value_name = "BOARD")]
         boards: Vec<firmware::Board>,
@@ -282,6 +284,93 @@ impl Kind {
             Kind::LinearEmm => "linear-emm",
             Kind::NemmLight => "nemm-light",
             Kind::Nemm => "nemm",
+        }
+    }
+}
+
+/// A benchmarked model: an example model of a kind, with or without the example
+/// lost-motion element (`nemm_core::testing::EXAMPLE_LOST_MOTION`, which the benchmark adds
+/// with `lost-motion=1`). Its name is the kind's, plus [`Variant::LOST_MOTION_SUFFIX`] with
+/// the element: `nemm`, `nemm+lm` (`--model` of `bench-target`, `model=` of its lines).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Variant {
+    /// The model kind (its example blob in the weights slot).
+    pub kind: Kind,
+    /// With the example lost-motion element.
+    pub lost_motion: bool,
+}
+
+impl Variant {
+    /// What the name of a model with the element appends to the kind's (the benchmark's
+    /// `kind=` appends the same).
+    pub const LOST_MOTION_SUFFIX: &'static str = "+lm";
+
+    /// Every kind without the element, in the order of [`Kind::ALL`].
+    pub const ALL: [Variant; 4] = [
+        Variant::plain(Kind::Sem),
+        Variant::plain(Kind::LinearEmm),
+        Variant::plain(Kind::NemmLight),
+        Variant::plain(Kind::Nemm),
+    ];
+
+    /// The EMM-family kinds with the element (the SEM refuses it).
+    pub const WITH_LOST_MOTION: [Variant; 3] = [
+        Variant::with_lost_motion(Kind::LinearEmm),
+        Variant::with_lost_motion(Kind::NemmLight),
+        Variant::with_lost_motion(Kind::Nemm),
+    ];
+
+    /// `kind` without the element.
+    pub const fn plain(kind: Kind) -> Self {
+        Self {
+            kind,
+            lost_motion: false,
+        }
+    }
+
+    /// `kind` with the element.
+    pub const fn with_lost_motion(kind: Kind) -> Self {
+        Self {
+            kind,
+            lost_motion: true,
+        }
+    }
+
+    /// `<kind>` or `<kind>+lm`.
+    pub fn name(self) -> String {
+        let suffix = if self.lost_motion {
+            Self::LOST_MOTION_SUFFIX
+        } else {
+            ""
+        };
+        format!("{}{suffix}", self.kind.name())
+    }
+
+    /// The variant of a name ([`Variant::name`]); `sem+lm` is refused.
+    pub fn parse(name: &str) -> Result<Self, String> {
+        let (kind, lost_motion) = match name.strip_suffix(Self::LOST_MOTION_SUFFIX) {
+            Some(kind) => (kind, true),
+            None => (name, false),
+        };
+        let kind = Kind::from_str(kind, false).map_err(|_| {
+            let names: Vec<String> = Kind::ALL
+                .iter()
+                .map(|k| format!("{}[{}]", k.name(), Self::LOST_MOTION_SUFFIX))
+                .collect();
+            format!("unknown model `{name}` (one of {})", names.join(", "))
+        })?;
+        if lost_motion && kind == Kind::Sem {
+            return Err(format!("`{name}`: the SEM has no lost-motion element"));
+        }
+        Ok(Self { kind, lost_motion })
+    }
+
+    /// The benchmark's options for this variant (besides mode, steps, ...).
+    pub fn bench_args(self) -> Vec<String> {
+        if self.lost_motion {
+            vec!["lost-motion=1".to_string()]
+        } else {
+            Vec::new()
         }
     }
 }
@@ -536,7 +625,7 @@ fn test(host_only: bool) -> Result<(), String> {
     if let Some((tc, paths, images, board_images)) = firmware {
         let t = Instant::now();
         for im in &images {
-            let steps = target_bench::run(&tc, &paths, im, Mode::Exact, 50, &Kind::ALL)?;
+            let steps = target_bench::run(&tc, &paths, im, Mode::Exact, 50, &Variant::ALL)?;
             for f in &steps {
                 eprintln!(
                     "xtask: (smoke, 50 steps, {}) {}",
@@ -602,12 +691,12 @@ fn boards_or_all(boards: &[firmware::Board]) -> &[firmware::Board] {
 fn bench_target(
     mode: Mode,
     steps: u32,
-    models: &[Kind],
+    models: &[Variant],
     boards: &[firmware::Board],
     with_cycles: bool,
 ) -> Result<(), String> {
     let kinds = if models.is_empty() {
-        &Kind::ALL[..]
+        &Variant::ALL[..]
     } else {
         models
     };
@@ -616,7 +705,7 @@ fn bench_target(
     for im in &images {
         let figures = target_bench::run(&tc, &paths, im, mode, steps, kinds)?;
         // The alpha observer (exact mode whatever `mode`), on the example NEMM.
-        let observer = if kinds.contains(&Kind::Nemm) {
+        let observer = if kinds.contains(&Variant::plain(Kind::Nemm)) {
             Some(target_bench::observer(&tc, im, steps)?)
         } else {
             None
@@ -693,7 +782,13 @@ pub fn boot_figures(
     images: &firmware::Images,
 ) -> Result<Vec<(firmware::StackFigures, BootFigures)>, String> {
     let nemm = target_bench::image_with_example(paths, images, Kind::Nemm)?;
-    let mix = cycles::trace_mix(tc, images.board, &nemm, Mode::Exact, "rk4")?;
+    let mix = cycles::trace_mix(
+        tc,
+        images.board,
+        (&nemm, Variant::plain(Kind::Nemm)),
+        Mode::Exact,
+        "rk4",
+    )?;
     let cpi = mix.cycles_per_instruction(images.board.chip());
     let mut out = Vec::new();
     for (mode, options) in firmware::STACK_RUNS {
@@ -824,6 +919,8 @@ mod tests {
             "linear-emm",
             "--model",
             "nemm",
+            "--model",
+            "nemm-light+lm",
             "--board",
             "an500",
             "--no-cycles",
@@ -835,12 +932,22 @@ mod tests {
                 boards,
                 no_cycles: true,
             })) => {
-                assert_eq!(models, [Kind::LinearEmm, Kind::Nemm]);
+                assert_eq!(
+                    models,
+                    [
+                        Variant::plain(Kind::LinearEmm),
+                        Variant::plain(Kind::Nemm),
+                        Variant::with_lost_motion(Kind::NemmLight)
+                    ]
+                );
                 assert_eq!(boards, [firmware::Board::An500]);
             }
             other => panic!("{other:?}"),
         }
         assert!(parse(&["bench-target", "--model", "lstm"]).is_err());
+        assert!(parse(&["bench-target", "--model", "sem+lm"]).is_err());
+        assert!(parse(&["bench-target", "--model", "nemm+lx"]).is_err());
+        assert!(parse(&["bench-target", "--model", "+lm"]).is_err());
         assert!(parse(&["bench-target", "--mode", "fast"]).is_err());
         match parse(&["run-target", "--", "samples=2000", "fault=bus@3000+20"]) {
             Ok(Some(Cmd::RunTarget { options })) => {
@@ -923,6 +1030,15 @@ mod tests {
             assert_eq!(value.get_name(), k.name());
         }
         assert_eq!(Mode::Table.to_possible_value().unwrap().get_name(), "table");
+        for v in Variant::ALL.into_iter().chain(Variant::WITH_LOST_MOTION) {
+            assert_eq!(Variant::parse(&v.name()), Ok(v));
+        }
+        assert_eq!(Variant::with_lost_motion(Kind::Nemm).name(), "nemm+lm");
+        assert_eq!(
+            Variant::with_lost_motion(Kind::LinearEmm).bench_args(),
+            ["lost-motion=1"]
+        );
+        assert!(Variant::plain(Kind::Nemm).bench_args().is_empty());
     }
 
     #[test]

@@ -31,7 +31,7 @@ use crate::host_bench::{self, Stamp};
 use crate::target_bench::{self, ObserverFigures, StepFigures};
 use crate::toolchain::Toolchain;
 use crate::BootFigures;
-use crate::{Kind, Mode, Paths};
+use crate::{Kind, Mode, Paths, Variant};
 use nemm_elf::Elf;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -233,7 +233,9 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
         md,
         "**Instructions per estimator step** (`mps2-an386`): {steps} steps of the bench trace \
          after 200 warm-up steps, weights slot = `nemm-firmware/data/example-<kind>.nemm` \
-         (`cargo xtask bench-target --mode exact|table`). Table mode: its RAM, the worst \
+         (`cargo xtask bench-target --mode exact|table`); `<kind>+lm`: the same model with \
+         the example lost-motion element (`nemm_core::testing::EXAMPLE_LOST_MOTION`, the \
+         benchmark's `lost-motion=1`; `--model <kind>+lm`). Table mode: its RAM, the worst \
          relative error of the tables against the exact scalers (parts per billion), the \
          kinks placed, and the instructions that build the estimator at boot.\n"
     );
@@ -450,6 +452,18 @@ fn fit_readme_markdown(provenance: &str, cycles: &[CycleFigures]) -> String {
     )
 }
 
+/// The models of the target figures: every kind, each EMM-family kind followed by itself
+/// with the example lost-motion element (`<kind>+lm`).
+fn target_models() -> Vec<Variant> {
+    Kind::ALL
+        .into_iter()
+        .flat_map(|k| {
+            let lm = (k != Kind::Sem).then_some(Variant::with_lost_motion(k));
+            std::iter::once(Variant::plain(k)).chain(lm)
+        })
+        .collect()
+}
+
 /// `cargo xtask results`: builds the firmware, measures it and writes the `target` block
 /// (and the README's `fit` block).
 pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> Result<(), String> {
@@ -463,8 +477,9 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
     let mut boot = Vec::new();
     let mut observer = None;
     for im in &images {
-        let e = target_bench::run(tc, paths, im, Mode::Exact, steps, &Kind::ALL)?;
-        let t = target_bench::run(tc, paths, im, Mode::Table, steps, &Kind::ALL)?;
+        let models = target_models();
+        let e = target_bench::run(tc, paths, im, Mode::Exact, steps, &models)?;
+        let t = target_bench::run(tc, paths, im, Mode::Table, steps, &models)?;
         let o = target_bench::observer(tc, im, steps)?;
         for f in e.iter().chain(&t) {
             println!("{} board={}", f.line(), im.board.machine());
@@ -494,12 +509,13 @@ pub fn target(tc: &Toolchain, paths: &Paths, steps: u32, allow_dirty: bool) -> R
             boot.push((s, b));
         }
     }
-    // Chip by chip, then model kind (the observer's rows last), integrator, mode.
+    // Chip by chip, then model (the observer's rows last), integrator, mode.
+    let models = target_models();
     cycles.sort_by_key(|c| {
-        let kind = Kind::ALL
+        let kind = models
             .iter()
-            .position(|k| k.name() == c.model)
-            .unwrap_or(Kind::ALL.len());
+            .position(|m| m.name() == c.model)
+            .unwrap_or(models.len());
         (
             c.chip.name() != "m4f",
             kind,
@@ -876,6 +892,23 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn the_target_figures_pair_each_emm_with_its_lost_motion_variant() {
+        let names: Vec<String> = target_models().into_iter().map(Variant::name).collect();
+        assert_eq!(
+            names,
+            [
+                "sem",
+                "linear-emm",
+                "linear-emm+lm",
+                "nemm-light",
+                "nemm-light+lm",
+                "nemm",
+                "nemm+lm"
+            ]
+        );
+    }
 
     #[test]
     fn the_tables_block_names_its_commit_and_keeps_the_rows() {

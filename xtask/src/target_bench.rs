@@ -4,7 +4,7 @@
 
 use crate::firmware::{self, Images};
 use crate::toolchain::Toolchain;
-use crate::{Kind, Mode, Paths};
+use crate::{Kind, Mode, Paths, Variant};
 use nemm_elf::Elf;
 use std::path::PathBuf;
 
@@ -16,7 +16,8 @@ const TABLE_FIELDS: [&str; 4] = ["segments", "table_bytes", "max_rel_error_ppb",
 /// The figures of one model kind and integrator.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct StepFigures {
-    /// Model kind (`kind=` of the benchmark).
+    /// Model kind (`kind=` of the benchmark), `+lm` with the lost-motion element
+    /// ([`Variant::name`]).
     pub model: String,
     /// `rk4` or `rk3`.
     pub integrator: String,
@@ -60,7 +61,7 @@ fn fields(line: &str) -> Vec<(&str, &str)> {
 }
 
 /// The figures of one run's output.
-fn parse(out: &str, kind: Kind) -> Result<Vec<StepFigures>, String> {
+fn parse(out: &str, variant: Variant) -> Result<Vec<StepFigures>, String> {
     let get = |f: &[(&str, &str)], k: &str| -> Result<String, String> {
         f.iter()
             .find(|(key, _)| *key == k)
@@ -102,8 +103,8 @@ fn parse(out: &str, kind: Kind) -> Result<Vec<StepFigures>, String> {
             per_step = own;
         }
         let model = get(&f, "kind")?;
-        if model != kind.name() {
-            return Err(format!("benchmarked {model}, expected {}", kind.name()));
+        if model != variant.name() {
+            return Err(format!("benchmarked {model}, expected {}", variant.name()));
         }
         let integrator = get(&f, "integrator")?;
         let mut table = Vec::new();
@@ -285,36 +286,38 @@ pub fn image_with_example(paths: &Paths, images: &Images, kind: Kind) -> Result<
     Ok(image)
 }
 
-/// Runs the benchmark image once per model kind (the example blobs of
-/// `nemm-firmware/data/`, patched into its weights slot) and returns the figures.
+/// Runs the benchmark image once per model (the example blob of its kind, from
+/// `nemm-firmware/data/`, patched into its weights slot; the lost-motion element added by
+/// the benchmark, `lost-motion=1`) and returns the figures.
 pub fn run(
     tc: &Toolchain,
     paths: &Paths,
     images: &Images,
     mode: Mode,
     steps: u32,
-    kinds: &[Kind],
+    models: &[Variant],
 ) -> Result<Vec<StepFigures>, String> {
     let mut figures = Vec::new();
-    for &kind in kinds {
-        let image = image_with_example(paths, images, kind)?;
-        let args = [format!("mode={}", mode.name()), format!("steps={steps}")];
+    for &variant in models {
+        let image = image_with_example(paths, images, variant.kind)?;
+        let mut args = vec![format!("mode={}", mode.name()), format!("steps={steps}")];
+        args.extend(variant.bench_args());
         let (code, out) = firmware::run_qemu(tc, images.board, &image, &args)?;
         if code != 0 {
             let hint = if out.contains("kind=bad-option") {
                 format!(
-                    " (this firmware build does not know mode={} or steps={steps})",
-                    mode.name()
+                    " (this firmware build does not know one of {})",
+                    args.join(" ")
                 )
             } else {
                 String::new()
             };
             return Err(format!(
                 "the benchmark failed for {} with exit code {code}{hint}:\n{out}",
-                kind.name()
+                variant.name()
             ));
         }
-        figures.extend(parse(&out, kind)?);
+        figures.extend(parse(&out, variant)?);
     }
     Ok(figures)
 }
@@ -330,7 +333,8 @@ calibration iterations=1000 int_loop_ticks=50 fp_loop_ticks=60
 table kind=nemm integrator=rk4 segments=128 tables=2 table_bytes=7168 max_rel_error_ppb=2792 kinks=73 build_ticks=100
 bench kind=nemm integrator=rk4 mode=table steps=4000 ticks=49300 baseline_ticks=100
 ";
-        let f = parse(out, Kind::Nemm).expect("parse");
+        let nemm = Variant::plain(Kind::Nemm);
+        let f = parse(out, nemm).expect("parse");
         assert_eq!(
             f.iter().map(StepFigures::line).collect::<Vec<_>>(),
             [
@@ -340,13 +344,32 @@ bench kind=nemm integrator=rk4 mode=table steps=4000 ticks=49300 baseline_ticks=
             ]
         );
         assert_eq!(f[0].table_field("table_bytes"), Some("7168"));
-        assert!(parse(out, Kind::Sem).is_err());
-        assert!(parse(
-            "calibration iterations=1000 int_loop_ticks=80\n",
-            Kind::Nemm
-        )
-        .is_err());
-        assert!(parse("boot\n", Kind::Nemm).is_err());
+        assert!(parse(out, Variant::plain(Kind::Sem)).is_err());
+        // Without the lost-motion element, not what a `nemm+lm` run asked for.
+        assert!(parse(out, Variant::with_lost_motion(Kind::Nemm)).is_err());
+        assert!(parse("calibration iterations=1000 int_loop_ticks=80\n", nemm).is_err());
+        assert!(parse("boot\n", nemm).is_err());
+    }
+
+    #[test]
+    fn reads_a_run_with_the_lost_motion_element() {
+        let out = "\
+calibration iterations=1000 int_loop_ticks=50 fp_loop_ticks=60
+bench kind=linear-emm+lm integrator=rk4 mode=exact hidden=0 layers=0 steps=4000 ticks=20100 baseline_ticks=100 held=0 resets=0
+bench kind=linear-emm+lm integrator=rk3 mode=exact hidden=0 layers=0 steps=4000 ticks=15100 baseline_ticks=100 held=0 resets=0
+";
+        let lm = Variant::with_lost_motion(Kind::LinearEmm);
+        let f = parse(out, lm).expect("parse");
+        assert_eq!(
+            f.iter().map(StepFigures::line).collect::<Vec<_>>(),
+            [
+                "target-step model=linear-emm+lm integrator=rk4 mode=exact \
+                 instructions_per_step=200",
+                "target-step model=linear-emm+lm integrator=rk3 mode=exact \
+                 instructions_per_step=150"
+            ]
+        );
+        assert!(parse(out, Variant::plain(Kind::LinearEmm)).is_err());
     }
 
     #[test]

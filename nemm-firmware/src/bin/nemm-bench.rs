@@ -45,6 +45,11 @@
 //!   framed by `parity kind=... integrator=... steps=N` and
 //!   `parity-end integrator=... steps=N fnv=<FNV-1a of the force bits>`: the host runs the
 //!   same velocities through `nemm-core` and compares the bits.
+//! - `lost-motion=1`: the model (weights slot or example) gets
+//!   `nemm_core::testing::EXAMPLE_LOST_MOTION`, the example lost-motion element, before the
+//!   estimator is built (refused on the SEM: `error kind=lost-motion-on-sem`). The lines of a
+//!   model with the element (this option, or a blob with one) name the kind `<kind>+lm`,
+//!   e.g. `bench kind=nemm+lm ...`.
 //! - `calibrate=0` skips the calibration loops.
 //! - `observer=1`: instead of the estimator, times one step of the firmware's alpha observer
 //!   ([`nemm_firmware::FwObserver`], its settings [`nemm_firmware::observer_config`]: a bank of
@@ -82,6 +87,10 @@ const MAX_WARMUP_STEPS: usize = 200;
 const SYST_RANGE: u32 = 1 << 24;
 /// Exit code of a kernel-check mismatch.
 const EXIT_CHECK_FAILED: u32 = 1;
+/// What the lines' `kind=` appends to the model kind when the model has a lost-motion
+/// element (`lost-motion=1`, or a blob with one): `nemm+lm`. `cargo xtask bench-target`
+/// names these runs the same (its `Variant`).
+const LOST_MOTION_SUFFIX: &str = "+lm";
 
 /// Evaluation modes of the scalers: the compiled MLPs, or the verified tables of
 /// `nemm_core::semantics::table` (256 segments, bound 1e-4 relative per coefficient).
@@ -127,6 +136,7 @@ struct Options {
     parity: usize,
     calibrate: bool,
     observer: bool,
+    lost_motion: bool,
 }
 
 impl Options {
@@ -161,6 +171,17 @@ impl Options {
                 }
                 "1" => {
                     self.observer = true;
+                    true
+                }
+                _ => false,
+            },
+            "lost-motion" => match v {
+                "0" => {
+                    self.lost_motion = false;
+                    true
+                }
+                "1" => {
+                    self.lost_motion = true;
                     true
                 }
                 _ => false,
@@ -390,7 +411,24 @@ fn load_model(
             },
         },
     }
+    if opt.lost_motion {
+        if model.kind() == ModelKind::Sem {
+            let mut l = Line::new();
+            l.str("error").ks("kind", "lost-motion-on-sem");
+            fail(console, &mut l, report::EXIT_USAGE)
+        }
+        model.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
+    }
     (model, stored)
+}
+
+/// [`LOST_MOTION_SUFFIX`] if `model` has a lost-motion element, else empty.
+fn kind_suffix(model: &Model<PARAM_CAPACITY>) -> &'static str {
+    if model.lost_motion.is_some() {
+        LOST_MOTION_SUFFIX
+    } else {
+        ""
+    }
 }
 
 /// `Estimator::new` into `slot`, in a frame of its own: inlined into `main`, its temporaries
@@ -452,6 +490,7 @@ fn main() -> ! {
         let (fw, fm) = forces.split_at(warmup.len());
         let run = RunName {
             kind: model.kind().name(),
+            kind_suffix: kind_suffix(model),
             integrator: model.integrator.name(),
             mode: Mode::Exact,
             hidden,
@@ -499,6 +538,7 @@ fn main() -> ! {
         }
         let run = RunName {
             kind: model.kind().name(),
+            kind_suffix: kind_suffix(model),
             integrator: integrator.name(),
             mode: opt.mode,
             hidden,
@@ -512,6 +552,7 @@ fn main() -> ! {
         let mut l = Line::new();
         l.str("bench")
             .ks("kind", run.kind)
+            .str(run.kind_suffix)
             .ks("integrator", run.integrator)
             .ks("mode", run.mode.name())
             .kv("hidden", hidden)
@@ -551,6 +592,7 @@ fn parse_options(console: &mut Console) -> Options {
         parity: 0,
         calibrate: true,
         observer: false,
+        lost_motion: false,
     };
     let mut args = [0u8; board::ARGS_CAPACITY];
     for arg in board::args(&mut args)
@@ -637,6 +679,9 @@ fn start_systick() -> SYST {
 /// evaluation mode and the scalers' width and depth.
 struct RunName {
     kind: &'static str,
+    /// [`LOST_MOTION_SUFFIX`] if the model has a lost-motion element, else empty: the
+    /// lines' `kind=` reads e.g. `nemm+lm`.
+    kind_suffix: &'static str,
     integrator: &'static str,
     mode: Mode,
     hidden: u32,
@@ -655,6 +700,7 @@ fn parity_run(
     let mut l = Line::new();
     l.str("parity")
         .ks("kind", run.kind)
+        .str(run.kind_suffix)
         .ks("integrator", run.integrator)
         .ks("mode", run.mode.name())
         .kv("hidden", run.hidden)
@@ -785,6 +831,7 @@ fn observer_run(
     let mut l = Line::new();
     l.str("observer")
         .ks("kind", run.kind)
+        .str(run.kind_suffix)
         .ks("integrator", run.integrator)
         .kv("levels", observer.points() as u32)
         .ks(
@@ -862,6 +909,7 @@ fn level_step_run(
     let mut l = Line::new();
     l.str("level-step")
         .ks("kind", run.kind)
+        .str(run.kind_suffix)
         .ks("integrator", run.integrator)
         .kv("levels", levels.len() as u32)
         .kv("steps", n as u32)
@@ -888,6 +936,7 @@ fn table_line(
     let mut l = Line::new();
     l.str("table")
         .ks("kind", run.kind)
+        .str(run.kind_suffix)
         .ks("integrator", run.integrator)
         .kv("segments", nemm_firmware::TABLE_SEGMENTS as u32)
         .kv("tables", tables as u32)
