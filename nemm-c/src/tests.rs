@@ -433,6 +433,48 @@ fn a_static_force_needs_the_position() {
     }
 }
 
+/// A model with the lost-motion element runs through the C interface as nemm-core's
+/// estimator does, bit for bit, in exact and table mode; on the SEM the element is refused
+/// with its own status.
+#[test]
+fn a_lost_motion_model_runs_as_the_estimator() {
+    let mut model: Model<NEMM_PARAM_CAPACITY> =
+        nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
+    model.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
+    let mut buf = std::vec![0u8; 100_000];
+    let blob = nemm_core::encode(&model, &mut buf).unwrap().to_vec();
+    for mode in [NEMM_MODE_EXACT, NEMM_MODE_TABLE] {
+        let core_cfg = EstimatorConfig {
+            mode: if mode == NEMM_MODE_TABLE {
+                table(NEMM_TABLE_MAX_REL_ERROR)
+            } else {
+                EvalMode::Exact
+            },
+            ..EstimatorConfig::new(0.3)
+        };
+        let (_, mut want) = reference(&blob, core_cfg);
+        let mut st = estimator_storage();
+        assert_eq!(init(&mut st.0, &blob, &cfg(0.3, mode)), NEMM_OK);
+        for &v in velocities(300).iter() {
+            let (s, e) = step(&mut st.0, v);
+            let w = want.step(v);
+            assert_eq!(s, NEMM_OK);
+            assert_eq!(
+                (e.force_n.to_bits(), e.flags),
+                (w.force_n.to_bits(), w.flags.0),
+                "mode {mode}"
+            );
+        }
+    }
+    let mut sem: Model<NEMM_PARAM_CAPACITY> =
+        nemm_core::testing::example_model(ModelKind::Sem, 16, 5).unwrap();
+    sem.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
+    assert_eq!(
+        nemm_status_t::from(sem.validate().unwrap_err()),
+        NEMM_E_MODEL_LOST_MOTION_ON_SEM
+    );
+}
+
 fn observer_init(
     obs: &mut nemm_observer_t,
     est: &nemm_estimator_t,
