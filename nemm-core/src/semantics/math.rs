@@ -297,19 +297,19 @@ impl Lane for f64 {
     }
     #[inline(always)]
     fn fma(a: Self, b: Self, c: Self) -> Self {
-        libm::fma(a, b, c)
+        <f64 as Scalar>::fma(a, b, c)
     }
     #[inline(always)]
     fn exp(x: Self) -> Self {
-        libm::exp(x)
+        <f64 as Scalar>::exp(x)
     }
     #[inline(always)]
     fn sqrt(x: Self) -> Self {
-        libm::sqrt(x)
+        <f64 as Scalar>::sqrt(x)
     }
     #[inline(always)]
     fn rsqrt(x: Self) -> Self {
-        1.0 / libm::sqrt(x)
+        <f64 as Scalar>::rsqrt(x)
     }
     #[inline(always)]
     fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {

@@ -315,6 +315,15 @@ pub const LOG_CONSTANT_SCALE: f32 = 10.0;
 /// times faster than the constants (15 % per step at lr 5e-3).
 pub const LOG_LOST_MOTION_SCALE: f32 = 30.0;
 
+/// Adds `d` to the gradient of parameter `id` in `gp` (registers it if there is none).
+fn add_grad(gp: &mut GradientsParams, id: burn::module::ParamId, d: Tensor<1>) {
+    let d = match gp.remove::<1>(id) {
+        Some(old) => old + d,
+        None => d,
+    };
+    gp.register(id, d);
+}
+
 /// All trainable parameters of an EMM-family model.
 #[derive(Module, Debug)]
 pub struct EmmNet {
@@ -550,12 +559,7 @@ impl EmmNet {
                 }
             })
             .collect();
-        let t = tensor1(&dlog, &dev);
-        let t = match gp.remove::<1>(self.log_c.id) {
-            Some(old) => old + t,
-            None => t,
-        };
-        gp.register(self.log_c.id, t);
+        add_grad(gp, self.log_c.id, tensor1(&dlog, &dev));
         for (net, flat) in [
             (&self.b_fl, &g.b_fl),
             (&self.b_pr, &g.b_pr),
@@ -579,12 +583,7 @@ impl EmmNet {
                     sf[q] * fr.units[q] * sign
                 })
                 .collect();
-            let d = tensor1(&d, &dev);
-            let d = match gp.remove::<1>(t.id) {
-                Some(old) => old + d,
-                None => d,
-            };
-            gp.register(t.id, d);
+            add_grad(gp, t.id, tensor1(&d, &dev));
         }
         if let (Some(t), Some(v), Some(gl)) = (
             &self.lost_motion,
@@ -595,12 +594,7 @@ impl EmmNet {
             let d: Vec<f32> = (0..LOST_MOTION_PARAMS)
                 .map(|q| LOG_LOST_MOTION_SCALE * v[q] * gl[q])
                 .collect();
-            let d = tensor1(&d, &dev);
-            let d = match gp.remove::<1>(t.id) {
-                Some(old) => old + d,
-                None => d,
-            };
-            gp.register(t.id, d);
+            add_grad(gp, t.id, tensor1(&d, &dev));
         }
     }
 

@@ -219,14 +219,9 @@ impl<'a> Stages<'a> {
             let t = Instant::now();
             let (best, loss, tried) = self.search_lost_motion(&p0, force_scale as f32);
             eprintln!(
-                "[linear-emm] lost motion: start from f0 {:.0} N, travels {:.2} / {:.2} mm + \
-                 {:.2} / {:.2} mm per unit alpha (compression / rebound; the least training \
-                 loss {loss:.3e} of {tried} candidates, {:.1} s)",
-                best[0],
-                1e3 * best[1],
-                1e3 * best[3],
-                1e3 * best[2],
-                1e3 * best[4],
+                "[linear-emm] lost motion: start from {} (the least training loss {loss:.3e} \
+                 of {tried} candidates, {:.1} s)",
+                describe_lost_motion(&best),
                 t.elapsed().as_secs_f64()
             );
             p0.lost_motion = Some(best);
@@ -281,29 +276,16 @@ impl<'a> Stages<'a> {
             let (best, loss, tried) =
                 self.search_lost_motion_in(&lin_p, &lost_motion_candidates(trained, &AROUND));
             eprintln!(
-                "[linear-emm] lost motion for the neural stages: f0 {:.0} N, travels {:.2} / \
-                 {:.2} mm + {:.2} / {:.2} mm per unit alpha (compression / rebound; training \
-                 loss {loss:.3e}, the least of {tried} candidates around the trained element, \
-                 {:.1} s)",
-                best[0],
-                1e3 * best[1],
-                1e3 * best[3],
-                1e3 * best[2],
-                1e3 * best[4],
+                "[linear-emm] lost motion for the neural stages: {} (training loss \
+                 {loss:.3e}, the least of {tried} candidates around the trained element, {:.1} \
+                 s)",
+                describe_lost_motion(&best),
                 t.elapsed().as_secs_f64()
             );
             p0.lost_motion = Some(best);
         }
         if let Some(lm) = lin_p.lost_motion {
-            eprintln!(
-                "[linear-emm] lost motion: f0 {:.0} N, compression travel {:.2} mm + {:.2} mm \
-                 per unit alpha, rebound travel {:.2} mm + {:.2} mm per unit alpha",
-                lm[0],
-                1e3 * lm[1],
-                1e3 * lm[2],
-                1e3 * lm[3],
-                1e3 * lm[4]
-            );
+            eprintln!("[linear-emm] lost motion: {}", describe_lost_motion(&lm));
         }
         if let Some(setup) = &self.static_setup {
             // The neural stages start from the least-squares static force of the trained
@@ -604,6 +586,19 @@ pub(super) fn without_alpha(mut s: ScalerWeights<f32>) -> ScalerWeights<f32> {
         v.fill(0.0);
     }
     s
+}
+
+/// A lost-motion element (order of `nemm_core::LostMotion::params`) in words.
+fn describe_lost_motion(l: &[f32; 5]) -> String {
+    format!(
+        "f0 {:.0} N, travels {:.2} / {:.2} mm + {:.2} / {:.2} mm per unit alpha (compression / \
+         rebound)",
+        l[0],
+        1e3 * l[1],
+        1e3 * l[3],
+        1e3 * l[2],
+        1e3 * l[4]
+    )
 }
 
 /// Factors of a lost-motion search: `f0`, the travels at `alpha = 0`, their growth per
