@@ -93,6 +93,35 @@ fn recovers_the_level_of_synthetic_data() {
     }
 }
 
+/// A damper whose only change with the level is the lost-motion element (a Linear EMM with
+/// it: constant coefficients otherwise) is read back from its force alone, and so is the
+/// example NEMM with the element.
+#[test]
+fn recovers_the_level_through_the_lost_motion_element() {
+    let lm = nemm_core::testing::EXAMPLE_LOST_MOTION;
+    let mut linear: Model<Q> =
+        nemm_core::testing::example_model(nemm_core::ModelKind::LinearEmm, 8, 2)
+            .expect("example model");
+    linear.lost_motion = Some(lm);
+    let mut nemm = example();
+    nemm.lost_motion = Some(lm);
+    for m in [linear, nemm] {
+        let v = excitation(10_000, m.dt_s);
+        for alpha in [0.04f32, 0.21] {
+            let f = synthetic(&m, &v, |_| alpha);
+            let mut o = observer(&m, ObserverConfig::new());
+            let out = run(&mut o, &v, &f);
+            let end = out.last().expect("estimates");
+            assert!(
+                (end.alpha - alpha).abs() < 0.01,
+                "{:?} {alpha}: {end:?}",
+                m.kind()
+            );
+            assert!(end.flags.is_empty(), "{:?} {alpha}: {end:?}", m.kind());
+        }
+    }
+}
+
 #[test]
 fn no_motion_is_not_excited() {
     let m = example();
