@@ -84,19 +84,26 @@ fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> D
     }
 }
 
-#[test]
-fn linear_emm_stage_recovers_known_constants() {
-    let truth = truth();
-    let ds = dataset_from(&truth, &[2.0, 6.0, 12.0, 25.0], &[0.0, 0.15, 0.3], 2.5);
-    let prepared = preprocess::prepare(&ds, &PrepareConfig::default()).expect("prepare");
-    let cfg = PipelineConfig {
+/// The Linear EMM stage for 40 epochs without early stopping, with or without the
+/// lost-motion element.
+fn linear_emm_config(lost_motion: bool) -> PipelineConfig {
+    PipelineConfig {
         linear_epochs: 40,
+        lost_motion,
         fit: FitConfig {
             patience: 40,
             ..FitConfig::default()
         },
         ..PipelineConfig::default()
-    };
+    }
+}
+
+#[test]
+fn linear_emm_stage_recovers_known_constants() {
+    let truth = truth();
+    let ds = dataset_from(&truth, &[2.0, 6.0, 12.0, 25.0], &[0.0, 0.15, 0.3], 2.5);
+    let prepared = preprocess::prepare(&ds, &PrepareConfig::default()).expect("prepare");
+    let cfg = linear_emm_config(false);
     let trained =
         train_variants(&prepared, &[ModelKind::LinearEmm], &cfg, None, false).expect("train");
     let e = trained[0].model.emm().copied().expect("emm");
@@ -132,15 +139,7 @@ fn lost_motion_is_learned_on_the_side_the_damper_loses_it() {
     let prepared = preprocess::prepare(&ds, &PrepareConfig::default()).expect("prepare");
     assert!(!prepared.test.is_empty(), "0.15 held out");
     let train = |lost_motion: bool| {
-        let cfg = PipelineConfig {
-            linear_epochs: 40,
-            lost_motion,
-            fit: FitConfig {
-                patience: 40,
-                ..FitConfig::default()
-            },
-            ..PipelineConfig::default()
-        };
+        let cfg = linear_emm_config(lost_motion);
         let trained =
             train_variants(&prepared, &[ModelKind::LinearEmm], &cfg, None, false).expect("train");
         let blob = nemm_core::encode_to_vec(&trained[0].model).expect("encode");

@@ -349,20 +349,15 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
         let lm = self.lost_motion_at(alpha);
         let lost_motion = lm.as_ref();
         Some(match self.neural.1 {
-            true => CoefStage {
+            true => with_coef_stage!(
                 b_fl,
-                k_pr: self.blend(&self.k_pr, 2, i, w)?,
+                self.blend(&self.k_pr, 2, i, w)?,
                 b_pr,
                 lost_motion,
-            }
-            .coeffs(s),
-            false => CoefStage {
-                b_fl,
-                k_pr: self.k_pr_ini,
-                b_pr,
-                lost_motion,
-            }
-            .coeffs(s),
+                |stage| stage.coeffs(s)
+            ),
+            false => with_coef_stage!(b_fl, self.k_pr_ini, b_pr, lost_motion, |stage| stage
+                .coeffs(s)),
         })
     }
 
@@ -376,20 +371,10 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
         let lm = self.lost_motion_at(*self.alpha.get(k)?);
         let lost_motion = lm.as_ref();
         Some(match self.neural.1 {
-            true => CoefStage {
-                b_fl,
-                k_pr: self.k_pr.get(k)?,
-                b_pr,
-                lost_motion,
-            }
-            .coeffs(s),
-            false => CoefStage {
-                b_fl,
-                k_pr: self.k_pr_ini,
-                b_pr,
-                lost_motion,
-            }
-            .coeffs(s),
+            true => with_coef_stage!(b_fl, self.k_pr.get(k)?, b_pr, lost_motion, |stage| stage
+                .coeffs(s)),
+            false => with_coef_stage!(b_fl, self.k_pr_ini, b_pr, lost_motion, |stage| stage
+                .coeffs(s)),
         })
     }
 
@@ -551,22 +536,20 @@ impl<const P: usize, const T0: usize> Estimator<P, T0> {
         let lost_motion = lm.as_ref();
         Ok(if levels.neural.1 {
             let k_pr = levels.blend(&levels.k_pr, 2, i, w).ok_or(mismatch)?;
-            let mut stage = CoefStage {
-                b_fl,
-                k_pr,
-                b_pr,
-                lost_motion,
-            };
-            self.stage_step(&mut stage, levels, velocity_m_s, at)
+            with_coef_stage!(b_fl, k_pr, b_pr, lost_motion, |stage| self.stage_step(
+                &mut stage,
+                levels,
+                velocity_m_s,
+                at
+            ))
         } else {
             let k_pr = levels.k_pr_ini;
-            let mut stage = CoefStage {
-                b_fl,
-                k_pr,
-                b_pr,
-                lost_motion,
-            };
-            self.stage_step(&mut stage, levels, velocity_m_s, at)
+            with_coef_stage!(b_fl, k_pr, b_pr, lost_motion, |stage| self.stage_step(
+                &mut stage,
+                levels,
+                velocity_m_s,
+                at
+            ))
         })
     }
 
@@ -594,22 +577,20 @@ impl<const P: usize, const T0: usize> Estimator<P, T0> {
         let lost_motion = lm.as_ref();
         let e = if levels.neural.1 {
             let k_pr = levels.k_pr.get(k)?;
-            let mut stage = CoefStage {
-                b_fl,
-                k_pr,
-                b_pr,
-                lost_motion,
-            };
-            self.stage_step(&mut stage, levels, velocity_m_s, at)
+            with_coef_stage!(b_fl, k_pr, b_pr, lost_motion, |stage| self.stage_step(
+                &mut stage,
+                levels,
+                velocity_m_s,
+                at
+            ))
         } else {
             let k_pr = levels.k_pr_ini;
-            let mut stage = CoefStage {
-                b_fl,
-                k_pr,
-                b_pr,
-                lost_motion,
-            };
-            self.stage_step(&mut stage, levels, velocity_m_s, at)
+            with_coef_stage!(b_fl, k_pr, b_pr, lost_motion, |stage| self.stage_step(
+                &mut stage,
+                levels,
+                velocity_m_s,
+                at
+            ))
         };
         self.store_member(m);
         Some(e)

@@ -160,16 +160,43 @@ impl<const P: usize> StateCoef for &CompiledScaler<P> {
 
 /// The coefficients at an RK stage from `b_fl(v_st)`, `k_pr(x_pr)` and the constant `b_pr`,
 /// monomorphised per source so that every stage is inlined (the domain flag of table mode
-/// is raised for the new state only, by the caller); `k_pr` passes through the lost-motion
-/// element at the current level if the model has one.
-pub(super) struct CoefStage<'l, B, K> {
+/// is raised for the new state only, by the caller). A model with the lost-motion element
+/// runs `K` = [`LostMotionK`] around its `k_pr` source, so that a model without it runs no
+/// instruction of it.
+pub(super) struct CoefStage<B, K> {
     pub(super) b_fl: B,
     pub(super) k_pr: K,
     pub(super) b_pr: f32,
-    pub(super) lost_motion: Option<&'l LostMotionAt>,
 }
 
-/// `k_pr` at `x_pr` through the lost-motion element `lm`, if any.
+impl<B: StateCoef, K: StateCoef> Stage for CoefStage<B, K> {
+    #[inline(always)]
+    fn coeffs(&mut self, s: &State) -> Coefficients {
+        Coefficients {
+            b_fl: self.b_fl.at(s.v_st_m_s),
+            b_pr: self.b_pr,
+            k_pr: self.k_pr.at(s.x_pr_m),
+        }
+    }
+}
+
+/// A `k_pr` source through the lost-motion element at the current level: `k_eff(k_l(x_pr),
+/// x_pr)`.
+#[derive(Clone, Copy)]
+pub(super) struct LostMotionK<'a, K> {
+    pub(super) k_l: K,
+    pub(super) at: &'a LostMotionAt,
+}
+
+impl<K: StateCoef> StateCoef for LostMotionK<'_, K> {
+    #[inline(always)]
+    fn at(&self, x_pr: f32) -> f32 {
+        self.at.k_eff(self.k_l.at(x_pr), x_pr)
+    }
+}
+
+/// `k_pr` at `x_pr` through the lost-motion element `lm`, if any (the paths outside the
+/// per-step stages).
 #[inline(always)]
 pub(super) fn k_pr_eff(k_pr: f32, x_pr: f32, lm: Option<&LostMotionAt>) -> f32 {
     match lm {
@@ -178,16 +205,32 @@ pub(super) fn k_pr_eff(k_pr: f32, x_pr: f32, lm: Option<&LostMotionAt>) -> f32 {
     }
 }
 
-impl<B: StateCoef, K: StateCoef> Stage for CoefStage<'_, B, K> {
-    #[inline(always)]
-    fn coeffs(&mut self, s: &State) -> Coefficients {
-        Coefficients {
-            b_fl: self.b_fl.at(s.v_st_m_s),
-            b_pr: self.b_pr,
-            k_pr: k_pr_eff(self.k_pr.at(s.x_pr_m), s.x_pr_m, self.lost_motion),
+/// Runs `$run` (an expression of `$stage`) with the `CoefStage` of `$b_fl`, `$k_pr`, `$b_pr`,
+/// the `k_pr` source wrapped in [`LostMotionK`] when `$lm` (an `Option<&LostMotionAt>`) is
+/// set: one monomorphised step per case, chosen once per step.
+macro_rules! with_coef_stage {
+    ($b_fl:expr, $k_pr:expr, $b_pr:expr, $lm:expr, |$stage:ident| $run:expr) => {
+        match $lm {
+            None => {
+                let mut $stage = CoefStage {
+                    b_fl: $b_fl,
+                    k_pr: $k_pr,
+                    b_pr: $b_pr,
+                };
+                $run
+            }
+            Some(at) => {
+                let mut $stage = CoefStage {
+                    b_fl: $b_fl,
+                    k_pr: LostMotionK { k_l: $k_pr, at },
+                    b_pr: $b_pr,
+                };
+                $run
+            }
         }
-    }
+    };
 }
+pub(super) use with_coef_stage;
 
 /// Any runtime's coefficients through [`EmmRuntime::coeffs`] (mixes no model kind builds).
 pub(super) struct RuntimeStage<'a, const P: usize, const T: usize>(pub(super) &'a EmmRuntime<P, T>);
@@ -340,56 +383,47 @@ impl<const P: usize, const T: usize> EmmRuntime<P, T> {
         match (self.b_fl.kind, self.k_pr.kind) {
             (CoefKind::Table, CoefKind::Table) => {
                 let (tb, tk) = (&self.b_fl.table, &self.k_pr.table);
-                let mut stage = CoefStage {
-                    b_fl: tb,
-                    k_pr: tk,
-                    b_pr,
-                    lost_motion,
-                };
-                let r = self.run::<Unfused, _>(&mut stage, x0, c0, u0, u1);
+                let r = with_coef_stage!(tb, tk, b_pr, lost_motion, |stage| self
+                    .run::<Unfused, _>(&mut stage, x0, c0, u0, u1));
                 *out = !(tb.contains(r.0.v_st_m_s) && tk.contains(r.0.x_pr_m));
                 r
             }
             (CoefKind::Table, CoefKind::Const) => {
                 let tb = &self.b_fl.table;
-                let mut stage = CoefStage {
-                    b_fl: tb,
-                    k_pr: self.k_pr.value,
-                    b_pr,
-                    lost_motion,
-                };
-                let r = self.run::<Unfused, _>(&mut stage, x0, c0, u0, u1);
+                let r =
+                    with_coef_stage!(tb, self.k_pr.value, b_pr, lost_motion, |stage| self
+                        .run::<Unfused, _>(&mut stage, x0, c0, u0, u1));
                 *out = !tb.contains(r.0.v_st_m_s);
                 r
             }
             // Exact mode: the reference (fused) arithmetic; the scalers out of line.
             (CoefKind::Neural, CoefKind::Neural) => {
-                let mut stage = CoefStage {
-                    b_fl: &self.b_fl.exact,
-                    k_pr: &self.k_pr.exact,
+                with_coef_stage!(
+                    &self.b_fl.exact,
+                    &self.k_pr.exact,
                     b_pr,
                     lost_motion,
-                };
-                self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+                    |stage| self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+                )
             }
             (CoefKind::Neural, CoefKind::Const) => {
-                let mut stage = CoefStage {
-                    b_fl: &self.b_fl.exact,
-                    k_pr: self.k_pr.value,
+                with_coef_stage!(
+                    &self.b_fl.exact,
+                    self.k_pr.value,
                     b_pr,
                     lost_motion,
-                };
-                self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+                    |stage| self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+                )
             }
             // The Linear EMM: constants, the reference (fused) arithmetic.
             (CoefKind::Const, CoefKind::Const) => {
-                let mut stage = CoefStage {
-                    b_fl: self.b_fl.value,
-                    k_pr: self.k_pr.value,
+                with_coef_stage!(
+                    self.b_fl.value,
+                    self.k_pr.value,
                     b_pr,
                     lost_motion,
-                };
-                self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+                    |stage| self.run::<Fused, _>(&mut stage, x0, c0, u0, u1)
+                )
             }
             // No model kind builds these mixes; any coefficient through `coeffs`.
             _ => {

@@ -251,79 +251,51 @@ pub trait Lane:
     fn sum(x: Self) -> Self::Scalar;
 }
 
-impl Lane for f32 {
-    type Scalar = f32;
-    #[inline(always)]
-    fn splat(v: f32) -> Self {
-        v
-    }
-    #[inline(always)]
-    fn fma(a: Self, b: Self, c: Self) -> Self {
-        fma(a, b, c)
-    }
-    #[inline(always)]
-    fn exp(x: Self) -> Self {
-        exp(x)
-    }
-    #[inline(always)]
-    fn sqrt(x: Self) -> Self {
-        sqrt(x)
-    }
-    #[inline(always)]
-    fn rsqrt(x: Self) -> Self {
-        rsqrt(x)
-    }
-    #[inline(always)]
-    fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {
-        if test >= 0.0 {
-            if_nonneg
-        } else {
-            otherwise
+/// A scalar as one lane, through its [`Scalar`] arithmetic (for `f32` the math backend's).
+macro_rules! scalar_lane {
+    ($t:ty) => {
+        impl Lane for $t {
+            type Scalar = $t;
+            #[inline(always)]
+            fn splat(v: $t) -> Self {
+                v
+            }
+            #[inline(always)]
+            fn fma(a: Self, b: Self, c: Self) -> Self {
+                <$t as Scalar>::fma(a, b, c)
+            }
+            #[inline(always)]
+            fn exp(x: Self) -> Self {
+                <$t as Scalar>::exp(x)
+            }
+            #[inline(always)]
+            fn sqrt(x: Self) -> Self {
+                <$t as Scalar>::sqrt(x)
+            }
+            #[inline(always)]
+            fn rsqrt(x: Self) -> Self {
+                <$t as Scalar>::rsqrt(x)
+            }
+            #[inline(always)]
+            fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {
+                if test >= 0.0 {
+                    if_nonneg
+                } else {
+                    otherwise
+                }
+            }
+            #[inline(always)]
+            fn sum(x: Self) -> $t {
+                x
+            }
         }
-    }
-    #[inline(always)]
-    fn sum(x: Self) -> f32 {
-        x
-    }
+    };
 }
 
-/// `f64` as one lane: the reference arithmetic of tests and tools.
+scalar_lane!(f32);
+// `f64` as one lane: the reference arithmetic of tests and tools.
 #[cfg(any(test, feature = "semantics"))]
-impl Lane for f64 {
-    type Scalar = f64;
-    #[inline(always)]
-    fn splat(v: f64) -> Self {
-        v
-    }
-    #[inline(always)]
-    fn fma(a: Self, b: Self, c: Self) -> Self {
-        <f64 as Scalar>::fma(a, b, c)
-    }
-    #[inline(always)]
-    fn exp(x: Self) -> Self {
-        <f64 as Scalar>::exp(x)
-    }
-    #[inline(always)]
-    fn sqrt(x: Self) -> Self {
-        <f64 as Scalar>::sqrt(x)
-    }
-    #[inline(always)]
-    fn rsqrt(x: Self) -> Self {
-        <f64 as Scalar>::rsqrt(x)
-    }
-    #[inline(always)]
-    fn select_nonneg(test: Self, if_nonneg: Self, otherwise: Self) -> Self {
-        if test >= 0.0 {
-            if_nonneg
-        } else {
-            otherwise
-        }
-    }
-    #[inline(always)]
-    fn sum(x: Self) -> f64 {
-        x
-    }
-}
+scalar_lane!(f64);
 
 #[cfg(feature = "reverse")]
 mod lanes;
