@@ -124,7 +124,8 @@ enum Cmd {
         #[command(flatten)]
         args: nemm_train::config::ConfigArgs,
         /// Grid: lambda (Table 5), priors (Table 5 by construction and by the penalty
-        /// alone) or table3 (Table 3 search space x lambda list).
+        /// alone), table3 (Table 3 search space x lambda list) or degradation (the paper's
+        /// NEMM, b_fl fixed in alpha, the lost-motion element, both; into degradation.md).
         #[arg(long, value_enum, default_value_t = nemm_train::cli::train::SweepGrid::Lambda)]
         grid: nemm_train::cli::train::SweepGrid,
         /// The Table 3 grid's values.
@@ -344,7 +345,7 @@ fn main() -> ExitCode {
                     base.validate()?;
                     let lambdas = args
                         .lambda_ph_list()
-                        .map_or_else(|| t::TABLE5_LAMBDAS.to_vec(), <[f64]>::to_vec);
+                        .map_or_else(|| grid.default_lambdas(&base), <[f64]>::to_vec);
                     t::sweep(&base, grid, &table3, &lambdas, &report, &options)
                 })
             }

@@ -562,6 +562,76 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     )
     .expect("sweep.json");
     assert!(sweep_json.to_string().contains("lph5"), "{sweep_json}");
+    // A job's report says where its model puts the degradation: the levels read back, the
+    // signature, the learned against the bench's coefficients.
+    let job_report: Report = serde_json::from_str(
+        &std::fs::read_to_string(sweep.join("jobs/lph5/report.json")).expect("report.json"),
+    )
+    .expect("Report");
+    let id = job_report.identify.as_ref().expect("identify");
+    assert_eq!(id.variants["nemm"].fits.len(), id.runs.len());
+    assert!(!job_report
+        .signature
+        .as_ref()
+        .expect("signature")
+        .rows
+        .is_empty());
+    assert!(job_report.bench_reference.is_some());
+
+    // The degradation grid: the four element choices, each in its job's config.toml.
+    let degradation = dir.join("degradation");
+    let list = Nemm::new(&["sweep", "--grid", "degradation", "--list", "--data"])
+        .arg(&data)
+        .arg("--report")
+        .arg(&degradation)
+        .budget()
+        .ok();
+    let commands: Vec<&str> = list.lines().filter(|l| l.contains(" train ")).collect();
+    assert_eq!(commands.len(), 4, "{list}");
+    for (id, lost_motion, b_fl_alpha) in [
+        ("paper_lph5", false, true),
+        ("fixed-b-fl_lph5", false, false),
+        ("lost-motion_lph5", true, true),
+        ("lost-motion-fixed-b-fl_lph5", true, false),
+    ] {
+        let job = degradation.join("jobs").join(id);
+        let text = std::fs::read_to_string(job.join("config.toml")).expect("config.toml");
+        assert!(
+            text.contains(&format!("lost_motion = {lost_motion}"))
+                && text.contains(&format!("b_fl_alpha = {b_fl_alpha}")),
+            "{id}: {text}"
+        );
+        if id == "paper_lph5" {
+            // The paper's point trained as the lambda sweep's lph5 (the same configuration):
+            // its report collected with the degradation columns.
+            std::fs::copy(sweep.join("jobs/lph5/report.json"), job.join("report.json"))
+                .expect("copy the report");
+        }
+    }
+    let collected = Nemm::new(&["sweep", "--collect"]).arg(&degradation).ok();
+    let table =
+        std::fs::read_to_string(degradation.join("degradation.md")).expect("degradation.md");
+    assert!(
+        collected.contains("| paper_lph5 | no | yes | 5 |"),
+        "{collected}"
+    );
+    let row = table
+        .lines()
+        .find(|l| l.starts_with("| paper_lph5 | no | yes | 5 |"))
+        .unwrap_or_else(|| panic!("no paper row:\n{table}"));
+    let sig = job_report
+        .signature
+        .as_ref()
+        .expect("signature")
+        .summary("nemm");
+    let top = sig.last().expect("a lossy level");
+    for part in [
+        format!("{:.2} at {}", top.median, top.alpha),
+        "0.15 (test): ".to_string(),
+    ] {
+        assert!(row.contains(&part), "{part} missing: {row}");
+    }
+    assert!(table.contains("- `lost-motion_lph5`: no result"), "{table}");
 
     // The main job on this bench (found, not generated), at one batch: Table 4, model.nemm,
     // and the exported model run through nemm-core on a held-out run.

@@ -87,6 +87,67 @@ pub struct SignatureReport {
     pub skipped: Vec<String>,
 }
 
+/// One model's signature at one lossy level, over its conditions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LevelSignature {
+    /// The lossy level.
+    pub alpha: f64,
+    /// Conditions at the level with the model's error.
+    pub conditions: usize,
+    /// Median relative error over them.
+    pub median: f64,
+    /// Conditions within [`SIGNATURE_BAR`].
+    pub within: usize,
+    /// The smallest amplitude of the report \[m\].
+    pub small_amplitude_m: f64,
+    /// Conditions at the smallest amplitude with the model's error.
+    pub small_conditions: usize,
+    /// Of those, within [`SIGNATURE_BAR`].
+    pub small_within: usize,
+    /// The largest relative error at the smallest amplitude (0 without one).
+    pub small_worst: f64,
+}
+
+impl SignatureReport {
+    /// The lossy levels of the report, ascending.
+    pub fn levels(&self) -> Vec<f64> {
+        sorted_unique(self.rows.iter().map(|row| row.alpha).collect())
+    }
+
+    /// Model `key`'s signature at each lossy level ([`Self::levels`]).
+    pub fn summary(&self, key: &str) -> Vec<LevelSignature> {
+        let min_amp = self
+            .rows
+            .iter()
+            .map(|row| row.amplitude_m)
+            .fold(f64::INFINITY, f64::min);
+        self.levels()
+            .into_iter()
+            .map(|a| {
+                let at = self.rows.iter().filter(|row| same(row.alpha, a));
+                let errs: Vec<f64> = at
+                    .clone()
+                    .filter_map(|row| row.rel_error.get(key).copied())
+                    .collect();
+                let small: Vec<f64> = at
+                    .filter(|row| same(row.amplitude_m, min_amp))
+                    .filter_map(|row| row.rel_error.get(key).copied())
+                    .collect();
+                LevelSignature {
+                    alpha: a,
+                    conditions: errs.len(),
+                    within: errs.iter().filter(|e| **e <= SIGNATURE_BAR).count(),
+                    median: median(errs),
+                    small_amplitude_m: min_amp,
+                    small_conditions: small.len(),
+                    small_within: small.iter().filter(|e| **e <= SIGNATURE_BAR).count(),
+                    small_worst: small.iter().copied().fold(0.0, f64::max),
+                }
+            })
+            .collect()
+    }
+}
+
 /// A run's measured loop and each model's loop of it.
 struct RunLoops {
     measured: CycleLoop,
@@ -307,18 +368,9 @@ pub fn signature_markdown(r: &SignatureReport) -> String {
          the measured one, cycle-averaged; relative error RMS(model - measured) / RMS(measured): \
          0 reproduces the measured degradation, 1 is as wrong as predicting no change):\n"
     );
-    let levels = sorted_unique(r.rows.iter().map(|row| row.alpha).collect());
-    let min_amp = r
-        .rows
-        .iter()
-        .map(|row| row.amplitude_m)
-        .fold(f64::INFINITY, f64::min);
-    for &a in &levels {
+    let summaries: Vec<Vec<LevelSignature>> = variants.iter().map(|v| r.summary(v.key())).collect();
+    for (k, a) in r.levels().into_iter().enumerate() {
         let at: Vec<&SignatureRow> = r.rows.iter().filter(|row| same(row.alpha, a)).collect();
-        let small: Vec<&&SignatureRow> = at
-            .iter()
-            .filter(|row| same(row.amplitude_m, min_amp))
-            .collect();
         let _ = writeln!(
             s,
             "- level {a}: {} conditions, measured difference {:.0}-{:.0} N RMS",
@@ -328,27 +380,20 @@ pub fn signature_markdown(r: &SignatureReport) -> String {
                 .fold(f64::INFINITY, f64::min),
             at.iter().map(|x| x.measured_rms_n).fold(0.0, f64::max),
         );
-        for v in &variants {
-            let errs: Vec<f64> = at
-                .iter()
-                .filter_map(|row| row.rel_error.get(v.key()).copied())
-                .collect();
-            let within = errs.iter().filter(|e| **e <= SIGNATURE_BAR).count();
-            let small_errs: Vec<f64> = small
-                .iter()
-                .filter_map(|row| row.rel_error.get(v.key()).copied())
-                .collect();
-            let small_within = small_errs.iter().filter(|e| **e <= SIGNATURE_BAR).count();
+        for (v, sum) in variants.iter().zip(&summaries) {
+            let l = &sum[k];
             let _ = writeln!(
                 s,
-                "  - {}: median {:.2}; within {SIGNATURE_BAR} on {within} of {}; at {:.0} mm \
-                 within on {small_within} of {} (worst {:.2})",
+                "  - {}: median {:.2}; within {SIGNATURE_BAR} on {} of {}; at {:.0} mm \
+                 within on {} of {} (worst {:.2})",
                 v.title(),
-                median(errs.clone()),
-                errs.len(),
-                min_amp * 1e3,
-                small_errs.len(),
-                small_errs.iter().copied().fold(0.0, f64::max),
+                l.median,
+                l.within,
+                l.conditions,
+                l.small_amplitude_m * 1e3,
+                l.small_within,
+                l.small_conditions,
+                l.small_worst,
             );
         }
     }

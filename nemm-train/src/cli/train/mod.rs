@@ -497,7 +497,9 @@ pub fn check_job_outputs(
 }
 
 /// `nemm train`: trains `cfg.model.variant` on `cfg.data` and writes the blob `out`; with
-/// `report_dir`, also `report.json`, `table.md` and the effective `config.toml` there.
+/// `report_dir`, also `report.json`, `table.md` (with where the model puts the degradation:
+/// [`compare::degradation_report`]), `identify.md`, the signature and its figure, and the
+/// effective `config.toml` there.
 /// `replace`: `out` may replace an existing file that is not a weights blob.
 pub fn train(
     cfg: &Config,
@@ -560,9 +562,22 @@ pub fn train(
     );
     if let Some(dir) = report_dir {
         let mut report = report;
+        let degradation = compare::degradation_report(
+            &mut report,
+            std::slice::from_ref(tv),
+            &ds,
+            &prepared,
+            &cfg.data.dir,
+        );
+        if let Some(c) = &report.bench_reference {
+            println!("{}", c.markdown());
+        }
         record_provenance(&mut report);
         write_report(dir, &report, "table.md")?;
         cfg.save(&dir.join(CONFIG_FILE))?;
+        if let Some(loops) = &degradation.signature {
+            compare::write_signature_figure(loops, dir, report.force_scale_n);
+        }
     }
     Ok(())
 }

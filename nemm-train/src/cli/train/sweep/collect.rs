@@ -3,6 +3,7 @@
 //! `table3.md`) with `sweep.json`, whichever engine ran the jobs.
 
 use super::*;
+use crate::report::signature::LevelSignature;
 use std::fmt::Write as _;
 
 /// The sweep's job list in its report folder.
@@ -181,6 +182,8 @@ struct Row<'a> {
     violations: usize,
     seconds: f64,
     info: std::collections::BTreeMap<String, String>,
+    /// The degradation grid's figures of the job's NEMM.
+    degradation: DegradationCells,
 }
 
 /// Reads every job's state under `<report>/jobs/` and writes `sweep.json` (every job with its
@@ -210,6 +213,7 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
                     violations: v.violations,
                     seconds: v.train_seconds,
                     info: r.info.clone(),
+                    degradation: DegradationCells::of(&r, "nemm"),
                 }),
                 None => failed.push((j.id.clone(), "its report has no NEMM".to_string())),
             },
@@ -218,6 +222,7 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
         }
     }
     let table3 = manifest.grid == SweepGrid::Table3;
+    let degradation = manifest.grid == SweepGrid::Degradation;
     let base = rows
         .iter()
         .find(|r| r.job.config.train.lambda_ph == 0.0)
@@ -238,11 +243,21 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
             "| Job | Batch | Hidden | Layers | Learning rate |",
             "|---|---:|---:|---:|---:|",
         )
+    } else if degradation {
+        ("| Job | Lost motion | b_fl in alpha |", "|---|---|---|")
     } else {
         ("| Job | Alpha priors |", "|---|---|")
     };
-    let _ = writeln!(md, "{head} lambda_ph | Validation RMSE | Test RMSE | Test RMSE [N] | Rel. test error (%) | Violations | Time |");
-    let _ = writeln!(md, "{rule}---:|---:|---:|---:|---:|---:|---:|");
+    if degradation {
+        md += DegradationCells::LEGEND;
+    }
+    let (tail_head, tail_rule) = if degradation {
+        (DegradationCells::HEAD, DegradationCells::RULE)
+    } else {
+        ("", "")
+    };
+    let _ = writeln!(md, "{head} lambda_ph | Validation RMSE | Test RMSE | Test RMSE [N] | Rel. test error (%) | Violations |{tail_head} Time |");
+    let _ = writeln!(md, "{rule}---:|---:|---:|---:|---:|---:|{tail_rule}---:|");
     for r in &rows {
         let (j, val, test, test_n, viol, secs) =
             (&r.job, r.val, r.test, r.test_n, r.violations, r.seconds);
@@ -251,12 +266,21 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
         let cols = if table3 {
             let p = Table3Point::of(&j.config);
             format!("{} | {} | {} | {}", p.batch, p.hidden, p.layers, p.lr)
+        } else if degradation {
+            let p = DegradationPoint::of(&j.config);
+            let yes = |b: bool| if b { "yes" } else { "no" };
+            format!("{} | {}", yes(p.lost_motion), yes(p.b_fl_alpha))
         } else {
             j.config.model.alpha_priors.name().to_string()
         };
+        let tail = if degradation {
+            r.degradation.cells()
+        } else {
+            String::new()
+        };
         let _ = writeln!(
             md,
-            "| {} | {cols} | {lam} | {val:.4} | {test:.4} | {test_n:.1} | {rel} | {viol} | {secs:.0} s |",
+            "| {} | {cols} | {lam} | {val:.4} | {test:.4} | {test_n:.1} | {rel} | {viol} |{tail} {secs:.0} s |",
             j.id
         );
     }
@@ -302,10 +326,16 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
         .map(|j| {
             let overrides: std::collections::BTreeMap<_, _> = j.overrides.iter().cloned().collect();
             match by_id.get(j.id.as_str()) {
-                Some(r) => serde_json::json!({
-                    "id": j.id, "status": "done", "overrides": overrides,
-                    "val_rmse": r.val, "rmse": r.test, "rmse_n": r.test_n, "violations": r.violations, "train_seconds": r.seconds,
-                }),
+                Some(r) => {
+                    let mut v = serde_json::json!({
+                        "id": j.id, "status": "done", "overrides": overrides,
+                        "val_rmse": r.val, "rmse": r.test, "rmse_n": r.test_n, "violations": r.violations, "train_seconds": r.seconds,
+                    });
+                    if degradation {
+                        v["degradation"] = r.degradation.json();
+                    }
+                    v
+                }
                 None => serde_json::json!({
                     "id": j.id, "status": status.get(j.id.as_str()).copied().unwrap_or("failed"), "overrides": overrides,
                 }),
@@ -323,6 +353,125 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
         failed,
         missing,
     })
+}
+
+/// Where a job's model puts the degradation, from its report: the signature at the highest
+/// lossy level, the levels read back, and the learned against the bench's coefficients.
+#[derive(Debug, Clone, Default, PartialEq)]
+struct DegradationCells {
+    /// The highest lossy level of the signature and the model's signature there.
+    signature: Option<LevelSignature>,
+    /// Per level of the identification: level, role, runs within, runs.
+    read_back: Vec<(f64, String, usize, usize)>,
+    /// The compression chamber's `k_pr` change, learned over the bench's (through the
+    /// lost-motion element when the model has one).
+    k_pr_compression_ratio: Option<f64>,
+    /// The learned minus the bench's `b_fl` change at -1 m/s \[percentage points\].
+    b_fl_change_pp: Option<f64>,
+}
+
+impl DegradationCells {
+    /// What the degradation columns are, above the table.
+    const LEGEND: &'static str = "Signature: the relative error of the model's difference loop \
+        F(0) - F(alpha) against the measured one at the highest lossy level (median over the \
+        conditions; worst at the smallest amplitude; 0 is the measured degradation, 1 no change). \
+        Read back: per level, the runs whose best-fit level is within the identification's \
+        tolerance of the label (test levels marked). k_pr,c: the learned change of the \
+        compression-side stiffness (through the lost-motion element where the model has it) \
+        over the bench's. b_fl: the learned minus the bench's change of b_fl at -1 m/s.\n\n";
+    /// The degradation columns' header cells.
+    const HEAD: &'static str =
+        " Signature (median) | Signature (worst, small amplitude) | Read back | k_pr,c ratio | b_fl change - bench's [pp] |";
+    /// Their alignment row.
+    const RULE: &'static str = "---:|---:|---|---:|---:|";
+
+    /// Model `key`'s figures in `report` (each absent where the report has no part for it).
+    fn of(report: &Report, key: &str) -> Self {
+        let signature = report.signature.as_ref().and_then(|s| s.summary(key).pop());
+        let read_back = report
+            .identify
+            .as_ref()
+            .and_then(|id| id.variants.get(key))
+            .map(|f| {
+                f.levels
+                    .iter()
+                    .map(|l| (l.alpha, l.role.clone(), l.within, l.runs))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let rows = report.bench_reference.as_ref().map(|c| &c.rows);
+        let k_pr_compression_ratio = rows.and_then(|rows| {
+            let comp = |r: &&crate::report::reference::ReferenceRow| {
+                r.reference == crate::bench::reference::Coefficient::KPrCompression.name()
+            };
+            rows.iter()
+                .filter(comp)
+                .find(|r| r.learned.contains("lost motion"))
+                .or_else(|| rows.iter().find(comp))
+                .map(|r| r.ratio)
+        });
+        let b_fl_change_pp = rows.and_then(|rows| {
+            rows.iter()
+                .find(|r| r.learned == "b_fl(v_st = -1 m/s)")
+                .map(|r| 100.0 * (r.learned_change - r.reference_change))
+        });
+        DegradationCells {
+            signature,
+            read_back,
+            k_pr_compression_ratio,
+            b_fl_change_pp,
+        }
+    }
+
+    /// The table cells, each `-` where absent.
+    fn cells(&self) -> String {
+        let dash = || "-".to_string();
+        let (median, worst) = self.signature.as_ref().map_or((dash(), dash()), |l| {
+            (
+                format!("{:.2} at {}", l.median, l.alpha),
+                format!(
+                    "{:.2} at {:.0} mm",
+                    l.small_worst,
+                    l.small_amplitude_m * 1e3
+                ),
+            )
+        });
+        let read_back = if self.read_back.is_empty() {
+            dash()
+        } else {
+            self.read_back
+                .iter()
+                .map(|(a, role, within, runs)| {
+                    let mark = if role == "test" { " (test)" } else { "" };
+                    format!("{a}{mark}: {within}/{runs}")
+                })
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let k = self
+            .k_pr_compression_ratio
+            .map_or_else(dash, |r| format!("{r:.2}"));
+        let b = self
+            .b_fl_change_pp
+            .map_or_else(dash, |d| format!("{d:+.1}"));
+        format!(" {median} | {worst} | {read_back} | {k} | {b} |")
+    }
+
+    /// The figures for `sweep.json`.
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "signature": self.signature.as_ref().map(|l| serde_json::json!({
+                "alpha": l.alpha, "median": l.median, "within": l.within,
+                "conditions": l.conditions, "small_amplitude_m": l.small_amplitude_m,
+                "small_worst": l.small_worst,
+            })),
+            "read_back": self.read_back.iter().map(|(a, role, within, runs)| serde_json::json!({
+                "alpha": a, "role": role, "within": within, "runs": runs,
+            })).collect::<Vec<_>>(),
+            "k_pr_compression_ratio": self.k_pr_compression_ratio,
+            "b_fl_change_minus_bench_pp": self.b_fl_change_pp,
+        })
+    }
 }
 
 /// The Table 3 summary's line on the paper's best configuration ([`TABLE3_PAPER_BEST`]):

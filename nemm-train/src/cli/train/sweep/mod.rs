@@ -50,15 +50,82 @@ pub enum SweepGrid {
     /// branches) and imposed by the physics penalty alone (the paper's way), other
     /// hyperparameters as given (Table 5 with the construction-against-penalty ablation).
     Priors,
+    /// Where the model may put the degradation ([`DegradationPoint::ALL`]: the paper's NEMM,
+    /// `b_fl` without its alpha branch, the lost-motion element, both) times the
+    /// `--lambda-ph` list (default: the base's `lambda_ph`), collected with the degradation
+    /// signature, the levels read back and the learned against the bench's coefficients
+    /// (`degradation.md`).
+    Degradation,
 }
 
 impl SweepGrid {
     /// The table file the grid is collected into: `table3.md` for the Table 3 grid,
-    /// `table5.md` otherwise.
+    /// `degradation.md` for the degradation grid, `table5.md` otherwise.
     pub fn table_file(self) -> &'static str {
         match self {
             SweepGrid::Table3 => "table3.md",
+            SweepGrid::Degradation => "degradation.md",
             SweepGrid::Lambda | SweepGrid::Priors => "table5.md",
+        }
+    }
+
+    /// The `lambda_ph` list of the grid when `--lambda-ph` gives none: Table 5's
+    /// ([`TABLE5_LAMBDAS`]), for the degradation grid the base's one value.
+    pub fn default_lambdas(self, base: &Config) -> Vec<f64> {
+        match self {
+            SweepGrid::Degradation => vec![base.train.lambda_ph],
+            SweepGrid::Lambda | SweepGrid::Priors | SweepGrid::Table3 => TABLE5_LAMBDAS.to_vec(),
+        }
+    }
+}
+
+/// One point of the degradation grid: which elements may change with alpha.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DegradationPoint {
+    /// The lost-motion element in series with `k_pr` ([`crate::config::ModelConfig::lost_motion`]).
+    pub lost_motion: bool,
+    /// `b_fl`'s alpha branch ([`crate::config::ModelConfig::b_fl_alpha`]).
+    pub b_fl_alpha: bool,
+}
+
+impl DegradationPoint {
+    /// The degradation grid: the paper's NEMM (alpha in `b_fl`, `b_pr`, `k_pr`), the same
+    /// with `b_fl` fixed in alpha, the lost-motion element added, and the element with
+    /// `b_fl` fixed in alpha.
+    pub const ALL: [DegradationPoint; 4] = [
+        DegradationPoint {
+            lost_motion: false,
+            b_fl_alpha: true,
+        },
+        DegradationPoint {
+            lost_motion: false,
+            b_fl_alpha: false,
+        },
+        DegradationPoint {
+            lost_motion: true,
+            b_fl_alpha: true,
+        },
+        DegradationPoint {
+            lost_motion: true,
+            b_fl_alpha: false,
+        },
+    ];
+
+    /// The point a job's configuration trains.
+    pub fn of(config: &Config) -> Self {
+        DegradationPoint {
+            lost_motion: config.model.lost_motion,
+            b_fl_alpha: config.model.b_fl_alpha,
+        }
+    }
+
+    /// The job id's prefix: `paper`, `fixed-b-fl`, `lost-motion`, `lost-motion-fixed-b-fl`.
+    pub fn name(self) -> &'static str {
+        match (self.lost_motion, self.b_fl_alpha) {
+            (false, true) => "paper",
+            (false, false) => "fixed-b-fl",
+            (true, true) => "lost-motion",
+            (true, false) => "lost-motion-fixed-b-fl",
         }
     }
 }
@@ -144,8 +211,8 @@ pub struct SweepJob {
     /// Folder name under `<report>/jobs/`.
     pub id: String,
     /// The overridden settings (`lambda_ph`; for the Table 3 grid `batch`, `hidden`,
-    /// `layers`, `lr`; for the priors grid `alpha_priors`) with their values, for
-    /// `sweep.json`.
+    /// `layers`, `lr`; for the priors grid `alpha_priors`; for the degradation grid
+    /// `lost_motion` and `b_fl_alpha`) with their values, for `sweep.json`.
     pub overrides: Vec<(String, String)>,
     /// The job's configuration.
     pub config: Config,
@@ -160,15 +227,22 @@ pub fn sweep_jobs(
     lambdas: &[f64],
 ) -> Vec<SweepJob> {
     let combos: Vec<Option<Table3Point>> = match grid {
-        SweepGrid::Lambda | SweepGrid::Priors => vec![None],
+        SweepGrid::Lambda | SweepGrid::Priors | SweepGrid::Degradation => vec![None],
         SweepGrid::Table3 => table3.points().into_iter().map(Some).collect(),
     };
     let priors: Vec<Option<AlphaPriors>> = match grid {
         SweepGrid::Priors => vec![Some(AlphaPriors::Construction), Some(AlphaPriors::Penalty)],
-        SweepGrid::Lambda | SweepGrid::Table3 => vec![None],
+        SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::Degradation => vec![None],
+    };
+    let elements: Vec<Option<DegradationPoint>> = match grid {
+        SweepGrid::Degradation => DegradationPoint::ALL.into_iter().map(Some).collect(),
+        SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::Priors => vec![None],
     };
     let mut jobs = Vec::new();
-    for combo in combos {
+    for (combo, element) in combos
+        .iter()
+        .flat_map(|c| elements.iter().map(move |e| (*c, *e)))
+    {
         for (&prior, &lam) in priors
             .iter()
             .flat_map(|p| lambdas.iter().map(move |l| (p, l)))
@@ -177,6 +251,13 @@ pub fn sweep_jobs(
             config.model.variant = nemm_core::ModelKind::Nemm;
             let mut id = String::new();
             let mut o: Vec<(String, String)> = Vec::new();
+            if let Some(e) = element {
+                id.push_str(&format!("{}_", e.name()));
+                config.model.lost_motion = e.lost_motion;
+                config.model.b_fl_alpha = e.b_fl_alpha;
+                o.push(("lost_motion".into(), e.lost_motion.to_string()));
+                o.push(("b_fl_alpha".into(), e.b_fl_alpha.to_string()));
+            }
             if let Some(p) = prior {
                 id.push_str(&format!("{}_", p.name()));
                 config.model.alpha_priors = p;
