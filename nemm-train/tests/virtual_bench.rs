@@ -566,3 +566,38 @@ fn alpha_schedule_changes_the_force_from_its_first_switch_on() {
         "force RMS difference after the switch {after} N"
     );
 }
+
+#[test]
+fn the_free_gas_and_so_the_pressure_element_depend_on_the_run_not_on_the_level_alone() {
+    // Two conditions of the programme at 10 mm, slow and fast, at 0 / 15 / 30 %: the fast run
+    // draws in more foam at each lossy level, and the compression chamber softens with the
+    // level on both. On the default bench the fast 15 % run holds more free gas than the
+    // slow 30 % one: the gas is a state of the run, not a function of alpha.
+    use nemm_train::bench::reference::{every_condition, every_condition_markdown, Coefficient};
+    let mut cfg = BenchConfig::default();
+    cfg.program.amplitudes_m = vec![0.01];
+    cfg.program.peak_velocities_m_s = vec![0.131, 1.048];
+    let refs = every_condition(&VirtualBench::new(cfg)).expect("reference per condition");
+    assert_eq!(refs.len(), 2);
+    let (slow, fast) = (&refs[0], &refs[1]);
+    assert_eq!(slow.run.peak_velocity_m_s, 0.131);
+    let gas = |r: &nemm_train::bench::reference::EmmReference, a: f64| {
+        r.levels
+            .iter()
+            .find(|l| l.alpha == a)
+            .expect("level")
+            .compression
+            .gas_per_oil
+    };
+    for a in [0.15, 0.3] {
+        assert!(gas(fast, a) > gas(slow, a), "alpha {a}");
+        for r in refs.iter() {
+            let k = r.relative(Coefficient::KPrCompression, a).expect("k_c");
+            assert!(k < -0.5, "{:?} at {a}: {k}", r.run);
+        }
+    }
+    assert!(gas(fast, 0.15) > gas(slow, 0.3));
+    let md = every_condition_markdown(&refs);
+    assert!(md.contains("| 10 | 1.048 | 16.7 | 0.3 |"), "{md}");
+    assert!(md.contains("- alpha 0.3: from "), "{md}");
+}

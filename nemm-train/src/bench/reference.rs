@@ -361,6 +361,117 @@ impl EmmReference {
     }
 }
 
+/// The reference on every condition (amplitude, peak velocity) of the bench's sine programme
+/// at its oil-loss levels in the valid range (and 0): how far the pressure element's
+/// degradation depends on the run, not on the level alone (the free gas each run draws in
+/// grows with its intake flow). Conditions in the programme's order; no `b_fl` rows.
+pub fn every_condition(bench: &VirtualBench) -> Result<Vec<EmmReference>> {
+    use rayon::prelude::*;
+    let p = &bench.config().program;
+    let a_max = valid_alpha_max(bench);
+    let mut alphas: Vec<f64> = p
+        .oil_loss
+        .iter()
+        .copied()
+        .filter(|a| (0.0..=a_max).contains(a))
+        .collect();
+    alphas.push(0.0);
+    let runs: Vec<ReferenceRun> = p
+        .amplitudes_m
+        .iter()
+        .flat_map(|&amplitude_m| {
+            p.peak_velocities_m_s
+                .iter()
+                .map(move |&peak_velocity_m_s| ReferenceRun {
+                    amplitude_m,
+                    peak_velocity_m_s,
+                })
+        })
+        .collect();
+    runs.par_iter()
+        .map(|&run| EmmReference::compute(bench, &alphas, run, &[]))
+        .collect()
+}
+
+/// [`every_condition`] as Markdown: per condition and level the compression chamber's free
+/// gas and stiffness, the rebound chamber's stiffness and the describing-function `k_pr`, each
+/// stiffness with its change from level 0 on the same condition; then the spread of the
+/// compression chamber's change over the conditions at each level.
+pub fn every_condition_markdown(refs: &[EmmReference]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "The pressure element per condition: each run conditioned as recorded, cycle means over \
+         its last {ANALYSED_PERIODS} periods; c_c the compression chamber's free gas (normal \
+         volumes per oil volume), k in kN/m, (%) against level 0 on the same condition.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| amplitude [mm] | peak velocity [m/s] | frequency [Hz] | alpha | c_c | k_c [kN/m] (%) | k_r [kN/m] (%) | k_pr describing [kN/m] (%) |"
+    );
+    let _ = writeln!(s, "|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let pct = |r: &EmmReference, c: Coefficient, a: f64| {
+        r.relative(c, a)
+            .map_or(String::new(), |x| format!(" ({:+.0} %)", 100.0 * x))
+    };
+    for r in refs {
+        for l in &r.levels {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.1} | {} | {:.3} | {:.0}{} | {:.0}{} | {:.0}{} |",
+                fmt_g(r.run.amplitude_m * 1e3),
+                fmt_g(r.run.peak_velocity_m_s),
+                r.run.frequency_hz(),
+                fmt_g(l.alpha),
+                l.compression.gas_per_oil,
+                l.compression.k_n_per_m / 1e3,
+                pct(r, Coefficient::KPrCompression, l.alpha),
+                l.rebound.k_n_per_m / 1e3,
+                pct(r, Coefficient::KPrRebound, l.alpha),
+                l.describing.k_pr_n_per_m / 1e3,
+                pct(r, Coefficient::KPrDescribing, l.alpha),
+            );
+        }
+    }
+    let levels: Vec<f64> = refs
+        .first()
+        .map(|r| {
+            r.levels
+                .iter()
+                .map(|l| l.alpha)
+                .filter(|&a| a > 0.0)
+                .collect()
+        })
+        .unwrap_or_default();
+    if !levels.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nThe compression chamber's change over the {} conditions:",
+            refs.len()
+        );
+    }
+    for a in levels {
+        let ch: Vec<f64> = refs
+            .iter()
+            .filter_map(|r| r.relative(Coefficient::KPrCompression, a))
+            .collect();
+        let (lo, hi) = (
+            ch.iter().copied().fold(f64::INFINITY, f64::min),
+            ch.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        );
+        let _ = writeln!(
+            s,
+            "- alpha {}: from {:+.0} % to {:+.0} % (k_c(alpha) / k_c(0) from {:.2} to {:.2})",
+            fmt_g(a),
+            100.0 * lo,
+            100.0 * hi,
+            1.0 + lo,
+            1.0 + hi
+        );
+    }
+    s
+}
+
 /// The level at which the reserve tube would hold no oil at rest: the oil lost is then the
 /// whole reservoir content (the intake would draw gas only, which the bench does not model).
 pub fn reservoir_dry_alpha(bench: &VirtualBench) -> f64 {

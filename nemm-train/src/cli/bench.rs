@@ -65,6 +65,10 @@ pub enum BenchCmd {
         /// Print JSON instead of Markdown tables.
         #[arg(long)]
         json: bool,
+        /// The pressure element on every condition of the programme (amplitude x peak
+        /// velocity) at its levels, instead of on the reference run.
+        #[arg(long)]
+        every_condition: bool,
     },
     /// Write the test fixtures (small datasets with the traits of real dyno records) into
     /// `--out`, replacing their folders (the repository's are in nemm-train/tests/fixtures).
@@ -134,11 +138,27 @@ pub fn run(args: BenchArgs) -> Result<()> {
             }
             Ok(())
         }
-        BenchCmd::Reference { config, json } => {
+        BenchCmd::Reference {
+            config,
+            json,
+            every_condition,
+        } => {
             let cfg = match &config {
                 Some(path) => config::load(path)?,
                 None => BenchConfig::default(),
             };
+            if every_condition {
+                let refs = crate::bench::reference::every_condition(&VirtualBench::new(cfg))?;
+                if json {
+                    println!("{}", serde_json::to_string_pretty(&refs)?);
+                } else {
+                    print!(
+                        "{}",
+                        crate::bench::reference::every_condition_markdown(&refs)
+                    );
+                }
+                return Ok(());
+            }
             let r = EmmReference::of(&VirtualBench::new(cfg))?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
