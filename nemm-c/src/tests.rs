@@ -140,7 +140,11 @@ fn blob_validate_checks_what_decode_checks_in_its_order() {
     assert_eq!(validate(TRAINED, &mut i), NEMM_OK);
     assert_eq!(
         (i.format_version, i.kind, i.blob_len),
-        (4, NEMM_KIND_NEMM, TRAINED.len() as u32)
+        (
+            nemm_core::FORMAT_VERSION.into(),
+            NEMM_KIND_NEMM,
+            TRAINED.len() as u32
+        )
     );
     assert!(i.max_scaler_params as usize <= NEMM_PARAM_CAPACITY);
     // SAFETY: a NULL info is allowed.
