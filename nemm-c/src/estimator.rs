@@ -3,8 +3,8 @@
 use crate::blob::slice;
 use crate::status::nemm_status_t::{self, *};
 use crate::storage::{
-    nemm_estimator_t, nemm_levels_t, out, overlap, EstimatorCell, LevelsCell, NEMM_ESTIMATOR_SIZE,
-    NEMM_LEVELS_SIZE,
+    nemm_estimator_t, nemm_levels_t, out, overlap, EstimatorCell, LevelsCell, Marked,
+    NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE,
 };
 use crate::types::{
     kind_value, mode_value, nemm_estimate_t, nemm_estimator_config_t, nemm_estimator_info_t,
@@ -304,7 +304,7 @@ unsafe fn step_on_levels(
             return Err(NEMM_E_OVERLAP);
         }
         // SAFETY: the caller's guarantee on `levels`.
-        let tables = unsafe { LevelsCell::get(levels) }?;
+        let tables = unsafe { LevelsCell::tables(levels) }?;
         // SAFETY: the caller's guarantee on `est`; it does not overlap `levels` (checked).
         let cell = unsafe { EstimatorCell::get_mut(est) }?;
         let e = match position_m {

@@ -5,8 +5,8 @@ use crate::blob::slice;
 use crate::estimator::status;
 use crate::status::nemm_status_t::{self, *};
 use crate::storage::{
-    nemm_estimator_t, nemm_levels_t, out, overlap, EstimatorCell, LevelsCell, NEMM_ESTIMATOR_SIZE,
-    NEMM_LEVELS_SIZE,
+    nemm_estimator_t, nemm_levels_t, out, overlap, EstimatorCell, LevelsCell, Marked,
+    NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE,
 };
 use crate::types::nemm_levels_info_t;
 use crate::NEMM_LEVELS_CAPACITY;
@@ -100,7 +100,7 @@ pub unsafe extern "C" fn nemm_levels_info(
     status((|| {
         let o = out(info)?;
         // SAFETY: the caller's guarantee on `levels`.
-        let l = unsafe { LevelsCell::get(levels) }?;
+        let l = unsafe { LevelsCell::tables(levels) }?;
         let mut value = nemm_levels_info_t {
             levels: u32::try_from(l.len()).unwrap_or(u32::MAX),
             table_bytes: u32::try_from(l.table_bytes().1).unwrap_or(u32::MAX),

@@ -4,7 +4,7 @@ use crate::estimator::status;
 use crate::status::nemm_status_t::{self, *};
 use crate::storage::{
     nemm_estimator_t, nemm_levels_t, nemm_observer_t, out, overlap, CLevels, EstimatorCell,
-    LevelsCell, ObserverCell, NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE, NEMM_OBSERVER_SIZE,
+    LevelsCell, Marked, ObserverCell, NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE, NEMM_OBSERVER_SIZE,
 };
 use crate::types::{nemm_alpha_estimate_t, nemm_observer_config_t};
 use nemm_core::AlphaEstimate;
@@ -116,7 +116,7 @@ unsafe fn init(
             None
         } else {
             // SAFETY: the caller's guarantee on `levels`.
-            Some(unsafe { LevelsCell::get(levels) }?)
+            Some(unsafe { LevelsCell::tables(levels) }?)
         };
         if storage.is_null() {
             return Err(NEMM_E_NULL);
@@ -291,7 +291,7 @@ unsafe fn step_on_levels(
             return Err(NEMM_E_OVERLAP);
         }
         // SAFETY: the caller's guarantee on `levels`.
-        let tables = unsafe { LevelsCell::get(levels) }?;
+        let tables = unsafe { LevelsCell::tables(levels) }?;
         // SAFETY: the caller's guarantee on `obs`; it does not overlap `levels` (checked).
         let cell = unsafe { ObserverCell::get_mut(obs) }?;
         if !on_these_levels(cell, tables) {

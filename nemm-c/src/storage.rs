@@ -188,29 +188,106 @@ fn fresh<C>(p: *mut u8, size: usize) -> Result<*mut C, nemm_status_t> {
     Ok(cell)
 }
 
-impl EstimatorCell {
-    /// Checks the storage for `nemm_estimator_init` and marks it uninitialised; the fields
-    /// are still to be written.
+/// A storage cell of the interface (`nemm_estimator_t`, `nemm_observer_t`,
+/// `nemm_levels_t`): its `u32` mark at offset 0, written with [`Marked::MAGIC`] by the init
+/// function only once the cell holds valid values, so that a pointer to storage that was
+/// never initialised (or failed to be) is refused, not read.
+///
+/// # Safety
+/// An implementor is `repr(C)` with its `magic: u32` field first (offset 0; checked at
+/// compile time below for the three cells), and every cell that carries the mark holds
+/// valid values in all its fields (for `LevelsCell`: its `levels` body).
+pub(crate) unsafe trait Marked: Sized {
+    /// The header's storage type of the cell.
+    type Storage;
+    /// The mark of an initialised cell.
+    const MAGIC: u32;
+
+    /// Checks the storage for the init function and marks it uninitialised; the fields are
+    /// still to be written.
     ///
     /// # Safety
     /// If `p` is non-null, `size` bytes at `p` must be writable and not accessed otherwise
     /// during the call.
-    pub(crate) unsafe fn claim(
-        p: *mut nemm_estimator_t,
-        size: usize,
-    ) -> Result<*mut Self, nemm_status_t> {
+    unsafe fn claim(p: *mut Self::Storage, size: usize) -> Result<*mut Self, nemm_status_t> {
         let cell = fresh::<Self>(p.cast(), size)?;
-        // SAFETY: `cell` is non-null, aligned and the storage holds a whole `EstimatorCell`
-        // (checked above); the caller lends it to this call. A `u32` is written raw.
-        unsafe { core::ptr::addr_of_mut!((*cell).magic).write(0) };
+        // SAFETY: `cell` is non-null, aligned and the storage holds a whole cell (checked
+        // above); the caller lends it to this call. The mark is the `u32` at offset 0 (the
+        // trait's contract), written raw.
+        unsafe { cell.cast::<u32>().write(0) };
         Ok(cell)
     }
 
+    /// The cell behind `p` if it carries the mark.
+    ///
+    /// # Safety
+    /// If `p` is non-null and aligned, it must point to the storage's readable bytes that
+    /// no other context writes during the call.
+    unsafe fn marked(p: *const Self::Storage) -> Result<*const Self, nemm_status_t> {
+        let cell = p.cast::<Self>();
+        checked(cell)?;
+        // SAFETY: `cell` is non-null and aligned and the storage holds at least the `u32`
+        // mark at offset 0 (the trait's contract); every bit pattern is a valid `u32`.
+        let magic = unsafe { cell.cast::<u32>().read() };
+        if magic != Self::MAGIC {
+            return Err(NEMM_E_NOT_INITIALISED);
+        }
+        Ok(cell)
+    }
+
+    /// The cell of an initialised object, shared.
+    ///
+    /// # Safety
+    /// As [`Marked::marked`], and no other context writes the storage during the borrow.
+    unsafe fn get<'a>(p: *const Self::Storage) -> Result<&'a Self, nemm_status_t> {
+        // SAFETY: the mark is written only once the cell holds valid values (the trait's
+        // contract); the caller gives shared access for the borrow.
+        Ok(unsafe { &*Self::marked(p)? })
+    }
+
+    /// The cell of an initialised object, exclusive.
+    ///
+    /// # Safety
+    /// As [`Marked::get`], and no other context accesses the storage during the borrow.
+    unsafe fn get_mut<'a>(p: *mut Self::Storage) -> Result<&'a mut Self, nemm_status_t> {
+        // SAFETY: the caller's guarantees are those `marked` needs.
+        unsafe { Self::marked(p)? };
+        // SAFETY: `marked` checked pointer and mark (the cell holds valid values); the
+        // caller gives exclusive access through its mutable pointer.
+        Ok(unsafe { &mut *p.cast::<Self>() })
+    }
+}
+
+// The mark is the first field of every cell (the contract of `Marked`).
+const _: () = assert!(core::mem::offset_of!(EstimatorCell, magic) == 0);
+const _: () = assert!(core::mem::offset_of!(ObserverCell, magic) == 0);
+const _: () = assert!(core::mem::offset_of!(LevelsCell, magic) == 0);
+
+// SAFETY: `repr(C)`, `magic` first; `seal` marks it after `fill` wrote every field.
+unsafe impl Marked for EstimatorCell {
+    type Storage = nemm_estimator_t;
+    const MAGIC: u32 = ESTIMATOR_MAGIC;
+}
+
+// SAFETY: `repr(C)`, `magic` first; `seal` marks it after `fill` wrote every field.
+unsafe impl Marked for ObserverCell {
+    type Storage = nemm_observer_t;
+    const MAGIC: u32 = OBSERVER_MAGIC;
+}
+
+// SAFETY: `repr(C)`, `magic` first; `seal` marks it after `fill` wrote the `levels` body
+// and the tables were loaded.
+unsafe impl Marked for LevelsCell {
+    type Storage = nemm_levels_t;
+    const MAGIC: u32 = LEVELS_MAGIC;
+}
+
+impl EstimatorCell {
     /// Fills a claimed cell with an empty model and estimator (all bytes valid, so that the
     /// cell can be referenced) and returns it.
     ///
     /// # Safety
-    /// `cell` must come from [`EstimatorCell::claim`] in the same call.
+    /// `cell` must come from [`Marked::claim`] in the same call.
     pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut Self {
         // SAFETY: the fields of a claimed cell are writable; `write` and the copy do not read
         // or drop the old bytes. A model owns nothing (no `Drop`, no pointers), so a bitwise
@@ -235,60 +312,13 @@ impl EstimatorCell {
     pub(crate) fn built_from(&self, blob: &[u8]) -> bool {
         self.blob == (blob.len(), trailer(blob))
     }
-
-    /// The cell of an initialised estimator, shared.
-    ///
-    /// # Safety
-    /// If `p` is non-null and aligned, it must point to `NEMM_ESTIMATOR_SIZE` readable
-    /// bytes (an estimator's storage) that no other context writes during the borrow.
-    pub(crate) unsafe fn get<'a>(p: *const nemm_estimator_t) -> Result<&'a Self, nemm_status_t> {
-        let cell = p.cast::<Self>();
-        checked(cell)?;
-        // SAFETY: `cell` is non-null and aligned and the storage holds at least the `u32`
-        // mark at offset 0 (`repr(C)`); every bit pattern is a valid `u32`.
-        let magic = unsafe { core::ptr::addr_of!((*cell).magic).read() };
-        if magic != ESTIMATOR_MAGIC {
-            return Err(NEMM_E_NOT_INITIALISED);
-        }
-        // SAFETY: the mark is written only by a successful init, after which the cell holds
-        // a valid model and estimator; the caller gives shared access for the borrow.
-        Ok(unsafe { &*cell })
-    }
-
-    /// The cell of an initialised estimator, exclusive.
-    ///
-    /// # Safety
-    /// As [`EstimatorCell::get`], and no other context accesses the storage during the
-    /// borrow.
-    pub(crate) unsafe fn get_mut<'a>(
-        p: *mut nemm_estimator_t,
-    ) -> Result<&'a mut Self, nemm_status_t> {
-        // SAFETY: the caller's guarantees are those `get` needs.
-        unsafe { Self::get(p) }?;
-        // SAFETY: `get` checked pointer and mark; the caller gives exclusive access.
-        Ok(unsafe { &mut *p.cast::<Self>() })
-    }
 }
 
 impl ObserverCell {
-    /// As [`EstimatorCell::claim`], for `nemm_observer_init`.
-    ///
-    /// # Safety
-    /// As [`EstimatorCell::claim`].
-    pub(crate) unsafe fn claim(
-        p: *mut nemm_observer_t,
-        size: usize,
-    ) -> Result<*mut Self, nemm_status_t> {
-        let cell = fresh::<Self>(p.cast(), size)?;
-        // SAFETY: as in `EstimatorCell::claim`.
-        unsafe { core::ptr::addr_of_mut!((*cell).magic).write(0) };
-        Ok(cell)
-    }
-
     /// As [`EstimatorCell::fill`]: an empty observer, not on level tables.
     ///
     /// # Safety
-    /// `cell` must come from [`ObserverCell::claim`] in the same call.
+    /// `cell` must come from [`Marked::claim`] in the same call.
     pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut Self {
         // SAFETY: as in `EstimatorCell::fill`.
         unsafe {
@@ -302,57 +332,14 @@ impl ObserverCell {
     pub(crate) fn seal(&mut self) {
         self.magic = OBSERVER_MAGIC;
     }
-
-    /// The cell of an initialised observer, shared.
-    ///
-    /// # Safety
-    /// As [`EstimatorCell::get`], for an observer's storage.
-    pub(crate) unsafe fn get<'a>(p: *const nemm_observer_t) -> Result<&'a Self, nemm_status_t> {
-        let cell = p.cast::<Self>();
-        checked(cell)?;
-        // SAFETY: as in `EstimatorCell::get`.
-        let magic = unsafe { core::ptr::addr_of!((*cell).magic).read() };
-        if magic != OBSERVER_MAGIC {
-            return Err(NEMM_E_NOT_INITIALISED);
-        }
-        // SAFETY: as in `EstimatorCell::get`.
-        Ok(unsafe { &*cell })
-    }
-
-    /// The cell of an initialised observer, exclusive.
-    ///
-    /// # Safety
-    /// As [`EstimatorCell::get_mut`], for an observer's storage.
-    pub(crate) unsafe fn get_mut<'a>(
-        p: *mut nemm_observer_t,
-    ) -> Result<&'a mut Self, nemm_status_t> {
-        // SAFETY: the caller's guarantees are those `get` needs.
-        unsafe { Self::get(p) }?;
-        // SAFETY: `get` checked pointer and mark; the caller gives exclusive access.
-        Ok(unsafe { &mut *p.cast::<Self>() })
-    }
 }
 
 impl LevelsCell {
-    /// As [`EstimatorCell::claim`], for `nemm_levels_init`.
-    ///
-    /// # Safety
-    /// As [`EstimatorCell::claim`].
-    pub(crate) unsafe fn claim(
-        p: *mut nemm_levels_t,
-        size: usize,
-    ) -> Result<*mut Self, nemm_status_t> {
-        let cell = fresh::<Self>(p.cast(), size)?;
-        // SAFETY: as in `EstimatorCell::claim`.
-        unsafe { core::ptr::addr_of_mut!((*cell).magic).write(0) };
-        Ok(cell)
-    }
-
     /// Fills a claimed cell's body with an empty model, the scratch space of a decode, and
     /// returns it.
     ///
     /// # Safety
-    /// `cell` must come from [`LevelsCell::claim`] in the same call; the model must not be
+    /// `cell` must come from [`Marked::claim`] in the same call; the model must not be
     /// used after [`LevelsCell::fill`].
     pub(crate) unsafe fn scratch<'a>(cell: *mut Self) -> &'a mut CModel {
         // SAFETY: the body of a claimed cell is writable and large enough for either union
@@ -369,7 +356,7 @@ impl LevelsCell {
     /// and returns them.
     ///
     /// # Safety
-    /// `cell` must come from [`LevelsCell::claim`] in the same call, and no reference to
+    /// `cell` must come from [`Marked::claim`] in the same call, and no reference to
     /// the scratch model may be alive.
     pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut CLevels {
         // SAFETY: as in `scratch`; after the write the `levels` field holds valid tables.
@@ -384,7 +371,7 @@ impl LevelsCell {
     /// reference).
     ///
     /// # Safety
-    /// `cell` must come from [`LevelsCell::claim`] in the same call, its tables filled and
+    /// `cell` must come from [`Marked::claim`] in the same call, its tables filled and
     /// loaded, and no reference into the cell alive.
     pub(crate) unsafe fn seal(cell: *mut Self) {
         // SAFETY: the caller's guarantees; a `u32` is written raw.
@@ -394,16 +381,10 @@ impl LevelsCell {
     /// The tables of loaded level tables, shared.
     ///
     /// # Safety
-    /// If `p` is non-null and aligned, it must point to `NEMM_LEVELS_SIZE` readable bytes
-    /// (a `nemm_levels_t`) that no other context writes during the borrow.
-    pub(crate) unsafe fn get<'a>(p: *const nemm_levels_t) -> Result<&'a CLevels, nemm_status_t> {
-        let cell = p.cast::<Self>();
-        checked(cell)?;
-        // SAFETY: as in `EstimatorCell::get`.
-        let magic = unsafe { core::ptr::addr_of!((*cell).magic).read() };
-        if magic != LEVELS_MAGIC {
-            return Err(NEMM_E_NOT_INITIALISED);
-        }
+    /// As [`Marked::get`], for a `nemm_levels_t`.
+    pub(crate) unsafe fn tables<'a>(p: *const nemm_levels_t) -> Result<&'a CLevels, nemm_status_t> {
+        // SAFETY: the caller's guarantees are those `marked` needs.
+        let cell = unsafe { Self::marked(p) }?;
         // SAFETY: the mark is written only by a successful init, after the `levels` field
         // of the body was written and loaded; the caller gives shared access.
         Ok(unsafe { &*core::ptr::addr_of!((*cell).body.levels).cast::<CLevels>() })
