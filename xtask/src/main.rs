@@ -147,8 +147,8 @@ enum Cmd {
     /// docs/results.md.
     ///
     /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm
-    /// demo` report directory instead (table4.md, table5.md if present, report.json). With
-    /// --tables, fill the tables block: the fast path's error against the exact one on the
+    /// demo` report directory instead (table4.md, table5.md and degradation.md if present,
+    /// report.json). With --tables, fill the tables block: the fast path's error against the exact one on the
     /// firmware's trained model and the example models (host, minutes). With --host, run the
     /// host criterion benches (nemm-core's `step` with libm and micromath, nemm-train's
     /// `gradient`; minutes) and fill the host block. With --observer, run `nemm diagnose` on

@@ -713,6 +713,7 @@ pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), Stri
         )
     })?;
     let table5 = read("table5.md")?;
+    let degradation = read("degradation.md")?;
     let identify = read("identify.md")?;
     let info = match read("report.json")? {
         Some(json) => report_info(&json).map_err(|e| format!("{}: {e}", dir.display()))?,
@@ -726,12 +727,10 @@ pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), Stri
             allow_dirty,
         )?;
     }
-    if let Some(c) = table5.as_deref().and_then(sweep_commit) {
-        refuse_dirty(
-            &format!("{}/table5.md's sweep", dir.display()),
-            c,
-            allow_dirty,
-        )?;
+    for (name, table) in [("table5.md", &table5), ("degradation.md", &degradation)] {
+        if let Some(c) = table.as_deref().and_then(sweep_commit) {
+            refuse_dirty(&format!("{}/{name}'s sweep", dir.display()), c, allow_dirty)?;
+        }
     }
     let table4 = with_identify_summary(&table4, identify.as_deref());
     let md = training_markdown(
@@ -741,6 +740,7 @@ pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), Stri
         &info,
         &table4,
         table5.as_deref(),
+        degradation.as_deref(),
     );
     write_block(paths, "training", &md)?;
     write_block_in(
@@ -840,6 +840,7 @@ fn training_markdown(
     info: &[(String, String)],
     table4: &str,
     table5: Option<&str>,
+    degradation: Option<&str>,
 ) -> String {
     let mut md = format!(
         "Copied by `{command}` at commit `{commit}` from `{}`.\n\n",
@@ -869,6 +870,15 @@ fn training_markdown(
              from `nemm sweep --report` into it; rows `penalty_*` train with the priors in \
              alpha imposed by the physics penalty alone).\n\n{}",
             t5.trim_end()
+        );
+    }
+    if let Some(d) = degradation {
+        let _ = writeln!(
+            md,
+            "\n**Where the NEMM puts the degradation**: the ablation of the report folder's \
+             `degradation.md` (from `nemm sweep --grid degradation --report` into it: the \
+             paper's NEMM, `b_fl` fixed in alpha, the lost-motion element, both).\n\n{}",
+            d.trim_end()
         );
     }
     md
@@ -1040,6 +1050,7 @@ mod tests {
             &info,
             "| model | RMSE |\n",
             Some("| job |\n"),
+            None,
         );
         assert!(md.starts_with(
             "Copied by `cargo xtask results --training runs/c` at commit `abc1234` from \
@@ -1052,6 +1063,21 @@ mod tests {
         assert!(md.ends_with("alone).\n\n| job |\n"), "{md}");
         assert!(report_info("{").is_err());
         assert!(report_info("{}").unwrap().is_empty());
+        // The degradation ablation follows Table 5 when the folder has one.
+        let md = training_markdown(
+            "cargo xtask results --training runs/c",
+            "abc1234",
+            Path::new("runs/c"),
+            &info,
+            "| model | RMSE |\n",
+            Some("| job |\n"),
+            Some("| paper_lph5 | no | yes |\n"),
+        );
+        assert!(
+            md.contains("| job |\n\n**Where the NEMM puts the degradation**")
+                && md.ends_with("both).\n\n| paper_lph5 | no | yes |\n"),
+            "{md}"
+        );
     }
 
     #[test]
