@@ -146,15 +146,14 @@ enum Cmd {
     /// Write the target figures (instructions per step, flash, RAM, stack) into
     /// docs/results.md.
     ///
-    /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm
-    /// demo` report directory instead (table4.md, table5.md and degradation.md if present,
-    /// report.json). With --tables, fill the tables block: the fast path's error against the exact one on the
-    /// firmware's trained model and the example models (host, minutes). With --host, run the
-    /// host criterion benches (nemm-core's `step` with libm and micromath, nemm-train's
-    /// `gradient`; minutes) and fill the host block. With --observer, run `nemm diagnose` on
-    /// out/bench (generate it first with `nemm bench generate --out out/bench`) with the
-    /// firmware's trained model and fill the observer block and docs/img/level_step.png
-    /// (minutes).
+    /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm demo`
+    /// report directory instead (table4.md, table5.md and degradation.md if present, report.json).
+    /// With --tables, fill the tables block: the fast path's error against the exact one on the
+    /// firmware's trained model and the example models (host, minutes). With --host, run the host
+    /// criterion benches (nemm-core's `step` with libm and micromath, nemm-train's `gradient`;
+    /// minutes) and fill the host block. With --observer, run `nemm diagnose` on out/bench
+    /// (generate it first with `nemm bench generate --out out/bench`) with the firmware's trained
+    /// model and fill the observer block and docs/img/level_step.png (minutes).
     Results {
         /// A report directory of `nemm compare` or `nemm demo`.
         #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer"])]
