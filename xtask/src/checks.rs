@@ -19,9 +19,9 @@ pub fn host_feature_sets() -> Vec<String> {
         .collect()
 }
 
-/// `cargo xtask features`: `nemm-core`'s tests for every host feature set (release), then a
-/// build of the library for the target with every `no_std` set and with `reverse` (when a
-/// target toolchain is given). The tests always have `reverse` (the crate's own
+/// `cargo xtask features`: `nemm-core`'s tests for every host feature set without `std`
+/// (release; the sets with `std` type-checked), then a build of the library for the target
+/// with every `no_std` set and with `reverse` (when a target toolchain is given). The tests always have `reverse` (the crate's own
 /// dev-dependency turns it on); the target builds check the library without it.
 ///
 /// The integration and doc tests hold the exact backend's tolerances (their reference is
@@ -31,18 +31,29 @@ pub fn host_feature_sets() -> Vec<String> {
 pub fn features(tc: Option<&Toolchain>, paths: &Paths) -> Result<(), String> {
     for set in host_feature_sets() {
         let mut c = cargo();
+        // `std` adds conveniences (encoding to a `Vec`, `Error` impls), not arithmetic: with
+        // it the library and its tests are type-checked; the tests run without it (and with
+        // the default `libm,std` in the workspace run).
+        let std = set.split(',').any(|f| f == "std");
         c.args([
-            "test",
+            if std { "check" } else { "test" },
             "--release",
             "-p",
             "nemm-core",
             "--no-default-features",
         ])
         .args(["--features", &set]);
+        // The integration tests hold the exact backend's tolerances: with `micromath`, the
+        // library's unit tests and the examples.
         if set.contains("micromath") {
             c.args(["--lib", "--examples"]);
+        } else if std {
+            c.args(["--lib", "--tests"]);
         }
-        eprintln!("xtask: nemm-core features {set} (host tests)");
+        eprintln!(
+            "xtask: nemm-core features {set} ({})",
+            if std { "host check" } else { "host tests" }
+        );
         run(c.current_dir(&paths.root))?;
     }
     match tc {
