@@ -1043,15 +1043,18 @@ mod tests {
             r#"{"test_alpha":0.15,"info":{"command":"nemm compare --data d","dataset":"d","total_seconds":"12.5"}}"#,
         )
         .unwrap();
-        let md = training_markdown(
-            "cargo xtask results --training runs/c",
-            "abc1234",
-            Path::new("runs/c"),
-            &info,
-            "| model | RMSE |\n",
-            Some("| job |\n"),
-            None,
-        );
+        let block = |degradation| {
+            training_markdown(
+                "cargo xtask results --training runs/c",
+                "abc1234",
+                Path::new("runs/c"),
+                &info,
+                "| model | RMSE |\n",
+                Some("| job |\n"),
+                degradation,
+            )
+        };
+        let md = block(None);
         assert!(md.starts_with(
             "Copied by `cargo xtask results --training runs/c` at commit `abc1234` from \
              `runs/c/table4.md`.\n"
@@ -1064,15 +1067,7 @@ mod tests {
         assert!(report_info("{").is_err());
         assert!(report_info("{}").unwrap().is_empty());
         // The degradation ablation follows Table 5 when the folder has one.
-        let md = training_markdown(
-            "cargo xtask results --training runs/c",
-            "abc1234",
-            Path::new("runs/c"),
-            &info,
-            "| model | RMSE |\n",
-            Some("| job |\n"),
-            Some("| paper_lph5 | no | yes |\n"),
-        );
+        let md = block(Some("| paper_lph5 | no | yes |\n"));
         assert!(
             md.contains("| job |\n\n**Where the NEMM puts the degradation**")
                 && md.ends_with("both).\n\n| paper_lph5 | no | yes |\n"),

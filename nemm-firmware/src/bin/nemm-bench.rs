@@ -146,6 +146,12 @@ impl Options {
             return true; // the program name
         };
         let num = |lo: usize, hi: usize| v.parse::<usize>().ok().filter(|n| (lo..=hi).contains(n));
+        // A switch: `0` or `1`.
+        let flag = match v {
+            "0" => Some(false),
+            "1" => Some(true),
+            _ => None,
+        };
         match k {
             "mode" => Mode::parse(v).map(|m| self.mode = m).is_some(),
             "steps" => num(1, MAX_STEPS).map(|n| self.steps = n).is_some(),
@@ -164,39 +170,9 @@ impl Options {
             "layers" => num(1, 9).map(|n| self.layers = n as u8).is_some(),
             "check" => num(0, 1_000_000).map(|n| self.check = n as u32).is_some(),
             "parity" => num(1, MAX_STEPS).map(|n| self.parity = n).is_some(),
-            "observer" => match v {
-                "0" => {
-                    self.observer = false;
-                    true
-                }
-                "1" => {
-                    self.observer = true;
-                    true
-                }
-                _ => false,
-            },
-            "lost-motion" => match v {
-                "0" => {
-                    self.lost_motion = false;
-                    true
-                }
-                "1" => {
-                    self.lost_motion = true;
-                    true
-                }
-                _ => false,
-            },
-            "calibrate" => match v {
-                "0" => {
-                    self.calibrate = false;
-                    true
-                }
-                "1" => {
-                    self.calibrate = true;
-                    true
-                }
-                _ => false,
-            },
+            "observer" => flag.map(|b| self.observer = b).is_some(),
+            "lost-motion" => flag.map(|b| self.lost_motion = b).is_some(),
+            "calibrate" => flag.map(|b| self.calibrate = b).is_some(),
             _ => false,
         }
     }

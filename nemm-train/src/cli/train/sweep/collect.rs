@@ -399,22 +399,22 @@ impl DegradationCells {
                     .collect()
             })
             .unwrap_or_default();
-        let rows = report.bench_reference.as_ref().map(|c| &c.rows);
-        let k_pr_compression_ratio = rows.and_then(|rows| {
-            let comp = |r: &&crate::report::reference::ReferenceRow| {
-                r.reference == crate::bench::reference::Coefficient::KPrCompression.name()
-            };
-            rows.iter()
-                .filter(comp)
-                .find(|r| r.learned.contains("lost motion"))
-                .or_else(|| rows.iter().find(comp))
-                .map(|r| r.ratio)
-        });
-        let b_fl_change_pp = rows.and_then(|rows| {
-            rows.iter()
-                .find(|r| r.learned == "b_fl(v_st = -1 m/s)")
-                .map(|r| 100.0 * (r.learned_change - r.reference_change))
-        });
+        use crate::bench::reference::Coefficient;
+        let rows = report
+            .bench_reference
+            .as_ref()
+            .map_or(&[][..], |c| &c.rows[..]);
+        let against = |c: Coefficient| {
+            let name = c.name();
+            rows.iter().filter(move |r| r.reference == name)
+        };
+        // Through the lost-motion element where the model has it (its row follows k_pr's).
+        let k_pr_compression_ratio = against(Coefficient::KPrCompression)
+            .next_back()
+            .map(|r| r.ratio);
+        let b_fl_change_pp = against(Coefficient::BFl(-1.0))
+            .next()
+            .map(|r| 100.0 * (r.learned_change - r.reference_change));
         DegradationCells {
             signature,
             read_back,
