@@ -578,27 +578,39 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
         .is_empty());
     assert!(job_report.bench_reference.is_some());
 
-    // The degradation grid: the four element choices, each in its job's config.toml.
+    // The degradation grid: the four element choices, with --lambda-diff each also with
+    // the matched-difference term, each in its job's config.toml.
     let degradation = dir.join("degradation");
-    let list = Nemm::new(&["sweep", "--grid", "degradation", "--list", "--data"])
-        .arg(&data)
-        .arg("--report")
-        .arg(&degradation)
-        .budget()
-        .ok();
+    let list = Nemm::new(&[
+        "sweep",
+        "--grid",
+        "degradation",
+        "--lambda-diff",
+        "2",
+        "--list",
+    ])
+    .arg("--data")
+    .arg(&data)
+    .arg("--report")
+    .arg(&degradation)
+    .budget()
+    .ok();
     let commands: Vec<&str> = list.lines().filter(|l| l.contains(" train ")).collect();
-    assert_eq!(commands.len(), 4, "{list}");
-    for (id, lost_motion, b_fl_alpha) in [
-        ("paper_lph5", false, true),
-        ("fixed-b-fl_lph5", false, false),
-        ("lost-motion_lph5", true, true),
-        ("lost-motion-fixed-b-fl_lph5", true, false),
+    assert_eq!(commands.len(), 8, "{list}");
+    for (id, lost_motion, b_fl_alpha, lambda_diff) in [
+        ("paper_lph5", false, true, 0.0),
+        ("fixed-b-fl_lph5", false, false, 0.0),
+        ("lost-motion_lph5", true, true, 0.0),
+        ("lost-motion-fixed-b-fl_lph5", true, false, 0.0),
+        ("paper_diff2_lph5", false, true, 2.0),
+        ("lost-motion-fixed-b-fl_diff2_lph5", true, false, 2.0),
     ] {
         let job = degradation.join("jobs").join(id);
         let text = std::fs::read_to_string(job.join("config.toml")).expect("config.toml");
         assert!(
             text.contains(&format!("lost_motion = {lost_motion}"))
-                && text.contains(&format!("b_fl_alpha = {b_fl_alpha}")),
+                && text.contains(&format!("b_fl_alpha = {b_fl_alpha}"))
+                && text.contains(&format!("lambda_diff = {lambda_diff:?}")),
             "{id}: {text}"
         );
         if id == "paper_lph5" {
@@ -612,12 +624,12 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     let table =
         std::fs::read_to_string(degradation.join("degradation.md")).expect("degradation.md");
     assert!(
-        collected.contains("| paper_lph5 | no | yes | 5 |"),
+        collected.contains("| paper_lph5 | no | yes | 0 | 5 |"),
         "{collected}"
     );
     let row = table
         .lines()
-        .find(|l| l.starts_with("| paper_lph5 | no | yes | 5 |"))
+        .find(|l| l.starts_with("| paper_lph5 | no | yes | 0 | 5 |"))
         .unwrap_or_else(|| panic!("no paper row:\n{table}"));
     let sig = job_report
         .signature

@@ -76,6 +76,7 @@ fn history(n: usize, start: f64) -> Vec<EpochStats> {
         .map(|e| EpochStats {
             epoch: e,
             train_mse: start / e as f64,
+            diff: 0.0,
             physics: 1e-4 / e as f64,
             val_rmse: (start / e as f64).sqrt(),
             seconds: 0.1,

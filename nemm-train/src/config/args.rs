@@ -80,6 +80,12 @@ pub struct ConfigArgs {
          penalty normalisation, x1000). `nemm sweep` takes a comma-separated list (default \
          0,5,15,25: Table 5's values x1000)", TrainConfig::default().lambda_ph))]
     pub lambda_ph: Option<Vec<f64>>,
+    /// Overrides [`TrainConfig::lambda_diff`].
+    #[arg(long, help = with_default(
+        "Weight of the matched-difference term: windows of the same excitation at two levels \
+         fit the measured force difference between the levels (0: the paper's loss)",
+        TrainConfig::default().lambda_diff))]
+    pub lambda_diff: Option<f64>,
     /// Overrides [`TrainConfig::lambda_l2`].
     #[arg(long, help = with_default(
         "L2 weight lambda on the scalers' linear weights", TrainConfig::default().lambda_l2))]
@@ -183,6 +189,7 @@ impl ConfigArgs {
         if let Some([one]) = self.lambda_ph.as_deref() {
             t.lambda_ph = *one;
         }
+        set(&mut t.lambda_diff, &self.lambda_diff);
         set(&mut t.lambda_l2, &self.lambda_l2);
         set(&mut t.epochs, &self.epochs);
         set(&mut t.patience, &self.patience);

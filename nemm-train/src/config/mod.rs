@@ -189,6 +189,10 @@ pub struct TrainConfig {
     /// this crate's normalisation of the penalty, which takes 1000 times the paper's number
     /// to act (docs/training.md, "The scale of `lambda_ph`").
     pub lambda_ph: f64,
+    /// Weight `lambda_diff` of the matched-difference term (0, the paper's loss: off): for
+    /// windows of the same excitation recorded at two levels, the model's force difference
+    /// against the measured one (docs/training.md, "The difference term").
+    pub lambda_diff: f64,
     /// Weight of the L2 term `sum ||W||_2` over the scalers' linear weights (paper: 1e-3).
     pub lambda_l2: f64,
     /// Maximum epochs of the neural stages.
@@ -238,6 +242,7 @@ impl Default for TrainConfig {
             batch: 16,
             lr: 5e-3,
             lambda_ph: 5.0,
+            lambda_diff: 0.0,
             lambda_l2: 1e-3,
             epochs: 40,
             patience: 8,
@@ -264,6 +269,7 @@ impl TrainConfig {
             lr: self.lr,
             lambda_l2: self.lambda_l2,
             lambda_ph: self.lambda_ph,
+            lambda_diff: self.lambda_diff,
             patience: self.patience,
             grad_clip: self.grad_clip,
             max_batches_per_epoch: self.max_batches,

@@ -1,5 +1,8 @@
 //! Checks of the rollout against nemm-core and of the adjoint against finite differences.
-use super::adjoint::{loss_and_grad, simulate, Grid, RolloutGrads, RolloutParams, Window};
+use super::adjoint::{
+    loss_and_grad, loss_and_grad_paired, simulate, Grid, Pairing, RolloutGrads, RolloutParams,
+    Window,
+};
 use super::params::{convert, from_core};
 use nemm_core::testing::example_model;
 use nemm_core::{Estimator, EstimatorConfig, Integrator, Model, ModelKind};
@@ -242,6 +245,26 @@ fn branched(h: u8, l: u8, units: u8) -> Model {
 
 /// [`check_fd_on`] for a given model (its integrator; the step set to 5e-4 s).
 fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
+    check_fd_paired(m, label, ratio, varying, None);
+}
+
+/// [`check_fd_model`] of the loss with the matched-difference term of `pairing` (mutual
+/// partners among the ten test windows, weight).
+fn check_fd_paired(
+    m: &Model,
+    label: &str,
+    ratio: f64,
+    varying: bool,
+    pairing: Option<(&[Option<usize>], f64)>,
+) {
+    let pairing = pairing.map(|(partner, weight)| Pairing { partner, weight });
+    let loss_grad = |p: &RolloutParams<f64>, wins: &[Window<'_>], grid: &Grid, warmup, fs| {
+        let (parts, g) = loss_and_grad_paired(p, wins, pairing, grid, warmup, fs);
+        if pairing.is_some() {
+            assert!(parts.diff > 0.0, "the pairs add nothing to the loss");
+        }
+        (parts.total(), g)
+    };
     let mut m = m.clone();
     let integ = m.integrator;
     let stat = m.static_force.is_some();
@@ -264,7 +287,7 @@ fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
         })
         .collect();
     let fs_scale = 1500.0;
-    let (_, g) = loss_and_grad(&p, &wins, &grid, warmup, fs_scale);
+    let (_, g) = loss_grad(&p, &wins, &grid, warmup, fs_scale);
     let g = flat(&g);
     let gmax = g.iter().fold(0.0f64, |a, (_, x)| a.max(x.abs()));
     let mut worst = 0.0f64;
@@ -275,8 +298,8 @@ fn check_fd_model(m: &Model, label: &str, ratio: f64, varying: bool) {
         let central = |d: f64| {
             let (pp, h) = perturb(&p, idx, d);
             let (pm, _) = perturb(&p, idx, -d);
-            let (lp, _) = loss_and_grad(&pp, &wins, &grid, warmup, fs_scale);
-            let (lm, _) = loss_and_grad(&pm, &wins, &grid, warmup, fs_scale);
+            let (lp, _) = loss_grad(&pp, &wins, &grid, warmup, fs_scale);
+            let (lm, _) = loss_grad(&pm, &wins, &grid, warmup, fs_scale);
             (lp - lm) / (2.0 * h)
         };
         // Relative to the component, floored at 1e-6 of the largest component (absolute
@@ -315,6 +338,77 @@ fn adjoint_is_exact_on_a_coarser_data_grid() {
     check_fd_on(ModelKind::Nemm, Integrator::Rk4, 3.3, false, false);
     // An integer ratio: the samples fall on model steps.
     check_fd_on(ModelKind::NemmLight, Integrator::Rk4, 4.0, false, false);
+}
+
+#[test]
+fn adjoint_is_exact_with_the_matched_difference_term() {
+    // Pairs in the first pack (0-3, 1-2) and in the padded second one (8-9); 4-7 alone.
+    let mut partner = vec![None; 10];
+    for (a, b) in [(0, 3), (1, 2), (8, 9)] {
+        partner[a] = Some(b);
+        partner[b] = Some(a);
+    }
+    let m = branched(5, 3, 4);
+    check_fd_paired(
+        &m,
+        "branched NEMM, paired",
+        1.0,
+        false,
+        Some((&partner, 2.0)),
+    );
+    check_fd_paired(
+        &m,
+        "branched NEMM, paired",
+        3.3,
+        false,
+        Some((&partner, 0.5)),
+    );
+}
+
+#[test]
+fn the_difference_term_is_the_error_of_the_model_difference() {
+    // Two windows with the same target error add nothing; the MSE part is eq. 23's.
+    let m = branched(5, 3, 4);
+    let p: RolloutParams<f64> = from_core(&m).expect("emm model");
+    let (us, _, _) = windows_for_test(40);
+    let y = simulate(
+        &p,
+        &[Window {
+            u: &us[0],
+            f: &us[0],
+            alpha: 0.1,
+            alphas: None,
+            x: None,
+        }],
+        &Grid::SAME,
+    );
+    let f0: Vec<f32> = y[0].iter().map(|&v| v as f32 + 50.0).collect();
+    let wins = [
+        Window {
+            u: &us[0],
+            f: &f0,
+            alpha: 0.1,
+            alphas: None,
+            x: None,
+        },
+        Window {
+            u: &us[0],
+            f: &f0,
+            alpha: 0.1,
+            alphas: None,
+            x: None,
+        },
+    ];
+    let partner = [Some(1), Some(0)];
+    let pairing = Some(Pairing {
+        partner: &partner,
+        weight: 3.0,
+    });
+    let (parts, _) = loss_and_grad_paired(&p, &wins, pairing, &Grid::SAME, 5, 1000.0);
+    let (mse, _) = loss_and_grad(&p, &wins, &Grid::SAME, 5, 1000.0);
+    assert!((parts.mse - mse).abs() <= 1e-12 * mse);
+    assert!((mse - 0.05 * 0.05).abs() < 1e-4 * mse, "mse {mse}");
+    assert!(parts.diff.abs() < 1e-12, "diff {}", parts.diff);
 }
 
 #[test]

@@ -16,8 +16,9 @@
 //! seed and `e`). A non-finite loss stops training with an error and leaves the last good
 //! checkpoint in place.
 
-use super::adjoint::{loss_and_grad, simulate, Grid, Window};
+use super::adjoint::{loss_and_grad_paired, simulate, Grid, Pairing, Window};
 use super::checkpoint::{self, CheckpointState};
+use super::matched::{matched_count, matched_windows, paired_batch};
 use super::net::{EmmNet, NetFrame};
 use super::params::to_core;
 use super::physics::{audit, physics_loss, PenaltyGrid};
@@ -54,6 +55,9 @@ pub struct FitConfig {
     pub lambda_l2: f64,
     /// Physics-inconsistency weight `lambda_ph`.
     pub lambda_ph: f64,
+    /// Weight `lambda_diff` of the matched-difference term (0: off): the force difference
+    /// between matched windows at two levels ([`super::matched`]) against the measured one.
+    pub lambda_diff: f64,
     /// Stop after this many epochs without a better validation RMSE (not before half of
     /// `epochs` are done).
     pub patience: usize,
@@ -103,6 +107,9 @@ pub struct EpochStats {
     pub epoch: usize,
     /// Mean normalised MSE of the training batches.
     pub train_mse: f64,
+    /// Mean matched-difference term of the batches (0 without `lambda_diff`).
+    #[serde(default)]
+    pub diff: f64,
     /// Mean physics-inconsistency loss of the batches.
     pub physics: f64,
     /// Validation RMSE, normalised by the force scale.
@@ -402,6 +409,19 @@ impl Stage<'_> {
     fn train_epochs(&self, mut p: Progress) -> Result<(Progress, StopReason)> {
         let cfg = self.cfg;
         let train_w = windows(self.data.train);
+        let partners = if cfg.lambda_diff > 0.0 {
+            let partners = matched_windows(self.data.train);
+            eprintln!(
+                "[{}] difference term (lambda_diff {}): {} of {} training windows matched at another level",
+                cfg.label,
+                cfg.lambda_diff,
+                matched_count(&partners),
+                partners.len()
+            );
+            partners
+        } else {
+            Vec::new()
+        };
         let n_batches_full = self.data.train.len().div_ceil(cfg.batch);
         let n_batches = cfg
             .max_batches_per_epoch
@@ -441,7 +461,7 @@ impl Stage<'_> {
                 n_batches,
                 total_steps,
             };
-            p = self.epoch(p, &train_w, plan, &grid, t_start)?;
+            p = self.epoch(p, &train_w, &partners, plan, &grid, t_start)?;
         }
         Ok((p, stop))
     }
@@ -453,21 +473,21 @@ impl Stage<'_> {
         &self,
         mut p: Progress,
         train_w: &[Window<'_>],
+        partners: &[Vec<usize>],
         plan: EpochPlan,
         grid: &PenaltyGrid,
         t_start: Instant,
     ) -> Result<Progress> {
         let (cfg, epoch) = (self.cfg, plan.epoch);
         let t_epoch = Instant::now();
-        let train_mse;
-        let physics;
-        let held;
-        (p.net, train_mse, physics, held) = train_epoch(
+        let sums;
+        (p.net, sums) = train_epoch(
             p.net,
             &mut p.optim,
             self.frame,
             self.data,
             train_w,
+            partners,
             cfg,
             plan,
             grid,
@@ -479,12 +499,13 @@ impl Stage<'_> {
         }
         let stats = EpochStats {
             epoch,
-            train_mse,
-            physics,
+            train_mse: sums.mse,
+            diff: sums.diff,
+            physics: sums.physics,
             val_rmse: val,
             seconds: t_epoch.elapsed().as_secs_f64(),
             violations: self.violations(&p.net)?,
-            held,
+            held: sums.held,
         };
         p.history.push(stats);
         if p.sel.observe(epoch, val, stats.violations) {
@@ -510,10 +531,15 @@ impl Stage<'_> {
         let done = epoch + 1 - p.start_epoch;
         let eta = elapsed / done as f64 * (cfg.epochs - epoch) as f64;
         eprintln!(
-            "\r[{}] epoch {epoch:>3}/{} train MSE {:.3e}  physics {:.2e}  val RMSE {:.4} ({:.1} N){}{}{}  {:.1} s/epoch  ETA {}",
+            "\r[{}] epoch {epoch:>3}/{} train MSE {:.3e}{}  physics {:.2e}  val RMSE {:.4} ({:.1} N){}{}{}  {:.1} s/epoch  ETA {}",
             cfg.label,
             cfg.epochs,
             stats.train_mse,
+            if cfg.lambda_diff > 0.0 {
+                format!("  difference {:.3e}", stats.diff)
+            } else {
+                String::new()
+            },
             stats.physics,
             val,
             val * self.data.force_scale_n,
@@ -583,9 +609,44 @@ struct EpochPlan {
     total_steps: usize,
 }
 
+/// The windows of batch `b` of `epoch` (indices into the training windows) and each one's
+/// partner in the batch: `cfg.batch` windows of `order`, or with the difference term half
+/// as many anchors each followed by a matched window ([`paired_batch`]).
+fn batch_windows(
+    order: &[usize],
+    partners: &[Vec<usize>],
+    cfg: &FitConfig,
+    epoch: usize,
+    b: usize,
+) -> (Vec<usize>, Vec<Option<usize>>) {
+    let take = |n: usize| &order[(b * n).min(order.len())..((b + 1) * n).min(order.len())];
+    if cfg.lambda_diff > 0.0 && !partners.is_empty() {
+        let seed = cfg.seed
+            ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+        paired_batch(take((cfg.batch / 2).max(1)), partners, seed)
+    } else {
+        let idx = take(cfg.batch).to_vec();
+        let none = vec![None; idx.len()];
+        (idx, none)
+    }
+}
+
+/// What an epoch's batches measured.
+#[derive(Debug, Clone, Copy, Default)]
+struct EpochSums {
+    /// Mean normalised MSE of the batches.
+    mse: f64,
+    /// Mean matched-difference term of the batches (0 without it).
+    diff: f64,
+    /// Mean physics loss of the batches.
+    physics: f64,
+    /// Optimizer steps after which the stability hold moved the constants.
+    held: usize,
+}
+
 /// One epoch of Adam steps over the shuffled training windows, each followed by the
-/// stability hold; returns the module, the mean training MSE and the mean physics loss of
-/// its batches, and how many steps the hold moved the constants.
+/// stability hold; returns the module and what its batches measured.
 #[allow(clippy::too_many_arguments)]
 fn train_epoch(
     mut net: EmmNet,
@@ -593,13 +654,14 @@ fn train_epoch(
     frame: &NetFrame,
     data: FitData<'_>,
     train_w: &[Window<'_>],
+    partners: &[Vec<usize>],
     cfg: &FitConfig,
     plan: EpochPlan,
     grid: &PenaltyGrid,
     device: &Device,
-) -> Result<(EmmNet, f64, f64, usize)> {
+) -> Result<(EmmNet, EpochSums)> {
     let hold = StabilityHold::new(frame);
-    let mut held = 0;
+    let mut sums = EpochSums::default();
     let EpochPlan {
         epoch,
         n_batches,
@@ -607,13 +669,24 @@ fn train_epoch(
     } = plan;
     let runs: Vec<usize> = data.train.iter().map(|s| s.run).collect();
     let order = epoch_order(&runs, cfg.balance, cfg.seed, epoch);
-    let (mut mse_sum, mut phys_sum) = (0.0f64, 0.0f64);
     for b in 0..n_batches {
-        let idx = &order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())];
+        let (idx, partner) = batch_windows(&order, partners, cfg, epoch, b);
         let batch: Vec<Window<'_>> = idx.iter().map(|&i| train_w[i]).collect();
         let p = net.to_rollout(frame);
-        let (mse, g) = loss_and_grad(&p, &batch, &data.grid, data.warmup, data.force_scale_n);
-        if !mse.is_finite() {
+        let pairing = (cfg.lambda_diff > 0.0).then_some(Pairing {
+            partner: &partner,
+            weight: cfg.lambda_diff,
+        });
+        let (parts, g) = loss_and_grad_paired(
+            &p,
+            &batch,
+            pairing,
+            &data.grid,
+            data.warmup,
+            data.force_scale_n,
+        );
+        let mse = parts.mse;
+        if !parts.total().is_finite() {
             bail!(
                 "[{}] the training loss became {mse} in epoch {epoch}, batch {}: stopping. \
                  The last good checkpoint is kept; try a smaller learning rate (--lr) or \
@@ -638,9 +711,10 @@ fn train_epoch(
         let lr = learning_rate(cfg.lr, step, total_steps);
         let moved;
         (net, moved) = optim.step(lr, net, gp).hold_stable(&hold);
-        held += usize::from(moved);
-        mse_sum += mse;
-        phys_sum += phys_v;
+        sums.held += usize::from(moved);
+        sums.mse += mse;
+        sums.diff += parts.diff;
+        sums.physics += phys_v;
         if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
             eprint!(
                 "\r[{}] epoch {epoch}/{} batch {}/{} loss {:.3e}      ",
@@ -652,12 +726,11 @@ fn train_epoch(
             );
         }
     }
-    Ok((
-        net,
-        mse_sum / n_batches as f64,
-        phys_sum / n_batches as f64,
-        held,
-    ))
+    let n = n_batches.max(1) as f64;
+    sums.mse /= n;
+    sums.diff /= n;
+    sums.physics /= n;
+    Ok((net, sums))
 }
 
 #[cfg(test)]

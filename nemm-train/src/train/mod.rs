@@ -8,6 +8,7 @@ mod checkpoint;
 pub mod eval;
 pub mod fit;
 pub mod identify;
+pub mod matched;
 pub mod net;
 pub mod params;
 pub mod physics;

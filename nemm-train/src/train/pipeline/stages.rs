@@ -231,6 +231,7 @@ impl<'a> Stages<'a> {
             epochs: cfg.linear_epochs,
             lr: cfg.linear_lr,
             lambda_ph: 0.0,
+            lambda_diff: 0.0,
             ..cfg.fit.clone()
         };
         if let Some(msg) = StabilityHold::of_rollout(&p0).announce("linear-emm", &p0) {

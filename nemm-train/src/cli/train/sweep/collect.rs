@@ -244,7 +244,10 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
             "|---|---:|---:|---:|---:|",
         )
     } else if degradation {
-        ("| Job | Lost motion | b_fl in alpha |", "|---|---|---|")
+        (
+            "| Job | Lost motion | b_fl in alpha | lambda_diff |",
+            "|---|---|---|---:|",
+        )
     } else {
         ("| Job | Alpha priors |", "|---|---|")
     };
@@ -269,7 +272,12 @@ pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collecte
         } else if degradation {
             let p = DegradationPoint::of(&j.config);
             let yes = |b: bool| if b { "yes" } else { "no" };
-            format!("{} | {}", yes(p.lost_motion), yes(p.b_fl_alpha))
+            format!(
+                "{} | {} | {}",
+                yes(p.lost_motion),
+                yes(p.b_fl_alpha),
+                p.lambda_diff
+            )
         } else {
             j.config.model.alpha_priors.name().to_string()
         };
@@ -372,7 +380,8 @@ struct DegradationCells {
 
 impl DegradationCells {
     /// What the degradation columns are, above the table.
-    const LEGEND: &'static str = "Signature: the relative error of the model's difference loop \
+    const LEGEND: &'static str = "lambda_diff: the weight of the matched-difference term in the \
+        training loss (0: the paper's loss). Signature: the relative error of the model's difference loop \
         F(0) - F(alpha) against the measured one at the highest lossy level (median over the \
         conditions; worst at the smallest amplitude; 0 is the measured degradation, 1 no change). \
         Read back: per level, the runs whose best-fit level is within the identification's \

@@ -51,8 +51,9 @@ pub enum SweepGrid {
     /// hyperparameters as given (Table 5 with the construction-against-penalty ablation).
     Priors,
     /// Where the model may put the degradation ([`DegradationPoint::ALL`]: the paper's NEMM,
-    /// `b_fl` without its alpha branch, the lost-motion element, both) times the
-    /// `--lambda-ph` list (default: the base's `lambda_ph`), collected with the degradation
+    /// `b_fl` without its alpha branch, the lost-motion element, both; with `--lambda-diff`
+    /// each also trained with the matched-difference term, [`DegradationPoint::grid`]) times
+    /// the `--lambda-ph` list (default: the base's `lambda_ph`), collected with the degradation
     /// signature, the levels read back and the learned against the bench's coefficients
     /// (`degradation.md`).
     Degradation,
@@ -79,53 +80,69 @@ impl SweepGrid {
     }
 }
 
-/// One point of the degradation grid: which elements may change with alpha.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// One point of the degradation grid: which elements may change with alpha, and the weight
+/// of the matched-difference term the model is trained with.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DegradationPoint {
     /// The lost-motion element in series with `k_pr` ([`crate::config::ModelConfig::lost_motion`]).
     pub lost_motion: bool,
     /// `b_fl`'s alpha branch ([`crate::config::ModelConfig::b_fl_alpha`]).
     pub b_fl_alpha: bool,
+    /// [`crate::config::TrainConfig::lambda_diff`] (0: the paper's loss).
+    pub lambda_diff: f64,
 }
 
 impl DegradationPoint {
-    /// The degradation grid: the paper's NEMM (alpha in `b_fl`, `b_pr`, `k_pr`), the same
-    /// with `b_fl` fixed in alpha, the lost-motion element added, and the element with
-    /// `b_fl` fixed in alpha.
+    /// The four element choices, trained with the paper's loss: the paper's NEMM (alpha in
+    /// `b_fl`, `b_pr`, `k_pr`), the same with `b_fl` fixed in alpha, the lost-motion element
+    /// added, and the element with `b_fl` fixed in alpha.
     pub const ALL: [DegradationPoint; 4] = [
-        DegradationPoint {
-            lost_motion: false,
-            b_fl_alpha: true,
-        },
-        DegradationPoint {
-            lost_motion: false,
-            b_fl_alpha: false,
-        },
-        DegradationPoint {
-            lost_motion: true,
-            b_fl_alpha: true,
-        },
-        DegradationPoint {
-            lost_motion: true,
-            b_fl_alpha: false,
-        },
+        DegradationPoint::element(false, true),
+        DegradationPoint::element(false, false),
+        DegradationPoint::element(true, true),
+        DegradationPoint::element(true, false),
     ];
+
+    const fn element(lost_motion: bool, b_fl_alpha: bool) -> Self {
+        DegradationPoint {
+            lost_motion,
+            b_fl_alpha,
+            lambda_diff: 0.0,
+        }
+    }
+
+    /// The grid: [`DegradationPoint::ALL`], and with a positive `lambda_diff` (the sweep's
+    /// `--lambda-diff`) the four again trained with the difference term of that weight.
+    pub fn grid(lambda_diff: f64) -> Vec<DegradationPoint> {
+        let mut v = Self::ALL.to_vec();
+        if lambda_diff > 0.0 {
+            v.extend(Self::ALL.map(|p| DegradationPoint { lambda_diff, ..p }));
+        }
+        v
+    }
 
     /// The point a job's configuration trains.
     pub fn of(config: &Config) -> Self {
         DegradationPoint {
             lost_motion: config.model.lost_motion,
             b_fl_alpha: config.model.b_fl_alpha,
+            lambda_diff: config.train.lambda_diff,
         }
     }
 
-    /// The job id's prefix: `paper`, `fixed-b-fl`, `lost-motion`, `lost-motion-fixed-b-fl`.
-    pub fn name(self) -> &'static str {
-        match (self.lost_motion, self.b_fl_alpha) {
+    /// The job id's prefix: `paper`, `fixed-b-fl`, `lost-motion`, `lost-motion-fixed-b-fl`,
+    /// followed by `_diff<lambda_diff>` with the difference term.
+    pub fn name(self) -> String {
+        let element = match (self.lost_motion, self.b_fl_alpha) {
             (false, true) => "paper",
             (false, false) => "fixed-b-fl",
             (true, true) => "lost-motion",
             (true, false) => "lost-motion-fixed-b-fl",
+        };
+        if self.lambda_diff > 0.0 {
+            format!("{element}_diff{}", self.lambda_diff)
+        } else {
+            element.to_string()
         }
     }
 }
@@ -212,7 +229,7 @@ pub struct SweepJob {
     pub id: String,
     /// The overridden settings (`lambda_ph`; for the Table 3 grid `batch`, `hidden`,
     /// `layers`, `lr`; for the priors grid `alpha_priors`; for the degradation grid
-    /// `lost_motion` and `b_fl_alpha`) with their values, for `sweep.json`.
+    /// `lost_motion`, `b_fl_alpha` and `lambda_diff`) with their values, for `sweep.json`.
     pub overrides: Vec<(String, String)>,
     /// The job's configuration.
     pub config: Config,
@@ -235,7 +252,10 @@ pub fn sweep_jobs(
         SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::Degradation => vec![None],
     };
     let elements: Vec<Option<DegradationPoint>> = match grid {
-        SweepGrid::Degradation => DegradationPoint::ALL.into_iter().map(Some).collect(),
+        SweepGrid::Degradation => DegradationPoint::grid(base.train.lambda_diff)
+            .into_iter()
+            .map(Some)
+            .collect(),
         SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::Priors => vec![None],
     };
     let mut jobs = Vec::new();
@@ -255,8 +275,10 @@ pub fn sweep_jobs(
                 id.push_str(&format!("{}_", e.name()));
                 config.model.lost_motion = e.lost_motion;
                 config.model.b_fl_alpha = e.b_fl_alpha;
+                config.train.lambda_diff = e.lambda_diff;
                 o.push(("lost_motion".into(), e.lost_motion.to_string()));
                 o.push(("b_fl_alpha".into(), e.b_fl_alpha.to_string()));
+                o.push(("lambda_diff".into(), e.lambda_diff.to_string()));
             }
             if let Some(p) = prior {
                 id.push_str(&format!("{}_", p.name()));

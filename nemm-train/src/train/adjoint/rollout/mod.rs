@@ -8,7 +8,8 @@
 //! - `data`: a pack's inputs on the model grid;
 //! - `forward`: the forward sweep (states `x_pr`, `v_st` and forces per model step);
 //! - `reverse`: the loss at the data samples and the reverse sweep;
-//! - here: the entry points ([`loss_and_grad`], [`simulate`], [`simulate_x_pr`]).
+//! - here: the entry points ([`loss_and_grad`], [`loss_and_grad_paired`], [`simulate`],
+//!   [`simulate_x_pr`]).
 
 use super::*;
 
@@ -49,28 +50,94 @@ pub fn loss_and_grad<T: Real>(
     warmup: usize,
     force_scale: f64,
 ) -> (f64, RolloutGrads<T>) {
+    let (loss, g) = loss_and_grad_paired(p, windows, None, grid, warmup, force_scale);
+    (loss.mse, g)
+}
+
+/// Matched windows of a batch for the difference term of the loss: windows of the same
+/// excitation recorded at two condition levels, whose force difference the model's must
+/// follow (the degradation signature, Fig. 5).
+#[derive(Debug, Clone, Copy)]
+pub struct Pairing<'a> {
+    /// Per window of the batch, the index of its matched window in the same batch. A pair
+    /// must lie in one pack of [`LANES`] windows (indices `LANES k .. LANES (k + 1)`);
+    /// a partner outside its pack is ignored.
+    pub partner: &'a [Option<usize>],
+    /// Weight `lambda_diff` of the term, relative to eq. 23's.
+    pub weight: f64,
+}
+
+/// The parts of the training loss of a batch, each normalised by the scored samples.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LossParts {
+    /// Eq. 23: the normalised MSE of the force.
+    pub mse: f64,
+    /// The matched-difference term: `lambda_diff` times the mean over matched samples of
+    /// `((e_a - e_b) / F_s)^2` (`e` the force error of two matched windows), counted per
+    /// window so that it is comparable with `mse`.
+    pub diff: f64,
+}
+
+impl LossParts {
+    /// The loss the gradient is of.
+    pub fn total(&self) -> f64 {
+        self.mse + self.diff
+    }
+}
+
+/// [`loss_and_grad`] with the matched-difference term of `pairing`: per sample of two
+/// matched windows `a`, `b` the loss adds `lambda_diff ((e_a - e_b) / F_s)^2 / M`, the
+/// error of the model's difference `y_a - y_b` against the measured one. Returns the
+/// parts of the loss and the gradient of their sum.
+pub fn loss_and_grad_paired<T: Real>(
+    p: &RolloutParams<T>,
+    windows: &[Window<'_>],
+    pairing: Option<Pairing<'_>>,
+    grid: &Grid,
+    warmup: usize,
+    force_scale: f64,
+) -> (LossParts, RolloutGrads<T>) {
     let n = common_len(windows);
     if n <= warmup || windows.is_empty() {
-        return (0.0, RolloutGrads::zeros(p));
+        return (LossParts::default(), RolloutGrads::zeros(p));
     }
     let m = (windows.len() * (n - warmup)) as f64;
     let inv_fs = T::c(1.0 / force_scale);
     let ybar_scale = T::c(2.0 / (force_scale * force_scale * m));
+    let diff_w = T::c(pairing.map_or(0.0, |pr| pr.weight));
     let refs: Vec<&Window<'_>> = windows.iter().collect();
-    let results: Vec<(T, RolloutGrads<T>)> = refs
+    let results: Vec<(T, T, RolloutGrads<T>)> = refs
         .par_chunks(LANES)
-        .map(|chunk| {
+        .enumerate()
+        .map(|(c, chunk)| {
             let d = pack_data::<T>(chunk, grid, n, true, p.static_force.as_ref());
-            pack_loss_grad(p, &d, warmup, inv_fs, ybar_scale)
+            let partner = std::array::from_fn(|l| {
+                pairing
+                    .and_then(|pr| pr.partner.get(c * LANES + l).copied().flatten())
+                    .and_then(|j| j.checked_sub(c * LANES))
+                    .filter(|&k| k < chunk.len())
+                    .unwrap_or(l)
+            });
+            let sl = SampleLoss {
+                lane_w: d.lane_w,
+                inv_fs,
+                ybar_scale,
+                partner,
+                diff_w,
+            };
+            pack_loss_grad(p, &d, warmup, &sl)
         })
         .collect();
     let mut g = RolloutGrads::zeros(p);
-    let mut loss = 0.0f64;
-    for (l, gi) in &results {
-        loss += l.to_f64().unwrap_or(f64::NAN);
+    let mut loss = LossParts::default();
+    for (l, dl, gi) in &results {
+        loss.mse += l.to_f64().unwrap_or(f64::NAN);
+        loss.diff += dl.to_f64().unwrap_or(f64::NAN);
         g.add(gi);
     }
-    (loss / m, g)
+    loss.mse /= m;
+    loss.diff /= m;
+    (loss, g)
 }
 
 /// Runs every window from rest on `grid` and returns, per window, `out` of the forward

@@ -28,26 +28,51 @@ fn bpr_backward<T: Real>(p: &RolloutParams<T>, pk: &Pack<'_, T>, bar: &mut PackA
 }
 
 /// The loss term of one data sample (eq. 23): the per-lane weighted error of the force,
-/// normalised by the force scale and squared.
-struct SampleLoss<T> {
+/// normalised by the force scale and squared; with matched lanes ([`Pairing`]) also the
+/// squared difference of a lane's error and its partner's, weighted by `diff_w`.
+pub(super) struct SampleLoss<T> {
     /// Weight of each lane's squared error (0 for padding).
-    lane_w: WindowLanes<T>,
+    pub(super) lane_w: WindowLanes<T>,
     /// `1 / F_s`.
-    inv_fs: T,
+    pub(super) inv_fs: T,
     /// `2 / (F_s^2 M)`.
-    ybar_scale: T,
+    pub(super) ybar_scale: T,
+    /// Each lane's matched lane in the pack (itself when it has none: its difference term
+    /// is then zero).
+    pub(super) partner: [usize; LANES],
+    /// Weight `lambda_diff` of the matched-difference term (0: eq. 23 alone).
+    pub(super) diff_w: T,
 }
 
 impl<T: Real> SampleLoss<T> {
-    /// Adds the term of model force `y` against measured force `f` to `loss` and returns its
-    /// adjoint `dL/dy`.
+    /// Adds the term of model force `y` against measured force `f` to `loss` (the
+    /// difference term to `diff`) and returns its adjoint `dL/dy`. The difference term of a
+    /// pair `(a, b)`, `diff_w ((e_a - e_b) / F_s)^2`, is split half onto each lane, so that
+    /// `dL/dy_a = ybar_scale (e_a + diff_w (e_a - e_b))`.
     #[inline(always)]
-    fn add(&self, y: &WindowLanes<T>, f: &WindowLanes<T>, loss: &mut T) -> WindowLanes<T> {
+    fn add(
+        &self,
+        y: &WindowLanes<T>,
+        f: &WindowLanes<T>,
+        loss: &mut T,
+        diff: &mut T,
+    ) -> WindowLanes<T> {
+        let e: [T; LANES] = std::array::from_fn(|l| (y.0[l] - f.0[l]) * self.lane_w.0[l]);
+        if self.diff_w == T::zero() {
+            return Lanes(std::array::from_fn(|l| {
+                let en = e[l] * self.inv_fs;
+                *loss += en * en;
+                self.ybar_scale * e[l]
+            }));
+        }
+        let half = T::c(0.5) * self.diff_w;
         Lanes(std::array::from_fn(|l| {
-            let e = (y.0[l] - f.0[l]) * self.lane_w.0[l];
-            let en = e * self.inv_fs;
+            let en = e[l] * self.inv_fs;
             *loss += en * en;
-            self.ybar_scale * e
+            let de = e[l] - e[self.partner[l]];
+            let dn = de * self.inv_fs;
+            *diff += half * dn * dn;
+            self.ybar_scale * (e[l] + self.diff_w * de)
         }))
     }
 }
@@ -61,13 +86,14 @@ fn output_adjoints_on_grid<T: Real>(
     warmup: usize,
     sl: &SampleLoss<T>,
     loss: &mut T,
+    diff: &mut T,
 ) -> (Vec<WindowLanes<T>>, Vec<bool>) {
     let n = d.u.len();
     let mut ybar = vec![WindowLanes::<T>::default(); n];
     let mut scored = vec![false; n];
     for (k, (y, f)) in at_samples(d, ys).iter().zip(&d.f).enumerate().skip(warmup) {
         let (j, wgt) = d.at[k];
-        let g = sl.add(y, f, loss);
+        let g = sl.add(y, f, loss, diff);
         if wgt == T::zero() {
             ybar[j] = ybar[j] + g;
             scored[j] = true;
@@ -237,27 +263,23 @@ impl<T: Real> ReverseSweep<T> {
     }
 }
 
-/// Loss sum (unnormalised) and gradient of one pack. `ybar_scale` is `2 / (F_s^2 M)`;
-/// samples before `warmup` are not scored.
+/// Loss sums (unnormalised: eq. 23's and the matched-difference term's) and gradient of one
+/// pack. `sl` holds the lanes' weights, partners and scales (`ybar_scale` is
+/// `2 / (F_s^2 M)`); samples before `warmup` are not scored.
 pub(super) fn pack_loss_grad<T: Real>(
     p: &RolloutParams<T>,
     d: &PackData<T>,
     warmup: usize,
-    inv_fs: T,
-    ybar_scale: T,
-) -> (T, RolloutGrads<T>) {
+    sl: &SampleLoss<T>,
+) -> (T, T, RolloutGrads<T>) {
     let n = d.u.len();
     let mut pk = Pack::new(p, d.alpha(n.saturating_sub(1)));
     let (states, ys) = forward_sweep(p, d);
-    let sl = SampleLoss {
-        lane_w: d.lane_w,
-        inv_fs,
-        ybar_scale,
-    };
     // The loss at the data samples and its adjoint per model step: formed here on a
     // coarser data grid, inline in the reverse sweep when every step is a sample.
-    let mut loss = T::zero();
-    let on_grid = (!d.identity).then(|| output_adjoints_on_grid(d, &ys, warmup, &sl, &mut loss));
+    let (mut loss, mut diff) = (T::zero(), T::zero());
+    let on_grid =
+        (!d.identity).then(|| output_adjoints_on_grid(d, &ys, warmup, sl, &mut loss, &mut diff));
     let mut rev = ReverseSweep::new(p, &pk);
     for i in (0..n).rev() {
         let u1 = d.u[i];
@@ -268,7 +290,7 @@ pub(super) fn pack_loss_grad<T: Real>(
         };
         let ybar_i = match &on_grid {
             Some((ybar, scored)) => scored[i].then(|| ybar[i]),
-            None => (i >= warmup).then(|| sl.add(&ys[i], &d.f[i], &mut loss)),
+            None => (i >= warmup).then(|| sl.add(&ys[i], &d.f[i], &mut loss, &mut diff)),
         };
         rev.output_backward(&pk, d, i, &states[i + 1], u1, ybar_i);
         rev.step_backward(&pk, &states[i], u0, u1);
@@ -278,5 +300,5 @@ pub(super) fn pack_loss_grad<T: Real>(
             pk = Pack::new(p, d.alpha(i - 1));
         }
     }
-    (loss, rev.finish(p, &pk))
+    (loss, diff, rev.finish(p, &pk))
 }
