@@ -20,7 +20,7 @@ use nemm_core::ModelKind;
 use nemm_train::config::{resolve_data, Config};
 use nemm_train::report::identify::{identify_report, used_runs, IdentifyReport};
 use nemm_train::train::identify::{Search, DEFAULT_STEP};
-use nemm_train::train::pipeline::train_variants;
+use nemm_train::train::pipeline::{train_variants, PipelineConfig};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -63,7 +63,7 @@ fn main() {
             let trained = train_variants(
                 &prepared,
                 &[ModelKind::Nemm],
-                &config.pipeline_config(),
+                &PipelineConfig::of(&config),
                 None,
                 false,
             )

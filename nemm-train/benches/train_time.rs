@@ -22,7 +22,7 @@ fn main() {
     let config = Config::default();
     let prepared = nemm_train::cli::train::load_prepared(&data, &config.data.prepare_config())
         .expect("dataset");
-    let cfg: PipelineConfig = config.pipeline_config();
+    let cfg = PipelineConfig::of(&config);
     let t = Instant::now();
     let trained = train_variants(&prepared, &[ModelKind::Nemm], &cfg, None, false).expect("train");
     let total = t.elapsed().as_secs_f64();

@@ -8,10 +8,10 @@ use nemm_train::bench::reference::{self, EmmReference};
 use nemm_train::bench::VirtualBench;
 use nemm_train::data::dataset::{Dataset, Run};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared};
-use nemm_train::report::figures::{write_all, write_all_with_reference};
+use nemm_train::report::figures::{figure_predictions, write_all, write_all_with_reference};
 use nemm_train::report::predictions::RunPredictions;
 use nemm_train::report::tables::{evaluate, Report};
-use nemm_train::train::fit::EpochStats;
+use nemm_train::train::history::EpochStats;
 use nemm_train::train::pipeline::TrainedVariant;
 use std::path::Path;
 
@@ -190,7 +190,7 @@ fn all_figures_are_written_as_pngs_of_the_expected_size() {
         &ds,
         &prep,
         &report,
-        &RunPredictions::for_figures(&tr, &prep).expect("predictions"),
+        &figure_predictions(&tr, &prep).expect("predictions"),
         dir.path(),
     )
     .expect("figures");
@@ -240,7 +240,7 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
         &ds,
         &prep,
         &report,
-        &RunPredictions::for_figures(&sem, &prep).expect("predictions"),
+        &figure_predictions(&sem, &prep).expect("predictions"),
         dir.path(),
     )
     .expect("figures");
@@ -261,7 +261,7 @@ fn figures_of_untrained_variants_are_left_out_and_missing_data_is_not_an_error()
         &slow,
         &prep,
         &report,
-        &RunPredictions::for_figures(&light, &prep).expect("predictions"),
+        &figure_predictions(&light, &prep).expect("predictions"),
         dir.path(),
     )
     .expect("figures");
@@ -309,7 +309,7 @@ fn an_unwritable_report_folder_is_an_error() {
         &ds,
         &prep,
         &report,
-        &RunPredictions::for_figures(&tr, &prep).expect("predictions"),
+        &figure_predictions(&tr, &prep).expect("predictions"),
         &blocker
     )
     .is_err());
@@ -390,7 +390,7 @@ fn coefficient_figures_draw_the_bench_reference_on_bench_data() {
     let prep = prepared(&ds);
     let tr = all_four();
     let report: Report = evaluate(&tr, &prep).expect("report");
-    let predictions = RunPredictions::for_figures(&tr, &prep).expect("predictions");
+    let predictions = figure_predictions(&tr, &prep).expect("predictions");
     let r = EmmReference::of(&VirtualBench::new(BenchConfig::default())).expect("reference");
     let plain = tempfile::tempdir().expect("tempdir");
     let with = tempfile::tempdir().expect("tempdir");

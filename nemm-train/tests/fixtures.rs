@@ -5,6 +5,7 @@ use nemm_train::bench::fixtures::{fixtures, write_fixtures};
 use nemm_train::data::dataset;
 use nemm_train::data::preprocess::{self, Direction, PrepareConfig, SignalConfig};
 use nemm_train::data::support_points::periodicity;
+use nemm_train::train::pipeline::PipelineConfig;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -577,11 +578,7 @@ fn a_force_offset_switches_the_static_force_on() {
         cfg.with_static_force_from(&tared).model.static_force,
         Some(false)
     );
-    assert!(
-        cfg.with_static_force_from(&untared)
-            .pipeline_config()
-            .static_force
-    );
+    assert!(PipelineConfig::of(&cfg.with_static_force_from(&untared)).static_force);
     cfg.model.static_force = Some(false);
     assert_eq!(
         cfg.with_static_force_from(&untared).model.static_force,

@@ -243,7 +243,7 @@ fn resume_after_a_kill_continues_exactly() {
     );
     let (net, frame) = light_net(&device);
     let resumed = fit(net, &frame, data, &cfg, Some(&dir), true, &device).expect("resume");
-    let losses = |h: &[nemm_train::train::fit::EpochStats]| -> Vec<(f64, f64, Option<usize>)> {
+    let losses = |h: &[nemm_train::train::history::EpochStats]| -> Vec<(f64, f64, Option<usize>)> {
         h.iter()
             .map(|e| (e.train_mse, e.val_rmse, e.violations))
             .collect()

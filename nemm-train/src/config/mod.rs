@@ -3,8 +3,9 @@
 //! [`Config`] holds the three parts a dataset-reading, model-training command needs:
 //! [`DataConfig`] (which dataset, how it is split and cut into windows), [`ModelConfig`]
 //! (variant, scaler size, integrator) and [`TrainConfig`] (the optimiser and its schedule).
-//! Their `Default` impls are the only place defaults are written: the library's
-//! [`PipelineConfig`] and [`FitConfig`] are built from them, and the command line
+//! Their `Default` impls are the only place defaults are written: the training procedure's
+//! settings (`train::pipeline::PipelineConfig::of`, `train::fit::FitConfig::of`) are built
+//! from them, and the command line
 //! ([`ConfigArgs`]) holds only `Option`s that override a configuration (the defaults, or a
 //! TOML file given with `--config`). A configuration is written to and read from TOML
 //! ([`Config::to_toml`], [`Config::load`]); `nemm train --report`, `nemm compare` and
@@ -17,13 +18,46 @@ use crate::data::preprocess::{
     DEFAULT_SPLIT_SEED, DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
     DEFAULT_WINDOW_S,
 };
-use crate::train::fit::FitConfig;
-use crate::train::pipeline::{AlphaPriors, PipelineConfig};
 use anyhow::{bail, Context, Result};
 use nemm_core::{Integrator, ModelKind};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+
+/// How the declared monotonicity priors in alpha (eqs. 31, 37-38, second conditions) are
+/// imposed on the neural coefficients.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum AlphaPriors {
+    /// An alpha branch per coefficient with a declared direction
+    /// (`nemm_core::semantics::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
+    /// penalty keeps only the state conditions.
+    Construction,
+    /// The paper's physics penalty on a grid alone (section 5.2), checked by the audit.
+    Penalty,
+}
+
+impl AlphaPriors {
+    /// `construction` or `penalty`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            AlphaPriors::Construction => "construction",
+            AlphaPriors::Penalty => "penalty",
+        }
+    }
+}
+
+impl std::str::FromStr for AlphaPriors {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "construction" => Ok(AlphaPriors::Construction),
+            "penalty" => Ok(AlphaPriors::Penalty),
+            other => Err(format!(
+                "unknown alpha-priors mode `{other}` (expected construction or penalty)"
+            )),
+        }
+    }
+}
 
 /// Name of the effective configuration saved into a report folder.
 pub const CONFIG_FILE: &str = "config.toml";
@@ -65,7 +99,7 @@ mod by_name {
             self.name()
         }
     }
-    impl Named for crate::train::pipeline::AlphaPriors {
+    impl Named for super::AlphaPriors {
         fn name_of(&self) -> &'static str {
             self.name()
         }
@@ -259,28 +293,6 @@ impl Default for TrainConfig {
     }
 }
 
-impl TrainConfig {
-    /// The settings of one stage labelled `label` (the neural stages' epochs and lr).
-    pub fn fit_config(&self, label: &str) -> FitConfig {
-        FitConfig {
-            label: label.to_string(),
-            epochs: self.epochs,
-            batch: self.batch,
-            lr: self.lr,
-            lambda_l2: self.lambda_l2,
-            lambda_ph: self.lambda_ph,
-            lambda_diff: self.lambda_diff,
-            patience: self.patience,
-            grad_clip: self.grad_clip,
-            max_batches_per_epoch: self.max_batches,
-            seed: self.seed,
-            session_epochs: self.session_epochs,
-            adam_eps: self.adam_eps,
-            balance: self.balance,
-        }
-    }
-}
-
 /// The demo's budget (`nemm demo`: the main job in a few minutes on two cores): epochs of
 /// the neural stages.
 pub const DEMO_EPOCHS: usize = 12;
@@ -443,28 +455,6 @@ impl Config {
         c.model.static_force = Some(on);
         c
     }
-
-    /// The training procedure's configuration.
-    pub fn pipeline_config(&self) -> PipelineConfig {
-        let (m, t) = (&self.model, &self.train);
-        PipelineConfig {
-            hidden: m.hidden,
-            layers: m.layers,
-            integrator: m.integrator,
-            fit: t.fit_config(m.variant.name()),
-            linear_epochs: t.linear_epochs,
-            linear_lr: t.linear_lr,
-            qs_steps: t.qs_steps,
-            b_fl_bounds: m.b_fl_bounds,
-            pr_bounds: m.pr_bounds,
-            model_rate_hz: m.rate_hz,
-            alpha_priors: m.alpha_priors,
-            branch_units: m.branch_units,
-            static_force: m.static_force.unwrap_or(DEFAULT_STATIC_FORCE),
-            lost_motion: m.lost_motion,
-            b_fl_alpha: m.b_fl_alpha,
-        }
-    }
 }
 
 /// A note for `lambda_ph` values that look like the paper's numbers: in this crate's
@@ -501,9 +491,6 @@ mod tests {
     fn the_library_defaults_are_the_command_line_defaults() {
         let cli = Cli::parse_from(["nemm"]).args.base().expect("defaults");
         assert_eq!(cli, Config::default());
-        assert_eq!(cli.pipeline_config(), PipelineConfig::default());
-        assert_eq!(cli.pipeline_config().fit, FitConfig::default());
-        assert_eq!(FitConfig::default().lambda_ph, 5.0);
         // The trainer preprocesses as the library (and `nemm data prepare`) does.
         assert_eq!(cli.data.prepare_config(), PrepareConfig::default());
     }

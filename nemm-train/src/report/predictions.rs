@@ -1,5 +1,5 @@
 //! Whole-run force predictions of trained variants: the evaluation output the loop figures
-//! draw ([`crate::report::figures::loop_requests`] names the runs).
+//! draw (`report::figures::figure_predictions` simulates the runs they show).
 
 use crate::data::preprocess::Prepared;
 use crate::train::eval::{predict, Input};
@@ -95,12 +95,6 @@ impl RunPredictions {
         Ok(RunPredictions {
             entries: simulated.into_iter().flatten().collect(),
         })
-    }
-
-    /// [`RunPredictions::simulate`] of the runs the figures show.
-    pub fn for_figures(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Self> {
-        let requests = crate::report::figures::loop_requests(trained, prepared);
-        Self::simulate(trained, prepared, &requests)
     }
 
     /// The predicted force of `variant` over run `run`, if simulated.

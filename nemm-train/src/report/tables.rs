@@ -6,7 +6,7 @@ use crate::data::dataset::ConditionSpec;
 use crate::data::preprocess::Prepared;
 use crate::report::identify::IdentifyReport;
 use crate::train::eval::{rmse_of, sse_per_sequence};
-use crate::train::fit::EpochStats;
+use crate::train::history::EpochStats;
 use crate::train::physics::{audit, Audit, AUDIT_GRID};
 use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::Result;

@@ -7,7 +7,7 @@
 //! epoch, and older epoch folders are removed. A crash or kill loses at most the epoch in
 //! progress.
 
-use super::fit::EpochStats;
+use super::history::EpochStats;
 use super::net::EmmNet;
 use super::selection::Selection;
 use anyhow::{bail, Context, Result};

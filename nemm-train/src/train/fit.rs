@@ -18,6 +18,7 @@
 
 use super::adjoint::{loss_and_grad_paired, simulate, Grid, Pairing, Window};
 use super::checkpoint::{self, CheckpointState};
+use super::history::{EpochStats, StopReason};
 use super::matched::{matched_count, matched_windows, paired_batch};
 use super::net::{EmmNet, NetFrame};
 use super::params::to_core;
@@ -25,7 +26,7 @@ use super::physics::{audit, physics_loss, PenaltyGrid};
 use super::selection::{kept_model_summary, passed_over, PassedOver, Selection};
 use super::session::SessionBudget;
 use super::stability::StabilityHold;
-use crate::config::Balance;
+use crate::config::{Balance, TrainConfig};
 use crate::data::preprocess::Sequence;
 use crate::train::physics::AUDIT_GRID;
 use anyhow::{bail, Result};
@@ -78,10 +79,33 @@ pub struct FitConfig {
     pub balance: Balance,
 }
 
-/// The defaults are [`crate::config::TrainConfig`]'s, for the stage `nemm`.
+impl FitConfig {
+    /// The settings of one stage labelled `label` from the job's training part (the neural
+    /// stages' epochs and learning rate).
+    pub fn of(t: &TrainConfig, label: &str) -> Self {
+        FitConfig {
+            label: label.to_string(),
+            epochs: t.epochs,
+            batch: t.batch,
+            lr: t.lr,
+            lambda_l2: t.lambda_l2,
+            lambda_ph: t.lambda_ph,
+            lambda_diff: t.lambda_diff,
+            patience: t.patience,
+            grad_clip: t.grad_clip,
+            max_batches_per_epoch: t.max_batches,
+            seed: t.seed,
+            session_epochs: t.session_epochs,
+            adam_eps: t.adam_eps,
+            balance: t.balance,
+        }
+    }
+}
+
+/// The defaults are [`TrainConfig`]'s, for the stage `nemm`.
 impl Default for FitConfig {
     fn default() -> Self {
-        crate::config::TrainConfig::default().fit_config("nemm")
+        FitConfig::of(&TrainConfig::default(), "nemm")
     }
 }
 
@@ -98,44 +122,6 @@ pub struct FitData<'a> {
     pub force_scale_n: f64,
     /// Where the sequences' samples fall on the model's integration grid.
     pub grid: Grid,
-}
-
-/// Statistics of one epoch.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct EpochStats {
-    /// Epoch number (1-based).
-    pub epoch: usize,
-    /// Mean normalised MSE of the training batches.
-    pub train_mse: f64,
-    /// Mean matched-difference term of the batches (0 without `lambda_diff`).
-    #[serde(default)]
-    pub diff: f64,
-    /// Mean physics-inconsistency loss of the batches.
-    pub physics: f64,
-    /// Validation RMSE, normalised by the force scale.
-    pub val_rmse: f64,
-    /// Wall time of the epoch \[s\].
-    pub seconds: f64,
-    /// Monotonicity violations of the epoch's model on the audit grid (eqs. 30-31, 37-38),
-    /// when the stage selects physically consistent models (`lambda_ph > 0` and learned
-    /// scalers; see [`fit`]).
-    #[serde(default)]
-    pub violations: Option<usize>,
-    /// Optimizer steps of the epoch after which the stability hold moved the constants
-    /// ([`super::stability`]): the data pull the model faster than its step allows.
-    #[serde(default)]
-    pub held: usize,
-}
-
-/// Why training ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum StopReason {
-    /// All epochs done.
-    Epochs,
-    /// No improvement for `patience` epochs.
-    EarlyStopping,
-    /// The session's epoch budget is used up (`session_epochs`); resume to continue.
-    Session,
 }
 
 /// The outcome of a stage.
@@ -282,7 +268,7 @@ pub fn fit(
         device,
         audited: cfg.lambda_ph > 0.0 && net.b_fl.is_some(),
     };
-    let (net, _) = net.hold_stable(&StabilityHold::new(frame));
+    let (net, _) = StabilityHold::new(frame).hold_net(net);
     let start_val = stage.validation_rmse(&net);
     let start_violations = stage.violations(&net)?;
     let mut progress = Progress::start(net, optim, start_val, start_violations);
@@ -710,7 +696,7 @@ fn train_epoch(
         let step = (epoch - 1) * n_batches + b;
         let lr = learning_rate(cfg.lr, step, total_steps);
         let moved;
-        (net, moved) = optim.step(lr, net, gp).hold_stable(&hold);
+        (net, moved) = hold.hold_net(optim.step(lr, net, gp));
         sums.held += usize::from(moved);
         sums.mse += mse;
         sums.diff += parts.diff;

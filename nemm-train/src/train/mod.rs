@@ -7,6 +7,7 @@ pub mod adjoint;
 mod checkpoint;
 pub mod eval;
 pub mod fit;
+pub mod history;
 pub mod identify;
 pub mod matched;
 pub mod net;

@@ -457,19 +457,16 @@ impl EmmNet {
         [g(0), g(1), g(2), g(3)]
     }
 
-    /// The module with its constants moved onto `hold`'s stable set
-    /// ([`super::stability`]), and whether they moved. The parameter keeps its id, so the
-    /// optimizer's moments stay attached to it.
-    pub fn hold_stable(self, hold: &super::stability::StabilityHold) -> (Self, bool) {
-        let Some(c) = hold.hold(self.constants()) else {
-            return (self, false);
-        };
+    /// The module with the constants `c` (`[b_fl,ini, b_pr,ini, k_pr,ini, T_pr]` in SI
+    /// units, positive). The parameter keeps its id, so the optimizer's moments stay
+    /// attached to it.
+    pub fn with_constants(self, c: [f32; 4]) -> Self {
         let stored: Vec<f32> = c.iter().map(|v| v.ln() / LOG_CONSTANT_SCALE).collect();
         let log_c = self.log_c.map(|t| {
             let grad = t.is_require_grad();
             Tensor::<1>::from_data(TensorData::new(stored, [4]), &t.device()).set_require_grad(grad)
         });
-        (Self { log_c, ..self }, true)
+        Self { log_c, ..self }
     }
 
     /// Flat rollout parameters.

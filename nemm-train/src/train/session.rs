@@ -1,7 +1,7 @@
 //! The session budget (`--session-epochs`): a stage trains at most so many epochs in one
 //! invocation, then stops after writing its checkpoint; `--resume` continues.
 
-use super::fit::StopReason;
+use super::history::StopReason;
 use anyhow::Result;
 
 /// The epochs one invocation of a stage may train.

@@ -21,12 +21,12 @@
 //! projection of each Adam step onto the set of models the runtime accepts, so every model
 //! training holds, and therefore every model it exports, passes `Model::check_step`. Where
 //! the data pull the model's dynamics faster than its step allows, the hold is active: the
-//! epoch line counts the steps it moved the constants ([`super::fit::EpochStats::held`]),
+//! epoch line counts the steps it moved the constants ([`super::history::EpochStats::held`]),
 //! and the pipeline says so after the Linear EMM, before the neural variants train, with
 //! the model rate that would leave the time constant free.
 
 use super::adjoint::RolloutParams;
-use super::net::NetFrame;
+use super::net::{EmmNet, NetFrame};
 
 /// Factor over nemm-core's shortest stable time constant at which the constants are held,
 /// so that `f32` rounding of the stored constants cannot cross the runtime's bound.
@@ -101,6 +101,15 @@ impl StabilityHold {
     /// `b_pr,ini = b_pr0` \[N s/m\].
     pub fn k_pr_cap(&self, b_fl0: f32, b_pr0: f32) -> f32 {
         (b_pr0 * self.s_min_pr + b_fl0 * self.s_min_fl) / (self.s_max_k * self.tau_s)
+    }
+
+    /// `net` with its constants moved onto the stable set, and whether they moved (the
+    /// parameter keeps its id, so the optimizer's moments stay attached to it).
+    pub fn hold_net(&self, net: EmmNet) -> (EmmNet, bool) {
+        match self.hold(net.constants()) {
+            Some(c) => (net.with_constants(c), true),
+            None => (net, false),
+        }
     }
 
     /// The constants `[b_fl,ini, b_pr,ini, k_pr,ini, T_pr]` moved onto the stable set, or

@@ -40,7 +40,7 @@ pub fn compare(
     } = train_each(
         prepared,
         &ModelKind::ALL,
-        &cfg.pipeline_config(),
+        &PipelineConfig::of(cfg),
         checkpoint,
         resume,
     )?;
@@ -96,7 +96,7 @@ pub fn compare(
     if let Some(c) = &report.bench_reference {
         println!("{}", c.markdown());
     }
-    let predictions = crate::report::predictions::RunPredictions::for_figures(&trained, prepared)?;
+    let predictions = crate::report::figures::figure_predictions(&trained, prepared)?;
     crate::report::figures::write_all_with_reference(
         &trained,
         ds,

@@ -2,7 +2,7 @@
 //! Table 4 / Table 5 reports from the command line.
 
 use crate::atomic_file::write_atomic_bytes;
-use crate::config::{lambda_ph_scale_note, resolve_data, Config, CONFIG_FILE};
+use crate::config::{lambda_ph_scale_note, resolve_data, AlphaPriors, Config, CONFIG_FILE};
 use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::output_guard::{self, Inputs, Output};
@@ -15,7 +15,7 @@ use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Repor
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
 use crate::train::pipeline::{
-    train_each, train_variants, AlphaPriors, Trained, TrainedVariant, VariantInfo,
+    train_each, train_variants, PipelineConfig, Trained, TrainedVariant, VariantInfo,
 };
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
@@ -521,7 +521,7 @@ pub fn train(
         load_dataset_prepared(cfg.data.require_dir()?, &cfg.data.prepare_config())?;
     tables.check_range(&crate::train::pipeline::meta_of(&prepared))?;
     let cfg = &cfg.with_static_force_from(&prepared);
-    let pipeline = cfg.pipeline_config();
+    let pipeline = PipelineConfig::of(cfg);
     let t = Instant::now();
     let trained = train_variants(&prepared, &[variant], &pipeline, checkpoint, resume)?;
     let tv = trained

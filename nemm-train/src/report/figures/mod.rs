@@ -85,6 +85,15 @@ enum Drawn {
 
 type Builder<'a> = Box<dyn Fn() -> Result<Drawn> + 'a>;
 
+/// The whole-run predictions [`write_all`] draws: the runs [`loop_requests`] names,
+/// simulated by their variants.
+pub fn figure_predictions(
+    trained: &[TrainedVariant],
+    prepared: &Prepared,
+) -> Result<RunPredictions> {
+    RunPredictions::simulate(trained, prepared, &loop_requests(trained, prepared))
+}
+
 /// Writes every figure of a comparison into `dir`, from the loaded `dataset` (raw forces),
 /// its `prepared` set, the `trained` variants, their test `report` and their whole-run
 /// `predictions` (for the runs [`loop_requests`] names). Figures of variants that were not

@@ -66,7 +66,7 @@ pub(super) fn training_curves(ctx: &Ctx<'_>) -> Result<Drawn> {
     for tv in &with_history {
         let c = variant_color(tv.variant);
         let name = tv.variant.title();
-        let pts = |f: &dyn Fn(&crate::train::fit::EpochStats) -> f64| -> Vec<(f64, f64)> {
+        let pts = |f: &dyn Fn(&crate::train::history::EpochStats) -> f64| -> Vec<(f64, f64)> {
             tv.history.iter().map(|s| (s.epoch as f64, f(s))).collect()
         };
         let mse = pts(&|s| s.train_mse);

@@ -21,12 +21,14 @@ use super::adjoint::{
     loss_and_grad, simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights, StaticParams,
     Window,
 };
-use super::fit::{fit, rmse, windows, EpochStats, FitConfig, FitData, FitResult, StopReason};
+use super::fit::{fit, rmse, windows, FitConfig, FitData, FitResult};
+use super::history::{EpochStats, StopReason};
 use super::net::EmmNet;
 use super::params::to_core_with;
 use super::physics::{physics_loss, PenaltyGrid};
 use super::stability::StabilityHold;
 use super::static_fit::{fit_residual, StaticSetup};
+use crate::config::{AlphaPriors, Config, DEFAULT_STATIC_FORCE};
 use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
@@ -88,41 +90,6 @@ impl VariantInfo for ModelKind {
     }
 }
 
-/// How the declared monotonicity priors in alpha (eqs. 31, 37-38, second conditions) are
-/// imposed on the neural coefficients.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum AlphaPriors {
-    /// An alpha branch per coefficient with a declared direction
-    /// (`nemm_core::semantics::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
-    /// penalty keeps only the state conditions.
-    Construction,
-    /// The paper's physics penalty on a grid alone (section 5.2), checked by the audit.
-    Penalty,
-}
-
-impl AlphaPriors {
-    /// `construction` or `penalty`.
-    pub const fn name(self) -> &'static str {
-        match self {
-            AlphaPriors::Construction => "construction",
-            AlphaPriors::Penalty => "penalty",
-        }
-    }
-}
-
-impl std::str::FromStr for AlphaPriors {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "construction" => Ok(AlphaPriors::Construction),
-            "penalty" => Ok(AlphaPriors::Penalty),
-            other => Err(format!(
-                "unknown alpha-priors mode `{other}` (expected construction or penalty)"
-            )),
-        }
-    }
-}
-
 /// Settings of the whole procedure.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PipelineConfig {
@@ -169,10 +136,34 @@ fn yes() -> bool {
     true
 }
 
-/// The defaults are [`crate::config::Config`]'s.
+impl PipelineConfig {
+    /// The training procedure of the job `config` (its model and training parts).
+    pub fn of(config: &Config) -> Self {
+        let (m, t) = (&config.model, &config.train);
+        PipelineConfig {
+            hidden: m.hidden,
+            layers: m.layers,
+            integrator: m.integrator,
+            fit: FitConfig::of(t, m.variant.name()),
+            linear_epochs: t.linear_epochs,
+            linear_lr: t.linear_lr,
+            qs_steps: t.qs_steps,
+            b_fl_bounds: m.b_fl_bounds,
+            pr_bounds: m.pr_bounds,
+            model_rate_hz: m.rate_hz,
+            alpha_priors: m.alpha_priors,
+            branch_units: m.branch_units,
+            static_force: m.static_force.unwrap_or(DEFAULT_STATIC_FORCE),
+            lost_motion: m.lost_motion,
+            b_fl_alpha: m.b_fl_alpha,
+        }
+    }
+}
+
+/// The defaults are [`Config`]'s.
 impl Default for PipelineConfig {
     fn default() -> Self {
-        crate::config::Config::default().pipeline_config()
+        PipelineConfig::of(&Config::default())
     }
 }
 
@@ -504,4 +495,20 @@ pub fn train_each(
         }
     }
     Ok(done(out, failed))
+}
+
+#[cfg(test)]
+mod config_tests {
+    use super::*;
+
+    #[test]
+    fn the_procedure_defaults_are_the_configuration_defaults() {
+        let p = PipelineConfig::default();
+        assert_eq!(p, PipelineConfig::of(&Config::default()));
+        assert_eq!(p.fit, FitConfig::default());
+        assert_eq!(
+            p.fit.lambda_ph,
+            crate::config::TrainConfig::default().lambda_ph
+        );
+    }
 }
