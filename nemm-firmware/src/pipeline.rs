@@ -16,7 +16,7 @@
 //! the step left it no time).
 
 use crate::loadcell::{LoadCell, LoadCellError};
-use crate::report::{FW_PRIMING, FW_SAMPLE_INVALID, FW_SENSOR_ERROR};
+use crate::report::{ObserverRecord, FW_PRIMING, FW_SAMPLE_INVALID, FW_SENSOR_ERROR};
 use crate::sensor::{SensorError, StrokeSensor};
 use embedded_hal::spi::SpiDevice;
 use nemm_core::{AlphaEstimate, Estimate, Estimator};
@@ -240,6 +240,18 @@ pub fn run_digest(chunks: impl IntoIterator<Item = u32>) -> u32 {
         d.update(&c.to_le_bytes());
     }
     d.finalize()
+}
+
+/// The observer's part of a step's record line.
+impl From<&ObservedOutput> for ObserverRecord {
+    fn from(o: &ObservedOutput) -> Self {
+        Self {
+            measured_force_n: o.measured_force_n,
+            alpha: o.estimate.alpha,
+            band: o.estimate.band,
+            flags: o.estimate.flags.0,
+        }
+    }
 }
 
 #[cfg(test)]

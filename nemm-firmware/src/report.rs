@@ -471,17 +471,6 @@ pub struct ObserverRecord {
     pub flags: u8,
 }
 
-impl From<&crate::pipeline::ObservedOutput> for ObserverRecord {
-    fn from(o: &crate::pipeline::ObservedOutput) -> Self {
-        Self {
-            measured_force_n: o.measured_force_n,
-            alpha: o.estimate.alpha,
-            band: o.estimate.band,
-            flags: o.estimate.flags.0,
-        }
-    }
-}
-
 impl StepRecord {
     /// Writes the `s` line.
     pub fn write(&self, line: &mut Line) {
