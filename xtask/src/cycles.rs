@@ -58,6 +58,14 @@ pub enum Chip {
 }
 
 impl Chip {
+    /// The cycle model of `board`'s core.
+    pub fn of(board: Board) -> Self {
+        match board {
+            Board::An386 => Chip::M4f,
+            Board::An500 => Chip::M7,
+        }
+    }
+
     /// Name in the output lines.
     pub fn name(self) -> &'static str {
         match self {
@@ -595,7 +603,7 @@ pub fn estimate(
         let variant = Variant::parse(&f.model)?;
         let image = crate::target_bench::image_with_example(paths, images, variant.kind)?;
         let mix = trace_mix(tc, images.board, (&image, variant), mode, &f.integrator)?;
-        let chip = images.board.chip();
+        let chip = Chip::of(images.board);
         out.push(CycleFigures {
             chip,
             board: images.board,
@@ -626,7 +634,7 @@ pub fn estimate_observer(
 ) -> Result<CycleFigures, String> {
     let _ = paths;
     let mix = observer_mix(tc, images.board, &images.bench)?;
-    let chip = images.board.chip();
+    let chip = Chip::of(images.board);
     Ok(CycleFigures {
         chip,
         board: images.board,

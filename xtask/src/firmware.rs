@@ -37,14 +37,6 @@ impl Board {
         }
     }
 
-    /// The cycle model of its core.
-    pub fn chip(self) -> crate::cycles::Chip {
-        match self {
-            Board::An386 => crate::cycles::Chip::M4f,
-            Board::An500 => crate::cycles::Chip::M7,
-        }
-    }
-
     /// The cargo features that select it (the default features select the AN386).
     fn features(self) -> &'static [&'static str] {
         match self {

@@ -765,7 +765,7 @@ impl BootFigures {
             self.mode,
             self.instructions
         );
-        for &mhz in self.board.chip().clocks_mhz() {
+        for &mhz in crate::cycles::Chip::of(self.board).clocks_mhz() {
             l += &format!(" est_ms_at_{mhz}mhz={:.1}", self.ms_at(mhz));
         }
         l
@@ -788,7 +788,7 @@ pub fn boot_figures(
         Mode::Exact,
         "rk4",
     )?;
-    let cpi = mix.cycles_per_instruction(images.board.chip());
+    let cpi = mix.cycles_per_instruction(cycles::Chip::of(images.board));
     let mut out = Vec::new();
     for (mode, options) in firmware::STACK_RUNS {
         let s = firmware::stack_figures(tc, images, options)?;

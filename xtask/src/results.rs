@@ -325,7 +325,10 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
             s.tables(),
             b.instructions,
             b.cycles_per_instruction,
-            clock_cells(b.board.chip(), |mhz| format!("{:.1}", b.ms_at(mhz)))
+            clock_cells(crate::cycles::Chip::of(b.board), |mhz| format!(
+                "{:.1}",
+                b.ms_at(mhz)
+            ))
         );
     }
     md += "\n**Flash and RAM** of the images (`cargo xtask build-target`; RAM: the statics, the \
