@@ -1,0 +1,135 @@
+//! The `host` block (`cargo xtask results --host`): the host criterion benches with the
+//! machine they ran on.
+
+use super::{command_line, commit, refuse_dirty, write_block};
+use crate::host_bench::{self, Stamp};
+use crate::{Kind, Paths};
+use std::path::Path;
+use std::process::Command;
+
+/// `cargo xtask results --host`: runs the host benches ([`host_bench::RUNS`], minutes) and
+/// writes the `host` block. `no_run` writes it from the results and the stamp of the last
+/// complete run instead, refusing them if that run measured uncommitted changes.
+pub fn host(paths: &Paths, no_run: bool, allow_dirty: bool) -> Result<(), String> {
+    let dir = host_bench::results_dir(&paths.target);
+    let stamp = if no_run {
+        let stamp = Stamp::read(&dir)?;
+        refuse_dirty("the benchmarked work tree", &stamp.commit, allow_dirty)?;
+        stamp
+    } else {
+        let commit = commit(&paths.root);
+        refuse_dirty("the work tree", &commit, allow_dirty)?;
+        match std::fs::remove_dir_all(&dir) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(format!("{}: {e}", dir.display())),
+        }
+        std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let load_start = host_bench::load_average();
+        for run in &host_bench::RUNS {
+            let mut c = crate::cargo();
+            c.args(["bench", "-p", run.package, "--bench", run.bench])
+                .args(run.features);
+            if let Some(f) = run.filter {
+                c.args(["--", f]);
+            }
+            c.env("CRITERION_HOME", dir.join(run.name))
+                .current_dir(&paths.root);
+            eprintln!("xtask: {}", run.command());
+            let status = c.status().map_err(|e| format!("cargo: {e}"))?;
+            if !status.success() {
+                return Err(format!("`{}` failed ({status})", run.command()));
+            }
+        }
+        let load_end = host_bench::load_average();
+        let after = self::commit(&paths.root);
+        if after != commit {
+            return Err(format!(
+                "the work tree changed during the benchmarks ({commit}, now {after}): rerun"
+            ));
+        }
+        let (machine, cpus) = host_bench::machine();
+        let stamp = Stamp {
+            commit,
+            command: command_line(),
+            machine,
+            cpus,
+            rustc: rustc_version(&paths.root),
+            load_start,
+            load_end,
+        };
+        stamp.write(&dir)?;
+        stamp
+    };
+    let mut estimates = Vec::new();
+    for run in &host_bench::RUNS {
+        estimates.extend(host_bench::collect(&dir.join(run.name))?);
+    }
+    let kinds: Vec<&str> = Kind::ALL.iter().map(|k| k.name()).collect();
+    write_block(
+        paths,
+        "host",
+        &host_bench::markdown(&stamp, &estimates, &kinds),
+    )
+}
+
+/// `rustc -V` of the toolchain that builds in `root` (`$RUSTC` if set), `unknown rustc` if it
+/// does not answer.
+fn rustc_version(root: &Path) -> String {
+    let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
+    Command::new(rustc)
+        .arg("-V")
+        .current_dir(root)
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        .unwrap_or_else(|| "unknown rustc".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::results::FILE;
+
+    #[test]
+    fn host_figures_of_uncommitted_code_are_refused_unless_allowed() {
+        let tmp = std::env::temp_dir().join(format!("xtask-host-block-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&tmp);
+        let paths = Paths {
+            root: tmp.clone(),
+            target: tmp.join("target"),
+        };
+        let dir = host_bench::results_dir(&paths.target);
+        for run in &host_bench::RUNS {
+            std::fs::create_dir_all(dir.join(run.name)).unwrap();
+        }
+        std::fs::create_dir_all(tmp.join("docs")).unwrap();
+        let stamp = Stamp {
+            commit: "abc1234+dirty".into(),
+            command: "cargo xtask results --host --allow-dirty".into(),
+            machine: "AMD EPYC".into(),
+            cpus: 2,
+            rustc: "rustc 1.95.0".into(),
+            load_start: "1.00".into(),
+            load_end: "1.00".into(),
+        };
+        stamp.write(&dir).unwrap();
+        let e = host(&paths, true, false).unwrap_err();
+        assert!(
+            e.contains("abc1234+dirty") && e.contains("--allow-dirty"),
+            "{e}"
+        );
+        assert!(!tmp.join(FILE).exists());
+        // Allowed, the block names the `+dirty` commit, in the skeleton's place.
+        host(&paths, true, true).unwrap();
+        let text = std::fs::read_to_string(tmp.join(FILE)).unwrap();
+        assert!(
+            text.contains("## Host benchmarks\n\n<!-- BEGIN host (generated by "),
+            "{text}"
+        );
+        assert!(text.contains("at commit `abc1234+dirty`"), "{text}");
+        assert!(text.contains("Not generated yet: run `cargo xtask results`."));
+        std::fs::remove_dir_all(&tmp).unwrap();
+    }
+}

@@ -1,0 +1,271 @@
+//! The `training` block (`cargo xtask results --training DIR`): Table 4 (and Table 5 and
+//! the degradation ablation, if present) of a finished report folder, with its provenance.
+
+use super::{
+    command_line, commit, refuse_dirty, sweep_commit, write_block, write_block_in, README,
+};
+use crate::Paths;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// `cargo xtask results --training DIR`: the `training` block from a report directory.
+pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), String> {
+    let read = |name: &str| -> Result<Option<String>, String> {
+        let p = dir.join(name);
+        match std::fs::read_to_string(&p) {
+            Ok(t) => Ok(Some(t)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(format!("{}: {e}", p.display())),
+        }
+    };
+    let table4 = read("table4.md")?.ok_or_else(|| {
+        format!(
+            "{}: no table4.md (a finished `nemm compare` or `nemm demo` report directory \
+             has one)",
+            dir.display()
+        )
+    })?;
+    let table5 = read("table5.md")?;
+    let degradation = read("degradation.md")?;
+    let identify = read("identify.md")?;
+    let info = match read("report.json")? {
+        Some(json) => report_info(&json).map_err(|e| format!("{}: {e}", dir.display()))?,
+        None => Vec::new(),
+    };
+    refuse_dirty("the work tree", &commit(&paths.root), allow_dirty)?;
+    if let Some((_, c)) = info.iter().find(|(k, _)| k == "commit") {
+        refuse_dirty(
+            &format!("{}/report.json's training", dir.display()),
+            c,
+            allow_dirty,
+        )?;
+    }
+    for (name, table) in [("table5.md", &table5), ("degradation.md", &degradation)] {
+        if let Some(c) = table.as_deref().and_then(sweep_commit) {
+            refuse_dirty(&format!("{}/{name}'s sweep", dir.display()), c, allow_dirty)?;
+        }
+    }
+    let table4 = with_identify_summary(&table4, identify.as_deref());
+    let md = training_markdown(
+        &command_line(),
+        &commit(&paths.root),
+        dir,
+        &info,
+        &table4,
+        table5.as_deref(),
+        degradation.as_deref(),
+    );
+    write_block(paths, "training", &md)?;
+    write_block_in(
+        paths,
+        README,
+        "headline",
+        &headline_markdown(&info, &table4),
+    )
+}
+
+/// The README's headline block: the summary of Table 4 of the copied report (without the
+/// per-run breakdown) and where it came from.
+fn headline_markdown(info: &[(String, String)], table4: &str) -> String {
+    let recorded = |key: &str| info.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str());
+    // The summary table and its test-set line; the per-run breakdown stays in results.md.
+    let summary = table4
+        .split("\nTest RMSE per held-out run")
+        .next()
+        .unwrap_or(table4);
+    let mut md = summary.trim_end().to_string();
+    md += "\n\n";
+    match (recorded("command"), recorded("commit")) {
+        (Some(cmd), Some(c)) => {
+            let _ = write!(md, "Trained by `{cmd}` at commit `{c}`; ");
+        }
+        (Some(cmd), None) => {
+            let _ = write!(md, "Trained by `{cmd}`; ");
+        }
+        _ => {}
+    }
+    md += "details in [docs/results.md](docs/results.md).";
+    md
+}
+
+/// The `info` facts of a `report.json` (`command`, `dataset`, `total_seconds`, ...).
+fn report_info(json: &str) -> Result<Vec<(String, String)>, String> {
+    let v: serde_json::Value =
+        serde_json::from_str(json).map_err(|e| format!("report.json: {e}"))?;
+    Ok(v.get("info")
+        .and_then(serde_json::Value::as_object)
+        .map(|o| {
+            o.iter()
+                .map(|(k, v)| {
+                    let v = v.as_str().map_or_else(|| v.to_string(), str::to_string);
+                    (k.clone(), v)
+                })
+                .collect()
+        })
+        .unwrap_or_default())
+}
+
+/// `table4.md` for `docs/results.md`: without the whole-run error of every single run (the
+/// report folder keeps it), and with the link to the report's `identify.md` replaced by its
+/// summary (each model's heading and its lines per level), which a link out of
+/// `docs/results.md` could not reach.
+fn with_identify_summary(table4: &str, identify: Option<&str>) -> String {
+    const PER_RUN: &str = "Whole-run RMSE at the label per run";
+    let mut out = String::new();
+    let mut skipping = false;
+    for line in table4.lines() {
+        if line.starts_with(PER_RUN) {
+            skipping = true;
+            continue;
+        }
+        if line.contains("(identify.md)") {
+            skipping = false;
+            match identify {
+                Some(id) => {
+                    out += "Identifiability of the level (the report's `identify.md`: each run \
+                            simulated whole at the levels of the grid its search visits; the \
+                            best fit is the level of least force RMSE):\n\n";
+                    for l in id.lines() {
+                        if let Some(h) = l.strip_prefix("### ") {
+                            let _ = writeln!(out, "- **{h}**");
+                        } else if l.starts_with("- ") {
+                            let _ = writeln!(out, "  {l}");
+                        }
+                    }
+                }
+                None => out += "The report has no `identify.md`.\n",
+            }
+            continue;
+        }
+        if !skipping {
+            out += line;
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// The markdown of the training block.
+fn training_markdown(
+    command: &str,
+    commit: &str,
+    dir: &Path,
+    info: &[(String, String)],
+    table4: &str,
+    table5: Option<&str>,
+    degradation: Option<&str>,
+) -> String {
+    let mut md = format!(
+        "Copied by `{command}` at commit `{commit}` from `{}`.\n\n",
+        dir.join("table4.md").display()
+    );
+    let recorded = |k: &str| info.iter().find(|(key, _)| key == k).map(|(_, v)| v);
+    match recorded("command") {
+        Some(c) => {
+            let _ = writeln!(md, "Trained by `{c}`.");
+        }
+        None => md += "The report does not record the command that trained it.\n",
+    }
+    match recorded("commit") {
+        Some(c) => {
+            let _ = writeln!(md, "Trained at commit `{c}`.");
+        }
+        None => md += "The report does not record the commit it was trained at.\n",
+    }
+    for (k, v) in info.iter().filter(|(k, _)| k != "command" && k != "commit") {
+        let _ = writeln!(md, "- {k}: `{v}`");
+    }
+    let _ = writeln!(md, "\n{}", table4.trim_end());
+    if let Some(t5) = table5 {
+        let _ = writeln!(
+            md,
+            "\n**Table 5**: the `lambda_ph` sweep of the NEMM (the report folder's `table5.md`, \
+             from `nemm sweep --report` into it; rows `penalty_*` train with the priors in \
+             alpha imposed by the physics penalty alone).\n\n{}",
+            t5.trim_end()
+        );
+    }
+    if let Some(d) = degradation {
+        let _ = writeln!(
+            md,
+            "\n**Where the NEMM puts the degradation**: the ablation of the report folder's \
+             `degradation.md` (from `nemm sweep --grid degradation --report` into it: the \
+             paper's NEMM, `b_fl` fixed in alpha, the lost-motion element, both).\n\n{}",
+            d.trim_end()
+        );
+    }
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_headline_is_the_summary_table_with_its_provenance() {
+        let table4 = "| Model | RMSE |\n|---|---:|\n| NEMM | 0.0354 |\n\nTest set: oil loss 0.15.\n\nTest RMSE per held-out run [N]:\n\n| run |\n";
+        let info = vec![
+            ("command".to_string(), "nemm demo".to_string()),
+            ("commit".to_string(), "abc1234".to_string()),
+        ];
+        let md = headline_markdown(&info, table4);
+        assert!(md.starts_with("| Model | RMSE |"));
+        assert!(md.contains("Test set: oil loss 0.15."));
+        assert!(!md.contains("per held-out run"), "{md}");
+        assert!(md.contains("Trained by `nemm demo` at commit `abc1234`"));
+        assert!(md.ends_with("[docs/results.md](docs/results.md)."));
+    }
+
+    #[test]
+    fn the_training_block_summarises_the_identifiability() {
+        let table4 = "| Model |\n\nWhole-run RMSE at the label per level:\n\n| 0 |\n\n\
+                      Whole-run RMSE at the label per run, by amplitude:\n\n| run |\n\n\
+                      The best-fit level: [identify.md](identify.md).\n";
+        let identify = "## Identifiability\n\n### NEMM (grid 0 to 0.3)\n\n| run |\n\n\
+                        - oil loss 0.15 (test): 4 of 18 runs within 0.03 of the label\n";
+        let md = with_identify_summary(table4, Some(identify));
+        assert!(md.contains("per level:\n\n| 0 |\n"), "{md}");
+        assert!(!md.contains("per run"), "{md}");
+        assert!(!md.contains("(identify.md)"), "{md}");
+        assert!(md.contains("- **NEMM (grid 0 to 0.3)**\n  - oil loss 0.15 (test): 4 of 18"));
+        assert!(with_identify_summary(table4, None).contains("no `identify.md`"));
+    }
+
+    #[test]
+    fn the_training_block_carries_the_reports_provenance() {
+        let info = report_info(
+            r#"{"test_alpha":0.15,"info":{"command":"nemm compare --data d","dataset":"d","total_seconds":"12.5"}}"#,
+        )
+        .unwrap();
+        let block = |degradation| {
+            training_markdown(
+                "cargo xtask results --training runs/c",
+                "abc1234",
+                Path::new("runs/c"),
+                &info,
+                "| model | RMSE |\n",
+                Some("| job |\n"),
+                degradation,
+            )
+        };
+        let md = block(None);
+        assert!(md.starts_with(
+            "Copied by `cargo xtask results --training runs/c` at commit `abc1234` from \
+             `runs/c/table4.md`.\n"
+        ));
+        assert!(md.contains("Trained by `nemm compare --data d`."));
+        assert!(md.contains("does not record the commit"));
+        assert!(md.contains("- dataset: `d`\n- total_seconds: `12.5`\n"));
+        assert!(md.contains("\n| model | RMSE |\n\n**Table 5**"), "{md}");
+        assert!(md.ends_with("alone).\n\n| job |\n"), "{md}");
+        assert!(report_info("{").is_err());
+        assert!(report_info("{}").unwrap().is_empty());
+        // The degradation ablation follows Table 5 when the folder has one.
+        let md = block(Some("| paper_lph5 | no | yes |\n"));
+        assert!(
+            md.contains("| job |\n\n**Where the NEMM puts the degradation**")
+                && md.ends_with("both).\n\n| paper_lph5 | no | yes |\n"),
+            "{md}"
+        );
+    }
+}
