@@ -5,15 +5,15 @@
 //! Its header names the commit (`git rev-parse --short HEAD`, `+dirty` when tracked files
 //! other than `docs/results.md` differ from it) and the command that wrote it.
 //!
-//! - `target` ([`target`], `cargo xtask results`): instructions per estimator step per model
+//! - `target` ([`target()`], `cargo xtask results`): instructions per estimator step per model
 //!   kind, integrator and mode (exact, table) in QEMU, and per step of the alpha observer;
 //!   the estimated cycles per chip (Cortex-M4F, Cortex-M7) and which combinations fit 10 kHz
 //!   (also the README's `fit` block, the NEMM's rows); the boot time; flash and RAM of each
 //!   image; the stack of the application.
-//! - `training` ([`training`], `cargo xtask results --training DIR`): the Table 4 (and
+//! - `training` ([`training()`], `cargo xtask results --training DIR`): the Table 4 (and
 //!   Table 5, if present) of a finished `nemm compare` / `nemm demo` report directory, with
 //!   the facts its `report.json` records (the command that trained it, ...).
-//! - `host` ([`host`], `cargo xtask results --host`): the host criterion benches of nemm-core
+//! - `host` ([`host()`], `cargo xtask results --host`): the host criterion benches of nemm-core
 //!   (estimator step per model kind, integrator, mode and math backend; the alpha observer's
 //!   step; decoding) and nemm-train (a batch gradient), with the machine they ran on
 //!   ([`crate::host_bench`]).
