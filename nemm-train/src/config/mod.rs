@@ -399,7 +399,11 @@ impl Config {
         positive("linear_lr ([train] in --config)", t.linear_lr)?;
         positive("grad_clip ([train] in --config)", f64::from(t.grad_clip))?;
         positive("adam_eps ([train] in --config)", f64::from(t.adam_eps))?;
-        for (name, v) in [("--lambda-ph", t.lambda_ph), ("--lambda-l2", t.lambda_l2)] {
+        for (name, v) in [
+            ("--lambda-ph", t.lambda_ph),
+            ("--lambda-diff", t.lambda_diff),
+            ("--lambda-l2", t.lambda_l2),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 bail!("{name} {v} is out of range: it must be a finite number >= 0");
             }
@@ -595,6 +599,8 @@ mod tests {
         assert!(e.contains("pr_bounds"), "{e}");
         let e = err(&|c| c.train.lambda_l2 = -1.0);
         assert!(e.contains("--lambda-l2 -1"), "{e}");
+        let e = err(&|c| c.train.lambda_diff = f64::NAN);
+        assert!(e.contains("--lambda-diff NaN"), "{e}");
         let e = err(&|c| c.train.epochs = 0);
         assert!(e.contains("--epochs 0 trains nothing"), "{e}");
         let e = err(&|c| c.train.max_batches = Some(0));
