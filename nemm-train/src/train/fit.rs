@@ -397,14 +397,23 @@ impl Stage<'_> {
         let train_w = windows(self.data.train);
         let partners = if cfg.lambda_diff > 0.0 {
             let partners = matched_windows(self.data.train);
+            let matched = matched_count(&partners);
             eprintln!(
-                "[{}] difference term (lambda_diff {}): {} of {} training windows matched at another level",
+                "[{}] difference term (lambda_diff {}): {matched} of {} training windows matched at another level{}",
                 cfg.label,
                 cfg.lambda_diff,
-                matched_count(&partners),
-                partners.len()
+                partners.len(),
+                if matched == 0 {
+                    " (no excitation recorded at two levels: the term does nothing, batches as without it)"
+                } else {
+                    ""
+                }
             );
-            partners
+            if matched == 0 {
+                Vec::new()
+            } else {
+                partners
+            }
         } else {
             Vec::new()
         };
@@ -722,6 +731,34 @@ fn train_epoch(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn batches_carry_pairs_only_where_windows_match() {
+        let order: Vec<usize> = (0..40).collect();
+        let cfg = FitConfig {
+            lambda_diff: 2.0,
+            ..FitConfig::default()
+        };
+        // Nothing matched: full batches of the order, as without the term.
+        let (idx, partner) = batch_windows(&order, &[], &cfg, 1, 1);
+        assert_eq!(idx, (16..32).collect::<Vec<_>>());
+        assert!(partner.iter().all(Option::is_none));
+        // Every window matched with the one 20 places away: eight pairs, mutual.
+        let partners: Vec<Vec<usize>> = (0..40).map(|i| vec![(i + 20) % 40]).collect();
+        let (idx, partner) = batch_windows(&order, &partners, &cfg, 1, 1);
+        assert_eq!(idx.len(), 16);
+        for (k, p) in partner.iter().enumerate() {
+            let p = p.expect("every window has its partner");
+            assert_eq!(partner[p], Some(k));
+            assert_eq!(partners[idx[k]], vec![idx[p]]);
+        }
+        // Without the term the partners are ignored.
+        let off = FitConfig::default();
+        assert_eq!(
+            batch_windows(&order, &partners, &off, 1, 1).0,
+            (16..32).collect::<Vec<_>>()
+        );
+    }
 
     #[test]
     fn epoch_order_is_a_permutation_and_reproducible() {
