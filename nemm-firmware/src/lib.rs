@@ -13,6 +13,7 @@
 //! Other boards depend on the library without that feature and bring their own (the
 //! STM32F407 image in `boards/nemm-stm32f407`).
 //!
+//! - [`adc`]: the bus protocol both 24-bit SPI converters share (read transaction, status bits).
 //! - [`sensor`]: ADC frame, calibration, differentiation filter, the driver.
 //! - [`loadcell`]: the load-cell channel (bridge ADC frame, calibration, saturation), the
 //!   measured force of the bench-controller build's alpha observer.
@@ -27,6 +28,7 @@
 //! - [`report`]: the output lines the host tests parse.
 #![cfg_attr(not(test), no_std)]
 
+pub mod adc;
 pub mod loadcell;
 pub mod observer;
 pub mod options;

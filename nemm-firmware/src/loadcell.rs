@@ -34,14 +34,12 @@
 //! sample [`nemm_core::ObserverFlags::FORCE_FAULT`] and skips it. The force path has no
 //! state, so the next good sample is used as it is.
 
-use embedded_hal::spi::{Operation, SpiDevice};
+use crate::adc::{self, RawFrame};
+pub use crate::adc::{STATUS_ADC_ERROR, STATUS_NOT_READY};
+use embedded_hal::spi::SpiDevice;
 
 /// Command byte that reads the conversion result (ADS1220's `RDATA`).
 pub const READ_DATA_COMMAND: u8 = 0x10;
-/// Status bit: no new conversion since the last read (active high).
-pub const STATUS_NOT_READY: u8 = 1 << 7;
-/// Status bit: the conversion is invalid (bridge or reference fault).
-pub const STATUS_ADC_ERROR: u8 = 1 << 6;
 /// Largest result code (positive full scale).
 pub const MAX_CODE: i32 = 0x7F_FFFF;
 /// Smallest result code (negative full scale).
@@ -59,24 +57,31 @@ pub struct Frame {
 impl Frame {
     /// Bytes as the ADC sends them after the command byte (the code clamped to the range).
     pub fn encode(self) -> [u8; 4] {
-        let c = self.code.clamp(MIN_CODE, MAX_CODE) as u32;
-        [(c >> 16) as u8, (c >> 8) as u8, c as u8, self.status]
+        RawFrame {
+            bits: (self.code.clamp(MIN_CODE, MAX_CODE) as u32) & 0xFF_FFFF,
+            status: self.status,
+        }
+        .encode()
     }
 
     /// Parses the four bytes after the command byte.
     pub fn decode(bytes: [u8; 4]) -> Self {
-        let [d2, d1, d0, status] = bytes;
-        let raw = (u32::from(d2) << 16) | (u32::from(d1) << 8) | u32::from(d0);
-        // Sign-extend bit 23.
-        Self {
-            code: ((raw << 8) as i32) >> 8,
-            status,
-        }
+        Self::from(RawFrame::decode(bytes))
     }
 
     /// True if the code is at either end of the range.
     pub fn saturated(self) -> bool {
         self.code >= MAX_CODE || self.code <= MIN_CODE
+    }
+}
+
+impl From<RawFrame> for Frame {
+    /// The 24 bits as a two's-complement code (bit 23 sign-extended).
+    fn from(raw: RawFrame) -> Self {
+        Self {
+            code: ((raw.bits << 8) as i32) >> 8,
+            status: raw.status,
+        }
     }
 }
 
@@ -150,12 +155,7 @@ impl<SPI: SpiDevice> LoadCell<SPI> {
 
     /// Reads one conversion frame (one SPI transaction).
     pub fn read_frame(&mut self) -> Result<Frame, SPI::Error> {
-        let mut rx = [0u8; 4];
-        self.spi.transaction(&mut [
-            Operation::Write(&[READ_DATA_COMMAND]),
-            Operation::Read(&mut rx),
-        ])?;
-        Ok(Frame::decode(rx))
+        adc::read_frame(&mut self.spi, READ_DATA_COMMAND).map(Frame::from)
     }
 
     /// Reads the next sample and returns the force \[N\] (positive = tension). Call once per
@@ -193,31 +193,9 @@ impl<SPI: SpiDevice> LoadCell<SPI> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use embedded_hal::spi::{ErrorKind, ErrorType};
-    use std::vec::Vec;
+    use embedded_hal::spi::ErrorKind;
 
-    /// Serves a scripted list of responses and checks the command byte.
-    struct Script {
-        frames: Vec<Result<[u8; 4], ErrorKind>>,
-        next: usize,
-    }
-
-    impl ErrorType for Script {
-        type Error = ErrorKind;
-    }
-
-    impl SpiDevice for Script {
-        fn transaction(&mut self, ops: &mut [Operation<'_, u8>]) -> Result<(), ErrorKind> {
-            let resp = self.frames[self.next];
-            self.next += 1;
-            let [Operation::Write(cmd), Operation::Read(rx)] = ops else {
-                panic!("unexpected transaction shape");
-            };
-            assert_eq!(*cmd, &[READ_DATA_COMMAND]);
-            rx.copy_from_slice(&resp?);
-            Ok(())
-        }
-    }
+    use crate::adc::script::Script;
 
     #[test]
     fn frames_are_twos_complement_msb_first() {
@@ -286,7 +264,14 @@ mod tests {
             ok(-1e6),
             ok(-250.0),
         ];
-        let mut lc = LoadCell::new(Script { frames, next: 0 }, cal);
+        let mut lc = LoadCell::new(
+            Script {
+                command: READ_DATA_COMMAND,
+                frames,
+                next: 0,
+            },
+            cal,
+        );
         let f = lc.read_force().unwrap();
         assert!((f - 1000.0).abs() <= cal.newtons_per_count);
         assert_eq!(lc.read_force(), Err(LoadCellError::Bus(ErrorKind::Overrun)));

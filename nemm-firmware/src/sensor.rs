@@ -35,14 +35,12 @@
 //! re-primes the filter ([`SensorError::Priming`]), and the sample after it seeds the
 //! low-pass with its raw difference (no transient from stale filter state).
 
-use embedded_hal::spi::{Operation, SpiDevice};
+use crate::adc::{self, RawFrame};
+pub use crate::adc::{STATUS_ADC_ERROR, STATUS_NOT_READY};
+use embedded_hal::spi::SpiDevice;
 
 /// Command byte that reads the conversion result with its status byte.
 pub const READ_DATA_COMMAND: u8 = 0x44;
-/// Status bit: no new conversion since the last read (active high).
-pub const STATUS_NOT_READY: u8 = 1 << 7;
-/// Status bit: the conversion is invalid (over/under-range or sensor fault).
-pub const STATUS_ADC_ERROR: u8 = 1 << 6;
 /// Result code of zero displacement (offset binary).
 pub const ZERO_CODE: i32 = 0x80_0000;
 /// Largest result code.
@@ -61,16 +59,25 @@ pub struct Frame {
 impl Frame {
     /// Bytes as the ADC sends them after the command byte.
     pub fn encode(self) -> [u8; 4] {
-        let c = self.code.clamp(0, MAX_CODE) as u32;
-        [(c >> 16) as u8, (c >> 8) as u8, c as u8, self.status]
+        RawFrame {
+            bits: self.code.clamp(0, MAX_CODE) as u32,
+            status: self.status,
+        }
+        .encode()
     }
 
     /// Parses the four bytes after the command byte.
     pub fn decode(bytes: [u8; 4]) -> Self {
-        let [d2, d1, d0, status] = bytes;
+        Self::from(RawFrame::decode(bytes))
+    }
+}
+
+impl From<RawFrame> for Frame {
+    /// The 24 bits as an offset-binary code.
+    fn from(raw: RawFrame) -> Self {
         Self {
-            code: (i32::from(d2) << 16) | (i32::from(d1) << 8) | i32::from(d0),
-            status,
+            code: raw.bits as i32,
+            status: raw.status,
         }
     }
 }
@@ -155,12 +162,7 @@ impl<SPI: SpiDevice> StrokeSensor<SPI> {
 
     /// Reads one conversion frame (one SPI transaction).
     pub fn read_frame(&mut self) -> Result<Frame, SPI::Error> {
-        let mut rx = [0u8; 4];
-        self.spi.transaction(&mut [
-            Operation::Write(&[READ_DATA_COMMAND]),
-            Operation::Read(&mut rx),
-        ])?;
-        Ok(Frame::decode(rx))
+        adc::read_frame(&mut self.spi, READ_DATA_COMMAND).map(Frame::from)
     }
 
     /// Reads the next sample and returns the stroke velocity \[m/s\] (positive = extension).
@@ -212,31 +214,10 @@ impl<SPI: SpiDevice> StrokeSensor<SPI> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use embedded_hal::spi::{ErrorKind, ErrorType};
+    use embedded_hal::spi::ErrorKind;
     use std::vec::Vec;
 
-    /// Serves a scripted list of responses and checks the command byte.
-    struct Script {
-        frames: Vec<Result<[u8; 4], ErrorKind>>,
-        next: usize,
-    }
-
-    impl ErrorType for Script {
-        type Error = ErrorKind;
-    }
-
-    impl SpiDevice for Script {
-        fn transaction(&mut self, ops: &mut [Operation<'_, u8>]) -> Result<(), ErrorKind> {
-            let resp = self.frames[self.next];
-            self.next += 1;
-            let [Operation::Write(cmd), Operation::Read(rx)] = ops else {
-                panic!("unexpected transaction shape");
-            };
-            assert_eq!(*cmd, &[READ_DATA_COMMAND]);
-            rx.copy_from_slice(&resp?);
-            Ok(())
-        }
-    }
+    use crate::adc::script::Script;
 
     fn frame(code: i32, status: u8) -> Result<[u8; 4], ErrorKind> {
         Ok(Frame { code, status }.encode())
@@ -279,7 +260,14 @@ mod tests {
         for n in 0..3 {
             frames.push(frame(ZERO_CODE - n * step, 0));
         }
-        let mut s = StrokeSensor::new(Script { frames, next: 0 }, cal);
+        let mut s = StrokeSensor::new(
+            Script {
+                command: READ_DATA_COMMAND,
+                frames,
+                next: 0,
+            },
+            cal,
+        );
         assert!(s.position_m().is_nan(), "no read yet");
         assert_eq!(s.read_velocity(), Err(SensorError::Priming));
         assert_eq!(s.position_m(), 0.0, "the priming sample has a position");

@@ -383,22 +383,14 @@ fn the_difference_term_is_the_error_of_the_model_difference() {
         &Grid::SAME,
     );
     let f0: Vec<f32> = y[0].iter().map(|&v| v as f32 + 50.0).collect();
-    let wins = [
-        Window {
-            u: &us[0],
-            f: &f0,
-            alpha: 0.1,
-            alphas: None,
-            x: None,
-        },
-        Window {
-            u: &us[0],
-            f: &f0,
-            alpha: 0.1,
-            alphas: None,
-            x: None,
-        },
-    ];
+    let win = Window {
+        u: &us[0],
+        f: &f0,
+        alpha: 0.1,
+        alphas: None,
+        x: None,
+    };
+    let wins = [win, win];
     let partner = [Some(1), Some(0)];
     let pairing = Some(Pairing {
         partner: &partner,
