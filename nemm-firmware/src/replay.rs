@@ -1,8 +1,9 @@
 //! Replay devices: [`SpiDevice`]s that behave like the firmware's ADCs but serve a recorded
 //! bench trace from flash, so that in QEMU the firmware runs the same driver code path a
-//! real board runs. [`ReplayAdc`] is the stroke channel's ADC (see [`crate::sensor`]),
-//! [`ReplayLoadCell`] the load-cell channel's (see [`crate::loadcell`]); each keeps its own
-//! position in the recording, and the firmware reads each once per period.
+//! real board runs. [`Replay`] is one converter on a [`ReplayChannel`]: [`ReplayAdc`] the stroke
+//! channel's ADC (see [`crate::sensor`]), [`ReplayLoadCell`] the load-cell channel's (see
+//! [`crate::loadcell`]); each keeps its own position in the recording, and the firmware reads
+//! each once per period.
 //!
 //! Every read transaction returns the next recorded sample (the converter is triggered by the
 //! read, as a SAR ADC with its convert-start tied to chip select), quantised to the ADC's
@@ -10,7 +11,7 @@
 //! as an invalid conversion (status bit 6), as a real converter reports it; a NaN force too,
 //! and a force beyond the load cell's range as the code at the end of the range (the bridge
 //! converter saturates without flagging it). After the last sample the devices answer "no
-//! new conversion" (status bit 7) and [`ReplayAdc::finished`] turns true.
+//! new conversion" (status bit 7) and [`Replay::finished`] turns true.
 //!
 //! Faults can be injected for tests ([`FaultWindow`]): bus errors (the transaction fails, the
 //! sample of that period is lost), NaN bursts (the recording's samples are replaced by
@@ -90,21 +91,93 @@ impl spi::Error for ReplayError {
     }
 }
 
-/// The replaying ADC.
+/// A replayed converter: its read command and what it serves for sample `i` of the trace
+/// (`fault(kind)` tells whether an injected fault of `kind` covers the sample).
+pub trait ReplayChannel {
+    /// The command byte of the converter's read transaction.
+    const COMMAND: u8;
+    /// The frame bytes of sample `i`, as the converter would send them.
+    fn bytes(&self, trace: &Trace<'_>, i: u32, fault: impl Fn(FaultKind) -> bool) -> [u8; 4];
+}
+
+/// The stroke channel's ADC, quantised with the calibration its driver uses.
+impl ReplayChannel for Calibration {
+    const COMMAND: u8 = READ_DATA_COMMAND;
+
+    fn bytes(&self, trace: &Trace<'_>, i: u32, fault: impl Fn(FaultKind) -> bool) -> [u8; 4] {
+        let x = match trace.displacement_m(i as usize) {
+            None => {
+                return Frame {
+                    code: 0,
+                    status: STATUS_NOT_READY,
+                }
+                .encode()
+            }
+            Some(_) if fault(FaultKind::Nan) => f32::NAN,
+            Some(_) if fault(FaultKind::Saturate) => f32::INFINITY,
+            Some(x) => x,
+        };
+        match self.code_of(x) {
+            Some(code) => Frame { code, status: 0 },
+            None => Frame {
+                code: if x > 0.0 { crate::sensor::MAX_CODE } else { 0 },
+                status: STATUS_ADC_ERROR,
+            },
+        }
+        .encode()
+    }
+}
+
+/// The load-cell channel's bridge ADC, quantised with the calibration its driver uses.
+impl ReplayChannel for loadcell::Calibration {
+    const COMMAND: u8 = loadcell::READ_DATA_COMMAND;
+
+    fn bytes(&self, trace: &Trace<'_>, i: u32, fault: impl Fn(FaultKind) -> bool) -> [u8; 4] {
+        let invalid = loadcell::Frame {
+            code: 0,
+            status: loadcell::STATUS_ADC_ERROR,
+        };
+        let frame = match trace.force_n(i as usize) {
+            None => loadcell::Frame {
+                code: 0,
+                status: loadcell::STATUS_NOT_READY,
+            },
+            Some(_) if fault(FaultKind::Nan) => invalid,
+            Some(_) if fault(FaultKind::Saturate) => loadcell::Frame {
+                code: loadcell::MAX_CODE,
+                status: 0,
+            },
+            Some(f) => match self.code_of(f) {
+                Some(code) => loadcell::Frame { code, status: 0 },
+                None => invalid,
+            },
+        };
+        frame.encode()
+    }
+}
+
+/// A replaying converter on channel `C`: serves the trace's samples one per read, with the
+/// injected faults.
 #[derive(Debug)]
-pub struct ReplayAdc<'a> {
+pub struct Replay<'a, C> {
     trace: Trace<'a>,
-    cal: Calibration,
+    channel: C,
     next: u32,
     faults: heapless::Vec<FaultWindow, MAX_FAULT_WINDOWS>,
 }
 
-impl<'a> ReplayAdc<'a> {
-    /// Serves `trace` quantised with `cal` (the calibration the driver uses).
-    pub fn new(trace: Trace<'a>, cal: Calibration) -> Self {
+/// The replaying stroke ADC.
+pub type ReplayAdc<'a> = Replay<'a, Calibration>;
+
+/// The replaying load-cell ADC: serves the recorded force of each sample.
+pub type ReplayLoadCell<'a> = Replay<'a, loadcell::Calibration>;
+
+impl<'a, C: ReplayChannel> Replay<'a, C> {
+    /// Serves `trace` quantised with `cal` (the calibration the channel's driver uses).
+    pub fn new(trace: Trace<'a>, cal: C) -> Self {
         Self {
             trace,
-            cal,
+            channel: cal,
             next: 0,
             faults: heapless::Vec::new(),
         }
@@ -133,40 +206,18 @@ impl<'a> ReplayAdc<'a> {
     fn fault_at(&self, i: u32, kind: FaultKind) -> bool {
         self.faults.iter().any(|w| w.kind == kind && w.covers(i))
     }
-
-    /// The frame of sample `i` as the ADC would send it.
-    fn frame(&self, i: u32) -> Frame {
-        let x = match self.trace.displacement_m(i as usize) {
-            None => {
-                return Frame {
-                    code: 0,
-                    status: STATUS_NOT_READY,
-                }
-            }
-            Some(_) if self.fault_at(i, FaultKind::Nan) => f32::NAN,
-            Some(_) if self.fault_at(i, FaultKind::Saturate) => f32::INFINITY,
-            Some(x) => x,
-        };
-        match self.cal.code_of(x) {
-            Some(code) => Frame { code, status: 0 },
-            None => Frame {
-                code: if x > 0.0 { crate::sensor::MAX_CODE } else { 0 },
-                status: STATUS_ADC_ERROR,
-            },
-        }
-    }
 }
 
-impl ErrorType for ReplayAdc<'_> {
+impl<C> ErrorType for Replay<'_, C> {
     type Error = ReplayError;
 }
 
-impl SpiDevice for ReplayAdc<'_> {
+impl<C: ReplayChannel> SpiDevice for Replay<'_, C> {
     fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), ReplayError> {
         let [Operation::Write(cmd), Operation::Read(rx)] = operations else {
             return Err(ReplayError::Protocol);
         };
-        if *cmd != [READ_DATA_COMMAND] || rx.len() != 4 {
+        if *cmd != [C::COMMAND] || rx.len() != 4 {
             return Err(ReplayError::Protocol);
         }
         let i = self.next;
@@ -176,100 +227,7 @@ impl SpiDevice for ReplayAdc<'_> {
         if self.fault_at(i, FaultKind::Bus) {
             return Err(ReplayError::InjectedBusFault);
         }
-        rx.copy_from_slice(&self.frame(i).encode());
-        Ok(())
-    }
-}
-
-/// The replaying load-cell ADC: serves the recorded force of each sample, quantised with
-/// the load-cell channel's calibration (the one its driver uses).
-#[derive(Debug)]
-pub struct ReplayLoadCell<'a> {
-    trace: Trace<'a>,
-    cal: loadcell::Calibration,
-    next: u32,
-    faults: heapless::Vec<FaultWindow, MAX_FAULT_WINDOWS>,
-}
-
-impl<'a> ReplayLoadCell<'a> {
-    /// Serves the forces of `trace` quantised with `cal`.
-    pub fn new(trace: Trace<'a>, cal: loadcell::Calibration) -> Self {
-        Self {
-            trace,
-            cal,
-            next: 0,
-            faults: heapless::Vec::new(),
-        }
-    }
-
-    /// Adds a fault window; `false` if [`MAX_FAULT_WINDOWS`] are already set.
-    pub fn inject(&mut self, w: FaultWindow) -> bool {
-        self.faults.push(w).is_ok()
-    }
-
-    /// Index of the next sample to serve.
-    pub fn position(&self) -> u32 {
-        self.next
-    }
-
-    /// True once every recorded sample was served.
-    pub fn finished(&self) -> bool {
-        self.next as usize >= self.trace.len()
-    }
-
-    fn fault_at(&self, i: u32, kind: FaultKind) -> bool {
-        self.faults.iter().any(|w| w.kind == kind && w.covers(i))
-    }
-
-    /// The frame of sample `i` as the ADC would send it.
-    fn frame(&self, i: u32) -> loadcell::Frame {
-        let invalid = loadcell::Frame {
-            code: 0,
-            status: loadcell::STATUS_ADC_ERROR,
-        };
-        let f = match self.trace.force_n(i as usize) {
-            None => {
-                return loadcell::Frame {
-                    code: 0,
-                    status: loadcell::STATUS_NOT_READY,
-                }
-            }
-            Some(_) if self.fault_at(i, FaultKind::Nan) => return invalid,
-            Some(_) if self.fault_at(i, FaultKind::Saturate) => {
-                return loadcell::Frame {
-                    code: loadcell::MAX_CODE,
-                    status: 0,
-                }
-            }
-            Some(f) => f,
-        };
-        match self.cal.code_of(f) {
-            Some(code) => loadcell::Frame { code, status: 0 },
-            None => invalid,
-        }
-    }
-}
-
-impl ErrorType for ReplayLoadCell<'_> {
-    type Error = ReplayError;
-}
-
-impl SpiDevice for ReplayLoadCell<'_> {
-    fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), ReplayError> {
-        let [Operation::Write(cmd), Operation::Read(rx)] = operations else {
-            return Err(ReplayError::Protocol);
-        };
-        if *cmd != [loadcell::READ_DATA_COMMAND] || rx.len() != 4 {
-            return Err(ReplayError::Protocol);
-        }
-        let i = self.next;
-        if !self.finished() {
-            self.next += 1;
-        }
-        if self.fault_at(i, FaultKind::Bus) {
-            return Err(ReplayError::InjectedBusFault);
-        }
-        rx.copy_from_slice(&self.frame(i).encode());
+        rx.copy_from_slice(&self.channel.bytes(&self.trace, i, |k| self.fault_at(i, k)));
         Ok(())
     }
 }
