@@ -59,9 +59,11 @@ pub fn loss_and_grad<T: Real>(
 /// follow (the degradation signature, Fig. 5).
 #[derive(Debug, Clone, Copy)]
 pub struct Pairing<'a> {
-    /// Per window of the batch, the index of its matched window in the same batch. A pair
-    /// must lie in one pack of [`LANES`] windows (indices `LANES k .. LANES (k + 1)`);
-    /// a partner outside its pack is ignored.
+    /// Per window of the batch, the index of its matched window in the same batch. Pairs are
+    /// mutual (`partner[b] == Some(a)` where `partner[a] == Some(b)`: the term is split half
+    /// onto each side, so a one-sided entry would get a gradient that is not its loss's) and
+    /// lie in one pack of [`LANES`] windows (indices `LANES k .. LANES (k + 1)`); a partner
+    /// outside its pack is ignored.
     pub partner: &'a [Option<usize>],
     /// Weight `lambda_diff` of the term, relative to eq. 23's.
     pub weight: f64,
