@@ -84,18 +84,3 @@ pub(crate) mod script {
         }
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn frames_are_msb_first_with_the_status_last() {
-        let f = RawFrame {
-            bits: 0x12_3456,
-            status: STATUS_ADC_ERROR,
-        };
-        assert_eq!(f.encode(), [0x12, 0x34, 0x56, 0x40]);
-        assert_eq!(RawFrame::decode(f.encode()), f);
-    }
-}

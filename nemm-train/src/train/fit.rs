@@ -668,7 +668,9 @@ fn train_epoch(
         let (idx, partner) = batch_windows(&order, partners, cfg, epoch, b);
         let batch: Vec<Window<'_>> = idx.iter().map(|&i| train_w[i]).collect();
         let p = net.to_rollout(frame);
-        let pairing = (cfg.lambda_diff > 0.0).then_some(Pairing {
+        // Without a pair in the batch the term is zero: eq. 23's loss alone.
+        let paired = cfg.lambda_diff > 0.0 && partner.iter().any(Option::is_some);
+        let pairing = paired.then_some(Pairing {
             partner: &partner,
             weight: cfg.lambda_diff,
         });
