@@ -51,6 +51,14 @@ enum Cmd {
         /// Also write report.json, table.md and the effective config.toml into this folder.
         #[arg(long)]
         report: Option<PathBuf>,
+        /// With --report, also where the model puts the degradation: every run's best-fit
+        /// level (identify.md), the degradation signature and its figure, and the virtual
+        /// bench's reference coefficients. `--degradation-report=false` skips them (they
+        /// cost more than the rest of the report); `nemm sweep` does so for the grids whose
+        /// tables do not show them.
+        #[arg(long, requires = "report", num_args = 0..=1, default_value_t = true, value_name = "BOOL",
+              default_missing_value = "true", action = clap::ArgAction::Set)]
+        degradation_report: bool,
         /// Precomputed fast-path tables in the blob.
         #[command(flatten)]
         tables: nemm_train::cli::train::TablesArgs,
@@ -274,6 +282,7 @@ fn main() -> ExitCode {
             checkpoint,
             resume,
             report,
+            degradation_report,
             tables,
             replace,
         } => args.resolve().and_then(|mut cfg| {
@@ -286,7 +295,12 @@ fn main() -> ExitCode {
                 &out,
                 checkpoint.as_deref(),
                 resume,
-                report.as_deref(),
+                report
+                    .as_deref()
+                    .map(|dir| nemm_train::cli::train::ReportTo {
+                        dir,
+                        degradation: degradation_report,
+                    }),
                 &tables,
                 replace,
             )

@@ -562,12 +562,20 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
     )
     .expect("sweep.json");
     assert!(sweep_json.to_string().contains("lph5"), "{sweep_json}");
-    // A job's report says where its model puts the degradation: the levels read back, the
-    // signature, the learned against the bench's coefficients.
-    let job_report: Report = serde_json::from_str(
-        &std::fs::read_to_string(sweep.join("jobs/lph5/report.json")).expect("report.json"),
-    )
-    .expect("Report");
+    // Table 5 does not show where a job's model puts the degradation: its jobs skip that
+    // part of the report (`--degradation-report=false`).
+    let read_report = |path: &Path| -> Report {
+        serde_json::from_str(&std::fs::read_to_string(path).expect("report.json")).expect("Report")
+    };
+    assert!(list.contains("--degradation-report=false"), "{list}");
+    let lph5 = read_report(&sweep.join("jobs/lph5/report.json"));
+    assert!(
+        lph5.identify.is_none() && lph5.signature.is_none() && lph5.bench_reference.is_none(),
+        "a Table 5 job identified"
+    );
+    // `nemm train --report` says where its model puts the degradation: the levels read
+    // back, the signature, the learned against the bench's coefficients.
+    let job_report = read_report(&train_report.join("report.json"));
     let id = job_report.identify.as_ref().expect("identify");
     assert_eq!(id.variants["nemm"].fits.len(), id.runs.len());
     assert!(!job_report
@@ -613,10 +621,14 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
                 && text.contains(&format!("lambda_diff = {lambda_diff:?}")),
             "{id}: {text}"
         );
+        assert!(
+            !commands.iter().any(|c| c.contains("--degradation-report")),
+            "the degradation grid's jobs identify: {list}"
+        );
         if id == "paper_lph5" {
-            // The paper's point trained as the lambda sweep's lph5 (the same configuration):
-            // its report collected with the degradation columns.
-            std::fs::copy(sweep.join("jobs/lph5/report.json"), job.join("report.json"))
+            // The paper's point trained by `nemm train --report` above (the same
+            // configuration): its report collected with the degradation columns.
+            std::fs::copy(train_report.join("report.json"), job.join("report.json"))
                 .expect("copy the report");
         }
     }

@@ -496,20 +496,32 @@ pub fn check_job_outputs(
     output_guard::check(&outputs, &inputs, replace, "--replace")
 }
 
+/// Where `nemm train` writes its report, and how much of it.
+#[derive(Debug, Clone, Copy)]
+pub struct ReportTo<'a> {
+    /// The report folder.
+    pub dir: &'a Path,
+    /// Also where the model puts the degradation ([`compare::degradation_report`]: every
+    /// run's best-fit level, the signature and its figure, the bench's reference), which
+    /// costs more than the rest of the report; `false` writes the force errors, the audit
+    /// and the configuration only (a sweep whose table does not show it).
+    pub degradation: bool,
+}
+
 /// `nemm train`: trains `cfg.model.variant` on `cfg.data` and writes the blob `out`; with
-/// `report_dir`, also `report.json`, `table.md` (with where the model puts the degradation:
-/// [`compare::degradation_report`]), `identify.md`, the signature and its figure, and the
-/// effective `config.toml` there.
+/// `report`, also `report.json`, `table.md`, the effective `config.toml` and (with
+/// [`ReportTo::degradation`]) `identify.md`, the signature and its figure there.
 /// `replace`: `out` may replace an existing file that is not a weights blob.
 pub fn train(
     cfg: &Config,
     out: &Path,
     checkpoint: Option<&Path>,
     resume: bool,
-    report_dir: Option<&Path>,
+    report: Option<ReportTo<'_>>,
     tables: &TablesArgs,
     replace: bool,
 ) -> Result<()> {
+    let report_dir = report.map(|r| r.dir);
     tables.validate()?;
     check_job_outputs(cfg, Some(out), report_dir, checkpoint, replace)?;
     let cfg = &with_resolved_data(cfg)?;
@@ -534,8 +546,8 @@ pub fn train(
         &dataset_provenance(&ds, &cfg.data.dir),
         tables,
     )?;
-    let report = evaluate(std::slice::from_ref(tv), &prepared)?;
-    let vr = report.variants.get(variant.key()).context("report")?;
+    let evaluated = evaluate(std::slice::from_ref(tv), &prepared)?;
+    let vr = evaluated.variants.get(variant.key()).context("report")?;
     println!(
         "wrote {} ({} bytes) in {:.0} s",
         out.display(),
@@ -551,7 +563,7 @@ pub fn train(
         vr.rmse_n,
         vr.val_rmse
     );
-    print_audit(tv, &report);
+    print_audit(tv, &evaluated);
     // The fast path's verdict at export time, as `nemm export` prints it.
     print!(
         "{}",
@@ -560,23 +572,25 @@ pub fn train(
             crate::train::table_check::DEFAULT_TABLE_BOUND
         )
     );
-    if let Some(dir) = report_dir {
-        let mut report = report;
-        let degradation = compare::degradation_report(
-            &mut report,
-            std::slice::from_ref(tv),
-            &ds,
-            &prepared,
-            &cfg.data.dir,
-        );
+    if let Some(to) = report {
+        let mut report = evaluated;
+        let degradation = to.degradation.then(|| {
+            compare::degradation_report(
+                &mut report,
+                std::slice::from_ref(tv),
+                &ds,
+                &prepared,
+                &cfg.data.dir,
+            )
+        });
         if let Some(c) = &report.bench_reference {
             println!("{}", c.markdown());
         }
         record_provenance(&mut report);
-        write_report(dir, &report, "table.md")?;
-        cfg.save(&dir.join(CONFIG_FILE))?;
-        if let Some(loops) = &degradation.signature {
-            compare::write_signature_figure(loops, dir, report.force_scale_n);
+        write_report(to.dir, &report, "table.md")?;
+        cfg.save(&to.dir.join(CONFIG_FILE))?;
+        if let Some(loops) = degradation.as_ref().and_then(|d| d.signature.as_ref()) {
+            compare::write_signature_figure(loops, to.dir, report.force_scale_n);
         }
     }
     Ok(())

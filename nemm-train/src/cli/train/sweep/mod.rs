@@ -60,6 +60,13 @@ pub enum SweepGrid {
 }
 
 impl SweepGrid {
+    /// Whether the grid's table shows where each job's model puts the degradation (the
+    /// degradation grid); the other grids' jobs skip that part of their report
+    /// (`nemm train --degradation-report=false`), the larger part of a short job's time.
+    pub fn shows_degradation(self) -> bool {
+        self == SweepGrid::Degradation
+    }
+
     /// The table file the grid is collected into: `table3.md` for the Table 3 grid,
     /// `degradation.md` for the degradation grid, `table5.md` otherwise.
     pub fn table_file(self) -> &'static str {
@@ -330,10 +337,12 @@ pub fn job_dir(report: &Path, id: &str) -> PathBuf {
     report.join("jobs").join(id)
 }
 
-/// The `nemm train` command line (without the program name) of the job in folder `dir`:
-/// its `config.toml` there, its blob and report written there.
-pub fn train_args(dir: &str) -> Vec<String> {
-    vec![
+/// The `nemm train` command line (without the program name) of a job of `grid` in folder
+/// `dir`: its `config.toml` there, its blob and report written there (the report without
+/// the degradation part unless the grid's table shows it,
+/// [`SweepGrid::shows_degradation`]).
+pub fn train_args(dir: &str, grid: SweepGrid) -> Vec<String> {
+    let mut args: Vec<String> = vec![
         "train".into(),
         "--config".into(),
         format!("{dir}/{CONFIG_FILE}"),
@@ -341,13 +350,17 @@ pub fn train_args(dir: &str) -> Vec<String> {
         format!("{dir}/model.nemm"),
         "--report".into(),
         dir.into(),
-    ]
+    ];
+    if !grid.shows_degradation() {
+        args.push("--degradation-report=false".into());
+    }
+    args
 }
 
-/// The job's `nemm train` command line (without the program name); its configuration is
-/// `<report>/jobs/<id>/config.toml`, written by [`write_jobs`].
-pub fn job_args(job: &SweepJob, report: &Path) -> Vec<String> {
-    train_args(&job_dir(report, &job.id).display().to_string())
+/// The `nemm train` command line (without the program name) of a job of `grid`; its
+/// configuration is `<report>/jobs/<id>/config.toml`, written by [`write_jobs`].
+pub fn job_args(job: &SweepJob, report: &Path, grid: SweepGrid) -> Vec<String> {
+    train_args(&job_dir(report, &job.id).display().to_string(), grid)
 }
 
 /// Writes every job's configuration to `<report>/jobs/<id>/config.toml`.
@@ -418,7 +431,11 @@ pub fn sweep(
         let exe = std::env::current_exe().context("cannot find the nemm executable")?;
         manifest.save(report)?;
         for j in &manifest.jobs {
-            println!("{} {}", exe.display(), job_args(j, report).join(" "));
+            println!(
+                "{} {}",
+                exe.display(),
+                job_args(j, report, manifest.grid).join(" ")
+            );
         }
         return Ok(());
     }
@@ -457,7 +474,7 @@ fn run_sweep(mut manifest: SweepManifest, report: &Path, options: &SweepOptions)
             }
             manifest.save(report)?;
             let jobs: Vec<&SweepJob> = pending.iter().map(|&i| &manifest.jobs[i]).collect();
-            run_local(&jobs, report, options.jobs.unwrap_or(1))?;
+            run_local(&jobs, manifest.grid, report, options.jobs.unwrap_or(1))?;
             let c = collect_sweep(&manifest, report)?;
             c.print(report, manifest.grid);
             Ok(())
@@ -468,7 +485,12 @@ fn run_sweep(mut manifest: SweepManifest, report: &Path, options: &SweepOptions)
 
 /// Runs `jobs` as local `nemm train` processes, `parallel` at a time; each one's output in
 /// its `train.log` and its exit status in its `exit` file (written atomically when it ends).
-pub fn run_local(jobs: &[&SweepJob], report: &Path, parallel: usize) -> Result<()> {
+pub fn run_local(
+    jobs: &[&SweepJob],
+    grid: SweepGrid,
+    report: &Path,
+    parallel: usize,
+) -> Result<()> {
     let exe = std::env::current_exe().context("cannot find the nemm executable")?;
     std::fs::create_dir_all(report.join("jobs"))?;
     let t = Instant::now();
@@ -485,7 +507,7 @@ pub fn run_local(jobs: &[&SweepJob], report: &Path, parallel: usize) -> Result<(
             clear_exit(&dir)?;
             let log = std::fs::File::create(dir.join(TRAIN_LOG))?;
             let child = std::process::Command::new(&exe)
-                .args(job_args(j, report))
+                .args(job_args(j, report, grid))
                 .stdout(log.try_clone()?)
                 .stderr(log)
                 .spawn()

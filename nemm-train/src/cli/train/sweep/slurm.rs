@@ -174,6 +174,7 @@ fn sh_quote(s: &str) -> String {
 /// folder `report` and working folder `workdir` (both absolute), run by `exe`.
 pub fn job_script(
     settings: &SlurmSettings,
+    grid: SweepGrid,
     report: &Path,
     workdir: &Path,
     exe: &Path,
@@ -212,7 +213,7 @@ pub fn job_script(
         s += &format!("#SBATCH --account={a}\n");
     }
     let quoted: Vec<String> = ids.iter().map(|i| sh_quote(i)).collect();
-    let train: Vec<String> = train_args("$dir")
+    let train: Vec<String> = train_args("$dir", grid)
         .iter()
         .map(|a| format!("\"{a}\""))
         .collect();
@@ -353,7 +354,7 @@ pub(super) fn submit_sweep(
     let script = report.join(SCRIPT_FILE);
     write_atomic_bytes(
         &script,
-        job_script(&settings, &report_abs, &workdir, &exe, &ids)?.as_bytes(),
+        job_script(&settings, manifest.grid, &report_abs, &workdir, &exe, &ids)?.as_bytes(),
     )
     .with_context(|| format!("cannot write {}", script.display()))?;
     let mut secs = Vec::new();
@@ -471,6 +472,7 @@ mod tests {
         let ids = ["a_lph0".to_string(), "b_lph0".to_string()];
         let script = job_script(
             &s,
+            SweepGrid::Table3,
             Path::new("/shared/t3"),
             Path::new("/shared"),
             Path::new("/shared/bin/nemm"),
@@ -486,6 +488,8 @@ mod tests {
             "#SBATCH --chdir=/shared\n",
             "ids=('a_lph0' 'b_lph0')\n",
             "'/shared/bin/nemm' \"train\" \"--config\" \"$dir/config.toml\"",
+            // Table 3 does not show the degradation: its jobs do not identify.
+            "\"--report\" \"$dir\" \"--degradation-report=false\"",
         ] {
             assert!(script.contains(line), "{line} missing:\n{script}");
         }
@@ -499,6 +503,7 @@ mod tests {
         );
         assert!(job_script(
             &s,
+            SweepGrid::Table3,
             Path::new("/my report"),
             Path::new("/"),
             Path::new("/n"),
