@@ -148,6 +148,8 @@ enum Cmd {
     ///
     /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm demo`
     /// report directory instead (table4.md, table5.md and degradation.md if present, report.json).
+    /// With --table3 DIR, fill the table3 block from a collected `nemm sweep --grid table3`
+    /// report directory (table3.md, sweep-jobs.json).
     /// With --tables, fill the tables block: the fast path's error against the exact one on the
     /// firmware's trained model and the example models (host, minutes). With --host, run the host
     /// criterion benches (nemm-core's `step` with libm and micromath, nemm-train's `gradient`;
@@ -156,8 +158,11 @@ enum Cmd {
     /// model and fill the observer block and docs/img/level_step.png (minutes).
     Results {
         /// A report directory of `nemm compare` or `nemm demo`.
-        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer"])]
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["table3", "tables", "host", "observer"])]
         training: Option<PathBuf>,
+        /// A collected `nemm sweep --grid table3` report directory (the `table3` block).
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer"])]
+        table3: Option<PathBuf>,
         /// Measure the tabulated fast path instead (the `tables` block).
         #[arg(long, conflicts_with_all = ["host", "observer"])]
         tables: bool,
@@ -430,20 +435,20 @@ fn main() -> ExitCode {
         Some(Cmd::RunTarget { options }) => run_target(&options),
         Some(Cmd::Results {
             training,
+            table3,
             tables,
             host,
             observer,
             no_run,
             steps,
             allow_dirty,
-        }) => match training {
-            Some(dir) => Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty)),
-            None if tables => Paths::find().and_then(|p| results::tables(&p, allow_dirty)),
-            None if host => Paths::find().and_then(|p| results::host(&p, no_run, allow_dirty)),
-            None if observer => Paths::find().and_then(|p| results::observer(&p, allow_dirty)),
-            None => {
-                setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty))
-            }
+        }) => match (training, table3) {
+            (Some(dir), _) => Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty)),
+            (None, Some(dir)) => Paths::find().and_then(|p| results::table3(&p, &dir, allow_dirty)),
+            _ if tables => Paths::find().and_then(|p| results::tables(&p, allow_dirty)),
+            _ if host => Paths::find().and_then(|p| results::host(&p, no_run, allow_dirty)),
+            _ if observer => Paths::find().and_then(|p| results::observer(&p, allow_dirty)),
+            _ => setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty)),
         },
         Some(Cmd::BenchSlurm { tasks }) => Paths::find().and_then(|p| slurm::bench(&p, tasks)),
         Some(Cmd::Toolchain) => setup().map(|(tc, _)| println!("{}", tc.describe())),
@@ -960,6 +965,15 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+        match parse(&["results", "--table3", "t3"]) {
+            Ok(Some(Cmd::Results {
+                table3: Some(dir),
+                training: None,
+                ..
+            })) => assert_eq!(dir, PathBuf::from("t3")),
+            other => panic!("{other:?}"),
+        }
+        assert!(parse(&["results", "--table3", "t3", "--training", "c"]).is_err());
         match parse(&["results", "--host", "--no-run"]) {
             Ok(Some(Cmd::Results {
                 host: true,

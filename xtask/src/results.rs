@@ -13,6 +13,9 @@
 //! - `training` ([`training()`], `cargo xtask results --training DIR`): the Table 4 (and
 //!   Table 5, if present) of a finished `nemm compare` / `nemm demo` report directory, with
 //!   the facts its `report.json` records (the command that trained it, ...).
+//! - `table3` ([`table3()`], `cargo xtask results --table3 DIR`): the Table 3 search of a
+//!   collected `nemm sweep --grid table3` report folder, with the engine it ran on and its
+//!   wall time.
 //! - `host` ([`host()`], `cargo xtask results --host`): the host criterion benches of nemm-core
 //!   (estimator step per model kind, integrator, mode and math backend; the alpha observer's
 //!   step; decoding) and nemm-train (a batch gradient), with the machine they ran on
@@ -31,7 +34,7 @@ pub use host::host;
 pub use observer::observer;
 pub use tables::tables;
 pub use target::target;
-pub use training::training;
+pub use training::{table3, training};
 
 use crate::Paths;
 use std::path::Path;
@@ -81,6 +84,13 @@ Not generated yet: run `cargo xtask results --observer`.
 Not generated yet: `cargo xtask results --training DIR` copies the tables of a finished
 `nemm compare` or `nemm demo` report directory here.
 <!-- END training -->
+
+## Hyperparameter search (Table 3)
+
+<!-- BEGIN table3 -->
+Not generated yet: `cargo xtask results --table3 DIR` copies the table of a collected
+`nemm sweep --grid table3` report folder here.
+<!-- END table3 -->
 ";
 
 /// `text` with block `name` replaced by `block` (which carries its own markers), or with

@@ -1,5 +1,6 @@
 //! The `training` block (`cargo xtask results --training DIR`): Table 4 (and Table 5 and
-//! the degradation ablation, if present) of a finished report folder, with its provenance.
+//! the degradation ablation, if present) of a finished report folder, with its provenance;
+//! the `table3` block (`cargo xtask results --table3 DIR`): a collected Table 3 sweep.
 
 use super::{
     command_line, commit, refuse_dirty, sweep_commit, write_block, write_block_in, README,
@@ -62,6 +63,137 @@ pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), Stri
         "headline",
         &headline_markdown(&info, &table4),
     )
+}
+
+/// `cargo xtask results --table3 DIR`: the `table3` block from the report folder of a
+/// collected Table 3 sweep (`nemm sweep --grid table3 --report DIR`, then `--collect DIR`):
+/// its `table3.md`, the engine it ran on and its wall time from `sweep-jobs.json` and the
+/// jobs' `exit` files.
+pub fn table3(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), String> {
+    let table_path = dir.join("table3.md");
+    let table = std::fs::read_to_string(&table_path).map_err(|e| {
+        format!(
+            "{}: {e} (collect the sweep first: `nemm sweep --collect {}`)",
+            table_path.display(),
+            dir.display()
+        )
+    })?;
+    refuse_dirty("the work tree", &commit(&paths.root), allow_dirty)?;
+    if let Some(c) = sweep_commit(&table) {
+        refuse_dirty(&format!("{}'s sweep", table_path.display()), c, allow_dirty)?;
+    }
+    let jobs_path = dir.join("sweep-jobs.json");
+    let manifest: serde_json::Value = std::fs::read_to_string(&jobs_path)
+        .map_err(|e| format!("{}: {e}", jobs_path.display()))
+        .and_then(|t| {
+            serde_json::from_str(&t).map_err(|e| format!("{}: {e}", jobs_path.display()))
+        })?;
+    let md = table3_markdown(
+        &command_line(),
+        &commit(&paths.root),
+        dir,
+        &manifest,
+        last_exit_unix_s(&dir.join("jobs")),
+        &table,
+    );
+    write_block(paths, "table3", &md)
+}
+
+/// When the last job of a sweep ended: the newest modification time of the `exit` files
+/// under `jobs` (seconds since the epoch); `None` when none is there.
+fn last_exit_unix_s(jobs: &Path) -> Option<f64> {
+    std::fs::read_dir(jobs)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            std::fs::metadata(e.path().join("exit"))
+                .ok()?
+                .modified()
+                .ok()
+        })
+        .filter_map(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_secs_f64())
+        .reduce(f64::max)
+}
+
+/// The `table3` block: where it was copied from, the engine (for Slurm: the submissions,
+/// CPUs per task, throttle, time limit) and the wall time from the first submission to the
+/// last job's end, then the table.
+fn table3_markdown(
+    command: &str,
+    commit: &str,
+    dir: &Path,
+    manifest: &serde_json::Value,
+    last_exit_unix_s: Option<f64>,
+    table: &str,
+) -> String {
+    let mut md = format!(
+        "Copied by `{command}` at commit `{commit}` from `{}`.\n\n",
+        dir.join("table3.md").display()
+    );
+    let engine = manifest
+        .get("engine")
+        .and_then(serde_json::Value::as_str)
+        .unwrap_or("unknown");
+    let submissions = manifest
+        .get("submissions")
+        .and_then(serde_json::Value::as_array)
+        .map(Vec::as_slice)
+        .unwrap_or_default();
+    match (engine, manifest.get("slurm")) {
+        ("slurm", Some(s)) => {
+            let field = |k: &str| {
+                s.get(k)
+                    .map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_string))
+                    .unwrap_or_else(|| "-".into())
+            };
+            let arrays: Vec<String> = submissions
+                .iter()
+                .map(|sub| {
+                    let get = |k: &str| sub.get(k).and_then(serde_json::Value::as_str);
+                    format!(
+                        "job {} (array {})",
+                        get("job_id").unwrap_or("?"),
+                        get("array").unwrap_or("?")
+                    )
+                })
+                .collect();
+            let _ = writeln!(
+                md,
+                "Run by the Slurm engine: {}; {} CPU(s) per task, at most {} task(s) at a \
+                 time, time limit {} per task.",
+                if arrays.is_empty() {
+                    "no submission recorded".to_string()
+                } else {
+                    arrays.join(", ")
+                },
+                field("cpus_per_task"),
+                field("throttle"),
+                field("time"),
+            );
+        }
+        (e, _) => {
+            let _ = writeln!(md, "Run by the {e} engine.");
+        }
+    }
+    let first = submissions
+        .iter()
+        .filter_map(|s| {
+            s.get("submitted_unix_s")
+                .and_then(serde_json::Value::as_f64)
+        })
+        .reduce(f64::min);
+    if let (Some(a), Some(b)) = (first, last_exit_unix_s) {
+        if b >= a {
+            let _ = writeln!(
+                md,
+                "Wall time from the first submission to the last job's end: {:.0} min.",
+                (b - a) / 60.0
+            );
+        }
+    }
+    let _ = writeln!(md, "\n{}", table.trim_end());
+    md
 }
 
 /// The README's headline block: the summary of Table 4 of the copied report (without the
@@ -200,6 +332,36 @@ fn training_markdown(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_table3_block_names_the_engine_and_the_wall_time() {
+        let manifest = serde_json::json!({
+            "grid": "table3",
+            "engine": "slurm",
+            "slurm": {"partition": null, "account": null, "time": "0:20:00",
+                      "cpus_per_task": 1, "throttle": 2},
+            "submissions": [{"job_id": "7", "array": "0-107%2", "submitted_unix_s": 1000.0}],
+        });
+        let table = "Sweep of the NEMM trained at commit `abc1234` on `d`.\n\n| Job |\n";
+        let md = table3_markdown(
+            "cargo xtask results --table3 t3",
+            "abc1234",
+            Path::new("t3"),
+            &manifest,
+            Some(1000.0 + 3600.0),
+            table,
+        );
+        assert!(md.starts_with("Copied by `cargo xtask results --table3 t3` at commit `abc1234` from `t3/table3.md`."), "{md}");
+        assert!(md.contains("Run by the Slurm engine: job 7 (array 0-107%2); 1 CPU(s) per task, at most 2 task(s) at a time, time limit 0:20:00 per task."), "{md}");
+        assert!(md.contains("last job's end: 60 min."), "{md}");
+        assert!(md.ends_with("| Job |\n"), "{md}");
+        let local = serde_json::json!({"engine": "local", "slurm": null, "submissions": []});
+        let md = table3_markdown("c", "x", Path::new("t3"), &local, None, table);
+        assert!(
+            md.contains("Run by the local engine.") && !md.contains("Wall time"),
+            "{md}"
+        );
+    }
 
     #[test]
     fn the_headline_is_the_summary_table_with_its_provenance() {
