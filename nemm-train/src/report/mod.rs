@@ -1,7 +1,8 @@
 //! Results: Table 4 / 5 and the JSON report ([`tables`]), the identifiability of the level
 //! and the whole-run errors per level and condition ([`identify`]), the comparison with the
 //! virtual bench's reference coefficients ([`reference`](mod@reference)), the degradation
-//! signature (Fig. 5, measured against modelled: [`signature`]), the whole-run
+//! signature (Fig. 5, measured against modelled: [`signature`]), the degradation targets
+//! each against its bar ([`targets`]), the whole-run
 //! predictions the loop figures draw ([`predictions`]), the figures ([`figures`],
 //! [`bench_plots`]) drawn with the plotting helpers ([`plot`]), the description of a
 //! weights blob ([`inspect`]), and the online alpha observer on recorded runs
@@ -18,3 +19,4 @@ pub mod predictions;
 pub mod reference;
 pub mod signature;
 pub mod tables;
+pub mod targets;

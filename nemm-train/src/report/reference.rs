@@ -145,7 +145,34 @@ pub fn comparison_alpha(model: &Model, reference: &EmmReference) -> f64 {
     }
 }
 
+/// The two figures of a [`ReferenceComparison`] that say where the model puts the
+/// degradation (each `None` where the comparison lacks its row).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct DegradationFigures {
+    /// The compression chamber's `k_pr` change, learned over the bench's (through the
+    /// lost-motion element when the model has one: its row follows `k_pr`'s).
+    pub k_pr_compression_ratio: Option<f64>,
+    /// The learned minus the bench's `b_fl` change at -1 m/s \[percentage points\].
+    pub b_fl_change_pp: Option<f64>,
+}
+
 impl ReferenceComparison {
+    /// Where the model puts the degradation against the bench: [`DegradationFigures`].
+    pub fn degradation_figures(&self) -> DegradationFigures {
+        let against = |c: Coefficient| {
+            let name = c.name();
+            self.rows.iter().filter(move |r| r.reference == name)
+        };
+        DegradationFigures {
+            k_pr_compression_ratio: against(Coefficient::KPrCompression)
+                .next_back()
+                .map(|r| r.ratio),
+            b_fl_change_pp: against(Coefficient::BFl(-1.0))
+                .next()
+                .map(|r| 100.0 * (r.learned_change - r.reference_change)),
+        }
+    }
+
     /// The comparison as a Markdown table.
     pub fn markdown(&self) -> String {
         let mut s = format!(

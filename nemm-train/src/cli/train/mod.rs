@@ -411,7 +411,8 @@ pub struct Written {
 /// Writes `report.json` and `table4.md` (Table 4, then the test error per held-out run, the
 /// learned against the virtual bench's reference coefficients when the data are the bench's,
 /// then the whole-run error per level and run) into `dir`; with the report's identification,
-/// also `identify.md`, which `table4.md` links to.
+/// also `identify.md`, which `table4.md` links to, and the degradation targets
+/// ([`crate::report::targets`]) at the end of `table4.md`.
 pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     write_atomic_bytes(
@@ -439,6 +440,12 @@ pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()>
             id.condition.column()
         );
         write_atomic_bytes(&dir.join(IDENTIFY_MD), identify_markdown(id).as_bytes())?;
+    }
+    if report.identify.is_some() {
+        let targets = crate::report::targets::targets_markdown(report);
+        if !targets.is_empty() {
+            table = format!("{table}\n{}\n", targets.trim_end());
+        }
     }
     write_atomic_bytes(&dir.join(table_name), table.as_bytes())?;
     Ok(())

@@ -408,27 +408,16 @@ impl DegradationCells {
                     .collect()
             })
             .unwrap_or_default();
-        use crate::bench::reference::Coefficient;
-        let rows = report
+        let figures = report
             .bench_reference
             .as_ref()
-            .map_or(&[][..], |c| &c.rows[..]);
-        let against = |c: Coefficient| {
-            let name = c.name();
-            rows.iter().filter(move |r| r.reference == name)
-        };
-        // Through the lost-motion element where the model has it (its row follows k_pr's).
-        let k_pr_compression_ratio = against(Coefficient::KPrCompression)
-            .next_back()
-            .map(|r| r.ratio);
-        let b_fl_change_pp = against(Coefficient::BFl(-1.0))
-            .next()
-            .map(|r| 100.0 * (r.learned_change - r.reference_change));
+            .map(|c| c.degradation_figures())
+            .unwrap_or_default();
         DegradationCells {
             signature,
             read_back,
-            k_pr_compression_ratio,
-            b_fl_change_pp,
+            k_pr_compression_ratio: figures.k_pr_compression_ratio,
+            b_fl_change_pp: figures.b_fl_change_pp,
         }
     }
 
