@@ -371,11 +371,8 @@ struct DegradationCells {
     signature: Option<LevelSignature>,
     /// Per level of the identification: level, role, runs within, runs.
     read_back: Vec<(f64, String, usize, usize)>,
-    /// The compression chamber's `k_pr` change, learned over the bench's (through the
-    /// lost-motion element when the model has one).
-    k_pr_compression_ratio: Option<f64>,
-    /// The learned minus the bench's `b_fl` change at -1 m/s \[percentage points\].
-    b_fl_change_pp: Option<f64>,
+    /// The learned against the bench's `k_pr,c` and `b_fl` changes.
+    figures: crate::report::reference::DegradationFigures,
 }
 
 impl DegradationCells {
@@ -408,16 +405,14 @@ impl DegradationCells {
                     .collect()
             })
             .unwrap_or_default();
-        let figures = report
-            .bench_reference
-            .as_ref()
-            .map(|c| c.degradation_figures())
-            .unwrap_or_default();
         DegradationCells {
             signature,
             read_back,
-            k_pr_compression_ratio: figures.k_pr_compression_ratio,
-            b_fl_change_pp: figures.b_fl_change_pp,
+            figures: report
+                .bench_reference
+                .as_ref()
+                .map(|c| c.degradation_figures())
+                .unwrap_or_default(),
         }
     }
 
@@ -447,9 +442,11 @@ impl DegradationCells {
                 .join(", ")
         };
         let k = self
+            .figures
             .k_pr_compression_ratio
             .map_or_else(dash, |r| format!("{r:.2}"));
         let b = self
+            .figures
             .b_fl_change_pp
             .map_or_else(dash, |d| format!("{d:+.1}"));
         format!(" {median} | {worst} | {read_back} | {k} | {b} |")
@@ -466,8 +463,8 @@ impl DegradationCells {
             "read_back": self.read_back.iter().map(|(a, role, within, runs)| serde_json::json!({
                 "alpha": a, "role": role, "within": within, "runs": runs,
             })).collect::<Vec<_>>(),
-            "k_pr_compression_ratio": self.k_pr_compression_ratio,
-            "b_fl_change_minus_bench_pp": self.b_fl_change_pp,
+            "k_pr_compression_ratio": self.figures.k_pr_compression_ratio,
+            "b_fl_change_minus_bench_pp": self.figures.b_fl_change_pp,
         })
     }
 }
