@@ -87,7 +87,10 @@ pub fn degradation_targets(report: &Report, kind: ModelKind) -> Vec<TargetCheck>
             (cells.join(", "), ok)
         })
     };
-    let tolerance = report.identify.as_ref().map_or(0.03, |id| id.within);
+    let tolerance = report
+        .identify
+        .as_ref()
+        .map_or(crate::report::identify::WITHIN, |id| id.within);
     out.push(TargetCheck::new(
         "held-out level read back",
         format!(
