@@ -24,9 +24,9 @@ pub(crate) unsafe fn slice<'a>(blob: *const u8, len: usize) -> Result<&'a [u8], 
 }
 
 /// The checks of `nemm_core::decode` that need no model, in its order
-/// (`nemm_core::format::check_frame` at this library's capacity).
+/// (`nemm_core::check_frame` at this library's capacity).
 fn check(blob: &[u8]) -> Result<Header, DecodeError> {
-    nemm_core::format::check_frame(blob, NEMM_PARAM_CAPACITY).map(|f| f.header)
+    nemm_core::check_frame(blob, NEMM_PARAM_CAPACITY).map(|f| f.header)
 }
 
 /// Checks a weights blob (a `.nemm` file, `len` bytes at `blob`) without decoding its

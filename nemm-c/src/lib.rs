@@ -96,8 +96,8 @@ pub const NEMM_LEVELS_CAPACITY: usize = 8;
 
 const _: () = {
     assert!(NEMM_PARAM_CAPACITY == nemm_core::param_count(2, 16, 5));
-    assert!(NEMM_OBSERVER_MAX_POINTS == nemm_core::limits::DEFAULT_OBSERVER_POINTS);
-    assert!(NEMM_LEVELS_CAPACITY <= nemm_core::limits::MAX_TABLE_LEVELS);
+    assert!(NEMM_OBSERVER_MAX_POINTS == nemm_core::DEFAULT_OBSERVER_POINTS);
+    assert!(NEMM_LEVELS_CAPACITY <= nemm_core::MAX_TABLE_LEVELS);
 };
 
 /// The bare-metal static library's panic handler. Nothing in the library panics, so the

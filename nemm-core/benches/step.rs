@@ -48,7 +48,7 @@ fn velocities(dt: f32) -> Vec<f32> {
 }
 
 fn step<M: Measurement>(c: &mut Criterion<M>) {
-    let mut g = c.benchmark_group(format!("step/{}", nemm_core::semantics::math::BACKEND));
+    let mut g = c.benchmark_group(format!("step/{}", nemm_kernels::math::BACKEND));
     g.throughput(Throughput::Elements(1));
     for kind in KINDS {
         let m = model(kind);
@@ -73,10 +73,7 @@ fn step<M: Measurement>(c: &mut Criterion<M>) {
 
 /// The tabulated fast path (`EvalMode::Table`, 256 segments, bound 1e-4) of the neural kinds.
 fn step_table<M: Measurement>(c: &mut Criterion<M>) {
-    let mut g = c.benchmark_group(format!(
-        "step-table/{}",
-        nemm_core::semantics::math::BACKEND
-    ));
+    let mut g = c.benchmark_group(format!("step-table/{}", nemm_kernels::math::BACKEND));
     g.throughput(Throughput::Elements(1));
     for kind in [ModelKind::NemmLight, ModelKind::Nemm] {
         let m = model(kind);
@@ -92,7 +89,7 @@ fn step_table<M: Measurement>(c: &mut Criterion<M>) {
                 Err(e) => {
                     eprintln!(
                         "step-table/{}/{}/{}: skipped, the tables miss the bound: {e:?}",
-                        nemm_core::semantics::math::BACKEND,
+                        nemm_kernels::math::BACKEND,
                         kind.name(),
                         integrator.name()
                     );
@@ -114,7 +111,7 @@ fn step_table<M: Measurement>(c: &mut Criterion<M>) {
 /// One `AlphaObserver::step` (7 levels over the trained range, exact mode, RK4) of the NEMM
 /// example model: the velocity as in `step`, the force that of the model at alpha 0.15.
 fn observer<M: Measurement>(c: &mut Criterion<M>) {
-    let mut g = c.benchmark_group(format!("observer/{}", nemm_core::semantics::math::BACKEND));
+    let mut g = c.benchmark_group(format!("observer/{}", nemm_kernels::math::BACKEND));
     g.throughput(Throughput::Elements(1));
     let m = model(ModelKind::Nemm);
     let vs = velocities(m.dt_s);

@@ -121,7 +121,7 @@ fn compare(path: &str, run: &Run) -> Result<(), String> {
     let reference = read(path)?;
     println!(
         "backend {} vs reference file {path}, alpha {ALPHA}, RK4 10 kHz, {PERIODS} periods per stroke",
-        nemm_core::semantics::math::BACKEND
+        nemm_kernels::math::BACKEND
     );
     for (i, kind) in KINDS.iter().enumerate() {
         let m: Model = nemm_core::testing::example_model(*kind, 16, 5).expect("example model");
@@ -176,18 +176,17 @@ fn function_errors() {
     for k in -200_000..=200_000 {
         let x = k as f32 * 1e-4;
         let want = f64::from(x).exp();
-        e_exp = e_exp.max((f64::from(nemm_core::semantics::math::exp(x)) - want).abs() / want);
+        e_exp = e_exp.max((f64::from(nemm_kernels::math::exp(x)) - want).abs() / want);
     }
     let mut e_rsqrt = 0.0f64;
     for k in 0..=400_000 {
         let x = 1e-5f32 * 10f32.powf(k as f32 * 2e-5);
         let want = 1.0 / f64::from(x).sqrt();
-        e_rsqrt =
-            e_rsqrt.max((f64::from(nemm_core::semantics::math::rsqrt(x)) - want).abs() / want);
+        e_rsqrt = e_rsqrt.max((f64::from(nemm_kernels::math::rsqrt(x)) - want).abs() / want);
     }
     println!(
         "{}: max relative error exp {e_exp:.2e} (on [-20, 20]), rsqrt {e_rsqrt:.2e} (on [1e-5, 1e3])",
-        nemm_core::semantics::math::BACKEND
+        nemm_kernels::math::BACKEND
     );
 }
 
@@ -201,7 +200,7 @@ fn main() {
                 println!(
                     "{} ({}): {} samples",
                     k.name(),
-                    nemm_core::semantics::math::BACKEND,
+                    nemm_kernels::math::BACKEND,
                     f.len()
                 );
             }

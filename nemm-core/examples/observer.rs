@@ -8,11 +8,11 @@
 //! ```
 //!
 //! The velocity is the firmware's: the backward difference of the stroke through the
-//! 500 Hz low-pass of `nemm_core::velocity`. The offline fit simulates the whole run from
+//! 500 Hz low-pass of `nemm_core::LowPass`. The offline fit simulates the whole run from
 //! rest at every level of a 0.01 grid over the trained range and then of a 0.001 grid around
 //! the best (table mode, 256 segments, bound 1e-4), scoring the samples after the observer's
 //! warm-up; the observer runs with its defaults.
-use nemm_core::velocity::LowPass;
+use nemm_core::LowPass;
 use nemm_core::{
     decode, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model, ObserverConfig, TableConfig,
 };
@@ -36,7 +36,7 @@ fn read_run(path: &str, fs: f64) -> (Vec<f32>, Vec<f32>) {
         x.push(num(1));
         f.push(num(2) as f32);
     }
-    let mut lp = LowPass::new(fs as f32, nemm_core::velocity::DEFAULT_CUTOFF_HZ);
+    let mut lp = LowPass::new(fs as f32, nemm_core::DEFAULT_CUTOFF_HZ);
     let mut v = vec![0.0f32];
     v.extend(x.windows(2).map(|w| lp.push(((w[1] - w[0]) * fs) as f32)));
     v.truncate(f.len());

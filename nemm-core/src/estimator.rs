@@ -11,14 +11,14 @@
 //! 1. Input guard: a non-finite velocity, or one beyond the plausibility limit
 //!    ([`EstimatorConfig::velocity_limit_m_s`]), is replaced by the last good sample (the
 //!    estimator assumes the velocity held) and flagged; good samples resume normally.
-//! 2. One RK step from the previous sample to this one (see [`crate::integrator`]), or the map
+//! 2. One RK step from the previous sample to this one (see [`nemm_kernels::integrator`]), or the map
 //!    lookup for the SEM.
 //! 3. Divergence guard: a non-finite state or force, or a state beyond
 //!    [`DIVERGENCE_FACTOR`] times its training scale, resets the state to rest and is
 //!    flagged; it never propagates.
 //! 4. The force `F(x_n+1, u_n+1)`; the coefficients computed for it are reused as stage 1 of
 //!    the next step.
-//! 5. A model with a static force ([`crate::static_force`]) adds `r(x, u, alpha)` at the
+//! 5. A model with a static force ([`nemm_kernels::static_force`]) adds `r(x, u, alpha)` at the
 //!    stroke position `x` given to [`Estimator::step_with_position`]. `r` does not enter
 //!    the state. [`Estimator::step`] gives no position: `r` then uses the last good position
 //!    and the step is flagged [`Flags::POSITION_MISSING`] (as is a non-finite position), so
@@ -34,7 +34,7 @@
 //! `k_pr(x_pr)` are evaluated:
 //!
 //! - [`EvalMode::Exact`] (default): the compiled MLPs, the reference arithmetic.
-//! - [`EvalMode::Table`]: 1-D cubic tables of [`crate::table`] with `T` segments each
+//! - [`EvalMode::Table`]: 1-D cubic tables of [`nemm_kernels::table`] with `T` segments each
 //!   (`Estimator<P, T>`, default [`DEFAULT_TABLE_SEGMENTS`] = 256), built for the
 //!   configured `alpha` in [`Estimator::new`] and rebuilt by [`Estimator::set_alpha`]. Both
 //!   measure every table against the exact scaler on a grid 128x finer than the table and
@@ -88,17 +88,19 @@ pub use export::encode_with_tables;
 pub use export::encoded_len_with_tables;
 pub use levels::{BlendCheck, LevelTables, LevelsError};
 
-use crate::emm::{self, Coefficients, State};
 use crate::format::tables::{StoredTable, StoredTables, StoredUnused, TableLevel};
-use crate::integrator::{self, Integrator, Stage, StepSize};
-use crate::lost_motion::{LostMotion, LostMotionAt};
-use crate::math::{Fused, MulAdd, Unfused};
-use crate::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use crate::model::{Body, Model, ModelError};
-use crate::sem::{SemMap, MAX_SEM_VELOCITIES};
-use crate::static_force::StaticForce;
-use crate::table::{self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
 use core::fmt;
+use nemm_kernels::emm::{self, Coefficients, State};
+use nemm_kernels::integrator::{self, Integrator, Stage, StepSize};
+use nemm_kernels::lost_motion::{LostMotion, LostMotionAt};
+use nemm_kernels::math::{Fused, MulAdd, Unfused};
+use nemm_kernels::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
+use nemm_kernels::sem::{SemMap, MAX_SEM_VELOCITIES};
+use nemm_kernels::static_force::StaticForce;
+use nemm_kernels::table::{
+    self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS,
+};
 
 /// Online estimator for one damper at one oil-loss level. Owns everything it needs; the
 /// [`Model`] can be dropped after construction.
@@ -206,7 +208,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
 
     /// [`Estimator::load`] with the blob `model` was decoded from and the index of its
     /// tables section (`tables`, returned by [`crate::decode_into`] or
-    /// [`crate::decode_with_tables`]; see [`crate::format::tables`]): in table mode, the
+    /// [`crate::decode_with_tables`]; see [`crate::StoredTables`]): in table mode, the
     /// tables are read from the blob when it holds a level that matches this estimator (its alpha, `T` segments and the table
     /// configuration, bit for bit), instead of being built; the result is bit for bit the
     /// same estimator. Otherwise they are built as by [`Estimator::load`], and

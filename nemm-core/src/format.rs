@@ -43,12 +43,12 @@
 pub mod tables;
 
 use crate::limits::MAX_TABLE_LEVELS;
-use crate::lost_motion::LostMotion;
 use crate::model::{AlphaBranches, Condition, Model, ModelError, ModelKind, Provenance};
-use crate::static_force::StaticForce;
-use crate::table::DEFAULT_TABLE_SEGMENTS;
-use crate::wire::Writer;
 use core::fmt;
+use nemm_kernels::lost_motion::LostMotion;
+use nemm_kernels::static_force::StaticForce;
+use nemm_kernels::table::DEFAULT_TABLE_SEGMENTS;
+use nemm_kernels::wire::Writer;
 use serde::{Deserialize, Serialize};
 use tables::{StoredTables, TableLevel};
 

@@ -3,30 +3,40 @@
 //! `no_std`, allocation-free runtime of the Neural Equivalent Mechanical Model (NEMM) of a
 //! degrading twin-tube suspension damper, and the definition of its weight format.
 //!
-//! What a firmware (or a C wrapper) uses is at the crate root:
+//! Everything is at the crate root, in one curated list (the modules are private):
 //!
 //! - the online [`Estimator`]: one `step(velocity) -> force` per sample, with its
-//!   [`EstimatorConfig`], the [`Estimate`] and its [`Flags`] (module [`estimator`]: what
-//!   happens per step, exact or tabulated evaluation);
+//!   [`EstimatorConfig`], [`EvalMode`] (exact or tabulated evaluation), the [`Estimate`], its
+//!   [`Flags`] and [`Diagnostics`];
 //! - the weight format: [`decode`] / [`decode_into`] (in place, for a `static`),
-//!   [`read_header`], [`encode`]; the layout and the tables section in [`format`](mod@format);
+//!   [`decode_with_tables`], [`read_header`] and [`check_frame`], [`encode`] /
+//!   [`encode_with_tables`], the [`Header`], the stored tables ([`StoredTables`],
+//!   [`StoredUnused`]) and the framing constants ([`MAGIC`], [`FORMAT_VERSION`], [`CRC`]);
 //! - the [`Model`] and the types it is made of ([`ModelKind`], [`Body`], [`Condition`],
-//!   ...; module [`model`]: the four variants and the step-stability check);
+//!   [`Scaler`], [`SemMap`], [`StaticForce`], [`LostMotion`], [`Integrator`], ...) and the
+//!   step-stability check ([`shortest_stable_time_constant_s`], [`STABILITY_MARGIN`]);
 //! - the typed errors: [`DecodeError`], [`ModelError`], [`EstimatorError`], [`EncodeError`],
-//!   [`TableError`];
+//!   [`TableError`], [`LevelsError`], [`ObserverError`];
 //! - the [`AlphaObserver`]: the oil-loss level `alpha` online from the measured velocity and
 //!   force, with an uncertainty band and flags (excitation, range, sensor faults), its
-//!   [`ObserverConfig`], [`AlphaEstimate`], [`ObserverFlags`] and [`ObserverError`] (module
-//!   [`observer`]: the method, its cost);
+//!   [`ObserverConfig`], [`AlphaEstimate`] and [`ObserverFlags`];
 //! - [`LevelTables`]: the stored tables of several oil-loss levels, for a level per sample
 //!   ([`Estimator::step_on_levels`]) and a table-cost observer
-//!   ([`AlphaObserver::load_on_levels`]) (module `estimator`, section "Every level");
-//! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
-//!   low-pass) that feeds the estimator online;
-//! - [`limits`]: the fixed capacities a firmware sizes its RAM by.
+//!   ([`AlphaObserver::load_on_levels`]);
+//! - [`LowPass`] and [`Differentiator`]: the causal stroke-velocity estimate (backward
+//!   difference and first-order low-pass) that feeds the estimator online;
+//! - the fixed capacities a firmware sizes its RAM by ([`MAX_HIDDEN`], [`MAX_LAYERS`],
+//!   [`MAX_TABLE_LEVELS`], [`DEFAULT_OBSERVER_POINTS`], ...).
+//!
+//! How each part works (what happens per step, the blob layout, the observer's method and
+//! cost) is written at the top of its source file (`src/estimator.rs`, `src/format.rs`,
+//! `src/model.rs`, `src/observer.rs`, `src/velocity.rs`) and in the project's
+//! `docs/core.md`.
 //!
 //! The model's arithmetic (EMM, scalers, Runge-Kutta step, SEM map, tables, math backends)
-//! is in [`semantics`], public for the trainer and tests but outside the stability promise.
+//! is the crate `nemm_kernels` below this one: public for the trainer (with its reverse
+//! mode), tests and tools, outside this crate's stability promise. This crate re-exports the
+//! kernel types its API is made of.
 //!
 //! Units are SI throughout: m, m/s, N, N s/m, N/m, s. `alpha` is the oil-loss fraction in
 //! `[0, 1]`. All arithmetic is `f32`.
@@ -67,52 +77,64 @@
     )
 )]
 
-mod error;
-pub mod estimator;
-pub mod format;
-pub mod limits;
-pub mod model;
-pub mod observer;
-#[cfg(feature = "semantics")]
-#[cfg_attr(docsrs, doc(cfg(feature = "semantics")))]
-pub mod semantics;
-// Without the feature the arithmetic is the crate's own: the items only the trainer and the
-// tools call are compiled with the feature (or for tests) alone.
-#[cfg(not(feature = "semantics"))]
-mod semantics;
+mod estimator;
+mod format;
+mod limits;
+mod model;
+mod observer;
 #[cfg(any(test, feature = "testing"))]
 #[cfg_attr(docsrs, doc(cfg(feature = "testing")))]
 pub mod testing;
-pub mod velocity;
-mod wire;
+mod velocity;
 
-// The arithmetic modules by their short names inside the crate.
-use semantics::{emm, integrator, lost_motion, math, mlp, sem, static_force, table};
-
-pub use error::{BranchError, ModelError, SemError, ShapeError, UnknownName};
+// The online estimator.
 #[cfg(feature = "std")]
 pub use estimator::encode_to_vec_with_tables;
 pub use estimator::{
-    encode_with_tables, encoded_len_with_tables, Diagnostics, Estimate, Estimator, EstimatorConfig,
-    EstimatorError, EvalMode, Flags, LevelTables, LevelsError, TableOrigin,
+    encode_with_tables, encoded_len_with_tables, BlendCheck, Diagnostics, Estimate, Estimator,
+    EstimatorConfig, EstimatorError, EvalMode, Flags, LevelTables, LevelsError, TableOrigin,
+    DEFAULT_VELOCITY_LIMIT_FACTOR, DIVERGENCE_FACTOR,
 };
+// The weight format.
 #[cfg(feature = "std")]
 pub use format::encode_to_vec;
-pub use format::tables::{StoredTables, StoredUnused};
+pub use format::tables::{StoredLevel, StoredTable, StoredTables, StoredUnused};
 pub use format::{
-    decode, decode_into, decode_with_tables, encode, encoded_len, read_header, DecodeError,
-    EncodeError, Header, FORMAT_VERSION, OLDEST_FORMAT_VERSION,
+    check_frame, decode, decode_into, decode_with_tables, encode, encoded_len, read_header,
+    DecodeError, EncodeError, Frame, Header, CRC, CRC_LEN, FORMAT_VERSION, MAGIC, MAX_HEADER_LEN,
+    OLDEST_FORMAT_VERSION,
 };
+// The model.
 pub use model::{
-    AlphaBranches, Body, Condition, InputScales, Meta, Model, ModelKind, Priors, Provenance,
+    shortest_stable_time_constant_s, AlphaBranches, Body, Condition, InputScales, Meta, Model,
+    ModelKind, Priors, Provenance, STABILITY_MARGIN,
 };
-pub use observer::{AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags};
-pub use semantics::emm::EmmConstants;
-pub use semantics::integrator::Integrator;
-pub use semantics::lost_motion::LostMotion;
-pub use semantics::mlp::{
+// The alpha observer.
+pub use observer::{
+    AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags, DEFAULT_HORIZON_S,
+    DEFAULT_MAX_BAND, DEFAULT_RESIDUAL_CORRELATION_S,
+};
+// The velocity estimate.
+pub use velocity::{Differentiator, LowPass, DEFAULT_CUTOFF_HZ};
+// The capacities a firmware sizes its RAM by.
+pub use limits::{
+    DEFAULT_OBSERVER_POINTS, MAX_TABLE_LEVELS, PROVENANCE_COMMAND_LEN, PROVENANCE_COMMIT_LEN,
+    PROVENANCE_DATASET_LEN,
+};
+pub use nemm_kernels::limits::{
+    MAX_BRANCH_UNITS, MAX_CONDITION_NAME, MAX_CONDITION_UNIT, MAX_HIDDEN, MAX_INPUTS, MAX_LAYERS,
+    MAX_SEM_ALPHAS, MAX_SEM_FORCES, MAX_SEM_VELOCITIES, SCALE_RANGE,
+};
+// The errors a model is refused with.
+pub use nemm_kernels::error::{BranchError, ModelError, SemError, ShapeError, UnknownName};
+// The kernel types the model and the estimator are made of (their arithmetic is
+// `nemm_kernels`').
+pub use nemm_kernels::emm::{Coefficients, EmmConstants, State};
+pub use nemm_kernels::integrator::Integrator;
+pub use nemm_kernels::lost_motion::LostMotion;
+pub use nemm_kernels::mlp::{
     param_count, AlphaBranch, Direction, MlpParams, Scaler, DEFAULT_PARAM_CAPACITY,
 };
-pub use semantics::sem::SemMap;
-pub use semantics::static_force::StaticForce;
-pub use semantics::table::{TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};
+pub use nemm_kernels::sem::SemMap;
+pub use nemm_kernels::static_force::StaticForce;
+pub use nemm_kernels::table::{TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS};

@@ -23,18 +23,16 @@
 //! margin covers the state-dependence of the learned coefficients, which the frozen-coefficient
 //! analysis does not see.
 
-use crate::emm::EmmConstants;
-pub use crate::error::ModelError;
-use crate::error::UnknownName;
-use crate::integrator::Integrator;
-pub use crate::limits::{
-    MAX_CONDITION_NAME, MAX_CONDITION_UNIT, PROVENANCE_COMMAND_LEN, PROVENANCE_COMMIT_LEN,
-    PROVENANCE_DATASET_LEN, SCALE_RANGE,
-};
-use crate::lost_motion::LostMotion;
-use crate::mlp::{AlphaBranch, BranchError, Direction, Scaler, DEFAULT_PARAM_CAPACITY};
-use crate::sem::SemMap;
-use crate::static_force::StaticForce;
+use crate::limits::{PROVENANCE_COMMAND_LEN, PROVENANCE_COMMIT_LEN, PROVENANCE_DATASET_LEN};
+use nemm_kernels::emm::EmmConstants;
+pub(crate) use nemm_kernels::error::ModelError;
+use nemm_kernels::error::UnknownName;
+use nemm_kernels::integrator::Integrator;
+use nemm_kernels::limits::{MAX_CONDITION_NAME, MAX_CONDITION_UNIT, SCALE_RANGE};
+use nemm_kernels::lost_motion::LostMotion;
+use nemm_kernels::mlp::{AlphaBranch, BranchError, Direction, Scaler, DEFAULT_PARAM_CAPACITY};
+use nemm_kernels::sem::SemMap;
+use nemm_kernels::static_force::StaticForce;
 use serde::{Deserialize, Serialize};
 
 mod condition;
@@ -154,7 +152,7 @@ pub enum Body<const P: usize> {
 }
 
 /// A complete model. `P` is the parameter capacity per scaler (see
-/// [`crate::mlp::param_count`]); the default holds every model of the Table 3 search space.
+/// [`nemm_kernels::mlp::param_count`]); the default holds every model of the Table 3 search space.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     /// Integration scheme.
@@ -168,7 +166,7 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     /// Variant-specific parameters.
     pub body: Body<P>,
     /// The degradation condition `alpha` stands for and its declared priors. Format
-    /// version 3 and later, encoded after the body (see [`crate::format`]); earlier blobs
+    /// version 3 and later, encoded after the body (see [`crate::encode`]); earlier blobs
     /// decode with [`Condition::default`] (oil loss, the paper's priors).
     #[serde(skip)]
     pub condition: Condition,
@@ -180,11 +178,11 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     #[serde(skip)]
     pub provenance: Provenance,
     /// The static force `r` of eq. 17 (gas force and seal friction, see
-    /// [`crate::static_force`]) added to the EMM force; `None`: no static force (the
+    /// [`nemm_kernels::static_force`]) added to the EMM force; `None`: no static force (the
     /// paper's model). Refused on the SEM. Version 4; `None` in earlier blobs.
     #[serde(skip)]
     pub static_force: Option<StaticForce>,
-    /// The lost-motion element ([`crate::semantics::lost_motion`]): free gas in series with
+    /// The lost-motion element ([`nemm_kernels::lost_motion`]): free gas in series with
     /// `k_pr`, whose travel grows with `alpha`; `None`: the paper's `k_pr`. Refused on the
     /// SEM. Version 5; `None` in earlier blobs.
     #[serde(skip)]

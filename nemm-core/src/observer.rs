@@ -73,10 +73,10 @@ use crate::estimator::{
     BankMember, Estimator, EstimatorConfig, EstimatorError, LevelTables, LevelsError,
 };
 use crate::limits::DEFAULT_OBSERVER_POINTS;
-use crate::math;
-use crate::mlp::DEFAULT_PARAM_CAPACITY;
 use crate::model::Model;
 use core::fmt;
+use nemm_kernels::math;
+use nemm_kernels::mlp::DEFAULT_PARAM_CAPACITY;
 
 /// Default forgetting horizon \[s\] ([`ObserverConfig::horizon_s`]).
 pub const DEFAULT_HORIZON_S: f32 = 2.0;

@@ -4,11 +4,13 @@
 //! freshly built scaler (output bias at the identity logit), on physically plausible
 //! passenger-car constants. They are not trained models.
 
-use crate::emm::EmmConstants;
-use crate::integrator::Integrator;
-use crate::mlp::{branch_param_count, param_count, AlphaBranch, Direction, MlpParams, Scaler};
 use crate::model::{AlphaBranches, Body, Condition, InputScales, Meta, Model, ModelKind, Priors};
-use crate::sem::SemMap;
+use nemm_kernels::emm::EmmConstants;
+use nemm_kernels::integrator::Integrator;
+use nemm_kernels::mlp::{
+    branch_param_count, param_count, AlphaBranch, Direction, MlpParams, Scaler,
+};
+use nemm_kernels::sem::SemMap;
 
 /// Constants of the examples: `b_fl` 2500 N s/m, `b_pr` 1500 N s/m, `k_pr` 4e5 N/m,
 /// `T_pr` 2 ms.
@@ -165,7 +167,7 @@ pub fn example_branch(
 ) -> Option<AlphaBranch> {
     let n = branch_param_count(state_inputs as usize, units as usize);
     let k = units as usize;
-    let p: heapless::Vec<f32, { crate::mlp::BRANCH_CAPACITY }> = (0..n)
+    let p: heapless::Vec<f32, { nemm_kernels::mlp::BRANCH_CAPACITY }> = (0..n)
         .map(|i| {
             let u = hash_unit(700_000 + i as u64, seed);
             let in_theta_u =
@@ -242,12 +244,15 @@ pub fn example_blob() -> heapless::Vec<u8, EXAMPLE_BLOB_CAPACITY> {
 /// The raw network output `z` of a compiled scaler at state input `u` as the estimator
 /// computes it: the Arm FPU kernel where there is one for the scaler's width, the portable
 /// code otherwise.
-pub fn scaler_raw<const P: usize>(scaler: &crate::mlp::CompiledScaler<P>, u: f32) -> f32 {
+pub fn scaler_raw<const P: usize>(scaler: &nemm_kernels::mlp::CompiledScaler<P>, u: f32) -> f32 {
     scaler.raw(u)
 }
 
 /// The portable evaluation of [`scaler_raw`]: the reference the Arm kernel must match bit for
 /// bit.
-pub fn scaler_raw_portable<const P: usize>(scaler: &crate::mlp::CompiledScaler<P>, u: f32) -> f32 {
+pub fn scaler_raw_portable<const P: usize>(
+    scaler: &nemm_kernels::mlp::CompiledScaler<P>,
+    u: f32,
+) -> f32 {
     scaler.raw_portable(u)
 }

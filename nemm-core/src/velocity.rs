@@ -20,7 +20,7 @@
 //! recorded stroke to train on the velocity the firmware sees. Both are `f32`, as on the
 //! target.
 
-use crate::math::fma;
+use nemm_kernels::math::fma;
 
 /// Default corner frequency of the velocity low-pass \[Hz\].
 pub const DEFAULT_CUTOFF_HZ: f32 = 500.0;

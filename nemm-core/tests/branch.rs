@@ -5,13 +5,13 @@
 mod common;
 
 use common::blob_of;
-use nemm_core::model::{ModelError, Priors};
-use nemm_core::semantics::mlp::{AlphaBranch, BranchError, CompiledScaler, Direction};
 use nemm_core::testing::{example_branch, example_model_with_branches};
 use nemm_core::{
     decode, encode, Body, Condition, DecodeError, Estimator, EstimatorConfig, EvalMode, Model,
     TableConfig,
 };
+use nemm_core::{ModelError, Priors};
+use nemm_kernels::mlp::{AlphaBranch, BranchError, CompiledScaler, Direction};
 use proptest::prelude::*;
 
 const P: usize = 1400;
@@ -305,7 +305,7 @@ fn decoder_refuses_a_blob_with_a_corrupt_branch() {
         .rposition(|w| w == last)
         .expect("the last branch parameter is in the blob");
     bad[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
-    let crc = nemm_core::format::CRC.checksum(&bad[..n]);
+    let crc = nemm_core::CRC.checksum(&bad[..n]);
     bad[n..].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(
         decode::<P>(&bad).unwrap_err(),

@@ -5,13 +5,13 @@
 mod common;
 
 use common::{boxed, example, reference_run, stroke, table1_grid, KINDS, P};
-use nemm_core::model::{ModelError, STABILITY_MARGIN};
-use nemm_core::semantics::emm::{Coefficients, State};
-use nemm_core::semantics::integrator::{self, StepSize};
 use nemm_core::DEFAULT_TABLE_SEGMENTS;
 use nemm_core::{
     Body, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags, Integrator, Model, ModelKind,
 };
+use nemm_core::{ModelError, STABILITY_MARGIN};
+use nemm_kernels::emm::{Coefficients, State};
+use nemm_kernels::integrator::{self, StepSize};
 use proptest::prelude::*;
 use std::f32::consts::TAU;
 

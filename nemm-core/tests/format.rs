@@ -6,13 +6,13 @@
 mod common;
 
 use common::{blob_of, craft_blob, fix_crc, ModelSpec, KINDS, P};
-use nemm_core::format::{CRC_LEN, MAX_HEADER_LEN};
-use nemm_core::model::ModelError;
-use nemm_core::semantics::mlp::ShapeError;
+use nemm_core::ModelError;
 use nemm_core::{
     decode, encode, read_header, Body, DecodeError, EncodeError, Estimator, EstimatorConfig, Model,
     ModelKind, FORMAT_VERSION,
 };
+use nemm_core::{CRC_LEN, MAX_HEADER_LEN};
+use nemm_kernels::mlp::ShapeError;
 use proptest::prelude::*;
 
 /// Small models of every kind (scalers 2 wide, 1 deep): blobs of 40 to 500 bytes whose every
@@ -53,10 +53,7 @@ fn layout_is_header_body_crc() {
         let header_len = blob.len() - h.body_len as usize - CRC_LEN;
         assert!(header_len <= MAX_HEADER_LEN);
         let crc = u32::from_le_bytes(blob[blob.len() - 4..].try_into().unwrap());
-        assert_eq!(
-            crc,
-            nemm_core::format::CRC.checksum(&blob[..blob.len() - 4])
-        );
+        assert_eq!(crc, nemm_core::CRC.checksum(&blob[..blob.len() - 4]));
     }
 }
 
@@ -66,7 +63,7 @@ fn layout_is_header_body_crc() {
 fn encode_into_every_buffer_length() {
     for m in small_models() {
         let blob = blob_of(&m);
-        let need = nemm_core::format::encoded_len(&m).unwrap();
+        let need = nemm_core::encoded_len(&m).unwrap();
         assert_eq!(need, blob.len());
         let mut buf = vec![0u8; need + 8];
         for n in 0..buf.len() {
@@ -551,7 +548,7 @@ fn check_old_blobs(dir: &std::path::Path, version: u16) {
 /// provenance holds a control character is refused with the field named.
 #[test]
 fn provenance_round_trips_and_is_validated() {
-    use nemm_core::model::{Provenance, PROVENANCE_COMMIT_LEN};
+    use nemm_core::{Provenance, PROVENANCE_COMMIT_LEN};
     let mut model: Model<1400> = nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
     let long_commit = "0123456789abcdef".repeat(8);
     model.provenance = Provenance::new(
@@ -645,7 +642,7 @@ fn static_force_round_trips_and_is_validated() {
 /// version-3 blob decoded into a model with a static force leaves none.
 #[test]
 fn static_force_decodes_in_place_with_the_version_3_fields() {
-    use nemm_core::model::{Priors, Provenance};
+    use nemm_core::{Priors, Provenance};
     let sf = nemm_core::testing::EXAMPLE_STATIC_FORCE;
     let mut m: Model<1400> =
         nemm_core::testing::example_model_with_branches(16, 5, 4, Priors::PAPER).unwrap();

@@ -5,9 +5,9 @@
 //! (see `frequency_response.rs`), so the order is measured on the free decay, and the hold on
 //! a ramp, which it represents exactly.
 
-use nemm_core::semantics::emm::{Coefficients, State};
-use nemm_core::semantics::integrator::{self, StepSize};
 use nemm_core::Integrator;
+use nemm_kernels::emm::{Coefficients, State};
+use nemm_kernels::integrator::{self, StepSize};
 
 /// Example constants (`b_fl` 2500, `b_pr` 1500 N s/m, `k` 4e5 N/m): `a = k / B` = 100 1/s.
 const C: Coefficients = Coefficients {

@@ -7,12 +7,12 @@
 mod common;
 
 use common::blob_with_tables;
-use nemm_core::semantics::emm::State;
 use nemm_core::testing::example_model_with_branches;
 use nemm_core::{
     decode_into, AlphaObserver, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags,
     LevelTables, LevelsError, Model, ModelKind, ObserverConfig, Priors, TableConfig,
 };
+use nemm_kernels::emm::State;
 
 const P: usize = 1400;
 const T: usize = 128;

@@ -6,7 +6,7 @@
 mod common;
 
 use common::with_big_stack;
-use nemm_core::velocity::LowPass;
+use nemm_core::LowPass;
 use nemm_core::{
     decode, AlphaEstimate, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model,
     ObserverConfig, ObserverError, ObserverFlags, Priors, TableConfig,

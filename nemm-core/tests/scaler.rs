@@ -5,7 +5,7 @@
 mod common;
 
 use common::ScalerSpec;
-use nemm_core::semantics::mlp::{
+use nemm_kernels::mlp::{
     param_count, CompiledScaler, MlpParams, Scaler, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, MAX_HIDDEN,
     MAX_LAYERS,
 };

@@ -6,8 +6,8 @@
 mod common;
 
 use common::{blob_of, blob_with_tables, fix_crc};
-use nemm_core::format::tables::MAX_TABLE_LEVELS;
-use nemm_core::format::CRC_LEN;
+use nemm_core::CRC_LEN;
+use nemm_core::MAX_TABLE_LEVELS;
 use nemm_core::{
     decode, decode_into, decode_with_tables, read_header, DecodeError, EncodeError, Estimator,
     EstimatorConfig, EvalMode, Model, ModelKind, StoredUnused, TableConfig, TableOrigin,

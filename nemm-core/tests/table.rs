@@ -5,12 +5,12 @@
 mod common;
 
 use common::{boxed, example, stroke, table1_grid, P};
-use nemm_core::semantics::mlp::CompiledScaler;
-use nemm_core::semantics::table::Table1D;
 use nemm_core::{
     Body, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, Model, ModelKind,
     TableConfig, TableError,
 };
+use nemm_kernels::mlp::CompiledScaler;
+use nemm_kernels::table::Table1D;
 use proptest::prelude::*;
 
 /// Segments of the tables in the property tests (the estimator's default).
@@ -20,7 +20,7 @@ const T: usize = nemm_core::DEFAULT_TABLE_SEGMENTS;
 /// half-width of their default table domain.
 fn state_scalers(m: &Model<P>, alpha: f32) -> Vec<(&'static str, CompiledScaler<P>, f32)> {
     let sc = &m.scales;
-    let margin = nemm_core::semantics::table::DEFAULT_DOMAIN_MARGIN;
+    let margin = nemm_kernels::table::DEFAULT_DOMAIN_MARGIN;
     let mut v = Vec::new();
     if let Body::NemmLight { emm, b_fl } | Body::Nemm { emm, b_fl, .. } = &m.body {
         let c = CompiledScaler::compile(b_fl, emm.b_fl_ns_per_m, sc.velocity_m_s, alpha, sc.alpha)
@@ -140,7 +140,7 @@ proptest! {
             )) => return Ok(()),
             Err(e) => return Err(TestCaseError::fail(format!("{e}"))),
         };
-        let margin = nemm_core::semantics::table::DEFAULT_DOMAIN_MARGIN;
+        let margin = nemm_kernels::table::DEFAULT_DOMAIN_MARGIN;
         let (vd, xd) = (margin * m.scales.velocity_m_s, margin * m.scales.x_pr_m);
         let neural = matches!(m.kind(), ModelKind::NemmLight | ModelKind::Nemm);
         for &u in &inputs {

@@ -137,7 +137,7 @@ pub fn load_cell_calibration() -> loadcell::Calibration {
 }
 
 /// Levels of the alpha observer's grid: nemm-core's default (7).
-pub const OBSERVER_LEVELS: usize = nemm_core::limits::DEFAULT_OBSERVER_POINTS;
+pub const OBSERVER_LEVELS: usize = nemm_core::DEFAULT_OBSERVER_POINTS;
 
 /// The alpha observer of the bench-controller build: the one place its type is chosen (the
 /// application, the step benchmark and the host tests' reference all use this): nemm-core's

@@ -279,7 +279,7 @@ mod tests {
         bytes.extend_from_slice(&1.0f32.to_bits().to_le_bytes());
         bytes.extend_from_slice(&(-2.0f32).to_bits().to_le_bytes());
         bytes.extend_from_slice(&[5, FW_PRIMING]);
-        assert_eq!(d.finish(), nemm_core::format::CRC.checksum(&bytes));
+        assert_eq!(d.finish(), nemm_core::CRC.checksum(&bytes));
         assert_eq!(d.steps(), 0);
         // A fresh chunk after finish.
         let empty = ChunkDigest::new().finish();
@@ -287,7 +287,7 @@ mod tests {
         let mut all = std::vec::Vec::new();
         all.extend_from_slice(&7u32.to_le_bytes());
         all.extend_from_slice(&9u32.to_le_bytes());
-        assert_eq!(run_digest([7, 9]), nemm_core::format::CRC.checksum(&all));
+        assert_eq!(run_digest([7, 9]), nemm_core::CRC.checksum(&all));
     }
 
     #[test]
@@ -313,6 +313,6 @@ mod tests {
             bytes.extend_from_slice(&v.to_bits().to_le_bytes());
         }
         bytes.push(0x21);
-        assert_eq!(d.finish(), nemm_core::format::CRC.checksum(&bytes));
+        assert_eq!(d.finish(), nemm_core::CRC.checksum(&bytes));
     }
 }

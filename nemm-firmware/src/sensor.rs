@@ -24,7 +24,7 @@
 //! # Differentiation filter
 //!
 //! The paper's bench computes velocity by numerical differentiation of the measured stroke
-//! (section 3). Here the codes go through [`nemm_core::velocity::Differentiator`]: a
+//! (section 3). Here the codes go through [`nemm_core::Differentiator`]: a
 //! backward difference of the integer codes (exact) times `metres_per_lsb * fs`, followed by
 //! a first-order low-pass (backward-Euler RC, corner [`Calibration::cutoff_hz`], default
 //! [`DEFAULT_CUTOFF_HZ`]: 0.37 ms of group delay at 10 kHz, 4 degrees of phase at 30 Hz; see
@@ -45,7 +45,7 @@ pub const READ_DATA_COMMAND: u8 = 0x44;
 pub const ZERO_CODE: i32 = 0x80_0000;
 /// Largest result code.
 pub const MAX_CODE: i32 = 0xFF_FFFF;
-pub use nemm_core::velocity::{Differentiator, DEFAULT_CUTOFF_HZ};
+pub use nemm_core::{Differentiator, DEFAULT_CUTOFF_HZ};
 
 /// One conversion result as it arrives on the bus.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

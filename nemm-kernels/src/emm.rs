@@ -54,7 +54,7 @@
 //!
 //! With constant parameters the eigenvalues are `-k_pr / (b_pr + b_fl)` and `-1 / T_pr`, so
 //! the fastest time constant is `min((b_pr + b_fl) / k_pr, T_pr)` (see
-//! [`crate::model::Model::fastest_time_constant_s`]).
+//! nemm-core's `Model::fastest_time_constant_s`).
 
 use crate::math::{Fused, Lane, MulAdd};
 use serde::{Deserialize, Serialize};
@@ -132,7 +132,6 @@ pub struct Coefficients<L = f32> {
     pub k_pr: L,
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// Velocity across the flow element, `q = (k_pr x_pr + b_pr u) / (b_pr + b_fl)` \[m/s\].
 #[inline(always)]
 pub fn flow_velocity(c: &Coefficients, x_pr: f32, u: f32) -> f32 {
@@ -167,7 +166,6 @@ pub fn flow_velocity_backward<L: Lane>(
     numbar * c.k_pr
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// State derivative `[xdot_pr, vdot_st]` (eq. 16 with the parameters of `c`; `inv_t_pr` is
 /// `1 / T_pr` in 1/s).
 #[inline(always)]

@@ -3,8 +3,8 @@
 //! carries). They sit below every other module, so that the parts of a model (`mlp`,
 //! `integrator`, `sem`, `static_force`) report in the same terms as the model and the
 //! decoder without reaching up to them. Errors of one layer only stay with it:
-//! [`crate::DecodeError`] and [`crate::EncodeError`] (the weight format),
-//! [`crate::TableError`] (the tables), [`crate::EstimatorError`].
+//! nemm-core's `DecodeError` and `EncodeError` (the weight format) and `EstimatorError`;
+//! [`crate::table::TableError`] (the tables).
 
 use crate::limits::{
     MAX_BRANCH_UNITS, MAX_CONDITION_NAME, MAX_CONDITION_UNIT, MAX_HIDDEN, MAX_INPUTS, MAX_LAYERS,
@@ -12,8 +12,8 @@ use crate::limits::{
 };
 use core::fmt;
 
-/// A name that is none of the accepted spellings of a [`crate::ModelKind`], an
-/// [`crate::Integrator`] or a [`crate::mlp::Direction`] (their `name()`).
+/// A name that is none of the accepted spellings of a nemm-core `ModelKind`, an
+/// [`crate::integrator::Integrator`] or a [`crate::mlp::Direction`] (their `name()`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct UnknownName {
     /// What was being parsed (`model kind`, `integrator`, `monotonicity direction`).
@@ -66,7 +66,7 @@ pub enum BranchError {
     },
     /// A parameter is NaN or infinite.
     NonFinite,
-    /// The direction is [`crate::Direction::None`] (a coefficient without a prior has no branch).
+    /// The direction is [`crate::mlp::Direction::None`] (a coefficient without a prior has no branch).
     NoDirection,
     /// The number of state inputs does not match the scaler's role (1 for `b_fl` and
     /// `k_pr`, 0 for `b_pr`).
@@ -147,10 +147,10 @@ pub enum ModelError {
         /// Which field.
         field: &'static str,
     },
-    /// A static force ([`crate::Model::static_force`]) on the SEM, whose map already holds
+    /// A static force (nemm-core's `Model::static_force`) on the SEM, whose map already holds
     /// every force of its data.
     StaticForceOnSem,
-    /// A lost-motion element ([`crate::Model::lost_motion`]) on the SEM, which has no
+    /// A lost-motion element (nemm-core's `Model::lost_motion`) on the SEM, which has no
     /// pressure stiffness.
     LostMotionOnSem,
     /// A scale outside [`SCALE_RANGE`].
@@ -209,7 +209,7 @@ pub enum ModelError {
         tau_min_s: f32,
         /// Longest acceptable step \[s\].
         max_dt_s: f32,
-        /// The integration scheme's name ([`crate::Integrator::name`]).
+        /// The integration scheme's name ([`crate::integrator::Integrator::name`]).
         integrator: &'static str,
     },
 }

@@ -31,7 +31,6 @@
 //! output evaluation at the same state, so they are passed in and never recomputed.
 
 use crate::emm::{self, Coefficients, State};
-#[cfg(any(test, feature = "semantics"))]
 use crate::math::Fused;
 use crate::math::{Lane, MulAdd};
 use serde::{Deserialize, Serialize};
@@ -106,11 +105,9 @@ impl Integrator {
     }
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// Most stages [`step_tableau`] runs.
 pub const MAX_TABLEAU_STAGES: usize = 8;
 
-#[cfg(any(test, feature = "semantics"))]
 /// One explicit Runge-Kutta step of any `tableau` (at most [`MAX_TABLEAU_STAGES`] stages;
 /// further stages are ignored) from `x` with input `u0` at the start and `u1` at the end,
 /// `dt` \[s\], `inv_t_pr = 1 / T_pr` \[1/s\], the coefficients at each stage's state from
@@ -194,11 +191,9 @@ pub trait Stage<L = f32> {
     fn coeffs(&mut self, s: &State<L>) -> Coefficients<L>;
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// A closure as a [`Stage`].
 struct FromFn<C>(C);
 
-#[cfg(any(test, feature = "semantics"))]
 impl<C: FnMut(&State) -> Coefficients> Stage for FromFn<C> {
     #[inline(always)]
     fn coeffs(&mut self, s: &State) -> Coefficients {
@@ -206,7 +201,6 @@ impl<C: FnMut(&State) -> Coefficients> Stage for FromFn<C> {
     }
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// One step from `x` (at which the coefficients are `c1`) with input `u0` at the start and
 /// `u1` at the end. `coeffs` evaluates the coefficients at an intermediate state;
 /// `inv_t_pr` is `1 / T_pr` \[1/s\]. Fused multiply-adds (the reference arithmetic).

@@ -29,7 +29,7 @@
 //! `0 < g <= 1`; at `x_pr = 0`, `g = c / (c + d)` (finite: the element is smooth in
 //! `x_pr` on each side); for `|x_pr| >> d`, `g -> 1`. The tangent stiffness `df/dx_pr` never
 //! exceeds `k_l` (`dx_pr/df >= 1/k_l`), so the stability bound of the model
-//! ([`crate::model`]: `k_pr,ini s_max,k`) holds with the element. With `d = 0` the element
+//! (nemm-core's model: `k_pr,ini s_max,k`) holds with the element. With `d = 0` the element
 //! is the paper's `k_pr` exactly (`g = 1`).
 //!
 //! `B + sqrt(...)` loses digits when `B` is much below zero (a deflection far beyond the
@@ -186,7 +186,6 @@ impl<L: Lane> LostMotionAt<L> {
 
 /// The spring force `k_eff x_pr` \[N\] of the element at deflection `x_pr` for the liquid
 /// stiffness `k_l` (a check of the closed form: it solves the module's `x_pr(f)`).
-#[cfg(any(test, feature = "semantics"))]
 pub fn spring_force<L: Lane>(at: &LostMotionAt<L>, k_l: L, x_pr: L) -> L {
     at.k_eff(k_l, x_pr) * x_pr
 }

@@ -36,10 +36,9 @@ use core::ops::{Add, Div, Mul, Neg, Sub};
 
 #[cfg(not(any(feature = "libm", feature = "micromath")))]
 compile_error!(
-    "nemm-core needs a math backend: enable the `libm` (default) or `micromath` feature"
+    "nemm-kernels needs a math backend: enable the `libm` (default) or `micromath` feature"
 );
 
-#[cfg(any(test, feature = "semantics"))]
 /// Name of the math backend this build uses (`"libm"` or `"micromath"`), for reports.
 pub const BACKEND: &str = if cfg!(feature = "micromath") {
     "micromath"
@@ -73,7 +72,6 @@ pub fn rsqrt(x: f32) -> f32 {
     }
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// Logistic sigmoid `1 / (1 + e^-z)`; `0` for `z -> -inf`, `1` for `z -> +inf`, never NaN
 /// for non-NaN `z`.
 #[inline(always)]
@@ -294,7 +292,6 @@ macro_rules! scalar_lane {
 
 scalar_lane!(f32);
 // `f64` as one lane: the reference arithmetic of tests and tools.
-#[cfg(any(test, feature = "semantics"))]
 scalar_lane!(f64);
 
 #[cfg(feature = "reverse")]

@@ -11,7 +11,7 @@
 //! and the physical parameter is `p = p_ini * s(z)` (eq. 18), e.g.
 //! `b_fl(v_st, alpha) = b_fl,ini * s_fl(v_st / v_scale, alpha / alpha_scale)`. Because `s` can
 //! neither vanish nor explode, the EMM time constants stay inside bounds that the weight
-//! decoder checks against the integrator's stability limit (see [`crate::model`]).
+//! decoder checks against the integrator's stability limit (see nemm-core's model).
 //!
 //! # Parameter layout (the weight format's `params` vector)
 //!
@@ -77,16 +77,11 @@ pub use compiled::*;
 pub use layers::*;
 pub use params::*;
 
+pub use branch::{branch_param_count, BranchView, BRANCH_CAPACITY};
 pub use branch::{AlphaBranch, BranchError, CompiledBranch, Direction, MAX_BRANCH_UNITS};
 pub use layout::{BranchLayout, ScalerLayout};
-pub use pass::ScalerView;
-// The trainer's and the tools' entry points (the `semantics` feature).
-#[cfg(any(test, feature = "semantics"))]
-pub use branch::{branch_param_count, BranchView, BRANCH_CAPACITY};
-#[cfg(any(test, feature = "semantics"))]
 pub use layout::{BranchRanges, LayerRanges};
-#[cfg(any(test, feature = "semantics"))]
-pub use pass::{Folded, Tape, TapeMut};
+pub use pass::{Folded, ScalerView, Tape, TapeMut};
 
 /// Negative-side slope of the LeakyReLU activation (PyTorch and burn default).
 pub const LEAKY_RELU_SLOPE: f32 = 0.01;
@@ -150,7 +145,7 @@ impl<const P: usize> Scaler<P> {
     }
 
     /// The value of [`Scaler::empty`] as a constant.
-    pub(crate) const EMPTY: Self = Self {
+    pub const EMPTY: Self = Self {
         mlp: MlpParams {
             inputs: 0,
             hidden: 0,

@@ -4,7 +4,7 @@
 //! The map holds forces on a rectangular grid: `velocities_m_s` (strictly increasing, at least
 //! 2) x `alphas` (strictly increasing, at least 1). Evaluation is piecewise linear in velocity
 //! with linear extrapolation from the end segments, and piecewise linear in `alpha`, clamped
-//! to the grid's alpha range (a flag reports the clamp, see [`crate::estimator::Flags`]).
+//! to the grid's alpha range (a flag reports the clamp, see nemm-core's estimator flags).
 
 pub use crate::error::SemError;
 pub use crate::limits::{MAX_SEM_ALPHAS, MAX_SEM_FORCES, MAX_SEM_VELOCITIES};

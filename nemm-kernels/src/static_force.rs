@@ -133,8 +133,19 @@ impl StaticForce {
 mod tests {
     use super::*;
 
+    /// Gas offset -90 N at x_ref = 30 mm, gas spring 800 N/m, seal friction 15 N smoothed
+    /// over 5 mm/s, both gas terms depending on alpha (nemm-core's
+    /// `testing::EXAMPLE_STATIC_FORCE`).
     fn example() -> StaticForce {
-        crate::testing::EXAMPLE_STATIC_FORCE
+        StaticForce {
+            f_gas0_n: -90.0,
+            f_gas0_per_alpha_n: 20.0,
+            k_gas_n_per_m: 800.0,
+            k_gas_per_alpha_n_per_m: -200.0,
+            x_ref_m: 0.03,
+            f_c_n: 15.0,
+            v_c_m_s: 0.005,
+        }
     }
 
     #[test]

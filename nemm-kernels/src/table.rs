@@ -4,7 +4,7 @@
 //! changes over months and is reconfigured on service), so for a fixed `alpha` every NEMM
 //! coefficient is a function of one state variable: `b_fl(v_st)`, `k_pr(x_pr)`, and `b_pr` a
 //! constant. [`Table1D`] replaces the 5-layer MLP behind such a function by a piecewise cubic
-//! with knots at the MLP's kinks; [`crate::Estimator`] uses it in [`crate::EvalMode::Table`].
+//! with knots at the MLP's kinks; nemm-core's `Estimator` uses it in `EvalMode::Table`.
 //!
 //! # Interpolation: cubic Hermite, knots at the kinks, uniform lookup
 //!
@@ -84,7 +84,7 @@
 //! 0): a run at the training extremes overshoots them slightly in `v_st` and `x_pr`, and the
 //! margin keeps such runs inside the table. Outside, the coefficient stays at its boundary
 //! value (finite and inside the scaler's bounds: the value at `lo` or `hi`, as if the input
-//! were clamped) and the estimator sets [`crate::Flags::OUT_OF_TABLE_DOMAIN`].
+//! were clamped) and the estimator sets `Flags::OUT_OF_TABLE_DOMAIN`.
 
 use crate::mlp::CompiledScaler;
 use crate::wire::Writer;
@@ -95,7 +95,7 @@ mod stored;
 
 pub use kinks::REFINE_POINTS_PER_SEGMENT;
 use kinks::*;
-pub(crate) use stored::*;
+pub use stored::*;
 
 /// Default number of segments of a table: 256 (7 KiB per table, 28 bytes per segment).
 pub const DEFAULT_TABLE_SEGMENTS: usize = 256;
@@ -130,7 +130,9 @@ impl TableConfig {
         }
     }
 
-    pub(crate) fn is_valid(&self) -> bool {
+    /// Whether the bound is finite and positive and the domain margin finite and at least
+    /// 1e-3 (what [`check_config`] checks).
+    pub fn is_valid(&self) -> bool {
         self.max_rel_error.is_finite()
             && self.max_rel_error > 0.0
             && self.domain_margin.is_finite()
@@ -334,7 +336,6 @@ impl<const P: usize> Tabulate for &CompiledScaler<P> {
 }
 
 impl<const N: usize> Table1D<N> {
-    #[cfg(any(test, feature = "semantics"))]
     /// Tabulates `exact` over `[lo, hi]`, measures the error on the check grid and refuses
     /// the table if it exceeds `max_rel_error` (`scaler` names the coefficient in errors).
     ///
@@ -764,7 +765,6 @@ impl<const N: usize> Table1D<N> {
         self.accuracy
     }
 
-    #[cfg(any(test, feature = "semantics"))]
     /// Cubic segments inside the domain (`N - 2`; the other two hold the boundary values).
     pub fn segments_used(&self) -> usize {
         N - 2
@@ -778,7 +778,7 @@ impl<const N: usize> Table1D<N> {
 }
 
 /// Checks a configuration (used by the estimator).
-pub(crate) fn check_config(cfg: &TableConfig) -> Result<(), TableError> {
+pub fn check_config(cfg: &TableConfig) -> Result<(), TableError> {
     if cfg.is_valid() {
         Ok(())
     } else {

@@ -276,7 +276,7 @@ fn is_blob(path: &Path) -> bool {
     let mut magic = [0u8; 4];
     std::fs::File::open(path)
         .and_then(|mut f| f.read_exact(&mut magic))
-        .is_ok_and(|()| magic == nemm_core::format::MAGIC)
+        .is_ok_and(|()| magic == nemm_core::MAGIC)
 }
 
 /// `path` given as `option` (e.g. `--out`) can be written as a file: it is not a folder, its

@@ -2,9 +2,9 @@
 mod support;
 
 use burn::tensor::Device;
-use nemm_core::semantics::emm::EmmConstants;
 use nemm_core::ModelKind;
 use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
+use nemm_kernels::emm::EmmConstants;
 use nemm_train::data::dataset::{Dataset, Run};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
 use nemm_train::train::adjoint::{Grid, RolloutParams};

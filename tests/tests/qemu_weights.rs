@@ -10,7 +10,7 @@
 //! Run by `cargo xtask test` (see `nemm_tests::firmware` for the environment it sets).
 
 use nemm_core::testing::example_model;
-use nemm_core::{decode, encode_to_vec, format, Model, ModelKind};
+use nemm_core::{decode, encode_to_vec, Model, ModelKind, CRC, CRC_LEN};
 use nemm_firmware::report::{self, Line, EXIT_BAD_WEIGHTS};
 use nemm_firmware::slot::{self, CAPACITY};
 use nemm_firmware::PARAM_CAPACITY;
@@ -84,8 +84,8 @@ fn built_in_blob() -> Vec<u8> {
 
 /// Rewrites the CRC trailer after editing a blob (so the edit reaches the later checks).
 fn fix_crc(blob: &mut [u8]) {
-    let n = blob.len() - format::CRC_LEN;
-    let crc = format::CRC.checksum(&blob[..n]);
+    let n = blob.len() - CRC_LEN;
+    let crc = CRC.checksum(&blob[..n]);
     blob[n..].copy_from_slice(&crc.to_le_bytes());
 }
 

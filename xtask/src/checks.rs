@@ -1,17 +1,22 @@
 //! The checks a published `no_std` crate needs beyond its tests: every valid feature
-//! combination of `nemm-core` on the host and on the target, and honest `rust-version`s.
+//! combination of `nemm-kernels` and `nemm-core` on the host and on the target, and honest
+//! `rust-version`s.
 
 use crate::toolchain::{Toolchain, TARGET};
 use crate::{cargo, run, Paths};
 use cargo_metadata::{semver, DependencyKind, Metadata, PackageId};
 use std::collections::{HashMap, HashSet};
 
-/// The math backends of `nemm-core`: a build needs at least one (`micromath` wins when both
-/// are on).
+/// The published `no_std` crates whose feature sets are checked: the kernels, then the
+/// runtime on them.
+const NO_STD_CRATES: [&str; 2] = ["nemm-kernels", "nemm-core"];
+
+/// The math backends of `nemm-kernels` (and of `nemm-core`, which passes them on): a build
+/// needs at least one (`micromath` wins when both are on).
 const BACKENDS: [&str; 3] = ["libm", "micromath", "libm,micromath"];
 
-/// Every valid feature combination of `nemm-core`: each backend set, with and without `std`
-/// (the host), and without `std` for the target.
+/// Every valid feature combination of `nemm-kernels` and `nemm-core`: each backend set, with
+/// and without `std` (the host), and without `std` for the target.
 pub fn host_feature_sets() -> Vec<String> {
     BACKENDS
         .iter()
@@ -19,53 +24,62 @@ pub fn host_feature_sets() -> Vec<String> {
         .collect()
 }
 
-/// `cargo xtask features`: `nemm-core`'s tests for every host feature set without `std`
-/// (release; the sets with `std` type-checked), then a build of the library for the target
-/// with every `no_std` set and with `reverse` (when a target toolchain is given). The tests always have `reverse` (the crate's own
-/// dev-dependency turns it on); the target builds check the library without it.
+/// `cargo xtask features`: the tests of `nemm-kernels` and `nemm-core` for every host
+/// feature set without `std` (release; the sets with `std` type-checked), then a build of
+/// each library for the target with every `no_std` set, and of `nemm-kernels` with `reverse`
+/// (when a target toolchain is given). The kernels' tests always have `reverse` (the crate's
+/// own dev-dependency turns it on); the target builds check the library without it.
 ///
 /// The integration and doc tests hold the exact backend's tolerances (their reference is
-/// computed with `libm`); with `micromath` on, the library's unit tests run and the examples
-/// build (the micromath error is measured by `cargo run -p nemm-core --example
+/// computed with `libm`); with `micromath` on, the libraries' unit tests run and nemm-core's
+/// examples build (the micromath error is measured by `cargo run -p nemm-core --example
 /// math_backends`).
 pub fn features(tc: Option<&Toolchain>, paths: &Paths) -> Result<(), String> {
-    for set in host_feature_sets() {
-        let mut c = cargo();
-        // `std` adds conveniences (encoding to a `Vec`, `Error` impls), not arithmetic: with
-        // it the library and its tests are type-checked; the tests run without it (and with
-        // the default `libm,std` in the workspace run).
-        let std = set.split(',').any(|f| f == "std");
-        c.args([
-            if std { "check" } else { "test" },
-            "--release",
-            "-p",
-            "nemm-core",
-            "--no-default-features",
-        ])
-        .args(["--features", &set]);
-        // The integration tests hold the exact backend's tolerances: with `micromath`, the
-        // library's unit tests and the examples.
-        if set.contains("micromath") {
-            c.args(["--lib", "--examples"]);
-        } else if std {
-            c.args(["--lib", "--tests"]);
+    for krate in NO_STD_CRATES {
+        for set in host_feature_sets() {
+            let mut c = cargo();
+            // `std` adds conveniences (encoding to a `Vec`, `Error` impls), not arithmetic:
+            // with it the library and its tests are type-checked; the tests run without it
+            // (and with the default `libm,std` in the workspace run).
+            let std = set.split(',').any(|f| f == "std");
+            c.args([
+                if std { "check" } else { "test" },
+                "--release",
+                "-p",
+                krate,
+                "--no-default-features",
+            ])
+            .args(["--features", &set]);
+            // The integration tests hold the exact backend's tolerances: with `micromath`,
+            // the library's unit tests (and nemm-core's examples).
+            if set.contains("micromath") {
+                c.arg("--lib");
+                if krate == "nemm-core" {
+                    c.arg("--examples");
+                }
+            } else if std {
+                c.args(["--lib", "--tests"]);
+            }
+            eprintln!(
+                "xtask: {krate} features {set} ({})",
+                if std { "host check" } else { "host tests" }
+            );
+            run(c.current_dir(&paths.root))?;
         }
-        eprintln!(
-            "xtask: nemm-core features {set} ({})",
-            if std { "host check" } else { "host tests" }
-        );
-        run(c.current_dir(&paths.root))?;
     }
     match tc {
         Some(tc) => {
             let target_dir = paths.target.join("nemm-core-features");
-            // `reverse` (the trainer's reverse mode) stays `no_std` too.
-            for set in BACKENDS.into_iter().chain(["libm,reverse"]) {
-                eprintln!("xtask: nemm-core features {set} (build for {TARGET})");
-                run(tc
-                    .cargo("build", &paths.root, &target_dir)
-                    .args(["--release", "-p", "nemm-core", "--lib", "--target", TARGET])
-                    .args(["--no-default-features", "--features", set]))?;
+            for krate in NO_STD_CRATES {
+                // `reverse` (the trainer's reverse mode of the kernels) stays `no_std` too.
+                let reverse = (krate == "nemm-kernels").then_some("libm,reverse");
+                for set in BACKENDS.into_iter().chain(reverse) {
+                    eprintln!("xtask: {krate} features {set} (build for {TARGET})");
+                    run(tc
+                        .cargo("build", &paths.root, &target_dir)
+                        .args(["--release", "-p", krate, "--lib", "--target", TARGET])
+                        .args(["--no-default-features", "--features", set]))?;
+                }
             }
         }
         None => eprintln!("xtask: no target toolchain: the target builds of the features skipped"),

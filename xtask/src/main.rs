@@ -6,7 +6,7 @@
 //!   trainer), the
 //!   QEMU tests (`tests/tests/qemu_*.rs`, ignored by a plain `cargo test`) pointed at the
 //!   images, the firmware library's host unit tests, `nemm sweep` through a one-node Slurm
-//!   ([`slurm`]), nemm-core's feature sets on the host and the target (`features`), the
+//!   ([`slurm`]), nemm-kernels' and nemm-core's feature sets on the host and the target (`features`), the
 //!   `rust-version` check (`msrv`), a short `bench-target`, and the C interface: the host C
 //!   unit test and the C example on the Cortex-M4F against the firmware ([`c_interface`]).
 //! - `cargo xtask build-board`: the STM32F407 image (`boards/nemm-stm32f407`), as flashed and
@@ -58,7 +58,7 @@ struct Cli {
 enum Cmd {
     /// Every test: the firmware (target build, lint), the host workspace (release, and the
     /// default debug profile for the crates that do not depend on the trainer), the QEMU tests,
-    /// nemm-core's feature sets (`features`), the rust-version check (`msrv`), a short
+    /// nemm-kernels' and nemm-core's feature sets (`features`), the rust-version check (`msrv`), a short
     /// bench-target, the C interface (`c-test`), `nemm sweep` through a one-node Slurm
     /// (skipped with a message without root or slurm-wlm and munge).
     Test {
@@ -212,8 +212,8 @@ enum Cmd {
     },
     /// Regenerate the C header `nemm-c/include/nemm.h` from nemm-c (cbindgen).
     CHeader,
-    /// nemm-core's tests with every valid feature set on the host, and its library built for
-    /// the target with every `no_std` set.
+    /// nemm-kernels' and nemm-core's tests with every valid feature set on the host, and their
+    /// libraries built for the target with every `no_std` set.
     Features,
     /// Check that every workspace package's `rust-version` is at least what every crate it
     /// compiles declares (one `rust-version package=..` line each).
@@ -551,7 +551,14 @@ const QEMU_TESTS_AN500: [&str; 6] = [
 
 /// The crates whose tests `cargo xtask test` also runs in the default (debug) profile: those
 /// that do not depend on nemm-train (and so on burn).
-const DEBUG_PROFILE_CRATES: [&str; 5] = ["nemm-core", "nemm-c", "nemm-slot", "nemm-elf", "xtask"];
+const DEBUG_PROFILE_CRATES: [&str; 6] = [
+    "nemm-kernels",
+    "nemm-core",
+    "nemm-c",
+    "nemm-slot",
+    "nemm-elf",
+    "xtask",
+];
 
 fn test(host_only: bool) -> Result<(), String> {
     let started = Instant::now();

@@ -1,6 +1,6 @@
 //! Shared code of the decoder fuzz targets and the seed writer.
 
-use nemm_core::format::CRC;
+use nemm_core::CRC;
 use nemm_core::{
     decode, encode_to_vec, read_header, DecodeError, Estimator, EstimatorConfig, Header, Model,
     ModelKind, DEFAULT_PARAM_CAPACITY, FORMAT_VERSION,
@@ -63,13 +63,13 @@ const KINDS: [ModelKind; 4] = [
 pub fn wrap_body(data: &[u8]) -> Option<Vec<u8>> {
     let (&[kind, lo, hi], body) = data.split_first_chunk::<3>()?;
     let header = Header {
-        magic: nemm_core::format::MAGIC,
+        magic: nemm_core::MAGIC,
         version: FORMAT_VERSION,
         kind: KINDS[usize::from(kind) % 4],
         max_scaler_params: u32::from(u16::from_le_bytes([lo, hi])),
         body_len: u32::try_from(body.len()).ok()?,
     };
-    let mut hbuf = [0u8; nemm_core::format::MAX_HEADER_LEN];
+    let mut hbuf = [0u8; nemm_core::MAX_HEADER_LEN];
     let mut out = postcard::to_slice(&header, &mut hbuf).ok()?.to_vec();
     out.extend_from_slice(body);
     let crc = CRC.checksum(&out);
@@ -83,7 +83,7 @@ pub fn unwrap_body(blob: &[u8]) -> Option<Vec<u8>> {
     let body_len = h.body_len as usize;
     let header_len = blob
         .len()
-        .checked_sub(body_len + nemm_core::format::CRC_LEN)?;
+        .checked_sub(body_len + nemm_core::CRC_LEN)?;
     let kind = KINDS.iter().position(|&k| k == h.kind)? as u8;
     let max = u16::try_from(h.max_scaler_params).ok()?.to_le_bytes();
     let mut out = vec![kind, max[0], max[1]];

@@ -32,7 +32,7 @@ pub fn encoded_len_with_tables<const P: usize, const T: usize>(
 
 /// Encodes a validated model with precomputed fast-path tables: the tables of each
 /// estimator of `levels` (at most [`MAX_TABLE_LEVELS`], each loaded from `model` in
-/// [`crate::EvalMode::Table`]) at its alpha, bit for bit (see [`crate::format::tables`]).
+/// [`crate::EvalMode::Table`]) at its alpha, bit for bit (see [`crate::StoredTables`]).
 /// `buf` needs at least [`encoded_len_with_tables`] bytes; returns the blob (a prefix of
 /// `buf`). An estimator that is not in table mode, or whose tables do not fit the model
 /// (another kind, another domain), is refused with [`EncodeError::Tables`].

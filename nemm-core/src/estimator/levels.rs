@@ -41,7 +41,7 @@
 //! [`crate::Flags::ALPHA_EXTRAPOLATED`].
 
 use super::*;
-use crate::mlp::Direction;
+use nemm_kernels::mlp::Direction;
 
 /// Why a [`LevelTables`] could not be loaded, or a step on it was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -51,11 +51,11 @@
 //! [`crate::Estimator::set_alpha`] rebuilds the tables as without a section.
 
 use super::{EncodeError, CRC_LEN};
-pub use crate::limits::MAX_TABLE_LEVELS;
+use crate::limits::MAX_TABLE_LEVELS;
 use crate::model::{Body, Model};
-use crate::table::{self, Table1D, TableAccuracy, TableConfig, MIN_SEGMENTS};
-use crate::wire::Writer;
 use core::fmt;
+use nemm_kernels::table::{self, Table1D, TableAccuracy, TableConfig, MIN_SEGMENTS};
+use nemm_kernels::wire::Writer;
 
 /// Where one stored table lies in its blob, and what it says of itself.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,10 +1,10 @@
 //! In-place deserialization of [`Body`] (see its docs).
 
 use super::Body;
-use crate::emm::EmmConstants;
-use crate::mlp::Scaler;
-use crate::sem::SemMap;
 use core::fmt;
+use nemm_kernels::emm::EmmConstants;
+use nemm_kernels::mlp::Scaler;
+use nemm_kernels::sem::SemMap;
 use serde::de::{
     self, DeserializeSeed, Deserializer, EnumAccess, SeqAccess, VariantAccess, Visitor,
 };
@@ -35,7 +35,7 @@ macro_rules! empty_scaler {
 macro_rules! empty_scaler {
     () => {
         Scaler {
-            mlp: crate::mlp::MlpParams {
+            mlp: nemm_kernels::mlp::MlpParams {
                 inputs: 0,
                 hidden: 0,
                 layers: 0,

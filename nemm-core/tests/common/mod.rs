@@ -3,16 +3,16 @@
 //! weights), blob helpers, and a reference simulation of the EMM through the unfolded scalers.
 #![allow(dead_code)] // each test binary uses a different subset
 
-use nemm_core::format::{CRC, CRC_LEN, MAGIC};
-use nemm_core::model::STABILITY_MARGIN;
-use nemm_core::semantics::emm::{self, Coefficients, EmmConstants, State};
-use nemm_core::semantics::integrator::{self, StepSize};
-use nemm_core::semantics::mlp::{param_count, MlpParams, Scaler};
 use nemm_core::testing::hash_unit;
+use nemm_core::STABILITY_MARGIN;
 use nemm_core::{
     encode, Body, Estimator, EstimatorConfig, EstimatorError, Header, InputScales, Integrator,
     Meta, Model, ModelKind, SemMap, FORMAT_VERSION,
 };
+use nemm_core::{CRC, CRC_LEN, MAGIC};
+use nemm_kernels::emm::{self, Coefficients, EmmConstants, State};
+use nemm_kernels::integrator::{self, StepSize};
+use nemm_kernels::mlp::{param_count, MlpParams, Scaler};
 use proptest::prelude::*;
 
 /// Every model kind.
@@ -71,7 +71,7 @@ pub fn blob_with_tables<const Q: usize, const S: usize>(
     Ok(buf)
 }
 
-/// The blob layout of `nemm_core::format`, written independently of `encode` and without any
+/// The blob layout of nemm-core's weight format (`src/format.rs`), written independently of `encode` and without any
 /// validation: postcard header, postcard body (version-1 part, the version-3 fields, then the
 /// version-4 static force), CRC-32 little-endian. Lets tests build
 /// well-formed blobs with contents `encode` refuses (NaN weights, unstable steps), or

@@ -69,7 +69,6 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::{entry, exception};
-use nemm_core::semantics::mlp::{CompiledScaler, Scaler};
 use nemm_core::{
     decode_into, AlphaEstimate, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind,
     ObserverFlags, StoredTables,
@@ -78,6 +77,7 @@ use nemm_firmware::board::{self, Console};
 use nemm_firmware::report::{self, Line};
 use nemm_firmware::trace::Trace;
 use nemm_firmware::{slot, FwObserver, StaticSlot, PARAM_CAPACITY};
+use nemm_kernels::mlp::{CompiledScaler, Scaler};
 
 /// Most steps per measurement.
 const MAX_STEPS: usize = 4000;
@@ -93,7 +93,7 @@ const EXIT_CHECK_FAILED: u32 = 1;
 const LOST_MOTION_SUFFIX: &str = "+lm";
 
 /// Evaluation modes of the scalers: the compiled MLPs, or the verified tables of
-/// `nemm_core::semantics::table` (256 segments, bound 1e-4 relative per coefficient).
+/// `nemm_kernels::table` (256 segments, bound 1e-4 relative per coefficient).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Mode {
     Exact,

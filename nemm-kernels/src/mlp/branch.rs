@@ -298,7 +298,6 @@ impl CompiledBranch {
         z
     }
 
-    #[cfg(any(test, feature = "semantics"))]
     /// Units `K`.
     pub fn units(&self) -> usize {
         self.units

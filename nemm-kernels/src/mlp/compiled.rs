@@ -102,7 +102,6 @@ impl<const P: usize> CompiledScaler<P> {
         }
     }
 
-    #[cfg(any(test, feature = "semantics"))]
     /// Compiles `scaler` for parameter constant `p_ini`, state scale `u_scale` (input 0) and
     /// `alpha` normalised by `alpha_scale` (input 1, if the MLP has two inputs), returned by
     /// value ([`Self::compile_into`] writes in place).
@@ -118,7 +117,6 @@ impl<const P: usize> CompiledScaler<P> {
         Self::compile_with_branch(scaler, None, p_ini, u_scale, alpha, alpha_scale)
     }
 
-    #[cfg(any(test, feature = "semantics"))]
     /// [`Self::compile`] with an optional alpha branch ([`AlphaBranch`]): the MLP's alpha
     /// column is ignored (zero in a valid model) and the branch is folded for `alpha`
     /// ([`CompiledBranch`]); [`Self::set_alpha`] re-folds both. The branch adds `K` fused
@@ -278,7 +276,7 @@ impl<const P: usize> CompiledScaler<P> {
     /// for this width, the portable code otherwise (same bits; compared on the target by
     /// the firmware's bench through `testing::scaler_raw`).
     #[inline(always)]
-    pub(crate) fn raw(&self, u: f32) -> f32 {
+    pub fn raw(&self, u: f32) -> f32 {
         #[cfg(all(
             target_arch = "arm",
             target_abi = "eabihf",
@@ -295,11 +293,10 @@ impl<const P: usize> CompiledScaler<P> {
     }
 
     /// Portable evaluation of the raw output `z`: the reference of the Arm kernel.
-    pub(crate) fn raw_portable(&self, u: f32) -> f32 {
+    pub fn raw_portable(&self, u: f32) -> f32 {
         self.raw_generic::<false, math::Fused>(u, &mut 0)
     }
 
-    #[cfg(any(test, feature = "semantics"))]
     /// [`Self::eval`] and the activation pattern at `u`: a hash of the signs of every
     /// LeakyReLU input. The function is smooth (analytic) wherever the pattern is constant;
     /// where it changes, one LeakyReLU switches slope (a kink). Portable arithmetic (the
@@ -386,7 +383,6 @@ impl<const P: usize> CompiledScaler<P> {
         }
     }
 
-    #[cfg(any(test, feature = "semantics"))]
     /// True if the scaler has an alpha branch.
     pub fn has_branch(&self) -> bool {
         self.branch.is_some()
@@ -419,7 +415,6 @@ impl<const P: usize> CompiledScaler<P> {
         true
     }
 
-    #[cfg(any(test, feature = "semantics"))]
     /// Output bounds `(lo, hi)` of [`Self::eval`] in physical units.
     pub fn bounds(&self) -> (f32, f32) {
         (self.lo, self.lo + self.span)

@@ -136,7 +136,6 @@ pub fn bounded_backward<L: Lane>(sig: L, span: L, pbar: L) -> L {
     pbar * span * sig * (L::constant(1.0) - sig)
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// In place: LayerNorm over `h` (mean and biased variance), affine `gamma`, `beta`, then
 /// LeakyReLU ([`centre`] then [`norm_act`], fused multiply-adds).
 pub fn layer_norm_leaky(h: &mut [f32], gamma: &[f32], beta: &[f32]) {

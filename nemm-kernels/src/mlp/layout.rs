@@ -4,7 +4,7 @@
 //!
 //! A scaler's parameters are its MLP's (module docs of [`crate::mlp`]), followed, in the
 //! trainer's flat vector, by its alpha branch's ([`super::AlphaBranch`]; in a
-//! [`crate::Model`] the branch's parameters are a vector of their own, with the ranges of
+//! nemm-core's `Model` the branch's parameters are a vector of their own, with the ranges of
 //! [`BranchLayout::ranges`]):
 //!
 //! ```text

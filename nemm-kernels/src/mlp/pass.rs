@@ -88,7 +88,6 @@ pub struct TapeMut<'t, L> {
     pub branch_t: &'t mut [L],
 }
 
-#[cfg(any(test, feature = "semantics"))]
 /// A recorded forward pass ([`TapeMut`]), read by `ScalerView::raw_backward` (feature
 /// `reverse`).
 #[derive(Debug, Clone, Copy)]

@@ -1,13 +1,13 @@
-//! A table in the weight format's tables section ([`crate::format::tables`]): written from
+//! A table in the weight format's tables section (nemm-core's `format::tables`): written from
 //! a built table, parsed and checked, read back bit for bit.
 
 use super::*;
 
 impl<const N: usize> Table1D<N> {
-    /// Writes the table as the format's stored table ([`crate::format::tables`]): the domain,
+    /// Writes the table as the format's stored table (nemm-core's `format::tables`): the domain,
     /// the lookup scalars, the accuracy, then the `N` segments (the lookup cells are not
     /// stored: [`Self::read_stored`] recomputes them).
-    pub(crate) fn write_stored(&self, w: &mut Writer<'_>) -> Option<()> {
+    pub fn write_stored(&self, w: &mut Writer<'_>) -> Option<()> {
         w.put(&[self.lo, self.hi, self.cell_scale, self.cell_offset])?;
         w.put(&(self.accuracy.max_rel_error, self.accuracy.at))?;
         w.put(&(
@@ -26,12 +26,7 @@ impl<const N: usize> Table1D<N> {
     /// Refuses (`None`) a table that [`parse_stored`] refuses, whose domain is not
     /// `[lo, hi]` (bit for bit) or whose lookup cells disagree with its accuracy record;
     /// `self` then holds a partial table that must be rebuilt before use.
-    pub(crate) fn read_stored<'a>(
-        &mut self,
-        bytes: &'a [u8],
-        lo: f32,
-        hi: f32,
-    ) -> Option<&'a [u8]> {
+    pub fn read_stored<'a>(&mut self, bytes: &'a [u8], lo: f32, hi: f32) -> Option<&'a [u8]> {
         let seg = &mut self.seg;
         let (head, rest) = parse_stored(bytes, N, |i, s| {
             if let Some(slot) = seg.get_mut(i) {
@@ -50,7 +45,7 @@ impl<const N: usize> Table1D<N> {
 
 /// The scalars of a stored table (see [`parse_stored`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct StoredHead {
+pub struct StoredHead {
     /// `[lo, hi]`.
     pub domain: (f32, f32),
     /// Lookup cells per unit input and the cell coordinate of `x = 0`.
@@ -63,7 +58,7 @@ pub(crate) struct StoredHead {
 /// handing each segment to `each` (index, `[x0, 1 / width, c0, c1, c2, c3]`); returns its
 /// scalars and the bytes after it. `None` if it does not parse, a value is not finite, the
 /// domain is empty or the knots are not in order.
-pub(crate) fn parse_stored(
+pub fn parse_stored(
     bytes: &[u8],
     segments: usize,
     mut each: impl FnMut(usize, [f32; 6]),

@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum AlphaPriors {
     /// An alpha branch per coefficient with a declared direction
-    /// (`nemm_core::semantics::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
+    /// (`nemm_kernels::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
     /// penalty keeps only the state conditions.
     Construction,
     /// The paper's physics penalty on a grid alone (section 5.2), checked by the audit.
@@ -151,13 +151,13 @@ pub struct ModelConfig {
     /// Units `K` of each alpha branch.
     pub branch_units: usize,
     /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
-    /// position, `nemm_core::semantics::static_force`) to every EMM-family variant
+    /// position, `nemm_kernels::static_force`) to every EMM-family variant
     /// (docs/training.md, "The static force"). `None` (the default): on when most runs hold a
     /// force offset at zero velocity ([`Config::with_static_force_from`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub static_force: Option<bool>,
     /// Adds the lost-motion element (free gas in series with `k_pr`, whose travel per
-    /// stroke side grows with alpha, `nemm_core::semantics::lost_motion`) to every
+    /// stroke side grows with alpha, `nemm_kernels::lost_motion`) to every
     /// EMM-family variant (docs/training.md, "The lost-motion element"). Off by default:
     /// the paper's model.
     #[serde(default)]
@@ -346,7 +346,7 @@ impl Config {
     }
 
     /// Checks the values no training can run with, before anything is allocated: every size
-    /// within what the model and its blob format hold ([`nemm_core::limits`]), the model rate
+    /// within what the model and its blob format hold ([`nemm_core::MAX_HIDDEN`], [`nemm_core::MAX_LAYERS`], [`nemm_core::MAX_BRANCH_UNITS`]), the model rate
     /// within [`MODEL_RATE_RANGE_HZ`], the samples one batch rolls out within
     /// [`MAX_BATCH_STEPS`], and every rate, weight and bound a finite number that lets
     /// training change the model. Each error names the option and its accepted range.
@@ -358,12 +358,12 @@ impl Config {
             }
             Ok(())
         };
-        size("--hidden", m.hidden, nemm_core::limits::MAX_HIDDEN)?;
-        size("--layers", m.layers, nemm_core::limits::MAX_LAYERS)?;
+        size("--hidden", m.hidden, nemm_core::MAX_HIDDEN)?;
+        size("--layers", m.layers, nemm_core::MAX_LAYERS)?;
         size(
             "branch_units ([model] in --config)",
             m.branch_units,
-            nemm_core::limits::MAX_BRANCH_UNITS,
+            nemm_core::MAX_BRANCH_UNITS,
         )?;
         size("--batch", t.batch, MAX_BATCH)?;
         let (lo, hi) = MODEL_RATE_RANGE_HZ;

@@ -23,7 +23,7 @@ pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String
             "stability:       fastest reachable time constant {:.1} us; the step of {:.1} us needs at least {:.1} us",
             tau * 1e6,
             model.dt_s * 1e6,
-            nemm_core::model::shortest_stable_time_constant_s(model.integrator, model.dt_s) * 1e6
+            nemm_core::shortest_stable_time_constant_s(model.integrator, model.dt_s) * 1e6
         );
     }
     s

@@ -19,10 +19,10 @@ use burn::nn::{LayerNorm, LayerNormConfig, LeakyRelu, Linear};
 use burn::optim::GradientsParams;
 use burn::tensor::activation::{leaky_relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::semantics::lost_motion::LOST_MOTION_PARAMS;
-use nemm_core::semantics::mlp::LEAKY_RELU_SLOPE;
-use nemm_core::semantics::static_force::STATIC_PARAMS;
 use nemm_core::Priors;
+use nemm_kernels::lost_motion::LOST_MOTION_PARAMS;
+use nemm_kernels::mlp::LEAKY_RELU_SLOPE;
+use nemm_kernels::static_force::STATIC_PARAMS;
 
 /// One hidden block.
 #[derive(Module, Debug)]
@@ -35,7 +35,7 @@ pub struct Block {
     pub act: LeakyRelu,
 }
 
-/// A scaler's alpha branch (`nemm_core::semantics::mlp::AlphaBranch`) as a burn module: per unit `k`,
+/// A scaler's alpha branch (`nemm_kernels::mlp::AlphaBranch`) as a burn module: per unit `k`,
 /// `v_k leaky_relu(r_k x + u_k alpha_n + c_k)` with `v_k = theta_v,k^2`,
 /// `u_k = d theta_u,k^2` (the direction `d` is in the [`ScalerSpec`]).
 #[derive(Module, Debug)]
@@ -145,7 +145,7 @@ impl ScalerNet {
     }
 
     /// nemm-core's layout of this scaler's flat weights ([`Self::to_flat`]).
-    pub fn layout(&self) -> nemm_core::semantics::mlp::ScalerLayout {
+    pub fn layout(&self) -> nemm_kernels::mlp::ScalerLayout {
         let [inputs, hidden] = self
             .blocks
             .first()
@@ -153,12 +153,11 @@ impl ScalerNet {
         let branch = self
             .branch
             .as_ref()
-            .map(|b| nemm_core::semantics::mlp::BranchLayout {
+            .map(|b| nemm_kernels::mlp::BranchLayout {
                 state_inputs: usize::from(b.r.is_some()),
                 units: b.theta_u.val().dims()[0],
             });
-        nemm_core::semantics::mlp::ScalerLayout::mlp(inputs, hidden, self.blocks.len())
-            .with_branch(branch)
+        nemm_kernels::mlp::ScalerLayout::mlp(inputs, hidden, self.blocks.len()).with_branch(branch)
     }
 
     /// Flat nemm-core weights.
@@ -651,7 +650,7 @@ mod tests {
     #[test]
     fn branched_scalers_round_trip_and_match_core() {
         use crate::train::pipeline::with_branch;
-        use nemm_core::semantics::mlp::Direction;
+        use nemm_kernels::mlp::Direction;
         let device = Device::flex();
         let m = example_model(ModelKind::Nemm, 8, 3).expect("model");
         let mut p: RolloutParams<f32> = from_core(&m).expect("emm");

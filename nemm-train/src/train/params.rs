@@ -4,12 +4,12 @@
 
 use super::adjoint::{BranchShape, Real, RolloutParams, ScalerWeights, StaticParams};
 use anyhow::{bail, Result};
-use nemm_core::semantics::emm::EmmConstants;
-use nemm_core::semantics::mlp::AlphaBranch;
 use nemm_core::{
     AlphaBranches, Body, Condition, InputScales, LostMotion, Meta, MlpParams, Model, Scaler,
     StaticForce, DEFAULT_PARAM_CAPACITY,
 };
+use nemm_kernels::emm::EmmConstants;
+use nemm_kernels::mlp::AlphaBranch;
 
 fn scaler_from_core<T: Real>(
     s: &Scaler<DEFAULT_PARAM_CAPACITY>,

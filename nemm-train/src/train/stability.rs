@@ -1,7 +1,7 @@
 //! Stability at the model's step, held during training.
 //!
 //! nemm-core accepts a model only if its fastest reachable time constant is at least
-//! [`nemm_core::model::shortest_stable_time_constant_s`] for its integrator and step
+//! [`nemm_core::shortest_stable_time_constant_s`] for its integrator and step
 //! (`Model::check_step`). That time constant is reached at the scalers' bounds:
 //!
 //! ```text
@@ -50,7 +50,7 @@ impl StabilityHold {
     pub fn new(frame: &NetFrame) -> Self {
         Self {
             tau_s: HOLD_FACTOR
-                * nemm_core::model::shortest_stable_time_constant_s(frame.integrator, frame.dt),
+                * nemm_core::shortest_stable_time_constant_s(frame.integrator, frame.dt),
             s_min_fl: frame.b_fl.as_ref().map_or(1.0, |s| s.s_min),
             s_min_pr: frame.b_pr.as_ref().map_or(1.0, |s| s.s_min),
             s_max_k: frame.k_pr.as_ref().map_or(1.0, |s| s.s_max),
@@ -61,8 +61,7 @@ impl StabilityHold {
     /// their frame).
     pub fn of_rollout(p: &RolloutParams<f32>) -> Self {
         Self {
-            tau_s: HOLD_FACTOR
-                * nemm_core::model::shortest_stable_time_constant_s(p.integrator, p.dt),
+            tau_s: HOLD_FACTOR * nemm_core::shortest_stable_time_constant_s(p.integrator, p.dt),
             s_min_fl: p.b_fl.as_ref().map_or(1.0, |s| s.s_min),
             s_min_pr: p.b_pr.as_ref().map_or(1.0, |s| s.s_min),
             s_max_k: p.k_pr.as_ref().map_or(1.0, |s| s.s_max),
@@ -136,8 +135,8 @@ impl StabilityHold {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nemm_core::model::shortest_stable_time_constant_s;
-    use nemm_core::model::Body;
+    use nemm_core::shortest_stable_time_constant_s;
+    use nemm_core::Body;
     use nemm_core::{EmmConstants, Integrator, Model, ModelKind};
 
     fn hold(s_min_fl: f32, s_min_pr: f32, s_max_k: f32) -> StabilityHold {

@@ -1,5 +1,5 @@
 //! The static force of eq. 17 in training: its fixed part (`x_ref`, `v_c`) from the data and
-//! its least-squares initialisation on the residual of an EMM (`nemm_core::semantics::static_force`).
+//! its least-squares initialisation on the residual of an EMM (`nemm_kernels::static_force`).
 //!
 //! `r = theta . phi(x, u, alpha)` is linear in its parameters `theta`, so for fixed EMM
 //! dynamics the `theta` that minimises the training MSE is the least-squares fit of the
@@ -13,7 +13,7 @@
 use super::adjoint::{simulate, Grid, RolloutParams, StaticParams, Window};
 use super::net::static_units;
 use crate::data::preprocess::Sequence;
-use nemm_core::semantics::static_force::{features, STATIC_PARAMS};
+use nemm_kernels::static_force::{features, STATIC_PARAMS};
 
 /// `v_c` as a fraction of the training abs-max velocity: the friction reaches 76 % of `F_c`
 /// at this velocity (`tanh 1`), 2 % of the velocity scale (20 mm/s at 1 m/s).

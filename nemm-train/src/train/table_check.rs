@@ -1,4 +1,4 @@
-//! Export-time check of the tabulated fast path (`nemm_core::semantics::table`): is the model safe to
+//! Export-time check of the tabulated fast path (`nemm_kernels::table`): is the model safe to
 //! run in `EvalMode::Table`, and with which error?
 //!
 //! For each table size a firmware may use (256 segments, the `nemm-core` default, and 128,
@@ -18,7 +18,7 @@ use nemm_core::{
 };
 
 /// Default bound of the relative coefficient error.
-pub const DEFAULT_TABLE_BOUND: f32 = nemm_core::semantics::table::DEFAULT_MAX_REL_ERROR;
+pub const DEFAULT_TABLE_BOUND: f32 = nemm_kernels::table::DEFAULT_MAX_REL_ERROR;
 
 /// Oil-loss levels checked across the training range.
 pub const ALPHA_LEVELS: usize = 7;
@@ -143,7 +143,7 @@ pub fn report(model: &Model, bound: f32) -> String {
                 s += &format!(
                     "  {} segments ({} B per table): worst measured error {w:.2e} at alpha {}{kinks}; {verdict}\n",
                     c.segments,
-                    nemm_core::semantics::table::TABLE_BYTES_PER_SEGMENT * c.segments,
+                    nemm_kernels::table::TABLE_BYTES_PER_SEGMENT * c.segments,
                     alpha_text(f64::from(c.worst_alpha)),
                 )
             }

@@ -419,7 +419,7 @@ impl CallGraph {
 
 /// A readable name for a symbol: Rust symbols (v0 `_R...` and legacy `_ZN...E`) demangled
 /// without their crate disambiguators and hashes, such as
-/// `<nemm_core::semantics::mlp::Scaler<1313>>::scale`; other names as they are.
+/// `<nemm_kernels::mlp::Scaler<1313>>::scale`; other names as they are.
 pub fn demangle(name: &str) -> String {
     format!("{:#}", rustc_demangle::demangle(name))
 }

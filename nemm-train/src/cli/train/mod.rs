@@ -78,7 +78,7 @@ pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
 }
 
 /// Precomputed fast-path tables to store in an exported blob (the format's tables section,
-/// `nemm_core::format::tables`): a firmware in table mode at one of these oil-loss levels, with
+/// `nemm_core::StoredTables`): a firmware in table mode at one of these oil-loss levels, with
 /// the same segment count and bound, boots without building its tables.
 #[derive(Debug, Clone, PartialEq, clap::Args)]
 pub struct TablesArgs {
@@ -110,7 +110,7 @@ pub const DEFAULT_STORED_TABLE_SEGMENTS: usize = 128;
 
 impl TablesArgs {
     /// Checks the options before anything is trained: each level in [0, 1], at most
-    /// [`nemm_core::limits::MAX_TABLE_LEVELS`] of them, 128 or 256 segments, a finite
+    /// [`nemm_core::MAX_TABLE_LEVELS`] of them, 128 or 256 segments, a finite
     /// positive bound.
     pub fn validate(&self) -> Result<()> {
         for &a in &self.tables_alpha {
@@ -118,7 +118,7 @@ impl TablesArgs {
                 bail!("--tables-alpha {a} is out of range: each level must be in [0, 1]");
             }
         }
-        let max = nemm_core::limits::MAX_TABLE_LEVELS;
+        let max = nemm_core::MAX_TABLE_LEVELS;
         if self.tables_alpha.len() > max {
             bail!(
                 "--tables-alpha lists {} levels: a blob stores at most {max}",
@@ -148,7 +148,7 @@ impl TablesArgs {
     /// Refuses a --tables-alpha level outside the trained range of `meta` (a model's, or
     /// [`crate::train::pipeline::meta_of`] the prepared data before training): its tables
     /// would hold an extrapolated model.
-    pub fn check_range(&self, meta: &nemm_core::model::Meta) -> Result<()> {
+    pub fn check_range(&self, meta: &nemm_core::Meta) -> Result<()> {
         let (min, max) = (meta.alpha_min, meta.alpha_max);
         if let Some(a) = self
             .tables_alpha
@@ -186,7 +186,7 @@ impl TablesArgs {
         }
         levels.sort_by(f32::total_cmp);
         levels.dedup_by(|a, b| a.to_bits() == b.to_bits());
-        let max = nemm_core::limits::MAX_TABLE_LEVELS;
+        let max = nemm_core::MAX_TABLE_LEVELS;
         if levels.len() > max {
             bail!(
                 "--tables-alpha and --tables-levels give {} levels: a blob stores at most {max}",
@@ -305,7 +305,7 @@ pub fn store_tables(
     } else {
         tables.levels(&m)?
     };
-    let dropped: Vec<&nemm_core::format::tables::StoredLevel> = old
+    let dropped: Vec<&nemm_core::StoredLevel> = old
         .levels
         .iter()
         .filter(|l| {
@@ -361,7 +361,7 @@ fn levels_check<const T: usize>(
     blob: &[u8],
 ) -> Result<Option<String>> {
     use nemm_core::{Estimator, EstimatorConfig, LevelTables, LevelsError};
-    const MAX: usize = nemm_core::limits::MAX_TABLE_LEVELS;
+    const MAX: usize = nemm_core::MAX_TABLE_LEVELS;
     let mut levels: Box<LevelTables<T, MAX>> = Box::new(LevelTables::empty());
     match levels.load(model, stored, blob) {
         Ok(()) => {}

@@ -142,14 +142,14 @@ fn validate_condition(
             "condition.name",
             c.name.len(),
             1,
-            nemm_core::model::MAX_CONDITION_NAME,
+            nemm_core::MAX_CONDITION_NAME,
             cl.map(|l| l.name),
         ),
         (
             "condition.unit",
             c.unit.len(),
             0,
-            nemm_core::model::MAX_CONDITION_UNIT,
+            nemm_core::MAX_CONDITION_UNIT,
             cl.map(|l| l.unit),
         ),
     ];

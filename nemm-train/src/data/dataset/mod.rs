@@ -107,10 +107,10 @@ pub struct Manifest {
 /// the direction of each coefficient's monotonicity prior in `alpha` (eqs. 31, 37-38).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ConditionSpec {
-    /// Name, e.g. `gas charge` (1 to [`nemm_core::model::MAX_CONDITION_NAME`] bytes).
+    /// Name, e.g. `gas charge` (1 to [`nemm_core::MAX_CONDITION_NAME`] bytes).
     pub name: String,
     /// Unit of the condition value, e.g. `psi` (default `-`; at most
-    /// [`nemm_core::model::MAX_CONDITION_UNIT`] bytes).
+    /// [`nemm_core::MAX_CONDITION_UNIT`] bytes).
     #[serde(default = "ConditionSpec::default_unit")]
     pub unit: String,
     /// Condition value at `alpha = 0` (default 0).

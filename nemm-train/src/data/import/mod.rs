@@ -432,10 +432,10 @@ pub struct ImportSpec {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ImportCondition {
-    /// Name, e.g. `control voltage` (1 to [`nemm_core::model::MAX_CONDITION_NAME`] bytes).
+    /// Name, e.g. `control voltage` (1 to [`nemm_core::MAX_CONDITION_NAME`] bytes).
     #[serde(default)]
     pub name: Option<String>,
-    /// Unit of the condition value (at most [`nemm_core::model::MAX_CONDITION_UNIT`] bytes;
+    /// Unit of the condition value (at most [`nemm_core::MAX_CONDITION_UNIT`] bytes;
     /// default: the level column's unit when it is mapped by a range, else `-`).
     #[serde(default)]
     pub unit: Option<String>,

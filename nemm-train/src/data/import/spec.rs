@@ -241,7 +241,7 @@ fn validate_level_column(c: &ColumnSpec) -> Result<(), ImportError> {
                     "not with a range: swap its ends (the raw value at alpha 0 comes first)",
                 ));
             }
-            let max = nemm_core::model::MAX_CONDITION_UNIT;
+            let max = nemm_core::MAX_CONDITION_UNIT;
             if c.unit.is_empty() || c.unit.len() > max {
                 return Err(spec_err(
                     "columns.alpha.unit",
@@ -428,10 +428,7 @@ fn resolve_condition(
         k_pr: prior(c.k_pr, "k_pr")?,
         name,
     };
-    let (name_max, unit_max) = (
-        nemm_core::model::MAX_CONDITION_NAME,
-        nemm_core::model::MAX_CONDITION_UNIT,
-    );
+    let (name_max, unit_max) = (nemm_core::MAX_CONDITION_NAME, nemm_core::MAX_CONDITION_UNIT);
     if out.name.is_empty() || out.name.len() > name_max {
         return Err(spec_err(
             "condition.name",

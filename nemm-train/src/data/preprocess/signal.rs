@@ -173,17 +173,14 @@ pub fn differentiate(x: &[f64], dt: f64) -> Vec<f64> {
 
 /// The online estimate of the stroke velocity as the firmware computes it: the backward
 /// difference of the recorded displacement `x` (sampled at `sample_rate_hz`) through
-/// [`nemm_core::velocity::LowPass`] at its default corner
-/// ([`nemm_core::velocity::DEFAULT_CUTOFF_HZ`]), in `f32` as on the target. The first sample,
+/// [`nemm_core::LowPass`] at its default corner
+/// ([`nemm_core::DEFAULT_CUTOFF_HZ`]), in `f32` as on the target. The first sample,
 /// which has no difference yet, is 0 (the firmware primes its filter there and the estimator
 /// holds its input at rest). The firmware differentiates integer ADC codes
-/// (`nemm_core::velocity::Differentiator`, same low-pass): the two differ by the ADC's
+/// (`nemm_core::Differentiator`, same low-pass): the two differ by the ADC's
 /// quantisation of the stroke only.
 pub fn causal_velocity(x: &[f64], sample_rate_hz: f64) -> Vec<f64> {
-    let mut low_pass = nemm_core::velocity::LowPass::new(
-        sample_rate_hz as f32,
-        nemm_core::velocity::DEFAULT_CUTOFF_HZ,
-    );
+    let mut low_pass = nemm_core::LowPass::new(sample_rate_hz as f32, nemm_core::DEFAULT_CUTOFF_HZ);
     let mut v = Vec::with_capacity(x.len());
     if !x.is_empty() {
         v.push(0.0);

@@ -20,9 +20,9 @@
 //! - a condition level changing within a window ([`Window::alphas`]) is re-folded before
 //!   the step that uses it, with the coefficients at the step's start state re-evaluated
 //!   (`nemm_core::Estimator::set_alpha`); the whole step runs at the new level;
-//! - the EMM right-hand side and force (`nemm_core::semantics::emm`), the RK step
-//!   (`nemm_core::semantics::integrator::step_with`) and the scalers (MLP and alpha branch,
-//!   `nemm_core::semantics::mlp::ScalerView::raw`, with the bounded output mapping `mlp::bounded`) are
+//! - the EMM right-hand side and force (`nemm_kernels::emm`), the RK step
+//!   (`nemm_kernels::integrator::step_with`) and the scalers (MLP and alpha branch,
+//!   `nemm_kernels::mlp::ScalerView::raw`, with the bounded output mapping `mlp::bounded`) are
 //!   nemm-core's own generic definitions, run here over [`Lanes`] of [`LANES`] windows with
 //!   unfused multiply-adds; their reverse modes (`rhs_backward`, `force_backward`,
 //!   `step_backward`, `ScalerView::raw_backward`, `bounded_backward`) sit next to them in
@@ -48,13 +48,13 @@
 // plain index loops they vectorise reliably, which iterator chains over 3-4 arrays do not.
 #![allow(clippy::needless_range_loop)]
 
-use nemm_core::semantics::emm::{self, Coefficients, State};
-use nemm_core::semantics::integrator::{self, Stage, StageBackward, StepSize};
-use nemm_core::semantics::lost_motion::{LostMotionAt, LOST_MOTION_PARAMS};
-use nemm_core::semantics::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
-use nemm_core::semantics::mlp::{self, Direction};
-use nemm_core::semantics::static_force::{self, STATIC_PARAMS};
 use nemm_core::{Integrator, Priors};
+use nemm_kernels::emm::{self, Coefficients, State};
+use nemm_kernels::integrator::{self, Stage, StageBackward, StepSize};
+use nemm_kernels::lost_motion::{LostMotionAt, LOST_MOTION_PARAMS};
+use nemm_kernels::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
+use nemm_kernels::mlp::{self, Direction};
+use nemm_kernels::static_force::{self, STATIC_PARAMS};
 use num_traits::Float;
 use rayon::prelude::*;
 use std::fmt::Debug;

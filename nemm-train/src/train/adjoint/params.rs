@@ -4,7 +4,7 @@
 
 use super::*;
 
-/// Shape of a scaler's alpha branch (`nemm_core::semantics::mlp::AlphaBranch`): its weights follow
+/// Shape of a scaler's alpha branch (`nemm_kernels::mlp::AlphaBranch`): its weights follow
 /// the MLP's in [`ScalerWeights::w`], in nemm-core's branch layout.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BranchShape {
@@ -36,7 +36,7 @@ impl BranchShape {
     }
 }
 
-/// Weights of one scaler in nemm-core's flat layout (see `nemm_core::semantics::mlp`), followed by
+/// Weights of one scaler in nemm-core's flat layout (see `nemm_kernels::mlp`), followed by
 /// its alpha branch's weights if it has one.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ScalerWeights<T> {
@@ -115,10 +115,10 @@ pub struct RolloutParams<T> {
     /// them; a scaler with an alpha branch holds its prior by construction).
     #[serde(default)]
     pub priors: Priors,
-    /// The static force `r` of eq. 17 (`nemm_core::semantics::static_force`), if the model has one.
+    /// The static force `r` of eq. 17 (`nemm_kernels::static_force`), if the model has one.
     #[serde(default)]
     pub static_force: Option<StaticParams<T>>,
-    /// The lost-motion element (`nemm_core::semantics::lost_motion`), if the model has one:
+    /// The lost-motion element (`nemm_kernels::lost_motion`), if the model has one:
     /// `[f0, d_c,0, d_c,alpha, d_r,0, d_r,alpha]` (N, m, m, m, m), the order of
     /// `nemm_core::LostMotion::params`.
     #[serde(default)]
@@ -126,7 +126,7 @@ pub struct RolloutParams<T> {
 }
 
 /// The static force of a rollout: `r = theta . features(x_ref, v_c, x, u, alpha)`
-/// (`nemm_core::semantics::static_force::features`), added to the force at every model step.
+/// (`nemm_kernels::static_force::features`), added to the force at every model step.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StaticParams<T> {
     /// Trained parameters `[F_gas0,0, F_gas0,alpha, k_gas,0, k_gas,alpha, F_c]` (N, N, N/m,

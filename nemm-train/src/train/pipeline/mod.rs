@@ -33,10 +33,10 @@ use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::semantics::mlp::{BranchLayout, Direction, ScalerLayout};
-use nemm_core::semantics::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
-use nemm_core::semantics::static_force::STATIC_PARAMS;
 use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
+use nemm_kernels::mlp::{BranchLayout, Direction, ScalerLayout};
+use nemm_kernels::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
+use nemm_kernels::static_force::STATIC_PARAMS;
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
@@ -320,7 +320,7 @@ pub fn with_branch(
     bw[ranges.theta_v].fill(0.3);
     let at_origin: f32 = bw[ranges.c]
         .iter()
-        .map(|&ci| 0.09 * nemm_core::semantics::mlp::leaky_relu(ci))
+        .map(|&ci| 0.09 * nemm_kernels::mlp::leaky_relu(ci))
         .sum();
     let (_, b_o) = layout.output().expect("an MLP with layers");
     s.w[b_o] -= at_origin;

@@ -542,7 +542,7 @@ fn without_static_force(
                 .runs
                 .get(q.run)
                 .map_or(f64::from(sp.x_ref), |r| r.summary.excitation.offset_m);
-            let phi = nemm_core::semantics::static_force::features(
+            let phi = nemm_kernels::static_force::features(
                 f64::from(sp.x_ref),
                 f64::from(sp.v_c),
                 x,

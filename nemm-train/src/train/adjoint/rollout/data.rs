@@ -21,7 +21,7 @@ pub(super) struct PackData<T> {
     pub(super) identity: bool,
     pub(super) lane_w: WindowLanes<T>,
     /// With a static force: its features per model step
-    /// (`nemm_core::semantics::static_force::features` at the step's position, velocity and level).
+    /// (`nemm_kernels::static_force::features` at the step's position, velocity and level).
     pub(super) phi: Option<Vec<[WindowLanes<T>; STATIC_PARAMS]>>,
 }
 
