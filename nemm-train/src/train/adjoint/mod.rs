@@ -54,9 +54,7 @@ use nemm_core::semantics::lost_motion::{LostMotionAt, LOST_MOTION_PARAMS};
 use nemm_core::semantics::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
 use nemm_core::semantics::mlp::{self, Direction};
 use nemm_core::semantics::static_force::{self, STATIC_PARAMS};
-use nemm_core::{Integrator, Priors};
 use num_traits::Float;
-use rayon::prelude::*;
 use std::fmt::Debug;
 use std::ops::{AddAssign, DivAssign};
 
@@ -89,5 +87,9 @@ type WindowLanes<T> = Lanes<T, LANES>;
 mod params;
 mod rollout;
 
-pub use params::*;
-pub use rollout::*;
+pub use params::{
+    BranchShape, Grid, RolloutGrads, RolloutParams, ScalerWeights, StaticParams, Window,
+};
+pub use rollout::{
+    loss_and_grad, loss_and_grad_paired, simulate, simulate_x_pr, LossParts, Pairing,
+};
