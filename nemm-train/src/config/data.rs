@@ -1,7 +1,18 @@
 //! The data options ([`DataConfig`]): their layers (command line, `--config`, the dataset's
 //! options file) and their resolution, with the choices made from the data.
 
-use super::*;
+use super::args::with_default;
+use super::{DATA_OPTIONS_FILE, DEFAULT_TEST_TAIL};
+use crate::data::dataset::{self, Manifest};
+use crate::data::preprocess::{
+    self, PrepareConfig, VelocitySource, CUTOFF_FRACTION_OF_RATE, DEFAULT_CUTOFF_HZ,
+    DEFAULT_SPLIT_SEED, DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
+    DEFAULT_WINDOW_S,
+};
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
 
 /// Which dataset a job reads and how it is filtered, split and cut into windows: the data
 /// options every dataset-reading command shares (`nemm data check/prepare`, `bench plot`,
@@ -94,7 +105,7 @@ pub struct DataConfig {
         DEFAULT_VALIDATION_FRACTION))]
     pub validation_fraction: Option<f64>,
     /// Seed of the validation stretches' places (in training commands also
-    /// [`TrainConfig::seed`]).
+    /// [`TrainConfig::seed`](super::TrainConfig::seed)).
     #[arg(long, help = with_default(
         "Seed of the validation stretches' places (training: also of the initial weights \
          and the data order)", DEFAULT_SPLIT_SEED))]

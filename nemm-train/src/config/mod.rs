@@ -1,63 +1,25 @@
-//! The configuration of a job, with every default written once.
+//! The configuration of a job, with every option and default written once.
 //!
 //! [`Config`] holds the three parts a dataset-reading, model-training command needs:
 //! [`DataConfig`] (which dataset, how it is split and cut into windows), [`ModelConfig`]
 //! (variant, scaler size, integrator) and [`TrainConfig`] (the optimiser and its schedule).
-//! Their `Default` impls are the only place defaults are written: the training procedure's
-//! settings (`train::pipeline::PipelineConfig::of`, `train::fit::FitConfig::of`) are built
-//! from them, and the command line
-//! ([`ConfigArgs`]) holds only `Option`s that override a configuration (the defaults, or a
-//! TOML file given with `--config`). A configuration is written to and read from TOML
-//! ([`Config::to_toml`], [`Config::load`]); `nemm train --report`, `nemm compare` and
-//! `nemm demo` save the effective one as `config.toml`, and `nemm sweep` runs each job from
-//! such a file.
+//! Each part is defined once: the data options are one struct of `Option`s (command line,
+//! `[data]` table and the dataset's options file) resolved against the dataset
+//! ([`resolve_data`]); the model and training parts are each one list of fields in a
+//! `section!` (doc, type, default, TOML attributes, command-line option) that defines the
+//! resolved struct with its `Default`, its command-line options ([`ModelOptions`],
+//! [`TrainOptions`]) and their `over`. The training procedure's settings
+//! (`train::pipeline::PipelineConfig::of`, `train::fit::FitConfig::of`) are built from the
+//! resolved structs, and the command line ([`ConfigArgs`]: `--config`, `--data` and the three
+//! parts' options) overrides a configuration (the defaults, or a TOML file given with
+//! `--config`). A configuration is written to and read from TOML ([`Config::to_toml`],
+//! [`Config::load`]); `nemm train --report`, `nemm compare` and `nemm demo` save the
+//! effective one as `config.toml`, and `nemm sweep` runs each job from such a file.
 
-use crate::data::dataset::{self, Manifest};
-use crate::data::preprocess::{
-    self, PrepareConfig, VelocitySource, CUTOFF_FRACTION_OF_RATE, DEFAULT_CUTOFF_HZ,
-    DEFAULT_SPLIT_SEED, DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
-    DEFAULT_WINDOW_S,
-};
+use crate::data::preprocess;
 use anyhow::{bail, Context, Result};
-use nemm_core::{Integrator, ModelKind};
 use serde::{Deserialize, Serialize};
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-
-/// How the declared monotonicity priors in alpha (eqs. 31, 37-38, second conditions) are
-/// imposed on the neural coefficients.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum AlphaPriors {
-    /// An alpha branch per coefficient with a declared direction
-    /// (`nemm_kernels::mlp::AlphaBranch`): monotone in alpha for every weight; the physics
-    /// penalty keeps only the state conditions.
-    Construction,
-    /// The paper's physics penalty on a grid alone (section 5.2), checked by the audit.
-    Penalty,
-}
-
-impl AlphaPriors {
-    /// `construction` or `penalty`.
-    pub const fn name(self) -> &'static str {
-        match self {
-            AlphaPriors::Construction => "construction",
-            AlphaPriors::Penalty => "penalty",
-        }
-    }
-}
-
-impl std::str::FromStr for AlphaPriors {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "construction" => Ok(AlphaPriors::Construction),
-            "penalty" => Ok(AlphaPriors::Penalty),
-            other => Err(format!(
-                "unknown alpha-priors mode `{other}` (expected construction or penalty)"
-            )),
-        }
-    }
-}
 
 /// Name of the effective configuration saved into a report folder.
 pub const CONFIG_FILE: &str = "config.toml";
@@ -76,125 +38,18 @@ pub const DEFAULT_TEST_TAIL: f64 = 0.2;
 
 mod args;
 mod data;
+mod model;
+mod section;
+mod training;
 
-pub use args::*;
-pub use data::*;
-
-/// Serde of `ModelKind` / `Integrator` by their `name()` (the CLI spelling).
-mod by_name {
-    use serde::{Deserialize, Deserializer, Serializer};
-    use std::fmt::Display;
-    use std::str::FromStr;
-
-    pub trait Named: FromStr {
-        fn name_of(&self) -> &'static str;
-    }
-    impl Named for nemm_core::ModelKind {
-        fn name_of(&self) -> &'static str {
-            self.name()
-        }
-    }
-    impl Named for nemm_core::Integrator {
-        fn name_of(&self) -> &'static str {
-            self.name()
-        }
-    }
-    impl Named for super::AlphaPriors {
-        fn name_of(&self) -> &'static str {
-            self.name()
-        }
-    }
-
-    pub fn serialize<T: Named, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(v.name_of())
-    }
-
-    pub fn deserialize<'de, T, D>(d: D) -> Result<T, D::Error>
-    where
-        T: Named,
-        T::Err: Display,
-        D: Deserializer<'de>,
-    {
-        let s = String::deserialize(d)?;
-        s.parse().map_err(serde::de::Error::custom)
-    }
-}
-
-/// The model: variant, scaler size and integrator.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ModelConfig {
-    /// ModelKind `nemm train` trains (`nemm compare` trains all four).
-    #[serde(with = "by_name")]
-    pub variant: ModelKind,
-    /// Hidden width H of every scaler (Table 3: 8, 16, 32).
-    pub hidden: usize,
-    /// Hidden layers L of every scaler (Table 3: 3, 5, 7, 9).
-    pub layers: usize,
-    /// Integrator (paper: RK4; RK3 selectable).
-    #[serde(with = "by_name")]
-    pub integrator: Integrator,
-    /// Bounds `(s_min, s_max)` of the `b_fl` scale factor.
-    pub b_fl_bounds: (f32, f32),
-    /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered if the
-    /// explicit-RK stability check needs it).
-    pub pr_bounds: (f32, f32),
-    /// Integration (deployment) rate of the model \[Hz\]: the model steps at
-    /// `1 / rate_hz` whatever the data's sample rate, and the exported blob carries that step
-    /// (docs/preprocessing.md, "Model rate and data rate").
-    pub rate_hz: f64,
-    /// How the condition's declared monotonicity priors in alpha are imposed:
-    /// `construction` (an alpha branch that holds them for every weight) or `penalty`
-    /// (the paper's physics penalty alone) (docs/training.md, "Priors in alpha").
-    #[serde(with = "by_name")]
-    pub alpha_priors: AlphaPriors,
-    /// Units `K` of each alpha branch.
-    pub branch_units: usize,
-    /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
-    /// position, `nemm_kernels::static_force`) to every EMM-family variant
-    /// (docs/training.md, "The static force"). `None` (the default): on when most runs hold a
-    /// force offset at zero velocity ([`Config::with_static_force_from`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub static_force: Option<bool>,
-    /// Adds the lost-motion element (free gas in series with `k_pr`, whose travel per
-    /// stroke side grows with alpha, `nemm_kernels::lost_motion`) to every
-    /// EMM-family variant (docs/training.md, "The lost-motion element"). Off by default:
-    /// the paper's model.
-    #[serde(default)]
-    pub lost_motion: bool,
-    /// Whether the flow damping depends on alpha (the paper's `b_fl(v_st, alpha)`, the
-    /// default); `false`: one `b_fl(v_st)` for every level, so that the pressure elements
-    /// must form the degradation (docs/training.md, "The lost-motion element").
-    #[serde(default = "default_true")]
-    pub b_fl_alpha: bool,
-}
-
-fn default_true() -> bool {
-    true
-}
-
-impl Default for ModelConfig {
-    fn default() -> Self {
-        Self {
-            variant: ModelKind::Nemm,
-            hidden: 16,
-            layers: 5,
-            integrator: Integrator::Rk4,
-            b_fl_bounds: (0.1, 10.0),
-            pr_bounds: (0.1, 5.0),
-            rate_hz: DEFAULT_MODEL_RATE_HZ,
-            alpha_priors: AlphaPriors::Construction,
-            branch_units: 16,
-            static_force: None,
-            lost_motion: false,
-            b_fl_alpha: true,
-        }
-    }
-}
-
-/// Whether the EMM-family variants get the static force when neither the options nor the
-/// data decide ([`Config::with_static_force_from`]).
-pub const DEFAULT_STATIC_FORCE: bool = false;
+pub use args::ConfigArgs;
+pub use data::{
+    adaptive_test_set, resolve_data, resolve_with, DataConfig, OptionSource, ResolvedData,
+};
+pub use model::{
+    AlphaPriors, ModelConfig, ModelOptions, DEFAULT_MODEL_RATE_HZ, DEFAULT_STATIC_FORCE,
+};
+pub use training::{Balance, TrainConfig, TrainOptions};
 
 /// The model rates \[Hz\] training accepts: a step from 100 ms down to 1 us, which an `f32`
 /// step of the blob format holds to 7 digits (docs/training.md, "Limits of the options").
@@ -207,91 +62,6 @@ pub const MAX_BATCH: usize = 1024;
 /// the rollout keeps every step's state for the backward pass, so this bounds a batch's
 /// memory. The defaults roll out 88 000 (0.55 s x 10 kHz x 16).
 pub const MAX_BATCH_STEPS: usize = 4_000_000;
-
-/// The default model rate \[Hz\]: the firmware's 10 kHz step.
-pub const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
-
-/// The training procedure: optimiser, penalties, schedule and budget.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct TrainConfig {
-    /// Windows per batch (Table 3: 4, 8, 16).
-    pub batch: usize,
-    /// Adam learning rate at the start (Table 3: 5e-3, 1e-2, 1e-3); cosine decay to 10 %.
-    pub lr: f64,
-    /// Physics-inconsistency weight `lambda_ph`: 5 is the paper's best (Table 5: 0.005) in
-    /// this crate's normalisation of the penalty, which takes 1000 times the paper's number
-    /// to act (docs/training.md, "The scale of `lambda_ph`").
-    pub lambda_ph: f64,
-    /// Weight `lambda_diff` of the matched-difference term (0, the paper's loss: off): for
-    /// windows of the same excitation recorded at two levels, the model's force difference
-    /// against the measured one (docs/training.md, "The difference term").
-    pub lambda_diff: f64,
-    /// Weight of the L2 term `sum ||W||_2` over the scalers' linear weights (paper: 1e-3).
-    pub lambda_l2: f64,
-    /// Maximum epochs of the neural stages.
-    pub epochs: usize,
-    /// Early stopping: epochs without progress on the validation RMSE.
-    pub patience: usize,
-    /// Epochs of the Linear EMM stage.
-    pub linear_epochs: usize,
-    /// Adam learning rate of the Linear EMM stage (on `ln(c) / LOG_CONSTANT_SCALE`: 3e-3 moves
-    /// the constants by ~3 % per step).
-    pub linear_lr: f64,
-    /// Full-batch Adam steps of the quasi-static `b_fl` regression (eq. 41).
-    pub qs_steps: usize,
-    /// At most this many batches per epoch (a random subset; for quick runs).
-    pub max_batches: Option<usize>,
-    /// Train at most this many epochs per stage in one invocation, then stop with a
-    /// checkpoint (time-boxed sessions); `--resume` continues.
-    pub session_epochs: Option<usize>,
-    /// Seed of the initial weights and the data order.
-    pub seed: u64,
-    /// Gradient clipping by norm, per parameter tensor.
-    pub grad_clip: f32,
-    /// Adam's epsilon (PyTorch's default 1e-8; burn's default 1e-5 would dominate the small
-    /// gradients of a normalised MSE).
-    pub adam_eps: f32,
-    /// How the training windows are drawn into batches: every run equally often
-    /// ([`Balance::Runs`], the default) or every window once per epoch ([`Balance::Windows`]).
-    pub balance: Balance,
-}
-
-/// How the training windows are drawn into an epoch's batches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Balance {
-    /// Each draw picks a training run uniformly, then one of its windows uniformly (with
-    /// replacement): short runs (the fast, small-stroke ones where degradation shows) weigh
-    /// as much as long slow ones.
-    #[default]
-    Runs,
-    /// Each window once per epoch in a shuffled order: a run weighs by its length.
-    Windows,
-}
-
-impl Default for TrainConfig {
-    fn default() -> Self {
-        Self {
-            batch: 16,
-            lr: 5e-3,
-            lambda_ph: 5.0,
-            lambda_diff: 0.0,
-            lambda_l2: 1e-3,
-            epochs: 40,
-            patience: 8,
-            linear_epochs: 8,
-            linear_lr: 3e-3,
-            qs_steps: 600,
-            max_batches: None,
-            session_epochs: None,
-            seed: DEFAULT_SPLIT_SEED,
-            grad_clip: 1.0,
-            adam_eps: 1e-8,
-            balance: Balance::default(),
-        }
-    }
-}
 
 /// The demo's budget (`nemm demo`: the main job in a few minutes on two cores): epochs of
 /// the neural stages.
@@ -483,7 +253,10 @@ pub fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::data::dataset::{self, Manifest};
+    use crate::data::preprocess::{PrepareConfig, VelocitySource};
     use clap::Parser;
+    use nemm_core::{Integrator, ModelKind};
 
     #[derive(clap::Parser)]
     struct Cli {
@@ -538,6 +311,48 @@ mod tests {
         assert_eq!(partial.train.epochs, 3);
         assert_eq!(partial.model, ModelConfig::default());
         assert!(toml::from_str::<Config>("[train]\nepoch = 3\n").is_err());
+    }
+
+    /// Each model and training option lands in its field; an option not given keeps the
+    /// configuration's value.
+    #[test]
+    fn each_section_option_overrides_its_field() {
+        let mut c = Config::default();
+        c.model.static_force = Some(false);
+        c.train.max_batches = Some(9);
+        c.train.seed = 5;
+        let args = Cli::parse_from([
+            "nemm",
+            "--static-force",
+            "--b-fl-alpha=false",
+            "--model-rate-hz",
+            "5000",
+            "--lambda-ph",
+            "7",
+            "--balance",
+            "windows",
+            "--session-epochs",
+            "2",
+        ])
+        .args;
+        args.apply(&mut c);
+        assert_eq!(
+            (c.model.static_force, c.model.b_fl_alpha, c.model.rate_hz),
+            (Some(true), false, 5000.0)
+        );
+        assert_eq!(
+            (c.train.lambda_ph, c.train.balance, c.train.session_epochs),
+            (7.0, Balance::Windows, Some(2))
+        );
+        assert_eq!(
+            (c.train.max_batches, c.train.seed),
+            (Some(9), 5),
+            "not given: kept"
+        );
+        // A list of lambda_ph values (a sweep's) leaves the field as it is.
+        let list = Cli::parse_from(["nemm", "--lambda-ph", "0,5"]).args;
+        list.apply(&mut c);
+        assert_eq!(c.train.lambda_ph, 7.0);
     }
 
     #[test]

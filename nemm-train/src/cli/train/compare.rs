@@ -1,6 +1,17 @@
 //! `nemm compare`: all four variants on one split, Table 4, the figures and the identifiability tables.
 
-use super::*;
+use super::identity::open_checkpoint;
+use super::{
+    check_job_outputs, dataset, dataset_provenance, evaluate, export_model, identify_report,
+    load_dataset_prepared, print_audit, record_provenance, signature_loops, signature_report,
+    table4_markdown, train_each, used_runs, with_resolved_data, write_report, Config,
+    PipelineConfig, Prepared, Report, TablesArgs, Trained, TrainedVariant, VariantInfo,
+    CONFIG_FILE, SIGNATURE_FIGURE,
+};
+use anyhow::{bail, Result};
+use nemm_core::ModelKind;
+use std::path::Path;
+use std::time::Instant;
 
 /// `nemm compare` from the command line: loads and prepares `cfg.data`, then [`compare`].
 pub fn compare_command(

@@ -1,6 +1,14 @@
 //! `nemm demo`: the main job on the default virtual bench, on a budget of a few minutes.
 
-use super::*;
+use super::compare::compare;
+use super::{
+    dataset, estimator_input, load_dataset_prepared, output_guard, preprocess, table_vs_exact,
+    with_resolved_data, Config, Inputs, Output, Prepared, VariantInfo,
+};
+use anyhow::{bail, Context, Result};
+use nemm_core::ModelKind;
+use std::path::PathBuf;
+use std::time::Instant;
 
 /// Where a demo keeps its data and results.
 #[derive(Debug, Clone)]

@@ -8,9 +8,11 @@
 //! folder for as long as it runs: a second job on the same folder is refused; a lock left by
 //! a process that no longer exists is taken over.
 
-use super::*;
+use super::{dataset, write_atomic_bytes, Config};
+use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
 use std::hash::Hasher;
+use std::path::{Path, PathBuf};
 
 /// The identity file in a checkpoint folder.
 pub const IDENTITY_FILE: &str = "identity.json";

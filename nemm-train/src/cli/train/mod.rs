@@ -20,7 +20,7 @@ use crate::train::pipeline::{
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
 use nemm_core::ModelKind;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 mod compare;
@@ -29,10 +29,10 @@ mod identity;
 mod sweep;
 
 pub use crate::output_guard::{check_output_dir, check_output_file};
-pub use compare::*;
-pub use demo::*;
+pub use compare::compare_command;
+pub use demo::{demo, DemoPaths};
 pub use identity::{open_checkpoint, CheckpointLock, IDENTITY_FILE, LOCK_FILE, SESSION_KEYS};
-pub use sweep::*;
+pub use sweep::{collect, resume, sweep, Engine, SlurmArgs, SweepGrid, SweepOptions, Table3Args};
 
 /// Loads and prepares a dataset, printing a one-line summary.
 pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {

@@ -1,6 +1,10 @@
 //! Heatmap panels: colour maps, contour levels and lines, and how they are drawn.
 
-use super::*;
+use super::lines::{draw_legend, draw_series, Chart2d, LegendPosition, Series};
+use super::{data_bounds, format_tick_on, padded, palette, FAMILY};
+use anyhow::{anyhow, Result};
+use plotters::coord::Shift;
+use plotters::prelude::*;
 
 /// A heat map of `z(x, y)` on a regular grid (e.g. a learned function over two inputs).
 #[derive(Debug, Clone)]

@@ -1,6 +1,11 @@
 //! Line panels: series, their styles and legend, and how they are drawn.
 
-use super::*;
+use super::{data_bounds, format_log_tick, format_tick_on, padded, palette, FAMILY};
+use anyhow::{anyhow, Result};
+use plotters::coord::types::RangedCoordf64;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 /// How a series is drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

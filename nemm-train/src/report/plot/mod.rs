@@ -14,10 +14,10 @@
 //! ```
 
 use anyhow::{anyhow, Context, Result};
-use plotters::coord::types::RangedCoordf64;
+use heatmap::draw_heatmap;
+use lines::{draw_lines, draw_note};
 use plotters::coord::Shift;
 use plotters::prelude::*;
-use plotters::style::text_anchor::{HPos, Pos, VPos};
 use plotters::style::FontStyle;
 use std::path::Path;
 use std::sync::OnceLock;
@@ -25,8 +25,8 @@ use std::sync::OnceLock;
 mod heatmap;
 mod lines;
 
-pub use heatmap::*;
-pub use lines::*;
+pub use heatmap::{contour_segments, nice_levels, ColorMap, HeatmapPanel};
+pub use lines::{LegendPosition, LinePanel, Series, SeriesStyle};
 
 /// The bundled font (DejaVu Sans, Bitstream Vera / DejaVu licence).
 /// Height of a footer line in pixels.

@@ -48,7 +48,6 @@
 // plain index loops they vectorise reliably, which iterator chains over 3-4 arrays do not.
 #![allow(clippy::needless_range_loop)]
 
-use nemm_core::{Integrator, Priors};
 use nemm_kernels::emm::{self, Coefficients, State};
 use nemm_kernels::integrator::{self, Stage, StageBackward, StepSize};
 use nemm_kernels::lost_motion::{LostMotionAt, LOST_MOTION_PARAMS};
@@ -56,7 +55,6 @@ use nemm_kernels::math::{Lane, Lanes, MulAdd, Scalar, Unfused};
 use nemm_kernels::mlp::{self, Direction};
 use nemm_kernels::static_force::{self, STATIC_PARAMS};
 use num_traits::Float;
-use rayon::prelude::*;
 use std::fmt::Debug;
 use std::ops::{AddAssign, DivAssign};
 
@@ -89,5 +87,9 @@ type WindowLanes<T> = Lanes<T, LANES>;
 mod params;
 mod rollout;
 
-pub use params::*;
-pub use rollout::*;
+pub use params::{
+    BranchShape, Grid, RolloutGrads, RolloutParams, ScalerWeights, StaticParams, Window,
+};
+pub use rollout::{
+    loss_and_grad, loss_and_grad_paired, simulate, simulate_x_pr, LossParts, Pairing,
+};

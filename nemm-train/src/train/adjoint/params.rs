@@ -2,7 +2,8 @@
 //! alpha branches, static force), their gradient ([`RolloutGrads`]), the windows it runs on
 //! ([`Window`]) and where their samples fall on the model's grid ([`Grid`]).
 
-use super::*;
+use super::{mlp, Direction, Real, LOST_MOTION_PARAMS, STATIC_PARAMS};
+use nemm_core::{Integrator, Priors};
 
 /// Shape of a scaler's alpha branch (`nemm_kernels::mlp::AlphaBranch`): its weights follow
 /// the MLP's in [`ScalerWeights::w`], in nemm-core's branch layout.

@@ -31,23 +31,21 @@ use super::static_fit::{fit_residual, StaticSetup};
 use crate::config::{AlphaPriors, Config, DEFAULT_STATIC_FORCE};
 use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
-use burn::optim::{AdamConfig, GradientsParams};
-use burn::tensor::{Device, Tensor, TensorData};
-use nemm_core::{Body, InputScales, Integrator, Meta, Model, ModelKind, Scaler, SemMap};
+use nemm_core::{Integrator, Meta, Model, ModelKind, Scaler};
 use nemm_kernels::mlp::{BranchLayout, Direction, ScalerLayout};
 use nemm_kernels::sem::{MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES};
 use nemm_kernels::static_force::STATIC_PARAMS;
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use sem::train_sem;
 use serde::{Deserialize, Serialize};
+use stages::Stages;
 use std::path::Path;
-use std::time::Instant;
 
 mod sem;
 mod stages;
 
-pub use sem::*;
-use stages::*;
+pub use sem::{fit_sem, point_levels, sem_levels, SEM_CLUSTER_GAP, SEM_CLUSTER_SPAN};
 
 pub use super::session::SessionBudgetUsed;
 

@@ -1,6 +1,11 @@
 //! The SEM (static force-velocity map): knots from the quasi-static points, fitted per level.
 
-use super::*;
+use super::{
+    PipelineConfig, Prepared, QuasiStaticPoint, TrainedVariant, MAX_SEM_ALPHAS, MAX_SEM_VELOCITIES,
+};
+use anyhow::{bail, Result};
+use nemm_core::{Body, InputScales, Meta, Model, ModelKind, SemMap};
+use std::time::Instant;
 
 /// Relative velocity gap that separates two SEM support velocities (5 %).
 pub const SEM_CLUSTER_GAP: f64 = 0.05;

@@ -1,7 +1,19 @@
 //! The stages of the EMM family: the Linear EMM, the quasi-static `b_fl` regression (eq. 41)
 //! and the neural variants, with what they share.
 
-use super::*;
+use super::{
+    fit, fit_residual, init_scaler, loss_and_grad, meta_of, physics_loss, rmse, save_frame,
+    simulate_x_pr, to_core_with, windows, with_branch, AlphaPriors, Direction, EmmNet, FitConfig,
+    FitData, FitResult, Grid, PenaltyGrid, PipelineConfig, Prepared, QuasiStaticPoint,
+    RolloutParams, ScalerWeights, SessionBudgetUsed, StabilityHold, StaticParams, StaticSetup,
+    TrainedVariant, Window, STATIC_PARAMS,
+};
+use anyhow::{Context, Result};
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::{Device, Tensor, TensorData};
+use nemm_core::{Meta, ModelKind};
+use std::path::Path;
+use std::time::Instant;
 
 /// The least growth over `k_pr,ini` the NEMM's `k_pr` scaler is given (its `s_max`, unless
 /// the configured bound is lower). Where the stable set at the model's step allows less,

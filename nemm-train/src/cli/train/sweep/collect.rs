@@ -2,9 +2,18 @@
 //! state from the files it leaves (`report.json`, `exit`), and the table (`table5.md` or
 //! `table3.md`) with `sweep.json`, whichever engine ran the jobs.
 
-use super::*;
+use super::slurm::SlurmSettings;
+use super::{
+    job_dir, slurm, Config, DegradationPoint, Engine, SweepGrid, SweepJob, Table3Point,
+    TABLE3_PAPER_BEST,
+};
+use crate::atomic_file::write_atomic_bytes;
 use crate::report::signature::LevelSignature;
+use crate::report::tables::Report;
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
+use std::path::Path;
 
 /// The sweep's job list in its report folder.
 pub const SWEEP_MANIFEST_FILE: &str = "sweep-jobs.json";

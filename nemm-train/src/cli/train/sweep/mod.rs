@@ -7,14 +7,22 @@
 //! finished, `exit` with its exit status) and the tables. Collecting and resuming need only
 //! that folder.
 
-use super::*;
+use super::{
+    check_job_outputs, lambda_ph_scale_note, with_resolved_data, AlphaPriors, Config, CONFIG_FILE,
+};
+use anyhow::{bail, Context, Result};
+use collect::{
+    clear_exit, collect_sweep, job_state, write_exit, JobState, SweepManifest, TRAIN_LOG,
+};
 use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 mod collect;
 pub mod slurm;
 
-pub use collect::*;
-pub use slurm::{SlurmArgs, SlurmSettings};
+pub use collect::collect;
+pub use slurm::SlurmArgs;
 
 /// Default `nemm sweep` list of physics weights: Table 5's 0, 0.005, 0.015, 0.025 times 1000.
 pub const TABLE5_LAMBDAS: [f64; 4] = [0.0, 5.0, 15.0, 25.0];

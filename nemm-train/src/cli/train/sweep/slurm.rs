@@ -9,7 +9,14 @@
 //! missing and `--resume` submits again. Each task also records its start time (`start`,
 //! seconds since the epoch) for the engine's overhead.
 
-use super::*;
+use super::collect::{
+    clear_exit, collect_sweep, job_state, JobState, SweepManifest, EXIT_FILE, TRAIN_LOG,
+};
+use super::{job_dir, train_args, SweepGrid, SweepOptions};
+use crate::atomic_file::write_atomic_bytes;
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// The array's throttle (`%N`: tasks at a time) unless `--jobs` says otherwise.
 pub const DEFAULT_THROTTLE: usize = 8;
@@ -421,7 +428,9 @@ pub(super) fn submit_sweep(
 
 #[cfg(test)]
 mod tests {
+    use super::super::{sweep_jobs, Table3Args, Table3Point, TABLE3_PAPER_BEST};
     use super::*;
+    use crate::config::Config;
 
     #[test]
     fn reads_slurm_time_limits() {

@@ -1,6 +1,16 @@
 //! Figs. 8-10: the learned flow damping `b_fl(v_st, alpha)`.
 
-use super::*;
+use super::{
+    alpha_axis, b_fl_at, curve_violations, cut_alphas, emm_constants, force_violations, grid_2d,
+    linspace, map_and_cuts, max_training_alpha, num, over_alpha, reference_line, rel_change,
+    scaled_reference, state_cuts, sym_range, value_range, variant_color, with_range_lines,
+    with_violations, Coefficient, CoefficientMap, Ctx, Drawn, EmmReference, Grid2, HeatmapPanel,
+    LegendPosition, LinePanel, Series, StateCut, TrainedVariant, VariantInfo, AUDIT_GRID,
+    CUT_VELOCITY_M_S, MEASURED_GREY, REFERENCE_BLACK,
+};
+use anyhow::Result;
+use nemm_core::Model;
+use plotters::style::RGBColor;
 
 pub(in crate::report::figures) fn fig_b_fl(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
     let m = &tv.model;

@@ -1,6 +1,13 @@
 //! Fig. 11: the learned pressure damping `b_pr(alpha)`.
 
-use super::*;
+use super::{
+    alpha_axis, b_pr_at, emm_constants, linspace_f32, max_training_alpha, num, over_alpha,
+    reference_line, rel_change, scaled_reference, value_range, variant_color, violation,
+    with_violations, Coefficient, Ctx, Drawn, EmmReference, Figure, LegendPosition, LinePanel,
+    Series, TrainedVariant, AUDIT_GRID, MEASURED_GREY, REFERENCE_BLACK,
+};
+use anyhow::Result;
+use nemm_core::{Model, ModelKind};
 
 pub(in crate::report::figures) fn fig11_b_pr(ctx: &Ctx<'_>, tv: &TrainedVariant) -> Result<Drawn> {
     let m = &tv.model;

@@ -1,6 +1,14 @@
 //! Fig. 12: the learned pressure stiffness `k_pr(x_pr, alpha)`.
 
-use super::*;
+use super::{
+    alpha_axis, curve_violations, cut_alphas, emm_constants, force_violations, grid_2d, k_pr_at,
+    linspace, map_and_cuts, max_training_alpha, num, over_alpha, palette, reference_line,
+    rel_change, scaled_reference, state_cuts, value_range, with_violations, Coefficient,
+    CoefficientMap, Ctx, Drawn, EmmReference, Grid2, LegendPosition, LinePanel, Series, StateCut,
+    TrainedVariant, AUDIT_GRID, REFERENCE_K_COLORS,
+};
+use anyhow::Result;
+use nemm_core::Model;
 
 /// The `k_pr` reference curves of the bench on Fig. 12 (colours [`REFERENCE_K_COLORS`]).
 pub(super) const K_PR_REFERENCES: [Coefficient; 4] = [

@@ -13,7 +13,7 @@ use crate::report::plot::{
 use crate::train::physics::{violation, AUDIT_GRID};
 use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::{bail, Result};
-use nemm_core::{EmmConstants, Model, ModelKind};
+use nemm_core::{EmmConstants, Model};
 use plotters::style::RGBColor;
 
 mod b_fl;

@@ -1,7 +1,8 @@
 //! The state-dependent coefficients `b_fl(v_st, alpha)` and `k_pr(x_pr, alpha)` over the
 //! lanes: a constant or a bounded scaler, forward and reverse.
 
-use super::*;
+use super::scaler::{Act, LaneScaler};
+use crate::train::adjoint::{mlp, Lane, Real, ScalerWeights, Unfused, WindowLanes};
 
 /// A coefficient: constant `c0`, or `c0 (s_min + (s_max - s_min) sigmoid(z(state / scale,
 /// alpha_n)))` (nemm-core's [`mlp::bounded`] with `lo = c0 s_min`, `span = c0 (s_max -

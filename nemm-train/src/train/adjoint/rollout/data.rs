@@ -1,7 +1,10 @@
 //! A pack's inputs on the model grid: velocity, condition level, force, static-force
 //! features and per-lane loss weight, packed from up to [`LANES`] windows.
 
-use super::*;
+use crate::train::adjoint::{
+    static_force, Grid, Lanes, Real, RolloutParams, StaticParams, Window, WindowLanes, LANES,
+    STATIC_PARAMS,
+};
 
 /// Inputs of one pack on the model grid: per model step the lanes' velocity (and condition
 /// level when it varies within a window); per data sample the force and where the sample

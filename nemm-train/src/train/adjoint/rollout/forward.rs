@@ -1,6 +1,8 @@
 //! The forward sweep of a pack over the model grid and its forces at the data samples.
 
-use super::*;
+use super::data::PackData;
+use super::pack::{LaneState, Pack};
+use crate::train::adjoint::{emm, Lanes, Real, RolloutParams, Unfused, WindowLanes};
 
 /// Forward sweep over the model grid: states after every step (index 0 = rest, before step
 /// 0) and forces per step. A step whose condition level changed re-folds it (a new [`Pack`])

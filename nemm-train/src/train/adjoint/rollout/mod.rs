@@ -11,7 +11,12 @@
 //! - here: the entry points ([`loss_and_grad`], [`loss_and_grad_paired`], [`simulate`],
 //!   [`simulate_x_pr`]).
 
-use super::*;
+use super::{Grid, Real, RolloutGrads, RolloutParams, Window, WindowLanes, LANES};
+use data::{pack_data, PackData};
+use forward::{at_samples, forward_sweep};
+use pack::LaneState;
+use rayon::prelude::{IndexedParallelIterator, ParallelIterator, ParallelSlice};
+use reverse::{pack_loss_grad, SampleLoss};
 
 mod coef;
 mod data;
@@ -19,13 +24,6 @@ mod forward;
 mod pack;
 mod reverse;
 mod scaler;
-
-use coef::*;
-use data::*;
-use forward::*;
-use pack::*;
-use reverse::*;
-use scaler::*;
 
 /// Checks that all windows have the same length and returns it.
 fn common_len(windows: &[Window<'_>]) -> usize {

@@ -1,7 +1,13 @@
 //! Everything fixed for one pack at one condition level: the coefficients, `b_pr(alpha)`,
 //! `1 / T_pr` and the RK step, with the stage hooks of the forward and reverse step.
 
-use super::*;
+use super::coef::Coef;
+use super::scaler::{Act, LaneScaler};
+use crate::train::adjoint::{
+    integrator, mlp, Coefficients, Lane, LostMotionAt, MulAdd, Real, RolloutGrads, RolloutParams,
+    Stage, StageBackward, State, StepSize, Unfused, WindowLanes, LOST_MOTION_PARAMS,
+};
+use nemm_core::Integrator;
 
 /// A state over the lanes (or its adjoint).
 pub(super) type LaneState<T> = State<WindowLanes<T>>;

@@ -1,7 +1,16 @@
 //! The reverse sweep of a pack: the loss at the data samples and its exact discrete adjoint
 //! back through the output force, the RK steps, the scalers, `b_pr(alpha)` and `T_pr`.
 
-use super::*;
+use super::data::PackData;
+use super::forward::{at_samples, forward_sweep};
+use super::pack::{
+    BprRecord, LaneCoefficients, LaneState, LostMotionRec, Pack, PackAdjoint, PackStagesBack,
+    RecPair,
+};
+use crate::train::adjoint::{
+    emm, integrator, mlp, Lane, Lanes, LostMotionAt, Real, RolloutGrads, RolloutParams, Unfused,
+    WindowLanes, LANES, STATIC_PARAMS,
+};
 
 /// Back-propagates the accumulated `dL/d b_pr` of the current condition level through the
 /// `b_pr(alpha)` scaler (or into `b_pr,ini`) and clears it.

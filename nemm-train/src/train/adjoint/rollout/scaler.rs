@@ -1,7 +1,7 @@
 //! One scaler over the lanes of a pack (nemm-core's `ScalerView`, forward `raw` and
 //! reverse `raw_backward`) and the activation record of one evaluation.
 
-use super::*;
+use crate::train::adjoint::{mlp, Direction, Real, ScalerWeights, Unfused, WindowLanes};
 
 /// One scaler over the lanes at the pack's condition level: nemm-core's view of its
 /// weights ([`mlp::ScalerView`]) and its alpha level folded in ([`mlp::Folded`]).
