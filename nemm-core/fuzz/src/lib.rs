@@ -81,9 +81,7 @@ pub fn wrap_body(data: &[u8]) -> Option<Vec<u8>> {
 pub fn unwrap_body(blob: &[u8]) -> Option<Vec<u8>> {
     let h = read_header(blob).ok()?;
     let body_len = h.body_len as usize;
-    let header_len = blob
-        .len()
-        .checked_sub(body_len + nemm_core::CRC_LEN)?;
+    let header_len = blob.len().checked_sub(body_len + nemm_core::CRC_LEN)?;
     let kind = KINDS.iter().position(|&k| k == h.kind)? as u8;
     let max = u16::try_from(h.max_scaler_params).ok()?.to_le_bytes();
     let mut out = vec![kind, max[0], max[1]];
