@@ -163,10 +163,10 @@ fn list<T: std::fmt::Display>(v: &[T]) -> String {
     v.iter().map(T::to_string).collect::<Vec<_>>().join(", ")
 }
 
-/// Condition levels as printed ([`crate::data::dataset::alpha_text`]), comma-separated.
+/// Condition levels as printed ([`nemm_dataset::alpha_text`]), comma-separated.
 fn alpha_list(v: &[f64]) -> String {
     v.iter()
-        .map(|&a| crate::data::dataset::alpha_text(a))
+        .map(|&a| nemm_dataset::alpha_text(a))
         .collect::<Vec<_>>()
         .join(", ")
 }
@@ -284,7 +284,7 @@ impl DataConfig {
              # command-line options override them (docs/preprocessing.md, \"Data options\").\n{}",
             toml::to_string(&c)?
         );
-        crate::atomic_file::write_atomic_bytes(&path, text.as_bytes())
+        nemm_dataset::atomic_file::write_atomic_bytes(&path, text.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(path)
     }

@@ -12,7 +12,6 @@
 //! `nemm demo` save the effective one as `config.toml`, and `nemm sweep` runs each job from
 //! such a file.
 
-use crate::data::dataset::{self, Manifest};
 use crate::data::preprocess::{
     self, PrepareConfig, VelocitySource, CUTOFF_FRACTION_OF_RATE, DEFAULT_CUTOFF_HZ,
     DEFAULT_SPLIT_SEED, DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
@@ -20,6 +19,7 @@ use crate::data::preprocess::{
 };
 use anyhow::{bail, Context, Result};
 use nemm_core::{Integrator, ModelKind};
+use nemm_dataset::{self as dataset, Manifest};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -62,9 +62,7 @@ impl std::str::FromStr for AlphaPriors {
 /// Name of the effective configuration saved into a report folder.
 pub const CONFIG_FILE: &str = "config.toml";
 
-/// Name of a dataset's own data options, next to its `manifest.toml`: read by every command
-/// that reads the dataset, written by `nemm data prepare --save-options`.
-pub const DATA_OPTIONS_FILE: &str = "nemm-data.toml";
+pub use nemm_dataset::DATA_OPTIONS_FILE;
 
 /// Nonzero `lambda_ph` values below this are most likely the paper's numbers (Table 5: 0.005
 /// to 0.025) rather than this crate's.
@@ -341,7 +339,7 @@ impl Config {
 
     /// Writes the configuration as TOML to `path` (atomically).
     pub fn save(&self, path: &Path) -> Result<()> {
-        crate::atomic_file::write_atomic_bytes(path, self.to_toml()?.as_bytes())
+        nemm_dataset::atomic_file::write_atomic_bytes(path, self.to_toml()?.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))
     }
 

@@ -2,7 +2,7 @@
 //! onto the dataset's grid.
 
 use super::*;
-use crate::data::csv::{CsvError, CsvReader, Dialect, Header, Row};
+use nemm_dataset::csv::{CsvError, CsvReader, Dialect, Header, Row};
 
 /// One raw file converted to SI units, with the source line of every sample.
 #[derive(Debug, Clone, PartialEq)]

@@ -10,8 +10,8 @@
 //! returns a [`Dataset`] that [`dataset::write()`] writes atomically.
 //!
 //! Every error names the raw file, its line and its column (or the spec key).
-use crate::data::dataset::{self, Dataset, DatasetError, Run, RunEntry};
 use nemm_core::Direction;
+use nemm_dataset::{self as dataset, Dataset, DatasetError, Run, RunEntry};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

@@ -29,7 +29,7 @@
 //! Everything here is at the data's sample rate; the model integrates at its own rate, onto
 //! which the trainer interpolates the sequences (`train::adjoint::Grid`, docs/preprocessing.md).
 
-use crate::data::dataset::{Dataset, Run};
+use nemm_dataset::{Dataset, Run};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 

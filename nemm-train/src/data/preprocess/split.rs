@@ -173,7 +173,7 @@ impl SplitConfig {
                 let levels = distinct_levels(dataset.runs.iter().map(|r| r.entry.oil_loss));
                 let alphas: Vec<String> = levels
                     .iter()
-                    .map(|&l| crate::data::dataset::alpha_text(l))
+                    .map(|&l| nemm_dataset::alpha_text(l))
                     .collect();
                 let condition = dataset.condition.clone().unwrap_or_default();
                 let values = if condition.is_alpha_itself() {
@@ -185,7 +185,7 @@ impl SplitConfig {
                     key,
                     format!(
                         "alpha {} matches no run; the dataset's {} levels are alpha {}{values}",
-                        crate::data::dataset::alpha_text(a),
+                        nemm_dataset::alpha_text(a),
                         condition.name,
                         alphas.join(", ")
                     ),
@@ -225,11 +225,11 @@ impl SplitConfig {
 
     /// One line for reports: the test set, the training runs and the validation rule.
     pub fn describe(&self) -> String {
-        self.describe_for(&crate::data::dataset::ConditionSpec::default())
+        self.describe_for(&nemm_dataset::ConditionSpec::default())
     }
 
     /// [`Self::describe`] with the levels named by the dataset's `condition`.
-    pub fn describe_for(&self, condition: &crate::data::dataset::ConditionSpec) -> String {
+    pub fn describe_for(&self, condition: &nemm_dataset::ConditionSpec) -> String {
         let list = |v: &[f64]| {
             v.iter()
                 .map(|&a| condition.cell(a))

@@ -12,7 +12,7 @@
 //! `docs/virtual-bench.md`.
 //!
 //! ```no_run
-//! use nemm_train::bench::{config::BenchConfig, VirtualBench};
+//! use nemm_virtual_bench::{config::BenchConfig, VirtualBench};
 //! let bench = VirtualBench::new(BenchConfig::default());
 //! let dataset = bench.generate(42, |_done, _total| {});
 //! ```
@@ -27,9 +27,9 @@ mod simulate;
 
 pub use simulate::{SolverStats, Trace};
 
-use crate::data::dataset::{Dataset, Run, RunEntry};
 use config::BenchConfig;
 use hydraulics::{Damper, Filling};
+use nemm_dataset::{Dataset, Run, RunEntry};
 use program::RunSpec;
 use rand::RngExt;
 use rand_distr::StandardNormal;
