@@ -1,6 +1,12 @@
 //! Split and scales: the train / validation / test split of Table 2 and the abs-max feature scales.
 
-use super::*;
+use super::{
+    config_err, sequence_count, PreprocessError, Sequence, ALPHA_TOLERANCE, DEFAULT_SPLIT_SEED,
+    DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION,
+};
+use nemm_dataset::Dataset;
+use serde::Deserialize;
+use serde::Serialize;
 
 /// How runs and sequences are split (Table 2 by default).
 ///
@@ -302,7 +308,7 @@ pub enum Part {
 }
 
 /// A stretch `[start, end)` of a run's samples and its use. The stretches of a run are
-/// disjoint and each is cut into windows on its own ([`cut_sequences`]), so no window, warm-up
+/// disjoint and each is cut into windows on its own ([`cut_sequences`](super::cut_sequences)), so no window, warm-up
 /// included, reads a sample of another stretch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Stretch {
@@ -398,7 +404,7 @@ pub struct Scales {
 }
 
 impl Scales {
-    /// Scales of a set of (training) sequences (from their f32 values; [`prepare`] uses the
+    /// Scales of a set of (training) sequences (from their f32 values; [`prepare`](super::prepare()) uses the
     /// f64 signals, which agree to f32 rounding).
     pub fn from_sequences(train: &[Sequence]) -> Result<Scales, PreprocessError> {
         let absmax = |f: &dyn Fn(&Sequence) -> f64| train.iter().map(f).fold(0.0f64, f64::max);
