@@ -7,7 +7,7 @@
 //!
 //! It is a test instrument, not part of training: `nemm bench`, `nemm demo` and the tests
 //! generate data with it, and the trainer's reports draw the equivalent EMM coefficients of
-//! its damper ([`reference`]) as reference curves on virtual-bench data.
+//! its damper ([`reference`](mod@reference)) as reference curves on virtual-bench data.
 //!
 //! The model is deliberately richer than the EMM (section 4 of the paper): three chambers
 //! (rebound, compression, gas-charged reservoir), oil compressibility with entrained free gas
