@@ -11,7 +11,8 @@
 //!   here).
 //! - `trace.bin`: the bench trace the replay device serves (`src/trace.rs`): the run CSV
 //!   named by `NEMM_TRACE` (`time_s,displacement_m,force_n[,velocity_m_s]`, the project's
-//!   dataset format, the measured force included; oil loss from `NEMM_TRACE_OIL_LOSS`,
+//!   dataset format read by its reader `nemm-dataset`, the measured force included; oil loss
+//!   from `NEMM_TRACE_OIL_LOSS`,
 //!   default 0.15), by default
 //!   `data/e2e/runs/oil15_a050_v1048.csv` (a virtual-bench run, see `data/README.md`);
 //!   `NEMM_TRACE=synthetic` selects a deterministic synthetic run over the paper's Table 1
@@ -82,8 +83,8 @@ fn main() {
         Some(p) => {
             let p = manifest_dir.join(p);
             println!("cargo:rerun-if-changed={}", p.display());
-            let (rate, samples) =
-                parse_run_csv(&p).unwrap_or_else(|e| panic!("NEMM_TRACE: {}: {e}", p.display()));
+            let (rate, samples) = read_run_csv(&p, oil_loss)
+                .unwrap_or_else(|e| panic!("NEMM_TRACE: {}: {e}", p.display()));
             encode_trace(rate, oil_loss, &samples)
         }
         None => encode_trace(SAMPLE_RATE_HZ as f32, oil_loss, &synthetic_run()),
@@ -120,41 +121,36 @@ fn encode_trace(rate_hz: f32, oil_loss: f32, samples: &[Sample]) -> Vec<u8> {
     b
 }
 
-/// A run CSV with a header naming `time_s` and `displacement_m` (and optionally `force_n`
-/// and `velocity_m_s`); returns the mean sample rate and the samples.
-fn parse_run_csv(path: &Path) -> Result<(f32, Vec<Sample>), String> {
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .from_path(path)
-        .map_err(|e| e.to_string())?;
-    let headers = reader.headers().map_err(|e| e.to_string())?.clone();
-    let col = |name: &str| headers.iter().position(|c| c == name);
-    let t_col = col("time_s").ok_or("no `time_s` column")?;
-    let x_col = col("displacement_m").ok_or("no `displacement_m` column")?;
-    let v_col = col("velocity_m_s");
-    let f_col = col("force_n");
-    let (mut t0, mut t1, mut samples) = (None, 0.0f64, Vec::new());
-    for record in reader.records() {
-        let record = record.map_err(|e| e.to_string())?;
-        let line = record.position().map_or(0, |p| p.line());
-        let num = |c: usize| -> Result<f64, String> {
-            record
-                .get(c)
-                .ok_or(format!("line {line}: missing column {c}"))?
-                .parse::<f64>()
-                .map_err(|e| format!("line {line}: {e}"))
-        };
-        let t = num(t_col)?;
-        t0.get_or_insert(t);
-        t1 = t;
-        let optional = |c: Option<usize>| c.map_or(Ok(f32::NAN), |c| num(c).map(|v| v as f32));
-        samples.push((num(x_col)? as f32, optional(v_col)?, optional(f_col)?));
+/// The run CSV at `path`, read by the dataset's reader (`nemm_dataset::read_lone_run`: the
+/// header names `time_s`, `displacement_m` and `force_n`, optionally `velocity_m_s`; errors
+/// name the file and line; time stamps on a uniform grid); returns the mean sample rate
+/// `(n - 1) / (t_last - t_first)` and the samples.
+fn read_run_csv(path: &Path, oil_loss: f32) -> Result<(f32, Vec<Sample>), String> {
+    let entry = nemm_dataset::RunEntry {
+        file: path.to_path_buf(),
+        oil_loss: f64::from(oil_loss),
+        amplitude_m: None,
+        target_velocity_m_s: None,
+    };
+    let (run, _grid) = nemm_dataset::read_lone_run(path, entry).map_err(|e| e.to_string())?;
+    let (Some(&t0), Some(&t1)) = (run.time_s.first(), run.time_s.last()) else {
+        return Err("no samples".into());
+    };
+    if run.len() < 2 {
+        return Err("need at least two samples".into());
     }
-    let t0 = t0.ok_or("no samples")?;
-    if samples.len() < 2 || t1 <= t0 {
-        return Err("need at least two samples with increasing time".into());
-    }
-    let rate = (samples.len() - 1) as f64 / (t1 - t0);
+    let rate = (run.len() - 1) as f64 / (t1 - t0);
+    let velocity: Vec<f32> = match &run.velocity_m_s {
+        Some(v) => v.iter().map(|&v| v as f32).collect(),
+        None => vec![f32::NAN; run.len()],
+    };
+    let samples = run
+        .displacement_m
+        .iter()
+        .zip(&velocity)
+        .zip(&run.force_n)
+        .map(|((&x, &v), &f)| (x as f32, v, f as f32))
+        .collect();
     Ok((rate as f32, samples))
 }
 

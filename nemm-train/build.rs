@@ -1,7 +1,7 @@
 //! Records the commit the trainer is built from (`NEMM_GIT_COMMIT`: `git rev-parse --short
 //! HEAD`, with `+dirty` when tracked files differ from it; `unknown` outside a git checkout),
 //! so every report names the code that produced it. The script reruns when HEAD, the index
-//! or the sources of the trainer and nemm-core change.
+//! or the sources of the trainer, nemm-core, nemm-dataset and nemm-virtual-bench change.
 use std::process::Command;
 
 fn git(args: &[&str]) -> Option<String> {
@@ -29,6 +29,11 @@ fn main() {
         "Cargo.toml",
         "../nemm-core/src",
         "../nemm-core/Cargo.toml",
+        "../nemm-dataset/src",
+        "../nemm-dataset/Cargo.toml",
+        "../nemm-virtual-bench/src",
+        "../nemm-virtual-bench/assets",
+        "../nemm-virtual-bench/Cargo.toml",
     ] {
         println!("cargo:rerun-if-changed={dir}");
     }

@@ -1,13 +1,14 @@
 //! # nemm-train
 //!
-//! Host side of the NEMM project: test-bench data (interchange format and a first-principles
-//! virtual bench), the preprocessing of section 5.3, training and evaluation of the four model
-//! variants (sections 5-6) and export to the `nemm-core` weight format.
+//! Host side of the NEMM project: import and preprocessing of test-bench data (section 5.3),
+//! training and evaluation of the four model variants (sections 5-6), reports and export to
+//! the `nemm-core` weight format. The dataset interchange format is the `nemm-dataset` crate,
+//! the virtual test bench that synthesises datasets the `nemm-virtual-bench` crate.
 //!
 //! The modules follow the data (see `ARCHITECTURE.md` at the repository root):
 //!
-//! - [`data`]: the dataset interchange format and the preprocessing of section 5.3;
-//! - [`bench`](mod@bench): the virtual test bench that synthesises a dataset;
+//! - [`data`]: raw-data import, plausibility checks and the preprocessing of section 5.3 of
+//!   datasets in the interchange format ([`nemm_dataset`]);
 //! - [`train`]: the rollout and its adjoint, the physics losses, the training loop, the four
 //!   variants, evaluation and export checks;
 //! - [`report`]: Table 4 / 5, figures and plotting, blob descriptions;
@@ -15,8 +16,6 @@
 //! - [`cli`]: the `nemm` command line, a thin layer over the modules above;
 //! - [`output_guard`]: the output rule every command checks before any work.
 
-pub mod atomic_file;
-pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod data;

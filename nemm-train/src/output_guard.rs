@@ -7,11 +7,13 @@
 //! only with the command's explicit flag.
 //!
 //! Outputs are written through symbolic links: the link stays and its target gets the new
-//! content ([`resolve_link`], used by [`crate::atomic_file::write_atomic`] and the dataset
+//! content ([`resolve_link`], used by [`nemm_dataset::atomic_file::write_atomic`] and the dataset
 //! writer).
 
 use anyhow::{bail, Context, Result};
-use std::path::{Component, Path, PathBuf};
+use nemm_dataset::atomic_file;
+pub use nemm_dataset::atomic_file::resolve_link;
+use std::path::{Path, PathBuf};
 
 /// What a command writes at an output path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -122,8 +124,8 @@ impl Inputs {
     /// The dataset folder `dir` (`what`: its option, e.g. `--data`), its manifest and every
     /// run file the manifest lists (run files may lie outside the folder).
     pub fn dataset(self, what: &str, dir: &Path) -> Self {
-        let manifest = dir.join(crate::data::dataset::MANIFEST_FILE);
-        let runs: Vec<PathBuf> = crate::data::dataset::read_manifest(dir)
+        let manifest = dir.join(nemm_dataset::MANIFEST_FILE);
+        let runs: Vec<PathBuf> = nemm_dataset::read_manifest(dir)
             .map(|m| m.runs.iter().map(|r| dir.join(&r.file)).collect())
             .unwrap_or_default();
         let mut s = self
@@ -136,66 +138,11 @@ impl Inputs {
     }
 }
 
-/// `path` with its last component's symbolic links followed (up to 40 links): the path an
-/// output is written to so that a symbolic link stays and its target gets the content.
-/// A path that is not a link is returned as it is.
-pub fn resolve_link(path: &Path) -> PathBuf {
-    let mut p = path.to_path_buf();
-    for _ in 0..40 {
-        match std::fs::read_link(&p) {
-            Ok(target) if target.is_absolute() => p = target,
-            Ok(target) => {
-                let parent = p.parent().map(Path::to_path_buf).unwrap_or_default();
-                p = parent.join(target);
-            }
-            Err(_) => break,
-        }
-    }
-    p
-}
-
 /// `path` absolute and resolved through symbolic links: canonical when it exists, else its
-/// nearest existing ancestor canonical and the rest appended (`..` and `.` folded).
+/// nearest existing ancestor canonical and the rest appended (`..` and `.` folded)
+/// ([`nemm_dataset::atomic_file::resolve`]).
 pub fn resolve(path: &Path) -> Result<PathBuf> {
-    let path = resolve_link(path);
-    if let Ok(p) = std::fs::canonicalize(&path) {
-        return Ok(p);
-    }
-    let given = if path.is_absolute() {
-        path
-    } else {
-        std::env::current_dir()
-            .context("cannot read the current folder")?
-            .join(path)
-    };
-    // `..` after the part that exists resolves from that part's real location.
-    let mut absolute = PathBuf::new();
-    for c in given.components() {
-        match c {
-            Component::ParentDir => {
-                absolute = std::fs::canonicalize(&absolute).unwrap_or(absolute);
-                absolute.pop();
-            }
-            Component::CurDir => {}
-            other => absolute.push(other),
-        }
-    }
-    let mut rest = Vec::new();
-    let mut base = absolute.as_path();
-    let mut out = loop {
-        match std::fs::canonicalize(base) {
-            Ok(p) => break p,
-            Err(_) => match (base.parent(), base.file_name()) {
-                (Some(parent), Some(name)) => {
-                    rest.push(name.to_os_string());
-                    base = parent;
-                }
-                _ => break base.to_path_buf(),
-            },
-        }
-    };
-    out.extend(rest.iter().rev());
-    Ok(out)
+    atomic_file::resolve(path).context("cannot read the current folder")
 }
 
 /// Checks every output of a command against its inputs, before any work: each output

@@ -1,7 +1,7 @@
 //! `nemm data check`: plausibility findings, robust amplitude and the velocity-column check.
+use nemm_dataset::{Dataset, Run, RunEntry};
 use nemm_train::cli::data::check_report;
 use nemm_train::data::check::{self, Finding, FindingKind};
-use nemm_train::data::dataset::{Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, SignalConfig};
 use std::f64::consts::PI;
 use std::path::PathBuf;

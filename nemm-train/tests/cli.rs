@@ -4,8 +4,8 @@
 //! from the checkpoint, `inspect`, a `sweep` run as separate processes and collected, and the
 //! exported blob run through nemm-core's estimator against the trainer's own test RMSE.
 use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind};
+use nemm_dataset as dataset;
 use nemm_train::config::{Config, CONFIG_FILE};
-use nemm_train::data::dataset;
 use nemm_train::data::preprocess;
 use nemm_train::report::tables::Report;
 use std::ffi::OsStr;

@@ -4,11 +4,11 @@
 //! files, a level step on two runs of the virtual bench, and the refusal of bad inputs with
 //! nothing written.
 use nemm_core::{AlphaObserver, ObserverConfig};
-use nemm_train::bench::config::BenchConfig;
-use nemm_train::bench::VirtualBench;
-use nemm_train::data::dataset;
+use nemm_dataset as dataset;
 use nemm_train::data::preprocess::causal_velocity;
 use nemm_train::train::identify::{identify, AlphaGrid, Run, Search, DEFAULT_STEP};
+use nemm_virtual_bench::config::BenchConfig;
+use nemm_virtual_bench::VirtualBench;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

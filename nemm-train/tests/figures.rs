@@ -3,16 +3,16 @@
 //! were not trained are left out; only I/O failures are errors.
 use nemm_core::testing::example_model;
 use nemm_core::ModelKind;
-use nemm_train::bench::config::BenchConfig;
-use nemm_train::bench::reference::{self, EmmReference};
-use nemm_train::bench::VirtualBench;
-use nemm_train::data::dataset::{Dataset, Run};
+use nemm_dataset::{Dataset, Run};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared};
 use nemm_train::report::figures::{figure_predictions, write_all, write_all_with_reference};
 use nemm_train::report::predictions::RunPredictions;
 use nemm_train::report::tables::{evaluate, Report};
 use nemm_train::train::history::EpochStats;
 use nemm_train::train::pipeline::TrainedVariant;
+use nemm_virtual_bench::config::BenchConfig;
+use nemm_virtual_bench::reference::{self, EmmReference};
+use nemm_virtual_bench::VirtualBench;
 use std::path::Path;
 
 use support::{DamperForce, SineRun};

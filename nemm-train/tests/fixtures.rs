@@ -1,11 +1,11 @@
 //! The committed fixtures (`nemm-train/tests/fixtures/`, see its README): they equal what
 //! `nemm bench fixtures` generates, `nemm data check` loads each interchange fixture, and
 //! bench plots and the SEM support points work on them.
-use nemm_train::bench::fixtures::{fixtures, write_fixtures};
-use nemm_train::data::dataset;
+use nemm_dataset as dataset;
 use nemm_train::data::preprocess::{self, Direction, PrepareConfig, SignalConfig};
 use nemm_train::data::support_points::periodicity;
 use nemm_train::train::pipeline::PipelineConfig;
+use nemm_virtual_bench::fixtures::{fixtures, write_fixtures};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -337,8 +337,8 @@ fn random_runs_give_monotone_support_points_and_a_sem() {
 /// `|x| <= 5 % A`): its fastest points agree with the paper's points of the run.
 #[test]
 fn low_acceleration_rule_on_a_sine_stays_close_to_the_paper_rule() {
-    use nemm_train::bench::{config::BenchConfig, program::run_spec, VirtualBench};
     use nemm_train::data::support_points::low_acceleration_points;
+    use nemm_virtual_bench::{config::BenchConfig, program::run_spec, VirtualBench};
     let bench = VirtualBench::new(BenchConfig::default());
     for (amp, v) in [(0.03, 0.262), (0.01, 0.524)] {
         let spec = run_spec(&bench.config().program, 0.0, amp, v);
@@ -386,7 +386,7 @@ fn low_acceleration_rule_on_a_sine_stays_close_to_the_paper_rule() {
 /// velocity included; its distance to the full-amplitude passes is printed).
 #[test]
 fn sem_from_sine_points_reproduces_the_steady_support_points() {
-    use nemm_train::bench::{config::BenchConfig, VirtualBench};
+    use nemm_virtual_bench::{config::BenchConfig, VirtualBench};
     let mut cfg = BenchConfig::default();
     cfg.program.oil_loss = vec![0.0, 0.3];
     cfg.program.amplitudes_m = vec![0.03];

@@ -1,5 +1,5 @@
 //! `nemm data import`: raw dyno files with other units, signs, headers and long records.
-use nemm_train::data::dataset::{self, DatasetError};
+use nemm_dataset::{self as dataset, DatasetError};
 use nemm_train::data::import::{self, ImportError, ImportSpec};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};

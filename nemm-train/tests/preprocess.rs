@@ -1,6 +1,6 @@
 //! Preprocessing (section 5.3): differentiation, excitation estimates, quasi-static points,
 //! sequences, split and scales, on synthetic signals with known answers.
-use nemm_train::data::dataset::{self, Dataset, Run};
+use nemm_dataset::{self as dataset, Dataset, Run};
 use nemm_train::data::preprocess::{
     self, Direction, PrepareConfig, PreprocessError, QuasiStaticPoint, RunRole, SequenceConfig,
     SignalConfig, SplitConfig, VelocitySource,

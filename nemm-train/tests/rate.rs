@@ -7,13 +7,13 @@
 //! ```
 use nemm_core::ModelKind;
 use nemm_core::{Estimator, EstimatorConfig, EstimatorError, EvalMode, Model, TableConfig};
-use nemm_train::bench::config::BenchConfig;
-use nemm_train::bench::program::run_spec;
-use nemm_train::bench::VirtualBench;
-use nemm_train::data::dataset::{self, Dataset, Run, RunEntry};
+use nemm_dataset::{self as dataset, Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared, RunRole};
 use nemm_train::train::eval::{predict, run_estimator, Input};
 use nemm_train::train::pipeline::{train_variants, PipelineConfig, VariantInfo};
+use nemm_virtual_bench::config::BenchConfig;
+use nemm_virtual_bench::program::run_spec;
+use nemm_virtual_bench::VirtualBench;
 use std::path::PathBuf;
 
 /// The rate of the virtual bench and of the model \[Hz\].

@@ -2,8 +2,8 @@
 //! choices made from a 300 Hz dataset, the dataset's options file, the true cause of a split
 //! that leaves nothing to train on, a split in time of a single-level dataset, and a
 //! comparison in which one variant fails but Table 4 is still written.
+use nemm_dataset as dataset;
 use nemm_train::config::{Config, CONFIG_FILE, DATA_OPTIONS_FILE};
-use nemm_train::data::dataset;
 use nemm_train::report::tables::Report;
 use std::path::Path;
 use std::process::{Command, Output};

@@ -6,7 +6,7 @@
 mod support;
 
 use nemm_core::ModelKind;
-use nemm_train::data::dataset::Run;
+use nemm_dataset::Run;
 use nemm_train::data::preprocess::{self, PrepareConfig};
 use nemm_train::train::fit::FitConfig;
 use nemm_train::train::pipeline::{train_variants, PipelineConfig};

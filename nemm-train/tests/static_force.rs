@@ -10,7 +10,7 @@
 //! ```
 use nemm_core::ModelKind;
 use nemm_core::{Estimator, EstimatorConfig, Flags, Model};
-use nemm_train::data::dataset;
+use nemm_dataset as dataset;
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared, RunRole};
 use nemm_train::train::eval::{input_of, predict, rmse_model, run_estimator};
 use nemm_train::train::pipeline::{train_variants, PipelineConfig};

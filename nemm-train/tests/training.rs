@@ -4,8 +4,8 @@ mod support;
 use burn::tensor::Device;
 use nemm_core::ModelKind;
 use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
+use nemm_dataset::{Dataset, Run};
 use nemm_kernels::emm::EmmConstants;
-use nemm_train::data::dataset::{Dataset, Run};
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
 use nemm_train::train::adjoint::{Grid, RolloutParams};
 use nemm_train::train::fit::{fit, FitConfig, FitData};
@@ -456,9 +456,9 @@ fn alpha_branch_keeps_the_trained_model_clean_in_alpha_without_a_penalty() {
 /// rebound and compression valves, other foaming and separation, more seal friction and
 /// load-cell noise; 10 and 30 mm at three velocities, levels 0, 0.15 (test) and 0.3, short
 /// ramps.
-fn other_damper() -> nemm_train::data::dataset::Dataset {
-    use nemm_train::bench::config::BenchConfig;
-    use nemm_train::bench::VirtualBench;
+fn other_damper() -> nemm_dataset::Dataset {
+    use nemm_virtual_bench::config::BenchConfig;
+    use nemm_virtual_bench::VirtualBench;
     let mut cfg = BenchConfig {
         name: "another damper".into(),
         ..BenchConfig::default()

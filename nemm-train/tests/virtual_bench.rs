@@ -1,12 +1,12 @@
 //! Tests of the virtual test bench: physics (forces, monotonicity, dissipation, oil-loss
 //! effects), integrator stability, determinism of the generated files, config errors, plots.
 
-use nemm_train::bench::config::{self, BenchConfig};
-use nemm_train::bench::program::{run_spec, RunSpec};
-use nemm_train::bench::{Trace, VirtualBench};
-use nemm_train::data::dataset::{self, Run, RunEntry};
+use nemm_dataset::{self as dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{process_run, run_signals, SignalConfig};
 use nemm_train::report::bench_plots::{cycle_loop, CycleLoop};
+use nemm_virtual_bench::config::{self, BenchConfig};
+use nemm_virtual_bench::program::{run_spec, RunSpec};
+use nemm_virtual_bench::{Trace, VirtualBench};
 use std::path::{Path, PathBuf};
 
 fn bench() -> VirtualBench {
@@ -533,7 +533,7 @@ fn plots_are_written_for_a_generated_dataset() {
 /// constant-level run until the first change and differs from it afterwards.
 #[test]
 fn alpha_schedule_changes_the_force_from_its_first_switch_on() {
-    let cfg = nemm_train::bench::fixtures::fixtures()
+    let cfg = nemm_virtual_bench::fixtures::fixtures()
         .into_iter()
         .find(|f| f.name == "alpha_schedule_1khz")
         .unwrap()
@@ -573,7 +573,7 @@ fn the_free_gas_and_so_the_pressure_element_depend_on_the_run_not_on_the_level_a
     // draws in more foam at each lossy level, and the compression chamber softens with the
     // level on both. On the default bench the fast 15 % run holds more free gas than the
     // slow 30 % one: the gas is a state of the run, not a function of alpha.
-    use nemm_train::bench::reference::{every_condition, every_condition_markdown, Coefficient};
+    use nemm_virtual_bench::reference::{every_condition, every_condition_markdown, Coefficient};
     let mut cfg = BenchConfig::default();
     cfg.program.amplitudes_m = vec![0.01];
     cfg.program.peak_velocities_m_s = vec![0.131, 1.048];
@@ -581,7 +581,7 @@ fn the_free_gas_and_so_the_pressure_element_depend_on_the_run_not_on_the_level_a
     assert_eq!(refs.len(), 2);
     let (slow, fast) = (&refs[0], &refs[1]);
     assert_eq!(slow.run.peak_velocity_m_s, 0.131);
-    let gas = |r: &nemm_train::bench::reference::EmmReference, a: f64| {
+    let gas = |r: &nemm_virtual_bench::reference::EmmReference, a: f64| {
         r.levels
             .iter()
             .find(|l| l.alpha == a)

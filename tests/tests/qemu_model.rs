@@ -47,7 +47,7 @@ fn the_embedded_model_is_what_its_recorded_command_trains() {
             let dir = scratch_dir();
             let bench = dir.join("firmware-bench");
             nemm_train::cli::bench::generate(
-                &nemm_train::bench::config::BenchConfig::default(),
+                &nemm_virtual_bench::config::BenchConfig::default(),
                 1,
                 &bench,
             )

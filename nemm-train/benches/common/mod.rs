@@ -9,7 +9,7 @@ pub fn bench_data() -> PathBuf {
         .unwrap_or_else(|| std::env::temp_dir().join("nemm-train-time-bench"));
     if !data.join("manifest.toml").exists() {
         nemm_train::cli::bench::generate(
-            &nemm_train::bench::config::BenchConfig::default(),
+            &nemm_virtual_bench::config::BenchConfig::default(),
             1,
             &data,
         )

@@ -1,11 +1,11 @@
 //! `nemm bench ...`: generate a virtual-bench dataset, plot a dataset, print the default config.
 
-use crate::bench::config::{self, BenchConfig};
-use crate::bench::reference::{EmmReference, BENCH_CONFIG_FILE};
-use crate::bench::VirtualBench;
 use crate::output_guard::{self, Inputs, Output};
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
+use nemm_virtual_bench::config::{self, BenchConfig};
+use nemm_virtual_bench::reference::{EmmReference, BENCH_CONFIG_FILE};
+use nemm_virtual_bench::VirtualBench;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -91,7 +91,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         } => {
             let inputs = Inputs::new().paths("--config", config.as_deref());
             output_guard::check(&[Output::dataset("--out", &out)], &inputs, false, "")?;
-            let manifest = out.join(crate::data::dataset::MANIFEST_FILE);
+            let manifest = out.join(nemm_dataset::MANIFEST_FILE);
             if manifest.exists() && !out.join(BENCH_CONFIG_FILE).exists() && !replace {
                 bail!(
                     "--out {}: holds a dataset the virtual bench did not generate ({} without \
@@ -118,7 +118,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             output_guard::check(&[Output::folder("--out", &out)], &inputs, false, "")?;
             let resolved = crate::config::resolve_data(&data.in_dir(&dir))?;
             let signal = resolved.config.prepare_config().signal;
-            let ds = crate::data::dataset::load(&dir)
+            let ds = nemm_dataset::load(&dir)
                 .with_context(|| format!("cannot load the dataset {}", dir.display()))?;
             let signals = crate::data::preprocess::run_signals(&ds, &signal)
                 .context("cannot derive the velocity of the runs")?;
@@ -148,13 +148,13 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 None => BenchConfig::default(),
             };
             if every_condition {
-                let refs = crate::bench::reference::every_condition(&VirtualBench::new(cfg))?;
+                let refs = nemm_virtual_bench::reference::every_condition(&VirtualBench::new(cfg))?;
                 if json {
                     println!("{}", serde_json::to_string_pretty(&refs)?);
                 } else {
                     print!(
                         "{}",
-                        crate::bench::reference::every_condition_markdown(&refs)
+                        nemm_virtual_bench::reference::every_condition_markdown(&refs)
                     );
                 }
                 return Ok(());
@@ -173,7 +173,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
         BenchCmd::Fixtures { out } => {
             output_guard::check(&[Output::folder("--out", &out)], &Inputs::new(), false, "")?;
-            for f in crate::bench::fixtures::write_fixtures(&out)? {
+            for f in nemm_virtual_bench::fixtures::write_fixtures(&out)? {
                 println!("wrote {}", f.display());
             }
             Ok(())
@@ -182,7 +182,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
 }
 
 /// Generates the programme of `cfg` into `out`, printing progress on stderr. The dataset
-/// `out` holds is replaced as a whole ([`crate::data::dataset::write()`]: built in a sibling
+/// `out` holds is replaced as a whole ([`nemm_dataset::write()`]: built in a sibling
 /// folder and swapped in; other files in `out` are kept).
 pub fn generate(cfg: &BenchConfig, seed: u64, out: &Path) -> Result<()> {
     let bench = VirtualBench::new(cfg.clone());
@@ -204,7 +204,7 @@ pub fn generate(cfg: &BenchConfig, seed: u64, out: &Path) -> Result<()> {
     });
     eprintln!();
     let simulated = start.elapsed().as_secs_f64();
-    crate::data::dataset::write(out, &dataset)
+    nemm_dataset::write(out, &dataset)
         .with_context(|| format!("cannot write the dataset to {}", out.display()))?;
     write_bench_config(cfg, out)?;
     let bytes: u64 = dataset
@@ -241,6 +241,6 @@ pub fn write_bench_config(cfg: &BenchConfig, dir: &Path) -> Result<()> {
          # (docs/virtual-bench.md, \"Equivalent EMM coefficients\").\n{}",
         cfg.to_toml()?
     );
-    crate::atomic_file::write_atomic_bytes(&path, text.as_bytes())
+    nemm_dataset::atomic_file::write_atomic_bytes(&path, text.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -2,7 +2,6 @@
 //! preprocessing of section 5.3 makes of it.
 use crate::config::{resolve_data, DataConfig};
 use crate::data::check::{self, Finding};
-use crate::data::dataset::{self, Dataset};
 use crate::data::import::{self, ColumnSpec, ImportSpec, SplitMethod};
 use crate::data::preprocess::{
     self, PrepareConfig, RunRole, RunSummary, SignalConfig, SplitCounts,
@@ -10,6 +9,7 @@ use crate::data::preprocess::{
 use crate::output_guard::{self, Inputs, Output};
 use anyhow::{Context, Result};
 use nemm_core::Direction;
+use nemm_dataset::{self as dataset, Dataset};
 use std::fmt::Write as _;
 use std::io::{IsTerminal, Write as _};
 use std::path::{Path, PathBuf};

@@ -3,10 +3,8 @@
 //! alpha(t) figure per run; the accuracy tables ([`crate::report::accuracy`]); and, with
 //! `--level-step`, a record whose level steps ([`crate::report::level_step`]).
 
-use crate::atomic_file::write_atomic_bytes;
 use crate::cli::identify::runs_matching;
 use crate::data::against_model::check_runs_against_model;
-use crate::data::dataset::{self, Dataset};
 use crate::data::preprocess::causal_velocity;
 use crate::output_guard::{self, Inputs, Output};
 use crate::report::accuracy::{
@@ -21,6 +19,8 @@ use crate::report::level_step::{
 };
 use anyhow::{bail, Context, Result};
 use nemm_core::Model;
+use nemm_dataset::atomic_file::write_atomic_bytes;
+use nemm_dataset::{self as dataset, Dataset};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

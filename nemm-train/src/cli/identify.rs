@@ -1,16 +1,16 @@
 //! `nemm identify`: the best-fit level of every run of a dataset for a trained model, and
 //! the model's whole-run error per level and run ([`crate::report::identify`]).
 
-use crate::atomic_file::write_atomic_bytes;
 use crate::cli::train::{load_dataset_prepared, IDENTIFY_MD};
 use crate::config::{resolve_data, DataConfig};
 use crate::data::against_model::check_runs_against_model;
-use crate::data::dataset::short_number;
 use crate::data::preprocess::{file_matches, Prepared, ALPHA_TOLERANCE};
 use crate::output_guard::{self, Inputs, Output};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
 use crate::train::identify::Search;
 use anyhow::{bail, Context, Result};
+use nemm_dataset::atomic_file::write_atomic_bytes;
+use nemm_dataset::short_number;
 use std::path::Path;
 use std::time::Instant;
 

@@ -3,13 +3,13 @@
 
 use super::args::with_default;
 use super::{DATA_OPTIONS_FILE, DEFAULT_TEST_TAIL};
-use crate::data::dataset::{self, Manifest};
 use crate::data::preprocess::{
     self, PrepareConfig, VelocitySource, CUTOFF_FRACTION_OF_RATE, DEFAULT_CUTOFF_HZ,
     DEFAULT_SPLIT_SEED, DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION, DEFAULT_WARMUP_S,
     DEFAULT_WINDOW_S,
 };
 use anyhow::{bail, Context, Result};
+use nemm_dataset::{self as dataset, Manifest};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -174,10 +174,10 @@ fn list<T: std::fmt::Display>(v: &[T]) -> String {
     v.iter().map(T::to_string).collect::<Vec<_>>().join(", ")
 }
 
-/// Condition levels as printed ([`crate::data::dataset::alpha_text`]), comma-separated.
+/// Condition levels as printed ([`nemm_dataset::alpha_text`]), comma-separated.
 fn alpha_list(v: &[f64]) -> String {
     v.iter()
-        .map(|&a| crate::data::dataset::alpha_text(a))
+        .map(|&a| nemm_dataset::alpha_text(a))
         .collect::<Vec<_>>()
         .join(", ")
 }
@@ -295,7 +295,7 @@ impl DataConfig {
              # command-line options override them (docs/preprocessing.md, \"Data options\").\n{}",
             toml::to_string(&c)?
         );
-        crate::atomic_file::write_atomic_bytes(&path, text.as_bytes())
+        nemm_dataset::atomic_file::write_atomic_bytes(&path, text.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(path)
     }

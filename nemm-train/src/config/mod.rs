@@ -24,9 +24,7 @@ use std::path::{Path, PathBuf};
 /// Name of the effective configuration saved into a report folder.
 pub const CONFIG_FILE: &str = "config.toml";
 
-/// Name of a dataset's own data options, next to its `manifest.toml`: read by every command
-/// that reads the dataset, written by `nemm data prepare --save-options`.
-pub const DATA_OPTIONS_FILE: &str = "nemm-data.toml";
+pub use nemm_dataset::DATA_OPTIONS_FILE;
 
 /// Nonzero `lambda_ph` values below this are most likely the paper's numbers (Table 5: 0.005
 /// to 0.025) rather than this crate's.
@@ -111,7 +109,7 @@ impl Config {
 
     /// Writes the configuration as TOML to `path` (atomically).
     pub fn save(&self, path: &Path) -> Result<()> {
-        crate::atomic_file::write_atomic_bytes(path, self.to_toml()?.as_bytes())
+        nemm_dataset::atomic_file::write_atomic_bytes(path, self.to_toml()?.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))
     }
 
@@ -253,10 +251,10 @@ pub fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::dataset::{self, Manifest};
     use crate::data::preprocess::{PrepareConfig, VelocitySource};
     use clap::Parser;
     use nemm_core::{Integrator, ModelKind};
+    use nemm_dataset::{self as dataset, Manifest};
 
     #[derive(clap::Parser)]
     struct Cli {

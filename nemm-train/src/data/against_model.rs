@@ -4,10 +4,10 @@
 //! and a force that dissipates energy (not an inverted sign). Each refusal names the run, and
 //! the sample's line where there is one.
 
-use crate::data::dataset::{sample_line, short_number, Dataset};
 use crate::data::preprocess::Dissipation;
 use anyhow::{bail, Result};
 use nemm_core::Model;
+use nemm_dataset::{sample_line, short_number, Dataset};
 
 /// A displacement beyond this (m) is not a damper's stroke.
 pub const MAX_DISPLACEMENT_M: f64 = 1.0;

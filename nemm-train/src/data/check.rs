@@ -41,9 +41,9 @@
 //!
 //! Lines are those of a run file with one header line and one row per line
 //! ([`dataset::sample_line`]), as [`dataset::write()`] and `nemm data import` write them.
-use crate::data::dataset::{self, Run, COL_DISPLACEMENT, COL_FORCE, COL_VELOCITY};
 use crate::data::preprocess::{self, percentile};
 pub use crate::data::preprocess::{STATIC_FORCE_FRACTION, ZERO_VELOCITY_FRACTION};
+use nemm_dataset::{self as dataset, Run, COL_DISPLACEMENT, COL_FORCE, COL_VELOCITY};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -619,7 +619,7 @@ pub fn damper_findings(run: &Run, summary: &preprocess::RunSummary) -> Vec<Findi
 /// take is a [`FindingKind::Skipped`] finding and has no summary; the dataset-wide error (a
 /// cut-off the rate refuses) is returned.
 pub fn check_dataset(
-    dataset: &crate::data::dataset::Dataset,
+    dataset: &nemm_dataset::Dataset,
     cfg: &preprocess::SignalConfig,
 ) -> Result<(Vec<preprocess::RunSummary>, Vec<Finding>), preprocess::PreprocessError> {
     use rayon::prelude::*;

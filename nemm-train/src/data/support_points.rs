@@ -23,7 +23,7 @@
 use super::preprocess::{
     median, quasi_static_points, zero_crossings, Direction, Excitation, QuasiStaticPoint, Signals,
 };
-use crate::data::dataset::Run;
+use nemm_dataset::Run;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 

@@ -10,8 +10,8 @@
 //!   run at each labelled level, and whether they are in the labels' order: the lowest level
 //!   below the highest (strictly), the levels between them within that range.
 
-use crate::data::dataset::RunEntry;
 use crate::report::diagnose::{RunDiagnosis, Trace, AGREEMENT};
+use nemm_dataset::RunEntry;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 

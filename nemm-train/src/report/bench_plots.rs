@@ -20,11 +20,11 @@
 //! force-velocity density (a 2-D histogram of the samples) and time traces of force and
 //! velocity.
 
-use crate::data::dataset::{self, alpha_text, ConditionSpec, Dataset, Run};
 use crate::data::preprocess::{run_signals, SignalConfig, Signals};
 use crate::data::support_points::periodicity;
 use crate::report::plot::{palette, Figure, HeatmapPanel, LegendPosition, LinePanel, Series};
 use anyhow::{bail, Context, Result};
+use nemm_dataset::{self as dataset, alpha_text, ConditionSpec, Dataset, Run};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 

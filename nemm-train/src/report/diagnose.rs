@@ -19,12 +19,12 @@
 //!
 //! Numbers are rounded: levels and bands to 1e-4, times to 1e-4 s.
 
-use crate::data::dataset;
 use crate::data::preprocess::causal_velocity;
 use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Series};
 use crate::train::identify::{identify, AlphaGrid, Run, Search, DEFAULT_STEP};
 use anyhow::{bail, Context, Result};
 use nemm_core::{AlphaObserver, Model, ObserverConfig, ObserverFlags};
+use nemm_dataset as dataset;
 use plotters::style::RGBColor;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;

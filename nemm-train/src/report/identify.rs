@@ -3,12 +3,12 @@
 //! against the label, a summary per level, and the whole-run force error per level and per
 //! excitation condition (amplitude, frequency), training levels included.
 
-use crate::data::dataset::{alpha_text, ConditionSpec, Dataset};
 use crate::data::preprocess::{distinct_levels, Prepared, RunRole, ALPHA_TOLERANCE};
 use crate::train::identify::{identify_runs, AlphaGrid, Fit, Run, Search, FLAT_TOLERANCE};
 use crate::train::pipeline::VariantInfo;
 use anyhow::{Context, Result};
 use nemm_core::ModelKind;
+use nemm_dataset::{alpha_text, ConditionSpec, Dataset};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

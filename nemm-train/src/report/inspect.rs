@@ -107,15 +107,15 @@ fn describe_scaler(s: &mut String, name: &str, sc: &Scaler<DEFAULT_PARAM_CAPACIT
     );
 }
 
-/// A condition level of the blob (f32) as printed ([`crate::data::dataset::alpha_text`]).
+/// A condition level of the blob (f32) as printed ([`nemm_dataset::alpha_text`]).
 fn level(alpha: f32) -> String {
-    crate::data::dataset::alpha_text(f64::from(alpha))
+    nemm_dataset::alpha_text(f64::from(alpha))
 }
 
 /// The condition alpha stands for, its priors and the alpha branches that impose them.
 fn describe_condition(s: &mut String, model: &Model) {
     let c = &model.condition;
-    let spec = crate::data::dataset::ConditionSpec::from_core(c);
+    let spec = nemm_dataset::ConditionSpec::from_core(c);
     let _ = writeln!(
         s,
         "condition:       {} (alpha 0 = {} {u}, alpha 1 = {} {u}); priors in alpha: b_fl {}, b_pr {}, k_pr {}",

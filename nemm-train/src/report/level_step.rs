@@ -21,11 +21,11 @@
 //! [`AGREEMENT`] of the second run's fit (`reach_s`) and the time from which it stays
 //! within to the end (`settle_s`).
 
-use crate::data::dataset::Run;
 use crate::data::preprocess::centred_record;
 use crate::report::diagnose::{estimate_series, RunDiagnosis, Trace, AGREEMENT};
 use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Series};
 use anyhow::{bail, Result};
+use nemm_dataset::Run;
 use serde::{Deserialize, Serialize};
 
 /// A period is full when it reaches this fraction of the run's half-range on both sides.
@@ -383,7 +383,7 @@ pub fn level_step_figure(s: &LevelStep, trace: &Trace, range: (f64, f64)) -> Fig
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::dataset::RunEntry;
+    use nemm_dataset::RunEntry;
 
     /// A run of `n` samples of a sine of `period` samples and amplitude 10 mm, ramped in over
     /// the first two periods; the force is `level` everywhere.

@@ -1,11 +1,11 @@
 //! The learned coefficients of the NEMM against the virtual bench's equivalent EMM
-//! coefficients ([`crate::bench::reference`]): the relative change of each between alpha = 0
+//! coefficients ([`nemm_virtual_bench::reference`]): the relative change of each between alpha = 0
 //! and the largest training level, in `report.json` (`bench_reference`) and printed by
 //! `nemm compare` when the dataset came from the virtual bench.
 
-use crate::bench::reference::{Coefficient, EmmReference};
-use crate::data::dataset::alpha_text;
 use nemm_core::Model;
+use nemm_dataset::alpha_text;
+use nemm_virtual_bench::reference::{Coefficient, EmmReference};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 

@@ -27,7 +27,6 @@
 //! the share of its mean square on the compression stroke (velocity < 0): a one-sided
 //! (compression) lost motion puts most of it there.
 
-use crate::data::dataset::Dataset;
 use crate::data::preprocess::Prepared;
 use crate::data::support_points::periodicity;
 use crate::report::bench_plots::{
@@ -38,6 +37,7 @@ use crate::report::predictions::RunPredictions;
 use crate::train::pipeline::VariantInfo;
 use anyhow::Result;
 use nemm_core::{Model, ModelKind};
+use nemm_dataset::Dataset;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

@@ -2,7 +2,6 @@
 //! abs-max force, and in newtons), the monotonicity audit, training facts; as `report.json`
 //! and Markdown.
 
-use crate::data::dataset::ConditionSpec;
 use crate::data::preprocess::Prepared;
 use crate::report::identify::IdentifyReport;
 use crate::train::eval::{rmse_of, sse_per_sequence};
@@ -11,6 +10,7 @@ use crate::train::physics::{audit, Audit, AUDIT_GRID};
 use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::Result;
 use nemm_core::ModelKind;
+use nemm_dataset::ConditionSpec;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

@@ -155,7 +155,7 @@ pub(crate) fn save(
 }
 
 fn write(path: &Path, bytes: &[u8]) -> Result<()> {
-    crate::atomic_file::write_atomic_bytes(path, bytes)
+    nemm_dataset::atomic_file::write_atomic_bytes(path, bytes)
         .with_context(|| format!("cannot write {}", path.display()))
 }
 

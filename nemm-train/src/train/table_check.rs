@@ -12,10 +12,10 @@
 //! quasi-static force by at most `e |F| <= e` times the force scale (docs/core.md, "Tabulated
 //! fast path", which also has the measured force differences over whole bench programmes).
 
-use crate::data::dataset::{alpha_text, ConditionSpec};
 use nemm_core::{
     Estimator, EstimatorConfig, EstimatorError, EvalMode, Model, TableConfig, TableError,
 };
+use nemm_dataset::{alpha_text, ConditionSpec};
 
 /// Default bound of the relative coefficient error.
 pub const DEFAULT_TABLE_BOUND: f32 = nemm_kernels::table::DEFAULT_MAX_REL_ERROR;

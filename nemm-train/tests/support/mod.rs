@@ -3,7 +3,7 @@
 //! A test file takes it with `mod support;` and uses what it needs.
 #![allow(dead_code)] // each test binary uses a part
 
-use nemm_train::data::dataset::{Dataset, Run, RunEntry};
+use nemm_dataset::{Dataset, Run, RunEntry};
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -259,7 +259,7 @@ pub fn small_bench(dir: &std::path::Path) -> PathBuf {
         "--out".as_ref(),
         data.as_os_str(),
     ]);
-    let ds = nemm_train::data::dataset::load(&data).expect("load the generated bench");
+    let ds = nemm_dataset::load(&data).expect("load the generated bench");
     assert_eq!(ds.runs.len(), 6);
     data
 }

@@ -5,10 +5,10 @@
 
 use clap::Parser;
 use nemm_core::{decode, Model};
+use nemm_dataset::{self as dataset, Dataset};
 use nemm_tests::elf::Elf;
 use nemm_tests::firmware::{Contents, Images};
 use nemm_train::config::{Config, ConfigArgs};
-use nemm_train::data::dataset::{self, Dataset};
 use nemm_train::data::preprocess::{self, SignalConfig};
 use nemm_train::train::eval::{predict, Input};
 use std::path::{Path, PathBuf};

@@ -137,7 +137,7 @@ pub fn compare(
 /// What [`degradation_report`] keeps for the figures besides the report's tables.
 pub struct Degradation {
     /// The virtual bench's reference coefficients, when the data are the bench's.
-    pub reference: Option<crate::bench::reference::EmmReference>,
+    pub reference: Option<nemm_virtual_bench::reference::EmmReference>,
     /// The difference loops of the signature, when there are levels to compare.
     pub signature: Option<crate::report::signature::SignatureLoops>,
 }
@@ -193,8 +193,8 @@ pub fn degradation_report(
     }
 }
 
-fn bench_reference(dir: &Path) -> Option<crate::bench::reference::EmmReference> {
-    match crate::bench::reference::for_dataset(dir) {
+fn bench_reference(dir: &Path) -> Option<nemm_virtual_bench::reference::EmmReference> {
+    match nemm_virtual_bench::reference::for_dataset(dir) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("warning: no bench reference for {}: {e:#}", dir.display());

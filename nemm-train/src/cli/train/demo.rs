@@ -33,7 +33,7 @@ pub fn demo(paths: &DemoPaths, cfg: &Config) -> Result<()> {
             paths.data.display()
         );
         crate::cli::bench::generate(
-            &crate::bench::config::BenchConfig::default(),
+            &nemm_virtual_bench::config::BenchConfig::default(),
             1,
             &paths.data,
         )?;

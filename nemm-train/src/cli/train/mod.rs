@@ -1,9 +1,7 @@
 //! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
 //! Table 4 / Table 5 reports from the command line.
 
-use crate::atomic_file::write_atomic_bytes;
 use crate::config::{lambda_ph_scale_note, resolve_data, AlphaPriors, Config, CONFIG_FILE};
-use crate::data::dataset;
 use crate::data::preprocess::{self, PrepareConfig, Prepared};
 use crate::output_guard::{self, Inputs, Output};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
@@ -20,6 +18,8 @@ use crate::train::pipeline::{
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
 use nemm_core::ModelKind;
+use nemm_dataset as dataset;
+use nemm_dataset::atomic_file::write_atomic_bytes;
 use std::path::Path;
 use std::time::Instant;
 

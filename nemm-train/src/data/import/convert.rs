@@ -1,8 +1,19 @@
 //! The conversion: raw files read and converted to SI units, split into runs and resampled
 //! onto the dataset's grid.
 
-use super::*;
-use crate::data::csv::{CsvError, CsvReader, Dialect, Header, Row};
+use super::spec::delimiter_byte;
+use super::{
+    condition_spec, spec_err, stamp, unit_factor, validate_spec, ColumnSpec, Columns, CsvOptions,
+    FileSpec, ImportError, ImportSpec, LevelMap, SplitMethod, SplitSpec, MAX_RESAMPLED_RUN_SAMPLES,
+};
+use nemm_dataset as dataset;
+use nemm_dataset::csv::{CsvError, CsvReader, Dialect, Header, Row};
+use nemm_dataset::Dataset;
+use nemm_dataset::DatasetError;
+use nemm_dataset::Run;
+use nemm_dataset::RunEntry;
+use std::path::Path;
+use std::path::PathBuf;
 
 /// One raw file converted to SI units, with the source line of every sample.
 #[derive(Debug, Clone, PartialEq)]

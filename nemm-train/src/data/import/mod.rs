@@ -6,21 +6,21 @@
 //! file has, and how a long record is cut into runs (time ranges, pauses of the excitation or
 //! gaps in the time stamps). [`import`] reads every file, converts it to SI units and the
 //! sign conventions, cuts it, checks the time stamps with the loader's rule
-//! ([`dataset::check_time_grid`]) or resamples them when asked (linear interpolation), and
-//! returns a [`Dataset`] that [`dataset::write()`] writes atomically.
+//! ([`nemm_dataset::check_time_grid`]) or resamples them when asked (linear interpolation), and
+//! returns a [`Dataset`](nemm_dataset::Dataset) that [`nemm_dataset::write()`] writes atomically.
 //!
 //! Every error names the raw file, its line and its column (or the spec key).
-use crate::data::dataset::{self, Dataset, DatasetError, Run, RunEntry};
 use nemm_core::Direction;
+use nemm_dataset::DatasetError;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 mod convert;
 mod spec;
 mod stamp;
 
-pub use convert::*;
-pub use spec::*;
+pub use convert::{import, Imported, ImportedRun};
+pub use spec::{condition_spec, read_spec, unit_factor, validate_spec, LevelKind, LevelMap};
 
 /// Why an import failed.
 #[derive(Debug, thiserror::Error)]
@@ -424,7 +424,7 @@ pub struct ImportSpec {
 }
 
 /// The import spec's `[condition]` table (and the `--condition-*` and `--prior` flags): the
-/// manifest's `[condition]` ([`dataset::ConditionSpec`]) with defaults from a level column.
+/// manifest's `[condition]` ([`nemm_dataset::ConditionSpec`]) with defaults from a level column.
 ///
 /// A condition is written when this table is given or the level column is mapped by a range
 /// (given or taken from the data); it then needs `name` and the prior of every coefficient

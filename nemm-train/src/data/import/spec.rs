@@ -1,7 +1,13 @@
 //! The import spec: read from TOML with line and column in its errors, units, and its
 //! validation.
 
-use super::*;
+use super::{
+    spec_err, ColumnSpec, CsvOptions, FileSpec, ImportCondition, ImportError, ImportSpec,
+    SplitSpec, MAX_RESAMPLE_HZ, MIN_RESAMPLE_HZ,
+};
+use nemm_core::Direction;
+use nemm_dataset as dataset;
+use std::path::Path;
 
 /// 1-based line and column of a byte offset.
 fn line_col(text: &str, offset: usize) -> (usize, usize) {

@@ -8,7 +8,9 @@
 //! *assists* the motion (negative correlation, negative mean power) has one of its signs
 //! inverted (usually the load cell's: many dynos log compression positive).
 
-use super::*;
+use super::median;
+use serde::Deserialize;
+use serde::Serialize;
 
 /// A force-velocity correlation below this means the force assists the motion (a damper's
 /// is near +1, an inverted sign's near -1; the margin keeps noise on a barely moving run from

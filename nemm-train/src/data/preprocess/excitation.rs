@@ -1,6 +1,8 @@
 //! Excitation estimate: the amplitude, frequency and peak velocity of a periodic run.
 
-use super::*;
+use super::MIN_STROKE_M;
+use serde::Deserialize;
+use serde::Serialize;
 
 /// A zero crossing of the displacement (relative to its centre).
 #[derive(Debug, Clone, Copy, PartialEq)]

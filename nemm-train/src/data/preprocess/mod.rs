@@ -29,8 +29,6 @@
 //! Everything here is at the data's sample rate; the model integrates at its own rate, onto
 //! which the trainer interpolates the sequences (`train::adjoint::Grid`, docs/preprocessing.md).
 
-use crate::data::dataset::{Dataset, Run};
-use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 /// Default low-pass cut-off for differentiation \[Hz\]: 5 x the model's 30 Hz scope.
@@ -121,10 +119,28 @@ mod sequences;
 mod signal;
 mod split;
 
-pub use dissipation::*;
-pub use excitation::*;
-pub use prepare::*;
-pub use quasi_static::*;
-pub use sequences::*;
-pub use signal::*;
-pub use split::*;
+pub use dissipation::{
+    percentile, static_force_from_data, Dissipation, ForceOffset, MIN_DISSIPATION_SAMPLES,
+    MIN_FORCE_VELOCITY_CORRELATION, STATIC_FORCE_FRACTION, ZERO_VELOCITY_FRACTION,
+};
+pub(crate) use excitation::{centred_record, median, zero_crossings};
+pub use excitation::{
+    estimate_excitation, excitation_frequency_hz, steady_median, Excitation,
+    PERIODIC_MIN_HALF_PERIODS, PERIODIC_TOLERANCE, STEADY_FRACTION,
+};
+pub use prepare::{
+    prepare, summarize, summarize_run, PrepareConfig, PrepareSummary, Prepared, PreparedRun,
+    QuasiStaticSplit, RunSummary, SplitCounts,
+};
+pub use quasi_static::{quasi_static_points, Direction, QuasiStaticPoint};
+pub use sequences::{cut_sequences, sequence_count, unscored_samples, Sequence, SequenceConfig};
+pub use signal::{
+    causal_velocity, differentiate, displacement_noise_std_m, lowpass_zero_phase,
+    measured_velocity_mismatch, process_run, run_signals, velocity_noise_rms, Cutoff, CutoffRule,
+    SignalConfig, SignalPath, Signals, VelocitySource, AUTO_CUTOFF_EXCITATION_MULTIPLE,
+    AUTO_CUTOFF_NOISE_FRACTION,
+};
+pub use split::{
+    distinct_levels, file_matches, run_stretches, Part, RunRole, Scales, SplitConfig, SplitRules,
+    Stretch,
+};

@@ -1,6 +1,16 @@
 //! The whole preparation: signals, excitation, quasi-static points, sequences, split and scales of a dataset.
 
-use super::*;
+use super::{
+    config_err, cut_sequences, distinct_levels, estimate_excitation, measured_velocity_mismatch,
+    run_stretches, Cutoff, Dissipation, Excitation, ForceOffset, Part, PreprocessError,
+    QuasiStaticPoint, RunRole, Scales, Sequence, SequenceConfig, SignalConfig, SignalPath, Signals,
+    SplitConfig, SplitRules, Stretch, DEFAULT_QS_WINDOW,
+};
+use nemm_dataset::Dataset;
+use nemm_dataset::Run;
+use serde::Deserialize;
+use serde::Serialize;
+use std::path::PathBuf;
 
 /// Everything [`prepare`] needs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]

@@ -1,6 +1,8 @@
 //! Quasi-static points: the force-velocity points of section 5.3 for the flow-force model.
 
-use super::*;
+use super::{Excitation, Signals};
+use serde::Deserialize;
+use serde::Serialize;
 
 /// Direction of a stroke half-cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

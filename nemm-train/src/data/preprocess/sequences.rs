@@ -1,6 +1,8 @@
 //! Sequences: windows with a warm-up prefix for the rollout.
 
-use super::*;
+use super::{config_err, PreprocessError, DEFAULT_WARMUP_S, DEFAULT_WINDOW_S};
+use serde::Deserialize;
+use serde::Serialize;
 
 /// Lengths of the training sequences.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -1,6 +1,13 @@
 //! Filtering and differentiation: the zero-phase low-pass, the derivative stencils, the causal velocity of the firmware, and the per-run signals.
 
-use super::*;
+use super::{
+    config_err, excitation_frequency_hz, median, PreprocessError, CUTOFF_FRACTION_OF_RATE,
+    DEFAULT_CUTOFF_HZ,
+};
+use nemm_dataset::Dataset;
+use nemm_dataset::Run;
+use serde::Deserialize;
+use serde::Serialize;
 
 /// A biquad section `H(z) = (b0 + b1 z^-1 + b2 z^-2) / (1 + a1 z^-1 + a2 z^-2)`.
 #[derive(Debug, Clone, Copy)]

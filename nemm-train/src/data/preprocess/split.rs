@@ -1,6 +1,12 @@
 //! Split and scales: the train / validation / test split of Table 2 and the abs-max feature scales.
 
-use super::*;
+use super::{
+    config_err, sequence_count, PreprocessError, Sequence, ALPHA_TOLERANCE, DEFAULT_SPLIT_SEED,
+    DEFAULT_TEST_ALPHAS, DEFAULT_VALIDATION_FRACTION,
+};
+use nemm_dataset::Dataset;
+use serde::Deserialize;
+use serde::Serialize;
 
 /// How runs and sequences are split (Table 2 by default).
 ///
@@ -173,7 +179,7 @@ impl SplitConfig {
                 let levels = distinct_levels(dataset.runs.iter().map(|r| r.entry.oil_loss));
                 let alphas: Vec<String> = levels
                     .iter()
-                    .map(|&l| crate::data::dataset::alpha_text(l))
+                    .map(|&l| nemm_dataset::alpha_text(l))
                     .collect();
                 let condition = dataset.condition.clone().unwrap_or_default();
                 let values = if condition.is_alpha_itself() {
@@ -185,7 +191,7 @@ impl SplitConfig {
                     key,
                     format!(
                         "alpha {} matches no run; the dataset's {} levels are alpha {}{values}",
-                        crate::data::dataset::alpha_text(a),
+                        nemm_dataset::alpha_text(a),
                         condition.name,
                         alphas.join(", ")
                     ),
@@ -225,11 +231,11 @@ impl SplitConfig {
 
     /// One line for reports: the test set, the training runs and the validation rule.
     pub fn describe(&self) -> String {
-        self.describe_for(&crate::data::dataset::ConditionSpec::default())
+        self.describe_for(&nemm_dataset::ConditionSpec::default())
     }
 
     /// [`Self::describe`] with the levels named by the dataset's `condition`.
-    pub fn describe_for(&self, condition: &crate::data::dataset::ConditionSpec) -> String {
+    pub fn describe_for(&self, condition: &nemm_dataset::ConditionSpec) -> String {
         let list = |v: &[f64]| {
             v.iter()
                 .map(|&a| condition.cell(a))
@@ -302,7 +308,7 @@ pub enum Part {
 }
 
 /// A stretch `[start, end)` of a run's samples and its use. The stretches of a run are
-/// disjoint and each is cut into windows on its own ([`cut_sequences`]), so no window, warm-up
+/// disjoint and each is cut into windows on its own ([`cut_sequences`](super::cut_sequences)), so no window, warm-up
 /// included, reads a sample of another stretch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Stretch {
@@ -398,7 +404,7 @@ pub struct Scales {
 }
 
 impl Scales {
-    /// Scales of a set of (training) sequences (from their f32 values; [`prepare`] uses the
+    /// Scales of a set of (training) sequences (from their f32 values; [`prepare`](super::prepare()) uses the
     /// f64 signals, which agree to f32 rounding).
     pub fn from_sequences(train: &[Sequence]) -> Result<Scales, PreprocessError> {
         let absmax = |f: &dyn Fn(&Sequence) -> f64| train.iter().map(f).fold(0.0f64, f64::max);

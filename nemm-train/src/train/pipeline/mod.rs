@@ -192,7 +192,7 @@ fn save_frame(
             meta,
             static_units,
         })?;
-        crate::atomic_file::write_atomic_bytes(&dir.join("frame.json"), text.as_bytes())
+        nemm_dataset::atomic_file::write_atomic_bytes(&dir.join("frame.json"), text.as_bytes())
             .with_context(|| format!("cannot write {}", dir.join("frame.json").display()))?;
     }
     Ok(())

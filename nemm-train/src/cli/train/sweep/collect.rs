@@ -7,10 +7,10 @@ use super::{
     job_dir, slurm, Config, DegradationPoint, Engine, SweepGrid, SweepJob, Table3Point,
     TABLE3_PAPER_BEST,
 };
-use crate::atomic_file::write_atomic_bytes;
 use crate::report::signature::LevelSignature;
 use crate::report::tables::Report;
 use anyhow::{Context, Result};
+use nemm_dataset::atomic_file::write_atomic_bytes;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::Path;

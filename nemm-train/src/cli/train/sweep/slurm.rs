@@ -13,8 +13,8 @@ use super::collect::{
     clear_exit, collect_sweep, job_state, JobState, SweepManifest, EXIT_FILE, TRAIN_LOG,
 };
 use super::{job_dir, train_args, SweepGrid, SweepOptions};
-use crate::atomic_file::write_atomic_bytes;
 use anyhow::{bail, Context, Result};
+use nemm_dataset::atomic_file::write_atomic_bytes;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 

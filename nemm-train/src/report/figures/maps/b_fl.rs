@@ -155,7 +155,7 @@ pub(super) fn b_fl_over_velocity(
         let pts: Vec<(f64, f64)> = v_axis
             .iter()
             .filter(|v| v.abs() >= 0.02 * v_lim)
-            .map(|&v| (v, crate::bench::reference::b_fl(r.bench(), v, 0.0)))
+            .map(|&v| (v, nemm_virtual_bench::reference::b_fl(r.bench(), v, 0.0)))
             .collect();
         b_max = pts
             .iter()

@@ -6,7 +6,6 @@ use super::{
     linspace, num, sym_range, value_range, variant_color, Ctx, Drawn, CUT_VELOCITY_M_S,
     MEASURED_GREY, VIOLATION_DOT,
 };
-use crate::bench::reference::{Coefficient, EmmReference};
 use crate::report::plot::{
     nice_levels, palette, ColorMap, Figure, HeatmapPanel, LegendPosition, LinePanel, Series,
 };
@@ -14,6 +13,7 @@ use crate::train::physics::{violation, AUDIT_GRID};
 use crate::train::pipeline::{TrainedVariant, VariantInfo};
 use anyhow::{bail, Result};
 use nemm_core::{EmmConstants, Model};
+use nemm_virtual_bench::reference::{Coefficient, EmmReference};
 use plotters::style::RGBColor;
 
 mod b_fl;
@@ -198,7 +198,7 @@ fn percent(p: f64) -> String {
 
 /// The alpha axis title, named by the model's condition.
 fn alpha_axis(m: &Model) -> String {
-    crate::data::dataset::ConditionSpec::from_core(&m.condition).axis_label()
+    nemm_dataset::ConditionSpec::from_core(&m.condition).axis_label()
 }
 
 fn vline(x: f64, y0: f64, y1: f64) -> Vec<(f64, f64)> {

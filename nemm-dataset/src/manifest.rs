@@ -1,8 +1,12 @@
 //! The manifest (`manifest.toml`): its TOML, its validation with file, line and column, and the
 //! condition it declares.
 
-use super::*;
-
+use crate::{io_err, line_col, ConditionSpec, DatasetError, Manifest, RunEntry, MANIFEST_FILE};
+use nemm_core::Direction;
+use serde::Deserialize;
+use std::collections::HashMap;
+use std::path::{Component, Path, PathBuf};
+use toml::Spanned;
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawManifest {
@@ -186,7 +190,7 @@ fn validate_condition(
 
 /// What is wrong with a condition name or unit `text` that holds a control character (a
 /// line break, an escape): names travel into the blob and onto terminals.
-pub(crate) fn control_character(text: &str) -> Option<String> {
+pub fn control_character(text: &str) -> Option<String> {
     text.chars().find(|ch| ch.is_control()).map(|ch| {
         format!("{text:?} holds the control character {ch:?}; give a name of printable characters")
     })
@@ -194,7 +198,7 @@ pub(crate) fn control_character(text: &str) -> Option<String> {
 
 /// What is wrong with a condition's values at alpha 0 (`a0`) and 1 (`a1`), as the key and
 /// the message: each finite in the blob's single precision, and distinct there.
-pub(crate) fn condition_values_error(a0: f64, a1: f64) -> Option<(&'static str, String)> {
+pub fn condition_values_error(a0: f64, a1: f64) -> Option<(&'static str, String)> {
     for (key, v) in [("condition.at_alpha_0", a0), ("condition.at_alpha_1", a1)] {
         if !(v.is_finite() && (v as f32).is_finite()) {
             return Some((
@@ -231,7 +235,7 @@ pub(crate) fn condition_values_error(a0: f64, a1: f64) -> Option<(&'static str, 
 
 /// `v` as text of a readable length: plain between 1e-4 and 1e9 in magnitude (and 0), else
 /// in scientific notation (`1e300`, not 301 digits).
-pub(crate) fn short_number(v: f64) -> String {
+pub fn short_number(v: f64) -> String {
     if v == 0.0 || (1e-4..1e9).contains(&v.abs()) || !v.is_finite() {
         format!("{v}")
     } else {

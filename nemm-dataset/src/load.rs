@@ -1,8 +1,17 @@
 //! Loading a dataset: run CSVs parsed with file, line and column in every error, time stamps
 //! fitted to the sample grid.
 
-use super::*;
-use crate::data::csv::{CellError, CellProblem, CsvError, CsvReader, Dialect, Row};
+use crate::csv::{CellError, CellProblem, CsvError, CsvReader, Dialect, Row};
+use crate::manifest::read_manifest_with_lines;
+use crate::{
+    io_err, Dataset, DatasetError, LoadProgress, Manifest, Run, RunEntry, COL_ALPHA,
+    COL_DISPLACEMENT, COL_FORCE, COL_TIME, COL_VELOCITY, EXACT_GRID_DEVIATION, GAP_STEPS,
+    MANIFEST_FILE, MAX_GRID_DEVIATION, MAX_RATE_MISMATCH,
+};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Loads and validates a dataset folder (runs are parsed in parallel).
 pub fn load(dir: &Path) -> Result<Dataset, DatasetError> {
@@ -129,6 +138,19 @@ pub fn read_run(path: &Path, entry: RunEntry, sample_rate_hz: f64) -> Result<Run
     parse_run(&bytes, path, entry, sample_rate_hz)
 }
 
+/// Reads and validates one run CSV file at `path` without its manifest (a replay trace):
+/// the sample rate is the one its time stamps show (the inverse of their median step), held
+/// to the grid rule of [`check_time_grid`]. Returns the run and the fitted grid.
+pub fn read_lone_run(path: &Path, entry: RunEntry) -> Result<(Run, TimeGrid), DatasetError> {
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    let (run, lines) = parse_samples(&bytes, path, entry)?;
+    let rate_hz = 1.0 / median_step(before_first_gap(&run.time_s));
+    let grid = check_time_grid(&run.time_s, rate_hz, path, |i| {
+        lines.get(i).copied().unwrap_or(i + 2)
+    })?;
+    Ok((run, grid))
+}
+
 /// Parses and validates the content of one run CSV file; `path` is used in errors only.
 pub fn parse_run(
     bytes: &[u8],
@@ -136,6 +158,19 @@ pub fn parse_run(
     entry: RunEntry,
     sample_rate_hz: f64,
 ) -> Result<Run, DatasetError> {
+    let (run, lines) = parse_samples(bytes, path, entry)?;
+    check_time_grid(&run.time_s, sample_rate_hz, path, |i| {
+        lines.get(i).copied().unwrap_or(i + 2)
+    })?;
+    Ok(run)
+}
+
+/// The samples of one run CSV file and the line of each, before the time-grid check.
+fn parse_samples(
+    bytes: &[u8],
+    path: &Path,
+    entry: RunEntry,
+) -> Result<(Run, Vec<usize>), DatasetError> {
     let mut reader = CsvReader::new(bytes, path, Dialect::RUN_FILE);
     let header = match reader.read_header().map_err(csv_error)? {
         Some(h) if !(h.names.len() == 1 && h.names[0].is_empty()) => h,
@@ -157,18 +192,15 @@ pub fn parse_run(
             line: header.line + 1,
         });
     }
-    let lines = &samples.lines;
-    check_time_grid(&samples.time_s, sample_rate_hz, path, |i| {
-        lines.get(i).copied().unwrap_or(i + 2)
-    })?;
-    Ok(Run {
+    let run = Run {
         entry,
         time_s: samples.time_s,
         displacement_m: samples.displacement_m,
         force_n: samples.force_n,
         velocity_m_s: samples.velocity_m_s,
         alpha: samples.alpha,
-    })
+    };
+    Ok((run, samples.lines))
 }
 
 /// The reader's error as a [`DatasetError`].
@@ -326,7 +358,7 @@ pub(super) fn check_alpha(value: f64, path: &Path, line: usize) -> Result<(), Da
     }
 }
 
-/// Line of sample `i` in a file written by [`write()`] (header is line 1, one row per line).
+/// Line of sample `i` in a file written by [`write()`](crate::write()) (header is line 1, one row per line).
 pub fn sample_line(i: usize) -> usize {
     i + 2
 }

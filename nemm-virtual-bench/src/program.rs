@@ -377,7 +377,7 @@ pub fn grid(p: &Program) -> Vec<RunSpec> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::config::BenchConfig;
+    use crate::config::BenchConfig;
 
     #[test]
     fn excitation_velocity_is_the_derivative_and_peaks_at_target() {

@@ -1,6 +1,6 @@
 //! Configuration of the virtual bench: a TOML file with every parameter and its unit.
 //!
-//! The default (`nemm-train/assets/bench.toml`) is compiled in; a user file must contain every
+//! The default (`nemm-virtual-bench/assets/bench.toml`) is compiled in; a user file must contain every
 //! key (unknown keys are rejected so that typos do not silently fall back to a default).
 
 use anyhow::{bail, Context, Result};
@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The built-in default configuration (reproduces Table 1 of the paper).
-pub const DEFAULT_TOML: &str = include_str!("../../assets/bench.toml");
+pub const DEFAULT_TOML: &str = include_str!("../assets/bench.toml");
 
 /// The whole virtual-bench configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

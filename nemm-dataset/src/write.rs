@@ -1,8 +1,14 @@
 //! Writing a dataset: the runs validated as loading would, then written atomically.
 
-use super::*;
-
-/// Checks an in-memory run as [`load`] would check its file (lengths, finite values, time).
+use crate::load::{check_alpha, check_increasing, check_time_grid, sample_line};
+use crate::manifest::{read_manifest_with_lines, validate_manifest};
+use crate::{
+    io_err, Dataset, DatasetError, Run, COL_ALPHA, COL_DISPLACEMENT, COL_FORCE, COL_TIME,
+    COL_VELOCITY, MANIFEST_FILE,
+};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+/// Checks an in-memory run as [`load`](crate::load()) would check its file (lengths, finite values, time).
 fn validate_run(run: &Run, path: &Path, sample_rate_hz: f64) -> Result<(), DatasetError> {
     let n = run.time_s.len();
     if n == 0 {
@@ -105,7 +111,7 @@ fn old_dataset_files(dir: &Path) -> std::collections::HashSet<PathBuf> {
     }
     files.insert(PathBuf::from(MANIFEST_FILE));
     // The data options saved for the old dataset do not belong to the new one.
-    files.insert(PathBuf::from(crate::config::DATA_OPTIONS_FILE));
+    files.insert(PathBuf::from(crate::DATA_OPTIONS_FILE));
     if let Ok((manifest, _)) = read_manifest_with_lines(dir) {
         files.extend(manifest.runs.iter().map(|r| r.file.clone()));
     }
@@ -212,7 +218,7 @@ fn clean_leftovers(dir: &Path) {
 
 /// Writes `dataset` to the folder `dir`, replacing the dataset `dir` holds as a whole.
 ///
-/// The dataset is validated first with the same rules as [`load`], so whatever `write`
+/// The dataset is validated first with the same rules as [`load`](crate::load()), so whatever `write`
 /// accepts, `load` reads back exactly. The new dataset is built in a sibling temporary
 /// folder: every run CSV at its manifest path, then `manifest.toml`, each file written
 /// atomically, and the files of `dir` that belong to no dataset (neither the old manifest,
@@ -231,7 +237,7 @@ fn clean_leftovers(dir: &Path) {
 pub fn write(dir: &Path, dataset: &Dataset) -> Result<(), DatasetError> {
     use rayon::prelude::*;
     // A symbolic link to a folder is written through: the link stays.
-    let dir = &crate::output_guard::resolve(dir).unwrap_or_else(|_| dir.to_path_buf());
+    let dir = &crate::atomic_file::resolve(dir).unwrap_or_else(|_| dir.to_path_buf());
     if std::fs::symlink_metadata(dir).is_ok_and(|m| !m.is_dir()) {
         return Err(DatasetError::Io {
             path: dir.clone(),

@@ -1,6 +1,13 @@
+//! # nemm-virtual-bench
+//!
 //! The virtual test bench: a first-principles hydraulic twin-tube damper with oil loss,
 //! driven through the sinusoidal programme of the paper (Table 1), measured with a noisy,
-//! quantising load cell and displacement transducer, written in the dataset interchange format.
+//! quantising load cell and displacement transducer, written in the dataset interchange format
+//! ([`nemm_dataset`]).
+//!
+//! It is a test instrument, not part of training: `nemm bench`, `nemm demo` and the tests
+//! generate data with it, and the trainer's reports draw the equivalent EMM coefficients of
+//! its damper ([`reference`](mod@reference)) as reference curves on virtual-bench data.
 //!
 //! The model is deliberately richer than the EMM (section 4 of the paper): three chambers
 //! (rebound, compression, gas-charged reservoir), oil compressibility with entrained free gas
@@ -12,7 +19,7 @@
 //! `docs/virtual-bench.md`.
 //!
 //! ```no_run
-//! use nemm_train::bench::{config::BenchConfig, VirtualBench};
+//! use nemm_virtual_bench::{config::BenchConfig, VirtualBench};
 //! let bench = VirtualBench::new(BenchConfig::default());
 //! let dataset = bench.generate(42, |_done, _total| {});
 //! ```
@@ -27,9 +34,9 @@ mod simulate;
 
 pub use simulate::{SolverStats, Trace};
 
-use crate::data::dataset::{Dataset, Run, RunEntry};
 use config::BenchConfig;
 use hydraulics::{Damper, Filling};
+use nemm_dataset::{Dataset, Run, RunEntry};
 use program::RunSpec;
 use rand::RngExt;
 use rand_distr::StandardNormal;

@@ -1,4 +1,9 @@
-//! The test-bench dataset interchange format (see `docs/data-format.md`).
+//! # nemm-dataset
+//!
+//! The test-bench dataset interchange format of NEMM (see `docs/data-format.md`): what the
+//! trainer (`nemm-train`) reads, what the virtual bench (`nemm-virtual-bench`) and
+//! `nemm data import` write, and what the firmware's build script reads its replay trace
+//! from.
 //!
 //! A dataset is a folder with `manifest.toml` and one CSV file per run:
 //!
@@ -45,14 +50,28 @@
 
 use nemm_core::{Condition, Direction, Priors};
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
-use std::fmt::Write as _;
-use std::path::{Component, Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use toml::Spanned;
+use std::path::{Path, PathBuf};
+
+pub mod atomic_file;
+pub mod csv;
+mod load;
+mod manifest;
+mod write;
+
+pub use load::{
+    before_first_gap, check_time_grid, fit_time_grid, load, load_readable, load_with_progress,
+    median_step, parse_run, read_lone_run, read_run, sample_line, TimeGrid,
+};
+pub use manifest::{condition_values_error, control_character, read_manifest, short_number};
+pub use write::write;
 
 /// File name of the manifest inside a dataset folder.
 pub const MANIFEST_FILE: &str = "manifest.toml";
+
+/// File name of a dataset's own data options, next to its `manifest.toml`: read by every
+/// `nemm` command that reads the dataset, written by `nemm data prepare --save-options`. It
+/// belongs to the dataset: [`write()`] does not carry it over into a new dataset.
+pub const DATA_OPTIONS_FILE: &str = "nemm-data.toml";
 
 /// Largest accepted deviation of a time stamp from the fitted uniform grid, as a fraction of
 /// the fitted step (a quarter step).
@@ -672,11 +691,3 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let column = before[line_start..].chars().count() + 1;
     (line, column)
 }
-
-mod load;
-mod manifest;
-mod write;
-
-pub use load::*;
-pub use manifest::*;
-pub use write::*;

@@ -14,10 +14,10 @@
 
 use super::config::{AlphaScheduleProgram, BenchConfig, RandomProgram};
 use super::VirtualBench;
-use crate::data::dataset::{
+use anyhow::{bail, Context, Result};
+use nemm_dataset::{
     Dataset, Run, COL_ALPHA, COL_DISPLACEMENT, COL_FORCE, COL_TIME, COL_VELOCITY, MANIFEST_FILE,
 };
-use anyhow::{bail, Context, Result};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -209,7 +209,7 @@ pub fn write_fixtures(out: &Path) -> Result<Vec<PathBuf>> {
                 std::fs::create_dir_all(parent)
                     .with_context(|| format!("cannot create {}", parent.display()))?;
             }
-            crate::atomic_file::write_atomic_bytes(&path, text.as_bytes())
+            nemm_dataset::atomic_file::write_atomic_bytes(&path, text.as_bytes())
                 .with_context(|| format!("cannot write {}", path.display()))?;
             written.push(path);
         }

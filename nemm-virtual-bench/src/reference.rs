@@ -697,7 +697,7 @@ fn level(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::config::BenchConfig;
+    use crate::config::BenchConfig;
 
     #[test]
     fn interpolation_is_linear_and_bounded() {

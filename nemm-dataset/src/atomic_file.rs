@@ -1,17 +1,18 @@
-//! File-system helpers shared by the exporters.
+//! Files written atomically and through symbolic links: the dataset writer's and every
+//! other output of the trainer (weights blobs, reports, configurations).
 use std::io::Write;
-use std::path::Path;
+use std::path::{Component, Path, PathBuf};
 
 /// Writes a file atomically: the content goes to a [`tempfile::NamedTempFile`] in the same
 /// folder (created if missing; with a plain file's permissions), which is flushed to disk and then persisted (renamed) over
 /// `path`. A crash leaves either the old file or the new one, never a partial file; on error
 /// the temporary file is removed. A symbolic link at `path` is written through: the link
-/// stays and its target gets the content ([`crate::output_guard::resolve_link`]).
+/// stays and its target gets the content ([`resolve_link`]).
 pub fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> std::io::Result<()> {
-    let target = crate::output_guard::resolve_link(path);
+    let target = resolve_link(path);
     let path = target.as_path();
     let parent = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
@@ -34,6 +35,67 @@ pub fn write_atomic(
 /// [`write_atomic`] of a byte slice.
 pub fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     write_atomic(path, |w| w.write_all(bytes))
+}
+
+/// `path` with its last component's symbolic links followed (up to 40 links): the path an
+/// output is written to so that a symbolic link stays and its target gets the content.
+/// A path that is not a link is returned as it is.
+pub fn resolve_link(path: &Path) -> PathBuf {
+    let mut p = path.to_path_buf();
+    for _ in 0..40 {
+        match std::fs::read_link(&p) {
+            Ok(target) if target.is_absolute() => p = target,
+            Ok(target) => {
+                let parent = p.parent().map(Path::to_path_buf).unwrap_or_default();
+                p = parent.join(target);
+            }
+            Err(_) => break,
+        }
+    }
+    p
+}
+
+/// `path` absolute and resolved through symbolic links: canonical when it exists, else its
+/// nearest existing ancestor canonical and the rest appended (`..` and `.` folded). Fails
+/// only when the path is relative and the current folder cannot be read.
+pub fn resolve(path: &Path) -> std::io::Result<PathBuf> {
+    let path = resolve_link(path);
+    if let Ok(p) = std::fs::canonicalize(&path) {
+        return Ok(p);
+    }
+    let given = if path.is_absolute() {
+        path
+    } else {
+        std::env::current_dir()?.join(path)
+    };
+    // `..` after the part that exists resolves from that part's real location.
+    let mut absolute = PathBuf::new();
+    for c in given.components() {
+        match c {
+            Component::ParentDir => {
+                absolute = std::fs::canonicalize(&absolute).unwrap_or(absolute);
+                absolute.pop();
+            }
+            Component::CurDir => {}
+            other => absolute.push(other),
+        }
+    }
+    let mut rest = Vec::new();
+    let mut base = absolute.as_path();
+    let mut out = loop {
+        match std::fs::canonicalize(base) {
+            Ok(p) => break p,
+            Err(_) => match (base.parent(), base.file_name()) {
+                (Some(parent), Some(name)) => {
+                    rest.push(name.to_os_string());
+                    base = parent;
+                }
+                _ => break base.to_path_buf(),
+            },
+        }
+    };
+    out.extend(rest.iter().rev());
+    Ok(out)
 }
 
 #[cfg(test)]

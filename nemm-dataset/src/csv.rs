@@ -1,5 +1,5 @@
-//! The CSV reader of the dataset's run files ([`crate::data::dataset`]) and of the raw logger
-//! files `nemm data import` converts ([`crate::data::import`]).
+//! The CSV reader of the dataset's run files ([`crate::load`]) and of the raw logger files
+//! `nemm data import` converts.
 //!
 //! It strips a UTF-8 byte-order mark, accepts LF, CRLF and CR line ends, trims the spaces
 //! around cells and header names, skips blank lines, comment lines and the lines before the
@@ -13,24 +13,24 @@ use std::path::{Path, PathBuf};
 
 /// The dialect of a CSV file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct Dialect {
+pub struct Dialect {
     /// Field delimiter.
-    pub(crate) delimiter: u8,
+    pub delimiter: u8,
     /// Lines starting with this byte are skipped.
-    pub(crate) comment: Option<u8>,
+    pub comment: Option<u8>,
     /// 1-based line of the header: records that start before it (a logger's preamble) are
     /// skipped.
-    pub(crate) header_line: usize,
+    pub header_line: usize,
     /// Every row must have as many fields as the header ([`CsvError::FieldCount`]).
-    pub(crate) same_field_count: bool,
+    pub same_field_count: bool,
     /// Numbers use a decimal comma (`1,5`).
-    pub(crate) decimal_comma: bool,
+    pub decimal_comma: bool,
 }
 
 impl Dialect {
     /// The dataset's run files: comma-separated, the header on line 1, no comments, every
     /// row as wide as the header.
-    pub(crate) const RUN_FILE: Dialect = Dialect {
+    pub const RUN_FILE: Dialect = Dialect {
         delimiter: b',',
         comment: None,
         header_line: 1,
@@ -41,7 +41,7 @@ impl Dialect {
 
 /// Why a CSV file could not be read.
 #[derive(Debug)]
-pub(crate) enum CsvError {
+pub enum CsvError {
     /// The `csv` crate refused the text.
     Malformed {
         /// The file.
@@ -66,7 +66,7 @@ pub(crate) enum CsvError {
 
 /// What is wrong with a cell that should hold a number.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum CellProblem {
+pub enum CellProblem {
     /// Not a number at all (empty, text, not UTF-8).
     NotANumber,
     /// NaN or infinite.
@@ -75,33 +75,33 @@ pub(crate) enum CellProblem {
 
 /// A cell that is not a finite number, with its place.
 #[derive(Debug)]
-pub(crate) struct CellError {
+pub struct CellError {
     /// The file.
-    pub(crate) path: PathBuf,
+    pub path: PathBuf,
     /// The row's line.
-    pub(crate) line: usize,
+    pub line: usize,
     /// The field (0-based).
-    pub(crate) field: usize,
+    pub field: usize,
     /// The column's header name (empty for a field beyond the header).
-    pub(crate) column: String,
+    pub column: String,
     /// The cell as found.
-    pub(crate) value: String,
+    pub value: String,
     /// What is wrong with it.
-    pub(crate) problem: CellProblem,
+    pub problem: CellProblem,
 }
 
 /// The header of a file.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub(crate) struct Header {
+pub struct Header {
     /// Its line.
-    pub(crate) line: usize,
+    pub line: usize,
     /// The column names.
-    pub(crate) names: Vec<String>,
+    pub names: Vec<String>,
 }
 
 /// Reads a CSV file held in memory: [`CsvReader::read_header`], then
 /// [`CsvReader::next_row`] until it returns `None`.
-pub(crate) struct CsvReader<'a> {
+pub struct CsvReader<'a> {
     path: &'a Path,
     /// The text without its byte-order mark.
     text: &'a [u8],
@@ -117,7 +117,7 @@ pub(crate) struct CsvReader<'a> {
 
 impl<'a> CsvReader<'a> {
     /// A reader of `bytes`, the content of the file at `path` (used in errors only).
-    pub(crate) fn new(bytes: &'a [u8], path: &'a Path, dialect: Dialect) -> Self {
+    pub fn new(bytes: &'a [u8], path: &'a Path, dialect: Dialect) -> Self {
         // Spreadsheet exports often start with a UTF-8 byte-order mark.
         let text = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
         let reader = ::csv::ReaderBuilder::new()
@@ -141,7 +141,7 @@ impl<'a> CsvReader<'a> {
 
     /// Reads the header: the first record that starts at or after the dialect's
     /// `header_line` (`None` when there is none).
-    pub(crate) fn read_header(&mut self) -> Result<Option<Header>, CsvError> {
+    pub fn read_header(&mut self) -> Result<Option<Header>, CsvError> {
         while self.read_record()? {
             if self.line >= self.dialect.header_line {
                 self.names = (0..self.record.len()).map(|i| self.text_of(i)).collect();
@@ -155,7 +155,7 @@ impl<'a> CsvReader<'a> {
     }
 
     /// The next row after the header (`None` at the end of the file).
-    pub(crate) fn next_row(&mut self) -> Result<Option<Row<'_, 'a>>, CsvError> {
+    pub fn next_row(&mut self) -> Result<Option<Row<'_, 'a>>, CsvError> {
         if !self.read_record()? {
             return Ok(None);
         }
@@ -223,38 +223,38 @@ impl<'a> CsvReader<'a> {
 }
 
 /// A row of a file.
-pub(crate) struct Row<'r, 'a> {
+pub struct Row<'r, 'a> {
     reader: &'r CsvReader<'a>,
 }
 
 impl Row<'_, '_> {
     /// Its line (1-based).
-    pub(crate) fn line(&self) -> usize {
+    pub fn line(&self) -> usize {
         self.reader.line
     }
 
     /// The number of fields of the row.
-    pub(crate) fn field_count(&self) -> usize {
+    pub fn field_count(&self) -> usize {
         self.reader.record.len()
     }
 
     /// `true` if every field is empty.
-    pub(crate) fn is_blank(&self) -> bool {
+    pub fn is_blank(&self) -> bool {
         self.reader.record.iter().all(<[u8]>::is_empty)
     }
 
     /// Field `i` as text (spaces trimmed; empty beyond the row's end).
-    pub(crate) fn text(&self, i: usize) -> String {
+    pub fn text(&self, i: usize) -> String {
         self.reader.text_of(i)
     }
 
     /// The header name of column `i` (empty beyond the header).
-    pub(crate) fn column(&self, i: usize) -> String {
+    pub fn column(&self, i: usize) -> String {
         self.reader.names.get(i).cloned().unwrap_or_default()
     }
 
     /// Field `i` as a finite number (a field beyond the row's end is empty, so not a number).
-    pub(crate) fn number(&self, i: usize) -> Result<f64, CellError> {
+    pub fn number(&self, i: usize) -> Result<f64, CellError> {
         let raw = self.reader.record.get(i).unwrap_or_default();
         let text = std::str::from_utf8(raw).ok().map(str::trim);
         let parsed = text.and_then(|t| {

@@ -1,5 +1,5 @@
 //! The dataset interchange format: round trip and one test per refused input.
-use nemm_train::data::dataset::{self, Dataset, DatasetError, Run, RunEntry, MANIFEST_FILE};
+use nemm_dataset::{self as dataset, Dataset, DatasetError, Run, RunEntry, MANIFEST_FILE};
 use std::path::{Path, PathBuf};
 
 fn entry(file: &str, oil_loss: f64) -> RunEntry {
