@@ -29,10 +29,13 @@ mod identity;
 mod sweep;
 
 pub use crate::output_guard::{check_output_dir, check_output_file};
-pub use compare::compare_command;
+pub use compare::{compare, compare_command, degradation_report};
 pub use demo::{demo, DemoPaths};
 pub use identity::{open_checkpoint, CheckpointLock, IDENTITY_FILE, LOCK_FILE, SESSION_KEYS};
-pub use sweep::{collect, resume, sweep, Engine, SlurmArgs, SweepGrid, SweepOptions, Table3Args};
+pub use sweep::{
+    collect, resume, slurm, sweep, DegradationPoint, Engine, SlurmArgs, SweepGrid, SweepOptions,
+    Table3Args, TABLE5_LAMBDAS,
+};
 
 /// Loads and prepares a dataset, printing a one-line summary.
 pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {

@@ -229,7 +229,7 @@ impl<T: Real> RolloutGrads<T> {
 pub struct Window<'a> {
     /// Stroke velocity \[m/s\] per data sample.
     pub u: &'a [f32],
-    /// Measured force \[N\] per data sample (ignored by [`simulate`]).
+    /// Measured force \[N\] per data sample (ignored by [`simulate`](super::simulate)).
     pub f: &'a [f32],
     /// Condition level `alpha` of the whole window (used when `alphas` is `None`).
     pub alpha: f32,
