@@ -10,14 +10,14 @@ use nemm_core::Model;
 use nemm_dataset::{sample_line, short_number, Dataset};
 
 /// A displacement beyond this (m) is not a damper's stroke.
-pub const MAX_DISPLACEMENT_M: f64 = 1.0;
+pub(crate) const MAX_DISPLACEMENT_M: f64 = 1.0;
 /// A measured velocity beyond this (m/s) is not a damper bench's.
-pub const MAX_VELOCITY_M_S: f64 = 100.0;
+pub(crate) const MAX_VELOCITY_M_S: f64 = 100.0;
 /// A force sample beyond this many of the model's force scales is absurd.
-pub const MAX_FORCE_SCALES: f64 = 100.0;
+pub(crate) const MAX_FORCE_SCALES: f64 = 100.0;
 /// The runs' largest force may be at most this many times the model's force scale (and at
 /// least its inverse times, below which a warning is printed).
-pub const FORCE_SCALE_FACTOR: f64 = 10.0;
+pub(crate) const FORCE_SCALE_FACTOR: f64 = 10.0;
 
 /// Checks the runs `selected` of `ds` against `model` before any work: every sample within
 /// [`MAX_DISPLACEMENT_M`], [`MAX_VELOCITY_M_S`] and [`MAX_FORCE_SCALES`] force scales; the
@@ -25,7 +25,7 @@ pub const FORCE_SCALE_FACTOR: f64 = 10.0;
 /// 100 times below; 10 times below is a warning); and, unless `allow_inverted`, each run's
 /// force dissipating energy against `velocity(i)` (the velocity of run `i` the command
 /// uses), as [`Dissipation::force_assists_motion`] judges it.
-pub fn check_runs_against_model(
+pub(crate) fn check_runs_against_model(
     model: &Model,
     ds: &Dataset,
     selected: &[usize],
