@@ -5,9 +5,11 @@
 //!
 //! What a firmware (or a C wrapper) uses is at the crate root:
 //!
-//! - the online [`Estimator`]: one `step(velocity) -> force` per sample, with its
+//! - the online [`Estimator`]: one `step(sample) -> force` per sample, with its
 //!   [`EstimatorConfig`], the [`Estimate`] and its [`Flags`] (module [`estimator`]: what
 //!   happens per step, exact or tabulated evaluation);
+//! - the [`Sample`] both steps take: the stroke velocity, and optionally the stroke
+//!   position, the sample's level `alpha` and the measured force (module [`sample`]);
 //! - the weight format: [`decode`] / [`decode_into`] (in place, for a `static`),
 //!   [`read_header`], [`encode`]; the layout and the tables section in [`format`](mod@format);
 //! - the [`Model`] and the types it is made of ([`ModelKind`], [`Body`], [`Condition`],
@@ -19,7 +21,8 @@
 //!   [`ObserverConfig`], [`AlphaEstimate`], [`ObserverFlags`] and [`ObserverError`] (module
 //!   [`observer`]: the method, its cost);
 //! - [`LevelTables`]: the stored tables of several oil-loss levels, for a level per sample
-//!   ([`Estimator::step_on_levels`]) and a table-cost observer
+//!   at table cost (attached to an estimator, [`Estimator::attach_levels`]) and a table-cost
+//!   observer
 //!   ([`AlphaObserver::load_on_levels`]) (module `estimator`, section "Every level");
 //! - [`velocity`]: the causal stroke-velocity estimate (backward difference and first-order
 //!   low-pass) that feeds the estimator online;
@@ -35,14 +38,14 @@
 //!
 //! ```
 //! # let blob = nemm_core::testing::example_blob();
-//! use nemm_core::{decode, Estimator, EstimatorConfig, Model};
+//! use nemm_core::{decode, Estimator, EstimatorConfig, Model, Sample};
 //!
 //! let model: Model = decode(&blob).expect("valid weights");
 //! let mut est = Estimator::new(&model, EstimatorConfig::new(0.15)).expect("alpha in range");
 //! for k in 0..1000 {
 //!     let t = k as f32 * model.dt_s;
 //!     let v = 0.5 * (2.0 * core::f32::consts::PI * 5.0 * t).sin(); // stroke velocity [m/s]
-//!     let e = est.step(v);
+//!     let e = est.step(Sample::new(v)).expect("no alpha in the sample: never refused");
 //!     assert!(e.force_n.is_finite() && e.flags.is_empty());
 //! }
 //! ```
@@ -73,6 +76,7 @@ pub mod format;
 pub mod limits;
 pub mod model;
 pub mod observer;
+pub mod sample;
 #[cfg(feature = "semantics")]
 #[cfg_attr(docsrs, doc(cfg(feature = "semantics")))]
 pub mod semantics;
@@ -107,6 +111,7 @@ pub use model::{
     AlphaBranches, Body, Condition, InputScales, Meta, Model, ModelKind, Priors, Provenance,
 };
 pub use observer::{AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags};
+pub use sample::Sample;
 pub use semantics::emm::EmmConstants;
 pub use semantics::integrator::Integrator;
 pub use semantics::lost_motion::LostMotion;
