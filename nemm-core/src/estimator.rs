@@ -148,9 +148,10 @@ pub struct Estimator<
     /// The level of the last step on the attached level tables (`None` after a load, an
     /// attach or a reset: the next one re-reads the coefficients at the state).
     levels_alpha: Option<f32>,
-    /// The attached level tables ([`Estimator::attach_levels`]).
-    levels: Option<&'l dyn LevelStep<P, T>>,
     rt: Runtime<P, T>,
+    /// The attached level tables ([`Estimator::attach_levels`]; last: read on the step of a
+    /// sample with an `alpha` only).
+    levels: Option<&'l dyn LevelStep<P, T>>,
 }
 
 impl<const P: usize> Estimator<'_, P> {
@@ -207,13 +208,13 @@ impl<'l, const P: usize, const T: usize> Estimator<'l, P, T> {
         mode: EvalMode::Exact,
         origin: TableOrigin::None,
         levels_alpha: None,
-        levels: None,
         rt: Runtime {
             kind: RuntimeKind::Empty,
             emm: EmmRuntime::empty(),
             sem_map: SemMap::empty(),
             sem_curve: heapless::Vec::new(),
         },
+        levels: None,
     };
 
     /// Loads `model` into this estimator **in place**: what [`Estimator::new`] does, without
@@ -448,8 +449,9 @@ impl<'l, const P: usize, const T: usize> Estimator<'l, P, T> {
     ///
     /// Refused, with nothing changed: an `alpha` that is not a finite value in `[0, 1]`
     /// ([`EstimatorError::AlphaOutOfRange`]), a changed `alpha` in table mode without level
-    /// tables, attached level tables that do not fit the model loaded since
-    /// ([`LevelsError::Mismatch`]).
+    /// tables ([`EstimatorError::AlphaPerSampleInTableMode`]), and attached level tables
+    /// that cannot drive this estimator ([`LevelsError::Mismatch`]: checked when attached,
+    /// and a load detaches them, so only as a guard).
     ///
     /// ```
     /// # let model: nemm_core::Model = nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 16, 5).unwrap();
