@@ -178,7 +178,7 @@ pub struct nemm_sample_t {
 
 impl nemm_sample_t {
     /// The nemm-core sample; other bits than the three `NEMM_SAMPLE_*` are refused.
-    pub(crate) fn to_core(&self) -> Result<Sample, nemm_status_t> {
+    pub(crate) fn to_core(self) -> Result<Sample, nemm_status_t> {
         let f = self.fields;
         if f & !(NEMM_SAMPLE_POSITION | NEMM_SAMPLE_ALPHA | NEMM_SAMPLE_FORCE) != 0 {
             return Err(NEMM_E_INVALID_ARGUMENT);
