@@ -773,6 +773,24 @@ impl<const P: usize, const T: usize> Estimator<'_, P, T> {
         e
     }
 
+    /// One step of a bank on the exact scalers: each member of `members` by
+    /// [`Estimator::step_member`], its force into `forces`; true if any member held its
+    /// input (a velocity fault).
+    pub(crate) fn step_bank(
+        &mut self,
+        (members, forces): (&mut [BankMember], &mut [f32]),
+        velocity_m_s: f32,
+        position_m: Option<f32>,
+    ) -> bool {
+        let mut velocity_fault = false;
+        for (m, f) in members.iter_mut().zip(forces.iter_mut()) {
+            let e = self.step_member(m, velocity_m_s, position_m);
+            velocity_fault |= e.flags.0 & Flags::INPUT_HELD != 0;
+            *f = e.force_n;
+        }
+        velocity_fault
+    }
+
     /// Takes member `m`'s state, coefficients at the state and last inputs.
     pub(crate) fn load_member(&mut self, m: &BankMember) {
         self.state = m.state;

@@ -665,20 +665,23 @@ impl<'l, const P: usize, const K: usize> AlphaObserver<'l, P, K> {
             return self.last;
         }
         let n = self.points;
-        let levels = self.levels;
-        let mut velocity_fault = false;
-        let members = self.members.iter_mut().zip(self.forces.iter_mut());
-        for (k, (m, f)) in members.enumerate().take(n) {
-            // A level the tables do not hold steps on the exact scalers.
-            let on_level = levels
-                .and_then(|l| l.step_member(&mut self.shared, k, m, velocity_m_s, position_m));
-            let e = match on_level {
-                Some(e) => e,
-                None => self.shared.step_member(m, velocity_m_s, position_m),
-            };
-            velocity_fault |= e.flags.0 & crate::Flags::INPUT_HELD != 0;
-            *f = e.force_n;
-        }
+        let (Some(members), Some(forces)) = (self.members.get_mut(..n), self.forces.get_mut(..n))
+        else {
+            return self.last;
+        };
+        // On level tables: one dynamic call for the whole bank (a level the tables do not
+        // hold steps on the exact scalers).
+        let velocity_fault = match self.levels {
+            Some(l) => l.step_bank(
+                &mut self.shared,
+                (members, forces),
+                velocity_m_s,
+                position_m,
+            ),
+            None => self
+                .shared
+                .step_bank((members, forces), velocity_m_s, position_m),
+        };
         let c = self.cfg;
         let mut flags = 0u8;
         if velocity_fault {

@@ -472,16 +472,16 @@ pub(crate) trait LevelStep<const P: usize, const T0: usize>: fmt::Debug + Sync {
         position_m: Option<f32>,
     ) -> Result<Estimate, EstimatorError>;
 
-    /// One step of bank member `m` on stored level `k` (its own tables); `None` if these
-    /// tables cannot drive `est` or `k` is not a level.
-    fn step_member(
+    /// One step of a bank ([`crate::AlphaObserver`]): member `k` on stored level `k` (its
+    /// own tables), a member these tables do not hold on the exact scalers
+    /// ([`Estimator::step_bank`]); one dynamic call for the whole bank.
+    fn step_bank(
         &self,
         est: &mut Estimator<'_, P, T0>,
-        k: usize,
-        m: &mut BankMember,
+        bank: (&mut [BankMember], &mut [f32]),
         velocity_m_s: f32,
         position_m: Option<f32>,
-    ) -> Option<Estimate>;
+    ) -> bool;
 
     /// The stored levels \[-\], ascending.
     fn alphas(&self) -> &[f32];
@@ -503,15 +503,23 @@ impl<const P: usize, const T0: usize, const T: usize, const L: usize> LevelStep<
         est.levels_step(self, velocity_m_s, alpha, position_m)
     }
 
-    fn step_member(
+    fn step_bank(
         &self,
         est: &mut Estimator<'_, P, T0>,
-        k: usize,
-        m: &mut BankMember,
+        (members, forces): (&mut [BankMember], &mut [f32]),
         velocity_m_s: f32,
         position_m: Option<f32>,
-    ) -> Option<Estimate> {
-        est.step_member_on_level(self, k, m, velocity_m_s, position_m)
+    ) -> bool {
+        let mut velocity_fault = false;
+        for (k, (m, f)) in members.iter_mut().zip(forces.iter_mut()).enumerate() {
+            let e = match est.step_member_on_level(self, k, m, velocity_m_s, position_m) {
+                Some(e) => e,
+                None => est.step_member(m, velocity_m_s, position_m),
+            };
+            velocity_fault |= e.flags.0 & Flags::INPUT_HELD != 0;
+            *f = e.force_n;
+        }
+        velocity_fault
     }
 
     fn alphas(&self) -> &[f32] {

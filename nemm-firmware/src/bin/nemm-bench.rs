@@ -58,9 +58,10 @@
 //!   before): after `warmup=` steps (the observer's own 10 ms warm-up is 100), `steps=`
 //!   steps timed each on its own through `observer_step` (not inlined: the cycle model's
 //!   trace stops there), one line:
-//!   `observer kind=nemm integrator=rk4 levels=7 model_steps=7 bytes=<size_of> steps=N
+//!   `observer kind=nemm integrator=rk4 levels=7 model_steps=7 bytes=<B> steps=N
 //!   ticks=<t> baseline_ticks=<b> instructions_per_step=<n> held=<h>` (`held`: measured steps
-//!   that did not update the estimate; `integrator`: the model's).
+//!   that did not update the estimate; `integrator`: the model's; `bytes`: the observer's
+//!   RAM, its level tables (in their own static) included when it steps on them).
 #![no_std]
 #![no_main]
 
@@ -817,7 +818,7 @@ fn observer_run(
             },
         )
         .kv("model_steps", observer.evaluations_per_step() as u32)
-        .kv("bytes", core::mem::size_of::<FwObserver>() as u32)
+        .kv("bytes", observer_bytes(observer))
         .kv("hidden", run.hidden)
         .kv("layers", run.layers)
         .kv("steps", n as u32)
@@ -830,6 +831,16 @@ fn observer_run(
         .kv("held", held);
     console.write(l.finish());
     observer
+}
+
+/// The observer's RAM \[B\]: `FwObserver` and, when it steps on them, its level tables.
+fn observer_bytes(observer: &FwObserver) -> u32 {
+    let levels = if observer.on_levels() {
+        core::mem::size_of::<nemm_firmware::FwLevels>()
+    } else {
+        0
+    };
+    (core::mem::size_of::<FwObserver>() + levels) as u32
 }
 
 /// One estimator step of the velocity alone (`Estimator::step` of a sample without a
