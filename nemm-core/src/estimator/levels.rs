@@ -461,8 +461,10 @@ fn read_level_table<const T: usize>(
 /// Level tables as an estimator holds them ([`Estimator::attach_levels`],
 /// [`crate::AlphaObserver::load_on_levels`]): the whole step on them, with their number of
 /// levels `L` and of segments `T` behind one dynamic call, so that neither is part of the
-/// estimator's type. Implemented by [`LevelTables`] alone.
-pub(crate) trait LevelStep<const P: usize, const T0: usize>: fmt::Debug + Sync {
+/// estimator's type. Implemented by [`LevelTables`] alone. Not `Debug` (a supertrait would
+/// put the tables' formatting, and its panic paths, into every vtable): the trait object has
+/// its own `Debug` below.
+pub(crate) trait LevelStep<const P: usize, const T0: usize>: Sync {
     /// One sample at level `alpha` on these tables ([`Estimator::step`] with an `alpha`).
     fn step(
         &self,
@@ -488,6 +490,14 @@ pub(crate) trait LevelStep<const P: usize, const T0: usize>: fmt::Debug + Sync {
 
     /// Whether these tables can drive `est` ([`Estimator::accepts_levels`]).
     fn accepted_by(&self, est: &Estimator<'_, P, T0>) -> bool;
+}
+
+impl<const P: usize, const T0: usize> fmt::Debug for dyn LevelStep<P, T0> + '_ {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LevelTables")
+            .field("alphas", &self.alphas())
+            .finish_non_exhaustive()
+    }
 }
 
 impl<const P: usize, const T0: usize, const T: usize, const L: usize> LevelStep<P, T0>
