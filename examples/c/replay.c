@@ -198,26 +198,33 @@ int main(void) {
         const uint8_t *sample = in + 16 + 12 * (size_t)k;
         float velocity = float_at(sample), position = float_at(sample + 4);
         float measured = float_at(sample + 8);
+        /* One sample: the velocity, the position and the measured force (the estimator
+         * reads no force, the observer no alpha). */
+        const nemm_sample_t in_sample = {
+            .velocity_m_s = velocity,
+            .position_m = position,
+            .force_n = measured,
+            .fields = NEMM_SAMPLE_POSITION | NEMM_SAMPLE_FORCE,
+        };
         nemm_estimate_t e;
         uint32_t t0 = board_ticks();
-        s = nemm_estimator_step_with_position(&estimator, velocity, position, &e);
+        s = nemm_estimator_step(&estimator, &in_sample, &e);
         step_ticks += ticks_since(t0);
         if (s != NEMM_OK) {
-            return fail("nemm_estimator_step_with_position", s);
+            return fail("nemm_estimator_step", s);
         }
         t0 = board_ticks();
-        s = nemm_observer_step_with_position(&observer, velocity, position, measured, &alpha);
+        s = nemm_observer_step(&observer, &in_sample, &alpha);
         observer_ticks += ticks_since(t0);
         if (s != NEMM_OK) {
-            return fail("nemm_observer_step_with_position", s);
+            return fail("nemm_observer_step", s);
         }
         if (on_levels) {
             t0 = board_ticks();
-            s = nemm_observer_step_on_levels_with_position(&levels_observer, &levels, velocity,
-                                                           position, measured, &levels_alpha);
+            s = nemm_observer_step(&levels_observer, &in_sample, &levels_alpha);
             levels_observer_ticks += ticks_since(t0);
             if (s != NEMM_OK) {
-                return fail("nemm_observer_step_on_levels_with_position", s);
+                return fail("nemm_observer_step (on levels)", s);
             }
         }
         put("s ");
@@ -263,17 +270,26 @@ int main(void) {
         if (s != NEMM_OK) {
             return fail("nemm_estimator_reset", s);
         }
+        s = nemm_estimator_attach_levels(&estimator, &levels);
+        if (s != NEMM_OK) {
+            return fail("nemm_estimator_attach_levels", s);
+        }
         float lo = levels_info.alpha[0], hi = levels_info.alpha[levels_info.levels - 1];
         for (uint32_t k = 0; k < n; k++) {
             const uint8_t *sample = in + 16 + 12 * (size_t)k;
             float level = lo + (hi - lo) * (float)k / (float)n;
+            const nemm_sample_t at_level = {
+                .velocity_m_s = float_at(sample),
+                .position_m = float_at(sample + 4),
+                .alpha = level,
+                .fields = NEMM_SAMPLE_POSITION | NEMM_SAMPLE_ALPHA,
+            };
             nemm_estimate_t e;
             uint32_t t0 = board_ticks();
-            s = nemm_estimator_step_on_levels_with_position(&estimator, &levels, float_at(sample),
-                                                            level, float_at(sample + 4), &e);
+            s = nemm_estimator_step(&estimator, &at_level, &e);
             levels_step_ticks += ticks_since(t0);
             if (s != NEMM_OK) {
-                return fail("nemm_estimator_step_on_levels_with_position", s);
+                return fail("nemm_estimator_step (on levels)", s);
             }
         }
     }

@@ -69,14 +69,14 @@
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46148
+#define NEMM_ESTIMATOR_SIZE 46156
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46360
+#define NEMM_ESTIMATOR_SIZE 46376
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -97,14 +97,14 @@
 /**
  * Bytes of a `nemm_observer_t` (32-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21624
+#define NEMM_OBSERVER_SIZE 21636
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_observer_t` (64-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21752
+#define NEMM_OBSERVER_SIZE 21784
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -278,6 +278,21 @@
  * Observer flag: no model (never set by an initialised observer).
  */
 #define NEMM_OBSERVER_NO_MODEL (1 << 7)
+
+/**
+ * `nemm_sample_t.fields`: `position_m` is present.
+ */
+#define NEMM_SAMPLE_POSITION (1 << 0)
+
+/**
+ * `nemm_sample_t.fields`: `alpha` is present.
+ */
+#define NEMM_SAMPLE_ALPHA (1 << 1)
+
+/**
+ * `nemm_sample_t.fields`: `force_n` is present.
+ */
+#define NEMM_SAMPLE_FORCE (1 << 2)
 
 /**
  * What a call did. `NEMM_OK` (0) is success; every other value is an error, after which
@@ -574,6 +589,43 @@ typedef struct {
 } nemm_estimator_config_t;
 
 /**
+ * One sample of the damper's signals, the input of `nemm_estimator_step` and
+ * `nemm_observer_step`: the stroke velocity, and the optional signals that `fields` marks
+ * present (`NEMM_SAMPLE_*` bits; a field whose bit is clear is not read). A present value
+ * that is NaN or infinite is a sensor fault, flagged by the step as such, not an absent
+ * value.
+ */
+typedef struct {
+  /**
+   * Stroke velocity (m/s), positive = extension. Always read.
+   */
+  float velocity_m_s;
+  /**
+   * Stroke position (m) as the position sensor measures it (the coordinates the model was
+   * trained in), with `NEMM_SAMPLE_POSITION`: for a model with a static force
+   * (`needs_position`); without it such a step holds the last good position and is flagged
+   * `NEMM_FLAG_POSITION_MISSING`. Other models ignore it.
+   */
+  float position_m;
+  /**
+   * This sample's oil-loss (condition) level in `[0, 1]`, with `NEMM_SAMPLE_ALPHA`;
+   * without it the estimator steps at its own level. The observer ignores it.
+   */
+  float alpha;
+  /**
+   * Measured damper force (N), positive in tension, with `NEMM_SAMPLE_FORCE`: the
+   * observer's input (without it the sample is a missing measurement,
+   * `NEMM_OBSERVER_FORCE_FAULT`). The estimator ignores it.
+   */
+  float force_n;
+  /**
+   * Which optional fields are present: `NEMM_SAMPLE_POSITION`, `NEMM_SAMPLE_ALPHA`,
+   * `NEMM_SAMPLE_FORCE` (other bits: `NEMM_E_INVALID_ARGUMENT`).
+   */
+  uint8_t fields;
+} nemm_sample_t;
+
+/**
  * The result of one estimator step.
  */
 typedef struct {
@@ -840,122 +892,74 @@ nemm_status_t nemm_estimator_init(nemm_estimator_t *storage,
                                   const nemm_estimator_config_t *config);
 
 /**
- * One sample: the stroke velocity (m/s) (positive = extension) in, the force estimate
- * out. Call once per model step (`nemm_estimator_info_t.dt_s`, e.g. every 100 us at
- * 10 kHz). A NaN, infinite or implausible velocity is replaced by the last good one and
- * flagged; the force is always finite.
+ * One sample in (`nemm_sample_t`: the stroke velocity, and optionally the stroke position
+ * and this sample's level `alpha`; its force is not read), the force estimate out. Call
+ * once per model step (`nemm_estimator_info_t.dt_s`, e.g. every 100 us at 10 kHz). A NaN,
+ * infinite or implausible velocity is replaced by the last good one and flagged; the force
+ * is always finite.
  *
- * A model with a static force (`needs_position`) needs the position too: use
- * `nemm_estimator_step_with_position`; here such a step is flagged
- * `NEMM_FLAG_POSITION_MISSING`.
+ * Position: a model with a static force (`needs_position`) needs it
+ * (`NEMM_SAMPLE_POSITION`); without one, or with a non-finite one, the last good position
+ * is used and the step is flagged `NEMM_FLAG_POSITION_MISSING`. Models without a static
+ * force ignore it.
  *
- * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing stepped).
+ * Level (`NEMM_SAMPLE_ALPHA`): without one the step runs at the estimator's own level
+ * (`nemm_estimator_info_t.alpha`). With one:
+ * - with level tables attached (`nemm_estimator_attach_levels`), the coefficients are read
+ *   from them at table cost, each the blend of its two neighbouring stored levels (at a
+ *   stored level: that level's tables, the table-mode step at that level bit for bit), in
+ *   either mode of the estimator. The state carries over between levels. An `alpha`
+ *   outside the stored levels takes the nearest level's tables, flagged
+ *   `NEMM_FLAG_ALPHA_EXTRAPOLATED` (as is one outside the trained range). The estimator's
+ *   own level is not changed: before switching between samples with and without an
+ *   `alpha`, call `nemm_estimator_reset`;
+ * - without level tables, a changed `alpha` is applied first (as `nemm_estimator_set_alpha`,
+ *   the state kept) and the step runs at the new level. That needs `NEMM_MODE_EXACT`
+ *   (where a change costs about one network evaluation); in table mode a changed alpha is
+ *   refused with `NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE` (an unchanged one steps
+ *   normally).
  *
- * # Safety
- * `est` must be an estimator's storage (see `nemm_estimator_t`) that no other context
- * accesses during the call, and `out` must point to a writable `nemm_estimate_t`.
- */
-nemm_status_t nemm_estimator_step(nemm_estimator_t *est,
-                                  float velocity_m_s,
-                                  nemm_estimate_t *out_estimate);
-
-/**
- * One sample with the stroke position (m) as the position sensor measures it (the
- * coordinates the model was trained in), for a model with a static force. A non-finite
- * position is replaced by the last good one and flagged `NEMM_FLAG_POSITION_MISSING`.
- * Models without a static force ignore the position (the result equals
- * `nemm_estimator_step`).
+ * Refused with nothing changed and nothing written: an `alpha` that is not a finite value
+ * in `[0, 1]` (`NEMM_E_ALPHA_OUT_OF_RANGE`), a changed one in table mode without level
+ * tables, other bits in `fields` than the `NEMM_SAMPLE_*` ones (`NEMM_E_INVALID_ARGUMENT`).
+ * A sample without an `alpha` is never refused.
  *
- * Errors and safety: as `nemm_estimator_step`.
- *
- * # Safety
- * As `nemm_estimator_step`.
- */
-nemm_status_t nemm_estimator_step_with_position(nemm_estimator_t *est,
-                                                float velocity_m_s,
-                                                float position_m,
-                                                nemm_estimate_t *out_estimate);
-
-/**
- * One sample at that sample's oil-loss (or condition) level `alpha`: when `alpha` differs
- * from the level in use it is applied first (as `nemm_estimator_set_alpha`, the state
- * kept), then the step runs at the new level.
- *
- * A changing per-sample alpha needs `NEMM_MODE_EXACT` (where a change costs about one
- * network evaluation); in table mode a changed alpha is refused with
- * `NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE` (an unchanged one steps normally). An alpha
- * outside `[0, 1]` is refused with `NEMM_E_ALPHA_OUT_OF_RANGE`. After an error nothing
- * changed and nothing was written.
- *
- * Errors: those of `nemm_estimator_step`, `NEMM_E_ALPHA_OUT_OF_RANGE`,
+ * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing
+ * stepped), `NEMM_E_INVALID_ARGUMENT`, `NEMM_E_ALPHA_OUT_OF_RANGE`,
  * `NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE`.
  *
  * # Safety
- * As `nemm_estimator_step`.
+ * `est` must be an estimator's storage (see `nemm_estimator_t`) that no other context
+ * accesses during the call, `sample` must point to a readable `nemm_sample_t`, and `out`
+ * must point to a writable `nemm_estimate_t`. Level tables attached to the estimator must
+ * still be valid (see `nemm_estimator_attach_levels`).
  */
-nemm_status_t nemm_estimator_step_with_alpha(nemm_estimator_t *est,
-                                             float velocity_m_s,
-                                             float alpha,
-                                             nemm_estimate_t *out_estimate);
+nemm_status_t nemm_estimator_step(nemm_estimator_t *est,
+                                  const nemm_sample_t *sample,
+                                  nemm_estimate_t *out_estimate);
 
 /**
- * `nemm_estimator_step_with_alpha` with the stroke position of
- * `nemm_estimator_step_with_position`.
+ * Attaches the level tables `levels` (loaded by `nemm_levels_init` from this estimator's
+ * blob) to the estimator: from now on a sample with an `alpha` (`NEMM_SAMPLE_ALPHA`) is
+ * stepped on them at table cost (see `nemm_estimator_step`), a condition that changes
+ * every sample. NULL detaches them (a sample's `alpha` is then applied to the estimator's
+ * own networks). `nemm_estimator_init` detaches them too.
+ *
+ * The estimator keeps a pointer to `levels`: their storage must stay valid, and must not
+ * be written (no `nemm_levels_init` on it), while they are attached.
+ *
+ * Refused with nothing changed: level tables of another model, or an estimator of a model
+ * without neural coefficients (`NEMM_E_LEVELS_MISMATCH`).
+ *
+ * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (est or
+ * levels), `NEMM_E_OVERLAP` (the two storages), `NEMM_E_LEVELS_MISMATCH`.
  *
  * # Safety
- * As `nemm_estimator_step`.
+ * `est` must be an estimator's storage that no other context accesses during the call;
+ * `levels` NULL or level tables' storage (see `nemm_levels_t`) that stays valid and
+ * unwritten while attached.
  */
-nemm_status_t nemm_estimator_step_with_alpha_and_position(nemm_estimator_t *est,
-                                                          float velocity_m_s,
-                                                          float alpha,
-                                                          float position_m,
-                                                          nemm_estimate_t *out_estimate);
-
-/**
- * One sample at that sample's oil-loss level `alpha` at table cost: the coefficients are
- * read from the level tables `levels` (loaded by `nemm_levels_init` from this estimator's
- * blob), each the blend of its two neighbouring stored levels (at a stored level: that
- * level's tables, the table-mode step at that level bit for bit). The counterpart of
- * `nemm_estimator_step_with_alpha` for a condition that changes every sample, in either
- * mode of the estimator (its own scalers or tables are not read). The state carries over
- * between levels. An `alpha` outside the stored levels takes the nearest level's tables,
- * flagged `NEMM_FLAG_ALPHA_EXTRAPOLATED` (as is one outside the trained range).
- *
- * The estimator's own level (`nemm_estimator_info_t.alpha`) is not changed: before
- * switching between these steps and the other step functions, call
- * `nemm_estimator_reset`.
- *
- * Refused with nothing changed and nothing written: an `alpha` that is not a finite value
- * in `[0, 1]` (`NEMM_E_ALPHA_OUT_OF_RANGE`), level tables of another model
- * (`NEMM_E_LEVELS_MISMATCH`).
- *
- * Errors: those of `nemm_estimator_step`, `NEMM_E_NOT_INITIALISED` (levels),
- * `NEMM_E_OVERLAP` (the two storages), `NEMM_E_ALPHA_OUT_OF_RANGE`,
- * `NEMM_E_LEVELS_MISMATCH`.
- *
- * # Safety
- * As `nemm_estimator_step`, and `levels` must be level tables' storage (see
- * `nemm_levels_t`) that no other context writes during the call.
- */
-nemm_status_t nemm_estimator_step_on_levels(nemm_estimator_t *est,
-                                            const nemm_levels_t *levels,
-                                            float velocity_m_s,
-                                            float alpha,
-                                            nemm_estimate_t *out_estimate);
-
-/**
- * `nemm_estimator_step_on_levels` with the stroke position of
- * `nemm_estimator_step_with_position`.
- *
- * # Safety
- * As `nemm_estimator_step_on_levels`.
- */
-nemm_status_t nemm_estimator_step_on_levels_with_position(nemm_estimator_t *est,
-                                                          const nemm_levels_t *levels,
-                                                          float velocity_m_s,
-                                                          float alpha,
-                                                          float position_m,
-                                                          nemm_estimate_t *out_estimate);
+nemm_status_t nemm_estimator_attach_levels(nemm_estimator_t *est, const nemm_levels_t *levels);
 
 /**
  * Changes the oil-loss level (e.g. from a bench controller or the alpha observer), keeping
@@ -1077,15 +1081,16 @@ nemm_status_t nemm_observer_init(nemm_observer_t *storage,
 
 /**
  * Builds an alpha observer as `nemm_observer_init` whose grid is the levels of the level
- * tables `levels` (loaded from the blob of `est`'s model), so that
- * `nemm_observer_step_on_levels` steps each level on its stored tables: `points` table-mode
+ * tables `levels` (loaded from the blob of `est`'s model), so that `nemm_observer_step`
+ * steps each level on its stored tables: `points` table-mode
  * steps per sample instead of exact ones (about a tenth or less of the cost; the estimate
  * agrees with the exact observer's up to the tables' error). The grid need not be uniform.
  * In `config` (NULL: the defaults) `grid_lo` and `grid_hi` must be 0 and `points` 0 or the
  * number of levels, which must be at most `NEMM_OBSERVER_MAX_POINTS`.
  *
- * The observer keeps no pointer to `levels`: pass the same level tables to every
- * `nemm_observer_step_on_levels`.
+ * The observer keeps a pointer to `levels`: their storage must stay valid, and must not be
+ * written (no `nemm_levels_init` on it), while the observer is used (until it is
+ * initialised again).
  *
  * Errors: those of `nemm_observer_init`, `NEMM_E_NOT_INITIALISED` (levels),
  * `NEMM_E_OVERLAP` (the observer's storage overlaps the estimator's or the levels'),
@@ -1094,8 +1099,8 @@ nemm_status_t nemm_observer_init(nemm_observer_t *storage,
  * (level tables of another model).
  *
  * # Safety
- * As `nemm_observer_init`, and `levels` must be level tables' storage that no other
- * context writes during the call.
+ * As `nemm_observer_init`, and `levels` must be level tables' storage that stays valid and
+ * unwritten while the observer is used.
  */
 nemm_status_t nemm_observer_init_on_levels(nemm_observer_t *storage,
                                            size_t size,
@@ -1104,70 +1109,31 @@ nemm_status_t nemm_observer_init_on_levels(nemm_observer_t *storage,
                                            const nemm_observer_config_t *config);
 
 /**
- * One sample: the stroke velocity (m/s) (as given to the estimator) and the measured
- * force (N) (positive in tension) of the same instant; `out` gets the estimate after it.
- * Costs `points` model steps in exact mode (7 by default): about seven exact estimator
- * steps. An observer built by `nemm_observer_init_on_levels` is stepped here on the exact
- * scalers too; `nemm_observer_step_on_levels` steps it at table cost.
+ * One sample in (`nemm_sample_t`: the stroke velocity (m/s) as given to the estimator, the
+ * measured force (N, positive in tension, `NEMM_SAMPLE_FORCE`) of the same instant, and
+ * the stroke position (m, `NEMM_SAMPLE_POSITION`) for a model with a static force; its
+ * `alpha` is not read); `out` gets the estimate after it. An observer built by
+ * `nemm_observer_init_on_levels` steps each level on its stored tables (`points` table-mode
+ * steps, 7 for the firmware's trained blob), one built by `nemm_observer_init` on the exact
+ * networks (`points` exact model steps: about seven exact estimator steps by default).
  *
- * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing stepped).
+ * A sample without a force is a missing measurement, handled as a NaN one: the levels
+ * step, the estimate is held and flagged `NEMM_OBSERVER_FORCE_FAULT` and
+ * `NEMM_OBSERVER_HELD`.
+ *
+ * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing
+ * stepped), `NEMM_E_INVALID_ARGUMENT` (other bits in `fields` than the `NEMM_SAMPLE_*`
+ * ones; nothing stepped).
  *
  * # Safety
- * `obs` must be an observer's storage that no other context accesses during the call, and
- * `out` must point to a writable `nemm_alpha_estimate_t`.
+ * `obs` must be an observer's storage that no other context accesses during the call,
+ * `sample` must point to a readable `nemm_sample_t`, and `out` must point to a writable
+ * `nemm_alpha_estimate_t`. The level tables of an observer built on them must still be
+ * valid (see `nemm_observer_init_on_levels`).
  */
 nemm_status_t nemm_observer_step(nemm_observer_t *obs,
-                                 float velocity_m_s,
-                                 float force_n,
+                                 const nemm_sample_t *sample,
                                  nemm_alpha_estimate_t *out_estimate);
-
-/**
- * `nemm_observer_step` with the stroke position (m), for a model with a static force.
- *
- * # Safety
- * As `nemm_observer_step`.
- */
-nemm_status_t nemm_observer_step_with_position(nemm_observer_t *obs,
-                                               float velocity_m_s,
-                                               float position_m,
-                                               float force_n,
-                                               nemm_alpha_estimate_t *out_estimate);
-
-/**
- * One sample of an observer built by `nemm_observer_init_on_levels`, as
- * `nemm_observer_step`: each level steps on its stored tables in `levels` (the level tables
- * the observer was built on). Costs `points` table-mode steps (7 for the firmware's
- * trained blob) and the fit's scalar work, instead of `points` exact steps.
- *
- * Refused with nothing stepped: an observer not built on level tables, or `levels` that
- * hold other levels than the observer's grid (`NEMM_E_LEVELS_MISMATCH`).
- *
- * Errors: those of `nemm_observer_step`, `NEMM_E_NOT_INITIALISED` (levels),
- * `NEMM_E_OVERLAP` (the two storages), `NEMM_E_LEVELS_MISMATCH`.
- *
- * # Safety
- * As `nemm_observer_step`, and `levels` must be level tables' storage that no other
- * context writes during the call.
- */
-nemm_status_t nemm_observer_step_on_levels(nemm_observer_t *obs,
-                                           const nemm_levels_t *levels,
-                                           float velocity_m_s,
-                                           float force_n,
-                                           nemm_alpha_estimate_t *out_estimate);
-
-/**
- * `nemm_observer_step_on_levels` with the stroke position (m), for a model with a static
- * force.
- *
- * # Safety
- * As `nemm_observer_step_on_levels`.
- */
-nemm_status_t nemm_observer_step_on_levels_with_position(nemm_observer_t *obs,
-                                                         const nemm_levels_t *levels,
-                                                         float velocity_m_s,
-                                                         float position_m,
-                                                         float force_n,
-                                                         nemm_alpha_estimate_t *out_estimate);
 
 /**
  * The current estimate (the last step's; after init or reset: the middle of the grid,

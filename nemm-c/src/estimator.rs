@@ -8,10 +8,10 @@ use crate::storage::{
 };
 use crate::types::{
     kind_value, mode_value, nemm_estimate_t, nemm_estimator_config_t, nemm_estimator_info_t,
-    origin_value, NEMM_MODE_EXACT, NEMM_MODE_TABLE,
+    nemm_sample_t, origin_value, NEMM_MODE_EXACT, NEMM_MODE_TABLE,
 };
 use crate::NEMM_TABLE_MAX_REL_ERROR;
-use nemm_core::{decode_into, Estimate, EstimatorConfig, EvalMode, TableConfig};
+use nemm_core::{decode_into, Estimate, EstimatorConfig, EvalMode, Sample, TableConfig};
 
 /// `Ok(())` as `NEMM_OK`, an error as its code.
 pub(crate) fn status(r: Result<(), nemm_status_t>) -> nemm_status_t {
@@ -104,217 +104,118 @@ fn put(out_ptr: *mut nemm_estimate_t, e: Estimate) {
     unsafe { out_ptr.write_unaligned(e.into()) }
 }
 
-/// One sample: the stroke velocity (m/s) (positive = extension) in, the force estimate
-/// out. Call once per model step (`nemm_estimator_info_t.dt_s`, e.g. every 100 us at
-/// 10 kHz). A NaN, infinite or implausible velocity is replaced by the last good one and
-/// flagged; the force is always finite.
-///
-/// A model with a static force (`needs_position`) needs the position too: use
-/// `nemm_estimator_step_with_position`; here such a step is flagged
-/// `NEMM_FLAG_POSITION_MISSING`.
-///
-/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing stepped).
-///
-/// # Safety
-/// `est` must be an estimator's storage (see `nemm_estimator_t`) that no other context
-/// accesses during the call, and `out` must point to a writable `nemm_estimate_t`.
-#[no_mangle]
-pub unsafe extern "C" fn nemm_estimator_step(
-    est: *mut nemm_estimator_t,
-    velocity_m_s: f32,
-    out_estimate: *mut nemm_estimate_t,
-) -> nemm_status_t {
-    status((|| {
-        let o = out(out_estimate)?;
-        // SAFETY: the caller's guarantee on `est`.
-        let cell = unsafe { EstimatorCell::get_mut(est) }?;
-        put(o, cell.est.step(velocity_m_s));
-        Ok(())
-    })())
+/// Reads the sample at `p` (non-null: checked).
+pub(crate) fn read_sample(p: *const nemm_sample_t) -> Result<Sample, nemm_status_t> {
+    if p.is_null() {
+        return Err(NEMM_E_NULL);
+    }
+    // SAFETY: non-null (checked); the C caller promises a readable `nemm_sample_t` there.
+    // Unaligned read: no alignment is required.
+    unsafe { p.read_unaligned() }.to_core()
 }
 
-/// One sample with the stroke position (m) as the position sensor measures it (the
-/// coordinates the model was trained in), for a model with a static force. A non-finite
-/// position is replaced by the last good one and flagged `NEMM_FLAG_POSITION_MISSING`.
-/// Models without a static force ignore the position (the result equals
-/// `nemm_estimator_step`).
+/// One sample in (`nemm_sample_t`: the stroke velocity, and optionally the stroke position
+/// and this sample's level `alpha`; its force is not read), the force estimate out. Call
+/// once per model step (`nemm_estimator_info_t.dt_s`, e.g. every 100 us at 10 kHz). A NaN,
+/// infinite or implausible velocity is replaced by the last good one and flagged; the force
+/// is always finite.
 ///
-/// Errors and safety: as `nemm_estimator_step`.
+/// Position: a model with a static force (`needs_position`) needs it
+/// (`NEMM_SAMPLE_POSITION`); without one, or with a non-finite one, the last good position
+/// is used and the step is flagged `NEMM_FLAG_POSITION_MISSING`. Models without a static
+/// force ignore it.
 ///
-/// # Safety
-/// As `nemm_estimator_step`.
-#[no_mangle]
-pub unsafe extern "C" fn nemm_estimator_step_with_position(
-    est: *mut nemm_estimator_t,
-    velocity_m_s: f32,
-    position_m: f32,
-    out_estimate: *mut nemm_estimate_t,
-) -> nemm_status_t {
-    status((|| {
-        let o = out(out_estimate)?;
-        // SAFETY: the caller's guarantee on `est`.
-        let cell = unsafe { EstimatorCell::get_mut(est) }?;
-        put(o, cell.est.step_with_position(velocity_m_s, position_m));
-        Ok(())
-    })())
-}
-
-/// One sample at that sample's oil-loss (or condition) level `alpha`: when `alpha` differs
-/// from the level in use it is applied first (as `nemm_estimator_set_alpha`, the state
-/// kept), then the step runs at the new level.
+/// Level (`NEMM_SAMPLE_ALPHA`): without one the step runs at the estimator's own level
+/// (`nemm_estimator_info_t.alpha`). With one:
+/// - with level tables attached (`nemm_estimator_attach_levels`), the coefficients are read
+///   from them at table cost, each the blend of its two neighbouring stored levels (at a
+///   stored level: that level's tables, the table-mode step at that level bit for bit), in
+///   either mode of the estimator. The state carries over between levels. An `alpha`
+///   outside the stored levels takes the nearest level's tables, flagged
+///   `NEMM_FLAG_ALPHA_EXTRAPOLATED` (as is one outside the trained range). The estimator's
+///   own level is not changed: before switching between samples with and without an
+///   `alpha`, call `nemm_estimator_reset`;
+/// - without level tables, a changed `alpha` is applied first (as `nemm_estimator_set_alpha`,
+///   the state kept) and the step runs at the new level. That needs `NEMM_MODE_EXACT`
+///   (where a change costs about one network evaluation); in table mode a changed alpha is
+///   refused with `NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE` (an unchanged one steps
+///   normally).
 ///
-/// A changing per-sample alpha needs `NEMM_MODE_EXACT` (where a change costs about one
-/// network evaluation); in table mode a changed alpha is refused with
-/// `NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE` (an unchanged one steps normally). An alpha
-/// outside `[0, 1]` is refused with `NEMM_E_ALPHA_OUT_OF_RANGE`. After an error nothing
-/// changed and nothing was written.
+/// Refused with nothing changed and nothing written: an `alpha` that is not a finite value
+/// in `[0, 1]` (`NEMM_E_ALPHA_OUT_OF_RANGE`), a changed one in table mode without level
+/// tables, other bits in `fields` than the `NEMM_SAMPLE_*` ones (`NEMM_E_INVALID_ARGUMENT`).
+/// A sample without an `alpha` is never refused.
 ///
-/// Errors: those of `nemm_estimator_step`, `NEMM_E_ALPHA_OUT_OF_RANGE`,
+/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing
+/// stepped), `NEMM_E_INVALID_ARGUMENT`, `NEMM_E_ALPHA_OUT_OF_RANGE`,
 /// `NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE`.
 ///
 /// # Safety
-/// As `nemm_estimator_step`.
+/// `est` must be an estimator's storage (see `nemm_estimator_t`) that no other context
+/// accesses during the call, `sample` must point to a readable `nemm_sample_t`, and `out`
+/// must point to a writable `nemm_estimate_t`. Level tables attached to the estimator must
+/// still be valid (see `nemm_estimator_attach_levels`).
 #[no_mangle]
-pub unsafe extern "C" fn nemm_estimator_step_with_alpha(
+pub unsafe extern "C" fn nemm_estimator_step(
     est: *mut nemm_estimator_t,
-    velocity_m_s: f32,
-    alpha: f32,
+    sample: *const nemm_sample_t,
     out_estimate: *mut nemm_estimate_t,
 ) -> nemm_status_t {
     status((|| {
         let o = out(out_estimate)?;
+        let s = read_sample(sample)?;
         // SAFETY: the caller's guarantee on `est`.
         let cell = unsafe { EstimatorCell::get_mut(est) }?;
-        put(o, cell.est.step_with_alpha(velocity_m_s, alpha)?);
+        put(o, cell.est.step(s)?);
         Ok(())
     })())
 }
 
-/// `nemm_estimator_step_with_alpha` with the stroke position of
-/// `nemm_estimator_step_with_position`.
+/// Attaches the level tables `levels` (loaded by `nemm_levels_init` from this estimator's
+/// blob) to the estimator: from now on a sample with an `alpha` (`NEMM_SAMPLE_ALPHA`) is
+/// stepped on them at table cost (see `nemm_estimator_step`), a condition that changes
+/// every sample. NULL detaches them (a sample's `alpha` is then applied to the estimator's
+/// own networks). `nemm_estimator_init` detaches them too.
+///
+/// The estimator keeps a pointer to `levels`: their storage must stay valid, and must not
+/// be written (no `nemm_levels_init` on it), while they are attached.
+///
+/// Refused with nothing changed: level tables of another model, or an estimator of a model
+/// without neural coefficients (`NEMM_E_LEVELS_MISMATCH`).
+///
+/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (est or
+/// levels), `NEMM_E_OVERLAP` (the two storages), `NEMM_E_LEVELS_MISMATCH`.
 ///
 /// # Safety
-/// As `nemm_estimator_step`.
+/// `est` must be an estimator's storage that no other context accesses during the call;
+/// `levels` NULL or level tables' storage (see `nemm_levels_t`) that stays valid and
+/// unwritten while attached.
 #[no_mangle]
-pub unsafe extern "C" fn nemm_estimator_step_with_alpha_and_position(
+pub unsafe extern "C" fn nemm_estimator_attach_levels(
     est: *mut nemm_estimator_t,
-    velocity_m_s: f32,
-    alpha: f32,
-    position_m: f32,
-    out_estimate: *mut nemm_estimate_t,
+    levels: *const nemm_levels_t,
 ) -> nemm_status_t {
     status((|| {
-        let o = out(out_estimate)?;
-        // SAFETY: the caller's guarantee on `est`.
-        let cell = unsafe { EstimatorCell::get_mut(est) }?;
-        put(
-            o,
-            cell.est
-                .step_with_alpha_and_position(velocity_m_s, alpha, position_m)?,
-        );
-        Ok(())
-    })())
-}
-
-/// One sample at that sample's oil-loss level `alpha` at table cost: the coefficients are
-/// read from the level tables `levels` (loaded by `nemm_levels_init` from this estimator's
-/// blob), each the blend of its two neighbouring stored levels (at a stored level: that
-/// level's tables, the table-mode step at that level bit for bit). The counterpart of
-/// `nemm_estimator_step_with_alpha` for a condition that changes every sample, in either
-/// mode of the estimator (its own scalers or tables are not read). The state carries over
-/// between levels. An `alpha` outside the stored levels takes the nearest level's tables,
-/// flagged `NEMM_FLAG_ALPHA_EXTRAPOLATED` (as is one outside the trained range).
-///
-/// The estimator's own level (`nemm_estimator_info_t.alpha`) is not changed: before
-/// switching between these steps and the other step functions, call
-/// `nemm_estimator_reset`.
-///
-/// Refused with nothing changed and nothing written: an `alpha` that is not a finite value
-/// in `[0, 1]` (`NEMM_E_ALPHA_OUT_OF_RANGE`), level tables of another model
-/// (`NEMM_E_LEVELS_MISMATCH`).
-///
-/// Errors: those of `nemm_estimator_step`, `NEMM_E_NOT_INITIALISED` (levels),
-/// `NEMM_E_OVERLAP` (the two storages), `NEMM_E_ALPHA_OUT_OF_RANGE`,
-/// `NEMM_E_LEVELS_MISMATCH`.
-///
-/// # Safety
-/// As `nemm_estimator_step`, and `levels` must be level tables' storage (see
-/// `nemm_levels_t`) that no other context writes during the call.
-#[no_mangle]
-pub unsafe extern "C" fn nemm_estimator_step_on_levels(
-    est: *mut nemm_estimator_t,
-    levels: *const nemm_levels_t,
-    velocity_m_s: f32,
-    alpha: f32,
-    out_estimate: *mut nemm_estimate_t,
-) -> nemm_status_t {
-    // SAFETY: the caller's guarantees.
-    unsafe { step_on_levels(est, levels, velocity_m_s, alpha, None, out_estimate) }
-}
-
-/// `nemm_estimator_step_on_levels` with the stroke position of
-/// `nemm_estimator_step_with_position`.
-///
-/// # Safety
-/// As `nemm_estimator_step_on_levels`.
-#[no_mangle]
-pub unsafe extern "C" fn nemm_estimator_step_on_levels_with_position(
-    est: *mut nemm_estimator_t,
-    levels: *const nemm_levels_t,
-    velocity_m_s: f32,
-    alpha: f32,
-    position_m: f32,
-    out_estimate: *mut nemm_estimate_t,
-) -> nemm_status_t {
-    // SAFETY: the caller's guarantees.
-    unsafe {
-        step_on_levels(
-            est,
-            levels,
-            velocity_m_s,
-            alpha,
-            Some(position_m),
-            out_estimate,
-        )
-    }
-}
-
-/// The two steps on level tables.
-///
-/// # Safety
-/// As `nemm_estimator_step_on_levels`.
-unsafe fn step_on_levels(
-    est: *mut nemm_estimator_t,
-    levels: *const nemm_levels_t,
-    velocity_m_s: f32,
-    alpha: f32,
-    position_m: Option<f32>,
-    out_estimate: *mut nemm_estimate_t,
-) -> nemm_status_t {
-    status((|| {
-        let o = out(out_estimate)?;
-        if !levels.is_null()
-            && overlap(
-                est.cast(),
-                NEMM_ESTIMATOR_SIZE,
-                levels.cast(),
-                NEMM_LEVELS_SIZE,
-            )
-        {
+        if levels.is_null() {
+            // SAFETY: the caller's guarantee on `est`.
+            let cell = unsafe { EstimatorCell::get_mut(est) }?;
+            cell.est.detach_levels();
+            return Ok(());
+        }
+        if overlap(
+            est.cast(),
+            NEMM_ESTIMATOR_SIZE,
+            levels.cast(),
+            NEMM_LEVELS_SIZE,
+        ) {
             return Err(NEMM_E_OVERLAP);
         }
-        // SAFETY: the caller's guarantee on `levels`.
+        // SAFETY: the caller's guarantee on `levels`: valid and unwritten while attached,
+        // which is the lifetime the estimator holds them for.
         let tables = unsafe { LevelsCell::tables(levels) }?;
         // SAFETY: the caller's guarantee on `est`; it does not overlap `levels` (checked).
         let cell = unsafe { EstimatorCell::get_mut(est) }?;
-        let e = match position_m {
-            None => cell.est.step_on_levels(tables, velocity_m_s, alpha)?,
-            Some(x) => cell
-                .est
-                .step_on_levels_with_position(tables, velocity_m_s, alpha, x)?,
-        };
-        put(o, e);
-        Ok(())
+        Ok(cell.est.attach_levels(tables)?)
     })())
 }
 

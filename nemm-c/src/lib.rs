@@ -18,8 +18,11 @@
 //!   QEMU).
 //! - Level tables (`nemm_levels_t`, [`NEMM_LEVELS_CAPACITY`] levels): the tables a blob
 //!   stores for several oil-loss levels, for an estimator with a level per sample and an
-//!   alpha observer at table cost (`nemm_estimator_step_on_levels`,
-//!   `nemm_observer_step_on_levels`).
+//!   alpha observer at table cost (`nemm_estimator_attach_levels`,
+//!   `nemm_observer_init_on_levels`).
+//! - One step per object: `nemm_estimator_step` and `nemm_observer_step` take one
+//!   `nemm_sample_t` (the stroke velocity, and the position, level and measured force that
+//!   its `fields` bits mark present).
 //!
 //! The functions are `unsafe extern "C"`: their safety contracts are the pointer rules of
 //! their C documentation (valid, writable where written, not accessed by another context
@@ -58,17 +61,13 @@ mod tests;
 
 pub use blob::nemm_blob_validate;
 pub use estimator::{
-    nemm_estimator_info, nemm_estimator_init, nemm_estimator_reset, nemm_estimator_set_alpha,
-    nemm_estimator_step, nemm_estimator_step_on_levels,
-    nemm_estimator_step_on_levels_with_position, nemm_estimator_step_with_alpha,
-    nemm_estimator_step_with_alpha_and_position, nemm_estimator_step_with_position,
+    nemm_estimator_attach_levels, nemm_estimator_info, nemm_estimator_init, nemm_estimator_reset,
+    nemm_estimator_set_alpha, nemm_estimator_step,
 };
 pub use levels::{nemm_levels_info, nemm_levels_init};
 pub use observer::{
     nemm_observer_config_default, nemm_observer_estimate, nemm_observer_init,
     nemm_observer_init_on_levels, nemm_observer_reset, nemm_observer_step,
-    nemm_observer_step_on_levels, nemm_observer_step_on_levels_with_position,
-    nemm_observer_step_with_position,
 };
 pub use status::{nemm_status_str, nemm_status_t};
 pub use storage::{

@@ -1,12 +1,12 @@
 //! The alpha observer: the oil-loss level online from the measured velocity and force.
 
-use crate::estimator::status;
+use crate::estimator::{read_sample, status};
 use crate::status::nemm_status_t::{self, *};
 use crate::storage::{
-    nemm_estimator_t, nemm_levels_t, nemm_observer_t, out, overlap, CLevels, EstimatorCell,
-    LevelsCell, Marked, ObserverCell, NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE, NEMM_OBSERVER_SIZE,
+    nemm_estimator_t, nemm_levels_t, nemm_observer_t, out, overlap, EstimatorCell, LevelsCell,
+    Marked, ObserverCell, NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE, NEMM_OBSERVER_SIZE,
 };
-use crate::types::{nemm_alpha_estimate_t, nemm_observer_config_t};
+use crate::types::{nemm_alpha_estimate_t, nemm_observer_config_t, nemm_sample_t};
 use nemm_core::AlphaEstimate;
 
 /// Fills `config` with the default observer settings (a grid of
@@ -58,15 +58,16 @@ pub unsafe extern "C" fn nemm_observer_init(
 }
 
 /// Builds an alpha observer as `nemm_observer_init` whose grid is the levels of the level
-/// tables `levels` (loaded from the blob of `est`'s model), so that
-/// `nemm_observer_step_on_levels` steps each level on its stored tables: `points` table-mode
+/// tables `levels` (loaded from the blob of `est`'s model), so that `nemm_observer_step`
+/// steps each level on its stored tables: `points` table-mode
 /// steps per sample instead of exact ones (about a tenth or less of the cost; the estimate
 /// agrees with the exact observer's up to the tables' error). The grid need not be uniform.
 /// In `config` (NULL: the defaults) `grid_lo` and `grid_hi` must be 0 and `points` 0 or the
 /// number of levels, which must be at most `NEMM_OBSERVER_MAX_POINTS`.
 ///
-/// The observer keeps no pointer to `levels`: pass the same level tables to every
-/// `nemm_observer_step_on_levels`.
+/// The observer keeps a pointer to `levels`: their storage must stay valid, and must not be
+/// written (no `nemm_levels_init` on it), while the observer is used (until it is
+/// initialised again).
 ///
 /// Errors: those of `nemm_observer_init`, `NEMM_E_NOT_INITIALISED` (levels),
 /// `NEMM_E_OVERLAP` (the observer's storage overlaps the estimator's or the levels'),
@@ -75,8 +76,8 @@ pub unsafe extern "C" fn nemm_observer_init(
 /// (level tables of another model).
 ///
 /// # Safety
-/// As `nemm_observer_init`, and `levels` must be level tables' storage that no other
-/// context writes during the call.
+/// As `nemm_observer_init`, and `levels` must be level tables' storage that stays valid and
+/// unwritten while the observer is used.
 #[no_mangle]
 pub unsafe extern "C" fn nemm_observer_init_on_levels(
     storage: *mut nemm_observer_t,
@@ -115,7 +116,8 @@ unsafe fn init(
         let tables = if levels.is_null() {
             None
         } else {
-            // SAFETY: the caller's guarantee on `levels`.
+            // SAFETY: the caller's guarantee on `levels`: valid and unwritten while the
+            // observer is used, which is the lifetime the observer holds them for.
             Some(unsafe { LevelsCell::tables(levels) }?)
         };
         if storage.is_null() {
@@ -134,10 +136,7 @@ unsafe fn init(
         let cell = unsafe { ObserverCell::fill(cell) };
         match tables {
             None => cell.obs.load(&estimator.model, c.to_core())?,
-            Some(t) => {
-                cell.obs.load_on_levels(&estimator.model, t, c.to_core())?;
-                cell.on_levels = true;
-            }
+            Some(t) => cell.obs.load_on_levels(&estimator.model, t, c.to_core())?,
         }
         cell.seal();
         Ok(())
@@ -151,161 +150,39 @@ fn put(out_ptr: *mut nemm_alpha_estimate_t, a: AlphaEstimate) {
     unsafe { out_ptr.write_unaligned(a.into()) }
 }
 
-/// One sample: the stroke velocity (m/s) (as given to the estimator) and the measured
-/// force (N) (positive in tension) of the same instant; `out` gets the estimate after it.
-/// Costs `points` model steps in exact mode (7 by default): about seven exact estimator
-/// steps. An observer built by `nemm_observer_init_on_levels` is stepped here on the exact
-/// scalers too; `nemm_observer_step_on_levels` steps it at table cost.
+/// One sample in (`nemm_sample_t`: the stroke velocity (m/s) as given to the estimator, the
+/// measured force (N, positive in tension, `NEMM_SAMPLE_FORCE`) of the same instant, and
+/// the stroke position (m, `NEMM_SAMPLE_POSITION`) for a model with a static force; its
+/// `alpha` is not read); `out` gets the estimate after it. An observer built by
+/// `nemm_observer_init_on_levels` steps each level on its stored tables (`points` table-mode
+/// steps, 7 for the firmware's trained blob), one built by `nemm_observer_init` on the exact
+/// networks (`points` exact model steps: about seven exact estimator steps by default).
 ///
-/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing stepped).
+/// A sample without a force is a missing measurement, handled as a NaN one: the levels
+/// step, the estimate is held and flagged `NEMM_OBSERVER_FORCE_FAULT` and
+/// `NEMM_OBSERVER_HELD`.
+///
+/// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED` (nothing
+/// stepped), `NEMM_E_INVALID_ARGUMENT` (other bits in `fields` than the `NEMM_SAMPLE_*`
+/// ones; nothing stepped).
 ///
 /// # Safety
-/// `obs` must be an observer's storage that no other context accesses during the call, and
-/// `out` must point to a writable `nemm_alpha_estimate_t`.
+/// `obs` must be an observer's storage that no other context accesses during the call,
+/// `sample` must point to a readable `nemm_sample_t`, and `out` must point to a writable
+/// `nemm_alpha_estimate_t`. The level tables of an observer built on them must still be
+/// valid (see `nemm_observer_init_on_levels`).
 #[no_mangle]
 pub unsafe extern "C" fn nemm_observer_step(
     obs: *mut nemm_observer_t,
-    velocity_m_s: f32,
-    force_n: f32,
+    sample: *const nemm_sample_t,
     out_estimate: *mut nemm_alpha_estimate_t,
 ) -> nemm_status_t {
     status((|| {
         let o = out(out_estimate)?;
+        let s = read_sample(sample)?;
         // SAFETY: the caller's guarantee on `obs`.
         let cell = unsafe { ObserverCell::get_mut(obs) }?;
-        put(o, cell.obs.step(velocity_m_s, force_n));
-        Ok(())
-    })())
-}
-
-/// `nemm_observer_step` with the stroke position (m), for a model with a static force.
-///
-/// # Safety
-/// As `nemm_observer_step`.
-#[no_mangle]
-pub unsafe extern "C" fn nemm_observer_step_with_position(
-    obs: *mut nemm_observer_t,
-    velocity_m_s: f32,
-    position_m: f32,
-    force_n: f32,
-    out_estimate: *mut nemm_alpha_estimate_t,
-) -> nemm_status_t {
-    status((|| {
-        let o = out(out_estimate)?;
-        // SAFETY: the caller's guarantee on `obs`.
-        let cell = unsafe { ObserverCell::get_mut(obs) }?;
-        put(
-            o,
-            cell.obs
-                .step_with_position(velocity_m_s, position_m, force_n),
-        );
-        Ok(())
-    })())
-}
-
-/// One sample of an observer built by `nemm_observer_init_on_levels`, as
-/// `nemm_observer_step`: each level steps on its stored tables in `levels` (the level tables
-/// the observer was built on). Costs `points` table-mode steps (7 for the firmware's
-/// trained blob) and the fit's scalar work, instead of `points` exact steps.
-///
-/// Refused with nothing stepped: an observer not built on level tables, or `levels` that
-/// hold other levels than the observer's grid (`NEMM_E_LEVELS_MISMATCH`).
-///
-/// Errors: those of `nemm_observer_step`, `NEMM_E_NOT_INITIALISED` (levels),
-/// `NEMM_E_OVERLAP` (the two storages), `NEMM_E_LEVELS_MISMATCH`.
-///
-/// # Safety
-/// As `nemm_observer_step`, and `levels` must be level tables' storage that no other
-/// context writes during the call.
-#[no_mangle]
-pub unsafe extern "C" fn nemm_observer_step_on_levels(
-    obs: *mut nemm_observer_t,
-    levels: *const nemm_levels_t,
-    velocity_m_s: f32,
-    force_n: f32,
-    out_estimate: *mut nemm_alpha_estimate_t,
-) -> nemm_status_t {
-    // SAFETY: the caller's guarantees.
-    unsafe { step_on_levels(obs, levels, velocity_m_s, None, force_n, out_estimate) }
-}
-
-/// `nemm_observer_step_on_levels` with the stroke position (m), for a model with a static
-/// force.
-///
-/// # Safety
-/// As `nemm_observer_step_on_levels`.
-#[no_mangle]
-pub unsafe extern "C" fn nemm_observer_step_on_levels_with_position(
-    obs: *mut nemm_observer_t,
-    levels: *const nemm_levels_t,
-    velocity_m_s: f32,
-    position_m: f32,
-    force_n: f32,
-    out_estimate: *mut nemm_alpha_estimate_t,
-) -> nemm_status_t {
-    // SAFETY: the caller's guarantees.
-    unsafe {
-        step_on_levels(
-            obs,
-            levels,
-            velocity_m_s,
-            Some(position_m),
-            force_n,
-            out_estimate,
-        )
-    }
-}
-
-/// True if `cell` was built on level tables holding the levels of `tables`.
-fn on_these_levels(cell: &ObserverCell, tables: &CLevels) -> bool {
-    cell.on_levels
-        && tables
-            .alphas()
-            .iter()
-            .map(|a| a.to_bits())
-            .eq(cell.obs.grid().map(f32::to_bits))
-}
-
-/// The two steps on level tables.
-///
-/// # Safety
-/// As `nemm_observer_step_on_levels`.
-unsafe fn step_on_levels(
-    obs: *mut nemm_observer_t,
-    levels: *const nemm_levels_t,
-    velocity_m_s: f32,
-    position_m: Option<f32>,
-    force_n: f32,
-    out_estimate: *mut nemm_alpha_estimate_t,
-) -> nemm_status_t {
-    status((|| {
-        let o = out(out_estimate)?;
-        if !levels.is_null()
-            && overlap(
-                obs.cast(),
-                NEMM_OBSERVER_SIZE,
-                levels.cast(),
-                NEMM_LEVELS_SIZE,
-            )
-        {
-            return Err(NEMM_E_OVERLAP);
-        }
-        // SAFETY: the caller's guarantee on `levels`.
-        let tables = unsafe { LevelsCell::tables(levels) }?;
-        // SAFETY: the caller's guarantee on `obs`; it does not overlap `levels` (checked).
-        let cell = unsafe { ObserverCell::get_mut(obs) }?;
-        if !on_these_levels(cell, tables) {
-            return Err(NEMM_E_LEVELS_MISMATCH);
-        }
-        put(
-            o,
-            match position_m {
-                None => cell.obs.step_on_levels(tables, velocity_m_s, force_n),
-                Some(x) => cell
-                    .obs
-                    .step_on_levels_with_position(tables, velocity_m_s, x, force_n),
-            },
-        );
+        put(o, cell.obs.step(s));
         Ok(())
     })())
 }

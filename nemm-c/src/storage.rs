@@ -20,9 +20,9 @@ use nemm_core::{AlphaObserver, Estimator, LevelTables, Model};
 /// The model, as the library decodes it.
 pub(crate) type CModel = Model<NEMM_PARAM_CAPACITY>;
 /// The estimator, as the firmware instantiates it.
-pub(crate) type CEstimator = Estimator<NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>;
+pub(crate) type CEstimator = Estimator<'static, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>;
 /// The alpha observer.
-pub(crate) type CObserver = AlphaObserver<NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>;
+pub(crate) type CObserver = AlphaObserver<'static, NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>;
 /// The level tables: the estimator's segment count, `NEMM_LEVELS_CAPACITY` levels.
 pub(crate) type CLevels = LevelTables<NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
 
@@ -43,8 +43,6 @@ pub(crate) struct EstimatorCell {
 pub(crate) struct ObserverCell {
     /// [`OBSERVER_MAGIC`] once `nemm_observer_init` succeeded.
     magic: u32,
-    /// True if initialised on level tables (`nemm_observer_init_on_levels`).
-    pub(crate) on_levels: bool,
     pub(crate) obs: CObserver,
 }
 
@@ -82,13 +80,13 @@ const LEVELS_MAGIC: u32 = u32::from_le_bytes(*b"NEMl");
 
 /// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46148;
+pub const NEMM_ESTIMATOR_SIZE: usize = 46156;
 /// Alignment of a `nemm_estimator_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 4;
 /// Bytes of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_OBSERVER_SIZE: usize = 21624;
+pub const NEMM_OBSERVER_SIZE: usize = 21636;
 /// Alignment of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_OBSERVER_ALIGN: usize = 4;
@@ -102,13 +100,13 @@ pub const NEMM_LEVELS_ALIGN: usize = 4;
 
 /// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46360;
+pub const NEMM_ESTIMATOR_SIZE: usize = 46376;
 /// Alignment of a `nemm_estimator_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
 /// Bytes of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_OBSERVER_SIZE: usize = 21752;
+pub const NEMM_OBSERVER_SIZE: usize = 21784;
 /// Alignment of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_OBSERVER_ALIGN: usize = 8;
@@ -322,7 +320,6 @@ impl ObserverCell {
     pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut Self {
         // SAFETY: as in `EstimatorCell::fill`.
         unsafe {
-            core::ptr::addr_of_mut!((*cell).on_levels).write(false);
             core::ptr::addr_of_mut!((*cell).obs).write(EMPTY_OBSERVER);
             &mut *cell
         }

@@ -5,14 +5,14 @@ use crate::status::{nemm_status_t::*, ALL};
 use crate::*;
 use nemm_core::{
     decode_into, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model, ModelKind,
-    ObserverConfig, TableConfig,
+    ObserverConfig, Sample, TableConfig,
 };
 use std::boxed::Box;
 use std::ffi::CStr;
 use std::vec::Vec;
 
 type P = Model<NEMM_PARAM_CAPACITY>;
-type E = Estimator<NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>;
+type E = Estimator<'static, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>;
 
 /// The firmware's trained NEMM (its blob stores 128-segment tables at 7 levels, 0 to 0.3).
 const TRAINED: &[u8] = include_bytes!("../../nemm-firmware/data/trained-nemm.nemm");
@@ -63,10 +63,50 @@ fn init(st: &mut nemm_estimator_t, blob: &[u8], cfg: &nemm_estimator_config_t) -
     }
 }
 
+/// A C sample of velocity `v` with the position, alpha and force present where given.
+fn sample(v: f32, x: Option<f32>, alpha: Option<f32>, f: Option<f32>) -> nemm_sample_t {
+    let bit = |o: Option<f32>, b: u8| if o.is_some() { b } else { 0 };
+    nemm_sample_t {
+        velocity_m_s: v,
+        position_m: x.unwrap_or(0.0),
+        alpha: alpha.unwrap_or(0.0),
+        force_n: f.unwrap_or(0.0),
+        fields: bit(x, NEMM_SAMPLE_POSITION)
+            | bit(alpha, NEMM_SAMPLE_ALPHA)
+            | bit(f, NEMM_SAMPLE_FORCE),
+    }
+}
+
+/// `nemm_estimator_step` on `s`.
+///
+/// # Safety
+/// `p` an estimator's storage (or NULL), `e` writable (or NULL).
+unsafe fn c_step(
+    p: *mut nemm_estimator_t,
+    s: nemm_sample_t,
+    e: *mut nemm_estimate_t,
+) -> nemm_status_t {
+    // SAFETY: the caller's guarantees; the sample is readable.
+    unsafe { nemm_estimator_step(p, &s, e) }
+}
+
+/// `nemm_observer_step` on `s`.
+///
+/// # Safety
+/// `p` an observer's storage (or NULL), `a` writable (or NULL).
+unsafe fn c_observe(
+    p: *mut nemm_observer_t,
+    s: nemm_sample_t,
+    a: *mut nemm_alpha_estimate_t,
+) -> nemm_status_t {
+    // SAFETY: the caller's guarantees; the sample is readable.
+    unsafe { nemm_observer_step(p, &s, a) }
+}
+
 fn step(st: &mut nemm_estimator_t, v: f32) -> (nemm_status_t, nemm_estimate_t) {
     let mut e = nemm_estimate_t::default();
     // SAFETY: valid storage and output.
-    let s = unsafe { nemm_estimator_step(st, v, &mut e) };
+    let s = unsafe { c_step(st, sample(v, None, None, None), &mut e) };
     (s, e)
 }
 
@@ -257,14 +297,26 @@ fn init_refuses_bad_storage_and_settings_and_leaves_nothing_usable() {
     unsafe {
         let mut e = nemm_estimate_t::default();
         assert_eq!(
-            nemm_estimator_step(core::ptr::null_mut(), 0.0, &mut e),
+            c_step(core::ptr::null_mut(), sample(0.0, None, None, None), &mut e),
             NEMM_E_NULL
         );
         assert_eq!(init(&mut st.0, TRAINED, &c), NEMM_OK);
         assert_eq!(
-            nemm_estimator_step(&mut st.0, 0.0, core::ptr::null_mut()),
+            c_step(
+                &mut st.0,
+                sample(0.0, None, None, None),
+                core::ptr::null_mut()
+            ),
             NEMM_E_NULL
         );
+        assert_eq!(
+            nemm_estimator_step(&mut st.0, core::ptr::null(), &mut e),
+            NEMM_E_NULL
+        );
+        // Bits other than the NEMM_SAMPLE_* ones: refused.
+        let mut odd = sample(0.0, None, None, None);
+        odd.fields = 1 << 5;
+        assert_eq!(c_step(&mut st.0, odd, &mut e), NEMM_E_INVALID_ARGUMENT);
         assert_eq!(
             nemm_estimator_info(&st.0, core::ptr::null_mut()),
             NEMM_E_NULL
@@ -313,7 +365,7 @@ fn forces_are_bit_identical_to_nemm_core() {
         }
         for &v in &vs {
             let (s, e) = step(&mut st.0, v);
-            let w = want.step(v);
+            let w = want.step(Sample::new(v)).unwrap();
             assert_eq!(s, NEMM_OK);
             assert_eq!(
                 (e.force_n.to_bits(), e.flags),
@@ -345,16 +397,17 @@ fn alpha_changes_and_reset_follow_nemm_core() {
         // SAFETY: valid storage and output.
         let s = unsafe {
             match k % 3 {
-                0 => nemm_estimator_step_with_alpha(p, v, alpha, &mut e),
-                1 => nemm_estimator_step_with_alpha_and_position(p, v, alpha, 0.01, &mut e),
-                _ => nemm_estimator_step_with_position(p, v, 0.01, &mut e),
+                0 => c_step(p, sample(v, None, Some(alpha), None), &mut e),
+                1 => c_step(p, sample(v, Some(0.01), Some(alpha), None), &mut e),
+                _ => c_step(p, sample(v, Some(0.01), None, Some(1.0)), &mut e),
             }
         };
         let w = match k % 3 {
-            0 => want.step_with_alpha(v, alpha).unwrap(),
-            1 => want.step_with_alpha_and_position(v, alpha, 0.01).unwrap(),
-            _ => want.step_with_position(v, 0.01),
-        };
+            0 => want.step(Sample::new(v).with_alpha(alpha)),
+            1 => want.step(Sample::new(v).with_alpha(alpha).with_position(0.01)),
+            _ => want.step(Sample::new(v).with_position(0.01)),
+        }
+        .unwrap();
         assert_eq!(s, NEMM_OK);
         assert_eq!(
             (e.force_n.to_bits(), e.flags),
@@ -377,7 +430,7 @@ fn alpha_changes_and_reset_follow_nemm_core() {
     unsafe {
         assert_eq!(nemm_estimator_set_alpha(p, 2.0), NEMM_E_ALPHA_OUT_OF_RANGE);
         assert_eq!(
-            nemm_estimator_step_with_alpha(p, 0.1, f32::NAN, &mut e),
+            c_step(p, sample(0.1, None, Some(f32::NAN), None), &mut e),
             NEMM_E_ALPHA_OUT_OF_RANGE
         );
     }
@@ -395,11 +448,11 @@ fn alpha_changes_and_reset_follow_nemm_core() {
     // SAFETY: valid storage and output.
     unsafe {
         assert_eq!(
-            nemm_estimator_step_with_alpha(&mut tab.0, 0.1, 0.2, &mut e),
+            c_step(&mut tab.0, sample(0.1, None, Some(0.2), None), &mut e),
             NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE
         );
         assert_eq!(
-            nemm_estimator_step_with_alpha(&mut tab.0, 0.1, 0.15, &mut e),
+            c_step(&mut tab.0, sample(0.1, None, Some(0.15), None), &mut e),
             NEMM_OK
         );
     }
@@ -422,13 +475,13 @@ fn a_static_force_needs_the_position() {
         (s, e.flags & NEMM_FLAG_POSITION_MISSING),
         (NEMM_OK, NEMM_FLAG_POSITION_MISSING)
     );
-    want.step(0.1);
+    want.step(Sample::new(0.1)).unwrap();
     for (k, &v) in velocities(300).iter().enumerate() {
         let x = 0.03 + 0.01 * (k as f32 * 0.01).sin();
         let mut e = nemm_estimate_t::default();
         // SAFETY: valid storage and output.
-        let s = unsafe { nemm_estimator_step_with_position(&mut st.0, v, x, &mut e) };
-        let w = want.step_with_position(v, x);
+        let s = unsafe { c_step(&mut st.0, sample(v, Some(x), None, None), &mut e) };
+        let w = want.step(Sample::new(v).with_position(x)).unwrap();
         assert_eq!(s, NEMM_OK);
         assert_eq!(
             (e.force_n.to_bits(), e.flags),
@@ -461,7 +514,7 @@ fn a_lost_motion_model_runs_as_the_estimator() {
         assert_eq!(init(&mut st.0, &blob, &cfg(0.3, mode)), NEMM_OK);
         for &v in velocities(300).iter() {
             let (s, e) = step(&mut st.0, v);
-            let w = want.step(v);
+            let w = want.step(Sample::new(v)).unwrap();
             assert_eq!(s, NEMM_OK);
             assert_eq!(
                 (e.force_n.to_bits(), e.flags),
@@ -519,8 +572,8 @@ fn the_observer_follows_nemm_core_and_checks_its_settings() {
         let (_, f) = step(&mut st.0, v);
         let mut a = nemm_alpha_estimate_t::default();
         // SAFETY: valid storage and output.
-        let s = unsafe { nemm_observer_step(&mut obs.0, v, f.force_n, &mut a) };
-        let w = want.step(v, f.force_n);
+        let s = unsafe { c_observe(&mut obs.0, sample(v, None, None, Some(f.force_n)), &mut a) };
+        let w = want.step(Sample::new(v).with_force(f.force_n));
         assert_eq!(s, NEMM_OK);
         assert_eq!(
             (
@@ -571,7 +624,7 @@ fn the_observer_follows_nemm_core_and_checks_its_settings() {
         assert_eq!(observer_init(&mut obs.0, &st.0, Some(&bad)), want);
         let mut a = nemm_alpha_estimate_t::default();
         // SAFETY: valid storage and output.
-        let s = unsafe { nemm_observer_step(&mut obs.0, 0.1, 10.0, &mut a) };
+        let s = unsafe { c_observe(&mut obs.0, sample(0.1, None, None, Some(10.0)), &mut a) };
         assert_eq!(
             s, NEMM_E_NOT_INITIALISED,
             "a failed init leaves no observer"
@@ -602,7 +655,6 @@ fn the_observer_follows_nemm_core_and_checks_its_settings() {
 }
 
 type Levels = nemm_core::LevelTables<NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
-type O = AlphaObserver<NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>;
 
 /// The levels of the trained blob.
 const TRAINED_LEVELS: [f32; 7] = [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3];
@@ -690,30 +742,26 @@ fn level_tables_load_from_the_estimators_blob_and_step_as_nemm_core() {
     assert_eq!(i.table_bytes as usize, 14 * 28 * NEMM_TABLE_SEGMENTS);
     assert_eq!(i.table_max_rel_error, NEMM_TABLE_MAX_REL_ERROR);
     let (model, levels) = reference_levels(TRAINED);
-    let mut want = Box::new(E::empty());
+    let mut want: Box<Estimator<'_, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>> =
+        Box::new(Estimator::empty());
     want.load(&model, EstimatorConfig::new(0.15)).unwrap();
     // SAFETY: valid storage.
     assert_eq!(unsafe { nemm_estimator_reset(&mut st.0) }, NEMM_OK);
+    want.attach_levels(&levels).unwrap();
     let p: *mut nemm_estimator_t = &mut st.0;
+    // SAFETY: valid storages; `lv` outlives every step of `st` below.
+    assert_eq!(unsafe { nemm_estimator_attach_levels(p, &lv.0) }, NEMM_OK);
     for (k, &v) in velocities(3000).iter().enumerate() {
         // A level per sample, across and beyond the stored levels.
         let alpha = 0.35 * (k as f32 * 0.003).sin().abs();
         let x = 0.01 * (k as f32 * 0.002).sin();
         let mut e = nemm_estimate_t::default();
+        let position = (k % 2 == 1).then_some(x);
         // SAFETY: valid storages and output.
-        let s = unsafe {
-            if k % 2 == 0 {
-                nemm_estimator_step_on_levels(p, &lv.0, v, alpha, &mut e)
-            } else {
-                nemm_estimator_step_on_levels_with_position(p, &lv.0, v, alpha, x, &mut e)
-            }
-        };
-        let w = if k % 2 == 0 {
-            want.step_on_levels(&levels, v, alpha)
-        } else {
-            want.step_on_levels_with_position(&levels, v, alpha, x)
-        }
-        .unwrap();
+        let s = unsafe { c_step(p, sample(v, position, Some(alpha), None), &mut e) };
+        let mut w_sample = Sample::new(v).with_alpha(alpha);
+        w_sample.position_m = position;
+        let w = want.step(w_sample).unwrap();
         assert_eq!(s, NEMM_OK);
         assert_eq!(
             (e.force_n.to_bits(), e.flags),
@@ -731,33 +779,43 @@ fn level_tables_load_from_the_estimators_blob_and_step_as_nemm_core() {
     unsafe {
         for a in [f32::NAN, -0.1, 1.5] {
             assert_eq!(
-                nemm_estimator_step_on_levels(p, &lv.0, 0.1, a, &mut e),
+                c_step(p, sample(0.1, None, Some(a), None), &mut e),
                 NEMM_E_ALPHA_OUT_OF_RANGE
             );
         }
         assert_eq!(
-            nemm_estimator_step_on_levels(p, &fresh.0, 0.1, 0.1, &mut e),
+            c_step(p, sample(0.1, None, Some(0.1), None), core::ptr::null_mut()),
+            NEMM_E_NULL
+        );
+        assert_eq!(
+            nemm_estimator_attach_levels(p, &fresh.0),
             NEMM_E_NOT_INITIALISED
-        );
-        assert_eq!(
-            nemm_estimator_step_on_levels(p, core::ptr::null(), 0.1, 0.1, &mut e),
-            NEMM_E_NULL
-        );
-        assert_eq!(
-            nemm_estimator_step_on_levels(p, &lv.0, 0.1, 0.1, core::ptr::null_mut()),
-            NEMM_E_NULL
         );
         // The level tables inside the estimator's storage.
         assert_eq!(
-            nemm_estimator_step_on_levels(p, p.cast::<u8>().add(64).cast(), 0.1, 0.1, &mut e),
+            nemm_estimator_attach_levels(p, p.cast::<u8>().add(64).cast()),
             NEMM_E_OVERLAP
         );
     }
     assert_eq!((e.force_n, e.flags), (7.0, 9), "nothing written");
+    // Refused attachments keep the attached tables; NULL detaches them: a changed alpha is
+    // then applied to the estimator's own tables, which table mode refuses.
+    // SAFETY: valid storages and output.
+    unsafe {
+        assert_eq!(
+            c_step(p, sample(0.1, None, Some(0.1), None), &mut e),
+            NEMM_OK
+        );
+        assert_eq!(nemm_estimator_attach_levels(p, core::ptr::null()), NEMM_OK);
+        assert_eq!(
+            c_step(p, sample(0.1, None, Some(0.1), None), &mut e),
+            NEMM_E_ALPHA_PER_SAMPLE_IN_TABLE_MODE
+        );
+    }
     // Level tables of another model: refused.
     let mut light = c_estimator(EXAMPLES[2].0, 0.15);
-    // SAFETY: valid storages and output.
-    let s = unsafe { nemm_estimator_step_on_levels(&mut light.0, &lv.0, 0.1, 0.1, &mut e) };
+    // SAFETY: valid storages.
+    let s = unsafe { nemm_estimator_attach_levels(&mut light.0, &lv.0) };
     assert_eq!(s, NEMM_E_LEVELS_MISMATCH);
 }
 
@@ -892,7 +950,8 @@ fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
         NEMM_OK
     );
     let (model, levels) = reference_levels(TRAINED);
-    let mut want: Box<O> = Box::new(O::empty());
+    let mut want: Box<AlphaObserver<'_, NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>> =
+        Box::new(AlphaObserver::empty());
     want.load_on_levels(&model, &levels, ObserverConfig::new())
         .unwrap();
     assert_eq!(want.grid().collect::<Vec<_>>(), TRAINED_LEVELS);
@@ -904,20 +963,18 @@ fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
         let (_, f) = step(&mut st.0, v);
         let mut a = nemm_alpha_estimate_t::default();
         // SAFETY: valid storages and output.
+        let position = (k % 2 == 1).then_some(0.0);
+        // SAFETY: valid storages and output.
         let s = unsafe {
-            if k % 2 == 0 {
-                nemm_observer_step_on_levels(&mut obs.0, &lv.0, v, f.force_n, &mut a)
-            } else {
-                nemm_observer_step_on_levels_with_position(
-                    &mut obs.0, &lv.0, v, 0.0, f.force_n, &mut a,
-                )
-            }
+            c_observe(
+                &mut obs.0,
+                sample(v, position, None, Some(f.force_n)),
+                &mut a,
+            )
         };
-        let w = if k % 2 == 0 {
-            want.step_on_levels(&levels, v, f.force_n)
-        } else {
-            want.step_on_levels_with_position(&levels, v, 0.0, f.force_n)
-        };
+        let mut w_sample = Sample::new(v).with_force(f.force_n);
+        w_sample.position_m = position;
+        let w = want.step(w_sample);
         assert_eq!(s, NEMM_OK);
         assert_eq!(a, nemm_alpha_estimate_t::from(w), "sample {k}");
         last = a;
@@ -943,8 +1000,8 @@ fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
         NEMM_E_OBSERVER_GRID
     );
     let mut a = nemm_alpha_estimate_t::default();
-    // SAFETY: valid storages and output.
-    let s = unsafe { nemm_observer_step_on_levels(&mut obs.0, &lv.0, 0.1, 1.0, &mut a) };
+    // SAFETY: valid storage and output.
+    let s = unsafe { c_observe(&mut obs.0, sample(0.1, None, None, Some(1.0)), &mut a) };
     assert_eq!(
         s, NEMM_E_NOT_INITIALISED,
         "a failed init leaves no observer"
@@ -983,11 +1040,7 @@ fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
             NEMM_E_OVERLAP
         );
     }
-    // An observer not built on level tables, or stepped with other level tables.
-    assert_eq!(observer_init(&mut obs.0, &st.0, None), NEMM_OK);
-    // SAFETY: valid storages and output.
-    let s = unsafe { nemm_observer_step_on_levels(&mut obs.0, &lv.0, 0.1, 1.0, &mut a) };
-    assert_eq!(s, NEMM_E_LEVELS_MISMATCH);
+    // Two observers on two level tables each step on their own.
     let blob = example_blob_with_levels(&[0.1, 0.2]);
     let other = c_estimator(&blob, 0.15);
     let mut lv2 = levels_storage();
@@ -1005,16 +1058,24 @@ fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
     // SAFETY: valid storages and output.
     unsafe {
         assert_eq!(
-            nemm_observer_step_on_levels(&mut obs.0, &lv2.0, 0.1, 1.0, &mut a),
-            NEMM_E_LEVELS_MISMATCH
+            c_observe(&mut obs.0, sample(0.1, None, None, Some(1.0)), &mut a),
+            NEMM_OK
         );
         assert_eq!(
-            nemm_observer_step_on_levels(&mut obs2.0, &lv.0, 0.1, 1.0, &mut a),
-            NEMM_E_LEVELS_MISMATCH
-        );
-        assert_eq!(
-            nemm_observer_step_on_levels(&mut obs2.0, &lv2.0, 0.1, 1.0, &mut a),
+            c_observe(&mut obs2.0, sample(0.1, None, None, Some(1.0)), &mut a),
             NEMM_OK
         );
     }
+    // A sample without a force: a missing measurement, as a NaN force.
+    // SAFETY: valid storages and output.
+    unsafe {
+        assert_eq!(
+            c_observe(&mut obs2.0, sample(0.1, None, None, None), &mut a),
+            NEMM_OK
+        );
+    }
+    assert_eq!(
+        a.flags & (NEMM_OBSERVER_FORCE_FAULT | NEMM_OBSERVER_HELD),
+        NEMM_OBSERVER_FORCE_FAULT | NEMM_OBSERVER_HELD
+    );
 }

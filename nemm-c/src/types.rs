@@ -1,9 +1,11 @@
 //! The plain C structs and constants the functions take and fill: configurations, results,
 //! information, flag bits and the values of the `uint32_t` selector fields.
 
+use crate::status::nemm_status_t::{self, NEMM_E_INVALID_ARGUMENT};
 use crate::NEMM_LEVELS_CAPACITY;
 use nemm_core::{
-    AlphaEstimate, Estimate, EvalMode, Flags, ModelKind, ObserverConfig, ObserverFlags, TableOrigin,
+    AlphaEstimate, Estimate, EvalMode, Flags, ModelKind, ObserverConfig, ObserverFlags, Sample,
+    TableOrigin,
 };
 
 /// `mode`: the compiled networks, the reference arithmetic (default).
@@ -137,6 +139,58 @@ pub struct nemm_estimate_t {
     pub force_n: f32,
     /// What happened in this step: `NEMM_FLAG_*` bits (0: a normal step).
     pub flags: u8,
+}
+
+/// `nemm_sample_t.fields`: `position_m` is present.
+pub const NEMM_SAMPLE_POSITION: u8 = 1 << 0;
+/// `nemm_sample_t.fields`: `alpha` is present.
+pub const NEMM_SAMPLE_ALPHA: u8 = 1 << 1;
+/// `nemm_sample_t.fields`: `force_n` is present.
+pub const NEMM_SAMPLE_FORCE: u8 = 1 << 2;
+
+/// One sample of the damper's signals, the input of `nemm_estimator_step` and
+/// `nemm_observer_step`: the stroke velocity, and the optional signals that `fields` marks
+/// present (`NEMM_SAMPLE_*` bits; a field whose bit is clear is not read). A present value
+/// that is NaN or infinite is a sensor fault, flagged by the step as such, not an absent
+/// value.
+#[allow(non_camel_case_types)]
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct nemm_sample_t {
+    /// Stroke velocity (m/s), positive = extension. Always read.
+    pub velocity_m_s: f32,
+    /// Stroke position (m) as the position sensor measures it (the coordinates the model was
+    /// trained in), with `NEMM_SAMPLE_POSITION`: for a model with a static force
+    /// (`needs_position`); without it such a step holds the last good position and is flagged
+    /// `NEMM_FLAG_POSITION_MISSING`. Other models ignore it.
+    pub position_m: f32,
+    /// This sample's oil-loss (condition) level in `[0, 1]`, with `NEMM_SAMPLE_ALPHA`;
+    /// without it the estimator steps at its own level. The observer ignores it.
+    pub alpha: f32,
+    /// Measured damper force (N), positive in tension, with `NEMM_SAMPLE_FORCE`: the
+    /// observer's input (without it the sample is a missing measurement,
+    /// `NEMM_OBSERVER_FORCE_FAULT`). The estimator ignores it.
+    pub force_n: f32,
+    /// Which optional fields are present: `NEMM_SAMPLE_POSITION`, `NEMM_SAMPLE_ALPHA`,
+    /// `NEMM_SAMPLE_FORCE` (other bits: `NEMM_E_INVALID_ARGUMENT`).
+    pub fields: u8,
+}
+
+impl nemm_sample_t {
+    /// The nemm-core sample; other bits than the three `NEMM_SAMPLE_*` are refused.
+    pub(crate) fn to_core(self) -> Result<Sample, nemm_status_t> {
+        let f = self.fields;
+        if f & !(NEMM_SAMPLE_POSITION | NEMM_SAMPLE_ALPHA | NEMM_SAMPLE_FORCE) != 0 {
+            return Err(NEMM_E_INVALID_ARGUMENT);
+        }
+        let present = |bit: u8, v: f32| (f & bit != 0).then_some(v);
+        Ok(Sample {
+            velocity_m_s: self.velocity_m_s,
+            position_m: present(NEMM_SAMPLE_POSITION, self.position_m),
+            alpha: present(NEMM_SAMPLE_ALPHA, self.alpha),
+            force_n: present(NEMM_SAMPLE_FORCE, self.force_n),
+        })
+    }
 }
 
 impl From<Estimate> for nemm_estimate_t {

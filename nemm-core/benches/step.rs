@@ -24,6 +24,7 @@
 
 use criterion::measurement::Measurement;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use nemm_core::Sample;
 use nemm_core::{
     decode, encode, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Integrator, Model,
     ModelKind, ObserverConfig, TableConfig, DEFAULT_PARAM_CAPACITY,
@@ -63,7 +64,7 @@ fn step<M: Measurement>(c: &mut Criterion<M>) {
             g.bench_function(BenchmarkId::new(kind.name(), integrator.name()), |b| {
                 b.iter(|| {
                     k = if k + 1 == vs.len() { 0 } else { k + 1 };
-                    black_box(est.step(black_box(vs[k])))
+                    black_box(est.step(Sample::new(black_box(vs[k]))).unwrap())
                 })
             });
         }
@@ -100,7 +101,7 @@ fn step_table<M: Measurement>(c: &mut Criterion<M>) {
             g.bench_function(BenchmarkId::new(kind.name(), integrator.name()), |b| {
                 b.iter(|| {
                     k = if k + 1 == vs.len() { 0 } else { k + 1 };
-                    black_box(est.step(black_box(vs[k])))
+                    black_box(est.step(Sample::new(black_box(vs[k]))).unwrap())
                 })
             });
         }
@@ -116,14 +117,17 @@ fn observer<M: Measurement>(c: &mut Criterion<M>) {
     let m = model(ModelKind::Nemm);
     let vs = velocities(m.dt_s);
     let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("valid model");
-    let fs: Vec<f32> = vs.iter().map(|&v| est.step(v).force_n).collect();
+    let fs: Vec<f32> = vs
+        .iter()
+        .map(|&v| est.step(Sample::new(v)).unwrap().force_n)
+        .collect();
     let mut obs: Box<AlphaObserver> = Box::new(AlphaObserver::empty());
     obs.load(&m, ObserverConfig::new()).expect("valid model");
     let mut k = 0usize;
     g.bench_function(BenchmarkId::new("nemm", obs.points()), |b| {
         b.iter(|| {
             k = if k + 1 == vs.len() { 0 } else { k + 1 };
-            black_box(obs.step(black_box(vs[k]), black_box(fs[k])))
+            black_box(obs.step(Sample::new(black_box(vs[k])).with_force(black_box(fs[k]))))
         })
     });
     g.finish();

@@ -5,6 +5,7 @@
 //! ```text
 //! cargo run --release -p nemm-core --example estimate [-- model.nemm [alpha]]
 //! ```
+use nemm_core::Sample;
 use nemm_core::{decode, read_header, Estimator, EstimatorConfig, Model};
 use std::f32::consts::PI;
 
@@ -62,7 +63,7 @@ fn main() {
             let (mut lo, mut hi) = (f32::MAX, f32::MIN);
             for k in 0..n {
                 let t = k as f32 * model.dt_s;
-                let e = est.step(v_peak * (w * t).cos());
+                let e = est.step(Sample::new(v_peak * (w * t).cos())).unwrap();
                 if k > n / 3 {
                     lo = lo.min(e.force_n);
                     hi = hi.max(e.force_n);

@@ -14,6 +14,7 @@
 //!
 //! The model and the estimator are built in place on the heap (`decode_into`,
 //! `Estimator::load`), so the example runs in debug builds with a small stack.
+use nemm_core::Sample;
 use nemm_core::{decode_into, Estimator, EstimatorConfig, Model};
 use std::error::Error;
 use std::io::Write;
@@ -67,7 +68,7 @@ fn run() -> Result<(), Box<dyn Error>> {
             || format!("{:.6}", i as f64 * f64::from(model.dt_s)),
             |c| field(c).to_string(),
         );
-        let e = est.step(v);
+        let e = est.step(Sample::new(v)).unwrap();
         writeln!(out, "{t},{v},{},{}", e.force_n, e.flags.0)?;
     }
     out.flush()?;

@@ -22,6 +22,7 @@
 //!   `Estimator::step_on_levels` and by the exact estimator with `step_with_alpha`: the
 //!   largest and RMS force difference as a fraction of the model's force scale.
 
+use nemm_core::Sample;
 use nemm_core::{
     decode, decode_into, encode_with_tables, encoded_len_with_tables, Estimator, EstimatorConfig,
     EvalMode, LevelTables, Model, TableConfig, DEFAULT_PARAM_CAPACITY,
@@ -74,9 +75,16 @@ fn force_error(m: &Model, levels: &LevelTables<T, 16>, runs: &[Vec<(f32, f32)>])
         let a0 = run.first().map_or(0.0, |s| s.1);
         exact.load(m, EstimatorConfig::new(a0)).expect("loads");
         tab.load(m, EstimatorConfig::new(a0)).expect("loads");
+        tab.attach_levels(levels).expect("levels of this model");
         for &(v, a) in run {
-            let x = exact.step_with_alpha(v, a).expect("alpha in range").force_n;
-            let y = tab.step_on_levels(levels, v, a).expect("levels").force_n;
+            let x = exact
+                .step(Sample::new(v).with_alpha(a))
+                .expect("alpha in range")
+                .force_n;
+            let y = tab
+                .step(Sample::new(v).with_alpha(a))
+                .expect("levels")
+                .force_n;
             let d = f64::from(y - x).abs();
             worst = worst.max(d);
             sum2 += d * d;

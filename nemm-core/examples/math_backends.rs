@@ -17,6 +17,7 @@
 //! backend's `exp` and `1/sqrt` over the ranges the model uses. For the speed of the two
 //! backends see `benches/step.rs`.
 
+use nemm_core::Sample;
 use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind};
 
 const MAGIC: &[u8; 8] = b"nemmrun2";
@@ -52,7 +53,7 @@ fn simulate() -> Run {
         let mut out = Vec::new();
         for s in &inputs {
             est.reset();
-            out.extend(s.iter().map(|&v| est.step(v).force_n));
+            out.extend(s.iter().map(|&v| est.step(Sample::new(v)).unwrap().force_n));
         }
         assert_eq!(est.diagnostics().resets, 0);
         forces.push(out);

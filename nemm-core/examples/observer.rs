@@ -12,7 +12,7 @@
 //! rest at every level of a 0.01 grid over the trained range and then of a 0.001 grid around
 //! the best (table mode, 256 segments, bound 1e-4), scoring the samples after the observer's
 //! warm-up; the observer runs with its defaults.
-use nemm_core::LowPass;
+use nemm_core::{LowPass, Sample};
 use nemm_core::{
     decode, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model, ObserverConfig, TableConfig,
 };
@@ -54,7 +54,7 @@ fn rmse(model: &Model, alpha: f32, v: &[f32], f: &[f32], skip: usize) -> f64 {
         .unwrap_or_else(|e| fail(format!("{e}")));
     let mut se = 0.0f64;
     for (k, (&u, &y)) in v.iter().zip(f).enumerate() {
-        let p = est.step(u).force_n;
+        let p = est.step(Sample::new(u)).unwrap().force_n;
         if k >= skip {
             se += f64::from(p - y).powi(2);
         }
@@ -105,7 +105,11 @@ fn main() {
         let mut obs: Box<AlphaObserver> = Box::new(AlphaObserver::empty());
         obs.load(&model, cfg)
             .unwrap_or_else(|e| fail(format!("{e}")));
-        let trace: Vec<_> = v.iter().zip(&f).map(|(&u, &y)| obs.step(u, y)).collect();
+        let trace: Vec<_> = v
+            .iter()
+            .zip(&f)
+            .map(|(&u, &y)| obs.step(Sample::new(u).with_force(y)))
+            .collect();
         let (lo, hi) = (model.meta.alpha_min, model.meta.alpha_max);
         let best = offline_fit(&model, (lo, hi), &v, &f, skip);
         let n2 = ((2.0 / model.dt_s) as usize).min(trace.len()) - 1;

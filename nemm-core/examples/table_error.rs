@@ -21,6 +21,7 @@
 //! left the table domain (flag `OUT_OF_TABLE_DOMAIN`). The example models are those of
 //! `nemm_core::testing` (H = 16, L = 5; pseudo-random, not trained).
 
+use nemm_core::Sample;
 use nemm_core::{
     decode, Estimator, EstimatorConfig, EvalMode, Flags, Integrator, Model, ModelKind, TableConfig,
 };
@@ -75,8 +76,8 @@ fn compare<const T: usize>(
         exact.reset();
         table.reset();
         for &v in s {
-            let a = exact.step(v);
-            let b = table.step(v);
+            let a = exact.step(Sample::new(v)).unwrap();
+            let b = table.step(Sample::new(v)).unwrap();
             let d = f64::from(b.force_n) - f64::from(a.force_n);
             worst = worst.max(d.abs());
             sum2 += d * d;

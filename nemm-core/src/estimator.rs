@@ -3,8 +3,23 @@
 //! ```text
 //! let model: Model<P> = nemm_core::decode(blob)?;
 //! let mut est = Estimator::new(&model, EstimatorConfig::new(alpha))?;
-//! loop { let e = est.step(velocity_m_s); publish(e.force_n, e.flags); }
+//! loop { let e = est.step(Sample::new(velocity_m_s))?; publish(e.force_n, e.flags); }
 //! ```
+//!
+//! # One step
+//!
+//! [`Estimator::step`] is the one step: it takes a [`Sample`] (the stroke velocity, and
+//! optionally the stroke position and this sample's level `alpha`), so that a firmware
+//! with a position sensor, a controller with a level per sample and a test with neither
+//! call the same function. A sample without an `alpha` steps at the estimator's own level
+//! and cannot fail; the `Result` is for a sample's `alpha` the estimator refuses (see
+//! [`Estimator::step`]). The level tables of "Every level at table cost" are an option of
+//! the estimator ([`Estimator::attach_levels`]), not another family of steps: once
+//! attached, a sample's `alpha` is served from them. They are held by reference (the
+//! estimator's lifetime `'l`; `'static` for a `static`) behind a trait object, so that
+//! their number of levels is not part of the estimator's type; the whole step on them is
+//! one dynamic call (not one per Runge-Kutta stage), and a sample without an `alpha` does
+//! not pass through it.
 //!
 //! # What happens per step
 //!
@@ -19,11 +34,11 @@
 //! 4. The force `F(x_n+1, u_n+1)`; the coefficients computed for it are reused as stage 1 of
 //!    the next step.
 //! 5. A model with a static force ([`nemm_kernels::static_force`]) adds `r(x, u, alpha)` at the
-//!    stroke position `x` given to [`Estimator::step_with_position`]. `r` does not enter
-//!    the state. [`Estimator::step`] gives no position: `r` then uses the last good position
-//!    and the step is flagged [`Flags::POSITION_MISSING`] (as is a non-finite position), so
-//!    a firmware that forgets the position never gets an unflagged wrong force. Models
-//!    without a static force ignore the position.
+//!    stroke position `x` of the sample ([`Sample::position_m`]). `r` does not enter the
+//!    state. Without a position, `r` uses the last good position and the step is flagged
+//!    [`Flags::POSITION_MISSING`] (as is a non-finite position), so a firmware that forgets
+//!    the position never gets an unflagged wrong force. Models without a static force ignore
+//!    the position.
 //!
 //! Everything that depends on `alpha` only (the alpha column of each first layer, `b_pr`, the
 //! SEM curve) is computed in [`Estimator::new`] / [`Estimator::set_alpha`], never per step.
@@ -48,11 +63,11 @@
 //!
 //! # Every level at table cost
 //!
-//! A level per sample ([`Estimator::step_with_alpha`]) and the observer's bank of levels
-//! would rebuild tables every sample in table mode. A blob can store the tables of several
-//! levels instead (`nemm export --tables-levels 7`); a [`LevelTables`] holds them (in RAM,
-//! loaded once from the model, the tables index and the blob) and drives
-//! [`Estimator::step_on_levels`] (a level per sample: each coefficient the blend of its two
+//! A level per sample ([`Sample::alpha`]) and the observer's bank of levels would rebuild
+//! tables every sample in table mode. A blob can store the tables of several levels instead
+//! (`nemm export --tables-levels 7`); a [`LevelTables`] holds them (in RAM, loaded once from
+//! the model, the tables index and the blob) and drives an estimator it is attached to
+//! ([`Estimator::attach_levels`]; a level per sample: each coefficient the blend of its two
 //! neighbouring levels' tables, ordered in the declared direction so that it is monotone
 //! in `alpha` between levels by construction; at a stored level the table-mode step at
 //! that level, bit for bit) and [`crate::AlphaObserver::load_on_levels`] (the bank on the
@@ -61,7 +76,7 @@
 //! cost").
 //!
 //! ```
-//! use nemm_core::{Estimator, EstimatorConfig, EvalMode, TableConfig};
+//! use nemm_core::{Estimator, EstimatorConfig, EvalMode, Sample, TableConfig};
 //! # let model: nemm_core::Model = nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 16, 5).unwrap();
 //! let cfg = EstimatorConfig {
 //!     mode: EvalMode::Table(TableConfig::new(1e-4)), // each coefficient within 1e-4 relative
@@ -70,8 +85,9 @@
 //! let mut est: Estimator = Estimator::new(&model, cfg).expect("tables within the bound");
 //! let worst = est.table_accuracy().expect("tabulated").max_rel_error;
 //! assert!(worst <= 1e-4);
-//! let e = est.step(0.3);
+//! let e = est.step(Sample::new(0.3))?;
 //! assert!(e.force_n.is_finite());
+//! # Ok::<(), nemm_core::EstimatorError>(())
 //! ```
 
 mod config;
@@ -86,10 +102,12 @@ use runtime::*;
 pub use export::encode_to_vec_with_tables;
 pub use export::encode_with_tables;
 pub use export::encoded_len_with_tables;
+pub(crate) use levels::LevelStep;
 pub use levels::{BlendCheck, LevelTables, LevelsError};
 
 use crate::format::tables::{StoredTable, StoredTables, StoredUnused, TableLevel};
 use crate::model::{Body, Model, ModelError};
+use crate::sample::Sample;
 use core::fmt;
 use nemm_kernels::emm::{self, Coefficients, State};
 use nemm_kernels::integrator::{self, Integrator, Stage, StepSize};
@@ -111,6 +129,7 @@ use nemm_kernels::table::{
 #[derive(Debug, Clone)]
 #[repr(C)] // the per-step scalars first, the large runtime last (short offsets on Arm)
 pub struct Estimator<
+    'l,
     const P: usize = DEFAULT_PARAM_CAPACITY,
     const T: usize = DEFAULT_TABLE_SEGMENTS,
 > {
@@ -128,13 +147,16 @@ pub struct Estimator<
     last_x: f32,
     mode: EvalMode,
     origin: TableOrigin,
-    /// The level of the last [`Estimator::step_on_levels`] (`None` after a load or reset:
-    /// the next one re-reads the coefficients at the state).
+    /// The level of the last step on the attached level tables (`None` after a load, an
+    /// attach or a reset: the next one re-reads the coefficients at the state).
     levels_alpha: Option<f32>,
     rt: Runtime<P, T>,
+    /// The attached level tables ([`Estimator::attach_levels`]; last: read on the step of a
+    /// sample with an `alpha` only).
+    levels: Option<&'l dyn LevelStep<P, T>>,
 }
 
-impl<const P: usize> Estimator<P> {
+impl<const P: usize> Estimator<'_, P> {
     /// Builds an estimator: validates the model with the configured step and integrator and
     /// precomputes all alpha-only work (in table mode: builds and checks the tables, with
     /// [`DEFAULT_TABLE_SEGMENTS`] segments each; [`Estimator::with_segments`] picks another
@@ -144,7 +166,7 @@ impl<const P: usize> Estimator<P> {
     }
 }
 
-impl<const P: usize, const T: usize> Estimator<P, T> {
+impl<'l, const P: usize, const T: usize> Estimator<'l, P, T> {
     /// [`Estimator::new`] with `T` segments per table in [`EvalMode::Table`]
     /// (`Estimator::<P, T>::with_segments(&model, cfg)`).
     pub fn with_segments(model: &Model<P>, cfg: EstimatorConfig) -> Result<Self, EstimatorError> {
@@ -194,11 +216,13 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
             sem_map: SemMap::empty(),
             sem_curve: heapless::Vec::new(),
         },
+        levels: None,
     };
 
     /// Loads `model` into this estimator **in place**: what [`Estimator::new`] does, without
     /// building anything large on the stack (the compiled scalers and the tables are written
-    /// where they live). The state returns to rest and the diagnostics restart.
+    /// where they live). The state returns to rest, the diagnostics restart and attached
+    /// level tables are detached (they belong to the model that was loaded before).
     ///
     /// On error the estimator is empty (as [`Estimator::empty`]: 0 N with
     /// [`Flags::NO_MODEL`]) until a model loads.
@@ -231,6 +255,7 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         stored: Option<(&StoredTables, &[u8])>,
     ) -> Result<(), EstimatorError> {
         self.rt.kind = RuntimeKind::Empty;
+        self.levels = None;
         self.static_force = None;
         self.origin = TableOrigin::None;
         self.sticky = Flags(0);
@@ -395,25 +420,67 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         Ok(())
     }
 
-    /// One sample: velocity \[m/s\] in (positive = extension), force estimate out.
+    /// One sample in ([`Sample`]: the stroke velocity, and optionally the stroke position
+    /// and this sample's level `alpha`; the measured force is not read), the force estimate
+    /// out. The one step of the estimator.
     ///
-    /// A model with a static force needs the stroke position too
-    /// ([`Estimator::step_with_position`]); here its position term holds the last good
-    /// position and the step is flagged [`Flags::POSITION_MISSING`].
+    /// - **Position.** A model with a static force needs the stroke position
+    ///   ([`Sample::with_position`]); without one (or with a non-finite one) its position term
+    ///   holds the last good position and the step is flagged [`Flags::POSITION_MISSING`].
+    ///   Models without a static force ignore the position.
+    /// - **Level.** Without an `alpha` the step runs at the estimator's own level
+    ///   ([`Estimator::alpha`]) and cannot fail. With one (a condition changing within a
+    ///   run, e.g. an MR damper's control signal mapped to `[0, 1]`):
+    ///   - with level tables attached ([`Estimator::attach_levels`]), the coefficients are
+    ///     read from them at that level at table cost (module docs, "Every level at table
+    ///     cost"), in either [`EvalMode`]: the state carries over between levels, when
+    ///     `alpha` changes the coefficients at the state are re-read at the new level first,
+    ///     and an `alpha` outside the stored levels or the trained range is flagged
+    ///     [`Flags::ALPHA_EXTRAPOLATED`]. The estimator's own level is not changed: a
+    ///     firmware that switches between samples with and without an `alpha` calls
+    ///     [`Estimator::reset`] first;
+    ///   - without level tables, a changed `alpha` is applied as [`Estimator::set_alpha`]
+    ///     does (the state is kept, the coefficients at the state re-evaluated) and the whole
+    ///     step runs at the new level: the trainer's semantics of a per-sample `alpha` column
+    ///     at the model step. In [`EvalMode::Exact`] a change costs one evaluation of the
+    ///     `b_pr(alpha)` scaler and of the state scalers at the current state; in
+    ///     [`EvalMode::Table`] it would rebuild and re-check every table (about `128 T` exact
+    ///     evaluations each), which no sample period affords, so a changed `alpha` is
+    ///     refused there with [`EstimatorError::AlphaPerSampleInTableMode`] (an unchanged one
+    ///     steps normally).
+    ///
+    /// Refused, with nothing changed: an `alpha` that is not a finite value in `[0, 1]`
+    /// ([`EstimatorError::AlphaOutOfRange`]), a changed `alpha` in table mode without level
+    /// tables ([`EstimatorError::AlphaPerSampleInTableMode`]), and attached level tables
+    /// that cannot drive this estimator ([`LevelsError::Mismatch`]: checked when attached,
+    /// and a load detaches them, so only as a guard).
+    ///
+    /// ```
+    /// # let model: nemm_core::Model = nemm_core::testing::example_model(nemm_core::ModelKind::Nemm, 16, 5).unwrap();
+    /// use nemm_core::{Estimator, EstimatorConfig, Sample};
+    /// let mut est: Estimator = Estimator::new(&model, EstimatorConfig::new(0.15)).unwrap();
+    /// let e = est.step(Sample::new(0.3))?;
+    /// let e_at_level = est.step(Sample::new(0.3).with_alpha(0.2))?;
+    /// assert_eq!(est.alpha(), 0.2);
+    /// # Ok::<(), nemm_core::EstimatorError>(())
+    /// ```
     #[inline]
-    pub fn step(&mut self, velocity_m_s: f32) -> Estimate {
-        self.step_at(velocity_m_s, None)
+    pub fn step(&mut self, sample: Sample) -> Result<Estimate, EstimatorError> {
+        match sample.alpha {
+            None => Ok(self.step_at(sample.velocity_m_s, sample.position_m)),
+            Some(alpha) => self.step_on_level(sample, alpha),
+        }
     }
 
-    /// One sample with the stroke position \[m\] as the position sensor measures it (the
-    /// coordinates the model was trained in): velocity in, force estimate out, including
-    /// the static force of a model that has one. A non-finite position is replaced by the
-    /// last good one and flagged [`Flags::POSITION_MISSING`]; it never reaches the state.
-    /// Models without a static force ignore the position (the result equals
-    /// [`Estimator::step`]).
-    #[inline]
-    pub fn step_with_position(&mut self, velocity_m_s: f32, position_m: f32) -> Estimate {
-        self.step_at(velocity_m_s, Some(position_m))
+    /// The step of a sample with a level `alpha`: on the attached level tables (one dynamic
+    /// call for the whole step), else at the estimator's own scalers after the level is
+    /// applied.
+    fn step_on_level(&mut self, sample: Sample, alpha: f32) -> Result<Estimate, EstimatorError> {
+        if let Some(levels) = self.levels {
+            return levels.step(self, sample.velocity_m_s, alpha, sample.position_m);
+        }
+        self.alpha_per_sample(alpha)?;
+        Ok(self.step_at(sample.velocity_m_s, sample.position_m))
     }
 
     /// Whether the model adds a static force (and so needs the stroke position).
@@ -421,8 +488,8 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         self.static_force.is_some()
     }
 
-    /// The step of [`Estimator::step`] and [`Estimator::step_with_position`]: one function
-    /// for both (not forced inline), which the target's cycle trace finds by name.
+    /// The step of [`Estimator::step`] at the estimator's own level, with or without a
+    /// position (not forced inline), which the target's cycle trace finds by name.
     #[inline]
     fn step_at(&mut self, velocity_m_s: f32, position_m: Option<f32>) -> Estimate {
         let mut flags = self.sticky.0;
@@ -535,11 +602,12 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         }
     }
 
-    /// Runs a whole input sequence from the current state; `forces` gets one value per input
-    /// (up to the shorter length).
+    /// Runs a whole input sequence from the current state, each input as
+    /// `step(Sample::new(velocity))`; `forces` gets one value per input (up to the shorter
+    /// length).
     pub fn run(&mut self, velocities_m_s: &[f32], forces_n: &mut [f32]) {
         for (&v, f) in velocities_m_s.iter().zip(forces_n.iter_mut()) {
-            *f = self.step(v).force_n;
+            *f = self.step_at(v, None).force_n;
         }
     }
 
@@ -661,7 +729,7 @@ impl BankMember {
 }
 
 /// Banks of levels through one estimator (exact mode).
-impl<const P: usize, const T: usize> Estimator<P, T> {
+impl<const P: usize, const T: usize> Estimator<'_, P, T> {
     /// A bank member at `alpha`, at rest. Leaves this estimator at `alpha`, at rest.
     /// Refused in table mode (a level would need its own tables).
     pub(crate) fn bank_member(&mut self, alpha: f32) -> Result<BankMember, EstimatorError> {
@@ -683,9 +751,9 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
     /// One step of member `m` (made by [`Estimator::bank_member`] of this estimator): its
     /// level is folded into the shared scalers if another member stepped last (the
     /// first-layer biases and the alpha branch: about `2 H + K` operations per scaler;
-    /// `b_pr` and the coefficients at the state are the member's), then
-    /// [`Estimator::step_with_position`] (or [`Estimator::step`] without a position) from the
-    /// member's state, which is written back.
+    /// `b_pr` and the coefficients at the state are the member's), then the step at the
+    /// estimator's own level ([`Estimator::step`] without an `alpha`) from the member's
+    /// state, which is written back.
     pub(crate) fn step_member(
         &mut self,
         m: &mut BankMember,
@@ -707,6 +775,24 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
         e
     }
 
+    /// One step of a bank on the exact scalers: each member of `members` by
+    /// [`Estimator::step_member`], its force into `forces`; true if any member held its
+    /// input (a velocity fault).
+    pub(crate) fn step_bank(
+        &mut self,
+        (members, forces): (&mut [BankMember], &mut [f32]),
+        velocity_m_s: f32,
+        position_m: Option<f32>,
+    ) -> bool {
+        let mut velocity_fault = false;
+        for (m, f) in members.iter_mut().zip(forces.iter_mut()) {
+            let e = self.step_member(m, velocity_m_s, position_m);
+            velocity_fault |= e.flags.0 & Flags::INPUT_HELD != 0;
+            *f = e.force_n;
+        }
+        velocity_fault
+    }
+
     /// Takes member `m`'s state, coefficients at the state and last inputs.
     pub(crate) fn load_member(&mut self, m: &BankMember) {
         self.state = m.state;
@@ -725,42 +811,9 @@ impl<const P: usize, const T: usize> Estimator<P, T> {
 }
 
 /// A condition level per sample.
-impl<const P: usize, const T: usize> Estimator<P, T> {
-    /// One sample with that sample's condition level `alpha` (a condition changing within a
-    /// run, e.g. an MR damper's control signal mapped to `[0, 1]`): when `alpha` differs
-    /// from the level in use, [`Estimator::set_alpha`] re-folds it first (the state is kept,
-    /// the coefficients at the state are re-evaluated, and the whole step runs at the new
-    /// level), then [`Estimator::step`]. This is the trainer's semantics of a per-sample
-    /// `alpha` column at the model step.
-    ///
-    /// Such models run in [`EvalMode::Exact`], where a change costs one evaluation of the
-    /// `b_pr(alpha)` scaler and of the state scalers at the current state. In
-    /// [`EvalMode::Table`] a change would rebuild and re-check every table (about `128 T`
-    /// exact evaluations each), which no sample period affords: a changed `alpha` is
-    /// refused with [`EstimatorError::AlphaPerSampleInTableMode`] and nothing changes (an
-    /// unchanged `alpha` steps as [`Estimator::step`]). An `alpha` outside `[0, 1]` is
-    /// refused with [`EstimatorError::AlphaOutOfRange`], the state unchanged.
-    pub fn step_with_alpha(
-        &mut self,
-        velocity_m_s: f32,
-        alpha: f32,
-    ) -> Result<Estimate, EstimatorError> {
-        self.alpha_per_sample(alpha)?;
-        Ok(self.step(velocity_m_s))
-    }
-
-    /// [`Estimator::step_with_alpha`] with the stroke position of
-    /// [`Estimator::step_with_position`].
-    pub fn step_with_alpha_and_position(
-        &mut self,
-        velocity_m_s: f32,
-        alpha: f32,
-        position_m: f32,
-    ) -> Result<Estimate, EstimatorError> {
-        self.alpha_per_sample(alpha)?;
-        Ok(self.step_with_position(velocity_m_s, position_m))
-    }
-
+impl<const P: usize, const T: usize> Estimator<'_, P, T> {
+    /// Applies a sample's `alpha` without level tables ([`Estimator::step`]): a changed one
+    /// as [`Estimator::set_alpha`], refused in table mode with tables.
     fn alpha_per_sample(&mut self, alpha: f32) -> Result<(), EstimatorError> {
         if alpha.to_bits() != self.alpha.to_bits() {
             if matches!(self.mode, EvalMode::Table(_)) && self.table_bytes().0 > 0 {

@@ -5,9 +5,11 @@
 //!
 //! Everything is at the crate root, in one curated list (the modules are private):
 //!
-//! - the online [`Estimator`]: one `step(velocity) -> force` per sample, with its
+//! - the online [`Estimator`]: one `step(sample) -> force` per sample, with its
 //!   [`EstimatorConfig`], [`EvalMode`] (exact or tabulated evaluation), the [`Estimate`], its
 //!   [`Flags`] and [`Diagnostics`];
+//! - the [`Sample`] both steps take: the stroke velocity, and optionally the stroke
+//!   position, the sample's level `alpha` and the measured force;
 //! - the weight format: [`decode`] / [`decode_into`] (in place, for a `static`),
 //!   [`decode_with_tables`], [`read_header`] and [`check_frame`], [`encode`] /
 //!   [`encode_with_tables`], the [`Header`], the stored tables ([`StoredTables`],
@@ -21,7 +23,8 @@
 //!   force, with an uncertainty band and flags (excitation, range, sensor faults), its
 //!   [`ObserverConfig`], [`AlphaEstimate`] and [`ObserverFlags`];
 //! - [`LevelTables`]: the stored tables of several oil-loss levels, for a level per sample
-//!   ([`Estimator::step_on_levels`]) and a table-cost observer
+//!   at table cost (attached to an estimator, [`Estimator::attach_levels`]) and a
+//!   table-cost observer
 //!   ([`AlphaObserver::load_on_levels`]);
 //! - [`LowPass`] and [`Differentiator`]: the causal stroke-velocity estimate (backward
 //!   difference and first-order low-pass) that feeds the estimator online;
@@ -45,14 +48,14 @@
 //!
 //! ```
 //! # let blob = nemm_core::testing::example_blob();
-//! use nemm_core::{decode, Estimator, EstimatorConfig, Model};
+//! use nemm_core::{decode, Estimator, EstimatorConfig, Model, Sample};
 //!
 //! let model: Model = decode(&blob).expect("valid weights");
 //! let mut est = Estimator::new(&model, EstimatorConfig::new(0.15)).expect("alpha in range");
 //! for k in 0..1000 {
 //!     let t = k as f32 * model.dt_s;
 //!     let v = 0.5 * (2.0 * core::f32::consts::PI * 5.0 * t).sin(); // stroke velocity [m/s]
-//!     let e = est.step(v);
+//!     let e = est.step(Sample::new(v)).expect("no alpha in the sample: never refused");
 //!     assert!(e.force_n.is_finite() && e.flags.is_empty());
 //! }
 //! ```
@@ -82,6 +85,7 @@ mod format;
 mod limits;
 mod model;
 mod observer;
+mod sample;
 #[cfg(any(test, feature = "testing"))]
 #[cfg_attr(docsrs, doc(cfg(feature = "testing")))]
 pub mod testing;
@@ -114,6 +118,8 @@ pub use observer::{
     AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags, DEFAULT_HORIZON_S,
     DEFAULT_MAX_BAND, DEFAULT_RESIDUAL_CORRELATION_S,
 };
+// One sample, the input of both steps.
+pub use sample::Sample;
 // The velocity estimate.
 pub use velocity::{Differentiator, LowPass, DEFAULT_CUTOFF_HZ};
 // The capacities a firmware sizes its RAM by.

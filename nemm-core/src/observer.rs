@@ -3,7 +3,10 @@
 //!
 //! ```text
 //! let mut obs: AlphaObserver = AlphaObserver::new(&model, ObserverConfig::new())?;
-//! loop { let a = obs.step(velocity_m_s, force_n); publish(a.alpha, a.band, a.flags); }
+//! loop {
+//!     let a = obs.step(Sample::new(velocity_m_s).with_force(force_n));
+//!     publish(a.alpha, a.band, a.flags);
+//! }
 //! ```
 //!
 //! # Method: a bank of levels, least squares on the interpolated force
@@ -47,8 +50,9 @@
 //! **Robustness.** A non-finite velocity, or one beyond the estimator's plausibility limit,
 //! is held by every level (as [`Estimator::step`] does) and flagged
 //! [`ObserverFlags::VELOCITY_FAULT`]; the costs are then not updated for that sample and the
-//! following [`ObserverConfig::fault_holdoff_s`]. A non-finite force, or one beyond
-//! [`ObserverConfig::force_limit_n`], is flagged [`ObserverFlags::FORCE_FAULT`] and skipped.
+//! following [`ObserverConfig::fault_holdoff_s`]. A missing force (a [`Sample`] without
+//! [`Sample::force_n`]), a non-finite one, or one beyond [`ObserverConfig::force_limit_n`],
+//! is flagged [`ObserverFlags::FORCE_FAULT`] and skipped (the levels still step).
 //! A residual (measured minus the force at the current estimate) beyond
 //! [`ObserverConfig::outlier_threshold`] times the running mean absolute residual is flagged
 //! [`ObserverFlags::OUTLIER`] and weighted down so that it counts as a residual at the
@@ -64,16 +68,17 @@
 //!
 //! **On level tables.** [`AlphaObserver::load_on_levels`] takes the levels of a
 //! [`LevelTables`] (stored in the blob, [`crate::estimator`], "Every level at table cost") as
-//! the grid, and
-//! [`AlphaObserver::step_on_levels`] steps each level on its own tables: `n` table-mode
-//! steps, no re-folding, a tenth or less of the exact cost, the same estimate up to the
-//! tables' error.
+//! the grid and keeps the tables (by reference, the observer's lifetime `'l`), and
+//! [`AlphaObserver::step`] then steps each level on its own tables: `n` table-mode steps,
+//! no re-folding, a tenth or less of the exact cost, the same estimate up to the tables'
+//! error.
 
 use crate::estimator::{
-    BankMember, Estimator, EstimatorConfig, EstimatorError, LevelTables, LevelsError,
+    BankMember, Estimator, EstimatorConfig, EstimatorError, LevelStep, LevelTables, LevelsError,
 };
 use crate::limits::DEFAULT_OBSERVER_POINTS;
 use crate::model::Model;
+use crate::sample::Sample;
 use core::fmt;
 use nemm_kernels::math;
 use nemm_kernels::mlp::DEFAULT_PARAM_CAPACITY;
@@ -392,10 +397,12 @@ impl Sums {
 /// levels of one model, stepped through one shared exact-mode estimator.
 ///
 /// `P` is the parameter capacity per scaler (as for [`Model`]); `K` the most levels
-/// (default [`DEFAULT_OBSERVER_POINTS`]). The size is one `Estimator<P, 1>` plus about
-/// 48 bytes per level.
+/// (default [`DEFAULT_OBSERVER_POINTS`]); `'l` the lifetime of the level tables it was
+/// loaded on ([`AlphaObserver::load_on_levels`]; `'static` for a `static`). The size is one
+/// `Estimator<P, 1>` plus about 48 bytes per level.
 #[derive(Debug, Clone)]
 pub struct AlphaObserver<
+    'l,
     const P: usize = DEFAULT_PARAM_CAPACITY,
     const K: usize = DEFAULT_OBSERVER_POINTS,
 > {
@@ -417,13 +424,13 @@ pub struct AlphaObserver<
     t: f32,
     last: AlphaEstimate,
     loaded: bool,
-    /// Loaded by [`AlphaObserver::load_on_levels`]: the levels are those of a
-    /// [`LevelTables`].
-    on_levels: bool,
-    shared: Estimator<P, 1>,
+    /// The level tables of [`AlphaObserver::load_on_levels`]: the grid's levels are
+    /// theirs, and each steps on its own tables.
+    levels: Option<&'l dyn LevelStep<P, 1>>,
+    shared: Estimator<'l, P, 1>,
 }
 
-impl<const P: usize, const K: usize> AlphaObserver<P, K> {
+impl<'l, const P: usize, const K: usize> AlphaObserver<'l, P, K> {
     /// Builds an observer for `model` (returned by value; where the stack is small, use
     /// [`AlphaObserver::empty`] and [`AlphaObserver::load`]).
     pub fn new(model: &Model<P>, cfg: ObserverConfig) -> Result<Self, ObserverError> {
@@ -454,7 +461,7 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
                 flags: ObserverFlags(ObserverFlags::NO_MODEL | ObserverFlags::NOT_EXCITED),
             },
             loaded: false,
-            on_levels: false,
+            levels: None,
             shared: Estimator::empty(),
         }
     }
@@ -462,32 +469,32 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
     /// Loads `model` in place (the shared estimator is written where it lives), checks the
     /// configuration and starts from rest with no data. On error the observer is empty.
     pub fn load(&mut self, model: &Model<P>, cfg: ObserverConfig) -> Result<(), ObserverError> {
-        self.load_with(model, &cfg, None::<&LevelTables<3, 2>>)
+        self.load_with(model, &cfg, None)
     }
 
     /// Loads `model` with the levels of `levels` (loaded from the same model's blob) as the
-    /// grid, so that [`AlphaObserver::step_on_levels`] steps each level on its stored
-    /// tables (table cost, module docs "Cost") instead of the exact scalers. The grid is
+    /// grid and keeps them (by reference), so that [`AlphaObserver::step`] steps each level
+    /// on its stored tables (table cost, module docs "Cost") instead of the exact scalers. The grid is
     /// the levels' (at most `K`, ascending, not necessarily uniform): `cfg.grid` must be
     /// `None` and `cfg.points` `None` or the number of levels. On error the observer is
     /// empty.
     pub fn load_on_levels<const T: usize, const L: usize>(
         &mut self,
         model: &Model<P>,
-        levels: &LevelTables<T, L>,
+        levels: &'l LevelTables<T, L>,
         cfg: ObserverConfig,
     ) -> Result<(), ObserverError> {
         self.load_with(model, &cfg, Some(levels))
     }
 
-    fn load_with<const T: usize, const L: usize>(
+    fn load_with(
         &mut self,
         model: &Model<P>,
         cfg: &ObserverConfig,
-        levels: Option<&LevelTables<T, L>>,
+        levels: Option<&'l dyn LevelStep<P, 1>>,
     ) -> Result<(), ObserverError> {
         self.loaded = false;
-        self.on_levels = false;
+        self.levels = None;
         self.points = 0;
         let r = self.load_inner(model, cfg, levels);
         if r.is_err() {
@@ -497,11 +504,11 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         r
     }
 
-    fn load_inner<const T: usize, const L: usize>(
+    fn load_inner(
         &mut self,
         model: &Model<P>,
         cfg: &ObserverConfig,
-        levels: Option<&LevelTables<T, L>>,
+        levels: Option<&'l dyn LevelStep<P, 1>>,
     ) -> Result<(), ObserverError> {
         let setting = |ok: bool, name: &'static str| {
             if ok {
@@ -526,7 +533,7 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         )?;
         setting(positive(cfg.band_sigmas), "band_sigmas")?;
         setting(positive(cfg.max_band), "max_band")?;
-        let (points, lo, hi) = grid_of(model, cfg, levels.map(LevelTables::alphas), K)?;
+        let (points, lo, hi) = grid_of(model, cfg, levels.map(|l| l.alphas()), K)?;
         let meta = model.meta;
         let force_scale = meta.force_scale_n;
         let noise = cfg.force_noise_n.unwrap_or(1e-3 * force_scale);
@@ -549,7 +556,7 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
             *m = self.shared.bank_member(a)?;
         }
         if let Some(l) = levels {
-            if !self.shared.accepts_levels(l) {
+            if !l.accepted_by(&self.shared) {
                 return Err(ObserverError::Estimator(EstimatorError::Levels(
                     LevelsError::Mismatch,
                 )));
@@ -584,7 +591,7 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         };
         self.points = points;
         self.loaded = true;
-        self.on_levels = levels.is_some();
+        self.levels = levels;
         self.reset();
         Ok(())
     }
@@ -640,80 +647,41 @@ impl<const P: usize, const K: usize> AlphaObserver<P, K> {
         self.level(s + 1) - self.level(s)
     }
 
-    /// One sample: the stroke velocity \[m/s\] (positive = extension, as for
-    /// [`Estimator::step`]) and the measured force \[N\] (positive in tension) of the same
-    /// instant; returns the estimate after it.
-    pub fn step(&mut self, velocity_m_s: f32, force_n: f32) -> AlphaEstimate {
-        self.step_at(None::<&LevelTables<3, 2>>, velocity_m_s, None, force_n)
+    /// One sample in ([`Sample`]: the stroke velocity \[m/s\], positive = extension, the
+    /// measured force \[N\], positive in tension, of the same instant, and the stroke
+    /// position \[m\] for a model with a static force; a sample's `alpha` is not read), the
+    /// estimate after it out. The one step of the observer: on an observer loaded by
+    /// [`AlphaObserver::load_on_levels`] each level steps on its stored tables, otherwise on
+    /// the exact scalers. A sample without a force is a missing measurement, handled as a
+    /// non-finite one: the levels step, the costs are not updated, and the estimate is
+    /// flagged [`ObserverFlags::FORCE_FAULT`] and [`ObserverFlags::HELD`].
+    pub fn step(&mut self, sample: Sample) -> AlphaEstimate {
+        let y = sample.force_n.unwrap_or(f32::NAN);
+        self.step_at(sample.velocity_m_s, sample.position_m, y)
     }
 
-    /// [`AlphaObserver::step`] with the stroke position \[m\] for a model with a static
-    /// force (see [`Estimator::step_with_position`]).
-    pub fn step_with_position(
-        &mut self,
-        velocity_m_s: f32,
-        position_m: f32,
-        force_n: f32,
-    ) -> AlphaEstimate {
-        self.step_at(
-            None::<&LevelTables<3, 2>>,
-            velocity_m_s,
-            Some(position_m),
-            force_n,
-        )
-    }
-
-    /// [`AlphaObserver::step`] for an observer loaded by [`AlphaObserver::load_on_levels`]:
-    /// each level steps on its stored tables in `levels` (the tables it was loaded with).
-    /// A level that `levels` does not hold (other tables, or an observer loaded by
-    /// [`AlphaObserver::load`]) steps on the exact scalers, as [`AlphaObserver::step`].
-    pub fn step_on_levels<const T: usize, const L: usize>(
-        &mut self,
-        levels: &LevelTables<T, L>,
-        velocity_m_s: f32,
-        force_n: f32,
-    ) -> AlphaEstimate {
-        self.step_at(Some(levels), velocity_m_s, None, force_n)
-    }
-
-    /// [`AlphaObserver::step_on_levels`] with the stroke position of
-    /// [`AlphaObserver::step_with_position`].
-    pub fn step_on_levels_with_position<const T: usize, const L: usize>(
-        &mut self,
-        levels: &LevelTables<T, L>,
-        velocity_m_s: f32,
-        position_m: f32,
-        force_n: f32,
-    ) -> AlphaEstimate {
-        self.step_at(Some(levels), velocity_m_s, Some(position_m), force_n)
-    }
-
-    fn step_at<const T: usize, const L: usize>(
-        &mut self,
-        levels: Option<&LevelTables<T, L>>,
-        velocity_m_s: f32,
-        position_m: Option<f32>,
-        y: f32,
-    ) -> AlphaEstimate {
+    fn step_at(&mut self, velocity_m_s: f32, position_m: Option<f32>, y: f32) -> AlphaEstimate {
         if !self.loaded {
             return self.last;
         }
         let n = self.points;
-        let levels = levels.filter(|_| self.on_levels);
-        let mut velocity_fault = false;
-        let members = self.members.iter_mut().zip(self.forces.iter_mut());
-        for (k, (m, f)) in members.enumerate().take(n) {
-            let on_level = levels.and_then(|l| {
-                self.shared
-                    .step_member_on_level(l, k, m, velocity_m_s, position_m)
-            });
-            let e = match on_level {
-                Some(e) => e,
-                None => self.shared.step_member(m, velocity_m_s, position_m),
-            };
-            velocity_fault |= e.flags.0 & crate::Flags::INPUT_HELD != 0;
-            *f = e.force_n;
-        }
+        let (Some(members), Some(forces)) = (self.members.get_mut(..n), self.forces.get_mut(..n))
+        else {
+            return self.last;
+        };
+        // On level tables: one dynamic call for the whole bank (a level the tables do not
+        // hold steps on the exact scalers).
+        let velocity_fault = match self.levels {
+            Some(l) => l.step_bank(
+                &mut self.shared,
+                (members, forces),
+                velocity_m_s,
+                position_m,
+            ),
+            None => self
+                .shared
+                .step_bank((members, forces), velocity_m_s, position_m),
+        };
         let c = self.cfg;
         let mut flags = 0u8;
         if velocity_fault {

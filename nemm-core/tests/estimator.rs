@@ -5,6 +5,7 @@
 mod common;
 
 use common::{boxed, example, reference_run, stroke, table1_grid, KINDS, P};
+use nemm_core::Sample;
 use nemm_core::DEFAULT_TABLE_SEGMENTS;
 use nemm_core::{
     Body, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags, Integrator, Model, ModelKind,
@@ -18,7 +19,10 @@ use std::f32::consts::TAU;
 const INPUT_BITS: u8 = Flags::INPUT_NON_FINITE | Flags::INPUT_OUT_OF_RANGE | Flags::INPUT_HELD;
 
 fn run<const Q: usize>(est: &mut Estimator<Q>, inputs: &[f32]) -> Vec<Estimate> {
-    inputs.iter().map(|&v| est.step(v)).collect()
+    inputs
+        .iter()
+        .map(|&v| est.step(Sample::new(v)).unwrap())
+        .collect()
 }
 
 /// The input the estimator must have used: every rejected sample replaced by the last
@@ -63,7 +67,7 @@ proptest! {
         let limit = est.velocity_limit_m_s();
         let mut resets = 0;
         for (k, &v) in inputs.iter().enumerate() {
-            let e = est.step(v);
+            let e = est.step(Sample::new(v)).unwrap();
             prop_assert!(e.force_n.is_finite(), "step {}: {}", k, e.force_n);
             prop_assert!(est.state().is_finite());
             let out = v.abs() > limit;
@@ -138,9 +142,9 @@ proptest! {
             prop_assert_eq!(ea.flags.0 & INPUT_BITS, want, "step {}", k);
         }
         // At the limit: accepted, not held.
-        let e = a.step(limit);
+        let e = a.step(Sample::new(limit)).unwrap();
         prop_assert_eq!(e.flags.0 & INPUT_BITS, 0);
-        let e = a.step(-limit);
+        let e = a.step(Sample::new(-limit)).unwrap();
         prop_assert_eq!(e.flags.0 & INPUT_BITS, 0);
     }
 
@@ -521,7 +525,10 @@ fn lost_motion_runs_the_reference_semantics() {
             let mut sq = 0.0f32;
             let n = inputs.len();
             for (k, &u) in inputs.iter().enumerate() {
-                let (a, b) = (with.step(u), base.step(u));
+                let (a, b) = (
+                    with.step(Sample::new(u)).unwrap(),
+                    base.step(Sample::new(u)).unwrap(),
+                );
                 if k >= n / 2 {
                     sq += (a.force_n - b.force_n).powi(2);
                     for (j, e) in [&with, &base].into_iter().enumerate() {
@@ -574,8 +581,8 @@ fn static_force_adds_r() {
             let mut e1 = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, cfg).unwrap();
             assert!(!e0.needs_position() && e1.needs_position());
             for k in 0..n {
-                let a = e0.step_with_position(v[k], x[k]);
-                let b = e1.step_with_position(v[k], x[k]);
+                let a = e0.step(Sample::new(v[k]).with_position(x[k])).unwrap();
+                let b = e1.step(Sample::new(v[k]).with_position(x[k])).unwrap();
                 assert_eq!(a.flags, b.flags, "{kind:?} {k}");
                 assert_eq!(e0.state(), e1.state(), "r must not enter the state");
                 let r = SF.force(x[k], v[k], alpha);
@@ -589,16 +596,16 @@ fn static_force_adds_r() {
             }
             // `step` without a position: flagged, the last good position held.
             let (vk, xk) = (v[n - 1], x[n - 1]);
-            let a = e0.step(vk);
-            let b = e1.step(vk);
+            let a = e0.step(Sample::new(vk)).unwrap();
+            let b = e1.step(Sample::new(vk)).unwrap();
             assert!(b.flags.contains(Flags::POSITION_MISSING));
             assert!(!a.flags.contains(Flags::POSITION_MISSING));
             let r = SF.force(xk, vk, alpha);
             assert!((b.force_n - a.force_n - r).abs() <= 1e-4 * a.force_n.abs().max(100.0));
             // A non-finite position: flagged, held, the state unharmed.
             for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
-                let a = e0.step_with_position(vk, bad);
-                let b = e1.step_with_position(vk, bad);
+                let a = e0.step(Sample::new(vk).with_position(bad)).unwrap();
+                let b = e1.step(Sample::new(vk).with_position(bad)).unwrap();
                 assert!(b.flags.contains(Flags::POSITION_MISSING));
                 assert!(!b.flags.contains(Flags::STATE_RESET) && b.force_n.is_finite());
                 assert_eq!(e0.state(), e1.state());
@@ -606,7 +613,7 @@ fn static_force_adds_r() {
             }
             // After a reset the held position is x_ref.
             e1.reset();
-            let b = e1.step(0.0);
+            let b = e1.step(Sample::new(0.0)).unwrap();
             assert!((b.force_n - SF.force(SF.x_ref_m, 0.0, alpha)).abs() < 1e-3);
         }
     }
@@ -619,8 +626,10 @@ fn static_force_adds_r() {
             .unwrap();
     for k in 0..200 {
         let a = if k < 100 { 0.0 } else { 0.3 };
-        let f = e.step_with_alpha_and_position(v[k], a, x[k]).unwrap();
-        let f0 = plain.step_with_alpha(v[k], a).unwrap();
+        let f = e
+            .step(Sample::new(v[k]).with_alpha(a).with_position(x[k]))
+            .unwrap();
+        let f0 = plain.step(Sample::new(v[k]).with_alpha(a)).unwrap();
         assert!(f.flags.is_empty());
         let r = SF.force(x[k], v[k], a);
         assert!((f.force_n - f0.force_n - r).abs() <= 1e-4 * f0.force_n.abs().max(100.0));
@@ -643,8 +652,8 @@ proptest! {
         let mut e0 = boxed::<DEFAULT_TABLE_SEGMENTS>(&plain, EstimatorConfig::new(0.1)).unwrap();
         let mut e1 = boxed::<DEFAULT_TABLE_SEGMENTS>(&with, EstimatorConfig::new(0.1)).unwrap();
         for (&x, &v) in xs.iter().zip(vs.iter().cycle()) {
-            let b = e1.step_with_position(v, x);
-            e0.step(v);
+            let b = e1.step(Sample::new(v).with_position(x)).unwrap();
+            e0.step(Sample::new(v)).unwrap();
             prop_assert!(b.force_n.is_finite());
             prop_assert_eq!(e0.state(), e1.state());
             prop_assert_eq!(b.flags.contains(Flags::POSITION_MISSING), !x.is_finite());

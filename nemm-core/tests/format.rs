@@ -6,7 +6,7 @@
 mod common;
 
 use common::{blob_of, craft_blob, fix_crc, ModelSpec, KINDS, P};
-use nemm_core::ModelError;
+use nemm_core::{ModelError, Sample};
 use nemm_core::{
     decode, encode, read_header, Body, DecodeError, EncodeError, Estimator, EstimatorConfig, Model,
     ModelKind, FORMAT_VERSION,
@@ -31,7 +31,7 @@ fn decode_must_not_panic<const Q: usize>(bytes: &[u8]) -> Result<(), TestCaseErr
         prop_assert_eq!(m.validate(), Ok(()));
         if let Ok(mut est) = Estimator::new(&m, EstimatorConfig::new(0.1)) {
             for k in 0..50 {
-                let e = est.step(0.3 * (k as f32 * 0.2).sin());
+                let e = est.step(Sample::new(0.3 * (k as f32 * 0.2).sin())).unwrap();
                 prop_assert!(e.force_n.is_finite());
             }
         }

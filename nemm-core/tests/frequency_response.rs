@@ -43,6 +43,7 @@
 
 mod common;
 
+use nemm_core::Sample;
 use nemm_core::{Body, Estimator, EstimatorConfig, Integrator, Model, ModelKind};
 use std::f64::consts::PI;
 
@@ -145,7 +146,7 @@ fn measure(m: &Model<16>, scheme: Integrator, dt: f64, f_hz: f64, amp: f64) -> (
     let mut atb = [0.0f64; 3];
     for n in 0..settle + n_fit {
         let t = n as f64 * dt;
-        let e = est.step((amp * (w * t).sin()) as f32);
+        let e = est.step(Sample::new((amp * (w * t).sin()) as f32)).unwrap();
         assert!(e.flags.is_empty());
         if n >= settle {
             let row = [(w * t).sin(), (w * t).cos(), 1.0];

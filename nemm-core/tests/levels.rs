@@ -8,6 +8,7 @@ mod common;
 
 use common::blob_with_tables;
 use nemm_core::testing::example_model_with_branches;
+use nemm_core::Sample;
 use nemm_core::{
     decode_into, AlphaObserver, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags,
     LevelTables, LevelsError, Model, ModelKind, ObserverConfig, Priors, TableConfig,
@@ -63,7 +64,7 @@ fn loaded_of(of: &Model<P>, alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, Vec<
     (m, levels, blob)
 }
 
-fn exact(m: &Model<P>, alpha: f32) -> Box<Estimator<P, 3>> {
+fn exact<'l>(m: &Model<P>, alpha: f32) -> Box<Estimator<'l, P, 3>> {
     let mut e = Box::new(Estimator::empty());
     e.load(m, EstimatorConfig::new(alpha)).expect("loads");
     e
@@ -105,10 +106,11 @@ fn stored_levels_step_as_table_mode(m: &Model<P>, levels: &Levels, blob: &[u8]) 
             .load_with_tables(&mm, table_cfg(alpha), &tables, blob)
             .unwrap();
         let mut est = exact(m, 0.15);
+        est.attach_levels(levels).unwrap();
         for i in 0..3000 {
             let v = velocity(i, 0.6);
-            let a = reference.step(v);
-            let b = est.step_on_levels(levels, v, alpha).unwrap();
+            let a = reference.step(Sample::new(v)).unwrap();
+            let b = est.step(Sample::new(v).with_alpha(alpha)).unwrap();
             assert_eq!(
                 a.force_n.to_bits(),
                 b.force_n.to_bits(),
@@ -189,14 +191,15 @@ fn the_blend_error_is_measured_and_shrinks_with_more_levels() {
 fn a_level_per_sample_follows_the_exact_model() {
     let (m, levels, _) = loaded(&LEVELS);
     let mut tab = exact(&m, 0.0);
+    tab.attach_levels(&levels).unwrap();
     let mut ex = exact(&m, 0.0);
     let n = 20_000;
     let mut worst = 0.0f32;
     for i in 0..n {
         let alpha = 0.3 * i as f32 / n as f32;
         let v = velocity(i, 0.8);
-        let a = ex.step_with_alpha(v, alpha).unwrap().force_n;
-        let b = tab.step_on_levels(&levels, v, alpha).unwrap();
+        let a = ex.step(Sample::new(v).with_alpha(alpha)).unwrap().force_n;
+        let b = tab.step(Sample::new(v).with_alpha(alpha)).unwrap();
         assert!(b.flags.is_empty(), "step {i}: {:?}", b.flags);
         worst = worst.max((a - b.force_n).abs());
     }
@@ -208,33 +211,47 @@ fn a_level_per_sample_follows_the_exact_model() {
 #[test]
 fn bad_levels_and_bad_inputs_are_refused_or_held() {
     let (m, levels, blob) = loaded(&LEVELS);
+    let empty: Box<Levels> = Box::new(LevelTables::empty());
     let mut est = exact(&m, 0.0);
+    est.attach_levels(&levels).unwrap();
+    assert!(est.has_levels());
     // alpha outside [0, 1] or NaN: refused, nothing changes.
     for a in [f32::NAN, -0.1, 1.5] {
         assert_eq!(
-            est.step_on_levels(&levels, 0.1, a),
+            est.step(Sample::new(0.1).with_alpha(a)),
             Err(EstimatorError::AlphaOutOfRange)
         );
     }
     assert_eq!(est.diagnostics().steps, 0);
     // alpha beyond the levels: nearest level, flagged.
-    let e = est.step_on_levels(&levels, 0.1, 0.5).unwrap();
+    let e = est.step(Sample::new(0.1).with_alpha(0.5)).unwrap();
     assert!(e.flags.contains(Flags::ALPHA_EXTRAPOLATED));
     // A NaN velocity is held, the state stays finite.
-    let e = est.step_on_levels(&levels, f32::NAN, 0.1).unwrap();
+    let e = est.step(Sample::new(f32::NAN).with_alpha(0.1)).unwrap();
     assert!(e.flags.contains(Flags::INPUT_HELD) && e.force_n.is_finite());
-    // Empty tables, or another model's: refused.
-    let empty: Box<Levels> = Box::new(LevelTables::empty());
+    // The estimator's own level is not changed by the levels.
+    assert_eq!(est.alpha(), 0.0);
+    // Empty tables, or another model's: refused, the attached ones kept.
     assert_eq!(
-        est.step_on_levels(&empty, 0.1, 0.1),
+        est.attach_levels(&empty),
         Err(EstimatorError::Levels(LevelsError::Mismatch))
     );
+    assert!(est.has_levels());
     let light = nemm_core::testing::example_model::<P>(ModelKind::NemmLight, 16, 5).unwrap();
     let mut other = exact(&light, 0.1);
     assert_eq!(
-        other.step_on_levels(&levels, 0.1, 0.1),
+        other.attach_levels(&levels),
         Err(EstimatorError::Levels(LevelsError::Mismatch))
     );
+    assert!(!other.has_levels());
+    // Detached, a sample's alpha is applied to the estimator's own scalers; loading a
+    // model detaches too.
+    est.detach_levels();
+    est.step(Sample::new(0.1).with_alpha(0.2)).unwrap();
+    assert_eq!(est.alpha(), 0.2);
+    est.attach_levels(&levels).unwrap();
+    est.load(&m, nemm_core::EstimatorConfig::new(0.1)).unwrap();
+    assert!(!est.has_levels());
     // Loading: one level is too few; another blob is refused; the index and the blob of
     // one export belong together.
     let one = blob_with(&m, &[0.1]);
@@ -287,9 +304,9 @@ fn the_observer_on_levels_agrees_with_the_exact_observer() {
     let (mut a, mut b) = (on_levels.estimate(), reference.estimate());
     for i in 0..20_000 {
         let v = velocity(i, 0.6);
-        let f = plant.step(v).force_n;
-        a = on_levels.step_on_levels(&levels, v, f);
-        b = reference.step(v, f);
+        let f = plant.step(Sample::new(v)).unwrap().force_n;
+        a = on_levels.step(Sample::new(v).with_force(f));
+        b = reference.step(Sample::new(v).with_force(f));
     }
     assert!(
         !a.flags.contains(nemm_core::ObserverFlags::NOT_EXCITED),

@@ -6,7 +6,7 @@
 mod common;
 
 use common::with_big_stack;
-use nemm_core::LowPass;
+use nemm_core::{LowPass, Sample};
 use nemm_core::{
     decode, AlphaEstimate, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model,
     ObserverConfig, ObserverError, ObserverFlags, Priors, TableConfig,
@@ -25,7 +25,7 @@ fn example() -> Model<Q> {
         .expect("example model")
 }
 
-fn observer<const P: usize>(m: &Model<P>, cfg: ObserverConfig) -> Box<AlphaObserver<P>> {
+fn observer<const P: usize>(m: &Model<P>, cfg: ObserverConfig) -> Box<AlphaObserver<'static, P>> {
     let mut o = Box::new(AlphaObserver::<P>::empty());
     o.load(m, cfg).expect("observer loads");
     o
@@ -54,7 +54,7 @@ fn synthetic<const P: usize>(
         .iter()
         .enumerate()
         .map(|(k, &v)| {
-            est.step_with_alpha(v, alpha(k))
+            est.step(Sample::new(v).with_alpha(alpha(k)))
                 .expect("level in range")
                 .force_n
         })
@@ -62,7 +62,10 @@ fn synthetic<const P: usize>(
 }
 
 fn run<const P: usize>(o: &mut AlphaObserver<P>, v: &[f32], f: &[f32]) -> Vec<AlphaEstimate> {
-    v.iter().zip(f).map(|(&v, &f)| o.step(v, f)).collect()
+    v.iter()
+        .zip(f)
+        .map(|(&v, &f)| o.step(Sample::new(v).with_force(f)))
+        .collect()
 }
 
 fn sane(e: &AlphaEstimate, lo: f32, hi: f32) {
@@ -130,7 +133,7 @@ fn no_motion_is_not_excited() {
     let mut o = observer(&m, ObserverConfig::new());
     let noise: Vec<f32> = (0..n).map(|k| ((k * 7919) % 13) as f32 - 6.0).collect();
     for (k, &y) in noise.iter().enumerate() {
-        let e = o.step(0.0, y);
+        let e = o.step(Sample::new(0.0).with_force(y));
         sane(&e, 0.0, 0.3);
         if k > 100 {
             assert!(e.flags.contains(ObserverFlags::NOT_EXCITED), "{k}: {e:?}");
@@ -259,7 +262,7 @@ fn refuses_bad_configurations() {
     let bad = |cfg: ObserverConfig| {
         let mut o = Box::new(AlphaObserver::<Q, 4>::empty());
         let r = o.load(&m, cfg);
-        let e = o.step(0.1, 10.0);
+        let e = o.step(Sample::new(0.1).with_force(10.0));
         assert!(e.flags.contains(ObserverFlags::NO_MODEL));
         r.expect_err("refused")
     };
@@ -332,7 +335,7 @@ proptest! {
         o.load(&m, ObserverConfig { warmup_s: 0.0, fault_holdoff_s: 0.0, ..ObserverConfig::new() })
             .expect("loads");
         for (v, f) in samples {
-            let e = o.step(v, f);
+            let e = o.step(Sample::new(v).with_force(f));
             sane(&e, 0.0, 0.3);
             for (_, rms) in o.residual_rms() {
                 prop_assert!(rms.is_finite() && rms >= 0.0);
@@ -383,7 +386,7 @@ fn rmse(m: &Model, alpha: f32, v: &[f32], f: &[f32], skip: usize) -> f64 {
     let se: f64 = v
         .iter()
         .zip(f)
-        .map(|(&u, &y)| f64::from(est.step(u).force_n - y).powi(2))
+        .map(|(&u, &y)| f64::from(est.step(Sample::new(u)).unwrap().force_n - y).powi(2))
         .skip(skip)
         .sum();
     (se / (v.len() - skip) as f64).sqrt()

@@ -3,6 +3,7 @@
 
 mod common;
 
+use nemm_core::Sample;
 use nemm_core::{Body, Estimator, EstimatorConfig, Flags, Model, ModelKind, SemMap};
 use proptest::prelude::*;
 
@@ -117,7 +118,7 @@ proptest! {
         let (curve, clamped) = map.curve_at(alpha);
         let outside_training = !(model.meta.alpha_min..=model.meta.alpha_max).contains(&alpha);
         for &v in &vs {
-            let e = est.step(v);
+            let e = est.step(Sample::new(v)).unwrap();
             prop_assert_eq!(e.force_n, map.force_on_curve(&curve, v));
             prop_assert_eq!(e.flags.contains(Flags::ALPHA_EXTRAPOLATED), clamped || outside_training);
             prop_assert_eq!(e.flags.0 & !Flags::ALPHA_EXTRAPOLATED, 0);

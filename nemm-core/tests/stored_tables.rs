@@ -6,7 +6,7 @@
 mod common;
 
 use common::{blob_of, blob_with_tables, fix_crc};
-use nemm_core::CRC_LEN;
+use nemm_core::{CRC_LEN, Sample};
 use nemm_core::MAX_TABLE_LEVELS;
 use nemm_core::{
     decode, decode_into, decode_with_tables, read_header, DecodeError, EncodeError, Estimator,
@@ -18,7 +18,7 @@ const P: usize = 1400;
 /// Segments of the tables in these tests (small: quick to build, still tens of kinks).
 const T: usize = 128;
 
-type Est<const S: usize> = Estimator<P, S>;
+type Est<const S: usize> = Estimator<'static, P, S>;
 
 fn model(kind: ModelKind) -> Box<Model<P>> {
     Box::new(nemm_core::testing::example_model(kind, 16, 5).expect("example"))
@@ -68,7 +68,10 @@ fn velocity(k: usize) -> f32 {
 /// Both estimators give the same force and flags, bit for bit, over a run.
 fn assert_same_run<const A: usize, const B: usize>(a: &mut Est<A>, b: &mut Est<B>) {
     for k in 0..3000 {
-        let (ea, eb) = (a.step(velocity(k)), b.step(velocity(k)));
+        let (ea, eb) = (
+            a.step(Sample::new(velocity(k))).unwrap(),
+            b.step(Sample::new(velocity(k))).unwrap(),
+        );
         assert_eq!(ea.force_n.to_bits(), eb.force_n.to_bits(), "step {k}");
         assert_eq!(ea.flags, eb.flags, "step {k}");
     }
@@ -233,7 +236,11 @@ fn a_damaged_section_is_refused_by_the_crc_and_never_panics() {
                     .is_ok()
                 {
                     for k in 0..200 {
-                        assert!(e.step(velocity(k)).force_n.is_finite());
+                        assert!(e
+                            .step(Sample::new(velocity(k)))
+                            .unwrap()
+                            .force_n
+                            .is_finite());
                     }
                 }
             }

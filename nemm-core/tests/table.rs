@@ -5,6 +5,7 @@
 mod common;
 
 use common::{boxed, example, stroke, table1_grid, P};
+use nemm_core::Sample;
 use nemm_core::{
     Body, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, Model, ModelKind,
     TableConfig, TableError,
@@ -144,9 +145,9 @@ proptest! {
         let (vd, xd) = (margin * m.scales.velocity_m_s, margin * m.scales.x_pr_m);
         let neural = matches!(m.kind(), ModelKind::NemmLight | ModelKind::Nemm);
         for &u in &inputs {
-            let e = exact.step(u);
+            let e = exact.step(Sample::new(u)).unwrap();
             prop_assert!(!e.flags.contains(Flags::OUT_OF_TABLE_DOMAIN));
-            let t = table.step(u);
+            let t = table.step(Sample::new(u)).unwrap();
             prop_assert!(t.force_n.is_finite());
             let s = table.state();
             let v_out = s.v_st_m_s.abs() > vd;
@@ -198,7 +199,10 @@ fn table_mode_follows_exact_over_the_programme() {
                     exact.reset();
                     table.reset();
                     for &u in &inputs {
-                        let (a, b) = (exact.step(u), table.step(u));
+                        let (a, b) = (
+                            exact.step(Sample::new(u)).unwrap(),
+                            table.step(Sample::new(u)).unwrap(),
+                        );
                         assert!(b.flags.is_empty(), "{kind:?} {amp} {v}: {:?}", b.flags);
                         worst = worst.max((a.force_n - b.force_n).abs());
                     }
@@ -237,7 +241,10 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
     .unwrap();
     assert_eq!(a.table_accuracy(), b.table_accuracy());
     for &u in &inputs {
-        assert_eq!(a.step(u), b.step(u));
+        assert_eq!(
+            a.step(Sample::new(u)).unwrap(),
+            b.step(Sample::new(u)).unwrap()
+        );
     }
     // A bound below f32 resolution: new refuses it with the measured error.
     match boxed::<128>(&m, table_cfg(1e-9)) {
@@ -308,8 +315,8 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
     .unwrap();
     let mut twin = est.clone();
     for &u in &inputs[..100] {
-        est.step(u);
-        twin.step(u);
+        est.step(Sample::new(u)).unwrap();
+        twin.step(Sample::new(u)).unwrap();
     }
     assert!(matches!(
         est.set_alpha(a_hi),
@@ -318,7 +325,10 @@ fn table_set_alpha_equals_new_and_refusal_changes_nothing() {
     assert_eq!(est.alpha(), a_lo);
     assert_eq!(est.table_accuracy(), twin.table_accuracy());
     for &u in &inputs[100..] {
-        assert_eq!(est.step(u), twin.step(u));
+        assert_eq!(
+            est.step(Sample::new(u)).unwrap(),
+            twin.step(Sample::new(u)).unwrap()
+        );
     }
 }
 
@@ -332,7 +342,10 @@ fn kinds_without_scalers_are_unchanged() {
         assert_eq!(b.table_accuracy(), None);
         assert_eq!(b.table_bytes(), (0, 0));
         for &u in &stroke(0.01, 0.524, 0.5, f64::from(m.dt_s)) {
-            assert_eq!(a.step(u), b.step(u));
+            assert_eq!(
+                a.step(Sample::new(u)).unwrap(),
+                b.step(Sample::new(u)).unwrap()
+            );
         }
     }
 }

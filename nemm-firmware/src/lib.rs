@@ -95,7 +95,7 @@ pub const TABLE_MAX_REL_ERROR: f32 = 1e-4;
 pub const TABLE_SEGMENTS: usize = 128;
 
 /// The estimator type of this firmware.
-pub type FwEstimator = nemm_core::Estimator<PARAM_CAPACITY, TABLE_SEGMENTS>;
+pub type FwEstimator = nemm_core::Estimator<'static, PARAM_CAPACITY, TABLE_SEGMENTS>;
 
 /// Whether the application runs the tabulated fast path unless told otherwise: the `table`
 /// cargo feature (the one setting for a board build); QEMU runs override it with

@@ -47,7 +47,7 @@ mod app {
     };
     use nemm_firmware::report::{self, Line, ObserverRecord, StepRecord};
     use nemm_firmware::trace::Trace;
-    use nemm_firmware::{slot, FwObserver, StaticSlot, PARAM_CAPACITY, SAMPLE_RATE_HZ};
+    use nemm_firmware::{slot, FwLevels, FwObserver, StaticSlot, PARAM_CAPACITY, SAMPLE_RATE_HZ};
 
     /// Log queue length (one slot stays free): 25.5 ms of records at 10 kHz.
     const LOG_QUEUE: usize = 256;
@@ -129,6 +129,8 @@ mod app {
     static ESTIMATOR: StaticSlot<nemm_firmware::FwEstimator> = StaticSlot::new();
     /// The alpha observer (bench-controller mode), lent to the 10 kHz task.
     static OBSERVER: StaticSlot<FwObserver> = StaticSlot::new();
+    /// The level tables the observer steps on (read from the blob at boot).
+    static LEVELS: StaticSlot<FwLevels> = StaticSlot::new();
     /// The log queue between the 10 kHz task and the logger.
     static LOG: StaticSlot<Queue<LogItem, LOG_QUEUE>> = StaticSlot::new();
     /// CRC-32 of each chunk of [`DIGEST_CHUNK_STEPS`] periods, written by the 10 kHz task;
@@ -316,11 +318,14 @@ mod app {
         // The empty observer as one constant: copied from flash into the static, not built
         // on the stack first.
         const EMPTY: FwObserver = FwObserver::empty();
-        let Some(observer) = OBSERVER.init_with(|| EMPTY) else {
+        const NO_LEVELS: FwLevels = FwLevels::empty();
+        let (Some(observer), Some(levels)) =
+            (OBSERVER.init_with(|| EMPTY), LEVELS.init_with(|| NO_LEVELS))
+        else {
             board::exit(report::EXIT_USAGE) // init runs once
         };
         let mut l = Line::new();
-        match observer.load(model, tables, blob) {
+        match observer.load(levels, model, tables, blob) {
             Ok(()) => {
                 report::observer_ok(&mut l, observer);
                 console.write(l.finish());

@@ -2,8 +2,8 @@
 //! the weights blob stores ([`LevelTables`]), so that its levels step at table cost.
 //!
 //! [`FwObserver::load`] reads the blob's stored levels of [`crate::TABLE_SEGMENTS`]
-//! segments (a blob exported with `--tables-levels 7`: the firmware's trained model) into its
-//! own [`LevelTables`] and takes them as the observer's grid
+//! segments (a blob exported with `--tables-levels 7`: the firmware's trained model) into a
+//! [`LevelTables`] in its own `static` and takes them as the observer's grid
 //! ([`AlphaObserver::load_on_levels`]); each step is then 7 table-mode model steps. A blob
 //! without level tables gives the exact observer (the grid over the trained range,
 //! [`AlphaObserver::load`]): the same estimate up to the tables' error, about 7.5 exact
@@ -11,18 +11,20 @@
 //! `observer ok` line says which (`levels_from=blob|exact`).
 
 use crate::{observer_config, OBSERVER_LEVELS, PARAM_CAPACITY, TABLE_SEGMENTS};
-use nemm_core::{AlphaEstimate, AlphaObserver, LevelTables, Model, ObserverError, StoredTables};
+use nemm_core::{
+    AlphaEstimate, AlphaObserver, LevelTables, Model, ObserverError, Sample, StoredTables,
+};
 
 /// The level tables of the firmware's observer: up to [`OBSERVER_LEVELS`] levels of
-/// [`TABLE_SEGMENTS`]-segment tables (`2 x 28 x 128` bytes per level for a NEMM).
+/// [`TABLE_SEGMENTS`]-segment tables (`2 x 28 x 128` bytes per level for a NEMM). They live
+/// in their own `static` (the observer holds them by reference).
 pub type FwLevels = LevelTables<TABLE_SEGMENTS, OBSERVER_LEVELS>;
 
 /// The firmware's alpha observer and the level tables it steps on.
 #[derive(Debug, Clone)]
 pub struct FwObserver {
-    observer: AlphaObserver<PARAM_CAPACITY, OBSERVER_LEVELS>,
-    levels: FwLevels,
-    on_levels: bool,
+    observer: AlphaObserver<'static, PARAM_CAPACITY, OBSERVER_LEVELS>,
+    levels: Option<&'static FwLevels>,
 }
 
 impl FwObserver {
@@ -30,74 +32,54 @@ impl FwObserver {
     pub const fn empty() -> Self {
         Self {
             observer: AlphaObserver::empty(),
-            levels: LevelTables::empty(),
-            on_levels: false,
+            levels: None,
         }
     }
 
     /// Loads `model` in place: on the blob's level tables when it stores them (`tables` is
-    /// the index [`nemm_core::decode_into`] returned for `blob`), else exact. The
-    /// observer's settings are [`observer_config`].
+    /// the index [`nemm_core::decode_into`] returned for `blob`; they are read into
+    /// `levels`, the storage of a `static`), else exact. The observer's settings are
+    /// [`observer_config`].
     pub fn load(
         &mut self,
+        levels: &'static mut FwLevels,
         model: &Model<PARAM_CAPACITY>,
         tables: &StoredTables,
         blob: &[u8],
     ) -> Result<(), ObserverError> {
-        self.on_levels = self.levels.load(model, tables, blob).is_ok();
-        if self.on_levels {
+        let loaded = levels.load(model, tables, blob).is_ok();
+        let levels: &'static FwLevels = levels;
+        self.levels = None;
+        if loaded {
             self.observer
-                .load_on_levels(model, &self.levels, observer_config())
+                .load_on_levels(model, levels, observer_config())?;
+            self.levels = Some(levels);
+            Ok(())
         } else {
             self.observer.load(model, observer_config())
         }
     }
 
-    /// One sample (see [`AlphaObserver::step_with_position`]).
+    /// One sample: the velocity, the position and the measured force (see
+    /// [`AlphaObserver::step`]; on the level tables when loaded on them).
     #[inline(always)]
-    pub fn step_with_position(
-        &mut self,
-        velocity_m_s: f32,
-        position_m: f32,
-        force_n: f32,
-    ) -> AlphaEstimate {
-        if self.on_levels {
-            self.observer.step_on_levels_with_position(
-                &self.levels,
-                velocity_m_s,
-                position_m,
-                force_n,
-            )
-        } else {
-            self.observer
-                .step_with_position(velocity_m_s, position_m, force_n)
-        }
-    }
-
-    /// One sample without a position (see [`AlphaObserver::step`]).
-    #[inline(always)]
-    pub fn step(&mut self, velocity_m_s: f32, force_n: f32) -> AlphaEstimate {
-        if self.on_levels {
-            self.observer
-                .step_on_levels(&self.levels, velocity_m_s, force_n)
-        } else {
-            self.observer.step(velocity_m_s, force_n)
-        }
+    pub fn step(&mut self, sample: Sample) -> AlphaEstimate {
+        self.observer.step(sample)
     }
 
     /// The observer.
-    pub fn observer(&self) -> &AlphaObserver<PARAM_CAPACITY, OBSERVER_LEVELS> {
+    pub fn observer(&self) -> &AlphaObserver<'static, PARAM_CAPACITY, OBSERVER_LEVELS> {
         &self.observer
     }
 
-    /// The level tables (empty when the blob stores none).
-    pub fn levels(&self) -> &FwLevels {
-        &self.levels
+    /// The level tables the observer steps on (`None` when the blob stores none).
+    pub fn levels(&self) -> Option<&'static FwLevels> {
+        self.levels
     }
 
     /// Whether the levels step on the blob's level tables (else on the exact scalers).
     pub fn on_levels(&self) -> bool {
-        self.on_levels
+        self.levels.is_some()
     }
 
     /// The observer's levels \[-\].

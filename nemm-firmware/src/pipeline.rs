@@ -19,7 +19,7 @@ use crate::loadcell::{LoadCell, LoadCellError};
 use crate::report::{ObserverRecord, FW_PRIMING, FW_SAMPLE_INVALID, FW_SENSOR_ERROR};
 use crate::sensor::{SensorError, StrokeSensor};
 use embedded_hal::spi::SpiDevice;
-use nemm_core::{AlphaEstimate, Estimate, Estimator};
+use nemm_core::{AlphaEstimate, Estimate, Estimator, Flags, Sample};
 
 /// Sensor-path fault counters.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -68,7 +68,12 @@ pub fn run_period<SPI: SpiDevice, const P: usize, const T: usize>(
     // NaN in: the estimator holds its last good input and flags the step. The position
     // feeds a model's static force (NaN: the last good position, flagged); models without
     // one ignore it.
-    let estimate = estimator.step_with_position(velocity_m_s, sensor.position_m());
+    let sample = Sample::new(velocity_m_s).with_position(sensor.position_m());
+    // A sample without a level is never refused: the other arm is never taken.
+    let estimate = estimator.step(sample).unwrap_or(Estimate {
+        force_n: 0.0,
+        flags: Flags(Flags::NO_MODEL),
+    });
     PeriodOutput {
         velocity_m_s,
         estimate,
@@ -124,7 +129,10 @@ pub fn observe_period<SPI: SpiDevice>(
             f32::NAN
         }
     };
-    let estimate = observer.step_with_position(period.velocity_m_s, position_m, measured_force_n);
+    let sample = Sample::new(period.velocity_m_s)
+        .with_position(position_m)
+        .with_force(measured_force_n);
+    let estimate = observer.step(sample);
     ObservedOutput {
         measured_force_n,
         estimate,
@@ -257,7 +265,6 @@ impl From<&ObservedOutput> for ObserverRecord {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nemm_core::Flags;
 
     fn out(v: f32, f: f32, ef: u8, ff: u8) -> PeriodOutput {
         PeriodOutput {

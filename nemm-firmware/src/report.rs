@@ -344,7 +344,10 @@ pub fn observer_ok(line: &mut Line, fw: &crate::FwObserver) {
         .kv("bytes", sat(core::mem::size_of::<crate::FwObserver>()))
         .kv("model_steps", sat(observer.evaluations_per_step()))
         .ks("levels_from", if fw.on_levels() { "blob" } else { "exact" })
-        .kv("level_table_bytes", sat(fw.levels().table_bytes().1));
+        .kv(
+            "level_table_bytes",
+            sat(fw.levels().map_or(0, |l| l.table_bytes().1)),
+        );
 }
 
 /// Whether a model stepping `dt_s` seconds runs at [`crate::SAMPLE_RATE_HZ`] (within

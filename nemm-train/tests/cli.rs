@@ -3,7 +3,7 @@
 //! in the documented schema, one blob per variant, figures), `train` with checkpoints, `export`
 //! from the checkpoint, `inspect`, a `sweep` run as separate processes and collected, and the
 //! exported blob run through nemm-core's estimator against the trainer's own test RMSE.
-use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind};
+use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind, Sample};
 use nemm_dataset as dataset;
 use nemm_train::config::{Config, CONFIG_FILE};
 use nemm_train::data::preprocess;
@@ -471,7 +471,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
             .zip(ys)
             .enumerate()
         {
-            let y = est.step(v).force_n as f64;
+            let y = est.step(Sample::new(v)).unwrap().force_n as f64;
             worst = worst.max((y - yt).abs() / fs);
             if i >= prepared.warmup_samples {
                 se += ((y - f as f64) / fs).powi(2);

@@ -3,7 +3,7 @@
 //! nemm-core's observer and the identifiability search run here, the figures, the accuracy
 //! files, a level step on two runs of the virtual bench, and the refusal of bad inputs with
 //! nothing written.
-use nemm_core::{AlphaObserver, ObserverConfig};
+use nemm_core::{AlphaObserver, ObserverConfig, Sample};
 use nemm_dataset as dataset;
 use nemm_train::data::preprocess::causal_velocity;
 use nemm_train::train::identify::{identify, AlphaGrid, Run, Search, DEFAULT_STEP};
@@ -168,7 +168,7 @@ fn diagnoses_the_committed_runs_as_the_observer_and_the_search_do() {
         let mut obs: Box<AlphaObserver> = Box::new(AlphaObserver::empty());
         obs.load(&model, ObserverConfig::new()).expect("observer");
         for ((&v, &x), &f) in v.iter().zip(&x).zip(&run.force_n) {
-            obs.step_with_position(v, x, f as f32);
+            obs.step(Sample::new(v).with_position(x).with_force(f as f32));
         }
         let end = obs.estimate();
         assert!(

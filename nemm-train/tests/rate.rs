@@ -6,7 +6,7 @@
 //! cargo test --release -p nemm-train --test rate -- --nocapture
 //! ```
 use nemm_core::ModelKind;
-use nemm_core::{Estimator, EstimatorConfig, EstimatorError, EvalMode, Model, TableConfig};
+use nemm_core::{Estimator, EstimatorConfig, EstimatorError, EvalMode, Model, Sample, TableConfig};
 use nemm_dataset::{self as dataset, Dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared, RunRole};
 use nemm_train::train::eval::{predict, run_estimator, Input};
@@ -239,7 +239,7 @@ fn a_300_hz_dataset_exports_a_10_khz_blob_that_the_estimator_accepts() {
     let model = train_and_export(&prepared, ModelKind::LinearEmm, &cfg);
     assert_eq!(model.dt_s, 1e-4_f32);
     let mut est = Estimator::new(&model, EstimatorConfig::new(0.15)).expect("estimator");
-    assert!(est.step(0.1).force_n.is_finite());
+    assert!(est.step(Sample::new(0.1)).unwrap().force_n.is_finite());
     // Another model rate is a choice of the trainer.
     cfg.model_rate_hz = 5000.0;
     let model = train_and_export(&prepared, ModelKind::LinearEmm, &cfg);
@@ -369,7 +369,13 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
     let core: Vec<f64> = u
         .iter()
         .zip(&levels)
-        .map(|(&v, &a)| f64::from(est.step_with_alpha(v, a).expect("exact mode").force_n))
+        .map(|(&v, &a)| {
+            f64::from(
+                est.step(Sample::new(v).with_alpha(a))
+                    .expect("exact mode")
+                    .force_n,
+            )
+        })
         .collect();
     let fs = prepared.scales.force_n;
     let worst = core
@@ -420,10 +426,11 @@ fn a_condition_level_changing_within_runs_is_trained_evaluated_and_run_by_the_es
         ..EstimatorConfig::new(levels[0])
     };
     let mut tab = Estimator::new(&model, table).expect("table estimator");
-    assert!(tab.step_with_alpha(0.1, levels[0]).is_ok());
+    assert!(tab.step(Sample::new(0.1).with_alpha(levels[0])).is_ok());
     let before = tab.state();
     assert_eq!(
-        tab.step_with_alpha(0.1, 0.3).map(|e| e.force_n),
+        tab.step(Sample::new(0.1).with_alpha(0.3))
+            .map(|e| e.force_n),
         Err(EstimatorError::AlphaPerSampleInTableMode)
     );
     assert_eq!(tab.state(), before);

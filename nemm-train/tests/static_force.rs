@@ -9,7 +9,7 @@
 //! cargo test --release -p nemm-train --test static_force -- --nocapture
 //! ```
 use nemm_core::ModelKind;
-use nemm_core::{Estimator, EstimatorConfig, Flags, Model};
+use nemm_core::{Estimator, EstimatorConfig, Flags, Model, Sample};
 use nemm_dataset as dataset;
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared, RunRole};
 use nemm_train::train::eval::{input_of, predict, rmse_model, run_estimator};
@@ -96,5 +96,9 @@ fn static_force_takes_the_gas_force_of_an_untared_load_cell() {
     assert!(worst <= 1e-5 * fs, "max |core - trainer| = {worst} N");
     let mut est = Estimator::new(&with, EstimatorConfig::new(seq.alpha)).expect("estimator");
     assert!(est.needs_position());
-    assert!(est.step(0.0).flags.contains(Flags::POSITION_MISSING));
+    assert!(est
+        .step(Sample::new(0.0))
+        .unwrap()
+        .flags
+        .contains(Flags::POSITION_MISSING));
 }

@@ -3,7 +3,7 @@ mod support;
 
 use burn::tensor::Device;
 use nemm_core::ModelKind;
-use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model};
+use nemm_core::{Body, Estimator, EstimatorConfig, InputScales, Integrator, Meta, Model, Sample};
 use nemm_dataset::{Dataset, Run};
 use nemm_kernels::emm::EmmConstants;
 use nemm_train::data::preprocess::{self, PrepareConfig, Sequence};
@@ -60,7 +60,7 @@ fn dataset_from(model: &Model, freqs: &[f64], alphas: &[f64], seconds: f64) -> D
                 Estimator::new(model, EstimatorConfig::new(alpha as f32)).expect("estimator");
             let force_n: Vec<f64> = velocity
                 .iter()
-                .map(|&v| est.step(v as f32).force_n as f64)
+                .map(|&v| est.step(Sample::new(v as f32)).unwrap().force_n as f64)
                 .collect();
             runs.push(Run {
                 velocity_m_s: Some(velocity),

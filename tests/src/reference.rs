@@ -68,8 +68,10 @@ pub fn run(trace: &[u8], blob: &[u8], options: &Options) -> Reference {
     // The bench-controller part, as the firmware builds it.
     let mut bench = options.observer_on().then(|| {
         let mut observer = Box::new(FwObserver::empty());
+        // The firmware's level tables live in a `static`: here, a leaked box.
+        let levels = Box::leak(Box::new(nemm_firmware::FwLevels::empty()));
         observer
-            .load(&model, &tables, blob)
+            .load(levels, &model, &tables, blob)
             .expect("the observer builds on the host");
         let lc_cal = load_cell_calibration();
         let mut device = ReplayLoadCell::new(trace, lc_cal);

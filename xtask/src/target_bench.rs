@@ -156,8 +156,8 @@ pub struct ObserverFigures {
     /// Instructions per observer step.
     pub instructions_per_step: u64,
     /// Instructions per step of the estimator with a level per sample on the same level
-    /// tables (`Estimator::step_on_levels`, the `level-step` line; `None` without level
-    /// tables).
+    /// tables (attached with `Estimator::attach_levels`, the `level-step` line; `None`
+    /// without level tables).
     pub level_step_instructions: Option<u64>,
 }
 

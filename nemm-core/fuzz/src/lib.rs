@@ -3,7 +3,7 @@
 use nemm_core::CRC;
 use nemm_core::{
     decode, encode_to_vec, read_header, DecodeError, Estimator, EstimatorConfig, Header, Model,
-    ModelKind, DEFAULT_PARAM_CAPACITY, FORMAT_VERSION,
+    ModelKind, Sample, DEFAULT_PARAM_CAPACITY, FORMAT_VERSION,
 };
 
 /// Capacities the targets decode into: tiny (most scalers over capacity), exactly the
@@ -32,12 +32,15 @@ pub fn check_model<const P: usize>(model: &Model<P>) {
                 _ => (k as f32 * 0.3).sin(),
             };
             // Every other step with a position (finite, huge or NaN), the others without.
-            let e = match k % 4 {
-                0 => est.step(v),
-                1 => est.step_with_position(v, (k as f32 * 0.1).cos()),
-                2 => est.step_with_position(v, if k % 8 == 2 { f32::NAN } else { -1e30 }),
-                _ => est.step_with_position(v, 0.0),
+            let sample = match k % 4 {
+                0 => Sample::new(v),
+                1 => Sample::new(v).with_position((k as f32 * 0.1).cos()),
+                2 => Sample::new(v).with_position(if k % 8 == 2 { f32::NAN } else { -1e30 }),
+                _ => Sample::new(v).with_position(0.0),
             };
+            let e = est
+                .step(sample)
+                .expect("a sample without alpha is never refused");
             assert!(e.force_n.is_finite());
         }
     }

@@ -140,10 +140,12 @@ pub enum EstimatorError {
     Compile,
     /// Table mode: a table could not be built or misses the error bound.
     Table(TableError),
-    /// Table mode: [`Estimator::step_with_alpha`] was given a changed `alpha` (a per-sample
-    /// condition level needs [`EvalMode::Exact`]).
+    /// Table mode without level tables: [`Estimator::step`] was given a sample with a
+    /// changed `alpha` (a per-sample condition level needs [`EvalMode::Exact`] or level
+    /// tables, [`Estimator::attach_levels`]).
     AlphaPerSampleInTableMode,
-    /// [`Estimator::step_on_levels`]: the level tables cannot drive this estimator.
+    /// The level tables cannot drive this estimator: empty, or of another model
+    /// ([`Estimator::attach_levels`], [`crate::AlphaObserver::load_on_levels`]).
     Levels(LevelsError),
 }
 

@@ -127,7 +127,7 @@ impl fmt::Display for LevelsError {
 impl std::error::Error for LevelsError {}
 
 /// The tables of up to `L` oil-loss levels with `T` segments each (module docs), for an
-/// [`Estimator`] with a level per sample ([`Estimator::step_on_levels`]) and a table-cost
+/// [`Estimator`] with a level per sample ([`Estimator::attach_levels`]) and a table-cost
 /// [`crate::AlphaObserver`] ([`crate::AlphaObserver::load_on_levels`]). Load once (e.g.
 /// into a `static` made with [`LevelTables::empty`]) and pass by reference.
 #[derive(Debug, Clone)]
@@ -458,39 +458,125 @@ fn read_level_table<const T: usize>(
         .ok_or(LevelsError::Table)
 }
 
-/// A condition level per sample at table cost, and bank members on stored levels.
-impl<const P: usize, const T0: usize> Estimator<P, T0> {
-    /// One sample at that sample's level `alpha`, the coefficients read from `levels`
-    /// (loaded from this estimator's model; module docs): the table-cost counterpart of
-    /// [`Estimator::step_with_alpha`]. The estimator may be in either [`EvalMode`] (its own
-    /// scalers or tables are not read here); its state carries over between levels, and
-    /// when `alpha` changes the coefficients at the state are re-read at the new level
-    /// before the step, as [`Estimator::step_with_alpha`] does. `alpha` outside the stored
-    /// levels or the trained range is flagged [`Flags::ALPHA_EXTRAPOLATED`]. Refused, with
-    /// nothing changed: an `alpha` outside `[0, 1]` ([`EstimatorError::AlphaOutOfRange`]),
-    /// levels that are empty or of another model ([`LevelsError::Mismatch`]).
-    ///
-    /// The estimator's own level ([`Estimator::alpha`]) is not changed; a firmware that
-    /// switches between this and [`Estimator::step`] calls [`Estimator::reset`] first.
-    pub fn step_on_levels<const T: usize, const L: usize>(
-        &mut self,
-        levels: &LevelTables<T, L>,
+/// Level tables as an estimator holds them ([`Estimator::attach_levels`],
+/// [`crate::AlphaObserver::load_on_levels`]): the whole step on them, with their number of
+/// levels `L` and of segments `T` behind one dynamic call, so that neither is part of the
+/// estimator's type. Implemented by [`LevelTables`] alone. Not `Debug` (a supertrait would
+/// put the tables' formatting, and its panic paths, into every vtable): the trait object has
+/// its own `Debug` below.
+pub(crate) trait LevelStep<const P: usize, const T0: usize>: Sync {
+    /// One sample at level `alpha` on these tables ([`Estimator::step`] with an `alpha`).
+    fn step(
+        &self,
+        est: &mut Estimator<'_, P, T0>,
         velocity_m_s: f32,
         alpha: f32,
+        position_m: Option<f32>,
+    ) -> Result<Estimate, EstimatorError>;
+
+    /// One step of a bank ([`crate::AlphaObserver`]): member `k` on stored level `k` (its
+    /// own tables), a member these tables do not hold on the exact scalers
+    /// ([`Estimator::step_bank`]); one dynamic call for the whole bank.
+    fn step_bank(
+        &self,
+        est: &mut Estimator<'_, P, T0>,
+        bank: (&mut [BankMember], &mut [f32]),
+        velocity_m_s: f32,
+        position_m: Option<f32>,
+    ) -> bool;
+
+    /// The stored levels \[-\], ascending.
+    fn alphas(&self) -> &[f32];
+
+    /// Whether these tables can drive `est` ([`Estimator::accepts_levels`]).
+    fn accepted_by(&self, est: &Estimator<'_, P, T0>) -> bool;
+}
+
+impl<const P: usize, const T0: usize> fmt::Debug for dyn LevelStep<P, T0> + '_ {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LevelTables")
+            .field("alphas", &self.alphas())
+            .finish_non_exhaustive()
+    }
+}
+
+impl<const P: usize, const T0: usize, const T: usize, const L: usize> LevelStep<P, T0>
+    for LevelTables<T, L>
+{
+    fn step(
+        &self,
+        est: &mut Estimator<'_, P, T0>,
+        velocity_m_s: f32,
+        alpha: f32,
+        position_m: Option<f32>,
     ) -> Result<Estimate, EstimatorError> {
-        self.levels_step(levels, velocity_m_s, alpha, None)
+        est.levels_step(self, velocity_m_s, alpha, position_m)
     }
 
-    /// [`Estimator::step_on_levels`] with the stroke position of
-    /// [`Estimator::step_with_position`].
-    pub fn step_on_levels_with_position<const T: usize, const L: usize>(
-        &mut self,
-        levels: &LevelTables<T, L>,
+    fn step_bank(
+        &self,
+        est: &mut Estimator<'_, P, T0>,
+        (members, forces): (&mut [BankMember], &mut [f32]),
         velocity_m_s: f32,
-        alpha: f32,
-        position_m: f32,
-    ) -> Result<Estimate, EstimatorError> {
-        self.levels_step(levels, velocity_m_s, alpha, Some(position_m))
+        position_m: Option<f32>,
+    ) -> bool {
+        let mut velocity_fault = false;
+        for (k, (m, f)) in members.iter_mut().zip(forces.iter_mut()).enumerate() {
+            let e = match est.step_member_on_level(self, k, m, velocity_m_s, position_m) {
+                Some(e) => e,
+                None => est.step_member(m, velocity_m_s, position_m),
+            };
+            velocity_fault |= e.flags.0 & Flags::INPUT_HELD != 0;
+            *f = e.force_n;
+        }
+        velocity_fault
+    }
+
+    fn alphas(&self) -> &[f32] {
+        LevelTables::alphas(self)
+    }
+
+    fn accepted_by(&self, est: &Estimator<'_, P, T0>) -> bool {
+        est.accepts_levels(self)
+    }
+}
+
+/// Level tables attached to an estimator: a condition level per sample at table cost, and
+/// bank members on stored levels.
+impl<'l, const P: usize, const T0: usize> Estimator<'l, P, T0> {
+    /// Attaches level tables (loaded from this estimator's model; module docs): from now on
+    /// a sample with an `alpha` ([`crate::Sample::with_alpha`]) is stepped on them at table
+    /// cost, in either [`EvalMode`] (the estimator's own scalers or tables are not read for
+    /// it), as [`Estimator::step`] describes. A sample without an `alpha` steps at the
+    /// estimator's own level as before. The tables are held by reference until
+    /// [`Estimator::detach_levels`] or the next load; attaching re-reads the coefficients
+    /// at the state on the next step with an `alpha`.
+    ///
+    /// Refused with [`LevelsError::Mismatch`], nothing changed: tables that are empty or of
+    /// a model with other neural coefficients, `b_pr_ini` or `T_pr`, and an estimator
+    /// without an EMM model.
+    pub fn attach_levels<const T: usize, const L: usize>(
+        &mut self,
+        levels: &'l LevelTables<T, L>,
+    ) -> Result<(), EstimatorError> {
+        if !self.accepts_levels(levels) {
+            return Err(EstimatorError::Levels(LevelsError::Mismatch));
+        }
+        self.levels = Some(levels);
+        self.levels_alpha = None;
+        Ok(())
+    }
+
+    /// Detaches the level tables: a sample's `alpha` is then applied to the estimator's own
+    /// scalers ([`Estimator::step`]).
+    pub fn detach_levels(&mut self) {
+        self.levels = None;
+        self.levels_alpha = None;
+    }
+
+    /// Whether level tables are attached.
+    pub fn has_levels(&self) -> bool {
+        self.levels.is_some()
     }
 
     /// Whether `levels` can drive this estimator: loaded, with the same neural
@@ -510,6 +596,9 @@ impl<const P: usize, const T0: usize> Estimator<P, T0> {
             && levels.fingerprint == (rt.b_pr_ini.to_bits(), rt.inv_t_pr.to_bits())
     }
 
+    /// The step of a sample with level `alpha` on `levels`: refused, with nothing changed,
+    /// for an `alpha` outside `[0, 1]` and for tables that cannot drive this estimator.
+    #[inline]
     fn levels_step<const T: usize, const L: usize>(
         &mut self,
         levels: &LevelTables<T, L>,
@@ -557,7 +646,8 @@ impl<const P: usize, const T0: usize> Estimator<P, T0> {
     /// table-mode estimator at that level): the member's state is restored, stepped and
     /// written back; the shared scalers are not touched. `None` if `levels` cannot drive
     /// this estimator or `k` is not a level.
-    pub(crate) fn step_member_on_level<const T: usize, const L: usize>(
+    #[inline]
+    fn step_member_on_level<const T: usize, const L: usize>(
         &mut self,
         levels: &LevelTables<T, L>,
         k: usize,
@@ -663,7 +753,7 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
     /// evaluations per coefficient).
     pub fn check<const P: usize, const T0: usize>(
         &self,
-        exact: &mut Estimator<P, T0>,
+        exact: &mut Estimator<'_, P, T0>,
         sub: usize,
         per_segment: usize,
     ) -> Result<BlendCheck, EstimatorError> {
@@ -738,7 +828,7 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
     /// the tables and in the exact scalers (`exact` is left at level `i + 1`).
     fn check_order<const P: usize, const T0: usize>(
         &self,
-        exact: &mut Estimator<P, T0>,
+        exact: &mut Estimator<'_, P, T0>,
         i: usize,
         states: &(impl Iterator<Item = State> + Clone),
         out: &mut BlendCheck,

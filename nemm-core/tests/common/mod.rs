@@ -47,7 +47,7 @@ pub fn with_big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static)
 pub fn boxed<const T: usize>(
     m: &Model<P>,
     cfg: EstimatorConfig,
-) -> Result<Box<Estimator<P, T>>, EstimatorError> {
+) -> Result<Box<Estimator<'static, P, T>>, EstimatorError> {
     let mut e = Box::new(Estimator::<P, T>::empty());
     e.load(m, cfg)?;
     Ok(e)

@@ -58,9 +58,10 @@
 //!   before): after `warmup=` steps (the observer's own 10 ms warm-up is 100), `steps=`
 //!   steps timed each on its own through `observer_step` (not inlined: the cycle model's
 //!   trace stops there), one line:
-//!   `observer kind=nemm integrator=rk4 levels=7 model_steps=7 bytes=<size_of> steps=N
+//!   `observer kind=nemm integrator=rk4 levels=7 model_steps=7 bytes=<B> steps=N
 //!   ticks=<t> baseline_ticks=<b> instructions_per_step=<n> held=<h>` (`held`: measured steps
-//!   that did not update the estimate; `integrator`: the model's).
+//!   that did not update the estimate; `integrator`: the model's; `bytes`: the observer's
+//!   RAM, its level tables (in their own static) included when it steps on them).
 #![no_std]
 #![no_main]
 
@@ -70,8 +71,8 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::{entry, exception};
 use nemm_core::{
-    decode_into, AlphaEstimate, Body, EstimatorConfig, EvalMode, Integrator, Model, ModelKind,
-    ObserverFlags, StoredTables,
+    decode_into, AlphaEstimate, Body, Estimate, EstimatorConfig, EvalMode, Flags, Integrator,
+    Model, ModelKind, ObserverFlags, Sample, StoredTables,
 };
 use nemm_firmware::board::{self, Console};
 use nemm_firmware::report::{self, Line};
@@ -218,6 +219,8 @@ static ESTIMATOR: StaticSlot<Option<nemm_firmware::FwEstimator>> = StaticSlot::n
 static VELOCITIES: StaticSlot<[f32; MAX_STEPS + MAX_WARMUP_STEPS]> = StaticSlot::new();
 static COMPILED: StaticSlot<Option<CompiledScaler<PARAM_CAPACITY>>> = StaticSlot::new();
 static OBSERVER: StaticSlot<FwObserver> = StaticSlot::new();
+/// The level tables of the observer (read from the blob).
+static LEVELS: StaticSlot<nemm_firmware::FwLevels> = StaticSlot::new();
 static FORCES: StaticSlot<[f32; MAX_STEPS + MAX_WARMUP_STEPS]> = StaticSlot::new();
 
 /// Iterations of the calibration loops.
@@ -480,15 +483,8 @@ fn main() -> ! {
             (measured, fm.get(..measured.len()).unwrap_or(fm)),
             int_loop_ticks,
         );
-        if let Some(est) = est_slot.as_mut() {
-            level_step_run(
-                &mut console,
-                est,
-                observer.levels(),
-                &run,
-                measured,
-                int_loop_ticks,
-            );
+        if let (Some(est), Some(levels)) = (est_slot.as_mut(), observer.levels()) {
+            level_step_run(&mut console, est, levels, &run, measured, int_loop_ticks);
         }
         board::exit(report::EXIT_DONE)
     }
@@ -510,7 +506,7 @@ fn main() -> ! {
         // `build_ticks`: estimator construction (in table mode: building and checking the
         // tables), in SysTick ticks.
         for &v in warmup {
-            black_box(est.step(black_box(v)));
+            black_box(step_v(est, black_box(v)));
         }
         let run = RunName {
             kind: model.kind().name(),
@@ -686,7 +682,7 @@ fn parity_run(
     console.write(l.finish());
     let mut fnv = 0x811c_9dc5u32;
     for (k, &v) in measured.iter().enumerate() {
-        let e = est.step(v);
+        let e = step_v(est, v);
         let bits = e.force_n.to_bits();
         for byte in bits.to_le_bytes() {
             fnv = (fnv ^ u32::from(byte)).wrapping_mul(0x0100_0193);
@@ -724,7 +720,7 @@ fn time_steps(est: &mut nemm_firmware::FwEstimator, measured: &[f32]) -> (u32, u
     let mut ticks = 0u32;
     for &v in measured {
         let start = SYST::get_current();
-        black_box(est.step(black_box(v)));
+        black_box(step_v(est, black_box(v)));
         ticks = ticks.wrapping_add(ticks_since(start));
     }
     (ticks, baseline)
@@ -751,7 +747,7 @@ fn model_forces(
         }
     };
     for (f, &v) in forces.iter_mut().zip(velocities) {
-        *f = est.step(v).force_n;
+        *f = step_v(est, v).force_n;
     }
     forces
 }
@@ -760,7 +756,7 @@ fn model_forces(
 /// (`xtask/src/cycles.rs`) stops at.
 #[inline(never)]
 fn observer_step(observer: &mut FwObserver, velocity_m_s: f32, force_n: f32) -> AlphaEstimate {
-    observer.step(velocity_m_s, force_n)
+    observer.step(Sample::new(velocity_m_s).with_force(force_n))
 }
 
 /// The `observer=1` run: the firmware's observer built in its static from `model`, stepped
@@ -776,10 +772,13 @@ fn observer_run(
 ) -> &'static FwObserver {
     // The empty observer as one constant, copied into the static (no stack temporary).
     const EMPTY: FwObserver = FwObserver::empty();
-    let Some(observer) = OBSERVER.init_with(|| EMPTY) else {
+    const NO_LEVELS: nemm_firmware::FwLevels = nemm_firmware::FwLevels::empty();
+    let (Some(observer), Some(levels)) =
+        (OBSERVER.init_with(|| EMPTY), LEVELS.init_with(|| NO_LEVELS))
+    else {
         board::exit(report::EXIT_USAGE)
     };
-    if let Err(e) = observer.load(model, tables, blob) {
+    if let Err(e) = observer.load(levels, model, tables, blob) {
         let mut l = Line::new();
         report::observer_error(&mut l, &e);
         fail(console, &mut l, report::EXIT_BAD_WEIGHTS)
@@ -819,7 +818,7 @@ fn observer_run(
             },
         )
         .kv("model_steps", observer.evaluations_per_step() as u32)
-        .kv("bytes", core::mem::size_of::<FwObserver>() as u32)
+        .kv("bytes", observer_bytes(observer))
         .kv("hidden", run.hidden)
         .kv("layers", run.layers)
         .kv("steps", n as u32)
@@ -834,28 +833,44 @@ fn observer_run(
     observer
 }
 
+/// The observer's RAM \[B\]: `FwObserver` and, when it steps on them, its level tables.
+fn observer_bytes(observer: &FwObserver) -> u32 {
+    let levels = if observer.on_levels() {
+        core::mem::size_of::<nemm_firmware::FwLevels>()
+    } else {
+        0
+    };
+    (core::mem::size_of::<FwObserver>() + levels) as u32
+}
+
+/// One estimator step of the velocity alone (`Estimator::step` of a sample without a
+/// level, which is never refused: the other arm is never taken).
+#[inline(always)]
+fn step_v(est: &mut nemm_firmware::FwEstimator, velocity_m_s: f32) -> Estimate {
+    est.step(Sample::new(velocity_m_s)).unwrap_or(Estimate {
+        force_n: f32::NAN,
+        flags: Flags(Flags::NO_MODEL),
+    })
+}
+
 /// One estimator step at a level per sample on the level tables, not inlined: what the
 /// `level-step` line times.
 #[inline(never)]
-fn level_step(
-    est: &mut nemm_firmware::FwEstimator,
-    levels: &nemm_firmware::FwLevels,
-    velocity_m_s: f32,
-    alpha: f32,
-) -> f32 {
-    est.step_on_levels(levels, velocity_m_s, alpha)
+fn level_step(est: &mut nemm_firmware::FwEstimator, velocity_m_s: f32, alpha: f32) -> f32 {
+    est.step(Sample::new(velocity_m_s).with_alpha(alpha))
         .map_or(f32::NAN, |e| e.force_n)
 }
 
-/// The estimator with a level per sample on the observer's level tables
-/// (`Estimator::step_on_levels`), the level changing every sample (a sweep over the
+/// The estimator with a level per sample on the observer's level tables (attached to it:
+/// `Estimator::attach_levels`, then `Estimator::step` with an `alpha`), the level changing
+/// every sample (a sweep over the
 /// levels' range, the worst case: the coefficients at the state are re-read each step):
 /// each `measured` step timed on its own; the `level-step` line. Nothing without level
 /// tables.
 fn level_step_run(
     console: &mut Console,
     est: &mut nemm_firmware::FwEstimator,
-    levels: &nemm_firmware::FwLevels,
+    levels: &'static nemm_firmware::FwLevels,
     run: &RunName,
     measured: &[f32],
     int_loop_ticks: u32,
@@ -863,6 +878,9 @@ fn level_step_run(
     let (Some(&lo), Some(&hi)) = (levels.alphas().first(), levels.alphas().last()) else {
         return;
     };
+    if est.attach_levels(levels).is_err() {
+        return;
+    }
     est.reset();
     let alpha = |k: usize| lo + (hi - lo) * (k % 97) as f32 / 96.0;
     let mut baseline = 0u32;
@@ -875,7 +893,7 @@ fn level_step_run(
     for (k, &v) in measured.iter().enumerate() {
         let a = alpha(k);
         let start = SYST::get_current();
-        let f = black_box(level_step(est, levels, black_box(v), black_box(a)));
+        let f = black_box(level_step(est, black_box(v), black_box(a)));
         ticks = ticks.wrapping_add(ticks_since(start));
         if !f.is_finite() {
             failed += 1;

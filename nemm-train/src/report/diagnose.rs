@@ -23,7 +23,7 @@ use crate::data::preprocess::causal_velocity;
 use crate::report::plot::{palette, Figure, LegendPosition, LinePanel, Series};
 use crate::train::identify::{identify, AlphaGrid, Run, Search, DEFAULT_STEP};
 use anyhow::{bail, Context, Result};
-use nemm_core::{AlphaObserver, Model, ObserverConfig, ObserverFlags};
+use nemm_core::{AlphaObserver, Model, ObserverConfig, ObserverFlags, Sample};
 use nemm_dataset as dataset;
 use plotters::style::RGBColor;
 use serde::{Deserialize, Serialize};
@@ -136,7 +136,10 @@ pub fn observe(model: &Model, velocity: &[f32], position: &[f32], force: &[f64])
     let mut first_update = None;
     let mut last_flags = obs.estimate().flags;
     for k in 0..n {
-        let e = obs.step_with_position(velocity[k], position[k], force[k] as f32);
+        let sample = Sample::new(velocity[k])
+            .with_position(position[k])
+            .with_force(force[k] as f32);
+        let e = obs.step(sample);
         if first_update.is_none() && !e.flags.contains(ObserverFlags::HELD) {
             first_update = Some(k);
         }

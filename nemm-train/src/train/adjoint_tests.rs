@@ -5,7 +5,7 @@ use super::adjoint::{
 };
 use super::params::{convert, from_core};
 use nemm_core::testing::example_model;
-use nemm_core::{Estimator, EstimatorConfig, Integrator, Model, ModelKind};
+use nemm_core::{Estimator, EstimatorConfig, Integrator, Model, ModelKind, Sample};
 
 fn model(kind: ModelKind, h: u8, l: u8) -> Model {
     example_model(kind, h, l).expect("example model")
@@ -84,7 +84,7 @@ fn rollout_matches_core_estimator() {
                 let mut est = Estimator::new(&m, EstimatorConfig::new(0.15)).expect("estimator");
                 let mut worst = 0.0f64;
                 for (i, &ui) in u.iter().enumerate() {
-                    let e = est.step_with_position(ui, x[i]);
+                    let e = est.step(Sample::new(ui).with_position(x[i])).unwrap();
                     worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
                 }
                 let rel = worst / m.meta.force_scale_n as f64;
@@ -488,7 +488,7 @@ fn rollout_matches_core_estimator_with_lost_motion() {
             let mut est = Estimator::new(&m, EstimatorConfig::new(alpha)).expect("estimator");
             let mut worst = 0.0f64;
             for (i, &ui) in u.iter().enumerate() {
-                let e = est.step(ui);
+                let e = est.step(Sample::new(ui)).unwrap();
                 worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
             }
             let rel = worst / m.meta.force_scale_n as f64;

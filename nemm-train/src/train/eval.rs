@@ -11,7 +11,7 @@ use super::adjoint::{simulate, Grid, RolloutParams, Window};
 use super::params::from_core;
 use crate::data::preprocess::Sequence;
 use anyhow::{Context, Result};
-use nemm_core::{Estimator, EstimatorConfig, Model};
+use nemm_core::{Estimator, EstimatorConfig, Model, Sample};
 
 /// One input of [`predict`]: stroke velocity per sample, the condition level, the level per
 /// sample when it changes within the input, and the stroke position.
@@ -62,7 +62,10 @@ pub fn predict(model: &Model, inputs: &[Input<'_>], sample_dt_s: f64) -> Result<
                             est.set_alpha(*a)
                                 .map_err(|e| anyhow::anyhow!("sample {k}: {e}"))?;
                         }
-                        Ok(est.step(v).force_n as f64)
+                        let e = est
+                            .step(Sample::new(v))
+                            .map_err(|e| anyhow::anyhow!("sample {k}: {e}"))?;
+                        Ok(e.force_n as f64)
                     })
                     .collect()
             })
@@ -72,10 +75,9 @@ pub fn predict(model: &Model, inputs: &[Input<'_>], sample_dt_s: f64) -> Result<
 
 /// Runs nemm-core's estimator `est` (from its current state) over `input`, whose samples are
 /// `sample_dt_s` apart, at the model step `model_dt_s`, as the trainer does ([`Grid`]): each
-/// model step takes the input interpolated between the samples, a per-sample level through
-/// [`Estimator::step_with_alpha`], the position (interpolated likewise) through
-/// [`Estimator::step_with_position`], and the force at each sample is the model force
-/// interpolated at the sample time. Returns one force per sample and the model steps run.
+/// model step takes the input interpolated between the samples, a per-sample level and the
+/// position (interpolated likewise) in its [`Sample`] ([`Estimator::step`]), and the force
+/// at each sample is the model force interpolated at the sample time. Returns one force per sample and the model steps run.
 pub fn run_estimator(
     est: &mut Estimator,
     model_dt_s: f64,
@@ -89,16 +91,14 @@ pub fn run_estimator(
     for j in 0..steps {
         let v = grid.interpolate(input.velocity_m_s, j) as f32;
         let x = input.position_m.map(|x| grid.interpolate(x, j) as f32);
-        let e = match (input.alphas, x) {
-            (Some(a), Some(x)) => est
-                .step_with_alpha_and_position(v, grid.interpolate(a, j) as f32, x)
-                .map_err(|e| anyhow::anyhow!("model step {j}: {e}"))?,
-            (Some(a), None) => est
-                .step_with_alpha(v, grid.interpolate(a, j) as f32)
-                .map_err(|e| anyhow::anyhow!("model step {j}: {e}"))?,
-            (None, Some(x)) => est.step_with_position(v, x),
-            (None, None) => est.step(v),
+        let sample = Sample {
+            position_m: x,
+            alpha: input.alphas.map(|a| grid.interpolate(a, j) as f32),
+            ..Sample::new(v)
         };
+        let e = est
+            .step(sample)
+            .map_err(|e| anyhow::anyhow!("model step {j}: {e}"))?;
         ys.push(f64::from(e.force_n));
     }
     let forces = (0..n)

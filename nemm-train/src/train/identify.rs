@@ -337,7 +337,7 @@ pub fn has_table_search(model: &Model) -> bool {
 #[derive(Debug)]
 pub struct TableEstimators {
     config: TableConfig,
-    levels: Vec<std::sync::OnceLock<Option<Box<Estimator>>>>,
+    levels: Vec<std::sync::OnceLock<Option<Box<Estimator<'static>>>>>,
 }
 
 impl TableEstimators {
@@ -353,7 +353,7 @@ impl TableEstimators {
 
     /// A copy at rest of level `k`'s estimator (alpha `alpha`), built on first use; `None`
     /// if it cannot be built.
-    fn at(&self, model: &Model, k: usize, alpha: f64) -> Option<Box<Estimator>> {
+    fn at(&self, model: &Model, k: usize, alpha: f64) -> Option<Box<Estimator<'static>>> {
         let cell = self.levels.get(k)?;
         let est = cell.get_or_init(|| {
             let cfg = EstimatorConfig {

@@ -61,7 +61,8 @@ fn tables_markdown(command: &str, commit: &str, errors: &str, check: &str, level
          the worst relative error of each blended coefficient against the exact scalers (7 \
          levels inside each interval, 16 states per segment); points where neighbouring levels \
          are out of the declared order (tables / exact model); the force of a level per sample \
-         (`step_on_levels`) against the exact `step_with_alpha`, over the Table 1 programme at \
+         (on the attached level tables) against the exact per-sample `alpha` (no tables), \
+         over the Table 1 programme at \
          the middle of every interval and with alpha ramping over the trained range within \
          each stroke, as a fraction of the force scale.\n\n{}\n",
         errors.trim_end(),

@@ -82,8 +82,8 @@ fn target_markdown(provenance: &str, f: &TargetFigures) -> String {
              after 200 warm-up steps, the model's own force at the trace's alpha as the \
              measurement; levels from `blob`: each level steps on its stored tables, `exact`: \
              on the scalers. Beside it, one step of the estimator with a level per sample on \
-             the same level tables (`Estimator::step_on_levels`, the level changing every \
-             sample). Its rows in the fit table below are `{}`.\n\n\
+             the same level tables (attached: `Estimator::attach_levels`, then `Estimator::step` \
+             with the sample's `alpha`, the level changing every sample). Its rows in the fit table below are `{}`.\n\n\
              | model | integrator | levels | levels from | model steps per sample | instructions per step \
              | over one exact step | RAM (B) | estimator with a level per sample (instructions) \
              |\n|---|---|---:|---|---:|---:|---:|---:|---:|",

@@ -17,7 +17,7 @@ use crate::train::pipeline::{
 };
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
-use nemm_core::ModelKind;
+use nemm_core::{ModelKind, Sample};
 use nemm_dataset as dataset;
 use nemm_dataset::atomic_file::write_atomic_bytes;
 use std::path::Path;
@@ -93,7 +93,7 @@ pub struct TablesArgs {
     /// Also store this many levels evenly over the model's trained range of alpha (2 to
     /// 16, together with --tables-alpha at most 16): the level tables of
     /// `nemm_core::LevelTables`, with which a firmware runs a level per sample
-    /// (`Estimator::step_on_levels`) and the alpha observer (`AlphaObserver::load_on_levels`)
+    /// (`Estimator::attach_levels`) and the alpha observer (`AlphaObserver::load_on_levels`)
     /// at table cost. 7 levels take about 43 KB of the blob at 128 segments (docs/core.md,
     /// "Every level at table cost").
     #[arg(long)]
@@ -664,10 +664,10 @@ fn table_vs_exact(
             }
         };
         for (&v, &x) in u.iter().zip(&x) {
-            let (a, b) = (
-                exact.step_with_position(v, x),
-                table.step_with_position(v, x),
-            );
+            let sample = Sample::new(v).with_position(x);
+            let (Ok(a), Ok(b)) = (exact.step(sample), table.step(sample)) else {
+                anyhow::bail!("a sample without alpha was refused");
+            };
             worst = worst.max(f64::from((a.force_n - b.force_n).abs()));
             outside += usize::from(b.flags.contains(Flags::OUT_OF_TABLE_DOMAIN));
         }
