@@ -12,9 +12,9 @@
 //! rest at every level of a 0.01 grid over the trained range and then of a 0.001 grid around
 //! the best (table mode, 256 segments, bound 1e-4), scoring the samples after the observer's
 //! warm-up; the observer runs with its defaults.
-use nemm_core::{LowPass, Sample};
 use nemm_core::{
-    decode, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model, ObserverConfig, TableConfig,
+    decode, AlphaObserver, Estimator, EstimatorConfig, EvalMode, LowPass, Model, ObserverConfig,
+    Sample, TableConfig,
 };
 
 fn fail(msg: String) -> ! {

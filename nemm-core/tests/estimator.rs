@@ -5,12 +5,10 @@
 mod common;
 
 use common::{boxed, example, reference_run, stroke, table1_grid, KINDS, P};
-use nemm_core::Sample;
-use nemm_core::DEFAULT_TABLE_SEGMENTS;
 use nemm_core::{
-    Body, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags, Integrator, Model, ModelKind,
+    Body, Estimate, Estimator, EstimatorConfig, EstimatorError, Flags, Integrator, Model,
+    ModelError, ModelKind, Sample, DEFAULT_TABLE_SEGMENTS, STABILITY_MARGIN,
 };
-use nemm_core::{ModelError, STABILITY_MARGIN};
 use nemm_kernels::emm::{Coefficients, State};
 use nemm_kernels::integrator::{self, StepSize};
 use proptest::prelude::*;

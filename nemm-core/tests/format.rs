@@ -6,12 +6,10 @@
 mod common;
 
 use common::{blob_of, craft_blob, fix_crc, ModelSpec, KINDS, P};
-use nemm_core::{ModelError, Sample};
 use nemm_core::{
     decode, encode, read_header, Body, DecodeError, EncodeError, Estimator, EstimatorConfig, Model,
-    ModelKind, FORMAT_VERSION,
+    ModelError, ModelKind, Sample, CRC_LEN, FORMAT_VERSION, MAX_HEADER_LEN,
 };
-use nemm_core::{CRC_LEN, MAX_HEADER_LEN};
 use nemm_kernels::mlp::ShapeError;
 use proptest::prelude::*;
 

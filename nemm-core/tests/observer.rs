@@ -6,10 +6,9 @@
 mod common;
 
 use common::with_big_stack;
-use nemm_core::{LowPass, Sample};
 use nemm_core::{
-    decode, AlphaEstimate, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model,
-    ObserverConfig, ObserverError, ObserverFlags, Priors, TableConfig,
+    decode, AlphaEstimate, AlphaObserver, Estimator, EstimatorConfig, EvalMode, LowPass, Model,
+    ObserverConfig, ObserverError, ObserverFlags, Priors, Sample, TableConfig,
 };
 use proptest::prelude::*;
 use std::f32::consts::TAU;

@@ -6,12 +6,10 @@
 mod common;
 
 use common::{blob_of, blob_with_tables, fix_crc};
-use nemm_core::{CRC_LEN, Sample};
-use nemm_core::MAX_TABLE_LEVELS;
 use nemm_core::{
     decode, decode_into, decode_with_tables, read_header, DecodeError, EncodeError, Estimator,
-    EstimatorConfig, EvalMode, Model, ModelKind, StoredUnused, TableConfig, TableOrigin,
-    FORMAT_VERSION,
+    EstimatorConfig, EvalMode, Model, ModelKind, Sample, StoredUnused, TableConfig, TableOrigin,
+    CRC_LEN, FORMAT_VERSION, MAX_TABLE_LEVELS,
 };
 
 const P: usize = 1400;

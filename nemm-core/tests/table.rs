@@ -5,9 +5,8 @@
 mod common;
 
 use common::{boxed, example, stroke, table1_grid, P};
-use nemm_core::Sample;
 use nemm_core::{
-    Body, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, Model, ModelKind,
+    Body, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags, Model, ModelKind, Sample,
     TableConfig, TableError,
 };
 use nemm_kernels::mlp::CompiledScaler;
