@@ -11,17 +11,16 @@ use super::{
     check_job_outputs, lambda_ph_scale_note, with_resolved_data, AlphaPriors, Config, CONFIG_FILE,
 };
 use anyhow::{bail, Context, Result};
-use collect::{
-    clear_exit, collect_sweep, job_state, write_exit, JobState, SweepManifest, TRAIN_LOG,
-};
+use collect::collect_sweep;
+use record::{clear_exit, job_state, write_exit, JobState, SweepManifest, TRAIN_LOG};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 mod collect;
+mod record;
 pub mod slurm;
 
-pub use collect::collect;
 pub use slurm::SlurmArgs;
 
 /// Default `nemm sweep` list of physics weights: Table 5's 0, 0.005, 0.015, 0.025 times 1000.
@@ -575,4 +574,24 @@ fn exit_text(status: &std::process::ExitStatus) -> String {
         }
     }
     status.code().map_or("unknown".into(), |c| c.to_string())
+}
+
+/// `nemm sweep --collect REPORT`: the table of whatever finished in the sweep in `report`,
+/// and the jobs that failed or have no result.
+pub fn collect(report: &Path) -> Result<()> {
+    let manifest = SweepManifest::load(report)?;
+    let c = collect_sweep(&manifest, report)?;
+    c.print(report, manifest.grid);
+    let queued: Vec<&str> = slurm::queued_jobs(&manifest)
+        .into_iter()
+        .map(|i| manifest.jobs[i].id.as_str())
+        .filter(|id| c.missing.iter().any(|m| m == id))
+        .collect();
+    if !queued.is_empty() {
+        eprintln!(
+            "[sweep] of those, still queued or running in Slurm: {}",
+            queued.join(", ")
+        );
+    }
+    Ok(())
 }

@@ -9,13 +9,13 @@
 //! missing and `--resume` submits again. Each task also records its start time (`start`,
 //! seconds since the epoch) for the engine's overhead.
 
-use super::collect::{
-    clear_exit, collect_sweep, job_state, JobState, SweepManifest, EXIT_FILE, TRAIN_LOG,
+use super::collect::collect_sweep;
+use super::record::{
+    clear_exit, job_state, JobState, SlurmSettings, Submission, SweepManifest, EXIT_FILE, TRAIN_LOG,
 };
 use super::{job_dir, train_args, SweepGrid, SweepOptions};
 use anyhow::{bail, Context, Result};
 use nemm_dataset::atomic_file::write_atomic_bytes;
-use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The array's throttle (`%N`: tasks at a time) unless `--jobs` says otherwise.
@@ -48,21 +48,6 @@ pub struct SlurmArgs {
     /// [default: 2].
     #[arg(long)]
     pub cpus_per_task: Option<usize>,
-}
-
-/// The job script's settings, as the sweep's job list records them.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SlurmSettings {
-    /// `--partition`, if any.
-    pub partition: Option<String>,
-    /// `--account`, if any.
-    pub account: Option<String>,
-    /// The time limit of each task (Slurm's format).
-    pub time: String,
-    /// CPUs per task.
-    pub cpus_per_task: usize,
-    /// Tasks at a time (the array's `%N`).
-    pub throttle: usize,
 }
 
 impl SlurmSettings {
@@ -139,17 +124,6 @@ pub fn parse_time(s: &str) -> Result<u64> {
         return Err(bad());
     }
     Ok(secs)
-}
-
-/// One `sbatch` of the sweep.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Submission {
-    /// Slurm's job id of the array.
-    pub job_id: String,
-    /// The `--array` specification submitted (task indices and `%N`).
-    pub array: String,
-    /// When `sbatch` returned, in seconds since the epoch.
-    pub submitted_unix_s: f64,
 }
 
 /// The `--array` specification of task `indices` (ascending), runs of consecutive ones as
