@@ -95,7 +95,10 @@ mod export;
 mod levels;
 mod runtime;
 
-pub use config::*;
+pub use config::{
+    Diagnostics, Estimate, EstimatorConfig, EstimatorError, EvalMode, Flags, TableOrigin,
+    DEFAULT_VELOCITY_LIMIT_FACTOR, DIVERGENCE_FACTOR,
+};
 use runtime::*;
 
 #[cfg(feature = "std")]

@@ -73,9 +73,11 @@ mod layout;
 mod params;
 mod pass;
 
-pub use compiled::*;
-pub use layers::*;
-pub use params::*;
+pub use compiled::{compiled_len, CompiledScaler, COLUMN_BLOCK};
+pub use layers::{bounded, centre, layer_norm_leaky, leaky_relu, norm_act, sigmoid};
+#[cfg(feature = "reverse")]
+pub use layers::{bounded_backward, centre_backward, norm_act_backward};
+pub use params::{LayerView, MlpParams};
 
 pub use branch::{branch_param_count, BranchView, BRANCH_CAPACITY};
 pub use branch::{AlphaBranch, BranchError, CompiledBranch, Direction, MAX_BRANCH_UNITS};

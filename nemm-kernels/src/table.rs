@@ -95,7 +95,7 @@ mod stored;
 
 pub use kinks::REFINE_POINTS_PER_SEGMENT;
 use kinks::*;
-pub use stored::*;
+pub use stored::{parse_stored, StoredHead};
 
 /// Default number of segments of a table: 256 (7 KiB per table, 28 bytes per segment).
 pub const DEFAULT_TABLE_SEGMENTS: usize = 256;

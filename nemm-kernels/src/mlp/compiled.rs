@@ -1,6 +1,8 @@
 //! The hot-path form of a scaler ([`CompiledScaler`]): compiled for one `alpha`, folded
 //! and evaluated in the exact `f32` order the firmware runs.
 
+use super::layers::{dot_acc_with, PATTERN_SEED};
+use super::params::take;
 use super::*;
 
 /// A scaler specialised for a fixed `alpha` and one state input, with the constant
