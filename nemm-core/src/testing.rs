@@ -218,15 +218,7 @@ pub fn example_model_with_branches<const P: usize>(
 }
 /// An example static force (gas offset -90 N at x_ref = 30 mm, gas spring 800 N/m, seal
 /// friction 15 N smoothed over 5 mm/s, both gas terms depending on alpha).
-pub const EXAMPLE_STATIC_FORCE: crate::StaticForce = crate::StaticForce {
-    f_gas0_n: -90.0,
-    f_gas0_per_alpha_n: 20.0,
-    k_gas_n_per_m: 800.0,
-    k_gas_per_alpha_n_per_m: -200.0,
-    x_ref_m: 0.03,
-    f_c_n: 15.0,
-    v_c_m_s: 0.005,
-};
+pub const EXAMPLE_STATIC_FORCE: crate::StaticForce = crate::StaticForce::EXAMPLE;
 
 /// Capacity of [`example_blob`].
 pub const EXAMPLE_BLOB_CAPACITY: usize = 40_000;

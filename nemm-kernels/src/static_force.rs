@@ -61,6 +61,19 @@ pub fn features<S: Scalar>(x_ref: S, v_c: S, x: S, v: S, alpha: S) -> [S; STATIC
 }
 
 impl StaticForce {
+    /// An example static force for tests, examples and fuzz seeds: gas offset -90 N at
+    /// `x_ref` = 30 mm, gas spring 800 N/m, seal friction 15 N smoothed over 5 mm/s, both gas
+    /// terms depending on alpha.
+    pub const EXAMPLE: StaticForce = StaticForce {
+        f_gas0_n: -90.0,
+        f_gas0_per_alpha_n: 20.0,
+        k_gas_n_per_m: 800.0,
+        k_gas_per_alpha_n_per_m: -200.0,
+        x_ref_m: 0.03,
+        f_c_n: 15.0,
+        v_c_m_s: 0.005,
+    };
+
     /// The trained parameters in the order of [`features`]:
     /// `[F_gas0,0, F_gas0,alpha, k_gas,0, k_gas,alpha, F_c]`.
     pub const fn params(&self) -> [f32; STATIC_PARAMS] {
@@ -133,19 +146,8 @@ impl StaticForce {
 mod tests {
     use super::*;
 
-    /// Gas offset -90 N at x_ref = 30 mm, gas spring 800 N/m, seal friction 15 N smoothed
-    /// over 5 mm/s, both gas terms depending on alpha (nemm-core's
-    /// `testing::EXAMPLE_STATIC_FORCE`).
     fn example() -> StaticForce {
-        StaticForce {
-            f_gas0_n: -90.0,
-            f_gas0_per_alpha_n: 20.0,
-            k_gas_n_per_m: 800.0,
-            k_gas_per_alpha_n_per_m: -200.0,
-            x_ref_m: 0.03,
-            f_c_n: 15.0,
-            v_c_m_s: 0.005,
-        }
+        StaticForce::EXAMPLE
     }
 
     #[test]
