@@ -562,17 +562,19 @@ const DEBUG_PROFILE_CRATES: [&str; 6] = [
 
 fn test(host_only: bool) -> Result<(), String> {
     let started = Instant::now();
+    let mut clock = StageClock::start();
     let paths = Paths::find()?;
-    let mut firmware_secs = 0.0;
     let firmware = if host_only {
         eprintln!("xtask: --host-only: no firmware build, no QEMU tests");
         None
     } else {
         // Fails here, before the long host build, if the toolchain is missing.
         let (tc, paths) = setup()?;
-        let t = Instant::now();
+        clock.lap("toolchain set-up");
         let images = firmware::build_all(&tc, &paths, &firmware::Board::ALL)?;
+        clock.lap("firmware images");
         let board_images = board::build(&tc, &paths)?;
+        clock.lap("board image");
         match tc.clippy_gap() {
             None => {
                 firmware::clippy(&tc, &paths)?;
@@ -581,14 +583,17 @@ fn test(host_only: bool) -> Result<(), String> {
             }
             Some(what) => eprintln!("xtask: firmware lint skipped: no {what}"),
         }
-        firmware_secs += t.elapsed().as_secs_f64();
+        clock.lap("firmware, board and C target lint");
         Some((tc, paths, images, board_images))
     };
     run(cargo()
         .args(["test", "--workspace", "--release", "--no-fail-fast"])
         .current_dir(&paths.root))?;
+    clock.lap("host tests (release)");
     c_interface::host_test(&paths)?;
+    clock.lap("C interface host test");
     slurm::test(&paths)?;
+    clock.lap("Slurm test");
     if let Some((tc, _, images, board_images)) = &firmware {
         // The QEMU tests, with the images; `--workspace` keeps the features (and so the
         // build) of the run above.
@@ -608,16 +613,19 @@ fn test(host_only: bool) -> Result<(), String> {
                 .env("NEMM_BOARD_ELF", &board_images.board)
                 .env("NEMM_BOARD_QEMU_ELF", &board_images.qemu)
                 .current_dir(&paths.root))?;
+            clock.lap(&format!("QEMU tests ({})", im.board.machine()));
         }
         // The C example against the firmware, on the Cortex-M4F image.
         if let Some(an386) = images.iter().find(|im| im.board == firmware::Board::An386) {
             c_interface::target_example(tc, &paths, an386)?;
+            clock.lap("C example on the target");
         }
     }
     // The firmware library's own unit tests, on the host.
     run(cargo()
         .args(["test", "--release", "-p", "nemm-firmware", "--lib"])
         .current_dir(&paths.root))?;
+    clock.lap("firmware library host tests");
     // The default (debug) profile: debug assertions and overflow checks on, nemm-core at
     // opt-level 0 (as its users' debug builds have it), the rest as the dev profile of
     // Cargo.toml sets it; the tests on the default 2 MiB test threads. The crates that do
@@ -630,11 +638,14 @@ fn test(host_only: bool) -> Result<(), String> {
         .args(["test", "--no-fail-fast"])
         .args(DEBUG_PROFILE_CRATES.iter().flat_map(|c| ["-p", c]))
         .current_dir(&paths.root))?;
+    clock.lap("debug-profile tests");
     checks::example(&paths)?;
+    clock.lap("example");
     checks::features(firmware.as_ref().map(|f| &f.0), &paths)?;
+    clock.lap("feature sets");
     checks::msrv(&paths)?;
+    clock.lap("rust-version check");
     if let Some((tc, paths, images, board_images)) = firmware {
-        let t = Instant::now();
         for im in &images {
             let steps = target_bench::run(&tc, &paths, im, Mode::Exact, 50, &Variant::ALL)?;
             for f in &steps {
@@ -677,17 +688,50 @@ fn test(host_only: bool) -> Result<(), String> {
                 firmware::memory_report(&name, &Elf::read(path)?)
             );
         }
-        firmware_secs += t.elapsed().as_secs_f64();
-        eprintln!(
-            "xtask: firmware build, lint and bench smoke test took {firmware_secs:.0} s (the \
-             QEMU tests ran inside `cargo test`)"
-        );
+        clock.lap("target benchmark smoke test and memory report");
     }
+    clock.summary();
     eprintln!(
         "xtask: all tests passed in {:.0} s",
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// The wall time of each stage of `cargo xtask test`, printed as each stage ends (so a
+/// failed run still shows where its time went) and as a table at the end.
+struct StageClock {
+    /// The stages so far: name and seconds.
+    stages: Vec<(String, f64)>,
+    /// When the running stage began.
+    since: Instant,
+}
+
+impl StageClock {
+    /// A clock whose first stage begins now.
+    fn start() -> Self {
+        Self {
+            stages: Vec::new(),
+            since: Instant::now(),
+        }
+    }
+
+    /// Ends the running stage under `name` and starts the next.
+    fn lap(&mut self, name: &str) {
+        let now = Instant::now();
+        let secs = now.duration_since(self.since).as_secs_f64();
+        eprintln!("xtask: stage '{name}' took {secs:.0} s");
+        self.stages.push((name.to_string(), secs));
+        self.since = now;
+    }
+
+    /// Prints every stage's time.
+    fn summary(&self) {
+        eprintln!("xtask: stage times:");
+        for (name, secs) in &self.stages {
+            eprintln!("xtask:   {secs:>6.0} s  {name}");
+        }
+    }
 }
 
 /// `boards`, or both if empty.

@@ -19,7 +19,7 @@ use std::process::{Command, Stdio};
 /// The firmware's target.
 pub const TARGET: &str = "thumbv7em-none-eabihf";
 /// Oldest rustc that builds the firmware (its `rust-version`).
-const MIN_RUSTC: (u32, u32) = (1, 85);
+const MIN_RUSTC: (u32, u32) = (1, 87);
 /// Debian packages of the Debian route (and the emulator).
 pub const DEBIAN_PACKAGES: &[&str] = &[
     "rustc-web",
