@@ -364,10 +364,13 @@ pub fn identify_markdown(r: &IdentifyReport) -> String {
     let levels = match r.search {
         Search::Full => format!("at every level of a grid (step {})", r.step),
         Search::CoarseToFine => format!(
-            "at the levels of a grid (step {}) that a coarse-to-fine search visits ({} levels \
-             spread over the grid, then those around each minimum within {} of the RMSE's \
-             range above the least, down to the step)",
+            "at the levels of a grid (step {}) that a coarse-to-fine search visits (for the \
+             NEMM and NEMM-Light the best level of a search on nemm-core's table-mode \
+             estimators and {} levels on each side, else {} levels spread over the grid; then \
+             those around each minimum within {} of the RMSE's range above the least, down to \
+             the step)",
             r.step,
+            crate::train::identify::TABLE_WINDOW,
             crate::train::identify::LANES - 1,
             crate::train::identify::MINIMA_MARGIN
         ),

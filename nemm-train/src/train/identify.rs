@@ -39,6 +39,11 @@
 //! the two searches on a dataset. The label's simulation is the grid level's when the label
 //! is constant and on the grid and that level is simulated, so it costs no lane of its own.
 //!
+//! [`identify_runs`] searches many runs together: their table searches in parallel, then
+//! their exact searches a round at a time, the simulations of a round packed across runs
+//! (longest runs first, [`LANES`] to a pack; a lane's force does not depend on its pack's
+//! other lanes, so every fit is the one [`identify`] gives the run alone).
+//!
 //! The grid bounds the resolution: a run is identified to the nearest grid level, and only
 //! where the model's force depends on `alpha` at that run's excitation.
 
@@ -246,37 +251,63 @@ pub fn coarse_to_fine(
 /// index evaluated with its value, `seen` included.
 pub fn refine(
     n: usize,
-    mut seen: BTreeMap<usize, f64>,
+    seen: BTreeMap<usize, f64>,
     first: Vec<usize>,
     mut eval: impl FnMut(&[usize]) -> Result<Vec<f64>>,
 ) -> Result<BTreeMap<usize, f64>> {
-    let mut round: Vec<usize> = first
-        .into_iter()
-        .filter(|&k| k < n && !seen.contains_key(&k))
-        .collect();
-    round.sort_unstable();
-    round.dedup();
-    while !round.is_empty() {
-        let values = eval(&round)?;
+    let mut rounds = Rounds::new(n, seen, first);
+    while !rounds.round.is_empty() {
+        let values = eval(&rounds.round)?;
+        rounds.feed(values)?;
+    }
+    Ok(rounds.seen)
+}
+
+/// [`refine`] one round at a time: the indices to evaluate next ([`Rounds::round`], empty
+/// when the search has ended) and everything evaluated so far.
+#[derive(Debug, Clone)]
+struct Rounds {
+    n: usize,
+    seen: BTreeMap<usize, f64>,
+    round: Vec<usize>,
+}
+
+impl Rounds {
+    /// The search from `seen` with the first round `first` (those below `n` and not in
+    /// `seen`, ascending).
+    fn new(n: usize, seen: BTreeMap<usize, f64>, first: Vec<usize>) -> Self {
+        let mut round: Vec<usize> = first
+            .into_iter()
+            .filter(|&k| k < n && !seen.contains_key(&k))
+            .collect();
+        round.sort_unstable();
+        round.dedup();
+        Self { n, seen, round }
+    }
+
+    /// Takes the values of the current round (in its order) and sets the next round: the
+    /// candidates' unevaluated neighbours, or nothing when the curve is flat or not finite.
+    fn feed(&mut self, values: Vec<f64>) -> Result<()> {
+        let round = std::mem::take(&mut self.round);
         ensure!(
             values.len() == round.len(),
             "{} values for {} levels",
             values.len(),
             round.len()
         );
-        seen.extend(round.iter().copied().zip(values));
-        let pts: Vec<(usize, f64)> = seen.iter().map(|(&k, &v)| (k, v)).collect();
+        self.seen.extend(round.iter().copied().zip(values));
+        let pts: Vec<(usize, f64)> = self.seen.iter().map(|(&k, &v)| (k, v)).collect();
         if pts.iter().any(|p| !p.1.is_finite()) {
-            break;
+            return Ok(());
         }
         let curve: Vec<f64> = pts.iter().map(|p| p.1).collect();
         if is_flat(&curve) {
-            break;
+            return Ok(());
         }
         let least = curve.iter().copied().fold(f64::INFINITY, f64::min);
         let most = curve.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let bar = least + MINIMA_MARGIN * (most - least);
-        round = Vec::new();
+        let mut next = Vec::new();
         for (j, &(k, v)) in pts.iter().enumerate() {
             let left = j.checked_sub(1).map(|j| pts[j]);
             let right = pts.get(j + 1).copied();
@@ -285,14 +316,15 @@ pub fn refine(
                 continue;
             }
             let lo = left.map_or(0, |l| l.0 + 1);
-            let hi = right.map_or(n, |r| r.0);
+            let hi = right.map_or(self.n, |r| r.0);
             let open: Vec<usize> = (lo..hi).filter(|&i| i != k).collect();
-            round.extend(spread(&open, LANES));
+            next.extend(spread(&open, LANES));
         }
-        round.sort_unstable();
-        round.dedup();
+        next.sort_unstable();
+        next.dedup();
+        self.round = next;
+        Ok(())
     }
-    Ok(seen)
 }
 
 /// Simulates `run` (samples `sample_dt_s` apart, from rest) with `model` at the levels of
@@ -434,117 +466,277 @@ pub fn identify_with_tables(
     search: Search,
     tables: Option<&TableEstimators>,
 ) -> Result<Fit> {
-    let input = |alpha: f64| Input {
-        velocity_m_s: run.velocity_m_s,
-        alpha: alpha as f32,
-        alphas: None,
-        position_m: run.position_m,
-    };
-    let n = run.velocity_m_s.len().min(run.force_n.len());
-    let samples = n.saturating_sub(warmup);
-    let rmse = |y: &[f64]| {
-        let se: f64 = y[warmup.min(n)..n]
-            .iter()
-            .zip(&run.force_n[warmup.min(n)..n])
-            .map(|(&y, &f)| (y - f) * (y - f))
-            .sum();
-        super::eval::rmse_of(se, samples)
-    };
-    let label_level = match run.label_alphas {
-        None => grid
-            .alphas
-            .iter()
-            .position(|&a| a as f32 == run.label as f32),
-        Some(_) => None,
-    };
-    let mut rmse_label_n = f64::NAN;
-    let mut label_pending = label_level.is_none();
-    let eval = |ks: &[usize]| -> Result<Vec<f64>> {
-        let mut inputs: Vec<Input<'_>> = ks.iter().map(|&k| input(grid.alphas[k])).collect();
-        let with_label = std::mem::take(&mut label_pending);
-        if with_label {
-            inputs.push(Input {
-                alphas: run.label_alphas,
-                ..input(run.label)
-            });
-        }
-        let mut errors: Vec<f64> = predict(model, &inputs, sample_dt_s)?
-            .iter()
-            .map(|y| rmse(y))
-            .collect();
-        if with_label {
-            rmse_label_n = errors.pop().unwrap_or(f64::NAN);
-        }
-        Ok(errors)
-    };
-    let extra: Vec<usize> = label_level.into_iter().collect();
-    let levels_n = grid.alphas.len();
-    let table_best = match (search, tables) {
-        (Search::CoarseToFine, Some(t)) if has_table_search(model) => {
-            table_search(model, run, grid, sample_dt_s, t, &rmse)
-        }
-        _ => None,
-    };
-    let seen = match (search, table_best) {
-        (Search::CoarseToFine, Some(k)) => {
-            let mut eval = eval;
-            let window: Vec<usize> = (k.saturating_sub(TABLE_WINDOW)..=k + TABLE_WINDOW)
-                .chain(extra.iter().copied())
-                .collect();
-            let seen = refine(levels_n, BTreeMap::new(), window, &mut eval)?;
-            let curve: Vec<f64> = seen.values().copied().collect();
-            if curve.iter().any(|e| !e.is_finite()) || is_flat(&curve) {
-                refine(
-                    levels_n,
-                    seen,
-                    coarse_indices(levels_n, LANES - 1),
-                    &mut eval,
-                )?
-            } else {
-                seen
-            }
-        }
-        (Search::CoarseToFine, None) => coarse_to_fine(levels_n, &extra, eval)?,
-        (Search::Full, _) => {
-            let all: Vec<usize> = (0..grid.alphas.len()).collect();
-            let mut eval = eval;
-            let values = eval(&all)?;
-            all.into_iter().zip(values).collect()
-        }
-    };
-    if let Some(k) = label_level {
-        rmse_label_n = seen.get(&k).copied().unwrap_or(f64::NAN);
-    }
-    let levels: Vec<f64> = seen.keys().map(|&k| grid.alphas[k]).collect();
-    let curve_n: Vec<f64> = seen.into_values().collect();
-    let (k, rmse_best_n) = curve_n.iter().enumerate().fold(
-        (0, f64::INFINITY),
-        |(bk, be), (k, &e)| {
-            if e < be {
-                (k, e)
-            } else {
-                (bk, be)
-            }
-        },
-    );
-    let finite = curve_n.iter().all(|e| e.is_finite());
-    let best = (finite && !curve_n.is_empty() && !is_flat(&curve_n)).then(|| levels[k]);
-    Ok(Fit {
-        label: run.label,
-        best,
-        rmse_best_n: if curve_n.is_empty() {
-            f64::NAN
-        } else {
-            rmse_best_n
-        },
-        rmse_label_n,
-        levels,
-        curve_n,
-        samples,
-    })
+    let mut fits = identify_packed(
+        model,
+        std::slice::from_ref(run),
+        grid,
+        sample_dt_s,
+        warmup,
+        search,
+        tables,
+    )?;
+    fits.pop().ok_or_else(|| anyhow!("no fit"))
 }
 
-/// [`identify`] of every run of `runs`, the runs in parallel; returns the fits in order.
+/// What a run's exact simulations are scored on: its samples and warm-up, and the grid
+/// level of its label when the label is constant and on the grid.
+struct Scoring {
+    /// Samples of the run (velocity and force).
+    n: usize,
+    /// Samples scored (after the warm-up).
+    samples: usize,
+    warmup: usize,
+    label_level: Option<usize>,
+}
+
+impl Scoring {
+    fn new(run: &Run<'_>, grid: &AlphaGrid, warmup: usize) -> Self {
+        let n = run.velocity_m_s.len().min(run.force_n.len());
+        Self {
+            n,
+            samples: n.saturating_sub(warmup),
+            warmup,
+            label_level: match run.label_alphas {
+                None => grid
+                    .alphas
+                    .iter()
+                    .position(|&a| a as f32 == run.label as f32),
+                Some(_) => None,
+            },
+        }
+    }
+
+    /// The force RMSE of the simulated force `y` after the warm-up.
+    fn rmse(&self, run: &Run<'_>, y: &[f64]) -> f64 {
+        let (w, n) = (self.warmup.min(self.n), self.n);
+        let se: f64 = y[w..n]
+            .iter()
+            .zip(&run.force_n[w..n])
+            .map(|(&y, &f)| (y - f) * (y - f))
+            .sum();
+        super::eval::rmse_of(se, self.samples)
+    }
+}
+
+/// The exact search of one run, one round at a time: [`Rounds`] from its first round
+/// (the table window, the coarse round or every level), the coarse round after a table
+/// window whose curve is flat or not finite, and the label's simulation with the first
+/// round.
+struct ExactSearch {
+    rounds: Rounds,
+    /// The coarse round follows if the curve is flat or not finite once `rounds` ends.
+    coarse_after: bool,
+    /// The label's own simulation joins the next round.
+    label_pending: bool,
+    rmse_label_n: f64,
+}
+
+impl ExactSearch {
+    fn new(search: Search, table_best: Option<usize>, levels: usize, scoring: &Scoring) -> Self {
+        let extra: Vec<usize> = scoring.label_level.into_iter().collect();
+        let (first, coarse_after) = match (search, table_best) {
+            (Search::CoarseToFine, Some(k)) => (
+                (k.saturating_sub(TABLE_WINDOW)..=k + TABLE_WINDOW)
+                    .chain(extra)
+                    .collect(),
+                true,
+            ),
+            (Search::CoarseToFine, None) => {
+                let mut first = coarse_indices(levels, LANES - 1);
+                first.extend(extra);
+                (first, false)
+            }
+            (Search::Full, _) => ((0..levels).collect(), false),
+        };
+        Self {
+            rounds: Rounds::new(levels, BTreeMap::new(), first),
+            coarse_after,
+            label_pending: scoring.label_level.is_none(),
+            rmse_label_n: f64::NAN,
+        }
+    }
+
+    /// The grid levels to simulate next and whether the label's simulation follows them
+    /// (nothing when the search has ended).
+    fn request(&self) -> (&[usize], bool) {
+        let round = self.rounds.round.as_slice();
+        (round, self.label_pending && !round.is_empty())
+    }
+
+    /// Takes the RMSE of the simulations of [`Self::request`], in its order.
+    fn feed(&mut self, mut values: Vec<f64>) -> Result<()> {
+        if self.request().1 {
+            self.rmse_label_n = values.pop().unwrap_or(f64::NAN);
+            self.label_pending = false;
+        }
+        self.rounds.feed(values)?;
+        if self.rounds.round.is_empty() && self.coarse_after {
+            self.coarse_after = false;
+            let curve: Vec<f64> = self.rounds.seen.values().copied().collect();
+            if curve.iter().any(|e| !e.is_finite()) || is_flat(&curve) {
+                let n = self.rounds.n;
+                let seen = std::mem::take(&mut self.rounds.seen);
+                self.rounds = Rounds::new(n, seen, coarse_indices(n, LANES - 1));
+            }
+        }
+        Ok(())
+    }
+
+    /// The fit from every level simulated.
+    fn fit(self, run: &Run<'_>, grid: &AlphaGrid, scoring: &Scoring) -> Fit {
+        let seen = self.rounds.seen;
+        let rmse_label_n = match scoring.label_level {
+            Some(k) => seen.get(&k).copied().unwrap_or(f64::NAN),
+            None => self.rmse_label_n,
+        };
+        let levels: Vec<f64> = seen.keys().map(|&k| grid.alphas[k]).collect();
+        let curve_n: Vec<f64> = seen.into_values().collect();
+        let (k, rmse_best_n) =
+            curve_n
+                .iter()
+                .enumerate()
+                .fold(
+                    (0, f64::INFINITY),
+                    |(bk, be), (k, &e)| {
+                        if e < be {
+                            (k, e)
+                        } else {
+                            (bk, be)
+                        }
+                    },
+                );
+        let finite = curve_n.iter().all(|e| e.is_finite());
+        let best = (finite && !curve_n.is_empty() && !is_flat(&curve_n)).then(|| levels[k]);
+        Fit {
+            label: run.label,
+            best,
+            rmse_best_n: if curve_n.is_empty() {
+                f64::NAN
+            } else {
+                rmse_best_n
+            },
+            rmse_label_n,
+            levels,
+            curve_n,
+            samples: scoring.samples,
+        }
+    }
+}
+
+/// One exact simulation of a round: run `run` at grid level `level`, or at its label.
+#[derive(Debug, Clone, Copy)]
+struct Lane {
+    run: usize,
+    level: Option<usize>,
+}
+
+/// [`identify_with_tables`] of every run of `runs`: the table searches run in parallel,
+/// then the exact searches advance together, a round of every run at a time, and the
+/// simulations of a round are packed across runs: ordered by run length, longest first,
+/// [`LANES`] to a pack (a pack runs as long as its longest run; a shorter run's force is
+/// not affected by the padding), the packs in parallel. A lane's force does not depend on
+/// the other lanes of its pack, so the fits are those of each run searched alone.
+fn identify_packed(
+    model: &Model,
+    runs: &[Run<'_>],
+    grid: &AlphaGrid,
+    sample_dt_s: f64,
+    warmup: usize,
+    search: Search,
+    tables: Option<&TableEstimators>,
+) -> Result<Vec<Fit>> {
+    use rayon::prelude::*;
+    let scorings: Vec<Scoring> = runs.iter().map(|r| Scoring::new(r, grid, warmup)).collect();
+    let table_best: Vec<Option<usize>> = match (search, tables) {
+        (Search::CoarseToFine, Some(t)) if has_table_search(model) => runs
+            .par_iter()
+            .zip(&scorings)
+            .map(|(run, sc)| {
+                table_search(model, run, grid, sample_dt_s, t, &|y: &[f64]| {
+                    sc.rmse(run, y)
+                })
+            })
+            .collect(),
+        _ => vec![None; runs.len()],
+    };
+    let mut searches: Vec<ExactSearch> = table_best
+        .iter()
+        .zip(&scorings)
+        .map(|(&k, sc)| ExactSearch::new(search, k, grid.alphas.len(), sc))
+        .collect();
+    loop {
+        let mut lanes: Vec<Lane> = Vec::new();
+        for (i, s) in searches.iter().enumerate() {
+            let (levels, label) = s.request();
+            lanes.extend(levels.iter().map(|&k| Lane {
+                run: i,
+                level: Some(k),
+            }));
+            if label {
+                lanes.push(Lane {
+                    run: i,
+                    level: None,
+                });
+            }
+        }
+        if lanes.is_empty() {
+            break;
+        }
+        // Longest runs first; a run's lanes stay in request order.
+        lanes.sort_by_key(|l| std::cmp::Reverse(runs[l.run].velocity_m_s.len()));
+        let input = |l: &Lane| {
+            let run = &runs[l.run];
+            let base = Input {
+                velocity_m_s: run.velocity_m_s,
+                alpha: 0.0,
+                alphas: None,
+                position_m: run.position_m,
+            };
+            match l.level {
+                Some(k) => Input {
+                    alpha: grid.alphas[k] as f32,
+                    ..base
+                },
+                None => Input {
+                    alpha: run.label as f32,
+                    alphas: run.label_alphas,
+                    ..base
+                },
+            }
+        };
+        let errors: Vec<Vec<f64>> = lanes
+            .par_chunks(LANES)
+            .map(|pack| -> Result<Vec<f64>> {
+                let inputs: Vec<Input<'_>> = pack.iter().map(input).collect();
+                Ok(predict(model, &inputs, sample_dt_s)?
+                    .iter()
+                    .zip(pack)
+                    .map(|(y, l)| scorings[l.run].rmse(&runs[l.run], y))
+                    .collect())
+            })
+            .collect::<Result<_>>()?;
+        let mut values: Vec<Vec<f64>> = vec![Vec::new(); runs.len()];
+        for (l, e) in lanes.iter().zip(errors.into_iter().flatten()) {
+            values[l.run].push(e);
+        }
+        // The sort is stable: each run's values are in its request order (the levels,
+        // then the label).
+        for (s, v) in searches.iter_mut().zip(values) {
+            if !s.request().0.is_empty() {
+                s.feed(v)?;
+            }
+        }
+    }
+    Ok(searches
+        .into_iter()
+        .zip(runs)
+        .zip(&scorings)
+        .map(|((s, run), sc)| s.fit(run, grid, sc))
+        .collect())
+}
+
+/// [`identify`] of every run of `runs` ([`identify_packed`]: the exact simulations of the
+/// runs share packs); returns the fits in order.
 pub fn identify_runs(
     model: &Model,
     runs: &[Run<'_>],
@@ -553,11 +745,16 @@ pub fn identify_runs(
     warmup: usize,
     search: Search,
 ) -> Result<Vec<Fit>> {
-    use rayon::prelude::*;
     let tables = TableEstimators::new(grid, TableConfig::default());
-    runs.par_iter()
-        .map(|r| identify_with_tables(model, r, grid, sample_dt_s, warmup, search, Some(&tables)))
-        .collect()
+    identify_packed(
+        model,
+        runs,
+        grid,
+        sample_dt_s,
+        warmup,
+        search,
+        Some(&tables),
+    )
 }
 
 #[cfg(test)]
@@ -694,6 +891,59 @@ mod tests {
         }
         assert!(is_flat(&[2.0, 2.0 * (1.0 - 0.9 * FLAT_TOLERANCE)]));
         assert!(!is_flat(&[2.0, 2.0 * (1.0 - 1.1 * FLAT_TOLERANCE)]));
+    }
+
+    #[test]
+    fn runs_packed_together_get_the_fits_of_each_run_alone() {
+        // Runs of three lengths at several levels, labelled on the grid, off it and per
+        // sample: identify_runs packs their simulations across runs (a pack as long as its
+        // longest run), identify simulates each alone; the fits are the same to the bit.
+        let (v, x) = sine();
+        let grid = AlphaGrid::new(0.01, 0.3).expect("grid");
+        // A level column that steps within most runs.
+        let column: Vec<f32> = (0..v.len())
+            .map(|k| if k < 1500 { 0.1 } else { 0.2 })
+            .collect();
+        for kind in [ModelKind::Nemm, ModelKind::Sem] {
+            let m = model(kind);
+            let forces: Vec<Vec<f64>> = [0.0f32, 0.07, 0.2, 0.3]
+                .iter()
+                .map(|&a| force_at(&m, &v, &x, a))
+                .collect();
+            let mut runs = Vec::new();
+            for (j, f) in forces.iter().enumerate() {
+                for (len, label, alphas) in [
+                    (4000, 0.15, None),
+                    (2500, 0.123, None),
+                    (1700, 0.12, Some(&column)),
+                ] {
+                    let len = len - 100 * j;
+                    runs.push(Run {
+                        velocity_m_s: &v[..len],
+                        position_m: Some(&x[..len]),
+                        force_n: &f[..len],
+                        label,
+                        label_alphas: alphas.map(|a| &a[..len]),
+                    });
+                }
+            }
+            for search in [Search::CoarseToFine, Search::Full] {
+                let together = identify_runs(&m, &runs, &grid, 1e-4, 100, search).expect("fits");
+                for (run, fit) in runs.iter().zip(&together) {
+                    let alone = identify(&m, run, &grid, 1e-4, 100, search).expect("fit");
+                    let what = format!("{} {search:?}, {} samples", kind.name(), fit.samples);
+                    assert_eq!(fit.best, alone.best, "{what}");
+                    assert_eq!(fit.levels, alone.levels, "{what}");
+                    let bits = |f: &Fit| {
+                        let mut b: Vec<u64> = f.curve_n.iter().map(|e| e.to_bits()).collect();
+                        b.extend([f.rmse_best_n.to_bits(), f.rmse_label_n.to_bits()]);
+                        b
+                    };
+                    assert_eq!(bits(fit), bits(&alone), "{what}");
+                    assert!(fit.rmse_label_n.is_finite(), "{what}");
+                }
+            }
+        }
     }
 
     /// [`coarse_to_fine`] over `curve`: the evaluated indices and the rounds taken.
