@@ -31,6 +31,15 @@ fn recorded_training_seconds(blob: &Path) -> Option<f64> {
     report["variants"]["nemm"]["train_seconds"].as_f64()
 }
 
+/// The load averages over 1, 5 and 15 minutes (`/proc/loadavg`), or `-` where unknown: the
+/// timings depend on what else runs.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(","))
+        .unwrap_or_else(|| "-".into())
+}
+
 /// Level simulations of a report's single model.
 fn simulated(r: &IdentifyReport) -> usize {
     r.variants
@@ -102,10 +111,11 @@ fn main() {
     let share = |s: f64| training_seconds.map_or("-".into(), |t| format!("{:.1}", 100.0 * s / t));
     println!(
         "identify-time model={source} data={} threads={} runs={} step={step} \
-         grid_levels={grid} training_seconds={training}",
+         grid_levels={grid} training_seconds={training} load_average={}",
         data.display(),
         rayon::current_num_threads(),
         runs.len(),
+        load_average(),
     );
     for (search, r, s) in [
         (Search::Full, &full, full_s),
