@@ -229,7 +229,7 @@ fn is_blob(path: &Path) -> bool {
 /// `path` given as `option` (e.g. `--out`) can be written as a file: it is not a folder, its
 /// parent folder exists, and a probe file can be created there (created with `create_new`
 /// and removed at once).
-pub fn check_output_file(option: &str, path: &Path) -> Result<()> {
+pub(crate) fn check_output_file(option: &str, path: &Path) -> Result<()> {
     if path.is_dir() {
         bail!(
             "{option} {}: is a folder; give a file path, e.g. {}",
@@ -256,7 +256,7 @@ pub fn check_output_file(option: &str, path: &Path) -> Result<()> {
 /// `path` given as `option` (e.g. `--report`) can be used as an output folder: it is a
 /// writable folder, or it does not exist and its nearest existing ancestor is a writable
 /// folder (the job creates it).
-pub fn check_output_dir(option: &str, path: &Path) -> Result<()> {
+pub(crate) fn check_output_dir(option: &str, path: &Path) -> Result<()> {
     let mut existing = path.to_path_buf();
     loop {
         if existing.exists() {

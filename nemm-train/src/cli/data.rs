@@ -100,22 +100,22 @@ pub struct ImportArgs {
     /// smallest and largest value over all files (printed); the condition then defaults to
     /// that unit and range.
     #[arg(long, value_parser = ColumnSpec::parse_flag)]
-    pub alpha_column: Option<ColumnSpec>,
+    pub(crate) alpha_column: Option<ColumnSpec>,
     /// Raw values of the level column at alpha 0 and at alpha 1, e.g. `0,5` for a 0-5 V
     /// control voltage (`5,0` when the level falls as the value rises).
     #[arg(long, value_name = "AT0,AT1", value_parser = parse_pair, allow_hyphen_values = true)]
-    pub alpha_range: Option<[f64; 2]>,
+    pub(crate) alpha_range: Option<[f64; 2]>,
     /// Name of the condition alpha stands for, e.g. `control voltage` (written to the
     /// manifest's `[condition]`; default: oil loss, without a level column range).
     #[arg(long)]
-    pub condition_name: Option<String>,
+    pub(crate) condition_name: Option<String>,
     /// Unit of the condition value, e.g. `V` (default: the level column's unit).
     #[arg(long)]
-    pub condition_unit: Option<String>,
+    pub(crate) condition_unit: Option<String>,
     /// Condition values at alpha 0 and at alpha 1, e.g. `0,5` (default: the level column's
     /// range).
     #[arg(long, value_name = "AT0,AT1", value_parser = parse_pair, allow_hyphen_values = true)]
-    pub condition_range: Option<[f64; 2]>,
+    pub(crate) condition_range: Option<[f64; 2]>,
     /// Prior of a coefficient in alpha, `COEF=DIRECTION` with COEF one of b_fl, b_pr, k_pr and
     /// DIRECTION one of decreasing, increasing, none; comma-separated or repeated, e.g.
     /// `b_fl=increasing,b_pr=increasing,k_pr=none`. A named condition needs all three.
@@ -123,13 +123,13 @@ pub struct ImportArgs {
     pub prior: Vec<(Coefficient, Direction)>,
     /// Negate the displacement (stroke positive in compression).
     #[arg(long)]
-    pub invert_displacement: bool,
+    pub(crate) invert_displacement: bool,
     /// Negate the force (compression force positive).
     #[arg(long)]
-    pub invert_force: bool,
+    pub(crate) invert_force: bool,
     /// Subtract the mid-range of each run's displacement (arbitrary zero).
     #[arg(long)]
-    pub center_displacement: bool,
+    pub(crate) center_displacement: bool,
     /// Field delimiter (one character or `tab`).
     #[arg(long)]
     pub delimiter: Option<String>,
@@ -150,7 +150,7 @@ pub struct ImportArgs {
     pub min_pause_s: Option<f64>,
     /// Segments shorter than this are dropped and listed (s).
     #[arg(long)]
-    pub min_run_s: Option<f64>,
+    pub(crate) min_run_s: Option<f64>,
 }
 
 /// A coefficient with a prior in alpha (`--prior`).
@@ -250,7 +250,7 @@ fn apply_condition_flags(a: &ImportArgs, spec: &mut ImportSpec) -> Result<()> {
 }
 
 /// The import spec from `--spec` and the flags.
-pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
+pub(crate) fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
     let mut spec = match &a.spec {
         Some(p) => import::read_spec(p)?,
         None => {
@@ -360,7 +360,7 @@ pub fn import_spec(a: &ImportArgs) -> Result<ImportSpec> {
 }
 
 /// The report of `nemm data import`.
-pub fn import_report(out: &Path, imported: &import::Imported) -> String {
+pub(crate) fn import_report(out: &Path, imported: &import::Imported) -> String {
     let ds = &imported.dataset;
     let mut s = String::new();
     let _ = writeln!(
@@ -442,7 +442,7 @@ pub fn import_report(out: &Path, imported: &import::Imported) -> String {
 }
 
 /// The map from alpha to the condition value: `alpha 0 = 0 V, alpha 1 = 5 V`.
-pub fn condition_map(c: &dataset::ConditionSpec) -> String {
+pub(crate) fn condition_map(c: &dataset::ConditionSpec) -> String {
     let u = if c.unit == "-" {
         String::new()
     } else {
@@ -527,7 +527,7 @@ pub fn run(cmd: DataCmd) -> Result<()> {
 }
 
 /// Loads a dataset, showing progress on a terminal.
-pub fn load_with_progress(dir: &Path) -> Result<Dataset> {
+pub(crate) fn load_with_progress(dir: &Path) -> Result<Dataset> {
     let tty = std::io::stderr().is_terminal();
     let start = Instant::now();
     let ds = dataset::load_with_progress(dir, |p| {
@@ -748,7 +748,7 @@ fn check(dir: &Path, cfg: &SignalConfig) -> Result<()> {
 }
 
 /// The report of `nemm data prepare`.
-pub fn prepare_report(ds: &Dataset, p: &preprocess::Prepared) -> String {
+pub(crate) fn prepare_report(ds: &Dataset, p: &preprocess::Prepared) -> String {
     let sum = p.summary(&ds.name);
     let mut s = String::new();
     let _ = writeln!(s, "{}", header_line(ds));

@@ -25,20 +25,20 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The diagnosis's file in the `--report` folder.
-pub const DIAGNOSE_JSON: &str = "diagnose.json";
+pub(crate) const DIAGNOSE_JSON: &str = "diagnose.json";
 
 /// The accuracy tables ([`accuracy_markdown`]) in the `--report` folder.
-pub const ACCURACY_MD: &str = "accuracy.md";
+pub(crate) const ACCURACY_MD: &str = "accuracy.md";
 
 /// The accuracy figures ([`AccuracyReport`]) in the `--report` folder.
-pub const ACCURACY_JSON: &str = "accuracy.json";
+pub(crate) const ACCURACY_JSON: &str = "accuracy.json";
 
 /// The level step ([`LevelStep`]) in the `--report` folder, with `level-step.md` and
 /// `level-step.png`.
-pub const LEVEL_STEP_JSON: &str = "level-step.json";
+pub(crate) const LEVEL_STEP_JSON: &str = "level-step.json";
 
 /// The longest level-step record `--step-repeat` may make (samples): 1000 s at 10 kHz.
-pub const MAX_STEP_SAMPLES: usize = 10_000_000;
+pub(crate) const MAX_STEP_SAMPLES: usize = 10_000_000;
 
 /// What `nemm diagnose` is asked.
 #[derive(Debug, Clone)]

@@ -116,7 +116,7 @@ pub struct DataConfig {
         value_name = "BOOL",
         help = "Train on runs whose force assists the motion (an inverted force or \
                 displacement sign) instead of refusing them [default: refuse]")]
-    pub accept_implausible: Option<bool>,
+    pub(crate) accept_implausible: Option<bool>,
 }
 
 /// Where a resolved data option came from.
@@ -151,7 +151,7 @@ pub struct ResolvedData {
     /// `(option, value, source)` in print order.
     pub choices: Vec<(&'static str, String, OptionSource)>,
     /// The dataset's options file, if one was read.
-    pub options_file: Option<PathBuf>,
+    pub(crate) options_file: Option<PathBuf>,
 }
 
 impl ResolvedData {
@@ -266,7 +266,7 @@ impl DataConfig {
 
     /// Reads a dataset's [`DATA_OPTIONS_FILE`] (`None` if it has none). Its keys are those of
     /// `[data]` without `dir`.
-    pub fn load_options_file(dataset_dir: &Path) -> Result<Option<DataConfig>> {
+    pub(crate) fn load_options_file(dataset_dir: &Path) -> Result<Option<DataConfig>> {
         let path = dataset_dir.join(DATA_OPTIONS_FILE);
         let text = match std::fs::read_to_string(&path) {
             Ok(t) => t,
@@ -286,7 +286,7 @@ impl DataConfig {
 
     /// Writes these options (without `dir`) as the dataset's [`DATA_OPTIONS_FILE`]; returns
     /// its path.
-    pub fn save_options_file(&self, dataset_dir: &Path) -> Result<PathBuf> {
+    pub(crate) fn save_options_file(&self, dataset_dir: &Path) -> Result<PathBuf> {
         let path = dataset_dir.join(DATA_OPTIONS_FILE);
         let mut c = self.clone();
         c.dir = PathBuf::new();
@@ -305,7 +305,7 @@ impl DataConfig {
 /// (Table 2) if it is an interior level, else the interior level nearest the middle of the
 /// range (the lower one on a tie), so that the test is an interpolation in alpha as in the
 /// paper; with fewer than three levels, the last [`DEFAULT_TEST_TAIL`] of every run.
-pub fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
+pub(crate) fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
     let interior: Vec<f64> = match levels {
         [_, inner @ .., _] => inner.to_vec(),
         _ => Vec::new(),
@@ -355,7 +355,7 @@ pub fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
 /// Resolves the data options `given` (command line over `--config`) over the dataset's
 /// options file `file` over the choices from the dataset `manifest`, recording where each
 /// came from.
-pub fn resolve_with(
+pub(crate) fn resolve_with(
     given: &DataConfig,
     file: Option<&DataConfig>,
     manifest: &Manifest,

@@ -29,15 +29,15 @@ use std::f64::consts::PI;
 
 /// Fewest intervals between zero crossings that make a run periodic without manifest
 /// metadata.
-pub const MIN_INTERVALS: usize = 2;
+pub(crate) const MIN_INTERVALS: usize = 2;
 /// Largest relative deviation of a period from the median period of a periodic run.
-pub const PERIOD_TOLERANCE: f64 = 0.05;
+pub(crate) const PERIOD_TOLERANCE: f64 = 0.05;
 /// Velocity bins per direction of [`low_acceleration_points`].
-pub const VELOCITY_BINS: usize = 12;
+pub(crate) const VELOCITY_BINS: usize = 12;
 /// Fewest low-acceleration samples that make a velocity bin a support point.
-pub const MIN_BIN_SAMPLES: usize = 5;
+pub(crate) const MIN_BIN_SAMPLES: usize = 5;
 /// Quantile of `|a|` that is the run's reference acceleration.
-pub const REFERENCE_QUANTILE: f64 = 0.99;
+pub(crate) const REFERENCE_QUANTILE: f64 = 0.99;
 
 /// Where a run's period comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

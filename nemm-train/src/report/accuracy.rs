@@ -16,15 +16,15 @@ use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 
 /// Time from a run's first sample from which the observer's estimate is judged \[s\].
-pub const FROM_S: f64 = 2.0;
+pub(crate) const FROM_S: f64 = 2.0;
 
 /// Marker of a run the observer does not call excited, in the resolution table.
-pub const NOT_EXCITED: &str = "†";
+pub(crate) const NOT_EXCITED: &str = "†";
 
 /// `accuracy.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct AccuracyReport {
+pub(crate) struct AccuracyReport {
     /// [`FROM_S`].
     pub from_s: f64,
     /// [`AGREEMENT`].
@@ -42,7 +42,7 @@ pub struct AccuracyReport {
 /// The observer's error on one run (see the module documentation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RunError {
+pub(crate) struct RunError {
     /// Run file, relative to the manifest.
     pub file: String,
     /// Length of the run \[s\].
@@ -50,7 +50,7 @@ pub struct RunError {
     /// The observer's excited flag after the last sample.
     pub excited: bool,
     /// Its excited flag at [`FROM_S`] (after the last sample for a shorter run).
-    pub excited_at_from: bool,
+    pub(crate) excited_at_from: bool,
     /// The offline best fit (`None`: the model does not tell the levels apart on the run).
     pub alpha_offline: Option<f64>,
     /// The estimate at [`FROM_S`] (the final one for a shorter run).
@@ -75,7 +75,7 @@ fn round4(x: f64) -> f64 {
 }
 
 /// The observer's error on the run `d` whose estimates are `trace`.
-pub fn run_error(d: &RunDiagnosis, trace: &Trace) -> RunError {
+pub(crate) fn run_error(d: &RunDiagnosis, trace: &Trace) -> RunError {
     let n = trace.alpha.len();
     let from = (FROM_S / trace.dt_s).round() as usize;
     let short = from >= n;
@@ -115,7 +115,7 @@ fn yes_no(b: bool) -> &'static str {
 }
 
 /// The table of the observer's error, one row per run.
-pub fn error_table(runs: &[RunError]) -> String {
+pub(crate) fn error_table(runs: &[RunError]) -> String {
     let mut s = format!(
         "| run | length [s] | excited (end) | excited at {FROM_S} s | offline | online at \
          {FROM_S} s | worst \\|online - offline\\| from {FROM_S} s | within {AGREEMENT} |\n\
@@ -145,7 +145,7 @@ pub fn error_table(runs: &[RunError]) -> String {
 
 /// The summary line: "N of M excited runs within 0.02 of the offline fit from 2 s on", with
 /// how many runs were shorter, had no offline fit or were not excited.
-pub fn error_summary(runs: &[RunError]) -> String {
+pub(crate) fn error_summary(runs: &[RunError]) -> String {
     let excited: Vec<&RunError> = runs.iter().filter(|r| r.excited).collect();
     let within = excited.iter().filter(|r| r.within()).count();
     let mut notes = vec![format!("{} runs", runs.len())];
@@ -171,7 +171,7 @@ pub fn error_summary(runs: &[RunError]) -> String {
 /// The detail line: how many excited runs are within [`AGREEMENT`] at [`FROM_S`] (at the end
 /// of a shorter run), and how many of those the observer calls excited at [`FROM_S`] as well
 /// as at the end stay within from [`FROM_S`] on.
-pub fn error_detail(runs: &[RunError]) -> String {
+pub(crate) fn error_detail(runs: &[RunError]) -> String {
     let excited: Vec<&RunError> = runs.iter().filter(|r| r.excited).collect();
     let at_from = excited
         .iter()
@@ -287,7 +287,7 @@ pub struct Resolution {
     pub rows: Vec<ConditionRow>,
     /// Runs left out: without an amplitude or a peak velocity in the manifest, or a second
     /// run of the same condition and level.
-    pub left_out: Vec<String>,
+    pub(crate) left_out: Vec<String>,
 }
 
 /// Two levels or conditions closer than this are the same.
@@ -349,7 +349,7 @@ pub fn resolution(runs: &[(&RunDiagnosis, &RunEntry)]) -> Resolution {
 }
 
 /// A level as a percentage (`0.15` -> `15 %`).
-pub fn percent(level: f64) -> String {
+pub(crate) fn percent(level: f64) -> String {
     format!("{} %", (level * 1000.0).round() / 10.0)
 }
 
@@ -367,7 +367,7 @@ impl Resolution {
     }
 
     /// The count lines of the ordering checks, for the offline fits and the final estimates.
-    pub fn count_lines(&self) -> Vec<String> {
+    pub(crate) fn count_lines(&self) -> Vec<String> {
         if self.levels.len() < 2 || self.rows.is_empty() {
             return vec![format!(
                 "No ordering check: {} labelled level(s), {} condition(s).",
@@ -432,7 +432,7 @@ fn order_cell(o: Order, r: &Resolution) -> String {
 /// The resolution table: one row per condition, the offline fits and the final estimates at
 /// every level (a non-excited run's estimate marked [`NOT_EXCITED`]), the orders, then the
 /// count lines.
-pub fn resolution_markdown(r: &Resolution) -> String {
+pub(crate) fn resolution_markdown(r: &Resolution) -> String {
     let names: Vec<String> = r.levels.iter().map(|&l| percent(l)).collect();
     let mut s = String::from("| amplitude [mm] | peak velocity [m/s] |");
     for n in &names {
@@ -485,7 +485,7 @@ pub fn resolution_markdown(r: &Resolution) -> String {
 }
 
 /// `accuracy.md`: both parts, each table with its caption and count lines.
-pub fn accuracy_markdown(report: &AccuracyReport) -> String {
+pub(crate) fn accuracy_markdown(report: &AccuracyReport) -> String {
     format!(
         "**The observer's own error.** Per run: the estimate at {FROM_S} s and the largest \
          distance of the estimate from the run's offline best fit from {FROM_S} s to the end \

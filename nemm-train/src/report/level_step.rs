@@ -29,13 +29,13 @@ use nemm_dataset::Run;
 use serde::{Deserialize, Serialize};
 
 /// A period is full when it reaches this fraction of the run's half-range on both sides.
-pub const FULL_PERIOD: f64 = 0.95;
+pub(crate) const FULL_PERIOD: f64 = 0.95;
 
 /// Largest relative difference of the two runs' periods.
-pub const SAME_PERIOD: f64 = 0.01;
+pub(crate) const SAME_PERIOD: f64 = 0.01;
 
 /// Largest relative difference of the two runs' half-ranges.
-pub const SAME_AMPLITUDE: f64 = 0.05;
+pub(crate) const SAME_AMPLITUDE: f64 = 0.05;
 
 /// The steady part of a run: samples `start..end`, `periods` full periods.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -50,7 +50,7 @@ pub struct SteadyPart {
 }
 
 /// The [`SteadyPart`] of a displacement record; an error when it has no full period.
-pub fn steady_part(displacement_m: &[f64]) -> Result<SteadyPart> {
+pub(crate) fn steady_part(displacement_m: &[f64]) -> Result<SteadyPart> {
     let c = centred_record(displacement_m);
     let rising: Vec<usize> = c
         .crossings
@@ -227,7 +227,7 @@ fn estimate_at(trace: &Trace, k: usize) -> StepEstimate {
 
 /// The first sample from `from` on within `tol` of `target`, and the first from which every
 /// sample to the end is (`None` when the last is not).
-pub fn reach_and_settle(
+pub(crate) fn reach_and_settle(
     alpha: &[f32],
     target: f64,
     tol: f64,
@@ -307,7 +307,7 @@ fn estimate_text(e: &StepEstimate) -> String {
 }
 
 /// `level-step.md`: what the record is and how the estimate followed the step.
-pub fn level_step_markdown(s: &LevelStep) -> String {
+pub(crate) fn level_step_markdown(s: &LevelStep) -> String {
     format!(
         "**Level step**: `{}` (label {:.2}, offline fit {}) joined at a rising crossing to \
          `{}` (label {:.2}, offline fit {}), each run's steady part ({} and {} full periods) \
@@ -335,7 +335,7 @@ pub fn level_step_markdown(s: &LevelStep) -> String {
 /// The level-step figure: the estimate with its band, each run's offline fit as a dashed
 /// line over its part of the record, vertical lines at the step and where the estimate
 /// settles within [`AGREEMENT`] of the second fit; the levels axis spans `range` and the fits.
-pub fn level_step_figure(s: &LevelStep, trace: &Trace, range: (f64, f64)) -> Figure {
+pub(crate) fn level_step_figure(s: &LevelStep, trace: &Trace, range: (f64, f64)) -> Figure {
     let fits = [s.first.alpha_offline, s.second.alpha_offline];
     let lo = fits.iter().flatten().fold(range.0, |m, &a| m.min(a)) - 0.05;
     let hi = fits.iter().flatten().fold(range.1, |m, &a| m.max(a)) + 0.05;

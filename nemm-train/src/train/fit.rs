@@ -216,7 +216,7 @@ pub fn rmse(
 /// Learning rate at `step` of `total`: a linear warm-up over the first 5 % of the steps (at
 /// least 10: Adam's first steps are sign-like and would knock a pre-trained scaler off its
 /// optimum), then cosine decay to 10 % of `lr`.
-pub fn learning_rate(lr: f64, step: usize, total: usize) -> f64 {
+pub(crate) fn learning_rate(lr: f64, step: usize, total: usize) -> f64 {
     let warm = (total / 20).max(10);
     if step < warm {
         return lr * (step + 1) as f64 / warm as f64;

@@ -53,16 +53,16 @@ pub const DEFAULT_STEP: f64 = 0.01;
 
 /// Relative RMSE variation over the simulated levels, `(max - min) / max`, at or below which
 /// a run's RMSE curve counts as flat (the model does not tell the levels apart on that run).
-pub const FLAT_TOLERANCE: f64 = 1e-3;
+pub(crate) const FLAT_TOLERANCE: f64 = 1e-3;
 
 /// Levels simulated in lock step by one pack of the batched rollout: the coarse round's
 /// size and each candidate's share of a refining round.
-pub const LANES: usize = super::adjoint::LANES;
+pub(crate) const LANES: usize = super::adjoint::LANES;
 
 /// A local minimum of the simulated RMSE curve whose value lies within this fraction of the
 /// curve's range (largest minus least value) above the least value is refined by
 /// [`coarse_to_fine`] as well as the least one.
-pub const MINIMA_MARGIN: f64 = 0.25;
+pub(crate) const MINIMA_MARGIN: f64 = 0.25;
 
 /// Which grid levels [`identify`] simulates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -86,7 +86,7 @@ impl Search {
     }
 
     /// The search of a report that does not name one: [`Search::Full`].
-    pub fn unnamed() -> Self {
+    pub(crate) fn unnamed() -> Self {
         Search::Full
     }
 }
@@ -183,7 +183,7 @@ impl Fit {
 }
 
 /// `true` if `curve` varies by no more than [`FLAT_TOLERANCE`] of its largest value.
-pub fn is_flat(curve: &[f64]) -> bool {
+pub(crate) fn is_flat(curve: &[f64]) -> bool {
     let (lo, hi) = curve
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &e| {
@@ -230,7 +230,7 @@ fn coarse_indices(n: usize, count: usize) -> Vec<usize> {
 /// evaluated curve is flat ([`is_flat`]) or when a value is not finite. The least value is
 /// then the least over `0..n` if the curve has one valley, and if its other valleys are
 /// within the margin where they are sampled.
-pub fn coarse_to_fine(
+pub(crate) fn coarse_to_fine(
     n: usize,
     extra: &[usize],
     eval: impl FnMut(&[usize]) -> Result<Vec<f64>>,
@@ -244,7 +244,7 @@ pub fn coarse_to_fine(
 /// round of indices (those below `n` and not in `seen` are evaluated): after each round the
 /// candidate minima of everything evaluated so far are refined as there. Returns every
 /// index evaluated with its value, `seen` included.
-pub fn refine(
+pub(crate) fn refine(
     n: usize,
     mut seen: BTreeMap<usize, f64>,
     first: Vec<usize>,
@@ -322,11 +322,11 @@ pub fn identify(
 
 /// Levels on each side of the table search's best level that the first exact round of
 /// [`Search::CoarseToFine`] simulates (with that level: `LANES - 1`, and the label's lane).
-pub const TABLE_WINDOW: usize = (LANES - 2) / 2;
+pub(crate) const TABLE_WINDOW: usize = (LANES - 2) / 2;
 
 /// `true` if [`identify`] runs `model`'s table search: a NEMM or a NEMM-Light (the models
 /// with neural coefficients and a batched exact rollout).
-pub fn has_table_search(model: &Model) -> bool {
+pub(crate) fn has_table_search(model: &Model) -> bool {
     matches!(model.kind(), ModelKind::Nemm | ModelKind::NemmLight)
 }
 
@@ -335,7 +335,7 @@ pub fn has_table_search(model: &Model) -> bool {
 /// each simulation starts from a copy at rest. A level whose estimator cannot be built
 /// holds `None`.
 #[derive(Debug)]
-pub struct TableEstimators {
+pub(crate) struct TableEstimators {
     config: TableConfig,
     levels: Vec<std::sync::OnceLock<Option<Box<Estimator<'static>>>>>,
 }
@@ -425,7 +425,7 @@ fn table_search(
 /// nemm-core), or the table curve is flat or not finite, the exact search starts from its
 /// coarse round; when the exact window is flat or not finite, the coarse round's levels
 /// are added.
-pub fn identify_with_tables(
+pub(crate) fn identify_with_tables(
     model: &Model,
     run: &Run<'_>,
     grid: &AlphaGrid,
@@ -545,7 +545,7 @@ pub fn identify_with_tables(
 }
 
 /// [`identify`] of every run of `runs`, the runs in parallel; returns the fits in order.
-pub fn identify_runs(
+pub(crate) fn identify_runs(
     model: &Model,
     runs: &[Run<'_>],
     grid: &AlphaGrid,

@@ -205,7 +205,7 @@ fn bench_reference(dir: &Path) -> Option<nemm_virtual_bench::reference::EmmRefer
 
 /// The degradation signature's figure ([`crate::report::signature::signature_figure`]) in
 /// `report_dir`; a failure is a warning (the tables are written already).
-pub fn write_signature_figure(
+pub(crate) fn write_signature_figure(
     loops: &crate::report::signature::SignatureLoops,
     report_dir: &Path,
     force_scale_n: f64,

@@ -59,7 +59,7 @@ use std::fmt::Debug;
 use std::ops::{AddAssign, DivAssign};
 
 /// Number of windows advanced in lock step.
-pub const LANES: usize = 8;
+pub(crate) const LANES: usize = 8;
 
 /// Floating-point type of a rollout (`f32` for training, `f64` for gradient checks).
 pub trait Real:
@@ -87,9 +87,8 @@ type WindowLanes<T> = Lanes<T, LANES>;
 mod params;
 mod rollout;
 
-pub use params::{
-    BranchShape, Grid, RolloutGrads, RolloutParams, ScalerWeights, StaticParams, Window,
-};
-pub use rollout::{
-    loss_and_grad, loss_and_grad_paired, simulate, simulate_x_pr, LossParts, Pairing,
-};
+pub use params::{Grid, RolloutParams, Window};
+
+pub(crate) use params::{BranchShape, RolloutGrads, ScalerWeights, StaticParams};
+pub use rollout::{loss_and_grad, simulate};
+pub(crate) use rollout::{loss_and_grad_paired, simulate_x_pr, Pairing};

@@ -74,7 +74,7 @@ struct Row<'a> {
 /// `table3.md` with the Table 3 hyperparameters and the paper's best configuration against
 /// the best found): one row per finished job (hyperparameters, validation and test RMSE,
 /// violations, training time), then the jobs that failed or have no result.
-pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collected> {
+pub(crate) fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collected> {
     let mut rows: Vec<Row> = Vec::new();
     let (mut failed, mut missing) = (Vec::new(), Vec::new());
     let mut status = std::collections::BTreeMap::new();
