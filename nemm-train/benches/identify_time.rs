@@ -18,7 +18,7 @@ mod common;
 
 use nemm_core::ModelKind;
 use nemm_train::config::{resolve_data, Config};
-use nemm_train::report::identify::{identify_report, used_runs, IdentifyReport};
+use nemm_train::report::{identify_report, used_runs, IdentifyReport};
 use nemm_train::train::identify::{Search, DEFAULT_STEP};
 use nemm_train::train::pipeline::{train_variants, PipelineConfig};
 use std::path::{Path, PathBuf};

@@ -14,11 +14,13 @@
 //! - [`report`]: Table 4 / 5, figures and plotting, blob descriptions;
 //! - [`config`]: the configuration of a job (data, model, training), its defaults and TOML;
 //! - [`cli`]: the `nemm` command line, a thin layer over the modules above;
-//! - [`output_guard`]: the output rule every command checks before any work.
+//! - `output_guard`: the output rule every command checks before any work.
+
+#![warn(unreachable_pub)]
 
 pub mod cli;
 pub mod config;
 pub mod data;
-pub mod output_guard;
+pub(crate) mod output_guard;
 pub mod report;
 pub mod train;

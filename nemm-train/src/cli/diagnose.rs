@@ -1,7 +1,7 @@
 //! `nemm diagnose`: the online alpha observer over recorded runs against the offline best fit
-//! of the same model ([`crate::report::diagnose`]), as a table, `diagnose.json` and one
-//! alpha(t) figure per run; the accuracy tables ([`crate::report::accuracy`]); and, with
-//! `--level-step`, a record whose level steps ([`crate::report::level_step`]).
+//! of the same model (`crate::report::diagnose`), as a table, `diagnose.json` and one
+//! alpha(t) figure per run; the accuracy tables (`crate::report::accuracy`); and, with
+//! `--level-step`, a record whose level steps (`crate::report::level_step`).
 
 use crate::cli::identify::runs_matching;
 use crate::data::against_model::check_runs_against_model;
@@ -62,7 +62,7 @@ pub struct DiagnoseArgs {
 /// prints the table, the summary lines and the ordering counts of the resolution table, and,
 /// with a level step, joins
 /// its two runs and runs the observer over the record. Writes one `alpha_<run>.png` per run,
-/// the level step's files, [`ACCURACY_MD`], [`ACCURACY_JSON`] and then [`DIAGNOSE_JSON`] into
+/// the level step's files, `ACCURACY_MD`, `ACCURACY_JSON` and then `DIAGNOSE_JSON` into
 /// the report folder. Nothing is written when an input is bad.
 pub fn diagnose(args: &DiagnoseArgs) -> Result<()> {
     let inputs = Inputs::new()

@@ -1,5 +1,5 @@
 //! `nemm identify`: the best-fit level of every run of a dataset for a trained model, and
-//! the model's whole-run error per level and run ([`crate::report::identify`]).
+//! the model's whole-run error per level and run (`crate::report::identify`).
 
 use crate::cli::train::{load_dataset_prepared, IDENTIFY_MD};
 use crate::config::{resolve_data, DataConfig};
@@ -119,7 +119,7 @@ pub(crate) fn check_grid(
 /// `nemm identify`: loads the blob `model_path` and the dataset of `data` (its data options
 /// resolved as every command does), identifies the runs matched by `runs` (every run the
 /// split uses without patterns) on a grid of step `step` searched by `search`, prints the
-/// tables and, with `report`, writes [`IDENTIFY_JSON`] and `identify.md` there. The
+/// tables and, with `report`, writes `IDENTIFY_JSON` and `identify.md` there. The
 /// normalised RMSE divides by the model's training force scale.
 pub fn identify(
     model_path: &Path,

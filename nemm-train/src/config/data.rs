@@ -38,7 +38,7 @@ pub struct DataConfig {
     pub dir: PathBuf,
     /// Cut-off of the zero-phase low-pass before differentiation \[Hz\], the same for every
     /// run; not set: chosen per run from its displacement noise and excitation
-    /// ([`preprocess::Cutoff`]).
+    /// (`preprocess::Cutoff`).
     #[arg(long, value_name = "HZ", help = with_default(
         "Cut-off of the zero-phase low-pass before differentiation (Hz), the same for every run",
         format!("per run: at most min({DEFAULT_CUTOFF_HZ}, {CUTOFF_FRACTION_OF_RATE} x sample \
@@ -529,7 +529,7 @@ fn resolve_validation(layers: &Layers<'_>, c: &mut DataConfig) -> Choice {
 
 /// Resolves the data options of `given` for its dataset (`given.dir`): reads the manifest
 /// and the dataset's [`DATA_OPTIONS_FILE`] if there is one, chooses the rest from the data
-/// ([`resolve_with`]) and prints the "data options" block on stderr.
+/// (`resolve_with`) and prints the "data options" block on stderr.
 pub fn resolve_data(given: &DataConfig) -> Result<ResolvedData> {
     let dir = given.require_dir()?;
     let manifest = dataset::read_manifest(dir)

@@ -12,7 +12,7 @@
 //! (`train::pipeline::PipelineConfig::of`, `train::fit::FitConfig::of`) are built from the
 //! resolved structs, and the command line ([`ConfigArgs`]: `--config`, `--data` and the three
 //! parts' options) overrides a configuration (the defaults, or a TOML file given with
-//! `--config`). A configuration is written to and read from TOML ([`Config::to_toml`],
+//! `--config`). A configuration is written to and read from TOML (`Config::to_toml`,
 //! [`Config::load`]); `nemm train --report`, `nemm compare` and `nemm demo` save the
 //! effective one as `config.toml`, and `nemm sweep` runs each job from such a file.
 
@@ -81,8 +81,8 @@ pub struct Config {
 }
 
 impl Config {
-    /// The demo's configuration: the defaults on the demo's budget ([`DEMO_EPOCHS`],
-    /// [`DEMO_MAX_BATCHES`], [`DEMO_LINEAR_EPOCHS`]) over [`DEMO_DATA_DIR`].
+    /// The demo's configuration: the defaults on the demo's budget (`DEMO_EPOCHS`,
+    /// `DEMO_MAX_BATCHES`, `DEMO_LINEAR_EPOCHS`) over `DEMO_DATA_DIR`.
     pub fn demo() -> Config {
         let mut c = Config::default();
         c.data.dir = PathBuf::from(DEMO_DATA_DIR);
@@ -112,8 +112,8 @@ impl Config {
 
     /// Checks the values no training can run with, before anything is allocated: every size
     /// within what the model and its blob format hold ([`nemm_core::MAX_HIDDEN`], [`nemm_core::MAX_LAYERS`], [`nemm_core::MAX_BRANCH_UNITS`]), the model rate
-    /// within [`MODEL_RATE_RANGE_HZ`], the samples one batch rolls out within
-    /// [`MAX_BATCH_STEPS`], and every rate, weight and bound a finite number that lets
+    /// within `MODEL_RATE_RANGE_HZ`, the samples one batch rolls out within
+    /// `MAX_BATCH_STEPS`, and every rate, weight and bound a finite number that lets
     /// training change the model. Each error names the option and its accepted range.
     pub fn validate(&self) -> Result<()> {
         let (m, t) = (&self.model, &self.train);

@@ -1,43 +1,43 @@
 //! Plausibility checks of loaded runs for `nemm data check` (see `docs/data-format.md`,
 //! "What `nemm data check` reports").
 //!
-//! [`check_run`] looks at the raw columns of one run and reports, each with run, time and
+//! `check_run` looks at the raw columns of one run and reports, each with run, time and
 //! line:
 //!
-//! * **implausible magnitudes**: `|displacement_m|` above [`MAX_ABS_DISPLACEMENT_M`],
-//!   `|force_n|` above [`MAX_ABS_FORCE_N`], `|velocity_m_s|` above [`MAX_ABS_VELOCITY_M_S`]
+//! * **implausible magnitudes**: `|displacement_m|` above `MAX_ABS_DISPLACEMENT_M`,
+//!   `|force_n|` above `MAX_ABS_FORCE_N`, `|velocity_m_s|` above `MAX_ABS_VELOCITY_M_S`
 //!   (usually a unit error or a corrupt sample);
 //! * **spikes**: one- or two-sample outliers from the running median of five samples, more
-//!   than [`SPIKE_SIGMAS`] robust noise deviations and [`SPIKE_MIN_FRACTION`] of the
+//!   than `SPIKE_SIGMAS` robust noise deviations and `SPIKE_MIN_FRACTION` of the
 //!   column's robust range away;
-//! * **dropouts**: at least [`REPEAT_MIN_ROWS`] consecutive rows with every data column
+//! * **dropouts**: at least `REPEAT_MIN_ROWS` consecutive rows with every data column
 //!   repeated exactly (a held or zero-filled logger), one column frozen at one value for
-//!   at least [`FLAT_MIN_S`] while it moves elsewhere in the run, or a column at one value
+//!   at least `FLAT_MIN_S` while it moves elsewhere in the run, or a column at one value
 //!   over the whole run (a dead channel);
-//! * **clipping**: at least [`CLIP_MIN_SAMPLES`] consecutive samples at the column's largest
-//!   or smallest value, entered and left by a step of more than [`CLIP_STEP_QUANTA`] times
+//! * **clipping**: at least `CLIP_MIN_SAMPLES` consecutive samples at the column's largest
+//!   or smallest value, entered and left by a step of more than `CLIP_STEP_QUANTA` times
 //!   the column's smallest non-zero step (a smooth, quantised turning point enters its
 //!   plateau by one quantum);
 //! * **offsets** (information, not errors: gas force and untared load cells are real): a
-//!   displacement whose centre lies more than [`OFFSET_FRACTION`] of the half-stroke (and
-//!   0.5 mm) from 0, and a mean force at zero velocity more than [`OFFSET_FRACTION`] of the
+//!   displacement whose centre lies more than `OFFSET_FRACTION` of the half-stroke (and
+//!   0.5 mm) from 0, and a mean force at zero velocity more than `OFFSET_FRACTION` of the
 //!   force half-range (and 1 N) from 0;
 //! * **time stamps** (information): rounded or jittered stamps that the loader accepted,
 //!   with their largest deviation from the fitted grid.
 //!
-//! [`damper_findings`] checks what a damper's data must show:
+//! `damper_findings` checks what a damper's data must show:
 //!
 //! * **dissipation**: a force that assists the motion (negative force-velocity correlation,
-//!   [`preprocess::Dissipation`]): an inverted force or displacement sign. Training commands
+//!   `preprocess::Dissipation`): an inverted force or displacement sign. Training commands
 //!   refuse such a run unless `--accept-implausible` is given;
 //! * **velocity**: a differentiated velocity whose noise (the displacement's noise through
-//!   the run's cut-off, [`preprocess::Cutoff`]) exceeds [`MAX_VELOCITY_NOISE`] of its RMS;
-//!   on a periodic run, a peak velocity more than [`MAX_VELOCITY_MISMATCH`] off `2 pi f A`
+//!   the run's cut-off, `preprocess::Cutoff`) exceeds `MAX_VELOCITY_NOISE` of its RMS;
+//!   on a periodic run, a peak velocity more than `MAX_VELOCITY_MISMATCH` off `2 pi f A`
 //!   from the run's own amplitude and frequency: displacement noise let through by the
 //!   cut-off (or a velocity column in other units);
 //! * **static force**: the force offsets above say what the static force of eq. 17 models; the
 //!   training commands switch it on when the runs' median offset is at least
-//!   [`STATIC_FORCE_FRACTION`] of the force half-range ([`preprocess::static_force_from_data`]).
+//!   `STATIC_FORCE_FRACTION` of the force half-range ([`preprocess::static_force_from_data`]).
 //!
 //! Lines are those of a run file with one header line and one row per line
 //! ([`dataset::sample_line`]), as [`dataset::write()`] and `nemm data import` write them.
@@ -125,7 +125,7 @@ impl FindingKind {
     }
 }
 
-/// One finding of [`check_run`]: where it starts and how often it occurs in the run.
+/// One finding of `check_run`: where it starts and how often it occurs in the run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Finding {
     /// Run index in the dataset.
@@ -614,7 +614,7 @@ pub(crate) fn damper_findings(run: &Run, summary: &preprocess::RunSummary) -> Ve
     out
 }
 
-/// Summaries ([`preprocess::summarize_run`]) and findings ([`check_run`], [`damper_findings`])
+/// Summaries ([`preprocess::summarize_run`]) and findings (`check_run`, `damper_findings`)
 /// of every run of a dataset (in parallel), in dataset order. A run the preprocessing cannot
 /// take is a [`FindingKind::Skipped`] finding and has no summary; the dataset-wide error (a
 /// cut-off the rate refuses) is returned.

@@ -64,7 +64,7 @@ pub(crate) struct RunError {
 
 impl RunError {
     /// The estimate stays within [`AGREEMENT`] of the offline fit (from [`FROM_S`] on).
-    pub fn within(&self) -> bool {
+    pub(crate) fn within(&self) -> bool {
         self.worst_error.is_some_and(|e| e <= AGREEMENT + 1e-9)
     }
 }
@@ -194,7 +194,7 @@ pub(crate) fn error_detail(runs: &[RunError]) -> String {
 /// The run at one level of one condition.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct LevelCell {
+pub(crate) struct LevelCell {
     /// Run file, relative to the manifest.
     pub file: String,
     /// Its offline best fit.
@@ -208,7 +208,7 @@ pub struct LevelCell {
 /// One test condition: its runs, one per labelled level.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct ConditionRow {
+pub(crate) struct ConditionRow {
     /// Stroke amplitude \[m\].
     pub amplitude_m: f64,
     /// Target peak velocity \[m/s\].
@@ -219,14 +219,14 @@ pub struct ConditionRow {
 
 impl ConditionRow {
     /// Every level has a run and every run is excited.
-    pub fn excited(&self) -> bool {
+    pub(crate) fn excited(&self) -> bool {
         self.cells
             .iter()
             .all(|c| c.as_ref().is_some_and(|c| c.excited))
     }
 
     /// The order of the offline fits (`offline`) or of the final estimates.
-    pub fn order(&self, offline: bool) -> Order {
+    pub(crate) fn order(&self, offline: bool) -> Order {
         let values: Option<Vec<f64>> = self
             .cells
             .iter()
@@ -246,9 +246,10 @@ impl ConditionRow {
 /// Whether a condition's values are in the order of its levels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum Order {
+pub(crate) enum Order {
     /// The lowest level's value below the highest's, every other level's within them.
-    InOrder,
+    #[serde(rename = "in-order")]
+    Ordered,
     /// The lowest below the highest, a level between them outside that range.
     MiddleOutside,
     /// The lowest level's value not below the highest's.
@@ -258,7 +259,7 @@ pub enum Order {
 }
 
 /// The [`Order`] of values at levels in increasing order.
-pub fn order(values: &[f64]) -> Order {
+pub(crate) fn order(values: &[f64]) -> Order {
     let (Some(&lo), Some(&hi)) = (values.first(), values.last()) else {
         return Order::Incomplete;
     };
@@ -270,7 +271,7 @@ pub fn order(values: &[f64]) -> Order {
         .iter()
         .all(|v| (lo..=hi).contains(v))
     {
-        Order::InOrder
+        Order::Ordered
     } else {
         Order::MiddleOutside
     }
@@ -280,7 +281,7 @@ pub fn order(values: &[f64]) -> Order {
 /// at each level.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Resolution {
+pub(crate) struct Resolution {
     /// The labelled levels, increasing.
     pub levels: Vec<f64>,
     /// The conditions, by decreasing amplitude, then increasing peak velocity.
@@ -294,7 +295,7 @@ pub struct Resolution {
 const SAME: f64 = 1e-6;
 
 /// The resolution table of the diagnosed runs `runs` with their manifest entries.
-pub fn resolution(runs: &[(&RunDiagnosis, &RunEntry)]) -> Resolution {
+pub(crate) fn resolution(runs: &[(&RunDiagnosis, &RunEntry)]) -> Resolution {
     let mut levels: Vec<f64> = Vec::new();
     for (d, _) in runs {
         if !levels.iter().any(|l| (l - d.label).abs() < SAME) {
@@ -389,14 +390,14 @@ impl Resolution {
                     let n = rows.iter().filter(|r| ok(r.order(offline))).count();
                     format!("{n} of {}", rows.len())
                 };
-                let below_ok = |o| matches!(o, Order::InOrder | Order::MiddleOutside);
+                let below_ok = |o| matches!(o, Order::Ordered | Order::MiddleOutside);
                 let mut s = format!(
                     "{what}: {below} on {} excited conditions ({} conditions in all)",
                     count(true, &below_ok),
                     count(false, &below_ok)
                 );
                 if with_middle {
-                    let in_order = |o| o == Order::InOrder;
+                    let in_order = |o| o == Order::Ordered;
                     let _ = write!(
                         s,
                         "; {between} on {} ({})",
@@ -415,7 +416,7 @@ impl Resolution {
 fn order_cell(o: Order, r: &Resolution) -> String {
     let names: Vec<String> = r.levels.iter().map(|&l| percent(l)).collect();
     match o {
-        Order::InOrder => "in order".into(),
+        Order::Ordered => "in order".into(),
         Order::MiddleOutside => format!(
             "{} outside",
             names[1..names.len().saturating_sub(1)].join(", ")
@@ -572,8 +573,8 @@ mod tests {
 
     #[test]
     fn orders_are_checked_on_the_labels_levels() {
-        assert_eq!(order(&[0.0, 0.1, 0.2]), Order::InOrder);
-        assert_eq!(order(&[0.0, 0.0, 0.2]), Order::InOrder);
+        assert_eq!(order(&[0.0, 0.1, 0.2]), Order::Ordered);
+        assert_eq!(order(&[0.0, 0.0, 0.2]), Order::Ordered);
         assert_eq!(order(&[0.0, 0.3, 0.2]), Order::MiddleOutside);
         assert_eq!(order(&[0.1, 0.05, 0.1]), Order::NotBelow);
         assert_eq!(order(&[0.1]), Order::Incomplete);
@@ -617,7 +618,7 @@ mod tests {
         assert_eq!(r.rows[0].amplitude_m, 0.05);
         assert!(r.rows[0].excited() && !r.rows[1].excited());
         assert_eq!(r.rows[0].order(true), Order::MiddleOutside);
-        assert_eq!(r.rows[1].order(false), Order::InOrder);
+        assert_eq!(r.rows[1].order(false), Order::Ordered);
         let md = resolution_markdown(&r);
         assert!(
             md.contains(

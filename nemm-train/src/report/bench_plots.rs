@@ -141,7 +141,7 @@ impl CycleLoop {
 }
 
 /// Reduces a run to its cycle-averaged loop, with the run's preprocessed `velocity_m_s`
-/// ([`Signals::velocity_m_s`]).
+/// (`Signals::velocity_m_s`).
 pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
     cycle_loop_of_force(run, velocity_m_s, &run.force_n)
 }

@@ -63,12 +63,12 @@ pub struct RunDiagnosis {
     /// Its band (half-width, in alpha).
     pub band: f64,
     /// The offline best fit; `None` when the model's whole-run error does not depend on
-    /// the level ([`crate::train::identify::FLAT_TOLERANCE`]).
+    /// the level (`crate::train::identify::FLAT_TOLERANCE`).
     pub alpha_offline: Option<f64>,
     /// The observer's excited flag after the last sample.
     pub excited: bool,
     /// Time from the run's first sample after which the estimate stays within
-    /// `max(band, 0.02)` of `alpha_hat` \[s\] ([`settle_time`]); `None` if it never does.
+    /// `max(band, 0.02)` of `alpha_hat` \[s\] (`settle_time`); `None` if it never does.
     pub settle_s: Option<f64>,
 }
 
@@ -202,7 +202,7 @@ pub(crate) fn offline_fit(
 }
 
 /// The run's file, path relative to the manifest with `/` as the separator.
-pub fn run_file(run: &dataset::Run) -> String {
+pub(crate) fn run_file(run: &dataset::Run) -> String {
     run.entry.file.to_string_lossy().replace('\\', "/")
 }
 

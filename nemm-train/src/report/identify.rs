@@ -101,12 +101,12 @@ pub struct VariantFits {
 pub struct IdentifyReport {
     /// Grid step in alpha.
     pub step: f64,
-    /// Which grid levels were simulated ([`Search::unnamed`] when absent).
+    /// Which grid levels were simulated (`Search::unnamed` when absent).
     #[serde(default = "Search::unnamed")]
     pub search: Search,
     /// [`FLAT_TOLERANCE`].
     pub(crate) flat_tolerance: f64,
-    /// [`WITHIN`].
+    /// `WITHIN`.
     pub within: f64,
     /// Force scale of the normalised RMSE \[N\] (Table 4's).
     pub force_scale_n: f64,

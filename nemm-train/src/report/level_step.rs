@@ -39,7 +39,7 @@ pub(crate) const SAME_AMPLITUDE: f64 = 0.05;
 
 /// The steady part of a run: samples `start..end`, `periods` full periods.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct SteadyPart {
+pub(crate) struct SteadyPart {
     /// First sample (the first at or above the mid-range after a rising crossing).
     pub start: usize,
     /// One past the last sample (the first at or above the mid-range after the last rising
@@ -80,7 +80,7 @@ pub(crate) fn steady_part(displacement_m: &[f64]) -> Result<SteadyPart> {
 
 /// A level-step record ([`join`]).
 #[derive(Debug, Clone, PartialEq)]
-pub struct Joined {
+pub(crate) struct Joined {
     /// Displacement \[m\].
     pub displacement_m: Vec<f64>,
     /// Force \[N\].
@@ -104,7 +104,7 @@ fn period(p: &SteadyPart) -> f64 {
 /// Joins run `a` and run `b` of one condition, each steady part played `repeat` times (see
 /// the module documentation); an error when a run has no full period, the runs' periods or
 /// half-ranges differ (not one condition) or `repeat` is 0.
-pub fn join(a: &Run, b: &Run, repeat: usize) -> Result<Joined> {
+pub(crate) fn join(a: &Run, b: &Run, repeat: usize) -> Result<Joined> {
     if repeat == 0 {
         bail!("the steady parts must be played at least once");
     }
@@ -158,7 +158,7 @@ pub fn join(a: &Run, b: &Run, repeat: usize) -> Result<Joined> {
 /// One of the two runs of a level step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct StepRun {
+pub(crate) struct StepRun {
     /// Run file, relative to the manifest.
     pub file: String,
     /// Its labelled level.
@@ -174,7 +174,7 @@ pub struct StepRun {
 /// `level-step.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct LevelStep {
+pub(crate) struct LevelStep {
     /// The run before the step.
     pub first: StepRun,
     /// The run after the step.
@@ -202,7 +202,7 @@ pub struct LevelStep {
 /// The observer's output at one sample.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct StepEstimate {
+pub(crate) struct StepEstimate {
     /// Estimate.
     pub alpha: f64,
     /// Band (half-width).
@@ -246,7 +246,7 @@ pub(crate) fn reach_and_settle(
 
 /// The level step of the record `joined` (of the runs diagnosed as `first` and `second`)
 /// whose estimates are `trace`.
-pub fn level_step(
+pub(crate) fn level_step(
     joined: &Joined,
     runs: [(&RunDiagnosis, &SteadyPart); 2],
     trace: &Trace,

@@ -55,7 +55,7 @@ pub struct ReferenceComparison {
 /// describing-function `b_pr` (with a lost-motion element also the stiffness through it at
 /// the start of the compression and the rebound side against those chambers' stiffness),
 /// `b_fl(v)` with the quasi-static `b_fl(v)` at
-/// [`COMPARED_VELOCITIES_M_S`]. Rows whose learned coefficient the model does not have are
+/// `COMPARED_VELOCITIES_M_S`. Rows whose learned coefficient the model does not have are
 /// left out.
 pub fn compare(model: &Model, reference: &EmmReference) -> ReferenceComparison {
     let a1 = comparison_alpha(model, reference);

@@ -71,7 +71,7 @@ pub struct Report {
     #[serde(default)]
     pub test_runs: Vec<RunBreakdown>,
     /// Identifiability of the level and whole-run errors per level and condition, every
-    /// run the split uses ([`crate::report::identify`]); absent where not computed.
+    /// run the split uses (`crate::report::identify`); absent where not computed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub identify: Option<IdentifyReport>,
     /// Free-form facts about the run (configuration, dataset).
@@ -85,7 +85,7 @@ pub struct Report {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bench_reference: Option<crate::report::reference::ReferenceComparison>,
     /// The degradation signature: each model's difference loops `F(0) - F(alpha)` against
-    /// the measured ones per condition ([`crate::report::signature`]); absent where not
+    /// the measured ones per condition (`crate::report::signature`); absent where not
     /// computed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub signature: Option<crate::report::signature::SignatureReport>,
@@ -210,7 +210,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
 }
 
 /// The per-run breakdown as Markdown: RMSE in newtons per variant, the NEMM relative to the
-/// reference of [`relative_reference`] (the SEM when it ran), and each run's share of the NEMM's squared error over the test set (which runs the
+/// reference of `relative_reference` (the SEM when it ran), and each run's share of the NEMM's squared error over the test set (which runs the
 /// headline number comes from). Empty when the report has no per-run data.
 pub fn test_runs_markdown(r: &Report) -> String {
     let mut s = String::new();

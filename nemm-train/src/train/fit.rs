@@ -10,8 +10,8 @@
 //! # Parts
 //!
 //! [`fit`] is the epoch loop; model selection and early stopping are
-//! [`super::selection`], checkpoints (write, rotate, resume) `train::checkpoint`, and the
-//! `--session-epochs` budget [`super::session`]. `resume` continues from the epoch after the
+//! `super::selection`, checkpoints (write, rotate, resume) `train::checkpoint`, and the
+//! `--session-epochs` budget `super::session`. `resume` continues from the epoch after the
 //! latest checkpoint with the same data order (the shuffle of epoch `e` depends only on the
 //! seed and `e`). A non-finite loss stops training with an error and leaves the last good
 //! checkpoint in place.
@@ -57,7 +57,7 @@ pub struct FitConfig {
     /// Physics-inconsistency weight `lambda_ph`.
     pub lambda_ph: f64,
     /// Weight `lambda_diff` of the matched-difference term (0: off): the force difference
-    /// between matched windows at two levels ([`super::matched`]) against the measured one.
+    /// between matched windows at two levels (`super::matched`) against the measured one.
     pub lambda_diff: f64,
     /// Stop after this many epochs without a better validation RMSE (not before half of
     /// `epochs` are done).

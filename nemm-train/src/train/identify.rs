@@ -4,32 +4,32 @@
 //! `0, step, 2 step, ...` up to the model's largest training level) and, once more, at the
 //! run's own label; the grid level of least force RMSE is the best fit ([`identify`]). The
 //! simulation is [`predict`]: one input per level, so the trainer's batched rollout advances
-//! [`LANES`] levels in lock step (the SEM runs through nemm-core's estimator). A model whose
-//! RMSE varies by no more than [`FLAT_TOLERANCE`] of its largest value (the Linear EMM, or a
+//! `LANES` levels in lock step (the SEM runs through nemm-core's estimator). A model whose
+//! RMSE varies by no more than `FLAT_TOLERANCE` of its largest value (the Linear EMM, or a
 //! network that ignores `alpha`) has no best fit: [`Fit::best`] is `None`.
 //!
 //! [`Search`] says which levels are simulated:
 //!
 //! - [`Search::CoarseToFine`] (the default): first a search on nemm-core's tables, then an
-//!   exact search from its best level ([`identify_with_tables`]). The table search is
-//!   [`coarse_to_fine`] with each level simulated by a table-mode estimator built at that
+//!   exact search from its best level (`identify_with_tables`). The table search is
+//!   `coarse_to_fine` with each level simulated by a table-mode estimator built at that
 //!   level (nemm-core's `EvalMode::Table`, whose step costs a fraction of an exact one); it
 //!   only picks where to look. The exact search starts from the table search's best level,
-//!   [`TABLE_WINDOW`] levels on each side and the label (one pack of lanes), and refines
-//!   the candidate minima of the exact curve as [`coarse_to_fine`] does ([`refine`]): a
+//!   `TABLE_WINDOW` levels on each side and the label (one pack of lanes), and refines
+//!   the candidate minima of the exact curve as `coarse_to_fine` does (`refine`): a
 //!   window whose least level is at its edge is extended towards the grid's end. So the
 //!   best fit, the curve and the label's RMSE are exact simulations only. When no table can
 //!   be built (an error from nemm-core), when the table curve is flat or not finite, or for
 //!   a model without neural coefficients or batched rollout (the SEM, the Linear EMM), the
-//!   exact search starts from [`coarse_to_fine`]'s first round; an exact window that is flat
+//!   exact search starts from `coarse_to_fine`'s first round; an exact window that is flat
 //!   gets that round's levels too.
 //!
-//!   [`coarse_to_fine`] alone: first `LANES - 1` levels spread evenly over the grid, ends
+//!   `coarse_to_fine` alone: first `LANES - 1` levels spread evenly over the grid, ends
 //!   included, and the label's simulation (one pack of lanes); then, in rounds, the
 //!   unsimulated levels between each candidate and its simulated neighbours, up to
-//!   [`LANES`] per candidate and round, until every candidate's neighbours on the grid are
+//!   `LANES` per candidate and round, until every candidate's neighbours on the grid are
 //!   simulated. The candidates are the local minima of the simulated curve within
-//!   [`MINIMA_MARGIN`] of its range above its least value, so a second valley is refined as
+//!   `MINIMA_MARGIN` of its range above its least value, so a second valley is refined as
 //!   well as the deepest one. A curve flat at the first round's levels stops there.
 //! - [`Search::Full`]: every grid level, the whole RMSE curve.
 //!
@@ -69,7 +69,7 @@ pub(crate) const MINIMA_MARGIN: f64 = 0.25;
 #[serde(rename_all = "kebab-case")]
 pub enum Search {
     /// A coarse round over the grid, then rounds that refine the candidate minima down to
-    /// the grid step ([`coarse_to_fine`]).
+    /// the grid step (`coarse_to_fine`).
     #[default]
     CoarseToFine,
     /// Every grid level.
@@ -153,7 +153,7 @@ pub struct Fit {
     /// The run's labelled level.
     pub label: f64,
     /// The simulated level of least RMSE (the lowest on a tie); `None` when the curve is
-    /// flat ([`FLAT_TOLERANCE`]) or a simulation is not finite.
+    /// flat (`FLAT_TOLERANCE`) or a simulation is not finite.
     pub best: Option<f64>,
     /// RMSE at the least-error simulated level \[N\] (defined when the curve is flat too).
     #[serde(deserialize_with = "nan_if_null")]
@@ -174,7 +174,7 @@ pub struct Fit {
 
 impl Fit {
     /// `true` if the best fit is within `tolerance` (plus
-    /// [`crate::data::preprocess::ALPHA_TOLERANCE`]) of the label (`false` when flat).
+    /// `crate::data::preprocess::ALPHA_TOLERANCE`) of the label (`false` when flat).
     pub fn within(&self, tolerance: f64) -> bool {
         self.best.is_some_and(|b| {
             (b - self.label).abs() <= tolerance + crate::data::preprocess::ALPHA_TOLERANCE
@@ -300,7 +300,7 @@ pub(crate) fn refine(
 /// samples. The label's simulation is the grid level's when the label is constant and on
 /// the grid (as `f32`), else a simulation of its own in the first exact round.
 /// [`Search::CoarseToFine`] first searches on nemm-core's tables ([`TableConfig::default`];
-/// [`identify_with_tables`]).
+/// `identify_with_tables`).
 pub fn identify(
     model: &Model,
     run: &Run<'_>,
@@ -342,7 +342,7 @@ pub(crate) struct TableEstimators {
 
 impl TableEstimators {
     /// No estimator built yet, for the levels of `grid`.
-    pub fn new(grid: &AlphaGrid, config: TableConfig) -> Self {
+    pub(crate) fn new(grid: &AlphaGrid, config: TableConfig) -> Self {
         Self {
             config,
             levels: (0..grid.alphas.len())

@@ -10,7 +10,7 @@
 //! burn serves what it is good at: the parameters, Adam with gradient clipping, the L2 term,
 //! the quasi-static `b_fl` regression (eq. 41) and the physics-inconsistency losses on grids
 //! (eqs. 27-28, 34, 39-40), checkpoints. The rollout's gradient comes from
-//! [`super::adjoint`] and is added with [`EmmNet::add_rollout_grads`] before one optimizer
+//! [`super::adjoint`] and is added with `EmmNet::add_rollout_grads` before one optimizer
 //! step.
 
 use super::adjoint::{BranchShape, RolloutGrads, RolloutParams, ScalerWeights, StaticParams};
@@ -144,7 +144,7 @@ impl ScalerNet {
         }
     }
 
-    /// nemm-core's layout of this scaler's flat weights ([`Self::to_flat`]).
+    /// nemm-core's layout of this scaler's flat weights (`Self::to_flat`).
     pub fn layout(&self) -> nemm_kernels::mlp::ScalerLayout {
         let [inputs, hidden] = self
             .blocks
@@ -377,7 +377,7 @@ pub struct StaticFrame {
     pub x_ref: f32,
     /// Smoothing velocity `v_c` \[m/s\].
     pub(crate) v_c: f32,
-    /// Physical value of one unit of each trained parameter ([`static_units`]).
+    /// Physical value of one unit of each trained parameter (`static_units`).
     pub units: [f32; STATIC_PARAMS],
 }
 
@@ -407,7 +407,7 @@ fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
 
 impl EmmNet {
     /// The module and frame of rollout parameters; a static force is trained in `units`
-    /// ([`static_units`]; `None`: the default of [`static_units`] at a 1 kN force scale and a
+    /// (`static_units`; `None`: the default of `static_units` at a 1 kN force scale and a
     /// 0.1 m span).
     pub fn from_rollout(
         p: &RolloutParams<f32>,

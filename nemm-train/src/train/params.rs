@@ -108,7 +108,7 @@ pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
 }
 
 /// The core model of rollout parameters, with training-data facts `meta` and the paper's
-/// condition (oil loss) with the parameters' priors ([`to_core_with`]).
+/// condition (oil loss) with the parameters' priors (`to_core_with`).
 pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
     let condition = Condition {
         priors: p.priors,

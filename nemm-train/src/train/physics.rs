@@ -17,7 +17,7 @@
 //! Derivatives are difference quotients (the grid spacing divides the differences), so the
 //! loss does not depend on the grid resolution.
 //!
-//! The margin `m` = [`ALPHA_MARGIN`] (1e-3 per unit alpha, 0.1 % over the whole range) asks
+//! The margin `m` = `ALPHA_MARGIN` (1e-3 per unit alpha, 0.1 % over the whole range) asks
 //! the coefficients to fall with alpha a little rather than stay flat: between the grid's
 //! points a flat-at-the-points scaler can still rise slightly, which the audit's 4x finer
 //! grid then counts. On the default virtual bench (demo budget, 12 epochs of 8 batches) the

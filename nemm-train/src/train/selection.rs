@@ -25,7 +25,7 @@ pub(crate) struct Selection {
 impl Selection {
     /// The selection before the first epoch: the starting model (validation RMSE `val`,
     /// audit `violations`, `None` when the stage does not audit) is kept.
-    pub fn start(val: f64, violations: Option<usize>) -> Self {
+    pub(crate) fn start(val: f64, violations: Option<usize>) -> Self {
         Self {
             best_epoch: 0,
             best_val: val,
@@ -78,7 +78,12 @@ impl Selection {
 /// that passes the audit always replaces one that does not, and among models that pass (or
 /// while none has) the lower validation RMSE wins: the kept model is the most accurate
 /// physically consistent one, with the most accurate model as the fallback.
-pub fn keeps(val: f64, violations: Option<usize>, best_val: f64, best_consistent: bool) -> bool {
+pub(crate) fn keeps(
+    val: f64,
+    violations: Option<usize>,
+    best_val: f64,
+    best_consistent: bool,
+) -> bool {
     match violations {
         None => val < best_val,
         Some(0) => !best_consistent || val < best_val,
@@ -117,7 +122,7 @@ pub struct PassedOver {
 /// The most accurate audited model of `candidates` (`(epoch, val_rmse, violations)`, the
 /// starting model as epoch 0 when known) if it is more accurate than the kept model
 /// (`kept_val`) and failed the audit: what consistent model selection gave up.
-pub fn passed_over(
+pub(crate) fn passed_over(
     candidates: impl IntoIterator<Item = (usize, f64, Option<usize>)>,
     kept_val: f64,
 ) -> Option<PassedOver> {

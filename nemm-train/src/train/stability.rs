@@ -47,7 +47,7 @@ pub(crate) struct StabilityHold {
 
 impl StabilityHold {
     /// The stable set of a stage with frame `frame` (its integrator, step and scaler bounds).
-    pub fn new(frame: &NetFrame) -> Self {
+    pub(crate) fn new(frame: &NetFrame) -> Self {
         Self {
             tau_s: HOLD_FACTOR
                 * nemm_core::shortest_stable_time_constant_s(frame.integrator, frame.dt),
@@ -114,7 +114,7 @@ impl StabilityHold {
     /// The constants `[b_fl,ini, b_pr,ini, k_pr,ini, T_pr]` moved onto the stable set, or
     /// `None` when they are on it (or not finite: the training loop stops on a non-finite
     /// loss before such constants are used).
-    pub fn hold(&self, c: [f32; 4]) -> Option<[f32; 4]> {
+    pub(crate) fn hold(&self, c: [f32; 4]) -> Option<[f32; 4]> {
         let [b_fl0, b_pr0, k0, t_pr] = c;
         if !c.iter().all(|v| v.is_finite()) {
             return None;
@@ -125,7 +125,7 @@ impl StabilityHold {
     }
 
     /// The fastest time constant \[s\] a model with constants `c` reaches at the bounds.
-    pub fn fastest_time_constant_s(&self, c: [f32; 4]) -> f32 {
+    pub(crate) fn fastest_time_constant_s(&self, c: [f32; 4]) -> f32 {
         let [b_fl0, b_pr0, k0, t_pr] = c;
         let tau_pr = (b_pr0 * self.s_min_pr + b_fl0 * self.s_min_fl) / (k0 * self.s_max_k);
         tau_pr.min(t_pr)

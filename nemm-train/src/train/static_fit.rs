@@ -37,7 +37,7 @@ pub(crate) struct StaticSetup {
 
 impl StaticSetup {
     /// From the training sequences (every sample) and the velocity scale \[m/s\].
-    pub fn of(train: &[Sequence], velocity_scale_m_s: f64) -> Self {
+    pub(crate) fn of(train: &[Sequence], velocity_scale_m_s: f64) -> Self {
         let (sum, n) = train
             .iter()
             .flat_map(|s| &s.position_m)
@@ -55,7 +55,7 @@ impl StaticSetup {
     }
 
     /// The training units of the parameters ([`static_units`]) at force scale `force_scale_n`.
-    pub fn units(&self, force_scale_n: f64) -> [f32; STATIC_PARAMS] {
+    pub(crate) fn units(&self, force_scale_n: f64) -> [f32; STATIC_PARAMS] {
         static_units(force_scale_n as f32, self.x_span as f32)
     }
 }

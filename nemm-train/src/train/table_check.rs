@@ -90,7 +90,7 @@ fn check_size<const T: usize>(model: &Model, alphas: &[f32], bound: f32) -> Size
     c
 }
 
-/// Checks 256- and 128-segment tables built with `bound` at [`ALPHA_LEVELS`] levels over the
+/// Checks 256- and 128-segment tables built with `bound` at `ALPHA_LEVELS` levels over the
 /// training range. Empty for kinds without neural state coefficients (SEM, Linear EMM).
 pub fn check(model: &Model, bound: f32) -> Vec<SizeCheck> {
     if !matches!(

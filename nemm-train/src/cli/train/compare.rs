@@ -33,7 +33,7 @@ pub fn compare_command(
 /// All four variants on a prepared dataset (`ds` is the dataset `prepared` was made from;
 /// the figures need its whole runs): Table 4, `report.json`, the identifiability of the
 /// level and the whole-run errors of every run the split uses
-/// ([`crate::report::identify`], `identify.md`), one blob per variant, the figures and the
+/// (`crate::report::identify`, `identify.md`), one blob per variant, the figures and the
 /// effective `config.toml`, all in `report_dir`.
 pub fn compare(
     ds: &dataset::Dataset,

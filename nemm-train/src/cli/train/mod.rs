@@ -31,9 +31,7 @@ mod sweep;
 pub use compare::{compare, compare_command, degradation_report};
 pub use demo::{demo, DemoPaths};
 pub(crate) use identity::open_checkpoint;
-pub use sweep::{
-    collect, resume, slurm, sweep, Engine, SlurmArgs, SweepGrid, SweepOptions, Table3Args,
-};
+pub use sweep::{collect, resume, sweep, Engine, SlurmArgs, SweepGrid, SweepOptions, Table3Args};
 
 /// Loads and prepares a dataset, printing a one-line summary.
 pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {
@@ -395,7 +393,7 @@ fn levels_check<const T: usize>(
     )))
 }
 
-/// A model as [`export_model`] wrote it: the blob's length, and the model and the index of
+/// A model as `export_model` wrote it: the blob's length, and the model and the index of
 /// its stored tables decoded back from the blob.
 pub struct Written {
     /// Bytes written.

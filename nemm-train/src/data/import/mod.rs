@@ -211,7 +211,7 @@ pub struct ColumnSpec {
     /// 1-based column number (for files without a usable header).
     #[serde(default)]
     pub index: Option<usize>,
-    /// Unit of `raw * gain + offset`: see [`unit_factor`]. For the level column
+    /// Unit of `raw * gain + offset`: see `unit_factor`. For the level column
     /// (`columns.alpha`) mapped by `range` (given or taken from the data), the unit of the raw
     /// numbers themselves, e.g. `V`: the condition's unit.
     pub unit: String,

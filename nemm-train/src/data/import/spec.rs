@@ -277,7 +277,7 @@ pub(crate) enum LevelKind {
 
 impl LevelKind {
     /// The mapping of level column `c`.
-    pub fn of(c: &ColumnSpec) -> LevelKind {
+    pub(super) fn of(c: &ColumnSpec) -> LevelKind {
         match (c.range, c.gain.is_some() || c.offset.is_some()) {
             (Some(r), false) => LevelKind::Range(Some(r)),
             (None, false) if c.unit != "1" => LevelKind::Range(None),

@@ -189,8 +189,8 @@ pub(crate) fn percentile(x: &[f64], p: f64) -> f64 {
 }
 
 /// Whether the data ask for the static force: `Some((true, why))` when the median over the
-/// runs of the signed offset fraction ([`ForceOffset::signed_fraction`]) is at least
-/// [`STATIC_FORCE_FRACTION`] in magnitude, `Some((false, why))` when not, `None` for no run
+/// runs of the signed offset fraction (`ForceOffset::signed_fraction`) is at least
+/// `STATIC_FORCE_FRACTION` in magnitude, `Some((false, why))` when not, `None` for no run
 /// with zero-velocity samples. `why` gives the median, the count and the largest offset.
 pub fn static_force_from_data(offsets: &[Option<ForceOffset>]) -> Option<(bool, String)> {
     let known: Vec<&ForceOffset> = offsets.iter().flatten().collect();

@@ -24,7 +24,7 @@
 //!   noisy signal is biased upwards by the noise.
 //!
 //! * A run's per-sample condition level (the optional `alpha` column) is carried unfiltered
-//!   into [`Signals::alpha`] and the sequences ([`Sequence::alphas`]).
+//!   into `Signals::alpha` and the sequences ([`Sequence::alphas`]).
 //!
 //! Everything here is at the data's sample rate; the model integrates at its own rate, onto
 //! which the trainer interpolates the sequences (`train::adjoint::Grid`, docs/preprocessing.md).

@@ -22,9 +22,9 @@ pub struct PrepareConfig {
     /// Split.
     pub split: SplitConfig,
     /// Quasi-static window half-width as a fraction of the amplitude; `None` (the default)
-    /// means [`DEFAULT_QS_WINDOW`].
+    /// means `DEFAULT_QS_WINDOW`.
     pub quasi_static_window: Option<f64>,
-    /// Prepare runs whose force assists the motion ([`Dissipation::force_assists_motion`])
+    /// Prepare runs whose force assists the motion (`Dissipation::force_assists_motion`)
     /// instead of refusing them (default `false`).
     #[serde(default)]
     pub accept_implausible: bool,

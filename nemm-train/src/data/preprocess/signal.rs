@@ -219,7 +219,7 @@ pub enum VelocitySource {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SignalConfig {
     /// Cut-off of the zero-phase low-pass \[Hz\], one for every run; `None` (the default):
-    /// chosen per run from its displacement noise and excitation ([`Cutoff`]).
+    /// chosen per run from its displacement noise and excitation (`Cutoff`).
     pub cutoff_hz: Option<f64>,
     /// Velocity source (default [`VelocitySource::Auto`]).
     pub velocity_source: VelocitySource,
@@ -482,7 +482,7 @@ fn auto_cutoff_hz(
 }
 
 /// Derives filtered displacement, velocity, acceleration and filtered force of a run
-/// ([`SignalPath::process`] at `sample_rate_hz`).
+/// (`SignalPath::process` at `sample_rate_hz`).
 ///
 /// `run_index` only labels errors.
 pub fn process_run(

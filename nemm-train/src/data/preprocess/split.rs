@@ -33,9 +33,9 @@ pub struct SplitConfig {
     #[serde(default)]
     pub exclude_runs: Vec<String>,
     /// Fraction of each training run's windows held out for validation, in \[0, 1)
-    /// (default [`DEFAULT_VALIDATION_FRACTION`]).
+    /// (default `DEFAULT_VALIDATION_FRACTION`).
     pub validation_fraction: f64,
-    /// Seed of the position of each run's validation stretch (default [`DEFAULT_SPLIT_SEED`]).
+    /// Seed of the position of each run's validation stretch (default `DEFAULT_SPLIT_SEED`).
     pub seed: u64,
 }
 
@@ -104,7 +104,7 @@ impl SplitRules<'_> {
     /// The role of a run with oil-loss level `alpha` stored in `file`: unused if excluded
     /// (`exclude_runs`) or not at a training level, test if at a test level or matched by
     /// `test_runs`, else training and validation.
-    pub fn role(&self, file: &std::path::Path, alpha: f64) -> RunRole {
+    pub(crate) fn role(&self, file: &std::path::Path, alpha: f64) -> RunRole {
         let c = self.config;
         let has = |set: &[f64]| set.iter().any(|&a| (a - alpha).abs() <= ALPHA_TOLERANCE);
         if file_matches(&self.exclude_runs, file) {
@@ -273,7 +273,7 @@ impl SplitConfig {
     }
 
     /// The role of a run with oil-loss level `alpha` when only levels are known (no file
-    /// patterns): [`SplitRules::role`] without `test_runs` and `exclude_runs`.
+    /// patterns): `SplitRules::role` without `test_runs` and `exclude_runs`.
     pub fn role(&self, alpha: f64) -> RunRole {
         let has = |set: &[f64]| set.iter().any(|&a| (a - alpha).abs() <= ALPHA_TOLERANCE);
         if has(&self.test_alphas) {

@@ -34,9 +34,9 @@
 //! A figure that cannot be drawn (missing runs, rendering trouble) is skipped with a warning;
 //! only I/O errors fail [`write_all`].
 
-pub mod loops;
-pub mod maps;
-pub mod training;
+pub(crate) mod loops;
+pub(crate) mod maps;
+pub(crate) mod training;
 
 pub(crate) use loops::loop_requests;
 
@@ -85,7 +85,7 @@ enum Drawn {
 
 type Builder<'a> = Box<dyn Fn() -> Result<Drawn> + 'a>;
 
-/// The whole-run predictions [`write_all`] draws: the runs [`loop_requests`] names,
+/// The whole-run predictions [`write_all`] draws: the runs `loop_requests` names,
 /// simulated by their variants.
 pub fn figure_predictions(
     trained: &[TrainedVariant],
@@ -96,7 +96,7 @@ pub fn figure_predictions(
 
 /// Writes every figure of a comparison into `dir`, from the loaded `dataset` (raw forces),
 /// its `prepared` set, the `trained` variants, their test `report` and their whole-run
-/// `predictions` (for the runs [`loop_requests`] names). Figures of variants that were not
+/// `predictions` (for the runs `loop_requests` names). Figures of variants that were not
 /// trained are left out; a figure that cannot be drawn is skipped with a warning on stderr.
 /// Errors only on I/O failures.
 pub fn write_all(

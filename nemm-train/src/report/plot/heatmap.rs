@@ -69,7 +69,7 @@ impl ColorMap {
 impl HeatmapPanel {
     /// A heat map of `z[iy][ix]` over cell centres `x`, `y` with the sequential colour map,
     /// automatic range, no marks, contours or overlays.
-    pub fn new(
+    pub(crate) fn new(
         title: impl Into<String>,
         x_label: impl Into<String>,
         y_label: impl Into<String>,

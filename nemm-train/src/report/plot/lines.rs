@@ -40,7 +40,7 @@ pub(crate) struct Series {
 
 impl Series {
     /// A labelled polyline of width 2.
-    pub fn line(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+    pub(crate) fn line(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
         Series {
             label: Some(label.into()),
             points,
@@ -93,7 +93,11 @@ impl Series {
 
     /// A labelled band between `lower` and `upper` (one `(x, lower, upper)` per point, `x`
     /// ascending), filled in a light shade of `color`.
-    pub fn band(label: impl Into<String>, points: &[(f64, f64, f64)], color: RGBColor) -> Self {
+    pub(crate) fn band(
+        label: impl Into<String>,
+        points: &[(f64, f64, f64)],
+        color: RGBColor,
+    ) -> Self {
         let outline = points
             .iter()
             .map(|&(x, _, hi)| (x, hi))
@@ -163,7 +167,7 @@ pub(crate) struct LinePanel {
 
 impl LinePanel {
     /// An empty panel with a caption and axis labels.
-    pub fn new(
+    pub(crate) fn new(
         title: impl Into<String>,
         x_label: impl Into<String>,
         y_label: impl Into<String>,

@@ -57,7 +57,7 @@ pub(crate) fn ensure_font() -> Result<()> {
 }
 
 /// Colour palettes.
-pub mod palette {
+pub(super) mod palette {
     use plotters::style::RGBColor;
 
     /// Ten well-separated categorical colours (Tableau 10), cycling.
@@ -205,7 +205,7 @@ pub(crate) struct Figure {
 
 impl Figure {
     /// An empty `rows x cols` figure with 560 x 420 pixel panels.
-    pub fn new(rows: usize, cols: usize) -> Self {
+    pub(crate) fn new(rows: usize, cols: usize) -> Self {
         Figure {
             title: None,
             rows: rows.max(1),
@@ -273,7 +273,7 @@ impl Figure {
     }
 
     /// Size of the whole image in pixels.
-    pub fn size(&self) -> (u32, u32) {
+    pub(crate) fn size(&self) -> (u32, u32) {
         let title_h = if self.title.is_some() { 40 } else { 0 };
         (
             self.panel_size.0 * self.cols as u32,

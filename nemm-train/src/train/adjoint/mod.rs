@@ -23,7 +23,7 @@
 //! - the EMM right-hand side and force (`nemm_kernels::emm`), the RK step
 //!   (`nemm_kernels::integrator::step_with`) and the scalers (MLP and alpha branch,
 //!   `nemm_kernels::mlp::ScalerView::raw`, with the bounded output mapping `mlp::bounded`) are
-//!   nemm-core's own generic definitions, run here over [`Lanes`] of [`LANES`] windows with
+//!   nemm-core's own generic definitions, run here over [`Lanes`] of `LANES` windows with
 //!   unfused multiply-adds; their reverse modes (`rhs_backward`, `force_backward`,
 //!   `step_backward`, `ScalerView::raw_backward`, `bounded_backward`) sit next to them in
 //!   nemm-core, as does the weight layout (`mlp::ScalerLayout`). This module keeps the
@@ -32,7 +32,7 @@
 //!
 //! # Batching
 //!
-//! Windows are processed in packs of [`LANES`] that advance in lock step, so every weight is
+//! Windows are processed in packs of `LANES` that advance in lock step, so every weight is
 //! loaded once per pack and the inner loops vectorise across the lanes; packs run in
 //! parallel (rayon). Lanes that pad the last pack have zero loss weight.
 //!

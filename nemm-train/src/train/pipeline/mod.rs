@@ -109,7 +109,7 @@ pub struct PipelineConfig {
     /// Bounds `(s_min, s_max)` of the `b_fl` scale factor.
     pub b_fl_bounds: (f32, f32),
     /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered to what
-    /// the stable set at the model's step allows, [`crate::train::stability`]).
+    /// the stable set at the model's step allows, `crate::train::stability`).
     pub pr_bounds: (f32, f32),
     /// Integration rate of the model \[Hz\] (the exported step is `1 / model_rate_hz`),
     /// independent of the data's sample rate.
@@ -364,7 +364,7 @@ fn record(failed: &mut Vec<VariantFailure>, variant: ModelKind, e: anyhow::Error
 }
 
 /// Trains the requested variants; every variant must succeed (the first failure is the
-/// error). [`train_each`] keeps going past failures.
+/// error). `train_each` keeps going past failures.
 pub fn train_variants(
     prepared: &Prepared,
     variants: &[ModelKind],

@@ -83,7 +83,7 @@ pub(crate) fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) 
 }
 
 /// SEM map from quasi-static points (see the module docs): a force-velocity curve per level,
-/// with more levels than the map holds binned ([`sem_levels`]) and interpolated in alpha
+/// with more levels than the map holds binned (`sem_levels`) and interpolated in alpha
 /// between the bins by the map.
 pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
     if points.is_empty() {

@@ -14,7 +14,7 @@ use std::path::Path;
 
 /// What [`collect_sweep`] found and wrote.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Collected {
+pub(super) struct Collected {
     /// The table as written (`table5.md` or `table3.md`).
     pub markdown: String,
     /// Jobs in the table.
@@ -27,7 +27,7 @@ pub struct Collected {
 
 impl Collected {
     /// Prints the table, where it was written, and the jobs not in it.
-    pub fn print(&self, report: &Path, grid: SweepGrid) {
+    pub(super) fn print(&self, report: &Path, grid: SweepGrid) {
         println!("{}", self.markdown);
         println!(
             "sweep table in {} and {}",

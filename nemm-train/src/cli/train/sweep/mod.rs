@@ -19,7 +19,7 @@ use std::time::Instant;
 
 mod collect;
 mod record;
-pub mod slurm;
+pub(crate) mod slurm;
 
 pub use slurm::SlurmArgs;
 
@@ -57,9 +57,9 @@ pub enum SweepGrid {
     /// branches) and imposed by the physics penalty alone (the paper's way), other
     /// hyperparameters as given (Table 5 with the construction-against-penalty ablation).
     Priors,
-    /// Where the model may put the degradation ([`DegradationPoint::ALL`]: the paper's NEMM,
+    /// Where the model may put the degradation (`DegradationPoint::ALL`: the paper's NEMM,
     /// `b_fl` without its alpha branch, the lost-motion element, both; with `--lambda-diff`
-    /// each also trained with the matched-difference term, [`DegradationPoint::grid`]) times
+    /// each also trained with the matched-difference term, `DegradationPoint::grid`) times
     /// the `--lambda-ph` list (default: the base's `lambda_ph`), collected with the degradation
     /// signature, the levels read back and the learned against the bench's coefficients
     /// (`degradation.md`).
@@ -85,7 +85,7 @@ impl SweepGrid {
     }
 
     /// The `lambda_ph` list of the grid when `--lambda-ph` gives none: Table 5's
-    /// ([`TABLE5_LAMBDAS`]), for the degradation grid the base's one value.
+    /// (`TABLE5_LAMBDAS`), for the degradation grid the base's one value.
     pub fn default_lambdas(self, base: &Config) -> Vec<f64> {
         match self {
             SweepGrid::Degradation => vec![base.train.lambda_ph],
@@ -127,7 +127,7 @@ impl DegradationPoint {
 
     /// The grid: [`DegradationPoint::ALL`], and with a positive `lambda_diff` (the sweep's
     /// `--lambda-diff`) the four again trained with the difference term of that weight.
-    pub fn grid(lambda_diff: f64) -> Vec<DegradationPoint> {
+    pub(super) fn grid(lambda_diff: f64) -> Vec<DegradationPoint> {
         let mut v = Self::ALL.to_vec();
         if lambda_diff > 0.0 {
             v.extend(Self::ALL.map(|p| DegradationPoint { lambda_diff, ..p }));
@@ -136,7 +136,7 @@ impl DegradationPoint {
     }
 
     /// The point a job's configuration trains.
-    pub fn of(config: &Config) -> Self {
+    pub(super) fn of(config: &Config) -> Self {
         DegradationPoint {
             lost_motion: config.model.lost_motion,
             b_fl_alpha: config.model.b_fl_alpha,
@@ -146,7 +146,7 @@ impl DegradationPoint {
 
     /// The job id's prefix: `paper`, `fixed-b-fl`, `lost-motion`, `lost-motion-fixed-b-fl`,
     /// followed by `_diff<lambda_diff>` with the difference term.
-    pub fn name(self) -> String {
+    pub(super) fn name(self) -> String {
         let element = match (self.lost_motion, self.b_fl_alpha) {
             (false, true) => "paper",
             (false, false) => "fixed-b-fl",
@@ -385,7 +385,7 @@ pub(crate) fn write_jobs(jobs: &[SweepJob], report: &Path) -> Result<()> {
 #[derive(Debug, Clone, Default)]
 pub struct SweepOptions {
     /// Jobs at a time: local processes, or the Slurm array's `%N` throttle (default
-    /// [`slurm::DEFAULT_THROTTLE`] there, 1 locally).
+    /// `slurm::DEFAULT_THROTTLE` there, 1 locally).
     pub jobs: Option<usize>,
     /// Where the jobs run (default: as the sweep was created; [`Engine::Local`] for a new
     /// one).

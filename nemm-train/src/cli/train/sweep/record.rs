@@ -37,7 +37,7 @@ pub(crate) struct SweepManifest {
 
 impl SweepManifest {
     /// Reads `<report>/sweep-jobs.json`.
-    pub fn load(report: &Path) -> Result<Self> {
+    pub(crate) fn load(report: &Path) -> Result<Self> {
         let p = report.join(SWEEP_MANIFEST_FILE);
         let text = std::fs::read_to_string(&p).with_context(|| {
             format!(
@@ -50,7 +50,7 @@ impl SweepManifest {
     }
 
     /// Writes `<report>/sweep-jobs.json` (atomically).
-    pub fn save(&self, report: &Path) -> Result<()> {
+    pub(crate) fn save(&self, report: &Path) -> Result<()> {
         let p = report.join(SWEEP_MANIFEST_FILE);
         write_atomic_bytes(&p, serde_json::to_string_pretty(self)?.as_bytes())
             .with_context(|| format!("cannot write {}", p.display()))

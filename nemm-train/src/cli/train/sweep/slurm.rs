@@ -53,7 +53,7 @@ pub struct SlurmArgs {
 impl SlurmSettings {
     /// The settings of `args` and `throttle` (`--jobs`), those not given from `previous`
     /// (the sweep's last), else the defaults; the time limit checked.
-    pub fn resolve(
+    pub(crate) fn resolve(
         args: &SlurmArgs,
         throttle: Option<usize>,
         previous: Option<&SlurmSettings>,

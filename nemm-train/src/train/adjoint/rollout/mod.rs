@@ -40,7 +40,7 @@ fn common_len(windows: &[Window<'_>]) -> usize {
 
 /// Normalised MSE loss (eq. 23) over `windows` and its exact gradient. The model integrates
 /// on `grid`'s model steps and is scored at the data samples from sample `warmup` on (see
-/// [`Grid`]). Returns `(loss, gradient)`; packs of [`LANES`] windows run in parallel.
+/// [`Grid`]). Returns `(loss, gradient)`; packs of `LANES` windows run in parallel.
 pub fn loss_and_grad<T: Real>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
@@ -80,7 +80,7 @@ pub(crate) struct LossParts {
 
 impl LossParts {
     /// The loss the gradient is of.
-    pub fn total(&self) -> f64 {
+    pub(crate) fn total(&self) -> f64 {
         self.mse + self.diff
     }
 }
