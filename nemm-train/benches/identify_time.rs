@@ -48,7 +48,7 @@ fn main() {
         .expect("data options")
         .config;
     let (ds, prepared) =
-        nemm_train::cli::train::load_dataset_prepared(&data, &data_config.prepare_config())
+        nemm_train::data::load_dataset_prepared(&data, &data_config.prepare_config())
             .expect("dataset");
     let (model, training_seconds, source) = match std::env::var_os("NEMM_BENCH_MODEL") {
         Some(path) => {

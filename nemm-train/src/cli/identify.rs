@@ -1,9 +1,10 @@
 //! `nemm identify`: the best-fit level of every run of a dataset for a trained model, and
 //! the model's whole-run error per level and run (`crate::report::identify`).
 
-use crate::cli::train::{load_dataset_prepared, IDENTIFY_MD};
+use crate::cli::train::IDENTIFY_MD;
 use crate::config::{resolve_data, DataConfig};
 use crate::data::against_model::check_runs_against_model;
+use crate::data::load_dataset_prepared;
 use crate::data::preprocess::{file_matches, Prepared, ALPHA_TOLERANCE};
 use crate::output_guard::{self, Inputs, Output};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};

@@ -12,7 +12,8 @@
 //! These re-exports are the module's public surface (what the `nemm` command line and the
 //! integration tests use). The submodules are internal: the tables (`tables`), the
 //! identifiability report (`identify`), the degradation signature (Fig. 5, measured against
-//! modelled: `signature`), the degradation targets each against its bar (`targets`), the
+//! modelled: `signature`) and what a training job's report says of the degradation
+//! (`degradation`), the degradation targets each against its bar (`targets`), the
 //! reference comparison (`reference`), the figures (`figures`, `bench_plots`) drawn with the
 //! plotting helpers (`plot`), the reports of `nemm data check` and `prepare` (`dataset`), the
 //! blob description (`inspect`) and the observer on recorded
@@ -20,6 +21,7 @@
 pub(crate) mod accuracy;
 pub(crate) mod bench_plots;
 pub(crate) mod dataset;
+pub(crate) mod degradation;
 pub(crate) mod diagnose;
 pub(crate) mod figures;
 pub(crate) mod identify;

@@ -157,7 +157,7 @@ struct RunLoops {
 
 /// The measured and modelled loops of a dataset's runs, computed once for the report
 /// ([`signature_report`]) and the figure ([`signature_figure`]).
-pub struct SignatureLoops {
+pub(crate) struct SignatureLoops {
     runs: Vec<RunLoops>,
     variants: Vec<ModelKind>,
     dataset: String,

@@ -2,13 +2,12 @@
 //! Table 4 / Table 5 reports from the command line.
 
 use crate::config::{lambda_ph_scale_note, resolve_data, AlphaPriors, Config, CONFIG_FILE};
-use crate::data::preprocess::{self, PrepareConfig, Prepared};
+use crate::data::load_dataset_prepared;
+use crate::data::preprocess::{self, Prepared};
 use crate::output_guard::{self, Inputs, Output};
-use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
+use crate::report::identify::{identify_markdown, whole_run_markdown};
 use crate::report::inspect::describe;
-use crate::report::signature::{
-    signature_loops, signature_markdown, signature_report, SIGNATURE_FIGURE,
-};
+use crate::report::signature::signature_markdown;
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
@@ -28,45 +27,10 @@ mod demo;
 mod identity;
 mod sweep;
 
-pub use compare::{compare, compare_command, degradation_report};
+pub use compare::{compare, compare_command};
 pub use demo::{demo, DemoPaths};
 pub(crate) use identity::open_checkpoint;
 pub use sweep::{collect, resume, sweep, Engine, SlurmArgs, SweepGrid, SweepOptions, Table3Args};
-
-/// Loads and prepares a dataset, printing a one-line summary.
-pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {
-    load_dataset_prepared(dir, cfg).map(|(_, p)| p)
-}
-
-/// Loads and prepares a dataset; returns both (figures need the whole runs).
-pub fn load_dataset_prepared(
-    dir: &Path,
-    cfg: &PrepareConfig,
-) -> Result<(dataset::Dataset, Prepared)> {
-    let t = Instant::now();
-    let ds = dataset::load(dir)
-        .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
-    let prepared = preprocess::prepare(&ds, cfg)?;
-    eprintln!(
-        "dataset {:?}: {} runs; {} train / {} validation / {} test windows of {} + {} warm-up samples; force scale {:.0} N ({:.1} s)",
-        ds.name,
-        ds.runs.len(),
-        prepared.train.len(),
-        prepared.validation.len(),
-        prepared.test.len(),
-        prepared.scored_samples,
-        prepared.warmup_samples,
-        prepared.scales.force_n,
-        t.elapsed().as_secs_f64()
-    );
-    if prepared.test.is_empty() {
-        eprintln!(
-            "warning: no test windows ({}); test RMSE will be NaN",
-            cfg.split.describe()
-        );
-    }
-    Ok((ds, prepared))
-}
 
 /// `cfg` with its data options resolved for its dataset ([`resolve_data`], which prints
 /// them): what a job runs with and saves as `config.toml`.
@@ -507,7 +471,7 @@ pub(crate) fn check_job_outputs(
 pub struct ReportTo<'a> {
     /// The report folder.
     pub dir: &'a Path,
-    /// Also where the model puts the degradation ([`compare::degradation_report`]: every
+    /// Also where the model puts the degradation (`crate::report::degradation::degradation_report`: every
     /// run's best-fit level, the signature and its figure, the bench's reference), which
     /// costs more than the rest of the report; `false` writes the force errors, the audit
     /// and the configuration only (a sweep whose table does not show it).
@@ -581,7 +545,7 @@ pub fn train(
     if let Some(to) = report {
         let mut report = evaluated;
         let degradation = to.degradation.then(|| {
-            compare::degradation_report(
+            crate::report::degradation::degradation_report(
                 &mut report,
                 std::slice::from_ref(tv),
                 &ds,
@@ -596,7 +560,7 @@ pub fn train(
         write_report(to.dir, &report, "table.md")?;
         cfg.save(&to.dir.join(CONFIG_FILE))?;
         if let Some(loops) = degradation.as_ref().and_then(|d| d.signature.as_ref()) {
-            compare::write_signature_figure(loops, to.dir, report.force_scale_n);
+            crate::report::degradation::write_signature_figure(loops, to.dir, report.force_scale_n);
         }
     }
     Ok(())
