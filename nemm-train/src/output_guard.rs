@@ -34,11 +34,11 @@ pub(crate) enum OutputKind {
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Output<'a> {
     /// The option, e.g. `--out`.
-    pub option: &'a str,
+    pub(crate) option: &'a str,
     /// The path as given.
-    pub path: &'a Path,
+    pub(crate) path: &'a Path,
     /// What is written there.
-    pub kind: OutputKind,
+    pub(crate) kind: OutputKind,
 }
 
 impl<'a> Output<'a> {

@@ -1,6 +1,13 @@
 //! Bench data in the trainer: raw logger files imported into the dataset interchange format
 //! ([`nemm_dataset`]), plausibility checks, and the preprocessing into training sequences
 //! (section 5.3).
+//!
+//! The public surface is four modules, their helpers crate-private: [`import`] (raw files
+//! into a dataset), [`check`] (plausibility findings), [`preprocess`] (signals, split,
+//! sequences, scales: [`preprocess::prepare`]) and [`support_points`] (periodicity and
+//! quasi-static points of any excitation); and the loading of a prepared dataset
+//! ([`load_prepared`], [`load_dataset_prepared`]). The check of recorded runs against a
+//! trained model (`against_model`) is internal.
 pub(crate) mod against_model;
 pub mod check;
 pub mod import;

@@ -26,17 +26,17 @@ pub(crate) const NOT_EXCITED: &str = "†";
 #[serde(deny_unknown_fields)]
 pub(crate) struct AccuracyReport {
     /// [`FROM_S`].
-    pub from_s: f64,
+    pub(crate) from_s: f64,
     /// [`AGREEMENT`].
-    pub tolerance: f64,
+    pub(crate) tolerance: f64,
     /// The observer's error per run, in the order of `diagnose.json`.
-    pub runs: Vec<RunError>,
+    pub(crate) runs: Vec<RunError>,
     /// The summary line of the observer's error ([`error_summary`]).
-    pub summary: String,
+    pub(crate) summary: String,
     /// Its detail line ([`error_detail`]).
-    pub detail: String,
+    pub(crate) detail: String,
     /// The model's resolution per condition.
-    pub resolution: Resolution,
+    pub(crate) resolution: Resolution,
 }
 
 /// The observer's error on one run (see the module documentation).
@@ -44,22 +44,22 @@ pub(crate) struct AccuracyReport {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RunError {
     /// Run file, relative to the manifest.
-    pub file: String,
+    pub(crate) file: String,
     /// Length of the run \[s\].
-    pub duration_s: f64,
+    pub(crate) duration_s: f64,
     /// The observer's excited flag after the last sample.
-    pub excited: bool,
+    pub(crate) excited: bool,
     /// Its excited flag at [`FROM_S`] (after the last sample for a shorter run).
     pub(crate) excited_at_from: bool,
     /// The offline best fit (`None`: the model does not tell the levels apart on the run).
-    pub alpha_offline: Option<f64>,
+    pub(crate) alpha_offline: Option<f64>,
     /// The estimate at [`FROM_S`] (the final one for a shorter run).
-    pub alpha_at_from: f64,
+    pub(crate) alpha_at_from: f64,
     /// The largest `|estimate - alpha_offline|` from [`FROM_S`] to the end (of the final
     /// estimate for a shorter run); `None` without an offline fit.
-    pub worst_error: Option<f64>,
+    pub(crate) worst_error: Option<f64>,
     /// The run is no longer than [`FROM_S`]: judged by its final estimate.
-    pub short: bool,
+    pub(crate) short: bool,
 }
 
 impl RunError {
@@ -196,13 +196,13 @@ pub(crate) fn error_detail(runs: &[RunError]) -> String {
 #[serde(deny_unknown_fields)]
 pub(crate) struct LevelCell {
     /// Run file, relative to the manifest.
-    pub file: String,
+    pub(crate) file: String,
     /// Its offline best fit.
-    pub alpha_offline: Option<f64>,
+    pub(crate) alpha_offline: Option<f64>,
     /// The observer's final estimate.
-    pub alpha_hat: f64,
+    pub(crate) alpha_hat: f64,
     /// The observer's final excited flag.
-    pub excited: bool,
+    pub(crate) excited: bool,
 }
 
 /// One test condition: its runs, one per labelled level.
@@ -210,11 +210,11 @@ pub(crate) struct LevelCell {
 #[serde(deny_unknown_fields)]
 pub(crate) struct ConditionRow {
     /// Stroke amplitude \[m\].
-    pub amplitude_m: f64,
+    pub(crate) amplitude_m: f64,
     /// Target peak velocity \[m/s\].
-    pub velocity_m_s: f64,
+    pub(crate) velocity_m_s: f64,
     /// The run at each of [`Resolution::levels`] (`None`: no run at that level).
-    pub cells: Vec<Option<LevelCell>>,
+    pub(crate) cells: Vec<Option<LevelCell>>,
 }
 
 impl ConditionRow {
@@ -283,9 +283,9 @@ pub(crate) fn order(values: &[f64]) -> Order {
 #[serde(deny_unknown_fields)]
 pub(crate) struct Resolution {
     /// The labelled levels, increasing.
-    pub levels: Vec<f64>,
+    pub(crate) levels: Vec<f64>,
     /// The conditions, by decreasing amplitude, then increasing peak velocity.
-    pub rows: Vec<ConditionRow>,
+    pub(crate) rows: Vec<ConditionRow>,
     /// Runs left out: without an amplitude or a peak velocity in the manifest, or a second
     /// run of the same condition and level.
     pub(crate) left_out: Vec<String>,

@@ -47,7 +47,7 @@ pub(crate) const FIGURE_POINTS: usize = 2000;
 #[serde(deny_unknown_fields)]
 pub(crate) struct DiagnoseReport {
     /// The runs.
-    pub runs: Vec<RunDiagnosis>,
+    pub(crate) runs: Vec<RunDiagnosis>,
 }
 
 /// The diagnosis of one run (see the module documentation for the definitions).

@@ -41,12 +41,12 @@ pub(crate) const SAME_AMPLITUDE: f64 = 0.05;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct SteadyPart {
     /// First sample (the first at or above the mid-range after a rising crossing).
-    pub start: usize,
+    pub(crate) start: usize,
     /// One past the last sample (the first at or above the mid-range after the last rising
     /// crossing).
-    pub end: usize,
+    pub(crate) end: usize,
     /// Full periods in it.
-    pub periods: usize,
+    pub(crate) periods: usize,
 }
 
 /// The [`SteadyPart`] of a displacement record; an error when it has no full period.
@@ -82,18 +82,18 @@ pub(crate) fn steady_part(displacement_m: &[f64]) -> Result<SteadyPart> {
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Joined {
     /// Displacement \[m\].
-    pub displacement_m: Vec<f64>,
+    pub(crate) displacement_m: Vec<f64>,
     /// Force \[N\].
-    pub force_n: Vec<f64>,
+    pub(crate) force_n: Vec<f64>,
     /// Index of the first sample of the second run.
-    pub step: usize,
+    pub(crate) step: usize,
     /// The first run's steady part.
-    pub first: SteadyPart,
+    pub(crate) first: SteadyPart,
     /// The second run's steady part.
-    pub second: SteadyPart,
+    pub(crate) second: SteadyPart,
     /// The largest displacement jump at a join: the joined sample against the one that
     /// followed in the recorded run \[m\].
-    pub jump_m: f64,
+    pub(crate) jump_m: f64,
 }
 
 /// Mean period of a steady part \[samples\].
@@ -160,15 +160,15 @@ pub(crate) fn join(a: &Run, b: &Run, repeat: usize) -> Result<Joined> {
 #[serde(deny_unknown_fields)]
 pub(crate) struct StepRun {
     /// Run file, relative to the manifest.
-    pub file: String,
+    pub(crate) file: String,
     /// Its labelled level.
-    pub label: f64,
+    pub(crate) label: f64,
     /// Its offline best fit (the run alone).
-    pub alpha_offline: Option<f64>,
+    pub(crate) alpha_offline: Option<f64>,
     /// Start and end of its steady part in the run \[s\].
-    pub steady_s: [f64; 2],
+    pub(crate) steady_s: [f64; 2],
     /// Full periods in the steady part.
-    pub periods: usize,
+    pub(crate) periods: usize,
 }
 
 /// `level-step.json`.
@@ -176,27 +176,27 @@ pub(crate) struct StepRun {
 #[serde(deny_unknown_fields)]
 pub(crate) struct LevelStep {
     /// The run before the step.
-    pub first: StepRun,
+    pub(crate) first: StepRun,
     /// The run after the step.
-    pub second: StepRun,
+    pub(crate) second: StepRun,
     /// Times each steady part is played.
-    pub repeat: usize,
+    pub(crate) repeat: usize,
     /// Time of the step from the record's start \[s\].
-    pub step_s: f64,
+    pub(crate) step_s: f64,
     /// Length of the record \[s\].
-    pub duration_s: f64,
+    pub(crate) duration_s: f64,
     /// The largest displacement jump at a join \[m\].
-    pub jump_m: f64,
+    pub(crate) jump_m: f64,
     /// The estimate, band and excited flag at the last sample before the step.
-    pub before: StepEstimate,
+    pub(crate) before: StepEstimate,
     /// The same after the last sample.
-    pub end: StepEstimate,
+    pub(crate) end: StepEstimate,
     /// Time from the step until the estimate is first within [`AGREEMENT`] of the second
     /// run's offline fit \[s\]; `None`: never (or no fit).
-    pub reach_s: Option<f64>,
+    pub(crate) reach_s: Option<f64>,
     /// Time from the step after which the estimate stays within [`AGREEMENT`] of the second
     /// run's offline fit to the end \[s\]; `None`: not at the end (or no fit).
-    pub settle_s: Option<f64>,
+    pub(crate) settle_s: Option<f64>,
 }
 
 /// The observer's output at one sample.
@@ -204,11 +204,11 @@ pub(crate) struct LevelStep {
 #[serde(deny_unknown_fields)]
 pub(crate) struct StepEstimate {
     /// Estimate.
-    pub alpha: f64,
+    pub(crate) alpha: f64,
     /// Band (half-width).
-    pub band: f64,
+    pub(crate) band: f64,
     /// Excited flag.
-    pub excited: bool,
+    pub(crate) excited: bool,
 }
 
 /// Rounds to 1e-4.

@@ -36,11 +36,11 @@ pub(crate) const FAST_SMALL_RMSE: f64 = 0.08;
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct TargetCheck {
     /// What is measured.
-    pub target: String,
+    pub(crate) target: String,
     /// The bar.
-    pub bar: String,
+    pub(crate) bar: String,
     /// The report's figure.
-    pub measured: String,
+    pub(crate) measured: String,
     /// Met, not met, or not measured.
     pub(crate) met: Option<bool>,
 }

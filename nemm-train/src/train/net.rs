@@ -28,9 +28,9 @@ use nemm_kernels::static_force::STATIC_PARAMS;
 #[derive(Module, Debug)]
 pub(crate) struct Block {
     /// Linear map, weight `[in, out]`.
-    pub linear: Linear,
+    pub(crate) linear: Linear,
     /// LayerNorm (eps 1e-5, biased variance: as nemm-core).
-    pub norm: LayerNorm,
+    pub(crate) norm: LayerNorm,
     /// LeakyReLU (slope 0.01: as nemm-core).
     pub(crate) act: LeakyRelu,
 }

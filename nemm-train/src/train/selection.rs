@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub(crate) struct Selection {
     /// Epoch of the kept model (0: the model the stage started from).
-    pub best_epoch: usize,
+    pub(crate) best_epoch: usize,
     /// Its validation RMSE (normalised).
     pub(crate) best_val: f64,
     /// The kept model passed the monotonicity audit.

@@ -10,7 +10,7 @@ pub(crate) struct SessionBudget {
     /// First epoch of this invocation.
     pub(crate) start_epoch: usize,
     /// Epochs it may train (`None`: no limit).
-    pub epochs: Option<usize>,
+    pub(crate) epochs: Option<usize>,
 }
 
 impl SessionBudget {

@@ -28,7 +28,7 @@ const RIDGE: f64 = 1e-12;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct StaticSetup {
     /// Reference position: the mean measured position of the training samples \[m\].
-    pub x_ref: f64,
+    pub(crate) x_ref: f64,
     /// Largest `|x - x_ref|` of the training samples \[m\].
     pub(crate) x_span: f64,
     /// Smoothing velocity of the friction \[m/s\]: [`V_C_FRACTION`] of the velocity scale.

@@ -10,15 +10,15 @@ use plotters::prelude::*;
 #[derive(Debug, Clone)]
 pub(crate) struct HeatmapPanel {
     /// Panel caption.
-    pub title: String,
+    pub(crate) title: String,
     /// x-axis label.
     pub(crate) x_label: String,
     /// y-axis label.
     pub(crate) y_label: String,
     /// Cell centres in x (increasing).
-    pub x: Vec<f64>,
+    pub(crate) x: Vec<f64>,
     /// Cell centres in y (increasing).
-    pub y: Vec<f64>,
+    pub(crate) y: Vec<f64>,
     /// Values `z[iy][ix]`.
     pub(crate) z: Vec<Vec<f64>>,
     /// Colour range (automatic min..max if `None`).

@@ -27,13 +27,13 @@ pub(crate) enum SeriesStyle {
 #[derive(Debug, Clone)]
 pub(crate) struct Series {
     /// Legend label (no legend entry if `None`).
-    pub label: Option<String>,
+    pub(crate) label: Option<String>,
     /// Data points (x, y); non-finite points break the line.
-    pub points: Vec<(f64, f64)>,
+    pub(crate) points: Vec<(f64, f64)>,
     /// Colour.
     pub(crate) color: RGBColor,
     /// Line width / dot radius in pixels.
-    pub width: u32,
+    pub(crate) width: u32,
     /// Drawing style.
     pub(crate) style: SeriesStyle,
 }
@@ -144,13 +144,13 @@ pub(crate) enum LegendPosition {
 #[derive(Debug, Clone)]
 pub(crate) struct LinePanel {
     /// Panel caption.
-    pub title: String,
+    pub(crate) title: String,
     /// x-axis label.
     pub(crate) x_label: String,
     /// y-axis label.
     pub(crate) y_label: String,
     /// Series, drawn in order.
-    pub series: Vec<Series>,
+    pub(crate) series: Vec<Series>,
     /// x range (automatic with 3 % padding if `None`).
     pub(crate) x_range: Option<(f64, f64)>,
     /// y range (automatic with 5 % padding if `None`).

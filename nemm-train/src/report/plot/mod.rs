@@ -189,9 +189,9 @@ impl From<HeatmapPanel> for Panel {
 #[derive(Debug, Clone)]
 pub(crate) struct Figure {
     /// Figure title.
-    pub title: Option<String>,
+    pub(crate) title: Option<String>,
     /// Grid rows.
-    pub rows: usize,
+    pub(crate) rows: usize,
     /// Grid columns.
     pub(crate) cols: usize,
     /// Size of one panel in pixels.
@@ -200,7 +200,7 @@ pub(crate) struct Figure {
     pub(crate) panels: Vec<Panel>,
     /// Caption under the panels (paragraphs separated by `\n`, wrapped to the figure width),
     /// e.g. what the symbols mean.
-    pub footer: Option<String>,
+    pub(crate) footer: Option<String>,
 }
 
 impl Figure {

@@ -171,9 +171,9 @@ impl Default for PipelineConfig {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub(crate) struct SavedFrame {
     /// Initial rollout parameters of the stage.
-    pub initial: RolloutParams<f32>,
+    pub(crate) initial: RolloutParams<f32>,
     /// Training-data facts.
-    pub meta: Meta,
+    pub(crate) meta: Meta,
     /// Units of the static force's parameters in training (`None` without a static force).
     #[serde(default)]
     pub(crate) static_units: Option<[f32; STATIC_PARAMS]>,
@@ -335,18 +335,18 @@ pub fn with_branch(
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct VariantFailure {
     /// Which.
-    pub variant: ModelKind,
+    pub(crate) variant: ModelKind,
     /// The error, with its causes.
-    pub reason: String,
+    pub(crate) reason: String,
 }
 
 /// What [`train_each`] made of the requested variants.
 #[derive(Debug, Clone)]
 pub(crate) struct Trained {
     /// The variants that were trained, in the order of Table 4.
-    pub trained: Vec<TrainedVariant>,
+    pub(crate) trained: Vec<TrainedVariant>,
     /// The variants that failed, in the order of Table 4.
-    pub failed: Vec<VariantFailure>,
+    pub(crate) failed: Vec<VariantFailure>,
 }
 
 /// Records the failure of `variant`, unless `e` is the end of a time-boxed session (which

@@ -16,13 +16,13 @@ use std::path::Path;
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct Collected {
     /// The table as written (`table5.md` or `table3.md`).
-    pub markdown: String,
+    pub(crate) markdown: String,
     /// Jobs in the table.
-    pub done: usize,
+    pub(crate) done: usize,
     /// Failed jobs: id and why (exit status, the last line of the log).
-    pub failed: Vec<(String, String)>,
+    pub(crate) failed: Vec<(String, String)>,
     /// Jobs without a result or an exit status.
-    pub missing: Vec<String>,
+    pub(crate) missing: Vec<String>,
 }
 
 impl Collected {

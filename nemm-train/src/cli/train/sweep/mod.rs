@@ -99,11 +99,11 @@ impl SweepGrid {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct DegradationPoint {
     /// The lost-motion element in series with `k_pr` ([`crate::config::ModelConfig::lost_motion`]).
-    pub lost_motion: bool,
+    pub(crate) lost_motion: bool,
     /// `b_fl`'s alpha branch ([`crate::config::ModelConfig::b_fl_alpha`]).
-    pub b_fl_alpha: bool,
+    pub(crate) b_fl_alpha: bool,
     /// [`crate::config::TrainConfig::lambda_diff`] (0: the paper's loss).
-    pub lambda_diff: f64,
+    pub(crate) lambda_diff: f64,
 }
 
 impl DegradationPoint {
@@ -240,13 +240,13 @@ impl Table3Args {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(crate) struct SweepJob {
     /// Folder name under `<report>/jobs/`.
-    pub id: String,
+    pub(crate) id: String,
     /// The overridden settings (`lambda_ph`; for the Table 3 grid `batch`, `hidden`,
     /// `layers`, `lr`; for the priors grid `alpha_priors`; for the degradation grid
     /// `lost_motion`, `b_fl_alpha` and `lambda_diff`) with their values, for `sweep.json`.
     pub(crate) overrides: Vec<(String, String)>,
     /// The job's configuration.
-    pub config: Config,
+    pub(crate) config: Config,
 }
 
 /// The jobs of a sweep: one per grid point and `lambdas` value, each a copy of `base` with

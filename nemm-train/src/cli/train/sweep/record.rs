@@ -22,17 +22,17 @@ pub(crate) const EXIT_FILE: &str = "exit";
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(crate) struct SweepManifest {
     /// The grid (names the table file).
-    pub grid: SweepGrid,
+    pub(crate) grid: SweepGrid,
     /// The engine the jobs were last run on.
-    pub engine: Engine,
+    pub(crate) engine: Engine,
     /// Every job, in the order of the Slurm array's task indices.
-    pub jobs: Vec<SweepJob>,
+    pub(crate) jobs: Vec<SweepJob>,
     /// The Slurm job script's settings, once one was written.
     #[serde(default)]
-    pub slurm: Option<SlurmSettings>,
+    pub(crate) slurm: Option<SlurmSettings>,
     /// Every Slurm submission of the sweep, oldest first.
     #[serde(default)]
-    pub submissions: Vec<Submission>,
+    pub(crate) submissions: Vec<Submission>,
 }
 
 impl SweepManifest {
@@ -120,11 +120,11 @@ pub(crate) struct SlurmSettings {
     /// `--account`, if any.
     pub(crate) account: Option<String>,
     /// The time limit of each task (Slurm's format).
-    pub time: String,
+    pub(crate) time: String,
     /// CPUs per task.
     pub(crate) cpus_per_task: usize,
     /// Tasks at a time (the array's `%N`).
-    pub throttle: usize,
+    pub(crate) throttle: usize,
 }
 
 /// One `sbatch` of the sweep.
@@ -133,9 +133,9 @@ pub(crate) struct Submission {
     /// Slurm's job id of the array.
     pub(crate) job_id: String,
     /// The `--array` specification submitted (task indices and `%N`).
-    pub array: String,
+    pub(crate) array: String,
     /// When `sbatch` returned, in seconds since the epoch.
-    pub submitted_unix_s: f64,
+    pub(crate) submitted_unix_s: f64,
 }
 
 #[cfg(test)]

@@ -64,7 +64,7 @@ pub(crate) struct Pairing<'a> {
     /// outside its pack is ignored.
     pub(crate) partner: &'a [Option<usize>],
     /// Weight `lambda_diff` of the term, relative to eq. 23's.
-    pub weight: f64,
+    pub(crate) weight: f64,
 }
 
 /// The parts of the training loss of a batch, each normalised by the scored samples.
@@ -75,7 +75,7 @@ pub(crate) struct LossParts {
     /// The matched-difference term: `lambda_diff` times the mean over matched samples of
     /// `((e_a - e_b) / F_s)^2` (`e` the force error of two matched windows), counted per
     /// window so that it is comparable with `mse`.
-    pub diff: f64,
+    pub(crate) diff: f64,
 }
 
 impl LossParts {
