@@ -18,7 +18,7 @@ mod common;
 
 use nemm_core::ModelKind;
 use nemm_train::config::{resolve_data, Config};
-use nemm_train::report::identify::{identify_report, used_runs, IdentifyReport};
+use nemm_train::report::{identify_report, used_runs, IdentifyReport};
 use nemm_train::train::identify::{Search, DEFAULT_STEP};
 use nemm_train::train::pipeline::{train_variants, PipelineConfig};
 use std::path::{Path, PathBuf};
@@ -57,7 +57,7 @@ fn main() {
         .expect("data options")
         .config;
     let (ds, prepared) =
-        nemm_train::cli::train::load_dataset_prepared(&data, &data_config.prepare_config())
+        nemm_train::data::load_dataset_prepared(&data, &data_config.prepare_config())
             .expect("dataset");
     let (model, training_seconds, source) = match std::env::var_os("NEMM_BENCH_MODEL") {
         Some(path) => {

@@ -20,8 +20,8 @@ fn main() {
     // `cargo bench` passes `--bench`; nothing else is accepted.
     let data = common::bench_data();
     let config = Config::default();
-    let prepared = nemm_train::cli::train::load_prepared(&data, &config.data.prepare_config())
-        .expect("dataset");
+    let prepared =
+        nemm_train::data::load_prepared(&data, &config.data.prepare_config()).expect("dataset");
     let cfg = PipelineConfig::of(&config);
     let t = Instant::now();
     let trained = train_variants(&prepared, &[ModelKind::Nemm], &cfg, None, false).expect("train");

@@ -272,7 +272,7 @@ fn session_needs_checkpoint(
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
-        Cmd::Inspect { model } => nemm_train::report::inspect::run(&model),
+        Cmd::Inspect { model } => nemm_train::report::inspect(&model),
         Cmd::Data { cmd } => nemm_train::cli::data::run(cmd),
         Cmd::Bench(args) => nemm_train::cli::bench::run(args),
         Cmd::Train {

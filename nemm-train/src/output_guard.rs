@@ -12,12 +12,12 @@
 
 use anyhow::{bail, Context, Result};
 use nemm_dataset::atomic_file;
-pub use nemm_dataset::atomic_file::resolve_link;
+pub(crate) use nemm_dataset::atomic_file::resolve_link;
 use std::path::{Path, PathBuf};
 
 /// What a command writes at an output path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum OutputKind {
+pub(crate) enum OutputKind {
     /// A weights blob (`.nemm`): an existing file that is not one is replaced only with the
     /// command's replace flag.
     Blob,
@@ -32,18 +32,18 @@ pub enum OutputKind {
 
 /// One output of a command: the option that names it, its path and its kind.
 #[derive(Debug, Clone, Copy)]
-pub struct Output<'a> {
+pub(crate) struct Output<'a> {
     /// The option, e.g. `--out`.
-    pub option: &'a str,
+    pub(crate) option: &'a str,
     /// The path as given.
-    pub path: &'a Path,
+    pub(crate) path: &'a Path,
     /// What is written there.
-    pub kind: OutputKind,
+    pub(crate) kind: OutputKind,
 }
 
 impl<'a> Output<'a> {
     /// A weights blob written at `path`, named by `option`.
-    pub fn blob(option: &'a str, path: &'a Path) -> Self {
+    pub(crate) fn blob(option: &'a str, path: &'a Path) -> Self {
         Self {
             option,
             path,
@@ -52,7 +52,7 @@ impl<'a> Output<'a> {
     }
 
     /// A file written at `path`, named by `option`.
-    pub fn file(option: &'a str, path: &'a Path) -> Self {
+    pub(crate) fn file(option: &'a str, path: &'a Path) -> Self {
         Self {
             option,
             path,
@@ -61,7 +61,7 @@ impl<'a> Output<'a> {
     }
 
     /// A folder written at `path`, named by `option`.
-    pub fn folder(option: &'a str, path: &'a Path) -> Self {
+    pub(crate) fn folder(option: &'a str, path: &'a Path) -> Self {
         Self {
             option,
             path,
@@ -70,7 +70,7 @@ impl<'a> Output<'a> {
     }
 
     /// A dataset folder written (replaced as a whole) at `path`, named by `option`.
-    pub fn dataset(option: &'a str, path: &'a Path) -> Self {
+    pub(crate) fn dataset(option: &'a str, path: &'a Path) -> Self {
         Self {
             option,
             path,
@@ -95,16 +95,16 @@ struct Input {
 /// The inputs of a command, each resolved through symbolic links. Inputs that do not exist
 /// are left out (the command reports them when it reads them).
 #[derive(Debug, Clone, Default)]
-pub struct Inputs(Vec<Input>);
+pub(crate) struct Inputs(Vec<Input>);
 
 impl Inputs {
     /// No inputs.
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
     /// An input file or folder `path`, described as `what` (e.g. `--model`).
-    pub fn path(mut self, what: &str, path: &Path) -> Self {
+    pub(crate) fn path(mut self, what: &str, path: &Path) -> Self {
         if let Ok(resolved) = std::fs::canonicalize(path) {
             self.0.push(Input {
                 what: what.to_string(),
@@ -117,13 +117,13 @@ impl Inputs {
     }
 
     /// Input files `paths`, each described as `what`.
-    pub fn paths<'p>(self, what: &str, paths: impl IntoIterator<Item = &'p Path>) -> Self {
+    pub(crate) fn paths<'p>(self, what: &str, paths: impl IntoIterator<Item = &'p Path>) -> Self {
         paths.into_iter().fold(self, |s, p| s.path(what, p))
     }
 
     /// The dataset folder `dir` (`what`: its option, e.g. `--data`), its manifest and every
     /// run file the manifest lists (run files may lie outside the folder).
-    pub fn dataset(self, what: &str, dir: &Path) -> Self {
+    pub(crate) fn dataset(self, what: &str, dir: &Path) -> Self {
         let manifest = dir.join(nemm_dataset::MANIFEST_FILE);
         let runs: Vec<PathBuf> = nemm_dataset::read_manifest(dir)
             .map(|m| m.runs.iter().map(|r| dir.join(&r.file)).collect())
@@ -141,7 +141,7 @@ impl Inputs {
 /// `path` absolute and resolved through symbolic links: canonical when it exists, else its
 /// nearest existing ancestor canonical and the rest appended (`..` and `.` folded)
 /// ([`nemm_dataset::atomic_file::resolve`]).
-pub fn resolve(path: &Path) -> Result<PathBuf> {
+pub(crate) fn resolve(path: &Path) -> Result<PathBuf> {
     atomic_file::resolve(path).context("cannot read the current folder")
 }
 
@@ -151,7 +151,7 @@ pub fn resolve(path: &Path) -> Result<PathBuf> {
 /// writable ([`check_output_file`], [`check_output_dir`]); and an existing file at a blob
 /// output must be a weights blob unless `replace` (the command's flag `replace_flag`) is
 /// given. Each refusal names the option, the path and the input.
-pub fn check(
+pub(crate) fn check(
     outputs: &[Output<'_>],
     inputs: &Inputs,
     replace: bool,
@@ -229,7 +229,7 @@ fn is_blob(path: &Path) -> bool {
 /// `path` given as `option` (e.g. `--out`) can be written as a file: it is not a folder, its
 /// parent folder exists, and a probe file can be created there (created with `create_new`
 /// and removed at once).
-pub fn check_output_file(option: &str, path: &Path) -> Result<()> {
+pub(crate) fn check_output_file(option: &str, path: &Path) -> Result<()> {
     if path.is_dir() {
         bail!(
             "{option} {}: is a folder; give a file path, e.g. {}",
@@ -256,7 +256,7 @@ pub fn check_output_file(option: &str, path: &Path) -> Result<()> {
 /// `path` given as `option` (e.g. `--report`) can be used as an output folder: it is a
 /// writable folder, or it does not exist and its nearest existing ancestor is a writable
 /// folder (the job creates it).
-pub fn check_output_dir(option: &str, path: &Path) -> Result<()> {
+pub(crate) fn check_output_dir(option: &str, path: &Path) -> Result<()> {
     let mut existing = path.to_path_buf();
     loop {
         if existing.exists() {

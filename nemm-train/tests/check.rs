@@ -1,8 +1,8 @@
 //! `nemm data check`: plausibility findings, robust amplitude and the velocity-column check.
 use nemm_dataset::{Dataset, Run, RunEntry};
-use nemm_train::cli::data::check_report;
 use nemm_train::data::check::{self, Finding, FindingKind};
 use nemm_train::data::preprocess::{self, SignalConfig};
+use nemm_train::report::check_report;
 use std::f64::consts::PI;
 use std::path::PathBuf;
 use support::quantise;

@@ -7,7 +7,7 @@ use nemm_core::{Estimator, EstimatorConfig, Model, ModelKind, Sample};
 use nemm_dataset as dataset;
 use nemm_train::config::{Config, CONFIG_FILE};
 use nemm_train::data::preprocess;
-use nemm_train::report::tables::Report;
+use nemm_train::report::Report;
 use std::ffi::OsStr;
 use std::path::Path;
 use std::process::{Command, Output};
@@ -680,7 +680,7 @@ fn the_cli_trains_evaluates_exports_and_sweeps() {
 /// alpha dependence is flat; a pattern that matches nothing is refused.
 #[test]
 fn identify_prints_and_writes_the_best_fit_level_of_each_run() {
-    use nemm_train::report::identify::IdentifyReport;
+    use nemm_train::report::IdentifyReport;
     use nemm_train::train::identify::Search;
     let tmp = tempfile::tempdir().expect("temp dir");
     let dir = tmp.path();

@@ -1,13 +1,13 @@
-//! Report figures (`nemm_train::report::figures`): every figure is written as a valid PNG of the
+//! Report figures (`nemm_train::report`): every figure is written as a valid PNG of the
 //! expected size from example models and a small synthetic dataset; figures of variants that
 //! were not trained are left out; only I/O failures are errors.
 use nemm_core::testing::example_model;
 use nemm_core::ModelKind;
 use nemm_dataset::{Dataset, Run};
 use nemm_train::data::preprocess::{self, PrepareConfig, Prepared};
-use nemm_train::report::figures::{figure_predictions, write_all, write_all_with_reference};
-use nemm_train::report::predictions::RunPredictions;
-use nemm_train::report::tables::{evaluate, Report};
+use nemm_train::report::RunPredictions;
+use nemm_train::report::{evaluate, Report};
+use nemm_train::report::{figure_predictions, write_all, write_all_with_reference};
 use nemm_train::train::history::EpochStats;
 use nemm_train::train::pipeline::TrainedVariant;
 use nemm_virtual_bench::config::BenchConfig;
@@ -349,7 +349,7 @@ fn the_report_breaks_the_test_error_down_by_held_out_run() {
     }
     // Markdown: a row per run in newtons, and the shares of the NEMM's squared error add up
     // to 100 %.
-    let md = nemm_train::report::tables::test_runs_markdown(&report);
+    let md = nemm_train::report::test_runs_markdown(&report);
     let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| runs/")).collect();
     assert_eq!(rows.len(), 2, "{md}");
     let share: f64 = rows
@@ -381,7 +381,7 @@ fn the_report_breaks_the_test_error_down_by_held_out_run() {
     old.as_object_mut().expect("object").remove("test_runs");
     let old: Report = serde_json::from_value(old).expect("old report");
     assert!(old.test_runs.is_empty());
-    assert!(nemm_train::report::tables::test_runs_markdown(&old).is_empty());
+    assert!(nemm_train::report::test_runs_markdown(&old).is_empty());
 }
 
 #[test]
@@ -424,7 +424,7 @@ fn coefficient_figures_draw_the_bench_reference_on_bench_data() {
         .iter()
         .find(|t| t.variant == ModelKind::Nemm)
         .expect("nemm");
-    let cmp = nemm_train::report::reference::compare(&nemm.model, &r);
+    let cmp = nemm_train::report::compare_reference(&nemm.model, &r);
     assert_eq!(cmp.rows.len(), 4 + 1 + 6, "{cmp:?}");
     for row in cmp.rows.iter().filter(|r| r.learned.starts_with("k_pr")) {
         assert!(row.reference_change < -0.5, "{row:?}");

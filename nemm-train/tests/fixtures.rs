@@ -276,7 +276,7 @@ fn bench_plot_draws_loops_at_300_hz_with_offsets_and_density_for_random_runs() {
         };
         let signals = preprocess::run_signals(&ds, &cfg).unwrap();
         let out = tmp.path().join(name);
-        let plotted = nemm_train::report::bench_plots::plot_loaded(&ds, &signals, &out).unwrap();
+        let plotted = nemm_train::report::plot_loaded(&ds, &signals, &out).unwrap();
         assert!(plotted.skipped.is_empty(), "{name}: {:?}", plotted.skipped);
         let files = plotted.written;
         assert!(files.iter().any(|f| f.ends_with(expect)), "{files:?}");
@@ -296,7 +296,7 @@ fn bench_plot_draws_loops_at_300_hz_with_offsets_and_density_for_random_runs() {
         .iter()
         .zip(preprocess::run_signals(&ds, &cfg).unwrap())
     {
-        let l = nemm_train::report::bench_plots::cycle_loop(run, &sig.velocity_m_s).unwrap();
+        let l = nemm_train::report::cycle_loop(run, &sig.velocity_m_s).unwrap();
         assert_eq!(l.bins(), 128);
         let (reb, comp) = l.quasi_static_n();
         assert!(reb > 100.0 && comp < -100.0, "{reb} {comp}");

@@ -4,7 +4,7 @@
 //! comparison in which one variant fails but Table 4 is still written.
 use nemm_dataset as dataset;
 use nemm_train::config::{Config, CONFIG_FILE, DATA_OPTIONS_FILE};
-use nemm_train::report::tables::Report;
+use nemm_train::report::Report;
 use std::path::Path;
 use std::process::{Command, Output};
 use support::SineRun;

@@ -3,7 +3,7 @@
 
 use nemm_dataset::{self as dataset, Run, RunEntry};
 use nemm_train::data::preprocess::{process_run, run_signals, SignalConfig};
-use nemm_train::report::bench_plots::{cycle_loop, CycleLoop};
+use nemm_train::report::{cycle_loop, CycleLoop};
 use nemm_virtual_bench::config::{self, BenchConfig};
 use nemm_virtual_bench::program::{run_spec, RunSpec};
 use nemm_virtual_bench::{Trace, VirtualBench};
@@ -493,7 +493,7 @@ fn plots_are_written_for_a_generated_dataset() {
     let cfg = tiny_config("plot");
     let (data, out) = (temp_dir("plot-data"), temp_dir("plot-out"));
     dataset::write(&data, &VirtualBench::new(cfg).generate(3, |_, _| {})).unwrap();
-    let plotted = nemm_train::report::bench_plots::plot_dataset(&data, &out).unwrap();
+    let plotted = nemm_train::report::plot_dataset(&data, &out).unwrap();
     assert!(plotted.skipped.is_empty(), "{:?}", plotted.skipped);
     let files = plotted.written;
     let names: Vec<String> = files

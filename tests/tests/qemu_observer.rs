@@ -8,7 +8,7 @@
 //!    period's measured force (after the load cell's 24-bit quantisation), alpha estimate,
 //!    band and observer flags must be identical, as must the digests (which cover them) and
 //!    the counters.
-//! 2. **Against `nemm diagnose`** (`nemm_train::report::diagnose::diagnose_run`): the
+//! 2. **Against `nemm diagnose`** (`nemm_train::report::diagnose_run`): the
 //!    observer of the default capacity on the trainer's causal velocity of the recorded
 //!    displacement (not quantised to the ADC's 12 nm), the recorded position and the
 //!    recorded force (not quantised to the load cell's 1.19 mN). The inputs differ by the
@@ -42,7 +42,7 @@ use nemm_tests::firmware::{
     WEIGHTS_SECTION,
 };
 use nemm_tests::reference::{self, Reference};
-use nemm_train::report::diagnose::{diagnose_run, AGREEMENT};
+use nemm_train::report::{diagnose_run, AGREEMENT};
 use std::path::Path;
 use std::time::Duration;
 

@@ -1,7 +1,7 @@
 //! `nemm diagnose`: the online alpha observer over recorded runs against the offline best fit
-//! of the same model ([`crate::report::diagnose`]), as a table, `diagnose.json` and one
-//! alpha(t) figure per run; the accuracy tables ([`crate::report::accuracy`]); and, with
-//! `--level-step`, a record whose level steps ([`crate::report::level_step`]).
+//! of the same model (`crate::report::diagnose`), as a table, `diagnose.json` and one
+//! alpha(t) figure per run; the accuracy tables (`crate::report::accuracy`); and, with
+//! `--level-step`, a record whose level steps (`crate::report::level_step`).
 
 use crate::cli::identify::runs_matching;
 use crate::data::against_model::check_runs_against_model;
@@ -25,20 +25,20 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The diagnosis's file in the `--report` folder.
-pub const DIAGNOSE_JSON: &str = "diagnose.json";
+pub(crate) const DIAGNOSE_JSON: &str = "diagnose.json";
 
 /// The accuracy tables ([`accuracy_markdown`]) in the `--report` folder.
-pub const ACCURACY_MD: &str = "accuracy.md";
+pub(crate) const ACCURACY_MD: &str = "accuracy.md";
 
 /// The accuracy figures ([`AccuracyReport`]) in the `--report` folder.
-pub const ACCURACY_JSON: &str = "accuracy.json";
+pub(crate) const ACCURACY_JSON: &str = "accuracy.json";
 
 /// The level step ([`LevelStep`]) in the `--report` folder, with `level-step.md` and
 /// `level-step.png`.
-pub const LEVEL_STEP_JSON: &str = "level-step.json";
+pub(crate) const LEVEL_STEP_JSON: &str = "level-step.json";
 
 /// The longest level-step record `--step-repeat` may make (samples): 1000 s at 10 kHz.
-pub const MAX_STEP_SAMPLES: usize = 10_000_000;
+pub(crate) const MAX_STEP_SAMPLES: usize = 10_000_000;
 
 /// What `nemm diagnose` is asked.
 #[derive(Debug, Clone)]
@@ -62,7 +62,7 @@ pub struct DiagnoseArgs {
 /// prints the table, the summary lines and the ordering counts of the resolution table, and,
 /// with a level step, joins
 /// its two runs and runs the observer over the record. Writes one `alpha_<run>.png` per run,
-/// the level step's files, [`ACCURACY_MD`], [`ACCURACY_JSON`] and then [`DIAGNOSE_JSON`] into
+/// the level step's files, `ACCURACY_MD`, `ACCURACY_JSON` and then `DIAGNOSE_JSON` into
 /// the report folder. Nothing is written when an input is bad.
 pub fn diagnose(args: &DiagnoseArgs) -> Result<()> {
     let inputs = Inputs::new()

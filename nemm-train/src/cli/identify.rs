@@ -1,9 +1,10 @@
 //! `nemm identify`: the best-fit level of every run of a dataset for a trained model, and
-//! the model's whole-run error per level and run ([`crate::report::identify`]).
+//! the model's whole-run error per level and run (`crate::report::identify`).
 
-use crate::cli::train::{load_dataset_prepared, IDENTIFY_MD};
+use crate::cli::train::IDENTIFY_MD;
 use crate::config::{resolve_data, DataConfig};
 use crate::data::against_model::check_runs_against_model;
+use crate::data::load_dataset_prepared;
 use crate::data::preprocess::{file_matches, Prepared, ALPHA_TOLERANCE};
 use crate::output_guard::{self, Inputs, Output};
 use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
@@ -15,13 +16,13 @@ use std::path::Path;
 use std::time::Instant;
 
 /// The identification's file in a `nemm identify --report` folder.
-pub const IDENTIFY_JSON: &str = "identify.json";
+pub(crate) const IDENTIFY_JSON: &str = "identify.json";
 
 /// The positions in `files` (run files, paths relative to the manifest) of those matched by
 /// one of the glob `patterns` on the path or the file name
 /// ([`crate::data::preprocess::file_matches`]); a pattern that is not a glob, or that
 /// matches no file (even when another pattern does), is an error naming it.
-pub fn runs_matching<'a>(
+pub(crate) fn runs_matching<'a>(
     files: impl IntoIterator<Item = &'a Path>,
     patterns: &[String],
 ) -> Result<Vec<usize>> {
@@ -58,7 +59,7 @@ pub fn runs_matching<'a>(
 
 /// The dataset indices of the runs of `prepared` whose file (path relative to the manifest,
 /// or file name) matches one of `patterns`; without patterns, every run the split uses.
-pub fn select_runs(prepared: &Prepared, patterns: &[String]) -> Result<Vec<usize>> {
+pub(crate) fn select_runs(prepared: &Prepared, patterns: &[String]) -> Result<Vec<usize>> {
     if patterns.is_empty() {
         return Ok(used_runs(prepared));
     }
@@ -74,13 +75,13 @@ pub fn select_runs(prepared: &Prepared, patterns: &[String]) -> Result<Vec<usize
 }
 
 /// The most levels of `nemm identify`'s grid (a step of 1/1000 of the trained range).
-pub const MAX_GRID_LEVELS: usize = 1001;
+pub(crate) const MAX_GRID_LEVELS: usize = 1001;
 
 /// Checks identify's grid of step `step` for `model` before it is built: at most
 /// [`MAX_GRID_LEVELS`] levels, and each of `levels` (`what`: what they are) on it, so that the
 /// best fit can land on them (`nemm identify` refuses a grid without the model's trained
 /// range's ends and warns of one without a run's label).
-pub fn check_grid(
+pub(crate) fn check_grid(
     model: &nemm_core::Model,
     step: f64,
     levels: impl IntoIterator<Item = f64>,
@@ -119,7 +120,7 @@ pub fn check_grid(
 /// `nemm identify`: loads the blob `model_path` and the dataset of `data` (its data options
 /// resolved as every command does), identifies the runs matched by `runs` (every run the
 /// split uses without patterns) on a grid of step `step` searched by `search`, prints the
-/// tables and, with `report`, writes [`IDENTIFY_JSON`] and `identify.md` there. The
+/// tables and, with `report`, writes `IDENTIFY_JSON` and `identify.md` there. The
 /// normalised RMSE divides by the model's training force scale.
 pub fn identify(
     model_path: &Path,

@@ -1,4 +1,7 @@
-//! The `nemm` command line: argument types and the handlers of each command.
+//! The `nemm` command line: argument types and the handlers of each command, which
+//! `src/main.rs` calls after parsing. A handler checks the outputs, loads the inputs, calls
+//! the library ([`crate::data`], [`crate::train`], [`crate::report`]) and writes or prints
+//! the result.
 pub mod bench;
 pub mod data;
 pub mod diagnose;

@@ -38,7 +38,7 @@ pub struct DataConfig {
     pub dir: PathBuf,
     /// Cut-off of the zero-phase low-pass before differentiation \[Hz\], the same for every
     /// run; not set: chosen per run from its displacement noise and excitation
-    /// ([`preprocess::Cutoff`]).
+    /// (`preprocess::Cutoff`).
     #[arg(long, value_name = "HZ", help = with_default(
         "Cut-off of the zero-phase low-pass before differentiation (Hz), the same for every run",
         format!("per run: at most min({DEFAULT_CUTOFF_HZ}, {CUTOFF_FRACTION_OF_RATE} x sample \
@@ -116,7 +116,7 @@ pub struct DataConfig {
         value_name = "BOOL",
         help = "Train on runs whose force assists the motion (an inverted force or \
                 displacement sign) instead of refusing them [default: refuse]")]
-    pub accept_implausible: Option<bool>,
+    pub(crate) accept_implausible: Option<bool>,
 }
 
 /// Where a resolved data option came from.
@@ -151,7 +151,7 @@ pub struct ResolvedData {
     /// `(option, value, source)` in print order.
     pub choices: Vec<(&'static str, String, OptionSource)>,
     /// The dataset's options file, if one was read.
-    pub options_file: Option<PathBuf>,
+    pub(crate) options_file: Option<PathBuf>,
 }
 
 impl ResolvedData {
@@ -266,7 +266,7 @@ impl DataConfig {
 
     /// Reads a dataset's [`DATA_OPTIONS_FILE`] (`None` if it has none). Its keys are those of
     /// `[data]` without `dir`.
-    pub fn load_options_file(dataset_dir: &Path) -> Result<Option<DataConfig>> {
+    pub(crate) fn load_options_file(dataset_dir: &Path) -> Result<Option<DataConfig>> {
         let path = dataset_dir.join(DATA_OPTIONS_FILE);
         let text = match std::fs::read_to_string(&path) {
             Ok(t) => t,
@@ -286,7 +286,7 @@ impl DataConfig {
 
     /// Writes these options (without `dir`) as the dataset's [`DATA_OPTIONS_FILE`]; returns
     /// its path.
-    pub fn save_options_file(&self, dataset_dir: &Path) -> Result<PathBuf> {
+    pub(crate) fn save_options_file(&self, dataset_dir: &Path) -> Result<PathBuf> {
         let path = dataset_dir.join(DATA_OPTIONS_FILE);
         let mut c = self.clone();
         c.dir = PathBuf::new();
@@ -305,7 +305,7 @@ impl DataConfig {
 /// (Table 2) if it is an interior level, else the interior level nearest the middle of the
 /// range (the lower one on a tie), so that the test is an interpolation in alpha as in the
 /// paper; with fewer than three levels, the last [`DEFAULT_TEST_TAIL`] of every run.
-pub fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
+pub(crate) fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
     let interior: Vec<f64> = match levels {
         [_, inner @ .., _] => inner.to_vec(),
         _ => Vec::new(),
@@ -355,7 +355,7 @@ pub fn adaptive_test_set(levels: &[f64]) -> (Option<f64>, Option<f64>, String) {
 /// Resolves the data options `given` (command line over `--config`) over the dataset's
 /// options file `file` over the choices from the dataset `manifest`, recording where each
 /// came from.
-pub fn resolve_with(
+pub(crate) fn resolve_with(
     given: &DataConfig,
     file: Option<&DataConfig>,
     manifest: &Manifest,
@@ -529,7 +529,7 @@ fn resolve_validation(layers: &Layers<'_>, c: &mut DataConfig) -> Choice {
 
 /// Resolves the data options of `given` for its dataset (`given.dir`): reads the manifest
 /// and the dataset's [`DATA_OPTIONS_FILE`] if there is one, chooses the rest from the data
-/// ([`resolve_with`]) and prints the "data options" block on stderr.
+/// (`resolve_with`) and prints the "data options" block on stderr.
 pub fn resolve_data(given: &DataConfig) -> Result<ResolvedData> {
     let dir = given.require_dir()?;
     let manifest = dataset::read_manifest(dir)

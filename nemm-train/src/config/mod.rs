@@ -12,7 +12,7 @@
 //! (`train::pipeline::PipelineConfig::of`, `train::fit::FitConfig::of`) are built from the
 //! resolved structs, and the command line ([`ConfigArgs`]: `--config`, `--data` and the three
 //! parts' options) overrides a configuration (the defaults, or a TOML file given with
-//! `--config`). A configuration is written to and read from TOML ([`Config::to_toml`],
+//! `--config`). A configuration is written to and read from TOML (`Config::to_toml`,
 //! [`Config::load`]); `nemm train --report`, `nemm compare` and `nemm demo` save the
 //! effective one as `config.toml`, and `nemm sweep` runs each job from such a file.
 
@@ -32,7 +32,7 @@ const PAPER_SCALE_LAMBDA_PH: f64 = 0.1;
 
 /// Test fraction at the end of every run chosen when the dataset has fewer than three
 /// levels (no level can be held out and interpolated).
-pub const DEFAULT_TEST_TAIL: f64 = 0.2;
+pub(crate) const DEFAULT_TEST_TAIL: f64 = 0.2;
 
 mod args;
 mod data;
@@ -41,35 +41,32 @@ mod section;
 mod training;
 
 pub use args::ConfigArgs;
-pub use data::{
-    adaptive_test_set, resolve_data, resolve_with, DataConfig, OptionSource, ResolvedData,
-};
-pub use model::{
-    AlphaPriors, ModelConfig, ModelOptions, DEFAULT_MODEL_RATE_HZ, DEFAULT_STATIC_FORCE,
-};
+pub use data::{resolve_data, DataConfig};
+pub(crate) use model::{AlphaPriors, DEFAULT_STATIC_FORCE};
+pub use model::{ModelConfig, ModelOptions};
 pub use training::{Balance, TrainConfig, TrainOptions};
 
 /// The model rates \[Hz\] training accepts: a step from 100 ms down to 1 us, which an `f32`
 /// step of the blob format holds to 7 digits (docs/training.md, "Limits of the options").
-pub const MODEL_RATE_RANGE_HZ: (f64, f64) = (10.0, 1_000_000.0);
+pub(crate) const MODEL_RATE_RANGE_HZ: (f64, f64) = (10.0, 1_000_000.0);
 
 /// The most windows one batch may hold.
-pub const MAX_BATCH: usize = 1024;
+pub(crate) const MAX_BATCH: usize = 1024;
 
 /// The most model steps one batch may roll out (windows x (window + warm-up) x model rate):
 /// the rollout keeps every step's state for the backward pass, so this bounds a batch's
 /// memory. The defaults roll out 88 000 (0.55 s x 10 kHz x 16).
-pub const MAX_BATCH_STEPS: usize = 4_000_000;
+pub(crate) const MAX_BATCH_STEPS: usize = 4_000_000;
 
 /// The demo's budget (`nemm demo`: the main job in a few minutes on two cores): epochs of
 /// the neural stages.
-pub const DEMO_EPOCHS: usize = 12;
+pub(crate) const DEMO_EPOCHS: usize = 12;
 /// The demo's budget: batches per epoch (a random subset).
-pub const DEMO_MAX_BATCHES: usize = 8;
+pub(crate) const DEMO_MAX_BATCHES: usize = 8;
 /// The demo's budget: epochs of the Linear EMM stage.
-pub const DEMO_LINEAR_EPOCHS: usize = 6;
+pub(crate) const DEMO_LINEAR_EPOCHS: usize = 6;
 /// The demo's dataset folder (the default virtual bench is generated there if it is empty).
-pub const DEMO_DATA_DIR: &str = "out/bench";
+pub(crate) const DEMO_DATA_DIR: &str = "out/bench";
 
 /// Everything a training job reads: data, model, training.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -84,8 +81,8 @@ pub struct Config {
 }
 
 impl Config {
-    /// The demo's configuration: the defaults on the demo's budget ([`DEMO_EPOCHS`],
-    /// [`DEMO_MAX_BATCHES`], [`DEMO_LINEAR_EPOCHS`]) over [`DEMO_DATA_DIR`].
+    /// The demo's configuration: the defaults on the demo's budget (`DEMO_EPOCHS`,
+    /// `DEMO_MAX_BATCHES`, `DEMO_LINEAR_EPOCHS`) over `DEMO_DATA_DIR`.
     pub fn demo() -> Config {
         let mut c = Config::default();
         c.data.dir = PathBuf::from(DEMO_DATA_DIR);
@@ -103,7 +100,7 @@ impl Config {
     }
 
     /// The configuration as TOML (every key, so that the file alone reproduces the job).
-    pub fn to_toml(&self) -> Result<String> {
+    pub(crate) fn to_toml(&self) -> Result<String> {
         Ok(toml::to_string(self)?)
     }
 
@@ -115,8 +112,8 @@ impl Config {
 
     /// Checks the values no training can run with, before anything is allocated: every size
     /// within what the model and its blob format hold ([`nemm_core::MAX_HIDDEN`], [`nemm_core::MAX_LAYERS`], [`nemm_core::MAX_BRANCH_UNITS`]), the model rate
-    /// within [`MODEL_RATE_RANGE_HZ`], the samples one batch rolls out within
-    /// [`MAX_BATCH_STEPS`], and every rate, weight and bound a finite number that lets
+    /// within `MODEL_RATE_RANGE_HZ`, the samples one batch rolls out within
+    /// `MAX_BATCH_STEPS`, and every rate, weight and bound a finite number that lets
     /// training change the model. Each error names the option and its accepted range.
     pub fn validate(&self) -> Result<()> {
         let (m, t) = (&self.model, &self.train);
@@ -232,7 +229,7 @@ impl Config {
 /// A note for `lambda_ph` values that look like the paper's numbers: in this crate's
 /// normalisation they barely act (docs/training.md, "The scale of `lambda_ph`"). `None` when
 /// every value is 0 or at least 0.1.
-pub fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
+pub(crate) fn lambda_ph_scale_note(values: &[f64]) -> Option<String> {
     let small: Vec<String> = values
         .iter()
         .filter(|&&l| l > 0.0 && l < PAPER_SCALE_LAMBDA_PH)
@@ -253,6 +250,7 @@ mod tests {
     use super::*;
     use crate::data::preprocess::{PrepareConfig, VelocitySource};
     use clap::Parser;
+    use data::{adaptive_test_set, resolve_with, OptionSource, ResolvedData};
     use nemm_core::{Integrator, ModelKind};
     use nemm_dataset::{self as dataset, Manifest};
 

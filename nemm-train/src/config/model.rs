@@ -48,7 +48,7 @@ mod by_name {
     use std::fmt::Display;
     use std::str::FromStr;
 
-    pub trait Named: FromStr {
+    pub(crate) trait Named: FromStr {
         fn name_of(&self) -> &'static str;
     }
     impl Named for nemm_core::ModelKind {
@@ -67,11 +67,11 @@ mod by_name {
         }
     }
 
-    pub fn serialize<T: Named, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
+    pub(crate) fn serialize<T: Named, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
         s.serialize_str(v.name_of())
     }
 
-    pub fn deserialize<'de, T, D>(d: D) -> Result<T, D::Error>
+    pub(crate) fn deserialize<'de, T, D>(d: D) -> Result<T, D::Error>
     where
         T: Named,
         T::Err: Display,
@@ -83,11 +83,11 @@ mod by_name {
 }
 
 /// The default model rate \[Hz\]: the firmware's 10 kHz step.
-pub const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
+pub(crate) const DEFAULT_MODEL_RATE_HZ: f64 = 10_000.0;
 
 /// Whether the EMM-family variants get the static force when neither the options nor the
 /// data decide ([`super::Config::with_static_force_from`]).
-pub const DEFAULT_STATIC_FORCE: bool = false;
+pub(crate) const DEFAULT_STATIC_FORCE: bool = false;
 
 section! {
     /// The model: variant, scaler size, integrator and the model elements (`[model]` of a

@@ -1,79 +1,79 @@
 //! Plausibility checks of loaded runs for `nemm data check` (see `docs/data-format.md`,
 //! "What `nemm data check` reports").
 //!
-//! [`check_run`] looks at the raw columns of one run and reports, each with run, time and
+//! `check_run` looks at the raw columns of one run and reports, each with run, time and
 //! line:
 //!
-//! * **implausible magnitudes**: `|displacement_m|` above [`MAX_ABS_DISPLACEMENT_M`],
-//!   `|force_n|` above [`MAX_ABS_FORCE_N`], `|velocity_m_s|` above [`MAX_ABS_VELOCITY_M_S`]
+//! * **implausible magnitudes**: `|displacement_m|` above `MAX_ABS_DISPLACEMENT_M`,
+//!   `|force_n|` above `MAX_ABS_FORCE_N`, `|velocity_m_s|` above `MAX_ABS_VELOCITY_M_S`
 //!   (usually a unit error or a corrupt sample);
 //! * **spikes**: one- or two-sample outliers from the running median of five samples, more
-//!   than [`SPIKE_SIGMAS`] robust noise deviations and [`SPIKE_MIN_FRACTION`] of the
+//!   than `SPIKE_SIGMAS` robust noise deviations and `SPIKE_MIN_FRACTION` of the
 //!   column's robust range away;
-//! * **dropouts**: at least [`REPEAT_MIN_ROWS`] consecutive rows with every data column
+//! * **dropouts**: at least `REPEAT_MIN_ROWS` consecutive rows with every data column
 //!   repeated exactly (a held or zero-filled logger), one column frozen at one value for
-//!   at least [`FLAT_MIN_S`] while it moves elsewhere in the run, or a column at one value
+//!   at least `FLAT_MIN_S` while it moves elsewhere in the run, or a column at one value
 //!   over the whole run (a dead channel);
-//! * **clipping**: at least [`CLIP_MIN_SAMPLES`] consecutive samples at the column's largest
-//!   or smallest value, entered and left by a step of more than [`CLIP_STEP_QUANTA`] times
+//! * **clipping**: at least `CLIP_MIN_SAMPLES` consecutive samples at the column's largest
+//!   or smallest value, entered and left by a step of more than `CLIP_STEP_QUANTA` times
 //!   the column's smallest non-zero step (a smooth, quantised turning point enters its
 //!   plateau by one quantum);
 //! * **offsets** (information, not errors: gas force and untared load cells are real): a
-//!   displacement whose centre lies more than [`OFFSET_FRACTION`] of the half-stroke (and
-//!   0.5 mm) from 0, and a mean force at zero velocity more than [`OFFSET_FRACTION`] of the
+//!   displacement whose centre lies more than `OFFSET_FRACTION` of the half-stroke (and
+//!   0.5 mm) from 0, and a mean force at zero velocity more than `OFFSET_FRACTION` of the
 //!   force half-range (and 1 N) from 0;
 //! * **time stamps** (information): rounded or jittered stamps that the loader accepted,
 //!   with their largest deviation from the fitted grid.
 //!
-//! [`damper_findings`] checks what a damper's data must show:
+//! `damper_findings` checks what a damper's data must show:
 //!
 //! * **dissipation**: a force that assists the motion (negative force-velocity correlation,
-//!   [`preprocess::Dissipation`]): an inverted force or displacement sign. Training commands
+//!   `preprocess::Dissipation`): an inverted force or displacement sign. Training commands
 //!   refuse such a run unless `--accept-implausible` is given;
 //! * **velocity**: a differentiated velocity whose noise (the displacement's noise through
-//!   the run's cut-off, [`preprocess::Cutoff`]) exceeds [`MAX_VELOCITY_NOISE`] of its RMS;
-//!   on a periodic run, a peak velocity more than [`MAX_VELOCITY_MISMATCH`] off `2 pi f A`
+//!   the run's cut-off, `preprocess::Cutoff`) exceeds `MAX_VELOCITY_NOISE` of its RMS;
+//!   on a periodic run, a peak velocity more than `MAX_VELOCITY_MISMATCH` off `2 pi f A`
 //!   from the run's own amplitude and frequency: displacement noise let through by the
 //!   cut-off (or a velocity column in other units);
 //! * **static force**: the force offsets above say what the static force of eq. 17 models; the
 //!   training commands switch it on when the runs' median offset is at least
-//!   [`STATIC_FORCE_FRACTION`] of the force half-range ([`preprocess::static_force_from_data`]).
+//!   `STATIC_FORCE_FRACTION` of the force half-range ([`preprocess::static_force_from_data`]).
 //!
 //! Lines are those of a run file with one header line and one row per line
 //! ([`dataset::sample_line`]), as [`dataset::write()`] and `nemm data import` write them.
 use crate::data::preprocess::{self, percentile};
-pub use crate::data::preprocess::{STATIC_FORCE_FRACTION, ZERO_VELOCITY_FRACTION};
+pub(crate) use crate::data::preprocess::{STATIC_FORCE_FRACTION, ZERO_VELOCITY_FRACTION};
 use nemm_dataset::{self as dataset, Run, COL_DISPLACEMENT, COL_FORCE, COL_VELOCITY};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 /// Largest plausible `|displacement_m|` \[m\] (no road-vehicle damper strokes a metre).
-pub const MAX_ABS_DISPLACEMENT_M: f64 = 1.0;
+pub(crate) const MAX_ABS_DISPLACEMENT_M: f64 = 1.0;
 /// Largest plausible `|force_n|` \[N\] (1 MN).
-pub const MAX_ABS_FORCE_N: f64 = 1e6;
+pub(crate) const MAX_ABS_FORCE_N: f64 = 1e6;
 /// Largest plausible `|velocity_m_s|` \[m/s\] (dyno actuators reach a few m/s).
-pub const MAX_ABS_VELOCITY_M_S: f64 = 20.0;
+pub(crate) const MAX_ABS_VELOCITY_M_S: f64 = 20.0;
 /// A spike is more than this many robust standard deviations (1.4826 median absolute
 /// deviation of the residuals from the running median of five) from the running median.
-pub const SPIKE_SIGMAS: f64 = 10.0;
+pub(crate) const SPIKE_SIGMAS: f64 = 10.0;
 /// ... and more than this fraction of the column's robust range (0.5th to 99.5th percentile).
-pub const SPIKE_MIN_FRACTION: f64 = 0.05;
+pub(crate) const SPIKE_MIN_FRACTION: f64 = 0.05;
 /// Fewest consecutive identical rows reported as a dropout.
-pub const REPEAT_MIN_ROWS: usize = 10;
+pub(crate) const REPEAT_MIN_ROWS: usize = 10;
 /// Shortest time \[s\] a single column must stay at one value to be reported as flat.
-pub const FLAT_MIN_S: f64 = 0.25;
+pub(crate) const FLAT_MIN_S: f64 = 0.25;
 /// Fewest consecutive samples at the column's extreme value reported as clipping.
-pub const CLIP_MIN_SAMPLES: usize = 3;
+pub(crate) const CLIP_MIN_SAMPLES: usize = 3;
 /// A clipped plateau is entered and left by a step larger than this many quanta (the
 /// column's smallest non-zero step).
-pub const CLIP_STEP_QUANTA: f64 = 3.0;
+pub(crate) const CLIP_STEP_QUANTA: f64 = 3.0;
 /// Offsets above this fraction of the half-range are reported.
-pub const OFFSET_FRACTION: f64 = 0.1;
+pub(crate) const OFFSET_FRACTION: f64 = 0.1;
 /// A periodic run's peak velocity may differ from `2 pi f A` by this fraction.
-pub const MAX_VELOCITY_MISMATCH: f64 = 0.2;
+pub(crate) const MAX_VELOCITY_MISMATCH: f64 = 0.2;
 /// A differentiated velocity whose noise (from the displacement's, through the run's
 /// cut-off: [`preprocess::Cutoff`]) exceeds this fraction of its RMS is dominated by noise.
-pub const MAX_VELOCITY_NOISE: f64 = 0.1;
+pub(crate) const MAX_VELOCITY_NOISE: f64 = 0.1;
 
 /// What a finding is about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -125,7 +125,7 @@ impl FindingKind {
     }
 }
 
-/// One finding of [`check_run`]: where it starts and how often it occurs in the run.
+/// One finding of `check_run`: where it starts and how often it occurs in the run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Finding {
     /// Run index in the dataset.
@@ -175,7 +175,7 @@ fn robust_bounds(x: &[f64]) -> (f64, f64) {
 ///
 /// `force_offset` is the run's force at zero velocity as its summary holds it
 /// ([`preprocess::RunSummary::force_offset`], from the velocity the preprocessing uses).
-pub fn check_run(
+pub(crate) fn check_run(
     run: &Run,
     index: usize,
     sample_rate_hz: f64,
@@ -537,7 +537,7 @@ fn offsets(
 /// a force that dissipates energy, a differentiated velocity not dominated by the
 /// displacement's noise and, on a periodic run, a peak velocity consistent with the run's
 /// amplitude and frequency (module docs).
-pub fn damper_findings(run: &Run, summary: &preprocess::RunSummary) -> Vec<Finding> {
+pub(crate) fn damper_findings(run: &Run, summary: &preprocess::RunSummary) -> Vec<Finding> {
     let cutoff = &summary.cutoff;
     let cutoff_hz = cutoff.hz;
     let finding = |kind: FindingKind, column: &str, message| Finding {
@@ -614,7 +614,7 @@ pub fn damper_findings(run: &Run, summary: &preprocess::RunSummary) -> Vec<Findi
     out
 }
 
-/// Summaries ([`preprocess::summarize`]) and findings ([`check_run`], [`damper_findings`])
+/// Summaries ([`preprocess::summarize_run`]) and findings (`check_run`, `damper_findings`)
 /// of every run of a dataset (in parallel), in dataset order. A run the preprocessing cannot
 /// take is a [`FindingKind::Skipped`] finding and has no summary; the dataset-wide error (a
 /// cut-off the rate refuses) is returned.

@@ -6,15 +6,15 @@
 //! * **Periodicity** ([`periodicity`]): a run is periodic when its manifest entry gives both
 //!   `amplitude_m` and `target_velocity_m_s` (a sine of frequency `v / (2 pi A)`), or when the
 //!   zero crossings of the displacement (about its mid-range, hysteresis 10 % of the
-//!   half-range) are regular: at least [`MIN_INTERVALS`] intervals between consecutive
-//!   crossings all within [`PERIOD_TOLERANCE`] of their median (the half period), or else at
-//!   least [`MIN_INTERVALS`] intervals between every other crossing (full periods, for
+//!   half-range) are regular: at least `MIN_INTERVALS` intervals between consecutive
+//!   crossings all within `PERIOD_TOLERANCE` of their median (the half period), or else at
+//!   least `MIN_INTERVALS` intervals between every other crossing (full periods, for
 //!   asymmetric strokes) all within that tolerance of their median.
 //! * **Support points of a periodic run**: the paper's rule, [`quasi_static_points`] (the
 //!   extreme force within +-5 % of the amplitude around each centre crossing).
 //! * **Support points of a non-periodic run** ([`low_acceleration_points`]): the samples whose
 //!   `|a|` is at most `window` times the run's reference acceleration (the 99th percentile of
-//!   `|a|`), grouped in velocity bins; per bin with at least [`MIN_BIN_SAMPLES`] samples one
+//!   `|a|`), grouped in velocity bins; per bin with at least `MIN_BIN_SAMPLES` samples one
 //!   point at the median velocity and the median filtered force; then the points of each
 //!   direction are made monotone in velocity (pool-adjacent-violators, weighted by the
 //!   sample counts). For a sine, `|a| <= window a_max` is `|x| <= window A`: the same samples
@@ -29,15 +29,15 @@ use std::f64::consts::PI;
 
 /// Fewest intervals between zero crossings that make a run periodic without manifest
 /// metadata.
-pub const MIN_INTERVALS: usize = 2;
+pub(crate) const MIN_INTERVALS: usize = 2;
 /// Largest relative deviation of a period from the median period of a periodic run.
-pub const PERIOD_TOLERANCE: f64 = 0.05;
+pub(crate) const PERIOD_TOLERANCE: f64 = 0.05;
 /// Velocity bins per direction of [`low_acceleration_points`].
-pub const VELOCITY_BINS: usize = 12;
+pub(crate) const VELOCITY_BINS: usize = 12;
 /// Fewest low-acceleration samples that make a velocity bin a support point.
-pub const MIN_BIN_SAMPLES: usize = 5;
+pub(crate) const MIN_BIN_SAMPLES: usize = 5;
 /// Quantile of `|a|` that is the run's reference acceleration.
-pub const REFERENCE_QUANTILE: f64 = 0.99;
+pub(crate) const REFERENCE_QUANTILE: f64 = 0.99;
 
 /// Where a run's period comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -16,55 +16,55 @@ use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 
 /// Time from a run's first sample from which the observer's estimate is judged \[s\].
-pub const FROM_S: f64 = 2.0;
+pub(crate) const FROM_S: f64 = 2.0;
 
 /// Marker of a run the observer does not call excited, in the resolution table.
-pub const NOT_EXCITED: &str = "†";
+pub(crate) const NOT_EXCITED: &str = "†";
 
 /// `accuracy.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct AccuracyReport {
+pub(crate) struct AccuracyReport {
     /// [`FROM_S`].
-    pub from_s: f64,
+    pub(crate) from_s: f64,
     /// [`AGREEMENT`].
-    pub tolerance: f64,
+    pub(crate) tolerance: f64,
     /// The observer's error per run, in the order of `diagnose.json`.
-    pub runs: Vec<RunError>,
+    pub(crate) runs: Vec<RunError>,
     /// The summary line of the observer's error ([`error_summary`]).
-    pub summary: String,
+    pub(crate) summary: String,
     /// Its detail line ([`error_detail`]).
-    pub detail: String,
+    pub(crate) detail: String,
     /// The model's resolution per condition.
-    pub resolution: Resolution,
+    pub(crate) resolution: Resolution,
 }
 
 /// The observer's error on one run (see the module documentation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RunError {
+pub(crate) struct RunError {
     /// Run file, relative to the manifest.
-    pub file: String,
+    pub(crate) file: String,
     /// Length of the run \[s\].
-    pub duration_s: f64,
+    pub(crate) duration_s: f64,
     /// The observer's excited flag after the last sample.
-    pub excited: bool,
+    pub(crate) excited: bool,
     /// Its excited flag at [`FROM_S`] (after the last sample for a shorter run).
-    pub excited_at_from: bool,
+    pub(crate) excited_at_from: bool,
     /// The offline best fit (`None`: the model does not tell the levels apart on the run).
-    pub alpha_offline: Option<f64>,
+    pub(crate) alpha_offline: Option<f64>,
     /// The estimate at [`FROM_S`] (the final one for a shorter run).
-    pub alpha_at_from: f64,
+    pub(crate) alpha_at_from: f64,
     /// The largest `|estimate - alpha_offline|` from [`FROM_S`] to the end (of the final
     /// estimate for a shorter run); `None` without an offline fit.
-    pub worst_error: Option<f64>,
+    pub(crate) worst_error: Option<f64>,
     /// The run is no longer than [`FROM_S`]: judged by its final estimate.
-    pub short: bool,
+    pub(crate) short: bool,
 }
 
 impl RunError {
     /// The estimate stays within [`AGREEMENT`] of the offline fit (from [`FROM_S`] on).
-    pub fn within(&self) -> bool {
+    pub(crate) fn within(&self) -> bool {
         self.worst_error.is_some_and(|e| e <= AGREEMENT + 1e-9)
     }
 }
@@ -75,7 +75,7 @@ fn round4(x: f64) -> f64 {
 }
 
 /// The observer's error on the run `d` whose estimates are `trace`.
-pub fn run_error(d: &RunDiagnosis, trace: &Trace) -> RunError {
+pub(crate) fn run_error(d: &RunDiagnosis, trace: &Trace) -> RunError {
     let n = trace.alpha.len();
     let from = (FROM_S / trace.dt_s).round() as usize;
     let short = from >= n;
@@ -115,7 +115,7 @@ fn yes_no(b: bool) -> &'static str {
 }
 
 /// The table of the observer's error, one row per run.
-pub fn error_table(runs: &[RunError]) -> String {
+pub(crate) fn error_table(runs: &[RunError]) -> String {
     let mut s = format!(
         "| run | length [s] | excited (end) | excited at {FROM_S} s | offline | online at \
          {FROM_S} s | worst \\|online - offline\\| from {FROM_S} s | within {AGREEMENT} |\n\
@@ -145,7 +145,7 @@ pub fn error_table(runs: &[RunError]) -> String {
 
 /// The summary line: "N of M excited runs within 0.02 of the offline fit from 2 s on", with
 /// how many runs were shorter, had no offline fit or were not excited.
-pub fn error_summary(runs: &[RunError]) -> String {
+pub(crate) fn error_summary(runs: &[RunError]) -> String {
     let excited: Vec<&RunError> = runs.iter().filter(|r| r.excited).collect();
     let within = excited.iter().filter(|r| r.within()).count();
     let mut notes = vec![format!("{} runs", runs.len())];
@@ -171,7 +171,7 @@ pub fn error_summary(runs: &[RunError]) -> String {
 /// The detail line: how many excited runs are within [`AGREEMENT`] at [`FROM_S`] (at the end
 /// of a shorter run), and how many of those the observer calls excited at [`FROM_S`] as well
 /// as at the end stay within from [`FROM_S`] on.
-pub fn error_detail(runs: &[RunError]) -> String {
+pub(crate) fn error_detail(runs: &[RunError]) -> String {
     let excited: Vec<&RunError> = runs.iter().filter(|r| r.excited).collect();
     let at_from = excited
         .iter()
@@ -194,39 +194,39 @@ pub fn error_detail(runs: &[RunError]) -> String {
 /// The run at one level of one condition.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct LevelCell {
+pub(crate) struct LevelCell {
     /// Run file, relative to the manifest.
-    pub file: String,
+    pub(crate) file: String,
     /// Its offline best fit.
-    pub alpha_offline: Option<f64>,
+    pub(crate) alpha_offline: Option<f64>,
     /// The observer's final estimate.
-    pub alpha_hat: f64,
+    pub(crate) alpha_hat: f64,
     /// The observer's final excited flag.
-    pub excited: bool,
+    pub(crate) excited: bool,
 }
 
 /// One test condition: its runs, one per labelled level.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct ConditionRow {
+pub(crate) struct ConditionRow {
     /// Stroke amplitude \[m\].
-    pub amplitude_m: f64,
+    pub(crate) amplitude_m: f64,
     /// Target peak velocity \[m/s\].
-    pub velocity_m_s: f64,
+    pub(crate) velocity_m_s: f64,
     /// The run at each of [`Resolution::levels`] (`None`: no run at that level).
-    pub cells: Vec<Option<LevelCell>>,
+    pub(crate) cells: Vec<Option<LevelCell>>,
 }
 
 impl ConditionRow {
     /// Every level has a run and every run is excited.
-    pub fn excited(&self) -> bool {
+    pub(crate) fn excited(&self) -> bool {
         self.cells
             .iter()
             .all(|c| c.as_ref().is_some_and(|c| c.excited))
     }
 
     /// The order of the offline fits (`offline`) or of the final estimates.
-    pub fn order(&self, offline: bool) -> Order {
+    pub(crate) fn order(&self, offline: bool) -> Order {
         let values: Option<Vec<f64>> = self
             .cells
             .iter()
@@ -246,9 +246,10 @@ impl ConditionRow {
 /// Whether a condition's values are in the order of its levels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum Order {
+pub(crate) enum Order {
     /// The lowest level's value below the highest's, every other level's within them.
-    InOrder,
+    #[serde(rename = "in-order")]
+    Ordered,
     /// The lowest below the highest, a level between them outside that range.
     MiddleOutside,
     /// The lowest level's value not below the highest's.
@@ -258,7 +259,7 @@ pub enum Order {
 }
 
 /// The [`Order`] of values at levels in increasing order.
-pub fn order(values: &[f64]) -> Order {
+pub(crate) fn order(values: &[f64]) -> Order {
     let (Some(&lo), Some(&hi)) = (values.first(), values.last()) else {
         return Order::Incomplete;
     };
@@ -270,7 +271,7 @@ pub fn order(values: &[f64]) -> Order {
         .iter()
         .all(|v| (lo..=hi).contains(v))
     {
-        Order::InOrder
+        Order::Ordered
     } else {
         Order::MiddleOutside
     }
@@ -280,21 +281,21 @@ pub fn order(values: &[f64]) -> Order {
 /// at each level.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Resolution {
+pub(crate) struct Resolution {
     /// The labelled levels, increasing.
-    pub levels: Vec<f64>,
+    pub(crate) levels: Vec<f64>,
     /// The conditions, by decreasing amplitude, then increasing peak velocity.
-    pub rows: Vec<ConditionRow>,
+    pub(crate) rows: Vec<ConditionRow>,
     /// Runs left out: without an amplitude or a peak velocity in the manifest, or a second
     /// run of the same condition and level.
-    pub left_out: Vec<String>,
+    pub(crate) left_out: Vec<String>,
 }
 
 /// Two levels or conditions closer than this are the same.
 const SAME: f64 = 1e-6;
 
 /// The resolution table of the diagnosed runs `runs` with their manifest entries.
-pub fn resolution(runs: &[(&RunDiagnosis, &RunEntry)]) -> Resolution {
+pub(crate) fn resolution(runs: &[(&RunDiagnosis, &RunEntry)]) -> Resolution {
     let mut levels: Vec<f64> = Vec::new();
     for (d, _) in runs {
         if !levels.iter().any(|l| (l - d.label).abs() < SAME) {
@@ -349,7 +350,7 @@ pub fn resolution(runs: &[(&RunDiagnosis, &RunEntry)]) -> Resolution {
 }
 
 /// A level as a percentage (`0.15` -> `15 %`).
-pub fn percent(level: f64) -> String {
+pub(crate) fn percent(level: f64) -> String {
     format!("{} %", (level * 1000.0).round() / 10.0)
 }
 
@@ -367,7 +368,7 @@ impl Resolution {
     }
 
     /// The count lines of the ordering checks, for the offline fits and the final estimates.
-    pub fn count_lines(&self) -> Vec<String> {
+    pub(crate) fn count_lines(&self) -> Vec<String> {
         if self.levels.len() < 2 || self.rows.is_empty() {
             return vec![format!(
                 "No ordering check: {} labelled level(s), {} condition(s).",
@@ -389,14 +390,14 @@ impl Resolution {
                     let n = rows.iter().filter(|r| ok(r.order(offline))).count();
                     format!("{n} of {}", rows.len())
                 };
-                let below_ok = |o| matches!(o, Order::InOrder | Order::MiddleOutside);
+                let below_ok = |o| matches!(o, Order::Ordered | Order::MiddleOutside);
                 let mut s = format!(
                     "{what}: {below} on {} excited conditions ({} conditions in all)",
                     count(true, &below_ok),
                     count(false, &below_ok)
                 );
                 if with_middle {
-                    let in_order = |o| o == Order::InOrder;
+                    let in_order = |o| o == Order::Ordered;
                     let _ = write!(
                         s,
                         "; {between} on {} ({})",
@@ -415,7 +416,7 @@ impl Resolution {
 fn order_cell(o: Order, r: &Resolution) -> String {
     let names: Vec<String> = r.levels.iter().map(|&l| percent(l)).collect();
     match o {
-        Order::InOrder => "in order".into(),
+        Order::Ordered => "in order".into(),
         Order::MiddleOutside => format!(
             "{} outside",
             names[1..names.len().saturating_sub(1)].join(", ")
@@ -432,7 +433,7 @@ fn order_cell(o: Order, r: &Resolution) -> String {
 /// The resolution table: one row per condition, the offline fits and the final estimates at
 /// every level (a non-excited run's estimate marked [`NOT_EXCITED`]), the orders, then the
 /// count lines.
-pub fn resolution_markdown(r: &Resolution) -> String {
+pub(crate) fn resolution_markdown(r: &Resolution) -> String {
     let names: Vec<String> = r.levels.iter().map(|&l| percent(l)).collect();
     let mut s = String::from("| amplitude [mm] | peak velocity [m/s] |");
     for n in &names {
@@ -485,7 +486,7 @@ pub fn resolution_markdown(r: &Resolution) -> String {
 }
 
 /// `accuracy.md`: both parts, each table with its caption and count lines.
-pub fn accuracy_markdown(report: &AccuracyReport) -> String {
+pub(crate) fn accuracy_markdown(report: &AccuracyReport) -> String {
     format!(
         "**The observer's own error.** Per run: the estimate at {FROM_S} s and the largest \
          distance of the estimate from the run's offline best fit from {FROM_S} s to the end \
@@ -572,8 +573,8 @@ mod tests {
 
     #[test]
     fn orders_are_checked_on_the_labels_levels() {
-        assert_eq!(order(&[0.0, 0.1, 0.2]), Order::InOrder);
-        assert_eq!(order(&[0.0, 0.0, 0.2]), Order::InOrder);
+        assert_eq!(order(&[0.0, 0.1, 0.2]), Order::Ordered);
+        assert_eq!(order(&[0.0, 0.0, 0.2]), Order::Ordered);
         assert_eq!(order(&[0.0, 0.3, 0.2]), Order::MiddleOutside);
         assert_eq!(order(&[0.1, 0.05, 0.1]), Order::NotBelow);
         assert_eq!(order(&[0.1]), Order::Incomplete);
@@ -617,7 +618,7 @@ mod tests {
         assert_eq!(r.rows[0].amplitude_m, 0.05);
         assert!(r.rows[0].excited() && !r.rows[1].excited());
         assert_eq!(r.rows[0].order(true), Order::MiddleOutside);
-        assert_eq!(r.rows[1].order(false), Order::InOrder);
+        assert_eq!(r.rows[1].order(false), Order::Ordered);
         let md = resolution_markdown(&r);
         assert!(
             md.contains(

@@ -29,15 +29,15 @@ use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
 /// Phase bins of a cycle-averaged loop when a period has enough samples.
-pub const MAX_PHASE_BINS: usize = 256;
+pub(crate) const MAX_PHASE_BINS: usize = 256;
 /// Fewest phase bins of a loop; a period with fewer samples gives no loop.
-pub const MIN_PHASE_BINS: usize = 8;
+pub(crate) const MIN_PHASE_BINS: usize = 8;
 /// Runs drawn in `random_runs.png` (the first ones of the dataset's non-periodic runs).
-pub const MAX_RANDOM_RUNS: usize = 8;
+pub(crate) const MAX_RANDOM_RUNS: usize = 8;
 /// Cells per axis of the force-velocity density.
-pub const DENSITY_BINS: usize = 48;
+pub(crate) const DENSITY_BINS: usize = 48;
 /// Length of the time traces of a non-periodic run \[s\].
-pub const TRACE_S: f64 = 2.0;
+pub(crate) const TRACE_S: f64 = 2.0;
 
 /// One run reduced to a cycle-averaged loop.
 #[derive(Debug, Clone, PartialEq)]
@@ -68,7 +68,7 @@ impl CycleLoop {
     }
 
     /// Phase of the centre of bin `k` \[rad\].
-    pub fn bin_phase(&self, k: usize) -> f64 {
+    pub(crate) fn bin_phase(&self, k: usize) -> f64 {
         (k as f64 + 0.5) / self.bins() as f64 * 2.0 * PI
     }
 }
@@ -101,7 +101,7 @@ impl CycleLoop {
 
     /// Force \[N\] at a phase of the displacement `x = A sin(phase)` (linear interpolation
     /// between the bin centres, periodic).
-    pub fn force_at_phase(&self, phase: f64) -> f64 {
+    pub(crate) fn force_at_phase(&self, phase: f64) -> f64 {
         let n = self.force_n.len();
         let p = phase.rem_euclid(2.0 * PI) / (2.0 * PI) * n as f64 - 0.5;
         let i = p.floor();
@@ -141,7 +141,7 @@ impl CycleLoop {
 }
 
 /// Reduces a run to its cycle-averaged loop, with the run's preprocessed `velocity_m_s`
-/// ([`Signals::velocity_m_s`]).
+/// (`Signals::velocity_m_s`).
 pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
     cycle_loop_of_force(run, velocity_m_s, &run.force_n)
 }
@@ -149,7 +149,11 @@ pub fn cycle_loop(run: &Run, velocity_m_s: &[f64]) -> Result<CycleLoop> {
 /// [`cycle_loop`] of another force over the run's samples (a model's prediction): the
 /// periods, phase fit and bins are the run's own, so the loop lines up with the measured
 /// one bin for bin.
-pub fn cycle_loop_of_force(run: &Run, velocity_m_s: &[f64], force_n: &[f64]) -> Result<CycleLoop> {
+pub(crate) fn cycle_loop_of_force(
+    run: &Run,
+    velocity_m_s: &[f64],
+    force_n: &[f64],
+) -> Result<CycleLoop> {
     let name = run.entry.file.display();
     if force_n.len() != run.len() {
         bail!(

@@ -30,24 +30,24 @@ use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 
 /// Smallest settling tolerance in alpha (the band is used where it is wider).
-pub const SETTLE_TOLERANCE: f64 = 0.02;
+pub(crate) const SETTLE_TOLERANCE: f64 = 0.02;
 
 /// An excited run's online estimate within this of the offline fit counts as agreeing.
 pub const AGREEMENT: f64 = 0.02;
 
 /// Step of the offline fit's refinement around the best level of the coarse
 /// ([`DEFAULT_STEP`]) grid.
-pub const FINE_STEP: f64 = 0.001;
+pub(crate) const FINE_STEP: f64 = 0.001;
 
 /// Points of the alpha(t) figures' curves at most (the trace is decimated to them).
-pub const FIGURE_POINTS: usize = 2000;
+pub(crate) const FIGURE_POINTS: usize = 2000;
 
 /// `diagnose.json`: one entry per run, in manifest order.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct DiagnoseReport {
+pub(crate) struct DiagnoseReport {
     /// The runs.
-    pub runs: Vec<RunDiagnosis>,
+    pub(crate) runs: Vec<RunDiagnosis>,
 }
 
 /// The diagnosis of one run (see the module documentation for the definitions).
@@ -63,18 +63,18 @@ pub struct RunDiagnosis {
     /// Its band (half-width, in alpha).
     pub band: f64,
     /// The offline best fit; `None` when the model's whole-run error does not depend on
-    /// the level ([`crate::train::identify::FLAT_TOLERANCE`]).
+    /// the level (`crate::train::identify::FLAT_TOLERANCE`).
     pub alpha_offline: Option<f64>,
     /// The observer's excited flag after the last sample.
     pub excited: bool,
     /// Time from the run's first sample after which the estimate stays within
-    /// `max(band, 0.02)` of `alpha_hat` \[s\] ([`settle_time`]); `None` if it never does.
+    /// `max(band, 0.02)` of `alpha_hat` \[s\] (`settle_time`); `None` if it never does.
     pub settle_s: Option<f64>,
 }
 
 impl RunDiagnosis {
     /// `|alpha_hat - alpha_offline|`, if there is an offline fit.
-    pub fn offline_error(&self) -> Option<f64> {
+    pub(crate) fn offline_error(&self) -> Option<f64> {
         self.alpha_offline.map(|a| (self.alpha_hat - a).abs())
     }
 }
@@ -92,9 +92,9 @@ pub struct Trace {
     pub excited: Vec<bool>,
     /// Index of the first sample that updated the estimate (`None`: none did, the run
     /// ended within the observer's warm-up or every sample was held).
-    pub first_update: Option<usize>,
+    pub(crate) first_update: Option<usize>,
     /// Flags of the last estimate.
-    pub last_flags: ObserverFlags,
+    pub(crate) last_flags: ObserverFlags,
 }
 
 /// Rounds to 1e-4.
@@ -106,7 +106,7 @@ fn round4(x: f64) -> f64 {
 /// estimate of `alpha` to the end stays within `tolerance` of the last one. `None` when
 /// there is no estimate (`first_update` is `None`) or when only the last sample is within
 /// (the estimate was still moving at the end).
-pub fn settle_time(
+pub(crate) fn settle_time(
     alpha: &[f32],
     tolerance: f64,
     first_update: Option<usize>,
@@ -126,7 +126,12 @@ pub fn settle_time(
 }
 
 /// Runs a fresh observer of `model` (defaults) over a run's velocity, position and force.
-pub fn observe(model: &Model, velocity: &[f32], position: &[f32], force: &[f64]) -> Result<Trace> {
+pub(crate) fn observe(
+    model: &Model,
+    velocity: &[f32],
+    position: &[f32],
+    force: &[f64],
+) -> Result<Trace> {
     let mut obs: Box<AlphaObserver> = Box::new(AlphaObserver::empty());
     obs.load(model, ObserverConfig::new())
         .map_err(|e| anyhow::anyhow!("the observer cannot run this model: {e}"))?;
@@ -163,7 +168,12 @@ pub fn observe(model: &Model, velocity: &[f32], position: &[f32], force: &[f64])
 /// range (searched coarse to fine, [`Search::CoarseToFine`]), then at every level of a
 /// [`FINE_STEP`] grid within one grid step of it. `None` when the coarse
 /// curve is flat (no best fit).
-pub fn offline_fit(model: &Model, run: &Run<'_>, dt_s: f64, warmup: usize) -> Result<Option<f64>> {
+pub(crate) fn offline_fit(
+    model: &Model,
+    run: &Run<'_>,
+    dt_s: f64,
+    warmup: usize,
+) -> Result<Option<f64>> {
     let coarse_grid = AlphaGrid::for_model(model, DEFAULT_STEP)?;
     let max = coarse_grid.alphas.last().copied().unwrap_or(0.0);
     let Some(coarse) = identify(model, run, &coarse_grid, dt_s, warmup, Search::CoarseToFine)?.best
@@ -192,13 +202,13 @@ pub fn offline_fit(model: &Model, run: &Run<'_>, dt_s: f64, warmup: usize) -> Re
 }
 
 /// The run's file, path relative to the manifest with `/` as the separator.
-pub fn run_file(run: &dataset::Run) -> String {
+pub(crate) fn run_file(run: &dataset::Run) -> String {
     run.entry.file.to_string_lossy().replace('\\', "/")
 }
 
 /// The observer's velocity and position of a displacement record sampled at `fs` \[Hz\]:
 /// the causal velocity ([`causal_velocity`]) and the displacement, as `f32`.
-pub fn observer_inputs(displacement_m: &[f64], fs: f64) -> (Vec<f32>, Vec<f32>) {
+pub(crate) fn observer_inputs(displacement_m: &[f64], fs: f64) -> (Vec<f32>, Vec<f32>) {
     let velocity = causal_velocity(displacement_m, fs)
         .iter()
         .map(|&v| v as f32)
@@ -263,7 +273,7 @@ fn opt3(x: Option<f64>) -> String {
 
 /// The table printed by `nemm diagnose`: per run the label, the online estimate and band,
 /// the offline fit, their difference, the excitation and the settling time.
-pub fn table_markdown(runs: &[RunDiagnosis]) -> String {
+pub(crate) fn table_markdown(runs: &[RunDiagnosis]) -> String {
     let mut s = String::from(
         "| run | label | online ± band | offline | \\|online - offline\\| | excited | settle [s] |\n\
          |---|---:|---:|---:|---:|---|---:|\n",
@@ -287,7 +297,7 @@ pub fn table_markdown(runs: &[RunDiagnosis]) -> String {
 
 /// The summary line: how many of the excited runs end within [`AGREEMENT`] of the offline
 /// fit.
-pub fn summary_line(runs: &[RunDiagnosis]) -> String {
+pub(crate) fn summary_line(runs: &[RunDiagnosis]) -> String {
     let excited: Vec<&RunDiagnosis> = runs.iter().filter(|r| r.excited).collect();
     let agree = excited
         .iter()
@@ -303,7 +313,7 @@ pub fn summary_line(runs: &[RunDiagnosis]) -> String {
 
 /// The figure file of run file `file` (its path relative to the manifest, `/` and `\` as
 /// `_`, without the extension): `alpha_<path>.png`.
-pub fn figure_file(file: &str) -> String {
+pub(crate) fn figure_file(file: &str) -> String {
     let stem = file.rsplit_once('.').map_or(file, |(s, _)| s);
     format!("alpha_{}.png", stem.replace(['/', '\\'], "_"))
 }
@@ -311,7 +321,7 @@ pub fn figure_file(file: &str) -> String {
 /// The observer's estimate over `trace` as figure series (from its first update on, at most
 /// [`FIGURE_POINTS`] points): the band shaded, clipped to `clip`, and the estimate as a line
 /// named `label`. Empty when the observer never updated.
-pub fn estimate_series(trace: &Trace, label: String, clip: (f64, f64)) -> Vec<Series> {
+pub(crate) fn estimate_series(trace: &Trace, label: String, clip: (f64, f64)) -> Vec<Series> {
     let n = trace.alpha.len();
     let every = n.div_ceil(FIGURE_POINTS).max(1);
     let from = trace.first_update.unwrap_or(n);
@@ -347,7 +357,7 @@ pub fn estimate_series(trace: &Trace, label: String, clip: (f64, f64)) -> Vec<Se
 /// first update on), the label and the offline fit as horizontal lines, and a vertical line
 /// at the settling time; the levels axis spans the model's trained range `range`, the label
 /// and the fit (the band is cut at 0.05 beyond them), with room above for the legend.
-pub fn alpha_figure(d: &RunDiagnosis, trace: &Trace, range: (f64, f64)) -> Figure {
+pub(crate) fn alpha_figure(d: &RunDiagnosis, trace: &Trace, range: (f64, f64)) -> Figure {
     let n = trace.alpha.len();
     let end = n as f64 * trace.dt_s;
     let lo = [range.0, d.label, d.alpha_offline.unwrap_or(range.0)]

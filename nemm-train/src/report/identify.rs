@@ -15,7 +15,7 @@ use std::fmt::Write as _;
 use std::time::Instant;
 
 /// A best fit within this distance of the label counts as reading the level back.
-pub const WITHIN: f64 = 0.03;
+pub(crate) const WITHIN: f64 = 0.03;
 
 /// One run of an [`IdentifyReport`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -39,7 +39,7 @@ pub struct RunInfo {
     pub condition: String,
     /// `true` if the run has a level per sample (its label RMSE uses it).
     #[serde(default)]
-    pub level_column: bool,
+    pub(crate) level_column: bool,
 }
 
 /// Per level, over one model's fits of the level's runs.
@@ -78,7 +78,7 @@ pub struct OrderCheck {
     pub holds: bool,
     /// The conditions that are not ordered.
     #[serde(default)]
-    pub unordered: Vec<String>,
+    pub(crate) unordered: Vec<String>,
 }
 
 /// One model's fits.
@@ -101,12 +101,12 @@ pub struct VariantFits {
 pub struct IdentifyReport {
     /// Grid step in alpha.
     pub step: f64,
-    /// Which grid levels were simulated ([`Search::unnamed`] when absent).
+    /// Which grid levels were simulated (`Search::unnamed` when absent).
     #[serde(default = "Search::unnamed")]
     pub search: Search,
     /// [`FLAT_TOLERANCE`].
-    pub flat_tolerance: f64,
-    /// [`WITHIN`].
+    pub(crate) flat_tolerance: f64,
+    /// `WITHIN`.
     pub within: f64,
     /// Force scale of the normalised RMSE \[N\] (Table 4's).
     pub force_scale_n: f64,
@@ -353,7 +353,7 @@ fn alpha_cell(a: Option<f64>) -> String {
 /// The identifiability tables as Markdown: per model, one row per run (best fit, RMSE at
 /// the label and at the best fit), then per level the runs read back within
 /// [`IdentifyReport::within`] and the order of the lowest and highest level.
-pub fn identify_markdown(r: &IdentifyReport) -> String {
+pub(crate) fn identify_markdown(r: &IdentifyReport) -> String {
     let mut s = String::new();
     let cond = &r.condition;
     let _ = writeln!(
@@ -464,7 +464,7 @@ pub fn identify_markdown(r: &IdentifyReport) -> String {
 
 /// The whole-run force error at the label as Markdown: per level (training levels marked)
 /// and per run ordered by amplitude, frequency and level, every model as `normalised (N)`.
-pub fn whole_run_markdown(r: &IdentifyReport) -> String {
+pub(crate) fn whole_run_markdown(r: &IdentifyReport) -> String {
     let mut s = String::new();
     let vs = variants_of(r);
     if vs.is_empty() || r.runs.is_empty() {

@@ -8,7 +8,7 @@ use std::path::Path;
 
 /// Describes a decoded model and its blob's stored tables in a few lines (kind, integrator,
 /// constants, scalers, bounds, tables).
-pub fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String {
+pub(crate) fn describe(model: &Model, tables: &StoredTables, blob_len: usize) -> String {
     let mut s = String::new();
     describe_shape(&mut s, model, blob_len);
     describe_body(&mut s, model);

@@ -29,28 +29,28 @@ use nemm_dataset::Run;
 use serde::{Deserialize, Serialize};
 
 /// A period is full when it reaches this fraction of the run's half-range on both sides.
-pub const FULL_PERIOD: f64 = 0.95;
+pub(crate) const FULL_PERIOD: f64 = 0.95;
 
 /// Largest relative difference of the two runs' periods.
-pub const SAME_PERIOD: f64 = 0.01;
+pub(crate) const SAME_PERIOD: f64 = 0.01;
 
 /// Largest relative difference of the two runs' half-ranges.
-pub const SAME_AMPLITUDE: f64 = 0.05;
+pub(crate) const SAME_AMPLITUDE: f64 = 0.05;
 
 /// The steady part of a run: samples `start..end`, `periods` full periods.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct SteadyPart {
+pub(crate) struct SteadyPart {
     /// First sample (the first at or above the mid-range after a rising crossing).
-    pub start: usize,
+    pub(crate) start: usize,
     /// One past the last sample (the first at or above the mid-range after the last rising
     /// crossing).
-    pub end: usize,
+    pub(crate) end: usize,
     /// Full periods in it.
-    pub periods: usize,
+    pub(crate) periods: usize,
 }
 
 /// The [`SteadyPart`] of a displacement record; an error when it has no full period.
-pub fn steady_part(displacement_m: &[f64]) -> Result<SteadyPart> {
+pub(crate) fn steady_part(displacement_m: &[f64]) -> Result<SteadyPart> {
     let c = centred_record(displacement_m);
     let rising: Vec<usize> = c
         .crossings
@@ -80,20 +80,20 @@ pub fn steady_part(displacement_m: &[f64]) -> Result<SteadyPart> {
 
 /// A level-step record ([`join`]).
 #[derive(Debug, Clone, PartialEq)]
-pub struct Joined {
+pub(crate) struct Joined {
     /// Displacement \[m\].
-    pub displacement_m: Vec<f64>,
+    pub(crate) displacement_m: Vec<f64>,
     /// Force \[N\].
-    pub force_n: Vec<f64>,
+    pub(crate) force_n: Vec<f64>,
     /// Index of the first sample of the second run.
-    pub step: usize,
+    pub(crate) step: usize,
     /// The first run's steady part.
-    pub first: SteadyPart,
+    pub(crate) first: SteadyPart,
     /// The second run's steady part.
-    pub second: SteadyPart,
+    pub(crate) second: SteadyPart,
     /// The largest displacement jump at a join: the joined sample against the one that
     /// followed in the recorded run \[m\].
-    pub jump_m: f64,
+    pub(crate) jump_m: f64,
 }
 
 /// Mean period of a steady part \[samples\].
@@ -104,7 +104,7 @@ fn period(p: &SteadyPart) -> f64 {
 /// Joins run `a` and run `b` of one condition, each steady part played `repeat` times (see
 /// the module documentation); an error when a run has no full period, the runs' periods or
 /// half-ranges differ (not one condition) or `repeat` is 0.
-pub fn join(a: &Run, b: &Run, repeat: usize) -> Result<Joined> {
+pub(crate) fn join(a: &Run, b: &Run, repeat: usize) -> Result<Joined> {
     if repeat == 0 {
         bail!("the steady parts must be played at least once");
     }
@@ -158,57 +158,57 @@ pub fn join(a: &Run, b: &Run, repeat: usize) -> Result<Joined> {
 /// One of the two runs of a level step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct StepRun {
+pub(crate) struct StepRun {
     /// Run file, relative to the manifest.
-    pub file: String,
+    pub(crate) file: String,
     /// Its labelled level.
-    pub label: f64,
+    pub(crate) label: f64,
     /// Its offline best fit (the run alone).
-    pub alpha_offline: Option<f64>,
+    pub(crate) alpha_offline: Option<f64>,
     /// Start and end of its steady part in the run \[s\].
-    pub steady_s: [f64; 2],
+    pub(crate) steady_s: [f64; 2],
     /// Full periods in the steady part.
-    pub periods: usize,
+    pub(crate) periods: usize,
 }
 
 /// `level-step.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct LevelStep {
+pub(crate) struct LevelStep {
     /// The run before the step.
-    pub first: StepRun,
+    pub(crate) first: StepRun,
     /// The run after the step.
-    pub second: StepRun,
+    pub(crate) second: StepRun,
     /// Times each steady part is played.
-    pub repeat: usize,
+    pub(crate) repeat: usize,
     /// Time of the step from the record's start \[s\].
-    pub step_s: f64,
+    pub(crate) step_s: f64,
     /// Length of the record \[s\].
-    pub duration_s: f64,
+    pub(crate) duration_s: f64,
     /// The largest displacement jump at a join \[m\].
-    pub jump_m: f64,
+    pub(crate) jump_m: f64,
     /// The estimate, band and excited flag at the last sample before the step.
-    pub before: StepEstimate,
+    pub(crate) before: StepEstimate,
     /// The same after the last sample.
-    pub end: StepEstimate,
+    pub(crate) end: StepEstimate,
     /// Time from the step until the estimate is first within [`AGREEMENT`] of the second
     /// run's offline fit \[s\]; `None`: never (or no fit).
-    pub reach_s: Option<f64>,
+    pub(crate) reach_s: Option<f64>,
     /// Time from the step after which the estimate stays within [`AGREEMENT`] of the second
     /// run's offline fit to the end \[s\]; `None`: not at the end (or no fit).
-    pub settle_s: Option<f64>,
+    pub(crate) settle_s: Option<f64>,
 }
 
 /// The observer's output at one sample.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct StepEstimate {
+pub(crate) struct StepEstimate {
     /// Estimate.
-    pub alpha: f64,
+    pub(crate) alpha: f64,
     /// Band (half-width).
-    pub band: f64,
+    pub(crate) band: f64,
     /// Excited flag.
-    pub excited: bool,
+    pub(crate) excited: bool,
 }
 
 /// Rounds to 1e-4.
@@ -227,7 +227,7 @@ fn estimate_at(trace: &Trace, k: usize) -> StepEstimate {
 
 /// The first sample from `from` on within `tol` of `target`, and the first from which every
 /// sample to the end is (`None` when the last is not).
-pub fn reach_and_settle(
+pub(crate) fn reach_and_settle(
     alpha: &[f32],
     target: f64,
     tol: f64,
@@ -246,7 +246,7 @@ pub fn reach_and_settle(
 
 /// The level step of the record `joined` (of the runs diagnosed as `first` and `second`)
 /// whose estimates are `trace`.
-pub fn level_step(
+pub(crate) fn level_step(
     joined: &Joined,
     runs: [(&RunDiagnosis, &SteadyPart); 2],
     trace: &Trace,
@@ -307,7 +307,7 @@ fn estimate_text(e: &StepEstimate) -> String {
 }
 
 /// `level-step.md`: what the record is and how the estimate followed the step.
-pub fn level_step_markdown(s: &LevelStep) -> String {
+pub(crate) fn level_step_markdown(s: &LevelStep) -> String {
     format!(
         "**Level step**: `{}` (label {:.2}, offline fit {}) joined at a rising crossing to \
          `{}` (label {:.2}, offline fit {}), each run's steady part ({} and {} full periods) \
@@ -335,7 +335,7 @@ pub fn level_step_markdown(s: &LevelStep) -> String {
 /// The level-step figure: the estimate with its band, each run's offline fit as a dashed
 /// line over its part of the record, vertical lines at the step and where the estimate
 /// settles within [`AGREEMENT`] of the second fit; the levels axis spans `range` and the fits.
-pub fn level_step_figure(s: &LevelStep, trace: &Trace, range: (f64, f64)) -> Figure {
+pub(crate) fn level_step_figure(s: &LevelStep, trace: &Trace, range: (f64, f64)) -> Figure {
     let fits = [s.first.alpha_offline, s.second.alpha_offline];
     let lo = fits.iter().flatten().fold(range.0, |m, &a| m.min(a)) - 0.05;
     let hi = fits.iter().flatten().fold(range.1, |m, &a| m.max(a)) + 0.05;

@@ -33,7 +33,7 @@ impl RunPredictions {
 
     /// [`RunPredictions::simulate`] of models given by kind (an exported or loaded model
     /// needs no training history).
-    pub fn simulate_models(
+    pub(crate) fn simulate_models(
         models: &[(ModelKind, &Model)],
         prepared: &Prepared,
         requests: &[(ModelKind, usize)],

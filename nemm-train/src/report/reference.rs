@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 
 /// Velocities at which `b_fl` is compared \[m/s\].
-pub const COMPARED_VELOCITIES_M_S: [f64; 6] = [-1.0, -0.5, -0.1, 0.1, 0.5, 1.0];
+pub(crate) const COMPARED_VELOCITIES_M_S: [f64; 6] = [-1.0, -0.5, -0.1, 0.1, 0.5, 1.0];
 
 /// One learned coefficient against one reference coefficient.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -22,13 +22,13 @@ pub struct ReferenceRow {
     /// Learned value at `alpha_from` and at `alpha_to` (N/m or N s/m).
     pub learned_from: f64,
     /// Learned value at `alpha_to`.
-    pub learned_to: f64,
+    pub(crate) learned_to: f64,
     /// `learned_to / learned_from - 1`.
-    pub learned_change: f64,
+    pub(crate) learned_change: f64,
     /// Reference value at `alpha_from` (N/m or N s/m).
-    pub reference_from: f64,
+    pub(crate) reference_from: f64,
     /// Reference value at `alpha_to`.
-    pub reference_to: f64,
+    pub(crate) reference_to: f64,
     /// `reference_to / reference_from - 1`.
     pub reference_change: f64,
     /// `learned_change / reference_change`: 1 when the model moves as the bench does, >= 0.5
@@ -40,9 +40,9 @@ pub struct ReferenceRow {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ReferenceComparison {
     /// Lower level (0).
-    pub alpha_from: f64,
+    pub(crate) alpha_from: f64,
     /// Upper level: the model's largest training level, within the reference's range.
-    pub alpha_to: f64,
+    pub(crate) alpha_to: f64,
     /// The reference run, e.g. `10 mm, 1.048 m/s`.
     pub run: String,
     /// One row per pair.
@@ -55,7 +55,7 @@ pub struct ReferenceComparison {
 /// describing-function `b_pr` (with a lost-motion element also the stiffness through it at
 /// the start of the compression and the rebound side against those chambers' stiffness),
 /// `b_fl(v)` with the quasi-static `b_fl(v)` at
-/// [`COMPARED_VELOCITIES_M_S`]. Rows whose learned coefficient the model does not have are
+/// `COMPARED_VELOCITIES_M_S`. Rows whose learned coefficient the model does not have are
 /// left out.
 pub fn compare(model: &Model, reference: &EmmReference) -> ReferenceComparison {
     let a1 = comparison_alpha(model, reference);
@@ -135,7 +135,7 @@ pub fn compare(model: &Model, reference: &EmmReference) -> ReferenceComparison {
 
 /// The upper level of the comparison: the model's largest training level, or the
 /// reference's largest level when the model's lies beyond it (or is 0).
-pub fn comparison_alpha(model: &Model, reference: &EmmReference) -> f64 {
+pub(crate) fn comparison_alpha(model: &Model, reference: &EmmReference) -> f64 {
     let a = f64::from(model.meta.alpha_max);
     let top = reference.alpha_max();
     if a > 0.0 && a <= top {
@@ -148,17 +148,17 @@ pub fn comparison_alpha(model: &Model, reference: &EmmReference) -> f64 {
 /// The two figures of a [`ReferenceComparison`] that say where the model puts the
 /// degradation (each `None` where the comparison lacks its row).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct DegradationFigures {
+pub(crate) struct DegradationFigures {
     /// The compression chamber's `k_pr` change, learned over the bench's (through the
     /// lost-motion element when the model has one: its row follows `k_pr`'s).
-    pub k_pr_compression_ratio: Option<f64>,
+    pub(crate) k_pr_compression_ratio: Option<f64>,
     /// The learned minus the bench's `b_fl` change at -1 m/s \[percentage points\].
-    pub b_fl_change_pp: Option<f64>,
+    pub(crate) b_fl_change_pp: Option<f64>,
 }
 
 impl ReferenceComparison {
     /// Where the model puts the degradation against the bench: [`DegradationFigures`].
-    pub fn degradation_figures(&self) -> DegradationFigures {
+    pub(crate) fn degradation_figures(&self) -> DegradationFigures {
         let against = |c: Coefficient| {
             let name = c.name();
             self.rows.iter().filter(move |r| r.reference == name)

@@ -43,11 +43,11 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 /// The figure's file name in a report folder.
-pub const SIGNATURE_FIGURE: &str = "difference_loops_models.png";
+pub(crate) const SIGNATURE_FIGURE: &str = "difference_loops_models.png";
 
 /// A relative signature error at or below this counts as reproducing the measured difference
 /// loop (the degradation issue's bar for the 30 % loops at 10 mm).
-pub const SIGNATURE_BAR: f64 = 0.30;
+pub(crate) const SIGNATURE_BAR: f64 = 0.30;
 
 /// One condition at one lossy level: the measured difference loop's size and each model's
 /// error against it.
@@ -78,7 +78,7 @@ pub struct SignatureRow {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct SignatureReport {
     /// The reference level the differences are taken against (0).
-    pub reference_alpha: f64,
+    pub(crate) reference_alpha: f64,
     /// One row per condition and lossy level, by level, then amplitude (descending), then
     /// peak velocity.
     pub rows: Vec<SignatureRow>,
@@ -99,13 +99,13 @@ pub struct LevelSignature {
     /// Conditions within [`SIGNATURE_BAR`].
     pub within: usize,
     /// The smallest amplitude of the report \[m\].
-    pub small_amplitude_m: f64,
+    pub(crate) small_amplitude_m: f64,
     /// Conditions at the smallest amplitude with the model's error.
-    pub small_conditions: usize,
+    pub(crate) small_conditions: usize,
     /// Of those, within [`SIGNATURE_BAR`].
-    pub small_within: usize,
+    pub(crate) small_within: usize,
     /// The largest relative error at the smallest amplitude (0 without one).
-    pub small_worst: f64,
+    pub(crate) small_worst: f64,
 }
 
 impl SignatureReport {
@@ -157,7 +157,7 @@ struct RunLoops {
 
 /// The measured and modelled loops of a dataset's runs, computed once for the report
 /// ([`signature_report`]) and the figure ([`signature_figure`]).
-pub struct SignatureLoops {
+pub(crate) struct SignatureLoops {
     runs: Vec<RunLoops>,
     variants: Vec<ModelKind>,
     dataset: String,
@@ -200,7 +200,7 @@ impl SignatureLoops {
 /// The measured and modelled loops of the used periodic runs `runs` (dataset indices) of
 /// `ds` at a constant level, each model simulated whole on the preprocessed velocity of
 /// `prepared` (module docs).
-pub fn signature_loops(
+pub(crate) fn signature_loops(
     models: &[(ModelKind, &Model)],
     ds: &Dataset,
     prepared: &Prepared,
@@ -277,7 +277,7 @@ fn rms(v: impl Iterator<Item = f64>) -> f64 {
 
 /// The degradation signature of the loops `l` (module docs). Levels without a reference
 /// run of the same condition give no row.
-pub fn signature_report(l: &SignatureLoops) -> SignatureReport {
+pub(crate) fn signature_report(l: &SignatureLoops) -> SignatureReport {
     let reference_alpha = 0.0;
     let mut rows = Vec::new();
     for a in l.lossy_levels() {
@@ -351,7 +351,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// The signature as Markdown: per level a summary line per model (median relative error,
 /// conditions within [`SIGNATURE_BAR`], the smallest amplitude's worst), then the table of
 /// every condition.
-pub fn signature_markdown(r: &SignatureReport) -> String {
+pub(crate) fn signature_markdown(r: &SignatureReport) -> String {
     let mut s = String::new();
     if r.rows.is_empty() {
         s += "Degradation signature: no condition has runs at the reference level 0 and a \
@@ -440,7 +440,7 @@ pub fn signature_markdown(r: &SignatureReport) -> String {
 /// Fig. 5 measured and modelled: rows = (amplitude, lossy level) for the smallest and largest
 /// amplitude, columns = measured and each model, one curve per frequency, normalised by
 /// `force_scale_n`; `None` without a lossy level or a loop.
-pub fn signature_figure(l: &SignatureLoops, force_scale_n: f64) -> Option<Figure> {
+pub(crate) fn signature_figure(l: &SignatureLoops, force_scale_n: f64) -> Option<Figure> {
     let levels = l.lossy_levels();
     let amps = sorted_unique(l.runs.iter().map(|r| r.measured.amplitude_m).collect());
     let shown_amps: Vec<f64> = match (amps.first(), amps.last()) {

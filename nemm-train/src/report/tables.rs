@@ -40,7 +40,7 @@ pub struct VariantReport {
     /// Epochs trained.
     pub epochs: usize,
     /// Size of the exported blob \[bytes\].
-    pub blob_bytes: usize,
+    pub(crate) blob_bytes: usize,
     /// Per-epoch history.
     #[serde(default)]
     pub history: Vec<EpochStats>,
@@ -63,7 +63,7 @@ pub struct Report {
     pub failed: BTreeMap<String, String>,
     /// The test set, split and validation rule ([`crate::data::preprocess::SplitConfig::describe`]).
     #[serde(default)]
-    pub test_set: String,
+    pub(crate) test_set: String,
     /// Test sequences and scored samples.
     pub test_sequences: usize,
     /// The test error per held-out run, in the order of the dataset (where each model errs:
@@ -71,12 +71,12 @@ pub struct Report {
     #[serde(default)]
     pub test_runs: Vec<RunBreakdown>,
     /// Identifiability of the level and whole-run errors per level and condition, every
-    /// run the split uses ([`crate::report::identify`]); absent where not computed.
+    /// run the split uses (`crate::report::identify`); absent where not computed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub identify: Option<IdentifyReport>,
     /// Free-form facts about the run (configuration, dataset).
     #[serde(default)]
-    pub info: BTreeMap<String, String>,
+    pub(crate) info: BTreeMap<String, String>,
     /// What `alpha` stands for (the dataset's `[condition]`; default the paper's oil loss).
     #[serde(default)]
     pub condition: ConditionSpec,
@@ -85,7 +85,7 @@ pub struct Report {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bench_reference: Option<crate::report::reference::ReferenceComparison>,
     /// The degradation signature: each model's difference loops `F(0) - F(alpha)` against
-    /// the measured ones per condition ([`crate::report::signature`]); absent where not
+    /// the measured ones per condition (`crate::report::signature`); absent where not
     /// computed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub signature: Option<crate::report::signature::SignatureReport>,
@@ -210,7 +210,7 @@ pub fn evaluate(trained: &[TrainedVariant], prepared: &Prepared) -> Result<Repor
 }
 
 /// The per-run breakdown as Markdown: RMSE in newtons per variant, the NEMM relative to the
-/// reference of [`relative_reference`] (the SEM when it ran), and each run's share of the NEMM's squared error over the test set (which runs the
+/// reference of `relative_reference` (the SEM when it ran), and each run's share of the NEMM's squared error over the test set (which runs the
 /// headline number comes from). Empty when the report has no per-run data.
 pub fn test_runs_markdown(r: &Report) -> String {
     let mut s = String::new();
@@ -285,7 +285,7 @@ pub fn test_runs_markdown(r: &Report) -> String {
 
 /// The reference of the relative errors: the SEM when it ran, else the baseline that ran
 /// (Linear EMM, NEMM-Light) with the lowest test RMSE; `None` when none of them ran.
-pub fn relative_reference(r: &Report) -> Option<(ModelKind, f64)> {
+pub(crate) fn relative_reference(r: &Report) -> Option<(ModelKind, f64)> {
     if let Some(sem) = r.variants.get(ModelKind::Sem.key()) {
         return Some((ModelKind::Sem, sem.rmse));
     }
@@ -313,7 +313,7 @@ fn reference_note(r: &Report) -> Option<String> {
 
 /// Table 4 as Markdown: RMSE (normalised and in N) and relative to the SEM (or, when the SEM
 /// did not run, to the best baseline that did: [`relative_reference`], said under the table).
-pub fn table4_markdown(r: &Report) -> String {
+pub(crate) fn table4_markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,

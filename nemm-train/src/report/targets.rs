@@ -15,34 +15,34 @@ use std::fmt::Write as _;
 
 /// Share of the held-out level's runs whose best-fit level must be within the
 /// identification's tolerance of the label (12 of 18 on the paper's programme).
-pub const HELD_OUT_READ_BACK: f64 = 2.0 / 3.0;
+pub(crate) const HELD_OUT_READ_BACK: f64 = 2.0 / 3.0;
 /// Share of each training level's runs read back within the tolerance (17 of 18).
-pub const TRAINING_READ_BACK: f64 = 17.0 / 18.0;
+pub(crate) const TRAINING_READ_BACK: f64 = 17.0 / 18.0;
 /// Largest difference of the learned and the bench's `b_fl` change from the lowest to the
 /// highest level at -1 m/s \[percentage points\].
-pub const B_FL_CHANGE_PP: f64 = 10.0;
+pub(crate) const B_FL_CHANGE_PP: f64 = 10.0;
 /// Range of the learned compression-side `k_pr` change over the bench's.
-pub const K_PR_COMPRESSION_RATIO: (f64, f64) = (0.7, 1.3);
+pub(crate) const K_PR_COMPRESSION_RATIO: (f64, f64) = (0.7, 1.3);
 /// Largest held-out RMSE of the model over NEMM-Light's.
-pub const OVER_LIGHT: f64 = 0.85;
+pub(crate) const OVER_LIGHT: f64 = 0.85;
 /// Largest held-out RMSE of the model over the SEM's.
-pub const OVER_SEM: f64 = 0.60;
+pub(crate) const OVER_SEM: f64 = 0.60;
 /// Largest whole-run RMSE (normalised by the force scale) of the fastest condition at the
 /// smallest amplitude (10 mm, 16.7 Hz on the paper's programme), at every level.
-pub const FAST_SMALL_RMSE: f64 = 0.08;
+pub(crate) const FAST_SMALL_RMSE: f64 = 0.08;
 
 /// One target: what it is, its bar, the measured figure, and whether it is met (`None`: not
 /// measured).
 #[derive(Debug, Clone, PartialEq)]
-pub struct TargetCheck {
+pub(crate) struct TargetCheck {
     /// What is measured.
-    pub target: String,
+    pub(crate) target: String,
     /// The bar.
-    pub bar: String,
+    pub(crate) bar: String,
     /// The report's figure.
-    pub measured: String,
+    pub(crate) measured: String,
     /// Met, not met, or not measured.
-    pub met: Option<bool>,
+    pub(crate) met: Option<bool>,
 }
 
 impl TargetCheck {
@@ -61,7 +61,7 @@ impl TargetCheck {
 }
 
 /// The degradation targets of model `kind` in `report`.
-pub fn degradation_targets(report: &Report, kind: ModelKind) -> Vec<TargetCheck> {
+pub(crate) fn degradation_targets(report: &Report, kind: ModelKind) -> Vec<TargetCheck> {
     let key = kind.key();
     let mut out = Vec::new();
     let levels = report
@@ -229,7 +229,7 @@ fn fast_small_rmse(report: &Report, key: &str) -> Option<(String, bool)> {
 
 /// The targets of the NEMM (or, without one, of the report's only neural variant) as a
 /// Markdown section; empty when the report has neither.
-pub fn targets_markdown(report: &Report) -> String {
+pub(crate) fn targets_markdown(report: &Report) -> String {
     let Some(kind) = [ModelKind::Nemm, ModelKind::NemmLight]
         .into_iter()
         .find(|k| report.variants.contains_key(k.key()))

@@ -3,7 +3,8 @@ use super::adjoint::{
     loss_and_grad, loss_and_grad_paired, simulate, Grid, Pairing, RolloutGrads, RolloutParams,
     Window,
 };
-use super::params::{convert, from_core};
+use super::adjoint::{Real, ScalerWeights, StaticParams};
+use super::params::from_core;
 use nemm_core::testing::example_model;
 use nemm_core::{Estimator, EstimatorConfig, Integrator, Model, ModelKind, Sample};
 
@@ -660,5 +661,42 @@ fn convert_grads(g: &RolloutGrads<f32>) -> RolloutGrads<f64> {
         k_pr: v(&g.k_pr),
         static_force: v(&g.static_force),
         lost_motion: v(&g.lost_motion),
+    }
+}
+
+/// Converts parameters between float types.
+fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
+    let c = |v: A| B::c(v.to_f64().unwrap_or(f64::NAN));
+    let s = |s: &Option<ScalerWeights<A>>| {
+        s.as_ref().map(|s| ScalerWeights {
+            inputs: s.inputs,
+            hidden: s.hidden,
+            layers: s.layers,
+            w: s.w.iter().map(|&v| c(v)).collect(),
+            s_min: c(s.s_min),
+            s_max: c(s.s_max),
+            branch: s.branch,
+        })
+    };
+    RolloutParams {
+        integrator: p.integrator,
+        dt: c(p.dt),
+        b_fl0: c(p.b_fl0),
+        b_pr0: c(p.b_pr0),
+        k0: c(p.k0),
+        t_pr: c(p.t_pr),
+        v_scale: c(p.v_scale),
+        x_scale: c(p.x_scale),
+        alpha_scale: c(p.alpha_scale),
+        b_fl: s(&p.b_fl),
+        b_pr: s(&p.b_pr),
+        k_pr: s(&p.k_pr),
+        priors: p.priors,
+        static_force: p.static_force.map(|s| StaticParams {
+            theta: s.theta.map(c),
+            x_ref: c(s.x_ref),
+            v_c: c(s.v_c),
+        }),
+        lost_motion: p.lost_motion.map(|l| l.map(c)),
     }
 }

@@ -122,7 +122,7 @@ pub fn input_of(s: &Sequence) -> Input<'_> {
 
 /// Per sequence of `seqs` (samples `sample_dt_s` apart): the squared-error sum of `model`
 /// (normalised by `force_scale`) and the count of scored samples (after `warmup`).
-pub fn sse_per_sequence(
+pub(crate) fn sse_per_sequence(
     model: &Model,
     seqs: &[Sequence],
     sample_dt_s: f64,
@@ -148,7 +148,7 @@ pub fn sse_per_sequence(
 
 /// Squared-error sum (normalised by `force_scale`) and count of `model` over `seqs`, scored
 /// after `warmup` samples.
-pub fn sse_model(
+pub(crate) fn sse_model(
     model: &Model,
     seqs: &[Sequence],
     sample_dt_s: f64,

@@ -10,8 +10,8 @@
 //! # Parts
 //!
 //! [`fit`] is the epoch loop; model selection and early stopping are
-//! [`super::selection`], checkpoints (write, rotate, resume) `train::checkpoint`, and the
-//! `--session-epochs` budget [`super::session`]. `resume` continues from the epoch after the
+//! `super::selection`, checkpoints (write, rotate, resume) `train::checkpoint`, and the
+//! `--session-epochs` budget `super::session`. `resume` continues from the epoch after the
 //! latest checkpoint with the same data order (the shuffle of epoch `e` depends only on the
 //! seed and `e`). A non-finite loss stops training with an error and leaves the last good
 //! checkpoint in place.
@@ -57,7 +57,7 @@ pub struct FitConfig {
     /// Physics-inconsistency weight `lambda_ph`.
     pub lambda_ph: f64,
     /// Weight `lambda_diff` of the matched-difference term (0: off): the force difference
-    /// between matched windows at two levels ([`super::matched`]) against the measured one.
+    /// between matched windows at two levels (`super::matched`) against the measured one.
     pub lambda_diff: f64,
     /// Stop after this many epochs without a better validation RMSE (not before half of
     /// `epochs` are done).
@@ -216,7 +216,7 @@ pub fn rmse(
 /// Learning rate at `step` of `total`: a linear warm-up over the first 5 % of the steps (at
 /// least 10: Adam's first steps are sign-like and would knock a pre-trained scaler off its
 /// optimum), then cosine decay to 10 % of `lr`.
-pub fn learning_rate(lr: f64, step: usize, total: usize) -> f64 {
+pub(crate) fn learning_rate(lr: f64, step: usize, total: usize) -> f64 {
     let warm = (total / 20).max(10);
     if step < warm {
         return lr * (step + 1) as f64 / warm as f64;

@@ -25,7 +25,7 @@ pub struct EpochStats {
     #[serde(default)]
     pub violations: Option<usize>,
     /// Optimizer steps of the epoch after which the stability hold moved the constants
-    /// ([`super::stability`]): the data pull the model faster than its step allows.
+    /// (`super::stability`): the data pull the model faster than its step allows.
     #[serde(default)]
     pub held: usize,
 }

@@ -4,32 +4,32 @@
 //! `0, step, 2 step, ...` up to the model's largest training level) and, once more, at the
 //! run's own label; the grid level of least force RMSE is the best fit ([`identify`]). The
 //! simulation is [`predict`]: one input per level, so the trainer's batched rollout advances
-//! [`LANES`] levels in lock step (the SEM runs through nemm-core's estimator). A model whose
-//! RMSE varies by no more than [`FLAT_TOLERANCE`] of its largest value (the Linear EMM, or a
+//! `LANES` levels in lock step (the SEM runs through nemm-core's estimator). A model whose
+//! RMSE varies by no more than `FLAT_TOLERANCE` of its largest value (the Linear EMM, or a
 //! network that ignores `alpha`) has no best fit: [`Fit::best`] is `None`.
 //!
 //! [`Search`] says which levels are simulated:
 //!
 //! - [`Search::CoarseToFine`] (the default): first a search on nemm-core's tables, then an
-//!   exact search from its best level ([`identify_with_tables`]). The table search is
-//!   [`coarse_to_fine`] with each level simulated by a table-mode estimator built at that
+//!   exact search from its best level (`identify_with_tables`). The table search is
+//!   `coarse_to_fine` with each level simulated by a table-mode estimator built at that
 //!   level (nemm-core's `EvalMode::Table`, whose step costs a fraction of an exact one); it
 //!   only picks where to look. The exact search starts from the table search's best level,
-//!   [`TABLE_WINDOW`] levels on each side and the label (one pack of lanes), and refines
-//!   the candidate minima of the exact curve as [`coarse_to_fine`] does ([`refine`]): a
+//!   `TABLE_WINDOW` levels on each side and the label (one pack of lanes), and refines
+//!   the candidate minima of the exact curve as `coarse_to_fine` does (`refine`): a
 //!   window whose least level is at its edge is extended towards the grid's end. So the
 //!   best fit, the curve and the label's RMSE are exact simulations only. When no table can
 //!   be built (an error from nemm-core), when the table curve is flat or not finite, or for
 //!   a model without neural coefficients or batched rollout (the SEM, the Linear EMM), the
-//!   exact search starts from [`coarse_to_fine`]'s first round; an exact window that is flat
+//!   exact search starts from `coarse_to_fine`'s first round; an exact window that is flat
 //!   gets that round's levels too.
 //!
-//!   [`coarse_to_fine`] alone: first `LANES - 1` levels spread evenly over the grid, ends
+//!   `coarse_to_fine` alone: first `LANES - 1` levels spread evenly over the grid, ends
 //!   included, and the label's simulation (one pack of lanes); then, in rounds, the
 //!   unsimulated levels between each candidate and its simulated neighbours, up to
-//!   [`LANES`] per candidate and round, until every candidate's neighbours on the grid are
+//!   `LANES` per candidate and round, until every candidate's neighbours on the grid are
 //!   simulated. The candidates are the local minima of the simulated curve within
-//!   [`MINIMA_MARGIN`] of its range above its least value, so a second valley is refined as
+//!   `MINIMA_MARGIN` of its range above its least value, so a second valley is refined as
 //!   well as the deepest one. A curve flat at the first round's levels stops there.
 //! - [`Search::Full`]: every grid level, the whole RMSE curve.
 //!
@@ -41,7 +41,7 @@
 //!
 //! [`identify_runs`] searches many runs together: their table searches in parallel, then
 //! their exact searches a round at a time, the simulations of a round packed across runs
-//! (longest runs first, [`LANES`] to a pack; a lane's force does not depend on its pack's
+//! (longest runs first, `LANES` to a pack; a lane's force does not depend on its pack's
 //! other lanes, so every fit is the one [`identify`] gives the run alone).
 //!
 //! The grid bounds the resolution: a run is identified to the nearest grid level, and only
@@ -58,23 +58,23 @@ pub const DEFAULT_STEP: f64 = 0.01;
 
 /// Relative RMSE variation over the simulated levels, `(max - min) / max`, at or below which
 /// a run's RMSE curve counts as flat (the model does not tell the levels apart on that run).
-pub const FLAT_TOLERANCE: f64 = 1e-3;
+pub(crate) const FLAT_TOLERANCE: f64 = 1e-3;
 
 /// Levels simulated in lock step by one pack of the batched rollout: the coarse round's
 /// size and each candidate's share of a refining round.
-pub const LANES: usize = super::adjoint::LANES;
+pub(crate) const LANES: usize = super::adjoint::LANES;
 
 /// A local minimum of the simulated RMSE curve whose value lies within this fraction of the
 /// curve's range (largest minus least value) above the least value is refined by
 /// [`coarse_to_fine`] as well as the least one.
-pub const MINIMA_MARGIN: f64 = 0.25;
+pub(crate) const MINIMA_MARGIN: f64 = 0.25;
 
 /// Which grid levels [`identify`] simulates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Search {
     /// A coarse round over the grid, then rounds that refine the candidate minima down to
-    /// the grid step ([`coarse_to_fine`]).
+    /// the grid step (`coarse_to_fine`).
     #[default]
     CoarseToFine,
     /// Every grid level.
@@ -91,7 +91,7 @@ impl Search {
     }
 
     /// The search of a report that does not name one: [`Search::Full`].
-    pub fn unnamed() -> Self {
+    pub(crate) fn unnamed() -> Self {
         Search::Full
     }
 }
@@ -158,7 +158,7 @@ pub struct Fit {
     /// The run's labelled level.
     pub label: f64,
     /// The simulated level of least RMSE (the lowest on a tie); `None` when the curve is
-    /// flat ([`FLAT_TOLERANCE`]) or a simulation is not finite.
+    /// flat (`FLAT_TOLERANCE`) or a simulation is not finite.
     pub best: Option<f64>,
     /// RMSE at the least-error simulated level \[N\] (defined when the curve is flat too).
     #[serde(deserialize_with = "nan_if_null")]
@@ -179,7 +179,7 @@ pub struct Fit {
 
 impl Fit {
     /// `true` if the best fit is within `tolerance` (plus
-    /// [`crate::data::preprocess::ALPHA_TOLERANCE`]) of the label (`false` when flat).
+    /// `crate::data::preprocess::ALPHA_TOLERANCE`) of the label (`false` when flat).
     pub fn within(&self, tolerance: f64) -> bool {
         self.best.is_some_and(|b| {
             (b - self.label).abs() <= tolerance + crate::data::preprocess::ALPHA_TOLERANCE
@@ -188,7 +188,7 @@ impl Fit {
 }
 
 /// `true` if `curve` varies by no more than [`FLAT_TOLERANCE`] of its largest value.
-pub fn is_flat(curve: &[f64]) -> bool {
+pub(crate) fn is_flat(curve: &[f64]) -> bool {
     let (lo, hi) = curve
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &e| {
@@ -235,7 +235,7 @@ fn coarse_indices(n: usize, count: usize) -> Vec<usize> {
 /// evaluated curve is flat ([`is_flat`]) or when a value is not finite. The least value is
 /// then the least over `0..n` if the curve has one valley, and if its other valleys are
 /// within the margin where they are sampled.
-pub fn coarse_to_fine(
+pub(crate) fn coarse_to_fine(
     n: usize,
     extra: &[usize],
     eval: impl FnMut(&[usize]) -> Result<Vec<f64>>,
@@ -249,7 +249,7 @@ pub fn coarse_to_fine(
 /// round of indices (those below `n` and not in `seen` are evaluated): after each round the
 /// candidate minima of everything evaluated so far are refined as there. Returns every
 /// index evaluated with its value, `seen` included.
-pub fn refine(
+pub(crate) fn refine(
     n: usize,
     seen: BTreeMap<usize, f64>,
     first: Vec<usize>,
@@ -332,7 +332,7 @@ impl Rounds {
 /// samples. The label's simulation is the grid level's when the label is constant and on
 /// the grid (as `f32`), else a simulation of its own in the first exact round.
 /// [`Search::CoarseToFine`] first searches on nemm-core's tables ([`TableConfig::default`];
-/// [`identify_with_tables`]).
+/// `identify_with_tables`).
 pub fn identify(
     model: &Model,
     run: &Run<'_>,
@@ -354,11 +354,11 @@ pub fn identify(
 
 /// Levels on each side of the table search's best level that the first exact round of
 /// [`Search::CoarseToFine`] simulates (with that level: `LANES - 1`, and the label's lane).
-pub const TABLE_WINDOW: usize = (LANES - 2) / 2;
+pub(crate) const TABLE_WINDOW: usize = (LANES - 2) / 2;
 
 /// `true` if [`identify`] runs `model`'s table search: a NEMM or a NEMM-Light (the models
 /// with neural coefficients and a batched exact rollout).
-pub fn has_table_search(model: &Model) -> bool {
+pub(crate) fn has_table_search(model: &Model) -> bool {
     matches!(model.kind(), ModelKind::Nemm | ModelKind::NemmLight)
 }
 
@@ -367,14 +367,14 @@ pub fn has_table_search(model: &Model) -> bool {
 /// each simulation starts from a copy at rest. A level whose estimator cannot be built
 /// holds `None`.
 #[derive(Debug)]
-pub struct TableEstimators {
+pub(crate) struct TableEstimators {
     config: TableConfig,
     levels: Vec<std::sync::OnceLock<Option<Box<Estimator<'static>>>>>,
 }
 
 impl TableEstimators {
     /// No estimator built yet, for the levels of `grid`.
-    pub fn new(grid: &AlphaGrid, config: TableConfig) -> Self {
+    pub(crate) fn new(grid: &AlphaGrid, config: TableConfig) -> Self {
         Self {
             config,
             levels: (0..grid.alphas.len())
@@ -457,7 +457,7 @@ fn table_search(
 /// nemm-core), or the table curve is flat or not finite, the exact search starts from its
 /// coarse round; when the exact window is flat or not finite, the coarse round's levels
 /// are added.
-pub fn identify_with_tables(
+pub(crate) fn identify_with_tables(
     model: &Model,
     run: &Run<'_>,
     grid: &AlphaGrid,
@@ -737,7 +737,7 @@ fn identify_packed(
 
 /// [`identify`] of every run of `runs` ([`identify_packed`]: the exact simulations of the
 /// runs share packs); returns the fits in order.
-pub fn identify_runs(
+pub(crate) fn identify_runs(
     model: &Model,
     runs: &[Run<'_>],
     grid: &AlphaGrid,

@@ -19,7 +19,7 @@ use std::collections::BTreeMap;
 
 /// Largest RMS difference of two windows' stroke velocities, relative to the larger RMS,
 /// for them to count as the same excitation.
-pub const MATCH_TOLERANCE: f64 = 0.05;
+pub(crate) const MATCH_TOLERANCE: f64 = 0.05;
 
 /// The constant level of `s`, or `None` when it changes within the window.
 fn constant_level(s: &Sequence) -> Option<f32> {
@@ -49,7 +49,7 @@ fn same_excitation(a: &[f32], b: &[f32]) -> bool {
 }
 
 /// Per window of `seqs`, the windows it matches at other levels (indices into `seqs`).
-pub fn matched_windows(seqs: &[Sequence]) -> Vec<Vec<usize>> {
+pub(crate) fn matched_windows(seqs: &[Sequence]) -> Vec<Vec<usize>> {
     let mut by_start: BTreeMap<(usize, usize), Vec<(usize, f32)>> = BTreeMap::new();
     for (i, s) in seqs.iter().enumerate() {
         if let Some(level) = constant_level(s) {
@@ -78,7 +78,7 @@ pub fn matched_windows(seqs: &[Sequence]) -> Vec<Vec<usize>> {
 }
 
 /// How many of the windows have a match.
-pub fn matched_count(partners: &[Vec<usize>]) -> usize {
+pub(crate) fn matched_count(partners: &[Vec<usize>]) -> usize {
     partners.iter().filter(|p| !p.is_empty()).count()
 }
 
@@ -86,7 +86,7 @@ pub fn matched_count(partners: &[Vec<usize>]) -> usize {
 /// matches (drawn by `seed`), the pairs first so that none straddles a pack of [`LANES`]
 /// windows, then the anchors without one. Returns the windows (indices into the training
 /// windows) and, per entry, the position of its partner in the batch.
-pub fn paired_batch(
+pub(crate) fn paired_batch(
     anchors: &[usize],
     partners: &[Vec<usize>],
     seed: u64,

@@ -1,6 +1,6 @@
 //! Training of the four variants (sections 5-6): the rollout and its discrete adjoint, the
 //! burn modules, the physics losses, the training loop (epochs in [`fit`], model selection
-//! in [`selection`], checkpoints, the session budget in [`session`]), the two-step
+//! in `selection`, checkpoints, the session budget in `session`), the two-step
 //! procedure, evaluation, identification of the level ([`identify`]) and the conversion
 //! to and from nemm-core models.
 pub mod adjoint;
@@ -9,15 +9,15 @@ pub mod eval;
 pub mod fit;
 pub mod history;
 pub mod identify;
-pub mod matched;
+pub(crate) mod matched;
 pub mod net;
 pub mod params;
 pub mod physics;
 pub mod pipeline;
-pub mod selection;
-pub mod session;
-pub mod stability;
-pub mod static_fit;
+pub(crate) mod selection;
+pub(crate) mod session;
+pub(crate) mod stability;
+pub(crate) mod static_fit;
 pub mod table_check;
 
 #[cfg(test)]

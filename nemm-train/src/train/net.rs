@@ -10,7 +10,7 @@
 //! burn serves what it is good at: the parameters, Adam with gradient clipping, the L2 term,
 //! the quasi-static `b_fl` regression (eq. 41) and the physics-inconsistency losses on grids
 //! (eqs. 27-28, 34, 39-40), checkpoints. The rollout's gradient comes from
-//! [`super::adjoint`] and is added with [`EmmNet::add_rollout_grads`] before one optimizer
+//! [`super::adjoint`] and is added with `EmmNet::add_rollout_grads` before one optimizer
 //! step.
 
 use super::adjoint::{BranchShape, RolloutGrads, RolloutParams, ScalerWeights, StaticParams};
@@ -26,13 +26,13 @@ use nemm_kernels::static_force::STATIC_PARAMS;
 
 /// One hidden block.
 #[derive(Module, Debug)]
-pub struct Block {
+pub(crate) struct Block {
     /// Linear map, weight `[in, out]`.
-    pub linear: Linear,
+    pub(crate) linear: Linear,
     /// LayerNorm (eps 1e-5, biased variance: as nemm-core).
-    pub norm: LayerNorm,
+    pub(crate) norm: LayerNorm,
     /// LeakyReLU (slope 0.01: as nemm-core).
-    pub act: LeakyRelu,
+    pub(crate) act: LeakyRelu,
 }
 
 /// A scaler's alpha branch (`nemm_kernels::mlp::AlphaBranch`) as a burn module: per unit `k`,
@@ -43,18 +43,18 @@ pub struct BranchNet {
     /// State weights `r` `[K]` (absent for `b_pr`).
     pub r: Option<Param<Tensor<1>>>,
     /// `theta_u` `[K]`.
-    pub theta_u: Param<Tensor<1>>,
+    pub(crate) theta_u: Param<Tensor<1>>,
     /// Biases `c` `[K]`.
     pub c: Param<Tensor<1>>,
     /// `theta_v` `[K]`.
-    pub theta_v: Param<Tensor<1>>,
+    pub(crate) theta_v: Param<Tensor<1>>,
 }
 
 /// A neural scaler as a burn module.
 #[derive(Module, Debug)]
 pub struct ScalerNet {
     /// Hidden blocks.
-    pub blocks: Vec<Block>,
+    pub(crate) blocks: Vec<Block>,
     /// Output neuron, weight `[H, 1]`.
     pub out: Linear,
     /// The alpha branch, if any.
@@ -71,9 +71,9 @@ pub struct ScalerSpec {
     /// Hidden layers.
     pub layers: usize,
     /// Lower bound of the scale factor.
-    pub s_min: f32,
+    pub(crate) s_min: f32,
     /// Upper bound of the scale factor.
-    pub s_max: f32,
+    pub(crate) s_max: f32,
     /// The alpha branch's shape, if the scaler has one.
     pub branch: Option<BranchShape>,
 }
@@ -102,7 +102,7 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 
 impl ScalerNet {
     /// Builds from flat nemm-core weights.
-    pub fn from_flat(s: &ScalerWeights<f32>, device: &Device) -> Self {
+    pub(crate) fn from_flat(s: &ScalerWeights<f32>, device: &Device) -> Self {
         let layout = s.layout();
         assert_eq!(layout.len(), s.w.len(), "scaler weight count");
         let h = s.hidden;
@@ -144,7 +144,7 @@ impl ScalerNet {
         }
     }
 
-    /// nemm-core's layout of this scaler's flat weights ([`Self::to_flat`]).
+    /// nemm-core's layout of this scaler's flat weights (`Self::to_flat`).
     pub fn layout(&self) -> nemm_kernels::mlp::ScalerLayout {
         let [inputs, hidden] = self
             .blocks
@@ -161,7 +161,7 @@ impl ScalerNet {
     }
 
     /// Flat nemm-core weights.
-    pub fn to_flat(&self) -> Vec<f32> {
+    pub(crate) fn to_flat(&self) -> Vec<f32> {
         let layout = self.layout();
         let mut v = vec![0.0f32; layout.len()];
         let mut put = |range: std::ops::Range<usize>, vals: Vec<f32>| {
@@ -197,7 +197,7 @@ impl ScalerNet {
     /// Raw output `z` for normalised inputs `[batch, inputs]` (alpha last): `[batch, 1]`.
     /// With an alpha branch the MLP gets its alpha column at zero and the branch adds
     /// `sum_k v_k leaky_relu(r_k x + u_k alpha_n + c_k)`.
-    pub fn forward_raw(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
+    pub(crate) fn forward_raw(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
         let (Some(b), Some(shape)) = (&self.branch, &spec.branch) else {
             return self.mlp_raw(x);
         };
@@ -233,7 +233,7 @@ impl ScalerNet {
     }
 
     /// Scale factor `s_min + (s_max - s_min) sigmoid(z)`: `[batch, 1]`.
-    pub fn forward_scale(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
+    pub(crate) fn forward_scale(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
         sigmoid(self.forward_raw(x, spec))
             .mul_scalar(spec.s_max - spec.s_min)
             .add_scalar(spec.s_min)
@@ -244,7 +244,7 @@ impl ScalerNet {
     /// `theta_u^2 theta_v^2` are fourth order in its weights, so an L2 pull would hold them
     /// at zero, where their data gradient vanishes, and the learned coefficients would not
     /// move with alpha).
-    pub fn weight_sq_sum(&self) -> Tensor<1> {
+    pub(crate) fn weight_sq_sum(&self) -> Tensor<1> {
         let mut total = self.out.weight.val().powi_scalar(2).sum();
         for b in &self.blocks {
             total = total + b.linear.weight.val().powi_scalar(2).sum();
@@ -254,7 +254,7 @@ impl ScalerNet {
 
     /// Adds a flat gradient (nemm-core layout, [`Self::layout`]) to the parameters' entries
     /// in `gp`.
-    pub fn add_flat_grads(&self, g: &[f32], gp: &mut GradientsParams, device: &Device) {
+    pub(crate) fn add_flat_grads(&self, g: &[f32], gp: &mut GradientsParams, device: &Device) {
         let dev = plain(device);
         let layout = self.layout();
         let h = layout.hidden;
@@ -306,13 +306,13 @@ impl ScalerNet {
 /// about the learning rate per step, so this makes the four constants move
 /// `LOG_CONSTANT_SCALE` times faster in log space (5 % per step at lr 5e-3) than the scaler
 /// weights, which need small steps, while the constants must be able to travel by factors.
-pub const LOG_CONSTANT_SCALE: f32 = 10.0;
+pub(crate) const LOG_CONSTANT_SCALE: f32 = 10.0;
 
 /// The lost-motion element's parameters are stored as `ln(v) / LOG_LOST_MOTION_SCALE`: the
 /// travels must grow by factors of ten from their start (a tenth of the liquid spring's
 /// deflection) within the few hundred steps of the Linear EMM stage, so they move three
 /// times faster than the constants (15 % per step at lr 5e-3).
-pub const LOG_LOST_MOTION_SCALE: f32 = 30.0;
+pub(crate) const LOG_LOST_MOTION_SCALE: f32 = 30.0;
 
 /// Adds `d` to the gradient of parameter `id` in `gp` (registers it if there is none).
 fn add_grad(gp: &mut GradientsParams, id: burn::module::ParamId, d: Tensor<1>) {
@@ -328,7 +328,7 @@ fn add_grad(gp: &mut GradientsParams, id: burn::module::ParamId, d: Tensor<1>) {
 pub struct EmmNet {
     /// `[ln b_fl,ini, ln b_pr,ini, ln k_pr,ini, ln T_pr] / LOG_CONSTANT_SCALE` (SI units
     /// inside the log).
-    pub log_c: Param<Tensor<1>>,
+    pub(crate) log_c: Param<Tensor<1>>,
     /// `b_fl(v_st, alpha)` scaler.
     pub b_fl: Option<ScalerNet>,
     /// `b_pr(alpha)` scaler.
@@ -353,11 +353,11 @@ pub struct NetFrame {
     /// Step \[s\].
     pub dt: f32,
     /// Velocity scale \[m/s\].
-    pub v_scale: f32,
+    pub(crate) v_scale: f32,
     /// `x_pr` scale \[m\].
-    pub x_scale: f32,
+    pub(crate) x_scale: f32,
     /// Alpha scale.
-    pub alpha_scale: f32,
+    pub(crate) alpha_scale: f32,
     /// `b_fl` scaler spec.
     pub b_fl: Option<ScalerSpec>,
     /// `b_pr` scaler spec.
@@ -376,19 +376,19 @@ pub struct StaticFrame {
     /// Reference position `x_ref` \[m\].
     pub x_ref: f32,
     /// Smoothing velocity `v_c` \[m/s\].
-    pub v_c: f32,
-    /// Physical value of one unit of each trained parameter ([`static_units`]).
+    pub(crate) v_c: f32,
+    /// Physical value of one unit of each trained parameter (`static_units`).
     pub units: [f32; STATIC_PARAMS],
 }
 
 /// Fraction of the force scale by which one unit of a static-force parameter moves the
 /// force: Adam moves a parameter by about the learning rate per step, so at 5e-3 and a
 /// 2000 N force scale a step moves the gas offset and the friction by about 1 N.
-pub const STATIC_UNIT: f32 = 0.1;
+pub(crate) const STATIC_UNIT: f32 = 0.1;
 
 /// Units of the static-force parameters: [`STATIC_UNIT`] times the force scale \[N\] for
 /// the forces, that divided by the span of `x - x_ref` \[m\] for the gas springs.
-pub fn static_units(force_scale_n: f32, x_span_m: f32) -> [f32; STATIC_PARAMS] {
+pub(crate) fn static_units(force_scale_n: f32, x_span_m: f32) -> [f32; STATIC_PARAMS] {
     let f = STATIC_UNIT * force_scale_n;
     let k = f / x_span_m.max(1e-6);
     [f, f, k, k, f]
@@ -407,7 +407,7 @@ fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
 
 impl EmmNet {
     /// The module and frame of rollout parameters; a static force is trained in `units`
-    /// ([`static_units`]; `None`: the default of [`static_units`] at a 1 kN force scale and a
+    /// (`static_units`; `None`: the default of `static_units` at a 1 kN force scale and a
     /// 0.1 m span).
     pub fn from_rollout(
         p: &RolloutParams<f32>,
@@ -459,7 +459,7 @@ impl EmmNet {
     /// The module with the constants `c` (`[b_fl,ini, b_pr,ini, k_pr,ini, T_pr]` in SI
     /// units, positive). The parameter keeps its id, so the optimizer's moments stay
     /// attached to it.
-    pub fn with_constants(self, c: [f32; 4]) -> Self {
+    pub(crate) fn with_constants(self, c: [f32; 4]) -> Self {
         let stored: Vec<f32> = c.iter().map(|v| v.ln() / LOG_CONSTANT_SCALE).collect();
         let log_c = self.log_c.map(|t| {
             let grad = t.is_require_grad();
@@ -522,7 +522,7 @@ impl EmmNet {
     }
 
     /// The lost-motion element's parameters in SI units, if the model has one.
-    pub fn lost_motion_params(&self) -> Option<[f32; LOST_MOTION_PARAMS]> {
+    pub(crate) fn lost_motion_params(&self) -> Option<[f32; LOST_MOTION_PARAMS]> {
         self.lost_motion.as_ref().map(|t| {
             let v = to_vec(t.val());
             std::array::from_fn(|q| {
@@ -535,7 +535,7 @@ impl EmmNet {
     /// `ln(c) / LOG_CONSTANT_SCALE`: `LOG_CONSTANT_SCALE c dL/dc`; flat scaler gradients) to
     /// `gp`. `train_constants` selects which constants
     /// receive a gradient (`[b_fl, b_pr, k_pr, T_pr]`).
-    pub fn add_rollout_grads(
+    pub(crate) fn add_rollout_grads(
         &self,
         frame: &NetFrame,
         g: &RolloutGrads<f32>,
@@ -599,7 +599,7 @@ impl EmmNet {
     /// weight, `lambda w / ||W||`, stays small next to the data term, whereas a squared norm
     /// with `lambda = 1e-3` would out-weigh a normalised MSE of ~1e-3 and shrink the scalers
     /// to constants.
-    pub fn l2_norms(&self, device: &Device) -> Tensor<1> {
+    pub(crate) fn l2_norms(&self, device: &Device) -> Tensor<1> {
         let mut total = Tensor::<1>::zeros([1], device);
         for n in [&self.b_fl, &self.b_pr, &self.k_pr].into_iter().flatten() {
             total = total + n.weight_sq_sum().add_scalar(1e-12).sqrt();

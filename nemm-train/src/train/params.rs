@@ -108,7 +108,7 @@ pub fn from_core<T: Real>(m: &Model) -> Option<RolloutParams<T>> {
 }
 
 /// The core model of rollout parameters, with training-data facts `meta` and the paper's
-/// condition (oil loss) with the parameters' priors ([`to_core_with`]).
+/// condition (oil loss) with the parameters' priors (`to_core_with`).
 pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
     let condition = Condition {
         priors: p.priors,
@@ -120,7 +120,7 @@ pub fn to_core<T: Real>(p: &RolloutParams<T>, meta: Meta) -> Result<Model> {
 /// The core model of rollout parameters, with training-data facts `meta` and the dataset's
 /// `condition`. The kind follows from which scalers are present (none: Linear EMM; `b_fl`:
 /// NEMM-Light; all: NEMM); the scalers' alpha branches go into the extension.
-pub fn to_core_with<T: Real>(
+pub(crate) fn to_core_with<T: Real>(
     p: &RolloutParams<T>,
     meta: Meta,
     condition: &Condition,
@@ -187,41 +187,4 @@ pub fn to_core_with<T: Real>(
         .validate()
         .map_err(|e| anyhow::anyhow!("the trained model is not valid: {e}"))?;
     Ok(model)
-}
-
-/// Converts parameters between float types.
-pub fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
-    let c = |v: A| B::c(v.to_f64().unwrap_or(f64::NAN));
-    let s = |s: &Option<ScalerWeights<A>>| {
-        s.as_ref().map(|s| ScalerWeights {
-            inputs: s.inputs,
-            hidden: s.hidden,
-            layers: s.layers,
-            w: s.w.iter().map(|&v| c(v)).collect(),
-            s_min: c(s.s_min),
-            s_max: c(s.s_max),
-            branch: s.branch,
-        })
-    };
-    RolloutParams {
-        integrator: p.integrator,
-        dt: c(p.dt),
-        b_fl0: c(p.b_fl0),
-        b_pr0: c(p.b_pr0),
-        k0: c(p.k0),
-        t_pr: c(p.t_pr),
-        v_scale: c(p.v_scale),
-        x_scale: c(p.x_scale),
-        alpha_scale: c(p.alpha_scale),
-        b_fl: s(&p.b_fl),
-        b_pr: s(&p.b_pr),
-        k_pr: s(&p.k_pr),
-        priors: p.priors,
-        static_force: p.static_force.map(|s| StaticParams {
-            theta: s.theta.map(c),
-            x_ref: c(s.x_ref),
-            v_c: c(s.v_c),
-        }),
-        lost_motion: p.lost_motion.map(|l| l.map(c)),
-    }
 }

@@ -17,7 +17,7 @@
 //! Derivatives are difference quotients (the grid spacing divides the differences), so the
 //! loss does not depend on the grid resolution.
 //!
-//! The margin `m` = [`ALPHA_MARGIN`] (1e-3 per unit alpha, 0.1 % over the whole range) asks
+//! The margin `m` = `ALPHA_MARGIN` (1e-3 per unit alpha, 0.1 % over the whole range) asks
 //! the coefficients to fall with alpha a little rather than stay flat: between the grid's
 //! points a flat-at-the-points scaler can still rise slightly, which the audit's 4x finer
 //! grid then counts. On the default virtual bench (demo budget, 12 epochs of 8 batches) the
@@ -38,13 +38,13 @@ pub const AUDIT_GRID: (usize, usize) = (401, 101);
 
 /// Grid of the training-time penalty.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PenaltyGrid {
+pub(crate) struct PenaltyGrid {
     /// Points along the normalised state in `[-state_extent, state_extent]`.
-    pub n_state: usize,
+    pub(crate) n_state: usize,
     /// Points along alpha in `[0, 1]`.
-    pub n_alpha: usize,
+    pub(crate) n_alpha: usize,
     /// Half-width of the normalised state range.
-    pub state_extent: f32,
+    pub(crate) state_extent: f32,
 }
 
 impl Default for PenaltyGrid {
@@ -59,7 +59,7 @@ impl Default for PenaltyGrid {
 
 /// Margin of the alpha conditions in the penalty: a scale factor is penalised unless it
 /// falls by at least this much per unit alpha (normalised units).
-pub const ALPHA_MARGIN: f32 = 1e-3;
+pub(crate) const ALPHA_MARGIN: f32 = 1e-3;
 
 fn linspace(a: f32, b: f32, n: usize) -> Vec<f32> {
     (0..n)
@@ -137,7 +137,12 @@ fn penalty_1d(
 
 /// Sum of the physics-inconsistency losses of every scaler in `net` (a differentiable
 /// scalar, `[1]`).
-pub fn physics_loss(net: &EmmNet, f: &NetFrame, g: &PenaltyGrid, device: &Device) -> Tensor<1> {
+pub(crate) fn physics_loss(
+    net: &EmmNet,
+    f: &NetFrame,
+    g: &PenaltyGrid,
+    device: &Device,
+) -> Tensor<1> {
     let mut total = Tensor::<1>::zeros([1], device);
     let pr = &f.priors;
     if let (Some(n), Some(s)) = (&net.b_fl, &f.b_fl) {
@@ -196,20 +201,20 @@ impl Audit {
 }
 
 /// Derivatives (normalised units) at or below this are not counted as violations.
-pub const MIN_VIOLATION: f64 = 1e-5;
+pub(crate) const MIN_VIOLATION: f64 = 1e-5;
 
 /// Rounding floor of the audit, in units in the last place (f32) of the larger of two grid
 /// values: the scalers are evaluated in f32, so two neighbouring values of a coefficient that
 /// is flat (a saturated sigmoid) differ by a few ulps in either direction, which decides
 /// nothing about its monotonicity. 16 ulps is a relative difference of 1.9e-6.
-pub const ROUNDING_ULPS: f64 = 16.0;
+pub(crate) const ROUNDING_ULPS: f64 = 16.0;
 
 /// The wrong-signed derivative `(hi - lo) / step` (normalised units) when going from grid value
 /// `lo` to its neighbour `hi`, one `step` further, breaks monotonicity (`must_increase`:
 /// `hi >= lo` is required, else `hi <= lo`) by more than the rounding floor
 /// ([`ROUNDING_ULPS`]) and [`MIN_VIOLATION`]; `None` otherwise. The one criterion of the
 /// audit, the report and the figures.
-pub fn violation(lo: f64, hi: f64, step: f64, must_increase: bool) -> Option<f64> {
+pub(crate) fn violation(lo: f64, hi: f64, step: f64, must_increase: bool) -> Option<f64> {
     let diff = if must_increase { lo - hi } else { hi - lo };
     let floor = ROUNDING_ULPS * f64::from(f32::EPSILON) * lo.abs().max(hi.abs());
     let deriv = diff / step;

@@ -7,25 +7,25 @@ use serde::{Deserialize, Serialize};
 /// The selection's state after some epochs: the kept model and the progress counters of
 /// early stopping.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Selection {
+pub(crate) struct Selection {
     /// Epoch of the kept model (0: the model the stage started from).
-    pub best_epoch: usize,
+    pub(crate) best_epoch: usize,
     /// Its validation RMSE (normalised).
-    pub best_val: f64,
+    pub(crate) best_val: f64,
     /// The kept model passed the monotonicity audit.
-    pub best_consistent: bool,
+    pub(crate) best_consistent: bool,
     /// Epochs since the kept model changed.
-    pub since_best: usize,
+    pub(crate) since_best: usize,
     /// Best validation RMSE of any epoch (early stopping's progress measure).
-    pub best_any_val: f64,
+    pub(crate) best_any_val: f64,
     /// Epochs since `best_any_val` improved.
-    pub since_any: usize,
+    pub(crate) since_any: usize,
 }
 
 impl Selection {
     /// The selection before the first epoch: the starting model (validation RMSE `val`,
     /// audit `violations`, `None` when the stage does not audit) is kept.
-    pub fn start(val: f64, violations: Option<usize>) -> Self {
+    pub(crate) fn start(val: f64, violations: Option<usize>) -> Self {
         Self {
             best_epoch: 0,
             best_val: val,
@@ -37,7 +37,7 @@ impl Selection {
     }
 
     /// Records epoch `epoch`'s model; `true` when it becomes the kept one ([`keeps`]).
-    pub fn observe(&mut self, epoch: usize, val: f64, violations: Option<usize>) -> bool {
+    pub(crate) fn observe(&mut self, epoch: usize, val: f64, violations: Option<usize>) -> bool {
         let kept = keeps(val, violations, self.best_val, self.best_consistent);
         if kept {
             self.best_val = val;
@@ -61,7 +61,7 @@ impl Selection {
     }
 
     /// Early stopping ([`patience_used`]); `audited`: the stage audits its models.
-    pub fn patience_used(&self, patience: usize, audited: bool) -> bool {
+    pub(crate) fn patience_used(&self, patience: usize, audited: bool) -> bool {
         patience_used(
             patience,
             self.since_best,
@@ -78,7 +78,12 @@ impl Selection {
 /// that passes the audit always replaces one that does not, and among models that pass (or
 /// while none has) the lower validation RMSE wins: the kept model is the most accurate
 /// physically consistent one, with the most accurate model as the fallback.
-pub fn keeps(val: f64, violations: Option<usize>, best_val: f64, best_consistent: bool) -> bool {
+pub(crate) fn keeps(
+    val: f64,
+    violations: Option<usize>,
+    best_val: f64,
+    best_consistent: bool,
+) -> bool {
     match violations {
         None => val < best_val,
         Some(0) => !best_consistent || val < best_val,
@@ -93,7 +98,7 @@ pub fn keeps(val: f64, violations: Option<usize>, best_val: f64, best_consistent
 /// Counting progress of any model keeps a run going while the penalty is still cleaning up
 /// the most accurate epochs; so this never stops earlier than plain early stopping on the
 /// validation RMSE, and without an audit (both counters equal) it is exactly that.
-pub fn patience_used(
+pub(crate) fn patience_used(
     patience: usize,
     since_kept: usize,
     since_any: usize,
@@ -117,7 +122,7 @@ pub struct PassedOver {
 /// The most accurate audited model of `candidates` (`(epoch, val_rmse, violations)`, the
 /// starting model as epoch 0 when known) if it is more accurate than the kept model
 /// (`kept_val`) and failed the audit: what consistent model selection gave up.
-pub fn passed_over(
+pub(crate) fn passed_over(
     candidates: impl IntoIterator<Item = (usize, f64, Option<usize>)>,
     kept_val: f64,
 ) -> Option<PassedOver> {
@@ -139,7 +144,7 @@ pub fn passed_over(
 /// changed nothing. With `passed_over`, the line also names the more accurate model that
 /// consistent selection passed over because it failed the monotonicity audit, so the
 /// accuracy given up for physical consistency is visible.
-pub fn kept_model_summary(
+pub(crate) fn kept_model_summary(
     best_epoch: usize,
     best_val_rmse: f64,
     passed_over: Option<PassedOver>,

@@ -6,16 +6,16 @@ use anyhow::Result;
 
 /// The epochs one invocation of a stage may train.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct SessionBudget {
+pub(crate) struct SessionBudget {
     /// First epoch of this invocation.
-    pub start_epoch: usize,
+    pub(crate) start_epoch: usize,
     /// Epochs it may train (`None`: no limit).
-    pub epochs: Option<usize>,
+    pub(crate) epochs: Option<usize>,
 }
 
 impl SessionBudget {
     /// Whether the budget is used before `epoch` would start.
-    pub fn used_before(&self, epoch: usize) -> bool {
+    pub(crate) fn used_before(&self, epoch: usize) -> bool {
         self.epochs
             .is_some_and(|n| epoch >= self.start_epoch.saturating_add(n))
     }

@@ -30,24 +30,24 @@ use super::net::{EmmNet, NetFrame};
 
 /// Factor over nemm-core's shortest stable time constant at which the constants are held,
 /// so that `f32` rounding of the stored constants cannot cross the runtime's bound.
-pub const HOLD_FACTOR: f32 = 1.01;
+pub(crate) const HOLD_FACTOR: f32 = 1.01;
 
 /// The stable set of a stage's constants (module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StabilityHold {
+pub(crate) struct StabilityHold {
     /// `tau_hold` \[s\].
-    pub tau_s: f32,
+    pub(crate) tau_s: f32,
     /// `s_min` of the `b_fl` scaler (1 without one).
-    pub s_min_fl: f32,
+    pub(crate) s_min_fl: f32,
     /// `s_min` of the `b_pr` scaler (1 without one).
-    pub s_min_pr: f32,
+    pub(crate) s_min_pr: f32,
     /// `s_max` of the `k_pr` scaler (1 without one).
-    pub s_max_k: f32,
+    pub(crate) s_max_k: f32,
 }
 
 impl StabilityHold {
     /// The stable set of a stage with frame `frame` (its integrator, step and scaler bounds).
-    pub fn new(frame: &NetFrame) -> Self {
+    pub(crate) fn new(frame: &NetFrame) -> Self {
         Self {
             tau_s: HOLD_FACTOR
                 * nemm_core::shortest_stable_time_constant_s(frame.integrator, frame.dt),
@@ -59,7 +59,7 @@ impl StabilityHold {
 
     /// The stable set of rollout parameters `p` (the same as [`StabilityHold::new`] of
     /// their frame).
-    pub fn of_rollout(p: &RolloutParams<f32>) -> Self {
+    pub(crate) fn of_rollout(p: &RolloutParams<f32>) -> Self {
         Self {
             tau_s: HOLD_FACTOR * nemm_core::shortest_stable_time_constant_s(p.integrator, p.dt),
             s_min_fl: p.b_fl.as_ref().map_or(1.0, |s| s.s_min),
@@ -72,7 +72,7 @@ impl StabilityHold {
     /// when they are on the stable set: the fastest time constant they would reach, the
     /// step's bound, `k_pr,ini` and `T_pr` before and after, and the model rate that would
     /// leave them free.
-    pub fn announce(&self, label: &str, p: &RolloutParams<f32>) -> Option<String> {
+    pub(crate) fn announce(&self, label: &str, p: &RolloutParams<f32>) -> Option<String> {
         let c = [p.b_fl0, p.b_pr0, p.k0, p.t_pr];
         let held = self.hold(c)?;
         let tau = self.fastest_time_constant_s(c);
@@ -98,13 +98,13 @@ impl StabilityHold {
 
     /// The largest `k_pr,ini` \[N/m\] the set allows with `b_fl,ini = b_fl0` and
     /// `b_pr,ini = b_pr0` \[N s/m\].
-    pub fn k_pr_cap(&self, b_fl0: f32, b_pr0: f32) -> f32 {
+    pub(crate) fn k_pr_cap(&self, b_fl0: f32, b_pr0: f32) -> f32 {
         (b_pr0 * self.s_min_pr + b_fl0 * self.s_min_fl) / (self.s_max_k * self.tau_s)
     }
 
     /// `net` with its constants moved onto the stable set, and whether they moved (the
     /// parameter keeps its id, so the optimizer's moments stay attached to it).
-    pub fn hold_net(&self, net: EmmNet) -> (EmmNet, bool) {
+    pub(crate) fn hold_net(&self, net: EmmNet) -> (EmmNet, bool) {
         match self.hold(net.constants()) {
             Some(c) => (net.with_constants(c), true),
             None => (net, false),
@@ -114,7 +114,7 @@ impl StabilityHold {
     /// The constants `[b_fl,ini, b_pr,ini, k_pr,ini, T_pr]` moved onto the stable set, or
     /// `None` when they are on it (or not finite: the training loop stops on a non-finite
     /// loss before such constants are used).
-    pub fn hold(&self, c: [f32; 4]) -> Option<[f32; 4]> {
+    pub(crate) fn hold(&self, c: [f32; 4]) -> Option<[f32; 4]> {
         let [b_fl0, b_pr0, k0, t_pr] = c;
         if !c.iter().all(|v| v.is_finite()) {
             return None;
@@ -125,7 +125,7 @@ impl StabilityHold {
     }
 
     /// The fastest time constant \[s\] a model with constants `c` reaches at the bounds.
-    pub fn fastest_time_constant_s(&self, c: [f32; 4]) -> f32 {
+    pub(crate) fn fastest_time_constant_s(&self, c: [f32; 4]) -> f32 {
         let [b_fl0, b_pr0, k0, t_pr] = c;
         let tau_pr = (b_pr0 * self.s_min_pr + b_fl0 * self.s_min_fl) / (k0 * self.s_max_k);
         tau_pr.min(t_pr)

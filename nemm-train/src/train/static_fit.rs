@@ -17,7 +17,7 @@ use nemm_kernels::static_force::{features, STATIC_PARAMS};
 
 /// `v_c` as a fraction of the training abs-max velocity: the friction reaches 76 % of `F_c`
 /// at this velocity (`tanh 1`), 2 % of the velocity scale (20 mm/s at 1 m/s).
-pub const V_C_FRACTION: f64 = 0.02;
+pub(crate) const V_C_FRACTION: f64 = 0.02;
 
 /// Ridge added to each diagonal entry of the normal equations, relative to it (keeps the
 /// system solvable when two features are collinear, e.g. `1` and `alpha` at a single
@@ -26,18 +26,18 @@ const RIDGE: f64 = 1e-12;
 
 /// The fixed part of a static force chosen from the training data.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StaticSetup {
+pub(crate) struct StaticSetup {
     /// Reference position: the mean measured position of the training samples \[m\].
-    pub x_ref: f64,
+    pub(crate) x_ref: f64,
     /// Largest `|x - x_ref|` of the training samples \[m\].
-    pub x_span: f64,
+    pub(crate) x_span: f64,
     /// Smoothing velocity of the friction \[m/s\]: [`V_C_FRACTION`] of the velocity scale.
-    pub v_c: f64,
+    pub(crate) v_c: f64,
 }
 
 impl StaticSetup {
     /// From the training sequences (every sample) and the velocity scale \[m/s\].
-    pub fn of(train: &[Sequence], velocity_scale_m_s: f64) -> Self {
+    pub(crate) fn of(train: &[Sequence], velocity_scale_m_s: f64) -> Self {
         let (sum, n) = train
             .iter()
             .flat_map(|s| &s.position_m)
@@ -55,7 +55,7 @@ impl StaticSetup {
     }
 
     /// The training units of the parameters ([`static_units`]) at force scale `force_scale_n`.
-    pub fn units(&self, force_scale_n: f64) -> [f32; STATIC_PARAMS] {
+    pub(crate) fn units(&self, force_scale_n: f64) -> [f32; STATIC_PARAMS] {
         static_units(force_scale_n as f32, self.x_span as f32)
     }
 }
@@ -63,7 +63,7 @@ impl StaticSetup {
 /// Least-squares static force on the residual of `p`'s EMM (its own static force, if any,
 /// left out) over the scored samples (after `warmup`) of `windows`, with the fixed part
 /// `setup`.
-pub fn fit_residual(
+pub(crate) fn fit_residual(
     p: &RolloutParams<f32>,
     windows: &[Window<'_>],
     grid: &Grid,

@@ -21,7 +21,7 @@ use nemm_dataset::{alpha_text, ConditionSpec};
 pub const DEFAULT_TABLE_BOUND: f32 = nemm_kernels::table::DEFAULT_MAX_REL_ERROR;
 
 /// Oil-loss levels checked across the training range.
-pub const ALPHA_LEVELS: usize = 7;
+pub(crate) const ALPHA_LEVELS: usize = 7;
 
 /// The result for one table size.
 #[derive(Debug, Clone, PartialEq)]
@@ -31,9 +31,9 @@ pub struct SizeCheck {
     /// Worst measured relative error over the levels (`None` if no table could be built).
     pub worst: Option<f32>,
     /// Oil-loss level of the worst error.
-    pub worst_alpha: f32,
+    pub(crate) worst_alpha: f32,
     /// Kinks in the worst table (0 if the worst table was refused: the error carries none).
-    pub kinks: usize,
+    pub(crate) kinks: usize,
     /// Why a table could not be built at some level (e.g. more kinks than segments).
     pub failure: Option<String>,
 }
@@ -90,7 +90,7 @@ fn check_size<const T: usize>(model: &Model, alphas: &[f32], bound: f32) -> Size
     c
 }
 
-/// Checks 256- and 128-segment tables built with `bound` at [`ALPHA_LEVELS`] levels over the
+/// Checks 256- and 128-segment tables built with `bound` at `ALPHA_LEVELS` levels over the
 /// training range. Empty for kinds without neural state coefficients (SEM, Linear EMM).
 pub fn check(model: &Model, bound: f32) -> Vec<SizeCheck> {
     if !matches!(

@@ -15,15 +15,15 @@ use std::hash::Hasher;
 use std::path::{Path, PathBuf};
 
 /// The identity file in a checkpoint folder.
-pub const IDENTITY_FILE: &str = "identity.json";
+pub(crate) const IDENTITY_FILE: &str = "identity.json";
 /// The lock file in a checkpoint folder.
-pub const LOCK_FILE: &str = "lock";
+pub(crate) const LOCK_FILE: &str = "lock";
 /// Keys a resumed session may change: the budget of one invocation.
-pub const SESSION_KEYS: [&str; 2] = ["train.epochs", "train.session_epochs"];
+pub(crate) const SESSION_KEYS: [&str; 2] = ["train.epochs", "train.session_epochs"];
 
 /// Holds a checkpoint folder's lock; removes it when dropped.
 #[derive(Debug)]
-pub struct CheckpointLock {
+pub(crate) struct CheckpointLock {
     path: PathBuf,
 }
 
@@ -35,7 +35,7 @@ impl Drop for CheckpointLock {
 
 /// Takes the lock of checkpoint folder `dir` (created if needed), then writes its identity
 /// (training afresh) or checks it against `cfg` (`resume`).
-pub fn open_checkpoint(dir: &Path, cfg: &Config, resume: bool) -> Result<CheckpointLock> {
+pub(crate) fn open_checkpoint(dir: &Path, cfg: &Config, resume: bool) -> Result<CheckpointLock> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let lock = take_lock(dir)?;
     let now = identity(cfg)?;

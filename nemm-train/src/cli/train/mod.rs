@@ -2,13 +2,12 @@
 //! Table 4 / Table 5 reports from the command line.
 
 use crate::config::{lambda_ph_scale_note, resolve_data, AlphaPriors, Config, CONFIG_FILE};
-use crate::data::preprocess::{self, PrepareConfig, Prepared};
+use crate::data::load_dataset_prepared;
+use crate::data::preprocess::{self, Prepared};
 use crate::output_guard::{self, Inputs, Output};
-use crate::report::identify::{identify_markdown, identify_report, used_runs, whole_run_markdown};
+use crate::report::identify::{identify_markdown, whole_run_markdown};
 use crate::report::inspect::describe;
-use crate::report::signature::{
-    signature_loops, signature_markdown, signature_report, SIGNATURE_FIGURE,
-};
+use crate::report::signature::signature_markdown;
 use crate::report::tables::{evaluate, table4_markdown, test_runs_markdown, Report};
 use crate::train::net::{EmmNet, NetFrame};
 use crate::train::params::to_core;
@@ -28,53 +27,14 @@ mod demo;
 mod identity;
 mod sweep;
 
-pub use crate::output_guard::{check_output_dir, check_output_file};
-pub use compare::{compare, compare_command, degradation_report};
+pub use compare::{compare, compare_command};
 pub use demo::{demo, DemoPaths};
-pub use identity::{open_checkpoint, CheckpointLock, IDENTITY_FILE, LOCK_FILE, SESSION_KEYS};
-pub use sweep::{
-    collect, resume, slurm, sweep, DegradationPoint, Engine, SlurmArgs, SweepGrid, SweepOptions,
-    Table3Args, TABLE5_LAMBDAS,
-};
-
-/// Loads and prepares a dataset, printing a one-line summary.
-pub fn load_prepared(dir: &Path, cfg: &PrepareConfig) -> Result<Prepared> {
-    load_dataset_prepared(dir, cfg).map(|(_, p)| p)
-}
-
-/// Loads and prepares a dataset; returns both (figures need the whole runs).
-pub fn load_dataset_prepared(
-    dir: &Path,
-    cfg: &PrepareConfig,
-) -> Result<(dataset::Dataset, Prepared)> {
-    let t = Instant::now();
-    let ds = dataset::load(dir)
-        .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
-    let prepared = preprocess::prepare(&ds, cfg)?;
-    eprintln!(
-        "dataset {:?}: {} runs; {} train / {} validation / {} test windows of {} + {} warm-up samples; force scale {:.0} N ({:.1} s)",
-        ds.name,
-        ds.runs.len(),
-        prepared.train.len(),
-        prepared.validation.len(),
-        prepared.test.len(),
-        prepared.scored_samples,
-        prepared.warmup_samples,
-        prepared.scales.force_n,
-        t.elapsed().as_secs_f64()
-    );
-    if prepared.test.is_empty() {
-        eprintln!(
-            "warning: no test windows ({}); test RMSE will be NaN",
-            cfg.split.describe()
-        );
-    }
-    Ok((ds, prepared))
-}
+pub(crate) use identity::open_checkpoint;
+pub use sweep::{collect, resume, sweep, Engine, SlurmArgs, SweepGrid, SweepOptions, Table3Args};
 
 /// `cfg` with its data options resolved for its dataset ([`resolve_data`], which prints
 /// them): what a job runs with and saves as `config.toml`.
-pub fn with_resolved_data(cfg: &Config) -> Result<Config> {
+pub(crate) fn with_resolved_data(cfg: &Config) -> Result<Config> {
     let mut cfg = cfg.clone();
     cfg.data = resolve_data(&cfg.data)?.config;
     Ok(cfg)
@@ -89,7 +49,7 @@ pub struct TablesArgs {
     /// tables the blob stores. A firmware in table mode at one of them reads its tables from
     /// the blob instead of building them at boot. None by default.
     #[arg(long, value_delimiter = ',')]
-    pub tables_alpha: Vec<f32>,
+    pub(crate) tables_alpha: Vec<f32>,
     /// Also store this many levels evenly over the model's trained range of alpha (2 to
     /// 16, together with --tables-alpha at most 16): the level tables of
     /// `nemm_core::LevelTables`, with which a firmware runs a level per sample
@@ -97,19 +57,19 @@ pub struct TablesArgs {
     /// at table cost. 7 levels take about 43 KB of the blob at 128 segments (docs/core.md,
     /// "Every level at table cost").
     #[arg(long)]
-    pub tables_levels: Option<usize>,
+    pub(crate) tables_levels: Option<usize>,
     /// Segments per stored table: the `T` of the firmware's estimator (128, nemm-firmware's
     /// TABLE_SEGMENTS, or 256, nemm-core's default).
     #[arg(long, default_value_t = DEFAULT_STORED_TABLE_SEGMENTS)]
-    pub tables_segments: usize,
+    pub(crate) tables_segments: usize,
     /// Relative error bound the stored tables are built and checked with (the firmware's
     /// TABLE_MAX_REL_ERROR; it must be the same bit for bit for the firmware to use them).
     #[arg(long, default_value_t = crate::train::table_check::DEFAULT_TABLE_BOUND)]
-    pub tables_bound: f32,
+    pub(crate) tables_bound: f32,
 }
 
 /// Segments of stored tables unless told otherwise: the example firmware's (128).
-pub const DEFAULT_STORED_TABLE_SEGMENTS: usize = 128;
+pub(crate) const DEFAULT_STORED_TABLE_SEGMENTS: usize = 128;
 
 impl TablesArgs {
     /// Checks the options before anything is trained: each level in [0, 1], at most
@@ -151,7 +111,7 @@ impl TablesArgs {
     /// Refuses a --tables-alpha level outside the trained range of `meta` (a model's, or
     /// [`crate::train::pipeline::meta_of`] the prepared data before training): its tables
     /// would hold an extrapolated model.
-    pub fn check_range(&self, meta: &nemm_core::Meta) -> Result<()> {
+    pub(crate) fn check_range(&self, meta: &nemm_core::Meta) -> Result<()> {
         let (min, max) = (meta.alpha_min, meta.alpha_max);
         if let Some(a) = self
             .tables_alpha
@@ -255,7 +215,7 @@ fn encode_with_segments<const T: usize>(
 /// Encodes and writes a model blob atomically, with its provenance (this command line, the
 /// commit the trainer was built from, and `dataset`) and the fast-path tables of `tables` in
 /// the blob; returns its size and the model as written (as decoded from the blob).
-pub fn export_model(
+pub(crate) fn export_model(
     model: &nemm_core::Model,
     out: &Path,
     dataset: &str,
@@ -397,7 +357,7 @@ fn levels_check<const T: usize>(
     )))
 }
 
-/// A model as [`export_model`] wrote it: the blob's length, and the model and the index of
+/// A model as `export_model` wrote it: the blob's length, and the model and the index of
 /// its stored tables decoded back from the blob.
 pub struct Written {
     /// Bytes written.
@@ -416,7 +376,7 @@ pub struct Written {
 /// then the whole-run error per level and run) into `dir`; with the report's identification,
 /// also `identify.md`, which `table4.md` links to, and the degradation targets
 /// ([`crate::report::targets`]) at the end of `table4.md`.
-pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
+pub(crate) fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     write_atomic_bytes(
         &dir.join("report.json"),
@@ -455,9 +415,9 @@ pub fn write_report(dir: &Path, report: &Report, table_name: &str) -> Result<()>
 }
 
 /// The identifiability tables' file in a report folder.
-pub const IDENTIFY_MD: &str = "identify.md";
+pub(crate) const IDENTIFY_MD: &str = "identify.md";
 /// The degradation signature in a report folder ([`crate::report::signature`]).
-pub const SIGNATURE_MD: &str = "signature.md";
+pub(crate) const SIGNATURE_MD: &str = "signature.md";
 
 fn print_audit(t: &TrainedVariant, r: &Report) {
     if let Some(v) = r.variants.get(t.variant.key()) {
@@ -489,7 +449,7 @@ fn print_audit(t: &TrainedVariant, r: &Report) {
 /// The output rule ([`output_guard::check`]) for a job on `cfg`'s dataset: the blob `out`,
 /// the report and checkpoint folders against the dataset folder and its files; `replace`
 /// lets `out` replace an existing file that is not a weights blob.
-pub fn check_job_outputs(
+pub(crate) fn check_job_outputs(
     cfg: &Config,
     out: Option<&Path>,
     report_dir: Option<&Path>,
@@ -511,7 +471,7 @@ pub fn check_job_outputs(
 pub struct ReportTo<'a> {
     /// The report folder.
     pub dir: &'a Path,
-    /// Also where the model puts the degradation ([`compare::degradation_report`]: every
+    /// Also where the model puts the degradation (`crate::report::degradation::degradation_report`: every
     /// run's best-fit level, the signature and its figure, the bench's reference), which
     /// costs more than the rest of the report; `false` writes the force errors, the audit
     /// and the configuration only (a sweep whose table does not show it).
@@ -585,7 +545,7 @@ pub fn train(
     if let Some(to) = report {
         let mut report = evaluated;
         let degradation = to.degradation.then(|| {
-            compare::degradation_report(
+            crate::report::degradation::degradation_report(
                 &mut report,
                 std::slice::from_ref(tv),
                 &ds,
@@ -600,7 +560,7 @@ pub fn train(
         write_report(to.dir, &report, "table.md")?;
         cfg.save(&to.dir.join(CONFIG_FILE))?;
         if let Some(loops) = degradation.as_ref().and_then(|d| d.signature.as_ref()) {
-            compare::write_signature_figure(loops, to.dir, report.force_scale_n);
+            crate::report::degradation::write_signature_figure(loops, to.dir, report.force_scale_n);
         }
     }
     Ok(())
@@ -770,6 +730,6 @@ pub fn provenance(dataset: &str) -> nemm_core::Provenance {
 }
 
 /// How a blob names its training data: the dataset's name and folder.
-pub fn dataset_provenance(ds: &dataset::Dataset, dir: &Path) -> String {
+pub(crate) fn dataset_provenance(ds: &dataset::Dataset, dir: &Path) -> String {
     format!("{} ({})", ds.name, dir.display())
 }

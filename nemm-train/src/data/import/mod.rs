@@ -19,8 +19,11 @@ mod convert;
 mod spec;
 mod stamp;
 
-pub use convert::{import, Imported, ImportedRun};
-pub use spec::{condition_spec, read_spec, unit_factor, validate_spec, LevelKind, LevelMap};
+pub use convert::import;
+
+pub(crate) use convert::Imported;
+pub(crate) use spec::{condition_spec, unit_factor};
+pub use spec::{read_spec, validate_spec, LevelMap};
 
 /// Why an import failed.
 #[derive(Debug, thiserror::Error)]
@@ -156,14 +159,14 @@ pub enum ImportError {
 
 /// Highest resampling rate \[Hz\] (`--resample-hz`, `resample_hz`): the highest model rate
 /// training accepts.
-pub const MAX_RESAMPLE_HZ: f64 = crate::config::MODEL_RATE_RANGE_HZ.1;
+pub(crate) const MAX_RESAMPLE_HZ: f64 = crate::config::MODEL_RATE_RANGE_HZ.1;
 
 /// Lowest resampling rate \[Hz\] (`--resample-hz`, `resample_hz`): the lowest model rate
 /// (a slower grid leaves too few samples of a stroke to train or check on).
-pub const MIN_RESAMPLE_HZ: f64 = crate::config::MODEL_RATE_RANGE_HZ.0;
+pub(crate) const MIN_RESAMPLE_HZ: f64 = crate::config::MODEL_RATE_RANGE_HZ.0;
 /// Most samples a resampled run may hold (five `f64` columns: 2 GB), checked before the run
 /// is allocated.
-pub const MAX_RESAMPLED_RUN_SAMPLES: usize = 50_000_000;
+pub(crate) const MAX_RESAMPLED_RUN_SAMPLES: usize = 50_000_000;
 
 fn spec_err(key: impl Into<String>, message: impl Into<String>) -> ImportError {
     ImportError::SpecValue {
@@ -208,7 +211,7 @@ pub struct ColumnSpec {
     /// 1-based column number (for files without a usable header).
     #[serde(default)]
     pub index: Option<usize>,
-    /// Unit of `raw * gain + offset`: see [`unit_factor`]. For the level column
+    /// Unit of `raw * gain + offset`: see `unit_factor`. For the level column
     /// (`columns.alpha`) mapped by `range` (given or taken from the data), the unit of the raw
     /// numbers themselves, e.g. `V`: the condition's unit.
     pub unit: String,
@@ -247,7 +250,7 @@ impl ColumnSpec {
 
     /// Parses the command-line form `NAME:UNIT` or `#INDEX:UNIT` (the last `:` separates the
     /// unit, so names may contain colons).
-    pub fn parse_flag(text: &str) -> Result<ColumnSpec, String> {
+    pub(crate) fn parse_flag(text: &str) -> Result<ColumnSpec, String> {
         let (col, unit) = text
             .rsplit_once(':')
             .ok_or_else(|| format!("\"{text}\": expected NAME:UNIT or #INDEX:UNIT"))?;
@@ -337,14 +340,14 @@ pub enum SplitMethod {
 #[serde(deny_unknown_fields, default)]
 pub struct SplitSpec {
     /// The method (default `none`).
-    pub method: SplitMethod,
+    pub(crate) method: SplitMethod,
     /// Shortest pause \[s\] (`pauses`; default 1).
     pub min_pause_s: f64,
     /// Displacement band of a pause, as a fraction of the file's stroke range (`pauses`;
     /// default 0.01).
-    pub pause_band: f64,
+    pub(crate) pause_band: f64,
     /// Segments shorter than this \[s\] are dropped and listed (default 1).
-    pub min_run_s: f64,
+    pub(crate) min_run_s: f64,
 }
 
 impl Default for SplitSpec {
@@ -363,9 +366,9 @@ impl Default for SplitSpec {
 #[serde(deny_unknown_fields)]
 pub struct RunRange {
     /// Start \[s\] (inclusive).
-    pub start_s: f64,
+    pub(crate) start_s: f64,
     /// End \[s\] (exclusive).
-    pub end_s: f64,
+    pub(crate) end_s: f64,
     /// Condition level of this run (default: the file's).
     #[serde(default)]
     pub alpha: Option<f64>,

@@ -44,7 +44,7 @@ pub fn read_spec(path: &Path) -> Result<ImportSpec, ImportError> {
 /// SI factor of a unit name (`m`, `cm`, `mm`, `um`, `in`; `N`, `kN`, `lbf`, `kgf`; `m/s`,
 /// `mm/s`, `in/s`; `s`, `ms`, `us`, `min`; `1` for the level) for a column role (`time`,
 /// `displacement`, `force`, `velocity`, `alpha`).
-pub fn unit_factor(role: &str, unit: &str) -> Option<f64> {
+pub(crate) fn unit_factor(role: &str, unit: &str) -> Option<f64> {
     let table: &[(&str, f64)] = match role {
         "time" => &[("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("min", 60.0)],
         "displacement" => &[
@@ -266,7 +266,7 @@ fn validate_level_column(c: &ColumnSpec) -> Result<(), ImportError> {
 
 /// How the level column maps raw numbers to alpha, as the spec says it.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum LevelKind {
+pub(crate) enum LevelKind {
     /// `alpha = raw * gain + offset` (unit `1`; `gain` or `offset` given, or neither with
     /// unit `1` and no `range`).
     Linear,
@@ -277,7 +277,7 @@ pub enum LevelKind {
 
 impl LevelKind {
     /// The mapping of level column `c`.
-    pub fn of(c: &ColumnSpec) -> LevelKind {
+    pub(super) fn of(c: &ColumnSpec) -> LevelKind {
         match (c.range, c.gain.is_some() || c.offset.is_some()) {
             (Some(r), false) => LevelKind::Range(Some(r)),
             (None, false) if c.unit != "1" => LevelKind::Range(None),
@@ -372,7 +372,7 @@ impl LevelMap {
 /// `None` without both (alpha is then the paper's oil loss). Refuses a missing name or prior,
 /// a name or unit too long for the weights blob, and values at alpha 0 and 1 that are not
 /// finite and distinct.
-pub fn condition_spec(
+pub(crate) fn condition_spec(
     spec: &ImportSpec,
     level: Option<&LevelMap>,
 ) -> Result<Option<dataset::ConditionSpec>, ImportError> {

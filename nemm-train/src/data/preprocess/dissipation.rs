@@ -15,19 +15,19 @@ use serde::Serialize;
 /// A force-velocity correlation below this means the force assists the motion (a damper's
 /// is near +1, an inverted sign's near -1; the margin keeps noise on a barely moving run from
 /// tipping it).
-pub const MIN_FORCE_VELOCITY_CORRELATION: f64 = -0.2;
+pub(crate) const MIN_FORCE_VELOCITY_CORRELATION: f64 = -0.2;
 /// Fewest samples a run needs for its correlation to be judged.
-pub const MIN_DISSIPATION_SAMPLES: usize = 64;
+pub(crate) const MIN_DISSIPATION_SAMPLES: usize = 64;
 
 /// What a run says about the energy its damper dissipates.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Dissipation {
     /// Pearson correlation of the force with the velocity (filtered signals); `None` when
     /// either is constant or the run has fewer than [`MIN_DISSIPATION_SAMPLES`].
-    pub force_velocity_correlation: Option<f64>,
+    pub(crate) force_velocity_correlation: Option<f64>,
     /// Mean of `F v` over the run \[W\]: the power the damper absorbs on average (a static
     /// force cancels over whole strokes).
-    pub mean_power_w: f64,
+    pub(crate) mean_power_w: f64,
 }
 
 impl Dissipation {
@@ -60,13 +60,13 @@ impl Dissipation {
 
     /// `true` when the force assists the motion: a force-velocity correlation below
     /// [`MIN_FORCE_VELOCITY_CORRELATION`] (`None`, too short or constant runs, is not judged).
-    pub fn force_assists_motion(&self) -> bool {
+    pub(crate) fn force_assists_motion(&self) -> bool {
         self.force_velocity_correlation
             .is_some_and(|r| r < MIN_FORCE_VELOCITY_CORRELATION)
     }
 
     /// What is wrong and which option fixes it, for a run whose force assists the motion.
-    pub fn explain(&self) -> String {
+    pub(crate) fn explain(&self) -> String {
         format!(
             "correlation of force with velocity {:.2}, mean power F v {:.1} W: a damper \
              dissipates energy, so the force or the displacement sign is inverted; re-import \
@@ -118,21 +118,21 @@ mod tests {
 
 /// Velocities at most this fraction of a run's largest `|v|` count as zero velocity for the
 /// force offset ([`ForceOffset`]).
-pub const ZERO_VELOCITY_FRACTION: f64 = 0.05;
+pub(crate) const ZERO_VELOCITY_FRACTION: f64 = 0.05;
 /// The training commands switch the static force of eq. 17 on when the median over the runs
 /// of the signed force offset at zero velocity, as a fraction of each run's force half-range
 /// ([`ForceOffset::signed_fraction`]), is at least this in magnitude
 /// ([`static_force_from_data`]): a consistent offset, where a tared damper's scatters about 0.
-pub const STATIC_FORCE_FRACTION: f64 = 0.05;
+pub(crate) const STATIC_FORCE_FRACTION: f64 = 0.05;
 
 /// The force a run holds at zero velocity: a gas force or an untared load cell.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ForceOffset {
     /// Mean raw force over the zero-velocity samples (`|v| <=` [`ZERO_VELOCITY_FRACTION`] of
     /// the largest `|v|`) \[N\].
-    pub mean_n: f64,
+    pub(crate) mean_n: f64,
     /// Half the force's robust range (0.5th to 99.5th percentile) \[N\].
-    pub half_range_n: f64,
+    pub(crate) half_range_n: f64,
     /// Zero-velocity samples.
     pub samples: usize,
     /// Index of the first of them.
@@ -162,7 +162,7 @@ impl ForceOffset {
     }
 
     /// `mean / half range` (infinite for a constant force with an offset).
-    pub fn signed_fraction(&self) -> f64 {
+    pub(crate) fn signed_fraction(&self) -> f64 {
         if self.half_range_n > 0.0 {
             self.mean_n / self.half_range_n
         } else if self.mean_n != 0.0 {
@@ -179,7 +179,7 @@ impl ForceOffset {
 }
 
 /// Percentile `p` (0..1) of a copy of `x` (nearest rank); 0 for no values.
-pub fn percentile(x: &[f64], p: f64) -> f64 {
+pub(crate) fn percentile(x: &[f64], p: f64) -> f64 {
     if x.is_empty() {
         return 0.0;
     }
@@ -189,8 +189,8 @@ pub fn percentile(x: &[f64], p: f64) -> f64 {
 }
 
 /// Whether the data ask for the static force: `Some((true, why))` when the median over the
-/// runs of the signed offset fraction ([`ForceOffset::signed_fraction`]) is at least
-/// [`STATIC_FORCE_FRACTION`] in magnitude, `Some((false, why))` when not, `None` for no run
+/// runs of the signed offset fraction (`ForceOffset::signed_fraction`) is at least
+/// `STATIC_FORCE_FRACTION` in magnitude, `Some((false, why))` when not, `None` for no run
 /// with zero-velocity samples. `why` gives the median, the count and the largest offset.
 pub fn static_force_from_data(offsets: &[Option<ForceOffset>]) -> Option<(bool, String)> {
     let known: Vec<&ForceOffset> = offsets.iter().flatten().collect();

@@ -67,13 +67,13 @@ pub(crate) fn median(mut v: Vec<f64>) -> Option<f64> {
 
 /// Fraction of the reference (90th percentile) that a half-cycle must reach to count as
 /// steady in [`steady_median`].
-pub const STEADY_FRACTION: f64 = 0.9;
+pub(crate) const STEADY_FRACTION: f64 = 0.9;
 
 /// Median of the steady part of per-half-cycle values: those of at least
 /// [`STEADY_FRACTION`] times their 90th percentile. Ramp-in and ramp-out cycles are smaller
 /// and drop out even when they outnumber the steady ones; one outlying half-cycle (a spike)
 /// moves the 90th percentile only when it is more than a tenth of them. `None` for no values.
-pub fn steady_median(values: &[f64]) -> Option<f64> {
+pub(crate) fn steady_median(values: &[f64]) -> Option<f64> {
     if values.is_empty() {
         return None;
     }
@@ -106,7 +106,7 @@ pub struct Excitation {
     /// see [`steady_median`].
     pub peak_velocity_m_s: f64,
     /// Complete half-cycles found (between two zero crossings).
-    pub half_cycles: usize,
+    pub(crate) half_cycles: usize,
     /// `true` for a periodic run: at least [`PERIODIC_MIN_HALF_PERIODS`] half-periods between
     /// consecutive zero crossings, each within [`PERIODIC_TOLERANCE`] of their median (a sine
     /// programme with ramps; random excitation is not).
@@ -115,10 +115,10 @@ pub struct Excitation {
 }
 
 /// Fewest half-periods for [`Excitation::periodic`].
-pub const PERIODIC_MIN_HALF_PERIODS: usize = 3;
+pub(crate) const PERIODIC_MIN_HALF_PERIODS: usize = 3;
 /// Largest relative deviation of a half-period from the median half-period for
 /// [`Excitation::periodic`].
-pub const PERIODIC_TOLERANCE: f64 = 0.1;
+pub(crate) const PERIODIC_TOLERANCE: f64 = 0.1;
 
 /// [`Excitation::periodic`] of the zero crossings.
 fn is_periodic(crossings: &[Crossing]) -> bool {
@@ -223,7 +223,7 @@ fn frequency_of(crossings: &[Crossing], sample_rate_hz: f64) -> Option<f64> {
 /// The excitation frequency \[Hz\] of a displacement record, as [`estimate_excitation`]
 /// finds it (zero crossings about the mid-range with a hysteresis of 10 % of the
 /// half-range); `None` with fewer than two crossings.
-pub fn excitation_frequency_hz(displacement_m: &[f64], sample_rate_hz: f64) -> Option<f64> {
+pub(crate) fn excitation_frequency_hz(displacement_m: &[f64], sample_rate_hz: f64) -> Option<f64> {
     frequency_of(&centred_record(displacement_m).crossings, sample_rate_hz)
 }
 

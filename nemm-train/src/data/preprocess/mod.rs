@@ -24,7 +24,7 @@
 //!   noisy signal is biased upwards by the noise.
 //!
 //! * A run's per-sample condition level (the optional `alpha` column) is carried unfiltered
-//!   into [`Signals::alpha`] and the sequences ([`Sequence::alphas`]).
+//!   into `Signals::alpha` and the sequences ([`Sequence::alphas`]).
 //!
 //! Everything here is at the data's sample rate; the model integrates at its own rate, onto
 //! which the trainer interpolates the sequences (`train::adjoint::Grid`, docs/preprocessing.md).
@@ -36,25 +36,25 @@ pub const DEFAULT_CUTOFF_HZ: f64 = 150.0;
 /// The cut-off is at most this fraction of the sample rate (the Butterworth design needs
 /// `fc < fs / 2`; at `0.4 fs` the model's 30 Hz band still passes within 0.013 % at 300 Hz,
 /// and the zero-phase filter's zero at Nyquist still removes the noise there).
-pub const CUTOFF_FRACTION_OF_RATE: f64 = 0.4;
+pub(crate) const CUTOFF_FRACTION_OF_RATE: f64 = 0.4;
 /// Default scored length of a training sequence \[s\] (section 5.3: 0.5 s).
-pub const DEFAULT_WINDOW_S: f64 = 0.5;
+pub(crate) const DEFAULT_WINDOW_S: f64 = 0.5;
 /// Default warm-up prefix of a sequence, simulated but not scored \[s\].
-pub const DEFAULT_WARMUP_S: f64 = 0.05;
+pub(crate) const DEFAULT_WARMUP_S: f64 = 0.05;
 /// Default half-width of the quasi-static window around `x = 0`, as a fraction of the
 /// displacement amplitude (section 5.3: +-5 %).
-pub const DEFAULT_QS_WINDOW: f64 = 0.05;
+pub(crate) const DEFAULT_QS_WINDOW: f64 = 0.05;
 /// Default oil-loss level(s) held out for testing (Table 2).
-pub const DEFAULT_TEST_ALPHAS: [f64; 1] = [0.15];
+pub(crate) const DEFAULT_TEST_ALPHAS: [f64; 1] = [0.15];
 /// Default fraction of each training run's sequences held out for validation.
-pub const DEFAULT_VALIDATION_FRACTION: f64 = 0.2;
+pub(crate) const DEFAULT_VALIDATION_FRACTION: f64 = 0.2;
 /// Default seed of the validation choice; the trainer's default `--seed` is the same, so
 /// `nemm data prepare` and `nemm train` describe the same split by default.
-pub const DEFAULT_SPLIT_SEED: u64 = 1;
+pub(crate) const DEFAULT_SPLIT_SEED: u64 = 1;
 /// Displacement half-ranges below this \[m\] count as no stroke at all (a flat signal).
-pub const MIN_STROKE_M: f64 = 1e-9;
+pub(crate) const MIN_STROKE_M: f64 = 1e-9;
 /// Two oil-loss levels closer than this are the same level.
-pub const ALPHA_TOLERANCE: f64 = 1e-6;
+pub(crate) const ALPHA_TOLERANCE: f64 = 1e-6;
 
 /// Why preprocessing failed.
 #[derive(Debug, thiserror::Error)]
@@ -119,28 +119,25 @@ mod sequences;
 mod signal;
 mod split;
 
-pub use dissipation::{
-    percentile, static_force_from_data, Dissipation, ForceOffset, MIN_DISSIPATION_SAMPLES,
-    MIN_FORCE_VELOCITY_CORRELATION, STATIC_FORCE_FRACTION, ZERO_VELOCITY_FRACTION,
+pub use dissipation::static_force_from_data;
+
+pub(crate) use dissipation::{
+    percentile, Dissipation, ForceOffset, STATIC_FORCE_FRACTION, ZERO_VELOCITY_FRACTION,
 };
+pub use excitation::estimate_excitation;
 pub(crate) use excitation::{centred_record, median, zero_crossings};
-pub use excitation::{
-    estimate_excitation, excitation_frequency_hz, steady_median, Excitation,
-    PERIODIC_MIN_HALF_PERIODS, PERIODIC_TOLERANCE, STEADY_FRACTION,
-};
-pub use prepare::{
-    prepare, summarize, summarize_run, PrepareConfig, PrepareSummary, Prepared, PreparedRun,
-    QuasiStaticSplit, RunSummary, SplitCounts,
-};
+pub(crate) use excitation::{excitation_frequency_hz, Excitation};
+pub use prepare::{prepare, summarize_run, PrepareConfig, PrepareSummary, Prepared};
+pub(crate) use prepare::{PreparedRun, RunSummary, SplitCounts};
 pub use quasi_static::{quasi_static_points, Direction, QuasiStaticPoint};
 pub use sequences::{cut_sequences, sequence_count, unscored_samples, Sequence, SequenceConfig};
 pub use signal::{
-    causal_velocity, differentiate, displacement_noise_std_m, lowpass_zero_phase,
-    measured_velocity_mismatch, process_run, run_signals, velocity_noise_rms, Cutoff, CutoffRule,
-    SignalConfig, SignalPath, Signals, VelocitySource, AUTO_CUTOFF_EXCITATION_MULTIPLE,
+    causal_velocity, differentiate, lowpass_zero_phase, measured_velocity_mismatch, process_run,
+    run_signals, SignalConfig, VelocitySource,
+};
+pub(crate) use signal::{
+    Cutoff, CutoffRule, SignalPath, Signals, AUTO_CUTOFF_EXCITATION_MULTIPLE,
     AUTO_CUTOFF_NOISE_FRACTION,
 };
-pub use split::{
-    distinct_levels, file_matches, run_stretches, Part, RunRole, Scales, SplitConfig, SplitRules,
-    Stretch,
-};
+pub(crate) use split::{distinct_levels, file_matches, SplitRules, Stretch};
+pub use split::{run_stretches, Part, RunRole, Scales, SplitConfig};

@@ -22,9 +22,9 @@ pub struct PrepareConfig {
     /// Split.
     pub split: SplitConfig,
     /// Quasi-static window half-width as a fraction of the amplitude; `None` (the default)
-    /// means [`DEFAULT_QS_WINDOW`].
+    /// means `DEFAULT_QS_WINDOW`.
     pub quasi_static_window: Option<f64>,
-    /// Prepare runs whose force assists the motion ([`Dissipation::force_assists_motion`])
+    /// Prepare runs whose force assists the motion (`Dissipation::force_assists_motion`)
     /// instead of refusing them (default `false`).
     #[serde(default)]
     pub accept_implausible: bool,
@@ -44,9 +44,9 @@ pub struct RunSummary {
     /// Duration `samples / sample_rate_hz` \[s\].
     pub duration_s: f64,
     /// Smallest measured force \[N\].
-    pub force_min_n: f64,
+    pub(crate) force_min_n: f64,
     /// Largest measured force \[N\].
-    pub force_max_n: f64,
+    pub(crate) force_max_n: f64,
     /// Estimated excitation.
     pub excitation: Excitation,
     /// `true` if the velocity is the measured column.
@@ -167,7 +167,7 @@ pub struct PrepareSummary {
     /// Test counts.
     pub test: SplitCounts,
     /// Runs not used.
-    pub unused_runs: usize,
+    pub(crate) unused_runs: usize,
     /// Scales.
     pub scales: Scales,
     /// Per run.
@@ -211,21 +211,6 @@ pub fn summarize_run(
         force_offset: ForceOffset::of(&run.force_n, &signals.velocity_m_s),
     };
     Ok((summary, signals))
-}
-
-/// Summaries of every run (in parallel), for `nemm data check`.
-pub fn summarize(
-    dataset: &Dataset,
-    cfg: &SignalConfig,
-) -> Result<Vec<RunSummary>, PreprocessError> {
-    use rayon::prelude::*;
-    let path = cfg.at_rate(dataset.sample_rate_hz)?;
-    dataset
-        .runs
-        .par_iter()
-        .enumerate()
-        .map(|(i, r)| summarize_run(r, i, &path).map(|(s, _)| s))
-        .collect()
 }
 
 /// The true cause when the split leaves no run to train on: every run is a test run, or the

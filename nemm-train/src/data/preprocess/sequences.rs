@@ -7,9 +7,9 @@ use serde::Serialize;
 /// Lengths of the training sequences.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SequenceConfig {
-    /// Scored length \[s\] (default [`DEFAULT_WINDOW_S`]).
+    /// Scored length \[s\] (default `DEFAULT_WINDOW_S`).
     pub window_s: f64,
-    /// Warm-up prefix \[s\], simulated but not scored (default [`DEFAULT_WARMUP_S`]).
+    /// Warm-up prefix \[s\], simulated but not scored (default `DEFAULT_WARMUP_S`).
     pub warmup_s: f64,
 }
 

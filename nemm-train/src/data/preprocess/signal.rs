@@ -219,7 +219,7 @@ pub enum VelocitySource {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SignalConfig {
     /// Cut-off of the zero-phase low-pass \[Hz\], one for every run; `None` (the default):
-    /// chosen per run from its displacement noise and excitation ([`Cutoff`]).
+    /// chosen per run from its displacement noise and excitation (`Cutoff`).
     pub cutoff_hz: Option<f64>,
     /// Velocity source (default [`VelocitySource::Auto`]).
     pub velocity_source: VelocitySource,
@@ -247,7 +247,7 @@ pub struct Signals {
     /// Acceleration \[m/s^2\]: derivative of [`Signals::velocity_m_s`].
     pub acceleration_m_s2: Vec<f64>,
     /// Low-passed force \[N\] (for quasi-static extraction and plots).
-    pub force_filtered_n: Vec<f64>,
+    pub(crate) force_filtered_n: Vec<f64>,
     /// `true` if the velocity is the (filtered) measured column, `false` if differentiated.
     pub measured_velocity: bool,
     /// Condition level per sample (the run's `alpha` column, unfiltered), if it has one.
@@ -258,10 +258,10 @@ pub struct Signals {
 
 /// The automatic cut-off lets through displacement noise worth at most this fraction of the
 /// run's RMS velocity ([`Cutoff`]).
-pub const AUTO_CUTOFF_NOISE_FRACTION: f64 = 0.02;
+pub(crate) const AUTO_CUTOFF_NOISE_FRACTION: f64 = 0.02;
 /// The automatic cut-off stays at least this many times the run's excitation frequency (the
 /// zero-phase filter's gain there is `1 / (1 + 1e-4)`: -0.01 %).
-pub const AUTO_CUTOFF_EXCITATION_MULTIPLE: f64 = 10.0;
+pub(crate) const AUTO_CUTOFF_EXCITATION_MULTIPLE: f64 = 10.0;
 
 /// `integral_0^inf u^2 / (1 + u^4)^2 du = pi / (8 sqrt 2)`: the noise bandwidth of the
 /// differentiated zero-phase low-pass, `|H(f)|^4 = 1 / (1 + (f / fc)^4)^2`, in units of
@@ -318,10 +318,10 @@ pub struct Cutoff {
     /// Why it has this value.
     pub rule: CutoffRule,
     /// Standard deviation of the displacement noise \[m\] ([`displacement_noise_std_m`]).
-    pub displacement_noise_m: f64,
+    pub(crate) displacement_noise_m: f64,
     /// RMS of the velocity noise this cut-off lets through, as a fraction of the run's RMS
     /// velocity; `None` for a measured velocity.
-    pub velocity_noise_fraction: Option<f64>,
+    pub(crate) velocity_noise_fraction: Option<f64>,
 }
 
 /// Standard deviation \[m\] of white noise on a displacement record, from its third
@@ -329,7 +329,7 @@ pub struct Cutoff {
 /// difference of white noise has 20 times its variance; the median ignores spikes, and the
 /// stroke itself adds `(2 pi f / fs)^3 A`, negligible below a tenth of the rate). 0 for fewer
 /// than 8 samples or a record that rarely changes (a slow, quantised stroke).
-pub fn displacement_noise_std_m(displacement_m: &[f64]) -> f64 {
+pub(crate) fn displacement_noise_std_m(displacement_m: &[f64]) -> f64 {
     if displacement_m.len() < 8 {
         return 0.0;
     }
@@ -344,7 +344,7 @@ pub fn displacement_noise_std_m(displacement_m: &[f64]) -> f64 {
 /// RMS \[m/s\] of the velocity that white displacement noise of standard deviation
 /// `noise_m` gives through the zero-phase low-pass at `cutoff_hz` and differentiation, at
 /// `sample_rate_hz` ([`Cutoff`]).
-pub fn velocity_noise_rms(noise_m: f64, sample_rate_hz: f64, cutoff_hz: f64) -> f64 {
+pub(crate) fn velocity_noise_rms(noise_m: f64, sample_rate_hz: f64, cutoff_hz: f64) -> f64 {
     let psd = 2.0 * noise_m * noise_m / sample_rate_hz;
     2.0 * std::f64::consts::PI * (psd * DIFFERENTIATED_NOISE_BANDWIDTH * cutoff_hz.powi(3)).sqrt()
 }
@@ -385,7 +385,7 @@ impl SignalConfig {
 impl SignalPath {
     /// The highest cut-off a run gets: the given one, else the rate's limit
     /// `min(DEFAULT_CUTOFF_HZ, 0.4 fs)` ([`Cutoff`]).
-    pub fn max_cutoff_hz(&self) -> f64 {
+    pub(crate) fn max_cutoff_hz(&self) -> f64 {
         self.config
             .cutoff_hz
             .unwrap_or_else(|| DEFAULT_CUTOFF_HZ.min(CUTOFF_FRACTION_OF_RATE * self.sample_rate_hz))
@@ -482,7 +482,7 @@ fn auto_cutoff_hz(
 }
 
 /// Derives filtered displacement, velocity, acceleration and filtered force of a run
-/// ([`SignalPath::process`] at `sample_rate_hz`).
+/// (`SignalPath::process` at `sample_rate_hz`).
 ///
 /// `run_index` only labels errors.
 pub fn process_run(

@@ -33,9 +33,9 @@ pub struct SplitConfig {
     #[serde(default)]
     pub exclude_runs: Vec<String>,
     /// Fraction of each training run's windows held out for validation, in \[0, 1)
-    /// (default [`DEFAULT_VALIDATION_FRACTION`]).
+    /// (default `DEFAULT_VALIDATION_FRACTION`).
     pub validation_fraction: f64,
-    /// Seed of the position of each run's validation stretch (default [`DEFAULT_SPLIT_SEED`]).
+    /// Seed of the position of each run's validation stretch (default `DEFAULT_SPLIT_SEED`).
     pub seed: u64,
 }
 
@@ -67,7 +67,7 @@ pub enum RunRole {
 
 /// `true` if one of `patterns` matches the run file `file`: its path relative to the manifest
 /// (with `/` separators) or its file name.
-pub fn file_matches(patterns: &[glob::Pattern], file: &std::path::Path) -> bool {
+pub(crate) fn file_matches(patterns: &[glob::Pattern], file: &std::path::Path) -> bool {
     let path = file.to_string_lossy().replace('\\', "/");
     let name = file
         .file_name()
@@ -94,7 +94,7 @@ fn compile_globs(
 
 /// A [`SplitConfig`] with its glob patterns compiled.
 #[derive(Debug, Clone)]
-pub struct SplitRules<'a> {
+pub(crate) struct SplitRules<'a> {
     pub(super) config: &'a SplitConfig,
     test_runs: Vec<glob::Pattern>,
     exclude_runs: Vec<glob::Pattern>,
@@ -104,7 +104,7 @@ impl SplitRules<'_> {
     /// The role of a run with oil-loss level `alpha` stored in `file`: unused if excluded
     /// (`exclude_runs`) or not at a training level, test if at a test level or matched by
     /// `test_runs`, else training and validation.
-    pub fn role(&self, file: &std::path::Path, alpha: f64) -> RunRole {
+    pub(crate) fn role(&self, file: &std::path::Path, alpha: f64) -> RunRole {
         let c = self.config;
         let has = |set: &[f64]| set.iter().any(|&a| (a - alpha).abs() <= ALPHA_TOLERANCE);
         if file_matches(&self.exclude_runs, file) {
@@ -152,7 +152,7 @@ impl SplitConfig {
     }
 
     /// The split with its glob patterns compiled (errors name a bad pattern).
-    pub fn rules(&self) -> Result<SplitRules<'_>, PreprocessError> {
+    pub(crate) fn rules(&self) -> Result<SplitRules<'_>, PreprocessError> {
         Ok(SplitRules {
             config: self,
             test_runs: compile_globs("test_runs", &self.test_runs)?,
@@ -235,7 +235,7 @@ impl SplitConfig {
     }
 
     /// [`Self::describe`] with the levels named by the dataset's `condition`.
-    pub fn describe_for(&self, condition: &nemm_dataset::ConditionSpec) -> String {
+    pub(crate) fn describe_for(&self, condition: &nemm_dataset::ConditionSpec) -> String {
         let list = |v: &[f64]| {
             v.iter()
                 .map(|&a| condition.cell(a))
@@ -273,7 +273,7 @@ impl SplitConfig {
     }
 
     /// The role of a run with oil-loss level `alpha` when only levels are known (no file
-    /// patterns): [`SplitRules::role`] without `test_runs` and `exclude_runs`.
+    /// patterns): `SplitRules::role` without `test_runs` and `exclude_runs`.
     pub fn role(&self, alpha: f64) -> RunRole {
         let has = |set: &[f64]| set.iter().any(|&a| (a - alpha).abs() <= ALPHA_TOLERANCE);
         if has(&self.test_alphas) {
@@ -288,7 +288,7 @@ impl SplitConfig {
 
 /// The distinct oil-loss levels among `alphas`, ascending (levels closer than
 /// [`ALPHA_TOLERANCE`] are one).
-pub fn distinct_levels(alphas: impl IntoIterator<Item = f64>) -> Vec<f64> {
+pub(crate) fn distinct_levels(alphas: impl IntoIterator<Item = f64>) -> Vec<f64> {
     let mut v: Vec<f64> = alphas.into_iter().collect();
     v.sort_by(f64::total_cmp);
     v.dedup_by(|a, b| (*a - *b).abs() <= ALPHA_TOLERANCE);
@@ -424,7 +424,7 @@ impl Scales {
 
     /// Scales from the abs-max values of the training set (errors on zero velocity or force;
     /// a zero alpha scale becomes 1).
-    pub fn from_absmax(
+    pub(crate) fn from_absmax(
         velocity_m_s: f64,
         force_n: f64,
         alpha: f64,

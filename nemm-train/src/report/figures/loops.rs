@@ -125,7 +125,10 @@ impl LoopPicks {
 
 /// The whole-run predictions the loop figures draw, as `(variant, run index)`: the loop model
 /// (the most complete variant trained) on the Fig. 7 runs, every trained variant on the all-variants run.
-pub fn loop_requests(trained: &[TrainedVariant], prepared: &Prepared) -> Vec<(ModelKind, usize)> {
+pub(crate) fn loop_requests(
+    trained: &[TrainedVariant],
+    prepared: &Prepared,
+) -> Vec<(ModelKind, usize)> {
     let picks = LoopPicks::of(prepared);
     let mut out: Vec<(ModelKind, usize)> = Vec::new();
     if let Some(tv) = loop_model(trained) {

@@ -34,11 +34,11 @@
 //! A figure that cannot be drawn (missing runs, rendering trouble) is skipped with a warning;
 //! only I/O errors fail [`write_all`].
 
-pub mod loops;
-pub mod maps;
-pub mod training;
+pub(crate) mod loops;
+pub(crate) mod maps;
+pub(crate) mod training;
 
-pub use loops::loop_requests;
+pub(crate) use loops::loop_requests;
 
 use crate::data::preprocess::{Prepared, RunRole};
 use crate::report::plot::{self, palette, Figure};
@@ -58,18 +58,18 @@ use std::time::Instant;
 use training::training_curves;
 
 /// Stroke amplitude of the loop figures \[m\] (paper Fig. 7: 10 mm).
-pub const LOOP_AMPLITUDE_M: f64 = 0.010;
+pub(crate) const LOOP_AMPLITUDE_M: f64 = 0.010;
 /// Excitation frequencies of the loop figures \[Hz\] (paper Fig. 7).
-pub const LOOP_FREQUENCIES_HZ: [f64; 2] = [8.3, 16.7];
+pub(crate) const LOOP_FREQUENCIES_HZ: [f64; 2] = [8.3, 16.7];
 /// Full-amplitude periods shown per loop.
-pub const LOOP_PERIODS: usize = 2;
+pub(crate) const LOOP_PERIODS: usize = 2;
 /// Oil-loss levels of the training columns of Fig. 7 (the nearest training levels are used).
-pub const LOOP_TRAIN_ALPHAS: [f64; 2] = [0.0, 0.3];
+pub(crate) const LOOP_TRAIN_ALPHAS: [f64; 2] = [0.0, 0.3];
 /// Velocity of the paper's Fig. 10 B cut \[m/s\].
-pub const CUT_VELOCITY_M_S: f64 = 0.5;
+pub(crate) const CUT_VELOCITY_M_S: f64 = 0.5;
 
 /// File name of the `b_fl` figure of a variant.
-pub fn b_fl_file(v: ModelKind) -> String {
+pub(crate) fn b_fl_file(v: ModelKind) -> String {
     match v {
         ModelKind::Nemm => "fig8_b_fl.png".into(),
         other => format!("fig8_b_fl_{}.png", other.name()),
@@ -85,7 +85,7 @@ enum Drawn {
 
 type Builder<'a> = Box<dyn Fn() -> Result<Drawn> + 'a>;
 
-/// The whole-run predictions [`write_all`] draws: the runs [`loop_requests`] names,
+/// The whole-run predictions [`write_all`] draws: the runs `loop_requests` names,
 /// simulated by their variants.
 pub fn figure_predictions(
     trained: &[TrainedVariant],
@@ -96,7 +96,7 @@ pub fn figure_predictions(
 
 /// Writes every figure of a comparison into `dir`, from the loaded `dataset` (raw forces),
 /// its `prepared` set, the `trained` variants, their test `report` and their whole-run
-/// `predictions` (for the runs [`loop_requests`] names). Figures of variants that were not
+/// `predictions` (for the runs `loop_requests` names). Figures of variants that were not
 /// trained are left out; a figure that cannot be drawn is skipped with a warning on stderr.
 /// Errors only on I/O failures.
 pub fn write_all(

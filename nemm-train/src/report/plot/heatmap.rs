@@ -8,45 +8,45 @@ use plotters::prelude::*;
 
 /// A heat map of `z(x, y)` on a regular grid (e.g. a learned function over two inputs).
 #[derive(Debug, Clone)]
-pub struct HeatmapPanel {
+pub(crate) struct HeatmapPanel {
     /// Panel caption.
-    pub title: String,
+    pub(crate) title: String,
     /// x-axis label.
-    pub x_label: String,
+    pub(crate) x_label: String,
     /// y-axis label.
-    pub y_label: String,
+    pub(crate) y_label: String,
     /// Cell centres in x (increasing).
-    pub x: Vec<f64>,
+    pub(crate) x: Vec<f64>,
     /// Cell centres in y (increasing).
-    pub y: Vec<f64>,
+    pub(crate) y: Vec<f64>,
     /// Values `z[iy][ix]`.
-    pub z: Vec<Vec<f64>>,
+    pub(crate) z: Vec<Vec<f64>>,
     /// Colour range (automatic min..max if `None`).
-    pub z_range: Option<(f64, f64)>,
+    pub(crate) z_range: Option<(f64, f64)>,
     /// Label of the colour bar.
-    pub z_label: String,
+    pub(crate) z_label: String,
     /// Use the diverging map (centred range) instead of the sequential one.
-    pub diverging: bool,
+    pub(crate) diverging: bool,
     /// Cells drawn with a hatch colour (e.g. constraint violations), `mark[iy][ix]`.
-    pub mark: Option<Vec<Vec<bool>>>,
+    pub(crate) mark: Option<Vec<Vec<bool>>>,
     /// Colour map; overrides [`HeatmapPanel::diverging`] when set.
-    pub colormap: Option<ColorMap>,
+    pub(crate) colormap: Option<ColorMap>,
     /// Colour of marked cells (default [`palette::MARK`], yellow).
-    pub mark_color: Option<RGBColor>,
+    pub(crate) mark_color: Option<RGBColor>,
     /// Legend entry of the marked cells (none if `None`).
-    pub mark_label: Option<String>,
+    pub(crate) mark_label: Option<String>,
     /// Iso-lines at these z values (thin dark lines, also ticked on the colour bar).
-    pub contours: Vec<f64>,
+    pub(crate) contours: Vec<f64>,
     /// Series drawn over the map (e.g. the training range, data points); labelled ones go
     /// into the legend.
-    pub overlay: Vec<Series>,
+    pub(crate) overlay: Vec<Series>,
     /// Legend placement (used when an overlay series or the marks have a label).
-    pub legend: LegendPosition,
+    pub(crate) legend: LegendPosition,
 }
 
 /// Colour maps of a heat map.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ColorMap {
+pub(crate) enum ColorMap {
     /// [`palette::sequential`] (viridis; its bright end is yellow).
     Viridis,
     /// [`palette::diverging`] (blue - white - red).
@@ -57,7 +57,7 @@ pub enum ColorMap {
 
 impl ColorMap {
     /// Colour at `t` in \[0, 1\].
-    pub fn color(self, t: f64) -> RGBColor {
+    pub(crate) fn color(self, t: f64) -> RGBColor {
         match self {
             ColorMap::Viridis => palette::sequential(t),
             ColorMap::Diverging => palette::diverging(t),
@@ -69,7 +69,7 @@ impl ColorMap {
 impl HeatmapPanel {
     /// A heat map of `z[iy][ix]` over cell centres `x`, `y` with the sequential colour map,
     /// automatic range, no marks, contours or overlays.
-    pub fn new(
+    pub(crate) fn new(
         title: impl Into<String>,
         x_label: impl Into<String>,
         y_label: impl Into<String>,
@@ -98,38 +98,38 @@ impl HeatmapPanel {
     }
 
     /// Sets the colour-bar label.
-    pub fn with_z_label(mut self, label: impl Into<String>) -> Self {
+    pub(crate) fn with_z_label(mut self, label: impl Into<String>) -> Self {
         self.z_label = label.into();
         self
     }
 
     /// Sets the colour map.
-    pub fn with_colormap(mut self, map: ColorMap) -> Self {
+    pub(crate) fn with_colormap(mut self, map: ColorMap) -> Self {
         self.colormap = Some(map);
         self
     }
 
     /// Marks cells (`mark[iy][ix]`), with an optional legend entry.
-    pub fn with_marks(mut self, mark: Vec<Vec<bool>>, label: Option<String>) -> Self {
+    pub(crate) fn with_marks(mut self, mark: Vec<Vec<bool>>, label: Option<String>) -> Self {
         self.mark = Some(mark);
         self.mark_label = label;
         self
     }
 
     /// Draws iso-lines at these levels.
-    pub fn with_contours(mut self, levels: Vec<f64>) -> Self {
+    pub(crate) fn with_contours(mut self, levels: Vec<f64>) -> Self {
         self.contours = levels;
         self
     }
 
     /// Adds a series over the map.
-    pub fn with_overlay(mut self, s: Series) -> Self {
+    pub(crate) fn with_overlay(mut self, s: Series) -> Self {
         self.overlay.push(s);
         self
     }
 
     /// Sets the legend position.
-    pub fn with_legend(mut self, pos: LegendPosition) -> Self {
+    pub(crate) fn with_legend(mut self, pos: LegendPosition) -> Self {
         self.legend = pos;
         self
     }
@@ -137,7 +137,7 @@ impl HeatmapPanel {
 
 /// About `n` "nice" levels (multiples of 1, 2 or 5 times a power of ten) inside `[lo, hi]`,
 /// e.g. for contour lines; empty for an empty or non-finite range.
-pub fn nice_levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
+pub(crate) fn nice_levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     if !(lo.is_finite() && hi.is_finite()) || hi <= lo || n == 0 {
         return Vec::new();
     }
@@ -389,7 +389,7 @@ where
 /// Iso-line segments of `z[iy][ix]` (values at the points `(x[ix], y[iy])`) at `level`, by
 /// marching squares with linear interpolation along cell edges; saddles are resolved by the
 /// cell mean. Cells with a non-finite corner are skipped.
-pub fn contour_segments(
+pub(crate) fn contour_segments(
     x: &[f64],
     y: &[f64],
     z: &[Vec<f64>],

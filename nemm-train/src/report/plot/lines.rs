@@ -9,7 +9,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 /// How a series is drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SeriesStyle {
+pub(crate) enum SeriesStyle {
     /// Polyline through the points.
     Line,
     /// Polyline closed back to its first point (hysteresis loops).
@@ -25,22 +25,22 @@ pub enum SeriesStyle {
 
 /// One data series of a line panel.
 #[derive(Debug, Clone)]
-pub struct Series {
+pub(crate) struct Series {
     /// Legend label (no legend entry if `None`).
-    pub label: Option<String>,
+    pub(crate) label: Option<String>,
     /// Data points (x, y); non-finite points break the line.
-    pub points: Vec<(f64, f64)>,
+    pub(crate) points: Vec<(f64, f64)>,
     /// Colour.
-    pub color: RGBColor,
+    pub(crate) color: RGBColor,
     /// Line width / dot radius in pixels.
-    pub width: u32,
+    pub(crate) width: u32,
     /// Drawing style.
-    pub style: SeriesStyle,
+    pub(crate) style: SeriesStyle,
 }
 
 impl Series {
     /// A labelled polyline of width 2.
-    pub fn line(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+    pub(crate) fn line(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
         Series {
             label: Some(label.into()),
             points,
@@ -51,7 +51,11 @@ impl Series {
     }
 
     /// A labelled closed loop of width 2.
-    pub fn closed(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+    pub(crate) fn closed(
+        label: impl Into<String>,
+        points: Vec<(f64, f64)>,
+        color: RGBColor,
+    ) -> Self {
         Series {
             label: Some(label.into()),
             points,
@@ -62,7 +66,7 @@ impl Series {
     }
 
     /// Labelled dots of radius 2.
-    pub fn dots(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+    pub(crate) fn dots(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
         Series {
             label: Some(label.into()),
             points,
@@ -73,7 +77,11 @@ impl Series {
     }
 
     /// A labelled dashed polyline of width 2.
-    pub fn dashed(label: impl Into<String>, points: Vec<(f64, f64)>, color: RGBColor) -> Self {
+    pub(crate) fn dashed(
+        label: impl Into<String>,
+        points: Vec<(f64, f64)>,
+        color: RGBColor,
+    ) -> Self {
         Series {
             label: Some(label.into()),
             points,
@@ -85,7 +93,11 @@ impl Series {
 
     /// A labelled band between `lower` and `upper` (one `(x, lower, upper)` per point, `x`
     /// ascending), filled in a light shade of `color`.
-    pub fn band(label: impl Into<String>, points: &[(f64, f64, f64)], color: RGBColor) -> Self {
+    pub(crate) fn band(
+        label: impl Into<String>,
+        points: &[(f64, f64, f64)],
+        color: RGBColor,
+    ) -> Self {
         let outline = points
             .iter()
             .map(|&(x, _, hi)| (x, hi))
@@ -101,13 +113,13 @@ impl Series {
     }
 
     /// Sets the line width / dot radius in pixels.
-    pub fn with_width(mut self, width: u32) -> Self {
+    pub(crate) fn with_width(mut self, width: u32) -> Self {
         self.width = width;
         self
     }
 
     /// Removes the legend entry.
-    pub fn unlabelled(mut self) -> Self {
+    pub(crate) fn unlabelled(mut self) -> Self {
         self.label = None;
         self
     }
@@ -115,7 +127,7 @@ impl Series {
 
 /// Where the legend goes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LegendPosition {
+pub(crate) enum LegendPosition {
     /// No legend.
     None,
     /// Upper left corner.
@@ -130,32 +142,32 @@ pub enum LegendPosition {
 
 /// A chart of line / loop / point series in Cartesian coordinates.
 #[derive(Debug, Clone)]
-pub struct LinePanel {
+pub(crate) struct LinePanel {
     /// Panel caption.
-    pub title: String,
+    pub(crate) title: String,
     /// x-axis label.
-    pub x_label: String,
+    pub(crate) x_label: String,
     /// y-axis label.
-    pub y_label: String,
+    pub(crate) y_label: String,
     /// Series, drawn in order.
-    pub series: Vec<Series>,
+    pub(crate) series: Vec<Series>,
     /// x range (automatic with 3 % padding if `None`).
-    pub x_range: Option<(f64, f64)>,
+    pub(crate) x_range: Option<(f64, f64)>,
     /// y range (automatic with 5 % padding if `None`).
-    pub y_range: Option<(f64, f64)>,
+    pub(crate) y_range: Option<(f64, f64)>,
     /// Plot log10(y) with `10^k` tick labels (non-positive values are dropped).
-    pub log_y: bool,
+    pub(crate) log_y: bool,
     /// Thin grey lines at these y values (e.g. 0).
-    pub reference_y: Vec<f64>,
+    pub(crate) reference_y: Vec<f64>,
     /// Thin grey lines at these x values.
-    pub reference_x: Vec<f64>,
+    pub(crate) reference_x: Vec<f64>,
     /// Legend placement.
-    pub legend: LegendPosition,
+    pub(crate) legend: LegendPosition,
 }
 
 impl LinePanel {
     /// An empty panel with a caption and axis labels.
-    pub fn new(
+    pub(crate) fn new(
         title: impl Into<String>,
         x_label: impl Into<String>,
         y_label: impl Into<String>,
@@ -175,31 +187,31 @@ impl LinePanel {
     }
 
     /// Adds a series.
-    pub fn with_series(mut self, s: Series) -> Self {
+    pub(crate) fn with_series(mut self, s: Series) -> Self {
         self.series.push(s);
         self
     }
 
     /// Fixes the x range.
-    pub fn with_x_range(mut self, lo: f64, hi: f64) -> Self {
+    pub(crate) fn with_x_range(mut self, lo: f64, hi: f64) -> Self {
         self.x_range = Some((lo, hi));
         self
     }
 
     /// Fixes the y range.
-    pub fn with_y_range(mut self, lo: f64, hi: f64) -> Self {
+    pub(crate) fn with_y_range(mut self, lo: f64, hi: f64) -> Self {
         self.y_range = Some((lo, hi));
         self
     }
 
     /// Sets the legend position.
-    pub fn with_legend(mut self, pos: LegendPosition) -> Self {
+    pub(crate) fn with_legend(mut self, pos: LegendPosition) -> Self {
         self.legend = pos;
         self
     }
 
     /// Adds grey reference lines at x = 0 and y = 0.
-    pub fn with_zero_lines(mut self) -> Self {
+    pub(crate) fn with_zero_lines(mut self) -> Self {
         self.reference_x.push(0.0);
         self.reference_y.push(0.0);
         self

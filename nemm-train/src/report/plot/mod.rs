@@ -25,8 +25,8 @@ use std::sync::OnceLock;
 mod heatmap;
 mod lines;
 
-pub use heatmap::{contour_segments, nice_levels, ColorMap, HeatmapPanel};
-pub use lines::{LegendPosition, LinePanel, Series, SeriesStyle};
+pub(crate) use heatmap::{nice_levels, ColorMap, HeatmapPanel};
+pub(crate) use lines::{LegendPosition, LinePanel, Series};
 
 /// The bundled font (DejaVu Sans, Bitstream Vera / DejaVu licence).
 /// Height of a footer line in pixels.
@@ -35,7 +35,7 @@ static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
 const FAMILY: &str = "sans-serif";
 
 /// Registers the bundled font for all plotters text (idempotent).
-pub fn ensure_font() -> Result<()> {
+pub(crate) fn ensure_font() -> Result<()> {
     static DONE: OnceLock<bool> = OnceLock::new();
     let ok = *DONE.get_or_init(|| {
         [
@@ -57,11 +57,11 @@ pub fn ensure_font() -> Result<()> {
 }
 
 /// Colour palettes.
-pub mod palette {
+pub(super) mod palette {
     use plotters::style::RGBColor;
 
     /// Ten well-separated categorical colours (Tableau 10), cycling.
-    pub fn categorical(i: usize) -> RGBColor {
+    pub(crate) fn categorical(i: usize) -> RGBColor {
         const C: [(u8, u8, u8); 10] = [
             (31, 119, 180),
             (255, 127, 14),
@@ -93,7 +93,7 @@ pub mod palette {
     }
 
     /// Sequential colour map (viridis, 9 stops, linear in between) for `t` in \[0, 1\].
-    pub fn sequential(t: f64) -> RGBColor {
+    pub(crate) fn sequential(t: f64) -> RGBColor {
         const V: [(u8, u8, u8); 9] = [
             (68, 1, 84),
             (71, 44, 122),
@@ -109,7 +109,7 @@ pub mod palette {
     }
 
     /// Diverging colour map (blue - white - red) for `t` in \[0, 1\], white at 0.5.
-    pub fn diverging(t: f64) -> RGBColor {
+    pub(crate) fn diverging(t: f64) -> RGBColor {
         const D: [(u8, u8, u8); 5] = [
             (33, 102, 172),
             (146, 197, 222),
@@ -122,7 +122,7 @@ pub mod palette {
 
     /// Sequential blue colour map (ColorBrewer YlGnBu without its yellow end: navy to light
     /// teal) for `t` in \[0, 1\]. Contains no yellow, so yellow marks stand out on it.
-    pub fn ocean(t: f64) -> RGBColor {
+    pub(crate) fn ocean(t: f64) -> RGBColor {
         const O: [(u8, u8, u8); 6] = [
             (8, 29, 88),
             (37, 52, 148),
@@ -135,7 +135,7 @@ pub mod palette {
     }
 
     /// `c` mixed with white: `f = 0` keeps it, `f = 1` is white.
-    pub fn lighten(c: RGBColor, f: f64) -> RGBColor {
+    pub(crate) fn lighten(c: RGBColor, f: f64) -> RGBColor {
         let f = if f.is_finite() {
             f.clamp(0.0, 1.0)
         } else {
@@ -146,10 +146,10 @@ pub mod palette {
     }
 
     /// Colour of constraint-violation marks (the paper's yellow).
-    pub const MARK: RGBColor = RGBColor(255, 221, 0);
+    pub(crate) const MARK: RGBColor = RGBColor(255, 221, 0);
 
     /// `n` colours spread over the sequential map (dark to bright, the last not too pale).
-    pub fn sequence(n: usize) -> Vec<RGBColor> {
+    pub(crate) fn sequence(n: usize) -> Vec<RGBColor> {
         (0..n)
             .map(|i| {
                 sequential(if n > 1 {
@@ -164,7 +164,7 @@ pub mod palette {
 
 /// A panel of a figure.
 #[derive(Debug, Clone)]
-pub enum Panel {
+pub(crate) enum Panel {
     /// Line / loop / point chart.
     Lines(LinePanel),
     /// Heat map with colour bar.
@@ -187,25 +187,25 @@ impl From<HeatmapPanel> for Panel {
 
 /// A figure: an optional title over a `rows x cols` grid of panels (row-major).
 #[derive(Debug, Clone)]
-pub struct Figure {
+pub(crate) struct Figure {
     /// Figure title.
-    pub title: Option<String>,
+    pub(crate) title: Option<String>,
     /// Grid rows.
-    pub rows: usize,
+    pub(crate) rows: usize,
     /// Grid columns.
-    pub cols: usize,
+    pub(crate) cols: usize,
     /// Size of one panel in pixels.
-    pub panel_size: (u32, u32),
+    pub(crate) panel_size: (u32, u32),
     /// Panels, row-major; missing cells stay empty.
-    pub panels: Vec<Panel>,
+    pub(crate) panels: Vec<Panel>,
     /// Caption under the panels (paragraphs separated by `\n`, wrapped to the figure width),
     /// e.g. what the symbols mean.
-    pub footer: Option<String>,
+    pub(crate) footer: Option<String>,
 }
 
 impl Figure {
     /// An empty `rows x cols` figure with 560 x 420 pixel panels.
-    pub fn new(rows: usize, cols: usize) -> Self {
+    pub(crate) fn new(rows: usize, cols: usize) -> Self {
         Figure {
             title: None,
             rows: rows.max(1),
@@ -217,7 +217,7 @@ impl Figure {
     }
 
     /// Sets the caption under the panels (lines separated by `\n`).
-    pub fn with_footer(mut self, t: impl Into<String>) -> Self {
+    pub(crate) fn with_footer(mut self, t: impl Into<String>) -> Self {
         self.footer = Some(t.into());
         self
     }
@@ -255,25 +255,25 @@ impl Figure {
     }
 
     /// Sets the title.
-    pub fn with_title(mut self, t: impl Into<String>) -> Self {
+    pub(crate) fn with_title(mut self, t: impl Into<String>) -> Self {
         self.title = Some(t.into());
         self
     }
 
     /// Appends a panel.
-    pub fn with_panel(mut self, p: impl Into<Panel>) -> Self {
+    pub(crate) fn with_panel(mut self, p: impl Into<Panel>) -> Self {
         self.panels.push(p.into());
         self
     }
 
     /// Sets the panel size in pixels.
-    pub fn with_panel_size(mut self, w: u32, h: u32) -> Self {
+    pub(crate) fn with_panel_size(mut self, w: u32, h: u32) -> Self {
         self.panel_size = (w, h);
         self
     }
 
     /// Size of the whole image in pixels.
-    pub fn size(&self) -> (u32, u32) {
+    pub(crate) fn size(&self) -> (u32, u32) {
         let title_h = if self.title.is_some() { 40 } else { 0 };
         (
             self.panel_size.0 * self.cols as u32,
@@ -282,7 +282,7 @@ impl Figure {
     }
 
     /// Renders into an RGB buffer of [`Figure::size`] (3 bytes per pixel).
-    pub fn render_rgb(&self) -> Result<Vec<u8>> {
+    pub(crate) fn render_rgb(&self) -> Result<Vec<u8>> {
         ensure_font()?;
         let (w, h) = self.size();
         let mut buf = vec![255u8; (w * h * 3) as usize];
@@ -296,7 +296,7 @@ impl Figure {
     }
 
     /// Writes the figure as PNG, atomically (temporary file in the same folder, then rename).
-    pub fn save_png(&self, path: &Path) -> Result<()> {
+    pub(crate) fn save_png(&self, path: &Path) -> Result<()> {
         ensure_font()?;
         let dir = path
             .parent()
@@ -390,7 +390,7 @@ fn data_bounds(it: impl Iterator<Item = f64>) -> (f64, f64) {
 /// Writes an RGB buffer (3 bytes per pixel, row-major, `size.0 x size.1`, as from
 /// [`Figure::render_rgb`]) as PNG, atomically (temporary file in the same folder, then
 /// rename). Every error is an I/O or encoding error.
-pub fn save_rgb_png(path: &Path, size: (u32, u32), rgb: &[u8]) -> Result<()> {
+pub(crate) fn save_rgb_png(path: &Path, size: (u32, u32), rgb: &[u8]) -> Result<()> {
     let (w, h) = size;
     if rgb.len() != (w as usize) * (h as usize) * 3 {
         return Err(anyhow!(
@@ -431,7 +431,7 @@ pub fn save_rgb_png(path: &Path, size: (u32, u32), rgb: &[u8]) -> Result<()> {
 /// fractional-decade ticks of a short range stay distinct (`0.025`, `0.04`, ...); powers of ten
 /// that [`format_tick`] would write in scientific notation (below 1e-3, from 1e5 on) print as
 /// `1e-4`, like their neighbours `1e-5`.
-pub fn format_log_tick(v: f64) -> String {
+pub(crate) fn format_log_tick(v: f64) -> String {
     if !v.is_finite() {
         return "0".into();
     }
@@ -446,14 +446,14 @@ pub fn format_log_tick(v: f64) -> String {
 
 /// Compact tick label: up to 4 significant digits, no trailing zeros; |v| < 1e-12 (rounding
 /// residue of a tick at zero) prints as `0`.
-pub fn format_tick(v: f64) -> String {
+pub(crate) fn format_tick(v: f64) -> String {
     format_tick_on(v, f64::INFINITY)
 }
 
 /// [`format_tick`] for a tick on an axis spanning `span`: with as many more decimals as the
 /// axis needs to tell its ticks apart (a k_pr axis from 398.6 to 398.9 kN/m has ticks
 /// 0.05 apart, which four significant digits would print as 398.9, 398.9, 398.8, ...).
-pub fn format_tick_on(v: f64, span: f64) -> String {
+pub(crate) fn format_tick_on(v: f64, span: f64) -> String {
     if v.abs() < 1e-12 || !v.is_finite() {
         return "0".into();
     }
@@ -482,6 +482,7 @@ pub fn format_tick_on(v: f64, span: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use heatmap::contour_segments;
 
     #[test]
     fn tick_labels_are_compact() {

@@ -23,7 +23,7 @@
 //! - the EMM right-hand side and force (`nemm_kernels::emm`), the RK step
 //!   (`nemm_kernels::integrator::step_with`) and the scalers (MLP and alpha branch,
 //!   `nemm_kernels::mlp::ScalerView::raw`, with the bounded output mapping `mlp::bounded`) are
-//!   nemm-core's own generic definitions, run here over [`Lanes`] of [`LANES`] windows with
+//!   nemm-core's own generic definitions, run here over [`Lanes`] of `LANES` windows with
 //!   unfused multiply-adds; their reverse modes (`rhs_backward`, `force_backward`,
 //!   `step_backward`, `ScalerView::raw_backward`, `bounded_backward`) sit next to them in
 //!   nemm-core, as does the weight layout (`mlp::ScalerLayout`). This module keeps the
@@ -32,7 +32,7 @@
 //!
 //! # Batching
 //!
-//! Windows are processed in packs of [`LANES`] that advance in lock step, so every weight is
+//! Windows are processed in packs of `LANES` that advance in lock step, so every weight is
 //! loaded once per pack and the inner loops vectorise across the lanes; packs run in
 //! parallel (rayon). Lanes that pad the last pack have zero loss weight.
 //!
@@ -59,7 +59,7 @@ use std::fmt::Debug;
 use std::ops::{AddAssign, DivAssign};
 
 /// Number of windows advanced in lock step.
-pub const LANES: usize = 8;
+pub(crate) const LANES: usize = 8;
 
 /// Floating-point type of a rollout (`f32` for training, `f64` for gradient checks).
 pub trait Real:
@@ -87,9 +87,8 @@ type WindowLanes<T> = Lanes<T, LANES>;
 mod params;
 mod rollout;
 
-pub use params::{
-    BranchShape, Grid, RolloutGrads, RolloutParams, ScalerWeights, StaticParams, Window,
-};
-pub use rollout::{
-    loss_and_grad, loss_and_grad_paired, simulate, simulate_x_pr, LossParts, Pairing,
-};
+pub use params::{Grid, RolloutParams, Window};
+
+pub(crate) use params::{BranchShape, RolloutGrads, ScalerWeights, StaticParams};
+pub use rollout::{loss_and_grad, simulate};
+pub(crate) use rollout::{loss_and_grad_paired, simulate_x_pr, Pairing};

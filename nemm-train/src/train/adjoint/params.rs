@@ -12,7 +12,7 @@ pub struct BranchShape {
     /// Declared direction in alpha (increasing or decreasing).
     pub direction: Direction,
     /// State inputs (1 for `b_fl`, `k_pr`; 0 for `b_pr`).
-    pub state_inputs: usize,
+    pub(crate) state_inputs: usize,
     /// Units `K`.
     pub units: usize,
 }
@@ -50,9 +50,9 @@ pub struct ScalerWeights<T> {
     /// Flat parameters: the MLP's, then the branch's.
     pub w: Vec<T>,
     /// Lower bound of the scale factor.
-    pub s_min: T,
+    pub(crate) s_min: T,
     /// Upper bound of the scale factor.
-    pub s_max: T,
+    pub(crate) s_max: T,
     /// The alpha branch, if the scaler has one (its MLP then ignores alpha).
     #[serde(default)]
     pub branch: Option<BranchShape>,
@@ -70,12 +70,12 @@ impl<T> ScalerWeights<T> {
     }
 
     /// Number of the MLP's parameters (the head of [`Self::w`]).
-    pub fn mlp_len(&self) -> usize {
+    pub(crate) fn mlp_len(&self) -> usize {
         self.layout().mlp_len()
     }
 
     /// The MLP's parameters.
-    pub fn mlp_w(&self) -> &[T] {
+    pub(crate) fn mlp_w(&self) -> &[T] {
         &self.w[..self.mlp_len().min(self.w.len())]
     }
 
@@ -101,11 +101,11 @@ pub struct RolloutParams<T> {
     /// `T_pr` \[s\].
     pub t_pr: T,
     /// Velocity scale \[m/s\] (input normalisation of `b_fl`).
-    pub v_scale: T,
+    pub(crate) v_scale: T,
     /// `x_pr` scale \[m\] (input normalisation of `k_pr`).
-    pub x_scale: T,
+    pub(crate) x_scale: T,
     /// Alpha scale.
-    pub alpha_scale: T,
+    pub(crate) alpha_scale: T,
     /// `b_fl(v_st, alpha)` scaler, if neural.
     pub b_fl: Option<ScalerWeights<T>>,
     /// `b_pr(alpha)` scaler, if neural.
@@ -132,11 +132,11 @@ pub struct RolloutParams<T> {
 pub struct StaticParams<T> {
     /// Trained parameters `[F_gas0,0, F_gas0,alpha, k_gas,0, k_gas,alpha, F_c]` (N, N, N/m,
     /// N/m, N), the order of `nemm_core::StaticForce::params`.
-    pub theta: [T; STATIC_PARAMS],
+    pub(crate) theta: [T; STATIC_PARAMS],
     /// Reference position `x_ref` \[m\] (fixed).
     pub x_ref: T,
     /// Smoothing velocity `v_c` \[m/s\] of the friction (fixed).
-    pub v_c: T,
+    pub(crate) v_c: T,
 }
 
 /// Gradient of the loss with respect to every trainable quantity of [`RolloutParams`].
@@ -298,7 +298,7 @@ impl Grid {
     }
 
     /// Model steps per data sample.
-    pub fn steps_per_sample(&self) -> f64 {
+    pub(crate) fn steps_per_sample(&self) -> f64 {
         self.steps_per_sample
     }
 
@@ -313,12 +313,12 @@ impl Grid {
     }
 
     /// `(j, w)`: the model force at sample `k` is `(1 - w) y_j + w y_{j+1}`.
-    pub fn sample_at(&self, k: usize) -> (usize, f64) {
+    pub(crate) fn sample_at(&self, k: usize) -> (usize, f64) {
         Self::split(k as f64 * self.steps_per_sample)
     }
 
     /// `(k, w)`: the input at model step `j` is `(1 - w) u_k + w u_{k+1}`.
-    pub fn input_at(&self, j: usize) -> (usize, f64) {
+    pub(crate) fn input_at(&self, j: usize) -> (usize, f64) {
         Self::split(j as f64 / self.steps_per_sample)
     }
 
@@ -336,7 +336,7 @@ impl Grid {
 
     /// The input `x` (one value per data sample) at model step `j`: linearly interpolated
     /// between the samples around it, the last sample held past the end (0 for an empty `x`).
-    pub fn interpolate(&self, x: &[f32], j: usize) -> f64 {
+    pub(crate) fn interpolate(&self, x: &[f32], j: usize) -> f64 {
         let (k, w) = self.input_at(j);
         let last = x.len().saturating_sub(1);
         let a = x.get(k.min(last)).map_or(0.0, |&v| f64::from(v));

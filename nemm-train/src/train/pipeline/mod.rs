@@ -45,7 +45,7 @@ use std::path::Path;
 mod sem;
 mod stages;
 
-pub use sem::{fit_sem, point_levels, sem_levels, SEM_CLUSTER_GAP, SEM_CLUSTER_SPAN};
+pub use sem::fit_sem;
 
 pub use super::session::SessionBudgetUsed;
 
@@ -109,7 +109,7 @@ pub struct PipelineConfig {
     /// Bounds `(s_min, s_max)` of the `b_fl` scale factor.
     pub b_fl_bounds: (f32, f32),
     /// Bounds of the `b_pr` and `k_pr` scale factors (`s_max` of `k_pr` is lowered to what
-    /// the stable set at the model's step allows, [`crate::train::stability`]).
+    /// the stable set at the model's step allows, `crate::train::stability`).
     pub pr_bounds: (f32, f32),
     /// Integration rate of the model \[Hz\] (the exported step is `1 / model_rate_hz`),
     /// independent of the data's sample rate.
@@ -169,14 +169,14 @@ impl Default for PipelineConfig {
 /// parameters (shapes, bounds, scales; the weights are replaced by the checkpoint's) and the
 /// training-data facts.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct SavedFrame {
+pub(crate) struct SavedFrame {
     /// Initial rollout parameters of the stage.
-    pub initial: RolloutParams<f32>,
+    pub(crate) initial: RolloutParams<f32>,
     /// Training-data facts.
-    pub meta: Meta,
+    pub(crate) meta: Meta,
     /// Units of the static force's parameters in training (`None` without a static force).
     #[serde(default)]
-    pub static_units: Option<[f32; STATIC_PARAMS]>,
+    pub(crate) static_units: Option<[f32; STATIC_PARAMS]>,
 }
 
 fn save_frame(
@@ -220,7 +220,7 @@ pub struct TrainedVariant {
 }
 
 /// Training-data facts every model carries.
-pub fn meta_of(prepared: &Prepared) -> Meta {
+pub(crate) fn meta_of(prepared: &Prepared) -> Meta {
     let alphas = prepared.train.iter().flat_map(|s| match &s.alphas {
         Some(a) => a.clone(),
         None => vec![s.alpha],
@@ -333,20 +333,20 @@ pub fn with_branch(
 
 /// A variant that could not be trained or exported, and why.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct VariantFailure {
+pub(crate) struct VariantFailure {
     /// Which.
-    pub variant: ModelKind,
+    pub(crate) variant: ModelKind,
     /// The error, with its causes.
-    pub reason: String,
+    pub(crate) reason: String,
 }
 
 /// What [`train_each`] made of the requested variants.
 #[derive(Debug, Clone)]
-pub struct Trained {
+pub(crate) struct Trained {
     /// The variants that were trained, in the order of Table 4.
-    pub trained: Vec<TrainedVariant>,
+    pub(crate) trained: Vec<TrainedVariant>,
     /// The variants that failed, in the order of Table 4.
-    pub failed: Vec<VariantFailure>,
+    pub(crate) failed: Vec<VariantFailure>,
 }
 
 /// Records the failure of `variant`, unless `e` is the end of a time-boxed session (which
@@ -364,7 +364,7 @@ fn record(failed: &mut Vec<VariantFailure>, variant: ModelKind, e: anyhow::Error
 }
 
 /// Trains the requested variants; every variant must succeed (the first failure is the
-/// error). [`train_each`] keeps going past failures.
+/// error). `train_each` keeps going past failures.
 pub fn train_variants(
     prepared: &Prepared,
     variants: &[ModelKind],
@@ -411,7 +411,7 @@ fn check_trainable(
 /// (they start from it), a failed quasi-static regression NEMM-Light and NEMM. Checkpoints go
 /// to `checkpoint_root/<variant>/` when given. Errors only when the data cannot train any
 /// EMM-family variant (no validation windows) and when a time-boxed session ends.
-pub fn train_each(
+pub(crate) fn train_each(
     prepared: &Prepared,
     variants: &[ModelKind],
     cfg: &PipelineConfig,

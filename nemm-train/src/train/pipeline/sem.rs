@@ -8,11 +8,11 @@ use nemm_core::{Body, InputScales, Meta, Model, ModelKind, SemMap};
 use std::time::Instant;
 
 /// Relative velocity gap that separates two SEM support velocities (5 %).
-pub const SEM_CLUSTER_GAP: f64 = 0.05;
+pub(crate) const SEM_CLUSTER_GAP: f64 = 0.05;
 
 /// Largest span of one velocity cluster, relative to its largest magnitude, in units of the
 /// gap (4 x 5 % = 20 %).
-pub const SEM_CLUSTER_SPAN: f64 = 4.0;
+pub(crate) const SEM_CLUSTER_SPAN: f64 = 4.0;
 
 /// Knots from sorted velocities: the origin plus the mean of every cluster. A cluster holds
 /// velocities of one sign, each less than `gap` times the larger magnitude from the previous
@@ -43,7 +43,7 @@ fn velocity_knots(sorted: &[f64], gap: f64) -> Vec<f64> {
 }
 
 /// The distinct levels of the points (within 1e-9), increasing.
-pub fn point_levels(points: &[QuasiStaticPoint]) -> Vec<f64> {
+pub(crate) fn point_levels(points: &[QuasiStaticPoint]) -> Vec<f64> {
     let mut levels: Vec<f64> = points.iter().map(|p| p.alpha).collect();
     levels.sort_by(f64::total_cmp);
     levels.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
@@ -54,7 +54,7 @@ pub fn point_levels(points: &[QuasiStaticPoint]) -> Vec<f64> {
 /// there are at most [`MAX_SEM_ALPHAS`]; else [`MAX_SEM_ALPHAS`] bins of equally many
 /// consecutive distinct levels (a level is never split), each at the mean level of its
 /// points. Returns the map's levels (strictly increasing) and each point's bin.
-pub fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
+pub(crate) fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
     let distinct = point_levels(points);
     // The bin of each distinct level: its own when they fit, else consecutive levels in
     // equal numbers (every bin holds at least one level).
@@ -83,7 +83,7 @@ pub fn sem_levels(points: &[QuasiStaticPoint]) -> (Vec<f64>, Vec<usize>) {
 }
 
 /// SEM map from quasi-static points (see the module docs): a force-velocity curve per level,
-/// with more levels than the map holds binned ([`sem_levels`]) and interpolated in alpha
+/// with more levels than the map holds binned (`sem_levels`) and interpolated in alpha
 /// between the bins by the map.
 pub fn fit_sem(points: &[QuasiStaticPoint]) -> Result<SemMap> {
     if points.is_empty() {

@@ -14,20 +14,20 @@ use std::path::Path;
 
 /// What [`collect_sweep`] found and wrote.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Collected {
+pub(super) struct Collected {
     /// The table as written (`table5.md` or `table3.md`).
-    pub markdown: String,
+    pub(crate) markdown: String,
     /// Jobs in the table.
-    pub done: usize,
+    pub(crate) done: usize,
     /// Failed jobs: id and why (exit status, the last line of the log).
-    pub failed: Vec<(String, String)>,
+    pub(crate) failed: Vec<(String, String)>,
     /// Jobs without a result or an exit status.
-    pub missing: Vec<String>,
+    pub(crate) missing: Vec<String>,
 }
 
 impl Collected {
     /// Prints the table, where it was written, and the jobs not in it.
-    pub fn print(&self, report: &Path, grid: SweepGrid) {
+    pub(super) fn print(&self, report: &Path, grid: SweepGrid) {
         println!("{}", self.markdown);
         println!(
             "sweep table in {} and {}",
@@ -74,7 +74,7 @@ struct Row<'a> {
 /// `table3.md` with the Table 3 hyperparameters and the paper's best configuration against
 /// the best found): one row per finished job (hyperparameters, validation and test RMSE,
 /// violations, training time), then the jobs that failed or have no result.
-pub fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collected> {
+pub(crate) fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<Collected> {
     let mut rows: Vec<Row> = Vec::new();
     let (mut failed, mut missing) = (Vec::new(), Vec::new());
     let mut status = std::collections::BTreeMap::new();

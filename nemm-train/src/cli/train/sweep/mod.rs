@@ -19,24 +19,24 @@ use std::time::Instant;
 
 mod collect;
 mod record;
-pub mod slurm;
+pub(crate) mod slurm;
 
 pub use slurm::SlurmArgs;
 
 /// Default `nemm sweep` list of physics weights: Table 5's 0, 0.005, 0.015, 0.025 times 1000.
-pub const TABLE5_LAMBDAS: [f64; 4] = [0.0, 5.0, 15.0, 25.0];
+pub(crate) const TABLE5_LAMBDAS: [f64; 4] = [0.0, 5.0, 15.0, 25.0];
 
 /// The paper's Table 3 search space: batch sizes.
-pub const TABLE3_BATCH: [usize; 3] = [4, 8, 16];
+pub(crate) const TABLE3_BATCH: [usize; 3] = [4, 8, 16];
 /// The paper's Table 3 search space: hidden widths.
-pub const TABLE3_HIDDEN: [usize; 3] = [8, 16, 32];
+pub(crate) const TABLE3_HIDDEN: [usize; 3] = [8, 16, 32];
 /// The paper's Table 3 search space: hidden layers.
-pub const TABLE3_LAYERS: [usize; 4] = [3, 5, 7, 9];
+pub(crate) const TABLE3_LAYERS: [usize; 4] = [3, 5, 7, 9];
 /// The paper's Table 3 search space: learning rates (0.5e-2, 1e-2, 0.1e-2).
-pub const TABLE3_LR: [f64; 3] = [5e-3, 1e-2, 1e-3];
+pub(crate) const TABLE3_LR: [f64; 3] = [5e-3, 1e-2, 1e-3];
 /// The paper's best configuration of Table 3: batch 16, hidden 16, 5 layers, learning rate
 /// 0.5e-2.
-pub const TABLE3_PAPER_BEST: Table3Point = Table3Point {
+pub(crate) const TABLE3_PAPER_BEST: Table3Point = Table3Point {
     batch: 16,
     hidden: 16,
     layers: 5,
@@ -57,9 +57,9 @@ pub enum SweepGrid {
     /// branches) and imposed by the physics penalty alone (the paper's way), other
     /// hyperparameters as given (Table 5 with the construction-against-penalty ablation).
     Priors,
-    /// Where the model may put the degradation ([`DegradationPoint::ALL`]: the paper's NEMM,
+    /// Where the model may put the degradation (`DegradationPoint::ALL`: the paper's NEMM,
     /// `b_fl` without its alpha branch, the lost-motion element, both; with `--lambda-diff`
-    /// each also trained with the matched-difference term, [`DegradationPoint::grid`]) times
+    /// each also trained with the matched-difference term, `DegradationPoint::grid`) times
     /// the `--lambda-ph` list (default: the base's `lambda_ph`), collected with the degradation
     /// signature, the levels read back and the learned against the bench's coefficients
     /// (`degradation.md`).
@@ -70,13 +70,13 @@ impl SweepGrid {
     /// Whether the grid's table shows where each job's model puts the degradation (the
     /// degradation grid); the other grids' jobs skip that part of their report
     /// (`nemm train --degradation-report=false`), the larger part of a short job's time.
-    pub fn shows_degradation(self) -> bool {
+    pub(crate) fn shows_degradation(self) -> bool {
         self == SweepGrid::Degradation
     }
 
     /// The table file the grid is collected into: `table3.md` for the Table 3 grid,
     /// `degradation.md` for the degradation grid, `table5.md` otherwise.
-    pub fn table_file(self) -> &'static str {
+    pub(crate) fn table_file(self) -> &'static str {
         match self {
             SweepGrid::Table3 => "table3.md",
             SweepGrid::Degradation => "degradation.md",
@@ -85,7 +85,7 @@ impl SweepGrid {
     }
 
     /// The `lambda_ph` list of the grid when `--lambda-ph` gives none: Table 5's
-    /// ([`TABLE5_LAMBDAS`]), for the degradation grid the base's one value.
+    /// (`TABLE5_LAMBDAS`), for the degradation grid the base's one value.
     pub fn default_lambdas(self, base: &Config) -> Vec<f64> {
         match self {
             SweepGrid::Degradation => vec![base.train.lambda_ph],
@@ -97,20 +97,20 @@ impl SweepGrid {
 /// One point of the degradation grid: which elements may change with alpha, and the weight
 /// of the matched-difference term the model is trained with.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DegradationPoint {
+pub(crate) struct DegradationPoint {
     /// The lost-motion element in series with `k_pr` ([`crate::config::ModelConfig::lost_motion`]).
-    pub lost_motion: bool,
+    pub(crate) lost_motion: bool,
     /// `b_fl`'s alpha branch ([`crate::config::ModelConfig::b_fl_alpha`]).
-    pub b_fl_alpha: bool,
+    pub(crate) b_fl_alpha: bool,
     /// [`crate::config::TrainConfig::lambda_diff`] (0: the paper's loss).
-    pub lambda_diff: f64,
+    pub(crate) lambda_diff: f64,
 }
 
 impl DegradationPoint {
     /// The four element choices, trained with the paper's loss: the paper's NEMM (alpha in
     /// `b_fl`, `b_pr`, `k_pr`), the same with `b_fl` fixed in alpha, the lost-motion element
     /// added, and the element with `b_fl` fixed in alpha.
-    pub const ALL: [DegradationPoint; 4] = [
+    pub(crate) const ALL: [DegradationPoint; 4] = [
         DegradationPoint::element(false, true),
         DegradationPoint::element(false, false),
         DegradationPoint::element(true, true),
@@ -127,7 +127,7 @@ impl DegradationPoint {
 
     /// The grid: [`DegradationPoint::ALL`], and with a positive `lambda_diff` (the sweep's
     /// `--lambda-diff`) the four again trained with the difference term of that weight.
-    pub fn grid(lambda_diff: f64) -> Vec<DegradationPoint> {
+    pub(super) fn grid(lambda_diff: f64) -> Vec<DegradationPoint> {
         let mut v = Self::ALL.to_vec();
         if lambda_diff > 0.0 {
             v.extend(Self::ALL.map(|p| DegradationPoint { lambda_diff, ..p }));
@@ -136,7 +136,7 @@ impl DegradationPoint {
     }
 
     /// The point a job's configuration trains.
-    pub fn of(config: &Config) -> Self {
+    pub(super) fn of(config: &Config) -> Self {
         DegradationPoint {
             lost_motion: config.model.lost_motion,
             b_fl_alpha: config.model.b_fl_alpha,
@@ -146,7 +146,7 @@ impl DegradationPoint {
 
     /// The job id's prefix: `paper`, `fixed-b-fl`, `lost-motion`, `lost-motion-fixed-b-fl`,
     /// followed by `_diff<lambda_diff>` with the difference term.
-    pub fn name(self) -> String {
+    pub(super) fn name(self) -> String {
         let element = match (self.lost_motion, self.b_fl_alpha) {
             (false, true) => "paper",
             (false, false) => "fixed-b-fl",
@@ -191,16 +191,16 @@ impl Table3Point {
 pub struct Table3Args {
     /// Batch sizes of `--grid table3` (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = TABLE3_BATCH)]
-    pub grid_batch: Vec<usize>,
+    pub(crate) grid_batch: Vec<usize>,
     /// Hidden widths of `--grid table3` (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = TABLE3_HIDDEN)]
-    pub grid_hidden: Vec<usize>,
+    pub(crate) grid_hidden: Vec<usize>,
     /// Hidden layers of `--grid table3` (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = TABLE3_LAYERS)]
-    pub grid_layers: Vec<usize>,
+    pub(crate) grid_layers: Vec<usize>,
     /// Learning rates of `--grid table3` (comma-separated).
     #[arg(long, value_delimiter = ',', default_values_t = TABLE3_LR)]
-    pub grid_lr: Vec<f64>,
+    pub(crate) grid_lr: Vec<f64>,
 }
 
 impl Default for Table3Args {
@@ -238,20 +238,20 @@ impl Table3Args {
 
 /// One sweep job: its id and its whole configuration (the base with the job's overrides).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SweepJob {
+pub(crate) struct SweepJob {
     /// Folder name under `<report>/jobs/`.
-    pub id: String,
+    pub(crate) id: String,
     /// The overridden settings (`lambda_ph`; for the Table 3 grid `batch`, `hidden`,
     /// `layers`, `lr`; for the priors grid `alpha_priors`; for the degradation grid
     /// `lost_motion`, `b_fl_alpha` and `lambda_diff`) with their values, for `sweep.json`.
-    pub overrides: Vec<(String, String)>,
+    pub(crate) overrides: Vec<(String, String)>,
     /// The job's configuration.
-    pub config: Config,
+    pub(crate) config: Config,
 }
 
 /// The jobs of a sweep: one per grid point and `lambdas` value, each a copy of `base` with
 /// the `nemm` variant and the point's settings (`table3`: the points of the Table 3 grid).
-pub fn sweep_jobs(
+pub(crate) fn sweep_jobs(
     base: &Config,
     grid: SweepGrid,
     table3: &Table3Args,
@@ -340,7 +340,7 @@ pub enum Engine {
 }
 
 /// A job's folder under `report`.
-pub fn job_dir(report: &Path, id: &str) -> PathBuf {
+pub(crate) fn job_dir(report: &Path, id: &str) -> PathBuf {
     report.join("jobs").join(id)
 }
 
@@ -348,7 +348,7 @@ pub fn job_dir(report: &Path, id: &str) -> PathBuf {
 /// `dir`: its `config.toml` there, its blob and report written there (the report without
 /// the degradation part unless the grid's table shows it,
 /// [`SweepGrid::shows_degradation`]).
-pub fn train_args(dir: &str, grid: SweepGrid) -> Vec<String> {
+pub(crate) fn train_args(dir: &str, grid: SweepGrid) -> Vec<String> {
     let mut args: Vec<String> = vec![
         "train".into(),
         "--config".into(),
@@ -366,12 +366,12 @@ pub fn train_args(dir: &str, grid: SweepGrid) -> Vec<String> {
 
 /// The `nemm train` command line (without the program name) of a job of `grid`; its
 /// configuration is `<report>/jobs/<id>/config.toml`, written by [`write_jobs`].
-pub fn job_args(job: &SweepJob, report: &Path, grid: SweepGrid) -> Vec<String> {
+pub(crate) fn job_args(job: &SweepJob, report: &Path, grid: SweepGrid) -> Vec<String> {
     train_args(&job_dir(report, &job.id).display().to_string(), grid)
 }
 
 /// Writes every job's configuration to `<report>/jobs/<id>/config.toml`.
-pub fn write_jobs(jobs: &[SweepJob], report: &Path) -> Result<()> {
+pub(crate) fn write_jobs(jobs: &[SweepJob], report: &Path) -> Result<()> {
     for job in jobs {
         let dir = job_dir(report, &job.id);
         std::fs::create_dir_all(&dir)
@@ -385,7 +385,7 @@ pub fn write_jobs(jobs: &[SweepJob], report: &Path) -> Result<()> {
 #[derive(Debug, Clone, Default)]
 pub struct SweepOptions {
     /// Jobs at a time: local processes, or the Slurm array's `%N` throttle (default
-    /// [`slurm::DEFAULT_THROTTLE`] there, 1 locally).
+    /// `slurm::DEFAULT_THROTTLE` there, 1 locally).
     pub jobs: Option<usize>,
     /// Where the jobs run (default: as the sweep was created; [`Engine::Local`] for a new
     /// one).
@@ -492,7 +492,7 @@ fn run_sweep(mut manifest: SweepManifest, report: &Path, options: &SweepOptions)
 
 /// Runs `jobs` as local `nemm train` processes, `parallel` at a time; each one's output in
 /// its `train.log` and its exit status in its `exit` file (written atomically when it ends).
-pub fn run_local(
+pub(crate) fn run_local(
     jobs: &[&SweepJob],
     grid: SweepGrid,
     report: &Path,

@@ -10,34 +10,34 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The sweep's job list in its report folder.
-pub const SWEEP_MANIFEST_FILE: &str = "sweep-jobs.json";
+pub(crate) const SWEEP_MANIFEST_FILE: &str = "sweep-jobs.json";
 /// A job's output (standard output and error of its `nemm train`) in its folder.
-pub const TRAIN_LOG: &str = "train.log";
+pub(crate) const TRAIN_LOG: &str = "train.log";
 /// A job's exit status in its folder: the exit code or `signal N`, written atomically when
 /// the job's process ends (absent while it runs, and after a kill that took the task's shell
 /// with it).
-pub const EXIT_FILE: &str = "exit";
+pub(crate) const EXIT_FILE: &str = "exit";
 
 /// A sweep as its report folder records it: what `--collect` and `--resume` read.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SweepManifest {
+pub(crate) struct SweepManifest {
     /// The grid (names the table file).
-    pub grid: SweepGrid,
+    pub(crate) grid: SweepGrid,
     /// The engine the jobs were last run on.
-    pub engine: Engine,
+    pub(crate) engine: Engine,
     /// Every job, in the order of the Slurm array's task indices.
-    pub jobs: Vec<SweepJob>,
+    pub(crate) jobs: Vec<SweepJob>,
     /// The Slurm job script's settings, once one was written.
     #[serde(default)]
-    pub slurm: Option<SlurmSettings>,
+    pub(crate) slurm: Option<SlurmSettings>,
     /// Every Slurm submission of the sweep, oldest first.
     #[serde(default)]
-    pub submissions: Vec<Submission>,
+    pub(crate) submissions: Vec<Submission>,
 }
 
 impl SweepManifest {
     /// Reads `<report>/sweep-jobs.json`.
-    pub fn load(report: &Path) -> Result<Self> {
+    pub(crate) fn load(report: &Path) -> Result<Self> {
         let p = report.join(SWEEP_MANIFEST_FILE);
         let text = std::fs::read_to_string(&p).with_context(|| {
             format!(
@@ -50,7 +50,7 @@ impl SweepManifest {
     }
 
     /// Writes `<report>/sweep-jobs.json` (atomically).
-    pub fn save(&self, report: &Path) -> Result<()> {
+    pub(crate) fn save(&self, report: &Path) -> Result<()> {
         let p = report.join(SWEEP_MANIFEST_FILE);
         write_atomic_bytes(&p, serde_json::to_string_pretty(self)?.as_bytes())
             .with_context(|| format!("cannot write {}", p.display()))
@@ -59,7 +59,7 @@ impl SweepManifest {
 
 /// A job's state, from the files in its folder.
 #[derive(Debug, Clone)]
-pub enum JobState {
+pub(crate) enum JobState {
     /// Finished: its `report.json`.
     Done(Box<Report>),
     /// Ended without a report: its exit status and the last line of its log.
@@ -69,7 +69,7 @@ pub enum JobState {
 }
 
 /// The state of job `id` of the sweep in `report`.
-pub fn job_state(report: &Path, id: &str) -> Result<JobState> {
+pub(crate) fn job_state(report: &Path, id: &str) -> Result<JobState> {
     let dir = job_dir(report, id);
     let p = dir.join("report.json");
     if let Ok(t) = std::fs::read_to_string(&p) {
@@ -97,13 +97,13 @@ pub fn job_state(report: &Path, id: &str) -> Result<JobState> {
 }
 
 /// Writes a job's `exit` file (atomically).
-pub fn write_exit(dir: &Path, status: &str) -> Result<()> {
+pub(crate) fn write_exit(dir: &Path, status: &str) -> Result<()> {
     write_atomic_bytes(&dir.join(EXIT_FILE), format!("{status}\n").as_bytes())
         .with_context(|| format!("cannot write {}", dir.join(EXIT_FILE).display()))
 }
 
 /// Removes a job's `exit` file (before it runs again).
-pub fn clear_exit(dir: &Path) -> Result<()> {
+pub(crate) fn clear_exit(dir: &Path) -> Result<()> {
     match std::fs::remove_file(dir.join(EXIT_FILE)) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
             Err(e).with_context(|| format!("cannot remove {}", dir.join(EXIT_FILE).display()))
@@ -114,28 +114,28 @@ pub fn clear_exit(dir: &Path) -> Result<()> {
 
 /// The job script's settings, as the sweep's job list records them.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SlurmSettings {
+pub(crate) struct SlurmSettings {
     /// `--partition`, if any.
-    pub partition: Option<String>,
+    pub(crate) partition: Option<String>,
     /// `--account`, if any.
-    pub account: Option<String>,
+    pub(crate) account: Option<String>,
     /// The time limit of each task (Slurm's format).
-    pub time: String,
+    pub(crate) time: String,
     /// CPUs per task.
-    pub cpus_per_task: usize,
+    pub(crate) cpus_per_task: usize,
     /// Tasks at a time (the array's `%N`).
-    pub throttle: usize,
+    pub(crate) throttle: usize,
 }
 
 /// One `sbatch` of the sweep.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Submission {
+pub(crate) struct Submission {
     /// Slurm's job id of the array.
-    pub job_id: String,
+    pub(crate) job_id: String,
     /// The `--array` specification submitted (task indices and `%N`).
-    pub array: String,
+    pub(crate) array: String,
     /// When `sbatch` returned, in seconds since the epoch.
-    pub submitted_unix_s: f64,
+    pub(crate) submitted_unix_s: f64,
 }
 
 #[cfg(test)]

@@ -19,15 +19,15 @@ use nemm_dataset::atomic_file::write_atomic_bytes;
 use std::path::Path;
 
 /// The array's throttle (`%N`: tasks at a time) unless `--jobs` says otherwise.
-pub const DEFAULT_THROTTLE: usize = 8;
+pub(crate) const DEFAULT_THROTTLE: usize = 8;
 /// The time limit of each task unless `--time` says otherwise.
-pub const DEFAULT_TIME: &str = "1:00:00";
+pub(crate) const DEFAULT_TIME: &str = "1:00:00";
 /// The CPUs of each task unless `--cpus-per-task` says otherwise.
-pub const DEFAULT_CPUS: usize = 2;
+pub(crate) const DEFAULT_CPUS: usize = 2;
 /// The job script in the report folder.
-pub const SCRIPT_FILE: &str = "slurm/sweep.sbatch";
+pub(crate) const SCRIPT_FILE: &str = "slurm/sweep.sbatch";
 /// A task's start time in its job folder (seconds since the epoch, written by the script).
-pub const START_FILE: &str = "start";
+pub(crate) const START_FILE: &str = "start";
 
 /// The Slurm engine's options (`nemm sweep --engine slurm`); on `--resume`, those not given
 /// keep the sweep's.
@@ -35,10 +35,10 @@ pub const START_FILE: &str = "start";
 pub struct SlurmArgs {
     /// Slurm: the partition of the job array (`#SBATCH --partition`) [default: the cluster's].
     #[arg(long)]
-    pub partition: Option<String>,
+    pub(crate) partition: Option<String>,
     /// Slurm: the account charged (`#SBATCH --account`) [default: the user's].
     #[arg(long)]
-    pub account: Option<String>,
+    pub(crate) account: Option<String>,
     /// Slurm: the time limit of each task, in Slurm's format (MM, MM:SS, HH:MM:SS, D-HH,
     /// D-HH:MM, D-HH:MM:SS); a task still training then is killed and shows as missing
     /// [default: 1:00:00].
@@ -47,13 +47,13 @@ pub struct SlurmArgs {
     /// Slurm: the CPUs of each task (`#SBATCH --cpus-per-task`; the trainer's threads)
     /// [default: 2].
     #[arg(long)]
-    pub cpus_per_task: Option<usize>,
+    pub(crate) cpus_per_task: Option<usize>,
 }
 
 impl SlurmSettings {
     /// The settings of `args` and `throttle` (`--jobs`), those not given from `previous`
     /// (the sweep's last), else the defaults; the time limit checked.
-    pub fn resolve(
+    pub(crate) fn resolve(
         args: &SlurmArgs,
         throttle: Option<usize>,
         previous: Option<&SlurmSettings>,
@@ -97,7 +97,7 @@ impl SlurmSettings {
 
 /// A Slurm time limit in seconds: MM, MM:SS, HH:MM:SS, D-HH, D-HH:MM or D-HH:MM:SS (Slurm's
 /// formats; a budget is needed, so no `UNLIMITED`).
-pub fn parse_time(s: &str) -> Result<u64> {
+pub(crate) fn parse_time(s: &str) -> Result<u64> {
     let bad =
         || anyhow::anyhow!("--time {s:?}: give MM, MM:SS, HH:MM:SS, D-HH, D-HH:MM or D-HH:MM:SS");
     let num = |p: &str| -> Result<u64> {
@@ -128,7 +128,7 @@ pub fn parse_time(s: &str) -> Result<u64> {
 
 /// The `--array` specification of task `indices` (ascending), runs of consecutive ones as
 /// ranges, with the `%throttle`: e.g. `0-3,7,9-10%2`.
-pub fn array_spec(indices: &[usize], throttle: usize) -> String {
+pub(crate) fn array_spec(indices: &[usize], throttle: usize) -> String {
     let mut parts: Vec<String> = Vec::new();
     let mut i = 0;
     while i < indices.len() {
@@ -153,7 +153,7 @@ fn sh_quote(s: &str) -> String {
 
 /// The job script of a sweep whose job ids are `ids` (task `i` trains `ids[i]`), its report
 /// folder `report` and working folder `workdir` (both absolute), run by `exe`.
-pub fn job_script(
+pub(crate) fn job_script(
     settings: &SlurmSettings,
     grid: SweepGrid,
     report: &Path,
@@ -229,7 +229,7 @@ fn hm(secs: f64) -> String {
 /// allocation (tasks x CPUs x time limit, and the wall time at the throttle) and, with
 /// `measured` (the mean training seconds of the sweep's finished jobs and their count), the
 /// expected cost at that mean.
-pub fn cost_estimate(
+pub(crate) fn cost_estimate(
     tasks: usize,
     settings: &SlurmSettings,
     measured: Option<(f64, usize)>,
@@ -262,7 +262,7 @@ pub fn cost_estimate(
 
 /// The jobs of `manifest` (indices into its job list) that Slurm still has queued or running
 /// under one of the sweep's submissions, by `squeue`; none where `squeue` cannot say.
-pub fn queued_jobs(manifest: &SweepManifest) -> Vec<usize> {
+pub(crate) fn queued_jobs(manifest: &SweepManifest) -> Vec<usize> {
     if manifest.submissions.is_empty() {
         return Vec::new();
     }

@@ -40,7 +40,7 @@ fn common_len(windows: &[Window<'_>]) -> usize {
 
 /// Normalised MSE loss (eq. 23) over `windows` and its exact gradient. The model integrates
 /// on `grid`'s model steps and is scored at the data samples from sample `warmup` on (see
-/// [`Grid`]). Returns `(loss, gradient)`; packs of [`LANES`] windows run in parallel.
+/// [`Grid`]). Returns `(loss, gradient)`; packs of `LANES` windows run in parallel.
 pub fn loss_and_grad<T: Real>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
@@ -56,31 +56,31 @@ pub fn loss_and_grad<T: Real>(
 /// excitation recorded at two condition levels, whose force difference the model's must
 /// follow (the degradation signature, Fig. 5).
 #[derive(Debug, Clone, Copy)]
-pub struct Pairing<'a> {
+pub(crate) struct Pairing<'a> {
     /// Per window of the batch, the index of its matched window in the same batch. Pairs are
     /// mutual (`partner[b] == Some(a)` where `partner[a] == Some(b)`: the term is split half
     /// onto each side, so a one-sided entry would get a gradient that is not its loss's) and
     /// lie in one pack of [`LANES`] windows (indices `LANES k .. LANES (k + 1)`); a partner
     /// outside its pack is ignored.
-    pub partner: &'a [Option<usize>],
+    pub(crate) partner: &'a [Option<usize>],
     /// Weight `lambda_diff` of the term, relative to eq. 23's.
-    pub weight: f64,
+    pub(crate) weight: f64,
 }
 
 /// The parts of the training loss of a batch, each normalised by the scored samples.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct LossParts {
+pub(crate) struct LossParts {
     /// Eq. 23: the normalised MSE of the force.
-    pub mse: f64,
+    pub(crate) mse: f64,
     /// The matched-difference term: `lambda_diff` times the mean over matched samples of
     /// `((e_a - e_b) / F_s)^2` (`e` the force error of two matched windows), counted per
     /// window so that it is comparable with `mse`.
-    pub diff: f64,
+    pub(crate) diff: f64,
 }
 
 impl LossParts {
     /// The loss the gradient is of.
-    pub fn total(&self) -> f64 {
+    pub(crate) fn total(&self) -> f64 {
         self.mse + self.diff
     }
 }
@@ -89,7 +89,7 @@ impl LossParts {
 /// matched windows `a`, `b` the loss adds `lambda_diff ((e_a - e_b) / F_s)^2 / M`, the
 /// error of the model's difference `y_a - y_b` against the measured one. Returns the
 /// parts of the loss and the gradient of their sum.
-pub fn loss_and_grad_paired<T: Real>(
+pub(crate) fn loss_and_grad_paired<T: Real>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
     pairing: Option<Pairing<'_>>,
@@ -181,7 +181,7 @@ pub fn simulate<T: Real>(
 
 /// Simulated states `x_pr` of every window at its data samples (for the `x_pr`
 /// normalisation scale).
-pub fn simulate_x_pr<T: Real>(
+pub(crate) fn simulate_x_pr<T: Real>(
     p: &RolloutParams<T>,
     windows: &[Window<'_>],
     grid: &Grid,
