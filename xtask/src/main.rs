@@ -550,15 +550,8 @@ const QEMU_TESTS_AN500: [&str; 6] = [
 ];
 
 /// The crates whose tests `cargo xtask test` also runs in the default (debug) profile: those
-/// that do not depend on nemm-train (and so on burn).
-const DEBUG_PROFILE_CRATES: [&str; 6] = [
-    "nemm-kernels",
-    "nemm-core",
-    "nemm-c",
-    "nemm-slot",
-    "nemm-elf",
-    "xtask",
-];
+/// compiled into a user's firmware, whose debug builds users ship.
+const DEBUG_PROFILE_CRATES: [&str; 4] = ["nemm-kernels", "nemm-core", "nemm-c", "nemm-slot"];
 
 fn test(host_only: bool) -> Result<(), String> {
     let started = Instant::now();
@@ -628,12 +621,12 @@ fn test(host_only: bool) -> Result<(), String> {
     clock.lap("firmware library host tests");
     // The default (debug) profile: debug assertions and overflow checks on, nemm-core at
     // opt-level 0 (as its users' debug builds have it), the rest as the dev profile of
-    // Cargo.toml sets it; the tests on the default 2 MiB test threads. The crates that do
-    // not depend on the trainer: nemm-core (the no_std runtime, the one whose debug build
-    // users ship in debug firmware), the C interface, the slot and ELF helpers, xtask.
-    // nemm-train and nemm-tests (built on it) run in release above: in this profile they
-    // would build burn a second time and repeat the training runs, the longest tests of
-    // the workspace.
+    // Cargo.toml sets it; the tests on the default 2 MiB test threads. The crates compiled
+    // into a user's firmware: the kernels, nemm-core (the no_std runtime whose debug build
+    // users ship in debug firmware), the C interface and the slot. The host tools (the ELF
+    // helper, xtask), nemm-train and nemm-tests run in release above: in this profile the
+    // trainer would build burn a second time and repeat the training runs, the longest
+    // tests of the workspace.
     run(cargo()
         .args(["test", "--no-fail-fast"])
         .args(DEBUG_PROFILE_CRATES.iter().flat_map(|c| ["-p", c]))
