@@ -39,7 +39,7 @@
 //! the two searches on a dataset. The label's simulation is the grid level's when the label
 //! is constant and on the grid and that level is simulated, so it costs no lane of its own.
 //!
-//! [`identify_runs`] searches many runs together: their table searches in parallel, then
+//! `identify_runs` searches many runs together: their table searches in parallel, then
 //! their exact searches a round at a time, the simulations of a round packed across runs
 //! (longest runs first, `LANES` to a pack; a lane's force does not depend on its pack's
 //! other lanes, so every fit is the one [`identify`] gives the run alone).
