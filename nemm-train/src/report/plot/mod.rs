@@ -5,8 +5,10 @@
 //! (`nemm-train/assets/fonts/`, free licence in `LICENSE-DejaVu.txt`), so no system fonts or C
 //! libraries are needed.
 //!
-//! ```no_run
-//! use nemm_train::report::plot::{palette, Figure, LinePanel, Series};
+//! Used inside the crate as (the module is crate-private, so this is not a doctest):
+//!
+//! ```ignore
+//! use crate::report::plot::{palette, Figure, LinePanel, Series};
 //! let series = Series::line("loss", vec![(0.0, 1.0), (1.0, 0.5), (2.0, 0.3)], palette::categorical(0));
 //! let panel = LinePanel::new("training", "epoch", "loss").with_series(series);
 //! Figure::new(1, 1).with_title("run 7").with_panel(panel).save_png("loss.png".as_ref())?;
