@@ -218,11 +218,12 @@ static void estimator(const unsigned char *blob, size_t len) {
 static void observer(void) {
     nemm_observer_config_t cfg;
     CHECK_STATUS(nemm_observer_config_default(&cfg), NEMM_OK);
-    CHECK(cfg.points == 0 && cfg.horizon_s == 2.0f && cfg.grid_lo == 0.0f && cfg.grid_hi == 0.0f);
+    CHECK(cfg.points == 0 && cfg.horizon_s == 3.0f && cfg.grid_lo == 0.0f && cfg.grid_hi == 0.0f);
+    CHECK(cfg.crossing_hysteresis == 0.1f && cfg.settle_tolerance == 0.02f && cfg.change_tolerance == 0.03f);
     CHECK_STATUS(nemm_observer_init(&obs, sizeof obs, &est, &cfg), NEMM_OK);
     nemm_alpha_estimate_t a;
     CHECK_STATUS(nemm_observer_estimate(&obs, &a), NEMM_OK);
-    CHECK(a.flags & NEMM_OBSERVER_NOT_EXCITED);
+    CHECK((a.flags & NEMM_OBSERVER_NOT_EXCITED) && (a.flags & NEMM_OBSERVER_NOT_SETTLED));
     nemm_estimator_info_t info;
     CHECK_STATUS(nemm_estimator_info(&est, &info), NEMM_OK);
     CHECK_STATUS(nemm_estimator_set_alpha(&est, 0.15f), NEMM_OK);
@@ -321,7 +322,7 @@ static void level_tables(const unsigned char *blob, size_t len, const unsigned c
         ok &= observe(&obs, v, e.force_n, &a) == NEMM_OK;
     }
     CHECK(ok);
-    CHECK(fabsf(a.alpha - 0.12f) < 0.02f && !(a.flags & NEMM_OBSERVER_NOT_EXCITED));
+    CHECK(fabsf(a.alpha - 0.12f) < 0.02f && !(a.flags & (NEMM_OBSERVER_NOT_EXCITED | NEMM_OBSERVER_NOT_SETTLED)));
     printf("observer on level tables: alpha %.4f +- %.4f (true 0.12), flags 0x%02x\n", a.alpha,
            a.band, a.flags);
     /* The grid is the levels': another one is refused. */

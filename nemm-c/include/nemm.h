@@ -97,14 +97,14 @@
 /**
  * Bytes of a `nemm_observer_t` (32-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21636
+#define NEMM_OBSERVER_SIZE 22688
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_observer_t` (64-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 21784
+#define NEMM_OBSERVER_SIZE 22848
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -243,7 +243,7 @@
 
 /**
  * Observer flag: the band is wider than `max_band`: the data so far do not tell the levels
- * apart (too little motion over the horizon).
+ * apart (too little motion over the window).
  */
 #define NEMM_OBSERVER_NOT_EXCITED (1 << 0)
 
@@ -273,6 +273,13 @@
  * warm-up).
  */
 #define NEMM_OBSERVER_HELD (1 << 5)
+
+/**
+ * Observer flag: the estimate is not settled (no window solved yet, it moved at its last
+ * update, the newest block of stroke cycles disagrees with it, or the level changed and
+ * the window restarted).
+ */
+#define NEMM_OBSERVER_NOT_SETTLED (1 << 6)
 
 /**
  * Observer flag: no model (never set by an initialised observer).
@@ -755,8 +762,9 @@ typedef struct {
    */
   uint32_t points;
   /**
-   * Forgetting horizon (s): after a step change of alpha the estimate moves about 63 %
-   * of the way in one horizon. Default 2 s.
+   * Window length (s): the estimate is the fit over the newest whole stroke cycles
+   * within it, updated at each close of a block of cycles (at least an eighth of the
+   * window). Default 3 s.
    */
   float horizon_s;
   /**
@@ -802,6 +810,22 @@ typedef struct {
    * Widest band (half-width, in alpha) at which the data count as exciting. Default 0.05.
    */
   float max_band;
+  /**
+   * Hysteresis of the stroke-cycle detector, a fraction in (0, 1) of the recent peak
+   * velocity. Default 0.1.
+   */
+  float crossing_hysteresis;
+  /**
+   * Settle tolerance (alpha): `NEMM_OBSERVER_NOT_SETTLED` unless the last update moved
+   * the estimate by at most this and the newest block's own fit agrees with it. Default
+   * 0.02.
+   */
+  float settle_tolerance;
+  /**
+   * Change tolerance (alpha): the two newest blocks within this of each other and both
+   * beyond it from the older blocks, on one side, restart the window. Default 0.03.
+   */
+  float change_tolerance;
 } nemm_observer_config_t;
 
 /**
@@ -1045,8 +1069,8 @@ nemm_status_t nemm_levels_info(const nemm_levels_t *levels, nemm_levels_info_t *
 
 /**
  * Fills `config` with the default observer settings (a grid of
- * `NEMM_OBSERVER_MAX_POINTS` levels over the model's trained range, 2 s horizon; the
- * fields that default to the model's values are 0).
+ * `NEMM_OBSERVER_MAX_POINTS` levels over the model's trained range, a 3 s window of whole
+ * stroke cycles; the fields that default to the model's values are 0).
  *
  * Errors: `NEMM_E_NULL`.
  *

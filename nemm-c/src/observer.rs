@@ -10,8 +10,8 @@ use crate::types::{nemm_alpha_estimate_t, nemm_observer_config_t, nemm_sample_t}
 use nemm_core::AlphaEstimate;
 
 /// Fills `config` with the default observer settings (a grid of
-/// `NEMM_OBSERVER_MAX_POINTS` levels over the model's trained range, 2 s horizon; the
-/// fields that default to the model's values are 0).
+/// `NEMM_OBSERVER_MAX_POINTS` levels over the model's trained range, a 3 s window of whole
+/// stroke cycles; the fields that default to the model's values are 0).
 ///
 /// Errors: `NEMM_E_NULL`.
 ///

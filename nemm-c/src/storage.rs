@@ -86,7 +86,7 @@ pub const NEMM_ESTIMATOR_SIZE: usize = 46156;
 pub const NEMM_ESTIMATOR_ALIGN: usize = 4;
 /// Bytes of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_OBSERVER_SIZE: usize = 21636;
+pub const NEMM_OBSERVER_SIZE: usize = 22688;
 /// Alignment of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_OBSERVER_ALIGN: usize = 4;
@@ -106,7 +106,7 @@ pub const NEMM_ESTIMATOR_SIZE: usize = 46376;
 pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
 /// Bytes of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_OBSERVER_SIZE: usize = 21784;
+pub const NEMM_OBSERVER_SIZE: usize = 22848;
 /// Alignment of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_OBSERVER_ALIGN: usize = 8;

@@ -52,7 +52,7 @@ pub const NEMM_FLAG_POSITION_MISSING: u8 = 1 << 6;
 pub const NEMM_FLAG_NO_MODEL: u8 = 1 << 7;
 
 /// Observer flag: the band is wider than `max_band`: the data so far do not tell the levels
-/// apart (too little motion over the horizon).
+/// apart (too little motion over the window).
 pub const NEMM_OBSERVER_NOT_EXCITED: u8 = 1 << 0;
 /// Observer flag: the best fit lies outside the model's trained range by more than the band.
 pub const NEMM_OBSERVER_OUT_OF_RANGE: u8 = 1 << 1;
@@ -66,6 +66,10 @@ pub const NEMM_OBSERVER_OUTLIER: u8 = 1 << 4;
 /// Observer flag: this sample did not update the estimate (a fault, its hold-off, or the
 /// warm-up).
 pub const NEMM_OBSERVER_HELD: u8 = 1 << 5;
+/// Observer flag: the estimate is not settled (no window solved yet, it moved at its last
+/// update, the newest block of stroke cycles disagrees with it, or the level changed and
+/// the window restarted).
+pub const NEMM_OBSERVER_NOT_SETTLED: u8 = 1 << 6;
 /// Observer flag: no model (never set by an initialised observer).
 pub const NEMM_OBSERVER_NO_MODEL: u8 = 1 << 7;
 
@@ -84,6 +88,7 @@ const _: () = {
     assert!(NEMM_OBSERVER_FORCE_FAULT == ObserverFlags::FORCE_FAULT);
     assert!(NEMM_OBSERVER_OUTLIER == ObserverFlags::OUTLIER);
     assert!(NEMM_OBSERVER_HELD == ObserverFlags::HELD);
+    assert!(NEMM_OBSERVER_NOT_SETTLED == ObserverFlags::NOT_SETTLED);
     assert!(NEMM_OBSERVER_NO_MODEL == ObserverFlags::NO_MODEL);
 };
 
@@ -284,8 +289,9 @@ pub struct nemm_observer_config_t {
     pub grid_hi: f32,
     /// Levels of the grid, `2..=NEMM_OBSERVER_MAX_POINTS`; 0: `NEMM_OBSERVER_MAX_POINTS`.
     pub points: u32,
-    /// Forgetting horizon (s): after a step change of alpha the estimate moves about 63 %
-    /// of the way in one horizon. Default 2 s.
+    /// Window length (s): the estimate is the fit over the newest whole stroke cycles
+    /// within it, updated at each close of a block of cycles (at least an eighth of the
+    /// window). Default 3 s.
     pub horizon_s: f32,
     /// Outlier threshold, a multiple (> 1) of the running mean absolute residual. Default 4.
     pub outlier_threshold: f32,
@@ -310,6 +316,16 @@ pub struct nemm_observer_config_t {
     pub band_sigmas: f32,
     /// Widest band (half-width, in alpha) at which the data count as exciting. Default 0.05.
     pub max_band: f32,
+    /// Hysteresis of the stroke-cycle detector, a fraction in (0, 1) of the recent peak
+    /// velocity. Default 0.1.
+    pub crossing_hysteresis: f32,
+    /// Settle tolerance (alpha): `NEMM_OBSERVER_NOT_SETTLED` unless the last update moved
+    /// the estimate by at most this and the newest block's own fit agrees with it. Default
+    /// 0.02.
+    pub settle_tolerance: f32,
+    /// Change tolerance (alpha): the two newest blocks within this of each other and both
+    /// beyond it from the older blocks, on one side, restart the window. Default 0.03.
+    pub change_tolerance: f32,
 }
 
 impl nemm_observer_config_t {
@@ -333,6 +349,9 @@ impl nemm_observer_config_t {
             residual_correlation_s: d.residual_correlation_s,
             band_sigmas: d.band_sigmas,
             max_band: d.max_band,
+            crossing_hysteresis: d.crossing_hysteresis,
+            settle_tolerance: d.settle_tolerance,
+            change_tolerance: d.change_tolerance,
         }
     }
 
@@ -354,6 +373,9 @@ impl nemm_observer_config_t {
             residual_correlation_s: self.residual_correlation_s,
             band_sigmas: self.band_sigmas,
             max_band: self.max_band,
+            crossing_hysteresis: self.crossing_hysteresis,
+            settle_tolerance: self.settle_tolerance,
+            change_tolerance: self.change_tolerance,
         }
     }
 }

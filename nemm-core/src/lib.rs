@@ -115,8 +115,9 @@ pub use model::{
 };
 // The alpha observer.
 pub use observer::{
-    AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags, DEFAULT_HORIZON_S,
-    DEFAULT_MAX_BAND, DEFAULT_RESIDUAL_CORRELATION_S,
+    AlphaEstimate, AlphaObserver, ObserverConfig, ObserverError, ObserverFlags,
+    DEFAULT_CHANGE_TOLERANCE, DEFAULT_CROSSING_HYSTERESIS, DEFAULT_HORIZON_S, DEFAULT_MAX_BAND,
+    DEFAULT_RESIDUAL_CORRELATION_S, DEFAULT_SETTLE_TOLERANCE, WINDOW_BLOCKS,
 };
 // One sample, the input of both steps.
 pub use sample::Sample;

@@ -79,7 +79,7 @@ fn sane(e: &AlphaEstimate, lo: f32, hi: f32) {
 #[test]
 fn recovers_the_level_of_synthetic_data() {
     let m = example();
-    let v = excitation(10_000, m.dt_s);
+    let v = excitation(20_000, m.dt_s);
     for alpha in [0.04f32, 0.12, 0.21, 0.3] {
         let f = synthetic(&m, &v, |_| alpha);
         let mut o = observer(&m, ObserverConfig::new());
@@ -108,7 +108,7 @@ fn recovers_the_level_through_the_lost_motion_element() {
     let mut nemm = example();
     nemm.lost_motion = Some(lm);
     for m in [linear, nemm] {
-        let v = excitation(10_000, m.dt_s);
+        let v = excitation(20_000, m.dt_s);
         for alpha in [0.04f32, 0.21] {
             let f = synthetic(&m, &v, |_| alpha);
             let mut o = observer(&m, ObserverConfig::new());
@@ -127,7 +127,7 @@ fn recovers_the_level_through_the_lost_motion_element() {
 #[test]
 fn no_motion_is_not_excited() {
     let m = example();
-    let n = 5_000;
+    let n = 10_000;
     // At rest every level gives 0 N: the data cannot tell them apart.
     let mut o = observer(&m, ObserverConfig::new());
     let noise: Vec<f32> = (0..n).map(|k| ((k * 7919) % 13) as f32 - 6.0).collect();
@@ -160,7 +160,7 @@ fn no_motion_is_not_excited() {
 #[test]
 fn rides_through_faults_and_outliers() {
     let m = example();
-    let n = 10_000;
+    let n = 20_000;
     let v = excitation(n, m.dt_s);
     let f = synthetic(&m, &v, |_| 0.17);
     let clean = run(&mut observer(&m, ObserverConfig::new()), &v, &f);
@@ -207,7 +207,7 @@ fn rides_through_faults_and_outliers() {
 #[test]
 fn flags_a_level_beyond_the_trained_range() {
     let m = example();
-    let v = excitation(10_000, m.dt_s);
+    let v = excitation(20_000, m.dt_s);
     // Trained 0..0.3; the data are at 0.6.
     let f = synthetic(&m, &v, |_| 0.6);
     let mut o = observer(&m, ObserverConfig::new());
@@ -231,28 +231,75 @@ fn flags_a_level_beyond_the_trained_range() {
     assert!(!end.flags.contains(ObserverFlags::OUT_OF_RANGE), "{end:?}");
 }
 
+/// Steady data: the estimate is valid once two blocks agree, holds from then on (it changes
+/// only at a block's close, so it does not swing within a stroke), and the window grows to
+/// its full length.
 #[test]
-fn tracks_a_step_change_within_the_horizon() {
+fn holds_a_settled_estimate_over_whole_cycles() {
     let m = example();
-    let horizon = 0.5f32;
     let steps_per_s = (1.0 / m.dt_s) as usize;
-    let change = 2 * steps_per_s;
-    let v = excitation(change + 2 * steps_per_s, m.dt_s);
+    let v = excitation(6 * steps_per_s, m.dt_s);
+    let f = synthetic(&m, &v, |_| 0.12);
+    let mut o = observer(&m, ObserverConfig::new());
+    let out = run(&mut o, &v, &f);
+    // Nothing is solved before the first block closes (a window / WINDOW_BLOCKS).
+    let first_block = (ObserverConfig::new().horizon_s / nemm_core::WINDOW_BLOCKS as f32
+        * steps_per_s as f32) as usize;
+    assert!(out[..first_block].iter().all(|e| e
+        .flags
+        .contains(ObserverFlags::NOT_SETTLED | ObserverFlags::NOT_EXCITED)));
+    let first_valid = out
+        .iter()
+        .position(|e| e.flags.valid())
+        .expect("valid at some point");
+    // Two blocks (here two 3 Hz cycles each, 0.67 s) and the first, partial cycle.
+    assert!(first_valid < 3 * steps_per_s / 2, "{first_valid}");
+    let updates = out.windows(2).filter(|w| w[0].alpha != w[1].alpha).count();
+    assert!(updates < 6 * nemm_core::WINDOW_BLOCKS, "{updates} updates");
+    for e in &out[first_valid..] {
+        assert!(e.flags.valid() && (e.alpha - 0.12).abs() < 0.005, "{e:?}");
+    }
+    let full = ObserverConfig::new().horizon_s * steps_per_s as f32;
+    assert!(
+        o.weight() > 0.8 * full && o.weight() <= full,
+        "{}",
+        o.weight()
+    );
+}
+
+/// A step of the level (0.05 to 0.25): the window restarts from the two newest blocks, so the
+/// estimate follows within about two blocks and a cycle, far sooner than the window (3 s);
+/// it is flagged not settled meanwhile and valid again at the new level.
+#[test]
+fn follows_a_step_change_by_restarting_the_window() {
+    let m = example();
+    let steps_per_s = (1.0 / m.dt_s) as usize;
+    let change = 4 * steps_per_s;
+    let v = excitation(change + 3 * steps_per_s, m.dt_s);
     let f = synthetic(&m, &v, |k| if k < change { 0.05 } else { 0.25 });
-    let cfg = ObserverConfig {
-        horizon_s: horizon,
-        ..ObserverConfig::new()
-    };
-    let out = run(&mut observer(&m, cfg), &v, &f);
-    let at = |s: f32| out[change + (s * steps_per_s as f32) as usize - 1];
-    assert!((at(0.0).alpha - 0.05).abs() < 0.01, "{:?}", at(0.0));
-    // One horizon: most of the way (exponential forgetting of the old level).
-    assert!(at(horizon).alpha > 0.05 + 0.5 * 0.2, "{:?}", at(horizon));
-    // Three horizons: settled.
-    for k in 0..(steps_per_s / 4) {
-        let e = out[change + (3.0 * horizon * steps_per_s as f32) as usize + k];
+    let out = run(&mut observer(&m, ObserverConfig::new()), &v, &f);
+    let before = out[change - 1];
+    assert!(
+        before.flags.valid() && (before.alpha - 0.05).abs() < 0.005,
+        "{before:?}"
+    );
+    let after = &out[change..];
+    let reached = after
+        .iter()
+        .position(|e| (e.alpha - 0.25).abs() < 0.02)
+        .expect("follows the step");
+    assert!(
+        reached < 3 * steps_per_s / 2,
+        "reached after {reached} samples"
+    );
+    assert!(after[..reached]
+        .iter()
+        .any(|e| e.flags.contains(ObserverFlags::NOT_SETTLED)));
+    for e in &after[reached..] {
         assert!((e.alpha - 0.25).abs() < 0.02, "{e:?}");
     }
+    let end = out.last().expect("estimates");
+    assert!(end.flags.valid(), "{end:?}");
 }
 
 #[test]
@@ -304,6 +351,31 @@ fn refuses_bad_configurations() {
         }),
         ObserverError::Setting("horizon_s")
     );
+    for (cfg, name) in [
+        (
+            ObserverConfig {
+                crossing_hysteresis: 1.0,
+                ..base
+            },
+            "crossing_hysteresis",
+        ),
+        (
+            ObserverConfig {
+                settle_tolerance: 0.0,
+                ..base
+            },
+            "settle_tolerance",
+        ),
+        (
+            ObserverConfig {
+                change_tolerance: f32::NAN,
+                ..base
+            },
+            "change_tolerance",
+        ),
+    ] {
+        assert_eq!(bad(cfg), ObserverError::Setting(name));
+    }
     assert_eq!(
         bad(ObserverConfig {
             outlier_threshold: 1.0,
@@ -424,8 +496,9 @@ fn offline_fit(m: &Model, v: &[f32], f: &[f32], skip: usize) -> f32 {
     }
 }
 
-/// The trained model on the held-out 15 % runs (0.6 to 1.05 s each): the final estimate
-/// is within 0.02 of the run's offline best fit (measured: at most 0.014), and the median
+/// The trained model on the held-out 15 % runs (0.6 to 1.05 s each, shorter than the
+/// window): the final estimate is within 0.02 of the run's offline best fit where it is
+/// valid, within its band more where not, and the median
 /// over the runs within 0.03 of the label 0.15 (the model's own best fits range from 0.06
 /// to 0.3 on these short runs: its resolution, not the observer's).
 #[test]
@@ -453,8 +526,15 @@ fn converges_on_the_held_out_runs() {
                 "{name}: online {:.4} +- {:.4} offline {best:.4} flags {:?}",
                 end.alpha, end.band, end.flags
             );
+            // Shorter than the window: a run that ends valid is held to 0.02, one that
+            // does not to its band more.
+            let tolerance = if end.flags.valid() {
+                0.02
+            } else {
+                0.02 + end.band
+            };
             assert!(
-                (end.alpha - best).abs() <= 0.02,
+                (end.alpha - best).abs() <= tolerance,
                 "{name}: {end:?} vs offline {best}"
             );
             finals.push(end.alpha);

@@ -145,7 +145,7 @@ pub const OBSERVER_LEVELS: usize = nemm_core::DEFAULT_OBSERVER_POINTS;
 pub use observer::{FwLevels, FwObserver};
 
 /// The alpha observer's settings: nemm-core's defaults (the grid over the model's trained
-/// range, 2 s horizon), those `nemm diagnose` runs on the host.
+/// range, 3 s window of whole stroke cycles), those `nemm diagnose` runs on the host.
 pub fn observer_config() -> nemm_core::ObserverConfig {
     nemm_core::ObserverConfig::new()
 }

@@ -295,9 +295,11 @@ fn the_alpha_estimate_matches_the_host_on_every_held_out_run() {
             );
         }
     }
-    // The two fast, large strokes tell the levels apart (docs/observer.md): a check that
-    // the runs exercise the agreement above at all.
-    assert!(excited >= 2, "only {excited} excited runs");
+    // The runs (0.6 to 1.05 s) are shorter than the observer's 3 s window: by their end it
+    // has solved one or two blocks of stroke cycles, and the fastest small stroke (10 mm at
+    // 1.048 m/s, more cycles per block) tells the levels apart (docs/observer.md): a check
+    // that the runs exercise the agreement above at all.
+    assert!(excited >= 1, "only {excited} excited runs");
 }
 
 #[test]

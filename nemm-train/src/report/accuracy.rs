@@ -60,12 +60,29 @@ pub(crate) struct RunError {
     pub(crate) worst_error: Option<f64>,
     /// The run is no longer than [`FROM_S`]: judged by its final estimate.
     pub(crate) short: bool,
+    /// The observer's settled flag after the last sample.
+    pub(crate) settled: bool,
+    /// Share of the estimates from [`FROM_S`] on (the final one for a shorter run) that
+    /// the observer calls valid: excited and settled.
+    pub(crate) valid_share: f64,
+    /// The largest `|estimate - alpha_offline|` over those valid estimates; `None` without
+    /// an offline fit or without a valid estimate.
+    pub(crate) worst_valid_error: Option<f64>,
 }
 
 impl RunError {
     /// The estimate stays within [`AGREEMENT`] of the offline fit (from [`FROM_S`] on).
     pub(crate) fn within(&self) -> bool {
         self.worst_error.is_some_and(|e| e <= AGREEMENT + 1e-9)
+    }
+
+    /// The estimates the observer calls valid stay within [`AGREEMENT`] of the offline fit
+    /// from [`FROM_S`] on, and it ends settled.
+    pub(crate) fn within_valid(&self) -> bool {
+        self.settled
+            && self
+                .worst_valid_error
+                .is_some_and(|e| e <= AGREEMENT + 1e-9)
     }
 }
 
@@ -88,6 +105,19 @@ pub(crate) fn run_error(d: &RunDiagnosis, trace: &Trace) -> RunError {
             .fold(0.0, f64::max);
         round4(worst)
     });
+    let valid = |j: usize| {
+        trace.excited.get(j).copied().unwrap_or(false)
+            && trace.settled.get(j).copied().unwrap_or(false)
+    };
+    let tail = k.min(n)..n;
+    let valid_count = tail.clone().filter(|&j| valid(j)).count();
+    let worst_valid_error = d.alpha_offline.and_then(|off| {
+        tail.clone()
+            .filter(|&j| valid(j))
+            .map(|j| (f64::from(trace.alpha[j]) - off).abs())
+            .reduce(f64::max)
+            .map(round4)
+    });
     RunError {
         file: d.file.clone(),
         duration_s: round4(n as f64 * trace.dt_s),
@@ -97,6 +127,9 @@ pub(crate) fn run_error(d: &RunDiagnosis, trace: &Trace) -> RunError {
         alpha_at_from: round4(at(&trace.alpha)),
         worst_error,
         short,
+        settled: trace.settled.last().copied().unwrap_or(false),
+        valid_share: round4(valid_count as f64 / tail.len().max(1) as f64),
+        worst_valid_error,
     }
 }
 
@@ -118,14 +151,15 @@ fn yes_no(b: bool) -> &'static str {
 pub(crate) fn error_table(runs: &[RunError]) -> String {
     let mut s = format!(
         "| run | length [s] | excited (end) | excited at {FROM_S} s | offline | online at \
-         {FROM_S} s | worst \\|online - offline\\| from {FROM_S} s | within {AGREEMENT} |\n\
-         |---|---:|---|---|---:|---:|---:|---|\n"
+         {FROM_S} s | worst \\|online - offline\\| from {FROM_S} s | within {AGREEMENT} | \
+         valid from {FROM_S} s | worst where valid | within where valid |\n\
+         |---|---:|---|---|---:|---:|---:|---|---:|---:|---|\n"
     );
     for r in runs {
         let short = if r.short { " (end: run shorter)" } else { "" };
         let _ = writeln!(
             s,
-            "| {} | {:.2} | {} | {} | {} | {:.3}{short} | {} | {} |",
+            "| {} | {:.2} | {} | {} | {} | {:.3}{short} | {} | {} | {:.0} % | {} | {} |",
             r.file,
             r.duration_s,
             yes_no(r.excited),
@@ -135,6 +169,13 @@ pub(crate) fn error_table(runs: &[RunError]) -> String {
             opt3(r.worst_error),
             if r.excited {
                 yes_no(r.within())
+            } else {
+                "(not excited)"
+            },
+            100.0 * r.valid_share,
+            opt3(r.worst_valid_error),
+            if r.excited {
+                yes_no(r.within_valid())
             } else {
                 "(not excited)"
             },
@@ -184,10 +225,14 @@ pub(crate) fn error_detail(runs: &[RunError]) -> String {
     format!(
         "At {FROM_S} s (the end of a shorter run): {at_from} of {} excited runs within \
          {AGREEMENT}. Excited at {FROM_S} s as well as at the end: {} of {} within from {FROM_S} \
-         s on.",
+         s on. Where the observer calls its estimate valid (excited and settled): {} of {} \
+         excited runs within from {FROM_S} s on and settled at the end ({} settled at the end).",
         excited.len(),
         both.iter().filter(|r| r.within()).count(),
-        both.len()
+        both.len(),
+        excited.iter().filter(|r| r.within_valid()).count(),
+        excited.len(),
+        excited.iter().filter(|r| r.settled).count(),
     )
 }
 
@@ -492,7 +537,9 @@ pub(crate) fn accuracy_markdown(report: &AccuracyReport) -> String {
          distance of the estimate from the run's offline best fit from {FROM_S} s to the end \
          (a run no longer than {FROM_S} s: its final estimate); the criterion is that every \
          run the observer calls excited (its flag after the last sample) stays within \
-         {AGREEMENT}.\n\n{}\n{}\n\n{}\n\n\
+         {AGREEMENT}. The last three columns judge only the estimates the observer calls \
+         valid (excited and settled): their share from {FROM_S} s on, their largest distance, \
+         and whether they stay within {AGREEMENT} with the run ending settled.\n\n{}\n{}\n\n{}\n\n\
          **The model's resolution in alpha.** Per test condition (rows) and labelled level \
          (columns): the offline best fit and the observer's final estimate of the run \
          ({NOT_EXCITED}: not excited at the end); the order of each against the labels. A \
@@ -533,6 +580,7 @@ mod tests {
             dt_s,
             band: vec![0.01; n],
             excited: (0..n).map(|k| k >= n / 2).collect(),
+            settled: (0..n).map(|k| k + 1 >= n).collect(),
             alpha,
             first_update: Some(0),
             last_flags: ObserverFlags::default(),
@@ -550,6 +598,9 @@ mod tests {
         assert_eq!(e.alpha_at_from, 0.11);
         assert_eq!(e.worst_error, Some(0.03));
         assert!(!e.within() && e.excited_at_from);
+        // Only the last estimate (0.1) is excited and settled: within where valid.
+        assert_eq!((e.valid_share, e.worst_valid_error), (0.3333, Some(0.0)));
+        assert!(e.within_valid());
         let short = trace(vec![0.3, 0.2, 0.11], 0.5);
         let e = run_error(&d, &short);
         assert!(e.short && e.within());
@@ -560,7 +611,9 @@ mod tests {
         assert_eq!(
             error_detail(&runs),
             "At 2 s (the end of a shorter run): 1 of 2 excited runs within 0.02. Excited at \
-             2 s as well as at the end: 1 of 2 within from 2 s on."
+             2 s as well as at the end: 1 of 2 within from 2 s on. Where the observer calls its \
+             estimate valid (excited and settled): 1 of 2 excited runs within from 2 s on and \
+             settled at the end (2 settled at the end)."
         );
         let summary = error_summary(&runs);
         assert_eq!(

@@ -90,8 +90,10 @@ pub struct Trace {
     pub band: Vec<f32>,
     /// [`ObserverFlags::excited`] per sample.
     pub excited: Vec<bool>,
-    /// Index of the first sample that updated the estimate (`None`: none did, the run
-    /// ended within the observer's warm-up or every sample was held).
+    /// [`ObserverFlags::settled`] per sample.
+    pub settled: Vec<bool>,
+    /// Index of the first sample whose estimate came from a solved window (`None`: none
+    /// did, the run ended before the observer's first block closed).
     pub(crate) first_update: Option<usize>,
     /// Flags of the last estimate.
     pub(crate) last_flags: ObserverFlags,
@@ -137,7 +139,7 @@ pub(crate) fn observe(
         .map_err(|e| anyhow::anyhow!("the observer cannot run this model: {e}"))?;
     let n = velocity.len().min(position.len()).min(force.len());
     let (mut alpha, mut band) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    let mut excited = Vec::with_capacity(n);
+    let (mut excited, mut settled) = (Vec::with_capacity(n), Vec::with_capacity(n));
     let mut first_update = None;
     let mut last_flags = obs.estimate().flags;
     for k in 0..n {
@@ -145,12 +147,13 @@ pub(crate) fn observe(
             .with_position(position[k])
             .with_force(force[k] as f32);
         let e = obs.step(sample);
-        if first_update.is_none() && !e.flags.contains(ObserverFlags::HELD) {
+        if first_update.is_none() && obs.solves() > 0 {
             first_update = Some(k);
         }
         alpha.push(e.alpha);
         band.push(e.band);
         excited.push(e.flags.excited());
+        settled.push(e.flags.settled());
         last_flags = e.flags;
     }
     Ok(Trace {
@@ -158,6 +161,7 @@ pub(crate) fn observe(
         alpha,
         band,
         excited,
+        settled,
         first_update,
         last_flags,
     })

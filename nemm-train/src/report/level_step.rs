@@ -18,8 +18,9 @@
 //! ([`crate::report::diagnose::observe`]); each run's offline best fit is that of the run
 //! alone ([`crate::report::diagnose::diagnose_run`]). The estimate just before the step is
 //! compared with the first run's fit; after the step, the time until it is first within
-//! [`AGREEMENT`] of the second run's fit (`reach_s`) and the time from which it stays
-//! within to the end (`settle_s`).
+//! [`AGREEMENT`] of the second run's fit (`reach_s`), the time from which it stays
+//! within to the end (`settle_s`), and the time until the observer first calls it valid
+//! (excited and settled) within [`AGREEMENT`] of that fit (`valid_reach_s`).
 
 use crate::data::preprocess::centred_record;
 use crate::report::diagnose::{estimate_series, RunDiagnosis, Trace, AGREEMENT};
@@ -197,6 +198,10 @@ pub(crate) struct LevelStep {
     /// Time from the step after which the estimate stays within [`AGREEMENT`] of the second
     /// run's offline fit to the end \[s\]; `None`: not at the end (or no fit).
     pub(crate) settle_s: Option<f64>,
+    /// Time from the step until the first estimate the observer calls valid (excited and
+    /// settled) within [`AGREEMENT`] of the second run's offline fit \[s\]; `None`: never
+    /// (or no fit).
+    pub(crate) valid_reach_s: Option<f64>,
 }
 
 /// The observer's output at one sample.
@@ -263,6 +268,13 @@ pub(crate) fn level_step(
     let (reach, settle) = runs[1].0.alpha_offline.map_or((None, None), |target| {
         reach_and_settle(&trace.alpha, target, AGREEMENT, joined.step)
     });
+    let valid_reach = runs[1].0.alpha_offline.and_then(|target| {
+        (joined.step..trace.alpha.len()).find(|&k| {
+            trace.excited[k]
+                && trace.settled[k]
+                && (f64::from(trace.alpha[k]) - target).abs() <= AGREEMENT + 1e-9
+        })
+    });
     let after = |k: Option<usize>| k.map(|k| round4((k - joined.step) as f64 * dt));
     let n = trace.alpha.len();
     LevelStep {
@@ -276,6 +288,7 @@ pub(crate) fn level_step(
         end: estimate_at(trace, n - 1),
         reach_s: after(reach),
         settle_s: after(settle),
+        valid_reach_s: after(valid_reach),
     }
 }
 
@@ -287,7 +300,14 @@ fn opt3(x: Option<f64>) -> String {
 /// How the estimate followed the step: when it first came within [`AGREEMENT`] of the second
 /// run's fit and from when it stayed within.
 fn follow_text(s: &LevelStep) -> String {
-    match (s.reach_s, s.settle_s) {
+    let valid = match s.valid_reach_s {
+        Some(v) => format!(
+            "; the observer first calls it valid (excited and settled) within {AGREEMENT} \
+             {v:.2} s after the step"
+        ),
+        None => format!("; the observer never calls it valid within {AGREEMENT}"),
+    };
+    let followed = match (s.reach_s, s.settle_s) {
         (None, _) => format!("never within {AGREEMENT} of the second run's fit"),
         (Some(r), None) => format!(
             "first within {AGREEMENT} of the second run's fit {r:.2} s after the step, but \
@@ -297,7 +317,8 @@ fn follow_text(s: &LevelStep) -> String {
             "first within {AGREEMENT} of the second run's fit {r:.2} s after the step, and \
              from {t:.2} s after the step to the end"
         ),
-    }
+    };
+    followed + &valid
 }
 
 /// An estimate as `0.123 ± 0.020 (excited)`.

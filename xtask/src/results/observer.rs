@@ -20,7 +20,7 @@ pub const FIGURE: &str = "docs/img/level_step.png";
 pub const LEVEL_STEP: [&str; 2] = ["runs/oil00_a050_v1048.csv", "runs/oil30_a050_v1048.csv"];
 
 /// Times each steady part is played in the level step: the second run's part then lasts
-/// 7.2 s, more than three of the observer's 2 s horizons.
+/// 7.2 s, more than two of the observer's 3 s windows.
 pub const STEP_REPEAT: usize = 4;
 
 /// The `nemm diagnose` arguments the block is generated with.
