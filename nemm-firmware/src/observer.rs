@@ -91,4 +91,10 @@ impl FwObserver {
     pub fn evaluations_per_step(&self) -> usize {
         self.observer.evaluations_per_step()
     }
+
+    /// Windows solved since the last load or reset ([`AlphaObserver::solves`]): one per
+    /// close of a block of stroke cycles, the observer's heaviest step.
+    pub fn solves(&self) -> u32 {
+        self.observer.solves()
+    }
 }

@@ -155,6 +155,10 @@ pub struct ObserverFigures {
     pub bytes: u64,
     /// Instructions per observer step.
     pub instructions_per_step: u64,
+    /// Instructions of the longest measured observer step, and of the step that closes a
+    /// block of stroke cycles (solving the window: the heaviest; `None` if the benchmark
+    /// met none).
+    pub max_step: (u64, Option<u64>),
     /// Instructions per step of the estimator with a level per sample on the same level
     /// tables (attached with `Estimator::attach_levels`, the `level-step` line; `None`
     /// without level tables).
@@ -163,17 +167,21 @@ pub struct ObserverFigures {
 
 impl ObserverFigures {
     /// `target-observer model=<kind> integrator=<rk4|rk3> levels=<n> levels_from=<blob|exact>
-    /// model_steps=<n> instructions_per_step=<N> ram_bytes=<B>`.
+    /// model_steps=<n> instructions_per_step=<N> max_step_instructions=<M>
+    /// close_step_instructions=<C|none> ram_bytes=<B>`.
     pub fn line(&self) -> String {
         format!(
             "target-observer model={} integrator={} levels={} levels_from={} model_steps={} \
-             instructions_per_step={} ram_bytes={}",
+             instructions_per_step={} max_step_instructions={} close_step_instructions={} \
+             ram_bytes={}",
             self.model,
             self.integrator,
             self.levels,
             self.levels_from,
             self.model_steps,
             self.instructions_per_step,
+            self.max_step.0,
+            self.max_step.1.map_or("none".into(), |n| n.to_string()),
             self.bytes
         ) + &self
             .level_step_instructions
@@ -222,8 +230,29 @@ fn parse_observer(out: &str) -> Result<ObserverFigures, String> {
         model_steps: u32::try_from(num("model_steps")?).map_err(|e| e.to_string())?,
         bytes: num("bytes")?,
         instructions_per_step: own,
+        max_step: parse_observer_steps(out)?,
         level_step_instructions: parse_level_step(out)?,
     })
+}
+
+/// The longest measured observer step and the close step of the `observer-steps` line
+/// (instructions).
+fn parse_observer_steps(out: &str) -> Result<(u64, Option<u64>), String> {
+    let line = out
+        .lines()
+        .find(|l| l.starts_with("observer-steps "))
+        .ok_or_else(|| format!("no `observer-steps` line in the benchmark output:\n{out}"))?;
+    let f = fields(line);
+    let num = |k: &str| -> Option<Result<u64, String>> {
+        f.iter().find(|(key, _)| *key == k).map(|(_, v)| {
+            v.parse()
+                .map_err(|e| format!("`{k}` in the benchmark's observer-steps line: {e}"))
+        })
+    };
+    let max = num("max_step_instructions")
+        .ok_or_else(|| format!("no `max_step_instructions` in:\n{line}"))??;
+    let close = num("close_step_instructions").transpose()?;
+    Ok((max, close))
 }
 
 /// The instructions per step of the `level-step` line, if the output has one; checked
@@ -377,12 +406,14 @@ bench kind=linear-emm+lm integrator=rk3 mode=exact hidden=0 layers=0 steps=4000 
         let out = "\
 calibration iterations=1000000 int_loop_ticks=50000 fp_loop_ticks=75000
 observer kind=nemm integrator=rk4 levels=7 levels_from=blob model_steps=7 bytes=21572 hidden=16 layers=5 steps=4000 ticks=14060122 baseline_ticks=800 instructions_per_step=140593 held=0
+observer-steps closes=0 max_step_ticks=3600 max_step_instructions=144000 close_step_ticks=3700 close_step_instructions=148000
 ";
         let f = parse_observer(out).expect("parse");
         assert_eq!(
             f.line(),
             "target-observer model=nemm integrator=rk4 levels=7 levels_from=blob model_steps=7 \
-             instructions_per_step=140593 ram_bytes=21572"
+             instructions_per_step=140593 max_step_instructions=144000 \
+             close_step_instructions=148000 ram_bytes=21572"
         );
         assert!(parse_observer(&out.replace("held=0", "held=3")).is_err());
         assert!(parse_observer(&out.replace("=140593", "=99999")).is_err());

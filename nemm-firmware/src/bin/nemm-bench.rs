@@ -61,7 +61,13 @@
 //!   `observer kind=nemm integrator=rk4 levels=7 model_steps=7 bytes=<B> steps=N
 //!   ticks=<t> baseline_ticks=<b> instructions_per_step=<n> held=<h>` (`held`: measured steps
 //!   that did not update the estimate; `integrator`: the model's; `bytes`: the observer's
-//!   RAM, its level tables (in their own static) included when it steps on them).
+//!   RAM, its level tables (in their own static) included when it steps on them), then
+//!   `observer-steps closes=<c> max_step_ticks=<m> max_step_instructions=<i>
+//!   close_step_ticks=<t> close_step_instructions=<j>`: `closes` the measured steps that
+//!   closed a block of stroke cycles, `max_step_*` the longest measured step, `close_step_*`
+//!   the first close of a block (the heaviest step: the window's sums and fits), met by
+//!   stepping on over the trace again if none was measured (`close_step=none` if none in
+//!   20 passes); instructions less the mean baseline of one timing.
 #![no_std]
 #![no_main]
 
@@ -794,13 +800,34 @@ fn observer_run(
         black_box((black_box(v), black_box(f)));
         baseline = baseline.wrapping_add(ticks_since(start));
     }
-    let (mut ticks, mut held) = (0u32, 0u32);
+    let (mut ticks, mut held, mut max_ticks) = (0u32, 0u32, 0u32);
+    let solves_before = observer.solves();
     for (&v, &f) in velocities.iter().zip(forces) {
         let start = SYST::get_current();
         let e = black_box(observer_step(observer, black_box(v), black_box(f)));
-        ticks = ticks.wrapping_add(ticks_since(start));
+        let step_ticks = ticks_since(start);
+        ticks = ticks.wrapping_add(step_ticks);
+        max_ticks = max_ticks.max(step_ticks);
         if e.flags.contains(ObserverFlags::HELD) {
             held += 1;
+        }
+    }
+    let closes = observer.solves().wrapping_sub(solves_before);
+    let one_baseline = baseline / n.max(1) as u32;
+    // The first close of a block of stroke cycles (the heaviest step: the window's sums and
+    // fits), stepping on over the trace again (untimed but for the step itself) until one
+    // happens, at most CLOSE_PASSES passes.
+    let mut close = None;
+    'passes: for _ in 0..CLOSE_PASSES {
+        for (&v, &f) in velocities.iter().zip(forces) {
+            let before = observer.solves();
+            let start = SYST::get_current();
+            black_box(observer_step(observer, black_box(v), black_box(f)));
+            let step_ticks = ticks_since(start);
+            if observer.solves() != before {
+                close = Some(step_ticks);
+                break 'passes;
+            }
         }
     }
     let mut l = Line::new();
@@ -830,8 +857,29 @@ fn observer_run(
         )
         .kv("held", held);
     console.write(l.finish());
+    let instructions =
+        |t: u32| instructions_per_step(t.saturating_sub(one_baseline), int_loop_ticks, 1);
+    let mut l = Line::new();
+    l.str("observer-steps")
+        .kv("closes", closes)
+        .kv("max_step_ticks", max_ticks)
+        .kv("max_step_instructions", instructions(max_ticks));
+    match close {
+        Some(t) => {
+            l.kv("close_step_ticks", t)
+                .kv("close_step_instructions", instructions(t));
+        }
+        None => {
+            l.str("close_step=none");
+        }
+    }
+    console.write(l.finish());
     observer
 }
+
+/// Passes over the measured trace the observer benchmark steps on at most to meet a close
+/// of a block of stroke cycles.
+const CLOSE_PASSES: usize = 20;
 
 /// The observer's RAM \[B\]: `FwObserver` and, when it steps on them, its level tables.
 fn observer_bytes(observer: &FwObserver) -> u32 {

@@ -443,6 +443,7 @@ mod tests {
                     model_steps: 7,
                     bytes: 21572,
                     instructions_per_step: 116_558,
+                    max_step: (118_000, Some(121_000)),
                     level_step_instructions: Some(1514),
                 }),
                 cycles: &cycles,
