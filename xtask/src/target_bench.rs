@@ -415,6 +415,15 @@ observer-steps closes=0 max_step_ticks=3600 max_step_instructions=144000 close_s
              instructions_per_step=140593 max_step_instructions=144000 \
              close_step_instructions=148000 ram_bytes=21572"
         );
+        // A run too short to meet a close of a block of stroke cycles.
+        let no_close = out.replace(
+            " close_step_ticks=3700 close_step_instructions=148000",
+            " close_step=none",
+        );
+        assert_eq!(
+            parse_observer(&no_close).expect("parse").max_step,
+            (144000, None)
+        );
         assert!(parse_observer(&out.replace("held=0", "held=3")).is_err());
         assert!(parse_observer(&out.replace("=140593", "=99999")).is_err());
         assert!(parse_observer("calibration\n").is_err());

@@ -870,7 +870,7 @@ fn observer_run(
                 .kv("close_step_instructions", instructions(t));
         }
         None => {
-            l.str("close_step=none");
+            l.str(" close_step=none");
         }
     }
     console.write(l.finish());
