@@ -11,7 +11,8 @@
 //! segments, bound 1e-4: the firmware's tables), stores the tables in a blob as `nemm export
 //! --tables-levels` does, loads them into `LevelTables` and prints:
 //!
-//! - the tables section's bytes in the blob (flash) and the tables' RAM;
+//! - the tables section's bytes in the blob (flash, where the tables are read in place) and
+//!   the level tables' own RAM;
 //! - `LevelTables::check` (7 levels inside each interval, 16 states per segment): the worst
 //!   relative error of each blended coefficient against the exact scalers, and the points
 //!   where neighbouring levels are out of the declared order in the tables and in the
@@ -24,8 +25,8 @@
 
 use nemm_core::Sample;
 use nemm_core::{
-    decode, decode_into, encode_with_tables, encoded_len_with_tables, Estimator, EstimatorConfig,
-    EvalMode, LevelTables, Model, TableConfig, DEFAULT_PARAM_CAPACITY,
+    decode, decode_into, encode_with_tables, encoded_len_with_tables, AlignedBlob, Estimator,
+    EstimatorConfig, EvalMode, LevelTables, Model, TableConfig, DEFAULT_PARAM_CAPACITY,
 };
 
 const P: usize = DEFAULT_PARAM_CAPACITY;
@@ -67,7 +68,7 @@ fn blob_with_levels(m: &Model, alphas: &[f32]) -> Vec<u8> {
 
 /// Largest and RMS |force difference| / force scale of the levels against the exact
 /// estimator over `runs` (velocity, alpha per sample), each from rest.
-fn force_error(m: &Model, levels: &LevelTables<T, 16>, runs: &[Vec<(f32, f32)>]) -> (f64, f64) {
+fn force_error(m: &Model, levels: &LevelTables<'_, T, 16>, runs: &[Vec<(f32, f32)>]) -> (f64, f64) {
     let mut exact: Box<Estimator<P, 3>> = Box::new(Estimator::empty());
     let mut tab: Box<Estimator<P, 3>> = Box::new(Estimator::empty());
     let (mut worst, mut sum2, mut n) = (0.0f64, 0.0f64, 0usize);
@@ -120,10 +121,11 @@ fn main() {
         let alphas: Vec<f32> = (0..count)
             .map(|k| lo + (hi - lo) * k as f32 / (count - 1) as f32)
             .collect();
-        let with = blob_with_levels(&m, &alphas);
+        // Held 4-byte aligned: the level tables read it in place.
+        let with = AlignedBlob::new(&blob_with_levels(&m, &alphas));
         let mut mm: Box<Model> = Box::new(Model::empty());
         let tables = decode_into(&with, &mut mm).expect("decodes");
-        let mut levels: Box<LevelTables<T, 16>> = Box::new(LevelTables::empty());
+        let mut levels: Box<LevelTables<'_, T, 16>> = Box::new(LevelTables::empty());
         levels.load(&mm, &tables, &with).expect("levels");
         let mut ex: Box<Estimator<P, 3>> = Box::new(Estimator::empty());
         ex.load(&mm, EstimatorConfig::new(lo)).expect("loads");
@@ -148,7 +150,8 @@ fn main() {
         // The tables section's bytes: the blob with these levels over the model without any.
         let plain = encoded_len_with_tables::<P, T>(&m, &[]).expect("encodes");
         let flash = with.len().saturating_sub(plain);
-        let ram = levels.table_bytes().1;
+        // The level tables' own RAM: the tables are read in place from the blob.
+        let ram = core::mem::size_of::<LevelTables<'_, T, 16>>();
         let [e_fl, e_pr, e_k] = c.max_rel_error;
         let order = format!(
             "{} / {} (of {})",

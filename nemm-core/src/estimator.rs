@@ -119,6 +119,7 @@ use nemm_kernels::math::{Fused, MulAdd, Unfused};
 use nemm_kernels::mlp::{AlphaBranch, CompiledScaler, Scaler, DEFAULT_PARAM_CAPACITY};
 use nemm_kernels::sem::{SemMap, MAX_SEM_VELOCITIES};
 use nemm_kernels::static_force::StaticForce;
+use nemm_kernels::table::StoredLayout;
 use nemm_kernels::table::{
     self, Table1D, TableAccuracy, TableConfig, TableError, DEFAULT_TABLE_SEGMENTS,
 };
@@ -309,8 +310,9 @@ impl<'l, const P: usize, const T: usize> Estimator<'l, P, T> {
                     _ => Err(StoredUnused::NotOffered),
                 };
                 let blob = stored.map(|(_, b)| b);
-                let bytes = |t: Option<StoredTable>| -> Option<&[u8]> {
-                    blob?.get(usize::try_from(t?.offset).ok()?..)
+                let bytes = |t: Option<StoredTable>| -> Option<(&[u8], StoredLayout)> {
+                    let t = t?;
+                    Some((blob?.get(usize::try_from(t.offset).ok()?..)?, t.layout))
                 };
                 let (stored_b_fl, stored_k_pr) = match level {
                     Ok(l) => (bytes(l.b_fl), bytes(l.k_pr)),

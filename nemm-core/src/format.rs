@@ -8,7 +8,8 @@
 //! | body (body_len bytes): postcard-encoded Model (version-1 fields), then, |
 //! | from version 3 on, its condition, alpha branches and provenance, then,  |
 //! | from version 4 on, Option<StaticForce>, (from version 5 on)             |
-//! | Option<LostMotion>, and the tables section                              |
+//! | Option<LostMotion>, and the tables section (from version 6 on padded,   |
+//! | so that its tables lie 4-byte aligned from the blob's start)            |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -26,7 +27,9 @@
 //! (`Option<StaticForce>`), then the tables section: precomputed fast-path tables for
 //! declared oil-loss levels ([`tables`]; one byte, no levels, in a blob written by
 //! [`encode`]); version 5 inserts [`Model::lost_motion`] (`Option<LostMotion>`) between
-//! those two. A blob of an earlier version decodes with the fields it lacks at their
+//! those two; version 6 stores each table as its memory image, 4-byte aligned from the
+//! blob's start, so that a blob held aligned (a flash slot) is read in place
+//! ([`crate::LevelTables`]). A blob of an earlier version decodes with the fields it lacks at their
 //! defaults ([`crate::Condition::default`], no branches, no provenance, no static force,
 //! no lost motion, no tables), which reproduces what those versions meant (the paper's
 //! oil loss).
@@ -58,7 +61,7 @@ use tables::{StoredTables, TableLevel};
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 5;
+pub const FORMAT_VERSION: u16 = 6;
 /// Oldest format version this build reads.
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
@@ -223,29 +226,52 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
 /// Writes (or counts) the body of `model`: the version-1 part, the version-3 fields
 /// (condition, alpha branches, provenance: postcard writes a tuple as it writes a struct of
 /// those fields), then the version-4 sections: the static force, the lost-motion element
-/// (version 5) and the tables section of `levels`.
+/// (version 5) and the tables section of `levels` (version 6: after `pad` zero bytes).
 fn write_body<const P: usize, const T: usize>(
     model: &Model<P>,
     levels: &[TableLevel<'_, T>],
+    pad: u8,
     w: &mut Writer<'_>,
 ) -> Result<(), EncodeError> {
+    write_prefix(model, w)?;
+    tables::write_section(model, levels, pad, w)
+}
+
+/// Writes (or counts) the body of `model` up to its tables section.
+fn write_prefix<const P: usize>(model: &Model<P>, w: &mut Writer<'_>) -> Result<(), EncodeError> {
     let too_small = EncodeError::BufferTooSmall;
     w.put(model).ok_or(too_small)?;
     w.put(&(&model.condition, &model.alpha_branches, &model.provenance))
         .ok_or(too_small)?;
     w.put(&model.static_force).ok_or(too_small)?;
     w.put(&model.lost_motion).ok_or(too_small)?;
-    tables::write_section(model, levels, w)
+    Ok(())
 }
 
-/// Length in bytes of the body of `model` with the tables of `levels`.
-fn body_len<const P: usize, const T: usize>(
+/// The layout of the blob of `model` with the tables of `levels`: its header length, its
+/// body length and the tables section's padding, chosen so that the section's contents
+/// start at a multiple of 4 bytes from the blob's start ([`tables`]). The header's
+/// `body_len` is a varint, so its length can depend on the padding: of the paddings
+/// `0 ..= 7`, the first that agrees with the header it gives is taken (two candidates per
+/// residue, and a varint's length changes at most once over 8 bytes, so one agrees).
+fn layout<const P: usize, const T: usize>(
     model: &Model<P>,
     levels: &[TableLevel<'_, T>],
-) -> Result<usize, EncodeError> {
+) -> Result<(usize, usize, u8), EncodeError> {
     let mut w = Writer::counter();
-    write_body(model, levels, &mut w)?;
-    Ok(w.len())
+    write_prefix(model, &mut w)?;
+    let prefix = w.len();
+    for pad in 0..=tables::MAX_PAD {
+        let mut w = Writer::counter();
+        write_body(model, levels, pad, &mut w)?;
+        let body_len = w.len();
+        let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
+            .map_err(|_| EncodeError::BufferTooSmall)?;
+        if (header_len + prefix + 1 + usize::from(pad)).is_multiple_of(4) {
+            return Ok((header_len, body_len, pad));
+        }
+    }
+    Err(EncodeError::Tables)
 }
 
 /// Length in bytes of the blob of `model` (header, body, CRC).
@@ -258,9 +284,7 @@ pub(crate) fn encoded_len_with_levels<const P: usize, const T: usize>(
     model: &Model<P>,
     levels: &[TableLevel<'_, T>],
 ) -> Result<usize, EncodeError> {
-    let body_len = body_len(model, levels)?;
-    let header_len = postcard::experimental::serialized_size(&header_for(model, body_len))
-        .map_err(|_| EncodeError::BufferTooSmall)?;
+    let (header_len, body_len, _) = layout(model, levels)?;
     Ok(header_len + body_len + CRC_LEN)
 }
 
@@ -281,16 +305,19 @@ pub(crate) fn encode_with_levels<'b, const P: usize, const T: usize>(
     buf: &'b mut [u8],
 ) -> Result<&'b [u8], EncodeError> {
     model.validate().map_err(EncodeError::Invalid)?;
-    let body_len = body_len(model, levels)?;
+    let (header_len, body_len, pad) = layout(model, levels)?;
     let hlen = postcard::to_slice(&header_for(model, body_len), buf)
         .map_err(|_| EncodeError::BufferTooSmall)?
         .len();
+    if hlen != header_len {
+        return Err(EncodeError::BufferTooSmall);
+    }
     let end = hlen
         .checked_add(body_len)
         .ok_or(EncodeError::BufferTooSmall)?;
     let body_area = buf.get_mut(hlen..end).ok_or(EncodeError::BufferTooSmall)?;
     let mut w = Writer::new(body_area);
-    write_body(model, levels, &mut w)?;
+    write_body(model, levels, pad, &mut w)?;
     if w.len() != body_len {
         return Err(EncodeError::BufferTooSmall);
     }
@@ -318,6 +345,46 @@ pub(crate) fn encode_to_vec_with_levels<const P: usize, const T: usize>(
     let n = encode_with_levels(model, levels, &mut out)?.len();
     out.truncate(n);
     Ok(out)
+}
+
+/// A copy of a blob held 4-byte aligned, so that its tables can be read in place
+/// ([`crate::LevelTables`]) on the host, where a `Vec<u8>` (a file read into memory) has no
+/// alignment guarantee. Dereferences to the blob's bytes.
+#[cfg(feature = "std")]
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AlignedBlob {
+    words: std::vec::Vec<u32>,
+    len: usize,
+}
+
+#[cfg(feature = "std")]
+impl AlignedBlob {
+    /// Copies `blob`.
+    pub fn new(blob: &[u8]) -> Self {
+        let mut words = std::vec![0u32; blob.len().div_ceil(4)];
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut words);
+        if let Some(to) = bytes.get_mut(..blob.len()) {
+            to.copy_from_slice(blob);
+        }
+        Self {
+            words,
+            len: blob.len(),
+        }
+    }
+
+    /// The blob's bytes, 4-byte aligned.
+    pub fn as_bytes(&self) -> &[u8] {
+        let bytes: &[u8] = bytemuck::cast_slice(&self.words);
+        bytes.get(..self.len).unwrap_or(&[])
+    }
+}
+
+#[cfg(feature = "std")]
+impl core::ops::Deref for AlignedBlob {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        self.as_bytes()
+    }
 }
 
 /// Reads only the header (after checking magic and version), without the CRC or body.
@@ -504,7 +571,7 @@ pub fn decode_into<const P: usize>(
         };
         let neural = tables::neural(model);
         tables
-            .read(rest, covered, stored, neural)
+            .read(rest, covered, stored, neural, header.version)
             .ok_or(DecodeError::Malformed { part: "tables" })?
     } else {
         model.static_force = None;

@@ -100,14 +100,15 @@ pub use estimator::{
     DEFAULT_VELOCITY_LIMIT_FACTOR, DIVERGENCE_FACTOR,
 };
 // The weight format.
-#[cfg(feature = "std")]
-pub use format::encode_to_vec;
 pub use format::tables::{StoredLevel, StoredTable, StoredTables, StoredUnused};
 pub use format::{
     check_frame, decode, decode_into, decode_with_tables, encode, encoded_len, read_header,
     DecodeError, EncodeError, Frame, Header, CRC, CRC_LEN, FORMAT_VERSION, MAGIC, MAX_HEADER_LEN,
     OLDEST_FORMAT_VERSION,
 };
+#[cfg(feature = "std")]
+pub use format::{encode_to_vec, AlignedBlob};
+pub use nemm_kernels::table::StoredLayout;
 // The model.
 pub use model::{
     shortest_stable_time_constant_s, AlphaBranches, Body, Condition, InputScales, Meta, Model,

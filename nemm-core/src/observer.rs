@@ -635,7 +635,7 @@ impl<'l, const P: usize, const K: usize> AlphaObserver<'l, P, K> {
     pub fn load_on_levels<const T: usize, const L: usize>(
         &mut self,
         model: &Model<P>,
-        levels: &'l LevelTables<T, L>,
+        levels: &'l LevelTables<'_, T, L>,
         cfg: ObserverConfig,
     ) -> Result<(), ObserverError> {
         self.load_with(model, &cfg, Some(levels))

@@ -10,8 +10,8 @@ use common::blob_with_tables;
 use nemm_core::testing::example_model_with_branches;
 use nemm_core::Sample;
 use nemm_core::{
-    decode_into, AlphaObserver, Estimator, EstimatorConfig, EstimatorError, EvalMode, Flags,
-    LevelTables, LevelsError, Model, ModelKind, ObserverConfig, Priors, TableConfig,
+    decode_into, AlignedBlob, AlphaObserver, Estimator, EstimatorConfig, EstimatorError, EvalMode,
+    Flags, LevelTables, LevelsError, Model, ModelKind, ObserverConfig, Priors, TableConfig,
 };
 use nemm_kernels::emm::State;
 
@@ -19,7 +19,7 @@ const P: usize = 1400;
 const T: usize = 128;
 const LEVELS: [f32; 7] = [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3];
 
-type Levels = LevelTables<T, 8>;
+type Levels = LevelTables<'static, T, 8>;
 
 fn model() -> Box<Model<P>> {
     let mut m = Box::new(example_model_with_branches::<P>(16, 5, 8, Priors::PAPER).unwrap());
@@ -35,8 +35,14 @@ fn table_cfg(alpha: f32) -> EstimatorConfig {
     }
 }
 
-/// The blob of `m` with tables of `T` segments at `alphas`.
-fn blob_with(m: &Model<P>, alphas: &[f32]) -> Vec<u8> {
+/// The blob of `m` with tables of `T` segments at `alphas`, held 4-byte aligned for the
+/// test's whole run (level tables read it in place).
+fn blob_with(m: &Model<P>, alphas: &[f32]) -> &'static [u8] {
+    Box::leak(Box::new(AlignedBlob::new(&blob_vec(m, alphas))))
+}
+
+/// The blob of `m` with tables of `T` segments at `alphas`, as the encoder returns it.
+fn blob_vec(m: &Model<P>, alphas: &[f32]) -> Vec<u8> {
     let ests: Vec<Box<Estimator<P, T>>> = alphas
         .iter()
         .map(|&a| {
@@ -50,17 +56,17 @@ fn blob_with(m: &Model<P>, alphas: &[f32]) -> Vec<u8> {
 }
 
 /// The decoded model, its level tables and the blob.
-fn loaded(alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, Vec<u8>) {
+fn loaded(alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, &'static [u8]) {
     loaded_of(&model(), alphas)
 }
 
 /// [`loaded`] for the model `of`.
-fn loaded_of(of: &Model<P>, alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, Vec<u8>) {
+fn loaded_of(of: &Model<P>, alphas: &[f32]) -> (Box<Model<P>>, Box<Levels>, &'static [u8]) {
     let blob = blob_with(of, alphas);
     let mut m: Box<Model<P>> = Box::new(Model::empty());
-    let tables = decode_into(&blob, &mut m).expect("decodes");
+    let tables = decode_into(blob, &mut m).expect("decodes");
     let mut levels: Box<Levels> = Box::new(LevelTables::empty());
-    levels.load(&m, &tables, &blob).expect("levels load");
+    levels.load(&m, &tables, blob).expect("levels load");
     (m, levels, blob)
 }
 
@@ -79,8 +85,8 @@ fn velocity(k: usize, amp: f32) -> f32 {
 fn at_a_stored_level_the_step_is_the_table_mode_estimators() {
     let (m, levels, blob) = loaded(&LEVELS);
     assert_eq!(levels.alphas(), &LEVELS);
-    assert_eq!(levels.table_bytes(), (14, 14 * 28 * T));
-    stored_levels_step_as_table_mode(&m, &levels, &blob);
+    assert_eq!(levels.table_bytes(), (14, 14 * (32 + 28 * T)));
+    stored_levels_step_as_table_mode(&m, &levels, blob);
 }
 
 /// With the lost-motion element too: the level tables apply it at the level in use, as the
@@ -91,7 +97,7 @@ fn with_lost_motion_a_stored_level_step_is_the_table_mode_estimators() {
     m.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
     let (m, levels, blob) = loaded_of(&m, &LEVELS);
     assert!(m.lost_motion.is_some());
-    stored_levels_step_as_table_mode(&m, &levels, &blob);
+    stored_levels_step_as_table_mode(&m, &levels, blob);
 }
 
 /// At levels 0, 3 and 6 of [`LEVELS`] a level-per-sample step is bit for bit the
@@ -256,21 +262,21 @@ fn bad_levels_and_bad_inputs_are_refused_or_held() {
     // one export belong together.
     let one = blob_with(&m, &[0.1]);
     let mut mm: Box<Model<P>> = Box::new(Model::empty());
-    let tables = decode_into(&one, &mut mm).unwrap();
+    let tables = decode_into(one, &mut mm).unwrap();
     let mut l: Box<Levels> = Box::new(LevelTables::empty());
     assert_eq!(
-        l.load(&mm, &tables, &one),
+        l.load(&mm, &tables, one),
         Err(LevelsError::TooFewLevels {
             found: 1,
             segments: T
         })
     );
-    let tables = decode_into(&blob, &mut mm).unwrap();
-    assert_eq!(l.load(&mm, &tables, &one), Err(LevelsError::OtherBlob));
+    let tables = decode_into(blob, &mut mm).unwrap();
+    assert_eq!(l.load(&mm, &tables, one), Err(LevelsError::OtherBlob));
     assert!(l.is_empty());
-    let mut small: Box<LevelTables<T, 4>> = Box::new(LevelTables::empty());
+    let mut small: Box<LevelTables<'_, T, 4>> = Box::new(LevelTables::empty());
     assert_eq!(
-        small.load(&mm, &tables, &blob),
+        small.load(&mm, &tables, blob),
         Err(LevelsError::TooManyLevels {
             found: 7,
             capacity: 4
@@ -278,7 +284,7 @@ fn bad_levels_and_bad_inputs_are_refused_or_held() {
     );
     let sem = nemm_core::testing::example_model::<P>(ModelKind::Sem, 16, 5).unwrap();
     assert_eq!(
-        l.load(&sem, &tables, &blob),
+        l.load(&sem, &tables, blob),
         Err(LevelsError::NoNeuralCoefficient)
     );
 }
@@ -324,4 +330,102 @@ fn the_observer_on_levels_agrees_with_the_exact_observer() {
         ..ObserverConfig::new()
     };
     assert!(o.load_on_levels(&m, &levels, bad).is_err());
+}
+
+#[test]
+fn the_tables_are_read_in_place_from_an_aligned_blob_only() {
+    let (m, levels, blob) = loaded(&LEVELS);
+    drop(m);
+    // In place: the level tables take a few hundred bytes whatever their number; the
+    // tables lie in the blob.
+    assert!(
+        core::mem::size_of::<Levels>() < 512,
+        "{}",
+        core::mem::size_of::<Levels>()
+    );
+    let (_, bytes) = levels.table_bytes();
+    assert!(bytes < blob.len());
+    // The same blob one byte off the 4-byte boundary: refused, typed, nothing loaded.
+    let mut shifted: Vec<u32> = vec![0; blob.len().div_ceil(4) + 1];
+    let off: &mut [u8] = bytemuck::cast_slice_mut(&mut shifted);
+    let off = &mut off[1..=blob.len()];
+    off.copy_from_slice(blob);
+    let off: &[u8] = off;
+    let mut mm: Box<Model<P>> = Box::new(Model::empty());
+    let tables = decode_into(off, &mut mm).expect("an unaligned blob decodes");
+    let mut l: Box<LevelTables<'_, T, 8>> = Box::new(LevelTables::empty());
+    assert_eq!(l.load(&mm, &tables, off), Err(LevelsError::Unaligned));
+    assert!(l.is_empty());
+    // A table-mode estimator copies the stored tables from any alignment: the same
+    // tables as from the aligned blob.
+    let mut a: Box<Estimator<P, T>> = Box::new(Estimator::empty());
+    a.load_with_tables(&mm, table_cfg(LEVELS[2]), &tables, off)
+        .unwrap();
+    let mut b: Box<Estimator<P, T>> = Box::new(Estimator::empty());
+    let aligned = decode_into(blob, &mut mm).unwrap();
+    b.load_with_tables(&mm, table_cfg(LEVELS[2]), &aligned, blob)
+        .unwrap();
+    assert_eq!(
+        a.table_origin(),
+        b.table_origin(),
+        "both read the stored tables"
+    );
+    for i in 0..2_000 {
+        let v = velocity(i, 0.6);
+        let (fa, fb) = (
+            a.step(Sample::new(v)).unwrap(),
+            b.step(Sample::new(v)).unwrap(),
+        );
+        assert_eq!(fa.force_n.to_bits(), fb.force_n.to_bits(), "{i}");
+    }
+}
+
+/// A blob of format version 5 with tables (`tests/data/format-v5/example-nemm-tables.nemm`,
+/// written by this crate at format version 5: `example_model_with_branches(4, 2, 4,
+/// Priors::PAPER)` with alpha over `[0, 0.3]`, the tables of two table-mode estimators of
+/// 64 segments at alpha 0 and 0.3, bound 1e-2): its tables lie unaligned, so level tables
+/// refuse it with `Layout`, while a table-mode estimator still reads (copies) them; exported
+/// again, the same tables are read in place.
+#[test]
+fn version_5_tables_are_copied_and_refused_in_place_until_exported_again() {
+    const T5: usize = 64;
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/format-v5/example-nemm-tables.nemm");
+    let v5 = AlignedBlob::new(&std::fs::read(path).unwrap());
+    assert_eq!(nemm_core::read_header(&v5).unwrap().version, 5);
+    let mut m: Box<Model<P>> = Box::new(Model::empty());
+    let tables = decode_into(&v5, &mut m).unwrap();
+    assert_eq!(tables.levels.len(), 2);
+    let mut l: Box<LevelTables<'_, T5, 4>> = Box::new(LevelTables::empty());
+    assert_eq!(l.load(&m, &tables, &v5), Err(LevelsError::Layout));
+    let cfg = |alpha| EstimatorConfig {
+        mode: EvalMode::Table(TableConfig::new(1e-2)),
+        ..EstimatorConfig::new(alpha)
+    };
+    let mut ests: Vec<Box<Estimator<P, T5>>> = Vec::new();
+    for alpha in [0.0, 0.3] {
+        let mut e: Box<Estimator<P, T5>> = Box::new(Estimator::empty());
+        e.load_with_tables(&m, cfg(alpha), &tables, &v5).unwrap();
+        assert_eq!(e.table_origin(), nemm_core::TableOrigin::Stored, "{alpha}");
+        ests.push(e);
+    }
+    let refs: Vec<&Estimator<P, T5>> = ests.iter().map(|e| &**e).collect();
+    let v6 = AlignedBlob::new(&blob_with_tables(&m, &refs).unwrap());
+    assert_eq!(nemm_core::read_header(&v6).unwrap().version, 6);
+    let mut m6: Box<Model<P>> = Box::new(Model::empty());
+    let tables6 = decode_into(&v6, &mut m6).unwrap();
+    assert_eq!(*m6, *m);
+    let mut l6: Box<LevelTables<'_, T5, 4>> = Box::new(LevelTables::empty());
+    l6.load(&m6, &tables6, &v6).unwrap();
+    assert_eq!(l6.alphas(), &[0.0, 0.3]);
+    // The in-place tables are the copied ones: a level's step is the estimator's.
+    let mut on_level: Box<Estimator<P, T5>> = Box::new(Estimator::empty());
+    on_level.load(&m6, EstimatorConfig::new(0.3)).unwrap();
+    on_level.attach_levels(&l6).unwrap();
+    for i in 0..2_000 {
+        let v = velocity(i, 0.5);
+        let a = on_level.step(Sample::new(v).with_alpha(0.3)).unwrap();
+        let b = ests[1].step(Sample::new(v)).unwrap();
+        assert_eq!(a.force_n.to_bits(), b.force_n.to_bits(), "{i}");
+    }
 }

@@ -192,12 +192,11 @@ fn encoding_refuses_tables_that_are_not_the_models() {
     assert_eq!(blob_with_tables(&*m, &[&*lt]), Err(EncodeError::Tables));
 }
 
-/// Where the tables section starts in `blob`: after its header and the body of the blob
-/// without tables, less that body's one-byte empty section.
+/// Where the tables section starts in `blob`: after its header and the model's body up to
+/// the section.
 fn section_start(m: &Model<P>, blob: &[u8]) -> usize {
-    let plain_body = read_header(&blob_of(m)).unwrap().body_len as usize;
     let header_len = blob.len() - read_header(blob).unwrap().body_len as usize - CRC_LEN;
-    header_len + plain_body - 1
+    header_len + common::body_prefix(m).len()
 }
 
 #[test]
@@ -205,7 +204,10 @@ fn a_damaged_section_is_refused_by_the_crc_and_never_panics() {
     let m = model(ModelKind::Nemm);
     let blob = blob_with::<T>(&m, &[0.15]);
     let start = section_start(&m, &blob);
-    assert_eq!(blob[start], 1, "one level");
+    // The padding byte, its zeros, then the level count (u32 LE) at a multiple of 4.
+    let count = start + 1 + usize::from(blob[start]);
+    assert_eq!(count % 4, 0);
+    assert_eq!(blob[count..count + 4], 1u32.to_le_bytes(), "one level");
     let end = blob.len() - CRC_LEN;
     let stride = if cfg!(debug_assertions) { 257 } else { 7 };
     let mut refused = 0usize;

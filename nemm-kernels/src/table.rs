@@ -95,7 +95,7 @@ mod stored;
 
 pub use kinks::REFINE_POINTS_PER_SEGMENT;
 use kinks::*;
-pub use stored::{parse_stored, StoredHead};
+pub use stored::{image_len, parse_stored, ImageError, StoredHead, StoredLayout};
 
 /// Default number of segments of a table: 256 (7 KiB per table, 28 bytes per segment).
 pub const DEFAULT_TABLE_SEGMENTS: usize = 256;
@@ -243,7 +243,7 @@ const BISECTION_STEPS: usize = 40;
 ///
 /// `repr(C)` with the scalars the evaluation reads first: they stay within reach of one
 /// base register on the Cortex-M4F.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 #[repr(C)]
 pub struct Table1D<const N: usize> {
     lo: f32,
@@ -262,7 +262,49 @@ pub struct Table1D<const N: usize> {
     /// below `lo` and from `hi` on (`1 / width = 0`, so `s = 0`); `1 ..= N - 2` tabulate the
     /// domain.
     seg: [[f32; 6]; N],
-    accuracy: TableAccuracy,
+    accuracy: Accuracy32,
+}
+
+/// [`TableAccuracy`] as a table holds it: fixed-width fields, so that a table's memory
+/// layout is the same on every target and is its stored image ([`Table1D::write_image`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C)]
+struct Accuracy32 {
+    max_rel_error: f32,
+    at: f32,
+    kinks: u32,
+    max_knots_per_cell: u32,
+}
+
+impl Accuracy32 {
+    const ZERO: Self = Self {
+        max_rel_error: 0.0,
+        at: 0.0,
+        kinks: 0,
+        max_knots_per_cell: 0,
+    };
+}
+
+impl From<Accuracy32> for TableAccuracy {
+    fn from(a: Accuracy32) -> Self {
+        Self {
+            max_rel_error: a.max_rel_error,
+            at: a.at,
+            kinks: a.kinks as usize,
+            max_knots_per_cell: a.max_knots_per_cell as usize,
+        }
+    }
+}
+
+impl From<TableAccuracy> for Accuracy32 {
+    fn from(a: TableAccuracy) -> Self {
+        Self {
+            max_rel_error: a.max_rel_error,
+            at: a.at,
+            kinks: u32::try_from(a.kinks).unwrap_or(u32::MAX),
+            max_knots_per_cell: u32::try_from(a.max_knots_per_cell).unwrap_or(u32::MAX),
+        }
+    }
 }
 
 /// The pieces of a table's domain between its breakpoints: `lo`, the kinks (sorted, inside
@@ -366,12 +408,7 @@ impl<const N: usize> Table1D<N> {
             cell_offset: 0.0,
             first: [[0; 2]; N],
             seg: [[0.0; 6]; N],
-            accuracy: TableAccuracy {
-                max_rel_error: 0.0,
-                at: 0.0,
-                kinks: 0,
-                max_knots_per_cell: 0,
-            },
+            accuracy: Accuracy32::ZERO,
         }
     }
 
@@ -477,16 +514,16 @@ impl<const N: usize> Table1D<N> {
         self.cell_offset = (-(pieces.lo - cell_w) / cell_w) as f32;
         self.first.fill([0; 2]);
         self.seg.fill([0.0; 6]);
-        self.accuracy = TableAccuracy {
+        self.accuracy = Accuracy32 {
             max_rel_error: 0.0,
             at: lo,
-            kinks: kinks.len(),
+            kinks: u32::try_from(kinks.len()).unwrap_or(u32::MAX),
             max_knots_per_cell: 0,
         };
         self.fill_segments(exact, pieces, &counts, scaler)?;
         self.close_ends();
         // 5. Lookup cells.
-        self.accuracy.max_knots_per_cell = self.fill_cells();
+        self.accuracy.max_knots_per_cell = u32::try_from(self.fill_cells()).unwrap_or(u32::MAX);
         Ok(())
     }
 
@@ -624,21 +661,12 @@ impl<const N: usize> Table1D<N> {
     /// knots are at least a cell apart by construction, measured). Returns the most knots
     /// inside one cell.
     fn fill_cells(&mut self) -> usize {
-        let lo64 = f64::from(self.lo);
-        let cell_w = (f64::from(self.hi) - lo64) / (2 * N - 2) as f64;
-        let mut most = 0usize;
-        let mut i = 0usize;
-        let mut prev = 0usize;
-        for (c, f) in self.first.as_flattened_mut().iter_mut().enumerate() {
-            let edge = (lo64 - cell_w + cell_w * c as f64) as f32;
-            while self.seg.get(i + 1).is_some_and(|s| s[0] <= edge) {
-                i += 1;
+        let first = self.first.as_flattened_mut();
+        walk_cells::<N>(self.lo, self.hi, &self.seg, |c, i| {
+            if let Some(f) = first.get_mut(c) {
+                *f = i;
             }
-            most = most.max(i - prev);
-            prev = i;
-            *f = i as u16;
-        }
-        most
+        })
     }
 
     /// Measures the table against `exact` on the check grid (sets the accuracy) and returns
@@ -762,7 +790,7 @@ impl<const N: usize> Table1D<N> {
 
     /// The accuracy measured when the table was built.
     pub fn accuracy(&self) -> TableAccuracy {
-        self.accuracy
+        self.accuracy.into()
     }
 
     /// Cubic segments inside the domain (`N - 2`; the other two hold the boundary values).
@@ -775,6 +803,32 @@ impl<const N: usize> Table1D<N> {
     pub const fn table_bytes() -> usize {
         N * TABLE_BYTES_PER_SEGMENT
     }
+}
+
+/// The lookup cells of a table with domain `[lo, hi]` and segments `seg` (step 5 of
+/// [`Table1D::compile`]): hands each cell's index and the segment holding its left edge to
+/// `each`, in order, and returns the most knots inside one cell.
+fn walk_cells<const N: usize>(
+    lo: f32,
+    hi: f32,
+    seg: &[[f32; 6]; N],
+    mut each: impl FnMut(usize, u16),
+) -> usize {
+    let lo64 = f64::from(lo);
+    let cell_w = (f64::from(hi) - lo64) / (2 * N - 2) as f64;
+    let mut most = 0usize;
+    let mut i = 0usize;
+    let mut prev = 0usize;
+    for c in 0..2 * N {
+        let edge = (lo64 - cell_w + cell_w * c as f64) as f32;
+        while seg.get(i + 1).is_some_and(|s| s[0] <= edge) {
+            i += 1;
+        }
+        most = most.max(i - prev);
+        prev = i;
+        each(c, u16::try_from(i).unwrap_or(u16::MAX));
+    }
+    most
 }
 
 /// Checks a configuration (used by the estimator).
@@ -962,5 +1016,105 @@ mod tests {
             Table1D::<4>::compile(|_| (f32::NAN, 0), 0.0, 1.0, 1e-3, "f"),
             Err(TableError::NonFinite { .. })
         ));
+    }
+
+    /// The image of a table in a `u32` buffer (4-byte aligned), from byte `at` on.
+    fn image_of<const N: usize>(t: &Table1D<N>, at: usize) -> std::vec::Vec<u32> {
+        let len = at + Table1D::<N>::IMAGE_LEN;
+        let mut words = std::vec![0u32; len.div_ceil(4) + 1];
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut words);
+        let mut w = Writer::new(&mut bytes[at..]);
+        t.write_image(&mut w).unwrap();
+        assert_eq!(w.len(), image_len(N));
+        words
+    }
+
+    #[test]
+    fn the_image_is_the_memory_and_reads_back_in_place_and_as_a_copy() {
+        let f = |x: f32| 1.0 + x + 0.3 * x * x;
+        let t = Table1D::<32>::compile(smooth(f), -1.0, 2.0, 1e-3, "q").unwrap();
+        assert_eq!(Table1D::<32>::IMAGE_LEN, 32 + 28 * 32);
+        let words = image_of(&t, 0);
+        let bytes: &[u8] = bytemuck::cast_slice(&words);
+        // On a little-endian host the image is the table's memory, byte for byte.
+        if cfg!(target_endian = "little") {
+            assert_eq!(&bytes[..Table1D::<32>::IMAGE_LEN], bytemuck::bytes_of(&t));
+            let view = Table1D::<32>::in_place(bytes, -1.0, 2.0).unwrap();
+            assert_eq!(view, &t);
+            assert!(core::ptr::eq(view as *const _ as *const u8, bytes.as_ptr()));
+        }
+        let mut copy = Table1D::<32>::empty();
+        let rest = copy.read_image(bytes, -1.0, 2.0).unwrap();
+        assert_eq!(copy, t);
+        assert_eq!(rest.len(), bytes.len() - Table1D::<32>::IMAGE_LEN);
+        // Another domain, a short image: refused.
+        assert_eq!(
+            Table1D::<32>::in_place(bytes, -1.0, 2.5),
+            Err(ImageError::Invalid)
+        );
+        assert_eq!(
+            Table1D::<32>::in_place(&bytes[..100], -1.0, 2.0),
+            Err(ImageError::Invalid)
+        );
+        assert!(Table1D::<32>::empty()
+            .read_image(&bytes[..100], -1.0, 2.0)
+            .is_none());
+    }
+
+    #[test]
+    fn an_unaligned_image_is_copied_but_not_read_in_place() {
+        let f = |x: f32| 2.0 + libm::sinf(3.0 * x);
+        let t = Table1D::<16>::compile(smooth(f), -1.0, 1.0, 1e-2, "sin").unwrap();
+        let words = image_of(&t, 1);
+        let bytes: &[u8] = &bytemuck::cast_slice::<u32, u8>(&words)[1..];
+        let want = if cfg!(target_endian = "little") {
+            ImageError::Unaligned
+        } else {
+            ImageError::BigEndian
+        };
+        assert_eq!(Table1D::<16>::in_place(bytes, -1.0, 1.0), Err(want));
+        let mut copy = Table1D::<16>::empty();
+        assert!(copy.read_image(bytes, -1.0, 1.0).is_some());
+        assert_eq!(copy, t);
+    }
+
+    #[test]
+    fn a_corrupt_image_is_refused_where_it_is_read() {
+        let f = |x: f32| 1.0 + x * x;
+        let t = Table1D::<16>::compile(smooth(f), -1.0, 1.0, 1e-2, "sq").unwrap();
+        let clean = image_of(&t, 0);
+        // A lookup cell pointing at the wrong segment (offset 16 + 2 * cell), a knot out of
+        // order (segment 5's knot at 16 + 64 + 24 * 5), a NaN coefficient, a wrong record
+        // of knots per cell (the image's last u32): each refused, in place and as a copy.
+        let cell = 16 + 2 * 10;
+        let knot = 16 + 4 * 16 + 24 * 5;
+        let coef = knot + 12;
+        let record = Table1D::<16>::IMAGE_LEN - 4;
+        let corruptions: [(usize, [u8; 4]); 4] = [
+            (cell, [0x0e, 0x00, 0, 0]),
+            (knot, 1.0e3f32.to_le_bytes()),
+            (coef, f32::NAN.to_le_bytes()),
+            (record, 7u32.to_le_bytes()),
+        ];
+        for (at, put) in corruptions {
+            let mut words = clean.clone();
+            let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut words);
+            let n = if at == cell { 2 } else { 4 };
+            bytes[at..at + n].copy_from_slice(&put[..n]);
+            let bytes: &[u8] = bytes;
+            if cfg!(target_endian = "little") {
+                assert_eq!(
+                    Table1D::<16>::in_place(bytes, -1.0, 1.0),
+                    Err(ImageError::Invalid),
+                    "{at}"
+                );
+            }
+            assert!(
+                Table1D::<16>::empty()
+                    .read_image(bytes, -1.0, 1.0)
+                    .is_none(),
+                "{at}"
+            );
+        }
     }
 }

@@ -1,5 +1,5 @@
 //! The byte writer nemm-core's weight-format encoder and the stored tables
-//! ([`crate::table::Table1D::write_stored`]) serialise with: postcard into a buffer, or a
+//! ([`crate::table::Table1D::write_image`]) serialise with: postcard into a buffer, or a
 //! counter of the bytes it would write (to size the buffer first).
 
 use serde::Serialize;

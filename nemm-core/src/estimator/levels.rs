@@ -8,9 +8,18 @@
 //! stored level with `T` segments, in ascending `alpha` (at least two): per level its
 //! `alpha`, `b_pr(alpha)` (evaluated once, exactly, when loading) and the tables of
 //! `b_fl(v_st)` and `k_pr(x_pr)` at that level, as a table-mode estimator at that level
-//! uses them (bit for bit). The tables are copied into RAM (`28 T` bytes per table and
-//! level, [`LevelTables::table_bytes`]); the blob holds them in flash (`24 T` bytes each
-//! plus a header).
+//! uses them (bit for bit).
+//!
+//! The tables are **read in place**: a version-6 blob stores each table as its memory
+//! image, 4-byte aligned from the blob's start, and [`LevelTables`] holds references into
+//! the blob (on a microcontroller: into the flash slot), each table validated once when
+//! loading ([`nemm_kernels::table::Table1D::in_place`]). Its RAM is a few hundred bytes
+//! whatever the number of levels (`size_of::<LevelTables<T, L>>()`); the tables take
+//! `32 + 28 T` bytes each in the blob ([`LevelTables::table_bytes`]). The blob must
+//! therefore outlive the level tables (the lifetime `'a`) and be held 4-byte aligned
+//! ([`LevelsError::Unaligned`] otherwise; on the host, [`crate::AlignedBlob`] holds a
+//! copy so), and a blob of format version 4 or 5 (tables stored unaligned) is refused
+//! with [`LevelsError::Layout`]: export it again.
 //!
 //! # Between levels
 //!
@@ -42,6 +51,7 @@
 
 use super::*;
 use nemm_kernels::mlp::Direction;
+use nemm_kernels::table::ImageError;
 
 /// Why a [`LevelTables`] could not be loaded, or a step on it was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -74,11 +84,18 @@ pub enum LevelsError {
     /// The tables are empty ([`LevelTables::empty`]), or belong to a model with other
     /// neural coefficients than the estimator's.
     Mismatch,
+    /// The blob is not held 4-byte aligned in memory (or the target is big-endian), so its
+    /// tables cannot be read in place.
+    Unaligned,
+    /// The blob stores its tables in the layout of format version 4 or 5, which cannot be
+    /// read in place: export it again with this version.
+    Layout,
 }
 
 impl LevelsError {
     /// A short name for report lines: `no-neural-coefficient`, `other-blob`,
-    /// `too-few-levels`, `too-many-levels`, `order`, `table`, `compile`, `mismatch`.
+    /// `too-few-levels`, `too-many-levels`, `order`, `table`, `compile`, `mismatch`,
+    /// `unaligned`, `layout`.
     pub const fn name(&self) -> &'static str {
         match self {
             LevelsError::NoNeuralCoefficient => "no-neural-coefficient",
@@ -89,6 +106,8 @@ impl LevelsError {
             LevelsError::Table => "table",
             LevelsError::Compile => "compile",
             LevelsError::Mismatch => "mismatch",
+            LevelsError::Unaligned => "unaligned",
+            LevelsError::Layout => "layout",
         }
     }
 }
@@ -119,6 +138,16 @@ impl fmt::Display for LevelsError {
                 f,
                 "the level tables are empty or belong to a model with other coefficients"
             ),
+            LevelsError::Unaligned => write!(
+                f,
+                "the blob is not held 4-byte aligned in memory (or the target is big-endian): \
+                 its tables cannot be read in place"
+            ),
+            LevelsError::Layout => write!(
+                f,
+                "the blob stores its tables unaligned (format version 4 or 5): export it again \
+                 to read them in place"
+            ),
         }
     }
 }
@@ -126,12 +155,13 @@ impl fmt::Display for LevelsError {
 #[cfg(feature = "std")]
 impl std::error::Error for LevelsError {}
 
-/// The tables of up to `L` oil-loss levels with `T` segments each (module docs), for an
-/// [`Estimator`] with a level per sample ([`Estimator::attach_levels`]) and a table-cost
-/// [`crate::AlphaObserver`] ([`crate::AlphaObserver::load_on_levels`]). Load once (e.g.
-/// into a `static` made with [`LevelTables::empty`]) and pass by reference.
+/// The tables of up to `L` oil-loss levels with `T` segments each, read in place from the
+/// blob `'a` (module docs), for an [`Estimator`] with a level per sample
+/// ([`Estimator::attach_levels`]) and a table-cost [`crate::AlphaObserver`]
+/// ([`crate::AlphaObserver::load_on_levels`]). Load once (e.g. into a `static` made with
+/// [`LevelTables::empty`]) and pass by reference.
 #[derive(Debug, Clone)]
-pub struct LevelTables<const T: usize, const L: usize> {
+pub struct LevelTables<'a, const T: usize, const L: usize> {
     count: usize,
     alpha: [f32; L],
     b_pr: [f32; L],
@@ -147,11 +177,13 @@ pub struct LevelTables<const T: usize, const L: usize> {
     k_pr_ini: f32,
     /// The model's lost-motion element, evaluated at the level in use.
     lost_motion: Option<LostMotion>,
-    b_fl: [Table1D<T>; L],
-    k_pr: [Table1D<T>; L],
+    /// Per level, the table of `b_fl(v_st)` in the blob.
+    b_fl: [Option<&'a Table1D<T>>; L],
+    /// Per level, the table of `k_pr(x_pr)` in the blob (a NEMM's).
+    k_pr: [Option<&'a Table1D<T>>; L],
 }
 
-impl<const T: usize, const L: usize> LevelTables<T, L> {
+impl<'a, const T: usize, const L: usize> LevelTables<'a, T, L> {
     /// No levels (a `const fn`, for a `static`); [`LevelTables::load`] fills it.
     pub const fn empty() -> Self {
         Self {
@@ -167,19 +199,21 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
             fingerprint: (0, 0),
             k_pr_ini: 0.0,
             lost_motion: None,
-            b_fl: [const { Table1D::empty() }; L],
-            k_pr: [const { Table1D::empty() }; L],
+            b_fl: [None; L],
+            k_pr: [None; L],
         }
     }
 
-    /// Loads, in place, the levels of `tables` (the index [`crate::decode_into`] returned
-    /// for `blob`) whose tables have `T` segments: at least two, at most `L`, ascending in
-    /// `alpha`, one table configuration. On error `self` is empty.
+    /// Loads the levels of `tables` (the index [`crate::decode_into`] returned for `blob`)
+    /// whose tables have `T` segments: at least two, at most `L`, ascending in `alpha`, one
+    /// table configuration. The tables are read in place from `blob`, which must be held
+    /// 4-byte aligned and be of format version 6 or later (module docs). On error `self`
+    /// is empty.
     pub fn load<const P: usize>(
         &mut self,
         model: &Model<P>,
         tables: &StoredTables,
-        blob: &[u8],
+        blob: &'a [u8],
     ) -> Result<(), LevelsError> {
         self.count = 0;
         let r = self.load_inner(model, tables, blob);
@@ -193,7 +227,7 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
         &mut self,
         model: &Model<P>,
         tables: &StoredTables,
-        blob: &[u8],
+        blob: &'a [u8],
     ) -> Result<(), LevelsError> {
         let (b_pr, k_pr, emm) = match &model.body {
             Body::Sem(_) | Body::LinearEmm(_) => return Err(LevelsError::NoNeuralCoefficient),
@@ -258,10 +292,19 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
                 )
                 .ok_or(LevelsError::Compile)?,
             };
-            read_level_table(tb, level.b_fl, blob, config.domain_margin * sc.velocity_m_s)?;
-            if k_pr.is_some() {
-                read_level_table(tk, level.k_pr, blob, config.domain_margin * sc.x_pr_m)?;
-            }
+            *tb = Some(level_table(
+                level.b_fl,
+                blob,
+                config.domain_margin * sc.velocity_m_s,
+            )?);
+            *tk = match k_pr {
+                Some(_) => Some(level_table(
+                    level.k_pr,
+                    blob,
+                    config.domain_margin * sc.x_pr_m,
+                )?),
+                None => None,
+            };
         }
         self.neural = (true, k_pr.is_some());
         self.priors = model.condition.priors.all();
@@ -301,17 +344,19 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
             .iter()
             .take(n)
             .chain(self.k_pr.iter().take(if k_pr { n } else { 0 }))
-            .map(Table1D::accuracy)
+            .flatten()
+            .map(|t| t.accuracy())
             .fold(None, |w: Option<TableAccuracy>, a| match w {
                 Some(w) if w.max_rel_error >= a.max_rel_error => Some(w),
                 _ => Some(a),
             })
     }
 
-    /// Tables in use and their RAM in bytes (`28 T` each).
+    /// Tables in use and the bytes they take in the blob, where they are read
+    /// (`32 + 28 T` each); the level tables' own RAM is `size_of::<Self>()`.
     pub fn table_bytes(&self) -> (usize, usize) {
         let n = self.count * (1 + usize::from(self.neural.1));
-        (n, n * Table1D::<T>::table_bytes())
+        (n, n * Table1D::<T>::IMAGE_LEN)
     }
 
     /// The bracket of `alpha`: the lower level's index `i` and the weight `w` in `[0, 1)`
@@ -367,12 +412,17 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
         if k >= self.count {
             return None;
         }
-        let (b_fl, b_pr) = (self.b_fl.get(k)?, *self.b_pr.get(k)?);
+        let (b_fl, b_pr) = (self.b_fl.get(k).copied().flatten()?, *self.b_pr.get(k)?);
         let lm = self.lost_motion_at(*self.alpha.get(k)?);
         let lost_motion = lm.as_ref();
         Some(match self.neural.1 {
-            true => with_coef_stage!(b_fl, self.k_pr.get(k)?, b_pr, lost_motion, |stage| stage
-                .coeffs(s)),
+            true => with_coef_stage!(
+                b_fl,
+                self.k_pr.get(k).copied().flatten()?,
+                b_pr,
+                lost_motion,
+                |stage| stage.coeffs(s)
+            ),
             false => with_coef_stage!(b_fl, self.k_pr_ini, b_pr, lost_motion, |stage| stage
                 .coeffs(s)),
         })
@@ -380,16 +430,17 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
 
     /// The blend of `tables` between levels `i` and `i + 1` at weight `w`, ordered in the
     /// direction of prior `p` (0: `b_fl`, 2: `k_pr`).
-    fn blend<'a>(
+    fn blend(
         &self,
-        tables: &'a [Table1D<T>; L],
+        tables: &[Option<&'a Table1D<T>>; L],
         p: usize,
         i: usize,
         w: f32,
     ) -> Option<Blend<'a, T>> {
+        let lo = tables.get(i).copied().flatten()?;
         Some(Blend {
-            lo: tables.get(i)?,
-            hi: tables.get(i + 1).or(tables.get(i))?,
+            lo,
+            hi: tables.get(i + 1).copied().flatten().unwrap_or(lo),
             w,
             direction: *self.priors.get(p)?,
         })
@@ -404,8 +455,9 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
 
     /// True if `s` lies in every table's domain (the levels share one domain).
     fn contains(&self, s: &State) -> bool {
-        let b = self.b_fl.first().is_some_and(|t| t.contains(s.v_st_m_s));
-        let k = !self.neural.1 || self.k_pr.first().is_some_and(|t| t.contains(s.x_pr_m));
+        let b = matches!(self.b_fl.first(), Some(Some(t)) if t.contains(s.v_st_m_s));
+        let k =
+            !self.neural.1 || matches!(self.k_pr.first(), Some(Some(t)) if t.contains(s.x_pr_m));
         b && k
     }
 }
@@ -443,19 +495,24 @@ impl<const T: usize> StateCoef for Blend<'_, T> {
     }
 }
 
-/// Reads one stored table of a level into `t` on the domain `[-d, d]`.
-fn read_level_table<const T: usize>(
-    t: &mut Table1D<T>,
+/// One stored table of a level, read in place from `blob` on the domain `[-d, d]`.
+fn level_table<const T: usize>(
     stored: Option<StoredTable>,
     blob: &[u8],
     d: f32,
-) -> Result<(), LevelsError> {
-    let bytes = stored
-        .and_then(|s| blob.get(usize::try_from(s.offset).ok()?..))
+) -> Result<&Table1D<T>, LevelsError> {
+    let stored = stored.ok_or(LevelsError::Table)?;
+    if stored.layout != StoredLayout::Image {
+        return Err(LevelsError::Layout);
+    }
+    let bytes = usize::try_from(stored.offset)
+        .ok()
+        .and_then(|at| blob.get(at..))
         .ok_or(LevelsError::Table)?;
-    t.read_stored(bytes, -d, d)
-        .map(|_| ())
-        .ok_or(LevelsError::Table)
+    Table1D::in_place(bytes, -d, d).map_err(|e| match e {
+        ImageError::Unaligned | ImageError::BigEndian => LevelsError::Unaligned,
+        ImageError::Invalid => LevelsError::Table,
+    })
 }
 
 /// Level tables as an estimator holds them ([`Estimator::attach_levels`],
@@ -501,7 +558,7 @@ impl<const P: usize, const T0: usize> fmt::Debug for dyn LevelStep<P, T0> + '_ {
 }
 
 impl<const P: usize, const T0: usize, const T: usize, const L: usize> LevelStep<P, T0>
-    for LevelTables<T, L>
+    for LevelTables<'_, T, L>
 {
     fn step(
         &self,
@@ -557,7 +614,7 @@ impl<'l, const P: usize, const T0: usize> Estimator<'l, P, T0> {
     /// without an EMM model.
     pub fn attach_levels<const T: usize, const L: usize>(
         &mut self,
-        levels: &'l LevelTables<T, L>,
+        levels: &'l LevelTables<'_, T, L>,
     ) -> Result<(), EstimatorError> {
         if !self.accepts_levels(levels) {
             return Err(EstimatorError::Levels(LevelsError::Mismatch));
@@ -583,7 +640,7 @@ impl<'l, const P: usize, const T0: usize> Estimator<'l, P, T0> {
     /// coefficients, `b_pr_ini` and `T_pr` as the estimator's model.
     pub(crate) fn accepts_levels<const T: usize, const L: usize>(
         &self,
-        levels: &LevelTables<T, L>,
+        levels: &LevelTables<'_, T, L>,
     ) -> bool {
         let rt = &self.rt.emm;
         self.rt.kind == RuntimeKind::Emm
@@ -601,7 +658,7 @@ impl<'l, const P: usize, const T0: usize> Estimator<'l, P, T0> {
     #[inline]
     fn levels_step<const T: usize, const L: usize>(
         &mut self,
-        levels: &LevelTables<T, L>,
+        levels: &LevelTables<'_, T, L>,
         velocity_m_s: f32,
         alpha: f32,
         position_m: Option<f32>,
@@ -649,7 +706,7 @@ impl<'l, const P: usize, const T0: usize> Estimator<'l, P, T0> {
     #[inline]
     fn step_member_on_level<const T: usize, const L: usize>(
         &mut self,
-        levels: &LevelTables<T, L>,
+        levels: &LevelTables<'_, T, L>,
         k: usize,
         m: &mut BankMember,
         velocity_m_s: f32,
@@ -659,14 +716,14 @@ impl<'l, const P: usize, const T0: usize> Estimator<'l, P, T0> {
         if !(own && self.accepts_levels(levels)) {
             return None;
         }
-        let (b_fl, b_pr) = (levels.b_fl.get(k)?, *levels.b_pr.get(k)?);
+        let (b_fl, b_pr) = (levels.b_fl.get(k).copied().flatten()?, *levels.b_pr.get(k)?);
         let (lo, hi) = self.alpha_range;
         let at = (position_m, m.alpha, !(lo..=hi).contains(&m.alpha), false);
         self.load_member(m);
         let lm = levels.lost_motion_at(m.alpha);
         let lost_motion = lm.as_ref();
         let e = if levels.neural.1 {
-            let k_pr = levels.k_pr.get(k)?;
+            let k_pr = levels.k_pr.get(k).copied().flatten()?;
             with_coef_stage!(b_fl, k_pr, b_pr, lost_motion, |stage| self.stage_step(
                 &mut stage,
                 levels,
@@ -694,7 +751,7 @@ impl<'l, const P: usize, const T0: usize> Estimator<'l, P, T0> {
     fn stage_step<S: Stage, const T: usize, const L: usize>(
         &mut self,
         stage: &mut S,
-        levels: &LevelTables<T, L>,
+        levels: &LevelTables<'_, T, L>,
         velocity_m_s: f32,
         (position_m, alpha, extrapolated, fresh): (Option<f32>, f32, bool, bool),
     ) -> Estimate {
@@ -743,7 +800,7 @@ pub struct BlendCheck {
     pub points: usize,
 }
 
-impl<const T: usize, const L: usize> LevelTables<T, L> {
+impl<const T: usize, const L: usize> LevelTables<'_, T, L> {
     /// Measures the blend against `exact` (an estimator of the same model in
     /// [`EvalMode::Exact`], whose level it changes): at `sub` levels evenly inside each
     /// interval between stored levels and `per_segment` states per table segment across
@@ -808,9 +865,9 @@ impl<const T: usize, const L: usize> LevelTables<T, L> {
     /// The states of the check: `per_segment` points per segment across the domains of
     /// `b_fl` (`v_st`) and `k_pr` (`x_pr`), paired by index.
     fn check_states(&self, per_segment: usize) -> Option<impl Iterator<Item = State> + Clone> {
-        let (v0, v1) = self.b_fl.first()?.domain();
+        let (v0, v1) = self.b_fl.first().copied().flatten()?.domain();
         let (x0, x1) = if self.neural.1 {
-            self.k_pr.first()?.domain()
+            self.k_pr.first().copied().flatten()?.domain()
         } else {
             (0.0, 0.0)
         };

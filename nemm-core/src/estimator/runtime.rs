@@ -66,7 +66,7 @@ impl<const P: usize, const T: usize> Coef<P, T> {
         p_ini: f32,
         u_scale: f32,
         (alpha, alpha_scale): (f32, f32),
-        (mode, stored): (&EvalMode, Option<&[u8]>),
+        (mode, stored): (&EvalMode, Option<(&[u8], StoredLayout)>),
     ) -> Result<Option<bool>, EstimatorError> {
         self.kind = CoefKind::Const;
         self.value = p_ini;
@@ -81,7 +81,8 @@ impl<const P: usize, const T: usize> Coef<P, T> {
             return Ok(None);
         };
         let d = tc.domain_margin * u_scale;
-        let read = stored.is_some_and(|b| self.table.read_stored(b, -d, d).is_some());
+        let read =
+            stored.is_some_and(|(b, layout)| self.table.read_layout(b, layout, -d, d).is_some());
         if !read {
             self.table
                 .compile_into(&self.exact, -d, d, tc.max_rel_error, name)

@@ -1,35 +1,48 @@
-//! The `tables` section of the weight format (version 4): fast-path tables precomputed by
-//! the exporter for declared oil-loss levels, so that a firmware in [`crate::EvalMode::Table`]
-//! boots without building them.
+//! The `tables` section of the weight format (version 4 on): fast-path tables precomputed
+//! by the exporter for declared oil-loss levels, so that a firmware in
+//! [`crate::EvalMode::Table`] boots without building them, and an observer or an estimator
+//! with a level per sample reads every level's tables in place ([`crate::LevelTables`]).
 //!
-//! # Layout (postcard, after the version-3 fields and the static force)
+//! # Layout (version 6, after the lost-motion element)
 //!
 //! ```text
-//! levels: varint                         0 ..= MAX_TABLE_LEVELS
+//! pad: u8                                0 ..= 7, then `pad` zero bytes, so that what
+//!                                        follows starts at a multiple of 4 from the blob's start
+//! levels: u32 LE                         0 ..= MAX_TABLE_LEVELS
 //! per level:
 //!   alpha: f32                           the oil-loss level the tables are built at [-]
-//!   segments: varint u32                 `T` of the `Estimator<P, T>` that built them
-//!   max_rel_error: f32                   the TableConfig they were built and checked with
-//!   domain_margin: f32
-//!   b_fl: u8 (0 or 1), then the table    present iff the model has a `b_fl` scaler
-//!   k_pr: u8 (0 or 1), then the table    present iff the model has a `k_pr` scaler
-//! table:
-//!   lo, hi, cell_scale, cell_offset: f32 the domain [m/s or m] and the lookup scalars
-//!   max_rel_error, at: f32               the accuracy measured when it was built
-//!   kinks, max_knots_per_cell: varint u32
-//!   segments x [x0, 1/width, c0, c1, c2, c3]: 6 x f32
+//!   segments: u32 LE                     `T` of the `Estimator<P, T>` that built them
+//!   max_rel_error, domain_margin: f32    the TableConfig they were built and checked with
+//!   present: u32 LE                      bit 0: a `b_fl` table, bit 1: a `k_pr` table
+//!                                        (exactly the model's neural scalers)
+//!   the `b_fl` table, then the `k_pr` table, each present one as its image:
+//!     lo, hi, cell_scale, cell_offset: f32   the domain [m/s or m] and the lookup scalars
+//!     first: 2 x segments x u16 LE           the lookup cells
+//!     segments x [x0, 1/width, c0, c1, c2, c3]: 6 x f32
+//!     max_rel_error, at: f32; kinks, max_knots_per_cell: u32 LE   the measured accuracy
 //! ```
 //!
+//! Every field is 4 bytes (the cells come in pairs), so every table image starts 4-byte
+//! aligned from the blob's start: the image is the table's memory layout
+//! ([`nemm_kernels::table::Table1D::write_image`], `32 + 28 T` bytes), and a blob held
+//! 4-byte aligned (a flash slot, a `u32` buffer) is read in place
+//! ([`nemm_kernels::table::Table1D::in_place`]) instead of copied.
+//!
+//! Versions 4 and 5 stored, with varints for `segments` and `levels` and a presence byte
+//! per table, the scalars, the accuracy and the segments only (the lookup cells recomputed
+//! on reading), unaligned: such blobs decode, and a table-mode estimator copies their
+//! tables ([`StoredLayout::Segments`]); level tables read in place need a version-6 blob
+//! ([`crate::LevelsError::Layout`]).
+//!
 //! The tables are written from estimators that built them ([`crate::encode_with_tables`]),
-//! so they are the estimator's tables bit for bit; the lookup cells are not stored but
-//! recomputed on loading by the same code. A blob without tables (every version up to 3, or
-//! a version-4 blob exported without levels) holds no levels.
+//! so they are the estimator's tables bit for bit. A blob without tables (every version up
+//! to 3, or a blob exported without levels) holds no levels.
 //!
 //! # Decoding: an index, not a copy
 //!
 //! [`crate::format::decode_into`] parses and checks the whole section (every value finite,
 //! knots in order, alpha in `[0, 1]`, a valid [`TableConfig`], a table for exactly the neural
-//! coefficients of the model) and returns only this index beside the model ([`StoredTables`]:
+//! coefficients of the model, zero padding to the 4-byte boundary) and returns only this index beside the model ([`StoredTables`]:
 //! per level its alpha, segment count, configuration and where its tables lie in the blob),
 //! a few hundred bytes. The tables themselves stay in the blob (on a
 //! microcontroller: in flash) and are read straight into the estimator's own tables by
@@ -54,7 +67,9 @@ use super::{EncodeError, CRC_LEN};
 use crate::limits::MAX_TABLE_LEVELS;
 use crate::model::{Body, Model};
 use core::fmt;
-use nemm_kernels::table::{self, Table1D, TableAccuracy, TableConfig, MIN_SEGMENTS};
+use nemm_kernels::table::{
+    self, image_len, StoredLayout, Table1D, TableAccuracy, TableConfig, MIN_SEGMENTS,
+};
 use nemm_kernels::wire::Writer;
 
 /// Where one stored table lies in its blob, and what it says of itself.
@@ -66,7 +81,12 @@ pub struct StoredTable {
     pub domain: (f32, f32),
     /// The accuracy measured when it was built.
     pub accuracy: TableAccuracy,
+    /// How it is stored: its image (version 6, readable in place) or its segments.
+    pub layout: StoredLayout,
 }
+
+/// Most zero bytes before the contents of a version-6 tables section.
+pub(crate) const MAX_PAD: u8 = 7;
 
 /// The tables of one oil-loss level.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -210,16 +230,21 @@ impl StoredTables {
     /// Parses and checks a tables section at the start of `bytes` into `self` (module
     /// docs); `covered` is the CRC-covered part of the blob that `bytes` is a suffix of
     /// (offsets are taken from its start), `crc` the blob's trailer; `b_fl` / `k_pr`: whether
-    /// the model has those scalers. Returns the bytes after the section.
+    /// the model has those scalers; `version` the blob's format version (4 or later).
+    /// Returns the bytes after the section.
     pub(crate) fn read<'a>(
         &mut self,
         bytes: &'a [u8],
         covered: &[u8],
         crc: u32,
         (b_fl, k_pr): (bool, bool),
+        version: u16,
     ) -> Option<&'a [u8]> {
         // Without levels the index is empty (equal to a model's not decoded from a blob).
         *self = StoredTables::EMPTY;
+        if version >= 6 {
+            return self.read_images(bytes, covered, crc, (b_fl, k_pr));
+        }
         let (n, mut rest) = postcard::take_from_bytes::<u32>(bytes).ok()?;
         if usize::try_from(n).ok()? > MAX_TABLE_LEVELS {
             return None;
@@ -258,6 +283,128 @@ impl StoredTables {
         }
         Some(rest)
     }
+
+    /// [`Self::read`] of a version-6 section (module docs).
+    fn read_images<'a>(
+        &mut self,
+        bytes: &'a [u8],
+        covered: &[u8],
+        crc: u32,
+        (b_fl, k_pr): (bool, bool),
+    ) -> Option<&'a [u8]> {
+        let (&pad, rest) = bytes.split_first()?;
+        if pad > MAX_PAD {
+            return None;
+        }
+        let (zeros, rest) = rest.split_at_checked(usize::from(pad))?;
+        if zeros.iter().any(|&b| b != 0) || !(covered.len() - rest.len()).is_multiple_of(4) {
+            return None;
+        }
+        let (n, mut rest) = take_u32(rest)?;
+        if usize::try_from(n).ok()? > MAX_TABLE_LEVELS {
+            return None;
+        }
+        for _ in 0..n {
+            let ((alpha, segments), r) = postcard::take_from_bytes::<(f32, [u8; 4])>(rest).ok()?;
+            let segments = u32::from_le_bytes(segments);
+            let ((max_rel_error, domain_margin), r) =
+                postcard::take_from_bytes::<(f32, f32)>(r).ok()?;
+            let (present, r) = take_u32(r)?;
+            let config = TableConfig {
+                max_rel_error,
+                domain_margin,
+            };
+            let n_seg = usize::try_from(segments).ok()?;
+            let valid = alpha.is_finite()
+                && (0.0..=1.0).contains(&alpha)
+                && (MIN_SEGMENTS..=usize::from(u16::MAX)).contains(&n_seg)
+                && config.is_valid()
+                && present == u32::from(b_fl) | (u32::from(k_pr) << 1);
+            if !valid {
+                return None;
+            }
+            let (b_fl_table, r) = read_image(r, covered, n_seg, b_fl)?;
+            let (k_pr_table, r) = read_image(r, covered, n_seg, k_pr)?;
+            rest = r;
+            self.levels
+                .push(StoredLevel {
+                    alpha,
+                    segments,
+                    config,
+                    b_fl: b_fl_table,
+                    k_pr: k_pr_table,
+                })
+                .ok()?;
+        }
+        if n > 0 {
+            self.blob_len = u32::try_from(covered.len().checked_add(CRC_LEN)?).ok()?;
+            self.blob_crc = crc;
+        }
+        Some(rest)
+    }
+}
+
+/// A `u32`, little-endian, at the start of `bytes`.
+fn take_u32(bytes: &[u8]) -> Option<(u32, &[u8])> {
+    let (b, rest) = bytes.split_first_chunk::<4>()?;
+    Some((u32::from_le_bytes(*b), rest))
+}
+
+/// One table image of a level, if `present`: its scalars and segments checked as
+/// [`table::parse_stored`] checks them (the lookup cells are checked against the segments
+/// where the table is read, [`Table1D::in_place`] and [`Table1D::read_image`]).
+fn read_image<'a>(
+    bytes: &'a [u8],
+    covered: &[u8],
+    segments: usize,
+    present: bool,
+) -> Option<(Option<StoredTable>, &'a [u8])> {
+    if !present {
+        return Some((None, bytes));
+    }
+    let offset = u32::try_from(covered.len().checked_sub(bytes.len())?).ok()?;
+    let (image, after) = bytes.split_at_checked(image_len(segments))?;
+    let (scalars, rest) = image.split_at_checked(16)?;
+    let (cells, rest) = rest.split_at_checked(4 * segments)?;
+    let (segs, acc) = rest.split_at_checked(24 * segments)?;
+    let ([lo, hi, cell_scale, cell_offset], _) =
+        postcard::take_from_bytes::<[f32; 4]>(scalars).ok()?;
+    let ((max_rel_error, at, kinks, knots), _) =
+        postcard::take_from_bytes::<(f32, f32, [u8; 4], [u8; 4])>(acc).ok()?;
+    let valid = [lo, hi, cell_scale, cell_offset, max_rel_error, at]
+        .iter()
+        .all(|v| v.is_finite())
+        && hi > lo
+        && max_rel_error >= 0.0
+        && cells.chunks_exact(2).all(|c| {
+            c.first_chunk::<2>()
+                .is_some_and(|&c| usize::from(u16::from_le_bytes(c)) < segments)
+        });
+    if !valid {
+        return None;
+    }
+    let mut prev_knot = f32::NEG_INFINITY;
+    let mut rest = segs;
+    for _ in 0..segments {
+        let (s, r) = postcard::take_from_bytes::<[f32; 6]>(rest).ok()?;
+        if !s.iter().all(|v| v.is_finite()) || s[0] < prev_knot {
+            return None;
+        }
+        prev_knot = s[0];
+        rest = r;
+    }
+    let t = StoredTable {
+        offset,
+        domain: (lo, hi),
+        accuracy: TableAccuracy {
+            max_rel_error,
+            at,
+            kinks: usize::try_from(u32::from_le_bytes(kinks)).ok()?,
+            max_knots_per_cell: usize::try_from(u32::from_le_bytes(knots)).ok()?,
+        },
+        layout: StoredLayout::Image,
+    };
+    Some((Some(t), after))
 }
 
 /// One optional table of a level: its presence byte must say `expected`.
@@ -277,6 +424,7 @@ fn read_table<'a>(
                 offset,
                 domain: head.domain,
                 accuracy: head.accuracy,
+                layout: StoredLayout::Segments,
             };
             Some((Some(t), after))
         }
@@ -314,19 +462,27 @@ pub(crate) struct TableLevel<'a, const T: usize> {
     pub k_pr: Option<&'a Table1D<T>>,
 }
 
-/// Writes (or counts) the tables section of `levels` for `model` (module docs).
+/// Writes (or counts) the version-6 tables section of `levels` for `model` after `pad`
+/// zero bytes (module docs; the caller chooses `pad` so that the contents are 4-byte
+/// aligned from the blob's start).
 pub(crate) fn write_section<const P: usize, const T: usize>(
     model: &Model<P>,
     levels: &[TableLevel<'_, T>],
+    pad: u8,
     w: &mut Writer<'_>,
 ) -> Result<(), EncodeError> {
-    if levels.len() > MAX_TABLE_LEVELS {
+    if levels.len() > MAX_TABLE_LEVELS || pad > MAX_PAD {
         return Err(EncodeError::Tables);
     }
     let too_small = EncodeError::BufferTooSmall;
+    w.put(&pad).ok_or(too_small)?;
+    for _ in 0..pad {
+        w.put(&0u8).ok_or(too_small)?;
+    }
     let n = u32::try_from(levels.len()).map_err(|_| EncodeError::Tables)?;
-    w.put(&n).ok_or(too_small)?;
+    w.put(&n.to_le_bytes()).ok_or(too_small)?;
     let (has_b_fl, has_k_pr) = neural(model);
+    let present = u32::from(has_b_fl) | (u32::from(has_k_pr) << 1);
     let sc = &model.scales;
     for &TableLevel {
         alpha,
@@ -336,8 +492,14 @@ pub(crate) fn write_section<const P: usize, const T: usize>(
     } in levels
     {
         let segments = u32::try_from(T).map_err(|_| EncodeError::Tables)?;
-        w.put(&(alpha, segments, tc.max_rel_error, tc.domain_margin))
-            .ok_or(too_small)?;
+        w.put(&(
+            alpha,
+            segments.to_le_bytes(),
+            tc.max_rel_error,
+            tc.domain_margin,
+        ))
+        .ok_or(too_small)?;
+        w.put(&present.to_le_bytes()).ok_or(too_small)?;
         for (table, present, scale) in [
             (b_fl, has_b_fl, sc.velocity_m_s),
             (k_pr, has_k_pr, sc.x_pr_m),
@@ -349,10 +511,9 @@ pub(crate) fn write_section<const P: usize, const T: usize>(
                     if lo.to_bits() != (-d).to_bits() || hi.to_bits() != d.to_bits() {
                         return Err(EncodeError::Tables);
                     }
-                    w.put(&1u8).ok_or(too_small)?;
-                    t.write_stored(w).ok_or(too_small)?;
+                    t.write_image(w).ok_or(too_small)?;
                 }
-                None if !present => w.put(&0u8).ok_or(too_small)?,
+                None if !present => {}
                 _ => return Err(EncodeError::Tables),
             }
         }

@@ -72,11 +72,47 @@ pub fn blob_with_tables<const Q: usize, const S: usize>(
 }
 
 /// The blob layout of nemm-core's weight format (`src/format.rs`), written independently of `encode` and without any
-/// validation: postcard header, postcard body (version-1 part, the version-3 fields, then the
-/// version-4 static force), CRC-32 little-endian. Lets tests build
+/// validation: postcard header, postcard body (version-1 part, the version-3 fields, the
+/// version-4 static force, the version-5 lost-motion element and an empty version-6 tables
+/// section), CRC-32 little-endian. Lets tests build
 /// well-formed blobs with contents `encode` refuses (NaN weights, unstable steps), or
 /// headers that disagree with the body.
-pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) -> Vec<u8> {
+pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl Fn(&mut Header)) -> Vec<u8> {
+    let body = body_prefix(m);
+    // Version 6's tables section, without levels: `pad` zero bytes after the padding byte
+    // so that the level count (u32 LE, 0) starts at a multiple of 4 from the blob's start.
+    for pad in 0..=7u8 {
+        let mut b = body.clone();
+        b.push(pad);
+        b.extend(std::iter::repeat_n(0u8, usize::from(pad)));
+        let contents = b.len();
+        b.extend_from_slice(&0u32.to_le_bytes());
+        let mut header = Header {
+            magic: MAGIC,
+            version: FORMAT_VERSION,
+            kind: m.kind(),
+            max_scaler_params: m.max_scaler_params() as u32,
+            body_len: b.len() as u32,
+        };
+        edit(&mut header);
+        let mut hbuf = [0u8; 64];
+        let mut out = postcard::to_slice(&header, &mut hbuf)
+            .expect("header serialises")
+            .to_vec();
+        if (out.len() + contents) % 4 != 0 {
+            continue;
+        }
+        out.extend_from_slice(&b);
+        let crc = CRC.checksum(&out);
+        out.extend_from_slice(&crc.to_le_bytes());
+        return out;
+    }
+    unreachable!("one padding of 0 to 7 aligns the section")
+}
+
+/// The body of `m`'s blob up to its tables section: the version-1 part, the version-3
+/// fields, the static force and the lost-motion element.
+pub fn body_prefix<const Q: usize>(m: &Model<Q>) -> Vec<u8> {
     let mut body = vec![0u8; 4 * 3 * Q + 16 * 1024];
     let mut body = postcard::to_slice(m, &mut body)
         .expect("body serialises")
@@ -91,24 +127,7 @@ pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl FnOnce(&mut Header)) 
     body.extend_from_slice(
         postcard::to_slice(&m.lost_motion, &mut ext).expect("lost motion serialises"),
     );
-    // Version 4's tables section, without levels.
-    body.push(0);
-    let mut header = Header {
-        magic: MAGIC,
-        version: FORMAT_VERSION,
-        kind: m.kind(),
-        max_scaler_params: m.max_scaler_params() as u32,
-        body_len: body.len() as u32,
-    };
-    edit(&mut header);
-    let mut hbuf = [0u8; 64];
-    let mut out = postcard::to_slice(&header, &mut hbuf)
-        .expect("header serialises")
-        .to_vec();
-    out.extend_from_slice(&body);
-    let crc = CRC.checksum(&out);
-    out.extend_from_slice(&crc.to_le_bytes());
-    out
+    body
 }
 
 /// Recomputes the CRC trailer of `blob` (at least [`CRC_LEN`] bytes) over everything before it.

@@ -1,26 +1,181 @@
 //! A table in the weight format's tables section (nemm-core's `format::tables`): written from
-//! a built table, parsed and checked, read back bit for bit.
+//! a built table as its image, parsed and checked, read back bit for bit (a copy), or read
+//! in place; and the segments layout of the format's versions 4 and 5, read back.
 
 use super::*;
 
+/// Bytes of a table's stored image ([`Table1D::write_image`]) with `segments` segments:
+/// its memory layout, `32 + 28 segments` (the four lookup scalars, the `2 segments` lookup
+/// cells as `u16`, the segments, the accuracy as two `f32` and two `u32`), little-endian.
+pub const fn image_len(segments: usize) -> usize {
+    32 + TABLE_BYTES_PER_SEGMENT * segments
+}
+
+/// How a table is stored in a blob: the format's versions 4 and 5 store its segments
+/// ([`parse_stored`]; the lookup cells are recomputed on reading), version 6 its image
+/// ([`Table1D::write_image`]), which a 4-byte-aligned blob is read from in place.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StoredLayout {
+    /// The scalars and the segments (format versions 4 and 5).
+    Segments,
+    /// The table's memory image, 4-byte aligned from the blob's start (version 6).
+    Image,
+}
+
+/// Why a stored image cannot be read in place ([`Table1D::in_place`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ImageError {
+    /// The image does not start at a multiple of 4 bytes in memory: the blob is not held
+    /// 4-byte aligned.
+    Unaligned,
+    /// A big-endian target: the little-endian image is not its memory layout.
+    BigEndian,
+    /// Too few bytes, or the image is not a valid table on the expected domain (values
+    /// not finite, knots out of order, lookup cells or accuracy record inconsistent).
+    Invalid,
+}
+
+/// A table is its memory: every field is `f32`, `u16` or `u32`, so every bit pattern is a
+/// value (never UB to read), and the evaluation is panic-free for any contents (every
+/// index is checked), which [`Table1D::in_place`] still validates before use.
+// SAFETY: `Table1D<N>` is `repr(C)` with fields `[f32; 4]`-like scalars (16 bytes),
+// `[[u16; 2]; N]` (4 N bytes, at offset 16), `[[f32; 6]; N]` (24 N bytes, at offset
+// 16 + 4 N, a multiple of 4) and `Accuracy32` (`repr(C)`, two `f32` and two `u32`): no
+// padding anywhere (checked by `Table1D::IMAGE_LEN`'s assertion, evaluated in
+// `in_place`), every bit pattern valid, `Copy` and `'static`.
+#[allow(unsafe_code)]
+unsafe impl<const N: usize> bytemuck::Zeroable for Table1D<N> {}
+// SAFETY: as for `Zeroable` above.
+#[allow(unsafe_code)]
+unsafe impl<const N: usize> bytemuck::Pod for Table1D<N> {}
+
 impl<const N: usize> Table1D<N> {
-    /// Writes the table as the format's stored table (nemm-core's `format::tables`): the domain,
-    /// the lookup scalars, the accuracy, then the `N` segments (the lookup cells are not
-    /// stored: [`Self::read_stored`] recomputes them).
-    pub fn write_stored(&self, w: &mut Writer<'_>) -> Option<()> {
+    /// Bytes of the image: `size_of::<Self>()`, asserted (at compile time, where used) to be
+    /// [`image_len`]`(N)`, i.e. the layout has no padding.
+    pub const IMAGE_LEN: usize = {
+        assert!(core::mem::size_of::<Self>() == image_len(N));
+        assert!(core::mem::align_of::<Self>() == 4);
+        image_len(N)
+    };
+
+    /// Writes the table's image ([`image_len`] bytes): its memory layout, little-endian,
+    /// which [`Self::in_place`] reads back without a copy.
+    pub fn write_image(&self, w: &mut Writer<'_>) -> Option<()> {
+        let start = w.len();
         w.put(&[self.lo, self.hi, self.cell_scale, self.cell_offset])?;
-        w.put(&(self.accuracy.max_rel_error, self.accuracy.at))?;
-        w.put(&(
-            u32::try_from(self.accuracy.kinks).ok()?,
-            u32::try_from(self.accuracy.max_knots_per_cell).ok()?,
-        ))?;
+        for c in self.first.as_flattened() {
+            w.put(&c.to_le_bytes())?;
+        }
         for s in &self.seg {
             w.put(s)?;
         }
-        Some(())
+        let a = &self.accuracy;
+        w.put(&(a.max_rel_error, a.at))?;
+        w.put(&a.kinks.to_le_bytes())?;
+        w.put(&a.max_knots_per_cell.to_le_bytes())?;
+        (w.len() - start == Self::IMAGE_LEN).then_some(())
     }
 
-    /// Reads a stored table of `N` segments (written by [`Self::write_stored`]) into `self`,
+    /// The stored image at the start of `bytes` (written by [`Self::write_image`]) as a
+    /// table, **in place**: no copy, the table is read where the blob lies (on a
+    /// microcontroller: in flash). It is validated first, as [`Self::read_image`] validates
+    /// a copy: its domain must be `[lo, hi]` bit for bit.
+    pub fn in_place(bytes: &[u8], lo: f32, hi: f32) -> Result<&Self, ImageError> {
+        if cfg!(target_endian = "big") {
+            return Err(ImageError::BigEndian);
+        }
+        let image = bytes.get(..Self::IMAGE_LEN).ok_or(ImageError::Invalid)?;
+        let t: &Self = bytemuck::try_from_bytes(image).map_err(|e| match e {
+            bytemuck::PodCastError::TargetAlignmentGreaterAndInputNotAligned => {
+                ImageError::Unaligned
+            }
+            _ => ImageError::Invalid,
+        })?;
+        t.is_valid_image(lo, hi)
+            .then_some(t)
+            .ok_or(ImageError::Invalid)
+    }
+
+    /// Reads a stored image (written by [`Self::write_image`]; any alignment, any byte
+    /// order of the host) into `self`, and returns the bytes after it. Refuses (`None`) an
+    /// image that [`Self::in_place`] would refuse as invalid; `self` then holds a partial
+    /// table that must be rebuilt before use.
+    pub fn read_image<'a>(&mut self, bytes: &'a [u8], lo: f32, hi: f32) -> Option<&'a [u8]> {
+        let ([l, h, cell_scale, cell_offset], mut rest) =
+            postcard::take_from_bytes::<[f32; 4]>(bytes).ok()?;
+        (self.lo, self.hi, self.cell_scale, self.cell_offset) = (l, h, cell_scale, cell_offset);
+        for c in self.first.as_flattened_mut() {
+            let (b, r) = postcard::take_from_bytes::<[u8; 2]>(rest).ok()?;
+            *c = u16::from_le_bytes(b);
+            rest = r;
+        }
+        for s in self.seg.iter_mut() {
+            let (v, r) = postcard::take_from_bytes::<[f32; 6]>(rest).ok()?;
+            *s = v;
+            rest = r;
+        }
+        let ((max_rel_error, at, kinks, knots), rest) =
+            postcard::take_from_bytes::<(f32, f32, [u8; 4], [u8; 4])>(rest).ok()?;
+        self.accuracy = Accuracy32 {
+            max_rel_error,
+            at,
+            kinks: u32::from_le_bytes(kinks),
+            max_knots_per_cell: u32::from_le_bytes(knots),
+        };
+        self.is_valid_image(lo, hi).then_some(rest)
+    }
+
+    /// Reads a stored table of `layout` into `self` ([`Self::read_stored`] or
+    /// [`Self::read_image`]).
+    pub fn read_layout<'a>(
+        &mut self,
+        bytes: &'a [u8],
+        layout: StoredLayout,
+        lo: f32,
+        hi: f32,
+    ) -> Option<&'a [u8]> {
+        match layout {
+            StoredLayout::Segments => self.read_stored(bytes, lo, hi),
+            StoredLayout::Image => self.read_image(bytes, lo, hi),
+        }
+    }
+
+    /// Whether the table is one [`Self::compile`] could have built on `[lo, hi]`: the
+    /// domain `[lo, hi]` bit for bit, every value finite, the knots in order, the lookup
+    /// scalars and cells those the domain and the knots give, the accuracy record's knots
+    /// per cell the cells' own.
+    fn is_valid_image(&self, lo: f32, hi: f32) -> bool {
+        let a = &self.accuracy;
+        let scalars = self.lo.to_bits() == lo.to_bits()
+            && self.hi.to_bits() == hi.to_bits()
+            && lo.is_finite()
+            && hi.is_finite()
+            && hi > lo
+            && self.cell_scale.is_finite()
+            && self.cell_offset.is_finite()
+            && a.max_rel_error.is_finite()
+            && a.max_rel_error >= 0.0
+            && a.at.is_finite();
+        if !scalars {
+            return false;
+        }
+        let mut prev_knot = f32::NEG_INFINITY;
+        for s in &self.seg {
+            if !s.iter().all(|v| v.is_finite()) || s[0] < prev_knot {
+                return false;
+            }
+            prev_knot = s[0];
+        }
+        let mut cells_agree = true;
+        let first = self.first.as_flattened();
+        let most = walk_cells::<N>(lo, hi, &self.seg, |c, i| {
+            cells_agree &= first.get(c) == Some(&i);
+        });
+        cells_agree && u32::try_from(most).ok() == Some(a.max_knots_per_cell)
+    }
+
+    /// Reads a stored table of `N` segments in the layout of format versions 4 and 5
+    /// ([`StoredLayout::Segments`]: the scalars, the accuracy, the segments) into `self`,
     /// in place, and returns the bytes after it; the lookup cells are recomputed as
     /// [`Self::compile`] computes them, so the table is bit-identical to the one written.
     /// Refuses (`None`) a table that [`parse_stored`] refuses, whose domain is not
@@ -38,8 +193,8 @@ impl<const N: usize> Table1D<N> {
         }
         (self.lo, self.hi) = head.domain;
         (self.cell_scale, self.cell_offset) = head.cells;
-        self.accuracy = head.accuracy;
-        (self.fill_cells() == self.accuracy.max_knots_per_cell).then_some(rest)
+        self.accuracy = head.accuracy.into();
+        (self.fill_cells() == head.accuracy.max_knots_per_cell).then_some(rest)
     }
 }
 
@@ -54,7 +209,8 @@ pub struct StoredHead {
     pub accuracy: TableAccuracy,
 }
 
-/// Parses a stored table of `segments` segments (the layout of [`Table1D::write_stored`]),
+/// Parses a stored table of `segments` segments in the layout of format versions 4 and 5
+/// ([`StoredLayout::Segments`]),
 /// handing each segment to `each` (index, `[x0, 1 / width, c0, c1, c2, c3]`); returns its
 /// scalars and the bytes after it. `None` if it does not parse, a value is not finite, the
 /// domain is empty or the knots are not in order.
