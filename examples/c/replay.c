@@ -36,7 +36,7 @@
 extern const uint8_t nemm_example_blob[], nemm_example_blob_end[];
 extern const uint8_t nemm_example_inputs[], nemm_example_inputs_end[];
 
-/* The objects' storage: statics, as on an ECU (together about 144 KiB on Cortex-M; an ECU
+/* The objects' storage: statics, as on an ECU (together about 107 KiB on Cortex-M; an ECU
  * would keep one of the two observers, usually the one on level tables). */
 static nemm_estimator_t estimator;
 static nemm_observer_t observer;
@@ -126,7 +126,8 @@ int main(void) {
         return 2;
     }
 
-    /* Build the estimator from the blob in flash; the blob is not read afterwards. */
+    /* Build the estimator from the blob in flash; the estimator does not read it afterwards
+     * (the level tables below do: it stays in flash, unchanged). */
     const uint8_t *blob = nemm_example_blob;
     size_t blob_len = (size_t)(nemm_example_blob_end - nemm_example_blob);
     nemm_blob_info_t blob_info;
@@ -144,13 +145,16 @@ int main(void) {
     if (s != NEMM_OK) {
         return fail("nemm_observer_init", s);
     }
-    /* The blob's level tables (from the same blob, into RAM), and an observer on them. A
-     * blob without them is no error here: that observer is left out. */
+    /* The blob's level tables (read in place from the blob in flash, which mps2/embed.S
+     * places 4-byte aligned), and an observer on them. A blob without usable level tables
+     * (none stored, or stored by format version 4 or 5) is no error here: that observer is
+     * left out. An unaligned blob is: the embedding is wrong. */
     nemm_levels_info_t levels_info = {0};
     nemm_status_t levels_status = nemm_levels_init(&levels, sizeof levels, &estimator, blob, blob_len);
     int on_levels = levels_status == NEMM_OK;
-    if (!on_levels && !(levels_status >= NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT &&
-                        levels_status <= NEMM_E_LEVELS_MISMATCH)) {
+    if (!on_levels && !((levels_status >= NEMM_E_LEVELS_NO_NEURAL_COEFFICIENT &&
+                         levels_status <= NEMM_E_LEVELS_MISMATCH) ||
+                        levels_status == NEMM_E_LEVELS_LAYOUT)) {
         return fail("nemm_levels_init", levels_status);
     }
     if (on_levels) {

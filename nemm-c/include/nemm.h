@@ -59,9 +59,10 @@
 
 /**
  * Most levels a `nemm_levels_t` holds (each two tables of `NEMM_TABLE_SEGMENTS` segments,
- * 28 bytes of RAM per segment). A blob storing more levels of `NEMM_TABLE_SEGMENTS`-segment
- * tables is refused with `NEMM_E_LEVELS_TOO_MANY`; an observer on level tables needs at
- * most `NEMM_OBSERVER_MAX_POINTS` levels (`NEMM_E_OBSERVER_POINTS` otherwise).
+ * read in place from the blob: no RAM per level). A blob storing more levels of
+ * `NEMM_TABLE_SEGMENTS`-segment tables is refused with `NEMM_E_LEVELS_TOO_MANY`; an
+ * observer on level tables needs at most `NEMM_OBSERVER_MAX_POINTS` levels
+ * (`NEMM_E_OBSERVER_POINTS` otherwise).
  */
 #define NEMM_LEVELS_CAPACITY 8
 
@@ -76,7 +77,7 @@
 /**
  * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46376
+#define NEMM_ESTIMATOR_SIZE 46360
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -104,7 +105,7 @@
 /**
  * Bytes of a `nemm_observer_t` (64-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 22848
+#define NEMM_OBSERVER_SIZE 22832
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -123,18 +124,20 @@
 
 #if defined(NEMM_TARGET_32)
 /**
- * Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (32-bit
- * targets).
+ * Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
+ * themselves take a few hundred bytes: their tables are read in place from the blob)
+ * (32-bit targets).
  */
-#define NEMM_LEVELS_SIZE 57980
+#define NEMM_LEVELS_SIZE 17892
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
- * Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (64-bit
- * targets).
+ * Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
+ * themselves take a few hundred bytes: their tables are read in place from the blob)
+ * (64-bit targets).
  */
-#define NEMM_LEVELS_SIZE 58120
+#define NEMM_LEVELS_SIZE 17984
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -525,6 +528,19 @@ enum nemm_status_t
    * the observer was not built on level tables); nothing stepped.
    */
   NEMM_E_LEVELS_MISMATCH = 77,
+  /**
+   * Level tables: the blob is not 4-byte aligned in memory (or the target is big-endian),
+   * so its tables cannot be read in place; nothing was initialised. Place the blob at a
+   * multiple of 4 bytes (`.balign 4` before it in flash, a `uint32_t` buffer in RAM).
+   */
+  NEMM_E_LEVELS_UNALIGNED = 78,
+  /**
+   * Level tables: the blob stores its tables in the layout of format version 4 or 5,
+   * which cannot be read in place; nothing was initialised. Export the blob again with
+   * this version of `nemm` (format version 6; e.g. `nemm tables MODEL --tables-levels N
+   * --out FILE`).
+   */
+  NEMM_E_LEVELS_LAYOUT = 79,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -648,7 +664,8 @@ typedef struct {
 
 /**
  * Storage of one set of level tables (the stored tables of several oil-loss levels, read
- * from a blob by `nemm_levels_init`): `NEMM_LEVELS_SIZE` bytes aligned to
+ * in place from a blob by `nemm_levels_init`: the storage refers to the blob, which must
+ * stay in place while the level tables are in use): `NEMM_LEVELS_SIZE` bytes aligned to
  * `NEMM_LEVELS_ALIGN`, opaque to the caller (as `nemm_estimator_t`).
  */
 typedef struct {
@@ -727,9 +744,11 @@ typedef struct {
    */
   uint32_t levels;
   /**
-   * Bytes of RAM the loaded tables take (`28 x NEMM_TABLE_SEGMENTS` per table, two tables
-   * per level for the NEMM, one for NEMM-Light); the storage is `NEMM_LEVELS_SIZE` bytes
-   * whatever the number of levels.
+   * Bytes the loaded tables take in the blob, where they are read in place (`32 + 28 x
+   * NEMM_TABLE_SEGMENTS` per table, two tables per level for the NEMM, one for
+   * NEMM-Light): the blob's memory (flash on a microcontroller), not the storage's. The
+   * level tables' RAM is their storage, `NEMM_LEVELS_SIZE` bytes whatever the number of
+   * levels.
    */
   uint32_t table_bytes;
   /**
@@ -970,7 +989,8 @@ nemm_status_t nemm_estimator_step(nemm_estimator_t *est,
  * own networks). `nemm_estimator_init` detaches them too.
  *
  * The estimator keeps a pointer to `levels`: their storage must stay valid, and must not
- * be written (no `nemm_levels_init` on it), while they are attached.
+ * be written (no `nemm_levels_init` on it), while they are attached; so must the blob they
+ * read their tables from, in place (see `nemm_levels_init`).
  *
  * Refused with nothing changed: level tables of another model, or an estimator of a model
  * without neural coefficients (`NEMM_E_LEVELS_MISMATCH`).
@@ -981,7 +1001,7 @@ nemm_status_t nemm_estimator_step(nemm_estimator_t *est,
  * # Safety
  * `est` must be an estimator's storage that no other context accesses during the call;
  * `levels` NULL or level tables' storage (see `nemm_levels_t`) that stays valid and
- * unwritten while attached.
+ * unwritten while attached, as does their blob.
  */
 nemm_status_t nemm_estimator_attach_levels(nemm_estimator_t *est, const nemm_levels_t *levels);
 
@@ -1026,29 +1046,45 @@ nemm_status_t nemm_estimator_info(const nemm_estimator_t *est, nemm_estimator_in
  * `NEMM_LEVELS_ALIGN`) from the weights blob `blob` (`blob_len` bytes) that the initialised
  * estimator `est` was built from: every stored level whose tables have
  * `NEMM_TABLE_SEGMENTS` segments (at least 2, at most `NEMM_LEVELS_CAPACITY`, ascending in
- * alpha, one table configuration), its tables copied into the storage (`2 x 28 x
- * NEMM_TABLE_SEGMENTS` bytes per level). A blob exported with `--tables-levels N` stores
- * them.
+ * alpha, one table configuration). A blob exported with `--tables-levels N` stores them.
+ *
+ * The tables are **read in place**: they are not copied, the level tables refer to them
+ * where the blob lies (on a microcontroller: in flash), so their RAM is a few hundred
+ * bytes whatever the number of levels (`NEMM_LEVELS_SIZE` is the scratch space of this
+ * call, below). Hence the blob:
+ * - must stay readable and unchanged, at the same address, for as long as the level
+ *   tables are in use, and so must every estimator they are attached to
+ *   (`nemm_estimator_attach_levels`) and every observer built on them
+ *   (`nemm_observer_init_on_levels`): a blob in flash or in a `static` is; before
+ *   rewriting it (e.g. a weights update of its flash slot) detach the level tables from
+ *   the estimators and initialise those observers again;
+ * - must be 4-byte aligned in memory (`NEMM_E_LEVELS_UNALIGNED` otherwise: `.balign 4`
+ *   before the blob in flash, a `uint32_t` buffer in RAM);
+ * - must be of format version 6 or later (`NEMM_E_LEVELS_LAYOUT` for a blob of version 4 or
+ *   5, whose tables lie unaligned: export it again).
  *
  * The blob must be the estimator's, byte for byte (its length and CRC-32 are compared with
  * those the estimator was built from; `NEMM_E_LEVELS_OTHER_BLOB` otherwise): the model is
  * taken from the estimator, and the blob is decoded and checked again (in the storage, not
- * on the stack) for the index of its tables. Neither the blob nor `est` is read after this
- * call returns; the level tables may drive any estimator or observer of the same model.
- * Nothing is allocated. This is init work (a CRC and a decode of the blob, and a copy of
- * the tables), not for the sample loop.
+ * on the stack) for the index of its tables; each table is validated once, here. `est` is
+ * not read after this call returns; the level tables may drive any estimator or observer
+ * of the same model. Nothing is allocated. This is init work (a CRC and a decode of the
+ * blob), not for the sample loop.
  *
  * On error the storage holds no level tables until an init succeeds.
  *
  * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_SIZE`, `NEMM_E_STORAGE_ALIGN`,
  * `NEMM_E_NOT_INITIALISED` (est), `NEMM_E_INVALID_ARGUMENT` (blob_len), `NEMM_E_OVERLAP`
- * (the storage overlaps the blob or the estimator), `NEMM_E_LEVELS_*`, and the errors of a
- * blob that no longer decodes (`NEMM_E_BLOB_*`, `NEMM_E_MODEL_*`).
+ * (the storage overlaps the blob or the estimator), `NEMM_E_LEVELS_*` (among them
+ * `NEMM_E_LEVELS_UNALIGNED` and `NEMM_E_LEVELS_LAYOUT`), and the errors of a blob that no
+ * longer decodes (`NEMM_E_BLOB_*`, `NEMM_E_MODEL_*`).
  *
  * # Safety
  * `size` bytes at `storage` must be writable, `blob_len` bytes at `blob` readable, and `est`
  * must be an estimator's storage that no other context writes during the call; no other
- * context may access the level tables' storage during the call.
+ * context may access the level tables' storage during the call. After a successful call,
+ * the `blob_len` bytes at `blob` must stay readable and unchanged for as long as the level
+ * tables, or an estimator or observer using them, are used (above).
  */
 nemm_status_t nemm_levels_init(nemm_levels_t *storage,
                                size_t size,
@@ -1057,7 +1093,8 @@ nemm_status_t nemm_levels_init(nemm_levels_t *storage,
                                size_t blob_len);
 
 /**
- * Fills `info` with the levels the level tables hold and their RAM.
+ * Fills `info` with the levels the level tables hold, and the bytes their tables take in
+ * the blob (where they are read).
  *
  * Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED`.
  *
@@ -1114,7 +1151,8 @@ nemm_status_t nemm_observer_init(nemm_observer_t *storage,
  *
  * The observer keeps a pointer to `levels`: their storage must stay valid, and must not be
  * written (no `nemm_levels_init` on it), while the observer is used (until it is
- * initialised again).
+ * initialised again); so must the blob they read their tables from, in place (see
+ * `nemm_levels_init`).
  *
  * Errors: those of `nemm_observer_init`, `NEMM_E_NOT_INITIALISED` (levels),
  * `NEMM_E_OVERLAP` (the observer's storage overlaps the estimator's or the levels'),
@@ -1124,7 +1162,7 @@ nemm_status_t nemm_observer_init(nemm_observer_t *storage,
  *
  * # Safety
  * As `nemm_observer_init`, and `levels` must be level tables' storage that stays valid and
- * unwritten while the observer is used.
+ * unwritten while the observer is used, as does their blob.
  */
 nemm_status_t nemm_observer_init_on_levels(nemm_observer_t *storage,
                                            size_t size,

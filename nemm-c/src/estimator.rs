@@ -178,7 +178,8 @@ pub unsafe extern "C" fn nemm_estimator_step(
 /// own networks). `nemm_estimator_init` detaches them too.
 ///
 /// The estimator keeps a pointer to `levels`: their storage must stay valid, and must not
-/// be written (no `nemm_levels_init` on it), while they are attached.
+/// be written (no `nemm_levels_init` on it), while they are attached; so must the blob they
+/// read their tables from, in place (see `nemm_levels_init`).
 ///
 /// Refused with nothing changed: level tables of another model, or an estimator of a model
 /// without neural coefficients (`NEMM_E_LEVELS_MISMATCH`).
@@ -189,7 +190,7 @@ pub unsafe extern "C" fn nemm_estimator_step(
 /// # Safety
 /// `est` must be an estimator's storage that no other context accesses during the call;
 /// `levels` NULL or level tables' storage (see `nemm_levels_t`) that stays valid and
-/// unwritten while attached.
+/// unwritten while attached, as does their blob.
 #[no_mangle]
 pub unsafe extern "C" fn nemm_estimator_attach_levels(
     est: *mut nemm_estimator_t,

@@ -1,5 +1,5 @@
-//! Level tables: the tables a blob stores for several oil-loss levels, held in RAM, for an
-//! estimator with a level per sample and an alpha observer at table cost.
+//! Level tables: the tables a blob stores for several oil-loss levels, read in place from
+//! the blob, for an estimator with a level per sample and an alpha observer at table cost.
 
 use crate::blob::slice;
 use crate::estimator::status;
@@ -16,29 +16,45 @@ use nemm_core::decode_into;
 /// `NEMM_LEVELS_ALIGN`) from the weights blob `blob` (`blob_len` bytes) that the initialised
 /// estimator `est` was built from: every stored level whose tables have
 /// `NEMM_TABLE_SEGMENTS` segments (at least 2, at most `NEMM_LEVELS_CAPACITY`, ascending in
-/// alpha, one table configuration), its tables copied into the storage (`2 x 28 x
-/// NEMM_TABLE_SEGMENTS` bytes per level). A blob exported with `--tables-levels N` stores
-/// them.
+/// alpha, one table configuration). A blob exported with `--tables-levels N` stores them.
+///
+/// The tables are **read in place**: they are not copied, the level tables refer to them
+/// where the blob lies (on a microcontroller: in flash), so their RAM is a few hundred
+/// bytes whatever the number of levels (`NEMM_LEVELS_SIZE` is the scratch space of this
+/// call, below). Hence the blob:
+/// - must stay readable and unchanged, at the same address, for as long as the level
+///   tables are in use, and so must every estimator they are attached to
+///   (`nemm_estimator_attach_levels`) and every observer built on them
+///   (`nemm_observer_init_on_levels`): a blob in flash or in a `static` is; before
+///   rewriting it (e.g. a weights update of its flash slot) detach the level tables from
+///   the estimators and initialise those observers again;
+/// - must be 4-byte aligned in memory (`NEMM_E_LEVELS_UNALIGNED` otherwise: `.balign 4`
+///   before the blob in flash, a `uint32_t` buffer in RAM);
+/// - must be of format version 6 or later (`NEMM_E_LEVELS_LAYOUT` for a blob of version 4 or
+///   5, whose tables lie unaligned: export it again).
 ///
 /// The blob must be the estimator's, byte for byte (its length and CRC-32 are compared with
 /// those the estimator was built from; `NEMM_E_LEVELS_OTHER_BLOB` otherwise): the model is
 /// taken from the estimator, and the blob is decoded and checked again (in the storage, not
-/// on the stack) for the index of its tables. Neither the blob nor `est` is read after this
-/// call returns; the level tables may drive any estimator or observer of the same model.
-/// Nothing is allocated. This is init work (a CRC and a decode of the blob, and a copy of
-/// the tables), not for the sample loop.
+/// on the stack) for the index of its tables; each table is validated once, here. `est` is
+/// not read after this call returns; the level tables may drive any estimator or observer
+/// of the same model. Nothing is allocated. This is init work (a CRC and a decode of the
+/// blob), not for the sample loop.
 ///
 /// On error the storage holds no level tables until an init succeeds.
 ///
 /// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_SIZE`, `NEMM_E_STORAGE_ALIGN`,
 /// `NEMM_E_NOT_INITIALISED` (est), `NEMM_E_INVALID_ARGUMENT` (blob_len), `NEMM_E_OVERLAP`
-/// (the storage overlaps the blob or the estimator), `NEMM_E_LEVELS_*`, and the errors of a
-/// blob that no longer decodes (`NEMM_E_BLOB_*`, `NEMM_E_MODEL_*`).
+/// (the storage overlaps the blob or the estimator), `NEMM_E_LEVELS_*` (among them
+/// `NEMM_E_LEVELS_UNALIGNED` and `NEMM_E_LEVELS_LAYOUT`), and the errors of a blob that no
+/// longer decodes (`NEMM_E_BLOB_*`, `NEMM_E_MODEL_*`).
 ///
 /// # Safety
 /// `size` bytes at `storage` must be writable, `blob_len` bytes at `blob` readable, and `est`
 /// must be an estimator's storage that no other context writes during the call; no other
-/// context may access the level tables' storage during the call.
+/// context may access the level tables' storage during the call. After a successful call,
+/// the `blob_len` bytes at `blob` must stay readable and unchanged for as long as the level
+/// tables, or an estimator or observer using them, are used (above).
 #[no_mangle]
 pub unsafe extern "C" fn nemm_levels_init(
     storage: *mut nemm_levels_t,
@@ -50,8 +66,12 @@ pub unsafe extern "C" fn nemm_levels_init(
     status((|| {
         // SAFETY: the caller's guarantee on `est`.
         let estimator = unsafe { EstimatorCell::get(est) }?;
-        // SAFETY: the caller's guarantee on `blob` and `blob_len`.
-        let bytes = unsafe { slice(blob, blob_len) }?;
+        // SAFETY: the caller's guarantee on `blob` and `blob_len`: readable during the call,
+        // and, for the level tables that keep references into it, readable and unchanged
+        // for as long as they (and any estimator or observer using them) are in use, the
+        // documented contract of this function. The level tables' lifetime is `'static`
+        // because the storage outlives any Rust borrow; the contract is what bounds it.
+        let bytes: &'static [u8] = unsafe { slice(blob, blob_len) }?;
         if storage.is_null() {
             return Err(NEMM_E_NULL);
         }
@@ -78,6 +98,8 @@ pub unsafe extern "C" fn nemm_levels_init(
         };
         // SAFETY: claimed above, in this call; no reference to the scratch model is alive.
         let levels = unsafe { LevelsCell::fill(cell) };
+        // Reads the tables in place: `NEMM_E_LEVELS_UNALIGNED` for a blob that is not 4-byte
+        // aligned, `NEMM_E_LEVELS_LAYOUT` for one of format version 4 or 5.
         levels.load(&estimator.model, &index, bytes)?;
         // SAFETY: claimed, filled and loaded in this call; `levels` is not used after it.
         unsafe { LevelsCell::seal(cell) };
@@ -85,7 +107,8 @@ pub unsafe extern "C" fn nemm_levels_init(
     })())
 }
 
-/// Fills `info` with the levels the level tables hold and their RAM.
+/// Fills `info` with the levels the level tables hold, and the bytes their tables take in
+/// the blob (where they are read).
 ///
 /// Errors: `NEMM_E_NULL`, `NEMM_E_STORAGE_ALIGN`, `NEMM_E_NOT_INITIALISED`.
 ///

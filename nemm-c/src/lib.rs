@@ -17,7 +17,8 @@
 //!   forces for the same blob, alpha, mode and inputs (`cargo xtask test` checks it in
 //!   QEMU).
 //! - Level tables (`nemm_levels_t`, [`NEMM_LEVELS_CAPACITY`] levels): the tables a blob
-//!   stores for several oil-loss levels, for an estimator with a level per sample and an
+//!   stores for several oil-loss levels, read in place from the blob (which stays in place,
+//!   4-byte aligned, while they are used), for an estimator with a level per sample and an
 //!   alpha observer at table cost (`nemm_estimator_attach_levels`,
 //!   `nemm_observer_init_on_levels`).
 //! - One step per object: `nemm_estimator_step` and `nemm_observer_step` take one
@@ -88,9 +89,10 @@ pub const NEMM_TABLE_MAX_REL_ERROR: f32 = 1e-4;
 /// Most levels of an alpha observer's grid (its default).
 pub const NEMM_OBSERVER_MAX_POINTS: usize = 7;
 /// Most levels a `nemm_levels_t` holds (each two tables of `NEMM_TABLE_SEGMENTS` segments,
-/// 28 bytes of RAM per segment). A blob storing more levels of `NEMM_TABLE_SEGMENTS`-segment
-/// tables is refused with `NEMM_E_LEVELS_TOO_MANY`; an observer on level tables needs at
-/// most `NEMM_OBSERVER_MAX_POINTS` levels (`NEMM_E_OBSERVER_POINTS` otherwise).
+/// read in place from the blob: no RAM per level). A blob storing more levels of
+/// `NEMM_TABLE_SEGMENTS`-segment tables is refused with `NEMM_E_LEVELS_TOO_MANY`; an
+/// observer on level tables needs at most `NEMM_OBSERVER_MAX_POINTS` levels
+/// (`NEMM_E_OBSERVER_POINTS` otherwise).
 pub const NEMM_LEVELS_CAPACITY: usize = 8;
 
 const _: () = {

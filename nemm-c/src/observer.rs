@@ -67,7 +67,8 @@ pub unsafe extern "C" fn nemm_observer_init(
 ///
 /// The observer keeps a pointer to `levels`: their storage must stay valid, and must not be
 /// written (no `nemm_levels_init` on it), while the observer is used (until it is
-/// initialised again).
+/// initialised again); so must the blob they read their tables from, in place (see
+/// `nemm_levels_init`).
 ///
 /// Errors: those of `nemm_observer_init`, `NEMM_E_NOT_INITIALISED` (levels),
 /// `NEMM_E_OVERLAP` (the observer's storage overlaps the estimator's or the levels'),
@@ -77,7 +78,7 @@ pub unsafe extern "C" fn nemm_observer_init(
 ///
 /// # Safety
 /// As `nemm_observer_init`, and `levels` must be level tables' storage that stays valid and
-/// unwritten while the observer is used.
+/// unwritten while the observer is used, as does their blob.
 #[no_mangle]
 pub unsafe extern "C" fn nemm_observer_init_on_levels(
     storage: *mut nemm_observer_t,

@@ -137,12 +137,21 @@ pub enum nemm_status_t {
     /// or an observer step got level tables other than those the observer was built on (or
     /// the observer was not built on level tables); nothing stepped.
     NEMM_E_LEVELS_MISMATCH = 77,
+    /// Level tables: the blob is not 4-byte aligned in memory (or the target is big-endian),
+    /// so its tables cannot be read in place; nothing was initialised. Place the blob at a
+    /// multiple of 4 bytes (`.balign 4` before it in flash, a `uint32_t` buffer in RAM).
+    NEMM_E_LEVELS_UNALIGNED = 78,
+    /// Level tables: the blob stores its tables in the layout of format version 4 or 5,
+    /// which cannot be read in place; nothing was initialised. Export the blob again with
+    /// this version of `nemm` (format version 6; e.g. `nemm tables MODEL --tables-levels N
+    /// --out FILE`).
+    NEMM_E_LEVELS_LAYOUT = 79,
 }
 
 use nemm_status_t::*;
 
 /// Every status, in the order of their values.
-pub(crate) const ALL: [nemm_status_t; 48] = [
+pub(crate) const ALL: [nemm_status_t; 50] = [
     NEMM_OK,
     NEMM_E_NULL,
     NEMM_E_STORAGE_SIZE,
@@ -191,6 +200,8 @@ pub(crate) const ALL: [nemm_status_t; 48] = [
     NEMM_E_LEVELS_TABLE,
     NEMM_E_LEVELS_COMPILE,
     NEMM_E_LEVELS_MISMATCH,
+    NEMM_E_LEVELS_UNALIGNED,
+    NEMM_E_LEVELS_LAYOUT,
 ];
 
 impl nemm_status_t {
@@ -333,6 +344,12 @@ impl nemm_status_t {
             NEMM_E_LEVELS_MISMATCH => {
                 c"NEMM_E_LEVELS_MISMATCH: the level tables belong to another model, or are not the observer's"
             }
+            NEMM_E_LEVELS_UNALIGNED => {
+                c"NEMM_E_LEVELS_UNALIGNED: the blob is not 4-byte aligned in memory: its tables cannot be read in place"
+            }
+            NEMM_E_LEVELS_LAYOUT => {
+                c"NEMM_E_LEVELS_LAYOUT: the blob stores its tables unaligned (format version 4 or 5): export it again"
+            }
         }
     }
 }
@@ -410,6 +427,8 @@ impl From<LevelsError> for nemm_status_t {
             LevelsError::Table => NEMM_E_LEVELS_TABLE,
             LevelsError::Compile => NEMM_E_LEVELS_COMPILE,
             LevelsError::Mismatch => NEMM_E_LEVELS_MISMATCH,
+            LevelsError::Unaligned => NEMM_E_LEVELS_UNALIGNED,
+            LevelsError::Layout => NEMM_E_LEVELS_LAYOUT,
         }
     }
 }

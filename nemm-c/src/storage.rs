@@ -23,8 +23,10 @@ pub(crate) type CModel = Model<NEMM_PARAM_CAPACITY>;
 pub(crate) type CEstimator = Estimator<'static, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>;
 /// The alpha observer.
 pub(crate) type CObserver = AlphaObserver<'static, NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>;
-/// The level tables: the estimator's segment count, `NEMM_LEVELS_CAPACITY` levels.
-pub(crate) type CLevels = LevelTables<NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
+/// The level tables: the estimator's segment count, `NEMM_LEVELS_CAPACITY` levels, read in
+/// place from a blob the caller keeps (the `'static` is `nemm_levels_init`'s contract: the
+/// blob stays readable and unchanged while the level tables are in use).
+pub(crate) type CLevels = LevelTables<'static, NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
 
 /// What a `nemm_estimator_t` holds: the decoded model (kept, so that observers and level
 /// tables can be built from it), the estimator built from it, and which blob it came from.
@@ -54,9 +56,10 @@ pub(crate) struct LevelsCell {
     body: LevelsBody,
 }
 
-/// The level tables once loaded; during `nemm_levels_init`, before them, the model decoded
-/// again from the blob for its tables index (the storage is the scratch space, so that no
-/// model is on the stack).
+/// The level tables once loaded (a few hundred bytes: references into the blob); during
+/// `nemm_levels_init`, before them, the model decoded again from the blob for its tables
+/// index (the storage is the scratch space, so that no model is on the stack). The storage
+/// is the larger of the two: the scratch model.
 #[repr(C)]
 union LevelsBody {
     levels: ManuallyDrop<CLevels>,
@@ -90,30 +93,32 @@ pub const NEMM_OBSERVER_SIZE: usize = 22688;
 /// Alignment of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_OBSERVER_ALIGN: usize = 4;
-/// Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (32-bit
-/// targets).
+/// Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
+/// themselves take a few hundred bytes: their tables are read in place from the blob)
+/// (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_LEVELS_SIZE: usize = 57980;
+pub const NEMM_LEVELS_SIZE: usize = 17892;
 /// Alignment of a `nemm_levels_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_LEVELS_ALIGN: usize = 4;
 
 /// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46376;
+pub const NEMM_ESTIMATOR_SIZE: usize = 46360;
 /// Alignment of a `nemm_estimator_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
 /// Bytes of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_OBSERVER_SIZE: usize = 22848;
+pub const NEMM_OBSERVER_SIZE: usize = 22832;
 /// Alignment of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_OBSERVER_ALIGN: usize = 8;
-/// Bytes of a `nemm_levels_t`: the tables of `NEMM_LEVELS_CAPACITY` levels (64-bit
-/// targets).
+/// Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
+/// themselves take a few hundred bytes: their tables are read in place from the blob)
+/// (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_LEVELS_SIZE: usize = 58120;
+pub const NEMM_LEVELS_SIZE: usize = 17984;
 /// Alignment of a `nemm_levels_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_LEVELS_ALIGN: usize = 8;
@@ -126,8 +131,11 @@ const _: [(); NEMM_OBSERVER_SIZE] = [(); size_of::<ObserverCell>()];
 const _: [(); NEMM_OBSERVER_ALIGN] = [(); align_of::<ObserverCell>()];
 const _: [(); NEMM_LEVELS_SIZE] = [(); size_of::<LevelsCell>()];
 const _: [(); NEMM_LEVELS_ALIGN] = [(); align_of::<LevelsCell>()];
-// The level tables are the storage's size (the scratch model fits in them).
-const _: () = assert!(size_of::<CModel>() <= size_of::<CLevels>());
+// The storage holds either field of its body (a union, as large as the larger field). Since
+// the level tables read their tables in place, the larger is the scratch model (third check).
+const _: () = assert!(size_of::<LevelsBody>() >= size_of::<CModel>());
+const _: () = assert!(size_of::<LevelsBody>() >= size_of::<CLevels>());
+const _: () = assert!(size_of::<CLevels>() < size_of::<CModel>());
 
 /// Storage of one estimator: `NEMM_ESTIMATOR_SIZE` bytes aligned to `NEMM_ESTIMATOR_ALIGN`,
 /// opaque to the caller. Declare it (a `static` is usual: it is large) and pass its address
@@ -150,7 +158,8 @@ pub struct nemm_observer_t {
 }
 
 /// Storage of one set of level tables (the stored tables of several oil-loss levels, read
-/// from a blob by `nemm_levels_init`): `NEMM_LEVELS_SIZE` bytes aligned to
+/// in place from a blob by `nemm_levels_init`: the storage refers to the blob, which must
+/// stay in place while the level tables are in use): `NEMM_LEVELS_SIZE` bytes aligned to
 /// `NEMM_LEVELS_ALIGN`, opaque to the caller (as `nemm_estimator_t`).
 #[allow(non_camel_case_types)]
 #[repr(C)]

@@ -4,8 +4,8 @@
 use crate::status::{nemm_status_t::*, ALL};
 use crate::*;
 use nemm_core::{
-    decode_into, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model, ModelKind,
-    ObserverConfig, Sample, TableConfig,
+    decode_into, AlignedBlob, AlphaObserver, Estimator, EstimatorConfig, EvalMode, Model,
+    ModelKind, ObserverConfig, Sample, StoredLayout, TableConfig,
 };
 use std::boxed::Box;
 use std::ffi::CStr;
@@ -164,7 +164,7 @@ fn statuses_are_distinct_and_described() {
         assert_eq!(c, s.text());
     }
     assert_eq!(NEMM_OK as i32, 0);
-    for bad in [-1, 7, 9, 63, 78, 1000] {
+    for bad in [-1, 7, 9, 63, 80, 1000] {
         // SAFETY: a static C string.
         let c = unsafe { CStr::from_ptr(nemm_status_str(bad)) };
         assert_eq!(c.to_str().unwrap(), "unknown status");
@@ -659,18 +659,131 @@ fn the_observer_follows_nemm_core_and_checks_its_settings() {
     );
 }
 
-type Levels = nemm_core::LevelTables<NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
+type Levels = nemm_core::LevelTables<'static, NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
 
 /// The levels of the trained blob.
 const TRAINED_LEVELS: [f32; 7] = [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3];
+
+/// Bytes a stored table takes in the blob, where level tables read it in place.
+const TABLE_IMAGE_BYTES: usize = 32 + 28 * NEMM_TABLE_SEGMENTS;
+
+/// A 4-byte-aligned copy of `blob` that lives for the rest of the test run, as level
+/// tables need it (they read the blob in place).
+fn aligned(blob: &[u8]) -> &'static [u8] {
+    let b: &'static AlignedBlob = Box::leak(Box::new(AlignedBlob::new(blob)));
+    b
+}
+
+/// `blob` (its model and stored levels of `NEMM_TABLE_SEGMENTS` segments, the tables bit
+/// for bit) exported again at this build's format version.
+fn exported_again(blob: &[u8]) -> Vec<u8> {
+    let mut model = Box::new(P::empty());
+    let index = decode_into(blob, &mut model).expect("decodes");
+    let ests: Vec<Box<E>> = index
+        .levels
+        .iter()
+        .filter(|l| l.segments as usize == NEMM_TABLE_SEGMENTS)
+        .map(|l| {
+            let mut e = Box::new(E::empty());
+            let c = EstimatorConfig {
+                mode: EvalMode::Table(l.config),
+                ..EstimatorConfig::new(l.alpha)
+            };
+            e.load_with_tables(&model, c, &index, blob)
+                .expect("the stored tables load");
+            assert_eq!(e.table_origin(), nemm_core::TableOrigin::Stored);
+            e
+        })
+        .collect();
+    let refs: Vec<&E> = ests.iter().map(|e| &**e).collect();
+    let mut buf = std::vec![0u8; 400_000];
+    nemm_core::encode_with_tables(&model, &refs, &mut buf)
+        .expect("encodes")
+        .to_vec()
+}
+
+/// The firmware's trained blob with its 7 levels of tables, held 4-byte aligned for the
+/// test run (`include_bytes!` gives no alignment).
+fn trained() -> &'static [u8] {
+    static BLOB: std::sync::OnceLock<&'static [u8]> = std::sync::OnceLock::new();
+    BLOB.get_or_init(|| aligned(TRAINED))
+}
+
+/// `blob` (format version 6, with tables) written in the layout of format version 5: the
+/// same header fields, body prefix and tables, the tables section as version 5 stored it
+/// (varints, presence bytes, each table's scalars, accuracy and segments without its lookup
+/// cells; `nemm_core::format::tables`), for the refusal of such blobs by level tables.
+fn as_version_5(blob: &[u8]) -> Vec<u8> {
+    let mut model = Box::new(P::empty());
+    let index = decode_into(blob, &mut model).expect("decodes");
+    let mut header = nemm_core::read_header(blob).unwrap();
+    assert_eq!(header.version, 6);
+    let mut buf = std::vec![0u8; 100_000];
+    let hlen = postcard::to_slice(&header, &mut buf).unwrap().len();
+    // The body up to the tables section, as the encoder writes it.
+    let mut body = Vec::new();
+    body.extend_from_slice(postcard::to_slice(&*model, &mut buf).unwrap());
+    let v3 = (&model.condition, &model.alpha_branches, &model.provenance);
+    body.extend_from_slice(postcard::to_slice(&v3, &mut buf).unwrap());
+    body.extend_from_slice(postcard::to_slice(&model.static_force, &mut buf).unwrap());
+    body.extend_from_slice(postcard::to_slice(&model.lost_motion, &mut buf).unwrap());
+    assert_eq!(
+        &blob[hlen..hlen + body.len()],
+        &body[..],
+        "the body's prefix"
+    );
+    let n = u32::try_from(index.levels.len()).unwrap();
+    body.extend_from_slice(postcard::to_slice(&n, &mut buf).unwrap());
+    let f32_at = |at: usize| f32::from_le_bytes(blob[at..at + 4].try_into().unwrap());
+    let u32_at = |at: usize| u32::from_le_bytes(blob[at..at + 4].try_into().unwrap());
+    for level in &index.levels {
+        let c = &level.config;
+        let head = (
+            level.alpha,
+            level.segments,
+            c.max_rel_error,
+            c.domain_margin,
+        );
+        body.extend_from_slice(postcard::to_slice(&head, &mut buf).unwrap());
+        for table in [level.b_fl, level.k_pr] {
+            let Some(t) = table else {
+                body.push(0);
+                continue;
+            };
+            assert_eq!(t.layout, StoredLayout::Image);
+            body.push(1);
+            // The image: 4 scalars, 2 T cells (u16), T segments of 6 f32, the accuracy.
+            let (at, segs) = (t.offset as usize, level.segments as usize);
+            let seg_at = at + 16 + 4 * segs;
+            let acc_at = seg_at + 24 * segs;
+            for k in 0..4 {
+                body.extend_from_slice(&blob[at + 4 * k..at + 4 * k + 4]);
+            }
+            let acc = (f32_at(acc_at), f32_at(acc_at + 4));
+            let counts = (u32_at(acc_at + 8), u32_at(acc_at + 12));
+            body.extend_from_slice(postcard::to_slice(&acc, &mut buf).unwrap());
+            body.extend_from_slice(postcard::to_slice(&counts, &mut buf).unwrap());
+            body.extend_from_slice(&blob[seg_at..acc_at]);
+        }
+    }
+    header.version = 5;
+    header.body_len = u32::try_from(body.len()).unwrap();
+    let mut v5 = postcard::to_slice(&header, &mut buf).unwrap().to_vec();
+    v5.extend_from_slice(&body);
+    let crc = nemm_core::CRC.checksum(&v5);
+    v5.extend_from_slice(&crc.to_le_bytes());
+    v5
+}
 
 fn levels_storage() -> Box<Aligned<nemm_levels_t>> {
     // SAFETY: all-zero bytes are a valid `u8` array.
     unsafe { Box::new_zeroed().assume_init() }
 }
 
+/// `nemm_levels_init` from `blob`, which the level tables read in place: where the init
+/// succeeds, the blob is one that lives for the test run ([`aligned`]).
 fn levels_init(lv: &mut nemm_levels_t, est: &nemm_estimator_t, blob: &[u8]) -> nemm_status_t {
-    // SAFETY: valid storages and blob.
+    // SAFETY: valid storages and blob; a blob the level tables keep lives for the run.
     unsafe {
         nemm_levels_init(
             lv,
@@ -690,7 +803,7 @@ fn levels_info(lv: &nemm_levels_t) -> nemm_levels_info_t {
 }
 
 /// nemm-core's level tables of `blob` as the library loads them.
-fn reference_levels(blob: &[u8]) -> (Box<P>, Box<Levels>) {
+fn reference_levels(blob: &'static [u8]) -> (Box<P>, Box<Levels>) {
     let mut model = Box::new(P::empty());
     let tables = decode_into(blob, &mut model).expect("decodes");
     let mut levels = Box::new(Levels::empty());
@@ -705,8 +818,9 @@ fn c_estimator(blob: &[u8], alpha: f32) -> Box<Aligned<nemm_estimator_t>> {
     st
 }
 
-/// The blob of the example NEMM with 128-segment tables at `alphas`.
-fn example_blob_with_levels(alphas: &[f32]) -> Vec<u8> {
+/// The blob of the example NEMM with 128-segment tables at `alphas`, 4-byte aligned for the
+/// test run.
+fn example_blob_with_levels(alphas: &[f32]) -> &'static [u8] {
     let model: Box<P> =
         Box::new(nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap());
     let ests: Vec<Box<E>> = alphas
@@ -726,27 +840,29 @@ fn example_blob_with_levels(alphas: &[f32]) -> Vec<u8> {
         .collect();
     let refs: Vec<&E> = ests.iter().map(|e| &**e).collect();
     let mut buf = std::vec![0u8; 400_000];
-    nemm_core::encode_with_tables(&model, &refs, &mut buf)
-        .expect("encodes")
-        .to_vec()
+    aligned(nemm_core::encode_with_tables(&model, &refs, &mut buf).expect("encodes"))
 }
 
 #[test]
 fn level_tables_load_from_the_estimators_blob_and_step_as_nemm_core() {
     let mut st = estimator_storage();
     assert_eq!(
-        init(&mut st.0, TRAINED, &cfg(0.15, NEMM_MODE_TABLE)),
+        init(&mut st.0, trained(), &cfg(0.15, NEMM_MODE_TABLE)),
         NEMM_OK
     );
     let mut lv = levels_storage();
-    assert_eq!(levels_init(&mut lv.0, &st.0, TRAINED), NEMM_OK);
+    assert_eq!(levels_init(&mut lv.0, &st.0, trained()), NEMM_OK);
     let i = levels_info(&lv.0);
     assert_eq!(i.levels, 7);
     assert_eq!(&i.alpha[..7], &TRAINED_LEVELS);
     assert_eq!(i.alpha[7], 0.0);
-    assert_eq!(i.table_bytes as usize, 14 * 28 * NEMM_TABLE_SEGMENTS);
+    // The tables' bytes in the blob, where they are read; the level tables' RAM is a few
+    // hundred bytes, the storage the scratch model of the init.
+    assert_eq!(i.table_bytes as usize, 14 * TABLE_IMAGE_BYTES);
+    assert!(core::mem::size_of::<Levels>() < 1024);
+    assert!(core::mem::size_of::<Levels>() < NEMM_LEVELS_SIZE);
     assert_eq!(i.table_max_rel_error, NEMM_TABLE_MAX_REL_ERROR);
-    let (model, levels) = reference_levels(TRAINED);
+    let (model, levels) = reference_levels(trained());
     let mut want: Box<Estimator<'_, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>> =
         Box::new(Estimator::empty());
     want.load(&model, EstimatorConfig::new(0.15)).unwrap();
@@ -826,7 +942,7 @@ fn level_tables_load_from_the_estimators_blob_and_step_as_nemm_core() {
 
 #[test]
 fn level_tables_refuse_other_blobs_and_bad_storage() {
-    let trained = c_estimator(TRAINED, 0.15);
+    let on_trained = c_estimator(trained(), 0.15);
     let mut lv = levels_storage();
     // A blob without level tables, a model without neural coefficients.
     let example = c_estimator(EXAMPLES[3].0, 0.15);
@@ -841,19 +957,19 @@ fn level_tables_refuse_other_blobs_and_bad_storage() {
     );
     // Not the estimator's blob, either way round.
     assert_eq!(
-        levels_init(&mut lv.0, &trained.0, EXAMPLES[3].0),
+        levels_init(&mut lv.0, &on_trained.0, EXAMPLES[3].0),
         NEMM_E_LEVELS_OTHER_BLOB
     );
     assert_eq!(
-        levels_init(&mut lv.0, &example.0, TRAINED),
+        levels_init(&mut lv.0, &example.0, trained()),
         NEMM_E_LEVELS_OTHER_BLOB
     );
     // A good init, then a failed one: no level tables any more.
-    assert_eq!(levels_init(&mut lv.0, &trained.0, TRAINED), NEMM_OK);
-    let mut corrupt = TRAINED.to_vec();
+    assert_eq!(levels_init(&mut lv.0, &on_trained.0, trained()), NEMM_OK);
+    let mut corrupt = trained().to_vec();
     corrupt[1000] ^= 1;
     assert_eq!(
-        levels_init(&mut lv.0, &trained.0, &corrupt),
+        levels_init(&mut lv.0, &on_trained.0, &corrupt),
         NEMM_E_BLOB_CRC_MISMATCH
     );
     let mut i = nemm_levels_info_t::default();
@@ -863,20 +979,20 @@ fn level_tables_refuse_other_blobs_and_bad_storage() {
     // More levels than the capacity.
     let nine: Vec<f32> = (0..9).map(|k| 0.05 * k as f32).collect();
     let blob = example_blob_with_levels(&nine);
-    let many = c_estimator(&blob, 0.15);
+    let many = c_estimator(blob, 0.15);
     assert_eq!(
-        levels_init(&mut lv.0, &many.0, &blob),
+        levels_init(&mut lv.0, &many.0, blob),
         NEMM_E_LEVELS_TOO_MANY
     );
     // Storage, pointers, an uninitialised estimator.
     let size = core::mem::size_of::<nemm_levels_t>();
     let p: *mut nemm_levels_t = &mut lv.0;
-    let (b, n) = (TRAINED.as_ptr(), TRAINED.len());
+    let (b, n) = (trained().as_ptr(), trained().len());
     // SAFETY: valid or NULL pointers, true sizes; refused before anything is read beyond
     // them.
     unsafe {
         assert_eq!(
-            nemm_levels_init(core::ptr::null_mut(), size, &trained.0, b, n),
+            nemm_levels_init(core::ptr::null_mut(), size, &on_trained.0, b, n),
             NEMM_E_NULL
         );
         assert_eq!(
@@ -884,19 +1000,19 @@ fn level_tables_refuse_other_blobs_and_bad_storage() {
             NEMM_E_NULL
         );
         assert_eq!(
-            nemm_levels_init(p, size, &trained.0, core::ptr::null(), n),
+            nemm_levels_init(p, size, &on_trained.0, core::ptr::null(), n),
             NEMM_E_NULL
         );
         assert_eq!(
-            nemm_levels_init(p, size - 1, &trained.0, b, n),
+            nemm_levels_init(p, size - 1, &on_trained.0, b, n),
             NEMM_E_STORAGE_SIZE
         );
         assert_eq!(
-            nemm_levels_init(p.cast::<u8>().add(1).cast(), size - 1, &trained.0, b, n),
+            nemm_levels_init(p.cast::<u8>().add(1).cast(), size - 1, &on_trained.0, b, n),
             NEMM_E_STORAGE_ALIGN
         );
         assert_eq!(
-            nemm_levels_init(p, size, &trained.0, b, usize::MAX),
+            nemm_levels_init(p, size, &on_trained.0, b, usize::MAX),
             NEMM_E_INVALID_ARGUMENT
         );
         let fresh = estimator_storage();
@@ -909,7 +1025,7 @@ fn level_tables_refuse_other_blobs_and_bad_storage() {
         let part = n.min(size - 64);
         core::ptr::copy_nonoverlapping(b, inner, part);
         assert_eq!(
-            nemm_levels_init(p, size, &trained.0, inner, part),
+            nemm_levels_init(p, size, &on_trained.0, inner, part),
             NEMM_E_OVERLAP
         );
         let est_inside = p.cast::<u8>().add(64).cast::<nemm_estimator_t>();
@@ -920,6 +1036,90 @@ fn level_tables_refuse_other_blobs_and_bad_storage() {
         );
         assert_eq!(nemm_levels_info(p, core::ptr::null_mut()), NEMM_E_NULL);
     }
+}
+
+/// Level tables read their tables in place: a blob off the 4-byte boundary is refused with
+/// its own status, and the storage holds no level tables after it (nor after a good init
+/// before it); the estimator decodes (copies) the same bytes at any alignment.
+#[test]
+fn level_tables_refuse_an_unaligned_blob_and_leave_nothing_initialised() {
+    let blob = trained();
+    let est = c_estimator(blob, 0.15);
+    // The same bytes at an address of 1 modulo 4: the estimator's blob (its length and CRC).
+    let mut buf = std::vec![0u8; blob.len() + 4];
+    let off = (5 - buf.as_ptr() as usize % 4) % 4;
+    let shifted = &mut buf[off..off + blob.len()];
+    shifted.copy_from_slice(blob);
+    let shifted: &[u8] = shifted;
+    assert_eq!(shifted.as_ptr() as usize % 4, 1);
+    let mut fresh = levels_storage();
+    assert_eq!(
+        levels_init(&mut fresh.0, &est.0, shifted),
+        NEMM_E_LEVELS_UNALIGNED
+    );
+    let mut lv = levels_storage();
+    assert_eq!(levels_init(&mut lv.0, &est.0, blob), NEMM_OK);
+    assert_eq!(
+        levels_init(&mut lv.0, &est.0, shifted),
+        NEMM_E_LEVELS_UNALIGNED
+    );
+    let mut on_shifted = c_estimator(shifted, 0.15);
+    let mut obs = observer_storage();
+    for l in [&fresh.0, &lv.0] {
+        let mut i = nemm_levels_info_t::default();
+        // SAFETY: valid storages and output.
+        unsafe {
+            assert_eq!(nemm_levels_info(l, &mut i), NEMM_E_NOT_INITIALISED);
+            assert_eq!(
+                nemm_estimator_attach_levels(&mut on_shifted.0, l),
+                NEMM_E_NOT_INITIALISED
+            );
+        }
+        assert_eq!(i, nemm_levels_info_t::default(), "nothing written");
+        assert_eq!(
+            observer_init_on_levels(&mut obs.0, &est.0, l, None),
+            NEMM_E_NOT_INITIALISED
+        );
+    }
+    assert_eq!(
+        NEMM_E_LEVELS_UNALIGNED as i32, 78,
+        "the header's value is stable"
+    );
+}
+
+/// A blob of format version 5 stores its tables unaligned: level tables refuse it with
+/// their own status (an estimator still decodes it and copies its tables); exported again
+/// at this version, the same tables are read in place.
+#[test]
+fn level_tables_refuse_a_version_5_blob_until_it_is_exported_again() {
+    let v5 = aligned(&as_version_5(trained()));
+    assert_eq!(nemm_core::read_header(v5).unwrap().version, 5);
+    let mut model = Box::new(P::empty());
+    let index = decode_into(v5, &mut model).expect("a version-5 blob decodes");
+    assert_eq!(index.levels.len(), TRAINED_LEVELS.len());
+    for l in &index.levels {
+        assert_eq!(l.b_fl.unwrap().layout, StoredLayout::Segments);
+        assert_eq!(l.k_pr.unwrap().layout, StoredLayout::Segments);
+    }
+    let mut tab = estimator_storage();
+    assert_eq!(init(&mut tab.0, v5, &cfg(0.15, NEMM_MODE_TABLE)), NEMM_OK);
+    assert_eq!(info(&tab.0).table_origin, NEMM_TABLES_STORED);
+    let mut lv = levels_storage();
+    assert_eq!(levels_init(&mut lv.0, &tab.0, v5), NEMM_E_LEVELS_LAYOUT);
+    let mut i = nemm_levels_info_t::default();
+    // SAFETY: valid storage and output.
+    let s = unsafe { nemm_levels_info(&lv.0, &mut i) };
+    assert_eq!(s, NEMM_E_NOT_INITIALISED);
+    // Exported again: the version-6 blob, byte for byte, and its level tables load.
+    let v6 = exported_again(v5);
+    assert_eq!(v6, trained(), "the same model and tables");
+    let est = c_estimator(trained(), 0.15);
+    assert_eq!(levels_init(&mut lv.0, &est.0, trained()), NEMM_OK);
+    assert_eq!(levels_info(&lv.0).levels, 7);
+    assert_eq!(
+        NEMM_E_LEVELS_LAYOUT as i32, 79,
+        "the header's value is stable"
+    );
 }
 
 fn observer_init_on_levels(
@@ -944,17 +1144,17 @@ fn observer_init_on_levels(
 fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
     let mut st = estimator_storage();
     assert_eq!(
-        init(&mut st.0, TRAINED, &cfg(0.12, NEMM_MODE_EXACT)),
+        init(&mut st.0, trained(), &cfg(0.12, NEMM_MODE_EXACT)),
         NEMM_OK
     );
     let mut lv = levels_storage();
-    assert_eq!(levels_init(&mut lv.0, &st.0, TRAINED), NEMM_OK);
+    assert_eq!(levels_init(&mut lv.0, &st.0, trained()), NEMM_OK);
     let mut obs = observer_storage();
     assert_eq!(
         observer_init_on_levels(&mut obs.0, &st.0, &lv.0, None),
         NEMM_OK
     );
-    let (model, levels) = reference_levels(TRAINED);
+    let (model, levels) = reference_levels(trained());
     let mut want: Box<AlphaObserver<'_, NEMM_PARAM_CAPACITY, NEMM_OBSERVER_MAX_POINTS>> =
         Box::new(AlphaObserver::empty());
     want.load_on_levels(&model, &levels, ObserverConfig::new())
@@ -1051,9 +1251,9 @@ fn the_observer_on_levels_follows_nemm_core_and_finds_alpha() {
     }
     // Two observers on two level tables each step on their own.
     let blob = example_blob_with_levels(&[0.1, 0.2]);
-    let other = c_estimator(&blob, 0.15);
+    let other = c_estimator(blob, 0.15);
     let mut lv2 = levels_storage();
-    assert_eq!(levels_init(&mut lv2.0, &other.0, &blob), NEMM_OK);
+    assert_eq!(levels_init(&mut lv2.0, &other.0, blob), NEMM_OK);
     assert_eq!(levels_info(&lv2.0).levels, 2);
     let mut obs2 = observer_storage();
     assert_eq!(

@@ -265,9 +265,11 @@ pub(crate) fn origin_value(origin: TableOrigin) -> u32 {
 pub struct nemm_levels_info_t {
     /// Number of levels loaded (2 to `NEMM_LEVELS_CAPACITY`).
     pub levels: u32,
-    /// Bytes of RAM the loaded tables take (`28 x NEMM_TABLE_SEGMENTS` per table, two tables
-    /// per level for the NEMM, one for NEMM-Light); the storage is `NEMM_LEVELS_SIZE` bytes
-    /// whatever the number of levels.
+    /// Bytes the loaded tables take in the blob, where they are read in place (`32 + 28 x
+    /// NEMM_TABLE_SEGMENTS` per table, two tables per level for the NEMM, one for
+    /// NEMM-Light): the blob's memory (flash on a microcontroller), not the storage's. The
+    /// level tables' RAM is their storage, `NEMM_LEVELS_SIZE` bytes whatever the number of
+    /// levels.
     pub table_bytes: u32,
     /// The error bound every level's tables were built and checked with (relative, against
     /// the exact network at that level).
