@@ -312,7 +312,7 @@ mod app {
     fn build_observer(
         console: &mut Console,
         model: &Model<PARAM_CAPACITY>,
-        (tables, blob): &(StoredTables, &[u8]),
+        (tables, blob): &(StoredTables, &'static [u8]),
     ) -> Option<&'static mut FwObserver> {
         // Built in place in its static: nothing of the observer's size is on the stack.
         // The empty observer as one constant: copied from flash into the static, not built

@@ -3,7 +3,8 @@
 //!
 //! [`FwObserver::load`] reads the blob's stored levels of [`crate::TABLE_SEGMENTS`]
 //! segments (a blob exported with `--tables-levels 7`: the firmware's trained model) into a
-//! [`LevelTables`] in its own `static` and takes them as the observer's grid
+//! [`LevelTables`] in its own `static`, which holds references into the weights slot: the
+//! tables are read in place from flash, not copied to RAM. It takes them as the observer's grid
 //! ([`AlphaObserver::load_on_levels`]); each step is then 7 table-mode model steps. A blob
 //! without level tables gives the exact observer (the grid over the trained range,
 //! [`AlphaObserver::load`]): the same estimate up to the tables' error, about 7.5 exact
@@ -16,9 +17,10 @@ use nemm_core::{
 };
 
 /// The level tables of the firmware's observer: up to [`OBSERVER_LEVELS`] levels of
-/// [`TABLE_SEGMENTS`]-segment tables (`2 x 28 x 128` bytes per level for a NEMM). They live
-/// in their own `static` (the observer holds them by reference).
-pub type FwLevels = LevelTables<TABLE_SEGMENTS, OBSERVER_LEVELS>;
+/// [`TABLE_SEGMENTS`]-segment tables, read in place from the weights slot (`2 x (32 + 28 x
+/// 128)` bytes of flash per level for a NEMM; the `LevelTables` themselves are a few hundred
+/// bytes of RAM). They live in their own `static` (the observer holds them by reference).
+pub type FwLevels = LevelTables<'static, TABLE_SEGMENTS, OBSERVER_LEVELS>;
 
 /// The firmware's alpha observer and the level tables it steps on.
 #[derive(Debug, Clone)]
@@ -37,15 +39,15 @@ impl FwObserver {
     }
 
     /// Loads `model` in place: on the blob's level tables when it stores them (`tables` is
-    /// the index [`nemm_core::decode_into`] returned for `blob`; they are read into
-    /// `levels`, the storage of a `static`), else exact. The observer's settings are
-    /// [`observer_config`].
+    /// the index [`nemm_core::decode_into`] returned for `blob`, the weights slot's blob,
+    /// 4-byte aligned: `levels`, the storage of a `static`, then refers to its tables in
+    /// flash), else exact. The observer's settings are [`observer_config`].
     pub fn load(
         &mut self,
         levels: &'static mut FwLevels,
         model: &Model<PARAM_CAPACITY>,
         tables: &StoredTables,
-        blob: &[u8],
+        blob: &'static [u8],
     ) -> Result<(), ObserverError> {
         let loaded = levels.load(model, tables, blob).is_ok();
         let levels: &'static FwLevels = levels;

@@ -9,6 +9,11 @@
 //!  8      blob: `len` bytes, the `.nemm` file as exported
 //! ```
 //!
+//! The blob starts at offset 8, so a slot placed on a 4-byte boundary (a flash sector) holds
+//! it 4-byte aligned, as `nemm_core::LevelTables` needs to read its tables in place. The
+//! capacity, 128 KiB, holds the trained NEMM (H = 16, L = 5) with its fast-path tables at up
+//! to 15 levels of 128 segments (125,552 bytes).
+//!
 //! The slot only frames the blob; everything inside it (magic, version, CRC, shapes,
 //! stability) is checked by `nemm_core::decode`. [`encode`] writes a slot: the firmware's
 //! build script, `cargo xtask` and the host tests frame their blobs with it; [`blob`] reads
@@ -20,7 +25,7 @@ pub const MAGIC: [u8; 4] = *b"NWSL";
 /// Slot header length in bytes.
 pub const HEADER_LEN: usize = 8;
 /// Bytes the firmware image reserves for the slot (header and blob).
-pub const CAPACITY: usize = 64 * 1024;
+pub const CAPACITY: usize = 128 * 1024;
 
 /// Why the slot holds no usable blob.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -890,7 +890,9 @@ fn tables_restores_the_level_tables_of_an_existing_blob() {
     let alphas: Vec<f32> = stored.levels.iter().map(|l| l.alpha).collect();
     assert_eq!(alphas, [0.0, 0.1, 0.2, 0.3]);
     assert!(
-        text.contains("level tables:    4 levels of 128 segments, 28672 B in RAM"),
+        text.contains(
+            "level tables:    4 levels of 128 segments, 28928 B in the blob, read in place"
+        ),
         "{text}"
     );
     assert!(text.contains("out of the declared order in 0 of"), "{text}");

@@ -68,10 +68,12 @@ pub fn run(trace: &[u8], blob: &[u8], options: &Options) -> Reference {
     // The bench-controller part, as the firmware builds it.
     let mut bench = options.observer_on().then(|| {
         let mut observer = Box::new(FwObserver::empty());
-        // The firmware's level tables live in a `static`: here, a leaked box.
+        // The firmware's level tables live in a `static` and read the weights slot in place:
+        // here, leaked boxes, the blob held 4-byte aligned as the slot holds it.
         let levels = Box::leak(Box::new(nemm_firmware::FwLevels::empty()));
+        let slot: &'static [u8] = Box::leak(Box::new(nemm_core::AlignedBlob::new(blob)));
         observer
-            .load(levels, &model, &tables, blob)
+            .load(levels, &model, &tables, slot)
             .expect("the observer builds on the host");
         let lc_cal = load_cell_calibration();
         let mut device = ReplayLoadCell::new(trace, lc_cal);

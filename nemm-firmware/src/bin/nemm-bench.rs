@@ -770,7 +770,7 @@ fn observer_step(observer: &mut FwObserver, velocity_m_s: f32, force_n: f32) -> 
 /// the `observer` line.
 fn observer_run(
     console: &mut Console,
-    (model, (tables, blob)): (&Model<PARAM_CAPACITY>, &(StoredTables, &[u8])),
+    (model, (tables, blob)): (&Model<PARAM_CAPACITY>, &(StoredTables, &'static [u8])),
     run: &RunName,
     warmup: (&[f32], &[f32]),
     measured: (&[f32], &[f32]),

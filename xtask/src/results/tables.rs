@@ -57,7 +57,8 @@ fn tables_markdown(command: &str, commit: &str, errors: &str, check: &str, level
          {TRAINED_BLOB}`, what `nemm export` prints):\n\n```text\n{}\n```\n\n\
          **Every level at table cost** (`cargo run --release -p nemm-core --example levels_error \
          -- --markdown {TRAINED_BLOB}`): `LevelTables` of 4, 7 and 13 levels evenly over the \
-         trained range (128 segments, bound 1e-4): the tables' bytes in the blob (flash) and in RAM; \
+         trained range (128 segments, bound 1e-4): the tables' bytes in the blob (flash, where \
+         they are read in place) and the level tables' own RAM; \
          the worst relative error of each blended coefficient against the exact scalers (7 \
          levels inside each interval, 16 states per segment); points where neighbouring levels \
          are out of the declared order (tables / exact model); the force of a level per sample \

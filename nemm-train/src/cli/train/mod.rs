@@ -323,10 +323,12 @@ fn levels_check<const T: usize>(
     stored: &nemm_core::StoredTables,
     blob: &[u8],
 ) -> Result<Option<String>> {
-    use nemm_core::{Estimator, EstimatorConfig, LevelTables, LevelsError};
+    use nemm_core::{AlignedBlob, Estimator, EstimatorConfig, LevelTables, LevelsError};
     const MAX: usize = nemm_core::MAX_TABLE_LEVELS;
-    let mut levels: Box<LevelTables<T, MAX>> = Box::new(LevelTables::empty());
-    match levels.load(model, stored, blob) {
+    // Held 4-byte aligned, as a flash slot holds it: the level tables read it in place.
+    let blob = AlignedBlob::new(blob);
+    let mut levels: Box<LevelTables<'_, T, MAX>> = Box::new(LevelTables::empty());
+    match levels.load(model, stored, &blob) {
         Ok(()) => {}
         Err(LevelsError::TooFewLevels { .. } | LevelsError::NoNeuralCoefficient) => {
             return Ok(None)
@@ -343,7 +345,7 @@ fn levels_check<const T: usize>(
         .map_err(|e| anyhow::anyhow!("level tables: {e}"))?;
     let [b_fl, b_pr, k_pr] = c.max_rel_error;
     Ok(Some(format!(
-        "level tables:    {} levels of {T} segments, {} B in RAM; blend between levels within \
+        "level tables:    {} levels of {T} segments, {} B in the blob, read in place; blend between levels within \
          {b_fl:.1e} (b_fl), {b_pr:.1e} (b_pr), {k_pr:.1e} (k_pr) relative of the exact model \
          (worst at alpha {:.3}); neighbouring levels out of the declared order in {} of {} \
          checks (b_fl and k_pr at {} states between each pair of levels; exact model: {})\n",
