@@ -242,19 +242,38 @@ impl StoredTables {
     ) -> Option<&'a [u8]> {
         // Without levels the index is empty (equal to a model's not decoded from a blob).
         *self = StoredTables::EMPTY;
-        if version >= 6 {
-            return self.read_images(bytes, covered, crc, (b_fl, k_pr));
-        }
-        let (n, mut rest) = postcard::take_from_bytes::<u32>(bytes).ok()?;
+        let image = version >= 6;
+        let (n, mut rest) = if image {
+            take_u32(aligned_contents(bytes, covered)?)?
+        } else {
+            postcard::take_from_bytes::<u32>(bytes).ok()?
+        };
         if usize::try_from(n).ok()? > MAX_TABLE_LEVELS {
             return None;
         }
         for _ in 0..n {
-            let ((alpha, segments, max_rel_error, domain_margin), r) =
-                postcard::take_from_bytes::<(f32, u32, f32, f32)>(rest).ok()?;
-            let config = TableConfig {
-                max_rel_error,
-                domain_margin,
+            let ((alpha, segments, config), r) = if image {
+                let ((alpha, segments), r) =
+                    postcard::take_from_bytes::<(f32, [u8; 4])>(rest).ok()?;
+                let ((max_rel_error, domain_margin), r) =
+                    postcard::take_from_bytes::<(f32, f32)>(r).ok()?;
+                let (present, r) = take_u32(r)?;
+                if present != u32::from(b_fl) | (u32::from(k_pr) << 1) {
+                    return None;
+                }
+                let config = TableConfig {
+                    max_rel_error,
+                    domain_margin,
+                };
+                ((alpha, u32::from_le_bytes(segments), config), r)
+            } else {
+                let ((alpha, segments, max_rel_error, domain_margin), r) =
+                    postcard::take_from_bytes::<(f32, u32, f32, f32)>(rest).ok()?;
+                let config = TableConfig {
+                    max_rel_error,
+                    domain_margin,
+                };
+                ((alpha, segments, config), r)
             };
             let n_seg = usize::try_from(segments).ok()?;
             let valid = alpha.is_finite()
@@ -264,67 +283,12 @@ impl StoredTables {
             if !valid {
                 return None;
             }
-            let (b_fl_table, r) = read_table(r, covered, n_seg, b_fl)?;
-            let (k_pr_table, r) = read_table(r, covered, n_seg, k_pr)?;
-            rest = r;
-            self.levels
-                .push(StoredLevel {
-                    alpha,
-                    segments,
-                    config,
-                    b_fl: b_fl_table,
-                    k_pr: k_pr_table,
-                })
-                .ok()?;
-        }
-        if n > 0 {
-            self.blob_len = u32::try_from(covered.len().checked_add(CRC_LEN)?).ok()?;
-            self.blob_crc = crc;
-        }
-        Some(rest)
-    }
-
-    /// [`Self::read`] of a version-6 section (module docs).
-    fn read_images<'a>(
-        &mut self,
-        bytes: &'a [u8],
-        covered: &[u8],
-        crc: u32,
-        (b_fl, k_pr): (bool, bool),
-    ) -> Option<&'a [u8]> {
-        let (&pad, rest) = bytes.split_first()?;
-        if pad > MAX_PAD {
-            return None;
-        }
-        let (zeros, rest) = rest.split_at_checked(usize::from(pad))?;
-        if zeros.iter().any(|&b| b != 0) || !(covered.len() - rest.len()).is_multiple_of(4) {
-            return None;
-        }
-        let (n, mut rest) = take_u32(rest)?;
-        if usize::try_from(n).ok()? > MAX_TABLE_LEVELS {
-            return None;
-        }
-        for _ in 0..n {
-            let ((alpha, segments), r) = postcard::take_from_bytes::<(f32, [u8; 4])>(rest).ok()?;
-            let segments = u32::from_le_bytes(segments);
-            let ((max_rel_error, domain_margin), r) =
-                postcard::take_from_bytes::<(f32, f32)>(r).ok()?;
-            let (present, r) = take_u32(r)?;
-            let config = TableConfig {
-                max_rel_error,
-                domain_margin,
+            let table = |r, present| match image {
+                true => read_image(r, covered, n_seg, present),
+                false => read_table(r, covered, n_seg, present),
             };
-            let n_seg = usize::try_from(segments).ok()?;
-            let valid = alpha.is_finite()
-                && (0.0..=1.0).contains(&alpha)
-                && (MIN_SEGMENTS..=usize::from(u16::MAX)).contains(&n_seg)
-                && config.is_valid()
-                && present == u32::from(b_fl) | (u32::from(k_pr) << 1);
-            if !valid {
-                return None;
-            }
-            let (b_fl_table, r) = read_image(r, covered, n_seg, b_fl)?;
-            let (k_pr_table, r) = read_image(r, covered, n_seg, k_pr)?;
+            let (b_fl_table, r) = table(r, b_fl)?;
+            let (k_pr_table, r) = table(r, k_pr)?;
             rest = r;
             self.levels
                 .push(StoredLevel {
@@ -342,6 +306,19 @@ impl StoredTables {
         }
         Some(rest)
     }
+}
+
+/// The contents of a version-6 section at the start of `bytes` (a suffix of `covered`):
+/// after its padding byte and that many zeros, which must bring them to a multiple of 4
+/// bytes from the blob's start.
+fn aligned_contents<'a>(bytes: &'a [u8], covered: &[u8]) -> Option<&'a [u8]> {
+    let (&pad, rest) = bytes.split_first()?;
+    if pad > MAX_PAD {
+        return None;
+    }
+    let (zeros, rest) = rest.split_at_checked(usize::from(pad))?;
+    let at = covered.len().checked_sub(rest.len())?;
+    (zeros.iter().all(|&b| b == 0) && at.is_multiple_of(4)).then_some(rest)
 }
 
 /// A `u32`, little-endian, at the start of `bytes`.
