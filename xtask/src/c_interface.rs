@@ -205,7 +205,7 @@ fn records(out: &str) -> Result<Vec<Record>, String> {
 }
 
 /// The value of `key=` in the line starting with `prefix`.
-fn field<'a>(out: &'a str, prefix: &str, key: &str) -> Option<&'a str> {
+pub fn field<'a>(out: &'a str, prefix: &str, key: &str) -> Option<&'a str> {
     let k = format!("{key}=");
     out.lines()
         .find(|l| l.starts_with(prefix))?
@@ -288,10 +288,78 @@ fn link_example(
         .arg(elf))
 }
 
+/// One run of the C example: its mode, the samples it replayed, its `c-example` lines and
+/// its image's sections.
+#[derive(Debug, Clone)]
+pub struct ExampleRun {
+    /// The estimator's mode of the run.
+    pub mode: Mode,
+    /// Samples replayed (the firmware's records).
+    pub samples: usize,
+    /// The `c-example boot` line: what was built.
+    pub boot: String,
+    /// The `c-example summary` line: counters, the exact observer's estimate, instructions per
+    /// step, stack.
+    pub summary: String,
+    /// The `c-example levels` line: the level tables, the observer on them, the estimator's
+    /// level per sample.
+    pub levels: String,
+    /// Sections of the linked image.
+    pub memory: nemm_elf::MemoryUse,
+    /// Bytes of the recorded inputs linked into the image.
+    pub inputs_bytes: u64,
+}
+
+impl ExampleRun {
+    /// The lines `cargo xtask c-test` prints for the run.
+    pub fn lines(&self, blob_bytes: usize) -> [String; 4] {
+        let m = &self.memory;
+        [
+            self.boot.clone(),
+            self.summary.clone(),
+            self.levels.clone(),
+            format!(
+                "c-example image: .text {} B, .rodata {} B (blob {blob_bytes} B, inputs {} B), \
+                 .bss {} B",
+                m.size_of(".text"),
+                m.size_of(".rodata"),
+                self.inputs_bytes,
+                m.size_of(".bss"),
+            ),
+        ]
+    }
+}
+
+/// What [`target_example`] measured: the blob it ran (the firmware's) and one
+/// [`ExampleRun`] per run of [`RUNS`].
+#[derive(Debug, Clone)]
+pub struct ExampleFigures {
+    /// The blob of the firmware's weights slot, linked into the example.
+    pub blob: Vec<u8>,
+    /// The runs, in the order of [`RUNS`] (exact mode, then table mode).
+    pub runs: Vec<ExampleRun>,
+}
+
+impl ExampleFigures {
+    /// The run in `mode`.
+    pub fn run(&self, mode: Mode) -> Result<&ExampleRun, String> {
+        self.runs
+            .iter()
+            .find(|r| r.mode == mode)
+            .ok_or_else(|| format!("no {}-mode run of the C example", mode.name()))
+    }
+}
+
 /// The C example against the Rust firmware (`images`: the mps2-an386 build) in QEMU: builds
 /// the Cortex-M4F library, then per run of [`RUNS`] the firmware's records, the example
-/// linked with the firmware's blob and those inputs, and compares record by record.
-pub fn target_example(tc: &Toolchain, paths: &Paths, images: &Images) -> Result<(), String> {
+/// linked with the firmware's blob and those inputs, and compares record by record. Prints
+/// each run's `c-example` lines and image sizes, and returns them (`cargo xtask c-test`,
+/// and the `c` block of `cargo xtask results --c`).
+pub fn target_example(
+    tc: &Toolchain,
+    paths: &Paths,
+    images: &Images,
+) -> Result<ExampleFigures, String> {
     let started = Instant::now();
     let gcc = arm_gcc()?;
     let lib = target_lib(tc, paths)?;
@@ -303,6 +371,7 @@ pub fn target_example(tc: &Toolchain, paths: &Paths, images: &Images) -> Result<
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let blob_path = dir.join("blob.nemm");
     std::fs::write(&blob_path, blob).map_err(|e| format!("{}: {e}", blob_path.display()))?;
+    let mut runs = Vec::with_capacity(RUNS.len());
     for (mode, samples) in RUNS {
         let mut options = vec![SLOW_CLOCK.to_string(), format!("mode={}", mode.name())];
         options.extend(samples.map(|n| format!("samples={n}")));
@@ -354,7 +423,6 @@ pub fn target_example(tc: &Toolchain, paths: &Paths, images: &Images) -> Result<
             );
         }
         compare(mode, &want, &records(&c_out)?)?;
-        let m = image.memory_use();
         let line = |prefix: &str| {
             c_out
                 .lines()
@@ -367,23 +435,28 @@ pub fn target_example(tc: &Toolchain, paths: &Paths, images: &Images) -> Result<
             mode.name(),
             want.len()
         );
-        eprintln!("xtask: {}", line("c-example boot "));
-        eprintln!("xtask: {}", line("c-example summary "));
-        eprintln!("xtask: {}", line("c-example levels "));
-        eprintln!(
-            "xtask: c-example image: .text {} B, .rodata {} B (blob {} B, inputs {} B), .bss {} B",
-            m.size_of(".text"),
-            m.size_of(".rodata"),
-            blob.len(),
-            std::fs::metadata(&inputs_path).map_or(0, |f| f.len()),
-            m.size_of(".bss"),
-        );
+        let run = ExampleRun {
+            mode,
+            samples: want.len(),
+            boot: line("c-example boot "),
+            summary: line("c-example summary "),
+            levels: line("c-example levels "),
+            memory: image.memory_use(),
+            inputs_bytes: std::fs::metadata(&inputs_path).map_or(0, |f| f.len()),
+        };
+        for l in run.lines(blob.len()) {
+            eprintln!("xtask: {l}");
+        }
+        runs.push(run);
     }
     eprintln!(
         "xtask: the C example matched the firmware in {:.0} s",
         started.elapsed().as_secs_f64()
     );
-    Ok(())
+    Ok(ExampleFigures {
+        blob: blob.to_vec(),
+        runs,
+    })
 }
 
 /// Fails at the first record of the C example that differs from the firmware's.

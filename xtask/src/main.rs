@@ -20,7 +20,8 @@
 //! - `cargo xtask results`: the target figures (instructions per step, flash, RAM, stack)
 //!   written into `docs/results.md`; `--training DIR` copies a training report's tables
 //!   there, `--host` writes the host criterion benches' figures ([`results`],
-//!   [`host_bench`]), `--observer` the alpha observer's accuracy on the virtual bench.
+//!   [`host_bench`]), `--observer` the alpha observer's accuracy on the virtual bench, `--c`
+//!   the C interface's figures (the C example on the Cortex-M4F, as `c-test` runs it).
 //! - `cargo xtask bench-slurm`: the overhead of `nemm sweep`'s Slurm engine against the local
 //!   one on a one-node cluster ([`slurm`]).
 //! - `cargo xtask c-lib`, `c-test`, `c-header`: the C interface (`nemm-c`): its static
@@ -155,24 +156,30 @@ enum Cmd {
     /// criterion benches (nemm-core's `step` with libm and micromath, nemm-train's `gradient`;
     /// minutes) and fill the host block. With --observer, run `nemm diagnose` on out/bench
     /// (generate it first with `nemm bench generate --out out/bench`) with the firmware's trained
-    /// model and fill the observer block and docs/img/level_step.png (minutes).
+    /// model and fill the observer block and docs/img/level_step.png (minutes). With --c, run the
+    /// C example on the emulated Cortex-M4F as `cargo xtask c-test` does (the firmware's blob)
+    /// and fill the c block: instructions per step, stack peak, image sections.
     Results {
         /// A report directory of `nemm compare` or `nemm demo`.
-        #[arg(long, value_name = "DIR", conflicts_with_all = ["table3", "tables", "host", "observer"])]
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["table3", "tables", "host", "observer", "c"])]
         training: Option<PathBuf>,
         /// A collected `nemm sweep --grid table3` report directory (the `table3` block).
-        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer"])]
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer", "c"])]
         table3: Option<PathBuf>,
         /// Measure the tabulated fast path instead (the `tables` block).
-        #[arg(long, conflicts_with_all = ["host", "observer"])]
+        #[arg(long, conflicts_with_all = ["host", "observer", "c"])]
         tables: bool,
         /// Run the host criterion benches instead (the `host` block).
-        #[arg(long, conflicts_with = "observer")]
+        #[arg(long, conflicts_with_all = ["observer", "c"])]
         host: bool,
         /// Run `nemm diagnose` on out/bench with the firmware's trained model instead (the
         /// `observer` block and docs/img/level_step.png).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "c")]
         observer: bool,
+        /// Run the C example on the emulated Cortex-M4F instead (the `c` block: the C
+        /// interface's figures).
+        #[arg(long)]
+        c: bool,
         /// With --host: do not run the benches, write the block from the results of the last
         /// complete --host run (in `<target>/criterion-host`).
         #[arg(long, requires = "host")]
@@ -439,6 +446,7 @@ fn main() -> ExitCode {
             tables,
             host,
             observer,
+            c,
             no_run,
             steps,
             allow_dirty,
@@ -448,6 +456,7 @@ fn main() -> ExitCode {
             _ if tables => Paths::find().and_then(|p| results::tables(&p, allow_dirty)),
             _ if host => Paths::find().and_then(|p| results::host(&p, no_run, allow_dirty)),
             _ if observer => Paths::find().and_then(|p| results::observer(&p, allow_dirty)),
+            _ if c => setup().and_then(|(tc, p)| results::c_example(&tc, &p, allow_dirty)),
             _ => setup().and_then(|(tc, paths)| results::target(&tc, &paths, steps, allow_dirty)),
         },
         Some(Cmd::BenchSlurm { tasks }) => Paths::find().and_then(|p| slurm::bench(&p, tasks)),
@@ -1041,6 +1050,22 @@ mod tests {
             })) => {}
             other => panic!("{other:?}"),
         }
+        match parse(&["results", "--c", "--allow-dirty"]) {
+            Ok(Some(Cmd::Results {
+                c: true,
+                allow_dirty: true,
+                observer: false,
+                host: false,
+                tables: false,
+                training: None,
+                table3: None,
+                ..
+            })) => {}
+            other => panic!("{other:?}"),
+        }
+        assert!(parse(&["results", "--c", "--observer"]).is_err());
+        assert!(parse(&["results", "--c", "--tables"]).is_err());
+        assert!(parse(&["results", "--c", "--training", "d"]).is_err());
         match parse(&["build-target"]) {
             Ok(Some(Cmd::BuildTarget { boards })) => assert!(boards.is_empty()),
             other => panic!("{other:?}"),

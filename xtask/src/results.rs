@@ -23,13 +23,19 @@
 //! - `observer` ([`observer()`], `cargo xtask results --observer`): the alpha observer's
 //!   accuracy on the virtual bench and a level step, from `nemm diagnose`
 //!   ([`observer`](mod@observer)).
+//! - `c` ([`c_example()`], `cargo xtask results --c`): the C interface's figures on the
+//!   emulated Cortex-M4F, from the C example as `cargo xtask c-test` runs it with the
+//!   firmware's blob: instructions per step of the estimator and the alpha observer (exact,
+//!   table mode, on level tables), the stack peak, the image's sections.
 
+mod c_example;
 mod host;
 mod observer;
 mod tables;
 mod target;
 mod training;
 
+pub use c_example::c_example;
 pub use host::host;
 pub use observer::observer;
 pub use tables::tables;
@@ -65,6 +71,12 @@ Not generated yet: run `cargo xtask results`.
 <!-- BEGIN tables -->
 Not generated yet: run `cargo xtask results --tables`.
 <!-- END tables -->
+
+## C interface
+
+<!-- BEGIN c -->
+Not generated yet: run `cargo xtask results --c`.
+<!-- END c -->
 
 ## Host benchmarks
 
