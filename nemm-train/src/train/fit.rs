@@ -22,7 +22,7 @@ use super::history::{EpochStats, StopReason};
 use super::matched::{matched_count, matched_windows, paired_batch};
 use super::net::{EmmNet, NetFrame};
 use super::params::to_core;
-use super::physics::{audit, physics_loss, PenaltyGrid};
+use super::physics::{audit, physics_loss, Audit, PenaltyGrid};
 use super::selection::{kept_model_summary, passed_over, PassedOver, Selection};
 use super::session::SessionBudget;
 use super::stability::StabilityHold;
@@ -377,6 +377,15 @@ impl Stage<'_> {
         if !self.audited {
             return Ok(None);
         }
+        Ok(self.audit(net)?.map(|a| a.total_violations()))
+    }
+
+    /// The monotonicity audit of `net` on the audit grid (`None` when the stage does not
+    /// audit).
+    fn audit(&self, net: &EmmNet) -> Result<Option<Audit>> {
+        if !self.audited {
+            return Ok(None);
+        }
         // The audit reads the scalers and input scales only; `meta` just completes the model.
         let meta = Meta {
             force_scale_n: self.data.force_scale_n as f32,
@@ -384,9 +393,7 @@ impl Stage<'_> {
             alpha_max: 1.0,
         };
         let model = to_core(&net.to_rollout(self.frame), meta)?;
-        Ok(Some(
-            audit(&model, AUDIT_GRID.0, AUDIT_GRID.1).total_violations(),
-        ))
+        Ok(Some(audit(&model, AUDIT_GRID.0, AUDIT_GRID.1)))
     }
 
     /// The epoch loop from `p.start_epoch`: every epoch trains, validates, selects and
@@ -576,9 +583,18 @@ impl Stage<'_> {
                 kept_model_summary(p.sel.best_epoch, p.sel.best_val, gave_up)
             );
             if self.audited && !p.sel.best_consistent {
+                let what = self
+                    .audit(&p.best)
+                    .ok()
+                    .flatten()
+                    .map(|a| a.describe())
+                    .filter(|d| !d.is_empty())
+                    .unwrap_or_else(|| "eqs. 30-31/37-38".to_string());
                 eprintln!(
-                    "[{label}] warning: no epoch passed the monotonicity audit; the kept model violates \
-                     eqs. 30-31/37-38 (train longer or with a larger --lambda-ph)"
+                    "[{label}] warning: no epoch passed the monotonicity audit; the kept model \
+                     violates {what}. The priors in the state are a penalty (--lambda-ph): a larger \
+                     one trades accuracy for them (an earlier, less accurate epoch passes), and a \
+                     force that does not rise with the velocity or the stroke (friction) fights them"
                 );
             }
         }

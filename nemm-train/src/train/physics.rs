@@ -190,6 +190,38 @@ pub struct Audit {
 }
 
 impl Audit {
+    /// The violated conditions, one phrase each in the paper's terms, e.g. `the flow force
+    /// b_fl v_st rising with v_st: 6886 of 40400 points (worst slope -0.205)`, joined with
+    /// `; `; empty when the audit passes.
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        let state_names = [
+            (self.b_fl, "the flow force b_fl v_st rising with v_st"),
+            (self.k_pr, "the spring force k_pr x_pr rising with x_pr"),
+        ];
+        for (sc, what) in state_names {
+            if let Some(c) = sc.and_then(|s| s.state).filter(|c| c.violations > 0) {
+                parts.push(format!(
+                    "{what}: {} of {} points (worst slope -{:.3})",
+                    c.violations, c.checked, c.worst
+                ));
+            }
+        }
+        for (sc, name) in [
+            (self.b_fl, "b_fl"),
+            (self.b_pr, "b_pr"),
+            (self.k_pr, "k_pr"),
+        ] {
+            if let Some(c) = sc.map(|s| s.alpha).filter(|c| c.violations > 0) {
+                parts.push(format!(
+                    "{name} in its declared direction in alpha: {} of {} points",
+                    c.violations, c.checked
+                ));
+            }
+        }
+        parts.join("; ")
+    }
+
     /// Total number of violations over all conditions.
     pub fn total_violations(&self) -> usize {
         [self.b_fl, self.b_pr, self.k_pr]
@@ -365,6 +397,36 @@ mod tests {
         );
         let model = crate::train::params::to_core(&p, m.meta).expect("valid");
         assert_eq!(audit(&model, 101, 21).total_violations(), 0);
+        assert_eq!(audit(&model, 101, 21).describe(), "");
+    }
+
+    #[test]
+    fn the_description_names_each_violated_condition() {
+        let c = |violations, worst| ConditionAudit {
+            checked: 400,
+            violations,
+            worst,
+        };
+        let a = Audit {
+            b_fl: Some(ScalerAudit {
+                state: Some(c(37, 0.2051)),
+                alpha: c(0, 0.0),
+            }),
+            b_pr: Some(ScalerAudit {
+                state: None,
+                alpha: c(2, 0.01),
+            }),
+            k_pr: Some(ScalerAudit {
+                state: Some(c(0, 0.0)),
+                alpha: c(0, 0.0),
+            }),
+        };
+        assert_eq!(
+            a.describe(),
+            "the flow force b_fl v_st rising with v_st: 37 of 400 points (worst slope -0.205); \
+             b_pr in its declared direction in alpha: 2 of 400 points"
+        );
+        assert_eq!(a.total_violations(), 39);
     }
 
     #[test]
