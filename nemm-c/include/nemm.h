@@ -68,16 +68,18 @@
 
 #if defined(NEMM_TARGET_32)
 /**
- * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
+ * Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
+ * the estimator (32-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46156
+#define NEMM_ESTIMATOR_SIZE 47448
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
- * Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
+ * Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
+ * the estimator (64-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 46360
+#define NEMM_ESTIMATOR_SIZE 47912
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -124,20 +126,18 @@
 
 #if defined(NEMM_TARGET_32)
 /**
- * Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
- * themselves take a few hundred bytes: their tables are read in place from the blob)
- * (32-bit targets).
+ * Bytes of a `nemm_levels_t`: the level tables (their tables are read in place from the
+ * blob, whatever the number of levels) (32-bit targets).
  */
-#define NEMM_LEVELS_SIZE 17892
+#define NEMM_LEVELS_SIZE 188
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
- * Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
- * themselves take a few hundred bytes: their tables are read in place from the blob)
- * (64-bit targets).
+ * Bytes of a `nemm_levels_t`: the level tables (their tables are read in place from the
+ * blob, whatever the number of levels) (64-bit targets).
  */
-#define NEMM_LEVELS_SIZE 17984
+#define NEMM_LEVELS_SIZE 264
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -907,8 +907,9 @@ nemm_status_t nemm_blob_validate(const uint8_t *blob, size_t len, nemm_blob_info
  * Builds an estimator in `storage` (`size` bytes, at least `NEMM_ESTIMATOR_SIZE`, aligned to
  * `NEMM_ESTIMATOR_ALIGN`) from the weights blob `blob` (`blob_len` bytes) with the settings
  * `config`: decodes and validates the blob (every check, the model's contents included)
- * into the storage, then builds the estimator (in table mode: reads the blob's stored
- * tables if they match `alpha` and the bound, else builds and checks the tables).
+ * into the storage, with the index of the tables it stores (kept for `nemm_levels_init`),
+ * then builds the estimator (in table mode: reads the blob's stored tables if they match
+ * `alpha` and the bound, else builds and checks the tables).
  *
  * The estimator then owns everything it needs: neither the blob nor `config` is read after
  * this call returns. The storage must not overlap the blob. Nothing is allocated; the
@@ -1049,9 +1050,8 @@ nemm_status_t nemm_estimator_info(const nemm_estimator_t *est, nemm_estimator_in
  * alpha, one table configuration). A blob exported with `--tables-levels N` stores them.
  *
  * The tables are **read in place**: they are not copied, the level tables refer to them
- * where the blob lies (on a microcontroller: in flash), so their RAM is a few hundred
- * bytes whatever the number of levels (`NEMM_LEVELS_SIZE` is the scratch space of this
- * call, below). Hence the blob:
+ * where the blob lies (on a microcontroller: in flash), so their RAM (`NEMM_LEVELS_SIZE`)
+ * is a few hundred bytes whatever the number of levels. Hence the blob:
  * - must stay readable and unchanged, at the same address, for as long as the level
  *   tables are in use, and so must every estimator they are attached to
  *   (`nemm_estimator_attach_levels`) and every observer built on them
@@ -1063,13 +1063,15 @@ nemm_status_t nemm_estimator_info(const nemm_estimator_t *est, nemm_estimator_in
  * - must be of format version 6 or later (`NEMM_E_LEVELS_LAYOUT` for a blob of version 4 or
  *   5, whose tables lie unaligned: export it again).
  *
- * The blob must be the estimator's, byte for byte (its length and CRC-32 are compared with
- * those the estimator was built from; `NEMM_E_LEVELS_OTHER_BLOB` otherwise): the model is
- * taken from the estimator, and the blob is decoded and checked again (in the storage, not
- * on the stack) for the index of its tables; each table is validated once, here. `est` is
- * not read after this call returns; the level tables may drive any estimator or observer
- * of the same model. Nothing is allocated. This is init work (a CRC and a decode of the
- * blob), not for the sample loop.
+ * The blob must be the estimator's, byte for byte: its length and CRC-32 trailer are
+ * compared with those the estimator was built from (`NEMM_E_LEVELS_OTHER_BLOB` otherwise),
+ * and its CRC-32 is computed again over its bytes (`NEMM_E_BLOB_CRC_MISMATCH` if they
+ * changed since). The blob is not decoded again: the model and the index of the blob's
+ * tables (where each level's tables lie in it) are those the estimator's init decoded
+ * and kept in the estimator's storage; each table is validated once, here. `est` is not
+ * read after this call returns; the level tables may drive any estimator or observer of
+ * the same model. Nothing is allocated. This is init work (a CRC of the blob), not for
+ * the sample loop.
  *
  * On error the storage holds no level tables until an init succeeds.
  *
@@ -1077,7 +1079,7 @@ nemm_status_t nemm_estimator_info(const nemm_estimator_t *est, nemm_estimator_in
  * `NEMM_E_NOT_INITIALISED` (est), `NEMM_E_INVALID_ARGUMENT` (blob_len), `NEMM_E_OVERLAP`
  * (the storage overlaps the blob or the estimator), `NEMM_E_LEVELS_*` (among them
  * `NEMM_E_LEVELS_UNALIGNED` and `NEMM_E_LEVELS_LAYOUT`), and the errors of a blob that no
- * longer decodes (`NEMM_E_BLOB_*`, `NEMM_E_MODEL_*`).
+ * longer checks (`NEMM_E_BLOB_*`: its bytes changed since the estimator's init).
  *
  * # Safety
  * `size` bytes at `storage` must be writable, `blob_len` bytes at `blob` readable, and `est`

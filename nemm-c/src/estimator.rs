@@ -42,8 +42,9 @@ fn core_config(c: &nemm_estimator_config_t) -> Result<EstimatorConfig, nemm_stat
 /// Builds an estimator in `storage` (`size` bytes, at least `NEMM_ESTIMATOR_SIZE`, aligned to
 /// `NEMM_ESTIMATOR_ALIGN`) from the weights blob `blob` (`blob_len` bytes) with the settings
 /// `config`: decodes and validates the blob (every check, the model's contents included)
-/// into the storage, then builds the estimator (in table mode: reads the blob's stored
-/// tables if they match `alpha` and the bound, else builds and checks the tables).
+/// into the storage, with the index of the tables it stores (kept for `nemm_levels_init`),
+/// then builds the estimator (in table mode: reads the blob's stored tables if they match
+/// `alpha` and the bound, else builds and checks the tables).
 ///
 /// The estimator then owns everything it needs: neither the blob nor `config` is read after
 /// this call returns. The storage must not overlap the blob. Nothing is allocated; the
@@ -89,9 +90,11 @@ pub unsafe extern "C" fn nemm_estimator_init(
         let cell = unsafe { EstimatorCell::claim(storage, size) }?;
         // SAFETY: claimed above, in this call.
         let cell = unsafe { EstimatorCell::fill(cell) };
-        let tables = decode_into(bytes, &mut cell.model)?;
+        // The tables index is kept in the storage (for `nemm_levels_init`), written there
+        // rather than kept in a local of this frame.
+        cell.tables = decode_into(bytes, &mut cell.model)?;
         cell.est
-            .load_with_tables(&cell.model, cfg, &tables, bytes)?;
+            .load_with_tables(&cell.model, cfg, &cell.tables, bytes)?;
         cell.seal(bytes);
         Ok(())
     })())

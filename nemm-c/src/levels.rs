@@ -9,8 +9,8 @@ use crate::storage::{
     NEMM_ESTIMATOR_SIZE, NEMM_LEVELS_SIZE,
 };
 use crate::types::nemm_levels_info_t;
-use crate::NEMM_LEVELS_CAPACITY;
-use nemm_core::decode_into;
+use crate::{NEMM_LEVELS_CAPACITY, NEMM_PARAM_CAPACITY};
+use nemm_core::check_frame;
 
 /// Loads level tables into `storage` (`size` bytes, at least `NEMM_LEVELS_SIZE`, aligned to
 /// `NEMM_LEVELS_ALIGN`) from the weights blob `blob` (`blob_len` bytes) that the initialised
@@ -19,9 +19,8 @@ use nemm_core::decode_into;
 /// alpha, one table configuration). A blob exported with `--tables-levels N` stores them.
 ///
 /// The tables are **read in place**: they are not copied, the level tables refer to them
-/// where the blob lies (on a microcontroller: in flash), so their RAM is a few hundred
-/// bytes whatever the number of levels (`NEMM_LEVELS_SIZE` is the scratch space of this
-/// call, below). Hence the blob:
+/// where the blob lies (on a microcontroller: in flash), so their RAM (`NEMM_LEVELS_SIZE`)
+/// is a few hundred bytes whatever the number of levels. Hence the blob:
 /// - must stay readable and unchanged, at the same address, for as long as the level
 ///   tables are in use, and so must every estimator they are attached to
 ///   (`nemm_estimator_attach_levels`) and every observer built on them
@@ -33,13 +32,15 @@ use nemm_core::decode_into;
 /// - must be of format version 6 or later (`NEMM_E_LEVELS_LAYOUT` for a blob of version 4 or
 ///   5, whose tables lie unaligned: export it again).
 ///
-/// The blob must be the estimator's, byte for byte (its length and CRC-32 are compared with
-/// those the estimator was built from; `NEMM_E_LEVELS_OTHER_BLOB` otherwise): the model is
-/// taken from the estimator, and the blob is decoded and checked again (in the storage, not
-/// on the stack) for the index of its tables; each table is validated once, here. `est` is
-/// not read after this call returns; the level tables may drive any estimator or observer
-/// of the same model. Nothing is allocated. This is init work (a CRC and a decode of the
-/// blob), not for the sample loop.
+/// The blob must be the estimator's, byte for byte: its length and CRC-32 trailer are
+/// compared with those the estimator was built from (`NEMM_E_LEVELS_OTHER_BLOB` otherwise),
+/// and its CRC-32 is computed again over its bytes (`NEMM_E_BLOB_CRC_MISMATCH` if they
+/// changed since). The blob is not decoded again: the model and the index of the blob's
+/// tables (where each level's tables lie in it) are those the estimator's init decoded
+/// and kept in the estimator's storage; each table is validated once, here. `est` is not
+/// read after this call returns; the level tables may drive any estimator or observer of
+/// the same model. Nothing is allocated. This is init work (a CRC of the blob), not for
+/// the sample loop.
 ///
 /// On error the storage holds no level tables until an init succeeds.
 ///
@@ -47,7 +48,7 @@ use nemm_core::decode_into;
 /// `NEMM_E_NOT_INITIALISED` (est), `NEMM_E_INVALID_ARGUMENT` (blob_len), `NEMM_E_OVERLAP`
 /// (the storage overlaps the blob or the estimator), `NEMM_E_LEVELS_*` (among them
 /// `NEMM_E_LEVELS_UNALIGNED` and `NEMM_E_LEVELS_LAYOUT`), and the errors of a blob that no
-/// longer decodes (`NEMM_E_BLOB_*`, `NEMM_E_MODEL_*`).
+/// longer checks (`NEMM_E_BLOB_*`: its bytes changed since the estimator's init).
 ///
 /// # Safety
 /// `size` bytes at `storage` must be writable, `blob_len` bytes at `blob` readable, and `est`
@@ -90,17 +91,16 @@ pub unsafe extern "C" fn nemm_levels_init(
         if !estimator.built_from(bytes) {
             return Err(NEMM_E_LEVELS_OTHER_BLOB);
         }
-        let index = {
-            // SAFETY: claimed above, in this call; the model is dropped at the end of the
-            // block, before `fill`.
-            let scratch = unsafe { LevelsCell::scratch(cell) };
-            decode_into(bytes, scratch)?
-        };
-        // SAFETY: claimed above, in this call; no reference to the scratch model is alive.
+        // The same length and trailer: the bytes are still those the estimator decoded (and
+        // its tables index points into) if their CRC still holds. No decode: the frame's
+        // checks only.
+        check_frame(bytes, NEMM_PARAM_CAPACITY)?;
+        // SAFETY: claimed above, in this call.
         let levels = unsafe { LevelsCell::fill(cell) };
-        // Reads the tables in place: `NEMM_E_LEVELS_UNALIGNED` for a blob that is not 4-byte
-        // aligned, `NEMM_E_LEVELS_LAYOUT` for one of format version 4 or 5.
-        levels.load(&estimator.model, &index, bytes)?;
+        // Reads the tables in place, from the index the estimator's init found:
+        // `NEMM_E_LEVELS_UNALIGNED` for a blob that is not 4-byte aligned,
+        // `NEMM_E_LEVELS_LAYOUT` for one of format version 4 or 5.
+        levels.load(&estimator.model, &estimator.tables, bytes)?;
         // SAFETY: claimed, filled and loaded in this call; `levels` is not used after it.
         unsafe { LevelsCell::seal(cell) };
         Ok(())

@@ -14,8 +14,8 @@ use crate::status::nemm_status_t::{self, *};
 use crate::{
     NEMM_LEVELS_CAPACITY, NEMM_OBSERVER_MAX_POINTS, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS,
 };
-use core::mem::{align_of, size_of, ManuallyDrop};
-use nemm_core::{AlphaObserver, Estimator, LevelTables, Model};
+use core::mem::{align_of, size_of};
+use nemm_core::{AlphaObserver, Estimator, LevelTables, Model, StoredTables};
 
 /// The model, as the library decodes it.
 pub(crate) type CModel = Model<NEMM_PARAM_CAPACITY>;
@@ -28,14 +28,19 @@ pub(crate) type CObserver = AlphaObserver<'static, NEMM_PARAM_CAPACITY, NEMM_OBS
 /// blob stays readable and unchanged while the level tables are in use).
 pub(crate) type CLevels = LevelTables<'static, NEMM_TABLE_SEGMENTS, NEMM_LEVELS_CAPACITY>;
 
-/// What a `nemm_estimator_t` holds: the decoded model (kept, so that observers and level
-/// tables can be built from it), the estimator built from it, and which blob it came from.
+/// What a `nemm_estimator_t` holds: the decoded model and the index of the blob's tables
+/// (kept, so that observers and level tables can be built from them), the estimator built
+/// from the model, and which blob it came from.
 #[repr(C)]
 pub(crate) struct EstimatorCell {
     /// [`ESTIMATOR_MAGIC`] once `nemm_estimator_init` succeeded, anything else before.
     magic: u32,
     /// Length and CRC-32 trailer of the blob the model was decoded from.
     blob: (usize, u32),
+    /// The index of the blob's tables (where each stored level's tables lie in the blob),
+    /// as the decode of the model returned it: `nemm_levels_init` loads level tables from
+    /// it, without decoding the blob again.
+    pub(crate) tables: StoredTables,
     pub(crate) model: CModel,
     pub(crate) est: CEstimator,
 }
@@ -48,30 +53,20 @@ pub(crate) struct ObserverCell {
     pub(crate) obs: CObserver,
 }
 
-/// What a `nemm_levels_t` holds.
+/// What a `nemm_levels_t` holds: the level tables (a few hundred bytes: per level its
+/// alpha, `b_pr` and references to its tables in the blob).
 #[repr(C)]
 pub(crate) struct LevelsCell {
     /// [`LEVELS_MAGIC`] once `nemm_levels_init` succeeded.
     magic: u32,
-    body: LevelsBody,
-}
-
-/// The level tables once loaded (a few hundred bytes: references into the blob); during
-/// `nemm_levels_init`, before them, the model decoded again from the blob for its tables
-/// index (the storage is the scratch space, so that no model is on the stack). The storage
-/// is the larger of the two: the scratch model.
-#[repr(C)]
-union LevelsBody {
-    levels: ManuallyDrop<CLevels>,
-    scratch: ManuallyDrop<CModel>,
+    levels: CLevels,
 }
 
 /// An empty observer, evaluated at compile time: copied into the storage rather than built
 /// in a stack frame of its size.
 const EMPTY_OBSERVER: CObserver = CObserver::empty();
 
-/// An empty model: one image in flash for the estimator's model and the scratch model of
-/// `nemm_levels_init`, copied into the storage.
+/// An empty model: one image in flash for the estimator's model, copied into the storage.
 static EMPTY_MODEL: CModel = CModel::empty();
 
 /// The mark of an initialised estimator.
@@ -81,9 +76,10 @@ const OBSERVER_MAGIC: u32 = u32::from_le_bytes(*b"NEMo");
 /// The mark of loaded level tables.
 const LEVELS_MAGIC: u32 = u32::from_le_bytes(*b"NEMl");
 
-/// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (32-bit targets).
+/// Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
+/// the estimator (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46156;
+pub const NEMM_ESTIMATOR_SIZE: usize = 47448;
 /// Alignment of a `nemm_estimator_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 4;
@@ -93,18 +89,18 @@ pub const NEMM_OBSERVER_SIZE: usize = 22688;
 /// Alignment of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_OBSERVER_ALIGN: usize = 4;
-/// Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
-/// themselves take a few hundred bytes: their tables are read in place from the blob)
-/// (32-bit targets).
+/// Bytes of a `nemm_levels_t`: the level tables (their tables are read in place from the
+/// blob, whatever the number of levels) (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_LEVELS_SIZE: usize = 17892;
+pub const NEMM_LEVELS_SIZE: usize = 188;
 /// Alignment of a `nemm_levels_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_LEVELS_ALIGN: usize = 4;
 
-/// Bytes of a `nemm_estimator_t`: the decoded model and the estimator (64-bit targets).
+/// Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
+/// the estimator (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 46360;
+pub const NEMM_ESTIMATOR_SIZE: usize = 47912;
 /// Alignment of a `nemm_estimator_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
@@ -114,11 +110,10 @@ pub const NEMM_OBSERVER_SIZE: usize = 22832;
 /// Alignment of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_OBSERVER_ALIGN: usize = 8;
-/// Bytes of a `nemm_levels_t`: the scratch model of `nemm_levels_init` (the level tables
-/// themselves take a few hundred bytes: their tables are read in place from the blob)
-/// (64-bit targets).
+/// Bytes of a `nemm_levels_t`: the level tables (their tables are read in place from the
+/// blob, whatever the number of levels) (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_LEVELS_SIZE: usize = 17984;
+pub const NEMM_LEVELS_SIZE: usize = 264;
 /// Alignment of a `nemm_levels_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_LEVELS_ALIGN: usize = 8;
@@ -131,11 +126,6 @@ const _: [(); NEMM_OBSERVER_SIZE] = [(); size_of::<ObserverCell>()];
 const _: [(); NEMM_OBSERVER_ALIGN] = [(); align_of::<ObserverCell>()];
 const _: [(); NEMM_LEVELS_SIZE] = [(); size_of::<LevelsCell>()];
 const _: [(); NEMM_LEVELS_ALIGN] = [(); align_of::<LevelsCell>()];
-// The storage holds either field of its body (a union, as large as the larger field). Since
-// the level tables read their tables in place, the larger is the scratch model (third check).
-const _: () = assert!(size_of::<LevelsBody>() >= size_of::<CModel>());
-const _: () = assert!(size_of::<LevelsBody>() >= size_of::<CLevels>());
-const _: () = assert!(size_of::<CLevels>() < size_of::<CModel>());
 
 /// Storage of one estimator: `NEMM_ESTIMATOR_SIZE` bytes aligned to `NEMM_ESTIMATOR_ALIGN`,
 /// opaque to the caller. Declare it (a `static` is usual: it is large) and pass its address
@@ -203,7 +193,7 @@ fn fresh<C>(p: *mut u8, size: usize) -> Result<*mut C, nemm_status_t> {
 /// # Safety
 /// An implementor is `repr(C)` with its `magic: u32` field first (offset 0; checked at
 /// compile time below for the three cells), and every cell that carries the mark holds
-/// valid values in all its fields (for `LevelsCell`: its `levels` body).
+/// valid values in all its fields.
 pub(crate) unsafe trait Marked: Sized {
     /// The header's storage type of the cell.
     type Storage;
@@ -282,16 +272,16 @@ unsafe impl Marked for ObserverCell {
     const MAGIC: u32 = OBSERVER_MAGIC;
 }
 
-// SAFETY: `repr(C)`, `magic` first; `seal` marks it after `fill` wrote the `levels` body
-// and the tables were loaded.
+// SAFETY: `repr(C)`, `magic` first; `seal` marks it after `fill` wrote the level tables
+// and they were loaded.
 unsafe impl Marked for LevelsCell {
     type Storage = nemm_levels_t;
     const MAGIC: u32 = LEVELS_MAGIC;
 }
 
 impl EstimatorCell {
-    /// Fills a claimed cell with an empty model and estimator (all bytes valid, so that the
-    /// cell can be referenced) and returns it.
+    /// Fills a claimed cell with an empty tables index, model and estimator (all bytes
+    /// valid, so that the cell can be referenced) and returns it.
     ///
     /// # Safety
     /// `cell` must come from [`Marked::claim`] in the same call.
@@ -302,20 +292,22 @@ impl EstimatorCell {
         // value.
         unsafe {
             core::ptr::addr_of_mut!((*cell).blob).write((0, 0));
+            core::ptr::addr_of_mut!((*cell).tables).write(StoredTables::EMPTY);
             core::ptr::addr_of_mut!((*cell).model).copy_from_nonoverlapping(&EMPTY_MODEL, 1);
             core::ptr::addr_of_mut!((*cell).est).write(CEstimator::empty());
             &mut *cell
         }
     }
 
-    /// Marks the cell initialised (the model and the estimator loaded from `blob`).
+    /// Marks the cell initialised (the model, the tables index and the estimator loaded
+    /// from `blob`).
     pub(crate) fn seal(&mut self, blob: &[u8]) {
         self.blob = (blob.len(), trailer(blob));
         self.magic = ESTIMATOR_MAGIC;
     }
 
-    /// True if `blob` has the length and CRC-32 trailer of the blob the model was decoded
-    /// from.
+    /// True if `blob` has the length and CRC-32 trailer of the blob the model and the
+    /// tables index were decoded from.
     pub(crate) fn built_from(&self, blob: &[u8]) -> bool {
         self.blob == (blob.len(), trailer(blob))
     }
@@ -341,35 +333,17 @@ impl ObserverCell {
 }
 
 impl LevelsCell {
-    /// Fills a claimed cell's body with an empty model, the scratch space of a decode, and
-    /// returns it.
+    /// Fills a claimed cell with empty level tables and returns them.
     ///
     /// # Safety
-    /// `cell` must come from [`Marked::claim`] in the same call; the model must not be
-    /// used after [`LevelsCell::fill`].
-    pub(crate) unsafe fn scratch<'a>(cell: *mut Self) -> &'a mut CModel {
-        // SAFETY: the body of a claimed cell is writable and large enough for either union
-        // field; after the copy (valid, as in `EstimatorCell::fill`) the `scratch` field holds
-        // a valid model.
-        unsafe {
-            let body = core::ptr::addr_of_mut!((*cell).body.scratch).cast::<CModel>();
-            body.copy_from_nonoverlapping(&EMPTY_MODEL, 1);
-            &mut *body
-        }
-    }
-
-    /// Fills a claimed cell's body with empty level tables (replacing the scratch model)
-    /// and returns them.
-    ///
-    /// # Safety
-    /// `cell` must come from [`Marked::claim`] in the same call, and no reference to
-    /// the scratch model may be alive.
+    /// `cell` must come from [`Marked::claim`] in the same call.
     pub(crate) unsafe fn fill<'a>(cell: *mut Self) -> &'a mut CLevels {
-        // SAFETY: as in `scratch`; after the write the `levels` field holds valid tables.
+        // SAFETY: the fields of a claimed cell are writable; `write` does not read or drop
+        // the old bytes. After it the `levels` field holds valid (empty) tables.
         unsafe {
-            let body = core::ptr::addr_of_mut!((*cell).body.levels).cast::<CLevels>();
-            body.write(CLevels::empty());
-            &mut *body
+            let levels = core::ptr::addr_of_mut!((*cell).levels);
+            levels.write(CLevels::empty());
+            &mut *levels
         }
     }
 
@@ -392,8 +366,8 @@ impl LevelsCell {
         // SAFETY: the caller's guarantees are those `marked` needs.
         let cell = unsafe { Self::marked(p) }?;
         // SAFETY: the mark is written only by a successful init, after the `levels` field
-        // of the body was written and loaded; the caller gives shared access.
-        Ok(unsafe { &*core::ptr::addr_of!((*cell).body.levels).cast::<CLevels>() })
+        // was written and loaded; the caller gives shared access.
+        Ok(unsafe { &*core::ptr::addr_of!((*cell).levels) })
     }
 }
 

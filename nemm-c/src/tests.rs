@@ -857,10 +857,14 @@ fn level_tables_load_from_the_estimators_blob_and_step_as_nemm_core() {
     assert_eq!(&i.alpha[..7], &TRAINED_LEVELS);
     assert_eq!(i.alpha[7], 0.0);
     // The tables' bytes in the blob, where they are read; the level tables' RAM is a few
-    // hundred bytes, the storage the scratch model of the init.
+    // hundred bytes: their storage holds them and its mark, nothing else.
     assert_eq!(i.table_bytes as usize, 14 * TABLE_IMAGE_BYTES);
     assert!(core::mem::size_of::<Levels>() < 1024);
     assert!(core::mem::size_of::<Levels>() < NEMM_LEVELS_SIZE);
+    assert!(
+        core::mem::size_of::<nemm_levels_t>() < 1024,
+        "the storage holds the level tables only"
+    );
     assert_eq!(i.table_max_rel_error, NEMM_TABLE_MAX_REL_ERROR);
     let (model, levels) = reference_levels(trained());
     let mut want: Box<Estimator<'_, NEMM_PARAM_CAPACITY, NEMM_TABLE_SEGMENTS>> =
@@ -1036,6 +1040,38 @@ fn level_tables_refuse_other_blobs_and_bad_storage() {
         );
         assert_eq!(nemm_levels_info(p, core::ptr::null_mut()), NEMM_E_NULL);
     }
+}
+
+/// The level tables are loaded from the index of the blob's tables that the estimator's
+/// latest init kept (the blob is not decoded again): after an init from another blob, that
+/// blob's levels; after a failed init, none.
+#[test]
+fn level_tables_use_the_tables_index_of_the_estimators_latest_init() {
+    let other = example_blob_with_levels(&[0.0, 0.1, 0.2]);
+    let mut st = c_estimator(trained(), 0.15);
+    let mut lv = levels_storage();
+    assert_eq!(levels_init(&mut lv.0, &st.0, trained()), NEMM_OK);
+    assert_eq!(levels_info(&lv.0).levels, 7);
+    let c = cfg(0.1, NEMM_MODE_EXACT);
+    assert_eq!(init(&mut st.0, other, &c), NEMM_OK);
+    assert_eq!(
+        levels_init(&mut lv.0, &st.0, trained()),
+        NEMM_E_LEVELS_OTHER_BLOB
+    );
+    assert_eq!(levels_init(&mut lv.0, &st.0, other), NEMM_OK);
+    let i = levels_info(&lv.0);
+    assert_eq!(i.levels, 3);
+    assert_eq!(&i.alpha[..3], &[0.0, 0.1, 0.2]);
+    assert_eq!(init(&mut st.0, trained(), &c), NEMM_OK);
+    assert_eq!(levels_init(&mut lv.0, &st.0, trained()), NEMM_OK);
+    assert_eq!(levels_info(&lv.0).levels, 7);
+    let mut corrupt = trained().to_vec();
+    corrupt[1000] ^= 1;
+    assert_eq!(init(&mut st.0, &corrupt, &c), NEMM_E_BLOB_CRC_MISMATCH);
+    assert_eq!(
+        levels_init(&mut lv.0, &st.0, trained()),
+        NEMM_E_NOT_INITIALISED
+    );
 }
 
 /// Level tables read their tables in place: a blob off the 4-byte boundary is refused with
