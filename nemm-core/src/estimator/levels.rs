@@ -14,7 +14,7 @@
 //! image, 4-byte aligned from the blob's start, and [`LevelTables`] holds references into
 //! the blob (on a microcontroller: into the flash slot), each table validated once when
 //! loading ([`nemm_kernels::table::Table1D::in_place`]). Its RAM is a few hundred bytes
-//! whatever the number of levels (`size_of::<LevelTables<T, L>>()`); the tables take
+//! whatever the number of levels (`size_of::<LevelTables<'_, T, L>>()`); the tables take
 //! `32 + 28 T` bytes each in the blob ([`LevelTables::table_bytes`]). The blob must
 //! therefore outlive the level tables (the lifetime `'a`) and be held 4-byte aligned
 //! ([`LevelsError::Unaligned`] otherwise; on the host, [`crate::AlignedBlob`] holds a
