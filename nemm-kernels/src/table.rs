@@ -95,7 +95,7 @@ mod stored;
 
 pub use kinks::REFINE_POINTS_PER_SEGMENT;
 use kinks::*;
-pub use stored::{image_len, parse_stored, ImageError, StoredHead, StoredLayout};
+pub use stored::{image_len, parse_image, parse_stored, ImageError, StoredHead, StoredLayout};
 
 /// Default number of segments of a table: 256 (7 KiB per table, 28 bytes per segment).
 pub const DEFAULT_TABLE_SEGMENTS: usize = 256;

@@ -67,9 +67,7 @@ use super::{EncodeError, CRC_LEN};
 use crate::limits::MAX_TABLE_LEVELS;
 use crate::model::{Body, Model};
 use core::fmt;
-use nemm_kernels::table::{
-    self, image_len, StoredLayout, Table1D, TableAccuracy, TableConfig, MIN_SEGMENTS,
-};
+use nemm_kernels::table::{self, StoredLayout, Table1D, TableAccuracy, TableConfig, MIN_SEGMENTS};
 use nemm_kernels::wire::Writer;
 
 /// Where one stored table lies in its blob, and what it says of itself.
@@ -327,9 +325,7 @@ fn take_u32(bytes: &[u8]) -> Option<(u32, &[u8])> {
     Some((u32::from_le_bytes(*b), rest))
 }
 
-/// One table image of a level, if `present`: its scalars and segments checked as
-/// [`table::parse_stored`] checks them (the lookup cells are checked against the segments
-/// where the table is read, [`Table1D::in_place`] and [`Table1D::read_image`]).
+/// One table image of a level, if `present` ([`table::parse_image`]).
 fn read_image<'a>(
     bytes: &'a [u8],
     covered: &[u8],
@@ -340,45 +336,11 @@ fn read_image<'a>(
         return Some((None, bytes));
     }
     let offset = u32::try_from(covered.len().checked_sub(bytes.len())?).ok()?;
-    let (image, after) = bytes.split_at_checked(image_len(segments))?;
-    let (scalars, rest) = image.split_at_checked(16)?;
-    let (cells, rest) = rest.split_at_checked(4 * segments)?;
-    let (segs, acc) = rest.split_at_checked(24 * segments)?;
-    let ([lo, hi, cell_scale, cell_offset], _) =
-        postcard::take_from_bytes::<[f32; 4]>(scalars).ok()?;
-    let ((max_rel_error, at, kinks, knots), _) =
-        postcard::take_from_bytes::<(f32, f32, [u8; 4], [u8; 4])>(acc).ok()?;
-    let valid = [lo, hi, cell_scale, cell_offset, max_rel_error, at]
-        .iter()
-        .all(|v| v.is_finite())
-        && hi > lo
-        && max_rel_error >= 0.0
-        && cells.chunks_exact(2).all(|c| {
-            c.first_chunk::<2>()
-                .is_some_and(|&c| usize::from(u16::from_le_bytes(c)) < segments)
-        });
-    if !valid {
-        return None;
-    }
-    let mut prev_knot = f32::NEG_INFINITY;
-    let mut rest = segs;
-    for _ in 0..segments {
-        let (s, r) = postcard::take_from_bytes::<[f32; 6]>(rest).ok()?;
-        if !s.iter().all(|v| v.is_finite()) || s[0] < prev_knot {
-            return None;
-        }
-        prev_knot = s[0];
-        rest = r;
-    }
+    let (head, after) = table::parse_image(bytes, segments)?;
     let t = StoredTable {
         offset,
-        domain: (lo, hi),
-        accuracy: TableAccuracy {
-            max_rel_error,
-            at,
-            kinks: usize::try_from(u32::from_le_bytes(kinks)).ok()?,
-            max_knots_per_cell: usize::try_from(u32::from_le_bytes(knots)).ok()?,
-        },
+        domain: head.domain,
+        accuracy: head.accuracy,
         layout: StoredLayout::Image,
     };
     Some((Some(t), after))

@@ -217,34 +217,63 @@ pub struct StoredHead {
 pub fn parse_stored(
     bytes: &[u8],
     segments: usize,
-    mut each: impl FnMut(usize, [f32; 6]),
+    each: impl FnMut(usize, [f32; 6]),
 ) -> Option<(StoredHead, &[u8])> {
     let ([lo, hi, cell_scale, cell_offset], rest) =
         postcard::take_from_bytes::<[f32; 4]>(bytes).ok()?;
     let ((max_rel_error, at), rest) = postcard::take_from_bytes::<(f32, f32)>(rest).ok()?;
-    let ((kinks, max_knots), mut rest) = postcard::take_from_bytes::<(u32, u32)>(rest).ok()?;
-    let valid = lo.is_finite()
-        && hi.is_finite()
-        && hi > lo
-        && cell_scale.is_finite()
-        && cell_offset.is_finite()
-        && max_rel_error.is_finite()
-        && max_rel_error >= 0.0
-        && at.is_finite();
-    if !valid {
+    let ((kinks, max_knots), rest) = postcard::take_from_bytes::<(u32, u32)>(rest).ok()?;
+    let head = stored_head(
+        [lo, hi, cell_scale, cell_offset],
+        (max_rel_error, at),
+        (kinks, max_knots),
+    )?;
+    let rest = segments_in_order(rest, segments, each)?;
+    Some((head, rest))
+}
+
+/// Parses a stored table image of `segments` segments ([`StoredLayout::Image`], the layout
+/// of [`Table1D::write_image`]) at the start of `bytes`, of any alignment, and returns its
+/// scalars and the bytes after it. `None` under the conditions of [`parse_stored`] and when a
+/// lookup cell names a segment the table does not have; whether the cells are the ones the
+/// knots give is checked where the table is read ([`Table1D::in_place`],
+/// [`Table1D::read_image`]).
+pub fn parse_image(bytes: &[u8], segments: usize) -> Option<(StoredHead, &[u8])> {
+    let (image, after) = bytes.split_at_checked(image_len(segments))?;
+    let (scalars, rest) = postcard::take_from_bytes::<[f32; 4]>(image).ok()?;
+    let (cells, rest) = rest.split_at_checked(4 * segments)?;
+    let cells_inside = cells.chunks_exact(2).all(|c| {
+        c.first_chunk::<2>()
+            .is_some_and(|&c| usize::from(u16::from_le_bytes(c)) < segments)
+    });
+    if !cells_inside {
         return None;
     }
-    let mut prev_knot = f32::NEG_INFINITY;
-    for i in 0..segments {
-        let (s, r) = postcard::take_from_bytes::<[f32; 6]>(rest).ok()?;
-        if !s.iter().all(|v| v.is_finite()) || s[0] < prev_knot {
-            return None;
-        }
-        prev_knot = s[0];
-        each(i, s);
-        rest = r;
-    }
-    let head = StoredHead {
+    let acc = segments_in_order(rest, segments, |_, _| {})?;
+    let ((max_rel_error, at, kinks, knots), _) =
+        postcard::take_from_bytes::<(f32, f32, [u8; 4], [u8; 4])>(acc).ok()?;
+    let head = stored_head(
+        scalars,
+        (max_rel_error, at),
+        (u32::from_le_bytes(kinks), u32::from_le_bytes(knots)),
+    )?;
+    Some((head, after))
+}
+
+/// The scalars of a stored table, checked: every value finite, the domain non-empty, the
+/// measured error not negative.
+fn stored_head(
+    [lo, hi, cell_scale, cell_offset]: [f32; 4],
+    (max_rel_error, at): (f32, f32),
+    (kinks, max_knots): (u32, u32),
+) -> Option<StoredHead> {
+    let valid = [lo, hi, cell_scale, cell_offset, max_rel_error, at]
+        .iter()
+        .all(|v| v.is_finite())
+        && hi > lo
+        && max_rel_error >= 0.0;
+    valid.then_some(())?;
+    Some(StoredHead {
         domain: (lo, hi),
         cells: (cell_scale, cell_offset),
         accuracy: TableAccuracy {
@@ -253,6 +282,26 @@ pub fn parse_stored(
             kinks: usize::try_from(kinks).ok()?,
             max_knots_per_cell: usize::try_from(max_knots).ok()?,
         },
-    };
-    Some((head, rest))
+    })
+}
+
+/// `segments` segments `[x0, 1 / width, c0, c1, c2, c3]` at the start of `bytes`, each handed
+/// to `each` (index, segment); the bytes after them. `None` if they do not parse, a value is
+/// not finite or the knots are not in order.
+fn segments_in_order(
+    mut bytes: &[u8],
+    segments: usize,
+    mut each: impl FnMut(usize, [f32; 6]),
+) -> Option<&[u8]> {
+    let mut prev_knot = f32::NEG_INFINITY;
+    for i in 0..segments {
+        let (s, rest) = postcard::take_from_bytes::<[f32; 6]>(bytes).ok()?;
+        if !s.iter().all(|v| v.is_finite()) || s[0] < prev_knot {
+            return None;
+        }
+        prev_knot = s[0];
+        each(i, s);
+        bytes = rest;
+    }
+    Some(bytes)
 }
