@@ -52,6 +52,42 @@ pub enum ShapeError {
     },
 }
 
+/// Why a cumulative scaler ([`crate::cumulative`]) is not acceptable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CumulativeError {
+    /// `units` is 0 or above [`crate::cumulative::MAX_CUMULATIVE_UNITS`].
+    UnitsOutOfRange,
+    /// The parameter vector's length does not match the unit count.
+    ParamCountMismatch {
+        /// Length the unit count implies.
+        expected: usize,
+        /// Length found.
+        found: usize,
+    },
+    /// A parameter is NaN or infinite.
+    NonFinite,
+}
+
+impl fmt::Display for CumulativeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CumulativeError::UnitsOutOfRange => write!(
+                f,
+                "units must be 1..={}",
+                crate::cumulative::MAX_CUMULATIVE_UNITS
+            ),
+            CumulativeError::ParamCountMismatch { expected, found } => write!(
+                f,
+                "its unit count needs {expected} parameters but it holds {found}"
+            ),
+            CumulativeError::NonFinite => write!(f, "a parameter is NaN or infinite"),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for CumulativeError {}
+
 /// Why an alpha branch is not acceptable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BranchError {

@@ -20,7 +20,8 @@
 //! 1. [`limits`] (the fixed capacities), [`error`] (the errors the layers and nemm-core's
 //!    model share), [`wire`] (the byte writer of the weight format);
 //! 2. [`math`] (the `exp`, `rsqrt` and `fma` backends, the lane abstraction);
-//! 3. [`emm`], [`mlp`], [`integrator`], [`sem`], [`static_force`], [`lost_motion`];
+//! 3. [`emm`], [`mlp`], [`cumulative`] (the scaler whose force is monotone in its state by
+//!    construction), [`integrator`], [`sem`], [`static_force`], [`lost_motion`];
 //! 4. [`table`] (tables of [`mlp`]'s compiled scalers).
 //!
 //! Above them, in `nemm-core`: the model, then the weight format, then the estimator and
@@ -43,6 +44,7 @@
     )
 )]
 
+pub mod cumulative;
 pub mod emm;
 pub mod error;
 pub mod integrator;
