@@ -71,7 +71,7 @@
  * Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
  * the estimator (32-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 47448
+#define NEMM_ESTIMATOR_SIZE 48136
 #endif
 
 #if defined(NEMM_TARGET_64)
@@ -79,7 +79,7 @@
  * Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
  * the estimator (64-bit targets).
  */
-#define NEMM_ESTIMATOR_SIZE 47912
+#define NEMM_ESTIMATOR_SIZE 48632
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -100,14 +100,14 @@
 /**
  * Bytes of a `nemm_observer_t` (32-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 22688
+#define NEMM_OBSERVER_SIZE 22696
 #endif
 
 #if defined(NEMM_TARGET_64)
 /**
  * Bytes of a `nemm_observer_t` (64-bit targets).
  */
-#define NEMM_OBSERVER_SIZE 22832
+#define NEMM_OBSERVER_SIZE 22848
 #endif
 
 #if defined(NEMM_TARGET_32)
@@ -444,6 +444,12 @@ enum nemm_status_t
    */
   NEMM_E_MODEL_LOST_MOTION_ON_SEM = 34,
   /**
+   * Model: a coefficient's cumulative scaler is not acceptable (its weights, a
+   * coefficient the model does not learn, an MLP with weights or an alpha branch beside
+   * it, or a direction against the declared prior).
+   */
+  NEMM_E_MODEL_CUMULATIVE = 35,
+  /**
    * `alpha` is not a finite value in `[0, 1]`.
    */
   NEMM_E_ALPHA_OUT_OF_RANGE = 40,
@@ -537,8 +543,8 @@ enum nemm_status_t
   /**
    * Level tables: the blob stores its tables in the layout of format version 4 or 5,
    * which cannot be read in place; nothing was initialised. Export the blob again with
-   * this version of `nemm` (format version 6; e.g. `nemm tables MODEL --tables-levels N
-   * --out FILE`).
+   * this version of `nemm` (format version 6 or later; e.g. `nemm tables MODEL
+   * --tables-levels N --out FILE`).
    */
   NEMM_E_LEVELS_LAYOUT = 79,
 };

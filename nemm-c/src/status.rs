@@ -86,6 +86,10 @@ pub enum nemm_status_t {
     NEMM_E_MODEL_UNSTABLE_STEP = 33,
     /// Model: a lost-motion element on a SEM (which has no pressure stiffness).
     NEMM_E_MODEL_LOST_MOTION_ON_SEM = 34,
+    /// Model: a coefficient's cumulative scaler is not acceptable (its weights, a
+    /// coefficient the model does not learn, an MLP with weights or an alpha branch beside
+    /// it, or a direction against the declared prior).
+    NEMM_E_MODEL_CUMULATIVE = 35,
 
     /// `alpha` is not a finite value in `[0, 1]`.
     NEMM_E_ALPHA_OUT_OF_RANGE = 40,
@@ -143,15 +147,15 @@ pub enum nemm_status_t {
     NEMM_E_LEVELS_UNALIGNED = 78,
     /// Level tables: the blob stores its tables in the layout of format version 4 or 5,
     /// which cannot be read in place; nothing was initialised. Export the blob again with
-    /// this version of `nemm` (format version 6; e.g. `nemm tables MODEL --tables-levels N
-    /// --out FILE`).
+    /// this version of `nemm` (format version 6 or later; e.g. `nemm tables MODEL
+    /// --tables-levels N --out FILE`).
     NEMM_E_LEVELS_LAYOUT = 79,
 }
 
 use nemm_status_t::*;
 
 /// Every status, in the order of their values.
-pub(crate) const ALL: [nemm_status_t; 50] = [
+pub(crate) const ALL: [nemm_status_t; 51] = [
     NEMM_OK,
     NEMM_E_NULL,
     NEMM_E_STORAGE_SIZE,
@@ -181,6 +185,7 @@ pub(crate) const ALL: [nemm_status_t; 50] = [
     NEMM_E_MODEL_CONTROL_CHARACTER,
     NEMM_E_MODEL_UNSTABLE_STEP,
     NEMM_E_MODEL_LOST_MOTION_ON_SEM,
+    NEMM_E_MODEL_CUMULATIVE,
     NEMM_E_ALPHA_OUT_OF_RANGE,
     NEMM_E_BAD_VELOCITY_LIMIT,
     NEMM_E_COMPILE,
@@ -289,6 +294,9 @@ impl nemm_status_t {
             NEMM_E_MODEL_LOST_MOTION_ON_SEM => {
                 c"NEMM_E_MODEL_LOST_MOTION_ON_SEM: the SEM takes no lost-motion element"
             }
+            NEMM_E_MODEL_CUMULATIVE => {
+                c"NEMM_E_MODEL_CUMULATIVE: a coefficient's cumulative scaler is not acceptable"
+            }
             NEMM_E_ALPHA_OUT_OF_RANGE => {
                 c"NEMM_E_ALPHA_OUT_OF_RANGE: alpha must be a finite value in [0, 1]"
             }
@@ -366,6 +374,7 @@ impl From<ModelError> for nemm_status_t {
             ModelError::BadScalerBounds { .. } => NEMM_E_MODEL_BAD_SCALER_BOUNDS,
             ModelError::Shape { .. } => NEMM_E_MODEL_SHAPE,
             ModelError::Branch { .. } => NEMM_E_MODEL_BRANCH,
+            ModelError::Cumulative { .. } => NEMM_E_MODEL_CUMULATIVE,
             ModelError::Condition { .. } => NEMM_E_MODEL_CONDITION,
             ModelError::WrongInputCount { .. } => NEMM_E_MODEL_WRONG_INPUT_COUNT,
             ModelError::Sem(_) => NEMM_E_MODEL_SEM,

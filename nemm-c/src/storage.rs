@@ -79,13 +79,13 @@ const LEVELS_MAGIC: u32 = u32::from_le_bytes(*b"NEMl");
 /// Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
 /// the estimator (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 47448;
+pub const NEMM_ESTIMATOR_SIZE: usize = 48136;
 /// Alignment of a `nemm_estimator_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 4;
 /// Bytes of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
-pub const NEMM_OBSERVER_SIZE: usize = 22688;
+pub const NEMM_OBSERVER_SIZE: usize = 22696;
 /// Alignment of a `nemm_observer_t` (32-bit targets).
 #[cfg(target_pointer_width = "32")]
 pub const NEMM_OBSERVER_ALIGN: usize = 4;
@@ -100,13 +100,13 @@ pub const NEMM_LEVELS_ALIGN: usize = 4;
 /// Bytes of a `nemm_estimator_t`: the decoded model, the index of the blob's tables and
 /// the estimator (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_ESTIMATOR_SIZE: usize = 47912;
+pub const NEMM_ESTIMATOR_SIZE: usize = 48632;
 /// Alignment of a `nemm_estimator_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_ESTIMATOR_ALIGN: usize = 8;
 /// Bytes of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
-pub const NEMM_OBSERVER_SIZE: usize = 22832;
+pub const NEMM_OBSERVER_SIZE: usize = 22848;
 /// Alignment of a `nemm_observer_t` (64-bit targets).
 #[cfg(target_pointer_width = "64")]
 pub const NEMM_OBSERVER_ALIGN: usize = 8;

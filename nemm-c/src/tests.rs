@@ -178,13 +178,11 @@ fn blob_validate_checks_what_decode_checks_in_its_order() {
     let validate =
         |b: &[u8], i: &mut nemm_blob_info_t| unsafe { nemm_blob_validate(b.as_ptr(), b.len(), i) };
     assert_eq!(validate(TRAINED, &mut i), NEMM_OK);
+    let version = nemm_core::read_header(TRAINED).unwrap().version;
+    assert!(version <= nemm_core::FORMAT_VERSION);
     assert_eq!(
         (i.format_version, i.kind, i.blob_len),
-        (
-            nemm_core::FORMAT_VERSION.into(),
-            NEMM_KIND_NEMM,
-            TRAINED.len() as u32
-        )
+        (version.into(), NEMM_KIND_NEMM, TRAINED.len() as u32)
     );
     assert!(i.max_scaler_params as usize <= NEMM_PARAM_CAPACITY);
     // SAFETY: a NULL info is allowed.
@@ -529,6 +527,48 @@ fn a_lost_motion_model_runs_as_the_estimator() {
     assert_eq!(
         nemm_status_t::from(sem.validate().unwrap_err()),
         NEMM_E_MODEL_LOST_MOTION_ON_SEM
+    );
+}
+
+/// A model with cumulative scalers (`b_fl` and `k_pr`) runs through the C interface as
+/// nemm-core's estimator does, bit for bit, in exact and table mode; a misused cumulative
+/// scaler is refused with its own status.
+#[test]
+fn a_cumulative_model_runs_as_the_estimator() {
+    let model = Box::new(nemm_core::testing::example_cumulative_model(
+        ModelKind::Nemm,
+    ));
+    let mut buf = std::vec![0u8; 100_000];
+    let blob = nemm_core::encode(&*model, &mut buf).unwrap().to_vec();
+    for mode in [NEMM_MODE_EXACT, NEMM_MODE_TABLE] {
+        let core_cfg = EstimatorConfig {
+            mode: if mode == NEMM_MODE_TABLE {
+                table(NEMM_TABLE_MAX_REL_ERROR)
+            } else {
+                EvalMode::Exact
+            },
+            ..EstimatorConfig::new(0.15)
+        };
+        let (_, mut want) = reference(&blob, core_cfg);
+        let mut st = estimator_storage();
+        assert_eq!(init(&mut st.0, &blob, &cfg(0.15, mode)), NEMM_OK);
+        for &v in velocities(300).iter() {
+            let (s, e) = step(&mut st.0, v);
+            let w = want.step(Sample::new(v)).unwrap();
+            assert_eq!(s, NEMM_OK);
+            assert_eq!(
+                (e.force_n.to_bits(), e.flags),
+                (w.force_n.to_bits(), w.flags.0),
+                "mode {mode}"
+            );
+        }
+    }
+    let mut bad = model.clone();
+    bad.alpha_branches.b_fl =
+        nemm_core::testing::example_branch(nemm_core::Direction::Decreasing, 1, 4, 1);
+    assert_eq!(
+        nemm_status_t::from(bad.validate().unwrap_err()),
+        NEMM_E_MODEL_CUMULATIVE
     );
 }
 
@@ -1125,7 +1165,8 @@ fn level_tables_refuse_an_unaligned_blob_and_leave_nothing_initialised() {
 
 /// A blob of format version 5 stores its tables unaligned: level tables refuse it with
 /// their own status (an estimator still decodes it and copies its tables); exported again
-/// at this version, the same tables are read in place.
+/// at this version, the same model and tables (the trained blob's, bit for bit) are read in
+/// place.
 #[test]
 fn level_tables_refuse_a_version_5_blob_until_it_is_exported_again() {
     let v5 = aligned(&as_version_5(trained()));
@@ -1146,11 +1187,29 @@ fn level_tables_refuse_a_version_5_blob_until_it_is_exported_again() {
     // SAFETY: valid storage and output.
     let s = unsafe { nemm_levels_info(&lv.0, &mut i) };
     assert_eq!(s, NEMM_E_NOT_INITIALISED);
-    // Exported again: the version-6 blob, byte for byte, and its level tables load.
-    let v6 = exported_again(v5);
-    assert_eq!(v6, trained(), "the same model and tables");
-    let est = c_estimator(trained(), 0.15);
-    assert_eq!(levels_init(&mut lv.0, &est.0, trained()), NEMM_OK);
+    // Exported again at this version: the trained blob's model and table images, and its
+    // level tables load.
+    let again = aligned(&exported_again(v5));
+    assert_eq!(
+        nemm_core::read_header(again).unwrap().version,
+        nemm_core::FORMAT_VERSION
+    );
+    let (mut a, mut b) = (Box::new(P::empty()), Box::new(P::empty()));
+    let index_again = decode_into(again, &mut a).expect("decodes");
+    let index_trained = decode_into(trained(), &mut b).expect("decodes");
+    assert!(*a == *b, "the same model");
+    let image = 32 + 28 * NEMM_TABLE_SEGMENTS;
+    let bytes = |blob: &'static [u8], t: Option<nemm_core::StoredTable>| {
+        let at = t.expect("a table").offset as usize;
+        &blob[at..at + image]
+    };
+    assert_eq!(index_again.levels.len(), index_trained.levels.len());
+    for (la, lt) in index_again.levels.iter().zip(&index_trained.levels) {
+        assert_eq!(bytes(again, la.b_fl), bytes(trained(), lt.b_fl));
+        assert_eq!(bytes(again, la.k_pr), bytes(trained(), lt.k_pr));
+    }
+    let est = c_estimator(again, 0.15);
+    assert_eq!(levels_init(&mut lv.0, &est.0, again), NEMM_OK);
     assert_eq!(levels_info(&lv.0).levels, 7);
     assert_eq!(
         NEMM_E_LEVELS_LAYOUT as i32, 79,

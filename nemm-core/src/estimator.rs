@@ -48,7 +48,9 @@
 //! [`EstimatorConfig::mode`] selects how the neural coefficients `b_fl(v_st)` and
 //! `k_pr(x_pr)` are evaluated:
 //!
-//! - [`EvalMode::Exact`] (default): the compiled MLPs, the reference arithmetic.
+//! - [`EvalMode::Exact`] (default): the compiled MLPs, the reference arithmetic; a
+//!   coefficient with a cumulative scaler ([`crate::Model::cumulative`]) runs it compiled
+//!   ([`CompiledScaler::compile_cumulative_into`]: the reference path's bits).
 //! - [`EvalMode::Table`]: 1-D cubic tables of [`nemm_kernels::table`] with `T` segments each
 //!   (`Estimator<P, T>`, default [`DEFAULT_TABLE_SEGMENTS`] = 256), built for the
 //!   configured `alpha` in [`Estimator::new`] and rebuilt by [`Estimator::set_alpha`]. Both
@@ -112,6 +114,7 @@ use crate::format::tables::{StoredTable, StoredTables, StoredUnused, TableLevel}
 use crate::model::{Body, Model, ModelError};
 use crate::sample::Sample;
 use core::fmt;
+use nemm_kernels::cumulative::CumulativeScaler;
 use nemm_kernels::emm::{self, Coefficients, State};
 use nemm_kernels::integrator::{self, Integrator, Stage, StepSize};
 use nemm_kernels::lost_motion::{LostMotion, LostMotionAt};
@@ -305,6 +308,7 @@ impl<'l, const P: usize, const T: usize> Estimator<'l, P, T> {
                     Body::Sem(_) => return Err(EstimatorError::Compile),
                 };
                 let branches = &model.alpha_branches;
+                let cumulative = &model.cumulative;
                 let level = match (stored, &cfg.mode) {
                     (Some((tables, b)), EvalMode::Table(tc)) => tables.find(cfg.alpha, tc, T, b),
                     _ => Err(StoredUnused::NotOffered),
@@ -321,7 +325,7 @@ impl<'l, const P: usize, const T: usize> Estimator<'l, P, T> {
                 let rt = &mut self.rt.emm;
                 let read_b_fl = rt.b_fl.load(
                     "b_fl",
-                    b_fl.map(|s| (s, branches.b_fl.as_ref())),
+                    b_fl.map(|s| (s, branches.b_fl.as_ref(), cumulative.b_fl.as_ref())),
                     emm.b_fl_ns_per_m,
                     sc.velocity_m_s,
                     (alpha, sc.alpha),
@@ -329,7 +333,7 @@ impl<'l, const P: usize, const T: usize> Estimator<'l, P, T> {
                 )?;
                 let read_k_pr = rt.k_pr.load(
                     "k_pr",
-                    k_pr.map(|s| (s, branches.k_pr.as_ref())),
+                    k_pr.map(|s| (s, branches.k_pr.as_ref(), cumulative.k_pr.as_ref())),
                     emm.k_pr_n_per_m,
                     sc.x_pr_m,
                     (alpha, sc.alpha),

@@ -8,8 +8,9 @@
 //! | body (body_len bytes): postcard-encoded Model (version-1 fields), then, |
 //! | from version 3 on, its condition, alpha branches and provenance, then,  |
 //! | from version 4 on, Option<StaticForce>, (from version 5 on)             |
-//! | Option<LostMotion>, and the tables section (from version 6 on padded,   |
-//! | so that its tables lie 4-byte aligned from the blob's start)            |
+//! | Option<LostMotion>, (from version 7 on) CumulativeScalers, and the      |
+//! | tables section (from version 6 on padded, so that its tables lie        |
+//! | 4-byte aligned from the blob's start)                                   |
 //! +-------------------------------------------------------------------------+
 //! | CRC-32 (ISO-HDLC, as zlib / postcard's `use-crc`) of all bytes before,  |
 //! | 4 bytes little-endian                                                   |
@@ -29,10 +30,12 @@
 //! [`encode`]); version 5 inserts [`Model::lost_motion`] (`Option<LostMotion>`) between
 //! those two; version 6 stores each table as its memory image, 4-byte aligned from the
 //! blob's start, so that a blob held aligned (a flash slot) is read in place
-//! ([`crate::LevelTables`]). A blob of an earlier version decodes with the fields it lacks at their
-//! defaults ([`crate::Condition::default`], no branches, no provenance, no static force,
-//! no lost motion, no tables), which reproduces what those versions meant (the paper's
-//! oil loss).
+//! ([`crate::LevelTables`]); version 7 inserts [`Model::cumulative`]
+//! ([`crate::CumulativeScalers`]: two `Option<CumulativeScaler>`, `b_fl` then `k_pr`)
+//! between the lost-motion element and the tables section. A blob of an earlier version
+//! decodes with the fields it lacks at their defaults ([`crate::Condition::default`], no
+//! branches, no provenance, no static force, no lost motion, no cumulative scalers, no
+//! tables), which reproduces what those versions meant (the paper's oil loss).
 //!
 //! The header repeats the model kind and the largest scaler size so that a decoder can refuse
 //! a model that does not fit its capacity with a precise error before touching the body; the
@@ -46,7 +49,9 @@
 pub mod tables;
 
 use crate::limits::MAX_TABLE_LEVELS;
-use crate::model::{AlphaBranches, Condition, Model, ModelError, ModelKind, Provenance};
+use crate::model::{
+    AlphaBranches, Condition, CumulativeScalers, Model, ModelError, ModelKind, Provenance,
+};
 use core::fmt;
 use nemm_kernels::lost_motion::LostMotion;
 use nemm_kernels::static_force::StaticForce;
@@ -61,7 +66,7 @@ use tables::{StoredTables, TableLevel};
 /// Magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"NEMM";
 /// Format version this build writes (and the newest it reads).
-pub const FORMAT_VERSION: u16 = 6;
+pub const FORMAT_VERSION: u16 = 7;
 /// Oldest format version this build reads.
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// The CRC used: CRC-32/ISO-HDLC (the zlib / Ethernet CRC-32).
@@ -226,7 +231,8 @@ fn header_for<const P: usize>(model: &Model<P>, body_len: usize) -> Header {
 /// Writes (or counts) the body of `model`: the version-1 part, the version-3 fields
 /// (condition, alpha branches, provenance: postcard writes a tuple as it writes a struct of
 /// those fields), then the version-4 sections: the static force, the lost-motion element
-/// (version 5) and the tables section of `levels` (version 6: after `pad` zero bytes).
+/// (version 5), the cumulative scalers (version 7) and the tables section of `levels`
+/// (version 6: after `pad` zero bytes).
 fn write_body<const P: usize, const T: usize>(
     model: &Model<P>,
     levels: &[TableLevel<'_, T>],
@@ -245,6 +251,7 @@ fn write_prefix<const P: usize>(model: &Model<P>, w: &mut Writer<'_>) -> Result<
         .ok_or(too_small)?;
     w.put(&model.static_force).ok_or(too_small)?;
     w.put(&model.lost_motion).ok_or(too_small)?;
+    w.put(&model.cumulative).ok_or(too_small)?;
     Ok(())
 }
 
@@ -569,6 +576,18 @@ pub fn decode_into<const P: usize>(
             model.lost_motion = None;
             rest
         };
+        // Version 7: the cumulative scalers between the lost-motion element and the tables
+        // (in place: they hold parameter vectors).
+        let rest = if header.version >= 7 {
+            let malformed = |_| DecodeError::Malformed { part: "cumulative" };
+            let mut de = postcard::Deserializer::from_bytes(rest);
+            CumulativeScalers::deserialize_in_place(&mut de, &mut model.cumulative)
+                .map_err(malformed)?;
+            de.finalize().map_err(malformed)?
+        } else {
+            model.cumulative = CumulativeScalers::NONE;
+            rest
+        };
         let neural = tables::neural(model);
         tables
             .read(rest, covered, stored, neural, header.version)
@@ -576,6 +595,7 @@ pub fn decode_into<const P: usize>(
     } else {
         model.static_force = None;
         model.lost_motion = None;
+        model.cumulative = CumulativeScalers::NONE;
         rest
     };
     if !rest.is_empty() || model.kind() != header.kind || model.max_scaler_params() != needed {

@@ -15,8 +15,8 @@
 //!   [`encode_with_tables`], the [`Header`], the stored tables ([`StoredTables`],
 //!   [`StoredUnused`]) and the framing constants ([`MAGIC`], [`FORMAT_VERSION`], [`CRC`]);
 //! - the [`Model`] and the types it is made of ([`ModelKind`], [`Body`], [`Condition`],
-//!   [`Scaler`], [`SemMap`], [`StaticForce`], [`LostMotion`], [`Integrator`], ...) and the
-//!   step-stability check ([`shortest_stable_time_constant_s`], [`STABILITY_MARGIN`]);
+//!   [`Scaler`], [`CumulativeScalers`], [`SemMap`], [`StaticForce`], [`LostMotion`],
+//!   [`Integrator`], ...) and the step-stability check ([`shortest_stable_time_constant_s`], [`STABILITY_MARGIN`]);
 //! - the typed errors: [`DecodeError`], [`ModelError`], [`EstimatorError`], [`EncodeError`],
 //!   [`TableError`], [`LevelsError`], [`ObserverError`];
 //! - the [`AlphaObserver`]: the oil-loss level `alpha` online from the measured velocity and
@@ -111,8 +111,8 @@ pub use format::{encode_to_vec, AlignedBlob};
 pub use nemm_kernels::table::StoredLayout;
 // The model.
 pub use model::{
-    shortest_stable_time_constant_s, AlphaBranches, Body, Condition, InputScales, Meta, Model,
-    ModelKind, Priors, Provenance, STABILITY_MARGIN,
+    shortest_stable_time_constant_s, AlphaBranches, Body, Condition, CumulativeScalers,
+    InputScales, Meta, Model, ModelKind, Priors, Provenance, STABILITY_MARGIN,
 };
 // The alpha observer.
 pub use observer::{
@@ -134,9 +134,14 @@ pub use nemm_kernels::limits::{
     MAX_SEM_ALPHAS, MAX_SEM_FORCES, MAX_SEM_VELOCITIES, SCALE_RANGE,
 };
 // The errors a model is refused with.
-pub use nemm_kernels::error::{BranchError, ModelError, SemError, ShapeError, UnknownName};
+pub use nemm_kernels::error::{
+    BranchError, CumulativeModelError, ModelError, SemError, ShapeError, UnknownName,
+};
 // The kernel types the model and the estimator are made of (their arithmetic is
 // `nemm_kernels`').
+pub use nemm_kernels::cumulative::{
+    cumulative_param_count, CumulativeError, CumulativeScaler, MAX_CUMULATIVE_UNITS,
+};
 pub use nemm_kernels::emm::{Coefficients, EmmConstants, State};
 pub use nemm_kernels::integrator::Integrator;
 pub use nemm_kernels::lost_motion::LostMotion;

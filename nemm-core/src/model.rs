@@ -8,6 +8,10 @@
 //! | [`ModelKind::NemmLight`] | `b_fl,ini s_fl(v_st, alpha)` | `b_pr,ini` | `k_pr,ini` | `x_pr, v_st` |
 //! | [`ModelKind::Nemm`] | `b_fl,ini s_fl(v_st, alpha)` | `b_pr,ini s_b(alpha)` | `k_pr,ini s_k(x_pr, alpha)` | `x_pr, v_st` |
 //!
+//! Each scale `s` is an MLP scaler ([`nemm_kernels::mlp`]); `s_fl` and `s_k` may instead be
+//! cumulative scalers ([`Model::cumulative`], [`nemm_kernels::cumulative`]) between the same
+//! bounds, whose force (`b_fl v_st`, `k_pr x_pr`) rises with the state by construction.
+//!
 //! # Stability check (explicit Runge-Kutta)
 //!
 //! With frozen coefficients the EMM has the eigenvalues `-k_pr / (b_pr + b_fl)` and
@@ -36,9 +40,11 @@ use nemm_kernels::static_force::StaticForce;
 use serde::{Deserialize, Serialize};
 
 mod condition;
+mod cumulative;
 mod provenance;
 
 pub use condition::{AlphaBranches, Condition, Priors};
+pub use cumulative::CumulativeScalers;
 pub use provenance::Provenance;
 
 /// Fraction of the integrator's real-axis stability limit a model may use (see module docs).
@@ -187,6 +193,11 @@ pub struct Model<const P: usize = DEFAULT_PARAM_CAPACITY> {
     /// SEM. Version 5; `None` in earlier blobs.
     #[serde(skip)]
     pub lost_motion: Option<LostMotion>,
+    /// The cumulative scalers of `b_fl` and `k_pr` ([`CumulativeScalers`]): coefficients
+    /// whose force rises with their state by construction, in place of their MLP's scale.
+    /// Version 7; none in earlier blobs.
+    #[serde(skip)]
+    pub cumulative: CumulativeScalers,
 }
 
 fn finite_positive(v: f32, field: &'static str) -> Result<(), ModelError> {
@@ -206,15 +217,28 @@ fn check_emm(e: &EmmConstants) -> Result<(), ModelError> {
     finite_positive(e.t_pr_s, "emm.t_pr_s")
 }
 
+/// Checks a scaler of the body with `inputs` inputs; `cumulative`: whether the coefficient
+/// has a cumulative scaler, beside which the MLP must have no weights (its own checks are
+/// [`CumulativeScalers::validate`]'s).
 fn check_scaler<const P: usize>(
     s: &Scaler<P>,
     name: &'static str,
     inputs: u8,
+    cumulative: bool,
 ) -> Result<(), ModelError> {
-    s.mlp.check_shape().map_err(|error| ModelError::Shape {
-        scaler: name,
-        error,
-    })?;
+    if cumulative {
+        if !s.mlp.is_without_weights() {
+            return Err(ModelError::Cumulative {
+                scaler: name,
+                error: nemm_kernels::error::CumulativeModelError::MlpWeights,
+            });
+        }
+    } else {
+        s.mlp.check_shape().map_err(|error| ModelError::Shape {
+            scaler: name,
+            error,
+        })?;
+    }
     if s.mlp.inputs != inputs {
         return Err(ModelError::WrongInputCount {
             scaler: name,
@@ -270,11 +294,12 @@ impl<const P: usize> Model<P> {
         provenance: Provenance::empty(),
         static_force: None,
         lost_motion: None,
+        cumulative: CumulativeScalers::NONE,
     };
 
     /// A model of the paper's kind: the oil-loss condition with the paper's priors
-    /// ([`Condition::default`]), no alpha branches, no provenance, no static force. Set
-    /// those fields to declare more.
+    /// ([`Condition::default`]), no alpha branches, no provenance, no static force, no
+    /// lost motion, no cumulative scalers. Set those fields to declare more.
     pub fn new(
         integrator: Integrator,
         dt_s: f32,
@@ -293,6 +318,7 @@ impl<const P: usize> Model<P> {
             provenance: Provenance::empty(),
             static_force: None,
             lost_motion: None,
+            cumulative: CumulativeScalers::default(),
         }
     }
 
@@ -316,9 +342,10 @@ impl<const P: usize> Model<P> {
         }
     }
 
-    /// Largest parameter count of any scaler (0 without scalers).
+    /// Largest parameter count of any scaler, an MLP's or a cumulative scaler's (0 without
+    /// scalers).
     pub fn max_scaler_params(&self) -> usize {
-        match &self.body {
+        let mlp = match &self.body {
             Body::Sem(_) | Body::LinearEmm(_) => 0,
             Body::NemmLight { b_fl, .. } => b_fl.mlp.params.len(),
             Body::Nemm {
@@ -329,7 +356,8 @@ impl<const P: usize> Model<P> {
                 .len()
                 .max(b_pr.mlp.params.len())
                 .max(k_pr.mlp.params.len()),
-        }
+        };
+        mlp.max(self.cumulative.max_params())
     }
 
     /// Fastest time constant \[s\] the model can reach over all scaler outputs (module docs);
@@ -406,7 +434,7 @@ impl<const P: usize> Model<P> {
             Body::LinearEmm(e) => check_emm(e)?,
             Body::NemmLight { emm, b_fl } => {
                 check_emm(emm)?;
-                check_scaler(b_fl, "b_fl", 2)?;
+                check_scaler(b_fl, "b_fl", 2, self.cumulative.b_fl.is_some())?;
             }
             Body::Nemm {
                 emm,
@@ -415,9 +443,9 @@ impl<const P: usize> Model<P> {
                 k_pr,
             } => {
                 check_emm(emm)?;
-                check_scaler(b_fl, "b_fl", 2)?;
-                check_scaler(b_pr, "b_pr", 1)?;
-                check_scaler(k_pr, "k_pr", 2)?;
+                check_scaler(b_fl, "b_fl", 2, self.cumulative.b_fl.is_some())?;
+                check_scaler(b_pr, "b_pr", 1, false)?;
+                check_scaler(k_pr, "k_pr", 2, self.cumulative.k_pr.is_some())?;
             }
         }
         self.condition.validate()?;
@@ -427,6 +455,8 @@ impl<const P: usize> Model<P> {
         }
         self.alpha_branches
             .validate(&self.body, &self.condition.priors)?;
+        self.cumulative
+            .validate(&self.body, &self.condition.priors, &self.alpha_branches)?;
         if self.static_force.is_some() && matches!(self.body, Body::Sem(_)) {
             return Err(ModelError::StaticForceOnSem);
         }
@@ -439,12 +469,20 @@ impl<const P: usize> Model<P> {
         self.check_step(self.integrator, self.dt_s)
     }
 
-    /// `b_fl` \[N s/m\] at `v_st` \[m/s\] and `alpha` by the reference (unfolded) path.
+    /// `b_fl` \[N s/m\] at `v_st` \[m/s\] and `alpha` by the reference (unfolded) path:
+    /// with a cumulative scaler `b_fl,ini s(v_st / v_scale, alpha / alpha_scale)` between the
+    /// body's scaler bounds
+    /// ([`nemm_kernels::cumulative::CumulativeScaler::scale`]).
     pub fn b_fl(&self, v_st_m_s: f32, alpha: f32) -> Option<f32> {
         match &self.body {
             Body::Sem(_) => None,
             Body::LinearEmm(e) => Some(e.b_fl_ns_per_m),
             Body::NemmLight { emm, b_fl } | Body::Nemm { emm, b_fl, .. } => {
+                if let Some(c) = &self.cumulative.b_fl {
+                    let x = v_st_m_s / self.scales.velocity_m_s;
+                    let s = c.scale(x, alpha / self.scales.alpha, b_fl.s_min, b_fl.s_max)?;
+                    return Some(emm.b_fl_ns_per_m * s);
+                }
                 let x = [
                     v_st_m_s / self.scales.velocity_m_s,
                     alpha / self.scales.alpha,
@@ -481,12 +519,18 @@ impl<const P: usize> Model<P> {
     }
 
     /// `k_pr` \[N/m\] at `x_pr` \[m\] and `alpha` by the reference path (the liquid
-    /// stiffness `k_l` of a model with a lost-motion element).
+    /// stiffness `k_l` of a model with a lost-motion element); with a cumulative scaler
+    /// `k_pr,ini s(x_pr / x_scale, alpha / alpha_scale)` as for [`Model::b_fl`].
     pub fn k_pr(&self, x_pr_m: f32, alpha: f32) -> Option<f32> {
         match &self.body {
             Body::Sem(_) => None,
             Body::LinearEmm(e) | Body::NemmLight { emm: e, .. } => Some(e.k_pr_n_per_m),
             Body::Nemm { emm, k_pr, .. } => {
+                if let Some(c) = &self.cumulative.k_pr {
+                    let x = x_pr_m / self.scales.x_pr_m;
+                    let s = c.scale(x, alpha / self.scales.alpha, k_pr.s_min, k_pr.s_max)?;
+                    return Some(emm.k_pr_n_per_m * s);
+                }
                 let x = [x_pr_m / self.scales.x_pr_m, alpha / self.scales.alpha];
                 Some(emm.k_pr_n_per_m * k_pr.scale_with(&x, self.alpha_branches.k_pr.as_ref())?)
             }

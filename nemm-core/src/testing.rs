@@ -4,7 +4,10 @@
 //! freshly built scaler (output bias at the identity logit), on physically plausible
 //! passenger-car constants. They are not trained models.
 
-use crate::model::{AlphaBranches, Body, Condition, InputScales, Meta, Model, ModelKind, Priors};
+use crate::model::{
+    AlphaBranches, Body, Condition, CumulativeScalers, InputScales, Meta, Model, ModelKind, Priors,
+};
+use nemm_kernels::cumulative::{cumulative_param_count, CumulativeScaler, CUMULATIVE_CAPACITY};
 use nemm_kernels::emm::EmmConstants;
 use nemm_kernels::integrator::Integrator;
 use nemm_kernels::mlp::{
@@ -130,6 +133,7 @@ pub fn example_model<const P: usize>(kind: ModelKind, hidden: u8, layers: u8) ->
         provenance: crate::Provenance::empty(),
         static_force: None,
         lost_motion: None,
+        cumulative: CumulativeScalers::default(),
     })
 }
 
@@ -216,6 +220,65 @@ pub fn example_model_with_branches<const P: usize>(
     m.alpha_branches = branches;
     Some(m)
 }
+/// An example cumulative scaler ([`nemm_kernels::cumulative`]) of `units` units in the
+/// direction `direction`: logits in `+-0.5`, widths `exp(omega)` with `omega` in `0.5 +-
+/// 1.5` (0.37 to 7.4 per unit of normalised state), centres in `+-2`, gate slopes
+/// `gamma` in `+-1.2`, gate biases in `+-0.5` (pseudo-random, [`hash_unit`]).
+pub fn example_cumulative_scaler(
+    direction: Direction,
+    units: u8,
+    seed: u64,
+) -> Option<CumulativeScaler> {
+    let k = units as usize;
+    let h = |i: usize| hash_unit(800_000 + i as u64, seed);
+    let mut p = heapless::Vec::<f32, CUMULATIVE_CAPACITY>::new();
+    for j in 0..=k {
+        p.push(0.5 * h(j)).ok()?;
+    }
+    for j in 0..k {
+        p.push(0.5 + 1.5 * h(100 + j)).ok()?;
+    }
+    for j in 0..k {
+        p.push(2.0 * h(200 + j)).ok()?;
+    }
+    for j in 0..=k {
+        p.push(1.2 * h(300 + j)).ok()?;
+    }
+    for j in 0..=k {
+        p.push(0.5 * h(400 + j)).ok()?;
+    }
+    debug_assert_eq!(p.len(), cumulative_param_count(k));
+    CumulativeScaler::new(direction, units, &p).ok()
+}
+
+/// The example model of `kind` ([`example_model`], `H = 16`, `L = 5`) with a cumulative
+/// `b_fl` (NEMM-Light and NEMM) and a cumulative `k_pr` (NEMM) of 16 units each
+/// ([`example_cumulative_scaler`], seeds 21 and 23), in the directions of the paper's
+/// priors (decreasing); their scalers in the body keep the example bounds 0.2 and 3.0 with
+/// an MLP without weights. The SEM and the Linear EMM, which learn no state-dependent
+/// coefficient, are [`example_model`]'s.
+pub fn example_cumulative_model(kind: ModelKind) -> Model {
+    let Some(mut m) = example_model(kind, 16, 5) else {
+        return Model::empty();
+    };
+    let priors = m.condition.priors;
+    let cumulative = |scaler: &mut Scaler<{ crate::DEFAULT_PARAM_CAPACITY }>, dir, seed| {
+        scaler.mlp = MlpParams::without_weights(2);
+        example_cumulative_scaler(dir, 16, seed)
+    };
+    match &mut m.body {
+        Body::Sem(_) | Body::LinearEmm(_) => {}
+        Body::NemmLight { b_fl, .. } => {
+            m.cumulative.b_fl = cumulative(b_fl, priors.b_fl, 21);
+        }
+        Body::Nemm { b_fl, k_pr, .. } => {
+            m.cumulative.b_fl = cumulative(b_fl, priors.b_fl, 21);
+            m.cumulative.k_pr = cumulative(k_pr, priors.k_pr, 23);
+        }
+    }
+    m
+}
+
 /// An example static force (gas offset -90 N at x_ref = 30 mm, gas spring 800 N/m, seal
 /// friction 15 N smoothed over 5 mm/s, both gas terms depending on alpha).
 pub const EXAMPLE_STATIC_FORCE: crate::StaticForce = crate::StaticForce::EXAMPLE;

@@ -495,15 +495,15 @@ fn generator_covers_kinds_and_sizes() {
     assert!(largest > 5000, "{largest}");
 }
 
-/// Every earlier format version still loads: the version-1 to -4 blobs in
-/// `tests/data/format-v1` ... `format-v4` (the example models of every kind as
+/// Every earlier format version still loads: the version-1 to -4 and -6 blobs in
+/// `tests/data/format-v1` ... `format-v4`, `format-v6` (the example models of every kind as
 /// those encoders wrote them; a version-2 body is the version-1 body with an empty
 /// extension, the examples' version-3 extension is the default one) decode to the current
-/// example models with the default extension (the paper's oil loss, no alpha branches) and
-/// no stored tables, and re-encode as the current version.
+/// example models with the default extension (the paper's oil loss, no alpha branches, no
+/// cumulative scalers) and no stored tables, and re-encode as the current version.
 #[test]
-fn version_1_to_4_blobs_still_load() {
-    for version in [1u16, 2, 3, 4] {
+fn version_1_to_4_and_6_blobs_still_load() {
+    for version in [1u16, 2, 3, 4, 6] {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join(format!("tests/data/format-v{version}"));
         check_old_blobs(&dir, version);

@@ -106,14 +106,7 @@ fn decoding_and_loading_in_place_use_bounded_stack() {
         Box::new(nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).expect("example"));
     let blob = blob_of(&model);
     let model_bytes = core::mem::size_of::<Model<P>>();
-    let (in_place_bound, load_bound) = if cfg!(debug_assertions) {
-        // Unoptimised: `decode_into` holds one empty body of the new kind when it switches
-        // kinds (see tests/format.rs); the estimator's loading writes in place.
-        (model_bytes + (16 << 10), 32 << 10)
-    } else {
-        // Loading in table mode builds the tables, the deepest path: a little over 8 KiB.
-        (8 << 10, (8 << 10) + 512)
-    };
+    let (in_place_bound, load_bound) = bounds();
 
     let mut place: Box<Model<P>> = Box::new(Model::empty());
     let b = blob.clone();
@@ -190,4 +183,42 @@ fn decoding_and_loading_in_place_use_bounded_stack() {
         "size model={model_bytes} estimator={}",
         core::mem::size_of::<Estimator<P>>()
     );
+}
+
+/// The bounds of the in-place paths: `decode_into` and the estimator's `load`.
+fn bounds() -> (usize, usize) {
+    if cfg!(debug_assertions) {
+        // Unoptimised: `decode_into` holds one empty body of the new kind when it switches
+        // kinds (see tests/format.rs); the estimator's loading writes in place.
+        (core::mem::size_of::<Model<P>>() + (16 << 10), 32 << 10)
+    } else {
+        // Loading in table mode builds the tables, the deepest path: a little over 8 KiB.
+        (8 << 10, (8 << 10) + 512)
+    }
+}
+
+/// A model with cumulative scalers (format version 7's section, decoded in place) decodes
+/// and loads within the bounds of the paper's model.
+#[test]
+fn cumulative_models_decode_and_load_in_place_with_bounded_stack() {
+    let (in_place_bound, load_bound) = bounds();
+    let cumulative: Box<Model<P>> = Box::new(nemm_core::testing::example_cumulative_model(
+        ModelKind::Nemm,
+    ));
+    let cumulative_blob = blob_of(&cumulative);
+    let mut place: Box<Model<P>> = Box::new(Model::empty());
+    let b = cumulative_blob.clone();
+    let in_place = peak_stack(move || decode_into(&b, &mut place).expect("decodes"));
+    report("decode_into-cumulative", in_place);
+    assert!(in_place <= in_place_bound, "{in_place} > {in_place_bound}");
+    for (op, cfg) in [
+        ("load-cumulative-exact", EstimatorConfig::new(0.15)),
+        ("load-cumulative-table", table_mode(0.15)),
+    ] {
+        let mut est: Box<Estimator<P>> = Box::new(Estimator::empty());
+        let m = cumulative.clone();
+        let bytes = peak_stack(move || est.load(&m, cfg).expect("loads"));
+        report(op, bytes);
+        assert!(bytes <= load_bound, "{op}: {bytes} > {load_bound}");
+    }
 }

@@ -212,6 +212,9 @@ pub fn model_error(line: &mut Line, e: &ModelError) {
         }
         ModelError::UnstableStep { .. } => line.ks("reason", "unstable-step"),
         ModelError::Branch { scaler, .. } => line.ks("reason", "alpha-branch").ks("scaler", scaler),
+        ModelError::Cumulative { scaler, .. } => {
+            line.ks("reason", "cumulative-scaler").ks("scaler", scaler)
+        }
         ModelError::Condition { field } => line.ks("reason", "condition").ks("field", field),
     };
 }

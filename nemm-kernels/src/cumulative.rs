@@ -20,7 +20,9 @@
 //! so that `x s(x) = integral_0^x q` and `d(x s)/dx = q(x) >= s_min > 0`: the force rises
 //! with the state for **every value of the weights**, between any grid points, and the
 //! integral is closed-form (no quadrature, which would not keep the guarantee between its
-//! nodes). `h` is the mean of `sech^2` over `[c, c + y]`, in `(0, 1]`, so with `pi_j >= 0`
+//! nodes). In `f32` with the exact `libm` backend the computed force rises strictly on a
+//! dense grid for random weights (tested); the `micromath` backend's `exp` approximation
+//! is not monotone to the last bits, so with it the force rises up to that error. `h` is the mean of `sech^2` over `[c, c + y]`, in `(0, 1]`, so with `pi_j >= 0`
 //! and `sum_j pi_j < 1` the scale keeps the MLP scaler's bounds `s_min < s < s_max`, and
 //! with them the stability bound of the model's step.
 //!
@@ -47,10 +49,12 @@
 //!
 //! # Arithmetic
 //!
-//! `tanh(v) = 1 - 2 / (exp(2 v) + 1)` (saturates to `+-1` without overflow), and
+//! `tanh(v) = 1 - 2 / (exp(2 v) + 1)` (saturates to `+-1` without overflow; every `exp`
+//! argument is clamped to `+-80`), and
 //! `h(y, c) = (tanh(y) / y) (1 - tanh(y + c) tanh(c))` (the identity `tanh a - tanh b =
 //! tanh(a - b) (1 - tanh a tanh b)`), with `tanh(y) / y` by its Taylor series for
-//! `|y| < 0.1`: no cancellation near `x = 0`. The reverse mode ([`CumulativeView::backward`],
+//! `|y| < 0.1`: no cancellation near `x = 0`. The reverse mode
+//! (`CumulativeFold::mixture_backward`,
 //! feature `reverse`) uses the series of the difference quotients for `|y| < 0.01`.
 
 pub use crate::error::CumulativeError;
@@ -102,36 +106,65 @@ pub struct CumulativeFold<L: Lane> {
     /// `g_j`.
     g: [L; MAX_CUMULATIVE_UNITS + 1],
     /// `p_j`.
-    p: [L::Scalar; MAX_CUMULATIVE_UNITS + 1],
+    pub(crate) p: [L::Scalar; MAX_CUMULATIVE_UNITS + 1],
     /// `w_k = exp(omega_k)`.
-    w: [L::Scalar; MAX_CUMULATIVE_UNITS],
+    pub(crate) w: [L::Scalar; MAX_CUMULATIVE_UNITS],
     /// `c_k`.
-    c: [L::Scalar; MAX_CUMULATIVE_UNITS],
+    pub(crate) c: [L::Scalar; MAX_CUMULATIVE_UNITS],
     /// `tanh(c_k)`.
-    tc: [L::Scalar; MAX_CUMULATIVE_UNITS],
-    /// `alpha_n` the gates were folded at.
+    pub(crate) tc: [L::Scalar; MAX_CUMULATIVE_UNITS],
+    /// `alpha_n` the gates were folded at (read by the reverse mode).
+    #[cfg_attr(not(feature = "reverse"), allow(dead_code))]
     alpha_n: L,
+}
+
+/// Largest `|argument|` passed to `exp`: the approximations of the `micromath` backend do
+/// not take arguments whose result over- or underflows, and every use here saturates long
+/// before (`tanh(40) = 1` and `sigmoid(-80) < 2e-35` in `f32`).
+const EXP_ARG_LIMIT: f32 = 80.0;
+
+/// `e^v` with `v` clamped to `+-EXP_ARG_LIMIT` (NaN stays NaN).
+#[inline(always)]
+fn exp_clamped<L: Lane>(v: L) -> L {
+    let hi = L::constant(EXP_ARG_LIMIT);
+    let v = L::select_nonneg(v - hi, hi, v);
+    let v = L::select_nonneg(-hi - v, -hi, v);
+    L::exp(v)
+}
+
+/// `e^v` of one scalar with `v` clamped to `+-EXP_ARG_LIMIT` (NaN stays NaN).
+#[inline(always)]
+fn exp_clamped_scalar<S: crate::math::Scalar>(v: S) -> S {
+    let hi = S::from_f32(EXP_ARG_LIMIT);
+    let v = if v > hi {
+        hi
+    } else if v < -hi {
+        -hi
+    } else {
+        v
+    };
+    S::exp(v)
 }
 
 /// `tanh(v) = 1 - 2 / (exp(2 v) + 1)`.
 #[inline(always)]
 pub fn tanh<L: Lane>(v: L) -> L {
     let one = L::constant(1.0);
-    one - L::constant(2.0) / (L::exp(L::constant(2.0) * v) + one)
+    one - L::constant(2.0) / (exp_clamped(L::constant(2.0) * v) + one)
 }
 
 /// [`tanh`] of one scalar.
 #[inline(always)]
 fn tanh_scalar<S: crate::math::Scalar>(v: S) -> S {
     let one = S::from_f32(1.0);
-    one - S::from_f32(2.0) / (S::exp(S::from_f32(2.0) * v) + one)
+    one - S::from_f32(2.0) / (exp_clamped_scalar(S::from_f32(2.0) * v) + one)
 }
 
 /// `sigmoid(v) = 1 / (1 + exp(-v))`.
 #[inline(always)]
-fn sigmoid<L: Lane>(v: L) -> L {
+pub(crate) fn sigmoid<L: Lane>(v: L) -> L {
     let one = L::constant(1.0);
-    one / (one + L::exp(-v))
+    one / (one + exp_clamped(-v))
 }
 
 /// `tanh(y) / y`, by its series below `|y| < 0.1` (error below `1e-9`).
@@ -151,7 +184,7 @@ fn tanh_ratio<L: Lane>(y: L) -> L {
 /// The unit's mean `h(y, c)` of `sech^2` over `[c, c + y]`, given `tanh(c)`; also returns
 /// `tanh(y + c)`.
 #[inline(always)]
-fn unit_mean<L: Lane>(y: L, c: L::Scalar, tc: L::Scalar) -> (L, L) {
+pub(crate) fn unit_mean<L: Lane>(y: L, c: L::Scalar, tc: L::Scalar) -> (L, L) {
     let t1 = tanh(y + L::splat(c));
     let h = tanh_ratio(y) * (L::constant(1.0) - t1 * L::splat(tc));
     (h, t1)
@@ -161,7 +194,9 @@ impl<'a, S: crate::math::Scalar> CumulativeView<'a, S> {
     /// Splits `params` (the layout of the module docs) for `units` units; `None` if the
     /// length does not match or `units` is 0 or above [`MAX_CUMULATIVE_UNITS`].
     pub fn new(params: &'a [S], units: usize, direction: Direction) -> Option<Self> {
-        if units == 0 || units > MAX_CUMULATIVE_UNITS || params.len() != cumulative_param_count(units)
+        if units == 0
+            || units > MAX_CUMULATIVE_UNITS
+            || params.len() != cumulative_param_count(units)
         {
             return None;
         }
@@ -186,7 +221,7 @@ impl<'a, S: crate::math::Scalar> CumulativeView<'a, S> {
 
     /// The gate's slope `u_j` from `gamma_j`, and `du_j / dgamma_j`.
     #[inline(always)]
-    fn gate_slope(&self, gamma: S) -> (S, S) {
+    pub(crate) fn gate_slope(&self, gamma: S) -> (S, S) {
         let two = S::from_f32(2.0);
         match self.direction {
             Direction::Increasing => (gamma * gamma, two * gamma),
@@ -210,13 +245,10 @@ impl<'a, S: crate::math::Scalar> CumulativeView<'a, S> {
         };
         // Softmax over the K + 1 logits and the slack's 0, shifted by the largest.
         let zero = S::from_f32(0.0);
-        let top = self
-            .a
-            .iter()
-            .fold(zero, |m, &v| if v > m { v } else { m });
-        let mut total = S::exp(zero - top);
+        let top = self.a.iter().fold(zero, |m, &v| if v > m { v } else { m });
+        let mut total = exp_clamped_scalar(zero - top);
         for (p, &a) in f.p.iter_mut().zip(self.a) {
-            *p = S::exp(a - top);
+            *p = exp_clamped_scalar(a - top);
             total = total + *p;
         }
         for p in f.p.iter_mut().take(k + 1) {
@@ -235,7 +267,7 @@ impl<'a, S: crate::math::Scalar> CumulativeView<'a, S> {
             if let (Some(w), Some(cc), Some(tc)) =
                 (f.w.get_mut(kk), f.c.get_mut(kk), f.tc.get_mut(kk))
             {
-                *w = S::exp(om);
+                *w = exp_clamped_scalar(om);
                 *cc = c;
                 *tc = tanh_scalar(c);
             }
@@ -250,7 +282,12 @@ impl<L: Lane> CumulativeFold<L> {
     #[inline]
     pub fn mixture(&self, x: L) -> L {
         let mut acc = self.pi.first().copied().unwrap_or_default();
-        let units = self.w.iter().zip(&self.c).zip(&self.tc).zip(self.pi.iter().skip(1));
+        let units = self
+            .w
+            .iter()
+            .zip(&self.c)
+            .zip(&self.tc)
+            .zip(self.pi.iter().skip(1));
         for (((&w, &c), &tc), &pi) in units.take(self.units) {
             let (h, _) = unit_mean(L::splat(w) * x, c, tc);
             acc = L::fma(pi, h, acc);

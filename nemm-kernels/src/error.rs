@@ -1,8 +1,8 @@
 //! The errors that several layers share: a name that does not parse ([`UnknownName`]) and
-//! why a model is not acceptable ([`ModelError`], with the shape, branch and SEM errors it
-//! carries). They sit below every other module, so that the parts of a model (`mlp`,
-//! `integrator`, `sem`, `static_force`) report in the same terms as the model and the
-//! decoder without reaching up to them. Errors of one layer only stay with it:
+//! why a model is not acceptable ([`ModelError`], with the shape, branch, cumulative-scaler
+//! and SEM errors it carries). They sit below every other module, so that the parts of a
+//! model (`mlp`, `cumulative`, `integrator`, `sem`, `static_force`) report in the same
+//! terms as the model and the decoder without reaching up to them. Errors of one layer only stay with it:
 //! nemm-core's `DecodeError` and `EncodeError` (the weight format) and `EstimatorError`;
 //! [`crate::table::TableError`] (the tables).
 
@@ -87,6 +87,51 @@ impl fmt::Display for CumulativeError {
 
 #[cfg(feature = "std")]
 impl std::error::Error for CumulativeError {}
+
+/// Why a coefficient's cumulative scaler ([`crate::cumulative`]) is not acceptable in its
+/// model (nemm-core's `Model::cumulative`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CumulativeModelError {
+    /// The scaler's own weights are not acceptable.
+    Scaler(CumulativeError),
+    /// The model does not learn this coefficient (its body has no scaler for it).
+    NoScaler,
+    /// The coefficient's MLP in the body has weights: beside a cumulative scaler it must be
+    /// `MlpParams::without_weights` (the body keeps only the scaler's bounds).
+    MlpWeights,
+    /// The coefficient also has an alpha branch (the cumulative scaler's gates carry its
+    /// dependence on `alpha`).
+    AlphaBranch,
+    /// The scaler's direction in `alpha` is neither the condition's declared prior nor
+    /// `none`.
+    DirectionMismatch,
+}
+
+impl fmt::Display for CumulativeModelError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CumulativeModelError::Scaler(e) => write!(f, "{e}"),
+            CumulativeModelError::NoScaler => {
+                write!(f, "the model does not learn this coefficient")
+            }
+            CumulativeModelError::MlpWeights => write!(
+                f,
+                "the coefficient's MLP must have no weights beside a cumulative scaler"
+            ),
+            CumulativeModelError::AlphaBranch => write!(
+                f,
+                "the coefficient cannot have an alpha branch beside a cumulative scaler"
+            ),
+            CumulativeModelError::DirectionMismatch => write!(
+                f,
+                "its direction differs from the condition's declared prior (and is not none)"
+            ),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for CumulativeModelError {}
 
 /// Why an alpha branch is not acceptable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -213,6 +258,13 @@ pub enum ModelError {
         /// What is wrong.
         error: BranchError,
     },
+    /// A coefficient's cumulative scaler is not acceptable.
+    Cumulative {
+        /// Which coefficient (`b_fl` or `k_pr`).
+        scaler: &'static str,
+        /// What is wrong.
+        error: CumulativeModelError,
+    },
     /// The condition's name is empty or too long, its unit too long, or its end points
     /// coincide.
     Condition {
@@ -290,6 +342,9 @@ impl fmt::Display for ModelError {
             },
             ModelError::Branch { scaler, error } => {
                 write!(f, "alpha branch of `{scaler}`: {error}")
+            }
+            ModelError::Cumulative { scaler, error } => {
+                write!(f, "cumulative scaler of `{scaler}`: {error}")
             }
             ModelError::Condition { field } => write!(
                 f,

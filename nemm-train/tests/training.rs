@@ -38,6 +38,7 @@ fn truth() -> Model {
         }),
         condition: Default::default(),
         alpha_branches: Default::default(),
+        cumulative: Default::default(),
         provenance: Default::default(),
         static_force: None,
         lost_motion: None,

@@ -53,7 +53,8 @@ impl<const P: usize, const T: usize> Coef<P, T> {
         (self.kind == CoefKind::Table).then_some(&self.table)
     }
 
-    /// In place: the constant `p_ini` without a scaler; otherwise the scaler compiled for
+    /// In place: the constant `p_ini` without a scaler; otherwise the scaler (its MLP and
+    /// alpha branch, or its cumulative scaler between the scaler's bounds) compiled for
     /// `alpha` and, in table mode, its table over `[-m u_scale, m u_scale]` (`m` the
     /// configured domain margin): read from `stored` (a stored table of `T` segments, see
     /// [`crate::format::tables`]) if given and it reads back on that domain, else built.
@@ -62,7 +63,7 @@ impl<const P: usize, const T: usize> Coef<P, T> {
     pub(super) fn load(
         &mut self,
         name: &'static str,
-        scaler: Option<(&Scaler<P>, Option<&AlphaBranch>)>,
+        scaler: Option<(&Scaler<P>, Option<&AlphaBranch>, Option<&CumulativeScaler>)>,
         p_ini: f32,
         u_scale: f32,
         (alpha, alpha_scale): (f32, f32),
@@ -70,12 +71,24 @@ impl<const P: usize, const T: usize> Coef<P, T> {
     ) -> Result<Option<bool>, EstimatorError> {
         self.kind = CoefKind::Const;
         self.value = p_ini;
-        let Some((scaler, branch)) = scaler else {
+        let Some((scaler, branch, cumulative)) = scaler else {
             return Ok(None);
         };
-        self.exact
-            .compile_into(scaler, branch, p_ini, u_scale, alpha, alpha_scale)
-            .ok_or(EstimatorError::Compile)?;
+        match cumulative {
+            None => self
+                .exact
+                .compile_into(scaler, branch, p_ini, u_scale, alpha, alpha_scale),
+            Some(c) => self.exact.compile_cumulative_into(
+                c,
+                scaler.s_min,
+                scaler.s_max,
+                p_ini,
+                u_scale,
+                alpha,
+                alpha_scale,
+            ),
+        }
+        .ok_or(EstimatorError::Compile)?;
         self.kind = CoefKind::Neural;
         let EvalMode::Table(tc) = mode else {
             return Ok(None);

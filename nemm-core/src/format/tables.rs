@@ -3,7 +3,8 @@
 //! [`crate::EvalMode::Table`] boots without building them, and an observer or an estimator
 //! with a level per sample reads every level's tables in place ([`crate::LevelTables`]).
 //!
-//! # Layout (version 6, after the lost-motion element)
+//! # Layout (version 6 on, after the lost-motion element and, from version 7, the
+//! cumulative scalers)
 //!
 //! ```text
 //! pad: u8                                0 ..= 7, then `pad` zero bytes, so that what

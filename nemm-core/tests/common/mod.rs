@@ -73,8 +73,8 @@ pub fn blob_with_tables<const Q: usize, const S: usize>(
 
 /// The blob layout of nemm-core's weight format (`src/format.rs`), written independently of `encode` and without any
 /// validation: postcard header, postcard body (version-1 part, the version-3 fields, the
-/// version-4 static force, the version-5 lost-motion element and an empty version-6 tables
-/// section), CRC-32 little-endian. Lets tests build
+/// version-4 static force, the version-5 lost-motion element, the version-7 cumulative
+/// scalers and an empty version-6 tables section), CRC-32 little-endian. Lets tests build
 /// well-formed blobs with contents `encode` refuses (NaN weights, unstable steps), or
 /// headers that disagree with the body.
 pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl Fn(&mut Header)) -> Vec<u8> {
@@ -111,7 +111,7 @@ pub fn craft_blob<const Q: usize>(m: &Model<Q>, edit: impl Fn(&mut Header)) -> V
 }
 
 /// The body of `m`'s blob up to its tables section: the version-1 part, the version-3
-/// fields, the static force and the lost-motion element.
+/// fields, the static force, the lost-motion element and the cumulative scalers.
 pub fn body_prefix<const Q: usize>(m: &Model<Q>) -> Vec<u8> {
     let mut body = vec![0u8; 4 * 3 * Q + 16 * 1024];
     let mut body = postcard::to_slice(m, &mut body)
@@ -126,6 +126,10 @@ pub fn body_prefix<const Q: usize>(m: &Model<Q>) -> Vec<u8> {
     // Version 5's lost-motion element.
     body.extend_from_slice(
         postcard::to_slice(&m.lost_motion, &mut ext).expect("lost motion serialises"),
+    );
+    // Version 7's cumulative scalers.
+    body.extend_from_slice(
+        postcard::to_slice(&m.cumulative, &mut ext).expect("cumulative scalers serialise"),
     );
     body
 }
@@ -256,6 +260,7 @@ impl ModelSpec {
             provenance: Default::default(),
             static_force: None,
             lost_motion: None,
+            cumulative: Default::default(),
         };
         if let Some(tau) = m.fastest_time_constant_s() {
             let max_dt = STABILITY_MARGIN * self.integrator.stability_limit() * tau;

@@ -587,38 +587,44 @@ fn parse_options(console: &mut Console) -> Options {
 }
 
 /// The `check=N` option: the kernel check of every neural state scaler of `model` at `n`
-/// inputs and the level `alpha`; ends the program if any mismatch.
+/// inputs and the level `alpha`; ends the program if any mismatch. A coefficient with a
+/// cumulative scaler (`Model::cumulative`) has no MLP kernel and is not checked.
 fn check_scalers(console: &mut Console, model: &Model<PARAM_CAPACITY>, alpha: f32, n: u32) {
     let Some(slot) = COMPILED.init(None) else {
         board::exit(report::EXIT_USAGE)
     };
     let sc = &model.scales;
     let mut bad = 0;
+    let cumulative = &model.cumulative;
     if let Body::NemmLight { emm, b_fl } | Body::Nemm { emm, b_fl, .. } = &model.body {
-        bad += check_scaler(
-            console,
-            slot,
-            "b_fl",
-            b_fl,
-            emm.b_fl_ns_per_m,
-            sc.velocity_m_s,
-            alpha,
-            sc.alpha,
-            n,
-        );
+        if cumulative.b_fl.is_none() {
+            bad += check_scaler(
+                console,
+                slot,
+                "b_fl",
+                b_fl,
+                emm.b_fl_ns_per_m,
+                sc.velocity_m_s,
+                alpha,
+                sc.alpha,
+                n,
+            );
+        }
     }
     if let Body::Nemm { emm, k_pr, .. } = &model.body {
-        bad += check_scaler(
-            console,
-            slot,
-            "k_pr",
-            k_pr,
-            emm.k_pr_n_per_m,
-            sc.x_pr_m,
-            alpha,
-            sc.alpha,
-            n,
-        );
+        if cumulative.k_pr.is_none() {
+            bad += check_scaler(
+                console,
+                slot,
+                "k_pr",
+                k_pr,
+                emm.k_pr_n_per_m,
+                sc.x_pr_m,
+                alpha,
+                sc.alpha,
+                n,
+            );
+        }
     }
     if bad > 0 {
         board::exit(EXIT_CHECK_FAILED)

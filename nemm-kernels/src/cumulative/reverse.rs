@@ -33,21 +33,20 @@ fn quotients<L: Lane>(y: L, tc: L::Scalar, t1: L, h: L) -> (L, L) {
 }
 
 impl<L: Lane> CumulativeFold<L> {
-    /// Reverse mode of [`Self::scale`] at `x` (the fold's level): adds `dL/dtheta` for the
-    /// adjoint `sbar = dL/ds` to `grad` (the flat layout of the module docs, summed over the
-    /// lanes) and returns `dL/dx`. `view` must be the view the fold was made from.
-    pub fn backward(
+    /// Reverse mode of [`Self::mixture`] at `x` (the fold's level): adds `dL/dtheta` for the
+    /// adjoint `mbar = dL/dm` of the mixture to `grad` (the flat layout of the module docs,
+    /// summed over the lanes) and returns `dL/dx`. `view` must be the view the fold was made
+    /// from. (For the scale `s`, `mbar = (s_max - s_min) dL/ds`.)
+    pub fn mixture_backward(
         &self,
         view: &CumulativeView<'_, L::Scalar>,
         x: L,
-        sbar: L,
-        (s_min, s_max): (L::Scalar, L::Scalar),
+        mbar: L,
         grad: &mut [L::Scalar],
     ) -> L {
         let k = self.units;
         let zero = L::default();
         let one = L::constant(1.0);
-        let mbar = sbar * L::splat(s_max - s_min);
         // dL/dpi_j per lane.
         let mut pibar = [zero; MAX_CUMULATIVE_UNITS + 1];
         if let Some(p0) = pibar.first_mut() {
@@ -88,7 +87,11 @@ impl<L: Lane> CumulativeFold<L> {
             *pb = L::sum(pij_bar * g);
             dot = dot + p * *pb;
             let ebar = pij_bar * L::splat(p) * g * (one - g);
-            let gamma = view.gamma.get(j).copied().unwrap_or(L::Scalar::from_f32(0.0));
+            let gamma = view
+                .gamma
+                .get(j)
+                .copied()
+                .unwrap_or(L::Scalar::from_f32(0.0));
             let (_, du) = view.gate_slope(gamma);
             if let Some(gb) = gbeta.get_mut(j) {
                 *gb = *gb + L::sum(ebar);

@@ -24,16 +24,23 @@ fn weights(units: usize, seed: u64) -> Vec<f64> {
     w
 }
 
-const DIRECTIONS: [Direction; 3] = [Direction::Decreasing, Direction::Increasing, Direction::None];
+const DIRECTIONS: [Direction; 3] = [
+    Direction::Decreasing,
+    Direction::Increasing,
+    Direction::None,
+];
 
 fn scale64(w: &[f64], units: usize, d: Direction, x: f64, alpha_n: f64) -> f64 {
     let v = CumulativeView::new(w, units, d).unwrap();
     v.fold(alpha_n).scale(x, 0.2, 3.0)
 }
 
+/// With the exact backend (`libm`): `micromath`'s `exp` is an approximation whose error is
+/// not monotone, so with it the computed force rises only up to that error.
+#[cfg(not(feature = "micromath"))]
 #[test]
 fn the_force_rises_with_the_state_for_any_weights_in_f32() {
-    for seed in 0..40 {
+    for seed in 0..16 {
         for d in DIRECTIONS {
             let w: Vec<f32> = weights(8, seed).iter().map(|&v| v as f32).collect();
             let v = CumulativeView::new(&w, 8, d).unwrap();
@@ -45,7 +52,10 @@ fn the_force_rises_with_the_state_for_any_weights_in_f32() {
                     let s = f.scale(x, 0.2, 3.0);
                     assert!(s > 0.2 && s < 3.0, "bounds: s({x}) = {s}");
                     let force = x * s;
-                    assert!(force > prev, "x s not rising at x = {x} (seed {seed}, {d:?})");
+                    assert!(
+                        force > prev,
+                        "x s not rising at x = {x} (seed {seed}, {d:?})"
+                    );
                     prev = force;
                 }
             }
@@ -102,18 +112,22 @@ fn backward_matches_central_differences() {
                 let v = CumulativeView::new(&w, units, d).unwrap();
                 let f = v.fold(alpha_n);
                 let mut grad = vec![0.0; w.len()];
-                let xbar = f.backward(&v, x, 1.0, (0.2, 3.0), &mut grad);
+                let xbar = f.mixture_backward(&v, x, 2.8, &mut grad);
                 let e = 1e-6;
                 let fdx = (scale64(&w, units, d, x + e, alpha_n)
                     - scale64(&w, units, d, x - e, alpha_n))
                     / (2.0 * e);
-                assert!((xbar - fdx).abs() < 1e-7 * (1.0 + fdx.abs()), "dx at {x}: {xbar} vs {fdx}");
+                assert!(
+                    (xbar - fdx).abs() < 1e-7 * (1.0 + fdx.abs()),
+                    "dx at {x}: {xbar} vs {fdx}"
+                );
                 for i in 0..w.len() {
                     let mut wp = w.clone();
                     wp[i] += e;
                     let mut wm = w.clone();
                     wm[i] -= e;
-                    let fd = (scale64(&wp, units, d, x, alpha_n) - scale64(&wm, units, d, x, alpha_n))
+                    let fd = (scale64(&wp, units, d, x, alpha_n)
+                        - scale64(&wm, units, d, x, alpha_n))
                         / (2.0 * e);
                     assert!(
                         (grad[i] - fd).abs() < 1e-7 * (1.0 + fd.abs()),
@@ -136,12 +150,12 @@ fn lanes_agree_with_one_lane() {
     let fl = v.fold(Lanes::<f32, 8>(alphas));
     let s = fl.scale(Lanes(xs), 0.2, 3.0);
     let mut grad = vec![0.0f32; w.len()];
-    let xbar = fl.backward(&v, Lanes(xs), Lanes([1.0; 8]), (0.2, 3.0), &mut grad);
+    let xbar = fl.mixture_backward(&v, Lanes(xs), Lanes([1.0; 8]), &mut grad);
     let mut grad1 = vec![0.0f32; w.len()];
     for k in 0..8 {
         let f1 = v.fold(alphas[k]);
         assert_eq!(s.0[k], f1.scale(xs[k], 0.2, 3.0));
-        assert_eq!(xbar.0[k], f1.backward(&v, xs[k], 1.0, (0.2, 3.0), &mut grad1));
+        assert_eq!(xbar.0[k], f1.mixture_backward(&v, xs[k], 1.0, &mut grad1));
     }
     for (a, b) in grad.iter().zip(&grad1) {
         assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{a} vs {b}");

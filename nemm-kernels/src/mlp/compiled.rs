@@ -4,6 +4,7 @@
 use super::layers::{dot_acc_with, PATTERN_SEED};
 use super::params::take;
 use super::*;
+use crate::cumulative::{self, CumulativeScaler};
 
 /// A scaler specialised for a fixed `alpha` and one state input, with the constant
 /// `p_ini`, the input normalisation and the LayerNorm mean folded into the weights.
@@ -46,21 +47,80 @@ use super::*;
 /// `vadd.f32`, `vsqrt.f32`, `vdiv.f32`, so it returns the same bits as this portable code on
 /// the host (where `fma` is `libm::fmaf` and `sqrt` is `libm::sqrtf`, both correctly
 /// rounded). Other widths use the portable code on every target.
+///
+/// # Cumulative mode
+///
+/// [`CompiledScaler::compile_cumulative_into`] compiles a cumulative scaler
+/// ([`crate::cumulative`]) instead of an MLP, into the same storage (no second weight
+/// array; a mode field says which is in use). With `K` units, `u_j` the gate slopes
+/// (`d gamma_j^2`), `beta_j` the gate biases, `p_j` the softmax weights, `w_k = exp(omega_k)`,
+/// `c_k` the centres and `pi_j = p_j g_j` the mixture weights at the current level:
+///
+/// ```text
+/// w:          p_ini, pi_0, K x [w_k, c_k, tanh(c_k), pi_k], p_0 .. p_K     5 K + 3 values
+/// alpha_col:  u_0 .. u_K          (the gates' slopes in alpha_n)
+/// b1_raw:     beta_0 .. beta_K    (the gates' biases)
+/// consts:     [u_scale, alpha_scale, s_min, s_max - s_min]
+/// lo, span:   p_ini s_min, p_ini (s_max - s_min)   (the bounds, as in the MLP mode)
+/// ```
+///
+/// [`CompiledScaler::set_alpha`] re-folds the gates (`K + 1` sigmoids):
+///
+/// ```text
+/// alpha_n = alpha / alpha_scale
+/// pi_j    = p_j * sigmoid(fma(u_j, alpha_n, beta_j)),   sigmoid(v) = 1 / (1 + exp(-v))
+/// ```
+///
+/// and [`CompiledScaler::eval`] is
+///
+/// ```text
+/// x   = u / u_scale
+/// acc = pi_0; per unit k ascending:  y = w_k * x
+///                                    h = (tanh(y) / y) * (1 - tanh(y + c_k) * tanh(c_k))
+///                                    acc = fma(pi_k, h, acc)
+/// p   = p_ini * fma(s_max - s_min, acc, s_min)
+/// ```
+///
+/// with `tanh` and `tanh(y) / y` (its series for `|y| < 0.1`) those of
+/// [`crate::cumulative::CumulativeFold::mixture`]: the operations of the reference path
+/// `p_ini * CumulativeScaler::scale(u / u_scale, alpha / alpha_scale, s_min, s_max)` in its
+/// order, so the compiled scaler returns its bits (also after [`CompiledScaler::set_alpha`]).
+/// Per evaluation: one division, and per unit two `exp` and three divisions.
+/// The function is smooth: [`CompiledScaler::pattern`] is constant, and a table of it
+/// ([`crate::table`]) has no kinks and spreads its knots uniformly. A unit much sharper
+/// than a table segment (`w_k / u_scale` times the segment width well above 1) makes the
+/// table miss its bound, which the table's check refuses ([`crate::table::TableError`]):
+/// such a scaler runs exactly or with more segments.
 #[derive(Debug, Clone)]
 pub struct CompiledScaler<const P: usize> {
+    /// Which function is compiled.
+    mode: Mode,
+    /// `H` (the MLP's width), or `K` (the cumulative scaler's units).
     hidden: usize,
+    /// `L` (0 in the cumulative mode).
     layers: usize,
-    /// `[1 / H, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, 0.0]`, in this order for the Arm kernel.
+    /// `[1 / H, LAYER_NORM_EPS, LEAKY_RELU_SLOPE, 0.0]`, in this order for the Arm kernel
+    /// (cumulative mode: see the type's docs).
     consts: [f32; 4],
     w: heapless::Vec<f32, P>,
-    /// Raw alpha column of layer 1 (times `1/alpha_scale`), for [`Self::set_alpha`].
+    /// Raw alpha column of layer 1 (times `1/alpha_scale`), for [`Self::set_alpha`]
+    /// (cumulative mode: the gates' slopes).
     alpha_col: [f32; MAX_HIDDEN],
-    /// Raw layer-1 bias.
+    /// Raw layer-1 bias (cumulative mode: the gates' biases).
     b1_raw: [f32; MAX_HIDDEN],
     lo: f32,
     span: f32,
     /// The alpha branch folded for the current `alpha`, if the scaler has one.
     branch: Option<CompiledBranch>,
+}
+
+/// Which function a [`CompiledScaler`] holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    /// An MLP (and its alpha branch, if any).
+    Mlp,
+    /// A cumulative scaler (the type's docs, "Cumulative mode").
+    Cumulative,
 }
 
 /// Inputs per column block of a compiled hidden-layer matrix (see [`CompiledScaler`]).
@@ -92,6 +152,7 @@ impl<const P: usize> CompiledScaler<P> {
     /// [`compile_into`](Self::compile_into), e.g. inside a `static`.
     pub const fn empty() -> Self {
         Self {
+            mode: Mode::Mlp,
             hidden: 0,
             layers: 0,
             consts: [0.0; 4],
@@ -159,6 +220,7 @@ impl<const P: usize> CompiledScaler<P> {
         mlp.check_shape().ok()?;
         let h = mlp.hidden as usize;
         let d = mlp.inputs as usize;
+        self.mode = Mode::Mlp;
         self.hidden = 0;
         self.layers = 0;
         self.branch = None;
@@ -250,6 +312,10 @@ impl<const P: usize> CompiledScaler<P> {
     /// compile time, before normalisation), and into the alpha branch's biases if there is
     /// one. `H` (+ `K`) fused multiply-adds; no per-step cost.
     pub fn set_alpha(&mut self, alpha: f32) {
+        if self.mode == Mode::Cumulative {
+            self.set_cumulative_alpha(alpha);
+            return;
+        }
         if let Some(b) = self.branch.as_mut() {
             b.set_alpha(alpha);
         }
@@ -271,14 +337,22 @@ impl<const P: usize> CompiledScaler<P> {
     /// Physical parameter value `p(u)` at state input `u` (SI units of the state).
     #[inline]
     pub fn eval(&self, u: f32) -> f32 {
-        bounded::<math::Fused, f32>(self.raw(u), self.lo, self.span).0
+        match self.mode {
+            Mode::Mlp => bounded::<math::Fused, f32>(self.raw(u), self.lo, self.span).0,
+            Mode::Cumulative => self.eval_cumulative(u),
+        }
     }
 
     /// Raw network output `z` at state input `u`: the Arm FPU kernel where there is one
     /// for this width, the portable code otherwise (same bits; compared on the target by
-    /// the firmware's bench through `testing::scaler_raw`).
+    /// the firmware's bench through `testing::scaler_raw`). In the cumulative mode: the
+    /// mixture `pi_0 + sum_k pi_k h(w_k x, c_k)` at `x = u / u_scale`.
     #[inline(always)]
     pub fn raw(&self, u: f32) -> f32 {
+        if self.mode == Mode::Cumulative {
+            let [u_scale, ..] = self.consts;
+            return self.mixture(u / u_scale);
+        }
         #[cfg(all(
             target_arch = "arm",
             target_abi = "eabihf",
@@ -304,6 +378,9 @@ impl<const P: usize> CompiledScaler<P> {
     /// where it changes, one LeakyReLU switches slope (a kink). Portable arithmetic (the
     /// same bits as `eval`): the reference of [`Self::pattern`].
     pub fn eval_with_pattern(&self, u: f32) -> (f32, u64) {
+        if self.mode == Mode::Cumulative {
+            return (self.eval_cumulative(u), PATTERN_SEED);
+        }
         let mut pattern = PATTERN_SEED;
         let z = self.raw_generic::<true, math::Fused>(u, &mut pattern);
         (
@@ -324,7 +401,12 @@ impl<const P: usize> CompiledScaler<P> {
     /// LeakyReLU input is within rounding of zero, i.e. within a few ulps of a kink, which
     /// moves a knot by as much: far below the table's checked error bound. Host and target
     /// compute the same bits (IEEE `f32` operations in the same order).
+    ///
+    /// In the cumulative mode the function is smooth: the pattern is a constant.
     pub fn pattern(&self, u: f32) -> u64 {
+        if self.mode == Mode::Cumulative {
+            return PATTERN_SEED;
+        }
         let mut pattern = PATTERN_SEED;
         self.raw_generic::<true, math::Unfused>(u, &mut pattern);
         pattern
@@ -334,6 +416,10 @@ impl<const P: usize> CompiledScaler<P> {
     /// `pattern` (FNV-1a over one byte per neuron).
     #[inline(always)]
     fn raw_generic<const TRACK: bool, M: math::MulAdd>(&self, u: f32, pattern: &mut u64) -> f32 {
+        if self.mode == Mode::Cumulative {
+            let [u_scale, ..] = self.consts;
+            return self.mixture(u / u_scale);
+        }
         let h = self.hidden;
         // For an inconsistent layout (which `compile` rules out): `z = -inf` makes `eval`
         // return `lo`.
@@ -417,8 +503,122 @@ impl<const P: usize> CompiledScaler<P> {
         true
     }
 
-    /// Output bounds `(lo, hi)` of [`Self::eval`] in physical units.
+    /// Output bounds `(lo, hi)` of [`Self::eval`] in physical units: `p_ini s_min` and
+    /// `p_ini s_max` (up to rounding), in both modes.
     pub fn bounds(&self) -> (f32, f32) {
         (self.lo, self.lo + self.span)
     }
+
+    /// Compiles the cumulative scaler `c` with the bounds `s_min`, `s_max` (the model's
+    /// scaler bounds of the coefficient) into `self`, in place: [`Self::eval`] then returns
+    /// `p_ini * s(u / u_scale, alpha / alpha_scale)`, the cumulative scale
+    /// ([`CumulativeScaler::scale`]) bit for bit; [`Self::set_alpha`] re-folds its gates
+    /// (the type's docs, "Cumulative mode"). Never has an alpha branch.
+    ///
+    /// Returns `None` if `c`'s shape is inconsistent or its `5 K + 3` compiled values do not
+    /// fit the capacity `P`; `self` then holds a partial compilation that must be compiled
+    /// again before use (its evaluation stays finite and panic-free, but meaningless).
+    #[allow(clippy::too_many_arguments)]
+    pub fn compile_cumulative_into(
+        &mut self,
+        c: &CumulativeScaler,
+        s_min: f32,
+        s_max: f32,
+        p_ini: f32,
+        u_scale: f32,
+        alpha: f32,
+        alpha_scale: f32,
+    ) -> Option<()> {
+        self.mode = Mode::Mlp;
+        self.hidden = 0;
+        self.layers = 0;
+        self.branch = None;
+        self.w.clear();
+        self.alpha_col = [0.0; MAX_HIDDEN];
+        self.b1_raw = [0.0; MAX_HIDDEN];
+        let view = c.view()?;
+        let k = view.units();
+        // The gates' slopes and biases (K + 1 <= MAX_CUMULATIVE_UNITS + 1 <= MAX_HIDDEN).
+        for (j, (&gamma, &beta)) in view.gamma.iter().zip(view.beta).enumerate() {
+            *self.alpha_col.get_mut(j)? = view.gate_slope(gamma).0;
+            *self.b1_raw.get_mut(j)? = beta;
+        }
+        // The softmax and the units as the reference fold computes them (the gates are
+        // folded again by `set_alpha` below).
+        let fold = view.fold::<f32>(alpha / alpha_scale);
+        let w = &mut self.w;
+        w.push(p_ini).ok()?;
+        w.push(0.0).ok()?;
+        for ((&wk, &ck), &tk) in fold.w.iter().zip(&fold.c).zip(&fold.tc).take(k) {
+            w.extend_from_slice(&[wk, ck, tk, 0.0]).ok()?;
+        }
+        w.extend_from_slice(fold.p.get(..=k)?).ok()?;
+        self.consts = [u_scale, alpha_scale, s_min, s_max - s_min];
+        self.lo = p_ini * s_min;
+        self.span = p_ini * (s_max - s_min);
+        self.hidden = k;
+        self.mode = Mode::Cumulative;
+        self.set_cumulative_alpha(alpha);
+        Some(())
+    }
+
+    /// True if a cumulative scaler is compiled ([`Self::compile_cumulative_into`]).
+    pub fn is_cumulative(&self) -> bool {
+        self.mode == Mode::Cumulative
+    }
+
+    /// The cumulative mode's [`Self::set_alpha`]: `pi_j = p_j g_j(alpha_n)`.
+    fn set_cumulative_alpha(&mut self, alpha: f32) {
+        let k = self.hidden;
+        let [_, alpha_scale, ..] = self.consts;
+        let alpha_n = alpha / alpha_scale;
+        let (slopes, biases) = (&self.alpha_col, &self.b1_raw);
+        let Some((head, rest)) = self.w.split_at_mut_checked(2) else {
+            return;
+        };
+        let Some((units, p)) = rest.split_at_mut_checked(4 * k) else {
+            return;
+        };
+        let pi = |j: usize| -> Option<f32> {
+            let g = cumulative::sigmoid(math::fma(*slopes.get(j)?, alpha_n, *biases.get(j)?));
+            Some(*p.get(j)? * g)
+        };
+        if let (Some(slot), Some(v)) = (head.get_mut(1), pi(0)) {
+            *slot = v;
+        }
+        for (j, unit) in units.chunks_exact_mut(4).enumerate() {
+            if let (Some(slot), Some(v)) = (unit.get_mut(3), pi(j + 1)) {
+                *slot = v;
+            }
+        }
+    }
+
+    /// The cumulative mode's mixture `pi_0 + sum_k pi_k h(w_k x, c_k)` at `x`.
+    #[inline]
+    fn mixture(&self, x: f32) -> f32 {
+        let rest = self.w.get(1..).unwrap_or(&[]);
+        let Some((&pi0, units)) = rest.split_first() else {
+            return 0.0;
+        };
+        let units = units.get(..4 * self.hidden).unwrap_or(&[]);
+        let mut acc = pi0;
+        for u in units.chunks_exact(4) {
+            if let [w, c, tc, pi] = *u {
+                let (h, _) = cumulative::unit_mean(w * x, c, tc);
+                acc = math::fma(pi, h, acc);
+            }
+        }
+        acc
+    }
+
+    /// The cumulative mode's [`Self::eval`].
+    #[inline]
+    fn eval_cumulative(&self, u: f32) -> f32 {
+        let [u_scale, _, s_min, s_span] = self.consts;
+        let p_ini = self.w.first().copied().unwrap_or(0.0);
+        p_ini * math::fma(s_span, self.mixture(u / u_scale), s_min)
+    }
 }
+
+#[cfg(test)]
+mod tests;

@@ -167,6 +167,24 @@ impl<const P: usize> MlpParams<P> {
         Ok(m)
     }
 
+    /// An MLP with `inputs` inputs and no weights (width 0, no layers, no parameters): the
+    /// MLP of a coefficient whose scale is a cumulative scaler ([`crate::cumulative`]), which
+    /// keeps the scaler's bounds beside it. [`Self::check_shape`] refuses it: whether it
+    /// is acceptable is the model's decision (it is only beside a cumulative scaler).
+    pub const fn without_weights(inputs: u8) -> Self {
+        Self {
+            inputs,
+            hidden: 0,
+            layers: 0,
+            params: heapless::Vec::new(),
+        }
+    }
+
+    /// True for an MLP without weights ([`Self::without_weights`], any input count).
+    pub fn is_without_weights(&self) -> bool {
+        self.hidden == 0 && self.layers == 0 && self.params.is_empty()
+    }
+
     /// Checks dimensions against the limits, the capacity and the parameter count.
     pub fn check_shape(&self) -> Result<(), ShapeError> {
         let (d, h, l) = (

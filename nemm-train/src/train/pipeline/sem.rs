@@ -188,6 +188,7 @@ pub(super) fn train_sem(
         body: Body::Sem(map),
         condition: prepared.condition.clone(),
         alpha_branches: Default::default(),
+        cumulative: Default::default(),
         provenance: Default::default(),
         static_force: None,
         lost_motion: None,
