@@ -2,13 +2,18 @@
 //! the model's step allows train to models that `Model::check_step` accepts at that step,
 //! with the stability hold reporting that it was active; a rate-independent friction damper
 //! (its force follows the stroke position, not the velocity) trains every variant to a model
-//! the runtime accepts.
+//! the runtime accepts, and with the priors in the state by construction (cumulative
+//! scalers) both neural variants keep their most accurate epoch, audit-clean, below the
+//! static map's error, where the penalty's MLPs fail the audit.
 mod support;
 
 use nemm_core::ModelKind;
 use nemm_dataset::Run;
+use nemm_train::config::StatePriors;
 use nemm_train::data::preprocess::{self, PrepareConfig};
+use nemm_train::train::eval::rmse_model;
 use nemm_train::train::fit::FitConfig;
+use nemm_train::train::physics::audit;
 use nemm_train::train::pipeline::{train_variants, PipelineConfig};
 use std::f64::consts::PI;
 
@@ -166,4 +171,104 @@ fn a_friction_damper_trains_to_models_the_runtime_accepts() {
         }
     }
     train_and_check("friction damper", FS, runs, 0.5, FS, &KINDS);
+}
+
+/// The friction damper with the priors in the state by construction and by the penalty: with
+/// cumulative scalers every epoch of NEMM-Light and the NEMM passes the monotonicity audit,
+/// so each keeps its most accurate epoch, and the NEMM's test error is below the static
+/// map's; with the penalty's MLPs (the same budget and `lambda_ph`) the flow force falls
+/// with the velocity in most epochs' audits.
+#[test]
+fn a_friction_damper_keeps_its_best_epoch_with_the_state_priors_by_construction() {
+    let mut runs = vec![];
+    for alpha in [0.0, 0.5, 1.0] {
+        for (amp, freq) in [(0.005, 1.0), (0.01, 2.0), (0.02, 0.5)] {
+            runs.push(friction_run(alpha, amp, freq, 4.0));
+        }
+    }
+    let ds = support::dataset("friction damper", FS, runs);
+    let mut prep = PrepareConfig::default();
+    prep.split.test_alphas = vec![0.5];
+    let prepared = preprocess::prepare(&ds, &prep).expect("prepare");
+    let kinds = [
+        ModelKind::Sem,
+        ModelKind::LinearEmm,
+        ModelKind::NemmLight,
+        ModelKind::Nemm,
+    ];
+    let base = PipelineConfig {
+        model_rate_hz: FS,
+        fit: FitConfig {
+            epochs: 16,
+            patience: 16,
+            max_batches_per_epoch: Some(4),
+            ..FitConfig::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let test_rmse = |m: &nemm_core::Model| {
+        rmse_model(
+            m,
+            &prepared.test,
+            prepared.dt_s,
+            prepared.warmup_samples,
+            prepared.scales.force_n,
+        )
+        .expect("test RMSE")
+    };
+    let construction = PipelineConfig {
+        state_priors: StatePriors::Construction,
+        ..base.clone()
+    };
+    let trained = train_variants(&prepared, &kinds, &construction, None, false)
+        .expect("every variant trains");
+    assert_eq!(trained.len(), kinds.len(), "a variant failed");
+    let sem = test_rmse(&trained[0].model);
+    for t in &trained[2..] {
+        let history: Vec<(usize, f64, Option<usize>)> = t
+            .history
+            .iter()
+            .map(|h| (h.epoch, h.val_rmse, h.violations))
+            .collect();
+        assert!(
+            history.iter().all(|&(_, _, v)| v == Some(0)),
+            "{:?}: an epoch failed the audit: {history:?}",
+            t.variant
+        );
+        let best = history
+            .iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|h| h.0);
+        assert_eq!(
+            t.kept_epoch, best,
+            "{:?} did not keep its most accurate epoch: {history:?}",
+            t.variant
+        );
+        assert_eq!(audit(&t.model, 401, 101).total_violations(), 0);
+        let rmse = test_rmse(&t.model);
+        eprintln!(
+            "construction: {:?} test RMSE {rmse:.4} (SEM {sem:.4}), kept epoch {:?}",
+            t.variant, t.kept_epoch
+        );
+        if t.variant == ModelKind::Nemm {
+            assert!(rmse < sem, "NEMM {rmse:.4} is not below the SEM {sem:.4}");
+        }
+    }
+    let penalty = train_variants(&prepared, &[ModelKind::NemmLight], &base, None, false)
+        .expect("NEMM-Light trains");
+    let failing = penalty[0]
+        .history
+        .iter()
+        .filter(|h| h.violations.is_some_and(|v| v > 0))
+        .count();
+    eprintln!(
+        "penalty: NEMM-Light: {failing} of {} epochs fail the audit, test RMSE {:.4}",
+        penalty[0].history.len(),
+        test_rmse(&penalty[0].model)
+    );
+    assert!(
+        2 * failing > penalty[0].history.len(),
+        "the fixture no longer fights the penalty: {failing} of {} epochs fail the audit",
+        penalty[0].history.len()
+    );
 }

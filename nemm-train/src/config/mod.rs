@@ -42,6 +42,7 @@ mod training;
 
 pub use args::ConfigArgs;
 pub use data::{resolve_data, DataConfig};
+pub use model::StatePriors;
 pub(crate) use model::{AlphaPriors, DEFAULT_STATIC_FORCE};
 pub use model::{ModelConfig, ModelOptions};
 pub use training::{Balance, TrainConfig, TrainOptions};
@@ -129,6 +130,11 @@ impl Config {
             "branch_units ([model] in --config)",
             m.branch_units,
             nemm_core::MAX_BRANCH_UNITS,
+        )?;
+        size(
+            "cumulative_units ([model] in --config)",
+            m.cumulative_units,
+            nemm_core::MAX_CUMULATIVE_UNITS,
         )?;
         size("--batch", t.batch, MAX_BATCH)?;
         let (lo, hi) = MODEL_RATE_RANGE_HZ;

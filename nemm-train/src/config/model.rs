@@ -41,8 +41,44 @@ impl std::str::FromStr for AlphaPriors {
     }
 }
 
-/// Serde of `ModelKind` / `Integrator` / [`AlphaPriors`] by their `name()` (the CLI
-/// spelling).
+/// How the monotonicity priors in the state (eqs. 30-31 and 37-38, first conditions: the
+/// flow force rising with `v_st`, the spring force rising with `x_pr`) are imposed on
+/// `b_fl` and `k_pr`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum StatePriors {
+    /// Cumulative scalers (`nemm_kernels::cumulative`): the force is the integral of a
+    /// bounded positive incremental coefficient, so it rises with the state for every
+    /// weight; the penalty keeps no state term.
+    Construction,
+    /// The paper's MLP scalers with the physics penalty (section 5.2), checked by the audit.
+    Penalty,
+}
+
+impl StatePriors {
+    /// `construction` or `penalty`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            StatePriors::Construction => "construction",
+            StatePriors::Penalty => "penalty",
+        }
+    }
+}
+
+impl std::str::FromStr for StatePriors {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "construction" => Ok(StatePriors::Construction),
+            "penalty" => Ok(StatePriors::Penalty),
+            other => Err(format!(
+                "unknown state-priors mode `{other}` (expected construction or penalty)"
+            )),
+        }
+    }
+}
+
+/// Serde of `ModelKind` / `Integrator` / [`AlphaPriors`] / [`StatePriors`] by their
+/// `name()` (the CLI spelling).
 mod by_name {
     use serde::{Deserialize, Deserializer, Serializer};
     use std::fmt::Display;
@@ -62,6 +98,11 @@ mod by_name {
         }
     }
     impl Named for super::AlphaPriors {
+        fn name_of(&self) -> &'static str {
+            self.name()
+        }
+    }
+    impl Named for super::StatePriors {
         fn name_of(&self) -> &'static str {
             self.name()
         }
@@ -142,6 +183,20 @@ section! {
     /// Units `K` of each alpha branch.
     #[arg(skip)]
     branch_units: usize = 16, Option<usize>;
+    /// How the priors in the state (the flow force rising with `v_st`, the spring force
+    /// rising with `x_pr`) are imposed on `b_fl` and `k_pr`: `construction` (cumulative
+    /// scalers, monotone for every weight) or `penalty` (the paper's MLP scalers and
+    /// physics penalty) (docs/training.md, "Priors in the state").
+    #[serde(with = "by_name")]
+    #[arg(long, help = with_default(
+        "How the priors in the state are imposed on b_fl and k_pr: construction (cumulative \
+         scalers, the force monotone for every weight) or penalty (the paper's MLPs and \
+         physics penalty)",
+        ModelConfig::default().state_priors.name()))]
+    state_priors: StatePriors = StatePriors::Penalty, Option<StatePriors>;
+    /// Units `K` of each cumulative scaler (`--state-priors construction`).
+    #[arg(skip)]
+    cumulative_units: usize = 16, Option<usize>;
     /// Adds the static force of eq. 17 (gas force and seal friction in the stroke
     /// position, `nemm_kernels::static_force`) to every EMM-family variant
     /// (docs/training.md, "The static force"). `None` (the default): on when most runs hold a

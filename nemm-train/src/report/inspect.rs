@@ -82,19 +82,41 @@ fn describe_body(s: &mut String, model: &Model) {
             );
         }
         Body::LinearEmm(_) => {}
-        Body::NemmLight { b_fl, .. } => describe_scaler(s, "b_fl", b_fl),
+        Body::NemmLight { b_fl, .. } => {
+            describe_scaler(s, "b_fl", b_fl, model.cumulative.b_fl.as_ref())
+        }
         Body::Nemm {
             b_fl, b_pr, k_pr, ..
         } => {
-            describe_scaler(s, "b_fl", b_fl);
-            describe_scaler(s, "b_pr", b_pr);
-            describe_scaler(s, "k_pr", k_pr);
+            let c = &model.cumulative;
+            describe_scaler(s, "b_fl", b_fl, c.b_fl.as_ref());
+            describe_scaler(s, "b_pr", b_pr, None);
+            describe_scaler(s, "k_pr", k_pr, c.k_pr.as_ref());
         }
     }
 }
 
-/// One scaler: inputs, shape, parameters and the range of its scale factor.
-fn describe_scaler(s: &mut String, name: &str, sc: &Scaler<DEFAULT_PARAM_CAPACITY>) {
+/// One scaler: inputs, shape, parameters and the range of its scale factor (a cumulative
+/// scaler, if the coefficient has one, in place of the MLP).
+fn describe_scaler(
+    s: &mut String,
+    name: &str,
+    sc: &Scaler<DEFAULT_PARAM_CAPACITY>,
+    cumulative: Option<&nemm_core::CumulativeScaler>,
+) {
+    if let Some(c) = cumulative {
+        let _ = writeln!(
+            s,
+            "scaler {name:<6}  cumulative (force monotone in the state by construction), {} \
+             units, gates {} in alpha, {} parameters, scale in ({}, {})",
+            c.units,
+            c.direction.name(),
+            c.params.len(),
+            sc.s_min,
+            sc.s_max
+        );
+        return;
+    }
     let _ = writeln!(
         s,
         "scaler {name:<6}  {} input(s), {} x {} hidden, {} parameters, scale in ({}, {})",

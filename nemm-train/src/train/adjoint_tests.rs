@@ -431,6 +431,58 @@ fn adjoint_is_exact_with_alpha_branches() {
     check_fd_model(&with_static(m), "branched NEMM", 2.5, true);
 }
 
+/// The cumulative scalers' weights (`b_fl`, `k_pr`; `nemm_kernels::cumulative`) get their
+/// exact gradients, also with a level changing within the windows, on a coarser data grid
+/// and with a static force (the NEMM: NEMM-Light's `b_fl` is the same code).
+#[test]
+fn adjoint_is_exact_with_cumulative_scalers() {
+    let m = nemm_core::testing::example_cumulative_model(ModelKind::Nemm);
+    check_fd_model(&m, "cumulative NEMM", 1.0, false);
+    check_fd_model(&with_static(m), "cumulative NEMM", 2.5, true);
+}
+
+/// The rollout of a model with cumulative scalers reproduces nemm-core's estimator (exact
+/// mode), as the MLP scalers' does.
+#[test]
+fn rollout_matches_core_estimator_with_cumulative_scalers() {
+    for kind in [ModelKind::NemmLight, ModelKind::Nemm] {
+        for integ in [Integrator::Rk4, Integrator::Rk3] {
+            let mut m = nemm_core::testing::example_cumulative_model(kind);
+            m.integrator = integ;
+            let p: RolloutParams<f32> = from_core(&m).expect("emm model");
+            assert!(p.b_fl.as_ref().is_some_and(|s| s.cumulative.is_some()));
+            let n = 20_000;
+            let u = signal(n, 1e-4, 0.8, 8.3, 0.3);
+            let f = vec![0.0f32; n];
+            for alpha in [0.0f32, 0.15, 0.4] {
+                let ys = simulate(
+                    &p,
+                    &[Window {
+                        u: &u,
+                        f: &f,
+                        alpha,
+                        alphas: None,
+                        x: None,
+                    }],
+                    &Grid::SAME,
+                );
+                let mut est = Estimator::new(&m, EstimatorConfig::new(alpha)).expect("estimator");
+                let mut worst = 0.0f64;
+                for (i, &ui) in u.iter().enumerate() {
+                    let e = est.step(Sample::new(ui)).unwrap();
+                    worst = worst.max((e.force_n as f64 - ys[0][i]).abs());
+                }
+                let rel = worst / m.meta.force_scale_n as f64;
+                assert!(
+                    rel < 1e-5,
+                    "{kind:?} {integ:?} alpha {alpha}: max |diff| = {worst} N ({rel:e} of \
+                     the force scale)"
+                );
+            }
+        }
+    }
+}
+
 /// The example model of `kind` (H = 4, L = 2) with the example lost-motion element.
 fn with_lost_motion(kind: ModelKind) -> Model {
     nemm_core::testing::example_model_with_lost_motion(kind, 4, 2).expect("example model")
@@ -676,6 +728,7 @@ fn convert<A: Real, B: Real>(p: &RolloutParams<A>) -> RolloutParams<B> {
             s_min: c(s.s_min),
             s_max: c(s.s_max),
             branch: s.branch,
+            cumulative: s.cumulative,
         })
     };
     RolloutParams {

@@ -592,9 +592,11 @@ impl Stage<'_> {
                     .unwrap_or_else(|| "eqs. 30-31/37-38".to_string());
                 eprintln!(
                     "[{label}] warning: no epoch passed the monotonicity audit; the kept model \
-                     violates {what}. The priors in the state are a penalty (--lambda-ph): a larger \
-                     one trades accuracy for them (an earlier, less accurate epoch passes), and a \
-                     force that does not rise with the velocity or the stroke (friction) fights them"
+                     violates {what}. With --state-priors penalty the priors in the state are a \
+                     penalty (--lambda-ph): a larger one trades accuracy for them (an earlier, less \
+                     accurate epoch passes), and a force that does not rise with the velocity or \
+                     the stroke (friction) fights them; --state-priors construction holds them for \
+                     every weight"
                 );
             }
         }
@@ -715,7 +717,14 @@ fn train_epoch(
             let l2 = net.l2_norms(device);
             let aux = phys.clone().mul_scalar(cfg.lambda_ph) + l2.mul_scalar(cfg.lambda_l2);
             let phys_v = scalar(phys);
-            (GradientsParams::from_grads(aux.backward(), &net), phys_v)
+            // With cumulative scalers whose gates hold the alpha priors, nothing is left to
+            // penalise: the term is a constant without a tape.
+            let gp = if aux.is_require_grad() {
+                GradientsParams::from_grads(aux.backward(), &net)
+            } else {
+                GradientsParams::new()
+            };
+            (gp, phys_v)
         } else {
             (GradientsParams::new(), 0.0)
         };

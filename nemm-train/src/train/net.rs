@@ -13,14 +13,17 @@
 //! [`super::adjoint`] and is added with `EmmNet::add_rollout_grads` before one optimizer
 //! step.
 
-use super::adjoint::{BranchShape, RolloutGrads, RolloutParams, ScalerWeights, StaticParams};
+use super::adjoint::{
+    BranchShape, CumulativeShape, RolloutGrads, RolloutParams, ScalerWeights, StaticParams,
+};
 use burn::module::{Module, Param};
 use burn::nn::{LayerNorm, LayerNormConfig, LeakyRelu, Linear};
 use burn::optim::GradientsParams;
-use burn::tensor::activation::{leaky_relu, sigmoid};
+use burn::tensor::activation::{leaky_relu, sigmoid, softmax};
 use burn::tensor::{Device, Tensor, TensorData};
 use nemm_core::Priors;
 use nemm_kernels::lost_motion::LOST_MOTION_PARAMS;
+use nemm_kernels::mlp::Direction;
 use nemm_kernels::mlp::LEAKY_RELU_SLOPE;
 use nemm_kernels::static_force::STATIC_PARAMS;
 
@@ -50,9 +53,9 @@ pub struct BranchNet {
     pub(crate) theta_v: Param<Tensor<1>>,
 }
 
-/// A neural scaler as a burn module.
+/// An MLP scaler (and its alpha branch) as a burn module.
 #[derive(Module, Debug)]
-pub struct ScalerNet {
+pub struct MlpNet {
     /// Hidden blocks.
     pub(crate) blocks: Vec<Block>,
     /// Output neuron, weight `[H, 1]`.
@@ -76,6 +79,198 @@ pub struct ScalerSpec {
     pub(crate) s_max: f32,
     /// The alpha branch's shape, if the scaler has one.
     pub branch: Option<BranchShape>,
+    /// The cumulative scaler's shape, if the scaler is one (`hidden`, `layers` are then 0).
+    pub cumulative: Option<CumulativeShape>,
+}
+
+/// A cumulative scaler's parameters are stored divided by this factor: Adam moves every
+/// parameter by about the learning rate per step, and one step of an MLP scaler moves its
+/// raw output by up to `H` such steps at once, whereas each logit, log width, centre and gate
+/// parameter of a cumulative scaler acts alone; stored this way they move ten times the
+/// learning rate per step.
+pub(crate) const CUMULATIVE_PARAM_SCALE: f32 = 10.0;
+
+/// A cumulative scaler (`nemm_kernels::cumulative`) as a burn module: the groups of its
+/// flat layout, each one tensor, stored divided by [`CUMULATIVE_PARAM_SCALE`].
+#[derive(Module, Debug)]
+pub struct CumulativeNet {
+    /// Logits `a` `[K + 1]` (constant part, then the units; the slack's logit is 0).
+    pub(crate) a: Param<Tensor<1>>,
+    /// Log widths `omega` `[K]`.
+    pub(crate) omega: Param<Tensor<1>>,
+    /// Centres `c` `[K]`.
+    pub(crate) c: Param<Tensor<1>>,
+    /// Gate slopes `gamma` `[K + 1]`.
+    pub(crate) gamma: Param<Tensor<1>>,
+    /// Gate biases `beta` `[K + 1]`.
+    pub(crate) beta: Param<Tensor<1>>,
+}
+
+/// A neural scaler as a burn module: an MLP (the paper's) or a cumulative scaler.
+#[derive(Module, Debug)]
+pub enum ScalerNet {
+    /// `Linear -> LayerNorm -> LeakyReLU` blocks, the output neuron and the alpha branch.
+    Mlp(MlpNet),
+    /// The cumulative scaler, whose force is monotone in the state by construction.
+    Cumulative(CumulativeNet),
+}
+
+impl ScalerNet {
+    /// Builds from flat weights (nemm-core's layout of the scaler's family).
+    pub(crate) fn from_flat(s: &ScalerWeights<f32>, device: &Device) -> Self {
+        match s.cumulative {
+            Some(c) => ScalerNet::Cumulative(CumulativeNet::from_flat(&s.w, c.units, device)),
+            None => ScalerNet::Mlp(MlpNet::from_flat(s, device)),
+        }
+    }
+
+    /// Flat weights in nemm-core's layout.
+    pub(crate) fn to_flat(&self) -> Vec<f32> {
+        match self {
+            ScalerNet::Mlp(n) => n.to_flat(),
+            ScalerNet::Cumulative(n) => n.to_flat(),
+        }
+    }
+
+    /// Scale factor for normalised inputs `[batch, inputs]` (alpha last): `[batch, 1]`.
+    pub(crate) fn forward_scale(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
+        match self {
+            ScalerNet::Mlp(n) => n.forward_scale(x, spec),
+            ScalerNet::Cumulative(n) => n.forward_scale(x, spec),
+        }
+    }
+
+    /// The L2 term's sum of squared weights (`None` for a cumulative scaler, which has no
+    /// linear maps and is bounded by construction).
+    pub(crate) fn weight_sq_sum(&self) -> Option<Tensor<1>> {
+        match self {
+            ScalerNet::Mlp(n) => Some(n.weight_sq_sum()),
+            ScalerNet::Cumulative(_) => None,
+        }
+    }
+
+    /// Adds a flat gradient (nemm-core layout) to the parameters' entries in `gp`.
+    pub(crate) fn add_flat_grads(&self, g: &[f32], gp: &mut GradientsParams, device: &Device) {
+        match self {
+            ScalerNet::Mlp(n) => n.add_flat_grads(g, gp, device),
+            ScalerNet::Cumulative(n) => n.add_flat_grads(g, gp, device),
+        }
+    }
+}
+
+/// Adds `v` to the gradient of `p` in `gp` (registers it if there is none).
+fn add_grad1(gp: &mut GradientsParams, p: &Param<Tensor<1>>, v: &[f32], dev: &Device) {
+    let t = tensor1(v, dev);
+    let t = match gp.remove::<1>(p.id) {
+        Some(old) => old + t,
+        None => t,
+    };
+    gp.register(p.id, t);
+}
+
+impl CumulativeNet {
+    /// Splits flat weights (`nemm_kernels::cumulative`'s layout) of `units` units.
+    fn from_flat(w: &[f32], units: usize, device: &Device) -> Self {
+        assert_eq!(
+            w.len(),
+            nemm_kernels::cumulative::cumulative_param_count(units),
+            "cumulative scaler weight count"
+        );
+        let mut at = 0;
+        let mut take = |n: usize| {
+            let stored: Vec<f32> = w[at..at + n]
+                .iter()
+                .map(|v| v / CUMULATIVE_PARAM_SCALE)
+                .collect();
+            at += n;
+            Param::from_tensor(tensor1(&stored, device))
+        };
+        Self {
+            a: take(units + 1),
+            omega: take(units),
+            c: take(units),
+            gamma: take(units + 1),
+            beta: take(units + 1),
+        }
+    }
+
+    fn groups(&self) -> [&Param<Tensor<1>>; 5] {
+        [&self.a, &self.omega, &self.c, &self.gamma, &self.beta]
+    }
+
+    fn to_flat(&self) -> Vec<f32> {
+        self.groups()
+            .iter()
+            .flat_map(|p| to_vec(p.val()))
+            .map(|v| v * CUMULATIVE_PARAM_SCALE)
+            .collect()
+    }
+
+    /// A group's values (unscaled).
+    fn value(p: &Param<Tensor<1>>) -> Tensor<1> {
+        p.val().mul_scalar(CUMULATIVE_PARAM_SCALE)
+    }
+
+    fn add_flat_grads(&self, g: &[f32], gp: &mut GradientsParams, device: &Device) {
+        let dev = plain(device);
+        let mut at = 0;
+        for p in self.groups() {
+            let n = p.val().dims()[0];
+            let scaled: Vec<f32> = g[at..at + n]
+                .iter()
+                .map(|v| v * CUMULATIVE_PARAM_SCALE)
+                .collect();
+            add_grad1(gp, p, &scaled, &dev);
+            at += n;
+        }
+    }
+
+    /// The scale `s_min + (s_max - s_min) (pi_0 + sum_k pi_k h(w_k x, c_k))` of the kernels'
+    /// module docs for inputs `[batch, 2]` (state, alpha): `[batch, 1]`.
+    fn forward_scale(&self, x: Tensor<2>, spec: &ScalerSpec) -> Tensor<2> {
+        let direction = spec.cumulative.map_or(Direction::None, |c| c.direction);
+        let [n, d] = x.dims();
+        let device = x.device();
+        let k = self.omega.val().dims()[0];
+        let state = x.clone().narrow(1, 0, 1);
+        let alpha = x.narrow(1, d - 1, 1);
+        let row = |t: Tensor<1>, len: usize| t.reshape([1, len]);
+        // Softmax over the K + 1 logits and the slack's 0.
+        let logits = Tensor::cat(
+            vec![Self::value(&self.a), Tensor::<1>::zeros([1], &device)],
+            0,
+        );
+        let p = softmax(logits, 0).narrow(0, 0, k + 1);
+        let g = Self::value(&self.gamma);
+        let u = match direction {
+            Direction::Increasing => g.powi_scalar(2),
+            Direction::Decreasing => g.powi_scalar(2).neg(),
+            Direction::None => g,
+        };
+        let gate = sigmoid(alpha.matmul(row(u, k + 1)) + row(Self::value(&self.beta), k + 1));
+        let pi = gate * row(p, k + 1);
+        let y = state.matmul(row(Self::value(&self.omega).exp(), k));
+        let c = row(Self::value(&self.c), k);
+        let y2 = y.clone().powi_scalar(2);
+        let near = y2.clone().lower_elem(0.01);
+        let safe = y.clone().mask_fill(near.clone(), 1.0);
+        let direct = safe.clone().tanh() / safe;
+        let series = y2
+            .clone()
+            .mul_scalar(-17.0 / 315.0)
+            .add_scalar(2.0 / 15.0)
+            .mul(y2.clone())
+            .add_scalar(-1.0 / 3.0)
+            .mul(y2)
+            .add_scalar(1.0);
+        let ratio = direct.mask_where(near, series);
+        let h = ratio * (c.clone().tanh() * (y + c).tanh()).neg().add_scalar(1.0);
+        let units = (pi.clone().narrow(1, 1, k) * h).sum_dim(1);
+        let mix = pi.narrow(1, 0, 1) + units;
+        let _ = n;
+        mix.mul_scalar(spec.s_max - spec.s_min)
+            .add_scalar(spec.s_min)
+    }
 }
 
 fn plain(device: &Device) -> Device {
@@ -100,7 +295,7 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         .unwrap_or_default()
 }
 
-impl ScalerNet {
+impl MlpNet {
     /// Builds from flat nemm-core weights.
     pub(crate) fn from_flat(s: &ScalerWeights<f32>, device: &Device) -> Self {
         let layout = s.layout();
@@ -402,6 +597,7 @@ fn spec_of(s: &Option<ScalerWeights<f32>>) -> Option<ScalerSpec> {
         s_min: s.s_min,
         s_max: s.s_max,
         branch: s.branch,
+        cumulative: s.cumulative,
     })
 }
 
@@ -480,6 +676,7 @@ impl EmmNet {
                 s_min: s.s_min,
                 s_max: s.s_max,
                 branch: s.branch,
+                cumulative: s.cumulative,
             }),
             _ => None,
         };
@@ -598,11 +795,14 @@ impl EmmNet {
     /// norm (not squared, as the paper writes it) of all its linear weights. Its gradient per
     /// weight, `lambda w / ||W||`, stays small next to the data term, whereas a squared norm
     /// with `lambda = 1e-3` would out-weigh a normalised MSE of ~1e-3 and shrink the scalers
-    /// to constants.
+    /// to constants. A cumulative scaler has no linear maps and is left out (its scale is
+    /// bounded and its force monotone by construction).
     pub(crate) fn l2_norms(&self, device: &Device) -> Tensor<1> {
         let mut total = Tensor::<1>::zeros([1], device);
         for n in [&self.b_fl, &self.b_pr, &self.k_pr].into_iter().flatten() {
-            total = total + n.weight_sq_sum().add_scalar(1e-12).sqrt();
+            if let Some(sq) = n.weight_sq_sum() {
+                total = total + sq.add_scalar(1e-12).sqrt();
+            }
         }
         total
     }

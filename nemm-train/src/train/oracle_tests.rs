@@ -163,7 +163,18 @@ fn flat_grads(net: &EmmNet, gp: &GradientsParams) -> RolloutGrads<f32> {
             .unwrap_or_else(|| vec![0.0; i * o])
     };
     let scaler = |n: &Option<ScalerNet>| -> Vec<f32> {
-        let Some(n) = n else { return Vec::new() };
+        let n = match n {
+            None => return Vec::new(),
+            Some(ScalerNet::Cumulative(c)) => {
+                // Stored divided by the scale: dL/dw = dL/dstored / scale.
+                return [&c.a, &c.omega, &c.c, &c.gamma, &c.beta]
+                    .into_iter()
+                    .flat_map(v1)
+                    .map(|g| g / super::net::CUMULATIVE_PARAM_SCALE)
+                    .collect();
+            }
+            Some(ScalerNet::Mlp(n)) => n,
+        };
         let mut out = Vec::new();
         for b in &n.blocks {
             out.extend(v2(&b.linear.weight));
@@ -192,8 +203,11 @@ fn flat_grads(net: &EmmNet, gp: &GradientsParams) -> RolloutGrads<f32> {
 }
 
 fn check(kind: ModelKind, integ: Integrator) {
+    check_model(example_model(kind, 6, 3).expect("model"), kind, integ);
+}
+
+fn check_model(mut m: nemm_core::Model, kind: ModelKind, integ: Integrator) {
     let device = Device::flex().autodiff();
-    let mut m = example_model(kind, 6, 3).expect("model");
     m.integrator = integ;
     m.dt_s = 5e-4;
     let p: RolloutParams<f32> = from_core(&m).expect("emm");
@@ -281,4 +295,14 @@ fn adjoint_matches_burn_autodiff_nemm_rk3() {
 fn adjoint_matches_burn_autodiff_light_and_linear() {
     check(ModelKind::NemmLight, Integrator::Rk4);
     check(ModelKind::LinearEmm, Integrator::Rk4);
+}
+
+/// The cumulative scalers' burn forward (the quasi-static regression's and the penalty's)
+/// and the kernels' reverse mode (the rollout adjoint's) agree.
+#[test]
+fn adjoint_matches_burn_autodiff_with_cumulative_scalers() {
+    for kind in [ModelKind::NemmLight, ModelKind::Nemm] {
+        let m = nemm_core::testing::example_cumulative_model(kind);
+        check_model(m, kind, Integrator::Rk4);
+    }
 }

@@ -69,10 +69,13 @@ fn linspace(a: f32, b: f32, n: usize) -> Vec<f32> {
 
 /// The alpha term of the penalty for a scale factor's differences `ds` along alpha:
 /// `max(0, -d ds + m)^2` for the declared direction `d` (none: no term). A scaler with an
-/// alpha branch holds its direction by construction and gets no term.
+/// alpha branch, or a cumulative scaler with gates in that direction, holds it by
+/// construction and gets no term.
 fn alpha_term<const D: usize>(ds: Tensor<D>, spec: &ScalerSpec, dir: Direction) -> Tensor<1> {
     let sign = dir.sign();
-    if spec.branch.is_some() || sign == 0.0 {
+    let by_construction =
+        spec.branch.is_some() || spec.cumulative.is_some_and(|c| c.direction == dir);
+    if by_construction || sign == 0.0 {
         return Tensor::<1>::zeros([1], &ds.device());
     }
     relu(ds.mul_scalar(-sign).add_scalar(ALPHA_MARGIN))
@@ -81,7 +84,8 @@ fn alpha_term<const D: usize>(ds: Tensor<D>, spec: &ScalerSpec, dir: Direction) 
 }
 
 /// Penalty of a two-input scaler (`b_fl` or `k_pr`): state derivative of `s * state` and alpha
-/// derivative of `s` in the declared direction `dir`.
+/// derivative of `s` in the declared direction `dir`. A cumulative scaler's force rises with
+/// the state by construction: it gets the alpha term only (none with gates in `dir`).
 fn penalty_2d(
     net: &ScalerNet,
     spec: &ScalerSpec,
@@ -102,10 +106,14 @@ fn penalty_2d(
     let (na, nx) = (al.len(), xs.len());
     let input = Tensor::<2>::from_data(TensorData::new(pts, [na * nx, 2]), device);
     let s = net.forward_scale(input, spec).reshape([na, nx]);
+    let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
+    if spec.cumulative.is_some() {
+        let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
+        return alpha_term(ds, spec, dir);
+    }
     let xrow = Tensor::<2>::from_data(TensorData::new(xs.clone(), [1, nx]), device);
     let f = s.clone() * xrow;
     let dx = xs.get(1).copied().unwrap_or(1.0) - xs.first().copied().unwrap_or(0.0);
-    let da = al.get(1).copied().unwrap_or(1.0) - al.first().copied().unwrap_or(0.0);
     let df = (f.clone().narrow(1, 1, nx - 1) - f.narrow(1, 0, nx - 1)).div_scalar(dx);
     let ds = (s.clone().narrow(0, 1, na - 1) - s.narrow(0, 0, na - 1)).div_scalar(da);
     relu(df.neg()).powi_scalar(2).mean() + alpha_term(ds, spec, dir)

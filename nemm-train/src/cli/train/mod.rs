@@ -1,7 +1,9 @@
 //! `nemm train`, `nemm export`, `nemm compare`, `nemm sweep`: training, export and the
 //! Table 4 / Table 5 reports from the command line.
 
-use crate::config::{lambda_ph_scale_note, resolve_data, AlphaPriors, Config, CONFIG_FILE};
+use crate::config::{
+    lambda_ph_scale_note, resolve_data, AlphaPriors, Config, StatePriors, CONFIG_FILE,
+};
 use crate::data::load_dataset_prepared;
 use crate::data::preprocess::{self, Prepared};
 use crate::output_guard::{self, Inputs, Output};

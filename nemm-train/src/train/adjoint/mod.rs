@@ -89,6 +89,6 @@ mod rollout;
 
 pub use params::{Grid, RolloutParams, Window};
 
-pub(crate) use params::{BranchShape, RolloutGrads, ScalerWeights, StaticParams};
+pub(crate) use params::{BranchShape, CumulativeShape, RolloutGrads, ScalerWeights, StaticParams};
 pub use rollout::{loss_and_grad, simulate};
 pub(crate) use rollout::{loss_and_grad_paired, simulate_x_pr, Pairing};

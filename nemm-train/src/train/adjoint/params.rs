@@ -4,6 +4,7 @@
 
 use super::{mlp, Direction, Real, LOST_MOTION_PARAMS, STATIC_PARAMS};
 use nemm_core::{Integrator, Priors};
+use nemm_kernels::cumulative;
 
 /// Shape of a scaler's alpha branch (`nemm_kernels::mlp::AlphaBranch`): its weights follow
 /// the MLP's in [`ScalerWeights::w`], in nemm-core's branch layout.
@@ -37,6 +38,16 @@ impl BranchShape {
     }
 }
 
+/// Shape of a cumulative scaler (`nemm_kernels::cumulative`): its weights are the whole of
+/// [`ScalerWeights::w`], in the kernels' layout.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CumulativeShape {
+    /// Declared direction in alpha (`None`: the gates are free in alpha).
+    pub direction: Direction,
+    /// Units `K`.
+    pub units: usize,
+}
+
 /// Weights of one scaler in nemm-core's flat layout (see `nemm_kernels::mlp`), followed by
 /// its alpha branch's weights if it has one.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -56,9 +67,24 @@ pub struct ScalerWeights<T> {
     /// The alpha branch, if the scaler has one (its MLP then ignores alpha).
     #[serde(default)]
     pub branch: Option<BranchShape>,
+    /// The cumulative scaler's shape if the scaler is one (its force monotone in the state
+    /// by construction): [`Self::w`] then holds its weights, `hidden` and `layers` are 0
+    /// and there is no branch.
+    #[serde(default)]
+    pub cumulative: Option<CumulativeShape>,
 }
 
 impl<T> ScalerWeights<T> {
+    /// The cumulative scaler's view of [`Self::w`], if the scaler is one and its weights
+    /// have its shape.
+    pub(crate) fn cumulative_view(&self) -> Option<cumulative::CumulativeView<'_, T>>
+    where
+        T: nemm_kernels::math::Scalar,
+    {
+        let c = self.cumulative?;
+        cumulative::CumulativeView::new(&self.w, c.units, c.direction)
+    }
+
     /// Where each block sits in [`Self::w`]: nemm-core's one definition of the layout.
     pub fn layout(&self) -> mlp::ScalerLayout {
         mlp::ScalerLayout::mlp(self.inputs, self.hidden, self.layers).with_branch(self.branch.map(

@@ -18,8 +18,8 @@
 //! All variants share the split, the normalisation and the force scale.
 
 use super::adjoint::{
-    loss_and_grad, simulate_x_pr, BranchShape, Grid, RolloutParams, ScalerWeights, StaticParams,
-    Window,
+    loss_and_grad, simulate_x_pr, BranchShape, CumulativeShape, Grid, RolloutParams, ScalerWeights,
+    StaticParams, Window,
 };
 use super::fit::{fit, rmse, windows, FitConfig, FitData, FitResult};
 use super::history::{EpochStats, StopReason};
@@ -28,7 +28,7 @@ use super::params::to_core_with;
 use super::physics::{physics_loss, PenaltyGrid};
 use super::stability::StabilityHold;
 use super::static_fit::{fit_residual, StaticSetup};
-use crate::config::{AlphaPriors, Config, DEFAULT_STATIC_FORCE};
+use crate::config::{AlphaPriors, Config, StatePriors, DEFAULT_STATIC_FORCE};
 use crate::data::preprocess::{Prepared, QuasiStaticPoint};
 use anyhow::{bail, Context, Result};
 use nemm_core::{Integrator, Meta, Model, ModelKind, Scaler};
@@ -118,6 +118,12 @@ pub struct PipelineConfig {
     pub alpha_priors: AlphaPriors,
     /// Units `K` of each alpha branch.
     pub branch_units: usize,
+    /// How the priors in the state are imposed on `b_fl` and `k_pr`.
+    #[serde(default = "penalty")]
+    pub state_priors: StatePriors,
+    /// Units `K` of each cumulative scaler.
+    #[serde(default = "sixteen")]
+    pub cumulative_units: usize,
     /// Adds the static force of eq. 17 to every EMM-family variant.
     pub static_force: bool,
     /// Adds the lost-motion element to every EMM-family variant.
@@ -132,6 +138,14 @@ pub struct PipelineConfig {
 
 fn yes() -> bool {
     true
+}
+
+fn penalty() -> StatePriors {
+    StatePriors::Penalty
+}
+
+fn sixteen() -> usize {
+    16
 }
 
 impl PipelineConfig {
@@ -151,6 +165,8 @@ impl PipelineConfig {
             model_rate_hz: m.rate_hz,
             alpha_priors: m.alpha_priors,
             branch_units: m.branch_units,
+            state_priors: m.state_priors,
+            cumulative_units: m.cumulative_units,
             static_force: m.static_force.unwrap_or(DEFAULT_STATIC_FORCE),
             lost_motion: m.lost_motion,
             b_fl_alpha: m.b_fl_alpha,
@@ -274,6 +290,63 @@ pub fn init_scaler(
         s_min: bounds.0,
         s_max: bounds.1,
         branch: None,
+        cumulative: None,
+    }
+}
+
+/// A freshly initialised cumulative scaler (`nemm_kernels::cumulative`) of `units` units
+/// with the bounds `bounds` and gates in `direction`: unit centres uniform in the
+/// normalised state `[-1, 1]` and widths `w_k` log-uniform in `[1, 30]` (drawn from
+/// xoshiro256++ seeded with `seed`), each unit at 1 % of the softmax, gates at
+/// `sigmoid(2)` with slopes `gamma = 0.5` (`alpha_slope = false`: 0, where the gradient of a
+/// signed slope `d gamma^2` is 0, so the scaler stays independent of alpha), and the
+/// constant part set so that the scale factor starts at 1 at `x = 0`.
+pub fn init_cumulative(
+    units: usize,
+    bounds: (f32, f32),
+    direction: Direction,
+    alpha_slope: bool,
+    seed: u64,
+) -> ScalerWeights<f32> {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut uniform = move |a: f32, b: f32| rng.random_range(a..b);
+    let (s_min, s_max) = bounds;
+    let gate = 1.0 / (1.0 + (-2.0f32).exp());
+    let p_unit = 0.01f32;
+    let omega: Vec<f32> = (0..units).map(|_| uniform(0.0, 30f32.ln())).collect();
+    let c: Vec<f32> = omega
+        .iter()
+        .map(|&om| -om.exp() * uniform(-1.0, 1.0))
+        .collect();
+    // At x = 0 each unit adds pi_k sech^2(c_k); the constant part makes up the rest of 1.
+    let units_at_0: f32 = c
+        .iter()
+        .map(|&ck| p_unit * gate * (1.0 - ck.tanh().powi(2)))
+        .sum();
+    let target = ((1.0 - s_min) / (s_max - s_min) - units_at_0).max(1e-3);
+    let p0 = (target / gate).min(0.98 - p_unit * units as f32);
+    let slack = (1.0 - p0 - p_unit * units as f32).max(1e-3);
+    let mut w = Vec::with_capacity(nemm_core::cumulative_param_count(units));
+    w.push((p0 / slack).ln());
+    w.extend(std::iter::repeat_n((p_unit / slack).ln(), units));
+    w.extend(&omega);
+    w.extend(&c);
+    let gamma = if alpha_slope && direction != Direction::None {
+        0.5
+    } else {
+        0.0
+    };
+    w.extend(std::iter::repeat_n(gamma, units + 1));
+    w.extend(std::iter::repeat_n(2.0f32, units + 1));
+    ScalerWeights {
+        inputs: 2,
+        hidden: 0,
+        layers: 0,
+        w,
+        s_min,
+        s_max,
+        branch: None,
+        cumulative: Some(CumulativeShape { direction, units }),
     }
 }
 

@@ -2,13 +2,13 @@
 //! and the neural variants, with what they share.
 
 use super::{
-    fit, fit_residual, init_scaler, loss_and_grad, meta_of, physics_loss, rmse, save_frame,
-    simulate_x_pr, to_core_with, windows, with_branch, AlphaPriors, Direction, EmmNet, FitConfig,
-    FitData, FitResult, Grid, PenaltyGrid, PipelineConfig, Prepared, QuasiStaticPoint,
-    RolloutParams, ScalerWeights, SessionBudgetUsed, StabilityHold, StaticParams, StaticSetup,
-    TrainedVariant, Window, STATIC_PARAMS,
+    fit, fit_residual, init_cumulative, init_scaler, loss_and_grad, meta_of, physics_loss, rmse,
+    save_frame, simulate_x_pr, to_core_with, windows, with_branch, AlphaPriors, Direction, EmmNet,
+    FitConfig, FitData, FitResult, Grid, PenaltyGrid, PipelineConfig, Prepared, QuasiStaticPoint,
+    RolloutParams, ScalerWeights, SessionBudgetUsed, StabilityHold, StatePriors, StaticParams,
+    StaticSetup, TrainedVariant, Window, STATIC_PARAMS,
 };
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
 use nemm_core::{Meta, ModelKind};
@@ -383,6 +383,38 @@ impl<'a> Stages<'a> {
         }
     }
 
+    /// A cumulative scaler (`--state-priors construction`) with `bounds` whose gates hold
+    /// the declared direction `dir` when the priors in alpha are held by construction
+    /// (otherwise they are free in alpha and the penalty audits them); `alpha = false`: one
+    /// scale for every level (gate slopes fixed at 0, which needs a declared direction).
+    fn cumulative(
+        &self,
+        bounds: (f32, f32),
+        dir: Direction,
+        alpha: bool,
+        seed: u64,
+    ) -> Result<ScalerWeights<f32>> {
+        let direction = if self.cfg.alpha_priors == AlphaPriors::Construction || !alpha {
+            dir
+        } else {
+            Direction::None
+        };
+        if !alpha && direction == Direction::None {
+            bail!(
+                "--b-fl-alpha=false with --state-priors construction needs a declared \
+                 direction of b_fl in alpha (the condition declares none): the gates' slopes \
+                 stay at 0 only in a declared direction"
+            );
+        }
+        Ok(init_cumulative(
+            self.cfg.cumulative_units,
+            bounds,
+            direction,
+            alpha,
+            seed,
+        ))
+    }
+
     /// Step 2a: the `b_fl` scaler regressed on the quasi-static points (eq. 41), from `p0`,
     /// and the stage's wall time \[s\].
     #[inline(never)]
@@ -393,7 +425,14 @@ impl<'a> Stages<'a> {
     ) -> Result<(ScalerWeights<f32>, f64)> {
         let t_qs = Instant::now();
         let cfg = self.cfg;
-        let b_fl_init = if cfg.b_fl_alpha {
+        let b_fl_init = if cfg.state_priors == StatePriors::Construction {
+            self.cumulative(
+                cfg.b_fl_bounds,
+                self.prepared.condition.priors.b_fl,
+                cfg.b_fl_alpha,
+                cfg.fit.seed + 20,
+            )?
+        } else if cfg.b_fl_alpha {
             self.branched(
                 init_scaler(2, cfg.hidden, cfg.layers, cfg.b_fl_bounds, cfg.fit.seed),
                 self.prepared.condition.priors.b_fl,
@@ -459,18 +498,27 @@ impl<'a> Stages<'a> {
                 0,
                 cfg.fit.seed + 11,
             ));
-            p.k_pr = Some(self.branched(
-                init_scaler(
-                    2,
-                    cfg.hidden,
-                    cfg.layers,
+            p.k_pr = Some(if cfg.state_priors == StatePriors::Construction {
+                self.cumulative(
                     (cfg.pr_bounds.0, k_max),
-                    cfg.fit.seed + 2,
-                ),
-                condition.priors.k_pr,
-                1,
-                cfg.fit.seed + 12,
-            ));
+                    condition.priors.k_pr,
+                    true,
+                    cfg.fit.seed + 22,
+                )?
+            } else {
+                self.branched(
+                    init_scaler(
+                        2,
+                        cfg.hidden,
+                        cfg.layers,
+                        (cfg.pr_bounds.0, k_max),
+                        cfg.fit.seed + 2,
+                    ),
+                    condition.priors.k_pr,
+                    1,
+                    cfg.fit.seed + 12,
+                )
+            });
         }
         if let Some(msg) = StabilityHold::of_rollout(&p).announce(v.name(), &p) {
             eprintln!("{msg}");

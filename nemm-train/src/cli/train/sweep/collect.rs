@@ -1,4 +1,4 @@
-//! A sweep's collection: the table (`table5.md` or `table3.md`) with `sweep.json` of the jobs
+//! A sweep's collection: the grid's table (`SweepGrid::table_file`) with `sweep.json` of the jobs
 //! its record ([`super::record`]) shows finished, whichever engine ran them.
 
 use super::record::{job_state, JobState, SweepManifest, TRAIN_LOG};
@@ -15,7 +15,7 @@ use std::path::Path;
 /// What [`collect_sweep`] found and wrote.
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct Collected {
-    /// The table as written (`table5.md` or `table3.md`).
+    /// The table as written (the grid's `SweepGrid::table_file`).
     pub(crate) markdown: String,
     /// Jobs in the table.
     pub(crate) done: usize,
@@ -70,7 +70,8 @@ struct Row<'a> {
 }
 
 /// Reads every job's state under `<report>/jobs/` and writes `sweep.json` (every job with its
-/// status, the figures of those that finished) and the grid's table (`table5.md`, or
+/// status, the figures of those that finished) and the grid's table (`table5.md`,
+/// `state-priors.md` for the state grid, or
 /// `table3.md` with the Table 3 hyperparameters and the paper's best configuration against
 /// the best found): one row per finished job (hyperparameters, validation and test RMSE,
 /// violations, training time), then the jobs that failed or have no result.
@@ -106,6 +107,7 @@ pub(crate) fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<C
     }
     let table3 = manifest.grid == SweepGrid::Table3;
     let degradation = manifest.grid == SweepGrid::Degradation;
+    let state = manifest.grid == SweepGrid::StatePriors;
     let base = rows
         .iter()
         .find(|r| r.job.config.train.lambda_ph == 0.0)
@@ -131,6 +133,8 @@ pub(crate) fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<C
             "| Job | Lost motion | b_fl in alpha | lambda_diff |",
             "|---|---|---|---:|",
         )
+    } else if state {
+        ("| Job | State priors |", "|---|---|")
     } else {
         ("| Job | Alpha priors |", "|---|---|")
     };
@@ -161,6 +165,8 @@ pub(crate) fn collect_sweep(manifest: &SweepManifest, report: &Path) -> Result<C
                 yes(p.b_fl_alpha),
                 p.lambda_diff
             )
+        } else if state {
+            j.config.model.state_priors.name().to_string()
         } else {
             j.config.model.alpha_priors.name().to_string()
         };

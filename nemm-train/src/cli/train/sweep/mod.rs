@@ -8,7 +8,8 @@
 //! that folder.
 
 use super::{
-    check_job_outputs, lambda_ph_scale_note, with_resolved_data, AlphaPriors, Config, CONFIG_FILE,
+    check_job_outputs, lambda_ph_scale_note, with_resolved_data, AlphaPriors, Config, StatePriors,
+    CONFIG_FILE,
 };
 use anyhow::{bail, Context, Result};
 use collect::collect_sweep;
@@ -57,6 +58,12 @@ pub enum SweepGrid {
     /// branches) and imposed by the physics penalty alone (the paper's way), other
     /// hyperparameters as given (Table 5 with the construction-against-penalty ablation).
     Priors,
+    /// The priors in the state (the flow force rising with `v_st`, the spring force with
+    /// `x_pr`): held by construction (cumulative scalers, at the base's `lambda_ph`, which
+    /// then acts on `b_pr`'s alpha term alone) and imposed by the physics penalty on the
+    /// paper's MLPs at each `--lambda-ph` (Table 5 with the state construction-against-
+    /// penalty ablation, `state-priors.md`).
+    StatePriors,
     /// Where the model may put the degradation (`DegradationPoint::ALL`: the paper's NEMM,
     /// `b_fl` without its alpha branch, the lost-motion element, both; with `--lambda-diff`
     /// each also trained with the matched-difference term, `DegradationPoint::grid`) times
@@ -75,11 +82,13 @@ impl SweepGrid {
     }
 
     /// The table file the grid is collected into: `table3.md` for the Table 3 grid,
-    /// `degradation.md` for the degradation grid, `table5.md` otherwise.
+    /// `degradation.md` for the degradation grid, `state-priors.md` for the state grid,
+    /// `table5.md` otherwise.
     pub(crate) fn table_file(self) -> &'static str {
         match self {
             SweepGrid::Table3 => "table3.md",
             SweepGrid::Degradation => "degradation.md",
+            SweepGrid::StatePriors => "state-priors.md",
             SweepGrid::Lambda | SweepGrid::Priors => "table5.md",
         }
     }
@@ -89,7 +98,9 @@ impl SweepGrid {
     pub fn default_lambdas(self, base: &Config) -> Vec<f64> {
         match self {
             SweepGrid::Degradation => vec![base.train.lambda_ph],
-            SweepGrid::Lambda | SweepGrid::Priors | SweepGrid::Table3 => TABLE5_LAMBDAS.to_vec(),
+            SweepGrid::Lambda | SweepGrid::Priors | SweepGrid::StatePriors | SweepGrid::Table3 => {
+                TABLE5_LAMBDAS.to_vec()
+            }
         }
     }
 }
@@ -242,7 +253,8 @@ pub(crate) struct SweepJob {
     /// Folder name under `<report>/jobs/`.
     pub(crate) id: String,
     /// The overridden settings (`lambda_ph`; for the Table 3 grid `batch`, `hidden`,
-    /// `layers`, `lr`; for the priors grid `alpha_priors`; for the degradation grid
+    /// `layers`, `lr`; for the priors grid `alpha_priors`, for the state grid
+    /// `state_priors`; for the degradation grid
     /// `lost_motion`, `b_fl_alpha` and `lambda_diff`) with their values, for `sweep.json`.
     pub(crate) overrides: Vec<(String, String)>,
     /// The job's configuration.
@@ -258,29 +270,48 @@ pub(crate) fn sweep_jobs(
     lambdas: &[f64],
 ) -> Vec<SweepJob> {
     let combos: Vec<Option<Table3Point>> = match grid {
-        SweepGrid::Lambda | SweepGrid::Priors | SweepGrid::Degradation => vec![None],
+        SweepGrid::Lambda | SweepGrid::Priors | SweepGrid::StatePriors | SweepGrid::Degradation => {
+            vec![None]
+        }
         SweepGrid::Table3 => table3.points().into_iter().map(Some).collect(),
     };
     let priors: Vec<Option<AlphaPriors>> = match grid {
         SweepGrid::Priors => vec![Some(AlphaPriors::Construction), Some(AlphaPriors::Penalty)],
-        SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::Degradation => vec![None],
+        SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::StatePriors | SweepGrid::Degradation => {
+            vec![None]
+        }
+    };
+    // The state grid: the penalty at every lambda, the construction once at the base's.
+    let states: Vec<(Option<StatePriors>, bool)> = match grid {
+        SweepGrid::StatePriors => vec![
+            (Some(StatePriors::Construction), false),
+            (Some(StatePriors::Penalty), true),
+        ],
+        _ => vec![(None, true)],
     };
     let elements: Vec<Option<DegradationPoint>> = match grid {
         SweepGrid::Degradation => DegradationPoint::grid(base.train.lambda_diff)
             .into_iter()
             .map(Some)
             .collect(),
-        SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::Priors => vec![None],
+        SweepGrid::Lambda | SweepGrid::Table3 | SweepGrid::Priors | SweepGrid::StatePriors => {
+            vec![None]
+        }
     };
+    let base_lambda = [base.train.lambda_ph];
     let mut jobs = Vec::new();
     for (combo, element) in combos
         .iter()
         .flat_map(|c| elements.iter().map(move |e| (*c, *e)))
     {
-        for (&prior, &lam) in priors
-            .iter()
-            .flat_map(|p| lambdas.iter().map(move |l| (p, l)))
-        {
+        let mut arms: Vec<(Option<AlphaPriors>, Option<StatePriors>, f64)> = Vec::new();
+        for &p in &priors {
+            for &(state, every_lambda) in &states {
+                let lams: &[f64] = if every_lambda { lambdas } else { &base_lambda };
+                arms.extend(lams.iter().map(|&l| (p, state, l)));
+            }
+        }
+        for (prior, state, lam) in arms {
             let mut config = base.clone();
             config.model.variant = nemm_core::ModelKind::Nemm;
             let mut id = String::new();
@@ -298,6 +329,11 @@ pub(crate) fn sweep_jobs(
                 id.push_str(&format!("{}_", p.name()));
                 config.model.alpha_priors = p;
                 o.push(("alpha_priors".into(), p.name().into()));
+            }
+            if let Some(p) = state {
+                id.push_str(&format!("state-{}_", p.name()));
+                config.model.state_priors = p;
+                o.push(("state_priors".into(), p.name().into()));
             }
             if let Some(Table3Point {
                 batch: b,
@@ -400,7 +436,7 @@ pub struct SweepOptions {
 
 /// `nemm sweep`: every configuration is an independent `nemm train --config
 /// <report>/jobs/<id>/config.toml` process, run by `options.engine`; results are collected
-/// into one table (`table5.md` or, for the Table 3 grid, `table3.md`).
+/// into one table (the grid's [`SweepGrid::table_file`]).
 pub fn sweep(
     base: &Config,
     grid: SweepGrid,
@@ -594,4 +630,36 @@ pub fn collect(report: &Path) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_state_grid_is_the_construction_once_and_the_penalty_per_lambda() {
+        let base = Config::default();
+        let jobs = sweep_jobs(
+            &base,
+            SweepGrid::StatePriors,
+            &Table3Args::default(),
+            &[0.0, 5.0, 15.0],
+        );
+        let ids: Vec<&str> = jobs.iter().map(|j| j.id.as_str()).collect();
+        assert_eq!(
+            ids,
+            [
+                "state-construction_lph5",
+                "state-penalty_lph0",
+                "state-penalty_lph5",
+                "state-penalty_lph15"
+            ]
+        );
+        assert_eq!(jobs[0].config.model.state_priors, StatePriors::Construction);
+        assert_eq!(jobs[0].config.train.lambda_ph, base.train.lambda_ph);
+        assert!(jobs[1..]
+            .iter()
+            .all(|j| j.config.model.state_priors == StatePriors::Penalty));
+        assert_eq!(SweepGrid::StatePriors.table_file(), "state-priors.md");
+    }
 }

@@ -49,7 +49,7 @@ pub(super) struct BprRecord<'a, T> {
 }
 
 /// Everything fixed for one pack (a batch of windows advanced in lock step).
-pub(super) struct Pack<'a, T> {
+pub(super) struct Pack<'a, T: Real> {
     /// The `b_fl(v_st, alpha)` coefficient at the pack's levels.
     pub(super) b_fl: Coef<'a, T>,
     /// The `k_pr(x_pr, alpha)` coefficient at the pack's levels.
@@ -177,7 +177,7 @@ impl<'a, T: Real> Pack<'a, T> {
 }
 
 /// The stage coefficients of a pack's forward step (no record).
-struct PackStage<'p, 'a, T> {
+struct PackStage<'p, 'a, T: Real> {
     pub(super) pk: &'p Pack<'a, T>,
 }
 
@@ -203,7 +203,7 @@ pub(super) type RecPair<T> = (Option<Act<T>>, Option<Act<T>>, LostMotionRec<T>);
 
 /// The stage coefficients of a pack's step for [`integrator::step_backward`]: stages 2..=4
 /// record their scalers' activations and back-propagate through them.
-pub(super) struct PackStagesBack<'p, 'a, T> {
+pub(super) struct PackStagesBack<'p, 'a, T: Real> {
     pub(super) pk: &'p Pack<'a, T>,
     pub(super) bar: &'p mut PackAdjoint<T>,
     pub(super) recs: &'p mut [RecPair<T>; 3],
