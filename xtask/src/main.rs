@@ -150,7 +150,10 @@ enum Cmd {
     /// With --training DIR, fill its training block from a finished `nemm compare` / `nemm demo`
     /// report directory instead (table4.md, table5.md and degradation.md if present, report.json).
     /// With --table3 DIR, fill the table3 block from a collected `nemm sweep --grid table3`
-    /// report directory (table3.md, sweep-jobs.json).
+    /// report directory (table3.md, sweep-jobs.json). With --state-priors DIR, fill the
+    /// state-priors block (the ablation of the priors in the state: held by construction
+    /// against the physics penalty at each lambda_ph) from a collected `nemm sweep --grid
+    /// state-priors` report directory (state-priors.md, sweep-jobs.json).
     /// With --tables, fill the tables block: the fast path's error against the exact one on the
     /// firmware's trained model and the example models (host, minutes). With --host, run the host
     /// criterion benches (nemm-core's `step` with libm and micromath, nemm-train's `gradient`;
@@ -161,11 +164,15 @@ enum Cmd {
     /// and fill the c block: instructions per step, stack peak, image sections.
     Results {
         /// A report directory of `nemm compare` or `nemm demo`.
-        #[arg(long, value_name = "DIR", conflicts_with_all = ["table3", "tables", "host", "observer", "c"])]
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["table3", "state_priors", "tables", "host", "observer", "c"])]
         training: Option<PathBuf>,
         /// A collected `nemm sweep --grid table3` report directory (the `table3` block).
-        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer", "c"])]
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["state_priors", "tables", "host", "observer", "c"])]
         table3: Option<PathBuf>,
+        /// A collected `nemm sweep --grid state-priors` report directory (the `state-priors`
+        /// block).
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["tables", "host", "observer", "c"])]
+        state_priors: Option<PathBuf>,
         /// Measure the tabulated fast path instead (the `tables` block).
         #[arg(long, conflicts_with_all = ["host", "observer", "c"])]
         tables: bool,
@@ -443,6 +450,7 @@ fn main() -> ExitCode {
         Some(Cmd::Results {
             training,
             table3,
+            state_priors,
             tables,
             host,
             observer,
@@ -450,9 +458,14 @@ fn main() -> ExitCode {
             no_run,
             steps,
             allow_dirty,
-        }) => match (training, table3) {
-            (Some(dir), _) => Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty)),
-            (None, Some(dir)) => Paths::find().and_then(|p| results::table3(&p, &dir, allow_dirty)),
+        }) => match (training, table3, state_priors) {
+            (Some(dir), _, _) => {
+                Paths::find().and_then(|p| results::training(&p, &dir, allow_dirty))
+            }
+            (None, Some(dir), _) => Paths::find()
+                .and_then(|p| results::sweep_block(&p, &dir, allow_dirty, &results::TABLE3)),
+            (None, None, Some(dir)) => Paths::find()
+                .and_then(|p| results::sweep_block(&p, &dir, allow_dirty, &results::STATE_PRIORS)),
             _ if tables => Paths::find().and_then(|p| results::tables(&p, allow_dirty)),
             _ if host => Paths::find().and_then(|p| results::host(&p, no_run, allow_dirty)),
             _ if observer => Paths::find().and_then(|p| results::observer(&p, allow_dirty)),
@@ -1027,6 +1040,32 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert!(parse(&["results", "--table3", "t3", "--training", "c"]).is_err());
+        match parse(&["results", "--state-priors", "sp", "--allow-dirty"]) {
+            Ok(Some(Cmd::Results {
+                state_priors: Some(dir),
+                table3: None,
+                training: None,
+                tables: false,
+                host: false,
+                observer: false,
+                c: false,
+                allow_dirty: true,
+                ..
+            })) => assert_eq!(dir, PathBuf::from("sp")),
+            other => panic!("{other:?}"),
+        }
+        for other in [
+            &["--training", "c"][..],
+            &["--table3", "t3"],
+            &["--tables"],
+            &["--host"],
+            &["--observer"],
+            &["--c"],
+        ] {
+            let mut args = vec!["results", "--state-priors", "sp"];
+            args.extend_from_slice(other);
+            assert!(parse(&args).is_err(), "{args:?}");
+        }
         match parse(&["results", "--host", "--no-run"]) {
             Ok(Some(Cmd::Results {
                 host: true,
@@ -1059,6 +1098,7 @@ mod tests {
                 tables: false,
                 training: None,
                 table3: None,
+                state_priors: None,
                 ..
             })) => {}
             other => panic!("{other:?}"),

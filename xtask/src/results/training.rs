@@ -1,6 +1,8 @@
 //! The `training` block (`cargo xtask results --training DIR`): Table 4 (and Table 5 and
 //! the degradation ablation, if present) of a finished report folder, with its provenance;
-//! the `table3` block (`cargo xtask results --table3 DIR`): a collected Table 3 sweep.
+//! the blocks of collected sweeps ([`sweep_block()`]): `table3` (`cargo xtask results
+//! --table3 DIR`, a collected Table 3 sweep) and `state-priors` (`cargo xtask results
+//! --state-priors DIR`, the ablation of the priors in the state).
 
 use super::{
     command_line, commit, refuse_dirty, sweep_commit, write_block, write_block_in, README,
@@ -65,12 +67,52 @@ pub fn training(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), Stri
     )
 }
 
-/// `cargo xtask results --table3 DIR`: the `table3` block from the report folder of a
-/// collected Table 3 sweep (`nemm sweep --grid table3 --report DIR`, then `--collect DIR`):
-/// its `table3.md`, the engine it ran on and its wall time from `sweep-jobs.json` and the
-/// jobs' `exit` files.
-pub fn table3(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), String> {
-    let table_path = dir.join("table3.md");
+/// A collected sweep's table and the block of `docs/results.md` it fills
+/// ([`sweep_block()`]).
+#[derive(Debug)]
+pub struct SweepBlock {
+    /// The table file `nemm sweep --collect DIR` writes into the folder.
+    pub table: &'static str,
+    /// The block of the results file.
+    pub block: &'static str,
+    /// What the block shows, written between its provenance and the engine's lines (none:
+    /// the table's own first lines say it).
+    pub heading: Option<&'static str>,
+}
+
+/// The `table3` block: a collected `nemm sweep --grid table3` (the paper's Table 3 search).
+pub const TABLE3: SweepBlock = SweepBlock {
+    table: "table3.md",
+    block: "table3",
+    heading: None,
+};
+
+/// The `state-priors` block: a collected `nemm sweep --grid state-priors` (the ablation of
+/// the priors in the state).
+pub const STATE_PRIORS: SweepBlock = SweepBlock {
+    table: "state-priors.md",
+    block: "state-priors",
+    heading: Some(
+        "The ablation of the priors in the state on the data the sweep ran on (the table's \
+         first line names it): the NEMM trained with `--state-priors construction` \
+         (cumulative scalers: the flow and spring forces rise with the state for every \
+         weight) against `--state-priors penalty` (the paper's MLPs and physics penalty) at \
+         each `lambda_ph`, with the test RMSE, the violations and the training time of each \
+         job.",
+    ),
+};
+
+/// `cargo xtask results --table3 DIR` ([`TABLE3`]) and `--state-priors DIR`
+/// ([`STATE_PRIORS`]): the block `sweep.block` from the report folder of a collected sweep
+/// (`nemm sweep --grid ... --report DIR`, then `--collect DIR`): its table `sweep.table`,
+/// the engine it ran on and its wall time from `sweep-jobs.json` and the jobs' `exit` files.
+pub fn sweep_block(
+    paths: &Paths,
+    dir: &Path,
+    allow_dirty: bool,
+    sweep: &SweepBlock,
+) -> Result<(), String> {
+    let table_path = dir.join(sweep.table);
     let table = std::fs::read_to_string(&table_path).map_err(|e| {
         format!(
             "{}: {e} (collect the sweep first: `nemm sweep --collect {}`)",
@@ -88,15 +130,16 @@ pub fn table3(paths: &Paths, dir: &Path, allow_dirty: bool) -> Result<(), String
         .and_then(|t| {
             serde_json::from_str(&t).map_err(|e| format!("{}: {e}", jobs_path.display()))
         })?;
-    let md = table3_markdown(
+    let md = sweep_markdown(
         &command_line(),
         &commit(&paths.root),
         dir,
+        sweep,
         &manifest,
         last_exit_unix_s(&dir.join("jobs")),
         &table,
     );
-    write_block(paths, "table3", &md)
+    write_block(paths, sweep.block, &md)
 }
 
 /// When the last job of a sweep ended: the newest modification time of the `exit` files
@@ -116,21 +159,25 @@ fn last_exit_unix_s(jobs: &Path) -> Option<f64> {
         .reduce(f64::max)
 }
 
-/// The `table3` block: where it was copied from, the engine (for Slurm: the submissions,
-/// CPUs per task, throttle, time limit) and the wall time from the first submission to the
-/// last job's end, then the table.
-fn table3_markdown(
+/// A collected sweep's block: where it was copied from, the sweep's heading (if any), the
+/// engine (for Slurm: the submissions, CPUs per task, throttle, time limit) and the wall time
+/// from the first submission to the last job's end, then the table.
+fn sweep_markdown(
     command: &str,
     commit: &str,
     dir: &Path,
+    sweep: &SweepBlock,
     manifest: &serde_json::Value,
     last_exit_unix_s: Option<f64>,
     table: &str,
 ) -> String {
     let mut md = format!(
         "Copied by `{command}` at commit `{commit}` from `{}`.\n\n",
-        dir.join("table3.md").display()
+        dir.join(sweep.table).display()
     );
+    if let Some(heading) = sweep.heading {
+        let _ = writeln!(md, "{heading}\n");
+    }
     let engine = manifest
         .get("engine")
         .and_then(serde_json::Value::as_str)
@@ -343,10 +390,11 @@ mod tests {
             "submissions": [{"job_id": "7", "array": "0-107%2", "submitted_unix_s": 1000.0}],
         });
         let table = "Sweep of the NEMM trained at commit `abc1234` on `d`.\n\n| Job |\n";
-        let md = table3_markdown(
+        let md = sweep_markdown(
             "cargo xtask results --table3 t3",
             "abc1234",
             Path::new("t3"),
+            &TABLE3,
             &manifest,
             Some(1000.0 + 3600.0),
             table,
@@ -355,10 +403,77 @@ mod tests {
         assert!(md.contains("Run by the Slurm engine: job 7 (array 0-107%2); 1 CPU(s) per task, at most 2 task(s) at a time, time limit 0:20:00 per task."), "{md}");
         assert!(md.contains("last job's end: 60 min."), "{md}");
         assert!(md.ends_with("| Job |\n"), "{md}");
+        // Table 3 has no heading of its own: the provenance, the engine, the table.
+        assert_eq!(
+            md,
+            format!(
+                "Copied by `cargo xtask results --table3 t3` at commit `abc1234` from \
+                 `t3/table3.md`.\n\nRun by the Slurm engine: job 7 (array 0-107%2); 1 CPU(s) \
+                 per task, at most 2 task(s) at a time, time limit 0:20:00 per task.\nWall time \
+                 from the first submission to the last job's end: 60 min.\n\n{table}"
+            )
+        );
         let local = serde_json::json!({"engine": "local", "slurm": null, "submissions": []});
-        let md = table3_markdown("c", "x", Path::new("t3"), &local, None, table);
+        let md = sweep_markdown("c", "x", Path::new("t3"), &TABLE3, &local, None, table);
         assert!(
             md.contains("Run by the local engine.") && !md.contains("Wall time"),
+            "{md}"
+        );
+    }
+
+    #[test]
+    fn the_state_priors_block_says_what_it_ablates_before_the_engine() {
+        let manifest = serde_json::json!({
+            "grid": "state-priors",
+            "engine": "slurm",
+            "slurm": {"partition": null, "account": null, "time": "1:00:00",
+                      "cpus_per_task": 2, "throttle": 4},
+            "submissions": [{"job_id": "9", "array": "0-4%4", "submitted_unix_s": 500.0}],
+        });
+        let table = "Sweep of the NEMM trained at commit `abc1234` on `d`.\n\n| Job |\n";
+        let md = sweep_markdown(
+            "cargo xtask results --state-priors sp",
+            "abc1234",
+            Path::new("sp"),
+            &STATE_PRIORS,
+            &manifest,
+            Some(500.0 + 1800.0),
+            table,
+        );
+        let heading = STATE_PRIORS.heading.unwrap();
+        assert_eq!(
+            md,
+            format!(
+                "Copied by `cargo xtask results --state-priors sp` at commit `abc1234` from \
+                 `sp/state-priors.md`.\n\n{heading}\n\nRun by the Slurm engine: job 9 (array \
+                 0-4%4); 2 CPU(s) per task, at most 4 task(s) at a time, time limit 1:00:00 per \
+                 task.\nWall time from the first submission to the last job's end: 30 min.\n\n\
+                 {table}"
+            )
+        );
+        for words in [
+            "ablation of the priors in the state",
+            "data the sweep ran on",
+            "`--state-priors construction` (cumulative scalers: the flow and spring forces \
+             rise with the state for every weight)",
+            "`--state-priors penalty` (the paper's MLPs and physics penalty)",
+            "each `lambda_ph`",
+            "test RMSE, the violations and the training time",
+        ] {
+            assert!(heading.contains(words), "{words}: {heading}");
+        }
+        let local = serde_json::json!({"engine": "local", "slurm": null, "submissions": []});
+        let md = sweep_markdown(
+            "c",
+            "x",
+            Path::new("sp"),
+            &STATE_PRIORS,
+            &local,
+            None,
+            table,
+        );
+        assert!(
+            md.contains(&format!("{heading}\n\nRun by the local engine.\n\n{table}")),
             "{md}"
         );
     }
