@@ -132,8 +132,10 @@ enum Cmd {
         #[command(flatten)]
         args: nemm_train::config::ConfigArgs,
         /// Grid: lambda (Table 5), priors (Table 5 by construction and by the penalty
-        /// alone), table3 (Table 3 search space x lambda list) or degradation (the paper's
-        /// NEMM, b_fl fixed in alpha, the lost-motion element, both; into degradation.md).
+        /// alone), state-priors (the priors in the state by construction at the base's
+        /// lambda and by the penalty at each lambda; into state-priors.md), table3 (Table 3
+        /// search space x lambda list) or degradation (the paper's NEMM, b_fl fixed in
+        /// alpha, the lost-motion element, both; into degradation.md).
         #[arg(long, value_enum, default_value_t = nemm_train::cli::train::SweepGrid::Lambda)]
         grid: nemm_train::cli::train::SweepGrid,
         /// The Table 3 grid's values.
