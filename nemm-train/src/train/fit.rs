@@ -715,16 +715,13 @@ fn train_epoch(
         let (mut gp, phys_v) = if has_scalers {
             let phys = physics_loss(&net, frame, grid, device);
             let l2 = net.l2_norms(device);
-            let aux = phys.clone().mul_scalar(cfg.lambda_ph) + l2.mul_scalar(cfg.lambda_l2);
+            // The zero term roots the tape in a trained parameter: with cumulative scalers
+            // whose gates hold the alpha priors, the penalties have nothing left to act on
+            // and are constants without a tape of their own.
+            let root = net.log_c.val().sum().mul_scalar(0.0);
+            let aux = phys.clone().mul_scalar(cfg.lambda_ph) + l2.mul_scalar(cfg.lambda_l2) + root;
             let phys_v = scalar(phys);
-            // With cumulative scalers whose gates hold the alpha priors, nothing is left to
-            // penalise: the term is a constant without a tape.
-            let gp = if aux.is_require_grad() {
-                GradientsParams::from_grads(aux.backward(), &net)
-            } else {
-                GradientsParams::new()
-            };
-            (gp, phys_v)
+            (GradientsParams::from_grads(aux.backward(), &net), phys_v)
         } else {
             (GradientsParams::new(), 0.0)
         };
