@@ -119,10 +119,10 @@ pub struct PipelineConfig {
     /// Units `K` of each alpha branch.
     pub branch_units: usize,
     /// How the priors in the state are imposed on `b_fl` and `k_pr`.
-    #[serde(default = "penalty")]
+    #[serde(default = "default_state_priors")]
     pub state_priors: StatePriors,
     /// Units `K` of each cumulative scaler.
-    #[serde(default = "sixteen")]
+    #[serde(default = "default_cumulative_units")]
     pub cumulative_units: usize,
     /// Adds the static force of eq. 17 to every EMM-family variant.
     pub static_force: bool,
@@ -140,12 +140,14 @@ fn yes() -> bool {
     true
 }
 
-fn penalty() -> StatePriors {
-    StatePriors::Penalty
+/// The configuration's default (for a saved pipeline configuration without the key).
+fn default_state_priors() -> StatePriors {
+    crate::config::ModelConfig::default().state_priors
 }
 
-fn sixteen() -> usize {
-    16
+/// The configuration's default (for a saved pipeline configuration without the key).
+fn default_cumulative_units() -> usize {
+    crate::config::ModelConfig::default().cumulative_units
 }
 
 impl PipelineConfig {
@@ -298,9 +300,10 @@ pub fn init_scaler(
 /// with the bounds `bounds` and gates in `direction`: unit centres uniform in the
 /// normalised state `[-1, 1]` and widths `w_k` log-uniform in `[1, 30]` (drawn from
 /// xoshiro256++ seeded with `seed`), each unit at 1 % of the softmax, gates at
-/// `sigmoid(2)` with slopes `gamma = 0.5` (`alpha_slope = false`: 0, where the gradient of a
-/// signed slope `d gamma^2` is 0, so the scaler stays independent of alpha), and the
-/// constant part set so that the scale factor starts at 1 at `x = 0`.
+/// `sigmoid(2)` with slopes `gamma = 0.5` in a declared direction (without one the slope is
+/// `gamma` itself and starts at 0; `alpha_slope = false`: 0, where the gradient of a signed
+/// slope `d gamma^2` is 0, so the scaler stays independent of alpha), and the constant part
+/// set so that the scale factor starts at 1 at `x = 0`.
 pub fn init_cumulative(
     units: usize,
     bounds: (f32, f32),
