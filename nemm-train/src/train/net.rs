@@ -91,7 +91,7 @@ pub struct ScalerSpec {
 pub(crate) const CUMULATIVE_PARAM_SCALE: f32 = 10.0;
 
 /// A cumulative scaler (`nemm_kernels::cumulative`) as a burn module: the groups of its
-/// flat layout, each one tensor, stored divided by [`CUMULATIVE_PARAM_SCALE`].
+/// flat layout, each one tensor, stored divided by `CUMULATIVE_PARAM_SCALE`.
 #[derive(Module, Debug)]
 pub struct CumulativeNet {
     /// Logits `a` `[K + 1]` (constant part, then the units; the slack's logit is 0).

@@ -436,7 +436,7 @@ pub struct SweepOptions {
 
 /// `nemm sweep`: every configuration is an independent `nemm train --config
 /// <report>/jobs/<id>/config.toml` process, run by `options.engine`; results are collected
-/// into one table (the grid's [`SweepGrid::table_file`]).
+/// into one table (the grid's `SweepGrid::table_file`).
 pub fn sweep(
     base: &Config,
     grid: SweepGrid,
