@@ -488,16 +488,9 @@ fn a_static_force_needs_the_position() {
     }
 }
 
-/// A model with the lost-motion element runs through the C interface as nemm-core's
-/// estimator does, bit for bit, in exact and table mode; on the SEM the element is refused
-/// with its own status.
-#[test]
-fn a_lost_motion_model_runs_as_the_estimator() {
-    let mut model: Model<NEMM_PARAM_CAPACITY> =
-        nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
-    model.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
-    let mut buf = std::vec![0u8; 100_000];
-    let blob = nemm_core::encode(&model, &mut buf).unwrap().to_vec();
+/// The C estimator on `blob` at level `alpha` steps as nemm-core's estimator does, bit for
+/// bit (force and flags), in exact and table mode, over 300 velocities.
+fn runs_as_the_estimator(blob: &[u8], alpha: f32) {
     for mode in [NEMM_MODE_EXACT, NEMM_MODE_TABLE] {
         let core_cfg = EstimatorConfig {
             mode: if mode == NEMM_MODE_TABLE {
@@ -505,11 +498,11 @@ fn a_lost_motion_model_runs_as_the_estimator() {
             } else {
                 EvalMode::Exact
             },
-            ..EstimatorConfig::new(0.3)
+            ..EstimatorConfig::new(alpha)
         };
-        let (_, mut want) = reference(&blob, core_cfg);
+        let (_, mut want) = reference(blob, core_cfg);
         let mut st = estimator_storage();
-        assert_eq!(init(&mut st.0, &blob, &cfg(0.3, mode)), NEMM_OK);
+        assert_eq!(init(&mut st.0, blob, &cfg(alpha, mode)), NEMM_OK);
         for &v in velocities(300).iter() {
             let (s, e) = step(&mut st.0, v);
             let w = want.step(Sample::new(v)).unwrap();
@@ -521,6 +514,19 @@ fn a_lost_motion_model_runs_as_the_estimator() {
             );
         }
     }
+}
+
+/// A model with the lost-motion element runs through the C interface as nemm-core's
+/// estimator does, bit for bit, in exact and table mode; on the SEM the element is refused
+/// with its own status.
+#[test]
+fn a_lost_motion_model_runs_as_the_estimator() {
+    let mut model: Model<NEMM_PARAM_CAPACITY> =
+        nemm_core::testing::example_model(ModelKind::Nemm, 16, 5).unwrap();
+    model.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
+    let mut buf = std::vec![0u8; 100_000];
+    let blob = nemm_core::encode(&model, &mut buf).unwrap().to_vec();
+    runs_as_the_estimator(&blob, 0.3);
     let mut sem: Model<NEMM_PARAM_CAPACITY> =
         nemm_core::testing::example_model(ModelKind::Sem, 16, 5).unwrap();
     sem.lost_motion = Some(nemm_core::testing::EXAMPLE_LOST_MOTION);
@@ -540,29 +546,7 @@ fn a_cumulative_model_runs_as_the_estimator() {
     ));
     let mut buf = std::vec![0u8; 100_000];
     let blob = nemm_core::encode(&*model, &mut buf).unwrap().to_vec();
-    for mode in [NEMM_MODE_EXACT, NEMM_MODE_TABLE] {
-        let core_cfg = EstimatorConfig {
-            mode: if mode == NEMM_MODE_TABLE {
-                table(NEMM_TABLE_MAX_REL_ERROR)
-            } else {
-                EvalMode::Exact
-            },
-            ..EstimatorConfig::new(0.15)
-        };
-        let (_, mut want) = reference(&blob, core_cfg);
-        let mut st = estimator_storage();
-        assert_eq!(init(&mut st.0, &blob, &cfg(0.15, mode)), NEMM_OK);
-        for &v in velocities(300).iter() {
-            let (s, e) = step(&mut st.0, v);
-            let w = want.step(Sample::new(v)).unwrap();
-            assert_eq!(s, NEMM_OK);
-            assert_eq!(
-                (e.force_n.to_bits(), e.flags),
-                (w.force_n.to_bits(), w.flags.0),
-                "mode {mode}"
-            );
-        }
-    }
+    runs_as_the_estimator(&blob, 0.15);
     let mut bad = model.clone();
     bad.alpha_branches.b_fl =
         nemm_core::testing::example_branch(nemm_core::Direction::Decreasing, 1, 4, 1);
